@@ -1,0 +1,108 @@
+"""The `wavlight` command line: a thin layer over the library.
+
+Errors in input (scene, files, options) print one line and exit with code 2;
+warnings (sanitised texels, removed triangles) print one line each to stderr.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import warnings
+
+import click
+
+from .progress import ProgressBar
+
+
+def _warn_line(message, category, filename, lineno, file=None, line=None):
+    click.echo(f"warning: {message}", err=True)
+
+
+def _fail(message) -> None:
+    raise click.ClickException(str(message))
+
+
+click.ClickException.exit_code = 2
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="wavlight")
+def main():
+    """wavlight: render direct environment lighting with Haar wavelet importance sampling."""
+    warnings.showwarning = _warn_line
+
+
+@main.command()
+@click.argument("scene_file", metavar="SCENE", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
+              "Default: the scene's name with .png.")
+@click.option("--spp", type=int, default=None, help="Samples per pixel (overrides the scene).")
+@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis"]), default=None,
+              help="Sampling strategy (overrides the scene).")
+@click.option("--width", type=int, default=None, help="Image width in pixels.")
+@click.option("--height", type=int, default=None, help="Image height in pixels.")
+@click.option("--seed", type=int, default=None, help="Random seed.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+def render(scene_file, output, spp, strategy, width, height, seed, as_json, quiet):
+    """Render SCENE (a TOML scene file) to an image."""
+    import time
+
+    import wavlight
+    from wavlight.imageio import FORMATS
+
+    t0 = time.perf_counter()
+    if output is None:
+        output = os.path.splitext(os.path.basename(scene_file))[0] + ".png"
+    if os.path.splitext(output)[1].lower() not in FORMATS:
+        _fail(f"{output}: unsupported output format (use {', '.join(FORMATS)})")
+    for name, value, lo in (("--spp", spp, 1), ("--width", width, 1), ("--height", height, 1)):
+        if value is not None and value < lo:
+            _fail(f"{name} must be at least {lo}, got {value}")
+    try:
+        scene = wavlight.load_scene(scene_file)
+        if scene.environment.is_black:
+            _fail(f"{scene_file}: [environment]: the environment is black everywhere; "
+                  "the image would be black")
+        bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr)
+        result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
+                                      seed=seed, progress=bar)
+        if bar:
+            bar.close()
+        wavlight.save_image(output, result.image)
+    except wavlight.WavlightError as e:
+        _fail(e)
+    stats = dict(result.stats)
+    stats["load_seconds"] = round(time.perf_counter() - t0 - stats["setup_seconds"] - stats["render_seconds"], 4)
+    stats["output"] = output
+    if as_json:
+        click.echo(json.dumps(stats))
+    elif not quiet:
+        click.echo(f"wrote {output}: {stats['width']}x{stats['height']}, {stats['spp']} spp, "
+                   f"{stats['strategy']}, render {stats['render_seconds']:.2f} s "
+                   f"({stats['samples_per_second'] / 1e6:.2f} M samples/s)", err=True)
+
+
+@main.command()
+def info():
+    """Versions, and the OpenCL platform and device in use."""
+    import numpy
+    import pyopencl
+
+    import wavlight
+    from wavlight import cl
+
+    click.echo(f"wavlight {wavlight.__version__}")
+    click.echo(f"python {sys.version.split()[0]}, numpy {numpy.__version__}, pyopencl {pyopencl.VERSION_TEXT}")
+    for pi, di, p, d in cl.list_devices():
+        click.echo(f"  [{pi}:{di}] {p.name} {p.version.strip()} / {d.name}")
+    try:
+        click.echo(f"device in use: {cl.runtime().description}")
+    except wavlight.WavlightError as e:
+        _fail(e)
+    click.echo(f"(set {cl.DEVICE_ENV}=P:D or a name fragment to choose another)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,20 @@
+"""A one-line terminal progress bar: tiles done, samples per second, time left."""
+from __future__ import annotations
+
+
+class ProgressBar:
+    def __init__(self, stream, width=28):
+        self.stream, self.width = stream, width
+
+    def __call__(self, done, total, samples, seconds):
+        frac = done / total
+        fill = int(frac * self.width)
+        rate = samples / seconds if seconds > 0 else 0.0
+        left = seconds * (1 - frac) / frac if frac > 0 else 0.0
+        self.stream.write(f"\r[{'#' * fill}{'.' * (self.width - fill)}] {done}/{total} tiles  "
+                          f"{rate / 1e6:6.2f} M samples/s  {left:5.1f} s left ")
+        self.stream.flush()
+
+    def close(self):
+        self.stream.write("\n")
+        self.stream.flush()

@@ -1,0 +1,200 @@
+"""OpenCL device choice, kernel sources and the per-process program cache.
+
+Device choice
+-------------
+By default wavlight uses the first PoCL CPU device that can actually build a
+program. The probe build matters: the PoCL bundled with the PyPI wheels links
+LLVM 14, which does not know CPUs newer than it (AMD Zen 5 reports "unknown
+target CPU 'generic'"); a system PoCL (Debian's ``pocl-opencl-icd``) next to it
+works, and the probe picks whichever does.
+
+``WAVLIGHT_CL_DEVICE`` overrides the choice: ``"P:D"`` (platform and device
+indices as ``wavlight info`` lists them) or any text that occurs in
+"platform name + device name" (case-insensitive), e.g. ``"NVIDIA"``.
+
+Programs
+--------
+Kernel sources live in the ``kernels/`` folder, installed as the package
+``wavlight.kernels``. Local ``#include "x.h"`` lines are spliced on the host
+(PoCL has failed on ``-I`` include paths). Each program is built once per
+(context, file, defines) and memoised for the life of the process.
+"""
+from __future__ import annotations
+
+import functools
+import os
+import re
+import threading
+import warnings
+from dataclasses import dataclass
+from importlib import resources
+
+import numpy as np
+
+from .errors import WavlightError
+
+DEVICE_ENV = "WAVLIGHT_CL_DEVICE"
+_PROBE_SRC = "__kernel void probe(__global float *a) { a[get_global_id(0)] *= 2.0f; }"
+
+
+@dataclass(frozen=True)
+class Runtime:
+    """A context and an in-order queue on one device."""
+
+    context: object
+    queue: object
+    device: object
+
+    @property
+    def description(self) -> str:
+        p = self.device.platform
+        return f"{p.name} ({p.version.strip()}) / {self.device.name}"
+
+
+def _cl():
+    import pyopencl  # deferred: importing it costs ~0.1 s
+
+    return pyopencl
+
+
+def list_devices():
+    """All (platform index, device index, platform, device) tuples."""
+    cl = _cl()
+    out = []
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error:
+        return out
+    for pi, p in enumerate(platforms):
+        try:
+            devs = p.get_devices()
+        except cl.Error:
+            continue
+        for di, d in enumerate(devs):
+            out.append((pi, di, p, d))
+    return out
+
+
+def _builds(device) -> bool:
+    cl = _cl()
+    try:
+        ctx = cl.Context([device])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            cl.Program(ctx, _PROBE_SRC).build()
+        return True
+    except Exception:  # any build or driver failure disqualifies the device
+        return False
+
+
+def _pick_device():
+    devices = list_devices()
+    if not devices:
+        raise WavlightError(
+            "no OpenCL platform found: install pocl-binary-distribution (pip) or a system "
+            "OpenCL driver such as Debian's pocl-opencl-icd")
+    want = os.environ.get(DEVICE_ENV, "").strip()
+    if want:
+        m = re.fullmatch(r"(\d+):(\d+)", want)
+        for pi, di, p, d in devices:
+            hit = (m and (pi, di) == (int(m[1]), int(m[2]))) or (
+                not m and want.lower() in f"{p.name} {d.name}".lower())
+            if hit:
+                if not _builds(d):
+                    raise WavlightError(f"{DEVICE_ENV}={want!r}: device {d.name!r} cannot build programs")
+                return d
+        raise WavlightError(f"{DEVICE_ENV}={want!r} matches no OpenCL device (see `wavlight info`)")
+    cl = _cl()
+    # PoCL CPU devices first, then other CPUs, then anything else.
+    def rank(t):
+        _, _, p, d = t
+        return (0 if "portable" in p.name.lower() else 1,
+                0 if d.type & cl.device_type.CPU else 1)
+    for _, _, _, d in sorted(devices, key=rank):
+        if _builds(d):
+            return d
+    raise WavlightError(
+        "no OpenCL device can build programs (PoCL's LLVM may not know this CPU: "
+        "install Debian's pocl-opencl-icd, or set WAVLIGHT_CL_DEVICE)")
+
+
+_lock = threading.Lock()
+_runtime: Runtime | None = None
+
+
+def runtime() -> Runtime:
+    """The process-wide OpenCL runtime (created on first use)."""
+    global _runtime
+    with _lock:
+        if _runtime is None:
+            cl = _cl()
+            dev = _pick_device()
+            ctx = cl.Context([dev])
+            _runtime = Runtime(ctx, cl.CommandQueue(ctx), dev)
+        return _runtime
+
+
+_local = threading.local()
+
+
+def thread_queue():
+    """An in-order command queue of the calling thread (queues are cheap; kernels are not shared)."""
+    q = getattr(_local, "queue", None)
+    if q is None:
+        q = _local.queue = _cl().CommandQueue(runtime().context)
+    return q
+
+
+def kernel_source(name: str) -> str:
+    """The text of ``kernels/<name>`` with local ``#include "..."`` lines spliced in."""
+    pkg = resources.files("wavlight.kernels")
+
+    def load(fname, seen):
+        if fname in seen:
+            return ""
+        seen.add(fname)
+        text = (pkg / fname).read_text()
+        return re.sub(r'^\s*#include\s+"([^"]+)"\s*$',
+                      lambda m: load(m.group(1), seen), text, flags=re.M)
+
+    return load(name, set())
+
+
+@functools.lru_cache(maxsize=None)
+def _build(ctx, name: str, defines: tuple):
+    cl = _cl()
+    opts = [f"-D{k}={v}" for k, v in defines]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # pyopencl's "build succeeded with warnings" chatter
+        return cl.Program(ctx, kernel_source(name)).build(options=opts)
+
+
+def program(name: str, **defines):
+    """The built program ``kernels/<name>``, memoised per (context, name, defines)."""
+    rt = runtime()
+    with _lock:
+        return _build(rt.context, name, tuple(sorted(defines.items())))
+
+
+def kernel(prog, name: str):
+    """A fresh kernel object (kernel objects hold arguments, so never share one across threads)."""
+    return _cl().Kernel(prog, name)
+
+
+def to_device(a: np.ndarray, writable: bool = False):
+    """A device buffer holding a copy of ``a``."""
+    cl = _cl()
+    flags = (cl.mem_flags.READ_WRITE if writable else cl.mem_flags.READ_ONLY) | cl.mem_flags.COPY_HOST_PTR
+    return cl.Buffer(runtime().context, flags, hostbuf=np.ascontiguousarray(a))
+
+
+def empty(nbytes: int):
+    cl = _cl()
+    return cl.Buffer(runtime().context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 4))
+
+
+def read(buf, shape, dtype, queue=None) -> np.ndarray:
+    cl = _cl()
+    out = np.empty(shape, dtype)
+    cl.enqueue_copy(queue or runtime().queue, out, buf)
+    return out

@@ -1,0 +1,174 @@
+"""Sampling trees on the unit square: build, warp, pdf (Chen & Gao sec. 4.3, eq. 17-22).
+
+A :class:`HaarTree` holds the scaling-coefficient pyramid of one or more
+non-negative 2^n x 2^n images, stored as box masses (node value = integral of the
+image over the node's square, ``2^-l F^0_{l,t}``, eq. 17). Warping and pdf
+evaluation run in the OpenCL kernels of ``kernels/tree.cl`` and ``kernels/warp.cl``;
+the ``*_reference`` functions here are their plain numpy twins, used by the tests.
+
+The product sampler (wavelet strategy) builds one tree per shading point from
+product scaling coefficients (eq. 25) and reuses the same kernels unchanged:
+sample ``i`` uses tree ``i // samples_per_tree``.
+
+Image orientation: ``image[y, x]``; a point ``(u, v)`` of the square lies in
+column ``floor(u 2^n)``, row ``floor(v 2^n)``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import cl
+
+ONE_MINUS_EPS = np.float32(np.nextafter(np.float32(1), np.float32(0)))
+
+
+def level_offset(level: int) -> int:
+    """Index of the first node of ``level`` in a pyramid (see kernels/common.h)."""
+    return (4 ** level - 1) // 3
+
+
+def tree_size(n_levels: int) -> int:
+    """Number of nodes in a pyramid whose leaves are at level ``n_levels``."""
+    return level_offset(n_levels + 1)
+
+
+def leaf_levels(side: int) -> int:
+    """n for a 2^n x 2^n image; raises ValueError for other sides."""
+    n = int(side).bit_length() - 1
+    if side < 1 or (1 << n) != side:
+        raise ValueError(f"tree images must be 2^n x 2^n, got side {side}")
+    return n
+
+
+# ----------------------------------------------------------------------------- numpy reference
+def build_reference(leaves: np.ndarray) -> np.ndarray:
+    """Pyramids of box masses from leaf masses.
+
+    leaves : (T, 2^n, 2^n) or (2^n, 2^n) float, non-negative
+    returns : (T, tree_size(n)) float32
+    """
+    leaves = np.asarray(leaves, np.float32)
+    if leaves.ndim == 2:
+        leaves = leaves[None]
+    n = leaf_levels(leaves.shape[-1])
+    out = np.empty((leaves.shape[0], tree_size(n)), np.float32)
+    level = leaves
+    for l in range(n, -1, -1):
+        out[:, level_offset(l):level_offset(l + 1)] = level.reshape(len(level), -1)
+        if l:
+            level = (level[:, 0::2, 0::2] + level[:, 0::2, 1::2]) + (level[:, 1::2, 0::2] + level[:, 1::2, 1::2])
+    return out
+
+
+def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per_tree: int):
+    """Top-down warp of uniform points (numpy twin of ``warp_sample``).
+
+    tree : (T, tree_size(n)) float32;  u : (N, 2) float in [0, 1)
+    returns : uv (N, 2) float32 in [0, 1), pdf (N,) float32 on the unit square
+    """
+    tree = np.asarray(tree, np.float32).reshape(-1, tree_size(n_levels))
+    u = np.clip(np.asarray(u, np.float32), 0, ONE_MINUS_EPS).copy()
+    t = np.arange(len(u)) // samples_per_tree
+    x = np.zeros(len(u), np.int64)
+    y = np.zeros(len(u), np.int64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for l in range(n_levels):
+            cside = 2 << l
+            c = level_offset(l + 1) + (2 * y) * cside + 2 * x
+            m00, m10 = tree[t, c], tree[t, c + 1]
+            m01, m11 = tree[t, c + cside], tree[t, c + cside + 1]
+            top, bottom = m00 + m10, m01 + m11
+            p_top = top / (top + bottom)
+            go_top = u[:, 1] < p_top
+            u[:, 1] = np.where(go_top, u[:, 1] / p_top, (u[:, 1] - p_top) / (1 - p_top))
+            u[:, 1] = np.fmin(u[:, 1], ONE_MINUS_EPS)
+            left = np.where(go_top, m00, m01)
+            right = np.where(go_top, m10, m11)
+            y = 2 * y + (~go_top)
+            p_left = left / (left + right)
+            go_left = u[:, 0] < p_left
+            u[:, 0] = np.where(go_left, u[:, 0] / p_left, (u[:, 0] - p_left) / (1 - p_left))
+            u[:, 0] = np.fmin(u[:, 0], ONE_MINUS_EPS)
+            x = 2 * x + (~go_left)
+    u = np.nan_to_num(u, nan=0.0)
+    side = 1 << n_levels
+    uv = ((np.stack([x, y], 1) + u) / side).astype(np.float32)
+    return uv, pdf_reference(tree, n_levels, uv, samples_per_tree)
+
+
+def pdf_reference(tree: np.ndarray, n_levels: int, uv: np.ndarray, samples_per_tree: int) -> np.ndarray:
+    """Density on the unit square of given points (numpy twin of ``warp_pdf``)."""
+    tree = np.asarray(tree, np.float32).reshape(-1, tree_size(n_levels))
+    side = 1 << n_levels
+    t = np.arange(len(uv)) // samples_per_tree
+    ix = np.clip(np.floor(uv[:, 0] * side).astype(np.int64), 0, side - 1)
+    iy = np.clip(np.floor(uv[:, 1] * side).astype(np.int64), 0, side - 1)
+    root = tree[t, 0]
+    leaf = tree[t, level_offset(n_levels) + iy * side + ix]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(root > 0, leaf / root * np.float32(side * side), 0).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- OpenCL
+class HaarTree:
+    """Scaling-coefficient pyramids of T images of side 2^n, resident on the OpenCL device.
+
+    ``HaarTree(leaves)`` with ``leaves`` (T, 2^n, 2^n) or (2^n, 2^n) non-negative masses.
+    ``integral`` is each image's total mass (the root, eq. 18).
+    """
+
+    def __init__(self, leaves: np.ndarray):
+        leaves = np.asarray(leaves, np.float32)
+        if leaves.ndim == 2:
+            leaves = leaves[None]
+        if not np.all(np.isfinite(leaves)) or np.any(leaves < 0):
+            raise ValueError("tree leaves must be finite and non-negative")
+        self.n_levels = leaf_levels(leaves.shape[-1])
+        self.n_trees = leaves.shape[0]
+        self.stride = tree_size(self.n_levels)
+        host = np.zeros((self.n_trees, self.stride), np.float32)
+        host[:, level_offset(self.n_levels):] = leaves.reshape(self.n_trees, -1)
+        rt = cl.runtime()
+        self.buffer = cl.to_device(host, writable=True)
+        prog = cl.program("tree.cl")
+        knl = cl.kernel(prog, "tree_reduce")
+        for level in range(self.n_levels - 1, -1, -1):
+            knl(rt.queue, (4 ** level, self.n_trees), None, self.buffer,
+                np.uint64(self.stride), np.int32(level))
+        self.integral = cl.read(self.buffer, (self.n_trees, self.stride), np.float32)[:, 0].copy()
+
+    def nodes(self) -> np.ndarray:
+        """The whole pyramid, (T, tree_size(n)) float32, copied to the host."""
+        return cl.read(self.buffer, (self.n_trees, self.stride), np.float32)
+
+    def _run(self, name, pts, samples_per_tree, outputs):
+        pts = np.ascontiguousarray(pts, np.float32).reshape(-1, 2)
+        n = len(pts)
+        if samples_per_tree is None:
+            samples_per_tree = max(1, -(-n // self.n_trees))
+        if n == 0:
+            return [np.empty((0, 2), np.float32), np.empty(0, np.float32)][-outputs:]
+        queue = cl.thread_queue()  # callers may be threads
+        src = cl.to_device(pts)
+        uv = cl.empty(pts.nbytes) if outputs == 2 else None
+        pdf = cl.empty(4 * n)
+        knl = cl.kernel(cl.program("warp.cl"), name)
+        args = [self.buffer, np.uint64(self.stride), np.int32(self.n_levels),
+                np.uint32(samples_per_tree), src] + ([uv] if uv is not None else []) + [pdf]
+        knl(queue, (n,), None, *args)
+        res = [cl.read(pdf, (n,), np.float32, queue)]
+        if uv is not None:
+            res.insert(0, cl.read(uv, (n, 2), np.float32, queue))
+        return res
+
+    def sample(self, u: np.ndarray, samples_per_tree: int | None = None):
+        """Warp uniform points: u (N, 2) -> uv (N, 2) in [0, 1)^2 and pdf (N,) on the square.
+
+        Sample i uses tree ``i // samples_per_tree`` (default: N / T, all of one tree for T = 1).
+        """
+        uv, pdf = self._run("warp_sample", u, samples_per_tree, 2)
+        return uv, pdf
+
+    def pdf(self, uv: np.ndarray, samples_per_tree: int | None = None) -> np.ndarray:
+        """Density on the unit square at points uv (N, 2), the one ``sample`` returns there."""
+        return self._run("warp_pdf", uv, samples_per_tree, 1)[0]

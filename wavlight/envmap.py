@@ -1,0 +1,178 @@
+"""Distant environment light: an equirectangular RGB image, looked up nearest-texel.
+
+Lookup (scene-format doc, same u, v as Mitsuba 3's envmap): for a world direction d,
+undo ``rotate_y`` (world = R_y * map), then u = atan2(d.x, -d.z) / 2 pi wrapped to
+[0, 1), v = acos(d.y) / pi, texel (floor(u W), floor(v H)), row 0 at +Y.
+
+Importance for light sampling lives on a 2^n x 2^n equal-area octahedral square
+(:mod:`wavlight.warp`): each leaf holds the mean luminance over its patch of sphere,
+estimated from a grid of sub-points, plus a defensive floor of ``DEFENSIVE`` times
+the mean, so that the pdf is positive wherever the map is (no texel can be missed
+by the sub-point grid and left with zero probability). The leaf side is the
+smallest power of two whose square has at least as many leaves as the map has
+texels, at most 2^10.
+
+The built-in procedural sky (``procedural = "sky"`` in a scene) is a smooth
+gradient plus a small, very bright sun disk, made at 512 x 256 texels; see
+:func:`procedural_sky` for its keys.
+"""
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+
+from . import warp
+from .errors import WavlightError
+
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
+DEFENSIVE = 1e-3
+MAX_TEXELS = 1 << 26
+
+
+def read_image(path: str) -> np.ndarray:
+    """(H, W, 3) float32 linear RGB from any format OpenImageIO reads."""
+    import OpenImageIO as oiio
+
+    if not os.path.isfile(path):
+        raise WavlightError(f"{path}: no such file")
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        raise WavlightError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown format'})")
+    try:
+        spec = inp.spec()
+        if spec.width * spec.height > MAX_TEXELS:
+            raise WavlightError(f"{path}: image of {spec.width}x{spec.height} texels is too large")
+        px = inp.read_image(format=oiio.FLOAT)
+    finally:
+        inp.close()
+    if px is None or px.size == 0:
+        raise WavlightError(f"{path}: cannot read pixels")
+    px = np.asarray(px, np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    if spec.nchannels == 1:
+        px = np.repeat(px, 3, axis=2)
+    elif spec.nchannels == 2:
+        px = np.concatenate([px[..., :1]] * 3, axis=2)
+    return np.ascontiguousarray(px[..., :3])
+
+
+def sanitize(pixels: np.ndarray, name: str) -> np.ndarray:
+    """Replace NaN, Inf and negative texels with 0, with one warning that counts them."""
+    bad = ~np.isfinite(pixels) | (pixels < 0)
+    if bad.any():
+        texels = int(bad.any(axis=-1).sum())
+        warnings.warn(f"{name}: {texels} texel(s) with NaN, Inf or negative values set to 0",
+                      stacklevel=2)
+        pixels = np.where(bad, np.float32(0), pixels).astype(np.float32)
+    return pixels
+
+
+def procedural_sky(sun_elevation=35.0, sun_azimuth=30.0, sun_radius=0.75, sun_radiance=2.0e4,
+                   zenith=(0.25, 0.45, 0.95), horizon=(0.9, 0.95, 1.0), ground=(0.3, 0.27, 0.24),
+                   width=512, height=256) -> np.ndarray:
+    """A lat-long sky: zenith-to-horizon gradient, flat ground, sun disk.
+
+    Angles in degrees; the sun's azimuth is measured from -Z towards +X (the u = 0.5 + az/360 column).
+    """
+    v = (np.arange(height) + 0.5) / height
+    u = (np.arange(width) + 0.5) / width
+    theta = v * np.pi
+    phi = u * 2 * np.pi
+    d = np.stack(np.broadcast_arrays(
+        np.sin(theta)[:, None] * np.sin(phi)[None, :], np.cos(theta)[:, None] + 0 * phi[None, :],
+        -np.sin(theta)[:, None] * np.cos(phi)[None, :]), -1)
+    up = np.clip(d[..., 1], 0, 1)[..., None]
+    t = up ** 0.4
+    sky = (1 - t) * np.array(horizon) + t * np.array(zenith)
+    img = np.where(d[..., 1:2] >= 0, sky, np.array(ground))
+    el, az = np.radians(sun_elevation), np.radians(sun_azimuth)
+    sun = np.array([np.cos(el) * np.sin(az), np.sin(el), -np.cos(el) * np.cos(az)])
+    disk = d @ sun > np.cos(np.radians(sun_radius))
+    img[disk] = sun_radiance * np.array([1.0, 0.95, 0.85])
+    return img.astype(np.float32)
+
+
+def rotation_y(degrees: float) -> np.ndarray:
+    """R_y for rotate_y: +90 sends +X to -Z (right-handed about +Y)."""
+    a = np.radians(degrees)
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+class Environment:
+    """An equirectangular environment map with scale and rotate_y.
+
+    pixels : (H, W, 3) float32, sanitised and multiplied by ``scale``.
+    """
+
+    def __init__(self, pixels: np.ndarray, scale: float = 1.0, rotate_y: float = 0.0, name="environment"):
+        pixels = sanitize(np.asarray(pixels, np.float32), name)
+        if pixels.ndim != 3 or pixels.shape[2] != 3 or pixels.shape[0] < 1 or pixels.shape[1] < 1:
+            raise WavlightError(f"{name}: expected an (H, W, 3) image, got shape {pixels.shape}")
+        self.name = name
+        self.pixels = np.ascontiguousarray(pixels * np.float32(scale))
+        self.height, self.width = self.pixels.shape[:2]
+        self.rotate_y = float(rotate_y)
+        self.map_from_world = rotation_y(rotate_y).T
+        self.world_from_map = rotation_y(rotate_y)
+        self._flat = self.pixels.reshape(-1, 3)
+        self._square = None
+
+    # -- lookup
+    def texel_index(self, d_world: np.ndarray) -> np.ndarray:
+        """Flat texel indices (row * W + col) for world directions (N, 3)."""
+        d = d_world @ self.map_from_world.T
+        u = np.arctan2(d[:, 0], -d[:, 2]) * warp.INV_2PI
+        u = u - np.floor(u)
+        v = np.arccos(np.clip(d[:, 1], -1.0, 1.0)) * warp.INV_PI
+        col = np.minimum((u * self.width).astype(np.int64), self.width - 1)
+        row = np.minimum((v * self.height).astype(np.int64), self.height - 1)
+        return row * self.width + col
+
+    def eval(self, d_world: np.ndarray) -> np.ndarray:
+        """Radiance (N, 3) float32 arriving from world directions d (N, 3) (nearest texel)."""
+        return self._flat[self.texel_index(d_world)]
+
+    @property
+    def is_black(self) -> bool:
+        return not np.any(self.pixels > 0)
+
+    # -- importance on the equal-area square (for the light strategy)
+    def square_levels(self) -> int:
+        texels = self.width * self.height
+        n = 0
+        while 4 ** n < texels and n < 10:
+            n += 1
+        return max(n, 1)
+
+    def luminance_square(self, n_levels: int | None = None, sub: int | None = None) -> np.ndarray:
+        """(2^n, 2^n) float32 mean luminance per equal-area leaf, with the defensive floor.
+
+        Leaf (row y, column x) covers square points u in [x, x+1)/2^n, v in [y, y+1)/2^n.
+        """
+        n = self.square_levels() if n_levels is None else n_levels
+        side = 1 << n
+        if sub is None:
+            sub = max(2, min(8, int(np.ceil(2 * np.sqrt(self.width * self.height) / side))))
+        lum = self._flat @ LUMINANCE
+        acc = np.zeros(side * side, np.float64)
+        base = np.arange(side) / side
+        for j in range(sub):  # a few vectorised passes over sub-point offsets, not pixels
+            for i in range(sub):
+                uu, vv = np.meshgrid(base + (i + 0.5) / (sub * side), base + (j + 0.5) / (sub * side))
+                d_map = warp.square_to_sphere_equal_area(np.stack([uu.ravel(), vv.ravel()], 1))
+                acc += lum[self.texel_index(self.map_to_world(d_map))]
+        leaves = acc / (sub * sub)
+        mean = leaves.mean()
+        return (leaves + DEFENSIVE * mean).reshape(side, side).astype(np.float32)
+
+    def map_to_world(self, d_square_frame: np.ndarray) -> np.ndarray:
+        """Equal-area square frame (octahedral z = map +Y) to world directions."""
+        d = d_square_frame[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0])
+        return d @ self.world_from_map.T
+
+    def world_to_map(self, d_world: np.ndarray) -> np.ndarray:
+        """World directions to the equal-area square frame (inverse of :meth:`map_to_world`)."""
+        d = d_world @ self.map_from_world.T
+        return np.stack([d[:, 0], -d[:, 2], d[:, 1]], 1)

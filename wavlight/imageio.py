@@ -1,0 +1,63 @@
+"""Writing images: linear float (.exr, .hdr, .pfm) or tone-mapped sRGB (.png), atomically.
+
+The file appears complete or not at all: pixels go to a temporary file in the
+same folder, which is renamed over the target only after a successful write.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+
+import numpy as np
+
+from .errors import WavlightError
+
+LINEAR = (".exr", ".hdr", ".pfm")
+DISPLAY = (".png",)
+FORMATS = LINEAR + DISPLAY
+
+
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """Clamp to [0, 1] and apply the sRGB transfer curve."""
+    x = np.clip(np.nan_to_num(linear, nan=0.0, posinf=1.0), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def save_image(path: str, image: np.ndarray) -> None:
+    """Write an (H, W, 3) float image; the format follows the extension (.exr .hdr .pfm .png)."""
+    import OpenImageIO as oiio
+
+    path = str(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in FORMATS:
+        raise WavlightError(f"{path}: unsupported output format {ext or '(none)'!r} "
+                            f"(use {', '.join(FORMATS)})")
+    image = np.asarray(image, np.float32)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise WavlightError(f"{path}: expected an (H, W, 3) image, got shape {image.shape}")
+    if not np.all(np.isfinite(image)):
+        raise WavlightError(f"{path}: refusing to write an image with NaN or Inf pixels")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise WavlightError(f"{path}: folder {folder} does not exist")
+    if ext in DISPLAY:
+        pixels, fmt = (srgb_encode(image) * 255.0 + 0.5).astype(np.uint8), oiio.UINT8
+    else:
+        pixels, fmt = np.ascontiguousarray(image), oiio.FLOAT
+    fd, tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=ext, dir=folder)
+    os.close(fd)
+    try:
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise WavlightError(f"{path}: cannot create writer ({oiio.geterror().strip()})")
+        spec = oiio.ImageSpec(image.shape[1], image.shape[0], 3, fmt)
+        ok = out.open(tmp, spec) and out.write_image(pixels)
+        err = out.geterror()
+        out.close()
+        if not ok:
+            raise WavlightError(f"{path}: write failed ({err.strip() or 'unknown error'})")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

@@ -1,0 +1,203 @@
+"""The direct-lighting integrator: camera rays, shading, shadow rays, tiles, accumulation.
+
+Path of one pixel sample (see docs/architecture.md): :func:`camera_rays` makes a ray
+through a uniformly jittered point of the pixel (box filter); :class:`RayTracer`
+finds the closest hit; a miss returns the environment's radiance; a hit becomes a
+:class:`ShadingPoints` entry (face normal flipped towards the viewer); the strategy
+draws ``wi`` with its pdf; the estimator ``albedo f cos L / pdf`` (times the MIS
+weight) is kept where it is non-zero, and only those directions get a shadow ray
+(occlusion query from the point moved ``epsilon`` along the shading normal).
+Per-pixel means and standard errors come from the per-sample values.
+
+Images are rendered in tiles of about ``TILE_SAMPLES`` samples, so memory is
+bounded at any resolution; tiles run on a thread pool (numpy, embree and OpenCL
+release the GIL). Each tile draws its random numbers from its own stream
+(seed, tile index), so images do not depend on the number of threads.
+"""
+from __future__ import annotations
+
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import strategies, warp
+from .raytrace import RayTracer
+from .scene import MAX_SIDE, MAX_SPP, STRATEGIES, Scene
+from .errors import WavlightError
+
+TILE_SAMPLES = 1 << 16
+
+
+@dataclass
+class RenderResult:
+    """image (H, W, 3) float32; stderr (H, W, 3) float32, the standard error of each pixel."""
+
+    image: np.ndarray
+    stderr: np.ndarray
+    stats: dict = field(default_factory=dict)
+
+
+def camera_rays(scene: Scene, px: np.ndarray, py: np.ndarray, jitter: np.ndarray, width, height):
+    """Pinhole rays through points (px + jx, py + jy) of the image plane.
+
+    px, py : (N,) pixel column and row (row 0 at the top); jitter : (N, 2) in [0, 1)
+    returns origins (N, 3), unit directions (N, 3)
+    """
+    cam = scene.camera
+    fwd = cam.target - cam.eye
+    fwd = fwd / np.linalg.norm(fwd)
+    right = np.cross(fwd, cam.up)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    tan = np.tan(np.radians(cam.fov_y) * 0.5)
+    x = (2.0 * (px + jitter[:, 0]) / width - 1.0) * tan * (width / height)
+    y = (1.0 - 2.0 * (py + jitter[:, 1]) / height) * tan
+    d = fwd[None, :] + x[:, None] * right[None, :] + y[:, None] * up[None, :]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.broadcast_to(cam.eye, d.shape), d
+
+
+class _Renderer:
+    def __init__(self, scene: Scene, strategy: str, spp: int, width: int, height: int, seed: int, threads):
+        self.scene, self.spp, self.width, self.height, self.seed = scene, spp, width, height, seed
+        self.threads = threads or os.cpu_count() or 1
+        t0 = time.perf_counter()
+        self.tracer = RayTracer(scene.vertices, scene.faces)
+        self.strategy = strategies.make(strategy)
+        self.strategy.prepare(scene.environment)
+        self.kind = scene.material_kind
+        self.param = scene.material_param
+        self.albedo = scene.material_albedo
+        self.setup_seconds = time.perf_counter() - t0
+        self.rays = 0
+        self._rays_lock = threading.Lock()
+
+    def count_rays(self, n):
+        with self._rays_lock:
+            self.rays += int(n)
+
+    # -- shading
+    def shade(self, o, d, prim, t, rng):
+        """Radiance estimates (N, 3) for camera rays that hit prim at distance t."""
+        env = self.scene.environment
+        ng = self.tracer.face_normals[prim].astype(np.float64)
+        flip = np.einsum("ij,ij->i", ng, d) > 0
+        n = np.where(flip[:, None], -ng, ng)
+        p = o + d * t[:, None]
+        s, tt = warp.frame(n)
+        mat = self.scene.face_material[prim]
+        sp = strategies.ShadingPoints(p, n, s, tt, warp.to_local(-d, s, tt, n), self.kind[mat],
+                                      self.param[mat], self.albedo[mat])
+        strat = self.strategy
+        if isinstance(strat, strategies.MisStrategy):
+            parts = []
+            for mine, other in ((strat.light, strat.bsdf), (strat.bsdf, strat.light)):
+                ds = mine.sample(sp, rng.random((len(sp), 2)))
+                w = strategies.power_heuristic(ds.pdf, other.pdf(sp, ds.wi_local, ds.wi_world))
+                parts.append(self._estimate(sp, env, ds, w))
+            return parts[0] + parts[1]
+        ds = strat.sample(sp, rng.random((len(sp), 2)))
+        return self._estimate(sp, env, ds, 1.0)
+
+    def _estimate(self, sp, env, ds, mis_weight):
+        """albedo f cos L V / pdf (x MIS weight), tracing shadow rays only where it is non-zero."""
+        fcos = sp.bsdf_eval_cos(ds.wi_local)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scalar = np.where(ds.pdf > 0, fcos * mis_weight / ds.pdf, 0.0)
+        live = np.nonzero((scalar > 0) & np.isfinite(scalar))[0]
+        out = np.zeros((len(sp), 3))
+        if len(live) == 0:
+            return out
+        wi = ds.wi_world[live]
+        value = scalar[live, None] * sp.albedo[live] * env.eval(wi)
+        lit = np.nonzero(value.max(axis=1) > 0)[0]
+        origins = sp.p[live[lit]] + sp.n[live[lit]] * self.tracer.epsilon
+        blocked = self.tracer.occluded(origins, wi[lit])
+        self.count_rays(len(lit))
+        keep = lit[~blocked]
+        out[live[keep]] = value[keep]
+        return out
+
+    # -- one tile
+    def tile(self, index, x0, y0, w, h):
+        spp = self.spp
+        rng = np.random.default_rng([self.seed, index])
+        pix = np.arange(w * h)
+        px = np.repeat(x0 + pix % w, spp).astype(np.float64)
+        py = np.repeat(y0 + pix // w, spp).astype(np.float64)
+        o, d = camera_rays(self.scene, px, py, rng.random((len(px), 2)), self.width, self.height)
+        prim, t = self.tracer.intersect(o, d)
+        self.count_rays(len(px))
+        values = np.zeros((len(px), 3))
+        miss = prim < 0
+        values[miss] = self.scene.environment.eval(d[miss])
+        hit = np.nonzero(~miss)[0]
+        if len(hit):
+            values[hit] = self.shade(o[hit], d[hit], prim[hit], t[hit].astype(np.float64), rng)
+        values = values.reshape(w * h, spp, 3)
+        mean = values.mean(axis=1)
+        if spp > 1:
+            err = np.sqrt(values.var(axis=1, ddof=1) / spp)
+        else:
+            err = np.full_like(mean, np.inf)
+        return mean.reshape(h, w, 3), err.reshape(h, w, 3)
+
+
+def _tiles(width, height, spp):
+    side = max(8, int(np.sqrt(TILE_SAMPLES / spp)))
+    tiles = []
+    for y0 in range(0, height, side):
+        for x0 in range(0, width, side):
+            tiles.append((len(tiles), x0, y0, min(side, width - x0), min(side, height - y0)))
+    return tiles
+
+
+def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
+                progress=None, threads=None) -> RenderResult:
+    """Render with statistics: image, per-pixel standard error and timings.
+
+    Arguments left as None come from the scene file. ``progress(done, total, samples, seconds)``
+    is called after each tile.
+    """
+    spp = scene.spp if spp is None else int(spp)
+    strategy = scene.strategy if strategy is None else strategy
+    width = scene.width if width is None else int(width)
+    height = scene.height if height is None else int(height)
+    seed = scene.seed if seed is None else int(seed)
+    if not 1 <= spp <= MAX_SPP:
+        raise WavlightError(f"spp must be between 1 and {MAX_SPP}, got {spp}")
+    if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
+        raise WavlightError(f"resolution must be between 1x1 and {MAX_SIDE}x{MAX_SIDE}, got {width}x{height}")
+    if strategy not in STRATEGIES:
+        raise WavlightError(f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
+    r = _Renderer(scene, strategy, spp, width, height, seed, threads)
+    image = np.zeros((height, width, 3), np.float32)
+    stderr = np.zeros((height, width, 3), np.float32)
+    tiles = _tiles(width, height, spp)
+    t0 = time.perf_counter()
+    done = 0
+    with ThreadPoolExecutor(r.threads) as pool:
+        for (i, x0, y0, w, h), (mean, err) in zip(tiles, pool.map(lambda tl: r.tile(*tl), tiles)):
+            image[y0:y0 + h, x0:x0 + w] = mean
+            stderr[y0:y0 + h, x0:x0 + w] = err
+            done += w * h * spp
+            if progress:
+                progress(i + 1, len(tiles), done, time.perf_counter() - t0)
+    seconds = time.perf_counter() - t0
+    samples = width * height * spp
+    stats = {"strategy": strategy, "spp": spp, "width": width, "height": height, "seed": seed,
+             "setup_seconds": round(r.setup_seconds, 4), "render_seconds": round(seconds, 4),
+             "samples_per_second": round(samples / seconds, 1) if seconds > 0 else None,
+             "rays": r.rays, "rays_per_second": round(r.rays / seconds, 1) if seconds > 0 else None,
+             "tiles": len(tiles), "threads": r.threads, **r.strategy.info()}
+    return RenderResult(image, stderr, stats)
+
+
+def render(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
+           progress=None, threads=None) -> np.ndarray:
+    """Render a scene; returns a float32 (H, W, 3) linear RGB image. See :func:`render_full`."""
+    return render_full(scene, spp, strategy, width, height, seed, progress, threads).image

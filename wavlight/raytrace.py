@@ -1,0 +1,74 @@
+"""Ray queries with embreex: closest hits for camera rays, occlusion for shadow rays.
+
+Geometry is one triangle soup in float32 (embree's precision). Large batches are
+split over threads: embreex releases the GIL, so two threads use both cores.
+"""
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+_CHUNK = 1 << 15
+
+
+class RayTracer:
+    """Closest-hit and occlusion queries against vertices (V, 3) and faces (F, 3)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, threads: int = 1):
+        import embreex.mesh_construction as mc
+        import embreex.rtcore_scene as rtcs
+
+        self.n_faces = len(faces)
+        self.threads = max(1, threads)
+        self._scene = None
+        if self.n_faces:
+            self._scene = rtcs.EmbreeScene()
+            mc.TriangleMesh(self._scene, np.ascontiguousarray(vertices, np.float32),
+                            np.ascontiguousarray(faces, np.int32))
+        v = np.asarray(vertices, np.float64)
+        f = np.asarray(faces, np.int64)
+        if self.n_faces:
+            n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+            self.face_normals = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
+            extent = float(np.ptp(v, axis=0).max())
+            self.scale = max(extent, float(np.abs(v).max()), 1e-6)
+        else:
+            self.face_normals = np.zeros((0, 3), np.float32)
+            self.scale = 1.0
+        # Shadow-ray origins move this far along the shading normal (relative to the scene size).
+        self.epsilon = 1e-4 * self.scale
+
+    def _map(self, fn, origins, dirs):
+        n = len(origins)
+        if self.threads == 1 or n <= _CHUNK:
+            return fn(origins, dirs)
+        parts = np.array_split(np.arange(n), min(self.threads, -(-n // _CHUNK)))
+        with ThreadPoolExecutor(len(parts)) as pool:
+            res = list(pool.map(lambda idx: fn(origins[idx[0]:idx[-1] + 1], dirs[idx[0]:idx[-1] + 1]), parts))
+        if isinstance(res[0], tuple):
+            return tuple(np.concatenate(r) for r in zip(*res))
+        return np.concatenate(res)
+
+    def intersect(self, origins: np.ndarray, dirs: np.ndarray):
+        """Closest hits: (prim (N,) int32, -1 for a miss; t (N,) float32)."""
+        if self._scene is None or len(origins) == 0:
+            return np.full(len(origins), -1, np.int32), np.full(len(origins), np.inf, np.float32)
+
+        def run(o, d):
+            r = self._scene.run(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32),
+                                output=1)
+            return r["primID"].astype(np.int32), r["tfar"]
+
+        return self._map(run, origins, dirs)
+
+    def occluded(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        """(N,) bool: True where the ray from origin along dir hits any triangle."""
+        if self._scene is None or len(origins) == 0:
+            return np.zeros(len(origins), bool)
+
+        def run(o, d):
+            return self._scene.run(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32),
+                                   query="OCCLUDED") >= 0
+
+        return self._map(run, origins, dirs)

@@ -1,0 +1,369 @@
+"""Scene files (TOML, ``shared/docs/scene-format.md``): parse, validate, build geometry.
+
+Every key of the scene format is accepted as written there. wavlight adds:
+
+- ``[environment] procedural = "sky"`` instead of ``file``: the built-in sky
+  (:func:`wavlight.envmap.procedural_sky`) with optional ``sun_elevation``,
+  ``sun_azimuth`` (degrees; azimuth from -Z towards +X), ``sun_radius`` (degrees,
+  default 0.75) and ``sun_radiance`` (default 2e4). ``scale`` and ``rotate_y`` apply.
+- ``[[objects]]`` without ``material`` get a grey lambert (albedo 0.5).
+
+Limits: width and height 1..16384, spp 1..1_000_000. Errors name the file and the
+key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
+:class:`wavlight.errors.SceneError`.
+"""
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import bsdfs
+from .envmap import Environment, procedural_sky, read_image
+from .errors import SceneError, WavlightError
+
+STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis")
+MAX_SIDE = 16384
+MAX_SPP = 1_000_000
+
+
+@dataclass
+class Camera:
+    eye: np.ndarray
+    target: np.ndarray
+    up: np.ndarray
+    fov_y: float
+
+
+@dataclass
+class Material:
+    name: str
+    kind: int          # bsdfs.LAMBERT | PHONG | GGX
+    albedo: np.ndarray  # (3,)
+    param: float       # phong exponent or ggx alpha (0 for lambert)
+
+
+@dataclass
+class Scene:
+    """A loaded scene: settings, camera, environment, and one merged triangle soup.
+
+    vertices : (V, 3) float32; faces : (F, 3) int32; face_material : (F,) int32
+    """
+
+    path: str
+    width: int
+    height: int
+    spp: int
+    strategy: str
+    seed: int
+    camera: Camera
+    environment: Environment
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_material: np.ndarray
+    materials: list = field(default_factory=list)
+
+    @property
+    def material_kind(self):
+        return np.array([m.kind for m in self.materials], np.int32)
+
+    @property
+    def material_param(self):
+        return np.array([m.param for m in self.materials], np.float64)
+
+    @property
+    def material_albedo(self):
+        return np.array([m.albedo for m in self.materials], np.float32).reshape(-1, 3)
+
+
+# ----------------------------------------------------------------------------- validation helpers
+class _Table:
+    """One TOML table, reading typed keys and rejecting unknown ones."""
+
+    def __init__(self, path, name, data):
+        self.path, self.name = path, name
+        if not isinstance(data, dict):
+            self.fail("", f"must be a table, got {type(data).__name__}")
+        self.data = data
+        self.used = set()
+
+    def fail(self, key, msg):
+        raise SceneError(self.path, f"{self.name}.{key}" if key else self.name, msg)
+
+    def has(self, key):
+        return key in self.data
+
+    def get(self, key, kind, default=None, required=False):
+        self.used.add(key)
+        if key not in self.data:
+            if required:
+                self.fail(key, "is required")
+            return default
+        v = self.data[key]
+        if kind == "int":
+            if isinstance(v, bool) or not isinstance(v, int):
+                self.fail(key, f"must be an integer, got {v!r}")
+        elif kind == "float":
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                self.fail(key, f"must be a finite number, got {v!r}")
+            v = float(v)
+        elif kind == "str":
+            if not isinstance(v, str):
+                self.fail(key, f"must be a string, got {v!r}")
+        elif kind == "vec3":
+            if (not isinstance(v, list) or len(v) != 3
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+                self.fail(key, f"must be a list of 3 finite numbers, got {v!r}")
+            v = np.array(v, np.float64)
+        return v
+
+    def num_or_vec(self, key, n, default):
+        """A number, or a list of n numbers (size, scale)."""
+        self.used.add(key)
+        if key not in self.data:
+            return np.full(n, default, np.float64)
+        v = self.data[key]
+        ok_num = lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+        if ok_num(v):
+            return np.full(n, float(v))
+        if isinstance(v, list) and len(v) == n and all(ok_num(x) for x in v):
+            return np.array(v, np.float64)
+        self.fail(key, f"must be a number or a list of {n} numbers, got {v!r}")
+
+    def done(self):
+        extra = sorted(set(self.data) - self.used)
+        if extra:
+            self.fail(extra[0], "unknown key")
+
+
+def _positive(t: _Table, key, value, lo=None, hi=None):
+    if lo is not None and value < lo:
+        t.fail(key, f"must be at least {lo}, got {value}")
+    if hi is not None and value > hi:
+        t.fail(key, f"must be at most {hi}, got {value}")
+    return value
+
+
+# ----------------------------------------------------------------------------- geometry
+def _axis_angle(axis, degrees):
+    axis = axis / np.linalg.norm(axis)
+    a = math.radians(degrees)
+    x, y, z = axis
+    c, s, C = math.cos(a), math.sin(a), 1 - math.cos(a)
+    return np.array([[c + x * x * C, x * y * C - z * s, x * z * C + y * s],
+                     [y * x * C + z * s, c + y * y * C, y * z * C - x * s],
+                     [z * x * C - y * s, z * y * C + x * s, c + z * z * C]])
+
+
+def quad_axes(normal):
+    """t1 = normalize(Y x n) (or +X when n is parallel to Y), t2 = n x t1."""
+    n = normal / np.linalg.norm(normal)
+    t1 = np.cross([0.0, 1.0, 0.0], n)
+    if np.linalg.norm(t1) < 1e-9:
+        t1 = np.array([1.0, 0.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    return n, t1, np.cross(n, t1)
+
+
+def _shape(t: _Table, base_dir):
+    """(vertices, faces) of one object before its transform."""
+    import trimesh
+
+    if t.has("mesh") and t.has("shape"):
+        t.fail("shape", "give either mesh or shape, not both")
+    if t.has("mesh"):
+        rel = t.get("mesh", "str")
+        path = os.path.join(base_dir, rel)
+        if not os.path.isfile(path):
+            t.fail("mesh", f"no such file: {path}")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                mesh = trimesh.load(path, force="mesh")
+        except Exception as e:  # trimesh raises many types for bad files
+            t.fail("mesh", f"cannot load {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
+        if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
+            t.fail("mesh", f"{path} holds no triangles")
+        return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+    kind = t.get("shape", "str", required=True)
+    if kind == "sphere":
+        center = t.get("center", "vec3", np.zeros(3))
+        radius = _positive(t, "radius", t.get("radius", "float", 1.0), lo=1e-9)
+        sub = _positive(t, "subdivisions", t.get("subdivisions", "int", 5), lo=0, hi=8)
+        ico = trimesh.creation.icosphere(subdivisions=sub, radius=radius)
+        return np.asarray(ico.vertices) + center, np.asarray(ico.faces, np.int64)
+    if kind == "quad":
+        center = t.get("center", "vec3", np.zeros(3))
+        normal = t.get("normal", "vec3", np.array([0.0, 1.0, 0.0]))
+        if np.linalg.norm(normal) == 0:
+            t.fail("normal", "must not be zero")
+        size = t.num_or_vec("size", 2, 1.0)
+        if np.any(size <= 0):
+            t.fail("size", f"must be positive, got {size.tolist()}")
+        n, t1, t2 = quad_axes(normal)
+        h1, h2 = 0.5 * size[0] * t1, 0.5 * size[1] * t2
+        v = np.array([center - h1 - h2, center + h1 - h2, center + h1 + h2, center - h1 + h2])
+        # counter-clockwise seen from +n
+        return v, np.array([[0, 1, 2], [0, 2, 3]]) if np.dot(np.cross(t1, t2), n) > 0 else np.array([[0, 2, 1], [0, 3, 2]])
+    t.fail("shape", f"unknown shape {kind!r} (sphere | quad)")
+
+
+def _transform(t: _Table, v):
+    scale = t.num_or_vec("scale", 3, 1.0)
+    if np.any(scale == 0):
+        t.fail("scale", "must not be zero")
+    v = v * scale
+    if t.has("rotate"):
+        r = t.data["rotate"]
+        t.used.add("rotate")
+        if (not isinstance(r, list) or len(r) != 4
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in r)):
+            t.fail("rotate", f"must be [axis x, y, z, degrees], got {r!r}")
+        axis = np.array(r[:3], np.float64)
+        if np.linalg.norm(axis) == 0:
+            t.fail("rotate", "axis must not be zero")
+        v = v @ _axis_angle(axis, r[3]).T
+    return v + t.get("translate", "vec3", np.zeros(3))
+
+
+def _clean_triangles(path, key, v, f):
+    """Drop degenerate (zero-area) and out-of-range triangles with a warning."""
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
+        raise SceneError(path, key, "face indices out of range")
+    if not np.all(np.isfinite(v)):
+        raise SceneError(path, key, "vertices hold NaN or Inf")
+    e = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    area2 = np.linalg.norm(e, axis=1)
+    extent = np.ptp(v, axis=0).max() if len(v) else 0.0
+    good = area2 > 1e-14 * extent ** 2 if extent > 0 else area2 > 0
+    if not good.all():
+        warnings.warn(f"{path}: {key}: {int((~good).sum())} degenerate triangle(s) removed", stacklevel=3)
+    if not good.any():
+        raise SceneError(path, key, "every triangle is degenerate (zero area)")
+    return f[good]
+
+
+# ----------------------------------------------------------------------------- loading
+def load_scene(path: str) -> Scene:
+    """Read and validate a scene file; build its environment and merged geometry."""
+    path = str(path)
+    if not os.path.isfile(path):
+        raise SceneError(path, "", "no such file")
+    try:
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(path, "", f"malformed TOML: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneError(path, "", f"cannot read: {e}") from None
+    base = os.path.dirname(os.path.abspath(path))
+    unknown = sorted(set(doc) - {"render", "camera", "environment", "objects", "materials"})
+    if unknown:
+        raise SceneError(path, unknown[0], "unknown table")
+
+    r = _Table(path, "[render]", doc.get("render", {}))
+    width = _positive(r, "width", r.get("width", "int", 256), 1, MAX_SIDE)
+    height = _positive(r, "height", r.get("height", "int", 256), 1, MAX_SIDE)
+    spp = _positive(r, "spp", r.get("spp", "int", 16), 1, MAX_SPP)
+    strategy = r.get("strategy", "str", "mis")
+    if strategy not in STRATEGIES:
+        r.fail("strategy", f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
+    seed = r.get("seed", "int", 0)
+    r.done()
+
+    c = _Table(path, "[camera]", doc.get("camera", {}))
+    camera = Camera(c.get("eye", "vec3", np.array([0.0, 1.0, 4.0])),
+                    c.get("target", "vec3", np.array([0.0, 0.5, 0.0])),
+                    c.get("up", "vec3", np.array([0.0, 1.0, 0.0])),
+                    _positive(c, "fov_y", c.get("fov_y", "float", 35.0), 1e-3, 179.0))
+    fwd = camera.target - camera.eye
+    if np.linalg.norm(fwd) == 0:
+        c.fail("target", "must differ from eye")
+    if np.linalg.norm(np.cross(fwd, camera.up)) < 1e-9 * np.linalg.norm(fwd) * max(np.linalg.norm(camera.up), 1e-30):
+        c.fail("up", "must not be parallel to the view direction")
+    c.done()
+
+    environment = _environment(_Table(path, "[environment]", doc.get("environment", {})), base)
+
+    mats_doc = doc.get("materials", {})
+    if not isinstance(mats_doc, dict):
+        raise SceneError(path, "materials", "must be a table of tables")
+    materials, index = [], {}
+    for name, m in mats_doc.items():
+        t = _Table(path, f"[materials.{name}]", m)
+        kind = t.get("type", "str", required=True)
+        if kind not in bsdfs.TYPES:
+            t.fail("type", f"unknown BRDF {kind!r} (lambert | phong | ggx)")
+        albedo = t.get("albedo", "vec3", np.array([0.8, 0.8, 0.8]))
+        if np.any(albedo < 0):
+            t.fail("albedo", "must not be negative")
+        param = 0.0
+        if kind == "ggx":
+            param = _positive(t, "roughness", t.get("roughness", "float", 0.2), 1e-4, 1.0)
+        elif kind == "phong":
+            param = _positive(t, "exponent", t.get("exponent", "float", 100.0), 0.0, 1e6)
+        t.done()
+        index[name] = len(materials)
+        materials.append(Material(name, bsdfs.TYPES[kind], albedo.astype(np.float32), float(param)))
+
+    objs = doc.get("objects", [])
+    if not isinstance(objs, list):
+        raise SceneError(path, "objects", "must be an array of tables ([[objects]])")
+    verts, faces, fmat = [], [], []
+    offset = 0
+    for i, o in enumerate(objs):
+        t = _Table(path, f"[[objects]][{i}]", o)
+        v, f = _shape(t, base)
+        v = _transform(t, v)
+        name = t.get("material", "str")
+        if name is None:
+            if "__default__" not in index:
+                index["__default__"] = len(materials)
+                materials.append(Material("__default__", bsdfs.LAMBERT, np.full(3, 0.5, np.float32), 0.0))
+            name = "__default__"
+        elif name not in index:
+            t.fail("material", f"unknown material {name!r}")
+        t.done()
+        f = _clean_triangles(path, t.name, v, f)
+        verts.append(v)
+        faces.append(f + offset)
+        fmat.append(np.full(len(f), index[name], np.int32))
+        offset += len(v)
+    if not materials:
+        materials.append(Material("__default__", bsdfs.LAMBERT, np.full(3, 0.5, np.float32), 0.0))
+    vertices = np.concatenate(verts).astype(np.float32) if verts else np.zeros((0, 3), np.float32)
+    return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
+                 np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
+                 np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials)
+
+
+def _environment(t: _Table, base) -> Environment:
+    scale = _positive(t, "scale", t.get("scale", "float", 1.0), 0.0)
+    rotate_y = t.get("rotate_y", "float", 0.0)
+    if t.has("file") and t.has("procedural"):
+        t.fail("procedural", "give either file or procedural, not both")
+    if t.has("procedural"):
+        kind = t.get("procedural", "str")
+        if kind != "sky":
+            t.fail("procedural", f"unknown procedural environment {kind!r} (sky)")
+        kw = {k: t.get(k, "float") for k in ("sun_elevation", "sun_azimuth", "sun_radius", "sun_radiance")
+              if t.has(k)}
+        if kw.get("sun_radius", 1.0) <= 0:
+            t.fail("sun_radius", "must be positive")
+        if kw.get("sun_radiance", 1.0) < 0:
+            t.fail("sun_radiance", "must not be negative")
+        pixels, name = procedural_sky(**kw), "procedural sky"
+    else:
+        rel = t.get("file", "str", required=True)
+        fname = os.path.join(base, rel)
+        try:
+            pixels = read_image(fname)
+        except WavlightError as e:
+            t.fail("file", str(e))
+        name = fname
+    t.done()
+    return Environment(pixels, scale, rotate_y, name)

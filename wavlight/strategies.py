@@ -1,0 +1,199 @@
+"""Direction sampling strategies for direct environment lighting.
+
+Every strategy draws directions with an exact pdf per unit solid angle and can
+evaluate that pdf for any direction (MIS needs it). A pdf of 0 means "no sample":
+its contribution is 0, never NaN.
+
+| id        | draws wi from                                  | pdf                                   |
+|-----------|------------------------------------------------|---------------------------------------|
+| uniform   | the hemisphere about the shading normal        | 1 / 2 pi                              |
+| cosine    | the hemisphere, cosine-weighted                | cos / pi                              |
+| bsdf      | the BRDF (lambert cosine, phong lobe, ggx VNDF) | :mod:`wavlight.bsdfs`                 |
+| light     | the environment: luminance x solid angle, by a | tree pdf on the equal-area square/4pi |
+|           | hierarchical warp of a :class:`HaarTree`       | (Chen & Gao eq. 19-22)                |
+| mis       | one light and one bsdf sample, power heuristic | both, weighted (Veach 1997)           |
+
+The ``mis`` estimator is Mitsuba 3's ``direct`` integrator with one emitter and one
+BSDF sample: each sample's contribution f L cos V / p is weighted by
+p_s^2 / (p_light^2 + p_bsdf^2).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import bsdfs, warp
+from .distributions import HaarTree
+
+
+@dataclass
+class ShadingPoints:
+    """Surface points to shade (N of them), in world space with local frames.
+
+    p, n, s, t : (N, 3) position, shading normal (facing the viewer) and tangents
+    wo : (N, 3) local direction to the viewer; kind, param, albedo : per point material
+    """
+
+    p: np.ndarray
+    n: np.ndarray
+    s: np.ndarray
+    t: np.ndarray
+    wo: np.ndarray
+    kind: np.ndarray
+    param: np.ndarray
+    albedo: np.ndarray
+
+    def __len__(self):
+        return len(self.p)
+
+    def to_local(self, w):
+        return warp.to_local(w, self.s, self.t, self.n)
+
+    def to_world(self, w):
+        return warp.to_world(w, self.s, self.t, self.n)
+
+    def _by_kind(self, fn, out, *arrays):
+        for k in np.unique(self.kind):
+            idx = np.nonzero(self.kind == k)[0]
+            out[idx] = fn(int(k), self.param[idx], *(a[idx] for a in arrays))
+        return out
+
+    def bsdf_eval_cos(self, wi_local):
+        """f(wi, wo) cos_i without albedo, (N,)."""
+        return self._by_kind(bsdfs.eval_cos, np.zeros(len(self)), wi_local, self.wo)
+
+    def bsdf_pdf(self, wi_local):
+        return self._by_kind(bsdfs.pdf, np.zeros(len(self)), wi_local, self.wo)
+
+    def bsdf_sample(self, u):
+        wi = np.zeros((len(self), 3))
+        pdf = np.zeros(len(self))
+        for k in np.unique(self.kind):
+            idx = np.nonzero(self.kind == k)[0]
+            wi[idx], pdf[idx] = bsdfs.sample(int(k), self.param[idx], u[idx], self.wo[idx])
+        return wi, pdf
+
+
+@dataclass
+class DirectionSamples:
+    """wi_world, wi_local (N, 3) and pdf (N,) per unit solid angle (0: no sample)."""
+
+    wi_world: np.ndarray
+    wi_local: np.ndarray
+    pdf: np.ndarray
+
+
+class Strategy:
+    """A way of drawing one direction per shading point."""
+
+    name = ""
+
+    def prepare(self, environment):
+        """Per-render precomputation (trees, kernels); called once before shading."""
+
+    def sample(self, sp: ShadingPoints, u: np.ndarray) -> DirectionSamples:
+        raise NotImplementedError
+
+    def pdf(self, sp: ShadingPoints, wi_local: np.ndarray, wi_world: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def info(self) -> dict:
+        return {}
+
+
+class UniformStrategy(Strategy):
+    name = "uniform"
+
+    def sample(self, sp, u):
+        wl = warp.square_to_uniform_hemisphere(u)
+        return DirectionSamples(sp.to_world(wl), wl, warp.square_to_uniform_hemisphere_pdf(wl))
+
+    def pdf(self, sp, wi_local, wi_world):
+        return warp.square_to_uniform_hemisphere_pdf(wi_local)
+
+
+class CosineStrategy(Strategy):
+    name = "cosine"
+
+    def sample(self, sp, u):
+        wl = warp.square_to_cosine_hemisphere(u)
+        return DirectionSamples(sp.to_world(wl), wl, warp.square_to_cosine_hemisphere_pdf(wl))
+
+    def pdf(self, sp, wi_local, wi_world):
+        return warp.square_to_cosine_hemisphere_pdf(wi_local)
+
+
+class BsdfStrategy(Strategy):
+    name = "bsdf"
+
+    def sample(self, sp, u):
+        wl, pdf = sp.bsdf_sample(u)
+        return DirectionSamples(sp.to_world(wl), wl, pdf)
+
+    def pdf(self, sp, wi_local, wi_world):
+        return sp.bsdf_pdf(wi_local)
+
+
+class LightStrategy(Strategy):
+    """Environment importance sampling from a luminance tree on the equal-area square.
+
+    pdf(wi) = tree pdf at the square point of wi / (4 pi)  (equal-area map).
+    """
+
+    name = "light"
+
+    def prepare(self, environment):
+        self.env = environment
+        leaves = environment.luminance_square()
+        self.tree = HaarTree(leaves)
+
+    def sample_directions(self, u):
+        """u (N, 2) -> world directions (N, 3) and pdf per solid angle (N,)."""
+        uv, pdf_sq = self.tree.sample(u)
+        d = self.env.map_to_world(warp.square_to_sphere_equal_area(uv.astype(np.float64)))
+        return d, pdf_sq.astype(np.float64) * warp.INV_4PI
+
+    def pdf_directions(self, d_world):
+        uv = warp.sphere_to_square_equal_area(self.env.world_to_map(d_world))
+        return self.tree.pdf(uv).astype(np.float64) * warp.INV_4PI
+
+    def sample(self, sp, u):
+        d, pdf = self.sample_directions(u)
+        return DirectionSamples(d, sp.to_local(d), pdf)
+
+    def pdf(self, sp, wi_local, wi_world):
+        return self.pdf_directions(wi_world)
+
+    def info(self):
+        side = 1 << self.tree.n_levels
+        return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(self.tree.stride * 4)}
+
+
+class MisStrategy(Strategy):
+    """One light and one BSDF sample per shading sample, power heuristic."""
+
+    name = "mis"
+
+    def __init__(self):
+        self.light = LightStrategy()
+        self.bsdf = BsdfStrategy()
+
+    def prepare(self, environment):
+        self.light.prepare(environment)
+
+    def info(self):
+        return self.light.info()
+
+
+REGISTRY = {cls.name: cls for cls in (UniformStrategy, CosineStrategy, BsdfStrategy, LightStrategy, MisStrategy)}
+
+
+def make(name: str) -> Strategy:
+    return REGISTRY[name]()
+
+
+def power_heuristic(p_a, p_b):
+    a2, b2 = p_a * p_a, p_b * p_b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
