@@ -57,7 +57,8 @@ def render(scene_file, output, spp, strategy, width, height, seed, as_json, quie
         output = os.path.splitext(os.path.basename(scene_file))[0] + ".png"
     if os.path.splitext(output)[1].lower() not in FORMATS:
         _fail(f"{output}: unsupported output format (use {', '.join(FORMATS)})")
-    for name, value, lo in (("--spp", spp, 1), ("--width", width, 1), ("--height", height, 1)):
+    for name, value, lo in (("--spp", spp, 1), ("--width", width, 1), ("--height", height, 1),
+                            ("--seed", seed, 0)):
         if value is not None and value < lo:
             _fail(f"{name} must be at least {lo}, got {value}")
     try:

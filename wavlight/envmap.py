@@ -37,7 +37,9 @@ def read_image(path: str) -> np.ndarray:
 
     if not os.path.isfile(path):
         raise WavlightError(f"{path}: no such file")
-    inp = oiio.ImageInput.open(path)
+    config = oiio.ImageSpec()
+    config.attribute("pnm:pfmflip", 1)  # PFM stores the bottom row first; read it upright
+    inp = oiio.ImageInput.open(path, config)
     if inp is None:
         raise WavlightError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown format'})")
     try:
@@ -62,7 +64,7 @@ def sanitize(pixels: np.ndarray, name: str) -> np.ndarray:
     bad = ~np.isfinite(pixels) | (pixels < 0)
     if bad.any():
         texels = int(bad.any(axis=-1).sum())
-        warnings.warn(f"{name}: {texels} texel(s) with NaN, Inf or negative values set to 0",
+        warnings.warn(f"{name}: {texels} texel(s) with NaN, Inf or negative values: those values set to 0",
                       stacklevel=2)
         pixels = np.where(bad, np.float32(0), pixels).astype(np.float32)
     return pixels

@@ -44,8 +44,15 @@ def save_image(path: str, image: np.ndarray) -> None:
         pixels, fmt = (srgb_encode(image) * 255.0 + 0.5).astype(np.uint8), oiio.UINT8
     else:
         pixels, fmt = np.ascontiguousarray(image), oiio.FLOAT
-    fd, tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=ext, dir=folder)
+    if os.path.isdir(path):
+        raise WavlightError(f"{path}: is a folder")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=ext, dir=folder)
+    except OSError as e:
+        raise WavlightError(f"{path}: cannot write ({e.strerror})") from None
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
     try:
         out = oiio.ImageOutput.create(tmp)
         if out is None:
@@ -56,7 +63,12 @@ def save_image(path: str, image: np.ndarray) -> None:
         out.close()
         if not ok:
             raise WavlightError(f"{path}: write failed ({err.strip() or 'unknown error'})")
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes files private; outputs get the usual mode
         os.replace(tmp, path)
+    except OSError as e:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise WavlightError(f"{path}: cannot write ({e.strerror})") from None
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -172,6 +172,8 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
         raise WavlightError(f"spp must be between 1 and {MAX_SPP}, got {spp}")
     if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
         raise WavlightError(f"resolution must be between 1x1 and {MAX_SIDE}x{MAX_SIDE}, got {width}x{height}")
+    if seed < 0:
+        raise WavlightError(f"seed must be non-negative, got {seed}")
     if strategy not in STRATEGIES:
         raise WavlightError(f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
     r = _Renderer(scene, strategy, spp, width, height, seed, threads)

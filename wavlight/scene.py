@@ -221,8 +221,8 @@ def _transform(t: _Table, v):
         r = t.data["rotate"]
         t.used.add("rotate")
         if (not isinstance(r, list) or len(r) != 4
-                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in r)):
-            t.fail("rotate", f"must be [axis x, y, z, degrees], got {r!r}")
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in r)):
+            t.fail("rotate", f"must be [axis x, y, z, degrees] of finite numbers, got {r!r}")
         axis = np.array(r[:3], np.float64)
         if np.linalg.norm(axis) == 0:
             t.fail("rotate", "axis must not be zero")
@@ -272,7 +272,7 @@ def load_scene(path: str) -> Scene:
     strategy = r.get("strategy", "str", "mis")
     if strategy not in STRATEGIES:
         r.fail("strategy", f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
-    seed = r.get("seed", "int", 0)
+    seed = _positive(r, "seed", r.get("seed", "int", 0), 0, 2 ** 63 - 1)
     r.done()
 
     c = _Table(path, "[camera]", doc.get("camera", {}))
@@ -301,11 +301,10 @@ def load_scene(path: str) -> Scene:
         albedo = t.get("albedo", "vec3", np.array([0.8, 0.8, 0.8]))
         if np.any(albedo < 0):
             t.fail("albedo", "must not be negative")
-        param = 0.0
-        if kind == "ggx":
-            param = _positive(t, "roughness", t.get("roughness", "float", 0.2), 1e-4, 1.0)
-        elif kind == "phong":
-            param = _positive(t, "exponent", t.get("exponent", "float", 100.0), 0.0, 1e6)
+        # Both keys are accepted on every type (the format's own example does so); each type uses its own.
+        roughness = _positive(t, "roughness", t.get("roughness", "float", 0.2), 1e-4, 1.0)
+        exponent = _positive(t, "exponent", t.get("exponent", "float", 100.0), 0.0, 1e6)
+        param = {"ggx": roughness, "phong": exponent}.get(kind, 0.0)
         t.done()
         index[name] = len(materials)
         materials.append(Material(name, bsdfs.TYPES[kind], albedo.astype(np.float32), float(param)))
@@ -366,4 +365,7 @@ def _environment(t: _Table, base) -> Environment:
             t.fail("file", str(e))
         name = fname
     t.done()
+    with np.errstate(over="ignore", invalid="ignore"):
+        if not np.all(np.isfinite(np.nan_to_num(pixels, nan=0, posinf=0, neginf=0) * np.float32(scale))):
+            t.fail("scale", f"{scale} makes the environment's radiance overflow to Inf")
     return Environment(pixels, scale, rotate_y, name)

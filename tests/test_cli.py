@@ -1,0 +1,615 @@
+"""The `wavlight` command line, end to end.
+
+A handful of tests run the installed console script in a subprocess (OpenCL start-up makes
+each render ~1.5 s); the many input-validation and output-format cases use click's CliRunner
+in-process (fast once OpenCL is up). Images are tiny (<= 16 x 12, 2-4 spp).
+
+The contract: bad input -> exit code 2, one line "Error: ..." naming the file (and, for scene
+errors, the key), no traceback, no output file or temporary left behind. Bad texels -> one
+"warning: ..." line, never NaN in the output. Output format follows the extension.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import wavlight
+from cli.main import main
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_SCENE = REPO / "scenes" / "default.toml"
+JSON_KEYS = ("strategy", "spp", "width", "height", "setup_seconds", "render_seconds", "samples_per_second")
+
+
+# ----------------------------------------------------------------------------- running the CLI
+def _command():
+    exe = Path(sys.executable).with_name("wavlight")
+    if exe.is_file():
+        return [str(exe)]
+    found = shutil.which("wavlight")
+    return [found] if found else [sys.executable, "-m", "cli.main"]
+
+
+@dataclass
+class Outcome:
+    code: int
+    stdout: str
+    stderr: str
+    exception: BaseException | None = None
+
+    def describe(self):
+        tb = "".join(traceback.format_exception(self.exception)) if self.exception else ""
+        return f"exit {self.code}\n--- stdout\n{self.stdout}\n--- stderr\n{self.stderr}\n{tb}"
+
+
+def run_process(*args, cwd=None) -> Outcome:
+    """The installed console script in a fresh process (the real thing users run)."""
+    p = subprocess.run(_command() + [str(a) for a in args], capture_output=True, text=True,
+                       cwd=cwd, timeout=300, env={**os.environ, "PYTHONWARNINGS": ""})
+    return Outcome(p.returncode, p.stdout, p.stderr)
+
+
+def run_inproc(*args) -> Outcome:
+    """The same command through click's CliRunner (an escaping exception is kept in .exception)."""
+    r = CliRunner().invoke(main, [str(a) for a in args])
+    exc = r.exception if r.exception is not None and not isinstance(r.exception, SystemExit) else None
+    return Outcome(r.exit_code, r.stdout, r.stderr, exc)
+
+
+def stderr_lines(o: Outcome):
+    return [line for line in o.stderr.splitlines() if line.strip()]
+
+
+def assert_clean_failure(o: Outcome, *names, output=None, folder=None):
+    """Exit 2, exactly one non-warning stderr line, starting with 'Error:' and naming every name."""
+    assert o.exception is None, o.describe()
+    assert "Traceback" not in o.stderr, o.describe()
+    assert o.code == 2, o.describe()
+    assert o.stdout == "", o.describe()
+    errors = [line for line in stderr_lines(o) if not line.startswith("warning:")]
+    assert len(errors) == 1, o.describe()
+    assert errors[0].startswith("Error: "), o.describe()
+    for name in names:
+        assert str(name) in errors[0], f"{name!r} not named\n{o.describe()}"
+    if output is not None:
+        assert not Path(output).exists(), f"{output} left behind\n{o.describe()}"
+    if folder is not None:
+        left = [p.name for p in Path(folder).iterdir() if p.name.startswith(".wavlight-")]
+        assert not left, f"temporary files left behind: {left}"
+    return errors[0]
+
+
+def assert_success(o: Outcome):
+    assert o.exception is None, o.describe()
+    assert "Traceback" not in o.stderr, o.describe()
+    assert o.code == 0, o.describe()
+
+
+# ----------------------------------------------------------------------------- files
+def write_env(path, pixels):
+    """Float RGB through OpenImageIO directly (wavlight.save_image refuses NaN / Inf on purpose)."""
+    import OpenImageIO as oiio
+
+    pixels = np.ascontiguousarray(pixels, np.float32)
+    out = oiio.ImageOutput.create(str(path))
+    assert out is not None, oiio.geterror()
+    assert out.open(str(path), oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.FLOAT))
+    assert out.write_image(pixels)
+    out.close()
+    return path
+
+
+def write_pfm(path, pixels):
+    """A PFM by the spec, by hand: little-endian, scanlines bottom to top."""
+    pixels = np.asarray(pixels, np.float32)
+    h, w = pixels.shape[:2]
+    body = np.ascontiguousarray(pixels[::-1]).astype("<f4").tobytes()
+    Path(path).write_bytes(f"PF\n{w} {h}\n-1.0\n".encode() + body)
+    return path
+
+
+def read_pfm(path):
+    """A PFM by the spec, by hand (independent of OpenImageIO): row 0 of the result is the top."""
+    data = Path(path).read_bytes()
+    parts = data.split(maxsplit=4)  # b"PF", w, h, scale, rest
+    assert parts[0] == b"PF", parts[0]
+    w, h, scale = int(parts[1]), int(parts[2]), float(parts[3])
+    body = data[len(data) - w * h * 12:]
+    px = np.frombuffer(body, "<f4" if scale < 0 else ">f4").reshape(h, w, 3)
+    return px[::-1].astype(np.float32)
+
+
+def read_image(path):
+    """(pixels, spec) with pixels float32 for float files and uint8 for 8-bit ones."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    spec = inp.spec()
+    fmt = oiio.UINT8 if spec.format == oiio.UINT8 else oiio.FLOAT
+    px = np.asarray(inp.read_image(format=fmt)).reshape(spec.height, spec.width, spec.nchannels)
+    inp.close()
+    if str(path).lower().endswith(".pfm"):
+        px = read_pfm(path)
+    return px, spec
+
+
+def write_scene(folder, text, name="scene.toml"):
+    path = Path(folder) / name
+    path.write_text(text)
+    return path
+
+
+def scene_text(env='procedural = "sky"', render="width = 8\nheight = 6\nspp = 2\n", objects=None,
+               camera=None, extra=""):
+    objects = objects if objects is not None else (
+        '[[objects]]\nshape = "sphere"\ncenter = [0.0, 0.5, 0.0]\nradius = 0.5\nsubdivisions = 2\n'
+        'material = "m"\n[[objects]]\nshape = "quad"\nsize = 4.0\n'
+        '[materials.m]\ntype = "ggx"\nalbedo = [0.9, 0.8, 0.5]\nroughness = 0.3\n')
+    camera = camera or 'eye = [0.0, 1.0, 3.0]\ntarget = [0.0, 0.4, 0.0]\n'
+    return f"[render]\n{render}\n[camera]\n{camera}\n[environment]\n{env}\n{objects}\n{extra}"
+
+
+def bad_texel_env(h=8, w=16):
+    px = np.random.default_rng(5).uniform(0.2, 3.0, (h, w, 3)).astype(np.float32)
+    px[0, :, 0] = np.nan          # the whole top row: looking up sees NaN in red
+    px[1, 3] = np.inf
+    px[2, 5, 1] = -np.inf
+    px[3, 7:10, 2] = -2.0
+    px[5, ::2] = np.nan           # below the horizon too, where the floor's shading samples
+    return px
+
+
+def no_temporaries(folder):
+    return [p.name for p in Path(folder).iterdir() if p.name.startswith(".wavlight-")]
+
+
+# ============================================================================= end to end (subprocess)
+def test_e2e_default_scene_png_json(tmp_path):
+    out = tmp_path / "default.png"
+    o = run_process("render", DEFAULT_SCENE, "-o", out, "--width", 16, "--height", 12, "--spp", 2, "--json",
+                    cwd=tmp_path)
+    assert_success(o)
+    assert o.stdout.count("\n") == 1 and o.stdout.endswith("\n"), o.describe()  # one object, one line
+    stats = json.loads(o.stdout)
+    assert isinstance(stats, dict)
+    for k in JSON_KEYS:
+        assert k in stats, f"missing {k}: {stats}"
+    assert (stats["width"], stats["height"], stats["spp"]) == (16, 12, 2)
+    assert stats["strategy"] == "mis"            # from the scene
+    if "seed" in stats:
+        assert stats["seed"] == 7                # from the scene
+    for k in ("setup_seconds", "render_seconds", "samples_per_second"):
+        assert isinstance(stats[k], (int, float)) and stats[k] >= 0, (k, stats[k])
+    assert stats["samples_per_second"] > 0
+    assert not [line for line in stderr_lines(o) if line.startswith("warning:")], o.describe()
+    px, spec = read_image(out)
+    assert (spec.width, spec.height, spec.nchannels) == (16, 12, 3)
+    assert px.dtype == np.uint8
+    assert px.std() > 0, "a flat image from the default scene"
+    assert no_temporaries(tmp_path) == []
+
+
+def test_e2e_flags_override_the_scene(tmp_path):
+    out = tmp_path / "o.exr"
+    o = run_process("render", DEFAULT_SCENE, "-o", out, "--spp", 3, "--strategy", "cosine", "--width", 10,
+                    "--height", 7, "--seed", 3, "--json", cwd=tmp_path)
+    assert_success(o)
+    stats = json.loads(o.stdout)
+    assert (stats["width"], stats["height"], stats["spp"], stats["strategy"]) == (10, 7, 3, "cosine")
+    if "seed" in stats:
+        assert stats["seed"] == 3
+    px, spec = read_image(out)
+    assert (spec.width, spec.height) == (10, 7)
+    assert np.all(np.isfinite(px))
+
+
+def test_e2e_exr_round_trips_linear_values(tmp_path):
+    """No geometry: every camera ray sees the constant environment, so every pixel is exactly it,
+    values above 1 included (no tone curve, no clamping for linear formats)."""
+    color = np.array([0.25, 1.5, 37.0], np.float32)
+    write_env(tmp_path / "env.exr", np.broadcast_to(color, (4, 8, 3)))
+    scene = write_scene(tmp_path, scene_text(env='file = "env.exr"\nscale = 2.0', objects=""))
+    out = tmp_path / "flat.exr"
+    assert_success(run_process("render", scene, "-o", out, "-q", cwd=tmp_path))
+    px, spec = read_image(out)
+    assert (spec.width, spec.height, spec.nchannels) == (8, 6, 3)
+    assert px.dtype == np.float32
+    np.testing.assert_allclose(px, np.broadcast_to(2.0 * color, px.shape), rtol=1e-6)
+
+
+def test_e2e_nan_texels_never_reach_the_exr(tmp_path):
+    write_env(tmp_path / "bad.exr", bad_texel_env())
+    scene = write_scene(tmp_path, scene_text(env='file = "bad.exr"', render="width = 12\nheight = 8\nspp = 4\n",
+                                             camera='eye = [0.0, 0.6, 3.0]\ntarget = [0.0, 0.6, 0.0]\nfov_y = 90.0\n'))
+    out = tmp_path / "out.exr"
+    o = run_process("render", scene, "-o", out, cwd=tmp_path)
+    assert_success(o)
+    warns = [line for line in stderr_lines(o) if line.startswith("warning:")]
+    assert len(warns) == 1, o.describe()
+    assert "bad.exr" in warns[0]
+    px, _ = read_image(out)
+    assert np.all(np.isfinite(px)), "NaN/Inf in the output"
+    assert px.min() >= 0
+    assert px.max() > 0
+
+
+BAD_E2E = {
+    "malformed toml": ("[render\nspp = 2\n", (), ("scene.toml",)),
+    "spp zero in the scene": (scene_text(render="spp = 0\n"), (), ("scene.toml", "[render].spp")),
+    "missing environment file": (scene_text(env='file = "nowhere.hdr"'), (), ("scene.toml", "[environment].file", "nowhere.hdr")),
+    "all-black environment": (scene_text(env='procedural = "sky"\nscale = 0.0'), (), ("scene.toml", "[environment]")),
+    "unsupported output extension": (scene_text(), ("-o", "{tmp}/out.jpg"), ("out.jpg",)),
+    "absurd resolution": (scene_text(), ("--width", 100000, "--height", 100000), ("100000",)),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_E2E))
+def test_e2e_bad_input(tmp_path, case):
+    text, args, names = BAD_E2E[case]
+    scene = write_scene(tmp_path, text)
+    args = [str(a).format(tmp=tmp_path) for a in args]
+    out = args[args.index("-o") + 1] if "-o" in args else tmp_path / "out.png"
+    if "-o" not in args:
+        args += ["-o", str(out)]
+    o = run_process("render", scene, *args, "--json", cwd=tmp_path)
+    assert_clean_failure(o, *names, output=out, folder=tmp_path)
+
+
+def test_e2e_missing_scene_file(tmp_path):
+    o = run_process("render", tmp_path / "nope.toml", "-o", tmp_path / "x.png", cwd=tmp_path)
+    assert_clean_failure(o, "nope.toml", output=tmp_path / "x.png", folder=tmp_path)
+
+
+def test_e2e_negative_seed_is_not_a_crash(tmp_path):
+    """--seed -1 is an int click accepts: it must render, or be refused with a one-line error."""
+    scene = write_scene(tmp_path, scene_text())
+    out = tmp_path / "o.png"
+    o = run_process("render", scene, "-o", out, "--seed", -1, cwd=tmp_path)
+    assert "Traceback" not in o.stderr, o.describe()
+    if o.code == 2:
+        assert_clean_failure(o, "seed", output=out, folder=tmp_path)
+    else:
+        assert_success(o)
+        assert out.is_file()
+
+
+def test_e2e_info():
+    o = run_process("info")
+    assert_success(o)
+    text = o.stdout
+    assert f"wavlight {wavlight.__version__}" in text
+    for word in ("python", "numpy", "pyopencl", "device in use:"):
+        assert word in text, o.describe()
+    assert re.search(r"^\s+\[\d+:\d+\] \S", text, re.M), o.describe()  # the platform/device list
+
+
+# ============================================================================= in-process (CliRunner)
+def test_json_is_one_object_and_nothing_else_on_stdout(tmp_path):
+    scene = write_scene(tmp_path, scene_text())
+    o = run_inproc("render", scene, "-o", tmp_path / "a.png", "--json")
+    assert_success(o)
+    assert len(o.stdout.strip().splitlines()) == 1
+    stats = json.loads(o.stdout)
+    assert set(JSON_KEYS) <= set(stats)
+    # without --json nothing at all goes to stdout (the summary is on stderr)
+    o = run_inproc("render", scene, "-o", tmp_path / "b.png")
+    assert_success(o)
+    assert o.stdout == ""
+    assert "b.png" in o.stderr
+    # --quiet: silence on success
+    o = run_inproc("render", scene, "-o", tmp_path / "c.png", "-q")
+    assert_success(o)
+    assert o.stdout == "" and o.stderr == ""
+
+
+def test_scene_settings_apply_without_flags_and_flags_override(tmp_path):
+    scene = write_scene(tmp_path, scene_text(render='width = 6\nheight = 4\nspp = 3\nstrategy = "uniform"\nseed = 5\n'))
+    o = run_inproc("render", scene, "-o", tmp_path / "a.exr", "--json")
+    assert_success(o)
+    s = json.loads(o.stdout)
+    assert (s["width"], s["height"], s["spp"], s["strategy"], s.get("seed", 5)) == (6, 4, 3, "uniform", 5)
+    assert read_image(tmp_path / "a.exr")[1].width == 6
+    for flags, want in [(("--spp", 2), ("spp", 2)), (("--strategy", "light"), ("strategy", "light")),
+                        (("--width", 5), ("width", 5)), (("--height", 3), ("height", 3)),
+                        (("--seed", 9), ("seed", 9))]:
+        o = run_inproc("render", scene, "-o", tmp_path / "b.exr", "--json", *flags)
+        assert_success(o)
+        s = json.loads(o.stdout)
+        if want[0] in s:
+            assert s[want[0]] == want[1], (flags, s)
+        _, spec = read_image(tmp_path / "b.exr")
+        assert (spec.width, spec.height) == (s["width"], s["height"])
+
+
+@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis"])
+def test_every_strategy_flag_renders(tmp_path, strategy):
+    scene = write_scene(tmp_path, scene_text())
+    o = run_inproc("render", scene, "-o", tmp_path / "a.exr", "--strategy", strategy, "--json")
+    assert_success(o)
+    assert json.loads(o.stdout)["strategy"] == strategy
+    px, _ = read_image(tmp_path / "a.exr")
+    assert np.all(np.isfinite(px)) and px.min() >= 0 and px.max() > 0
+
+
+def test_same_seed_same_image_other_seed_other_noise(tmp_path):
+    scene = write_scene(tmp_path, scene_text(render='width = 8\nheight = 6\nspp = 2\nstrategy = "uniform"\n'))
+    for name, seed in (("a", 1), ("b", 1), ("c", 2)):
+        assert_success(run_inproc("render", scene, "-o", tmp_path / f"{name}.exr", "--seed", seed, "-q"))
+    a, b, c = (read_image(tmp_path / f"{n}.exr")[0] for n in "abc")
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_default_output_name_is_the_scene_name_png(tmp_path, monkeypatch):
+    scene = write_scene(tmp_path, scene_text(), name="myscene.toml")
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    monkeypatch.chdir(run_dir)
+    assert_success(run_inproc("render", scene, "-q"))
+    _, spec = read_image(run_dir / "myscene.png")
+    assert (spec.width, spec.height) == (8, 6)
+
+
+# ----------------------------------------------------------------------------- output formats
+def _srgb8(x):
+    x = min(max(x, 0.0), 1.0)
+    s = 12.92 * x if x <= 0.0031308 else 1.055 * x ** (1 / 2.4) - 0.055
+    return int(s * 255 + 0.5)
+
+
+@pytest.mark.parametrize("ext", [".exr", ".pfm", ".hdr", ".png", ".EXR"])
+def test_output_format_follows_the_extension(tmp_path, ext):
+    color = np.array([0.002, 0.2, 3.5], np.float32)
+    write_env(tmp_path / "env.exr", np.broadcast_to(color, (4, 8, 3)))
+    scene = write_scene(tmp_path, scene_text(env='file = "env.exr"', objects=""))
+    out = tmp_path / f"o{ext}"
+    assert_success(run_inproc("render", scene, "-o", out, "-q"))
+    px, spec = read_image(out)
+    assert (spec.width, spec.height, spec.nchannels) == (8, 6, 3)
+    if ext.lower() == ".png":
+        assert px.dtype == np.uint8
+        assert px.reshape(-1, 3).tolist() == [[_srgb8(float(c)) for c in color]] * 48
+        return
+    assert px.dtype == np.float32
+    want = np.broadcast_to(color, px.shape)
+    if ext == ".hdr":  # RGBE: 8-bit mantissas with a shared exponent
+        assert np.abs(px - want).max() <= 0.01 * color.max()
+    else:
+        np.testing.assert_allclose(px, want, rtol=1e-6)
+    head = out.read_bytes()[:10]
+    magic = {".exr": b"\x76\x2f\x31\x01", ".pfm": b"PF", ".hdr": b"#?"}[ext.lower()]
+    assert head.startswith(magic), head
+
+
+def _orientation_env(h=4, w=8):
+    """Top half (+Y) bright, bottom half dim; column 0 (just right of -Z) green, column w-1 red."""
+    base = np.full((w, 3), 0.5, np.float32)
+    base[0] = [0.1, 1.0, 0.1]
+    base[w - 1] = [1.0, 0.1, 0.1]
+    return np.concatenate([np.broadcast_to(4.0 * base, (h // 2, w, 3)),
+                           np.broadcast_to(0.25 * base, (h - h // 2, w, 3))]).astype(np.float32)
+
+
+@pytest.mark.parametrize("env_ext, out_ext", [("exr", ".exr"), ("exr", ".pfm"), ("pfm", ".exr")])
+def test_image_orientation_through_files(tmp_path, env_ext, out_ext):
+    """Looking down -Z with up = +Y and no geometry: the top of the image sees the top of the map,
+    the right of the image sees +X (map column 0, u = atan2(x, -z) / 2pi just above 0), the left
+    sees the last column. Checks the environment reader, the camera and the writer together; the
+    .pfm files are read and written by hand, by the spec (scanlines bottom to top)."""
+    env = _orientation_env()
+    (write_pfm if env_ext == "pfm" else write_env)(tmp_path / f"env.{env_ext}", env)
+    scene = write_scene(tmp_path, scene_text(env=f'file = "env.{env_ext}"', objects="",
+                                             render="width = 8\nheight = 8\nspp = 4\n",
+                                             camera='eye = [0.0, 0.0, 0.0]\ntarget = [0.0, 0.0, -1.0]\n'
+                                                    'up = [0.0, 1.0, 0.0]\nfov_y = 90.0\n'))
+    out = tmp_path / f"o{out_ext}"
+    assert_success(run_inproc("render", scene, "-o", out, "-q"))
+    px = read_pfm(out) if out_ext == ".pfm" else read_image(out)[0]
+    w = env.shape[1]
+    np.testing.assert_allclose(px[:4, 4:], np.broadcast_to(env[0, 0], (4, 4, 3)), rtol=1e-6)   # top right
+    np.testing.assert_allclose(px[:4, :4], np.broadcast_to(env[0, w - 1], (4, 4, 3)), rtol=1e-6)  # top left
+    np.testing.assert_allclose(px[4:, 4:], np.broadcast_to(env[-1, 0], (4, 4, 3)), rtol=1e-6)  # bottom right
+    np.testing.assert_allclose(px[4:, :4], np.broadcast_to(env[-1, w - 1], (4, 4, 3)), rtol=1e-6)
+
+
+def test_output_file_gets_the_usual_permissions(tmp_path):
+    """The atomic write goes through a temporary file; the result must still be an ordinary file
+    (mode 0666 & ~umask, like any file the user creates), not mkstemp's private 0600."""
+    scene = write_scene(tmp_path, scene_text())
+    out = tmp_path / "o.png"
+    assert_success(run_inproc("render", scene, "-o", out, "-q"))
+    umask = os.umask(0)
+    os.umask(umask)
+    assert oct(out.stat().st_mode & 0o777) == oct(0o666 & ~umask)
+
+
+def test_failed_write_leaves_the_old_file_and_no_temporary(tmp_path, monkeypatch):
+    """Atomic output: a writer that fails half way leaves the previous file untouched."""
+    import OpenImageIO as oiio
+
+    out = tmp_path / "o.exr"
+    out.write_bytes(b"previous")
+
+    class HalfWriter:
+        @staticmethod
+        def create(name):
+            return HalfWriter(name)
+
+        def __init__(self, name):
+            self.name = name
+
+        def open(self, name, spec):
+            Path(name).write_bytes(b"\x76\x2f\x31\x01 partial")
+            return True
+
+        def write_image(self, pixels):
+            return False
+
+        def geterror(self):
+            return "disk full"
+
+        def close(self):
+            return True
+
+    scene = write_scene(tmp_path, scene_text())
+    monkeypatch.setattr(oiio, "ImageOutput", HalfWriter)
+    o = run_inproc("render", scene, "-o", out)
+    monkeypatch.undo()
+    assert_clean_failure(o, "o.exr", folder=tmp_path)
+    assert out.read_bytes() == b"previous"
+    # and a failure before anything is written leaves nothing at all
+    new = tmp_path / "new.exr"
+    monkeypatch.setattr(oiio, "ImageOutput", HalfWriter)
+    o = run_inproc("render", scene, "-o", new)
+    monkeypatch.undo()
+    assert_clean_failure(o, "new.exr", output=new, folder=tmp_path)
+
+
+def test_output_path_is_a_folder(tmp_path):
+    scene = write_scene(tmp_path, scene_text())
+    (tmp_path / "taken.png").mkdir()
+    o = run_inproc("render", scene, "-o", tmp_path / "taken.png")
+    assert_clean_failure(o, "taken.png", folder=tmp_path)
+    assert (tmp_path / "taken.png").is_dir()
+
+
+def test_output_folder_missing(tmp_path):
+    scene = write_scene(tmp_path, scene_text())
+    out = tmp_path / "no" / "such" / "dir" / "o.exr"
+    assert_clean_failure(run_inproc("render", scene, "-o", out), "o.exr", output=out, folder=tmp_path)
+
+
+# ----------------------------------------------------------------------------- bad texels
+@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis"])
+def test_bad_texels_warn_once_and_never_reach_the_output(tmp_path, strategy):
+    write_env(tmp_path / "bad.exr", bad_texel_env())
+    scene = write_scene(tmp_path, scene_text(env='file = "bad.exr"\nrotate_y = 20.0',
+                                             camera='eye = [0.0, 0.6, 3.0]\ntarget = [0.0, 0.6, 0.0]\n'
+                                                    'fov_y = 100.0\n'))
+    out = tmp_path / "o.exr"
+    o = run_inproc("render", scene, "-o", out, "--strategy", strategy, "--spp", 4)
+    assert_success(o)
+    warns = [line for line in stderr_lines(o) if line.startswith("warning:")]
+    assert len(warns) == 1 and "bad.exr" in warns[0], o.describe()
+    assert not [line for line in stderr_lines(o) if line.startswith("Error")]
+    px, _ = read_image(out)
+    assert np.all(np.isfinite(px)) and px.min() >= 0
+
+
+def test_environment_of_only_bad_texels_is_black(tmp_path):
+    env = np.full((4, 8, 3), np.nan, np.float32)
+    env[1] = -1.0
+    env[2] = np.inf
+    write_env(tmp_path / "bad.exr", env)
+    scene = write_scene(tmp_path, scene_text(env='file = "bad.exr"'))
+    out = tmp_path / "o.exr"
+    o = run_inproc("render", scene, "-o", out)
+    msg = assert_clean_failure(o, "scene.toml", "[environment]", output=out, folder=tmp_path)
+    assert "black" in msg
+    assert len([line for line in stderr_lines(o) if line.startswith("warning:")]) == 1
+
+
+# ----------------------------------------------------------------------------- bad input (in-process)
+BAD = {
+    # name: (scene text, extra args, names the error line must contain)
+    "malformed toml": ("[render]\nspp = = 2\n", (), ("scene.toml",)),
+    "unknown key": (scene_text(extra="[materials.m2]\ntype = \"lambert\"\nshine = 1.0\n"), (), ("scene.toml", "[materials.m2].shine")),
+    "unknown table": ("[cameras]\nfov_y = 30.0\n" + scene_text(), (), ("scene.toml", "cameras")),
+    "wrong type": (scene_text(render='width = "wide"\n'), (), ("scene.toml", "[render].width")),
+    "wrong type in camera": (scene_text(camera="eye = [0.0, 1.0]\n"), (), ("scene.toml", "[camera].eye")),
+    "unknown material": (scene_text(objects='[[objects]]\nshape = "quad"\nmaterial = "gold"\n'), (), ("scene.toml", "[[objects]][0].material", "gold")),
+    "missing mesh file": (scene_text(objects='[[objects]]\nmesh = "bunny.ply"\n'), (), ("scene.toml", "[[objects]][0].mesh", "bunny.ply")),
+    "missing environment file": (scene_text(env='file = "env/none.exr"'), (), ("scene.toml", "[environment].file", "none.exr")),
+    "unreadable environment file": (scene_text(env='file = "junk.hdr"'), (), ("scene.toml", "[environment].file", "junk.hdr")),
+    "spp zero in the scene": (scene_text(render="spp = 0\n"), (), ("scene.toml", "[render].spp")),
+    "absurd resolution in the scene": (scene_text(render="width = 100000\nheight = 100000\n"), (), ("scene.toml", "[render].width")),
+    "unknown strategy in the scene": (scene_text(render='strategy = "sir"\n'), (), ("scene.toml", "[render].strategy")),
+    "black environment (scale 0)": (scene_text(env='procedural = "sky"\nscale = 0.0'), (), ("scene.toml", "[environment]", "black")),
+    "black environment (file)": (scene_text(env='file = "black.exr"'), (), ("scene.toml", "[environment]", "black")),
+    "only degenerate triangles": (scene_text(objects='[[objects]]\nmesh = "flat.obj"\n'), (), ("scene.toml", "[[objects]][0]", "degenerate")),
+    "--spp 0": (scene_text(), ("--spp", 0), ("--spp",)),
+    "--spp negative": (scene_text(), ("--spp", -5), ("--spp",)),
+    "--spp too many": (scene_text(), ("--spp", 10 ** 9), ("spp",)),
+    "--width 0": (scene_text(), ("--width", 0), ("--width",)),
+    "--height negative": (scene_text(), ("--height", -1), ("--height",)),
+    "absurd resolution flags": (scene_text(), ("--width", 100000, "--height", 100000), ("100000",)),
+    "unsupported extension": (scene_text(), ("-o", "{tmp}/o.tiff"), ("o.tiff",)),
+    "no extension": (scene_text(), ("-o", "{tmp}/output"), ("output",)),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_input(tmp_path, case):
+    text, args, names = BAD[case]
+    (tmp_path / "junk.hdr").write_bytes(b"not an image at all\n")
+    write_env(tmp_path / "black.exr", np.zeros((4, 8, 3)))
+    (tmp_path / "flat.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\nf 1 1 4\n")
+    scene = write_scene(tmp_path, text)
+    args = [str(a).format(tmp=tmp_path) for a in args]
+    if "-o" in args:
+        out = Path(args[args.index("-o") + 1])
+    else:
+        out = tmp_path / "out.exr"
+        args += ["-o", str(out)]
+    o = run_inproc("render", scene, *args, "--json")
+    assert_clean_failure(o, *names, output=out, folder=tmp_path)
+
+
+def test_unknown_strategy_flag(tmp_path):
+    """A click usage error: exit 2 and an 'Error:' line naming the option (click adds a usage hint)."""
+    scene = write_scene(tmp_path, scene_text())
+    out = tmp_path / "o.png"
+    o = run_inproc("render", scene, "-o", out, "--strategy", "best")
+    assert o.exception is None and o.code == 2, o.describe()
+    errors = [line for line in stderr_lines(o) if line.startswith("Error:")]
+    assert len(errors) == 1 and "--strategy" in errors[0]
+    assert not out.exists()
+
+
+def test_scene_path_is_a_folder(tmp_path):
+    o = run_inproc("render", tmp_path, "-o", tmp_path / "o.png")
+    assert o.exception is None and o.code == 2, o.describe()
+    assert not (tmp_path / "o.png").exists()
+
+
+def test_negative_seed_in_the_scene_is_not_a_crash(tmp_path):
+    """The scene loader accepts `seed = -1` (any integer): rendering it must work, or the loader
+    must refuse it with an error naming [render].seed."""
+    scene = write_scene(tmp_path, scene_text(render="width = 4\nheight = 4\nspp = 1\nseed = -1\n"))
+    out = tmp_path / "o.png"
+    o = run_inproc("render", scene, "-o", out, "-q")
+    assert o.exception is None, o.describe()
+    if o.code == 2:
+        assert_clean_failure(o, "scene.toml", "[render].seed", output=out, folder=tmp_path)
+    else:
+        assert_success(o)
+        assert out.is_file()
+
+
+def test_degenerate_triangles_warn_and_render(tmp_path):
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 4 5\n")
+    scene = write_scene(tmp_path, scene_text(objects='[[objects]]\nmesh = "m.obj"\n'))
+    out = tmp_path / "o.png"
+    o = run_inproc("render", scene, "-o", out, "-q")
+    assert_success(o)
+    warns = [line for line in stderr_lines(o) if line.startswith("warning:")]
+    assert len(warns) == 1 and "degenerate" in warns[0] and "scene.toml" in warns[0], o.describe()
+    assert out.is_file()
+
+
+def test_version_flag():
+    o = run_inproc("--version")
+    assert_success(o)
+    assert wavlight.__version__ in o.stdout
