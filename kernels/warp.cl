@@ -1,62 +1,17 @@
-/* Hierarchical warping of uniform points by a sampling tree (Chen & Gao sec. 4.3,
- * eq. 19-22; Clarberg et al. 2005).
- *
- * A sample walks from the root to a leaf. At each node it first picks the top or
- * bottom pair of children with probability proportional to their mass, then the
- * left or right child of that pair, rescaling the used uniform number into [0, 1)
- * each time so that stratified inputs stay stratified. The child's conditional
- * probability is m_child / m_parent = (1/2) F^0_{l+1} / F^0_l (eq. 22). In the leaf
- * the point lands uniformly. Its density on the unit square is
- *     pdf = m_leaf / m_root * 4^n                                     (eq. 19-20)
- * and warp_pdf evaluates the same expression for any given point. Nodes of zero
- * mass are never entered; a tree whose root is zero yields pdf 0 ("no sample").
- *
- * Sample i uses tree i / samples_per_tree, so the same kernel serves the single
- * environment tree (samples_per_tree = n) and per-shading-point product trees.
+/* Hierarchical warping of uniform points by sampling trees, batched: sample i uses
+ * tree i / samples_per_tree, so the same kernels serve the single environment
+ * tree and per-shading-point product trees. The walk itself is in warp.h.
  */
-#include "common.h"
+#include "warp.h"
 
 __kernel void warp_sample(__global const float *tree, const ulong tree_stride, const int n_levels,
                           const uint samples_per_tree, __global const float2 *u_in,
                           __global float2 *uv_out, __global float *pdf_out)
 {
     const uint i = get_global_id(0);
-    __global const float *base = tree + (ulong)(i / samples_per_tree) * tree_stride;
-    const float root = base[0];
-    float2 u = clamp(u_in[i], 0.0f, ONE_MINUS_EPS);
-    uint x = 0, y = 0;
-    for (int l = 0; l < n_levels; ++l) {
-        const uint cside = 2u << l;
-        __global const float *child = base + LEVEL_OFFSET(l + 1);
-        const uint c = (2 * y) * cside + 2 * x;
-        const float m00 = child[c], m10 = child[c + 1];
-        const float m01 = child[c + cside], m11 = child[c + cside + 1];
-        const float top = m00 + m10, bottom = m01 + m11;
-        /* top (row 2y) or bottom (row 2y + 1) pair */
-        const float p_top = top / (top + bottom);
-        float left, right;
-        if (u.y < p_top) {
-            u.y = u.y / p_top;
-            left = m00; right = m10; y = 2 * y;
-        } else {
-            u.y = (u.y - p_top) / (1.0f - p_top);
-            left = m01; right = m11; y = 2 * y + 1;
-        }
-        u.y = fmin(u.y, ONE_MINUS_EPS);
-        /* left (column 2x) or right (column 2x + 1) child */
-        const float p_left = left / (left + right);
-        if (u.x < p_left) {
-            u.x = u.x / p_left; x = 2 * x;
-        } else {
-            u.x = (u.x - p_left) / (1.0f - p_left); x = 2 * x + 1;
-        }
-        u.x = fmin(u.x, ONE_MINUS_EPS);
-    }
-    const uint side = 1u << n_levels;
-    const float leaf = base[LEVEL_OFFSET(n_levels) + (ulong)y * side + x];
-    const float inv = 1.0f / (float)side;
-    uv_out[i] = (float2)(((float)x + u.x) * inv, ((float)y + u.y) * inv);
-    pdf_out[i] = (root > 0.0f) ? leaf / root * (float)side * (float)side : 0.0f;
+    float pdf;
+    uv_out[i] = tree_sample(tree + (ulong)(i / samples_per_tree) * tree_stride, n_levels, u_in[i], &pdf);
+    pdf_out[i] = pdf;
 }
 
 __kernel void warp_pdf(__global const float *tree, const ulong tree_stride, const int n_levels,
@@ -64,12 +19,5 @@ __kernel void warp_pdf(__global const float *tree, const ulong tree_stride, cons
                        __global float *pdf_out)
 {
     const uint i = get_global_id(0);
-    __global const float *base = tree + (ulong)(i / samples_per_tree) * tree_stride;
-    const float root = base[0];
-    const uint side = 1u << n_levels;
-    const float2 uv = uv_in[i];
-    const uint x = (uint)clamp((int)floor(uv.x * side), 0, (int)side - 1);
-    const uint y = (uint)clamp((int)floor(uv.y * side), 0, (int)side - 1);
-    const float leaf = base[LEVEL_OFFSET(n_levels) + (ulong)y * side + x];
-    pdf_out[i] = (root > 0.0f) ? leaf / root * (float)side * (float)side : 0.0f;
+    pdf_out[i] = tree_pdf(tree + (ulong)(i / samples_per_tree) * tree_stride, n_levels, uv_in[i]);
 }

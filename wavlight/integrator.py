@@ -24,8 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import strategies, warp
+from . import strategies
 from .raytrace import RayTracer
+from .shading import KernelShader, NumpyShader
 from .scene import MAX_SIDE, MAX_SPP, STRATEGIES, Scene
 from .errors import WavlightError
 
@@ -62,16 +63,15 @@ def camera_rays(scene: Scene, px: np.ndarray, py: np.ndarray, jitter: np.ndarray
 
 
 class _Renderer:
-    def __init__(self, scene: Scene, strategy: str, spp: int, width: int, height: int, seed: int, threads):
+    def __init__(self, scene: Scene, strategy: str, spp: int, width: int, height: int, seed: int, threads,
+                 backend="opencl"):
         self.scene, self.spp, self.width, self.height, self.seed = scene, spp, width, height, seed
         self.threads = threads or os.cpu_count() or 1
         t0 = time.perf_counter()
         self.tracer = RayTracer(scene.vertices, scene.faces)
         self.strategy = strategies.make(strategy)
         self.strategy.prepare(scene.environment)
-        self.kind = scene.material_kind
-        self.param = scene.material_param
-        self.albedo = scene.material_albedo
+        self.shader = (NumpyShader if backend == "numpy" else KernelShader)(scene, self.strategy)
         self.setup_seconds = time.perf_counter() - t0
         self.rays = 0
         self._rays_lock = threading.Lock()
@@ -83,44 +83,19 @@ class _Renderer:
     # -- shading
     def shade(self, o, d, prim, t, rng):
         """Radiance estimates (N, 3) for camera rays that hit prim at distance t."""
-        env = self.scene.environment
         ng = self.tracer.face_normals[prim].astype(np.float64)
         flip = np.einsum("ij,ij->i", ng, d) > 0
         n = np.where(flip[:, None], -ng, ng)
         p = o + d * t[:, None]
-        s, tt = warp.frame(n)
-        mat = self.scene.face_material[prim]
-        sp = strategies.ShadingPoints(p, n, s, tt, warp.to_local(-d, s, tt, n), self.kind[mat],
-                                      self.param[mat], self.albedo[mat])
-        strat = self.strategy
-        if isinstance(strat, strategies.MisStrategy):
-            parts = []
-            for mine, other in ((strat.light, strat.bsdf), (strat.bsdf, strat.light)):
-                ds = mine.sample(sp, rng.random((len(sp), 2)))
-                w = strategies.power_heuristic(ds.pdf, other.pdf(sp, ds.wi_local, ds.wi_world))
-                parts.append(self._estimate(sp, env, ds, w))
-            return parts[0] + parts[1]
-        ds = strat.sample(sp, rng.random((len(sp), 2)))
-        return self._estimate(sp, env, ds, 1.0)
-
-    def _estimate(self, sp, env, ds, mis_weight):
-        """albedo f cos L V / pdf (x MIS weight), tracing shadow rays only where it is non-zero."""
-        fcos = sp.bsdf_eval_cos(ds.wi_local)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            scalar = np.where(ds.pdf > 0, fcos * mis_weight / ds.pdf, 0.0)
-        live = np.nonzero((scalar > 0) & np.isfinite(scalar))[0]
-        out = np.zeros((len(sp), 3))
-        if len(live) == 0:
-            return out
-        wi = ds.wi_world[live]
-        value = scalar[live, None] * sp.albedo[live] * env.eval(wi)
-        lit = np.nonzero(value.max(axis=1) > 0)[0]
-        origins = sp.p[live[lit]] + sp.n[live[lit]] * self.tracer.epsilon
-        blocked = self.tracer.occluded(origins, wi[lit])
-        self.count_rays(len(lit))
-        keep = lit[~blocked]
-        out[live[keep]] = value[keep]
-        return out
+        u = rng.random((len(prim), 4), dtype=np.float32)
+        wi, value = self.shader(n, -d, self.scene.face_material[prim], u, p=p)
+        # Shadow rays only for non-zero estimates; MIS has two per point.
+        pt, slot = np.nonzero(value.max(axis=2) > 0)
+        visible = np.zeros(value.shape[:2], np.float32)
+        blocked = self.tracer.occluded(p[pt] + n[pt] * self.tracer.epsilon, wi[pt, slot])
+        self.count_rays(len(pt))
+        visible[pt, slot] = ~blocked
+        return np.einsum("ijk,ij->ik", value, visible)
 
     # -- one tile
     def tile(self, index, x0, y0, w, h):
@@ -157,11 +132,12 @@ def _tiles(width, height, spp):
 
 
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
-                progress=None, threads=None) -> RenderResult:
+                progress=None, threads=None, backend="opencl") -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     Arguments left as None come from the scene file. ``progress(done, total, samples, seconds)``
-    is called after each tile.
+    is called after each tile. ``backend="numpy"`` shades with the numpy reference
+    instead of the OpenCL kernel (same random numbers, same estimator).
     """
     spp = scene.spp if spp is None else int(spp)
     strategy = scene.strategy if strategy is None else strategy
@@ -176,7 +152,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
         raise WavlightError(f"seed must be non-negative, got {seed}")
     if strategy not in STRATEGIES:
         raise WavlightError(f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
-    r = _Renderer(scene, strategy, spp, width, height, seed, threads)
+    r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend)
     image = np.zeros((height, width, 3), np.float32)
     stderr = np.zeros((height, width, 3), np.float32)
     tiles = _tiles(width, height, spp)

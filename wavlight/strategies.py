@@ -186,6 +186,9 @@ class MisStrategy(Strategy):
         return self.light.info()
 
 
+#: kernel ids of the strategies (-DSTRATEGY in kernels/shade.cl)
+KERNEL_ID = {"uniform": 0, "cosine": 1, "bsdf": 2, "light": 3, "mis": 4}
+
 REGISTRY = {cls.name: cls for cls in (UniformStrategy, CosineStrategy, BsdfStrategy, LightStrategy, MisStrategy)}
 
 
@@ -197,3 +200,34 @@ def power_heuristic(p_a, p_b):
     a2, b2 = p_a * p_a, p_b * p_b
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
+
+
+def _unoccluded(sp, env, ds, mis_weight):
+    """albedo f cos L / pdf (x MIS weight) per sample, (N, 3); 0 where pdf is 0."""
+    fcos = sp.bsdf_eval_cos(ds.wi_local)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scalar = np.where(ds.pdf > 0, fcos * mis_weight / ds.pdf, 0.0)
+    scalar = np.where((scalar > 0) & np.isfinite(scalar), scalar, 0.0)
+    return scalar[:, None] * sp.albedo * env.eval(ds.wi_world)
+
+
+def shade_reference(strategy: Strategy, env, sp: ShadingPoints, u: np.ndarray):
+    """numpy twin of the ``shade`` kernel (kernels/shade.cl).
+
+    u : (N, 4) uniforms; single strategies use u[:, :2], MIS draws its light sample
+    from u[:, :2] (slot 0) and its bsdf sample from u[:, 2:] (slot 1).
+    returns wi (N, 2, 3) world directions and value (N, 2, 3) unoccluded estimates.
+    """
+    n = len(sp)
+    wi = np.zeros((n, 2, 3))
+    value = np.zeros((n, 2, 3))
+    if isinstance(strategy, MisStrategy):
+        pairs = ((0, strategy.light, strategy.bsdf, u[:, :2]), (1, strategy.bsdf, strategy.light, u[:, 2:4]))
+        for slot, mine, other, uu in pairs:
+            ds = mine.sample(sp, uu)
+            w = power_heuristic(ds.pdf, other.pdf(sp, ds.wi_local, ds.wi_world))
+            wi[:, slot], value[:, slot] = ds.wi_world, _unoccluded(sp, env, ds, w)
+    else:
+        ds = strategy.sample(sp, u[:, :2])
+        wi[:, 0], value[:, 0] = ds.wi_world, _unoccluded(sp, env, ds, 1.0)
+    return wi, value

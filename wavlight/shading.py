@@ -1,0 +1,75 @@
+"""Shading on the OpenCL device: the ``shade`` kernel of kernels/shade.cl.
+
+:class:`KernelShader` uploads the environment (texels, rotation), the light tree
+and the material table once, then shades batches of points: for each point one
+direction per strategy sample (two for MIS) and its unoccluded estimate. Its numpy
+twin is :func:`wavlight.strategies.shade_reference`; :class:`NumpyShader` wraps
+that twin behind the same call, for tests and for devices without OpenCL.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import cl, strategies, warp
+
+
+def _float4(a):
+    """(N, 3) -> (N, 4) float32 with w = 0."""
+    out = np.zeros((len(a), 4), np.float32)
+    out[:, :3] = a
+    return out
+
+
+class KernelShader:
+    """shade(n, wo, material, u) -> wi (N, 2, 3), value (N, 2, 3), float32."""
+
+    def __init__(self, scene, strategy: strategies.Strategy):
+        env = scene.environment
+        self.strategy = strategy
+        texels = np.zeros((env.height * env.width, 4), np.float32)
+        texels[:, :3] = env.pixels.reshape(-1, 3)
+        self.env_size = (np.int32(env.width), np.int32(env.height))
+        self.texels = cl.to_device(texels)
+        self.rot = cl.to_device(env.map_from_world.astype(np.float32).ravel())
+        light = getattr(strategy, "light", strategy if isinstance(strategy, strategies.LightStrategy) else None)
+        if light is not None:
+            self.tree, self.levels = light.tree.buffer, np.int32(light.tree.n_levels)
+        else:
+            self.tree, self.levels = cl.to_device(np.zeros(1, np.float32)), np.int32(0)
+        self.kind = cl.to_device(scene.material_kind.astype(np.int32))
+        self.param = cl.to_device(scene.material_param.astype(np.float32))
+        alb = np.zeros((len(scene.materials), 4), np.float32)
+        alb[:, :3] = scene.material_albedo
+        self.albedo = cl.to_device(alb)
+        self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name])
+
+    def __call__(self, n, wo, material, u, **_):
+        count = len(n)
+        if count == 0:
+            return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.float32)
+        q = cl.thread_queue()
+        bufs = [cl.to_device(_float4(n)), cl.to_device(_float4(wo)),
+                cl.to_device(np.asarray(material, np.int32)), cl.to_device(np.asarray(u, np.float32))]
+        wi_buf, val_buf = cl.empty(count * 32), cl.empty(count * 32)
+        knl = cl.kernel(self.program, "shade")
+        knl(q, (count,), None, *bufs, self.kind, self.param, self.albedo, self.texels, *self.env_size,
+            self.rot, self.tree, self.levels, wi_buf, val_buf)
+        wi = cl.read(wi_buf, (count, 2, 4), np.float32, q)[..., :3]
+        value = cl.read(val_buf, (count, 2, 4), np.float32, q)[..., :3]
+        return wi, value
+
+
+class NumpyShader:
+    """The same call as :class:`KernelShader`, computed by the numpy reference."""
+
+    def __init__(self, scene, strategy: strategies.Strategy):
+        self.scene, self.strategy = scene, strategy
+
+    def __call__(self, n, wo, material, u, p=None):
+        sc = self.scene
+        n = np.asarray(n, np.float64)
+        s, t = warp.frame(n)
+        sp = strategies.ShadingPoints(p, n, s, t, warp.to_local(np.asarray(wo, np.float64), s, t, n),
+                                      sc.material_kind[material], sc.material_param[material],
+                                      sc.material_albedo[material])
+        return strategies.shade_reference(self.strategy, sc.environment, sp, np.asarray(u, np.float64))
