@@ -20,10 +20,12 @@ inline float light_pdf(const Env *e, __global const float *tree, const int level
     return tree_pdf(tree, levels, env_world_to_square(e, w)) * INV_4PI_F;
 }
 
-inline float power_heuristic(const float a, const float b)
+inline float power_heuristic(const float pa, const float pb)
 {
-    const float a2 = a * a, b2 = b * b;
-    return (a2 + b2) > 0.0f ? a2 / (a2 + b2) : 0.0f;
+    const float big = fmax(pa, pb);
+    if (!(big > 0.0f)) return 0.0f;
+    const float a = pa / big, b = pb / big;
+    return a * a / (a * a + b * b);
 }
 
 __kernel void shade(__global const float4 *normal, __global const float4 *wo_world,

@@ -60,8 +60,10 @@ inline float2 tree_descend(__global const float *base, const int level0, const i
         u.x = fmin(u.x, ONE_MINUS_EPS);
     }
     *px = x; *py = y;
+    /* (x + u) / 2^n may round up onto the next leaf's edge: stay inside the chosen leaf. */
     const float inv = 1.0f / (float)(1u << n_levels);
-    return (float2)(((float)x + u.x) * inv, ((float)y + u.y) * inv);
+    return (float2)(fmin(((float)x + u.x) * inv, nextafter((float)(x + 1) * inv, 0.0f)),
+                    fmin(((float)y + u.y) * inv, nextafter((float)(y + 1) * inv, 0.0f)));
 }
 
 inline float2 tree_sample(__global const float *base, const int n_levels, float2 u, float *pdf)

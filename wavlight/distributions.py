@@ -92,7 +92,10 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
             x = 2 * x + (~go_left)
     u = np.nan_to_num(u, nan=0.0)
     side = 1 << n_levels
-    uv = ((np.stack([x, y], 1) + u) / side).astype(np.float32)
+    leaf = np.stack([x, y], 1)
+    uv = ((leaf + u) / np.float32(side)).astype(np.float32)
+    # (x + u) / 2^n may round up onto the next leaf's edge: stay inside the chosen leaf.
+    uv = np.minimum(uv, np.nextafter(((leaf + 1) / np.float32(side)).astype(np.float32), np.float32(0)))
     return uv, pdf_reference(tree, n_levels, uv, samples_per_tree)
 
 

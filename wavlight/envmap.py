@@ -5,10 +5,10 @@ undo ``rotate_y`` (world = R_y * map), then u = atan2(d.x, -d.z) / 2 pi wrapped 
 [0, 1), v = acos(d.y) / pi, texel (floor(u W), floor(v H)), row 0 at +Y.
 
 Importance for light sampling lives on a 2^n x 2^n equal-area octahedral square
-(:mod:`wavlight.warp`): each leaf holds the mean luminance over its patch of sphere,
-estimated from a grid of sub-points, plus a defensive floor of ``DEFENSIVE`` times
-the mean, so that the pdf is positive wherever the map is (no texel can be missed
-by the sub-point grid and left with zero probability). The leaf side is the
+(:mod:`wavlight.warp`): each leaf holds a conservative mean luminance over its
+patch of sphere (sub-points about 8 per texel, each taking the max of its 3 x 3
+neighbourhood), plus a defensive floor of ``DEFENSIVE`` times the map's mean, so
+that the pdf is positive wherever the map is, for any non-black map. The leaf side is the
 smallest power of two whose square has at least as many leaves as the map has
 texels, at most 2^10.
 
@@ -148,26 +148,61 @@ class Environment:
             n += 1
         return max(n, 1)
 
-    def luminance_square(self, n_levels: int | None = None, sub: int | None = None) -> np.ndarray:
-        """(2^n, 2^n) float32 mean luminance per equal-area leaf, with the defensive floor.
+    def subpoint_grid(self, n_levels: int) -> int:
+        """Side G of the sub-point grid: about 8 sub-points per texel, at least 2 per leaf side."""
+        side = 1 << n_levels
+        g = side
+        while g * g < 8 * self.width * self.height and g < 4096:
+            g *= 2
+        return max(g, 2 * side)
+
+    def subpoint_luminance_reference(self, grid: int) -> np.ndarray:
+        """(G, G) luminance at the sub-points of the equal-area square (numpy twin of the kernel)."""
+        c = (np.arange(grid) + 0.5) / grid
+        uu, vv = np.meshgrid(c, c)
+        d_sq = warp.square_to_sphere_equal_area(np.stack([uu.ravel(), vv.ravel()], 1))
+        d_map = np.stack([d_sq[:, 0], d_sq[:, 2], -d_sq[:, 1]], 1)
+        idx = self.texel_index(d_map @ self.world_from_map.T)
+        return (self._flat @ LUMINANCE)[idx].reshape(grid, grid).astype(np.float32)
+
+    def subpoint_luminance(self, grid: int) -> np.ndarray:
+        """(G, G) luminance at the sub-points (kernel ``subpoint_luminance``, kernels/envmap.cl)."""
+        from . import cl
+
+        lum = np.ascontiguousarray(self._flat @ LUMINANCE, np.float32)
+        out = cl.empty(grid * grid * 4)
+        q = cl.thread_queue()
+        knl = cl.kernel(cl.program("envmap.cl"), "subpoint_luminance")
+        knl(q, (grid, grid), None, cl.to_device(lum), np.int32(self.width), np.int32(self.height),
+            np.int32(grid), out)
+        return cl.read(out, (grid, grid), np.float32, q)
+
+    def luminance_square(self, n_levels: int | None = None, reference: bool = False) -> np.ndarray:
+        """(2^n, 2^n) float32 leaf importance on the equal-area square, with the defensive floor.
 
         Leaf (row y, column x) covers square points u in [x, x+1)/2^n, v in [y, y+1)/2^n.
+        Each leaf holds the mean over its sub-points of the max luminance in a 3 x 3
+        sub-point neighbourhood: a conservative estimate, so that a texel smaller
+        than a leaf still gives the leaves it touches their share (not just the floor).
         """
         n = self.square_levels() if n_levels is None else n_levels
         side = 1 << n
-        if sub is None:
-            sub = max(2, min(8, int(np.ceil(2 * np.sqrt(self.width * self.height) / side))))
-        lum = self._flat @ LUMINANCE
-        acc = np.zeros(side * side, np.float64)
-        base = np.arange(side) / side
-        for j in range(sub):  # a few vectorised passes over sub-point offsets, not pixels
-            for i in range(sub):
-                uu, vv = np.meshgrid(base + (i + 0.5) / (sub * side), base + (j + 0.5) / (sub * side))
-                d_map = warp.square_to_sphere_equal_area(np.stack([uu.ravel(), vv.ravel()], 1))
-                acc += lum[self.texel_index(self.map_to_world(d_map))]
-        leaves = acc / (sub * sub)
-        mean = leaves.mean()
-        return (leaves + DEFENSIVE * mean).reshape(side, side).astype(np.float32)
+        g = self.subpoint_grid(n)
+        sub = (self.subpoint_luminance_reference if reference else self.subpoint_luminance)(g)
+        padded = np.pad(sub, 1, mode="edge")
+        dilated = sub.copy()
+        for dy in (0, 1, 2):
+            for dx in (0, 1, 2):
+                np.maximum(dilated, padded[dy:dy + g, dx:dx + g], out=dilated)
+        k = g // side
+        leaves = dilated.reshape(side, k, side, k).mean(axis=(1, 3))
+        # Defensive floor from the map's own solid-angle-weighted mean: positive for any non-black map.
+        theta = (np.arange(self.height) + 0.5) / self.height * np.pi
+        texel_sr = (2 * np.pi / self.width) * (np.cos(theta - np.pi / (2 * self.height))
+                                               - np.cos(theta + np.pi / (2 * self.height)))
+        mean = float(((self._flat @ LUMINANCE).reshape(self.height, self.width) * texel_sr[:, None]).sum()
+                     / (4 * np.pi))
+        return (leaves + DEFENSIVE * mean).astype(np.float32)
 
     def map_to_world(self, d_square_frame: np.ndarray) -> np.ndarray:
         """Equal-area square frame (octahedral z = map +Y) to world directions."""

@@ -45,7 +45,7 @@ class ShadingPoints:
     albedo: np.ndarray
 
     def __len__(self):
-        return len(self.p)
+        return len(self.n)
 
     def to_local(self, w):
         return warp.to_local(w, self.s, self.t, self.n)
@@ -197,9 +197,12 @@ def make(name: str) -> Strategy:
 
 
 def power_heuristic(p_a, p_b):
-    a2, b2 = p_a * p_a, p_b * p_b
+    """p_a^2 / (p_a^2 + p_b^2), computed on ratios so that it neither under- nor overflows."""
+    p_a, p_b = np.asarray(p_a, np.float64), np.asarray(p_b, np.float64)
+    big = np.maximum(p_a, p_b)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
+        a, b = p_a / big, p_b / big
+        return np.where(big > 0, a * a / (a * a + b * b), 0.0)
 
 
 def _unoccluded(sp, env, ds, mis_weight):
