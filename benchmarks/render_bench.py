@@ -1,0 +1,74 @@
+"""Renderer throughput: the bunny on a floor under a real 1k map, 512x512, 16 spp.
+
+Prints one JSON object: per strategy (mis, light, bsdf) the load, setup and render
+seconds, rays/s and samples/s, best of --repeat runs (setup includes the light
+tree and kernel compilation on a fresh process only for the first run; later
+runs reuse the per-process program cache, which is what a batch user sees).
+With --mitsuba, also runs benchmarks/mitsuba_peer.py (Mitsuba 3, `direct`
+integrator, same scene, spp and resolution) and reports the ratio.
+
+    python benchmarks/render_bench.py [--scene scenes/bunny_ggx.toml] [--spp 16] [--mitsuba]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scene", default=os.path.join(HERE, "..", "scenes", "bunny_ggx.toml"))
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--width", type=int, default=512)
+    ap.add_argument("--height", type=int, default=512)
+    ap.add_argument("--strategies", default="mis,light,bsdf")
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--mitsuba", action="store_true")
+    args = ap.parse_args()
+
+    import wavlight
+    from wavlight import cl
+
+    t0 = time.perf_counter()
+    scene = wavlight.load_scene(args.scene)
+    load = time.perf_counter() - t0
+    out = {"scene": os.path.relpath(args.scene), "width": args.width, "height": args.height, "spp": args.spp,
+           "triangles": int(len(scene.faces)), "device": cl.runtime().description,
+           "load_seconds": round(load, 3), "cpus": os.cpu_count(), "wavlight": {}}
+    for strategy in args.strategies.split(","):
+        runs = []
+        for _ in range(args.repeat):
+            r = wavlight.render_full(scene, spp=args.spp, strategy=strategy, width=args.width, height=args.height)
+            runs.append(r.stats)
+        best = min(runs, key=lambda s: s["render_seconds"])
+        out["wavlight"][strategy] = {k: best[k] for k in (
+            "setup_seconds", "render_seconds", "rays", "rays_per_second", "samples_per_second")}
+        out["wavlight"][strategy]["first_setup_seconds"] = runs[0]["setup_seconds"]
+    if args.mitsuba:
+        out["mitsuba"] = {}
+        for strategy in args.strategies.split(","):
+            cmd = [sys.executable, os.path.join(HERE, "mitsuba_peer.py"), args.scene, "--spp", str(args.spp),
+                   "--width", str(args.width), "--height", str(args.height), "--strategy", strategy]
+            res = subprocess.run(cmd, capture_output=True, text=True)
+            if res.returncode != 0:
+                out["mitsuba"][strategy] = {"error": res.stderr.strip().splitlines()[-1:]}
+                continue
+            m = json.loads(res.stdout.strip().splitlines()[-1])
+            out["mitsuba"][strategy] = m
+            w = out["wavlight"][strategy]
+            out["mitsuba"][strategy]["wavlight_over_mitsuba_render"] = round(
+                w["render_seconds"] / m["render_seconds"], 3)
+            out["mitsuba"][strategy]["wavlight_over_mitsuba_total"] = round(
+                (w["render_seconds"] + w["setup_seconds"] + load)
+                / (m["render_seconds"] + m.get("setup_seconds", 0) + m.get("jit_seconds", 0)), 3)
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

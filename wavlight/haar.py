@@ -1,0 +1,651 @@
+"""Nonstandard 2D Haar wavelets: transform, compression, tripling coefficients, products
+(Chen & Gao sec. 4.1-4.4, eq. 13-25; Ng et al. 2003, 2004).
+
+Conventions
+-----------
+*Images* are functions on the unit square, piecewise constant on a 2^n x 2^n grid,
+stored ``image[y, x]`` (y the row; "top" means small y, "left" small x). Every
+function here acts on the last two axes; all leading axes are a batch. A colour
+image (2^n, 2^n, C) is transformed as ``forward(np.moveaxis(img, -1, 0))``: channels
+come first, like any other batch axis.
+
+*Basis* (orthonormal, eq. 13): the scaling function phi = 1 on the unit square and,
+for each level 0 <= l < n and node t = (x, y) (0 <= x, y < 2^l, square
+[x, x+1] 2^-l x [y, y+1] 2^-l), three wavelets of value +-2^l on that square:
+m = 1 horizontal difference (+ on the left half, - on the right), m = 2 vertical
+difference (+ top, - bottom), m = 3 diagonal (+ top-left and bottom-right).
+Scaling coefficient of a node: F^0_{l,t} = integral of F * 2^l over its square
+= 2^l * mass (eq. 17); the root F^0_{0,0} is the integral (eq. 18).
+
+*Dense layout* (in place, Stollnitz et al.): coefficients of a 2^n x 2^n image are a
+2^n x 2^n array ``c``; ``c[0, 0]`` is the scaling coefficient and the wavelets of
+level l (s = 2^l) sit in three s x s blocks::
+
+    m = 1: c[y, s + x]      m = 2: c[s + y, x]      m = 3: c[s + y, s + x]
+
+A basis index is the flat position ``row * 2^n + col`` (``coeff_index`` /
+``coeff_basis``). The top-left 2^k x 2^k block is the transform of the same image
+at resolution 2^k, so sets of different resolutions compare by zero padding.
+
+*Sparse* (:class:`SparseHaar`): sorted flat indices and values, (K,) or (K, C);
+``to_dense`` gives (2^n, 2^n) or (C, 2^n, 2^n).
+
+*Pyramids* are box masses in the layout of ``distributions.py``: node (l, x, y) at
+``level_offset(l) + y 2^l + x`` holds 2^-l F^0_{l,t}; many pyramids stack on a
+leading axis, ``tree_size(L)`` apart.
+
+Algorithms
+----------
+*Triple product integral* (Ng et al. 2004, linear time). Of the three cases of the
+tripling theorem (sec. 4.2), case 3 pairs two identical wavelets w at node (l, t)
+with every coarser function that overlaps them; summed, those coarser functions are
+the third image's average over the node's square, X(l,t) = 2^l X^0_{l,t}, the
+running sum of its parents' scaling coefficients. Hence
+
+    int G H K = G0 H0 K0 + sum over nodes (l, t) of
+                [ sum_m (G^m H^m K(l,t) + G^m K^m H(l,t) + H^m K^m G(l,t))
+                  + 2^l sum over permutations (a, b, c) of (1, 2, 3) of G^a H^b K^c ].
+
+Dense: one top-down pass gives every average, O(4^n). Sparse: only nodes where two
+sets share a wavelet contribute; each needs one ancestor walk of depth <= n, so the
+cost is O(K n log K) for K kept coefficients. The double product is a dot product.
+
+*Product scaling coefficients* (eq. 23-25). On a node's square Q, G is its average
+plus the wavelets inside Q; wavelets integrate to zero over Q and are orthonormal,
+so with levels l' >= l (the node's own wavelets included)
+
+    2^-l F^0_{l,t} = G^0_{l,t} H^0_{l,t} + D_{l,t},   D_{l,t} = sum_{l' >= l, t' in t, m} G^m H^m,
+
+which is eq. 25 divided by 2^l, exactly the box sum of G H (tested). D is
+accumulated bottom-up (D_{l,t} = own products + the children's D). Sparse inputs
+only touch the common wavelets; ``product_scaling_at`` evaluates single nodes with
+per-level prefix sums in Morton order, for nodes a sample visits.
+On the device (``ProductPyramids``) the pyramid is built as leaf products reduced
+bottom-up, which equals eq. 25 level by level and keeps parent = sum of children in
+float32, as the warp in ``kernels/warp.h`` expects.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import cl
+from .distributions import leaf_levels, level_offset, tree_size
+
+__all__ = [
+    "coeff_index", "coeff_basis", "node_scale", "forward", "inverse", "scaling_pyramid",
+    "SparseHaar", "compress_topk", "compress_energy", "tripling", "double_product_integral",
+    "triple_product_integral", "product_scaling", "product_scaling_at", "forward_cl",
+    "ProductPyramids",
+]
+
+
+# ============================================================================= layout
+def coeff_index(level, x, y, m, n_levels: int):
+    """Flat dense index of basis function (level, x, y, m); m = 0 is the scaling function
+    (level = x = y = 0). Vectorised."""
+    level, x, y, m = (np.asarray(a, np.int64) for a in (level, x, y, m))
+    s = np.left_shift(1, level)
+    row = np.where((m == 2) | (m == 3), s + y, y)
+    col = np.where((m == 1) | (m == 3), s + x, x)
+    return np.where(m == 0, 0, row * (1 << n_levels) + col)
+
+
+def coeff_basis(index, n_levels: int):
+    """(level, x, y, m) of flat dense indices; the scaling function is (0, 0, 0, 0). Vectorised."""
+    index = np.asarray(index, np.int64)
+    row, col = np.divmod(index, 1 << n_levels)
+    big = np.maximum(row, col)
+    level = np.frexp(np.maximum(big, 1).astype(np.float64))[1].astype(np.int64) - 1
+    s = np.left_shift(1, level)
+    m = np.where(big == 0, 0, np.where(row < s, 1, np.where(col < s, 2, 3)))
+    x = np.where((m == 1) | (m == 3), col - s, col)
+    y = np.where((m == 2) | (m == 3), row - s, row)
+    z = np.zeros_like(index)
+    return np.where(m == 0, z, level), np.where(m == 0, z, x), np.where(m == 0, z, y), m
+
+
+def node_scale(n_levels: int) -> np.ndarray:
+    """2^l for every node of a pyramid: F^0 = node_scale * masses (eq. 17)."""
+    return np.concatenate([np.full(4 ** l, 2.0 ** l) for l in range(n_levels + 1)])
+
+
+def _levels_of(a: np.ndarray) -> int:
+    if a.ndim < 2 or a.shape[-1] != a.shape[-2]:
+        raise ValueError(f"expected (..., 2^n, 2^n) arrays, got shape {a.shape}")
+    return leaf_levels(a.shape[-1])
+
+
+def _float(a) -> np.ndarray:
+    a = np.asarray(a)
+    return a.astype(np.result_type(a.dtype, np.float32), copy=False)
+
+
+def _embed(c: np.ndarray, n: int) -> np.ndarray:
+    """Coefficients of resolution 2^k zero-padded to 2^n (the same function)."""
+    k = c.shape[-1]
+    if k == 1 << n:
+        return c
+    out = np.zeros(c.shape[:-2] + (1 << n, 1 << n), c.dtype)
+    out[..., :k, :k] = c
+    return out
+
+
+# ============================================================================= transform (sec. 4.1)
+def forward(images) -> np.ndarray:
+    """Orthonormal nonstandard Haar transform of (..., 2^n, 2^n) images (eq. 13), dense layout."""
+    a = _float(images)
+    n = _levels_of(a)
+    out = np.empty_like(a)
+    s = a * 2.0 ** -n  # F^0_{n,t} = 2^-n * pixel
+    for l in range(n - 1, -1, -1):
+        h = 1 << l
+        a00, a01 = s[..., 0::2, 0::2], s[..., 0::2, 1::2]
+        a10, a11 = s[..., 1::2, 0::2], s[..., 1::2, 1::2]
+        out[..., :h, h:2 * h] = 0.5 * ((a00 - a01) + (a10 - a11))
+        out[..., h:2 * h, :h] = 0.5 * ((a00 + a01) - (a10 + a11))
+        out[..., h:2 * h, h:2 * h] = 0.5 * ((a00 - a01) - (a10 - a11))
+        s = 0.5 * ((a00 + a01) + (a10 + a11))
+    out[..., 0, 0] = s[..., 0, 0]
+    return out
+
+
+def _scaling_levels(c: np.ndarray, last: int):
+    """Yield (l, F^0_l) for l = 0..last from dense coefficients, top down (inverse steps)."""
+    s = c[..., 0:1, 0:1]
+    yield 0, s
+    for l in range(last):
+        h = 1 << l
+        d1, d2, d3 = _details(c, l)
+        nxt = np.empty(s.shape[:-2] + (2 * h, 2 * h), s.dtype)
+        nxt[..., 0::2, 0::2] = 0.5 * ((s + d1) + (d2 + d3))
+        nxt[..., 0::2, 1::2] = 0.5 * ((s - d1) + (d2 - d3))
+        nxt[..., 1::2, 0::2] = 0.5 * ((s + d1) - (d2 + d3))
+        nxt[..., 1::2, 1::2] = 0.5 * ((s - d1) - (d2 - d3))
+        s = nxt
+        yield l + 1, s
+
+
+def inverse(coeffs) -> np.ndarray:
+    """Images (..., 2^n, 2^n) from dense coefficients; inverse of :func:`forward`."""
+    c = _float(coeffs)
+    n = _levels_of(c)
+    for _, s in _scaling_levels(c, n):
+        pass
+    return s * 2.0 ** n
+
+
+# ============================================================================= sparse sets and compression
+@dataclass(frozen=True)
+class SparseHaar:
+    """A sparse coefficient set: flat dense indices (K,) int64, sorted and unique, and
+    values (K,) or (K, C) float; absent coefficients are zero."""
+
+    n_levels: int
+    index: np.ndarray
+    value: np.ndarray
+
+    def __post_init__(self):
+        idx = np.asarray(self.index, np.int64).reshape(-1)
+        val = _float(self.value)
+        if val.shape[:1] != idx.shape or val.ndim > 2:
+            raise ValueError(f"index {idx.shape} and value {val.shape} do not match")
+        if idx.size and (idx.min() < 0 or idx.max() >= 4 ** self.n_levels):
+            raise ValueError("sparse Haar index out of range")
+        order = np.argsort(idx, kind="stable")
+        if np.any(np.diff(idx[order]) == 0):
+            raise ValueError("duplicate sparse Haar indices")
+        object.__setattr__(self, "index", idx[order])
+        object.__setattr__(self, "value", val[order])
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def to_dense(self) -> np.ndarray:
+        """(2^n, 2^n) or (C, 2^n, 2^n) dense coefficients."""
+        side = 1 << self.n_levels
+        out = np.zeros((side * side,) + self.value.shape[1:], self.value.dtype)
+        out[self.index] = self.value
+        return np.moveaxis(out, 0, -1).reshape(self.value.shape[1:] + (side, side))
+
+    @classmethod
+    def from_dense(cls, coeffs, keep=None) -> "SparseHaar":
+        """From (2^n, 2^n) or (C, 2^n, 2^n) coefficients; ``keep`` = flat indices or a flat
+        boolean mask (default: the coefficients non-zero in any channel)."""
+        c = _float(coeffs)
+        n = _levels_of(c)
+        if c.ndim > 3:
+            raise ValueError("one coefficient set, with at most a leading channel axis")
+        flat = c.reshape(c.shape[:-2] + (-1,))
+        flat = flat.T if c.ndim == 3 else flat
+        if keep is None:
+            keep = np.flatnonzero(np.any(flat.reshape(len(flat), -1) != 0, axis=1))
+        keep = np.asarray(keep)
+        keep = np.flatnonzero(keep) if keep.dtype == bool else keep.astype(np.int64)
+        return cls(n, keep, flat[keep])
+
+
+def _energy(coeffs) -> np.ndarray:
+    c = _float(coeffs)
+    _levels_of(c)
+    if c.ndim > 3:
+        raise ValueError("compress one coefficient set, (2^n, 2^n) or (C, 2^n, 2^n)")
+    e = np.square(c.astype(np.float64)).reshape(-1, c.shape[-1] ** 2)
+    return e.sum(axis=0)
+
+
+def _by_energy(e: np.ndarray) -> np.ndarray:
+    """Indices by decreasing energy, scaling coefficient first, ties by index."""
+    key = -e
+    key[0] = -np.inf
+    return np.argsort(key, kind="stable")
+
+
+def compress_topk(coeffs, k: int) -> SparseHaar:
+    """Keep k coefficients in all: the scaling coefficient and the k - 1 wavelets of largest
+    magnitude (L2 norm over channels). Ng et al. 2003 nonlinear approximation."""
+    if k < 1:
+        raise ValueError(f"k must be at least 1, got {k}")
+    order = _by_energy(_energy(coeffs))
+    return SparseHaar.from_dense(coeffs, order[:k])
+
+
+def compress_energy(coeffs, fraction: float) -> SparseHaar:
+    """Keep the fewest coefficients (scaling coefficient included first) whose sum of squares
+    reaches ``fraction`` of the total energy."""
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"fraction must be in [0, 1], got {fraction}")
+    e = _energy(coeffs)
+    order = _by_energy(e)
+    cum = np.cumsum(e[order])
+    k = int(np.searchsorted(cum, fraction * cum[-1], side="left")) + 1
+    return SparseHaar.from_dense(coeffs, order[:min(k, len(order))])
+
+
+# ============================================================================= tripling coefficients (sec. 4.2)
+def tripling(i, j, k, n_levels: int) -> np.ndarray:
+    """C_ijk = integral of psi_i psi_j psi_k over the unit square (eq. 16), by the Haar tripling
+    coefficient theorem (Ng et al. 2004). Indices are flat dense indices; vectorised."""
+    i, j, k = np.broadcast_arrays(*(np.asarray(a, np.int64) for a in (i, j, k)))
+    b = {"i": coeff_basis(i, n_levels), "j": coeff_basis(j, n_levels), "k": coeff_basis(k, n_levels)}
+    ids = {"i": i, "j": j, "k": k}
+    (li, xi, yi, mi), (lj, xj, yj, mj), (lk, xk, yk, mk) = b["i"], b["j"], b["k"]
+    out = np.zeros(i.shape)
+    # case 1: three scaling functions
+    out[(mi == 0) & (mj == 0) & (mk == 0)] = 1.0
+    # case 2: one square, three different wavelet types: 2^l
+    same = (li == lj) & (lj == lk) & (xi == xj) & (xj == xk) & (yi == yj) & (yj == yk)
+    distinct = (mi > 0) & (mj > 0) & (mk > 0) & (mi != mj) & (mj != mk) & (mi != mk)
+    out = np.where(same & distinct, np.ldexp(1.0, li), out)
+    # case 3: two identical wavelets and a strictly coarser overlapping function: +-2^l'
+    for a, c in (("i", "k"), ("i", "j"), ("j", "i")):
+        other = ({"i", "j", "k"} - {a, c}).pop()  # the second of the identical pair
+        la, xa, ya, ma = b[a]
+        lc, xc, yc, mc = b[c]
+        pair = (ids[a] == ids[other]) & (ma > 0)
+        coarser = (mc == 0) | (lc < la)
+        d = np.maximum(la - lc, 1)
+        inside = (mc == 0) | (((xa >> d) == xc) & ((ya >> d) == yc))
+        qx, qy = (xa >> (d - 1)) & 1, (ya >> (d - 1)) & 1  # child quadrant of the coarse square
+        sx, sy = 1 - 2 * qx, 1 - 2 * qy
+        sign = np.select([mc == 1, mc == 2, mc == 3], [sx, sy, sx * sy], 1)
+        val = sign * np.ldexp(1.0, np.where(mc == 0, 0, lc))
+        out = np.where(pair & coarser & inside, val, out)
+    return out
+
+
+# ============================================================================= sparse helpers
+def _canon(sp: SparseHaar):
+    """Level-ordered keys (0: scaling; wavelet (l, x, y, m): 1 + 3 nid + m - 1 with nid the
+    node's pyramid index, independent of n) and values as (K, C)."""
+    l, x, y, m = coeff_basis(sp.index, sp.n_levels)
+    nid = (np.left_shift(1, 2 * l) - 1) // 3 + (y << l) + x
+    key = np.where(m == 0, 0, 1 + 3 * nid + m - 1)
+    order = np.argsort(key, kind="stable")
+    return key[order], sp.value.reshape(len(sp.value), -1)[order]
+
+
+def _node_of(nid):
+    """(level, x, y) of pyramid node indices."""
+    nid = np.asarray(nid, np.int64)
+    l = (np.frexp((3 * nid + 1).astype(np.float64))[1].astype(np.int64) - 1) // 2
+    r = nid - (np.left_shift(1, 2 * l) - 1) // 3
+    return l, r & (np.left_shift(1, l) - 1), r >> l
+
+
+def _lookup(keys, vals, q):
+    """vals at keys q (0 where absent); keys sorted."""
+    q = np.asarray(q, np.int64)
+    if len(keys) == 0:
+        return np.zeros(q.shape + vals.shape[1:])
+    pos = np.minimum(np.searchsorted(keys, q), len(keys) - 1)
+    hit = keys[pos] == q
+    return np.where(hit[..., None], vals[pos], 0.0)
+
+
+def _averages(keys, vals, nid):
+    """Average of the function over the squares of nodes ``nid``: 2^l F^0_{l,t}, the scaling
+    coefficient plus the parents' wavelets at the right sign (ancestor walk), (Q, C)."""
+    l, x, y = _node_of(nid)
+    avg = np.broadcast_to(_lookup(keys, vals, 0), (len(l), vals.shape[1])).copy()
+    for lp in range(int(l.max(initial=0))):
+        sel = l > lp
+        d = np.where(sel, l - lp, 1)
+        ax, ay = x >> d, y >> d
+        sx, sy = 1 - 2 * ((x >> (d - 1)) & 1), 1 - 2 * ((y >> (d - 1)) & 1)
+        anc = (4 ** lp - 1) // 3 + (ay << lp) + ax
+        base = 1 + 3 * anc
+        term = (_lookup(keys, vals, base) * sx[:, None] + _lookup(keys, vals, base + 1) * sy[:, None]
+                + _lookup(keys, vals, base + 2) * (sx * sy)[:, None])
+        avg += np.where(sel[:, None], term * 2.0 ** lp, 0.0)
+    return avg
+
+
+def _common(ka, va, kb, vb):
+    """Keys present in both sets (wavelets only) with both value rows."""
+    ck, ia, ib = np.intersect1d(ka, kb, assume_unique=True, return_indices=True)
+    w = ck > 0
+    return ck[w], va[ia[w]], vb[ib[w]]
+
+
+def _node_table(keys, vals):
+    """Unique wavelet nodes and their (U, 3, C) coefficient table."""
+    w = keys > 0
+    nid, m = np.divmod(keys[w] - 1, 3)
+    uniq, inv = np.unique(nid, return_inverse=True)
+    table = np.zeros((len(uniq), 3, vals.shape[1]))
+    table[inv, m] = vals[w]
+    return uniq, table
+
+
+def _shape_out(total: np.ndarray, *sets: SparseHaar):
+    return total if any(s.value.ndim == 2 for s in sets) else total[0]
+
+
+# ============================================================================= product integrals (Ng et al. 2004)
+def double_product_integral(G, H):
+    """Integral of G H from coefficients (dense (..., 2^n, 2^n) or SparseHaar): orthonormality
+    makes it the dot product of the coefficient vectors."""
+    if isinstance(G, SparseHaar) and isinstance(H, SparseHaar):
+        kg, vg = _canon(G)
+        kh, vh = _canon(H)
+        ck, a, b = _common(kg, vg, kh, vh)
+        total = (a * b).sum(axis=0) + _lookup(kg, vg, 0) * _lookup(kh, vh, 0)
+        return _shape_out(total, G, H)
+    g, h = _dense_common(G, H)
+    return np.sum(g * h, axis=(-2, -1))
+
+
+def _dense_common(*sets):
+    arrs = [_float(s.to_dense() if isinstance(s, SparseHaar) else s) for s in sets]
+    n = max(_levels_of(a) for a in arrs)
+    return [_embed(a, n) for a in arrs]
+
+
+def _permanent(g1, g2, g3, h1, h2, h3, k1, k2, k3):
+    """Sum over the six assignments of distinct wavelet types (tripling case 2)."""
+    return g1 * (h2 * k3 + h3 * k2) + g2 * (h1 * k3 + h3 * k1) + g3 * (h1 * k2 + h2 * k1)
+
+
+def triple_product_integral(G, H, K):
+    """Integral of G H K from coefficients (dense (..., 2^n, 2^n) or all three SparseHaar),
+    linear in the number of coefficients (see the module notes)."""
+    if all(isinstance(s, SparseHaar) for s in (G, H, K)):
+        return _triple_sparse(G, H, K)
+    g, h, k = _dense_common(G, H, K)
+    n = _levels_of(g)
+    total = g[..., 0, 0] * h[..., 0, 0] * k[..., 0, 0]  # case 1
+    pyramids = (_scaling_levels(c, n) for c in (g, h, k))
+    for l, (_, sg), (_, sh), (_, sk) in zip(range(n), *pyramids):  # wavelet levels 0..n-1
+        gb, hb, kb = (_details(c, l) for c in (g, h, k))
+        s = 1 << l
+        ag, ah, ak = sg * s, sh * s, sk * s  # averages over the node squares
+        term = sum(gb[m] * hb[m] * ak + gb[m] * kb[m] * ah + hb[m] * kb[m] * ag for m in range(3))
+        term = term + s * _permanent(*gb, *hb, *kb)  # case 2
+        total = total + term.sum(axis=(-2, -1))
+    return total
+
+
+def _details(c: np.ndarray, l: int):
+    """The three wavelet blocks (m = 1, 2, 3) of level l, each (..., 2^l, 2^l)."""
+    s = 1 << l
+    return c[..., :s, s:2 * s], c[..., s:2 * s, :s], c[..., s:2 * s, s:2 * s]
+
+
+def _triple_sparse(G, H, K):
+    cg, ch, ck = _canon(G), _canon(H), _canon(K)
+    total = _lookup(*cg, 0) * _lookup(*ch, 0) * _lookup(*ck, 0)
+    # case 3: identical wavelet pairs times the third function's average (its coarser part)
+    for (ka, va), (kb, vb), (kc, vc) in ((cg, ch, ck), (cg, ck, ch), (ch, ck, cg)):
+        keys, a, b = _common(ka, va, kb, vb)
+        if len(keys):
+            total = total + (a * b * _averages(kc, vc, (keys - 1) // 3)).sum(axis=0)
+    # case 2: three different wavelet types on one square
+    (ng, tg), (nh, th), (nk, tk) = _node_table(*cg), _node_table(*ch), _node_table(*ck)
+    both, ig, ih = np.intersect1d(ng, nh, assume_unique=True, return_indices=True)
+    allk, j, ik = np.intersect1d(both, nk, assume_unique=True, return_indices=True)
+    if len(allk):
+        a, b, c = tg[ig[j]], th[ih[j]], tk[ik]
+        scale = np.ldexp(1.0, _node_of(allk)[0])[:, None]
+        total = total + (scale * _permanent(a[:, 0], a[:, 1], a[:, 2], b[:, 0], b[:, 1], b[:, 2],
+                                            c[:, 0], c[:, 1], c[:, 2])).sum(axis=0)
+    return _shape_out(total, G, H, K)
+
+
+# ============================================================================= scaling coefficients (sec. 4.3-4.4)
+def scaling_pyramid(coeffs, levels: int | None = None) -> np.ndarray:
+    """Box-mass pyramid (..., tree_size(L)) of a coefficient set, levels 0..L (default n),
+    in the layout of distributions.py: node value 2^-l F^0_{l,t} (eq. 17). Only coefficients
+    of levels < L are read; a SparseHaar gives (tree_size(L),) or (C, tree_size(L))."""
+    if isinstance(coeffs, SparseHaar):
+        n = coeffs.n_levels
+        L = n if levels is None else levels
+        if not 0 <= L <= n:
+            raise ValueError(f"levels must be in [0, {n}], got {levels}")
+        keep = coeff_basis(coeffs.index, n)
+        sel = (keep[3] == 0) | (keep[0] < L)
+        sub = SparseHaar(L, coeff_index(keep[0][sel], keep[1][sel], keep[2][sel], keep[3][sel], L),
+                         coeffs.value[sel])
+        return scaling_pyramid(sub.to_dense())
+    c = _float(coeffs)
+    n = _levels_of(c)
+    L = n if levels is None else levels
+    if not 0 <= L <= n:
+        raise ValueError(f"levels must be in [0, {n}], got {levels}")
+    out = np.empty(c.shape[:-2] + (tree_size(L),), c.dtype)
+    for l, s in _scaling_levels(c[..., :1 << L, :1 << L], L):
+        out[..., level_offset(l):level_offset(l + 1)] = s.reshape(s.shape[:-2] + (-1,)) * 2.0 ** -l
+    return out
+
+
+def _reduce4(a: np.ndarray) -> np.ndarray:
+    return (a[..., 0::2, 0::2] + a[..., 0::2, 1::2]) + (a[..., 1::2, 0::2] + a[..., 1::2, 1::2])
+
+
+def product_scaling(G, H, levels: int | None = None) -> np.ndarray:
+    """Box-mass pyramid (..., tree_size(L)) of the product F = G H by eq. 25:
+    2^-l F^0_{l,t} = G^0_{l,t} H^0_{l,t} + sum_{l' >= l, t' in t, m} G^m_{l',t'} H^m_{l',t'}.
+
+    G, H: dense (..., 2^n, 2^n) coefficients (resolutions may differ; leading axes broadcast)
+    or SparseHaar (values (K, C) give a leading channel axis). L defaults to the finer n.
+    Sparse pairs cost O(4^L + K): only their common wavelets enter the sum.
+    """
+    sparse = isinstance(G, SparseHaar) and isinstance(H, SparseHaar)
+    n = max(s.n_levels if isinstance(s, SparseHaar) else _levels_of(np.asarray(s)) for s in (G, H))
+    L = n if levels is None else levels
+    if not 0 <= L <= n:
+        raise ValueError(f"levels must be in [0, {n}], got {levels}")
+    if sparse:
+        # scaling pyramids from the coefficients of levels < L; D from the common wavelets
+        pg, ph = (_pad_pyramid(scaling_pyramid(s, min(L, s.n_levels)), min(L, s.n_levels), L)
+                  for s in (G, H))
+        (kg, vg), (kh, vh) = _canon(G), _canon(H)
+        keys, a, b = _common(kg, vg, kh, vh)
+        prod = (a * b).T  # (C, Kc)
+        lv, x, y = _node_of((keys - 1) // 3)
+        d = np.maximum(lv - L, 0)
+        lv, x, y = np.minimum(lv, L), x >> d, y >> d  # finer than L: fold into the level-L ancestor
+        D = np.zeros((prod.shape[0], tree_size(L)))
+        if len(keys):
+            np.add.at(D, (slice(None), (np.left_shift(1, 2 * lv) - 1) // 3 + (y << lv) + x), prod)
+        for l in range(L - 1, -1, -1):
+            s = 1 << l
+            child = D[:, level_offset(l + 1):level_offset(l + 2)].reshape(-1, 2 * s, 2 * s)
+            D[:, level_offset(l):level_offset(l + 1)] += _reduce4(child).reshape(-1, s * s)
+        out = pg * ph * node_scale(L) ** 2 + D  # G^0 H^0 + D (F^0 = 2^l mass)
+        return out if any(s.value.ndim == 2 for s in (G, H)) else out[0]
+    g, h = _dense_common(G, H)
+    shape = np.broadcast_shapes(g.shape[:-2], h.shape[:-2])
+    out = np.empty(shape + (tree_size(L),), np.result_type(g, h))
+    # D_{l,t}: own wavelet products plus the children's D, bottom up from level n - 1
+    D = np.zeros(shape + (1 << n, 1 << n), out.dtype)
+    for l in range(n - 1, -1, -1):
+        own = sum(a * b for a, b in zip(_details(g, l), _details(h, l)))
+        D = own + _reduce4(D)
+        if l <= L:
+            out[..., level_offset(l):level_offset(l + 1)] = D.reshape(shape + (-1,))
+    if L == n:
+        out[..., level_offset(n):] = 0.0
+    for (l, sg), (_, sh) in zip(_scaling_levels(g, L), _scaling_levels(h, L)):
+        out[..., level_offset(l):level_offset(l + 1)] += (sg * sh).reshape(shape + (-1,))
+    return out
+
+
+def _pad_pyramid(p: np.ndarray, k: int, L: int) -> np.ndarray:
+    """A mass pyramid of levels 0..k as (C, tree_size(L)), L >= k: below level k the
+    function is constant on each level-k square, so a child holds a quarter of its parent."""
+    p = p.reshape(-1, tree_size(k))
+    out = np.empty((p.shape[0], tree_size(L)))
+    out[:, :tree_size(k)] = p
+    leaf = p[:, level_offset(k):].reshape(-1, 1 << k, 1 << k)
+    for l in range(k + 1, L + 1):
+        r = 1 << (l - k)
+        out[:, level_offset(l):level_offset(l + 1)] = (
+            np.repeat(np.repeat(leaf, r, -1), r, -2).reshape(len(p), -1) / (r * r))
+    return out
+
+
+def _morton(x, y):
+    """Interleave the bits of x (even) and y (odd), 32-bit inputs."""
+    def part(v):
+        v = np.asarray(v, np.uint64) & np.uint64(0xFFFFFFFF)
+        for s, mk in ((16, 0x0000FFFF0000FFFF), (8, 0x00FF00FF00FF00FF), (4, 0x0F0F0F0F0F0F0F0F),
+                      (2, 0x3333333333333333), (1, 0x5555555555555555)):
+            v = (v | (v << np.uint64(s))) & np.uint64(mk)
+        return v
+    return part(x) | (part(y) << np.uint64(1))
+
+
+def product_scaling_at(G, H, level, x, y) -> np.ndarray:
+    """Eq. 25 at single nodes (level, x, y) (arrays, Q), from sparse coefficient lists: box
+    masses (Q,) or (C, Q) of G H without building the pyramid, O((K + Q) n log K)."""
+    G = G if isinstance(G, SparseHaar) else SparseHaar.from_dense(G)
+    H = H if isinstance(H, SparseHaar) else SparseHaar.from_dense(H)
+    level, x, y = np.broadcast_arrays(*(np.asarray(a, np.int64).reshape(-1) for a in (level, x, y)))
+    (kg, vg), (kh, vh) = _canon(G), _canon(H)
+    nid = (np.left_shift(1, 2 * level) - 1) // 3 + (y << level) + x
+    out = _averages(kg, vg, nid) * _averages(kh, vh, nid) * np.ldexp(1.0, -2 * level)[:, None]
+    keys, a, b = _common(kg, vg, kh, vh)
+    if len(keys):
+        prod = a * b
+        lv, px, py = _node_of((keys - 1) // 3)
+        z = _morton(px, py)
+        zq = _morton(x, y)
+        for lp in np.unique(lv):
+            sel = lv == lp
+            order = np.argsort(z[sel], kind="stable")
+            zs = z[sel][order]
+            cum = np.concatenate([np.zeros((1, prod.shape[1])), np.cumsum(prod[sel][order], axis=0)])
+            # the level-lp nodes inside (level, x, y) are one Morton range
+            d = (2 * np.maximum(lp - level, 0)).astype(np.uint64)
+            lo = np.searchsorted(zs, zq << d)
+            hi = np.searchsorted(zs, (zq + np.uint64(1)) << d)
+            out += np.where((lp >= level)[:, None], cum[hi] - cum[lo], 0.0)
+    out = out.T
+    return out if any(s.value.ndim == 2 for s in (G, H)) else out[0]
+
+
+# ============================================================================= OpenCL (kernels/haar.cl)
+def forward_cl(images, queue=None):
+    """Forward transform of (T, 2^n, 2^n) images on the device, one launch per level.
+
+    returns coeffs (T, 2^n, 2^n) float32 (dense layout) and the box-mass pyramids
+    (T, tree_size(n)) float32 computed on the way (distributions.py layout).
+    """
+    img = np.ascontiguousarray(images, np.float32)
+    if img.ndim == 2:
+        img = img[None]
+    n = _levels_of(img)
+    T, side = img.shape[0], 1 << n
+    if n == 0:  # one pixel: F^0 = pixel = mass
+        return img.copy(), img.reshape(T, 1).copy()
+    queue = queue or cl.thread_queue()
+    prog = cl.program("haar.cl")
+    stride = tree_size(n)
+    src = cl.to_device(img)
+    pyr = cl.empty(4 * T * stride)
+    coef = cl.empty(img.nbytes)
+    cl.kernel(prog, "haar_load_leaves")(queue, (side * side, T), None, src, pyr, np.uint64(stride),
+                                        np.int32(n))
+    knl = cl.kernel(prog, "haar_forward_level")
+    for level in range(n - 1, -1, -1):
+        knl(queue, (4 ** level, T), None, pyr, np.uint64(stride), coef, np.int32(n), np.int32(level))
+    return cl.read(coef, img.shape, np.float32, queue), cl.read(pyr, (T, stride), np.float32, queue)
+
+
+class ProductPyramids:
+    """Eq. 25 on the device for one shared G (the environment) and batches of H.
+
+    ``ProductPyramids(G, h_levels, levels=None)``: G dense (2^n, 2^n) coefficients or a
+    SparseHaar; each H is a dense (2^m, 2^m) coefficient set, m = ``h_levels``. Output trees
+    have levels 0..L (default m), ``stride = tree_size(L)`` floats apart. The kernel works at
+    leaf level P = max(L, m) <= max(n, m), one work-group per tree holding 2 4^P floats of
+    local memory (P <= 8 on PoCL CPU devices):
+    H's scaling coefficients top-down to level m, leaf masses G^0 H^0 at level P, then
+    parent = sum of children (equal to eq. 25, additive in float32).
+    ``nonnegative=True`` clamps negative leaf masses (ringing of compressed inputs) to 0.
+    """
+
+    def __init__(self, G, h_levels: int, levels: int | None = None, nonnegative: bool = False,
+                 work_group: int = 16):
+        n = G.n_levels if isinstance(G, SparseHaar) else _levels_of(np.asarray(G))
+        self.h_levels = m = int(h_levels)
+        self.levels = L = m if levels is None else int(levels)
+        self.leaf_level = P = max(L, m)
+        if not 0 <= L <= max(n, m):
+            raise ValueError(f"levels must be in [0, {max(n, m)}], got {levels}")
+        if 8 * 4 ** P > cl.runtime().device.local_mem_size:
+            raise ValueError(f"product trees of leaf level {P} do not fit the device's local memory")
+        k = min(P, n)
+        masses = scaling_pyramid(G, k)
+        if masses.ndim != 1:
+            raise ValueError("G must be a single-channel coefficient set")
+        leaf = _pad_pyramid(masses, k, P)[0, level_offset(P):]  # G's masses at level P
+        self.stride = tree_size(L)
+        self.nonnegative = bool(nonnegative)
+        self.work_group = int(min(work_group, 4 ** P))
+        self._g = cl.to_device(leaf.astype(np.float32))
+        self._prog = cl.program("haar.cl")
+
+    def enqueue(self, queue, h_buf, n_trees: int, out_buf):
+        """Launch on device buffers: h_buf (T, 2^m, 2^m) float32 -> out_buf (T, stride) float32."""
+        import pyopencl  # deferred like in cl.py
+        nbytes = 4 * 4 ** self.leaf_level
+        knl = cl.kernel(self._prog, "haar_product_tree")
+        return knl(queue, (self.work_group, n_trees), (self.work_group, 1), self._g, h_buf,
+                   np.int32(self.h_levels), np.int32(self.leaf_level), np.int32(self.levels),
+                   out_buf, np.uint64(self.stride), np.int32(self.nonnegative),
+                   pyopencl.LocalMemory(nbytes), pyopencl.LocalMemory(nbytes))
+
+    def __call__(self, H, queue=None) -> np.ndarray:
+        """Pyramids (T, stride) float32 for H (T, 2^m, 2^m) or (2^m, 2^m) dense coefficients."""
+        h = np.ascontiguousarray(H, np.float32)
+        h = h[None] if h.ndim == 2 else h
+        if h.shape[1:] != (1 << self.h_levels,) * 2:
+            raise ValueError(f"H must be (T, {1 << self.h_levels}, {1 << self.h_levels}), got {h.shape}")
+        queue = queue or cl.thread_queue()
+        out = cl.empty(4 * len(h) * self.stride)
+        if len(h):
+            self.enqueue(queue, cl.to_device(h), len(h), out)
+        return cl.read(out, (len(h), self.stride), np.float32, queue)
