@@ -38,14 +38,17 @@ def main():
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
               "Default: the scene's name with .png.")
 @click.option("--spp", type=int, default=None, help="Samples per pixel (overrides the scene).")
-@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis"]), default=None,
+@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis", "wavelet"]),
+              default=None,
               help="Sampling strategy (overrides the scene).")
 @click.option("--width", type=int, default=None, help="Image width in pixels.")
 @click.option("--height", type=int, default=None, help="Image height in pixels.")
 @click.option("--seed", type=int, default=None, help="Random seed.")
+@click.option("--wavelet-levels", type=click.IntRange(0, 12), default=None,
+              help="Product depth of the wavelet strategy (default: per material, from its lobe).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def render(scene_file, output, spp, strategy, width, height, seed, as_json, quiet):
+def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, as_json, quiet):
     """Render SCENE (a TOML scene file) to an image."""
     import time
 
@@ -68,7 +71,7 @@ def render(scene_file, output, spp, strategy, width, height, seed, as_json, quie
                   "the image would be black")
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr)
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
-                                      seed=seed, progress=bar)
+                                      seed=seed, progress=bar, wavelet_levels=wavelet_levels)
         if bar:
             bar.close()
         wavlight.save_image(output, result.image)

@@ -6,18 +6,20 @@
  *
  * 3-vectors travel as float4 (w unused): PoCL vectorises aligned loads far
  * better than vload3 (measured 3x).
- * STRATEGY: 0 uniform, 1 cosine, 2 bsdf, 3 light, 4 mis. Single strategies use
- * u.xy and write slot 0 (slot 1 is zero); MIS draws the light sample from u.xy
- * into slot 0 and the bsdf sample from u.zw into slot 1.
+ * STRATEGY: 0 uniform, 1 cosine, 2 bsdf, 3 light, 4 mis, 5 wavelet. Single
+ * strategies use u.xy and write slot 0 (slot 1 is zero); MIS draws the light
+ * sample from u.xy into slot 0 and the bsdf sample from u.zw into slot 1; wavelet
+ * does the same with the product sampler (product.h) in place of the light.
  */
 #include "warp.h"
 #include "bsdf.h"
+#include "product.h"
 
 typedef struct { float3 wi; float3 value; } Sample;
 
 inline float light_pdf(const Env *e, __global const float *tree, const int levels, const float3 w)
 {
-    return tree_pdf(tree, levels, env_world_to_square(e, w)) * INV_4PI_F;
+    return tree_pdf(tree, levels, env_world_to_square(e, w)) * env_square_to_solid_angle(w);
 }
 
 inline float power_heuristic(const float pa, const float pb)
@@ -31,7 +33,8 @@ inline float power_heuristic(const float pa, const float pb)
 __kernel void shade(__global const float4 *normal, __global const float4 *wo_world,
                     __global const int *material, __global const float4 *u_in,
                     __global const int *mat_kind, __global const float *mat_param,
-                    __global const float4 *mat_albedo,
+                    __global const float4 *mat_albedo, __global const float *mat_kappa,
+                    __global const int *mat_levels,
                     __global const float4 *texels, const int env_w, const int env_h,
                     __global const float *rot, __global const float *tree, const int tree_levels,
                     __global float4 *wi_out, __global float4 *value_out)
@@ -51,12 +54,26 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
 
     float3 wi_w[2] = {(float3)(0.0f), (float3)(0.0f)};
     float scal[2] = {0.0f, 0.0f};
-#if STRATEGY == 4
-    {   /* light sample, weighted against the bsdf pdf */
+#if STRATEGY == 5
+    Lobe lobe;
+    lobe.n = n;
+    lobe.axis = (kind == BSDF_LAMBERT) ? n : 2.0f * dot(wow, n) * n - wow;
+    lobe.kappa = mat_kappa[m];
+    lobe.levels = mat_levels[m];
+    lobe.shape = kind;
+#define SAMPLE_GUIDE(uu, pdfp) product_sample(tree, tree_levels, &env, &lobe, uu, pdfp)
+#define PDF_GUIDE(w) (product_pdf(tree, tree_levels, &env, &lobe, env_world_to_square(&env, w)) \
+                     * env_square_to_solid_angle(w))
+#else
+#define SAMPLE_GUIDE(uu, pdfp) tree_sample(tree, tree_levels, uu, pdfp)
+#define PDF_GUIDE(w) light_pdf(&env, tree, tree_levels, w)
+#endif
+#if STRATEGY >= 4
+    {   /* light (mis) or product (wavelet) sample, weighted against the bsdf pdf */
         float pdf_sq;
-        const float2 uv = tree_sample(tree, tree_levels, u.xy, &pdf_sq);
-        const float pdf = pdf_sq * INV_4PI_F;
+        const float2 uv = SAMPLE_GUIDE(u.xy, &pdf_sq);
         const float3 w = env_square_to_world(&env, uv);
+        const float pdf = pdf_sq * env_square_to_solid_angle(w);
         const float3 wl = (float3)(dot(w, s), dot(w, t), dot(w, n));
         const float f = bsdf_eval_cos(kind, param, wl, wo);
         wi_w[0] = w;
@@ -70,7 +87,7 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
         const float f = bsdf_eval_cos(kind, param, wl, wo);
         wi_w[1] = w;
         if (pdf > 0.0f)
-            scal[1] = f / pdf * power_heuristic(pdf, light_pdf(&env, tree, tree_levels, w));
+            scal[1] = f / pdf * power_heuristic(pdf, PDF_GUIDE(w));
     }
 #else
     {
@@ -92,8 +109,8 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
 #else
         float pdf_sq;
         const float2 uv = tree_sample(tree, tree_levels, u.xy, &pdf_sq);
-        pdf = pdf_sq * INV_4PI_F;
         w = env_square_to_world(&env, uv);
+        pdf = pdf_sq * env_square_to_solid_angle(w);
         wl = (float3)(dot(w, s), dot(w, t), dot(w, n));
 #endif
         wi_w[0] = w;

@@ -25,45 +25,61 @@ inline float tree_pdf(__global const float *base, const int n_levels, float2 uv)
     return (root > 0.0f) ? leaf / root * (float)side * (float)side : 0.0f;
 }
 
-/* Walk levels [level0, n_levels) starting at node (x, y) of level0; returns the
- * point in the unit square and leaves the leaf in (*x, *y). */
-inline float2 tree_descend(__global const float *base, const int level0, const int n_levels,
-                           float2 u, uint *px, uint *py)
+/* One step of the walk: pick one of the four children of node (x, y) with masses
+ * m00 m10 (top row) m01 m11 (bottom row), first the row pair then the column,
+ * rescaling u; (x, y) becomes the child. Returns the child's conditional
+ * probability m_child / (m00 + m10 + m01 + m11) (eq. 21-22). */
+inline float choose_child(const float m00, const float m10, const float m01, const float m11,
+                          float2 *uu, uint *px, uint *py)
 {
-    uint x = *px, y = *py;
-    u = clamp(u, 0.0f, ONE_MINUS_EPS);
-    for (int l = level0; l < n_levels; ++l) {
-        const uint cside = 2u << l;
-        __global const float *child = base + LEVEL_OFFSET(l + 1);
-        const uint c = (2 * y) * cside + 2 * x;
-        const float m00 = child[c], m10 = child[c + 1];
-        const float m01 = child[c + cside], m11 = child[c + cside + 1];
-        const float top = m00 + m10, bottom = m01 + m11;
-        /* top (row 2y) or bottom (row 2y + 1) pair */
-        const float p_top = top / (top + bottom);
-        float left, right;
-        if (u.y < p_top) {
-            u.y = u.y / p_top;
-            left = m00; right = m10; y = 2 * y;
-        } else {
-            u.y = (u.y - p_top) / (1.0f - p_top);
-            left = m01; right = m11; y = 2 * y + 1;
-        }
-        u.y = fmin(u.y, ONE_MINUS_EPS);
-        /* left (column 2x) or right (column 2x + 1) child */
-        const float p_left = left / (left + right);
-        if (u.x < p_left) {
-            u.x = u.x / p_left; x = 2 * x;
-        } else {
-            u.x = (u.x - p_left) / (1.0f - p_left); x = 2 * x + 1;
-        }
-        u.x = fmin(u.x, ONE_MINUS_EPS);
+    float2 u = *uu;
+    const float top = m00 + m10, bottom = m01 + m11;
+    /* top (row 2y) or bottom (row 2y + 1) pair */
+    const float p_top = top / (top + bottom);
+    float left, right, p_row;
+    if (u.y < p_top) {
+        u.y = u.y / p_top;
+        left = m00; right = m10; *py = 2 * *py; p_row = p_top;
+    } else {
+        u.y = (u.y - p_top) / (1.0f - p_top);
+        left = m01; right = m11; *py = 2 * *py + 1; p_row = 1.0f - p_top;
     }
-    *px = x; *py = y;
+    u.y = fmin(u.y, ONE_MINUS_EPS);
+    /* left (column 2x) or right (column 2x + 1) child */
+    const float p_left = left / (left + right);
+    float p_col;
+    if (u.x < p_left) {
+        u.x = u.x / p_left; *px = 2 * *px; p_col = p_left;
+    } else {
+        u.x = (u.x - p_left) / (1.0f - p_left); *px = 2 * *px + 1; p_col = 1.0f - p_left;
+    }
+    u.x = fmin(u.x, ONE_MINUS_EPS);
+    *uu = u;
+    return p_row * p_col;
+}
+
+/* The point of the unit square at offset u inside leaf (x, y) of a 2^n grid. */
+inline float2 leaf_point(const uint x, const uint y, const int n_levels, const float2 u)
+{
     /* (x + u) / 2^n may round up onto the next leaf's edge: stay inside the chosen leaf. */
     const float inv = 1.0f / (float)(1u << n_levels);
     return (float2)(fmin(((float)x + u.x) * inv, nextafter((float)(x + 1) * inv, 0.0f)),
                     fmin(((float)y + u.y) * inv, nextafter((float)(y + 1) * inv, 0.0f)));
+}
+
+/* Walk a tree's levels [level0, n_levels) from node (x, y) of level0; returns the
+ * point in the unit square and leaves the leaf in (*x, *y). */
+inline float2 tree_descend(__global const float *base, const int level0, const int n_levels,
+                           float2 u, uint *px, uint *py)
+{
+    u = clamp(u, 0.0f, ONE_MINUS_EPS);
+    for (int l = level0; l < n_levels; ++l) {
+        const uint cside = 2u << l;
+        __global const float *child = base + LEVEL_OFFSET(l + 1);
+        const uint c = (2 * *py) * cside + 2 * *px;
+        choose_child(child[c], child[c + 1], child[c + cside], child[c + cside + 1], &u, px, py);
+    }
+    return leaf_point(*px, *py, n_levels, u);
 }
 
 inline float2 tree_sample(__global const float *base, const int n_levels, float2 u, float *pdf)

@@ -4,13 +4,14 @@ Lookup (scene-format doc, same u, v as Mitsuba 3's envmap): for a world directio
 undo ``rotate_y`` (world = R_y * map), then u = atan2(d.x, -d.z) / 2 pi wrapped to
 [0, 1), v = acos(d.y) / pi, texel (floor(u W), floor(v H)), row 0 at +Y.
 
-Importance for light sampling lives on a 2^n x 2^n equal-area octahedral square
-(:mod:`wavlight.warp`): each leaf holds a conservative mean luminance over its
-patch of sphere (sub-points about 8 per texel, each taking the max of its 3 x 3
-neighbourhood), plus a defensive floor of ``DEFENSIVE`` times the map's mean, so
-that the pdf is positive wherever the map is, for any non-black map. The leaf side is the
-smallest power of two whose square has at least as many leaves as the map has
-texels, at most 2^10.
+Importance for light and product sampling lives on a 2^n x 2^n square in the
+map's own lat-long parameterization (phi = 2 pi u, theta = pi v; 2^n >= the map's
+width and height): each leaf holds the exact integral of luminance over its solid
+angle (the map is piecewise constant, so it is a separable box sum). For maps
+with power-of-two sizes every leaf lies inside one texel, so L / pdf is constant
+within a texel but for the sin(theta) variation across the leaf, as in Mitsuba 3's
+envmap; the pdf is positive wherever the map is. The square-to-sphere Jacobian is
+du dv / d omega = 1 / (2 pi^2 sin theta).
 
 The built-in procedural sky (``procedural = "sky"`` in a scene) is a smooth
 gradient plus a small, very bright sun disk, made at 512 x 256 texels; see
@@ -27,7 +28,7 @@ from . import warp
 from .errors import WavlightError
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
-DEFENSIVE = 1e-3
+ONE_BELOW = float(np.nextafter(1.0, 0.0))
 MAX_TEXELS = 1 << 26
 
 
@@ -119,17 +120,13 @@ class Environment:
         self.map_from_world = rotation_y(rotate_y).T
         self.world_from_map = rotation_y(rotate_y)
         self._flat = self.pixels.reshape(-1, 3)
-        self._square = None
 
     # -- lookup
     def texel_index(self, d_world: np.ndarray) -> np.ndarray:
         """Flat texel indices (row * W + col) for world directions (N, 3)."""
-        d = d_world @ self.map_from_world.T
-        u = np.arctan2(d[:, 0], -d[:, 2]) * warp.INV_2PI
-        u = u - np.floor(u)
-        v = np.arccos(np.clip(d[:, 1], -1.0, 1.0)) * warp.INV_PI
-        col = np.minimum((u * self.width).astype(np.int64), self.width - 1)
-        row = np.minimum((v * self.height).astype(np.int64), self.height - 1)
+        uv = self.world_to_square(d_world)
+        col = np.minimum((uv[:, 0] * self.width).astype(np.int64), self.width - 1)
+        row = np.minimum((uv[:, 1] * self.height).astype(np.int64), self.height - 1)
         return row * self.width + col
 
     def eval(self, d_world: np.ndarray) -> np.ndarray:
@@ -140,76 +137,59 @@ class Environment:
     def is_black(self) -> bool:
         return not np.any(self.pixels > 0)
 
-    # -- importance on the equal-area square (for the light strategy)
+    # -- importance on the lat-long square (for light and product sampling)
     def square_levels(self) -> int:
-        texels = self.width * self.height
-        n = 0
-        while 4 ** n < texels and n < 10:
+        """n with 2^n >= max(W, H) (at most 11): leaf columns and rows nest inside texels for 2^k maps."""
+        n = 1
+        while (1 << n) < max(self.width, self.height) and n < 11:
             n += 1
-        return max(n, 1)
+        return n
 
-    def subpoint_grid(self, n_levels: int) -> int:
-        """Side G of the sub-point grid: about 8 sub-points per texel, at least 2 per leaf side."""
-        side = 1 << n_levels
-        g = side
-        while g * g < 8 * self.width * self.height and g < 4096:
-            g *= 2
-        return max(g, 2 * side)
+    def luminance_square(self, n_levels: int | None = None) -> np.ndarray:
+        """(2^n, 2^n) float64 leaf masses: the exact integral of luminance over each leaf's solid angle.
 
-    def subpoint_luminance_reference(self, grid: int) -> np.ndarray:
-        """(G, G) luminance at the sub-points of the equal-area square (numpy twin of the kernel)."""
-        c = (np.arange(grid) + 0.5) / grid
-        uu, vv = np.meshgrid(c, c)
-        d_sq = warp.square_to_sphere_equal_area(np.stack([uu.ravel(), vv.ravel()], 1))
-        d_map = np.stack([d_sq[:, 0], d_sq[:, 2], -d_sq[:, 1]], 1)
-        idx = self.texel_index(d_map @ self.world_from_map.T)
-        return (self._flat @ LUMINANCE)[idx].reshape(grid, grid).astype(np.float32)
-
-    def subpoint_luminance(self, grid: int) -> np.ndarray:
-        """(G, G) luminance at the sub-points (kernel ``subpoint_luminance``, kernels/envmap.cl)."""
-        from . import cl
-
-        lum = np.ascontiguousarray(self._flat @ LUMINANCE, np.float32)
-        out = cl.empty(grid * grid * 4)
-        q = cl.thread_queue()
-        knl = cl.kernel(cl.program("envmap.cl"), "subpoint_luminance")
-        knl(q, (grid, grid), None, cl.to_device(lum), np.int32(self.width), np.int32(self.height),
-            np.int32(grid), out)
-        return cl.read(out, (grid, grid), np.float32, q)
-
-    def luminance_square(self, n_levels: int | None = None, reference: bool = False) -> np.ndarray:
-        """(2^n, 2^n) float32 leaf importance on the equal-area square, with the defensive floor.
-
-        Leaf (row y, column x) covers square points u in [x, x+1)/2^n, v in [y, y+1)/2^n.
-        Each leaf holds the mean over its sub-points of the max luminance in a 3 x 3
-        sub-point neighbourhood: a conservative estimate, so that a texel smaller
-        than a leaf still gives the leaves it touches their share (not just the floor).
+        Leaf (row y, column x) covers u in [x, x+1)/2^n (phi = 2 pi u) and v in [y, y+1)/2^n
+        (theta = pi v) of the square parameterization. The map is piecewise constant, so the
+        integral is separable: column overlaps in phi times row overlaps in cos(theta).
         """
         n = self.square_levels() if n_levels is None else n_levels
         side = 1 << n
-        g = self.subpoint_grid(n)
-        sub = (self.subpoint_luminance_reference if reference else self.subpoint_luminance)(g)
-        padded = np.pad(sub, 1, mode="edge")
-        dilated = sub.copy()
-        for dy in (0, 1, 2):
-            for dx in (0, 1, 2):
-                np.maximum(dilated, padded[dy:dy + g, dx:dx + g], out=dilated)
-        k = g // side
-        leaves = dilated.reshape(side, k, side, k).mean(axis=(1, 3))
-        # Defensive floor from the map's own solid-angle-weighted mean: positive for any non-black map.
-        theta = (np.arange(self.height) + 0.5) / self.height * np.pi
-        texel_sr = (2 * np.pi / self.width) * (np.cos(theta - np.pi / (2 * self.height))
-                                               - np.cos(theta + np.pi / (2 * self.height)))
-        mean = float(((self._flat @ LUMINANCE).reshape(self.height, self.width) * texel_sr[:, None]).sum()
-                     / (4 * np.pi))
-        return (leaves + DEFENSIVE * mean).astype(np.float32)
+        lum = (self._flat @ LUMINANCE).reshape(self.height, self.width).astype(np.float64)
+        # rows: solid-angle overlap of leaf row i with texel row r, in cos(theta)
+        leaf_t = np.arange(side + 1) / side * np.pi
+        tex_t = np.arange(self.height + 1) / self.height * np.pi
+        lo = np.maximum(leaf_t[:-1, None], tex_t[None, :-1])
+        hi = np.minimum(leaf_t[1:, None], tex_t[None, 1:])
+        rows = np.where(hi > lo, np.cos(lo) - np.cos(hi), 0.0)                    # (side, H)
+        # columns: overlap of leaf column j with texel column c, in phi
+        leaf_p = np.arange(side + 1) / side * 2 * np.pi
+        tex_p = np.arange(self.width + 1) / self.width * 2 * np.pi
+        cols = np.clip(np.minimum(leaf_p[None, 1:], tex_p[1:, None])
+                       - np.maximum(leaf_p[None, :-1], tex_p[:-1, None]), 0.0, None)  # (W, side)
+        return rows @ lum @ cols
 
-    def map_to_world(self, d_square_frame: np.ndarray) -> np.ndarray:
-        """Equal-area square frame (octahedral z = map +Y) to world directions."""
-        d = d_square_frame[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0])
+    def square_to_world(self, uv: np.ndarray) -> np.ndarray:
+        """Square points (N, 2) -> world directions (N, 3): phi = 2 pi u, theta = pi v, then rotate_y."""
+        phi = 2 * np.pi * uv[:, 0]
+        theta = np.pi * uv[:, 1]
+        st = np.sin(theta)
+        d = np.stack([np.sin(phi) * st, np.cos(theta), -np.cos(phi) * st], 1)
         return d @ self.world_from_map.T
 
-    def world_to_map(self, d_world: np.ndarray) -> np.ndarray:
-        """World directions to the equal-area square frame (inverse of :meth:`map_to_world`)."""
+    def world_to_square(self, d_world: np.ndarray) -> np.ndarray:
+        """World directions (N, 3) -> square points (N, 2), the inverse of :meth:`square_to_world`."""
         d = d_world @ self.map_from_world.T
-        return np.stack([d[:, 0], -d[:, 2], d[:, 1]], 1)
+        u = np.arctan2(d[:, 0], -d[:, 2]) * warp.INV_2PI
+        u = u - np.floor(u)
+        v = np.arccos(np.clip(d[:, 1], -1.0, 1.0)) * warp.INV_PI
+        return np.stack([np.minimum(u, ONE_BELOW), np.minimum(v, ONE_BELOW)], 1)
+
+    @staticmethod
+    def square_to_solid_angle(d_world: np.ndarray) -> np.ndarray:
+        """Jacobian du dv / d omega = 1 / (2 pi^2 sin theta) at world directions (0 at the poles).
+
+        rotate_y turns about +Y, so sin(theta) is the same in world and map frames.
+        """
+        s = np.sqrt(np.maximum(0.0, 1.0 - d_world[:, 1] ** 2))
+        with np.errstate(divide="ignore"):
+            return np.where(s > 0, 1.0 / (2 * np.pi ** 2 * np.where(s > 0, s, 1.0)), 0.0)

@@ -64,13 +64,13 @@ def camera_rays(scene: Scene, px: np.ndarray, py: np.ndarray, jitter: np.ndarray
 
 class _Renderer:
     def __init__(self, scene: Scene, strategy: str, spp: int, width: int, height: int, seed: int, threads,
-                 backend="opencl"):
+                 backend="opencl", options=None):
         self.scene, self.spp, self.width, self.height, self.seed = scene, spp, width, height, seed
         self.threads = threads or os.cpu_count() or 1
         t0 = time.perf_counter()
         self.tracer = RayTracer(scene.vertices, scene.faces)
-        self.strategy = strategies.make(strategy)
-        self.strategy.prepare(scene.environment)
+        self.strategy = strategies.make(strategy, **(options or {}))
+        self.strategy.prepare(scene.environment, scene.materials)
         self.shader = (NumpyShader if backend == "numpy" else KernelShader)(scene, self.strategy)
         self.setup_seconds = time.perf_counter() - t0
         self.rays = 0
@@ -132,12 +132,13 @@ def _tiles(width, height, spp):
 
 
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
-                progress=None, threads=None, backend="opencl") -> RenderResult:
+                progress=None, threads=None, backend="opencl", wavelet_levels=None) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     Arguments left as None come from the scene file. ``progress(done, total, samples, seconds)``
     is called after each tile. ``backend="numpy"`` shades with the numpy reference
     instead of the OpenCL kernel (same random numbers, same estimator).
+    ``wavelet_levels`` overrides the wavelet strategy's per-material product depth.
     """
     spp = scene.spp if spp is None else int(spp)
     strategy = scene.strategy if strategy is None else strategy
@@ -152,7 +153,10 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
         raise WavlightError(f"seed must be non-negative, got {seed}")
     if strategy not in STRATEGIES:
         raise WavlightError(f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
-    r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend)
+    if wavelet_levels is None:
+        wavelet_levels = scene.wavelet_levels
+    options = {"levels": wavelet_levels} if strategy == "wavelet" else None
+    r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend, options)
     image = np.zeros((height, width, 3), np.float32)
     stderr = np.zeros((height, width, 3), np.float32)
     tiles = _tiles(width, height, spp)

@@ -7,6 +7,8 @@ Every key of the scene format is accepted as written there. wavlight adds:
   ``sun_azimuth`` (degrees; azimuth from -Z towards +X), ``sun_radius`` (degrees,
   default 0.75) and ``sun_radiance`` (default 2e4). ``scale`` and ``rotate_y`` apply.
 - ``[[objects]]`` without ``material`` get a grey lambert (albedo 0.5).
+- ``[render] wavelet_levels = P``: the wavelet strategy's product depth for every
+  material (default: chosen per material from its lobe width).
 
 Limits: width and height 1..16384, spp 1..1_000_000. Errors name the file and the
 key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
@@ -26,7 +28,7 @@ from . import bsdfs
 from .envmap import Environment, procedural_sky, read_image
 from .errors import SceneError, WavlightError
 
-STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis")
+STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "wavelet")
 MAX_SIDE = 16384
 MAX_SPP = 1_000_000
 
@@ -66,6 +68,7 @@ class Scene:
     faces: np.ndarray
     face_material: np.ndarray
     materials: list = field(default_factory=list)
+    wavelet_levels: int | None = None
 
     @property
     def material_kind(self):
@@ -273,6 +276,9 @@ def load_scene(path: str) -> Scene:
     if strategy not in STRATEGIES:
         r.fail("strategy", f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
     seed = _positive(r, "seed", r.get("seed", "int", 0), 0, 2 ** 63 - 1)
+    wavelet_levels = r.get("wavelet_levels", "int")
+    if wavelet_levels is not None:
+        _positive(r, "wavelet_levels", wavelet_levels, 0, 12)
     r.done()
 
     c = _Table(path, "[camera]", doc.get("camera", {}))
@@ -337,7 +343,7 @@ def load_scene(path: str) -> Scene:
     vertices = np.concatenate(verts).astype(np.float32) if verts else np.zeros((0, 3), np.float32)
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
-                 np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials)
+                 np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, wavelet_levels)
 
 
 def _environment(t: _Table, base) -> Environment:

@@ -41,6 +41,10 @@ class KernelShader:
         alb = np.zeros((len(scene.materials), 4), np.float32)
         alb[:, :3] = scene.material_albedo
         self.albedo = cl.to_device(alb)
+        kappa = getattr(strategy, "kappa", np.zeros(len(scene.materials)))
+        levels = getattr(strategy, "levels", np.zeros(len(scene.materials), np.int32))
+        self.kappa = cl.to_device(np.asarray(kappa, np.float32))
+        self.levels_per_material = cl.to_device(np.asarray(levels, np.int32))
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name])
 
     def __call__(self, n, wo, material, u, **_):
@@ -52,7 +56,8 @@ class KernelShader:
                 cl.to_device(np.asarray(material, np.int32)), cl.to_device(np.asarray(u, np.float32))]
         wi_buf, val_buf = cl.empty(count * 32), cl.empty(count * 32)
         knl = cl.kernel(self.program, "shade")
-        knl(q, (count,), None, *bufs, self.kind, self.param, self.albedo, self.texels, *self.env_size,
+        knl(q, (count,), None, *bufs, self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
+            self.texels, *self.env_size,
             self.rot, self.tree, self.levels, wi_buf, val_buf)
         wi = cl.read(wi_buf, (count, 2, 4), np.float32, q)[..., :3]
         value = cl.read(val_buf, (count, 2, 4), np.float32, q)[..., :3]
@@ -71,5 +76,5 @@ class NumpyShader:
         s, t = warp.frame(n)
         sp = strategies.ShadingPoints(p, n, s, t, warp.to_local(np.asarray(wo, np.float64), s, t, n),
                                       sc.material_kind[material], sc.material_param[material],
-                                      sc.material_albedo[material])
+                                      sc.material_albedo[material], np.asarray(material))
         return strategies.shade_reference(self.strategy, sc.environment, sp, np.asarray(u, np.float64))

@@ -9,8 +9,10 @@ its contribution is 0, never NaN.
 | uniform   | the hemisphere about the shading normal        | 1 / 2 pi                              |
 | cosine    | the hemisphere, cosine-weighted                | cos / pi                              |
 | bsdf      | the BRDF (lambert cosine, phong lobe, ggx VNDF) | :mod:`wavlight.bsdfs`                 |
-| light     | the environment: luminance x solid angle, by a | tree pdf on the equal-area square/4pi |
-|           | hierarchical warp of a :class:`HaarTree`       | (Chen & Gao eq. 19-22)                |
+| light     | the environment: luminance x solid angle, by a | tree pdf on the lat-long square /     |
+|           | hierarchical warp of a :class:`HaarTree`       | (2 pi^2 sin theta) (eq. 19-22)        |
+| wavelet   | product light x BRDF x cos (top-down warp) and | both, power heuristic                 |
+|           | bsdf, power heuristic (:mod:`wavlight.product`)|                                       |
 | mis       | one light and one bsdf sample, power heuristic | both, weighted (Veach 1997)           |
 
 The ``mis`` estimator is Mitsuba 3's ``direct`` integrator with one emitter and one
@@ -23,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import bsdfs, warp
+from . import bsdfs, product, warp
 from .distributions import HaarTree
 
 
@@ -43,6 +45,7 @@ class ShadingPoints:
     kind: np.ndarray
     param: np.ndarray
     albedo: np.ndarray
+    material: np.ndarray = None
 
     def __len__(self):
         return len(self.n)
@@ -89,8 +92,8 @@ class Strategy:
 
     name = ""
 
-    def prepare(self, environment):
-        """Per-render precomputation (trees, kernels); called once before shading."""
+    def prepare(self, environment, materials=()):
+        """Per-render precomputation (trees, tables); called once before shading."""
 
     def sample(self, sp: ShadingPoints, u: np.ndarray) -> DirectionSamples:
         raise NotImplementedError
@@ -136,27 +139,27 @@ class BsdfStrategy(Strategy):
 
 
 class LightStrategy(Strategy):
-    """Environment importance sampling from a luminance tree on the equal-area square.
+    """Environment importance sampling: luminance x solid angle, by a hierarchical
+    warp of a :class:`HaarTree` on the map's lat-long square (Chen & Gao eq. 17-22).
 
-    pdf(wi) = tree pdf at the square point of wi / (4 pi)  (equal-area map).
+    pdf(wi) = tree pdf at the square point of wi / (2 pi^2 sin theta).
     """
 
     name = "light"
 
-    def prepare(self, environment):
+    def prepare(self, environment, materials=()):
         self.env = environment
-        leaves = environment.luminance_square()
-        self.tree = HaarTree(leaves)
+        self.tree = HaarTree(environment.luminance_square())
 
     def sample_directions(self, u):
         """u (N, 2) -> world directions (N, 3) and pdf per solid angle (N,)."""
         uv, pdf_sq = self.tree.sample(u)
-        d = self.env.map_to_world(warp.square_to_sphere_equal_area(uv.astype(np.float64)))
-        return d, pdf_sq.astype(np.float64) * warp.INV_4PI
+        d = self.env.square_to_world(uv.astype(np.float64))
+        return d, pdf_sq.astype(np.float64) * self.env.square_to_solid_angle(d)
 
     def pdf_directions(self, d_world):
-        uv = warp.sphere_to_square_equal_area(self.env.world_to_map(d_world))
-        return self.tree.pdf(uv).astype(np.float64) * warp.INV_4PI
+        uv = self.env.world_to_square(d_world)
+        return self.tree.pdf(uv).astype(np.float64) * self.env.square_to_solid_angle(d_world)
 
     def sample(self, sp, u):
         d, pdf = self.sample_directions(u)
@@ -170,6 +173,53 @@ class LightStrategy(Strategy):
         return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(self.tree.stride * 4)}
 
 
+class WaveletStrategy(Strategy):
+    """Product (light x BRDF x cosine) samples by a top-down hierarchical warp
+    (:mod:`wavlight.product`), combined with BSDF samples by the power heuristic.
+
+    Like ``mis``: one product sample and one BSDF sample per shading sample. The
+    BSDF sample keeps the estimator unbiased where the approximate product is 0.
+    ``levels`` overrides the per-material product depth.
+    """
+
+    name = "wavelet"
+
+    def __init__(self, levels: int | None = None):
+        self.light = LightStrategy()
+        self.bsdf = BsdfStrategy()
+        self.override = levels
+
+    def prepare(self, environment, materials=()):
+        self.light.prepare(environment)
+        self.env = environment
+        n = self.light.tree.n_levels
+        self.kappa = np.array([product.lobe_kappa(m.kind, m.param) for m in materials], np.float64)
+        self.levels = np.array([product.product_levels(k, n, self.override) for k in self.kappa], np.int32)
+        self._nodes = self.light.tree.nodes()[0]
+
+    def _lobes(self, sp, material):
+        wo_w = sp.to_world(sp.wo)
+        axis = np.where((sp.kind == bsdfs.LAMBERT)[:, None], sp.n,
+                        2.0 * np.einsum("ij,ij->i", wo_w, sp.n)[:, None] * sp.n - wo_w)
+        return axis, self.kappa[material], self.levels[material], sp.kind
+
+    def sample(self, sp, u):
+        axis, kappa, levels, shape = self._lobes(sp, sp.material)
+        uv, pdf_sq = product.sample_reference(self._nodes, self.light.tree.n_levels, self.env, axis, sp.n,
+                                              kappa, levels, shape, u)
+        d = self.env.square_to_world(uv)
+        return DirectionSamples(d, sp.to_local(d), pdf_sq * self.env.square_to_solid_angle(d))
+
+    def pdf(self, sp, wi_local, wi_world):
+        axis, kappa, levels, shape = self._lobes(sp, sp.material)
+        uv = self.env.world_to_square(wi_world)
+        return product.pdf_reference(self._nodes, self.light.tree.n_levels, self.env, axis, sp.n, kappa, levels,
+                                     shape, uv) * self.env.square_to_solid_angle(wi_world)
+
+    def info(self):
+        return {**self.light.info(), "product_levels": self.levels.tolist()}
+
+
 class MisStrategy(Strategy):
     """One light and one BSDF sample per shading sample, power heuristic."""
 
@@ -179,7 +229,7 @@ class MisStrategy(Strategy):
         self.light = LightStrategy()
         self.bsdf = BsdfStrategy()
 
-    def prepare(self, environment):
+    def prepare(self, environment, materials=()):
         self.light.prepare(environment)
 
     def info(self):
@@ -187,13 +237,14 @@ class MisStrategy(Strategy):
 
 
 #: kernel ids of the strategies (-DSTRATEGY in kernels/shade.cl)
-KERNEL_ID = {"uniform": 0, "cosine": 1, "bsdf": 2, "light": 3, "mis": 4}
+KERNEL_ID = {"uniform": 0, "cosine": 1, "bsdf": 2, "light": 3, "mis": 4, "wavelet": 5}
 
-REGISTRY = {cls.name: cls for cls in (UniformStrategy, CosineStrategy, BsdfStrategy, LightStrategy, MisStrategy)}
+REGISTRY = {cls.name: cls for cls in (UniformStrategy, CosineStrategy, BsdfStrategy, LightStrategy, MisStrategy,
+                                     WaveletStrategy)}
 
 
-def make(name: str) -> Strategy:
-    return REGISTRY[name]()
+def make(name: str, **options) -> Strategy:
+    return REGISTRY[name](**options)
 
 
 def power_heuristic(p_a, p_b):
@@ -224,8 +275,9 @@ def shade_reference(strategy: Strategy, env, sp: ShadingPoints, u: np.ndarray):
     n = len(sp)
     wi = np.zeros((n, 2, 3))
     value = np.zeros((n, 2, 3))
-    if isinstance(strategy, MisStrategy):
-        pairs = ((0, strategy.light, strategy.bsdf, u[:, :2]), (1, strategy.bsdf, strategy.light, u[:, 2:4]))
+    if isinstance(strategy, (MisStrategy, WaveletStrategy)):
+        guide = strategy if isinstance(strategy, WaveletStrategy) else strategy.light
+        pairs = ((0, guide, strategy.bsdf, u[:, :2]), (1, strategy.bsdf, guide, u[:, 2:4]))
         for slot, mine, other, uu in pairs:
             ds = mine.sample(sp, uu)
             w = power_heuristic(ds.pdf, other.pdf(sp, ds.wi_local, ds.wi_world))

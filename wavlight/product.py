@@ -1,0 +1,147 @@
+"""Wavelet product importance sampling: light x BRDF x cosine, top-down (numpy twin of kernels/product.h).
+
+Design (decided by measurement, see README "wavelet strategy"): no per-point tree
+and no precomputed BRDF tables. The sampling tree of the product is walked
+top-down, evaluating only the four children of each visited node (Clarberg et
+al. 2005 evaluate the product top-down too). A node's importance is its product
+scaling coefficient approximated by the first term of eq. 25,
+F^0_s ~ 2^l G^0_s H^0_s: the environment's exact box mass (the light tree) times
+the BRDF x cosine at the node's centre with a lobe pre-filtered to the node's size
+
+    lambert  I = mass clamp(d . n + r_l, 0, 1)
+    phong    I = mass exp(-k_l x) clamp(d . n + r_l, 0, 1)
+    ggx      I = mass (1 + k_l x)^-2 clamp(d . n / r_l + 1, 0, 1)
+
+with x = 1 - d . axis, r_l = 0.75 pi / 2^l the node's angular radius (lat-long
+square: a node spans pi / 2^l in theta and 2 pi sin(theta) / 2^l in phi) and
+k_l = 1 / (1/kappa + r_l^2) the lobe widened to the node. phong: cos^n a ~
+exp(n (cos a - 1)), kappa = n, times the cosine. ggx at normal incidence:
+D(h) ~ (1 + x / (2 alpha^2))^-2 in the reflected direction, kappa = 1 / (2 alpha^2);
+f cos has no cosine factor, only the horizon (softened to the node's size).
+lambert: the cosine. Below
+the product depth P (chosen per material so that nodes are smaller than half the
+lobe's width, :func:`product_levels`) the BRDF is taken as constant and the walk
+continues in the light tree. The pdf is exact for the sampler (product of the
+conditionals), so with MIS against BSDF sampling the estimator is unbiased even
+where the approximate importance is 0.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import bsdfs, warp
+from .distributions import ONE_MINUS_EPS, level_offset
+
+NODE_RADIUS = 0.75 * np.pi  # angular radius of a level-l node ~ 0.75 pi / 2^l (theta extent pi / 2^l)
+MAX_KAPPA = 1e6
+
+
+def lobe_kappa(kind: int, param: float) -> float:
+    """von Mises-Fisher concentration of a material's lobe (0 for lambert)."""
+    if kind == bsdfs.LAMBERT:
+        return 0.0
+    if kind == bsdfs.PHONG:
+        return float(min(max(param, 0.0), MAX_KAPPA))
+    return float(min(1.0 / (2.0 * param * param), MAX_KAPPA))  # the (1 + k x)^-2 profile's k
+
+
+def product_levels(kappa: float, tree_levels: int, override: int | None = None) -> int:
+    """Product depth P: nodes (angular size sqrt(4 pi) / 2^l) below half the lobe width 1/sqrt(kappa)."""
+    if override is not None:
+        return int(min(max(override, 0), tree_levels))
+    if kappa <= 0:
+        return min(3, tree_levels)  # the cosine lobe is broad: 8 x 8 nodes of ~25 degrees
+    # lobe width ~ 1/sqrt(kappa) (phong) or sqrt(2) alpha = 1/sqrt(kappa) (ggx); node theta extent pi / 2^l
+    level = int(np.ceil(np.log2(2.0 * np.pi * np.sqrt(kappa))))
+    return int(min(max(level, 2), tree_levels))
+
+
+def node_importance(env, mass, x, y, level, axis, n, kappa, shape):
+    """I(s) for nodes (x, y) of `level` (arrays), per-sample lobes axis, n (N, 3), kappa, shape (N,)."""
+    inv = 1.0 / (1 << level)
+    c = np.stack([(x + 0.5) * inv, (y + 0.5) * inv], 1)
+    d = env.square_to_world(c)
+    r = NODE_RADIUS * inv
+    cos_n = np.einsum("ij,ij->i", d, n)
+    x1 = 1.0 - np.einsum("ij,ij->i", d, axis)
+    with np.errstate(divide="ignore", over="ignore"):
+        k = np.where(kappa > 0, 1.0 / (1.0 / np.where(kappa > 0, kappa, 1.0) + r * r), 0.0)
+        ggx = (1.0 / (1.0 + k * x1)) ** 2 * np.clip(cos_n / r + 1.0, 0.0, 1.0)
+    hor = np.clip(cos_n + r, 0.0, 1.0)
+    lobe = np.where(shape == bsdfs.GGX, ggx, np.where(shape == bsdfs.PHONG, np.exp(-k * x1) * hor, hor))
+    return mass * lobe
+
+
+def _children(tree, env, x, y, level, axis, n, kappa, shape):
+    cside = 2 << level
+    base = level_offset(level + 1) + (2 * y) * cside + 2 * x
+    idx = np.stack([base, base + 1, base + cside, base + cside + 1], 1)
+    m = tree[idx].astype(np.float64)
+    imp = np.stack([node_importance(env, m[:, k], 2 * x + (k & 1), 2 * y + (k >> 1), level + 1, axis, n, kappa,
+                                    shape)
+                    for k in range(4)], 1)
+    s = imp.sum(1)
+    bad = ~(s > 0) | ~np.isfinite(s)
+    imp[bad] = m[bad]
+    return imp
+
+
+def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
+    """Product samples: uv (N, 2) on the square and pdf (N,) on the square (numpy twin).
+
+    tree : (tree_size(n),) light masses; axis, n : (N, 3); kappa (N,); levels, shape (N,) int.
+    """
+    tree = np.asarray(tree, np.float64).ravel()
+    u = np.clip(np.asarray(u, np.float64), 0, ONE_MINUS_EPS).copy()
+    count = len(u)
+    x = np.zeros(count, np.int64)
+    y = np.zeros(count, np.int64)
+    p = np.ones(count)
+    depth = np.minimum(levels, n_levels)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for l in range(n_levels):
+            prod = l < depth
+            cside = 2 << l
+            c = level_offset(l + 1) + (2 * y) * cside + 2 * x
+            m = np.stack([tree[c], tree[c + 1], tree[c + cside], tree[c + cside + 1]], 1)
+            w = m.copy()
+            if prod.any():
+                w[prod] = _children(tree, env, x[prod], y[prod], l, axis[prod], n[prod], kappa[prod], shape[prod])
+            top, bottom = w[:, 0] + w[:, 1], w[:, 2] + w[:, 3]
+            p_top = top / (top + bottom)
+            go_top = u[:, 1] < p_top
+            u[:, 1] = np.fmin(np.where(go_top, u[:, 1] / p_top, (u[:, 1] - p_top) / (1 - p_top)), ONE_MINUS_EPS)
+            left, right = np.where(go_top, w[:, 0], w[:, 2]), np.where(go_top, w[:, 1], w[:, 3])
+            p_left = left / (left + right)
+            go_left = u[:, 0] < p_left
+            u[:, 0] = np.fmin(np.where(go_left, u[:, 0] / p_left, (u[:, 0] - p_left) / (1 - p_left)),
+                              ONE_MINUS_EPS)
+            y = 2 * y + (~go_top)
+            x = 2 * x + (~go_left)
+    side = 1 << n_levels
+    leaf = np.stack([x, y], 1)
+    uv = np.minimum((leaf + np.nan_to_num(u)) / side, np.nextafter((leaf + 1) / side, 0))
+    return uv, pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv)
+
+
+def pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv):
+    """Density on the square of the product sampler at points uv (N, 2) (numpy twin of product_pdf)."""
+    tree = np.asarray(tree, np.float64).ravel()
+    count = len(uv)
+    if not tree[0] > 0:
+        return np.zeros(count)
+    side = 1 << n_levels
+    lx = np.clip(np.floor(uv[:, 0] * side).astype(np.int64), 0, side - 1)
+    ly = np.clip(np.floor(uv[:, 1] * side).astype(np.int64), 0, side - 1)
+    depth = np.minimum(levels, n_levels)
+    p = np.ones(count)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for l in range(int(depth.max(initial=0))):
+            sel = np.nonzero(l < depth)[0]
+            cx, cy = lx[sel] >> (n_levels - l - 1), ly[sel] >> (n_levels - l - 1)
+            imp = _children(tree, env, cx >> 1, cy >> 1, l, axis[sel], n[sel], kappa[sel], shape[sel])
+            p[sel] *= imp[np.arange(len(sel)), (cx & 1) + 2 * (cy & 1)] / imp.sum(1)
+        nx, ny = lx >> (n_levels - depth), ly >> (n_levels - depth)
+        node = tree[np.array([level_offset(int(d)) for d in range(n_levels + 1)])[depth] + ny * (1 << depth) + nx]
+        leaf = tree[level_offset(n_levels) + ly * side + lx]
+        return np.where(node > 0, p * leaf / node * side * side, 0.0)
