@@ -5,11 +5,11 @@
  * approximated by the first term of eq. 25, F^0_s ~ 2^l G^0_s H^0_s: the
  * environment's exact box mass (the light tree) times the BRDF x cosine of the
  * shading point evaluated at the node's centre direction d_s with a lobe
- * pre-filtered to the node's size (x = 1 - d_s . axis, r_l = 0.75 pi / 2^l the
- * node's angular radius on the lat-long square, k_l = 1 / (1/kappa + r_l^2)):
- *     lambert  I = mass clamp(d_s . n + r_l, 0, 1)
- *     phong    I = mass exp(-k_l x) clamp(d_s . n + r_l, 0, 1)
- *     ggx      I = mass (1 + k_l x)^-2 clamp(d_s . n / r_l + 1, 0, 1)
+ * pre-filtered to the node's size (x = 1 - d_s . axis, k_l = 1 / (1/kappa + r_l^2),
+ * r_l = 0.35 pi / 2^l the lobe blur, h_l = 0.75 pi / 2^l the horizon blur):
+ *     lambert  I = mass clamp(d_s . n + h_l, 0, 1)
+ *     phong    I = mass exp(-k_l x) clamp(d_s . n + h_l, 0, 1)
+ *     ggx      I = mass (1 + k_l x)^-2 clamp(d_s . n / h_l + 1, 0, 1)
  * axis = mirror direction (phong, ggx) or normal (lambert). Only the
  * four children of each visited node are evaluated: O(levels) per sample, no
  * per-point tree. Below the product depth P the BRDF is taken as constant and the
@@ -23,7 +23,12 @@
 #include "warp.h"
 #include "sphere.h"
 
-#define NODE_RADIUS_F (0.75f * PI_F)  /* a level-l node spans pi / 2^l in theta */
+/* A level-l node spans pi / 2^l in theta (2 pi sin(theta) / 2^l in phi). The lobe is
+ * widened by LOBE_BLUR_F / 2^l (less than the node's half size: wider lobes waste
+ * samples on bright nodes outside the lobe, measured), the horizon softened by
+ * HORIZON_BLUR_F / 2^l (about the node's half diagonal). */
+#define LOBE_BLUR_F (0.35f * PI_F)
+#define HORIZON_BLUR_F (0.75f * PI_F)
 
 #define LOBE_LAMBERT 0
 #define LOBE_PHONG 1
@@ -42,15 +47,15 @@ inline float node_importance(const Env *e, const Lobe *lb, const float mass, con
 {
     const float inv = 1.0f / (float)(1u << level);
     const float3 d = env_square_to_world(e, (float2)(((float)x + 0.5f) * inv, ((float)y + 0.5f) * inv));
-    const float r = NODE_RADIUS_F * inv;
+    const float r = LOBE_BLUR_F * inv, rh = HORIZON_BLUR_F * inv;
     const float cos_n = dot(d, lb->n);
     const float x1 = 1.0f - dot(d, lb->axis);
     if (lb->shape == LOBE_GGX) {           /* (1 + c x)^-2, step at the horizon */
         const float c = 1.0f / (1.0f / lb->kappa + r * r);
         const float g = 1.0f / (1.0f + c * x1);
-        return mass * g * g * clamp(cos_n / r + 1.0f, 0.0f, 1.0f);
+        return mass * g * g * clamp(cos_n / rh + 1.0f, 0.0f, 1.0f);
     }
-    const float hor = clamp(cos_n + r, 0.0f, 1.0f);
+    const float hor = clamp(cos_n + rh, 0.0f, 1.0f);
     if (lb->shape == LOBE_PHONG) {         /* von Mises-Fisher x cosine */
         const float kappa = 1.0f / (1.0f / lb->kappa + r * r);
         return mass * exp(-kappa * x1) * hor;

@@ -8,12 +8,14 @@ scaling coefficient approximated by the first term of eq. 25,
 F^0_s ~ 2^l G^0_s H^0_s: the environment's exact box mass (the light tree) times
 the BRDF x cosine at the node's centre with a lobe pre-filtered to the node's size
 
-    lambert  I = mass clamp(d . n + r_l, 0, 1)
-    phong    I = mass exp(-k_l x) clamp(d . n + r_l, 0, 1)
-    ggx      I = mass (1 + k_l x)^-2 clamp(d . n / r_l + 1, 0, 1)
+    lambert  I = mass clamp(d . n + h_l, 0, 1)
+    phong    I = mass exp(-k_l x) clamp(d . n + h_l, 0, 1)
+    ggx      I = mass (1 + k_l x)^-2 clamp(d . n / h_l + 1, 0, 1)
 
-with x = 1 - d . axis, r_l = 0.75 pi / 2^l the node's angular radius (lat-long
-square: a node spans pi / 2^l in theta and 2 pi sin(theta) / 2^l in phi) and
+with x = 1 - d . axis, r_l = 0.35 pi / 2^l the lobe blur and h_l = 0.75 pi / 2^l
+the horizon blur (a node of the lat-long square spans pi / 2^l in theta; blurs
+near the node's half size measured best: wider lobes waste samples on bright
+nodes outside the lobe), and
 k_l = 1 / (1/kappa + r_l^2) the lobe widened to the node. phong: cos^n a ~
 exp(n (cos a - 1)), kappa = n, times the cosine. ggx at normal incidence:
 D(h) ~ (1 + x / (2 alpha^2))^-2 in the reflected direction, kappa = 1 / (2 alpha^2);
@@ -32,7 +34,8 @@ import numpy as np
 from . import bsdfs, warp
 from .distributions import ONE_MINUS_EPS, level_offset
 
-NODE_RADIUS = 0.75 * np.pi  # angular radius of a level-l node ~ 0.75 pi / 2^l (theta extent pi / 2^l)
+LOBE_BLUR = 0.35 * np.pi     # lobe widening at level l: LOBE_BLUR / 2^l (see kernels/product.h)
+HORIZON_BLUR = 0.75 * np.pi  # horizon softening at level l: HORIZON_BLUR / 2^l
 MAX_KAPPA = 1e6
 
 
@@ -61,13 +64,13 @@ def node_importance(env, mass, x, y, level, axis, n, kappa, shape):
     inv = 1.0 / (1 << level)
     c = np.stack([(x + 0.5) * inv, (y + 0.5) * inv], 1)
     d = env.square_to_world(c)
-    r = NODE_RADIUS * inv
+    r, rh = LOBE_BLUR * inv, HORIZON_BLUR * inv
     cos_n = np.einsum("ij,ij->i", d, n)
     x1 = 1.0 - np.einsum("ij,ij->i", d, axis)
     with np.errstate(divide="ignore", over="ignore"):
         k = np.where(kappa > 0, 1.0 / (1.0 / np.where(kappa > 0, kappa, 1.0) + r * r), 0.0)
-        ggx = (1.0 / (1.0 + k * x1)) ** 2 * np.clip(cos_n / r + 1.0, 0.0, 1.0)
-    hor = np.clip(cos_n + r, 0.0, 1.0)
+        ggx = (1.0 / (1.0 + k * x1)) ** 2 * np.clip(cos_n / rh + 1.0, 0.0, 1.0)
+    hor = np.clip(cos_n + rh, 0.0, 1.0)
     lobe = np.where(shape == bsdfs.GGX, ggx, np.where(shape == bsdfs.PHONG, np.exp(-k * x1) * hor, hor))
     return mass * lobe
 
