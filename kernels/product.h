@@ -12,7 +12,8 @@
  *     ggx      I = mass (1 + k_l x)^-2 clamp(d_s . n / h_l + 1, 0, 1)
  * axis = mirror direction (phong, ggx) or normal (lambert). Only the
  * four children of each visited node are evaluated: O(levels) per sample, no
- * per-point tree. Below the product depth P the BRDF is taken as constant and the
+ * per-point tree. Node centre directions come from a table (map frame, tree
+ * layout, levels <= P), the lobe is turned into the map frame once per point. Below the product depth P the BRDF is taken as constant and the
  * walk continues in the light tree (tree_descend, unchanged). The pdf is exact:
  *     pdf_square = prod_l I(child_l) / sum I(siblings_l) * mass(leaf) / mass(node_P) * 4^n
  * and product_pdf recomputes it for any direction. Where all four children have
@@ -35,18 +36,18 @@
 #define LOBE_GGX 2
 
 typedef struct {
-    float3 axis;   /* lobe axis, world */
-    float3 n;      /* shading normal, world */
+    float3 axis;   /* lobe axis, in the map frame */
+    float3 n;      /* shading normal, in the map frame */
     float kappa;   /* lobe concentration: phong n, ggx 1 / (2 alpha^2) */
     int levels;    /* product depth P (<= tree levels) */
     int shape;     /* LOBE_LAMBERT | LOBE_PHONG | LOBE_GGX (= the BRDF kind) */
+    __global const float4 *dirs; /* map-frame centre directions of the nodes of levels <= P, tree layout */
 } Lobe;
 
-inline float node_importance(const Env *e, const Lobe *lb, const float mass, const uint x, const uint y,
-                             const int level)
+inline float node_importance(const Lobe *lb, const float mass, const uint x, const uint y, const int level)
 {
     const float inv = 1.0f / (float)(1u << level);
-    const float3 d = env_square_to_world(e, (float2)(((float)x + 0.5f) * inv, ((float)y + 0.5f) * inv));
+    const float3 d = lb->dirs[LEVEL_OFFSET(level) + (ulong)y * (1u << level) + x].xyz;
     const float r = LOBE_BLUR_F * inv, rh = HORIZON_BLUR_F * inv;
     const float cos_n = dot(d, lb->n);
     const float x1 = 1.0f - dot(d, lb->axis);
@@ -64,7 +65,7 @@ inline float node_importance(const Env *e, const Lobe *lb, const float mass, con
 }
 
 /* Importances of the four children of node (x, y) at `level`, into i[0..3] = 00 10 01 11. */
-inline void child_importances(__global const float *tree, const Env *e, const Lobe *lb, const uint x,
+inline void child_importances(__global const float *tree, const Lobe *lb, const uint x,
                               const uint y, const int level, float *i)
 {
     const uint cside = 2u << level;
@@ -73,14 +74,14 @@ inline void child_importances(__global const float *tree, const Env *e, const Lo
     const float m[4] = {child[c], child[c + 1], child[c + cside], child[c + cside + 1]};
     float sum = 0.0f;
     for (int k = 0; k < 4; ++k) {
-        i[k] = node_importance(e, lb, m[k], 2 * x + (k & 1), 2 * y + (k >> 1), level + 1);
+        i[k] = node_importance(lb, m[k], 2 * x + (k & 1), 2 * y + (k >> 1), level + 1);
         sum += i[k];
     }
     if (!(sum > 0.0f) || !isfinite(sum))
         for (int k = 0; k < 4; ++k) i[k] = m[k];
 }
 
-inline float2 product_sample(__global const float *tree, const int n_levels, const Env *e, const Lobe *lb,
+inline float2 product_sample(__global const float *tree, const int n_levels, const Lobe *lb,
                              float2 u, float *pdf)
 {
     uint x = 0, y = 0;
@@ -89,7 +90,7 @@ inline float2 product_sample(__global const float *tree, const int n_levels, con
     u = clamp(u, 0.0f, ONE_MINUS_EPS);
     for (int l = 0; l < depth; ++l) {
         float i[4];
-        child_importances(tree, e, lb, x, y, l, i);
+        child_importances(tree, lb, x, y, l, i);
         p *= choose_child(i[0], i[1], i[2], i[3], &u, &x, &y);
     }
     const float node_mass = tree[LEVEL_OFFSET(depth) + (ulong)y * (1u << depth) + x];
@@ -100,7 +101,7 @@ inline float2 product_sample(__global const float *tree, const int n_levels, con
     return uv;
 }
 
-inline float product_pdf(__global const float *tree, const int n_levels, const Env *e, const Lobe *lb,
+inline float product_pdf(__global const float *tree, const int n_levels, const Lobe *lb,
                          const float2 uv)
 {
     if (!(tree[0] > 0.0f)) return 0.0f;
@@ -112,7 +113,7 @@ inline float product_pdf(__global const float *tree, const int n_levels, const E
     for (int l = 0; l < depth; ++l) {
         const uint cx = lx >> (n_levels - l - 1), cy = ly >> (n_levels - l - 1);
         float i[4];
-        child_importances(tree, e, lb, cx >> 1, cy >> 1, l, i);
+        child_importances(tree, lb, cx >> 1, cy >> 1, l, i);
         const float sum = (i[0] + i[1]) + (i[2] + i[3]);
         p *= i[(cx & 1) + 2 * (cy & 1)] / sum;
     }

@@ -34,7 +34,7 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
                     __global const int *material, __global const float4 *u_in,
                     __global const int *mat_kind, __global const float *mat_param,
                     __global const float4 *mat_albedo, __global const float *mat_kappa,
-                    __global const int *mat_levels,
+                    __global const int *mat_levels, __global const float4 *node_dirs,
                     __global const float4 *texels, const int env_w, const int env_h,
                     __global const float *rot, __global const float *tree, const int tree_levels,
                     __global float4 *wi_out, __global float4 *value_out)
@@ -56,13 +56,14 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
     float scal[2] = {0.0f, 0.0f};
 #if STRATEGY == 5
     Lobe lobe;
-    lobe.n = n;
-    lobe.axis = (kind == BSDF_LAMBERT) ? n : 2.0f * dot(wow, n) * n - wow;
+    lobe.n = env_to_map(&env, n);
+    lobe.axis = env_to_map(&env, (kind == BSDF_LAMBERT) ? n : 2.0f * dot(wow, n) * n - wow);
     lobe.kappa = mat_kappa[m];
     lobe.levels = mat_levels[m];
     lobe.shape = kind;
-#define SAMPLE_GUIDE(uu, pdfp) product_sample(tree, tree_levels, &env, &lobe, uu, pdfp)
-#define PDF_GUIDE(w) (product_pdf(tree, tree_levels, &env, &lobe, env_world_to_square(&env, w)) \
+    lobe.dirs = node_dirs;
+#define SAMPLE_GUIDE(uu, pdfp) product_sample(tree, tree_levels, &lobe, uu, pdfp)
+#define PDF_GUIDE(w) (product_pdf(tree, tree_levels, &lobe, env_world_to_square(&env, w)) \
                      * env_square_to_solid_angle(w))
 #else
 #define SAMPLE_GUIDE(uu, pdfp) tree_sample(tree, tree_levels, uu, pdfp)

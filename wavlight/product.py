@@ -39,6 +39,22 @@ HORIZON_BLUR = 0.75 * np.pi  # horizon softening at level l: HORIZON_BLUR / 2^l
 MAX_KAPPA = 1e6
 
 
+def node_directions(levels: int) -> np.ndarray:
+    """(tree_size(levels), 4) float32 map-frame centre directions of every node of levels 0..levels,
+    in the tree layout (the table kernels/product.h reads)."""
+    from .distributions import tree_size
+
+    out = np.zeros((tree_size(levels), 4), np.float32)
+    for l in range(levels + 1):
+        side = 1 << l
+        c = (np.arange(side) + 0.5) / side
+        uu, vv = np.meshgrid(c, c)
+        phi, theta = 2 * np.pi * uu.ravel(), np.pi * vv.ravel()
+        out[level_offset(l):level_offset(l + 1), :3] = np.stack(
+            [np.sin(phi) * np.sin(theta), np.cos(theta), -np.cos(phi) * np.sin(theta)], 1)
+    return out
+
+
 def lobe_kappa(kind: int, param: float) -> float:
     """von Mises-Fisher concentration of a material's lobe (0 for lambert)."""
     if kind == bsdfs.LAMBERT:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import cl, strategies, warp
+from . import cl, product, strategies, warp
 
 
 def _float4(a):
@@ -45,6 +45,8 @@ class KernelShader:
         levels = getattr(strategy, "levels", np.zeros(len(scene.materials), np.int32))
         self.kappa = cl.to_device(np.asarray(kappa, np.float32))
         self.levels_per_material = cl.to_device(np.asarray(levels, np.int32))
+        depth = int(max(np.max(levels, initial=0), 0))
+        self.node_dirs = cl.to_device(product.node_directions(depth))
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name])
 
     def __call__(self, n, wo, material, u, **_):
@@ -57,7 +59,7 @@ class KernelShader:
         wi_buf, val_buf = cl.empty(count * 32), cl.empty(count * 32)
         knl = cl.kernel(self.program, "shade")
         knl(q, (count,), None, *bufs, self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
-            self.texels, *self.env_size,
+            self.node_dirs, self.texels, *self.env_size,
             self.rot, self.tree, self.levels, wi_buf, val_buf)
         wi = cl.read(wi_buf, (count, 2, 4), np.float32, q)[..., :3]
         value = cl.read(val_buf, (count, 2, 4), np.float32, q)[..., :3]
