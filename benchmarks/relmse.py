@@ -1,0 +1,152 @@
+"""Error against a high-spp reference, at equal spp and at equal time, per strategy.
+
+Scenes: a sphere and the bunny (on a floor), each in ggx alpha 0.05, ggx alpha 0.2
+and phong n = 200, plus a lambert sphere (the case where product sampling has
+little to gain), under rooitou_park_1k (tiny sun), st_fagans_interior_1k (many
+small lights) and potsdamer_platz_1k (smooth overcast). For every scene and
+strategy (wavelet, mis, light, bsdf) and spp in --spp, --seeds renders are made;
+the reference is `mis` at --ref-spp with its own seed.
+
+relMSE = mean over pixels and channels of ((x - ref)^2 - se_ref^2) / (ref^2 + 0.01):
+the reference's own variance (its squared standard error, from the same render)
+is subtracted, so the figure estimates the error against the true image. Equal
+time: relMSE scales as 1/spp for these unbiased estimators, so the relMSE a
+strategy reaches in the time mis takes at s spp (setup included) is
+relMSE(s) * t_strategy(s) / t_mis(s), where t includes each render's setup
+(light tree, product tables) but not the once-per-process kernel compilation.
+Prints one JSON object (and writes it to
+--out if given).
+
+    python benchmarks/relmse.py [--spp 4,16,64] [--seeds 3] [--size 128] [--ref-spp 1024]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data"))
+MAPS = ["rooitou_park_1k", "st_fagans_interior_1k", "potsdamer_platz_1k"]
+MATERIALS = {"ggx0.05": 'type = "ggx"\nroughness = 0.05', "ggx0.2": 'type = "ggx"\nroughness = 0.2',
+             "phong200": 'type = "phong"\nexponent = 200.0', "lambert": 'type = "lambert"'}
+STRATEGIES = ["wavelet", "mis", "light", "bsdf"]
+
+SPHERE = """
+[camera]
+eye = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 32.0
+[[objects]]
+shape = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+material = "m"
+"""
+BUNNY = """
+[camera]
+eye = [0.0, 1.4, 4.2]
+target = [-0.15, 1.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 30.0
+[[objects]]
+mesh = "{data}/meshes/bunny.ply"
+scale = 10.0
+material = "m"
+[[objects]]
+shape = "quad"
+center = [0.0, 0.33, 0.0]
+normal = [0.0, 1.0, 0.0]
+size = 6.0
+material = "floor"
+[materials.floor]
+type = "lambert"
+albedo = [0.5, 0.5, 0.5]
+"""
+
+
+def scenes():
+    for geometry, body in (("sphere", SPHERE), ("bunny", BUNNY)):
+        for mat, mat_body in MATERIALS.items():
+            if geometry == "bunny" and mat == "lambert":
+                continue
+            for env in MAPS:
+                text = (f'[environment]\nfile = "{DATA}/envmaps/{env}.hdr"\n' + body.format(data=DATA)
+                        + f"[materials.m]\n{mat_body}\nalbedo = [0.9, 0.9, 0.9]\n")
+                yield f"{geometry}/{mat}/{env}", text
+
+
+def rel_mse(img, ref, ref_se):
+    return float(np.mean(((img - ref) ** 2 - ref_se ** 2) / (ref ** 2 + 1e-2)))
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--spp", default="4,16,64")
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--only", default="", help="substring filter on scene names")
+    ap.add_argument("--out", default="")
+    args = ap.parse_args()
+    if not os.path.isdir(DATA):
+        sys.exit(f"relmse: {DATA} not found (../shared/data beside the checkout)")
+
+    import wavlight
+
+    spps = [int(s) for s in args.spp.split(",")]
+    # Compile every strategy's kernels once (a batch user pays this once per process, not per
+    # render); the light tree and tables are rebuilt by every render and counted in its time.
+    warm = wavlight.load_scene(os.path.join(HERE, "..", "scenes", "default.toml"))
+    for strategy in STRATEGIES:
+        wavlight.render_full(warm, spp=1, strategy=strategy, width=8, height=8)
+    results = {"size": args.size, "ref_spp": args.ref_spp, "seeds": args.seeds, "spp": spps, "scenes": {}}
+    tmp = tempfile.mkdtemp(prefix="wavlight-relmse-")
+    for name, text in scenes():
+        if args.only and args.only not in name:
+            continue
+        path = os.path.join(tmp, name.replace("/", "_") + ".toml")
+        with open(path, "w") as fh:
+            fh.write(text)
+        scene = wavlight.load_scene(path)
+        kw = dict(width=args.size, height=args.size)
+        ref = wavlight.render_full(scene, spp=args.ref_spp, strategy="mis", seed=10_000, **kw)
+        row = {"reference_seconds": ref.stats["render_seconds"]}
+        for strategy in STRATEGIES:
+            per = {}
+            for spp in spps:
+                errs, secs = [], []
+                for seed in range(args.seeds):
+                    r = wavlight.render_full(scene, spp=spp, strategy=strategy, seed=seed, **kw)
+                    errs.append(rel_mse(r.image, ref.image, ref.stderr))
+                    secs.append(r.stats["setup_seconds"] + r.stats["render_seconds"])
+                per[str(spp)] = {"relmse": float(np.mean(errs)), "relmse_sd": float(np.std(errs, ddof=1))
+                                 if len(errs) > 1 else None, "seconds": float(np.mean(secs))}
+            row[strategy] = per
+        for spp in spps:
+            s = str(spp)
+            mis = row["mis"][s]
+            for strategy in STRATEGIES:
+                cell = row[strategy][s]
+                cell["equal_time_relmse"] = cell["relmse"] * cell["seconds"] / mis["seconds"]
+            row.setdefault("wavelet_over_mis", {})[s] = {
+                "equal_spp": row["wavelet"][s]["relmse"] / mis["relmse"],
+                "equal_time": row["wavelet"][s]["equal_time_relmse"] / mis["relmse"]}
+        results["scenes"][name] = row
+        print(f"{name}: " + " ".join(f"{k}={v['equal_spp']:.3f}/{v['equal_time']:.3f}"
+                                     for k, v in row["wavelet_over_mis"].items()), file=sys.stderr, flush=True)
+    text = json.dumps(results, indent=1)
+    if args.out:
+        with open(args.out, "w") as fh:
+            fh.write(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
