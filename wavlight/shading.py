@@ -13,11 +13,7 @@ import numpy as np
 from . import cl, product, strategies, warp
 
 
-def _float4(a):
-    """(N, 3) -> (N, 4) float32 with w = 0."""
-    out = np.zeros((len(a), 4), np.float32)
-    out[:, :3] = a
-    return out
+WORK_GROUP = 64
 
 
 class KernelShader:
@@ -48,22 +44,36 @@ class KernelShader:
         depth = int(max(np.max(levels, initial=0), 0))
         self.node_dirs = cl.to_device(product.node_directions(depth))
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name])
+        self.warm_up()
 
     def __call__(self, n, wo, material, u, **_):
         count = len(n)
         if count == 0:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.float32)
+        # A fixed work-group size, the global size padded to it: PoCL compiles a kernel per
+        # work-group size on first launch, so this keeps it to one compile (done in warm_up).
+        padded = -(-count // WORK_GROUP) * WORK_GROUP
+        n4, wo4 = np.zeros((padded, 4), np.float32), np.zeros((padded, 4), np.float32)
+        n4[:count, :3], wo4[:count, :3] = n, wo
+        n4[count:, 2] = wo4[count:, 2] = 1.0
+        mat = np.zeros(padded, np.int32)
+        mat[:count] = material
+        uu = np.zeros((padded, 4), np.float32)
+        uu[:count] = u
         q = cl.thread_queue()
-        bufs = [cl.to_device(_float4(n)), cl.to_device(_float4(wo)),
-                cl.to_device(np.asarray(material, np.int32)), cl.to_device(np.asarray(u, np.float32))]
-        wi_buf, val_buf = cl.empty(count * 32), cl.empty(count * 32)
+        wi_buf, val_buf = cl.empty(padded * 32), cl.empty(padded * 32)
         knl = cl.kernel(self.program, "shade")
-        knl(q, (count,), None, *bufs, self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
-            self.node_dirs, self.texels, *self.env_size,
-            self.rot, self.tree, self.levels, wi_buf, val_buf)
-        wi = cl.read(wi_buf, (count, 2, 4), np.float32, q)[..., :3]
-        value = cl.read(val_buf, (count, 2, 4), np.float32, q)[..., :3]
+        knl(q, (padded,), (WORK_GROUP,), cl.to_device(n4), cl.to_device(wo4), cl.to_device(mat), cl.to_device(uu),
+            self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.node_dirs, self.texels,
+            *self.env_size, self.rot, self.tree, self.levels, wi_buf, val_buf)
+        wi = cl.read(wi_buf, (padded, 2, 4), np.float32, q)[:count, :, :3]
+        value = cl.read(val_buf, (padded, 2, 4), np.float32, q)[:count, :, :3]
         return wi, value
+
+    def warm_up(self):
+        """One tiny launch, so that PoCL's per-launch compilation lands in setup time, not render time."""
+        self(np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 1.0]]), np.zeros(1, np.int32),
+             np.full((1, 4), 0.5, np.float32))
 
 
 class NumpyShader:

@@ -193,6 +193,7 @@ class WaveletStrategy(Strategy):
         self.light.prepare(environment)
         self.env = environment
         n = self.light.tree.n_levels
+        self.names = [m.name for m in materials]
         self.kappa = np.array([product.lobe_kappa(m.kind, m.param) for m in materials], np.float64)
         self.levels = np.array([product.product_levels(k, n, self.override) for k in self.kappa], np.int32)
         self._nodes = self.light.tree.nodes()[0]
@@ -217,7 +218,14 @@ class WaveletStrategy(Strategy):
                                      shape, uv) * self.env.square_to_solid_angle(wi_world)
 
     def info(self):
-        return {**self.light.info(), "product_levels": self.levels.tolist()}
+        from .distributions import tree_size
+
+        depth = int(self.levels.max(initial=0))
+        return {**self.light.info(),
+                "product_levels": dict(zip(self.names, self.levels.tolist())),
+                "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
+                "node_table_bytes": int(tree_size(depth) * 16),
+                "memory_bytes": int(self.light.tree.stride * 4 + tree_size(depth) * 16)}
 
 
 class MisStrategy(Strategy):
