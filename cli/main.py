@@ -46,9 +46,11 @@ def main():
 @click.option("--seed", type=int, default=None, help="Random seed.")
 @click.option("--wavelet-levels", type=click.IntRange(0, 12), default=None,
               help="Product depth of the wavelet strategy (default: per material, from its lobe).")
+@click.option("--light-levels", type=click.IntRange(1, 11), default=None,
+              help="Depth of the light tree, 2^n x 2^n leaves (default: from the map's content).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, as_json, quiet):
+def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, light_levels, as_json, quiet):
     """Render SCENE (a TOML scene file) to an image."""
     import time
 
@@ -71,7 +73,8 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
                   "the image would be black")
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr)
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
-                                      seed=seed, progress=bar, wavelet_levels=wavelet_levels)
+                                      seed=seed, progress=bar, wavelet_levels=wavelet_levels,
+                                      light_levels=light_levels)
         if bar:
             bar.close()
         wavlight.save_image(output, result.image)

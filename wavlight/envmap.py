@@ -29,6 +29,7 @@ from .errors import WavlightError
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
 ONE_BELOW = float(np.nextafter(1.0, 0.0))
+TREE_TOLERANCE = 0.01  # total-variation distance a coarser light tree may leave (Environment.light_levels)
 MAX_TEXELS = 1 << 26
 
 
@@ -144,6 +145,32 @@ class Environment:
         while (1 << n) < max(self.width, self.height) and n < 11:
             n += 1
         return n
+
+    def light_levels(self, tolerance: float = TREE_TOLERANCE) -> tuple[int, float]:
+        """Tree depth chosen from the map's content, and the approximation error it leaves.
+
+        The smallest n whose leaves, taken as constant, are within ``tolerance`` in total
+        variation, 0.5 sum |p_full - p_n| over the finest leaves, of the distribution at
+        :meth:`square_levels` (a smooth overcast map needs few levels, a tiny sun all of
+        them). Returns (n, that distance).
+        """
+        from .distributions import build_reference, level_offset
+
+        top = self.square_levels()
+        full = build_reference(self.luminance_square(top))[0].astype(np.float64)
+        total = full[0]
+        if not total > 0:
+            return top, 0.0
+        p = full[level_offset(top):] / total
+        side = 1 << top
+        p_img = p.reshape(side, side)
+        for n in range(2, top):
+            k = 1 << (top - n)
+            coarse = p_img.reshape(1 << n, k, 1 << n, k).sum(axis=(1, 3)) / (k * k)
+            tv = 0.5 * float(np.abs(p_img - np.repeat(np.repeat(coarse, k, 0), k, 1)).sum())
+            if tv <= tolerance:
+                return n, tv
+        return top, 0.0
 
     def luminance_square(self, n_levels: int | None = None) -> np.ndarray:
         """(2^n, 2^n) float64 leaf masses: the exact integral of luminance over each leaf's solid angle.

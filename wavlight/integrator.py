@@ -132,13 +132,15 @@ def _tiles(width, height, spp):
 
 
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
-                progress=None, threads=None, backend="opencl", wavelet_levels=None) -> RenderResult:
+                progress=None, threads=None, backend="opencl", wavelet_levels=None,
+                light_levels=None) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     Arguments left as None come from the scene file. ``progress(done, total, samples, seconds)``
     is called after each tile. ``backend="numpy"`` shades with the numpy reference
     instead of the OpenCL kernel (same random numbers, same estimator).
-    ``wavelet_levels`` overrides the wavelet strategy's per-material product depth.
+    ``wavelet_levels`` overrides the wavelet strategy's per-material product depth,
+    ``light_levels`` the light tree's depth (default: chosen from the map's content).
     """
     spp = scene.spp if spp is None else int(spp)
     strategy = scene.strategy if strategy is None else strategy
@@ -153,9 +155,10 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
         raise WavlightError(f"seed must be non-negative, got {seed}")
     if strategy not in STRATEGIES:
         raise WavlightError(f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
-    if wavelet_levels is None:
-        wavelet_levels = scene.wavelet_levels
-    options = {"levels": wavelet_levels} if strategy == "wavelet" else None
+    wavelet_levels = scene.wavelet_levels if wavelet_levels is None else wavelet_levels
+    light_levels = scene.light_levels if light_levels is None else light_levels
+    options = {"light": {"levels": light_levels}, "mis": {"light_levels": light_levels},
+               "wavelet": {"levels": wavelet_levels, "light_levels": light_levels}}.get(strategy)
     r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend, options)
     image = np.zeros((height, width, 3), np.float32)
     stderr = np.zeros((height, width, 3), np.float32)

@@ -9,6 +9,8 @@ Every key of the scene format is accepted as written there. wavlight adds:
 - ``[[objects]]`` without ``material`` get a grey lambert (albedo 0.5).
 - ``[render] wavelet_levels = P``: the wavelet strategy's product depth for every
   material (default: chosen per material from its lobe width).
+- ``[render] light_levels = n``: the light tree's depth, 2^n x 2^n leaves (default:
+  chosen from the map's content, :meth:`Environment.light_levels`).
 
 Limits: width and height 1..16384, spp 1..1_000_000. Errors name the file and the
 key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
@@ -69,6 +71,7 @@ class Scene:
     face_material: np.ndarray
     materials: list = field(default_factory=list)
     wavelet_levels: int | None = None
+    light_levels: int | None = None
 
     @property
     def material_kind(self):
@@ -278,7 +281,10 @@ def load_scene(path: str) -> Scene:
     seed = _positive(r, "seed", r.get("seed", "int", 0), 0, 2 ** 63 - 1)
     wavelet_levels = r.get("wavelet_levels", "int")
     if wavelet_levels is not None:
-        _positive(r, "wavelet_levels", wavelet_levels, 0, 12)
+        _positive(r, "wavelet_levels", wavelet_levels, 0, 11)
+    light_levels = r.get("light_levels", "int")
+    if light_levels is not None:
+        _positive(r, "light_levels", light_levels, 1, 11)
     r.done()
 
     c = _Table(path, "[camera]", doc.get("camera", {}))
@@ -343,7 +349,8 @@ def load_scene(path: str) -> Scene:
     vertices = np.concatenate(verts).astype(np.float32) if verts else np.zeros((0, 3), np.float32)
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
-                 np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, wavelet_levels)
+                 np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, wavelet_levels,
+                 light_levels)
 
 
 def _environment(t: _Table, base) -> Environment:

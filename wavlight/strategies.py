@@ -147,9 +147,16 @@ class LightStrategy(Strategy):
 
     name = "light"
 
+    def __init__(self, levels: int | None = None):
+        self.override = levels
+
     def prepare(self, environment, materials=()):
         self.env = environment
-        self.tree = HaarTree(environment.luminance_square())
+        if self.override is None:
+            n, self.tv = environment.light_levels()
+        else:
+            n, self.tv = min(max(int(self.override), 1), environment.square_levels()), None
+        self.tree = HaarTree(environment.luminance_square(n))
 
     def sample_directions(self, u):
         """u (N, 2) -> world directions (N, 3) and pdf per solid angle (N,)."""
@@ -170,7 +177,8 @@ class LightStrategy(Strategy):
 
     def info(self):
         side = 1 << self.tree.n_levels
-        return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(self.tree.stride * 4)}
+        return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(self.tree.stride * 4),
+                "light_tree_tv": None if self.tv is None else round(self.tv, 5)}
 
 
 class WaveletStrategy(Strategy):
@@ -184,8 +192,8 @@ class WaveletStrategy(Strategy):
 
     name = "wavelet"
 
-    def __init__(self, levels: int | None = None):
-        self.light = LightStrategy()
+    def __init__(self, levels: int | None = None, light_levels: int | None = None):
+        self.light = LightStrategy(light_levels)
         self.bsdf = BsdfStrategy()
         self.override = levels
 
@@ -233,8 +241,8 @@ class MisStrategy(Strategy):
 
     name = "mis"
 
-    def __init__(self):
-        self.light = LightStrategy()
+    def __init__(self, light_levels: int | None = None):
+        self.light = LightStrategy(light_levels)
         self.bsdf = BsdfStrategy()
 
     def prepare(self, environment, materials=()):
