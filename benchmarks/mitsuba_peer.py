@@ -109,7 +109,7 @@ def shape_dict(obj, base, tmpdir, idx):
         raise ValueError(f"object {idx}: needs mesh = ... or shape = sphere|quad")
     if mesh is not None:
         path = os.path.join(tmpdir, f"object_{idx}.ply")
-        mesh.export(path)
+        trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(path)  # geometry only
         d = {"type": "ply", "filename": path}
     d.update(face_normals=True, to_world=object_transform(obj))
     return d
