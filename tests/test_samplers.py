@@ -230,64 +230,6 @@ def test_chi2_helper_rejects_samples_in_zero_pdf_cells():
     assert not ok and "zero integrated pdf" in msg, msg
 
 
-# ============================================================================= equal-area map
-# Round-trip tolerance: near the poles z = +-(1 - r^2) stores r^2 next to 1, so r comes back
-# with an absolute error up to sqrt(eps) ~ 1.5e-8 (and u = r/2-ish); 1e-7 is ~7 sqrt(eps).
-ROUND_TRIP_ATOL = 1e-7
-
-
-def test_equal_area_round_trip_square():
-    """sphere_to_square(square_to_sphere(u)) == u on the open square (the boundary is folded)."""
-    rng = np.random.default_rng(10)
-    g = (np.arange(64) + 0.5) / 64
-    u = np.concatenate([rng.random((200_000, 2)), np.stack(np.meshgrid(g, g), -1).reshape(-1, 2),
-                        [[0.5, 0.5], [0.5, 0.25], [0.25, 0.5], [1e-9, 0.5], [0.5, 1 - 1e-9]]])
-    d = warp.square_to_sphere_equal_area(u)
-    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
-    np.testing.assert_allclose(warp.sphere_to_square_equal_area(d), u, atol=ROUND_TRIP_ATOL, rtol=0)
-
-
-def test_equal_area_round_trip_sphere():
-    """square_to_sphere(sphere_to_square(d)) == d for all directions, including axes and poles."""
-    rng = np.random.default_rng(11)
-    axes = np.concatenate([np.eye(3), -np.eye(3)])
-    diag = np.array([[1, 1, 1], [-1, 1, -1], [1, -1, 0], [0, 1, -1]], float)
-    d = np.concatenate([uniform_sphere(200_000, rng), axes, diag / np.linalg.norm(diag, axis=1)[:, None]])
-    u = warp.sphere_to_square_equal_area(d)
-    assert np.all((u >= 0) & (u <= 1))
-    np.testing.assert_allclose(warp.square_to_sphere_equal_area(u), d, atol=ROUND_TRIP_ATOL, rtol=0)
-
-
-def test_equal_area_jacobian_is_4pi():
-    """|dd/du x dd/dv| = 4 pi everywhere (central differences, h = 1e-5).
-
-    Points within 1e-3 of the map's creases (a = 0, b = 0, |a| + |b| = 1, in a = 2u - 1), of
-    the poles or of the square's border (where u +- h leaves the square) are skipped. Truncation error ~ h^2 |d'''| <= 1e-10 / 0.05^2 and rounding
-    ~ eps / h ~ 1e-11, so rtol 1e-6 has a wide margin; an area-distorting map misses it by far.
-    """
-    rng = np.random.default_rng(12)
-    u = rng.random((100_000, 2))
-    a, b = 2 * u[:, 0] - 1, 2 * u[:, 1] - 1
-    s = np.abs(a) + np.abs(b)
-    keep = ((np.abs(a) > 1e-3) & (np.abs(b) > 1e-3) & (np.abs(s - 1) > 1e-3) & (s > 0.05) & (s < 1.95)
-            & (np.abs(a) < 1 - 1e-3) & (np.abs(b) < 1 - 1e-3))
-    u = u[keep]
-    h = 1e-5
-    du = (warp.square_to_sphere_equal_area(u + [h, 0]) - warp.square_to_sphere_equal_area(u - [h, 0])) / (2 * h)
-    dv = (warp.square_to_sphere_equal_area(u + [0, h]) - warp.square_to_sphere_equal_area(u - [0, h])) / (2 * h)
-    jac = np.linalg.norm(np.cross(du, dv), axis=1)
-    np.testing.assert_allclose(jac, 4 * np.pi, rtol=1e-6)
-
-
-def test_equal_area_chi2_uniform_sphere():
-    """Uniform points of the square map to uniform directions: chi-square against 1/(4 pi)."""
-    rng = np.random.default_rng(13)
-    d = warp.square_to_sphere_equal_area(rng.random((N_CHI2_SAMPLES, 2)))
-    ok, p, msg = chi2_test(d, lambda x: np.full(len(x), warp.INV_4PI), SphereGrid.uniform(32, 64),
-                           n_tests=N_CHI2)
-    assert ok, msg
-
-
 # ============================================================================= environment light
 def _one_texel(row, col, w=64, h=32):
     px = np.zeros((h, w, 3), np.float32)
