@@ -67,6 +67,9 @@ def main():
             out["mitsuba"][strategy]["wavlight_over_mitsuba_total"] = round(
                 (w["render_seconds"] + w["setup_seconds"] + load)
                 / (m["render_seconds"] + m.get("setup_seconds", 0) + m.get("jit_seconds", 0)), 3)
+    import resource
+
+    out["peak_rss_mib"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     print(json.dumps(out, indent=1))
 
 
