@@ -7,9 +7,10 @@ small lights) and potsdamer_platz_1k (smooth overcast). For every scene and
 strategy (wavelet, mis, light, bsdf) and spp in --spp, --seeds renders are made;
 the reference is `mis` at --ref-spp with its own seed.
 
-relMSE = mean over pixels and channels of ((x - ref)^2 - se_ref^2) / (ref^2 + 0.01):
-the reference's own variance (its squared standard error, from the same render)
-is subtracted, so the figure estimates the error against the true image. Equal
+relMSE = mean over pixels and channels of ((x - ref)^2 - se_ref^2) / (ref^2 + 0.01)
+(wavlight.metrics.relmse): the reference's own variance (its squared standard error,
+from the same render) is subtracted, so the figure estimates the error against the
+true image. Equal
 time: relMSE scales as 1/spp for these unbiased estimators, so the relMSE a
 strategy reaches in the time mis takes at s spp (setup included) is
 relMSE(s) * t_strategy(s) / t_mis(s), where t includes each render's setup
@@ -29,6 +30,8 @@ import tempfile
 import time
 
 import numpy as np
+
+from wavlight.metrics import relmse
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data"))
@@ -82,10 +85,6 @@ def scenes():
                 yield f"{geometry}/{mat}/{env}", text
 
 
-def rel_mse(img, ref, ref_se):
-    return float(np.mean(((img - ref) ** 2 - ref_se ** 2) / (ref ** 2 + 1e-2)))
-
-
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--spp", default="4,16,64")
@@ -124,7 +123,7 @@ def main():
                 errs, secs = [], []
                 for seed in range(args.seeds):
                     r = wavlight.render_full(scene, spp=spp, strategy=strategy, seed=seed, **kw)
-                    errs.append(rel_mse(r.image, ref.image, ref.stderr))
+                    errs.append(relmse(r.image, ref.image, ref.stderr))
                     secs.append(r.stats["setup_seconds"] + r.stats["render_seconds"])
                 per[str(spp)] = {"relmse": float(np.mean(errs)), "relmse_sd": float(np.std(errs, ddof=1))
                                  if len(errs) > 1 else None, "seconds": float(np.mean(secs))}

@@ -111,5 +111,7 @@ def info():
     click.echo(f"(set {cl.DEVICE_ENV}=P:D or a name fragment to choose another)")
 
 
+from .experiment import experiment; main.add_command(experiment)  # noqa: E402, E702
+
 if __name__ == "__main__":
     main()

@@ -1,0 +1,339 @@
+"""Batch experiments end to end: a tiny experiment (default scene at 8x6, mis and wavelet,
+spp [1, 2] and a 0.05 s time budget, 2 seeds, a 16-spp reference) runs once per module into a
+temporary folder; the tests read its outputs, recompute its metrics from the saved images,
+resume it (renders counted through a wrapped ``wavlight.render_full``) and feed the command
+line malformed experiment files (exit code 2, one line naming the file and the key).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import wavlight
+from cli.main import main
+from wavlight import experiment, metrics
+from wavlight.envmap import read_image
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_SCENE = (REPO / "scenes" / "default.toml").as_posix()
+
+TINY = f"""
+[experiment]
+name = "tiny"
+size = [8, 6]
+pilot_spp = 1
+
+[reference]
+strategy = "mis"
+spp = 16
+
+[[scenes]]
+path = "{DEFAULT_SCENE}"
+
+[[strategies]]
+id = "mis"
+
+[[strategies]]
+id = "wavelet"
+label = "wav"
+wavelet_levels = 4
+
+[budgets]
+spp = [1, 2]
+seconds = [0.05]
+repetitions = 2
+"""
+
+
+class Counter:
+    """Wraps wavlight.render_full; records (spp, width, height) of every call."""
+
+    def __init__(self, real):
+        self.real, self.calls = real, []
+
+    def __call__(self, scene, spp=None, *args, **kw):
+        self.calls.append((spp, kw.get("width"), kw.get("height"), kw.get("seed")))
+        return self.real(scene, spp, *args, **kw)
+
+    @property
+    def timed(self):
+        """Calls other than the 8x8 warm-ups."""
+        return [c for c in self.calls if (c[1], c[2]) != (experiment.WARMUP_SIZE, experiment.WARMUP_SIZE)]
+
+
+def run_counted(spec, out, **kw):
+    counter = Counter(wavlight.render_full)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(wavlight, "render_full", counter)
+        results = experiment.run_experiment(spec, out, **kw)
+    return results, counter
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("experiment")
+    spec = folder / "tiny.toml"
+    spec.write_text(TINY)
+    events = []
+    results, counter = run_counted(spec, folder / "out", progress=lambda *a: events.append(a))
+    return {"spec": spec, "out": folder / "out", "results": results, "counter": counter, "events": events}
+
+
+def copy_of(tiny, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(tiny["out"], out)
+    return out
+
+
+# ----------------------------------------------------------------------------- outputs
+def test_outputs_exist_and_are_not_empty(tiny):
+    out = tiny["out"]
+    for name in ("results.csv", "results.json", "runs.csv", "spec.toml", "reference/default.exr",
+                 "reference/default.stderr.exr", "reference/default.json"):
+        assert (out / name).stat().st_size > 0, name
+    for stem in ("default-spp", "default-time", "error-maps"):
+        png = (out / "charts" / f"{stem}.png").read_bytes()
+        assert png.startswith(b"\x89PNG") and len(png) > 5000, stem
+        svg = (out / "charts" / f"{stem}.svg").read_text()
+        assert "<svg" in svg and len(svg) > 5000, stem
+    assert (out / "spec.toml").read_text() == TINY
+    assert not list(out.rglob(".wavlight-*")), "temporary files left behind"
+
+
+def test_csv_and_json_hold_every_group_and_run(tiny):
+    res = json.loads((tiny["out"] / "results.json").read_text())
+    assert res["rendered"] == 12 and res["reused"] == 0
+    assert len(res["runs"]) == 2 * 3 * 2 and len(res["groups"]) == 2 * 3
+    assert res["budgets"] == ["spp1", "spp2", "0.05s"]
+    rows = list(csv.DictReader((tiny["out"] / "results.csv").open()))
+    assert len(rows) == 6 and set(experiment.GROUP_COLUMNS) == set(rows[0])
+    assert {(r["strategy"], r["budget"]) for r in rows} == {(s, b) for s in ("mis", "wav")
+                                                           for b in ("spp1", "spp2", "0.05s")}
+    runs = list(csv.DictReader((tiny["out"] / "runs.csv").open()))
+    assert len(runs) == 12
+    for g in res["groups"]:
+        for key in ("mse", "relmse", "relmse_sd", "variance", "rel_variance", "bias", "bias_se", "max_error",
+                    "setup_seconds", "render_seconds", "total_seconds"):
+            assert isinstance(g[key], float) and np.isfinite(g[key]), (key, g)
+    # the returned dict is what results.json holds
+    assert json.loads(json.dumps(tiny["results"])) == res
+
+
+def test_runs_record_timings_and_settings(tiny):
+    out = tiny["out"]
+    for r in tiny["results"]["runs"]:
+        rec = json.loads((out / "runs" / r["scene"] / r["strategy"] / r["budget"] / f"{r['seed']}.json").read_text())
+        assert rec["total_seconds"] == pytest.approx(rec["setup_seconds"] + rec["render_seconds"], abs=2e-4)
+        assert rec["setup_seconds"] > 0 and rec["render_seconds"] > 0
+        assert (rec["width"], rec["height"]) == (8, 6)
+        assert rec["stats"]["strategy"] == {"mis": "mis", "wav": "wavelet"}[r["strategy"]]
+        if r["strategy"] == "wav":
+            assert rec["options"] == {"wavelet_levels": 4}
+        assert len(rec["hash"]) == 16
+    # the time budget's spp comes from the cached pilot fit
+    for label in ("mis", "wav"):
+        pilot = json.loads((out / "pilot" / "default" / f"{label}.json").read_text())
+        spp = experiment._Runner.spp_for(pilot, 0.05)
+        assert all(r["spp"] == spp for r in tiny["results"]["runs"]
+                   if r["strategy"] == label and r["budget"] == "0.05s")
+
+
+def test_every_render_is_counted_once(tiny):
+    timed = tiny["counter"].timed
+    runs = [c for c in timed if c[3] in (0, 1)]
+    assert len(runs) == 12                                 # 2 strategies x 3 budgets x 2 seeds
+    assert sum(1 for c in timed if c[0] == 16 and c[3] == 1_000_003) == 1   # the reference
+    events = tiny["events"]
+    total = events[0][1]
+    assert [e[0] for e in events] == list(range(1, total + 1))
+    assert total == 1 + 2 + 12                             # reference, 2 pilots, 12 runs
+
+
+def test_metrics_agree_with_the_saved_images(tiny):
+    out, res = tiny["out"], tiny["results"]
+    ref = read_image(str(out / "reference" / "default.exr"))
+    se = read_image(str(out / "reference" / "default.stderr.exr"))
+    assert ref.shape == (6, 8, 3) and np.all(se >= 0) and np.any(se > 0)
+    assert res["reference"]["default"]["corrected"] is True
+    for r in res["runs"]:
+        x = read_image(str(out / r["image"]))
+        assert r["relmse"] == pytest.approx(metrics.relmse(x, ref, se), rel=1e-12)
+        assert r["mse"] == pytest.approx(metrics.mse(x, ref, se), rel=1e-12)
+        assert r["max_error"] == pytest.approx(float(np.abs(x.astype(float) - ref).max()), rel=1e-12)
+    for g in res["groups"]:
+        mine = [r for r in res["runs"] if (r["strategy"], r["budget"]) == (g["strategy"], g["budget"])]
+        imgs = np.stack([read_image(str(out / r["image"])) for r in mine])
+        assert g["relmse"] == pytest.approx(np.mean([r["relmse"] for r in mine]), rel=1e-12)
+        assert g["relmse_min"] <= g["relmse"] <= g["relmse_max"]
+        assert g["variance"] == pytest.approx(float(np.mean(np.var(imgs.astype(float), axis=0, ddof=1))), rel=1e-12)
+        b, b_se = metrics.bias(imgs, ref, se)
+        assert (g["bias"], g["bias_se"]) == (pytest.approx(b, rel=1e-12), pytest.approx(b_se, rel=1e-12))
+        assert g["relmse_x_seconds"] == pytest.approx(g["relmse"] * g["total_seconds"])
+
+
+def test_runs_are_reproducible_from_their_seed(tiny):
+    r = next(r for r in tiny["results"]["runs"] if r["strategy"] == "mis" and r["budget"] == "spp2")
+    scene = wavlight.load_scene(DEFAULT_SCENE)
+    again = wavlight.render_full(scene, spp=2, strategy="mis", width=8, height=6, seed=r["seed"])
+    assert np.array_equal(again.image, read_image(str(tiny["out"] / r["image"])))
+
+
+def test_equal_time_error_maps_use_the_time_budget(tiny):
+    assert tiny["results"]["equal_time"] == {"default": {"mis": "0.05s", "wav": "0.05s"}}
+
+
+def test_summary_table(tiny):
+    text = experiment.format_summary(tiny["results"])
+    lines = text.splitlines()
+    assert lines[0].startswith("experiment tiny: 12 runs (12 rendered, 0 reused)")
+    header = next(i for i, line in enumerate(lines) if line.startswith("strategy"))
+    assert "relMSE" in lines[header] and "bias" in lines[header]
+    body = lines[header + 1: header + 7]
+    assert [line.split()[:2] for line in body] == [["mis", "spp1"], ["mis", "spp2"], ["mis", "0.05s"],
+                                                  ["wav", "spp1"], ["wav", "spp2"], ["wav", "0.05s"]]
+
+
+# ----------------------------------------------------------------------------- resume
+def test_resume_renders_nothing_when_finished(tiny, tmp_path):
+    out = copy_of(tiny, tmp_path)
+    results, counter = run_counted(tiny["spec"], out)
+    assert counter.calls == []
+    assert results["rendered"] == 0 and results["reused"] == 12
+    assert [g["relmse"] for g in results["groups"]] == [g["relmse"] for g in tiny["results"]["groups"]]
+
+
+def test_resume_renders_only_what_is_missing_or_changed(tiny, tmp_path):
+    out = copy_of(tiny, tmp_path)
+    (out / "runs" / "default" / "wav" / "spp2" / "1.json").unlink()        # an unfinished run
+    rec_path = out / "runs" / "default" / "mis" / "spp1" / "0.json"         # a run from other settings
+    rec = json.loads(rec_path.read_text())
+    rec["hash"] = "0" * 16
+    rec_path.write_text(json.dumps(rec))
+    results, counter = run_counted(tiny["spec"], out)
+    assert sorted(counter.timed) == [(1, 8, 6, 0), (2, 8, 6, 1)]
+    assert results["rendered"] == 2 and results["reused"] == 10
+
+
+def test_a_new_budget_adds_only_its_runs(tiny, tmp_path):
+    out = copy_of(tiny, tmp_path)
+    spec = tmp_path / "more.toml"
+    spec.write_text(TINY.replace("spp = [1, 2]", "spp = [1, 2, 3]"))
+    results, counter = run_counted(spec, out)
+    assert sorted(c[:3] for c in counter.timed) == [(3, 8, 6)] * 4
+    assert results["rendered"] == 4 and len(results["groups"]) == 8
+
+
+def test_no_resume_renders_everything_again(tmp_path):
+    spec = tmp_path / "one.toml"
+    spec.write_text(TINY.replace("spp = [1, 2]\nseconds = [0.05]\nrepetitions = 2", "spp = [1]\nrepetitions = 1")
+                    .replace('[[strategies]]\nid = "wavelet"\nlabel = "wav"\nwavelet_levels = 4\n', ""))
+    first, counter = run_counted(spec, tmp_path / "out")
+    assert first["rendered"] == 1 and len(counter.timed) == 2          # the reference and the run
+    counter = Counter(wavlight.render_full)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(wavlight, "render_full", counter)
+        r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "out"), "-q", "--no-resume"])
+    assert r.exit_code == 0, r.output
+    assert "(1 rendered, 0 reused)" in r.stdout
+    assert len(counter.timed) == 2
+
+
+# ----------------------------------------------------------------------------- reference files
+def test_reference_from_a_file(tiny, tmp_path):
+    ref = tiny["out"] / "reference" / "default.exr"
+    spec = tmp_path / "fileref.toml"
+    spec.write_text(f"""
+[experiment]
+size = [8, 6]
+[[scenes]]
+path = "{DEFAULT_SCENE}"
+reference = "{ref.as_posix()}"
+[[strategies]]
+id = "mis"
+[budgets]
+spp = [2]
+repetitions = 1
+""")
+    results = experiment.run_experiment(spec, tmp_path / "out")
+    assert results["reference"]["default"]["corrected"] is False
+    run = results["runs"][0]
+    x = read_image(str(tmp_path / "out" / run["image"]))
+    assert run["relmse"] == pytest.approx(metrics.relmse(x, read_image(str(ref))), rel=1e-12)
+    g = results["groups"][0]
+    assert g["variance"] is None and g["bias_se"] is None and g["relmse_sd"] is None
+    assert "metrics not corrected" in experiment.format_summary(results)
+    # the wrong size is one clear error
+    spec.write_text(spec.read_text().replace("size = [8, 6]", "size = [8, 8]"))
+    with pytest.raises(wavlight.WavlightError, match=r"default\.exr: reference image is 8x6"):
+        experiment.run_experiment(spec, tmp_path / "out2")
+
+
+# ----------------------------------------------------------------------------- the command line
+def test_cli_prints_the_summary(tiny, tmp_path):
+    out = copy_of(tiny, tmp_path)
+    r = CliRunner().invoke(main, ["experiment", str(tiny["spec"]), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "experiment tiny: 12 runs (0 rendered, 12 reused)" in r.stdout
+    assert "wrote " in r.stderr
+    r = CliRunner().invoke(main, ["experiment", str(tiny["spec"]), "-o", str(out), "--quiet"])
+    assert r.exit_code == 0 and r.stderr == ""
+
+
+BAD = [
+    ("[experiment]\nnam = 1\n", "[experiment].nam: unknown key"),
+    ("[[scenes]]\npath = 'x.toml'\n", "[[scenes]][0].path: no such file"),
+    ("[[strategies]]\nid = 'mis'\n[budgets]\nspp = [1]\n", "[[scenes]]: at least one"),
+    (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[budgets]\nspp = [1]\n", "[[strategies]]: at least one"),
+    (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'magic'\n[budgets]\nspp = [1]\n",
+     "[[strategies]][0].id: unknown strategy 'magic'"),
+    (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n[budgets]\nspp = [0, 4]\n",
+     "[budgets].spp: must be a non-empty list of integers >= 1"),
+    (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n[budgets]\nrepetitions = 2\n",
+     "[budgets].spp: give spp"),
+    (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n[budgets]\nseconds = [-1]\n",
+     "[budgets].seconds: must be a non-empty list of numbers > 0"),
+    (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n[[strategies]]\nid = 'mis'\n"
+     "[budgets]\nspp = [1]\n", "[[strategies]][1].label: label 'mis' is used twice"),
+    (f"[reference]\nspp = 1\n[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n"
+     "[budgets]\nspp = [1]\n", "[reference].spp: must be an integer >= 2"),
+    (f"[experiment]\nsize = [8]\n[[scenes]]\npath = '{DEFAULT_SCENE}'\n", "[experiment].size: must be [width, height]"),
+    ("[budgets\nspp = [1]\n", "malformed TOML"),
+    ("[runs]\n", "runs: unknown table"),
+]
+
+
+@pytest.mark.parametrize("text,message", BAD, ids=[m for _, m in BAD])
+def test_cli_bad_spec_is_one_line_and_exit_2(tmp_path, text, message):
+    spec = tmp_path / "bad.toml"
+    spec.write_text(text)
+    r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 2, r.output
+    assert r.exception is None or isinstance(r.exception, SystemExit)
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith(f"Error: {spec}: ") and message in lines[0], lines[0]
+    assert r.stdout == ""
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_missing_spec_and_output_is_a_file(tmp_path):
+    r = CliRunner().invoke(main, ["experiment", str(tmp_path / "none.toml"), "-o", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "none.toml: no such file" in r.stderr
+    spec = tmp_path / "ok.toml"
+    spec.write_text(TINY)
+    (tmp_path / "file").write_text("x")
+    r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "file")])
+    assert r.exit_code == 2 and "exists and is not a folder" in r.stderr, r.output
+
+
+def test_example_experiment_is_valid():
+    spec = experiment.load_spec(REPO / "experiments" / "example.toml")
+    assert [s.name for s in spec.scenes] == ["default", "bunny_ggx"]
+    assert [s.label for s in spec.strategies] == ["mis", "wavelet", "light", "bsdf"]
+    assert spec.size == (64, 48) and spec.repetitions == 2

@@ -1,0 +1,809 @@
+"""Batch experiments: scenes x strategies x budgets x repetitions, measured against a reference.
+
+    results = wavlight.experiment.run_experiment("experiments/example.toml", "out/example")
+
+or ``wavlight experiment experiments/example.toml -o out/example``.
+
+The experiment file (TOML; relative paths are relative to the experiment file)::
+
+    [experiment]
+    name = "example"          # default: the file's stem
+    size = [64, 48]           # width, height for every scene (default: each scene's own)
+    threads = 2               # render threads (default: all cores)
+    pilot_spp = 4             # time budgets: first pilot renders at pilot_spp and 4 x pilot_spp
+
+    [reference]               # for scenes without a reference file
+    strategy = "mis"          # default "mis"
+    spp = 1024                # default 1024, at least 2 (its stderr is needed)
+    seed = 1000003            # default 1000003 (apart from the repetitions' seeds 0..R-1)
+
+    [[scenes]]
+    path = "../scenes/default.toml"
+    name = "default"          # default: the file's stem; names the output folders
+    size = [64, 48]           # overrides [experiment].size for this scene
+    reference = "ref.exr"     # optional: a reference image instead of rendering one
+    reference_stderr = "ref_se.exr"  # optional: its per-pixel standard error
+
+    [[strategies]]
+    id = "wavelet"            # uniform | cosine | bsdf | light | mis | wavelet
+    label = "wavelet-p5"      # default: the id; names the output folders and chart lines
+    wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels)
+    light_levels = 9
+
+    [budgets]
+    spp = [4, 16, 64]         # equal-spp budgets
+    seconds = [0.5, 2.0]      # equal-time budgets: total seconds (setup + sampling) per render
+    repetitions = 3           # seeds 0 .. repetitions-1 (default 3)
+
+At least one of ``spp`` and ``seconds`` is required. Errors name the file and the key
+(``exp.toml: [budgets].spp: must be a list of integers >= 1, got [0]``) and raise
+:class:`wavlight.errors.WavlightError`.
+
+Decisions:
+
+- **Timing.** Every run records ``setup_seconds`` (precomputation: ray-tracing
+  structure, light tree, product tables, kernel set-up) and ``render_seconds``
+  (sampling), from :func:`wavlight.render_full`; ``total_seconds`` is their sum and is
+  the x axis of the error-versus-time charts. Scene loading is not timed (once per
+  scene). Kernel compilation is paid once per process, not per render: before its first
+  timed render every (scene, strategy) gets an untimed 8x8, 1 spp warm-up render.
+- **Time budgets.** For a budget of T seconds the spp is chosen from pilot renders
+  (seed 999999, full size) of that scene and strategy: at ``pilot_spp`` and 4 x
+  ``pilot_spp``, then (when it is larger still) at the spp that this first fit gives for
+  the largest T, as short renders are dominated by timing noise. Sampling time is
+  fitted as a + b spp by least squares through the pilots, setup is their mean, and
+  spp = max(1, round((T - setup - a) / b)). The pilot is cached in
+  ``DIR/pilot/<scene>/<strategy>.json`` so that a resumed experiment keeps the same spp.
+  The charts use the measured total time of each run, not T.
+- **Reference.** Rendered once per scene with ``[reference]`` and cached as
+  ``DIR/reference/<scene>.exr`` with its standard error ``<scene>.stderr.exr`` and a
+  ``<scene>.json`` (settings, hash, timings); re-rendered when its settings or the scene
+  file change. With a reference file and no stderr file, the metrics are not corrected
+  for the reference's noise (``results.json`` says so per scene).
+- **Runs and resume.** Each run writes its image ``DIR/runs/<scene>/<strategy>/<budget>/
+  <seed>.exr`` (float32, so metrics can be recomputed exactly) and then its record
+  ``<seed>.json`` (settings, timings, render stats, hash). The hash covers the scene
+  file's bytes, size, strategy id and options, spp, seed and wavlight's version (not
+  files the scene refers to). A run whose record exists with the same hash and whose
+  image exists is not rendered again (``resume=False`` renders everything again,
+  references and pilots included). Both files are written atomically, the record last.
+- **Metrics** (:mod:`wavlight.metrics`) are computed after the runs, from the saved
+  images and the reference, so they always match the current reference: per run mse,
+  relmse (both corrected by the reference's variance when its stderr is known),
+  max_error, max_rel_error; per (scene, strategy, budget) the mean, sd, min and max of
+  those over the repetitions, the mean per-pixel variance over the repetitions
+  (``variance``, ``rel_variance``), ``bias`` with ``bias_se``, and relMSE x time
+  (``relmse_x_seconds``, lower is better at any budget).
+- **Outputs** in DIR: ``results.json`` (everything), ``results.csv`` (one row per scene,
+  strategy and budget), ``runs.csv`` (one row per run), ``spec.toml`` (a copy of the
+  experiment file), and in ``charts/`` (PNG and SVG, matplotlib without pyplot, so no
+  global backend is touched): ``<scene>-spp`` and ``<scene>-time``, relMSE versus spp
+  and versus total seconds, log-log, one line per strategy through the mean over the
+  repetitions (points joined in spp order; x on the time chart is the mean total time), with a band from the smallest to the largest repetition (min-max, not a
+  standard deviation: with 2-3 repetitions that is the honest spread); non-positive
+  values (possible after the reference correction) are not drawn. ``error-maps``: per
+  scene the reference and, per strategy, the false-colour map of
+  :func:`wavlight.metrics.error_map` of repetition 0 at equal time, on a fixed scale
+  0..1 (values above 1 saturate). Equal time means the largest ``seconds`` budget when
+  there is one; otherwise T = the largest mean total time that every strategy reaches,
+  and each strategy shows its budget closest to T (in log time).
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import re
+import tempfile
+import time
+import tomllib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import metrics
+from .errors import WavlightError
+from .scene import MAX_SIDE, MAX_SPP, STRATEGIES
+
+PILOT_SEED = 999_999
+WARMUP_SIZE = 8
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+
+
+# ----------------------------------------------------------------------------- the experiment file
+@dataclass
+class SceneSpec:
+    name: str
+    path: str
+    size: tuple | None = None
+    reference: str | None = None
+    reference_stderr: str | None = None
+
+
+@dataclass
+class StrategySpec:
+    label: str
+    id: str
+    options: dict = field(default_factory=dict)  # wavelet_levels, light_levels
+
+
+@dataclass
+class Budget:
+    kind: str     # "spp" | "seconds"
+    value: float
+
+    @property
+    def key(self):
+        return f"spp{int(self.value)}" if self.kind == "spp" else f"{self.value:g}s"
+
+
+@dataclass
+class Spec:
+    path: str
+    name: str
+    scenes: list
+    strategies: list
+    budgets: list
+    repetitions: int
+    reference: dict
+    size: tuple | None = None
+    threads: int | None = None
+    pilot_spp: int = 4
+    text: bytes = b""
+
+
+class _Table:
+    """One TOML table of the experiment file: typed keys, unknown keys rejected."""
+
+    def __init__(self, path, name, data):
+        self.path, self.name, self.used = path, name, set()
+        if not isinstance(data, dict):
+            self.fail("", f"must be a table, got {type(data).__name__}")
+        self.data = data
+
+    def fail(self, key, msg):
+        where = f"{self.name}.{key}" if key else self.name
+        raise WavlightError(f"{self.path}: {where}: {msg}")
+
+    def get(self, key, kind, default=None, required=False, lo=None):
+        self.used.add(key)
+        if key not in self.data:
+            if required:
+                self.fail(key, "is required")
+            return default
+        v = self.data[key]
+        is_int = lambda x: isinstance(x, int) and not isinstance(x, bool)
+        is_num = lambda x: (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
+        if kind == "int":
+            if not is_int(v) or (lo is not None and v < lo):
+                self.fail(key, f"must be an integer{f' >= {lo}' if lo is not None else ''}, got {v!r}")
+        elif kind == "float":
+            if not is_num(v) or (lo is not None and v <= lo):
+                self.fail(key, f"must be a number{f' > {lo}' if lo is not None else ''}, got {v!r}")
+            v = float(v)
+        elif kind == "str":
+            if not isinstance(v, str) or not v:
+                self.fail(key, f"must be a non-empty string, got {v!r}")
+        elif kind == "ints":
+            if not isinstance(v, list) or not v or not all(is_int(x) and x >= lo for x in v):
+                self.fail(key, f"must be a non-empty list of integers >= {lo}, got {v!r}")
+            if len(set(v)) != len(v):
+                self.fail(key, f"has repeated values: {v!r}")
+        elif kind == "floats":
+            if not isinstance(v, list) or not v or not all(is_num(x) and x > lo for x in v):
+                self.fail(key, f"must be a non-empty list of numbers > {lo}, got {v!r}")
+            v = [float(x) for x in v]
+            if len(set(v)) != len(v):
+                self.fail(key, f"has repeated values: {v!r}")
+        elif kind == "size":
+            if (not isinstance(v, list) or len(v) != 2
+                    or not all(is_int(x) and 1 <= x <= MAX_SIDE for x in v)):
+                self.fail(key, f"must be [width, height], integers 1..{MAX_SIDE}, got {v!r}")
+            v = (int(v[0]), int(v[1]))
+        return v
+
+    def name_key(self, key, default):
+        v = self.get(key, "str", default)
+        if not _NAME.match(v):
+            self.fail(key, f"must be letters, digits, '_', '.', '+', '-' (it names folders), got {v!r}")
+        return v
+
+    def done(self):
+        extra = sorted(set(self.data) - self.used)
+        if extra:
+            self.fail(extra[0], "unknown key")
+
+
+def load_spec(path) -> Spec:
+    """Read and validate an experiment file (see the module docstring for its format)."""
+    path = str(path)
+    if not os.path.isfile(path):
+        raise WavlightError(f"{path}: no such file")
+    try:
+        with open(path, "rb") as fh:
+            text = fh.read()
+        doc = tomllib.loads(text.decode("utf-8"))
+    except tomllib.TOMLDecodeError as e:
+        raise WavlightError(f"{path}: malformed TOML: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise WavlightError(f"{path}: cannot read: {e}") from None
+    base = os.path.dirname(os.path.abspath(path))
+    unknown = sorted(set(doc) - {"experiment", "reference", "scenes", "strategies", "budgets"})
+    if unknown:
+        raise WavlightError(f"{path}: {unknown[0]}: unknown table")
+
+    e = _Table(path, "[experiment]", doc.get("experiment", {}))
+    name = e.name_key("name", os.path.splitext(os.path.basename(path))[0])
+    size = e.get("size", "size")
+    threads = e.get("threads", "int", lo=1)
+    pilot_spp = e.get("pilot_spp", "int", 4, lo=1)
+    e.done()
+
+    r = _Table(path, "[reference]", doc.get("reference", {}))
+    reference = {"strategy": r.get("strategy", "str", "mis"), "spp": r.get("spp", "int", 1024, lo=2),
+                 "seed": r.get("seed", "int", 1_000_003, lo=0)}
+    if reference["strategy"] not in STRATEGIES:
+        r.fail("strategy", f"unknown strategy {reference['strategy']!r} ({' | '.join(STRATEGIES)})")
+    if reference["spp"] > MAX_SPP:
+        r.fail("spp", f"must be at most {MAX_SPP}, got {reference['spp']}")
+    r.done()
+
+    def rel(p):
+        return os.path.normpath(os.path.join(base, p))
+
+    scenes_doc = doc.get("scenes")
+    if not isinstance(scenes_doc, list) or not scenes_doc:
+        raise WavlightError(f"{path}: [[scenes]]: at least one [[scenes]] table with a path is required")
+    scenes = []
+    for i, s in enumerate(scenes_doc):
+        t = _Table(path, f"[[scenes]][{i}]", s)
+        p = t.get("path", "str", required=True)
+        full = rel(p)
+        if not os.path.isfile(full):
+            t.fail("path", f"no such file {full}")
+        sname = t.name_key("name", os.path.splitext(os.path.basename(p))[0])
+        if any(x.name == sname for x in scenes):
+            t.fail("name", f"scene name {sname!r} is used twice (give each a distinct name)")
+        ssize = t.get("size", "size")
+        ref, ref_se = t.get("reference", "str"), t.get("reference_stderr", "str")
+        if ref is not None:
+            ref = rel(ref)
+            if not os.path.isfile(ref):
+                t.fail("reference", f"no such file {ref}")
+        if ref_se is not None:
+            if ref is None:
+                t.fail("reference_stderr", "needs reference")
+            ref_se = rel(ref_se)
+            if not os.path.isfile(ref_se):
+                t.fail("reference_stderr", f"no such file {ref_se}")
+        t.done()
+        scenes.append(SceneSpec(sname, full, ssize, ref, ref_se))
+
+    strat_doc = doc.get("strategies")
+    if not isinstance(strat_doc, list) or not strat_doc:
+        raise WavlightError(f"{path}: [[strategies]]: at least one [[strategies]] table with an id is required")
+    strats = []
+    for i, s in enumerate(strat_doc):
+        t = _Table(path, f"[[strategies]][{i}]", s)
+        sid = t.get("id", "str", required=True)
+        if sid not in STRATEGIES:
+            t.fail("id", f"unknown strategy {sid!r} ({' | '.join(STRATEGIES)})")
+        label = t.name_key("label", sid)
+        if any(x.label == label for x in strats):
+            t.fail("label", f"label {label!r} is used twice (give each strategy a distinct label)")
+        options = {}
+        wl = t.get("wavelet_levels", "int", lo=0)
+        if wl is not None:
+            if wl > 11:
+                t.fail("wavelet_levels", f"must be at most 11, got {wl}")
+            options["wavelet_levels"] = wl
+        ll = t.get("light_levels", "int", lo=1)
+        if ll is not None:
+            if ll > 11:
+                t.fail("light_levels", f"must be at most 11, got {ll}")
+            options["light_levels"] = ll
+        t.done()
+        strats.append(StrategySpec(label, sid, options))
+
+    b = _Table(path, "[budgets]", doc.get("budgets", {}))
+    spps = b.get("spp", "ints", lo=1)
+    seconds = b.get("seconds", "floats", lo=0)
+    repetitions = b.get("repetitions", "int", 3, lo=1)
+    if spps is None and seconds is None:
+        b.fail("spp", "give spp = [...] and/or seconds = [...]")
+    if spps is not None and max(spps) > MAX_SPP:
+        b.fail("spp", f"must be at most {MAX_SPP}, got {max(spps)}")
+    b.done()
+    budgets = [Budget("spp", v) for v in sorted(spps or [])] + [Budget("seconds", v) for v in sorted(seconds or [])]
+    keys = [x.key for x in budgets]
+    if len(set(keys)) != len(keys):
+        b.fail("seconds", f"values too close to tell apart in folder names: {keys}")
+    return Spec(path, name, scenes, strats, budgets, repetitions, reference, size, threads, pilot_spp, text)
+
+
+# ----------------------------------------------------------------------------- files
+def _hash(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _publish(tmp, path):
+    """Give a finished temporary file the usual mode (mkstemp makes it private), rename it."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    os.replace(tmp, path)
+
+
+def _write_text(path, text):
+    """Atomically: a temporary file in the same folder renamed over the target."""
+    folder = os.path.dirname(path)
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            fh.write(text)
+        _publish(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _write_json(path, obj):
+    _write_text(path, json.dumps(obj, indent=1) + "\n")
+
+
+def _read_json(path):
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except (OSError, ValueError):
+        return None
+
+
+def _read_image(path):
+    from .envmap import read_image
+    return read_image(path)
+
+
+def _save_image(path, image):
+    from .imageio import save_image
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    save_image(path, image)
+
+
+# ----------------------------------------------------------------------------- running
+class _Runner:
+    def __init__(self, spec: Spec, out_dir: str, progress, resume: bool):
+        import wavlight
+
+        self.wavlight = wavlight
+        self.spec, self.out, self.progress, self.resume = spec, out_dir, progress, resume
+        self.scenes, self.scene_hash, self.size = {}, {}, {}
+        for s in spec.scenes:
+            scene = wavlight.load_scene(s.path)
+            self.scenes[s.name] = scene
+            with open(s.path, "rb") as fh:
+                self.scene_hash[s.name] = hashlib.sha256(fh.read()).hexdigest()
+            self.size[s.name] = s.size or spec.size or (scene.width, scene.height)
+        self.warm = set()
+        self.done = 0
+        self.rendered = self.reused = 0
+        n_ref = sum(1 for s in spec.scenes if s.reference is None)
+        n_pilot = len(spec.scenes) * len(spec.strategies) if any(b.kind == "seconds" for b in spec.budgets) else 0
+        self.total = n_ref + n_pilot + len(spec.scenes) * len(spec.strategies) * len(spec.budgets) * spec.repetitions
+
+    def step(self, what):
+        self.done += 1
+        if self.progress:
+            self.progress(self.done, self.total, what)
+
+    def render(self, scene_name, strategy_id, options, spp, seed):
+        w, h = self.size[scene_name]
+        return self.wavlight.render_full(self.scenes[scene_name], spp=spp, strategy=strategy_id, width=w,
+                                         height=h, seed=seed, threads=self.spec.threads, **options)
+
+    def warm_up(self, scene_name, strategy_id, options):
+        key = (scene_name, strategy_id, tuple(sorted(options.items())))
+        if key not in self.warm:
+            self.wavlight.render_full(self.scenes[scene_name], spp=1, strategy=strategy_id, width=WARMUP_SIZE,
+                                      height=WARMUP_SIZE, seed=0, threads=self.spec.threads, **options)
+            self.warm.add(key)
+
+    def base_key(self, scene_name):
+        w, h = self.size[scene_name]
+        return {"scene": self.scene_hash[scene_name], "width": w, "height": h,
+                "wavlight": self.wavlight.__version__}
+
+    # -- the reference
+    def reference(self, s: SceneSpec):
+        """(image, stderr or None, info) for one scene."""
+        w, h = self.size[s.name]
+        if s.reference is not None:
+            image = _read_image(s.reference)
+            if image.shape[:2] != (h, w):
+                raise WavlightError(f"{s.reference}: reference image is {image.shape[1]}x{image.shape[0]}, "
+                                    f"the experiment renders {s.name} at {w}x{h}")
+            stderr = None
+            if s.reference_stderr is not None:
+                stderr = _read_image(s.reference_stderr)
+                if stderr.shape != image.shape:
+                    raise WavlightError(f"{s.reference_stderr}: stderr image is {stderr.shape[1]}x"
+                                        f"{stderr.shape[0]}, the reference is {w}x{h}")
+                if not np.all(np.isfinite(stderr)) or np.any(stderr < 0):
+                    raise WavlightError(f"{s.reference_stderr}: stderr must be finite and non-negative")
+            return image, stderr, {"file": s.reference, "stderr_file": s.reference_stderr,
+                                   "corrected": stderr is not None}
+        ref = self.spec.reference
+        folder = os.path.join(self.out, "reference")
+        img_path = os.path.join(folder, f"{s.name}.exr")
+        se_path = os.path.join(folder, f"{s.name}.stderr.exr")
+        rec_path = os.path.join(folder, f"{s.name}.json")
+        key = _hash({**self.base_key(s.name), **ref})
+        rec = _read_json(rec_path) if self.resume else None
+        if rec and rec.get("hash") == key and os.path.isfile(img_path) and os.path.isfile(se_path):
+            self.step(f"{s.name}: reference (done before)")
+            return _read_image(img_path), _read_image(se_path), rec
+        r = self.render(s.name, ref["strategy"], {}, ref["spp"], ref["seed"])
+        _save_image(img_path, r.image)
+        _save_image(se_path, r.stderr)
+        rec = {"hash": key, "scene": s.name, **ref, "width": w, "height": h,
+               "image": os.path.relpath(img_path, self.out), "stderr": os.path.relpath(se_path, self.out),
+               "setup_seconds": r.stats["setup_seconds"], "render_seconds": r.stats["render_seconds"],
+               "corrected": True}
+        _write_json(rec_path, rec)
+        self.step(f"{s.name}: reference, {ref['strategy']} {ref['spp']} spp")
+        return r.image, r.stderr, rec
+
+    # -- time budgets
+    def pilot(self, s: SceneSpec, st: StrategySpec):
+        """Fit of this scene and strategy's cost: setup seconds and sampling a + b spp."""
+        path = os.path.join(self.out, "pilot", s.name, f"{st.label}.json")
+        p1, p2 = self.spec.pilot_spp, 4 * self.spec.pilot_spp
+        longest = max(b.value for b in self.spec.budgets if b.kind == "seconds")
+        key = _hash({**self.base_key(s.name), "strategy": st.id, "options": st.options, "pilot": [p1, p2],
+                     "longest": longest})
+        rec = _read_json(path) if self.resume else None
+        if rec and rec.get("hash") == key:
+            self.step(f"{s.name}/{st.label}: pilot (done before)")
+            return rec
+        self.warm_up(s.name, st.id, st.options)
+        points = []
+
+        def measure(spp):
+            r = self.render(s.name, st.id, st.options, spp, PILOT_SEED)
+            points.append({"spp": spp, "setup_seconds": r.stats["setup_seconds"],
+                           "render_seconds": r.stats["render_seconds"]})
+
+        def fit():
+            x = np.array([p["spp"] for p in points], float)
+            y = np.array([p["render_seconds"] for p in points], float)
+            b, a = np.polyfit(x, y, 1)
+            if b <= 0:
+                b, a = max(y[-1], 1e-6) / x[-1], 0.0
+            return {"setup_seconds": float(np.mean([p["setup_seconds"] for p in points])),
+                    "render_a": max(float(a), 0.0), "render_b": float(b)}
+
+        measure(p1)
+        measure(p2)
+        # A third pilot near the largest budget's spp: short pilots are dominated by noise.
+        p3 = self.spp_for(fit(), longest)
+        if p3 > 2 * p2:
+            measure(p3)
+        model = fit()
+        rec = {"hash": key, "scene": s.name, "strategy": st.label, "points": points, **model}
+        _write_json(path, rec)
+        self.step(f"{s.name}/{st.label}: pilot")
+        return rec
+
+    @staticmethod
+    def spp_for(pilot, seconds):
+        spp = (seconds - pilot["setup_seconds"] - pilot["render_a"]) / pilot["render_b"]
+        return int(min(max(1, round(spp)), MAX_SPP))
+
+    # -- one run
+    def run(self, s: SceneSpec, st: StrategySpec, budget: Budget, spp: int, seed: int):
+        folder = os.path.join(self.out, "runs", s.name, st.label, budget.key)
+        img_path = os.path.join(folder, f"{seed}.exr")
+        rec_path = os.path.join(folder, f"{seed}.json")
+        what = f"{s.name}/{st.label}/{budget.key}/seed {seed}"
+        key = _hash({**self.base_key(s.name), "strategy": st.id, "options": st.options, "spp": spp,
+                     "seed": seed})
+        rec = _read_json(rec_path) if self.resume else None
+        if rec and rec.get("hash") == key and os.path.isfile(img_path):
+            self.reused += 1
+            self.step(what + " (done before)")
+            return rec
+        self.warm_up(s.name, st.id, st.options)
+        r = self.render(s.name, st.id, st.options, spp, seed)
+        _save_image(img_path, r.image)
+        stats = r.stats
+        rec = {"hash": key, "scene": s.name, "strategy": st.label, "strategy_id": st.id,
+               "options": st.options, "budget": budget.key, "budget_kind": budget.kind,
+               "target_seconds": budget.value if budget.kind == "seconds" else None,
+               "spp": spp, "seed": seed, "width": stats["width"], "height": stats["height"],
+               "setup_seconds": stats["setup_seconds"], "render_seconds": stats["render_seconds"],
+               "total_seconds": round(stats["setup_seconds"] + stats["render_seconds"], 4),
+               "image": os.path.relpath(img_path, self.out), "stats": stats,
+               "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
+        _write_json(rec_path, rec)
+        self.rendered += 1
+        self.step(what)
+        return rec
+
+
+def _stat(values):
+    v = [x for x in values if x is not None]
+    if not v:
+        return None, None, None, None
+    a = np.asarray(v, np.float64)
+    sd = float(a.std(ddof=1)) if len(a) > 1 else None
+    return float(a.mean()), sd, float(a.min()), float(a.max())
+
+
+def run_experiment(spec_path, out_dir, progress=None, resume=True) -> dict:
+    """Run (or resume) an experiment; write results, charts and error maps to out_dir.
+
+    ``progress(done, total, what)`` is called after each reference, pilot and run
+    (including runs found finished). Returns the dict written to ``results.json``:
+    ``groups`` (one per scene, strategy and budget), ``runs``, ``reference``,
+    ``equal_time`` (the budget each strategy shows in the error maps), ``files``,
+    ``rendered`` and ``reused`` (run counts of this call).
+    """
+    t_start = time.perf_counter()
+    spec = load_spec(spec_path)
+    out_dir = str(out_dir)
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise WavlightError(f"{out_dir}: exists and is not a folder")
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+        _write_text(os.path.join(out_dir, "spec.toml"), spec.text.decode("utf-8"))
+    except OSError as e:
+        raise WavlightError(f"{out_dir}: cannot write ({e.strerror})") from None
+    try:
+        return _run(spec, out_dir, progress, resume, t_start)
+    except OSError as e:
+        raise WavlightError(f"{e.filename or out_dir}: cannot write ({e.strerror})") from None
+
+
+def _run(spec: Spec, out_dir, progress, resume, t_start):
+    runner = _Runner(spec, out_dir, progress, resume)
+    references = {}
+    records = []
+    for s in spec.scenes:
+        references[s.name] = runner.reference(s)
+        for st in spec.strategies:
+            pilot = runner.pilot(s, st) if any(b.kind == "seconds" for b in spec.budgets) else None
+            for budget in spec.budgets:
+                spp = int(budget.value) if budget.kind == "spp" else runner.spp_for(pilot, budget.value)
+                for seed in range(spec.repetitions):
+                    records.append(runner.run(s, st, budget, spp, seed))
+
+    # -- metrics, from the saved images
+    runs, groups = [], []
+    by_group = {}
+    for rec in records:
+        by_group.setdefault((rec["scene"], rec["strategy"], rec["budget"]), []).append(rec)
+    for (scene, label, bkey), recs in by_group.items():
+        ref, ref_se, _ = references[scene]
+        images = np.stack([_read_image(os.path.join(out_dir, r["image"])) for r in recs])
+        per = []
+        for r, img in zip(recs, images):
+            m = {"mse": metrics.mse(img, ref, ref_se), "relmse": metrics.relmse(img, ref, ref_se),
+                 "max_error": metrics.max_error(img, ref), "max_rel_error": metrics.max_error(img, ref, relative=True)}
+            row = {k: r[k] for k in ("scene", "strategy", "strategy_id", "budget", "budget_kind", "target_seconds",
+                                     "spp", "seed", "setup_seconds", "render_seconds", "total_seconds", "image")}
+            row.update(m)
+            per.append(row)
+        runs.extend(per)
+        g = {k: recs[0][k] for k in ("scene", "strategy", "strategy_id", "options", "budget", "budget_kind",
+                                     "target_seconds", "spp")}
+        g["repetitions"] = len(recs)
+        for name in ("setup_seconds", "render_seconds"):
+            g[name] = _stat([p[name] for p in per])[0]
+        g["total_seconds"], g["total_seconds_sd"], g["total_seconds_min"], g["total_seconds_max"] = \
+            _stat([p["total_seconds"] for p in per])
+        for name in ("mse", "relmse"):
+            g[name], g[name + "_sd"], g[name + "_min"], g[name + "_max"] = _stat([p[name] for p in per])
+        if len(images) >= 2:
+            g["variance"] = metrics.mean_variance(images)
+            g["rel_variance"] = metrics.relative_variance(images, ref)
+        else:
+            g["variance"] = g["rel_variance"] = None
+        g["bias"], g["bias_se"] = metrics.bias(images, ref, ref_se)
+        g["max_error"] = max(p["max_error"] for p in per)
+        g["max_rel_error"] = max(p["max_rel_error"] for p in per)
+        g["relmse_x_seconds"] = g["relmse"] * g["total_seconds"]
+        groups.append(g)
+
+    equal_time = _equal_time(spec, groups)
+    reference_info = {}
+    for s in spec.scenes:
+        info = {k: v for k, v in references[s.name][2].items() if k != "hash"}
+        reference_info[s.name] = info
+    results = {"experiment": spec.name, "spec": os.path.abspath(spec.path), "out_dir": os.path.abspath(out_dir),
+               "repetitions": spec.repetitions, "scenes": [s.name for s in spec.scenes],
+               "strategies": [{"label": st.label, "id": st.id, "options": st.options} for st in spec.strategies],
+               "budgets": [b.key for b in spec.budgets], "reference": reference_info,
+               "metrics_note": "mse and relmse corrected by the reference's variance where reference.corrected",
+               "equal_time": equal_time, "groups": groups, "runs": runs,
+               "rendered": runner.rendered, "reused": runner.reused}
+    files = ["results.json", "results.csv", "runs.csv"]
+    _write_text(os.path.join(out_dir, "results.csv"), _csv(groups, GROUP_COLUMNS))
+    _write_text(os.path.join(out_dir, "runs.csv"), _csv(runs, RUN_COLUMNS))
+    files += _charts(spec, groups, out_dir)
+    files += _error_maps(spec, groups, runs, references, equal_time, out_dir)
+    results["files"] = files
+    results["seconds"] = round(time.perf_counter() - t_start, 2)
+    _write_json(os.path.join(out_dir, "results.json"), results)
+    return results
+
+
+def _equal_time(spec: Spec, groups) -> dict:
+    """{scene: {strategy: budget key}} shown in the error maps (see the module docstring)."""
+    out = {}
+    seconds = [b for b in spec.budgets if b.kind == "seconds"]
+    for s in spec.scenes:
+        mine = [g for g in groups if g["scene"] == s.name]
+        if seconds:
+            key = seconds[-1].key
+            out[s.name] = {st.label: key for st in spec.strategies}
+            continue
+        reach = min(max(g["total_seconds"] for g in mine if g["strategy"] == st.label) for st in spec.strategies)
+        out[s.name] = {}
+        for st in spec.strategies:
+            cand = [g for g in mine if g["strategy"] == st.label]
+            best = min(cand, key=lambda g: abs(math.log(max(g["total_seconds"], 1e-9) / max(reach, 1e-9))))
+            out[s.name][st.label] = best["budget"]
+    return out
+
+
+# ----------------------------------------------------------------------------- tables
+GROUP_COLUMNS = ["scene", "strategy", "strategy_id", "budget", "spp", "target_seconds", "repetitions",
+                 "setup_seconds", "render_seconds", "total_seconds", "total_seconds_min", "total_seconds_max",
+                 "mse", "mse_sd", "relmse", "relmse_sd", "relmse_min", "relmse_max", "relmse_x_seconds",
+                 "variance", "rel_variance", "bias", "bias_se", "max_error", "max_rel_error"]
+RUN_COLUMNS = ["scene", "strategy", "strategy_id", "budget", "spp", "target_seconds", "seed", "setup_seconds",
+               "render_seconds", "total_seconds", "mse", "relmse", "max_error", "max_rel_error", "image"]
+
+
+def _csv(rows, columns) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(columns)
+    for row in rows:
+        w.writerow(["" if row.get(c) is None else row[c] for c in columns])
+    return buf.getvalue()
+
+
+def _g(x, fmt=".3g"):
+    return "-" if x is None else format(x, fmt)
+
+
+def format_summary(results: dict) -> str:
+    """The results as a plain-text table, one block per scene (what the CLI prints)."""
+    head = ["strategy", "budget", "spp", "setup s", "total s", "relMSE", "±sd", "relMSE·s", "MSE",
+            "bias", "±se", "max err"]
+    lines = [f"experiment {results['experiment']}: {len(results['runs'])} runs "
+             f"({results['rendered']} rendered, {results['reused']} reused), "
+             f"{results['repetitions']} repetitions; relMSE: mean over repetitions"]
+    for scene in results["scenes"]:
+        ref = results["reference"][scene]
+        src = ref.get("file") or f"{ref['strategy']} {ref['spp']} spp"
+        lines += ["", f"{scene} (reference: {src}"
+                  f"{'' if ref.get('corrected') else ', no stderr: metrics not corrected'})"]
+        rows = [head]
+        for g in results["groups"]:
+            if g["scene"] != scene:
+                continue
+            rows.append([g["strategy"], g["budget"], str(g["spp"]), _g(g["setup_seconds"], ".3f"),
+                         _g(g["total_seconds"], ".3f"), _g(g["relmse"], ".4g"), _g(g["relmse_sd"], ".2g"),
+                         _g(g["relmse_x_seconds"], ".3g"), _g(g["mse"], ".4g"), _g(g["bias"], ".2g"),
+                         _g(g["bias_se"], ".2g"), _g(g["max_error"], ".3g")])
+        widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+        for r in rows:
+            lines.append("  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))))
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- charts
+def _colours(spec):
+    from matplotlib import colormaps
+    cmap = colormaps["tab10"]
+    return {st.label: cmap(i % 10) for i, st in enumerate(spec.strategies)}
+
+
+def _save_figure(fig, out_dir, stem):
+    folder = os.path.join(out_dir, "charts")
+    os.makedirs(folder, exist_ok=True)
+    names = []
+    for ext in ("png", "svg"):
+        path = os.path.join(folder, f"{stem}.{ext}")
+        fd, tmp = tempfile.mkstemp(prefix=".wavlight-", suffix="." + ext, dir=folder)
+        os.close(fd)
+        try:
+            fig.savefig(tmp, format=ext, dpi=120, metadata={"Date": None} if ext == "svg" else None)
+            _publish(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        names.append(os.path.relpath(path, out_dir))
+    return names
+
+
+def _charts(spec: Spec, groups, out_dir) -> list:
+    from matplotlib.figure import Figure
+
+    colours = _colours(spec)
+    files = []
+    for s in spec.scenes:
+        mine = [g for g in groups if g["scene"] == s.name]
+        positive = [v for g in mine for v in (g["relmse_min"], g["relmse"]) if v is not None and v > 0]
+        floor = min(positive) / 10 if positive else None
+        for axis, xkey, xlabel in (("spp", "spp", "samples per pixel"),
+                                   ("time", "total_seconds", "total seconds per render (setup + sampling)")):
+            fig = Figure(figsize=(6.4, 4.4), layout="constrained")
+            ax = fig.add_subplot()
+            for st in spec.strategies:
+                # joined in spp order on both charts: a noisy time must not zig-zag the line
+                pts = sorted((g for g in mine if g["strategy"] == st.label), key=lambda g: (g["spp"], g[xkey]))
+                x = np.array([g[xkey] for g in pts], float)
+                y = np.array([g["relmse"] for g in pts], float)
+                lo = np.array([g["relmse_min"] for g in pts], float)
+                hi = np.array([g["relmse_max"] for g in pts], float)
+                c = colours[st.label]
+                ax.plot(x, np.where(y > 0, y, np.nan), "o-", color=c, label=st.label, lw=1.5, ms=4)
+                if floor is not None and len(pts) and spec.repetitions > 1:
+                    ax.fill_between(x, np.maximum(lo, floor), np.maximum(hi, floor), color=c, alpha=0.18, lw=0)
+            if floor is not None:
+                ax.set_xscale("log")
+                ax.set_yscale("log")
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel("relMSE")
+            ax.grid(True, which="both", alpha=0.3)
+            band = f"band: min-max of {spec.repetitions} repetitions" if spec.repetitions > 1 else "1 repetition"
+            ax.set_title(f"{s.name}: relMSE vs {'spp' if axis == 'spp' else 'time'} (line: mean; {band})",
+                         fontsize=9)
+            ax.legend(fontsize=8)
+            files += _save_figure(fig, out_dir, f"{s.name}-{axis}")
+    return files
+
+
+def _error_maps(spec: Spec, groups, runs, references, equal_time, out_dir) -> list:
+    from matplotlib.figure import Figure
+
+    from .imageio import srgb_encode
+
+    rows, cols = len(spec.scenes), 1 + len(spec.strategies)
+    w0, h0 = max((references[s.name][0].shape[1], references[s.name][0].shape[0]) for s in spec.scenes)
+    cell = 2.4
+    fig = Figure(figsize=(cols * cell + 1.0, rows * (cell * h0 / w0 + 0.5) + 0.4), layout="constrained")
+    axes = np.asarray(fig.subplots(rows, cols, squeeze=False))
+    im = None
+    for i, s in enumerate(spec.scenes):
+        ref = references[s.name][0]
+        ax = axes[i, 0]
+        ax.imshow(srgb_encode(ref), interpolation="nearest")
+        ax.set_title(f"{s.name}\nreference", fontsize=8)
+        for j, st in enumerate(spec.strategies):
+            ax = axes[i, j + 1]
+            bkey = equal_time[s.name][st.label]
+            g = next(g for g in groups if g["scene"] == s.name and g["strategy"] == st.label and g["budget"] == bkey)
+            run = next(r for r in runs if r["scene"] == s.name and r["strategy"] == st.label
+                       and r["budget"] == bkey and r["seed"] == 0)
+            img = _read_image(os.path.join(out_dir, run["image"]))
+            im = ax.imshow(metrics.error_map(img, ref), cmap="inferno", vmin=0.0, vmax=1.0, interpolation="nearest")
+            ax.set_title(f"{st.label}: {g['spp']} spp, {run['total_seconds']:.2f} s\nrelMSE {run['relmse']:.3g}",
+                         fontsize=8)
+    for ax in axes.ravel():
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if im is not None:
+        bar = fig.colorbar(im, ax=axes[:, 1:].ravel().tolist(), extend="max", shrink=0.9)
+        bar.set_label("relative error √(mean (x−r)² / (r²+0.01))", fontsize=8)
+    fig.suptitle(f"{spec.name}: error maps at equal time (seed 0)", fontsize=10)
+    return _save_figure(fig, out_dir, "error-maps")
