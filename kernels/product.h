@@ -27,7 +27,8 @@
 /* A level-l node spans pi / 2^l in theta (2 pi sin(theta) / 2^l in phi). The lobe is
  * widened by LOBE_BLUR_F / 2^l (less than the node's half size: wider lobes waste
  * samples on bright nodes outside the lobe, measured), the horizon softened by
- * HORIZON_BLUR_F / 2^l (about the node's half diagonal). */
+ * HORIZON_BLUR_F / 2^l (3/4 of the node's theta extent: a node whose centre lies
+ * further below the horizon gets no product samples; the BSDF sample covers it). */
 #define LOBE_BLUR_F (0.35f * PI_F)
 #define HORIZON_BLUR_F (0.75f * PI_F)
 

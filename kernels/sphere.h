@@ -66,7 +66,7 @@ inline float2 env_world_to_square(const Env *e, const float3 w)
 /* rotate_y turns about +Y: sin(theta) is the same in world and map frames. */
 inline float env_square_to_solid_angle(const float3 w)
 {
-    const float s = sqrt(fmax(0.0f, 1.0f - w.y * w.y));
+    const float s = sqrt(w.x * w.x + w.z * w.z);  /* sin(theta), accurate near the poles */
     return s > 0.0f ? 1.0f / (2.0f * PI_F * PI_F * s) : 0.0f;
 }
 

@@ -18,7 +18,7 @@ import wavlight
 from scenes_util import (Pinhole, camera_of, check_estimates, dir_from_uv, line_distance, load,
                          ray_sphere, rot_y, texel_dir, texel_radius, uv_from_dir, write_env)
 
-ALL_STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis")
+ALL_STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "wavelet")
 
 
 def test_strategy_list_is_the_documented_one():
@@ -263,7 +263,7 @@ def quad_scenes(tmp_path_factory):
     return get
 
 
-@pytest.mark.parametrize("strategy", ["bsdf", "light", "mis"])
+@pytest.mark.parametrize("strategy", ["bsdf", "light", "mis", "wavelet"])
 @pytest.mark.parametrize("view_deg", [0.0, 45.0, 75.0])
 @pytest.mark.parametrize("kind,param", MATERIALS)
 def test_glossy_quad_directional_albedo(quad_scenes, kind, param, view_deg, strategy):

@@ -217,6 +217,6 @@ class Environment:
 
         rotate_y turns about +Y, so sin(theta) is the same in world and map frames.
         """
-        s = np.sqrt(np.maximum(0.0, 1.0 - d_world[:, 1] ** 2))
+        s = np.hypot(d_world[:, 0], d_world[:, 2])  # sin(theta), accurate near the poles
         with np.errstate(divide="ignore"):
             return np.where(s > 0, 1.0 / (2 * np.pi ** 2 * np.where(s > 0, s, 1.0)), 0.0)

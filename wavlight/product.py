@@ -64,15 +64,19 @@ def lobe_kappa(kind: int, param: float) -> float:
     return float(min(1.0 / (2.0 * param * param), MAX_KAPPA))  # the (1 + k x)^-2 profile's k
 
 
+MIN_PRODUCT_LEVELS = 3  # the cosine lobe is broad: 8 x 8 nodes of 22.5 x 45 degrees resolve it
+
+
 def product_levels(kappa: float, tree_levels: int, override: int | None = None) -> int:
-    """Product depth P: nodes (angular size sqrt(4 pi) / 2^l) below half the lobe width 1/sqrt(kappa)."""
+    """Product depth P: nodes (theta extent pi / 2^l) no wider than half the lobe width 1/sqrt(kappa),
+    at least MIN_PRODUCT_LEVELS (lambert, kappa = 0), at most the light tree's depth."""
     if override is not None:
         return int(min(max(override, 0), tree_levels))
     if kappa <= 0:
-        return min(3, tree_levels)  # the cosine lobe is broad: 8 x 8 nodes of ~25 degrees
-    # lobe width ~ 1/sqrt(kappa) (phong) or sqrt(2) alpha = 1/sqrt(kappa) (ggx); node theta extent pi / 2^l
+        return min(MIN_PRODUCT_LEVELS, tree_levels)
+    # lobe width ~ 1/sqrt(kappa) (phong) or sqrt(2) alpha = 1/sqrt(kappa) (ggx)
     level = int(np.ceil(np.log2(2.0 * np.pi * np.sqrt(kappa))))
-    return int(min(max(level, 2), tree_levels))
+    return int(min(max(level, MIN_PRODUCT_LEVELS), tree_levels))
 
 
 def node_importance(env, mass, x, y, level, axis, n, kappa, shape):
