@@ -2,17 +2,18 @@
 
 Path of one pixel sample (see docs/architecture.md): :func:`camera_rays` makes a ray
 through a uniformly jittered point of the pixel (box filter); :class:`RayTracer`
-finds the closest hit; a miss returns the environment's radiance; a hit becomes a
-:class:`ShadingPoints` entry (face normal flipped towards the viewer); the strategy
-draws ``wi`` with its pdf; the estimator ``albedo f cos L / pdf`` (times the MIS
-weight) is kept where it is non-zero, and only those directions get a shadow ray
-(occlusion query from the point moved ``epsilon`` along the shading normal).
-Per-pixel means and standard errors come from the per-sample values.
+finds the closest hit; a miss returns the environment's radiance; a hit goes to the
+shader (:mod:`wavlight.shading`: face normal flipped towards the viewer, the
+strategy's directions and pdfs, the estimate ``albedo f cos L / pdf`` times the MIS
+weight); only non-zero estimates get a shadow ray (occlusion query from the point
+moved ``epsilon`` along the shading normal). Per-pixel means and standard errors
+come from the per-sample values.
 
-Images are rendered in tiles of about ``TILE_SAMPLES`` samples, so memory is
-bounded at any resolution; tiles run on a thread pool (numpy, embree and OpenCL
-release the GIL). Each tile draws its random numbers from its own stream
-(seed, tile index), so images do not depend on the number of threads.
+Images are rendered in tiles, each in passes of about ``TILE_SAMPLES`` samples, so
+memory is bounded at any resolution and any spp; tiles run on a thread pool
+(numpy, embree and OpenCL release the GIL). Each tile draws its random numbers
+from its own stream (seed, tile index), so images do not depend on the number of
+threads.
 """
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ TILE_SAMPLES = 1 << 16
 
 @dataclass
 class RenderResult:
-    """image (H, W, 3) float32; stderr (H, W, 3) float32, the standard error of each pixel."""
+    """image (H, W, 3) float32; stderr (H, W, 3) float32, the standard error of each pixel
+    (sample standard deviation / sqrt(spp); inf at spp = 1)."""
 
     image: np.ndarray
     stderr: np.ndarray
@@ -99,11 +101,30 @@ class _Renderer:
 
     # -- one tile
     def tile(self, index, x0, y0, w, h):
+        """Mean and standard error of the tile's pixels, in passes of at most ~TILE_SAMPLES samples."""
         spp = self.spp
         rng = np.random.default_rng([self.seed, index])
+        total = np.zeros((w * h, 3))
+        total_sq = np.zeros((w * h, 3))
+        per_pass = max(1, min(spp, TILE_SAMPLES // (w * h)))
+        for first in range(0, spp, per_pass):
+            k = min(per_pass, spp - first)
+            values = self._samples(rng, x0, y0, w, h, k).reshape(w * h, k, 3)
+            total += values.sum(axis=1)
+            total_sq += (values ** 2).sum(axis=1)
+        mean = total / spp
+        if spp > 1:
+            var = np.maximum(total_sq - spp * mean ** 2, 0.0) / (spp - 1)
+            err = np.sqrt(var / spp)
+        else:
+            err = np.full_like(mean, np.inf)
+        return mean.reshape(h, w, 3), err.reshape(h, w, 3)
+
+    def _samples(self, rng, x0, y0, w, h, k):
+        """(w h k, 3) radiance estimates: k jittered camera rays per pixel, pixel-major."""
         pix = np.arange(w * h)
-        px = np.repeat(x0 + pix % w, spp).astype(np.float64)
-        py = np.repeat(y0 + pix // w, spp).astype(np.float64)
+        px = np.repeat(x0 + pix % w, k).astype(np.float64)
+        py = np.repeat(y0 + pix // w, k).astype(np.float64)
         o, d = camera_rays(self.scene, px, py, rng.random((len(px), 2)), self.width, self.height)
         prim, t = self.tracer.intersect(o, d)
         self.count_rays(len(px))
@@ -113,13 +134,7 @@ class _Renderer:
         hit = np.nonzero(~miss)[0]
         if len(hit):
             values[hit] = self.shade(o[hit], d[hit], prim[hit], t[hit].astype(np.float64), rng)
-        values = values.reshape(w * h, spp, 3)
-        mean = values.mean(axis=1)
-        if spp > 1:
-            err = np.sqrt(values.var(axis=1, ddof=1) / spp)
-        else:
-            err = np.full_like(mean, np.inf)
-        return mean.reshape(h, w, 3), err.reshape(h, w, 3)
+        return values
 
 
 def _tiles(width, height, spp):
