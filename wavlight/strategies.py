@@ -11,9 +11,9 @@ its contribution is 0, never NaN.
 | bsdf      | the BRDF (lambert cosine, phong lobe, ggx VNDF) | :mod:`wavlight.bsdfs`                 |
 | light     | the environment: luminance x solid angle, by a | tree pdf on the lat-long square /     |
 |           | hierarchical warp of a :class:`HaarTree`       | (2 pi^2 sin theta) (eq. 19-22)        |
+| mis       | one light and one bsdf sample, power heuristic | both, weighted (Veach 1997)           |
 | wavelet   | product light x BRDF x cos (top-down warp) and | both, power heuristic                 |
 |           | bsdf, power heuristic (:mod:`wavlight.product`)|                                       |
-| mis       | one light and one bsdf sample, power heuristic | both, weighted (Veach 1997)           |
 
 The ``mis`` estimator is Mitsuba 3's ``direct`` integrator with one emitter and one
 BSDF sample: each sample's contribution f L cos V / p is weighted by
@@ -204,7 +204,14 @@ class WaveletStrategy(Strategy):
         self.names = [m.name for m in materials]
         self.kappa = np.array([product.lobe_kappa(m.kind, m.param) for m in materials], np.float64)
         self.levels = np.array([product.product_levels(k, n, self.override) for k in self.kappa], np.int32)
-        self._nodes = self.light.tree.nodes()[0]
+        self._host_nodes = None
+
+    @property
+    def _nodes(self):
+        """The light tree on the host (only the numpy twin needs it)."""
+        if self._host_nodes is None:
+            self._host_nodes = self.light.tree.nodes()[0]
+        return self._host_nodes
 
     def _lobes(self, sp, material):
         wo_w = sp.to_world(sp.wo)
