@@ -8,7 +8,7 @@
  * pre-filtered to the node's size (x = 1 - d_s . axis, k_l = 1 / (1/kappa + r_l^2),
  * r_l = 0.35 pi / 2^l the lobe blur, h_l = 0.75 pi / 2^l the horizon blur):
  *     lambert  I = mass clamp(d_s . n + h_l, 0, 1)
- *     phong    I = mass exp(-k_l x) clamp(d_s . n + h_l, 0, 1)
+ *     phong    I = mass (1 + k_l x / 8)^-8 clamp(d_s . n + h_l, 0, 1)   (~ exp(-k_l x))
  *     ggx      I = mass (1 + k_l x)^-2 clamp(d_s . n / h_l + 1, 0, 1)
  * axis = mirror direction (phong, ggx) or normal (lambert). Only the
  * four children of each visited node are evaluated: O(levels) per sample, no
@@ -58,9 +58,11 @@ inline float node_importance(const Lobe *lb, const float mass, const uint x, con
         return mass * g * g * clamp(cos_n / rh + 1.0f, 0.0f, 1.0f);
     }
     const float hor = clamp(cos_n + rh, 0.0f, 1.0f);
-    if (lb->shape == LOBE_PHONG) {         /* von Mises-Fisher x cosine */
+    if (lb->shape == LOBE_PHONG) {         /* (1 + k x / 8)^-8 ~ exp(-k x), von Mises-Fisher, x cosine */
         const float kappa = 1.0f / (1.0f / lb->kappa + r * r);
-        return mass * exp(-kappa * x1) * hor;
+        float g = 1.0f / (1.0f + 0.125f * kappa * x1);
+        g *= g; g *= g;
+        return mass * (g * g) * hor;
     }
     return mass * hor;                     /* lambert: cosine */
 }
