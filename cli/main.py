@@ -38,7 +38,7 @@ def main():
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
               "Default: the scene's name with .png.")
 @click.option("--spp", type=int, default=None, help="Samples per pixel (overrides the scene).")
-@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis", "wavelet"]),
+@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis", "wavelet", "sir"]),
               default=None,
               help="Sampling strategy (overrides the scene).")
 @click.option("--width", type=int, default=None, help="Image width in pixels.")
@@ -48,9 +48,14 @@ def main():
               help="Product depth of the wavelet strategy (default: per material, from its lobe).")
 @click.option("--light-levels", type=click.IntRange(1, 11), default=None,
               help="Depth of the light tree, 2^n x 2^n leaves (default: from the map's content).")
+@click.option("--sir-candidates", type=click.IntRange(1, 65536), default=None,
+              help="sir: candidates M drawn from the environment per shading sample (default 32).")
+@click.option("--sir-samples", type=click.IntRange(1, 1024), default=None,
+              help="sir: directions N resampled from the candidates, one shadow ray each (default 1).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, light_levels, as_json, quiet):
+def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, light_levels, sir_candidates,
+           sir_samples, as_json, quiet):
     """Render SCENE (a TOML scene file) to an image."""
     import time
 
@@ -74,7 +79,8 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr)
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
                                       seed=seed, progress=bar, wavelet_levels=wavelet_levels,
-                                      light_levels=light_levels)
+                                      light_levels=light_levels, sir_candidates=sir_candidates,
+                                      sir_samples=sir_samples)
         if bar:
             bar.close()
         wavlight.save_image(output, result.image)

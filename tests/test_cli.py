@@ -535,7 +535,7 @@ BAD = {
     "unreadable environment file": (scene_text(env='file = "junk.hdr"'), (), ("scene.toml", "[environment].file", "junk.hdr")),
     "spp zero in the scene": (scene_text(render="spp = 0\n"), (), ("scene.toml", "[render].spp")),
     "absurd resolution in the scene": (scene_text(render="width = 100000\nheight = 100000\n"), (), ("scene.toml", "[render].width")),
-    "unknown strategy in the scene": (scene_text(render='strategy = "sir"\n'), (), ("scene.toml", "[render].strategy")),
+    "unknown strategy in the scene": (scene_text(render='strategy = "path"\n'), (), ("scene.toml", "[render].strategy")),
     "black environment (scale 0)": (scene_text(env='procedural = "sky"\nscale = 0.0'), (), ("scene.toml", "[environment]", "black")),
     "black environment (file)": (scene_text(env='file = "black.exr"'), (), ("scene.toml", "[environment]", "black")),
     "only degenerate triangles": (scene_text(objects='[[objects]]\nmesh = "flat.obj"\n'), (), ("scene.toml", "[[objects]][0]", "degenerate")),

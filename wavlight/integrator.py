@@ -73,7 +73,9 @@ class _Renderer:
         self.tracer = RayTracer(scene.vertices, scene.faces)
         self.strategy = strategies.make(strategy, **(options or {}))
         self.strategy.prepare(scene.environment, scene.materials)
-        self.shader = (NumpyShader if backend == "numpy" else KernelShader)(scene, self.strategy)
+        # Strategies without a shade kernel (no KERNEL_ID, e.g. sir) shade in numpy.
+        numpy_shader = backend == "numpy" or strategy not in strategies.KERNEL_ID
+        self.shader = (NumpyShader if numpy_shader else KernelShader)(scene, self.strategy)
         self.setup_seconds = time.perf_counter() - t0
         self.rays = 0
         self._rays_lock = threading.Lock()
@@ -91,7 +93,7 @@ class _Renderer:
         p = o + d * t[:, None]
         u = rng.random((len(prim), 4), dtype=np.float32)
         wi, value = self.shader(n, -d, self.scene.face_material[prim], u, p=p)
-        # Shadow rays only for non-zero estimates; MIS has two per point.
+        # Shadow rays only for non-zero estimates; MIS has two per point, sir N.
         pt, slot = np.nonzero(value.max(axis=2) > 0)
         visible = np.zeros(value.shape[:2], np.float32)
         blocked = self.tracer.occluded(p[pt] + n[pt] * self.tracer.epsilon, wi[pt, slot])
@@ -148,7 +150,7 @@ def _tiles(width, height, spp):
 
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
                 progress=None, threads=None, backend="opencl", wavelet_levels=None,
-                light_levels=None) -> RenderResult:
+                light_levels=None, sir_candidates=None, sir_samples=None) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     Arguments left as None come from the scene file. ``progress(done, total, samples, seconds)``
@@ -156,6 +158,8 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     instead of the OpenCL kernel (same random numbers, same estimator).
     ``wavelet_levels`` overrides the wavelet strategy's per-material product depth,
     ``light_levels`` the light tree's depth (default: chosen from the map's content).
+    ``sir_candidates`` (M) and ``sir_samples`` (N) set the sir strategy's candidates and
+    resampled directions per shading sample (default: the scene's, else 32 and 1).
     """
     spp = scene.spp if spp is None else int(spp)
     strategy = scene.strategy if strategy is None else strategy
@@ -172,8 +176,15 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
         raise WavlightError(f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
     wavelet_levels = scene.wavelet_levels if wavelet_levels is None else wavelet_levels
     light_levels = scene.light_levels if light_levels is None else light_levels
+    sir_candidates = scene.sir_candidates if sir_candidates is None else int(sir_candidates)
+    sir_samples = scene.sir_samples if sir_samples is None else int(sir_samples)
+    for name, value in (("sir_candidates", sir_candidates), ("sir_samples", sir_samples)):
+        if value is not None and value < 1:
+            raise WavlightError(f"{name} must be at least 1, got {value}")
     options = {"light": {"levels": light_levels}, "mis": {"light_levels": light_levels},
-               "wavelet": {"levels": wavelet_levels, "light_levels": light_levels}}.get(strategy)
+               "wavelet": {"levels": wavelet_levels, "light_levels": light_levels},
+               "sir": {"candidates": sir_candidates, "samples": sir_samples,
+                       "light_levels": light_levels}}.get(strategy)
     r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend, options)
     image = np.zeros((height, width, 3), np.float32)
     stderr = np.zeros((height, width, 3), np.float32)

@@ -11,6 +11,9 @@ Every key of the scene format is accepted as written there. wavlight adds:
   material (default: chosen per material from its lobe width).
 - ``[render] light_levels = n``: the light tree's depth, 2^n x 2^n leaves (default:
   chosen from the map's content, :meth:`Environment.light_levels`).
+- ``[render] sir_candidates = M`` (1..65536, default 32) and ``sir_samples = N`` (1..1024,
+  default 1): the ``sir`` strategy's candidates and resampled directions per shading
+  sample (:mod:`wavlight.sir`).
 
 Limits: width and height 1..16384, spp 1..1_000_000. Errors name the file and the
 key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
@@ -30,7 +33,9 @@ from . import bsdfs
 from .envmap import Environment, procedural_sky, read_image
 from .errors import SceneError, WavlightError
 
-STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "wavelet")
+STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "wavelet", "sir")
+MAX_SIR_CANDIDATES = 65536
+MAX_SIR_SAMPLES = 1024
 MAX_SIDE = 16384
 MAX_SPP = 1_000_000
 
@@ -72,6 +77,8 @@ class Scene:
     materials: list = field(default_factory=list)
     wavelet_levels: int | None = None
     light_levels: int | None = None
+    sir_candidates: int | None = None
+    sir_samples: int | None = None
 
     @property
     def material_kind(self):
@@ -285,6 +292,12 @@ def load_scene(path: str) -> Scene:
     light_levels = r.get("light_levels", "int")
     if light_levels is not None:
         _positive(r, "light_levels", light_levels, 1, 11)
+    sir_candidates = r.get("sir_candidates", "int")
+    if sir_candidates is not None:
+        _positive(r, "sir_candidates", sir_candidates, 1, MAX_SIR_CANDIDATES)
+    sir_samples = r.get("sir_samples", "int")
+    if sir_samples is not None:
+        _positive(r, "sir_samples", sir_samples, 1, MAX_SIR_SAMPLES)
     r.done()
 
     c = _Table(path, "[camera]", doc.get("camera", {}))
@@ -350,7 +363,7 @@ def load_scene(path: str) -> Scene:
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
                  np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, wavelet_levels,
-                 light_levels)
+                 light_levels, sir_candidates, sir_samples)
 
 
 def _environment(t: _Table, base) -> Environment:

@@ -77,7 +77,12 @@ class KernelShader:
 
 
 class NumpyShader:
-    """The same call as :class:`KernelShader`, computed by the numpy reference."""
+    """The same call as :class:`KernelShader`, computed by the numpy reference.
+
+    Strategies without a kernel whose estimator is not one f L cos / pdf per direction
+    (``sir``) define ``shade(env, sp, u) -> wi (N, S, 3), value (N, S, 3)`` with their own
+    number of slots S; those are called instead of :func:`strategies.shade_reference`.
+    """
 
     def __init__(self, scene, strategy: strategies.Strategy):
         self.scene, self.strategy = scene, strategy
@@ -89,4 +94,7 @@ class NumpyShader:
         sp = strategies.ShadingPoints(p, n, s, t, warp.to_local(np.asarray(wo, np.float64), s, t, n),
                                       sc.material_kind[material], sc.material_param[material],
                                       sc.material_albedo[material], np.asarray(material))
+        own = getattr(self.strategy, "shade", None)
+        if own is not None:
+            return own(sc.environment, sp, np.asarray(u, np.float64))
         return strategies.shade_reference(self.strategy, sc.environment, sp, np.asarray(u, np.float64))

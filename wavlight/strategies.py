@@ -262,8 +262,10 @@ class MisStrategy(Strategy):
 #: kernel ids of the strategies (-DSTRATEGY in kernels/shade.cl)
 KERNEL_ID = {"uniform": 0, "cosine": 1, "bsdf": 2, "light": 3, "mis": 4, "wavelet": 5}
 
+from .sir import SirStrategy  # noqa: E402  (sir.py builds on the classes above)
+
 REGISTRY = {cls.name: cls for cls in (UniformStrategy, CosineStrategy, BsdfStrategy, LightStrategy, MisStrategy,
-                                     WaveletStrategy)}
+                                     WaveletStrategy, SirStrategy)}
 
 
 def make(name: str, **options) -> Strategy:
