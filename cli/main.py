@@ -38,7 +38,8 @@ def main():
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
               "Default: the scene's name with .png.")
 @click.option("--spp", type=int, default=None, help="Samples per pixel (overrides the scene).")
-@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis", "wavelet", "sir"]),
+@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis", "wavelet", "sir",
+                                                  "structured"]),
               default=None,
               help="Sampling strategy (overrides the scene).")
 @click.option("--width", type=int, default=None, help="Image width in pixels.")
@@ -52,10 +53,14 @@ def main():
               help="sir: candidates M drawn from the environment per shading sample (default 32).")
 @click.option("--sir-samples", type=click.IntRange(1, 1024), default=None,
               help="sir: directions N resampled from the candidates, one shadow ray each (default 1).")
+@click.option("--structured-strata", type=click.IntRange(1, 1024), default=None,
+              help="structured: number of strata K (default 64).")
+@click.option("--structured-mode", type=click.Choice(["stratified", "preintegrated"]), default=None,
+              help="structured: stratified (unbiased, default) or preintegrated (biased: one light per stratum).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, light_levels, sir_candidates,
-           sir_samples, as_json, quiet):
+           sir_samples, structured_strata, structured_mode, as_json, quiet):
     """Render SCENE (a TOML scene file) to an image."""
     import time
 
@@ -80,7 +85,8 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
                                       seed=seed, progress=bar, wavelet_levels=wavelet_levels,
                                       light_levels=light_levels, sir_candidates=sir_candidates,
-                                      sir_samples=sir_samples)
+                                      sir_samples=sir_samples, structured_strata=structured_strata,
+                                      structured_mode=structured_mode)
         if bar:
             bar.close()
         wavlight.save_image(output, result.image)

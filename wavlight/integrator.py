@@ -28,7 +28,7 @@ import numpy as np
 from . import strategies
 from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
-from .scene import MAX_SIDE, MAX_SPP, STRATEGIES, Scene
+from .scene import MAX_SIDE, MAX_SPP, MAX_STRUCTURED_STRATA, STRATEGIES, STRUCTURED_MODES, Scene
 from .errors import WavlightError
 
 TILE_SAMPLES = 1 << 16
@@ -150,7 +150,8 @@ def _tiles(width, height, spp):
 
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
                 progress=None, threads=None, backend="opencl", wavelet_levels=None,
-                light_levels=None, sir_candidates=None, sir_samples=None) -> RenderResult:
+                light_levels=None, sir_candidates=None, sir_samples=None, structured_strata=None,
+                structured_mode=None) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     Arguments left as None come from the scene file. ``progress(done, total, samples, seconds)``
@@ -160,6 +161,8 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     ``light_levels`` the light tree's depth (default: chosen from the map's content).
     ``sir_candidates`` (M) and ``sir_samples`` (N) set the sir strategy's candidates and
     resampled directions per shading sample (default: the scene's, else 32 and 1).
+    ``structured_strata`` (K) and ``structured_mode`` set the structured strategy's number of
+    strata and mode (default: the scene's, else 64 and "stratified").
     """
     spp = scene.spp if spp is None else int(spp)
     strategy = scene.strategy if strategy is None else strategy
@@ -181,10 +184,18 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     for name, value in (("sir_candidates", sir_candidates), ("sir_samples", sir_samples)):
         if value is not None and value < 1:
             raise WavlightError(f"{name} must be at least 1, got {value}")
+    structured_strata = scene.structured_strata if structured_strata is None else int(structured_strata)
+    structured_mode = scene.structured_mode if structured_mode is None else structured_mode
+    if structured_strata is not None and not 1 <= structured_strata <= MAX_STRUCTURED_STRATA:
+        raise WavlightError(f"structured_strata must be between 1 and {MAX_STRUCTURED_STRATA}, "
+                            f"got {structured_strata}")
+    if structured_mode is not None and structured_mode not in STRUCTURED_MODES:
+        raise WavlightError(f"unknown structured_mode {structured_mode!r} ({' | '.join(STRUCTURED_MODES)})")
     options = {"light": {"levels": light_levels}, "mis": {"light_levels": light_levels},
                "wavelet": {"levels": wavelet_levels, "light_levels": light_levels},
                "sir": {"candidates": sir_candidates, "samples": sir_samples,
-                       "light_levels": light_levels}}.get(strategy)
+                       "light_levels": light_levels},
+               "structured": {"strata": structured_strata, "mode": structured_mode}}.get(strategy)
     r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend, options)
     image = np.zeros((height, width, 3), np.float32)
     stderr = np.zeros((height, width, 3), np.float32)

@@ -14,6 +14,9 @@ Every key of the scene format is accepted as written there. wavlight adds:
 - ``[render] sir_candidates = M`` (1..65536, default 32) and ``sir_samples = N`` (1..1024,
   default 1): the ``sir`` strategy's candidates and resampled directions per shading
   sample (:mod:`wavlight.sir`).
+- ``[render] structured_strata = K`` (1..1024, default 64) and ``structured_mode =
+  "stratified" | "preintegrated"`` (default stratified; preintegrated is biased): the
+  ``structured`` strategy (:mod:`wavlight.structured`).
 
 Limits: width and height 1..16384, spp 1..1_000_000. Errors name the file and the
 key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
@@ -33,7 +36,9 @@ from . import bsdfs
 from .envmap import Environment, procedural_sky, read_image
 from .errors import SceneError, WavlightError
 
-STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "wavelet", "sir")
+STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "wavelet", "sir", "structured")
+STRUCTURED_MODES = ("stratified", "preintegrated")
+MAX_STRUCTURED_STRATA = 1024
 MAX_SIR_CANDIDATES = 65536
 MAX_SIR_SAMPLES = 1024
 MAX_SIDE = 16384
@@ -79,6 +84,8 @@ class Scene:
     light_levels: int | None = None
     sir_candidates: int | None = None
     sir_samples: int | None = None
+    structured_strata: int | None = None
+    structured_mode: str | None = None
 
     @property
     def material_kind(self):
@@ -298,6 +305,12 @@ def load_scene(path: str) -> Scene:
     sir_samples = r.get("sir_samples", "int")
     if sir_samples is not None:
         _positive(r, "sir_samples", sir_samples, 1, MAX_SIR_SAMPLES)
+    structured_strata = r.get("structured_strata", "int")
+    if structured_strata is not None:
+        _positive(r, "structured_strata", structured_strata, 1, MAX_STRUCTURED_STRATA)
+    structured_mode = r.get("structured_mode", "str")
+    if structured_mode is not None and structured_mode not in STRUCTURED_MODES:
+        r.fail("structured_mode", f"unknown mode {structured_mode!r} ({' | '.join(STRUCTURED_MODES)})")
     r.done()
 
     c = _Table(path, "[camera]", doc.get("camera", {}))
@@ -363,7 +376,7 @@ def load_scene(path: str) -> Scene:
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
                  np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, wavelet_levels,
-                 light_levels, sir_candidates, sir_samples)
+                 light_levels, sir_candidates, sir_samples, structured_strata, structured_mode)
 
 
 def _environment(t: _Table, base) -> Environment:

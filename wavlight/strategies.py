@@ -263,9 +263,10 @@ class MisStrategy(Strategy):
 KERNEL_ID = {"uniform": 0, "cosine": 1, "bsdf": 2, "light": 3, "mis": 4, "wavelet": 5}
 
 from .sir import SirStrategy  # noqa: E402  (sir.py builds on the classes above)
+from .structured import StructuredStrategy  # noqa: E402
 
 REGISTRY = {cls.name: cls for cls in (UniformStrategy, CosineStrategy, BsdfStrategy, LightStrategy, MisStrategy,
-                                     WaveletStrategy, SirStrategy)}
+                                     WaveletStrategy, SirStrategy, StructuredStrategy)}
 
 
 def make(name: str, **options) -> Strategy:
