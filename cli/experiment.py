@@ -1,5 +1,9 @@
 """`wavlight experiment SPEC -o DIR`: a thin layer over :func:`wavlight.experiment.run_experiment`.
 
+`wavlight experiment --suite stability -o DIR` runs a built-in suite instead of a spec file
+(:func:`wavlight.experiment.run_suite`; the stability suite is :mod:`wavlight.stability`) and
+prints its table.
+
 A progress bar over runs (references, pilots and runs; finished runs count as done) is
 drawn on stderr when it is a terminal, never with ``--quiet``. The summary table goes
 to stdout. Bad input prints one line ``Error: FILE: [table].key: problem`` and exits 2.
@@ -35,29 +39,40 @@ class RunBar:
 
 
 @click.command()
-@click.argument("spec_file", metavar="SPEC", type=click.Path(dir_okay=False))
+@click.argument("spec_file", metavar="SPEC", required=False, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "out_dir", metavar="DIR", required=True, type=click.Path(),
               help="Output folder: results.csv/.json, charts/, runs/, reference/.")
+@click.option("--suite", type=click.Choice(["stability"]), default=None,
+              help="Run a built-in suite instead of SPEC (stability: adversarial maps x every strategy; "
+                   "writes stability.csv/.json and charts/stability.png/.svg).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
 @click.option("--no-resume", is_flag=True, help="Render every run again (default: reuse finished runs).")
-def experiment(spec_file, out_dir, quiet, no_resume):
+def experiment(spec_file, out_dir, suite, quiet, no_resume):
     """Run the batch experiment SPEC (TOML) into the folder DIR.
 
     Renders every scene x strategy x budget x seed, measures each against the reference
     (relMSE, MSE, variance, bias, largest error) and writes results.csv/.json and charts.
-    Runs finished by an earlier call are reused. Format: see wavlight/experiment.py."""
+    Runs finished by an earlier call are reused. Format: see wavlight/experiment.py.
+    With --suite stability, runs the stability suite instead (see wavlight/stability.py)."""
     import wavlight
-    from wavlight.experiment import format_summary, run_experiment
+    from wavlight.experiment import format_summary, run_experiment, run_suite
 
+    if (spec_file is None) == (suite is None):
+        raise _InputError("give either SPEC or --suite NAME")
     bar = None if quiet or not sys.stderr.isatty() else RunBar(sys.stderr)
     try:
-        results = run_experiment(spec_file, out_dir, progress=bar, resume=not no_resume)
+        if suite is not None:
+            results, table = run_suite(suite, out_dir, progress=bar)
+        else:
+            results = run_experiment(spec_file, out_dir, progress=bar, resume=not no_resume)
+            table = format_summary(results)
     except wavlight.WavlightError as e:
         if bar:
             bar.close()
         raise _InputError(str(e)) from None
     if bar:
         bar.close()
-    click.echo(format_summary(results))
+    click.echo(table)
     if not quiet:
-        click.echo(f"wrote {out_dir}: results.csv, results.json, charts/ ({results['seconds']:.1f} s)", err=True)
+        what = "stability.csv, stability.json, charts/" if suite else "results.csv, results.json, charts/"
+        click.echo(f"wrote {out_dir}: {what} ({results['seconds']:.1f} s)", err=True)

@@ -569,6 +569,21 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True) -> dict:
         raise WavlightError(f"{e.filename or out_dir}: cannot write ({e.strerror})") from None
 
 
+SUITES = ("stability",)
+
+
+def run_suite(name, out_dir, progress=None, **options) -> tuple[dict, str]:
+    """Run a built-in suite instead of an experiment file: (results dict, text table).
+
+    ``stability``: :func:`wavlight.stability.run_stability` (``options`` go to it).
+    """
+    if name not in SUITES:
+        raise WavlightError(f"unknown suite {name!r} ({' | '.join(SUITES)})")
+    from . import stability
+    results = stability.run_stability(out_dir, progress=progress, **options)
+    return results, stability.format_table(results)
+
+
 def _run(spec: Spec, out_dir, progress, resume, t_start):
     runner = _Runner(spec, out_dir, progress, resume)
     references = {}
