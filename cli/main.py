@@ -54,7 +54,7 @@ def main():
 @click.option("--sir-samples", type=click.IntRange(1, 1024), default=None,
               help="sir: directions N resampled from the candidates, one shadow ray each (default 1).")
 @click.option("--structured-strata", type=click.IntRange(1, 1024), default=None,
-              help="structured: number of strata K (default 64).")
+              help="structured: number of strata K (default 16; one shadow ray per stratum).")
 @click.option("--structured-mode", type=click.Choice(["stratified", "preintegrated"]), default=None,
               help="structured: stratified (unbiased, default) or preintegrated (biased: one light per stratum).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")

@@ -86,7 +86,7 @@ def test_registered_and_options():
     assert "structured" in wavlight.STRATEGIES and "structured" in strategies.REGISTRY
     assert "structured" not in strategies.KERNEL_ID                 # shaded by NumpyShader
     st = strategies.make("structured")
-    assert (st.k, st.mode, st.samples) == (structured.DEFAULT_STRATA, "stratified", 1)
+    assert (st.k, st.mode, st.samples) == (structured.DEFAULT_STRATA, "stratified", structured.PER_STRATUM)
     for bad in (dict(strata=0), dict(strata=5000), dict(mode="points"), dict(samples=0)):
         with pytest.raises(ValueError):
             strategies.make("structured", **bad)
@@ -351,3 +351,22 @@ def test_black_and_tiny_maps():
     se = est.std(axis=0, ddof=1) / math.sqrt(len(est))
     assert np.all(np.abs(est.mean(axis=0) - 0.5) <= Z * se)
     assert _prepared(Environment(np.ones((1, 2, 3), np.float32)), strata=64).strata.k == 2
+
+
+def test_per_stratum_default_is_unbiased_and_uses_every_stratum():
+    """The default draws one direction in every stratum (K slots) and sums f cos L / p_s: under a
+    constant map a lambert point gives its albedo on average (within 5 standard errors over
+    independent shading samples), and every stratum gets a slot."""
+    env = Environment(np.ones((16, 32, 3), np.float32))
+    strat = _prepared(env, strata=8)
+    count = 4000
+    sp = _points((0.0, 1.0, 0.0), 30.0, bsdfs.LAMBERT, 0.0, count, albedo=(0.5, 0.5, 0.5))
+    wi, value = strat.shade(env, sp, np.random.default_rng(7).random((count, 4)))
+    assert wi.shape == (count, strat.strata.k, 3)
+    est = value.sum(axis=1)[:, 0]
+    assert abs(est.mean() - 0.5) < 5 * est.std(ddof=1) / np.sqrt(count) + 1e-9
+    # each slot's direction lies in its own stratum
+    t = env.texel_index(wi.reshape(-1, 3)).reshape(count, -1)
+    slot_of = np.empty(env.width * env.height, np.int64)
+    slot_of[strat.strata.texel] = strat.strata.stratum_of
+    assert np.all(slot_of[t] == np.arange(strat.strata.k)[None, :])

@@ -14,7 +14,7 @@ Every key of the scene format is accepted as written there. wavlight adds:
 - ``[render] sir_candidates = M`` (1..65536, default 32) and ``sir_samples = N`` (1..1024,
   default 1): the ``sir`` strategy's candidates and resampled directions per shading
   sample (:mod:`wavlight.sir`).
-- ``[render] structured_strata = K`` (1..1024, default 64) and ``structured_mode =
+- ``[render] structured_strata = K`` (1..1024, default 16) and ``structured_mode =
   "stratified" | "preintegrated"`` (default stratified; preintegrated is biased): the
   ``structured`` strategy (:mod:`wavlight.structured`).
 

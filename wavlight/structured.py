@@ -36,26 +36,23 @@ map has no strata and every estimate is 0; a map of T < K texels gets T strata).
 
 Mode ``"stratified"`` (default; unbiased)
 -----------------------------------------
-Per shading sample: a stratum s with probability Phi_s / Phi (u.x, inverse CDF over the
-strata), a texel t of s with probability Phi_t / Phi_s (u.y, inverse CDF over the
-stratum's texels), a point uniform in solid angle within t (u.z, u.w: phi uniform, cos
-theta uniform). Its pdf per solid angle is
+By default (``samples = "strata"``) every shading sample draws one jittered direction
+in *every* stratum s: a texel t of s with probability Phi_t / Phi_s, a point uniform in
+solid angle within t; with p_s(w) = (Phi_t / Phi_s) / dOmega_t = lum(L_t) / Phi_s the
+estimate is the sum over the strata of albedo f cos L V / p_s (K shadow rays), unbiased
+because the strata partition the lit texels (Agarwal et al.'s stratified estimator).
+The uniforms come from a numpy Generator seeded from the bytes of u (as
+:mod:`wavlight.sir` does), so renders stay a deterministic function of the seed.
+
+``samples = 1``: one direction per shading sample, a stratum with probability Phi_s / Phi
+(u.x), a texel of it by power (u.y), a point in the texel (u.z, u.w):
 
     pdf(w) = (Phi_s / Phi) (Phi_t / Phi_s) / dOmega_t = lum(L_t) / Phi,
 
-and the estimate albedo f cos L / pdf = albedo f cos Phi L_rgb / lum is unbiased wherever
-the integrand is non-zero (pdf > 0 wherever lum > 0). **In distribution this equals
-light sampling by texel power** (the exact texel distribution; ``light`` uses the Haar
-tree's leaves, which at full depth are the same): the integrator draws the uniforms i.i.d.
-per pixel sample and gives the shader no pixel grouping, so strata cannot be spread over
-a pixel's spp from here. What the strata do buy: the stratum-major order of the CDF makes
-the library option ``samples = n`` (default 1; n shadow rays per shading sample)
-*systematic sampling over the strata*: the n directions use x_j = (j + u.x)/n on the
-stratum CDF, so n >= K covers every stratum of power >= Phi/n once per shading sample
-(Agarwal et al.'s "one sample per stratum" when the strata have about equal power);
-each slot is weighted 1/n. The other uniforms of those n slots come from a numpy
-Generator seeded from the bytes of u (as :mod:`wavlight.sir` does), so renders stay a
-deterministic function of the seed.
+which **in distribution equals light sampling by texel power** (the integrator draws the
+uniforms i.i.d. per pixel sample and gives the shader no pixel grouping). ``samples = n``:
+n directions by systematic sampling over the stratum-ordered CDF, x_j = (j + u.x) / n,
+each slot weighted 1/n.
 
 Mode ``"preintegrated"`` (the original algorithm's use of the strata; **biased**)
 --------------------------------------------------------------------------------
@@ -83,7 +80,8 @@ from .sir import _repeat, _slice, rng_from_uniforms
 from .strategies import DirectionSamples, ShadingPoints, Strategy
 
 MODES = ("stratified", "preintegrated")
-DEFAULT_STRATA = 64
+DEFAULT_STRATA = 16
+PER_STRATUM = "strata"  # samples: one jittered direction in every stratum (the default)
 DEFAULT_LEVELS = 4
 MAX_STRATA = 1024
 #: at most this many candidate texels per level enter the farthest-point loop
@@ -248,17 +246,17 @@ class StructuredStrategy(Strategy):
 
     name = "structured"
 
-    def __init__(self, strata: int | None = None, mode: str | None = None, samples: int = 1,
+    def __init__(self, strata: int | None = None, mode: str | None = None, samples: int | str = PER_STRATUM,
                  levels: int = DEFAULT_LEVELS):
         self.k = DEFAULT_STRATA if strata is None else int(strata)
         self.mode = MODES[0] if mode is None else mode
-        self.samples = int(samples)
+        self.samples = PER_STRATUM if samples in (None, PER_STRATUM) else int(samples)
         self.levels = int(levels)
         if not 1 <= self.k <= MAX_STRATA:
             raise ValueError(f"structured needs 1 <= strata <= {MAX_STRATA}, got {self.k}")
         if self.mode not in MODES:
             raise ValueError(f"structured mode must be one of {MODES}, got {self.mode!r}")
-        if self.samples < 1 or self.levels < 1:
+        if (self.samples != PER_STRATUM and self.samples < 1) or self.levels < 1:
             raise ValueError(f"structured needs samples >= 1 and levels >= 1, got {self.samples}, {self.levels}")
         self.env = None
 
@@ -298,7 +296,28 @@ class StructuredStrategy(Strategy):
             return np.zeros(len(wi_world))
         return self.strata.lum[self.env.texel_index(wi_world)] / self.strata.total
 
+    def _per_stratum(self, sp: ShadingPoints, u):
+        """One jittered direction in every stratum (K slots): texel by power within the stratum,
+        point uniform in the texel; estimate f cos L / p_s with p_s = lum(texel) / Phi_s, summed
+        over the strata (Agarwal et al.'s stratified estimator, unbiased)."""
+        st = self.strata
+        p, k = len(sp), st.k
+        rng = rng_from_uniforms(u, "structured-strata", k)
+        y, a, b = rng.random((3, p, k))
+        begins = (st.cum[st.stop - 1] - st.phi)[None, :]
+        pos = np.searchsorted(st.cum, (begins + y * st.phi[None, :]).ravel(), side="right")
+        pos = np.clip(pos, np.tile(st.start, p), np.tile(st.stop - 1, p))
+        d, t = self._texel_directions(pos, a.ravel(), b.ravel())
+        rep = _repeat(sp, k)
+        fcos = np.maximum(rep.bsdf_eval_cos(rep.to_local(d)), 0.0)
+        rgb = self.env.pixels.reshape(-1, 3)[t].astype(np.float64)
+        scalar = fcos * np.tile(st.phi, p) / st.lum[t]
+        value = scalar[:, None] * rgb * rep.albedo
+        return d.reshape(p, k, 3), value.reshape(p, k, 3)
+
     def _stratified(self, sp: ShadingPoints, u):
+        if self.samples == PER_STRATUM:
+            return self._per_stratum(sp, u)
         p, n = len(sp), self.samples
         if n == 1:
             x, y, a, b = (u[:, i:i + 1] for i in range(4))
@@ -343,7 +362,7 @@ class StructuredStrategy(Strategy):
         if self.strata is None:
             return np.zeros((len(sp), 1, 3)), np.zeros((len(sp), 1, 3))
         fn = self._stratified if self.mode == "stratified" else self._preintegrated
-        per = self.samples if self.mode == "stratified" else self.strata.k
+        per = self.strata.k if (self.mode != "stratified" or self.samples == PER_STRATUM) else self.samples
         step = max(1, CHUNK // per)
         parts = [fn(_slice(sp, a, min(len(sp), a + step)), u[a:a + step]) for a in range(0, len(sp), step)]
         if not parts:
@@ -358,6 +377,5 @@ class StructuredStrategy(Strategy):
             out.update(structured_strata=int(self.strata.k), structured_layers=int(self.strata.layers))
         if self.mode == "preintegrated":
             out["structured_note"] = "biased: each stratum collapsed to one directional light"
-        if self.samples != 1:
-            out["structured_samples"] = self.samples
+        out["structured_samples"] = self.samples
         return out
