@@ -4,6 +4,9 @@
 (:func:`wavlight.experiment.run_suite`; the stability suite is :mod:`wavlight.stability`) and
 prints its table.
 
+``--workers N`` renders the runs in N spawned local processes, ``--dask tcp://HOST:PORT``
+on an existing dask.distributed scheduler; references and pilots stay in this process.
+
 A progress bar over runs (references, pilots and runs; finished runs count as done) is
 drawn on stderr when it is a terminal, never with ``--quiet``. The summary table goes
 to stdout. Bad input prints one line ``Error: FILE: [table].key: problem`` and exits 2.
@@ -47,7 +50,13 @@ class RunBar:
                    "writes stability.csv/.json and charts/stability.png/.svg).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
 @click.option("--no-resume", is_flag=True, help="Render every run again (default: reuse finished runs).")
-def experiment(spec_file, out_dir, suite, quiet, no_resume):
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Render runs in N local processes (spawned; 1 = in this process). Metrics are identical; "
+                   "timings then include contention between concurrent renders.")
+@click.option("--dask", "dask_address", metavar="tcp://HOST:PORT", default=None,
+              help="Submit the runs to this dask.distributed scheduler (workers need the scene files at the "
+                   "same paths). Not with --workers.")
+def experiment(spec_file, out_dir, suite, quiet, no_resume, workers, dask_address):
     """Run the batch experiment SPEC (TOML) into the folder DIR.
 
     Renders every scene x strategy x budget x seed, measures each against the reference
@@ -59,12 +68,17 @@ def experiment(spec_file, out_dir, suite, quiet, no_resume):
 
     if (spec_file is None) == (suite is None):
         raise _InputError("give either SPEC or --suite NAME")
+    if dask_address is not None and workers != 1:
+        raise _InputError("give either --workers or --dask, not both")
+    if suite is not None and (dask_address is not None or workers != 1):
+        raise _InputError("--workers and --dask apply to SPEC runs, not to --suite")
     bar = None if quiet or not sys.stderr.isatty() else RunBar(sys.stderr)
     try:
         if suite is not None:
             results, table = run_suite(suite, out_dir, progress=bar)
         else:
-            results = run_experiment(spec_file, out_dir, progress=bar, resume=not no_resume)
+            results = run_experiment(spec_file, out_dir, progress=bar, resume=not no_resume, workers=workers,
+                                     dask_address=dask_address)
             table = format_summary(results)
     except wavlight.WavlightError as e:
         if bar:

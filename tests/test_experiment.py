@@ -337,3 +337,77 @@ def test_example_experiment_is_valid():
     assert [s.name for s in spec.scenes] == ["default", "bunny_ggx"]
     assert [s.label for s in spec.strategies] == ["mis", "wavelet", "light", "bsdf"]
     assert spec.size == (64, 48) and spec.repetitions == 2
+
+
+# ----------------------------------------------------------------------------- Mitsuba peers
+SMOOTH_SCENE = """
+[render]
+width = 8
+height = 8
+[camera]
+eye = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+fov_y = 30.0
+[environment]
+file = "smooth.exr"
+[[objects]]
+shape = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+material = "m"
+[materials.m]
+type = "lambert"
+albedo = [0.5, 0.5, 0.5]
+"""
+
+
+def test_mitsuba_peer_runs_against_the_wavlight_reference(tmp_path):
+    from wavlight import peers
+    if not peers.available():
+        pytest.skip("Mitsuba 3 (llvm_ad_rgb) not available")
+    v = np.linspace(0.2, 1.0, 8, dtype=np.float32)[:, None, None]          # a smooth sky: bright at the top
+    wavlight.save_image(str(tmp_path / "smooth.exr"), np.broadcast_to(v, (8, 16, 3)).copy())
+    (tmp_path / "smooth.toml").write_text(SMOOTH_SCENE)
+    spec = tmp_path / "peer.toml"
+    spec.write_text("""
+[reference]
+spp = 256
+[[scenes]]
+path = "smooth.toml"
+[[strategies]]
+id = "mis"
+[[strategies]]
+id = "mitsuba:mis"
+[budgets]
+spp = [64]
+seconds = [0.3]
+repetitions = 1
+""")
+    results = experiment.run_experiment(spec, tmp_path / "out")
+    pilot = json.loads((tmp_path / "out" / "pilot" / "smooth" / "mitsuba-mis.json").read_text())
+    timed = next(r for r in results["runs"] if r["strategy"] == "mitsuba-mis" and r["budget"] == "0.3s")
+    assert timed["spp"] == experiment._Runner.spp_for(pilot, 0.3)
+    by = {r["strategy"]: r for r in results["runs"] if r["budget"] == "spp64"}
+    assert set(by) == {"mis", "mitsuba-mis"}
+    peer = by["mitsuba-mis"]
+    assert peer["strategy_id"] == "mitsuba:mis" and peer["spp"] == 64
+    assert peer["setup_seconds"] > 0 and peer["render_seconds"] > 0
+    assert np.isfinite(peer["relmse"]) and peer["relmse"] < 0.01, peer["relmse"]
+    assert "mitsuba-mis" in experiment.format_summary(results)
+    rec = json.loads((tmp_path / "out" / "runs" / "smooth" / "mitsuba-mis" / "spp64" / "0.json").read_text())
+    assert rec["stats"]["strategy"] == "mitsuba:mis"
+
+
+def test_mitsuba_strategy_errors(tmp_path, monkeypatch):
+    from wavlight import peers
+    spec = tmp_path / "bad.toml"
+    base = f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[budgets]\nspp = [1]\n[[strategies]]\n"
+    spec.write_text(base + "id = 'mitsuba:wavelet'\n")
+    with pytest.raises(wavlight.WavlightError, match=r"\[\[strategies\]\]\[0\]\.id: unknown Mitsuba strategy"):
+        experiment.load_spec(spec)
+    monkeypatch.setattr(peers, "available", lambda: False)
+    spec.write_text(base + "id = 'mitsuba:mis'\n")
+    r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 2
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "[[strategies]][0].id: 'mitsuba:mis' needs Mitsuba 3" in lines[0], r.stderr

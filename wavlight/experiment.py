@@ -25,7 +25,8 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
     reference_stderr = "ref_se.exr"  # optional: its per-pixel standard error
 
     [[strategies]]
-    id = "wavelet"            # uniform | cosine | bsdf | light | mis | wavelet
+    id = "wavelet"            # uniform | cosine | bsdf | light | mis | wavelet | ...,
+                              # or a Mitsuba peer: mitsuba:mis | mitsuba:light | mitsuba:bsdf
     label = "wavelet-p5"      # default: the id; names the output folders and chart lines
     wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels)
     light_levels = 9
@@ -67,6 +68,25 @@ Decisions:
   files the scene refers to). A run whose record exists with the same hash and whose
   image exists is not rendered again (``resume=False`` renders everything again,
   references and pilots included). Both files are written atomically, the record last.
+- **Mitsuba peers.** ``id = "mitsuba:<mis|light|bsdf>"`` renders with
+  :func:`wavlight.peers.render_mitsuba` (same scene, size, spp, seed; its setup includes
+  scene conversion and a JIT warm-up; ``threads`` does not apply). The default label is
+  the id with ``-`` for ``:`` (``mitsuba-mis``); wavlight options are rejected. Without
+  Mitsuba 3 (llvm_ad_rgb) the spec is rejected (``[[strategies]][i].id: 'mitsuba:mis'
+  needs Mitsuba 3 ...``), not skipped. Warm-up, pilots, time budgets, resume and metrics
+  are as for wavlight strategies; run hashes also cover Mitsuba's version.
+- **Parallel runs.** ``workers=N`` (N > 1) renders the runs in a process pool of the
+  ``spawn`` context (OpenCL contexts must not be forked); ``dask_address="tcp://H:P"``
+  submits them to an existing dask.distributed scheduler. References, pilots and resume
+  checks happen first, in this process; each run to render is then the pure function
+  :func:`run_task` (scene file + its hash, size, strategy, options, spp, seed, threads)
+  -> image and stats, and this process writes its image and record as it arrives, so
+  workers need only read the scene files (at the same paths, checked by hash) and a
+  resumed experiment keeps what finished. Images and metrics are identical to in-process
+  runs (renders are deterministic for a seed); timings are not: concurrent renders
+  contend for the cores (set ``threads`` to cores / N), and time budgets' spp come from
+  pilots measured alone. Each worker process warms up each (scene, strategy) untimed
+  before its first run. ``results.json`` records ``executor``.
 - **Metrics** (:mod:`wavlight.metrics`) are computed after the runs, from the saved
   images and the reference, so they always match the current reference: per run mse,
   relmse (both corrected by the reference's variance when its stderr is known),
@@ -109,6 +129,7 @@ from .errors import WavlightError
 from .scene import MAX_SIDE, MAX_SPP, STRATEGIES
 
 PILOT_SEED = 999_999
+PEER_PREFIX = "mitsuba:"
 WARMUP_SIZE = 8
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 
@@ -289,9 +310,18 @@ def load_spec(path) -> Spec:
     for i, s in enumerate(strat_doc):
         t = _Table(path, f"[[strategies]][{i}]", s)
         sid = t.get("id", "str", required=True)
-        if sid not in STRATEGIES:
-            t.fail("id", f"unknown strategy {sid!r} ({' | '.join(STRATEGIES)})")
-        label = t.name_key("label", sid)
+        if sid.startswith(PEER_PREFIX):
+            from . import peers
+            if sid[len(PEER_PREFIX):] not in peers.STRATEGIES:
+                t.fail("id", f"unknown Mitsuba strategy {sid!r} "
+                             f"({' | '.join(PEER_PREFIX + k for k in peers.STRATEGIES)})")
+            if not peers.available():
+                t.fail("id", f"{sid!r} needs Mitsuba 3 with its llvm_ad_rgb variant, which is not available "
+                             "(pip install 'wavlight[peers]'; Debian: libllvm19)")
+        elif sid not in STRATEGIES:
+            t.fail("id", f"unknown strategy {sid!r} ({' | '.join(STRATEGIES)} | "
+                         f"mitsuba:mis | mitsuba:light | mitsuba:bsdf)")
+        label = t.name_key("label", sid.replace(":", "-"))
         if any(x.label == label for x in strats):
             t.fail("label", f"label {label!r} is used twice (give each strategy a distinct label)")
         options = {}
@@ -305,6 +335,8 @@ def load_spec(path) -> Spec:
             if ll > 11:
                 t.fail("light_levels", f"must be at most 11, got {ll}")
             options["light_levels"] = ll
+        if options and sid.startswith(PEER_PREFIX):
+            t.fail(sorted(options)[0], f"is a wavlight option; {sid!r} takes none")
         t.done()
         strats.append(StrategySpec(label, sid, options))
 
@@ -403,20 +435,27 @@ class _Runner:
 
     def render(self, scene_name, strategy_id, options, spp, seed):
         w, h = self.size[scene_name]
-        return self.wavlight.render_full(self.scenes[scene_name], spp=spp, strategy=strategy_id, width=w,
-                                         height=h, seed=seed, threads=self.spec.threads, **options)
+        return _render(self.scenes[scene_name], strategy_id, options, spp, w, h, seed, self.spec.threads)
 
     def warm_up(self, scene_name, strategy_id, options):
         key = (scene_name, strategy_id, tuple(sorted(options.items())))
         if key not in self.warm:
-            self.wavlight.render_full(self.scenes[scene_name], spp=1, strategy=strategy_id, width=WARMUP_SIZE,
-                                      height=WARMUP_SIZE, seed=0, threads=self.spec.threads, **options)
+            _render(self.scenes[scene_name], strategy_id, options, 1, WARMUP_SIZE, WARMUP_SIZE, 0,
+                    self.spec.threads)
             self.warm.add(key)
 
     def base_key(self, scene_name):
         w, h = self.size[scene_name]
         return {"scene": self.scene_hash[scene_name], "width": w, "height": h,
                 "wavlight": self.wavlight.__version__}
+
+    @staticmethod
+    def strategy_key(st: StrategySpec):
+        key = {"strategy": st.id, "options": st.options}
+        if st.id.startswith(PEER_PREFIX):
+            import mitsuba
+            key["mitsuba"] = mitsuba.__version__
+        return key
 
     # -- the reference
     def reference(self, s: SceneSpec):
@@ -464,8 +503,7 @@ class _Runner:
         path = os.path.join(self.out, "pilot", s.name, f"{st.label}.json")
         p1, p2 = self.spec.pilot_spp, 4 * self.spec.pilot_spp
         longest = max(b.value for b in self.spec.budgets if b.kind == "seconds")
-        key = _hash({**self.base_key(s.name), "strategy": st.id, "options": st.options, "pilot": [p1, p2],
-                     "longest": longest})
+        key = _hash({**self.base_key(s.name), **self.strategy_key(st), "pilot": [p1, p2], "longest": longest})
         rec = _read_json(path) if self.resume else None
         if rec and rec.get("hash") == key:
             self.step(f"{s.name}/{st.label}: pilot (done before)")
@@ -505,34 +543,142 @@ class _Runner:
         return int(min(max(1, round(spp)), MAX_SPP))
 
     # -- one run
-    def run(self, s: SceneSpec, st: StrategySpec, budget: Budget, spp: int, seed: int):
+    def prepare(self, s: SceneSpec, st: StrategySpec, budget: Budget, spp: int, seed: int):
+        """(record, None) for a run finished before (counted as reused), else (None, job)."""
         folder = os.path.join(self.out, "runs", s.name, st.label, budget.key)
         img_path = os.path.join(folder, f"{seed}.exr")
         rec_path = os.path.join(folder, f"{seed}.json")
         what = f"{s.name}/{st.label}/{budget.key}/seed {seed}"
-        key = _hash({**self.base_key(s.name), "strategy": st.id, "options": st.options, "spp": spp,
-                     "seed": seed})
+        key = _hash({**self.base_key(s.name), **self.strategy_key(st), "spp": spp, "seed": seed})
         rec = _read_json(rec_path) if self.resume else None
         if rec and rec.get("hash") == key and os.path.isfile(img_path):
             self.reused += 1
             self.step(what + " (done before)")
-            return rec
+            return rec, None
+        job = {"s": s, "st": st, "budget": budget, "spp": spp, "seed": seed, "key": key, "what": what,
+               "img_path": img_path, "rec_path": rec_path}
+        return None, job
+
+    def task(self, job) -> dict:
+        """The job as the plain arguments of :func:`run_task` (picklable, no paths to write)."""
+        s, st = job["s"], job["st"]
+        return {"scene_path": s.path, "scene_hash": self.scene_hash[s.name], "size": tuple(self.size[s.name]),
+                "strategy": st.id, "options": dict(st.options), "spp": job["spp"], "seed": job["seed"],
+                "threads": self.spec.threads}
+
+    def render_local(self, job):
+        s, st = job["s"], job["st"]
         self.warm_up(s.name, st.id, st.options)
-        r = self.render(s.name, st.id, st.options, spp, seed)
-        _save_image(img_path, r.image)
-        stats = r.stats
-        rec = {"hash": key, "scene": s.name, "strategy": st.label, "strategy_id": st.id,
+        r = self.render(s.name, st.id, st.options, job["spp"], job["seed"])
+        return {"image": r.image, "stats": r.stats}
+
+    def finish(self, job, result):
+        """Write a rendered run's image, then its record."""
+        s, st, budget = job["s"], job["st"], job["budget"]
+        _save_image(job["img_path"], result["image"])
+        stats = result["stats"]
+        rec = {"hash": job["key"], "scene": s.name, "strategy": st.label, "strategy_id": st.id,
                "options": st.options, "budget": budget.key, "budget_kind": budget.kind,
                "target_seconds": budget.value if budget.kind == "seconds" else None,
-               "spp": spp, "seed": seed, "width": stats["width"], "height": stats["height"],
+               "spp": job["spp"], "seed": job["seed"], "width": stats["width"], "height": stats["height"],
                "setup_seconds": stats["setup_seconds"], "render_seconds": stats["render_seconds"],
                "total_seconds": round(stats["setup_seconds"] + stats["render_seconds"], 4),
-               "image": os.path.relpath(img_path, self.out), "stats": stats,
+               "image": os.path.relpath(job["img_path"], self.out), "stats": stats,
                "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
-        _write_json(rec_path, rec)
+        _write_json(job["rec_path"], rec)
         self.rendered += 1
-        self.step(what)
+        self.step(job["what"])
         return rec
+
+    def run(self, s: SceneSpec, st: StrategySpec, budget: Budget, spp: int, seed: int):
+        rec, job = self.prepare(s, st, budget, spp, seed)
+        return rec if job is None else self.finish(job, self.render_local(job))
+
+
+def _render(scene, strategy_id, options, spp, width, height, seed, threads):
+    """One render by wavlight (``wavlight.render_full``) or by a peer (``mitsuba:<strategy>``)."""
+    if strategy_id.startswith(PEER_PREFIX):
+        from . import peers
+        return peers.render_mitsuba(scene, strategy_id[len(PEER_PREFIX):], spp=spp, width=width, height=height,
+                                    seed=seed)
+    import wavlight
+    return wavlight.render_full(scene, spp=spp, strategy=strategy_id, width=width, height=height, seed=seed,
+                                threads=threads, **options)
+
+
+_WORKER = {"scenes": {}, "warm": set()}  # per process: loaded scenes, (scene, strategy) pairs warmed up
+
+
+def run_task(task: dict) -> dict:
+    """One run, as a pure function for worker processes: ``task`` (from ``_Runner.task``: scene
+    file and its hash, size, strategy id and options, spp, seed, threads) -> ``{"image", "stats"}``.
+
+    The scene is loaded (untimed) once per process and checked against the hash of the file the
+    experiment read; each (scene, strategy) gets the untimed 8x8 warm-up before its first run in
+    this process, as in-process runs do."""
+    import wavlight
+    path, digest = task["scene_path"], task["scene_hash"]
+    scene = _WORKER["scenes"].get((path, digest))
+    if scene is None:
+        with open(path, "rb") as fh:
+            if hashlib.sha256(fh.read()).hexdigest() != digest:
+                raise WavlightError(f"{path}: this worker sees a different scene file than the experiment read")
+        scene = _WORKER["scenes"][(path, digest)] = wavlight.load_scene(path)
+    w, h = task["size"]
+    strategy, options, threads = task["strategy"], task["options"], task["threads"]
+    warm = (path, digest, strategy, tuple(sorted(options.items())))
+    if warm not in _WORKER["warm"]:
+        _render(scene, strategy, options, 1, WARMUP_SIZE, WARMUP_SIZE, 0, threads)
+        _WORKER["warm"].add(warm)
+    r = _render(scene, strategy, options, task["spp"], w, h, task["seed"], threads)
+    return {"image": np.asarray(r.image, np.float32), "stats": r.stats}
+
+
+def _execute(runner: _Runner, jobs, workers: int, dask_address):
+    """Render ``jobs`` [(index, job)] -> {index: record}: in this process, in a spawn-context
+    process pool, or on a dask.distributed scheduler. Records are written as runs finish."""
+    out = {}
+    if dask_address is None and workers == 1:
+        for i, job in jobs:
+            out[i] = runner.finish(job, runner.render_local(job))
+        return out
+    if not jobs:
+        return out
+    tasks = [runner.task(job) for _, job in jobs]
+    if dask_address is not None:
+        try:
+            from distributed import Client, as_completed
+        except ImportError:
+            raise WavlightError(f"dask {dask_address}: dask.distributed is not installed "
+                                "(pip install 'wavlight[dask]')") from None
+        try:
+            client = Client(dask_address, timeout=20)
+        except (OSError, TimeoutError) as e:
+            raise WavlightError(f"dask {dask_address}: cannot connect to the scheduler ({e})") from None
+        try:
+            futures = client.map(run_task, tasks, pure=False)
+            where = {f.key: n for n, f in enumerate(futures)}
+            try:
+                for f in as_completed(futures):
+                    n = where[f.key]
+                    out[jobs[n][0]] = runner.finish(jobs[n][1], f.result())
+            except BaseException:
+                client.cancel(futures)
+                raise
+        finally:
+            client.close()
+        return out
+    import concurrent.futures as cf
+    import multiprocessing
+    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        futures = {pool.submit(run_task, t): n for n, t in enumerate(tasks)}
+        for f in cf.as_completed(futures):
+            n = futures[f]
+            out[jobs[n][0]] = runner.finish(jobs[n][1], f.result())
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    return out
 
 
 def _stat(values):
@@ -544,7 +690,7 @@ def _stat(values):
     return float(a.mean()), sd, float(a.min()), float(a.max())
 
 
-def run_experiment(spec_path, out_dir, progress=None, resume=True) -> dict:
+def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, dask_address=None) -> dict:
     """Run (or resume) an experiment; write results, charts and error maps to out_dir.
 
     ``progress(done, total, what)`` is called after each reference, pilot and run
@@ -554,6 +700,10 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True) -> dict:
     ``rendered`` and ``reused`` (run counts of this call).
     """
     t_start = time.perf_counter()
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise WavlightError(f"workers must be an integer >= 1, got {workers!r}")
+    if dask_address is not None and workers != 1:
+        raise WavlightError("give workers or a dask scheduler address, not both")
     spec = load_spec(spec_path)
     out_dir = str(out_dir)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
@@ -564,7 +714,7 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True) -> dict:
     except OSError as e:
         raise WavlightError(f"{out_dir}: cannot write ({e.strerror})") from None
     try:
-        return _run(spec, out_dir, progress, resume, t_start)
+        return _run(spec, out_dir, progress, resume, t_start, workers, dask_address)
     except OSError as e:
         raise WavlightError(f"{e.filename or out_dir}: cannot write ({e.strerror})") from None
 
@@ -584,10 +734,11 @@ def run_suite(name, out_dir, progress=None, **options) -> tuple[dict, str]:
     return results, stability.format_table(results)
 
 
-def _run(spec: Spec, out_dir, progress, resume, t_start):
+def _run(spec: Spec, out_dir, progress, resume, t_start, workers=1, dask_address=None):
     runner = _Runner(spec, out_dir, progress, resume)
     references = {}
-    records = []
+    records, jobs = [], []
+    # references and pilots here (they set the spp of time budgets), then the runs
     for s in spec.scenes:
         references[s.name] = runner.reference(s)
         for st in spec.strategies:
@@ -595,7 +746,12 @@ def _run(spec: Spec, out_dir, progress, resume, t_start):
             for budget in spec.budgets:
                 spp = int(budget.value) if budget.kind == "spp" else runner.spp_for(pilot, budget.value)
                 for seed in range(spec.repetitions):
-                    records.append(runner.run(s, st, budget, spp, seed))
+                    rec, job = runner.prepare(s, st, budget, spp, seed)
+                    if job is not None:
+                        jobs.append((len(records), job))
+                    records.append(rec)
+    for i, rec in _execute(runner, jobs, workers, dask_address).items():
+        records[i] = rec
 
     # -- metrics, from the saved images
     runs, groups = [], []
@@ -645,7 +801,9 @@ def _run(spec: Spec, out_dir, progress, resume, t_start):
                "budgets": [b.key for b in spec.budgets], "reference": reference_info,
                "metrics_note": "mse and relmse corrected by the reference's variance where reference.corrected",
                "equal_time": equal_time, "groups": groups, "runs": runs,
-               "rendered": runner.rendered, "reused": runner.reused}
+               "rendered": runner.rendered, "reused": runner.reused,
+               "executor": (f"dask {dask_address}" if dask_address is not None
+                            else "in-process" if workers == 1 else f"{workers} processes")}
     files = ["results.json", "results.csv", "runs.csv"]
     _write_text(os.path.join(out_dir, "results.csv"), _csv(groups, GROUP_COLUMNS))
     _write_text(os.path.join(out_dir, "runs.csv"), _csv(runs, RUN_COLUMNS))
