@@ -127,6 +127,7 @@ import numpy as np
 from . import metrics
 from .errors import WavlightError
 from .scene import MAX_SIDE, MAX_SPP, STRATEGIES
+from .scene import _Table as SceneTable
 
 PILOT_SEED = 999_999
 PEER_PREFIX = "mitsuba:"
@@ -176,18 +177,9 @@ class Spec:
     text: bytes = b""
 
 
-class _Table:
-    """One TOML table of the experiment file: typed keys, unknown keys rejected."""
-
-    def __init__(self, path, name, data):
-        self.path, self.name, self.used = path, name, set()
-        if not isinstance(data, dict):
-            self.fail("", f"must be a table, got {type(data).__name__}")
-        self.data = data
-
-    def fail(self, key, msg):
-        where = f"{self.name}.{key}" if key else self.name
-        raise WavlightError(f"{self.path}: {where}: {msg}")
+class _Table(SceneTable):
+    """One TOML table of the experiment file: the scene parser's table (errors name the file
+    and the key, unknown keys rejected) with the experiment's own value kinds."""
 
     def get(self, key, kind, default=None, required=False, lo=None):
         self.used.add(key)
@@ -231,11 +223,6 @@ class _Table:
         if not _NAME.match(v):
             self.fail(key, f"must be letters, digits, '_', '.', '+', '-' (it names folders), got {v!r}")
         return v
-
-    def done(self):
-        extra = sorted(set(self.data) - self.used)
-        if extra:
-            self.fail(extra[0], "unknown key")
 
 
 def load_spec(path) -> Spec:
