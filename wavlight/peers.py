@@ -17,7 +17,11 @@ Equivalences and their limits:
   interpolates bilinearly between texel centres. wavlight looks up the nearest
   texel. We feed Mitsuba the map upsampled by nearest neighbour ``upsample`` times
   in each direction, so its bilinear blend only acts within half a fine texel of
-  the original texel edges; :func:`envmap_mismatch` measures what is left.
+  the original texel edges; :func:`envmap_mismatch` measures what is left. Measured on
+  2026-11-22 (400k random directions, rotate_y 30): rooitou_park_1k at k = 8, mean
+  |Mitsuba - wavlight| / mean = 2.0% (k = 4: 6.0%); debevec_grace_256x128 at k = 32: 2.2%
+  (k = 8: 8.3%); the directions inside a blend band are 1 - (1 - 1/k)^2 of the square
+  (23% at k = 8), everywhere else the lookups are identical.
 """
 from __future__ import annotations
 
