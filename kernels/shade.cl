@@ -78,7 +78,7 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
         const float3 wl = (float3)(dot(w, s), dot(w, t), dot(w, n));
         const float f = bsdf_eval_cos(kind, param, wl, wo);
         wi_w[0] = w;
-        if (pdf > 0.0f)
+        if (pdf > 0.0f && f > 0.0f)  /* the other pdf only where the estimate can be non-zero */
             scal[0] = f / pdf * power_heuristic(pdf, bsdf_pdf(kind, param, wl, wo));
     }
     {   /* bsdf sample, weighted against the light pdf */
@@ -87,7 +87,7 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
         const float3 w = wl.x * s + wl.y * t + wl.z * n;
         const float f = bsdf_eval_cos(kind, param, wl, wo);
         wi_w[1] = w;
-        if (pdf > 0.0f)
+        if (pdf > 0.0f && f > 0.0f)
             scal[1] = f / pdf * power_heuristic(pdf, PDF_GUIDE(w));
     }
 #else
