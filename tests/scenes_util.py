@@ -16,18 +16,8 @@ import wavlight
 
 
 # ----------------------------------------------------------------------------- scene files
-def _toml_value(v):
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        return repr(float(v))
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {v!r} as TOML")
+# TOML values are written by the library's own writer (the stability suite's).
+from wavlight.stability import _toml_value  # noqa: E402
 
 
 def _table(name, d):
