@@ -47,6 +47,8 @@ def main():
     rt = cl.runtime()
     q = cl.thread_queue()
     n = args.count
+    # work-items: each walks cl.WALK_K samples; work-groups of 64 as the renderer launches them
+    items = -(-n // (cl.WALK_K * 64)) * 64
     rng = np.random.default_rng(1)
     nrm = rng.normal(size=(n, 3))
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
@@ -71,8 +73,8 @@ def main():
         warp = cl.kernel(cl.program("warp.cl"), "warp_sample")
 
         def light():
-            warp(q, (n,), None, tree.buffer, np.uint64(tree.stride), np.int32(n_levels), np.uint32(n),
-                 u_buf, uv_buf, pdf_buf)
+            warp(q, (items,), (64,), tree.buffer, np.uint64(tree.stride), np.int32(n_levels), np.uint32(n),
+                 np.uint32(n), u_buf, uv_buf, pdf_buf)
             q.finish()
         row["light_samples_per_second"] = round(n / best_of(light))
         for name, (kind, param) in materials.items():
@@ -85,14 +87,14 @@ def main():
             knl = cl.kernel(prog, "product_sample_points")
 
             def run():
-                knl(q, (n,), None, tree.buffer, np.int32(n_levels), texels_buf, np.int32(env.width),
-                    np.int32(env.height), rot, ak_buf, nl_buf, u_buf, dirs, uv_buf, pdf_buf)
+                knl(q, (items,), (64,), tree.buffer, np.int32(n_levels), texels_buf, np.int32(env.width),
+                    np.int32(env.height), rot, np.uint32(n), ak_buf, nl_buf, u_buf, dirs, uv_buf, pdf_buf)
                 q.finish()
 
             def run_with_copies():
                 a, b, c = cl.to_device(ak.astype(np.float32)), cl.to_device(nl.astype(np.float32)), cl.to_device(u)
-                knl(q, (n,), None, tree.buffer, np.int32(n_levels), texels_buf, np.int32(env.width),
-                    np.int32(env.height), rot, a, b, c, dirs, uv_buf, pdf_buf)
+                knl(q, (items,), (64,), tree.buffer, np.int32(n_levels), texels_buf, np.int32(env.width),
+                    np.int32(env.height), rot, np.uint32(n), a, b, c, dirs, uv_buf, pdf_buf)
                 cl.read(uv_buf, (n, 2), np.float32, q)
                 cl.read(pdf_buf, (n,), np.float32, q)
             row[name] = {"product_depth": depth,

@@ -12,9 +12,11 @@
  *     ggx      I = mass (1 + k_l x)^-2 clamp(d_s . n / h_l + 1, 0, 1)
  * axis = mirror direction (phong, ggx) or normal (lambert). Only the
  * four children of each visited node are evaluated: O(levels) per sample, no
- * per-point tree. Node centre directions come from a table (map frame, tree
- * layout, levels <= P), the lobe is turned into the map frame once per point. Below the product depth P the BRDF is taken as constant and the
- * walk continues in the light tree (tree_descend, unchanged). The pdf is exact:
+ * per-point tree. Node centre directions come from a table (map frame, the
+ * four children of a node side by side as float4 x, y, z, so that the four
+ * importances are one float4 expression); the lobe is turned into the map frame
+ * once per point. Below the product depth P the BRDF is taken as constant and the
+ * walk continues in the light tree (choose_child on the masses). The pdf is exact:
  *     pdf_square = prod_l I(child_l) / sum I(siblings_l) * mass(leaf) / mass(node_P) * 4^n
  * and product_pdf recomputes it for any direction. Where all four children have
  * zero importance the walk falls back to their light masses (same rule in both).
@@ -39,69 +41,77 @@
 typedef struct {
     float3 axis;   /* lobe axis, in the map frame */
     float3 n;      /* shading normal, in the map frame */
-    float kappa;   /* lobe concentration: phong n, ggx 1 / (2 alpha^2) */
+    float inv_kappa; /* 1 / lobe concentration (phong n, ggx 1 / (2 alpha^2)); inf for lambert */
     int levels;    /* product depth P (<= tree levels) */
     int shape;     /* LOBE_LAMBERT | LOBE_PHONG | LOBE_GGX (= the BRDF kind) */
-    __global const float4 *dirs; /* map-frame centre directions of the nodes of levels <= P, tree layout */
+    __global const float4 *dirs; /* per node of levels < P: its children's map-frame centre
+                                    directions, three float4 (x, y, z of children 00 10 01 11) */
 } Lobe;
 
-inline float node_importance(const Lobe *lb, const float mass, const uint x, const uint y, const int level)
+/* Importances of the four children (00 10 01 11) of node (x, y) at `level` whose
+ * light masses are m, evaluated together as float4. Where all four are zero (or the
+ * sum is not finite) the light masses are returned instead. */
+inline float4 child_importances(const Lobe *lb, const float4 m, const uint x, const uint y, const int level)
 {
-    const float inv = 1.0f / (float)(1u << level);
-    const float3 d = lb->dirs[LEVEL_OFFSET(level) + (ulong)y * (1u << level) + x].xyz;
+    __global const float4 *d = lb->dirs + 3 * (LEVEL_OFFSET(level) + (ulong)y * (1u << level) + x);
+    const float4 dx = d[0], dy = d[1], dz = d[2];
+    /* the children's level is level + 1; divisions are few: they bound this loop */
+    const float scale = (float)(2u << level), inv = 1.0f / scale;
     const float r = LOBE_BLUR_F * inv, rh = HORIZON_BLUR_F * inv;
-    const float cos_n = dot(d, lb->n);
-    const float x1 = 1.0f - dot(d, lb->axis);
+    const float4 cos_n = dx * lb->n.x + dy * lb->n.y + dz * lb->n.z;
+    const float4 x1 = 1.0f - (dx * lb->axis.x + dy * lb->axis.y + dz * lb->axis.z);
+    float4 i;
     if (lb->shape == LOBE_GGX) {           /* (1 + c x)^-2, step at the horizon */
-        const float c = 1.0f / (1.0f / lb->kappa + r * r);
-        const float g = 1.0f / (1.0f + c * x1);
-        return mass * g * g * clamp(cos_n / rh + 1.0f, 0.0f, 1.0f);
+        const float c = 1.0f / (lb->inv_kappa + r * r);
+        const float4 g = 1.0f / (1.0f + c * x1);
+        i = m * g * g * clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
+    } else {
+        const float4 hor = clamp(cos_n + rh, 0.0f, 1.0f);
+        if (lb->shape == LOBE_PHONG) {     /* (1 + k x / 8)^-8 ~ exp(-k x), von Mises-Fisher, x cosine */
+            const float kappa = 1.0f / (lb->inv_kappa + r * r);
+            float4 g = 1.0f / (1.0f + 0.125f * kappa * x1);
+            g *= g; g *= g;
+            i = m * (g * g) * hor;
+        } else {
+            i = m * hor;                   /* lambert: cosine */
+        }
     }
-    const float hor = clamp(cos_n + rh, 0.0f, 1.0f);
-    if (lb->shape == LOBE_PHONG) {         /* (1 + k x / 8)^-8 ~ exp(-k x), von Mises-Fisher, x cosine */
-        const float kappa = 1.0f / (1.0f / lb->kappa + r * r);
-        float g = 1.0f / (1.0f + 0.125f * kappa * x1);
-        g *= g; g *= g;
-        return mass * (g * g) * hor;
-    }
-    return mass * hor;                     /* lambert: cosine */
+    const float sum = ((i.s0 + i.s1) + i.s2) + i.s3;
+    return (!(sum > 0.0f) || !isfinite(sum)) ? m : i;
 }
 
-/* Importances of the four children of node (x, y) at `level`, into i[0..3] = 00 10 01 11. */
-inline void child_importances(__global const float *tree, const Lobe *lb, const uint x,
-                              const uint y, const int level, float *i)
+/* WALK_K product samples walked together (as tree_sample_k): sample k follows lobe
+ * lb[k] for its first P_k levels, then the light tree; u[k] in, point of the square
+ * out, pdf[k] its density on the square. */
+inline void product_sample_k(__global const float *tree, const int n_levels, const Lobe *lb,
+                             float2 *u, float *pdf)
 {
-    const uint cside = 2u << level;
-    __global const float *child = tree + LEVEL_OFFSET(level + 1);
-    const uint c = (2 * y) * cside + 2 * x;
-    const float m[4] = {child[c], child[c + 1], child[c + cside], child[c + cside + 1]};
-    float sum = 0.0f;
-    for (int k = 0; k < 4; ++k) {
-        i[k] = node_importance(lb, m[k], 2 * x + (k & 1), 2 * y + (k >> 1), level + 1);
-        sum += i[k];
+    uint x[WALK_K], y[WALK_K];
+    float p[WALK_K];
+    for (int k = 0; k < WALK_K; ++k) {
+        x[k] = 0; y[k] = 0; p[k] = 1.0f;
+        u[k] = clamp(u[k], 0.0f, ONE_MINUS_EPS);
     }
-    if (!(sum > 0.0f) || !isfinite(sum))
-        for (int k = 0; k < 4; ++k) i[k] = m[k];
-}
-
-inline float2 product_sample(__global const float *tree, const int n_levels, const Lobe *lb,
-                             float2 u, float *pdf)
-{
-    uint x = 0, y = 0;
-    float p = 1.0f;
-    const int depth = min(lb->levels, n_levels);
-    u = clamp(u, 0.0f, ONE_MINUS_EPS);
-    for (int l = 0; l < depth; ++l) {
-        float i[4];
-        child_importances(tree, lb, x, y, l, i);
-        p *= choose_child(i[0], i[1], i[2], i[3], &u, &x, &y);
-    }
-    const float node_mass = tree[LEVEL_OFFSET(depth) + (ulong)y * (1u << depth) + x];
-    const float2 uv = tree_descend(tree, depth, n_levels, u, &x, &y);
+    for (int l = 0; l < n_levels; ++l)
+        for (int k = 0; k < WALK_K; ++k) {
+            float4 m = children_of(tree, l, x[k], y[k]);
+            if (l < lb[k].levels) {
+                m = child_importances(&lb[k], m, x[k], y[k], l);
+                p[k] *= choose_child(m.s0, m.s1, m.s2, m.s3, &u[k], &x[k], &y[k]);
+            } else {
+                choose_child(m.s0, m.s1, m.s2, m.s3, &u[k], &x[k], &y[k]);
+            }
+        }
     const uint side = 1u << n_levels;
-    const float leaf = tree[LEVEL_OFFSET(n_levels) + (ulong)y * side + x];
-    *pdf = (tree[0] > 0.0f && node_mass > 0.0f) ? p * (leaf / node_mass) * (float)side * (float)side : 0.0f;
-    return uv;
+    for (int k = 0; k < WALK_K; ++k) {
+        const int depth = min(lb[k].levels, n_levels);
+        const uint nx = x[k] >> (n_levels - depth), ny = y[k] >> (n_levels - depth);
+        const float node_mass = tree[LEVEL_OFFSET(depth) + (ulong)ny * (1u << depth) + nx];
+        const float leaf = tree[LEVEL_OFFSET(n_levels) + (ulong)y[k] * side + x[k]];
+        u[k] = leaf_point(x[k], y[k], n_levels, u[k]);
+        pdf[k] = (tree[0] > 0.0f && node_mass > 0.0f) ? p[k] * (leaf / node_mass) * (float)side * (float)side
+                                                      : 0.0f;
+    }
 }
 
 inline float product_pdf(__global const float *tree, const int n_levels, const Lobe *lb,
@@ -115,10 +125,10 @@ inline float product_pdf(__global const float *tree, const int n_levels, const L
     float p = 1.0f;
     for (int l = 0; l < depth; ++l) {
         const uint cx = lx >> (n_levels - l - 1), cy = ly >> (n_levels - l - 1);
-        float i[4];
-        child_importances(tree, lb, cx >> 1, cy >> 1, l, i);
-        const float sum = (i[0] + i[1]) + (i[2] + i[3]);
-        p *= i[(cx & 1) + 2 * (cy & 1)] / sum;
+        const float4 i = child_importances(lb, children_of(tree, l, cx >> 1, cy >> 1), cx >> 1, cy >> 1, l);
+        const float sum = (i.s0 + i.s1) + (i.s2 + i.s3);
+        const uint c = (cx & 1) + 2 * (cy & 1);
+        p *= (c == 0 ? i.s0 : c == 1 ? i.s1 : c == 2 ? i.s2 : i.s3) / sum;
     }
     const uint nx = lx >> (n_levels - depth), ny = ly >> (n_levels - depth);
     const float node_mass = tree[LEVEL_OFFSET(depth) + (ulong)ny * (1u << depth) + nx];

@@ -31,7 +31,7 @@ inline float power_heuristic(const float pa, const float pb)
 }
 
 __kernel void shade(__global const float4 *normal, __global const float4 *wo_world,
-                    __global const int *material, __global const float4 *u_in,
+                    __global const int *material, __global const float4 *u_in, const uint count,
                     __global const int *mat_kind, __global const float *mat_param,
                     __global const float4 *mat_albedo, __global const float *mat_kappa,
                     __global const int *mat_levels, __global const float4 *node_dirs,
@@ -39,90 +39,109 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
                     __global const float *rot, __global const float *tree, const int tree_levels,
                     __global float4 *wi_out, __global float4 *value_out)
 {
-    const uint i = get_global_id(0);
+    /* WALK_K shading points per work-item: their tree walks (light or product) run
+     * together (warp.h tree_sample_k), the rest point by point. */
+    const uint i0 = get_global_id(0) * WALK_K;
     const Env env = {texels, env_w, env_h, rot};
-    const float3 n = normal[i].xyz;
-    float3 s, t;
-    make_frame(n, &s, &t);
-    const float3 wow = wo_world[i].xyz;
-    const float3 wo = (float3)(dot(wow, s), dot(wow, t), dot(wow, n));
-    const int m = material[i];
-    const int kind = mat_kind[m];
-    const float param = mat_param[m];
-    const float3 albedo = mat_albedo[m].xyz;
-    const float4 u = u_in[i];
-
-    float3 wi_w[2] = {(float3)(0.0f), (float3)(0.0f)};
-    float scal[2] = {0.0f, 0.0f};
+    float3 n[WALK_K], wow[WALK_K];
+    float4 u[WALK_K];
+    int mat[WALK_K];
+    float2 guide[WALK_K];     /* guide sample: u.xy in, the point of the square out */
+    float guide_pdf[WALK_K];  /* its density on the square */
+    for (int k = 0; k < WALK_K; ++k) {
+        const uint i = min(i0 + k, count - 1);
+        n[k] = normal[i].xyz;
+        wow[k] = wo_world[i].xyz;
+        mat[k] = material[i];
+        u[k] = u_in[i];
+        guide[k] = u[k].xy;
+    }
 #if STRATEGY == 5
-    Lobe lobe;
-    lobe.n = env_to_map(&env, n);
-    lobe.axis = env_to_map(&env, (kind == BSDF_LAMBERT) ? n : 2.0f * dot(wow, n) * n - wow);
-    lobe.kappa = mat_kappa[m];
-    lobe.levels = mat_levels[m];
-    lobe.shape = kind;
-    lobe.dirs = node_dirs;
-#define SAMPLE_GUIDE(uu, pdfp) product_sample(tree, tree_levels, &lobe, uu, pdfp)
-#define PDF_GUIDE(w) (product_pdf(tree, tree_levels, &lobe, env_world_to_square(&env, w)) \
+    Lobe lobes[WALK_K];
+    for (int k = 0; k < WALK_K; ++k) {
+        const int kind = mat_kind[mat[k]];
+        lobes[k].n = env_to_map(&env, n[k]);
+        lobes[k].axis = env_to_map(&env, (kind == BSDF_LAMBERT) ? n[k] : 2.0f * dot(wow[k], n[k]) * n[k] - wow[k]);
+        lobes[k].inv_kappa = 1.0f / mat_kappa[mat[k]];
+        lobes[k].levels = mat_levels[mat[k]];
+        lobes[k].shape = kind;
+        lobes[k].dirs = node_dirs;
+    }
+    product_sample_k(tree, tree_levels, lobes, guide, guide_pdf);
+#elif STRATEGY == 3 || STRATEGY == 4
+    const ulong same_tree[WALK_K] = {0};
+    tree_sample_k(tree, same_tree, tree_levels, guide, guide_pdf);
+#endif
+    for (int k = 0; k < WALK_K && i0 + k < count; ++k) {
+        const uint i = i0 + k;
+        float3 s, t;
+        make_frame(n[k], &s, &t);
+        const float3 nk = n[k], wowk = wow[k];
+        const float3 wo = (float3)(dot(wowk, s), dot(wowk, t), dot(wowk, nk));
+        const int kind = mat_kind[mat[k]];
+        const float param = mat_param[mat[k]];
+        const float3 albedo = mat_albedo[mat[k]].xyz;
+        const float4 uk = u[k];
+
+        float3 wi_w[2] = {(float3)(0.0f), (float3)(0.0f)};
+        float scal[2] = {0.0f, 0.0f};
+#if STRATEGY == 5
+#define PDF_GUIDE(w) (product_pdf(tree, tree_levels, &lobes[k], env_world_to_square(&env, w)) \
                      * env_square_to_solid_angle(w))
 #else
-#define SAMPLE_GUIDE(uu, pdfp) tree_sample(tree, tree_levels, uu, pdfp)
 #define PDF_GUIDE(w) light_pdf(&env, tree, tree_levels, w)
 #endif
 #if STRATEGY >= 4
-    {   /* light (mis) or product (wavelet) sample, weighted against the bsdf pdf */
-        float pdf_sq;
-        const float2 uv = SAMPLE_GUIDE(u.xy, &pdf_sq);
-        const float3 w = env_square_to_world(&env, uv);
-        const float pdf = pdf_sq * env_square_to_solid_angle(w);
-        const float3 wl = (float3)(dot(w, s), dot(w, t), dot(w, n));
-        const float f = bsdf_eval_cos(kind, param, wl, wo);
-        wi_w[0] = w;
-        if (pdf > 0.0f && f > 0.0f)  /* the other pdf only where the estimate can be non-zero */
-            scal[0] = f / pdf * power_heuristic(pdf, bsdf_pdf(kind, param, wl, wo));
-    }
-    {   /* bsdf sample, weighted against the light pdf */
-        const float3 wl = bsdf_sample(kind, param, wo, u.zw);
-        const float pdf = bsdf_pdf(kind, param, wl, wo);
-        const float3 w = wl.x * s + wl.y * t + wl.z * n;
-        const float f = bsdf_eval_cos(kind, param, wl, wo);
-        wi_w[1] = w;
-        if (pdf > 0.0f && f > 0.0f)
-            scal[1] = f / pdf * power_heuristic(pdf, PDF_GUIDE(w));
-    }
+        {   /* light (mis) or product (wavelet) sample, weighted against the bsdf pdf */
+            const float3 w = env_square_to_world(&env, guide[k]);
+            const float pdf = guide_pdf[k] * env_square_to_solid_angle(w);
+            const float3 wl = (float3)(dot(w, s), dot(w, t), dot(w, nk));
+            const float f = bsdf_eval_cos(kind, param, wl, wo);
+            wi_w[0] = w;
+            if (pdf > 0.0f && f > 0.0f)  /* the other pdf only where the estimate can be non-zero */
+                scal[0] = f / pdf * power_heuristic(pdf, bsdf_pdf(kind, param, wl, wo));
+        }
+        {   /* bsdf sample, weighted against the light pdf */
+            const float3 wl = bsdf_sample(kind, param, wo, uk.zw);
+            const float pdf = bsdf_pdf(kind, param, wl, wo);
+            const float3 w = wl.x * s + wl.y * t + wl.z * nk;
+            const float f = bsdf_eval_cos(kind, param, wl, wo);
+            wi_w[1] = w;
+            if (pdf > 0.0f && f > 0.0f)
+                scal[1] = f / pdf * power_heuristic(pdf, PDF_GUIDE(w));
+        }
 #else
-    {
-        float3 wl, w;
-        float pdf;
+        {
+            float3 wl, w;
+            float pdf;
 #if STRATEGY == 0
-        wl = (float3)(sqrt(fmax(0.0f, 1.0f - u.x * u.x)) * cos(2.0f * PI_F * u.y),
-                      sqrt(fmax(0.0f, 1.0f - u.x * u.x)) * sin(2.0f * PI_F * u.y), u.x);
-        pdf = wl.z > 0.0f ? INV_2PI_F : 0.0f;
-        w = wl.x * s + wl.y * t + wl.z * n;
+            wl = (float3)(sqrt(fmax(0.0f, 1.0f - uk.x * uk.x)) * cos(2.0f * PI_F * uk.y),
+                          sqrt(fmax(0.0f, 1.0f - uk.x * uk.x)) * sin(2.0f * PI_F * uk.y), uk.x);
+            pdf = wl.z > 0.0f ? INV_2PI_F : 0.0f;
+            w = wl.x * s + wl.y * t + wl.z * nk;
 #elif STRATEGY == 1
-        wl = cosine_hemisphere(u.xy);
-        pdf = fmax(wl.z, 0.0f) * INV_PI_F;
-        w = wl.x * s + wl.y * t + wl.z * n;
+            wl = cosine_hemisphere(uk.xy);
+            pdf = fmax(wl.z, 0.0f) * INV_PI_F;
+            w = wl.x * s + wl.y * t + wl.z * nk;
 #elif STRATEGY == 2
-        wl = bsdf_sample(kind, param, wo, u.xy);
-        pdf = bsdf_pdf(kind, param, wl, wo);
-        w = wl.x * s + wl.y * t + wl.z * n;
+            wl = bsdf_sample(kind, param, wo, uk.xy);
+            pdf = bsdf_pdf(kind, param, wl, wo);
+            w = wl.x * s + wl.y * t + wl.z * nk;
 #else
-        float pdf_sq;
-        const float2 uv = tree_sample(tree, tree_levels, u.xy, &pdf_sq);
-        w = env_square_to_world(&env, uv);
-        pdf = pdf_sq * env_square_to_solid_angle(w);
-        wl = (float3)(dot(w, s), dot(w, t), dot(w, n));
+            w = env_square_to_world(&env, guide[k]);
+            pdf = guide_pdf[k] * env_square_to_solid_angle(w);
+            wl = (float3)(dot(w, s), dot(w, t), dot(w, nk));
 #endif
-        wi_w[0] = w;
-        if (pdf > 0.0f)
-            scal[0] = bsdf_eval_cos(kind, param, wl, wo) / pdf;
-    }
+            wi_w[0] = w;
+            if (pdf > 0.0f)
+                scal[0] = bsdf_eval_cos(kind, param, wl, wo) / pdf;
+        }
 #endif
-    for (int k = 0; k < 2; ++k) {
-        const float3 v = (scal[k] > 0.0f && isfinite(scal[k])) ? scal[k] * albedo * env_eval(&env, wi_w[k])
-                                                              : (float3)(0.0f);
-        wi_out[2 * i + k] = (float4)(wi_w[k], 0.0f);
-        value_out[2 * i + k] = (float4)(v, 0.0f);
+        for (int j = 0; j < 2; ++j) {
+            const float3 v = (scal[j] > 0.0f && isfinite(scal[j])) ? scal[j] * albedo * env_eval(&env, wi_w[j])
+                                                                  : (float3)(0.0f);
+            wi_out[2 * i + j] = (float4)(wi_w[j], 0.0f);
+            value_out[2 * i + j] = (float4)(v, 0.0f);
+        }
     }
 }

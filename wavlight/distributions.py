@@ -156,9 +156,11 @@ class HaarTree:
         uv = cl.empty(pts.nbytes) if outputs == 2 else None
         pdf = cl.empty(4 * n)
         knl = cl.kernel(cl.program("warp.cl"), name)
-        args = [self.buffer, np.uint64(self.stride), np.int32(self.n_levels),
-                np.uint32(samples_per_tree), src] + ([uv] if uv is not None else []) + [pdf]
-        knl(queue, (n,), None, *args)
+        args = [self.buffer, np.uint64(self.stride), np.int32(self.n_levels), np.uint32(samples_per_tree)]
+        if name == "warp_sample":  # WALK_K samples per work-item, the tail masked by count
+            knl(queue, (-(-n // cl.WALK_K),), None, *args, np.uint32(n), src, uv, pdf)
+        else:
+            knl(queue, (n,), None, *args, src, pdf)
         res = [cl.read(pdf, (n,), np.float32, queue)]
         if uv is not None:
             res.insert(0, cl.read(uv, (n, 2), np.float32, queue))

@@ -40,19 +40,25 @@ MAX_KAPPA = 1e6
 
 
 def node_directions(levels: int) -> np.ndarray:
-    """(tree_size(levels), 4) float32 map-frame centre directions of every node of levels 0..levels,
-    in the tree layout (the table kernels/product.h reads)."""
+    """The centre-direction table kernels/product.h reads, (3 tree_size(levels - 1), 4) float32.
+
+    For every node of levels 0..levels-1 (tree layout), three float4: the x, y and z
+    map-frame components of the centre directions of its four children (00, 10, 01, 11),
+    so that the kernel evaluates the four children's importances as one float4 expression.
+    """
     from .distributions import tree_size
 
-    out = np.zeros((tree_size(levels), 4), np.float32)
-    for l in range(levels + 1):
+    parents = tree_size(levels - 1) if levels > 0 else 0
+    out = np.zeros((max(parents, 1), 3, 4), np.float32)
+    for l in range(levels):
         side = 1 << l
-        c = (np.arange(side) + 0.5) / side
-        uu, vv = np.meshgrid(c, c)
-        phi, theta = 2 * np.pi * uu.ravel(), np.pi * vv.ravel()
-        out[level_offset(l):level_offset(l + 1), :3] = np.stack(
+        y, x = np.divmod(np.arange(side * side), side)
+        cx = 2 * x[:, None] + np.array([0, 1, 0, 1])        # children 00 10 01 11
+        cy = 2 * y[:, None] + np.array([0, 0, 1, 1])
+        phi, theta = 2 * np.pi * (cx + 0.5) / (2 * side), np.pi * (cy + 0.5) / (2 * side)
+        out[level_offset(l):level_offset(l + 1)] = np.stack(
             [np.sin(phi) * np.sin(theta), np.cos(theta), -np.cos(phi) * np.sin(theta)], 1)
-    return out
+    return out.reshape(-1, 4)
 
 
 def lobe_kappa(kind: int, param: float) -> float:

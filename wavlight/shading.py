@@ -50,24 +50,22 @@ class KernelShader:
         count = len(n)
         if count == 0:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.float32)
-        # A fixed work-group size, the global size padded to it: PoCL compiles a kernel per
+        # Each work-item shades cl.WALK_K points (the kernel masks the tail). A fixed
+        # work-group size, the global size padded to it: PoCL compiles a kernel per
         # work-group size on first launch, so this keeps it to one compile (done in warm_up).
-        padded = -(-count // WORK_GROUP) * WORK_GROUP
-        n4, wo4 = np.zeros((padded, 4), np.float32), np.zeros((padded, 4), np.float32)
-        n4[:count, :3], wo4[:count, :3] = n, wo
-        n4[count:, 2] = wo4[count:, 2] = 1.0
-        mat = np.zeros(padded, np.int32)
-        mat[:count] = material
-        uu = np.zeros((padded, 4), np.float32)
-        uu[:count] = u
+        items = -(-count // cl.WALK_K)
+        items = -(-items // WORK_GROUP) * WORK_GROUP
+        n4, wo4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
+        n4[:, :3], wo4[:, :3] = n, wo
         q = cl.thread_queue()
-        wi_buf, val_buf = cl.empty(padded * 32), cl.empty(padded * 32)
+        wi_buf, val_buf = cl.empty(count * 32), cl.empty(count * 32)
         knl = cl.kernel(self.program, "shade")
-        knl(q, (padded,), (WORK_GROUP,), cl.to_device(n4), cl.to_device(wo4), cl.to_device(mat), cl.to_device(uu),
+        knl(q, (items,), (WORK_GROUP,), cl.to_device(n4), cl.to_device(wo4),
+            cl.to_device(np.asarray(material, np.int32)), cl.to_device(np.asarray(u, np.float32)), np.uint32(count),
             self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.node_dirs, self.texels,
             *self.env_size, self.rot, self.tree, self.levels, wi_buf, val_buf)
-        wi = cl.read(wi_buf, (padded, 2, 4), np.float32, q)[:count, :, :3]
-        value = cl.read(val_buf, (padded, 2, 4), np.float32, q)[:count, :, :3]
+        wi = cl.read(wi_buf, (count, 2, 4), np.float32, q)[:, :, :3]
+        value = cl.read(val_buf, (count, 2, 4), np.float32, q)[:, :, :3]
         return wi, value
 
     def warm_up(self):
