@@ -15,10 +15,16 @@ time: relMSE scales as 1/spp for these unbiased estimators, so the relMSE a
 strategy reaches in the time mis takes at s spp (setup included) is
 relMSE(s) * t_strategy(s) / t_mis(s), where t includes each render's setup
 (light tree, product tables) but not the once-per-process kernel compilation.
-Prints one JSON object (and writes it to
+--sampler stratified renders the compared images with stratified pixel samples.
+--floor D estimates, per spp, the pixel-footprint floor: the relMSE left when every
+pixel sample is shaded exactly (no direction noise), from an image whose pixel
+samples average D mis estimates each: floor = (D relMSE_D - relMSE_mis) / (D - 1).
+No direction sampler can go below it at that spp, so floor / relMSE_mis bounds the
+wavelet / mis ratio from below. Prints one JSON object (and writes it to
 --out if given).
 
     python benchmarks/relmse.py [--spp 4,16,64] [--seeds 3] [--size 128] [--ref-spp 1024]
+                                [--sampler independent|stratified] [--floor D]
 """
 from __future__ import annotations
 
@@ -85,6 +91,25 @@ def scenes():
                 yield f"{geometry}/{mat}/{env}", text
 
 
+def floor_image(scene, spp, size, seed, directions, sampler):
+    """The image at `spp` whose every pixel sample is shaded with the mean of `directions`
+    independent `mis` estimates (same camera ray, same hit): its error is the pixel-footprint
+    variance that no direction sampler can remove, plus the mis direction variance / directions."""
+    from wavlight import integrator
+
+    r = integrator._Renderer(scene, "mis", spp, size, size, seed, None, sampler_name=sampler)
+    shade = r.shade
+
+    def averaged(o, d, prim, t, rng, u=None):
+        return sum(shade(o, d, prim, t, rng) for _ in range(directions)) / directions  # D, not samples
+
+    r.shade = averaged
+    image = np.zeros((size, size, 3))
+    for (i, x0, y0, w, h) in integrator._tiles(size, size, spp):
+        image[y0:y0 + h, x0:x0 + w] = r.tile(i, x0, y0, w, h)[0]
+    return image
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--spp", default="4,16,64")
@@ -92,6 +117,10 @@ def main():
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--only", default="", help="substring filter on scene names")
+    ap.add_argument("--sampler", default="independent", choices=["independent", "stratified"],
+                    help="pixel-sample uniforms of the compared renders (the reference: independent)")
+    ap.add_argument("--floor", type=int, default=0, metavar="D",
+                    help="also estimate the footprint floor with D directions per pixel sample")
     ap.add_argument("--out", default="")
     args = ap.parse_args()
     if not os.path.isdir(DATA):
@@ -105,7 +134,8 @@ def main():
     warm = wavlight.load_scene(os.path.join(HERE, "..", "scenes", "default.toml"))
     for strategy in STRATEGIES:
         wavlight.render_full(warm, spp=1, strategy=strategy, width=8, height=8)
-    results = {"size": args.size, "ref_spp": args.ref_spp, "seeds": args.seeds, "spp": spps, "scenes": {}}
+    results = {"size": args.size, "ref_spp": args.ref_spp, "seeds": args.seeds, "spp": spps,
+               "sampler": args.sampler, "floor_directions": args.floor, "scenes": {}}
     tmp = tempfile.mkdtemp(prefix="wavlight-relmse-")
     for name, text in scenes():
         if args.only and args.only not in name:
@@ -122,7 +152,8 @@ def main():
             for spp in spps:
                 errs, secs = [], []
                 for seed in range(args.seeds):
-                    r = wavlight.render_full(scene, spp=spp, strategy=strategy, seed=seed, **kw)
+                    r = wavlight.render_full(scene, spp=spp, strategy=strategy, seed=seed, sampler=args.sampler,
+                                             **kw)
                     errs.append(relmse(r.image, ref.image, ref.stderr))
                     secs.append(r.stats["setup_seconds"] + r.stats["render_seconds"])
                 per[str(spp)] = {"relmse": float(np.mean(errs)), "relmse_sd": float(np.std(errs, ddof=1))
@@ -137,6 +168,11 @@ def main():
             row.setdefault("wavelet_over_mis", {})[s] = {
                 "equal_spp": row["wavelet"][s]["relmse"] / mis["relmse"],
                 "equal_time": row["wavelet"][s]["equal_time_relmse"] / mis["relmse"]}
+            if args.floor > 1:
+                # relMSE(D) = floor + dir / D and relMSE(mis) = floor + dir give the floor
+                e_d = relmse(floor_image(scene, spp, args.size, 0, args.floor, args.sampler), ref.image, ref.stderr)
+                fl = max(0.0, (args.floor * e_d - mis["relmse"]) / (args.floor - 1))
+                row.setdefault("footprint_floor", {})[s] = {"relmse": fl, "over_mis": fl / mis["relmse"]}
         results["scenes"][name] = row
         print(f"{name}: " + " ".join(f"{k}={v['equal_spp']:.3f}/{v['equal_time']:.3f}"
                                      for k, v in row["wavelet_over_mis"].items()), file=sys.stderr, flush=True)

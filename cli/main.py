@@ -57,10 +57,12 @@ def main():
               help="structured: number of strata K (default 16; one shadow ray per stratum).")
 @click.option("--structured-mode", type=click.Choice(["stratified", "preintegrated"]), default=None,
               help="structured: stratified (unbiased, default) or preintegrated (biased: one light per stratum).")
+@click.option("--sampler", type=click.Choice(["independent", "stratified"]), default=None,
+              help="Pixel-sample uniforms: independent (default) or stratified per pixel.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, light_levels, sir_candidates,
-           sir_samples, structured_strata, structured_mode, as_json, quiet):
+           sir_samples, structured_strata, structured_mode, sampler, as_json, quiet):
     """Render SCENE (a TOML scene file) to an image."""
     import time
 
@@ -86,7 +88,7 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
                                       seed=seed, progress=bar, wavelet_levels=wavelet_levels,
                                       light_levels=light_levels, sir_candidates=sir_candidates,
                                       sir_samples=sir_samples, structured_strata=structured_strata,
-                                      structured_mode=structured_mode)
+                                      structured_mode=structured_mode, sampler=sampler)
         if bar:
             bar.close()
         wavlight.save_image(output, result.image)

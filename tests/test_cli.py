@@ -323,7 +323,7 @@ def test_scene_settings_apply_without_flags_and_flags_override(tmp_path):
     assert read_image(tmp_path / "a.exr")[1].width == 6
     for flags, want in [(("--spp", 2), ("spp", 2)), (("--strategy", "light"), ("strategy", "light")),
                         (("--width", 5), ("width", 5)), (("--height", 3), ("height", 3)),
-                        (("--seed", 9), ("seed", 9))]:
+                        (("--seed", 9), ("seed", 9)), (("--sampler", "stratified"), ("sampler", "stratified"))]:
         o = run_inproc("render", scene, "-o", tmp_path / "b.exr", "--json", *flags)
         assert_success(o)
         s = json.loads(o.stdout)
@@ -536,6 +536,7 @@ BAD = {
     "spp zero in the scene": (scene_text(render="spp = 0\n"), (), ("scene.toml", "[render].spp")),
     "absurd resolution in the scene": (scene_text(render="width = 100000\nheight = 100000\n"), (), ("scene.toml", "[render].width")),
     "unknown strategy in the scene": (scene_text(render='strategy = "path"\n'), (), ("scene.toml", "[render].strategy")),
+    "unknown sampler in the scene": (scene_text(render='sampler = "sobol"\n'), (), ("scene.toml", "[render].sampler", "sobol")),
     "black environment (scale 0)": (scene_text(env='procedural = "sky"\nscale = 0.0'), (), ("scene.toml", "[environment]", "black")),
     "black environment (file)": (scene_text(env='file = "black.exr"'), (), ("scene.toml", "[environment]", "black")),
     "only degenerate triangles": (scene_text(objects='[[objects]]\nmesh = "flat.obj"\n'), (), ("scene.toml", "[[objects]][0]", "degenerate")),

@@ -303,6 +303,8 @@ BAD = [
     (f"[reference]\nspp = 1\n[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n"
      "[budgets]\nspp = [1]\n", "[reference].spp: must be an integer >= 2"),
     (f"[experiment]\nsize = [8]\n[[scenes]]\npath = '{DEFAULT_SCENE}'\n", "[experiment].size: must be [width, height]"),
+    (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\nsampler = 'sobol'\n[budgets]\nspp = [1]\n",
+     "[[strategies]][0].sampler: unknown sampler 'sobol'"),
     ("[budgets\nspp = [1]\n", "malformed TOML"),
     ("[runs]\n", "runs: unknown table"),
 ]
@@ -411,3 +413,15 @@ def test_mitsuba_strategy_errors(tmp_path, monkeypatch):
     assert r.exit_code == 2
     lines = [line for line in r.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "[[strategies]][0].id: 'mitsuba:mis' needs Mitsuba 3" in lines[0], r.stderr
+
+
+def test_strategy_sampler_option_reaches_the_renderer(tmp_path):
+    """``sampler = "stratified"`` in a [[strategies]] table becomes a render option."""
+    spec = tmp_path / "s.toml"
+    spec.write_text(f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\nlabel = 'mis-strat'\n"
+                    "sampler = 'stratified'\n[budgets]\nspp = [1]\n")
+    st = experiment.load_spec(spec).strategies[0]
+    assert st.options == {"sampler": "stratified"}
+    scene = wavlight.load_scene(DEFAULT_SCENE)
+    r = experiment._render(scene, st.id, st.options, 2, 8, 6, 0, 1)
+    assert r.stats["sampler"] == "stratified"

@@ -30,6 +30,7 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
     label = "wavelet-p5"      # default: the id; names the output folders and chart lines
     wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels)
     light_levels = 9
+    sampler = "stratified"    # optional: independent (default) | stratified (as --sampler)
 
     [budgets]
     spp = [4, 16, 64]         # equal-spp budgets
@@ -126,6 +127,7 @@ import numpy as np
 
 from . import metrics
 from .errors import WavlightError
+from .sampler import SAMPLERS
 from .scene import MAX_SIDE, MAX_SPP, STRATEGIES
 from .scene import _Table as SceneTable
 
@@ -149,7 +151,7 @@ class SceneSpec:
 class StrategySpec:
     label: str
     id: str
-    options: dict = field(default_factory=dict)  # wavelet_levels, light_levels
+    options: dict = field(default_factory=dict)  # wavelet_levels, light_levels, sampler
 
 
 @dataclass
@@ -322,6 +324,11 @@ def load_spec(path) -> Spec:
             if ll > 11:
                 t.fail("light_levels", f"must be at most 11, got {ll}")
             options["light_levels"] = ll
+        smp = t.get("sampler", "str")
+        if smp is not None:
+            if smp not in SAMPLERS:
+                t.fail("sampler", f"unknown sampler {smp!r} ({' | '.join(SAMPLERS)})")
+            options["sampler"] = smp
         if options and sid.startswith(PEER_PREFIX):
             t.fail(sorted(options)[0], f"is a wavlight option; {sid!r} takes none")
         t.done()

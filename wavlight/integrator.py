@@ -25,9 +25,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import strategies
+from . import sampler, strategies
 from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
+from .sampler import SAMPLERS
 from .scene import MAX_SIDE, MAX_SPP, MAX_STRUCTURED_STRATA, STRATEGIES, STRUCTURED_MODES, Scene
 from .errors import WavlightError
 
@@ -66,8 +67,9 @@ def camera_rays(scene: Scene, px: np.ndarray, py: np.ndarray, jitter: np.ndarray
 
 class _Renderer:
     def __init__(self, scene: Scene, strategy: str, spp: int, width: int, height: int, seed: int, threads,
-                 backend="opencl", options=None):
+                 backend="opencl", options=None, sampler_name="independent"):
         self.scene, self.spp, self.width, self.height, self.seed = scene, spp, width, height, seed
+        self.sampler = sampler_name
         self.threads = threads or os.cpu_count() or 1
         t0 = time.perf_counter()
         self.tracer = RayTracer(scene.vertices, scene.faces)
@@ -85,13 +87,15 @@ class _Renderer:
             self.rays += int(n)
 
     # -- shading
-    def shade(self, o, d, prim, t, rng):
-        """Radiance estimates (N, 3) for camera rays that hit prim at distance t."""
+    def shade(self, o, d, prim, t, rng, u=None):
+        """Radiance estimates (N, 3) for camera rays that hit prim at distance t; u (N, 4) the
+        shading uniforms (drawn here from rng if None)."""
         ng = self.tracer.face_normals[prim].astype(np.float64)
         flip = np.einsum("ij,ij->i", ng, d) > 0
         n = np.where(flip[:, None], -ng, ng)
         p = o + d * t[:, None]
-        u = rng.random((len(prim), 4), dtype=np.float32)
+        if u is None:
+            u = rng.random((len(prim), 4), dtype=np.float32)
         wi, value = self.shader(n, -d, self.scene.face_material[prim], u, p=p)
         # Shadow rays only for non-zero estimates; MIS has two per point, sir N. (Channel-wise
         # maxima and sums, not .max(axis=2) / einsum: those are 10x slower on a length-3 axis.)
@@ -132,7 +136,12 @@ class _Renderer:
         pix = np.arange(w * h)
         px = np.repeat(x0 + pix % w, k).astype(np.float64)
         py = np.repeat(y0 + pix // w, k).astype(np.float64)
-        o, d = camera_rays(self.scene, px, py, rng.random((len(px), 2)), self.width, self.height)
+        if self.sampler == "stratified":  # all six uniforms of each sample, stratified per pixel
+            uu = sampler.stratified(rng, w * h, k)
+            jitter, u_all = uu[:, :2], uu[:, 2:]
+        else:  # independent: the jitters now, the shading uniforms for hits only
+            jitter, u_all = rng.random((len(px), 2)), None
+        o, d = camera_rays(self.scene, px, py, jitter, self.width, self.height)
         prim, t = self.tracer.intersect(o, d)
         self.count_rays(len(px))
         values = np.zeros((len(px), 3))
@@ -140,7 +149,8 @@ class _Renderer:
         values[miss] = self.scene.environment.eval(d[miss])
         hit = np.nonzero(~miss)[0]
         if len(hit):
-            values[hit] = self.shade(o[hit], d[hit], prim[hit], t[hit].astype(np.float64), rng)
+            values[hit] = self.shade(o[hit], d[hit], prim[hit], t[hit].astype(np.float64), rng,
+                                     None if u_all is None else u_all[hit])
         return values
 
 
@@ -156,7 +166,7 @@ def _tiles(width, height, spp):
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
                 progress=None, threads=None, backend="opencl", wavelet_levels=None,
                 light_levels=None, sir_candidates=None, sir_samples=None, structured_strata=None,
-                structured_mode=None) -> RenderResult:
+                structured_mode=None, sampler=None) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     Arguments left as None come from the scene file. ``progress(done, total, samples, seconds)``
@@ -168,6 +178,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     resampled directions per shading sample (default: the scene's, else 32 and 1).
     ``structured_strata`` (K) and ``structured_mode`` set the structured strategy's number of
     strata and mode (default: the scene's, else 64 and "stratified").
+    ``sampler`` is "independent" (default) or "stratified" (:mod:`wavlight.sampler`).
     """
     spp = scene.spp if spp is None else int(spp)
     strategy = scene.strategy if strategy is None else strategy
@@ -201,7 +212,10 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
                "sir": {"candidates": sir_candidates, "samples": sir_samples,
                        "light_levels": light_levels},
                "structured": {"strata": structured_strata, "mode": structured_mode}}.get(strategy)
-    r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend, options)
+    sampler_name = (scene.sampler or "independent") if sampler is None else sampler
+    if sampler_name not in SAMPLERS:
+        raise WavlightError(f"unknown sampler {sampler_name!r} ({' | '.join(SAMPLERS)})")
+    r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend, options, sampler_name)
     image = np.zeros((height, width, 3), np.float32)
     stderr = np.zeros((height, width, 3), np.float32)
     tiles = _tiles(width, height, spp)
@@ -220,7 +234,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
              "setup_seconds": round(r.setup_seconds, 4), "render_seconds": round(seconds, 4),
              "samples_per_second": round(samples / seconds, 1) if seconds > 0 else None,
              "rays": r.rays, "rays_per_second": round(r.rays / seconds, 1) if seconds > 0 else None,
-             "tiles": len(tiles), "threads": r.threads, **r.strategy.info()}
+             "sampler": sampler_name, "tiles": len(tiles), "threads": r.threads, **r.strategy.info()}
     return RenderResult(image, stderr, stats)
 
 

@@ -17,6 +17,8 @@ Every key of the scene format is accepted as written there. wavlight adds:
 - ``[render] structured_strata = K`` (1..1024, default 16) and ``structured_mode =
   "stratified" | "preintegrated"`` (default stratified; preintegrated is biased): the
   ``structured`` strategy (:mod:`wavlight.structured`).
+- ``[render] sampler = "independent" | "stratified"`` (default independent): the
+  pixel-sample uniforms (:mod:`wavlight.sampler`).
 
 Limits: width and height 1..16384, spp 1..1_000_000. Errors name the file and the
 key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
@@ -35,6 +37,7 @@ import numpy as np
 from . import bsdfs
 from .envmap import Environment, procedural_sky, read_image
 from .errors import SceneError, WavlightError
+from .sampler import SAMPLERS
 
 STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "wavelet", "sir", "structured")
 STRUCTURED_MODES = ("stratified", "preintegrated")
@@ -86,6 +89,7 @@ class Scene:
     sir_samples: int | None = None
     structured_strata: int | None = None
     structured_mode: str | None = None
+    sampler: str | None = None
 
     @property
     def material_kind(self):
@@ -311,6 +315,9 @@ def load_scene(path: str) -> Scene:
     structured_mode = r.get("structured_mode", "str")
     if structured_mode is not None and structured_mode not in STRUCTURED_MODES:
         r.fail("structured_mode", f"unknown mode {structured_mode!r} ({' | '.join(STRUCTURED_MODES)})")
+    sampler = r.get("sampler", "str")
+    if sampler is not None and sampler not in SAMPLERS:
+        r.fail("sampler", f"unknown sampler {sampler!r} ({' | '.join(SAMPLERS)})")
     r.done()
 
     c = _Table(path, "[camera]", doc.get("camera", {}))
@@ -376,7 +383,7 @@ def load_scene(path: str) -> Scene:
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
                  np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, wavelet_levels,
-                 light_levels, sir_candidates, sir_samples, structured_strata, structured_mode)
+                 light_levels, sir_candidates, sir_samples, structured_strata, structured_mode, sampler)
 
 
 def _environment(t: _Table, base) -> Environment:
