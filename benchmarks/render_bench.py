@@ -4,8 +4,10 @@ Prints one JSON object: per strategy (mis, light, bsdf) the load, setup and rend
 seconds, rays/s and samples/s, best of --repeat runs (setup includes the light
 tree and kernel compilation on a fresh process only for the first run; later
 runs reuse the per-process program cache, which is what a batch user sees).
-With --mitsuba, also runs benchmarks/mitsuba_peer.py (Mitsuba 3, `direct`
-integrator, same scene, spp and resolution) and reports the ratio.
+"embree_alone": embreex by itself on the same camera rays plus one shadow ray per hit,
+the floor under the render time for that many rays. With --mitsuba, also runs
+benchmarks/mitsuba_peer.py (Mitsuba 3, `direct` integrator, same scene, spp and
+resolution) and reports the ratio.
 
     python benchmarks/render_bench.py [--scene scenes/bunny_ggx.toml] [--spp 16] [--mitsuba]
 """
@@ -19,6 +21,43 @@ import sys
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def embree_alone(scene, args):
+    """embreex by itself on this scene's rays: the camera rays of the render (closest hit) and
+    one shadow ray per hit towards a random upper-hemisphere direction (occlusion), on all
+    cores as the renderer runs it. The floor under wavlight's render time for the same rays."""
+    import numpy as np
+
+    from wavlight.integrator import camera_rays
+    from wavlight.raytrace import RayTracer
+
+    tracer = RayTracer(scene.vertices, scene.faces, threads=os.cpu_count() or 1)
+    rng = np.random.default_rng(0)
+    n = args.width * args.height * args.spp
+    pix = np.arange(args.width * args.height)
+    px = np.repeat(pix % args.width, args.spp).astype(np.float64)
+    py = np.repeat(pix // args.width, args.spp).astype(np.float64)
+    o, d = camera_rays(scene, px, py, rng.random((n, 2)), args.width, args.height)
+    o = np.ascontiguousarray(o, np.float32)
+    d = np.ascontiguousarray(d, np.float32)
+    t0 = time.perf_counter()
+    prim, t = tracer.intersect(o, d)
+    t_hit = time.perf_counter() - t0
+    hit = prim >= 0
+    p = (o[hit] + d[hit] * t[hit, None]).astype(np.float32)
+    n_f = tracer.face_normals[prim[hit]]
+    n_f = np.where((np.einsum("ij,ij->i", n_f, d[hit]) > 0)[:, None], -n_f, n_f)
+    w = rng.normal(size=(len(p), 3)).astype(np.float32)
+    w = np.where((np.einsum("ij,ij->i", w, n_f) < 0)[:, None], -w, w)
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    t0 = time.perf_counter()
+    tracer.occluded(p + n_f * tracer.epsilon, w)
+    t_occ = time.perf_counter() - t0
+    return {"camera_rays": n, "closest_hit_seconds": round(t_hit, 4),
+            "closest_hit_rays_per_second": round(n / t_hit), "shadow_rays": int(len(p)),
+            "occlusion_seconds": round(t_occ, 4), "occlusion_rays_per_second": round(len(p) / t_occ),
+            "threads": tracer.threads}
 
 
 def main():
@@ -50,9 +89,15 @@ def main():
         out["wavlight"][strategy] = {k: best[k] for k in (
             "setup_seconds", "render_seconds", "rays", "rays_per_second", "samples_per_second")}
         out["wavlight"][strategy]["first_setup_seconds"] = runs[0]["setup_seconds"]
+    import resource
+
+    out["peak_rss_mib"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)  # the renders
+    out["embree_alone"] = embree_alone(scene, args)
     if args.mitsuba:
         out["mitsuba"] = {}
         for strategy in args.strategies.split(","):
+            if strategy not in ("mis", "light", "bsdf"):  # Mitsuba's direct integrator has these three
+                continue
             cmd = [sys.executable, os.path.join(HERE, "mitsuba_peer.py"), args.scene, "--spp", str(args.spp),
                    "--width", str(args.width), "--height", str(args.height), "--strategy", strategy]
             res = subprocess.run(cmd, capture_output=True, text=True)
@@ -67,9 +112,6 @@ def main():
             out["mitsuba"][strategy]["wavlight_over_mitsuba_total"] = round(
                 (w["render_seconds"] + w["setup_seconds"] + load)
                 / (m["render_seconds"] + m.get("setup_seconds", 0) + m.get("jit_seconds", 0)), 3)
-    import resource
-
-    out["peak_rss_mib"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     print(json.dumps(out, indent=1))
 
 

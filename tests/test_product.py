@@ -788,3 +788,24 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
     assert values == [2, 2, 2], levels
     img = read_image(str(out))
     assert img.shape[:2] == (12, 16) and np.all(np.isfinite(img)) and img.max() > 0
+
+
+def test_node_direction_table_layout_and_size():
+    """node_directions: for node (l, x, y), three float4 rows hold the x, y, z components of
+    its children 00 10 01 11, which are the centres of the lat-long cells of level l + 1;
+    node_table_bytes reports its size without building it."""
+    from wavlight.distributions import level_offset
+
+    for levels in range(0, 7):
+        table = product.node_directions(levels)
+        assert table.nbytes == product.node_table_bytes(levels)
+        for l in range(levels):
+            side = 1 << l
+            for x, y in ((0, 0), (side - 1, 0), (side // 2, side - 1)):
+                rows = table[3 * (level_offset(l) + y * side + x):][:3]
+                for k, (cx, cy) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+                    u = (2 * x + cx + 0.5) / (2 * side)
+                    v = (2 * y + cy + 0.5) / (2 * side)
+                    want = [np.sin(2 * np.pi * u) * np.sin(np.pi * v), np.cos(np.pi * v),
+                            -np.cos(2 * np.pi * u) * np.sin(np.pi * v)]
+                    np.testing.assert_allclose(rows[:, k], want, atol=1e-6)

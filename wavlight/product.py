@@ -61,6 +61,13 @@ def node_directions(levels: int) -> np.ndarray:
     return out.reshape(-1, 4)
 
 
+def node_table_bytes(levels: int) -> int:
+    """Size of :func:`node_directions` (levels) in bytes, without building it."""
+    from .distributions import tree_size
+
+    return 48 * max(tree_size(levels - 1) if levels > 0 else 0, 1)
+
+
 def lobe_kappa(kind: int, param: float) -> float:
     """von Mises-Fisher concentration of a material's lobe (0 for lambert)."""
     if kind == bsdfs.LAMBERT:

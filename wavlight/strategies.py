@@ -233,14 +233,13 @@ class WaveletStrategy(Strategy):
                                      shape, uv) * self.env.square_to_solid_angle(wi_world)
 
     def info(self):
-        from .distributions import tree_size
-
         depth = int(self.levels.max(initial=0))
+        table = product.node_table_bytes(depth)
         return {**self.light.info(),
                 "product_levels": dict(zip(self.names, self.levels.tolist())),
                 "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
-                "node_table_bytes": int(tree_size(depth) * 16),
-                "memory_bytes": int(self.light.tree.stride * 4 + tree_size(depth) * 16)}
+                "node_table_bytes": table,
+                "memory_bytes": int(self.light.tree.stride * 4 + table)}
 
 
 class MisStrategy(Strategy):
