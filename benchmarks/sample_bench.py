@@ -81,7 +81,7 @@ def main():
             kappa = product.lobe_kappa(kind, param)
             depth = product.product_levels(kappa, n_levels)
             ak = np.concatenate([axis if kind != bsdfs.LAMBERT else nrm, np.full((n, 1), kappa)], 1)
-            nl = np.concatenate([nrm, np.full((n, 1), depth + 256 * kind)], 1)
+            nl = np.concatenate([nrm, np.full((n, 1), depth + 256 * product.lobe_shape(kind, param))], 1)
             ak_buf, nl_buf = cl.to_device(ak.astype(np.float32)), cl.to_device(nl.astype(np.float32))
             dirs = cl.to_device(product.node_directions(depth))
             knl = cl.kernel(prog, "product_sample_points")

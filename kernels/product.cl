@@ -22,6 +22,7 @@ __kernel void product_sample_points(__global const float *tree, const int n_leve
         lobe[k].axis = env_to_map(&env, ak.xyz);
         lobe[k].inv_kappa = 1.0f / ak.w;
         lobe[k].n = env_to_map(&env, nl.xyz);
+        lobe[k].wo = 2.0f * dot(lobe[k].axis, lobe[k].n) * lobe[k].n - lobe[k].axis; /* axis = mirror */
         lobe[k].dirs = node_dirs;
         lobe[k].levels = (int)nl.w & 0xff;
         lobe[k].shape = (int)nl.w >> 8;

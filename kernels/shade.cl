@@ -61,10 +61,11 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
     for (int k = 0; k < WALK_K; ++k) {
         const int kind = mat_kind[mat[k]];
         lobes[k].n = env_to_map(&env, n[k]);
+        lobes[k].wo = env_to_map(&env, wow[k]);
         lobes[k].axis = env_to_map(&env, (kind == BSDF_LAMBERT) ? n[k] : 2.0f * dot(wow[k], n[k]) * n[k] - wow[k]);
         lobes[k].inv_kappa = 1.0f / mat_kappa[mat[k]];
-        lobes[k].levels = mat_levels[mat[k]];
-        lobes[k].shape = kind;
+        lobes[k].levels = mat_levels[mat[k]] & 0xff;   /* depth + 256 lobe shape (product.lobe_shape) */
+        lobes[k].shape = mat_levels[mat[k]] >> 8;
         lobes[k].dirs = node_dirs;
     }
     product_sample_k(tree, tree_levels, lobes, guide, guide_pdf);

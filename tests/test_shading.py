@@ -77,8 +77,8 @@ def test_product_sample_points_kernel_matches_numpy():
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     axis = rng.normal(size=(count, 3))
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    shape = rng.integers(0, 3, count)
-    kappa = np.where(shape == bsdfs.LAMBERT, 0.0, np.where(shape == bsdfs.PHONG, 50.0, 12.5))
+    shape = rng.integers(0, 4, count)  # lambert, phong, ggx, ggx with the half-vector model
+    kappa = np.where(shape == bsdfs.LAMBERT, 0.0, np.where(shape == bsdfs.PHONG, 50.0, 12.5))  # ggx alpha 0.2
     levels = rng.integers(0, n_levels + 1, count)
     u = rng.random((count, 2), dtype=np.float32)
     depth = int(levels.max())

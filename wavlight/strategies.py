@@ -204,6 +204,7 @@ class WaveletStrategy(Strategy):
         self.names = [m.name for m in materials]
         self.kappa = np.array([product.lobe_kappa(m.kind, m.param) for m in materials], np.float64)
         self.levels = np.array([product.product_levels(k, n, self.override) for k in self.kappa], np.int32)
+        self.shapes = np.array([product.lobe_shape(m.kind, m.param) for m in materials], np.int32)
         self._host_nodes = None
 
     @property
@@ -217,7 +218,7 @@ class WaveletStrategy(Strategy):
         wo_w = sp.to_world(sp.wo)
         axis = np.where((sp.kind == bsdfs.LAMBERT)[:, None], sp.n,
                         2.0 * np.einsum("ij,ij->i", wo_w, sp.n)[:, None] * sp.n - wo_w)
-        return axis, self.kappa[material], self.levels[material], sp.kind
+        return axis, self.kappa[material], self.levels[material], self.shapes[material]
 
     def sample(self, sp, u):
         axis, kappa, levels, shape = self._lobes(sp, sp.material)
