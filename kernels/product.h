@@ -78,10 +78,12 @@ inline float4 child_importances(const Lobe *lb, const float4 m, const uint x, co
     } else if (lb->shape == LOBE_GGX_HALF) { /* pi D(h) with alpha widened, step at the horizon */
         const float a2 = 0.5f * (lb->inv_kappa + r * r);     /* alpha_l^2 = alpha^2 + r^2 / 2 */
         const float4 hx = dx + lb->wo.x, hy = dy + lb->wo.y, hz = dz + lb->wo.z;
-        const float4 hn = hx * lb->n.x + hy * lb->n.y + hz * lb->n.z;
-        const float4 nh2 = select((float4)(0.0f), hn * hn / (hx * hx + hy * hy + hz * hz), hn > 0.0f);
-        const float4 e = nh2 * (a2 - 1.0f) + 1.0f;
-        i = m * (a2 / (e * e)) * clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
+        const float4 hn = fmax(hx * lb->n.x + hy * lb->n.y + hz * lb->n.z, 0.0f);
+        /* D ~ a2 / (cos^2 (a2 - 1) + 1)^2 with cos^2 = hn^2 / |h|^2, times |h|^4 / |h|^4:
+         * one division instead of two */
+        const float4 hh = hx * hx + hy * hy + hz * hz;
+        const float4 q = hh / (hn * hn * (a2 - 1.0f) + hh);
+        i = m * (a2 * q * q) * clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
     } else {
         const float4 hor = clamp(cos_n + rh, 0.0f, 1.0f);
         if (lb->shape == LOBE_PHONG) {     /* (1 + k x / 8)^-8 ~ exp(-k x), von Mises-Fisher, x cosine */
