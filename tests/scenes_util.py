@@ -43,6 +43,45 @@ def write_env(folder: Path, name: str, pixels) -> str:
     return name
 
 
+def write_raw_image(path, pixels):
+    """Float RGB through OpenImageIO directly (wavlight.save_image refuses NaN / Inf on purpose)."""
+    import OpenImageIO as oiio
+
+    pixels = np.ascontiguousarray(pixels, np.float32)
+    out = oiio.ImageOutput.create(str(path))
+    assert out is not None, oiio.geterror()
+    assert out.open(str(path), oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.FLOAT))
+    assert out.write_image(pixels)
+    out.close()
+    return path
+
+
+def one_texel_map(row=16, col=40, w=64, h=32):
+    """A black w x h map with one bright texel at (row, col)."""
+    px = np.zeros((h, w, 3), np.float32)
+    px[row, col] = (100.0, 80.0, 60.0)
+    return px
+
+
+def map3x2():
+    """A 3 x 2 map with a black texel and distinct colours."""
+    return np.array([[[1.0, 0.5, 0.2], [4.0, 4.0, 4.0], [0.1, 0.2, 3.0]],
+                     [[0.0, 0.0, 0.0], [9.0, 1.0, 1.0], [0.5, 0.5, 0.5]]], np.float32)
+
+
+def shading_points(normal, view_deg, kind, param, count, albedo=(1.0, 1.0, 1.0)):
+    """``count`` copies of one shading point: normal (world), wo at view_deg from it."""
+    from wavlight import strategies, warp
+
+    n = np.tile(np.asarray(normal, np.float64) / np.linalg.norm(normal), (count, 1))
+    s, t = warp.frame(n)
+    th = math.radians(view_deg)
+    wo_world = math.sin(th) * s + math.cos(th) * n
+    return strategies.ShadingPoints(np.zeros((count, 3)), n, s, t, warp.to_local(wo_world, s, t, n),
+                                    np.full(count, kind, np.int32), np.full(count, float(param)),
+                                    np.tile(np.asarray(albedo, np.float64), (count, 1)), np.zeros(count, np.int32))
+
+
 def load(folder: Path, **kw) -> "wavlight.Scene":
     return wavlight.load_scene(write_scene(folder, **kw))
 

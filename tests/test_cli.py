@@ -25,6 +25,7 @@ import pytest
 from click.testing import CliRunner
 
 import wavlight
+from scenes_util import write_raw_image
 from cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -97,17 +98,7 @@ def assert_success(o: Outcome):
 
 
 # ----------------------------------------------------------------------------- files
-def write_env(path, pixels):
-    """Float RGB through OpenImageIO directly (wavlight.save_image refuses NaN / Inf on purpose)."""
-    import OpenImageIO as oiio
-
-    pixels = np.ascontiguousarray(pixels, np.float32)
-    out = oiio.ImageOutput.create(str(path))
-    assert out is not None, oiio.geterror()
-    assert out.open(str(path), oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.FLOAT))
-    assert out.write_image(pixels)
-    out.close()
-    return path
+write_env = write_raw_image  # scenes_util
 
 
 def write_pfm(path, pixels):

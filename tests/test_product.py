@@ -57,7 +57,8 @@ from scipy import stats
 
 import wavlight
 from chi2 import SquareGrid, chi2_test, sidak_alpha
-from scenes_util import load, ray_sphere, camera_of, check_estimates, write_env, z_threshold
+from scenes_util import (camera_of, check_estimates, load, map3x2, one_texel_map, ray_sphere, write_env,
+                         z_threshold)
 from wavlight import bsdfs, product, strategies, warp
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky, read_image
 from wavlight.scene import Camera, Material, Scene
@@ -86,17 +87,6 @@ def unit(v):
 
 
 # ============================================================================= test configurations
-def _one_texel(row=16, col=40, w=64, h=32):
-    px = np.zeros((h, w, 3), np.float32)
-    px[row, col] = (100.0, 80.0, 60.0)
-    return px
-
-
-def _map3x2():
-    return np.array([[[1.0, 0.5, 0.2], [4.0, 4.0, 4.0], [0.1, 0.2, 3.0]],
-                     [[0.0, 0.0, 0.0], [9.0, 1.0, 1.0], [0.5, 0.5, 0.5]]], np.float32)
-
-
 def _sky():
     # 64 x 32 texels of 5.6 degrees: the default sun (0.75 degrees) covers no texel centre; a
     # 5-degree sun covers three, a small light 2e4 times brighter than the sky
@@ -106,12 +96,12 @@ def _sky():
 
 
 MAPS = {
-    "one_texel": lambda: Environment(_one_texel()),
-    "one_texel_rot90": lambda: Environment(_one_texel(), rotate_y=90.0),
+    "one_texel": lambda: Environment(one_texel_map()),
+    "one_texel_rot90": lambda: Environment(one_texel_map(), rotate_y=90.0),
     "constant": lambda: Environment(np.ones((32, 64, 3), np.float32)),
     "sky": lambda: Environment(_sky()),
     "sky_rot90": lambda: Environment(_sky(), rotate_y=90.0),
-    "map3x2": lambda: Environment(_map3x2()),
+    "map3x2": lambda: Environment(map3x2()),
 }
 
 ALBEDO = np.array([0.9, 0.7, 0.5], np.float32)

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from chi2 import SphereGrid, SquareGrid, chi2_test, frame_about, integral
+from scenes_util import map3x2, one_texel_map
 from wavlight import bsdfs, warp
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky
 from wavlight.strategies import LightStrategy, power_heuristic
@@ -231,25 +232,14 @@ def test_chi2_helper_rejects_samples_in_zero_pdf_cells():
 
 
 # ============================================================================= environment light
-def _one_texel(row, col, w=64, h=32):
-    px = np.zeros((h, w, 3), np.float32)
-    px[row, col] = (100.0, 80.0, 60.0)
-    return px
-
-
-def _map3x2():
-    return np.array([[[1.0, 0.5, 0.2], [4.0, 4.0, 4.0], [0.1, 0.2, 3.0]],
-                     [[0.0, 0.0, 0.0], [9.0, 1.0, 1.0], [0.5, 0.5, 0.5]]], np.float32)
-
-
 LIGHT_MAPS = {
     # one lit texel in a black 64 x 32 map, away from the poles ...
-    "one_texel": lambda: Environment(_one_texel(16, 40)),
-    "one_texel_rot90": lambda: Environment(_one_texel(16, 40), rotate_y=90.0),
+    "one_texel": lambda: Environment(one_texel_map(16, 40)),
+    "one_texel_rot90": lambda: Environment(one_texel_map(16, 40), rotate_y=90.0),
     # ... and in the first row (a texel at the pole, of small solid angle)
-    "one_texel_pole": lambda: Environment(_one_texel(0, 17)),
+    "one_texel_pole": lambda: Environment(one_texel_map(0, 17)),
     "constant": lambda: Environment(np.ones((32, 64, 3), np.float32)),
-    "map3x2": lambda: Environment(_map3x2()),
+    "map3x2": lambda: Environment(map3x2()),
     "map2x1": lambda: Environment(np.array([[[1.0, 1.0, 1.0], [0.25, 0.5, 2.0]]], np.float32)),
     "sky": lambda: Environment(procedural_sky()),
     "sky_rot90": lambda: Environment(procedural_sky(), rotate_y=90.0),

@@ -7,7 +7,6 @@ wavlight.load_scene (no OpenCL), so they are fast.
 from __future__ import annotations
 
 import math
-import os
 import re
 import warnings
 from pathlib import Path
@@ -16,6 +15,7 @@ import numpy as np
 import pytest
 
 import wavlight
+from scenes_util import write_raw_image
 from wavlight import SceneError, WavlightError
 from wavlight.scene import quad_axes
 
@@ -24,17 +24,7 @@ SKY = '[environment]\nprocedural = "sky"\n'
 
 
 # ----------------------------------------------------------------------------- helpers
-def write_env(path, pixels):
-    """Write a float RGB image with OpenImageIO directly (save_image refuses NaN / Inf on purpose)."""
-    import OpenImageIO as oiio
-
-    pixels = np.ascontiguousarray(pixels, np.float32)
-    out = oiio.ImageOutput.create(str(path))
-    assert out is not None, oiio.geterror()
-    assert out.open(str(path), oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.FLOAT))
-    assert out.write_image(pixels)
-    out.close()
-    return path
+write_env = write_raw_image  # scenes_util
 
 
 def write_scene(folder, text, name="scene.toml"):

@@ -26,7 +26,8 @@ from click.testing import CliRunner
 from scipy import stats
 
 import wavlight
-from scenes_util import ALPHA, camera_of, check_estimates, dir_from_uv, load, write_env, write_scene, z_threshold
+from scenes_util import (ALPHA, camera_of, check_estimates, dir_from_uv, load, shading_points, write_env,
+                         write_scene, z_threshold)
 from wavlight import bsdfs, sir, strategies, warp
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky
 from wavlight.errors import SceneError
@@ -41,17 +42,6 @@ def _smooth_map(sun_radiance=40.0, width=128, height=64, seed=3):
     rng = np.random.default_rng(seed)
     return procedural_sky(sun_elevation=50.0, sun_azimuth=20.0, sun_radius=4.0, sun_radiance=sun_radiance,
                           width=width, height=height) + rng.random((height, width, 3)).astype(np.float32) * 0.2
-
-
-def _points(normal, view_deg, kind, param, count, albedo=(1.0, 1.0, 1.0)):
-    """``count`` copies of one shading point: normal (world), wo at view_deg from it."""
-    n = np.tile(np.asarray(normal, np.float64) / np.linalg.norm(normal), (count, 1))
-    s, t = warp.frame(n)
-    th = math.radians(view_deg)
-    wo_world = math.sin(th) * s + math.cos(th) * n
-    return strategies.ShadingPoints(np.zeros((count, 3)), n, s, t, warp.to_local(wo_world, s, t, n),
-                                    np.full(count, kind, np.int32), np.full(count, float(param)),
-                                    np.tile(np.asarray(albedo, np.float64), (count, 1)), np.zeros(count, np.int32))
 
 
 def _strategy(env, **kw):
@@ -168,7 +158,7 @@ def test_sample_pdf_is_reciprocal_contribution_weight():
     env = Environment(_smooth_map())
     st = _strategy(env, candidates=8)
     rng = np.random.default_rng(2)
-    sp = _points([0.3, 1.0, 0.2], 40.0, bsdfs.GGX, 0.2, 500, albedo=(0.9, 0.6, 0.3))
+    sp = shading_points([0.3, 1.0, 0.2], 40.0, bsdfs.GGX, 0.2, 500, albedo=(0.9, 0.6, 0.3))
     u = rng.random((len(sp), 4))
     wi, value = st.shade(env, sp, u)
     ds = st.sample(sp, u)
@@ -183,11 +173,11 @@ def test_black_lobe_and_bsdf_furnace_at_shading_level():
     pix = np.ones((16, 32, 3), np.float32)
     pix[:8] = 0.0                                     # the upper hemisphere is black
     env = Environment(pix)
-    up = _points([0.0, 1.0, 0.0], 30.0, bsdfs.PHONG, 50.0, 300)
+    up = shading_points([0.0, 1.0, 0.0], 30.0, bsdfs.PHONG, 50.0, 300)
     _, value = _strategy(env, candidates=16, samples=2).shade(env, up, np.random.default_rng(0).random((300, 4)))
     assert np.all(value == 0.0)
     env = Environment(np.ones((16, 32, 3), np.float32))
-    sp = _points([0.2, 0.5, 1.0], 70.0, bsdfs.LAMBERT, 0.0, 300, albedo=(0.7, 0.45, 0.2))
+    sp = shading_points([0.2, 0.5, 1.0], 70.0, bsdfs.LAMBERT, 0.0, 300, albedo=(0.7, 0.45, 0.2))
     wi, value = _strategy(env, candidates=4, samples=3, source="bsdf").shade(
         env, sp, np.random.default_rng(1).random((300, 4)))
     assert value.shape == (300, 3, 3)
@@ -208,7 +198,7 @@ def test_ris_weight_is_unbiased_for_unshadowed_integral(source, kind, param, vie
     env = Environment(pix)
     st = _strategy(env, candidates=16, source=source)
     count = 20000
-    sp = _points([0.4, 1.0, -0.3], view, kind, param, count)
+    sp = shading_points([0.4, 1.0, -0.3], view, kind, param, count)
     big_w = st.ris_weight(sp, np.random.default_rng(7).random((count, 4)))
     exact, _ = _texel_quadrature(pix, sp)
     se = big_w.std(ddof=1) / math.sqrt(count)
@@ -235,7 +225,7 @@ def test_shadowed_estimate_unbiased_and_variance_falls_with_n():
     env = Environment(pix)
     count = 20000
     albedo = np.array([0.9, 0.6, 0.3])
-    sp = _points([0.0, 1.0, 0.0], 45.0, bsdfs.GGX, 0.5, count, albedo=albedo)
+    sp = shading_points([0.0, 1.0, 0.0], 45.0, bsdfs.GGX, 0.5, count, albedo=albedo)
     _, rgb = _texel_quadrature(pix, sp, visible=_occluder)
     est = {}
     for n in (1, 8):
@@ -255,7 +245,7 @@ def test_variance_of_ris_weight_falls_as_one_over_m():
     (p < ALPHA) for the direction, and the ratio within [4, 16]."""
     env = Environment(_smooth_map())
     count = 20000
-    sp = _points([0.2, 1.0, 0.5], 30.0, bsdfs.GGX, 0.3, count)
+    sp = shading_points([0.2, 1.0, 0.5], 30.0, bsdfs.GGX, 0.3, count)
     w4 = _strategy(env, candidates=4).ris_weight(sp, np.random.default_rng(21).random((count, 4)))
     w32 = _strategy(env, candidates=32).ris_weight(sp, np.random.default_rng(22).random((count, 4)))
     ratio = w4.var() / w32.var()

@@ -28,7 +28,8 @@ from click.testing import CliRunner
 from scipy import stats
 
 import wavlight
-from scenes_util import ALPHA, camera_of, check_estimates, dir_from_uv, load, write_env, write_scene, z_threshold
+from scenes_util import (ALPHA, camera_of, check_estimates, dir_from_uv, load, shading_points, write_env,
+                         write_scene, z_threshold)
 from wavlight import bsdfs, strategies, structured, warp
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky
 from wavlight.errors import SceneError
@@ -46,16 +47,6 @@ def _sky(width=64, height=32, sun=True, sun_radiance=50.0):
     if not sun:
         pix = procedural_sky(width=width, height=height, sun_radius=1e-3)
     return pix
-
-
-def _points(normal, view_deg, kind, param, count, albedo=(1.0, 1.0, 1.0)):
-    n = np.tile(np.asarray(normal, np.float64) / np.linalg.norm(normal), (count, 1))
-    s, t = warp.frame(n)
-    th = math.radians(view_deg)
-    wo_world = math.sin(th) * s + math.cos(th) * n
-    return strategies.ShadingPoints(np.zeros((count, 3)), n, s, t, warp.to_local(wo_world, s, t, n),
-                                    np.full(count, kind, np.int32), np.full(count, float(param)),
-                                    np.tile(np.asarray(albedo, np.float64), (count, 1)), np.zeros(count, np.int32))
 
 
 def _quadrature(pix, sp0, sub=6):
@@ -199,7 +190,7 @@ def test_stratified_pdf_and_stratum_frequencies():
     env = Environment(pix, rotate_y=-50.0)
     st = _prepared(env, strata=16)
     count = 200_000
-    sp = _points([0.0, 1.0, 0.0], 30.0, bsdfs.LAMBERT, 0.0, count)
+    sp = shading_points([0.0, 1.0, 0.0], 30.0, bsdfs.LAMBERT, 0.0, count)
     u = np.random.default_rng(3).random((count, 4))
     ds = st.sample(sp, u)
     lum = (pix.reshape(-1, 3).astype(np.float64) @ LUM)
@@ -223,7 +214,7 @@ def test_systematic_samples_unbiased_and_lower_variance():
     env = Environment(pix)
     count = 20000
     albedo = np.array([0.9, 0.6, 0.3])
-    sp = _points([0.3, 1.0, 0.2], 40.0, bsdfs.GGX, 0.3, count, albedo=albedo)
+    sp = shading_points([0.3, 1.0, 0.2], 40.0, bsdfs.GGX, 0.3, count, albedo=albedo)
     exact = albedo * _quadrature(pix, sp)
     est = {}
     for n in (1, 8):
@@ -247,7 +238,7 @@ def _bias_detected(est, exact, count):
 
 def test_preintegrated_bias_small_light_vs_smooth_map():
     count = 4000
-    sp = _points([0.2, 1.0, 0.1], 35.0, bsdfs.GGX, 0.3, count)
+    sp = shading_points([0.2, 1.0, 0.1], 35.0, bsdfs.GGX, 0.3, count)
     u = np.random.default_rng(9).random((count, 4))
     # one small bright region on a near-black map: collapsing it to a point costs little
     small = np.full((64, 128, 3), 1e-4, np.float32)
@@ -279,7 +270,7 @@ def test_preintegrated_all_lights_when_few_strata():
     env = Environment(_sky(32, 16))
     with pytest.warns(UserWarning):
         st = _prepared(env, strata=6, mode="preintegrated")
-    sp = _points([0.0, 1.0, 0.0], 20.0, bsdfs.LAMBERT, 0.0, 5, albedo=(0.5, 0.5, 0.5))
+    sp = shading_points([0.0, 1.0, 0.0], 20.0, bsdfs.LAMBERT, 0.0, 5, albedo=(0.5, 0.5, 0.5))
     wi, value = st.shade(env, sp, np.random.default_rng(0).random((5, 4)))
     assert wi.shape == value.shape == (5, 6, 3)
     cos = np.maximum(st.strata.centroid[:, 1], 0.0)
@@ -338,7 +329,7 @@ def test_unbiased_against_mis_under_grace(tmp_path):
 def test_black_and_tiny_maps():
     """An all-black map gives 0 (no strata, no NaN); 1x1 and 2x1 maps give at most as many strata
     as texels and stay unbiased (lambert under a constant 1x1 map: the albedo)."""
-    sp = _points([0.0, 1.0, 0.0], 30.0, bsdfs.LAMBERT, 0.0, 4000, albedo=(0.5, 0.5, 0.5))
+    sp = shading_points([0.0, 1.0, 0.0], 30.0, bsdfs.LAMBERT, 0.0, 4000, albedo=(0.5, 0.5, 0.5))
     u = np.random.default_rng(1).random((4000, 4))
     env = Environment(np.zeros((4, 8, 3), np.float32))
     st = _prepared(env)
@@ -360,7 +351,7 @@ def test_per_stratum_default_is_unbiased_and_uses_every_stratum():
     env = Environment(np.ones((16, 32, 3), np.float32))
     strat = _prepared(env, strata=8)
     count = 4000
-    sp = _points((0.0, 1.0, 0.0), 30.0, bsdfs.LAMBERT, 0.0, count, albedo=(0.5, 0.5, 0.5))
+    sp = shading_points((0.0, 1.0, 0.0), 30.0, bsdfs.LAMBERT, 0.0, count, albedo=(0.5, 0.5, 0.5))
     wi, value = strat.shade(env, sp, np.random.default_rng(7).random((count, 4)))
     assert wi.shape == (count, strat.strata.k, 3)
     est = value.sum(axis=1)[:, 0]

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import bsdfs, warp
+from . import bsdfs
 from .distributions import ONE_MINUS_EPS, level_offset
 
 LOBE_BLUR = 0.35 * np.pi     # lobe widening at level l: LOBE_BLUR / 2^l (see kernels/product.h)
@@ -155,7 +155,6 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
     count = len(u)
     x = np.zeros(count, np.int64)
     y = np.zeros(count, np.int64)
-    p = np.ones(count)
     depth = np.minimum(levels, n_levels)
     with np.errstate(divide="ignore", invalid="ignore"):
         for l in range(n_levels):
