@@ -65,15 +65,17 @@ inline float4 child_importances(const Lobe *lb, const float4 m, const uint x, co
 {
     __global const float4 *d = lb->dirs + 3 * (LEVEL_OFFSET(level) + (ulong)y * (1u << level) + x);
     const float4 dx = d[0], dy = d[1], dz = d[2];
-    /* the children's level is level + 1; divisions are few: they bound this loop */
-    const float scale = (float)(2u << level), inv = 1.0f / scale;
+    /* the children's level is level + 1: inv = 2^-(level + 1), exactly and without a
+     * division (divisions bound this loop, measured) */
+    const float scale = (float)(2u << level), inv = as_float((uint)(126 - level) << 23);
     const float r = LOBE_BLUR_F * inv, rh = HORIZON_BLUR_F * inv;
     const float4 cos_n = dx * lb->n.x + dy * lb->n.y + dz * lb->n.z;
     const float4 x1 = 1.0f - (dx * lb->axis.x + dy * lb->axis.y + dz * lb->axis.z);
     float4 i;
     if (lb->shape == LOBE_GGX) {           /* (1 + c x)^-2, step at the horizon */
-        const float c = 1.0f / (lb->inv_kappa + r * r);
-        const float4 g = 1.0f / (1.0f + c * x1);
+        /* 1 / (1 + c x) with c = 1 / a as a / (a + x): one division (a finite) */
+        const float a = fmin(lb->inv_kappa + r * r, 1e30f);
+        const float4 g = a / (a + x1);
         i = m * g * g * clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
     } else if (lb->shape == LOBE_GGX_HALF) { /* pi D(h) with alpha widened, step at the horizon */
         const float a2 = 0.5f * (lb->inv_kappa + r * r);     /* alpha_l^2 = alpha^2 + r^2 / 2 */
@@ -87,8 +89,8 @@ inline float4 child_importances(const Lobe *lb, const float4 m, const uint x, co
     } else {
         const float4 hor = clamp(cos_n + rh, 0.0f, 1.0f);
         if (lb->shape == LOBE_PHONG) {     /* (1 + k x / 8)^-8 ~ exp(-k x), von Mises-Fisher, x cosine */
-            const float kappa = 1.0f / (lb->inv_kappa + r * r);
-            float4 g = 1.0f / (1.0f + 0.125f * kappa * x1);
+            const float a8 = 8.0f * fmin(lb->inv_kappa + r * r, 1e30f);   /* 8 / kappa_l */
+            float4 g = a8 / (a8 + x1);
             g *= g; g *= g;
             i = m * (g * g) * hor;
         } else {

@@ -29,27 +29,30 @@ inline float tree_pdf(__global const float *base, const int n_levels, float2 uv)
  * m00 m10 (top row) m01 m11 (bottom row), first the row pair then the column,
  * rescaling u; (x, y) becomes the child. Returns the child's conditional
  * probability m_child / (m00 + m10 + m01 + m11) (eq. 21-22). Branch-free (selects),
- * so that several walks interleave without mispredictions (see tree_sample_k). */
+ * so that several walks interleave without mispredictions (see tree_sample_k).
+ * The choices compare u * sum against a mass (u < top / (top + bottom) without
+ * the division), and the two rescaled coordinates and the probability come from
+ * one float4 division: divisions, not loads, bound these walks (measured). */
 inline float choose_child(const float m00, const float m10, const float m01, const float m11,
                           float2 *uu, uint *px, uint *py)
 {
-    float2 u = *uu;
-    const float top = m00 + m10, bottom = m01 + m11;
+#pragma OPENCL FP_CONTRACT OFF
+    /* (no fused multiply-add: the numpy twin rounds u * sum and the subtraction apart) */
+    const float2 u = *uu;
+    const float top = m00 + m10, bottom = m01 + m11, s_row = top + bottom;
     /* top (row 2y) or bottom (row 2y + 1) pair */
-    const float p_top = top / (top + bottom);
-    const int b = !(u.y < p_top);
-    const float p_row = b ? 1.0f - p_top : p_top;
-    u.y = fmin((u.y - (b ? p_top : 0.0f)) / p_row, ONE_MINUS_EPS);
-    const float left = b ? m01 : m00, right = b ? m11 : m10;
-    *py = 2 * *py + (uint)b;
+    const int b = !(u.y * s_row < top);
+    const float row = b ? bottom : top;
+    const float left = b ? m01 : m00, right = b ? m11 : m10, s_col = left + right;
     /* left (column 2x) or right (column 2x + 1) child */
-    const float p_left = left / (left + right);
-    const int r = !(u.x < p_left);
-    const float p_col = r ? 1.0f - p_left : p_left;
-    u.x = fmin((u.x - (r ? p_left : 0.0f)) / p_col, ONE_MINUS_EPS);
+    const int r = !(u.x * s_col < left);
+    const float col = r ? right : left;
+    const float4 q = (float4)(u.y * s_row - (b ? top : 0.0f), u.x * s_col - (r ? left : 0.0f), row * col, 0.0f)
+                   / (float4)(row, col, s_row * s_col, 1.0f);
+    *py = 2 * *py + (uint)b;
     *px = 2 * *px + (uint)r;
-    *uu = u;
-    return p_row * p_col;
+    *uu = (float2)(fmin(q.s1, ONE_MINUS_EPS), fmin(q.s0, ONE_MINUS_EPS));
+    return q.s2;
 }
 
 /* The four children of node (x, y) at `level`, as (m00, m10, m01, m11). */

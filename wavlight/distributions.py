@@ -77,18 +77,19 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
             c = level_offset(l + 1) + (2 * y) * cside + 2 * x
             m00, m10 = tree[t, c], tree[t, c + 1]
             m01, m11 = tree[t, c + cside], tree[t, c + cside + 1]
+            # as kernels/warp.h choose_child: compare u * sum with a mass, rescale u by one division
             top, bottom = m00 + m10, m01 + m11
-            p_top = top / (top + bottom)
-            go_top = u[:, 1] < p_top
-            u[:, 1] = np.where(go_top, u[:, 1] / p_top, (u[:, 1] - p_top) / (1 - p_top))
-            u[:, 1] = np.fmin(u[:, 1], ONE_MINUS_EPS)
+            s_row = top + bottom
+            go_top = u[:, 1] * s_row < top
+            row = np.where(go_top, top, bottom)
+            u[:, 1] = np.fmin((u[:, 1] * s_row - np.where(go_top, np.float32(0), top)) / row, ONE_MINUS_EPS)
             left = np.where(go_top, m00, m01)
             right = np.where(go_top, m10, m11)
             y = 2 * y + (~go_top)
-            p_left = left / (left + right)
-            go_left = u[:, 0] < p_left
-            u[:, 0] = np.where(go_left, u[:, 0] / p_left, (u[:, 0] - p_left) / (1 - p_left))
-            u[:, 0] = np.fmin(u[:, 0], ONE_MINUS_EPS)
+            s_col = left + right
+            go_left = u[:, 0] * s_col < left
+            col = np.where(go_left, left, right)
+            u[:, 0] = np.fmin((u[:, 0] * s_col - np.where(go_left, np.float32(0), left)) / col, ONE_MINUS_EPS)
             x = 2 * x + (~go_left)
     u = np.nan_to_num(u, nan=0.0)
     side = 1 << n_levels

@@ -165,15 +165,17 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
             w = m.copy()
             if prod.any():
                 w[prod] = _children(tree, env, x[prod], y[prod], l, axis[prod], n[prod], kappa[prod], shape[prod])
+            # as kernels/warp.h choose_child: compare u * sum with a mass, rescale u by one division
             top, bottom = w[:, 0] + w[:, 1], w[:, 2] + w[:, 3]
-            p_top = top / (top + bottom)
-            go_top = u[:, 1] < p_top
-            u[:, 1] = np.fmin(np.where(go_top, u[:, 1] / p_top, (u[:, 1] - p_top) / (1 - p_top)), ONE_MINUS_EPS)
+            s_row = top + bottom
+            go_top = u[:, 1] * s_row < top
+            row = np.where(go_top, top, bottom)
+            u[:, 1] = np.fmin((u[:, 1] * s_row - np.where(go_top, 0.0, top)) / row, ONE_MINUS_EPS)
             left, right = np.where(go_top, w[:, 0], w[:, 2]), np.where(go_top, w[:, 1], w[:, 3])
-            p_left = left / (left + right)
-            go_left = u[:, 0] < p_left
-            u[:, 0] = np.fmin(np.where(go_left, u[:, 0] / p_left, (u[:, 0] - p_left) / (1 - p_left)),
-                              ONE_MINUS_EPS)
+            s_col = left + right
+            go_left = u[:, 0] * s_col < left
+            col = np.where(go_left, left, right)
+            u[:, 0] = np.fmin((u[:, 0] * s_col - np.where(go_left, 0.0, left)) / col, ONE_MINUS_EPS)
             y = 2 * y + (~go_top)
             x = 2 * x + (~go_left)
     side = 1 << n_levels
