@@ -2,8 +2,9 @@
 
 For each light-tree resolution (the environment resampled to 2^n x 2^n leaves) and
 each material lobe, time the `product_sample_points` kernel (kernels/product.cl:
-the top-down product warp of kernels/product.h) and the light tree's `warp_sample`
-on 2^21 random shading points, and the eq. 25 product pyramids of
+the top-down product warp of kernels/product.h, which the renderer's wavelet
+strategy runs to draw its guide samples) and the light tree's `warp_sample` on 2^21
+random shading points (random normals and view directions: the least coherent case), and the eq. 25 product pyramids of
 wavlight.haar.ProductPyramids (dense per-point trees, the alternative design) in
 trees/s. Prints one JSON object. Timings are kernel time after a warm-up, best of 3,
 including host<->device copies of inputs and outputs ("with_copies") and without.
@@ -47,55 +48,56 @@ def main():
     rt = cl.runtime()
     q = cl.thread_queue()
     n = args.count
-    # work-items: each walks cl.WALK_K samples; work-groups of 64 as the renderer launches them
-    items = -(-n // (cl.WALK_K * 64)) * 64
+    # one sample per work-item, work-groups of cl.WORK_GROUP as the renderer launches them
+    items = -(-n // cl.WORK_GROUP) * cl.WORK_GROUP
     rng = np.random.default_rng(1)
     nrm = rng.normal(size=(n, 3))
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     wo = rng.normal(size=(n, 3))
     wo /= np.linalg.norm(wo, axis=1, keepdims=True)
     wo *= np.sign(np.einsum("ij,ij->i", wo, nrm))[:, None]
-    axis = 2 * np.einsum("ij,ij->i", wo, nrm)[:, None] * nrm - wo
+    n4, wo4 = np.zeros((n, 4), np.float32), np.zeros((n, 4), np.float32)
+    n4[:, :3], wo4[:, :3] = nrm, wo
+    material = np.zeros(n, np.int32)   # one material per run: the table has one row
     u = rng.random((n, 2), dtype=np.float32)
-    texels = np.zeros((env.height * env.width, 4), np.float32)
-    texels[:, :3] = env.pixels.reshape(-1, 3)
-    texels_buf = cl.to_device(texels)
     rot = cl.to_device(env.map_from_world.astype(np.float32).ravel())
-    u_buf = cl.to_device(u)
+    u_buf, n_buf, wo_buf, mat_buf = cl.to_device(u), cl.to_device(n4), cl.to_device(wo4), cl.to_device(material)
     uv_buf, pdf_buf = cl.empty(8 * n), cl.empty(4 * n)
-    prog = cl.program("product.cl")
-    out = {"env": os.path.basename(args.env), "count": n, "device": rt.description, "levels": {}}
+    out = {"env": os.path.basename(args.env), "count": n, "device": rt.description,
+           "shading_points": "random normals and view directions, one sample each", "levels": {}}
     materials = {"lambert": (bsdfs.LAMBERT, 0.0), "phong200": (bsdfs.PHONG, 200.0),
                  "ggx0.2": (bsdfs.GGX, 0.2), "ggx0.05": (bsdfs.GGX, 0.05)}
     for n_levels in (6, 8, 10, 11):
         tree = HaarTree(env.luminance_square(n_levels))
         row = {"tree_bytes": tree.stride * 4}
-        warp = cl.kernel(cl.program("warp.cl"), "warp_sample")
+        warp = cl.kernel(cl.program("warp.cl", N_LEVELS=n_levels, BATCHED=0), "warp_sample")
 
         def light():
-            warp(q, (items,), (64,), tree.buffer, np.uint64(tree.stride), np.int32(n_levels), np.uint32(n),
-                 np.uint32(n), u_buf, uv_buf, pdf_buf)
+            warp(q, (items,), (cl.WORK_GROUP,), tree.buffer, np.uint64(tree.stride), np.uint32(n), np.uint32(n),
+                 u_buf, np.uint32(2), uv_buf, pdf_buf)
             q.finish()
         row["light_samples_per_second"] = round(n / best_of(light))
         for name, (kind, param) in materials.items():
             kappa = product.lobe_kappa(kind, param)
             depth = product.product_levels(kappa, n_levels)
-            ak = np.concatenate([axis if kind != bsdfs.LAMBERT else nrm, np.full((n, 1), kappa)], 1)
-            nl = np.concatenate([nrm, np.full((n, 1), depth + 256 * product.lobe_shape(kind, param))], 1)
-            ak_buf, nl_buf = cl.to_device(ak.astype(np.float32)), cl.to_device(nl.astype(np.float32))
-            dirs = cl.to_device(product.node_directions(depth))
+            shape = product.lobe_shape(kind, param)
+            kappa_buf = cl.to_device(np.array([kappa], np.float32))
+            code_buf = cl.to_device(np.array([depth + 256 * shape], np.int32))
+            angles = cl.to_device(product.node_angles(depth))
+            prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth, LOBE_SHAPES=1 << shape)
             knl = cl.kernel(prog, "product_sample_points")
 
+            def launch(nb, wb, ub):
+                knl(q, (items,), (cl.WORK_GROUP,), tree.buffer, rot, np.uint32(n), nb, wb, mat_buf, kappa_buf,
+                    code_buf, ub, np.uint32(2), angles, uv_buf, pdf_buf)
+
             def run():
-                knl(q, (items,), (64,), tree.buffer, np.int32(n_levels), texels_buf, np.int32(env.width),
-                    np.int32(env.height), rot, np.uint32(n), ak_buf, nl_buf, u_buf, dirs, uv_buf, pdf_buf)
+                launch(n_buf, wo_buf, u_buf)
                 q.finish()
 
             def run_with_copies():
-                a, b, c = cl.to_device(ak.astype(np.float32)), cl.to_device(nl.astype(np.float32)), cl.to_device(u)
-                knl(q, (items,), (64,), tree.buffer, np.int32(n_levels), texels_buf, np.int32(env.width),
-                    np.int32(env.height), rot, np.uint32(n), a, b, c, dirs, uv_buf, pdf_buf)
-                cl.read(uv_buf, (n, 2), np.float32, q)
+                launch(cl.to_device(n4), cl.to_device(wo4), cl.to_device(u))
+                cl.read(uv_buf, (2, n), np.float32, q)
                 cl.read(pdf_buf, (n,), np.float32, q)
             row[name] = {"product_depth": depth,
                          "product_samples_per_second": round(n / best_of(run)),

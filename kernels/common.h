@@ -15,10 +15,5 @@
 /* Largest float below 1: uniform variates are clamped to [0, ONE_MINUS_EPS]. */
 #define ONE_MINUS_EPS 0x1.fffffep-1f
 
-/* Samples walked together by one work-item (warp.h tree_sample_k); the host passes
- * -DWALK_K (wavlight.cl.WALK_K) to every build. */
-#ifndef WALK_K
-#error "WALK_K must be defined by the host (wavlight/cl.py)"
-#endif
 
 #endif

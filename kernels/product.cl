@@ -1,36 +1,33 @@
-/* Product samples alone (no BRDF evaluation, no rays): for benchmarks and tests.
- * Per sample: lobe (axis, normal, kappa, depth, shape) and u -> square point and
- * pdf on the square (product.h). Each work-item walks WALK_K samples together:
- * launch ceil(count / WALK_K) items. */
+/* Product samples (product.h product_walk), one per work-item, for the renderer's
+ * wavelet strategy (the guide samples kernels/shade.cl consumes), the benchmarks and
+ * the tests. Per point: world-frame normal and direction to the viewer (float4 rows),
+ * material index (kind, kappa and depth + 256 shape from the material tables) and
+ * uniform u (u_stride floats apart) -> point of the square (u plane then v plane of
+ * uv_out) and its density on the square. Built per tree depth (-DN_LEVELS), largest
+ * product depth (-DPRODUCT_LEVELS) and set of lobe shapes (-DLOBE_SHAPES), so that PoCL
+ * vectorises it across work-items. Launch any global size >= count.
+ */
 #include "product.h"
+#if !defined(N_LEVELS) || !defined(PRODUCT_LEVELS)
+#error "product.cl is built with -DN_LEVELS (light tree depth) and -DPRODUCT_LEVELS (largest product depth)"
+#endif
 
-__kernel void product_sample_points(__global const float *tree, const int n_levels,
-                                    __global const float4 *texels, const int env_w, const int env_h,
-                                    __global const float *rot, const uint count,
-                                    __global const float4 *axis_kappa, __global const float4 *normal_levels,
-                                    __global const float2 *u_in, __global const float4 *node_dirs,
-                                    __global float2 *uv_out, __global float *pdf_out)
+__kernel void product_sample_points(__global const float *tree, __global const float *rot, const uint count,
+                                    __global const float *normal, __global const float *wo_world,
+                                    __global const int *material, __global const float *mat_kappa,
+                                    __global const int *mat_levels, __global const float *u_in,
+                                    const uint u_stride, __global const float *angles,
+                                    __global float *uv_out, __global float *pdf_out)
 {
-    const uint i0 = get_global_id(0) * WALK_K;
-    const Env env = {texels, env_w, env_h, rot};
-    Lobe lobe[WALK_K];
-    float2 u[WALK_K];
-    float pdf[WALK_K];
-    for (int k = 0; k < WALK_K; ++k) {
-        const uint i = min(i0 + k, count - 1);
-        const float4 ak = axis_kappa[i], nl = normal_levels[i];
-        lobe[k].axis = env_to_map(&env, ak.xyz);
-        lobe[k].inv_kappa = 1.0f / ak.w;
-        lobe[k].n = env_to_map(&env, nl.xyz);
-        lobe[k].wo = 2.0f * dot(lobe[k].axis, lobe[k].n) * lobe[k].n - lobe[k].axis; /* axis = mirror */
-        lobe[k].dirs = node_dirs;
-        lobe[k].levels = (int)nl.w & 0xff;
-        lobe[k].shape = (int)nl.w >> 8;
-        u[k] = u_in[i];
-    }
-    product_sample_k(tree, n_levels, lobe, u, pdf);
-    for (int k = 0; k < WALK_K && i0 + k < count; ++k) {
-        uv_out[i0 + k] = u[k];
-        pdf_out[i0 + k] = pdf[k];
+    const uint i = min((uint)get_global_id(0), count - 1);
+    const int m = material[i];
+    const Lobe lb = make_lobe(rot, normal[4 * i], normal[4 * i + 1], normal[4 * i + 2],
+                              wo_world[4 * i], wo_world[4 * i + 1], wo_world[4 * i + 2], mat_kappa[m], mat_levels[m]);
+    float ux = u_in[i * u_stride], uy = u_in[i * u_stride + 1];
+    const float pdf = product_walk(tree, angles, &lb, &ux, &uy);
+    if (get_global_id(0) < count) {
+        uv_out[i] = ux;          /* u and v planes (see warp.cl) */
+        uv_out[count + i] = uy;
+        pdf_out[i] = pdf;
     }
 }

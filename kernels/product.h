@@ -20,10 +20,10 @@
  * isotropic profile measured better (ggx 0.05 under st_fagans: 0.19 against 0.27),
  * hence the switch (wavlight.product.lobe_shape). Only the
  * four children of each visited node are evaluated: O(levels) per sample, no
- * per-point tree. Node centre directions come from a table (map frame, the
- * four children of a node side by side as float4 x, y, z, so that the four
- * importances are one float4 expression); the lobe is turned into the map frame
- * once per point. Below the product depth P the BRDF is taken as constant and the
+ * per-point tree. Node centre directions are built from a small table of the
+ * sines and cosines of each level's column and row angles (map frame,
+ * wavlight.product.node_angles); the lobe is turned into the map frame once per
+ * point (make_lobe). Below the product depth P the BRDF is taken as constant and the
  * walk continues in the light tree (choose_child on the masses). The pdf is exact:
  *     pdf_square = prod_l I(child_l) / sum I(siblings_l) * mass(leaf) / mass(node_P) * 4^n
  * and product_pdf recomputes it for any direction. Where all four children have
@@ -47,113 +47,184 @@
 #define LOBE_GGX 2        /* narrow ggx: isotropic profile about the mirror direction */
 #define LOBE_GGX_HALF 3   /* wide ggx (alpha > 0.1): D at the true half vector */
 
+#ifndef LOBE_SHAPES   /* bit mask of the shapes a program evaluates (the host sets it from the materials) */
+#define LOBE_SHAPES 15
+#endif
+#define HAS_SHAPE(s) (LOBE_SHAPES & (1 << (s)))
+
+/* One shading point's lobe, scalar only (a kernel built on product_walk must have no
+ * vector types for PoCL to vectorise it across work-items). */
 typedef struct {
-    float3 axis;   /* lobe axis, in the map frame */
-    float3 n;      /* shading normal, in the map frame */
-    float3 wo;     /* direction to the viewer, in the map frame (ggx: the half vector) */
-    float inv_kappa; /* 1 / lobe concentration (phong n, ggx 1 / (2 alpha^2)); inf for lambert */
-    int levels;    /* product depth P (<= tree levels) */
-    int shape;     /* LOBE_LAMBERT | LOBE_PHONG | LOBE_GGX (= the BRDF kind) */
-    __global const float4 *dirs; /* per node of levels < P: its children's map-frame centre
-                                    directions, three float4 (x, y, z of children 00 10 01 11) */
+    float ax, ay, az;   /* lobe axis, in the map frame */
+    float nx, ny, nz;   /* shading normal, in the map frame */
+    float wx, wy, wz;   /* direction to the viewer, in the map frame (ggx: the half vector) */
+    float inv_kappa;    /* 1 / lobe concentration (phong n, ggx 1 / (2 alpha^2)); inf for lambert */
+    int levels;         /* product depth P (<= tree levels) */
+    int shape;          /* LOBE_LAMBERT | LOBE_PHONG | LOBE_GGX | LOBE_GGX_HALF */
 } Lobe;
 
-/* Importances of the four children (00 10 01 11) of node (x, y) at `level` whose
- * light masses are m, evaluated together as float4. Where all four are zero (or the
- * sum is not finite) the light masses are returned instead. */
-inline float4 child_importances(const Lobe *lb, const float4 m, const uint x, const uint y, const int level)
+/* The lobe of a shading point from world-frame normal n and direction to the viewer wo:
+ * axis = n (lambert) or the mirror direction; code = depth + 256 shape (as the host
+ * packs it, wavlight/shading.py); rot = map_from_world (row-major). */
+__attribute__((always_inline)) inline Lobe make_lobe(__global const float *rot, const float nx, const float ny, const float nz,
+                      const float ox, const float oy, const float oz, const float kappa, const int code)
 {
-    __global const float4 *d = lb->dirs + 3 * (LEVEL_OFFSET(level) + (ulong)y * (1u << level) + x);
-    const float4 dx = d[0], dy = d[1], dz = d[2];
-    /* the children's level is level + 1: inv = 2^-(level + 1), exactly and without a
-     * division (divisions bound this loop, measured) */
+    Lobe lb;
+    const int shape = code >> 8;
+    const float c2 = 2.0f * (ox * nx + oy * ny + oz * nz);
+    const float ax = shape == LOBE_LAMBERT ? nx : c2 * nx - ox;
+    const float ay = shape == LOBE_LAMBERT ? ny : c2 * ny - oy;
+    const float az = shape == LOBE_LAMBERT ? nz : c2 * nz - oz;
+    lb.ax = rot[0] * ax + rot[1] * ay + rot[2] * az;
+    lb.ay = rot[3] * ax + rot[4] * ay + rot[5] * az;
+    lb.az = rot[6] * ax + rot[7] * ay + rot[8] * az;
+    lb.nx = rot[0] * nx + rot[1] * ny + rot[2] * nz;
+    lb.ny = rot[3] * nx + rot[4] * ny + rot[5] * nz;
+    lb.nz = rot[6] * nx + rot[7] * ny + rot[8] * nz;
+    lb.wx = rot[0] * ox + rot[1] * oy + rot[2] * oz;
+    lb.wy = rot[3] * ox + rot[4] * oy + rot[5] * oz;
+    lb.wz = rot[6] * ox + rot[7] * oy + rot[8] * oz;
+    lb.inv_kappa = 1.0f / kappa;
+    lb.levels = code & 0xff;
+    lb.shape = shape;
+    return lb;
+}
+
+/* Importance (before the light mass) of the child of a level-`level` node whose centre
+ * direction is d (map frame): the lobe formulas of the header comment. */
+__attribute__((always_inline)) inline float lobe_weight(const Lobe *lb, const float dx, const float dy, const float dz, const int level)
+{
+    /* the child's level is level + 1: inv = 2^-(level + 1), exactly and without a division */
     const float scale = (float)(2u << level), inv = as_float((uint)(126 - level) << 23);
     const float r = LOBE_BLUR_F * inv, rh = HORIZON_BLUR_F * inv;
-    const float4 cos_n = dx * lb->n.x + dy * lb->n.y + dz * lb->n.z;
-    const float4 x1 = 1.0f - (dx * lb->axis.x + dy * lb->axis.y + dz * lb->axis.z);
-    float4 i;
-    if (lb->shape == LOBE_GGX) {           /* (1 + c x)^-2, step at the horizon */
-        /* 1 / (1 + c x) with c = 1 / a as a / (a + x): one division (a finite) */
+    const float cos_n = dx * lb->nx + dy * lb->ny + dz * lb->nz;
+    const float x1 = 1.0f - (dx * lb->ax + dy * lb->ay + dz * lb->az);
+    const float step = clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
+    const float hor = clamp(cos_n + rh, 0.0f, 1.0f);
+    float w = 0.0f;
+#if HAS_SHAPE(LOBE_LAMBERT) || HAS_SHAPE(LOBE_PHONG)
+    /* phong: (1 + k x / 8)^-8 ~ exp(-k x), times the (softened) cosine; lambert is its
+     * kappa = 0 case (inv_kappa = inf: g = 1 exactly), the cosine alone. Sharing the
+     * formula is also what keeps LLVM's SLP vectoriser off the four children of a
+     * lambert-only program (their cheap chains were bundled into a 4-vector, which stops
+     * PoCL's work-item vectoriser: measured 2x slower). */
+    if (lb->shape <= LOBE_PHONG) {
+        const float a8 = 8.0f * fmin(lb->inv_kappa + r * r, 1e30f);   /* 8 / kappa_l */
+        float g = a8 / (a8 + x1);
+        g *= g; g *= g;
+        w = g * g * hor;
+    }
+#endif
+#if HAS_SHAPE(LOBE_GGX)
+    if (lb->shape == LOBE_GGX) {                     /* (1 + c x)^-2 = (a / (a + x))^2, c = 1 / a */
         const float a = fmin(lb->inv_kappa + r * r, 1e30f);
-        const float4 g = a / (a + x1);
-        i = m * g * g * clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
-    } else if (lb->shape == LOBE_GGX_HALF) { /* pi D(h) with alpha widened, step at the horizon */
+        const float g = a / (a + x1);
+        w = g * g * step;
+    }
+#endif
+#if HAS_SHAPE(LOBE_GGX_HALF)
+    if (lb->shape == LOBE_GGX_HALF) {                /* pi D(h) with alpha widened */
         const float a2 = 0.5f * (lb->inv_kappa + r * r);     /* alpha_l^2 = alpha^2 + r^2 / 2 */
-        const float4 hx = dx + lb->wo.x, hy = dy + lb->wo.y, hz = dz + lb->wo.z;
-        const float4 hn = fmax(hx * lb->n.x + hy * lb->n.y + hz * lb->n.z, 0.0f);
-        /* D ~ a2 / (cos^2 (a2 - 1) + 1)^2 with cos^2 = hn^2 / |h|^2, times |h|^4 / |h|^4:
-         * one division instead of two */
-        const float4 hh = hx * hx + hy * hy + hz * hz;
-        const float4 q = hh / (hn * hn * (a2 - 1.0f) + hh);
-        i = m * (a2 * q * q) * clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
-    } else {
-        const float4 hor = clamp(cos_n + rh, 0.0f, 1.0f);
-        if (lb->shape == LOBE_PHONG) {     /* (1 + k x / 8)^-8 ~ exp(-k x), von Mises-Fisher, x cosine */
-            const float a8 = 8.0f * fmin(lb->inv_kappa + r * r, 1e30f);   /* 8 / kappa_l */
-            float4 g = a8 / (a8 + x1);
-            g *= g; g *= g;
-            i = m * (g * g) * hor;
-        } else {
-            i = m * hor;                   /* lambert: cosine */
-        }
+        const float hx = dx + lb->wx, hy = dy + lb->wy, hz = dz + lb->wz;
+        const float hn = fmax(hx * lb->nx + hy * lb->ny + hz * lb->nz, 0.0f);
+        /* D ~ a2 / (cos^2 (a2 - 1) + 1)^2 with cos^2 = hn^2 / |h|^2: one division */
+        const float hh = hx * hx + hy * hy + hz * hz;
+        const float q = hh / (hn * hn * (a2 - 1.0f) + hh);
+        w = (a2 * q * q) * step;
     }
-    const float sum = ((i.s0 + i.s1) + i.s2) + i.s3;
-    return (!(sum > 0.0f) || !isfinite(sum)) ? m : i;
+#endif
+    return w;
 }
 
-/* WALK_K product samples walked together (as tree_sample_k): sample k follows lobe
- * lb[k] for its first P_k levels, then the light tree; u[k] in, point of the square
- * out, pdf[k] its density on the square. */
-inline void product_sample_k(__global const float *tree, const int n_levels, const Lobe *lb,
-                             float2 *u, float *pdf)
+/* Importances of the four children (00 10 01 11) of node (x, y) at `level` whose light
+ * masses are m0..m3, into w0..w3. angles: the centre directions' sines and cosines per
+ * column and row of each level (product.node_angles): the children of (x, y) are
+ * columns 2x, 2x + 1 and rows 2y, 2y + 1 of level + 1. Where all four are zero (or the
+ * sum is not finite) the light masses are used instead. Scalars only, no arrays: an
+ * array becomes a 4-vector, which stops PoCL's work-item vectoriser. */
+__attribute__((always_inline)) inline void child_importances(const Lobe *lb, __global const float *angles,
+                              const float m0, const float m1, const float m2, const float m3, const uint x,
+                              const uint y, const int level, float *w0, float *w1, float *w2, float *w3)
 {
-    uint x[WALK_K], y[WALK_K];
-    float p[WALK_K];
-    for (int k = 0; k < WALK_K; ++k) {
-        x[k] = 0; y[k] = 0; p[k] = 1.0f;
-        u[k] = clamp(u[k], 0.0f, ONE_MINUS_EPS);
-    }
-    for (int l = 0; l < n_levels; ++l)
-        for (int k = 0; k < WALK_K; ++k) {
-            float4 m = children_of(tree, l, x[k], y[k]);
-            if (l < lb[k].levels) {
-                m = child_importances(&lb[k], m, x[k], y[k], l);
-                p[k] *= choose_child(m.s0, m.s1, m.s2, m.s3, &u[k], &x[k], &y[k]);
-            } else {
-                choose_child(m.s0, m.s1, m.s2, m.s3, &u[k], &x[k], &y[k]);
-            }
-        }
-    const uint side = 1u << n_levels;
-    for (int k = 0; k < WALK_K; ++k) {
-        const int depth = min(lb[k].levels, n_levels);
-        const uint nx = x[k] >> (n_levels - depth), ny = y[k] >> (n_levels - depth);
-        const float node_mass = tree[LEVEL_OFFSET(depth) + (ulong)ny * (1u << depth) + nx];
-        const float leaf = tree[LEVEL_OFFSET(n_levels) + (ulong)y[k] * side + x[k]];
-        u[k] = leaf_point(x[k], y[k], n_levels, u[k]);
-        pdf[k] = (tree[0] > 0.0f && node_mass > 0.0f) ? p[k] * (leaf / node_mass) * (float)side * (float)side
-                                                      : 0.0f;
-    }
+    __global const float *col = angles + 4 * ((2u << level) - 2u) + 8 * x;
+    __global const float *row = angles + 4 * ((2u << level) - 2u) + 8 * y;
+    const float sp0 = col[0], cp0 = col[1], sp1 = col[4], cp1 = col[5];
+    const float st0 = row[2], ct0 = row[3], st1 = row[6], ct1 = row[7];
+    const float i0 = m0 * lobe_weight(lb, sp0 * st0, ct0, -cp0 * st0, level);
+    const float i1 = m1 * lobe_weight(lb, sp1 * st0, ct0, -cp1 * st0, level);
+    const float i2 = m2 * lobe_weight(lb, sp0 * st1, ct1, -cp0 * st1, level);
+    const float i3 = m3 * lobe_weight(lb, sp1 * st1, ct1, -cp1 * st1, level);
+    const float sum = ((i0 + i1) + i2) + i3;
+    const int ok = sum > 0.0f && isfinite(sum);
+    *w0 = ok ? i0 : m0;
+    *w1 = ok ? i1 : m1;
+    *w2 = ok ? i2 : m2;
+    *w3 = ok ? i3 : m3;
 }
 
-inline float product_pdf(__global const float *tree, const int n_levels, const Lobe *lb,
-                         const float2 uv)
+/* One product sample: lobe lb for its first P levels (P <= PRODUCT_LEVELS, a compile-
+ * time bound), then the light tree; (ux, uy) uniform in, point of the square out;
+ * returns its density on the square. One walk per work-item, unrolled over N_LEVELS,
+ * scalar only: PoCL vectorises it across work-items (as warp.h tree_walk). The
+ * importances are computed for every lane at levels < PRODUCT_LEVELS and selected per
+ * lane (the direction table covers those levels, so every load is in bounds). */
+#if defined(N_LEVELS) && defined(PRODUCT_LEVELS)
+__attribute__((always_inline)) inline float product_walk(__global const float *tree, __global const float *angles,
+                                                         const Lobe *lb, float *ux, float *uy)
+{
+    uint x = 0, y = 0;
+    float p = 1.0f;
+    *ux = clamp_unit(*ux);
+    *uy = clamp_unit(*uy);
+#pragma unroll
+    for (int l = 0; l < N_LEVELS; ++l) {
+        const uint cside = 2u << l;
+        __global const float *c = tree + node_index(l + 1, 2 * x, 2 * y);
+        const float m0 = c[0], m1 = c[1], m2 = c[cside], m3 = c[cside + 1];
+        float w0 = m0, w1 = m1, w2 = m2, w3 = m3;
+        const int in_product = l < lb->levels;
+        if (l < PRODUCT_LEVELS) {   /* compile-time */
+            float i0, i1, i2, i3;
+            child_importances(lb, angles, m0, m1, m2, m3, x, y, l, &i0, &i1, &i2, &i3);
+            w0 = in_product ? i0 : m0;
+            w1 = in_product ? i1 : m1;
+            w2 = in_product ? i2 : m2;
+            w3 = in_product ? i3 : m3;
+        }
+        const float q = choose_child(w0, w1, w2, w3, ux, uy, &x, &y);
+        p *= (l < PRODUCT_LEVELS && in_product) ? q : 1.0f;
+    }
+    const int depth = min(lb->levels, N_LEVELS);
+    const float node_mass = tree[node_index(depth, x >> (N_LEVELS - depth), y >> (N_LEVELS - depth))];
+    const float leaf = tree[node_index(N_LEVELS, x, y)];
+    const uint side = 1u << N_LEVELS;
+    leaf_point(x, y, N_LEVELS, ux, uy);
+    return (tree[0] > 0.0f && node_mass > 0.0f) ? p * (leaf / node_mass) * (float)side * (float)side : 0.0f;
+}
+#endif
+
+/* Density on the square of product_walk at point (u, v), for any direction (MIS). */
+inline float product_pdf(__global const float *tree, const int n_levels, __global const float *angles,
+                         const Lobe *lb, const float u, const float v)
 {
     if (!(tree[0] > 0.0f)) return 0.0f;
     const int depth = min(lb->levels, n_levels);
     const uint side = 1u << n_levels;
-    const uint lx = (uint)clamp((int)floor(uv.x * side), 0, (int)side - 1);
-    const uint ly = (uint)clamp((int)floor(uv.y * side), 0, (int)side - 1);
+    const uint lx = (uint)clamp((int)floor(u * side), 0, (int)side - 1);
+    const uint ly = (uint)clamp((int)floor(v * side), 0, (int)side - 1);
     float p = 1.0f;
     for (int l = 0; l < depth; ++l) {
         const uint cx = lx >> (n_levels - l - 1), cy = ly >> (n_levels - l - 1);
-        const float4 i = child_importances(lb, children_of(tree, l, cx >> 1, cy >> 1), cx >> 1, cy >> 1, l);
-        const float sum = (i.s0 + i.s1) + (i.s2 + i.s3);
-        const uint c = (cx & 1) + 2 * (cy & 1);
-        p *= (c == 0 ? i.s0 : c == 1 ? i.s1 : c == 2 ? i.s2 : i.s3) / sum;
+        const uint px = cx >> 1, py = cy >> 1, cside = 2u << l;
+        __global const float *c = tree + node_index(l + 1, 2 * px, 2 * py);
+        float i0, i1, i2, i3;
+        child_importances(lb, angles, c[0], c[1], c[cside], c[cside + 1], px, py, l, &i0, &i1, &i2, &i3);
+        const float sum = (i0 + i1) + (i2 + i3);
+        const uint k = (cx & 1) + 2 * (cy & 1);
+        p *= (k == 0 ? i0 : k == 1 ? i1 : k == 2 ? i2 : i3) / sum;
     }
-    const uint nx = lx >> (n_levels - depth), ny = ly >> (n_levels - depth);
-    const float node_mass = tree[LEVEL_OFFSET(depth) + (ulong)ny * (1u << depth) + nx];
-    const float leaf = tree[LEVEL_OFFSET(n_levels) + (ulong)ly * side + lx];
+    const float node_mass = tree[node_index(depth, lx >> (n_levels - depth), ly >> (n_levels - depth))];
+    const float leaf = tree[node_index(n_levels, lx, ly)];
     return node_mass > 0.0f ? p * (leaf / node_mass) * (float)side * (float)side : 0.0f;
 }
 #endif

@@ -9,17 +9,24 @@
  * STRATEGY: 0 uniform, 1 cosine, 2 bsdf, 3 light, 4 mis, 5 wavelet. Single
  * strategies use u.xy and write slot 0 (slot 1 is zero); MIS draws the light
  * sample from u.xy into slot 0 and the bsdf sample from u.zw into slot 1; wavelet
- * does the same with the product sampler (product.h) in place of the light.
+ * does the same with the product sampler (product.h) in place of the light. The
+ * light and product samples (drawn from u.xy) come in as guide_uv / guide_pdf: the
+ * host draws them first with warp.cl / product.cl, whose tree walks PoCL vectorises
+ * across work-items (this kernel, with its float3 BSDF code, it cannot).
  */
 #include "warp.h"
 #include "bsdf.h"
 #include "product.h"
 
-typedef struct { float3 wi; float3 value; } Sample;
-
 inline float light_pdf(const Env *e, __global const float *tree, const int levels, const float3 w)
 {
     return tree_pdf(tree, levels, env_world_to_square(e, w)) * env_square_to_solid_angle(w);
+}
+
+inline float product_pdf_at(__global const float *tree, const int levels, __global const float *angles,
+                            const Lobe *lb, const float2 uv)
+{
+    return product_pdf(tree, levels, angles, lb, uv.x, uv.y);
 }
 
 inline float power_heuristic(const float pa, const float pb)
@@ -34,68 +41,48 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
                     __global const int *material, __global const float4 *u_in, const uint count,
                     __global const int *mat_kind, __global const float *mat_param,
                     __global const float4 *mat_albedo, __global const float *mat_kappa,
-                    __global const int *mat_levels, __global const float4 *node_dirs,
+                    __global const int *mat_levels, __global const float *angles,
                     __global const float4 *texels, const int env_w, const int env_h,
                     __global const float *rot, __global const float *tree, const int tree_levels,
+                    __global const float *guide_uv, __global const float *guide_pdf,
                     __global float4 *wi_out, __global float4 *value_out)
 {
-    /* WALK_K shading points per work-item: their tree walks (light or product) run
-     * together (warp.h tree_sample_k), the rest point by point. */
-    const uint i0 = get_global_id(0) * WALK_K;
+    /* One shading point per work-item. The guide sample (light or product) was drawn
+     * before, by warp.cl or product.cl (vectorised across work-items): guide_uv holds
+     * its point of the square (u plane, then v plane), guide_pdf its density there. */
+    const uint i = get_global_id(0);
+    if (i >= count) return;
     const Env env = {texels, env_w, env_h, rot};
-    float3 n[WALK_K], wow[WALK_K];
-    float4 u[WALK_K];
-    int mat[WALK_K];
-    float2 guide[WALK_K];     /* guide sample: u.xy in, the point of the square out */
-    float guide_pdf[WALK_K];  /* its density on the square */
-    for (int k = 0; k < WALK_K; ++k) {
-        const uint i = min(i0 + k, count - 1);
-        n[k] = normal[i].xyz;
-        wow[k] = wo_world[i].xyz;
-        mat[k] = material[i];
-        u[k] = u_in[i];
-        guide[k] = u[k].xy;
-    }
-#if STRATEGY == 5
-    Lobe lobes[WALK_K];
-    for (int k = 0; k < WALK_K; ++k) {
-        const int kind = mat_kind[mat[k]];
-        lobes[k].n = env_to_map(&env, n[k]);
-        lobes[k].wo = env_to_map(&env, wow[k]);
-        lobes[k].axis = env_to_map(&env, (kind == BSDF_LAMBERT) ? n[k] : 2.0f * dot(wow[k], n[k]) * n[k] - wow[k]);
-        lobes[k].inv_kappa = 1.0f / mat_kappa[mat[k]];
-        lobes[k].levels = mat_levels[mat[k]] & 0xff;   /* depth + 256 lobe shape (product.lobe_shape) */
-        lobes[k].shape = mat_levels[mat[k]] >> 8;
-        lobes[k].dirs = node_dirs;
-    }
-    product_sample_k(tree, tree_levels, lobes, guide, guide_pdf);
-#elif STRATEGY == 3 || STRATEGY == 4
-    const ulong same_tree[WALK_K] = {0};
-    tree_sample_k(tree, same_tree, tree_levels, guide, guide_pdf);
+#if STRATEGY >= 3
+    const float2 guide = (float2)(guide_uv[i], guide_uv[count + i]);
+    const float guide_density = guide_pdf[i];
 #endif
-    for (int k = 0; k < WALK_K && i0 + k < count; ++k) {
-        const uint i = i0 + k;
+    {
+        const int mat = material[i];
+        const float3 nk = normal[i].xyz, wowk = wo_world[i].xyz;
         float3 s, t;
-        make_frame(n[k], &s, &t);
-        const float3 nk = n[k], wowk = wow[k];
+        make_frame(nk, &s, &t);
         const float3 wo = (float3)(dot(wowk, s), dot(wowk, t), dot(wowk, nk));
-        const int kind = mat_kind[mat[k]];
-        const float param = mat_param[mat[k]];
-        const float3 albedo = mat_albedo[mat[k]].xyz;
-        const float4 uk = u[k];
+        const int kind = mat_kind[mat];
+        const float param = mat_param[mat];
+        const float3 albedo = mat_albedo[mat].xyz;
+        const float4 uk = u_in[i];
+#if STRATEGY == 5
+        const Lobe lobe = make_lobe(rot, nk.x, nk.y, nk.z, wowk.x, wowk.y, wowk.z, mat_kappa[mat], mat_levels[mat]);
+#endif
 
         float3 wi_w[2] = {(float3)(0.0f), (float3)(0.0f)};
         float scal[2] = {0.0f, 0.0f};
 #if STRATEGY == 5
-#define PDF_GUIDE(w) (product_pdf(tree, tree_levels, &lobes[k], env_world_to_square(&env, w)) \
+#define PDF_GUIDE(w) (product_pdf_at(tree, tree_levels, angles, &lobe, env_world_to_square(&env, w)) \
                      * env_square_to_solid_angle(w))
 #else
 #define PDF_GUIDE(w) light_pdf(&env, tree, tree_levels, w)
 #endif
 #if STRATEGY >= 4
         {   /* light (mis) or product (wavelet) sample, weighted against the bsdf pdf */
-            const float3 w = env_square_to_world(&env, guide[k]);
-            const float pdf = guide_pdf[k] * env_square_to_solid_angle(w);
+            const float3 w = env_square_to_world(&env, guide);
+            const float pdf = guide_density * env_square_to_solid_angle(w);
             const float3 wl = (float3)(dot(w, s), dot(w, t), dot(w, nk));
             const float f = bsdf_eval_cos(kind, param, wl, wo);
             wi_w[0] = w;
@@ -129,8 +116,8 @@ __kernel void shade(__global const float4 *normal, __global const float4 *wo_wor
             pdf = bsdf_pdf(kind, param, wl, wo);
             w = wl.x * s + wl.y * t + wl.z * nk;
 #else
-            w = env_square_to_world(&env, guide[k]);
-            pdf = guide_pdf[k] * env_square_to_solid_angle(w);
+            w = env_square_to_world(&env, guide);
+            pdf = guide_density * env_square_to_solid_angle(w);
             wl = (float3)(dot(w, s), dot(w, t), dot(w, nk));
 #endif
             wi_w[0] = w;

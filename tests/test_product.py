@@ -780,22 +780,21 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
     assert img.shape[:2] == (12, 16) and np.all(np.isfinite(img)) and img.max() > 0
 
 
-def test_node_direction_table_layout_and_size():
-    """node_directions: for node (l, x, y), three float4 rows hold the x, y, z components of
-    its children 00 10 01 11, which are the centres of the lat-long cells of level l + 1;
-    node_table_bytes reports its size without building it."""
-    from wavlight.distributions import level_offset
-
-    for levels in range(0, 7):
-        table = product.node_directions(levels)
-        assert table.nbytes == product.node_table_bytes(levels)
-        for l in range(levels):
-            side = 1 << l
+def test_node_angle_table_layout_and_size():
+    """node_angles: for lat-long level L = 1..P, at offset 4 (2^L - 2), entry i holds
+    sin and cos of phi_i = 2 pi (i + 0.5) / 2^L and of theta_i = pi (i + 0.5) / 2^L, from which
+    kernels/product.h builds the centre direction of cell (x, y) of level L;
+    node_angles_bytes reports its size without building it."""
+    for levels in range(0, 8):
+        table = product.node_angles(levels)
+        assert table.dtype == np.float32 and table.nbytes == product.node_angles_bytes(levels)
+        for L in range(1, levels + 1):
+            side = 1 << L
             for x, y in ((0, 0), (side - 1, 0), (side // 2, side - 1)):
-                rows = table[3 * (level_offset(l) + y * side + x):][:3]
-                for k, (cx, cy) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
-                    u = (2 * x + cx + 0.5) / (2 * side)
-                    v = (2 * y + cy + 0.5) / (2 * side)
-                    want = [np.sin(2 * np.pi * u) * np.sin(np.pi * v), np.cos(np.pi * v),
-                            -np.cos(2 * np.pi * u) * np.sin(np.pi * v)]
-                    np.testing.assert_allclose(rows[:, k], want, atol=1e-6)
+                col = table[4 * (side - 2) + 4 * x:][:4]
+                row = table[4 * (side - 2) + 4 * y:][:4]
+                d = [col[0] * row[2], row[3], -col[1] * row[2]]   # as child_importances builds it
+                u, v = (x + 0.5) / side, (y + 0.5) / side
+                want = [np.sin(2 * np.pi * u) * np.sin(np.pi * v), np.cos(np.pi * v),
+                        -np.cos(2 * np.pi * u) * np.sin(np.pi * v)]
+                np.testing.assert_allclose(d, want, atol=1e-6)

@@ -63,7 +63,8 @@ def test_render_kernel_equals_numpy_backend():
 
 
 def test_product_sample_points_kernel_matches_numpy():
-    """kernels/product.cl (the benchmark's product warp) against wavlight.product.sample_reference."""
+    """kernels/product.cl (the renderer's product guide samples) against wavlight.product.sample_reference,
+    for every lobe shape and product depth, in one program built for all of them."""
     from wavlight import cl, product
     from wavlight.distributions import HaarTree
 
@@ -72,29 +73,35 @@ def test_product_sample_points_kernel_matches_numpy():
                       1.0, 35.0)
     n_levels = env.square_levels()
     tree = HaarTree(env.luminance_square(n_levels))
-    count = 4093  # not a multiple of WALK_K: the masked tail is exercised too
+    count = 4093  # not a multiple of the work-group size: the masked tail is exercised too
     nrm = rng.normal(size=(count, 3))
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    axis = rng.normal(size=(count, 3))
-    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
-    shape = rng.integers(0, 4, count)  # lambert, phong, ggx, ggx with the half-vector model
-    kappa = np.where(shape == bsdfs.LAMBERT, 0.0, np.where(shape == bsdfs.PHONG, 50.0, 12.5))  # ggx alpha 0.2
-    levels = rng.integers(0, n_levels + 1, count)
-    u = rng.random((count, 2), dtype=np.float32)
-    depth = int(levels.max())
+    wo = rng.normal(size=(count, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wo *= np.sign(np.einsum("ij,ij->i", wo, nrm))[:, None]
+    # materials: every shape (lambert, phong, ggx, ggx with the half-vector model) at every depth
+    mat_shape = np.repeat(np.arange(4), n_levels + 1)
+    mat_depth = np.tile(np.arange(n_levels + 1), 4)
+    mat_kappa = np.where(mat_shape == bsdfs.LAMBERT, 0.0, np.where(mat_shape == bsdfs.PHONG, 50.0, 12.5))
+    material = rng.integers(0, len(mat_shape), count)
+    shape, levels, kappa = mat_shape[material], mat_depth[material], mat_kappa[material]
+    mirror = 2 * np.einsum("ij,ij->i", wo, nrm)[:, None] * nrm - wo
+    axis = np.where((shape == bsdfs.LAMBERT)[:, None], nrm, mirror)
+    u = rng.random((count, 4), dtype=np.float32)   # the renderer's layout: u.xy draws the guide sample
     q = cl.thread_queue()
-    texels = np.zeros((env.height * env.width, 4), np.float32)
-    texels[:, :3] = env.pixels.reshape(-1, 3)
-    ak = np.concatenate([axis, kappa[:, None]], 1).astype(np.float32)
-    nl = np.concatenate([nrm, (levels + 256 * shape)[:, None]], 1).astype(np.float32)
+    n4, w4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
+    n4[:, :3], w4[:, :3] = nrm, wo
     uv_buf, pdf_buf = cl.empty(8 * count), cl.empty(4 * count)
-    knl = cl.kernel(cl.program("product.cl"), "product_sample_points")
-    knl(q, (-(-count // cl.WALK_K),), None, tree.buffer, np.int32(n_levels), cl.to_device(texels),
-        np.int32(env.width), np.int32(env.height), cl.to_device(env.map_from_world.astype(np.float32).ravel()),
-        np.uint32(count), cl.to_device(ak),
-        cl.to_device(nl), cl.to_device(u), cl.to_device(product.node_directions(depth)), uv_buf, pdf_buf)
-    uv_k = cl.read(uv_buf, (count, 2), np.float32, q)
+    prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=n_levels, LOBE_SHAPES=15)
+    items = -(-count // cl.WORK_GROUP) * cl.WORK_GROUP
+    cl.kernel(prog, "product_sample_points")(
+        q, (items,), (cl.WORK_GROUP,), tree.buffer, cl.to_device(env.map_from_world.astype(np.float32).ravel()),
+        np.uint32(count), cl.to_device(n4), cl.to_device(w4), cl.to_device(material.astype(np.int32)),
+        cl.to_device(mat_kappa.astype(np.float32)), cl.to_device((mat_depth + 256 * mat_shape).astype(np.int32)),
+        cl.to_device(u), np.uint32(4), cl.to_device(product.node_angles(n_levels)), uv_buf, pdf_buf)
+    uv_k = cl.read(uv_buf, (2, count), np.float32, q).T
     pdf_k = cl.read(pdf_buf, (count,), np.float32, q)
+    u = u[:, :2]
     uv_r, pdf_r = product.sample_reference(tree.nodes()[0], n_levels, env, axis, nrm, kappa, levels, shape,
                                            u.astype(np.float64))
     # float32 kernel vs float64 reference: the same leaf for all but rounding ties at sibling

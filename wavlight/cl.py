@@ -17,9 +17,9 @@ Programs
 Kernel sources live in the ``kernels/`` folder, installed as the package
 ``wavlight.kernels``. Local ``#include "x.h"`` lines are spliced on the host
 (PoCL has failed on ``-I`` include paths). Each program is built once per
-(context, file, defines) and memoised for the life of the process. Every build
-gets ``-DWALK_K`` (:data:`WALK_K`), the number of samples one work-item walks
-through a tree together (kernels/warp.h).
+(context, file, defines) and memoised for the life of the process. Kernels that
+walk trees are built per tree depth (``-DN_LEVELS``): their level loop unrolls and
+PoCL vectorises the work-item loop (kernels/warp.h, tree_walk).
 """
 from __future__ import annotations
 
@@ -36,7 +36,10 @@ import numpy as np
 from .errors import WavlightError
 
 DEVICE_ENV = "WAVLIGHT_CL_DEVICE"
-WALK_K = 8  # samples one work-item walks together through a tree (kernels/warp.h, tree_sample_k)
+# Work-group size of the per-sample kernels (warp, product, shade): PoCL compiles a kernel
+# per work-group size on first launch, so one fixed size keeps it to one compile, and 64
+# work-items fill whole vectors when PoCL vectorises the work-item loop.
+WORK_GROUP = 64
 _PROBE_SRC = "__kernel void probe(__global float *a) { a[get_global_id(0)] *= 2.0f; }"
 
 
@@ -166,7 +169,7 @@ def kernel_source(name: str) -> str:
 @functools.lru_cache(maxsize=None)
 def _build(ctx, name: str, defines: tuple):
     cl = _cl()
-    opts = [f"-D{k}={v}" for k, v in (("WALK_K", WALK_K),) + defines]
+    opts = [f"-D{k}={v}" for k, v in defines]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # pyopencl's "build succeeded with warnings" chatter
         return cl.Program(ctx, kernel_source(name)).build(options=opts)

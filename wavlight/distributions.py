@@ -60,6 +60,17 @@ def build_reference(leaves: np.ndarray) -> np.ndarray:
     return out
 
 
+def leaf_point(leaf: np.ndarray, u: np.ndarray, n_levels: int) -> np.ndarray:
+    """The point at offset u (N, 2) inside leaves (N, 2) of a 2^n grid, float32 (kernels/warp.h).
+
+    u is clamped to 1 - 2^(n - 23) first, so that leaf + u rounds below leaf + 1 in float32:
+    the point stays inside its leaf.
+    """
+    top = np.float32(1.0 - 2.0 ** (n_levels - 23))
+    return ((leaf.astype(np.float32) + np.minimum(np.asarray(u, np.float32), top))
+            * np.float32(1.0 / (1 << n_levels))).astype(np.float32)
+
+
 def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per_tree: int):
     """Top-down warp of uniform points (numpy twin of ``warp_sample``).
 
@@ -92,11 +103,7 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
             u[:, 0] = np.fmin((u[:, 0] * s_col - np.where(go_left, np.float32(0), left)) / col, ONE_MINUS_EPS)
             x = 2 * x + (~go_left)
     u = np.nan_to_num(u, nan=0.0)
-    side = 1 << n_levels
-    leaf = np.stack([x, y], 1)
-    uv = ((leaf + u) / np.float32(side)).astype(np.float32)
-    # (x + u) / 2^n may round up onto the next leaf's edge: stay inside the chosen leaf.
-    uv = np.minimum(uv, np.nextafter(((leaf + 1) / np.float32(side)).astype(np.float32), np.float32(0)))
+    uv = leaf_point(np.stack([x, y], 1), u, n_levels)
     return uv, pdf_reference(tree, n_levels, uv, samples_per_tree)
 
 
@@ -156,15 +163,19 @@ class HaarTree:
         src = cl.to_device(pts)
         uv = cl.empty(pts.nbytes) if outputs == 2 else None
         pdf = cl.empty(4 * n)
-        knl = cl.kernel(cl.program("warp.cl"), name)
-        args = [self.buffer, np.uint64(self.stride), np.int32(self.n_levels), np.uint32(samples_per_tree)]
-        if name == "warp_sample":  # WALK_K samples per work-item, the tail masked by count
-            knl(queue, (-(-n // cl.WALK_K),), None, *args, np.uint32(n), src, uv, pdf)
+        args = [self.buffer, np.uint64(self.stride)]
+        if name == "warp_sample":  # built per depth (the walk unrolls); one sample per work-item
+            prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=int(samples_per_tree < n))
+            items = -(-n // cl.WORK_GROUP) * cl.WORK_GROUP
+            cl.kernel(prog, name)(queue, (items,), (cl.WORK_GROUP,), *args, np.uint32(samples_per_tree),
+                                  np.uint32(n), src, np.uint32(2), uv, pdf)
         else:
-            knl(queue, (n,), None, *args, src, pdf)
+            prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=1)
+            cl.kernel(prog, name)(queue, (n,), None, *args, np.int32(self.n_levels),
+                                  np.uint32(samples_per_tree), src, pdf)
         res = [cl.read(pdf, (n,), np.float32, queue)]
         if uv is not None:
-            res.insert(0, cl.read(uv, (n, 2), np.float32, queue))
+            res.insert(0, np.ascontiguousarray(cl.read(uv, (2, n), np.float32, queue).T))  # u, v planes
         return res
 
     def sample(self, u: np.ndarray, samples_per_tree: int | None = None):

@@ -44,26 +44,28 @@ HORIZON_BLUR = 0.75 * np.pi  # horizon softening at level l: HORIZON_BLUR / 2^l
 MAX_KAPPA = 1e6
 
 
-def node_directions(levels: int) -> np.ndarray:
-    """The centre-direction table kernels/product.h reads, (3 tree_size(levels - 1), 4) float32.
+def node_angles(levels: int) -> np.ndarray:
+    """The angle table kernels/product.h reads for product depth `levels`, float32.
 
-    For every node of levels 0..levels-1 (tree layout), three float4: the x, y and z
-    map-frame components of the centre directions of its four children (00, 10, 01, 11),
-    so that the kernel evaluates the four children's importances as one float4 expression.
+    Node (x, y) of lat-long level L has the centre direction
+    (sin phi_x sin theta_y, cos theta_y, -cos phi_x sin theta_y) with
+    phi_x = 2 pi (x + 0.5) / 2^L and theta_y = pi (y + 0.5) / 2^L, so a level needs only
+    its 2^L columns and 2^L rows: for L = 1..levels, at offset 4 (2^L - 2), entry i holds
+    (sin phi_i, cos phi_i, sin theta_i, cos theta_i). A few KB at any depth, so it stays
+    in the L1 cache (a table of every node's direction measured slower).
     """
-    from .distributions import tree_size
+    out = [np.zeros((1, 4))]
+    for L in range(1, levels + 1):
+        i = np.arange(1 << L) + 0.5
+        phi, theta = 2 * np.pi * i / (1 << L), np.pi * i / (1 << L)
+        out.append(np.stack([np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)], 1))
+    table = np.concatenate(out[1:] if levels > 0 else out).astype(np.float32).ravel()
+    return table
 
-    parents = tree_size(levels - 1) if levels > 0 else 0
-    out = np.zeros((max(parents, 1), 3, 4), np.float32)
-    for l in range(levels):
-        side = 1 << l
-        y, x = np.divmod(np.arange(side * side), side)
-        cx = 2 * x[:, None] + np.array([0, 1, 0, 1])        # children 00 10 01 11
-        cy = 2 * y[:, None] + np.array([0, 0, 1, 1])
-        phi, theta = 2 * np.pi * (cx + 0.5) / (2 * side), np.pi * (cy + 0.5) / (2 * side)
-        out[level_offset(l):level_offset(l + 1)] = np.stack(
-            [np.sin(phi) * np.sin(theta), np.cos(theta), -np.cos(phi) * np.sin(theta)], 1)
-    return out.reshape(-1, 4)
+
+def node_angles_bytes(levels: int) -> int:
+    """Size of :func:`node_angles` (levels) in bytes, without building it."""
+    return 16 * max((2 << levels) - 2, 1)
 
 
 GGX_HALF = 3                # lobe shape of wide ggx lobes: D at the true half vector (kernels/product.h)
@@ -73,13 +75,6 @@ GGX_HALF_MIN_ALPHA = 0.1    # ggx roughness above which GGX_HALF is used (measur
 def lobe_shape(kind: int, param: float) -> int:
     """The node-importance model of a material: its kind, or GGX_HALF for ggx with alpha > 0.1."""
     return GGX_HALF if kind == bsdfs.GGX and param > GGX_HALF_MIN_ALPHA else int(kind)
-
-
-def node_table_bytes(levels: int) -> int:
-    """Size of :func:`node_directions` (levels) in bytes, without building it."""
-    from .distributions import tree_size
-
-    return 48 * max(tree_size(levels - 1) if levels > 0 else 0, 1)
 
 
 def lobe_kappa(kind: int, param: float) -> float:
@@ -180,6 +175,8 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
             x = 2 * x + (~go_left)
     side = 1 << n_levels
     leaf = np.stack([x, y], 1)
+    # float64 (the kernel's float32 leaf point, distributions.leaf_point, would put tiny
+    # offsets exactly on the leaf's edge, where the direction's round trip may change leaf)
     uv = np.minimum((leaf + np.nan_to_num(u)) / side, np.nextafter((leaf + 1) / side, 0))
     return uv, pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv)
 

@@ -13,7 +13,6 @@ import numpy as np
 from . import cl, product, strategies, warp
 
 
-WORK_GROUP = 64
 
 
 class KernelShader:
@@ -38,34 +37,54 @@ class KernelShader:
         alb[:, :3] = scene.material_albedo
         self.albedo = cl.to_device(alb)
         kappa = getattr(strategy, "kappa", np.zeros(len(scene.materials)))
-        levels = getattr(strategy, "levels", np.zeros(len(scene.materials), np.int32))
+        levels = np.asarray(getattr(strategy, "levels", np.zeros(len(scene.materials), np.int32)), np.int32)
         self.kappa = cl.to_device(np.asarray(kappa, np.float32))
-        shapes = getattr(strategy, "shapes", np.zeros(len(scene.materials), np.int32))
-        # depth + 256 lobe shape (kernels/shade.cl decodes both)
-        self.levels_per_material = cl.to_device(np.asarray(levels, np.int32) + 256 * np.asarray(shapes, np.int32))
+        shapes = np.asarray(getattr(strategy, "shapes", np.zeros(len(scene.materials), np.int32)), np.int32)
+        # depth + 256 lobe shape (kernels/product.h make_lobe decodes both)
+        self.levels_per_material = cl.to_device(levels + 256 * shapes)
         depth = int(max(np.max(levels, initial=0), 0))
-        self.node_dirs = cl.to_device(product.node_directions(depth))
-        self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name])
+        self.angles = cl.to_device(product.node_angles(depth))
+        kernel_id = strategies.KERNEL_ID[strategy.name]
+        self.program = cl.program("shade.cl", STRATEGY=kernel_id)
+        # the guide sample (light or product) is drawn first, by a kernel built for this
+        # tree depth (and product depth and lobe shapes) that PoCL vectorises
+        self.guide = None
+        if kernel_id in (3, 4):
+            self.guide = cl.program("warp.cl", N_LEVELS=int(self.levels), BATCHED=0), "warp_sample"
+        elif kernel_id == 5:
+            self.guide = (cl.program("product.cl", N_LEVELS=int(self.levels), PRODUCT_LEVELS=depth,
+                                     LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0))),
+                          "product_sample_points")
         self.warm_up()
 
     def __call__(self, n, wo, material, u, **_):
         count = len(n)
         if count == 0:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.float32)
-        # Each work-item shades cl.WALK_K points (the kernel masks the tail). A fixed
-        # work-group size, the global size padded to it: PoCL compiles a kernel per
-        # work-group size on first launch, so this keeps it to one compile (done in warm_up).
-        items = -(-count // cl.WALK_K)
-        items = -(-items // WORK_GROUP) * WORK_GROUP
+        # One point per work-item, the global size padded to a fixed work-group size:
+        # PoCL compiles a kernel per work-group size on first launch, so this keeps it
+        # to one compile (done in warm_up).
+        items = -(-count // cl.WORK_GROUP) * cl.WORK_GROUP
         n4, wo4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
         n4[:, :3], wo4[:, :3] = n, wo
         q = cl.thread_queue()
+        n_buf, wo_buf, mat_buf = cl.to_device(n4), cl.to_device(wo4), cl.to_device(np.asarray(material, np.int32))
+        u_buf = cl.to_device(np.asarray(u, np.float32))
         wi_buf, val_buf = cl.empty(count * 32), cl.empty(count * 32)
+        guide_uv, guide_pdf = cl.empty(8 * count), cl.empty(4 * count)
+        if self.guide is not None:
+            prog, name = self.guide
+            knl = cl.kernel(prog, name)
+            if name == "warp_sample":
+                knl(q, (items,), (cl.WORK_GROUP,), self.tree, np.uint64(0), np.uint32(count), np.uint32(count),
+                    u_buf, np.uint32(4), guide_uv, guide_pdf)
+            else:
+                knl(q, (items,), (cl.WORK_GROUP,), self.tree, self.rot, np.uint32(count), n_buf, wo_buf, mat_buf,
+                    self.kappa, self.levels_per_material, u_buf, np.uint32(4), self.angles, guide_uv, guide_pdf)
         knl = cl.kernel(self.program, "shade")
-        knl(q, (items,), (WORK_GROUP,), cl.to_device(n4), cl.to_device(wo4),
-            cl.to_device(np.asarray(material, np.int32)), cl.to_device(np.asarray(u, np.float32)), np.uint32(count),
-            self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.node_dirs, self.texels,
-            *self.env_size, self.rot, self.tree, self.levels, wi_buf, val_buf)
+        knl(q, (items,), (cl.WORK_GROUP,), n_buf, wo_buf, mat_buf, u_buf, np.uint32(count),
+            self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.angles, self.texels,
+            *self.env_size, self.rot, self.tree, self.levels, guide_uv, guide_pdf, wi_buf, val_buf)
         wi = cl.read(wi_buf, (count, 2, 4), np.float32, q)[:, :, :3]
         value = cl.read(val_buf, (count, 2, 4), np.float32, q)[:, :, :3]
         return wi, value

@@ -235,11 +235,11 @@ class WaveletStrategy(Strategy):
 
     def info(self):
         depth = int(self.levels.max(initial=0))
-        table = product.node_table_bytes(depth)
+        table = product.node_angles_bytes(depth)
         return {**self.light.info(),
                 "product_levels": dict(zip(self.names, self.levels.tolist())),
                 "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
-                "node_table_bytes": table,
+                "angle_table_bytes": table,
                 "memory_bytes": int(self.light.tree.stride * 4 + table)}
 
 
