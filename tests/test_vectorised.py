@@ -1,0 +1,66 @@
+"""The tree-walk kernels stay vectorised by PoCL (kernels/warp.h tree_walk, kernels/product.h product_walk).
+
+A structural check, not a timing: each program is built and launched once in a subprocess with
+PoCL's vectoriser remarks on, and every work-item loop must report "vectorized loop". LLVM's SLP
+vectoriser can pair two identical scalar chains into a short vector, after which PoCL's work-item
+vectoriser gives up and the walks run 1.5-3x slower with identical results; only this test notices.
+Skipped where the device gives no vectoriser remarks (another OpenCL driver, or a PoCL without them).
+"""
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+
+SCRIPT = r"""
+import sys
+import numpy as np
+from wavlight import cl
+
+q = cl.thread_queue()
+n = 256
+f = cl.to_device(np.random.default_rng(0).random(1 << 22).astype(np.float32))
+out_uv, out_pdf = cl.empty(8 * n), cl.empty(4 * n)
+for spec in sys.argv[1:]:
+    name, *kv = spec.split(",")
+    defs = {k: int(v) for k, v in (x.split("=") for x in kv)}
+    if name == "probe":
+        prog = cl._cl().Program(cl.runtime().context, "__kernel void probe(__global float *a)"
+                                " { a[get_global_id(0)] *= 2.0f; }").build()
+        cl.kernel(prog, "probe")(q, (n,), (64,), out_uv)
+    elif name == "warp":
+        knl = cl.kernel(cl.program("warp.cl", **defs), "warp_sample")
+        knl(q, (n,), (64,), f, np.uint64(0), np.uint32(n), np.uint32(n), f, np.uint32(2), out_uv, out_pdf)
+    else:
+        mat = cl.to_device(np.zeros(n, np.int32))
+        code = cl.to_device(np.array([defs["PRODUCT_LEVELS"] + 256 * defs.pop("SHAPE")], np.int32))
+        knl = cl.kernel(cl.program("product.cl", **defs), "product_sample_points")
+        knl(q, (n,), (64,), f, f, np.uint32(n), f, f, mat, f, code, f, np.uint32(2), f, out_uv, out_pdf)
+    q.finish()
+"""
+
+
+def remarks(spec):
+    """PoCL's vectoriser remarks (it prints them on stdout) for building and launching one program."""
+    env = dict(os.environ, POCL_VECTORIZER_REMARKS="1", POCL_KERNEL_CACHE="0")
+    r = subprocess.run([sys.executable, "-c", SCRIPT, spec], env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return r.stdout + r.stderr
+
+
+WALKS = ["warp,N_LEVELS=4,BATCHED=0", "warp,N_LEVELS=10,BATCHED=0", "warp,N_LEVELS=8,BATCHED=1"] + [
+    f"product,N_LEVELS=10,PRODUCT_LEVELS={p},LOBE_SHAPES={mask},SHAPE={shape}"
+    for p, mask, shape in ((3, 1, 0), (7, 2, 1), (7, 4, 2), (5, 8, 3), (7, 15, 1), (3, 3, 0), (5, 12, 3))]
+
+
+def test_tree_walk_kernels_are_vectorised():
+    if "pocl" not in __import__("wavlight").cl.runtime().description.lower():
+        pytest.skip("not a PoCL device")
+    if "vectorized loop" not in remarks("probe"):
+        pytest.skip("this PoCL gives no vectoriser remarks")
+    with ThreadPoolExecutor(2) as pool:
+        chunks = dict(zip(WALKS, pool.map(remarks, WALKS)))
+    bad = [spec for spec in WALKS if "vectorized loop" not in chunks[spec] or "loop not vectorized" in chunks[spec]]
+    assert not bad, f"PoCL no longer vectorises: {bad}; remarks: {chunks[bad[0]][-1500:]}"
