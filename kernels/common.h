@@ -15,5 +15,4 @@
 /* Largest float below 1: uniform variates are clamped to [0, ONE_MINUS_EPS]. */
 #define ONE_MINUS_EPS 0x1.fffffep-1f
 
-
 #endif

@@ -167,7 +167,8 @@ __attribute__((always_inline)) inline void child_importances(const Lobe *lb, __g
  * returns its density on the square. One walk per work-item, unrolled over N_LEVELS,
  * scalar only: PoCL vectorises it across work-items (as warp.h tree_walk). The
  * importances are computed for every lane at levels < PRODUCT_LEVELS and selected per
- * lane (the direction table covers those levels, so every load is in bounds). */
+ * lane (the angle table covers those levels, so every load is in bounds). PRODUCT_LEVELS
+ * must be at least every lane's depth (the host builds with the largest). */
 #if defined(N_LEVELS) && defined(PRODUCT_LEVELS)
 __attribute__((always_inline)) inline float product_walk(__global const float *tree, __global const float *angles,
                                                          const Lobe *lb, float *ux, float *uy)

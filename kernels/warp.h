@@ -37,12 +37,13 @@ inline float choose_child(const float m00, const float m10, const float m01, con
 #pragma OPENCL FP_CONTRACT OFF
     /* (no fused multiply-add: the numpy twin rounds u * sum and the subtraction apart) */
     const float top = m00 + m10, bottom = m01 + m11, s_row = top + bottom;
-    /* top (row 2y) or bottom (row 2y + 1) pair */
-    const int b = !(*uy * s_row < top);
+    /* top (row 2y) or bottom (row 2y + 1) pair; never a side of zero mass, which
+     * u * sum rounding up to a denormal mass could otherwise pick */
+    const int b = !(*uy * s_row < top) & (bottom > 0.0f);
     const float row = b ? bottom : top;
     const float left = b ? m01 : m00, right = b ? m11 : m10, s_col = left + right;
     /* left (column 2x) or right (column 2x + 1) child */
-    const int r = !(*ux * s_col < left);
+    const int r = !(*ux * s_col < left) & (as_uint(right) != 0u);   /* right >= +0: the bits (see below) */
     const float col = r ? right : left;
     const float ny = (*uy * s_row - (b ? top : 0.0f)) / row;
     const float nx = (*ux * s_col - (r ? left : 0.0f)) / col;

@@ -470,3 +470,20 @@ def test_world_to_square_kernel_matches_numpy():
     du = np.minimum(du, 1 - du)
     pole = np.hypot(w4[:, 0], w4[:, 2]) == 0  # u is arbitrary there (atan2(+-0, +-0))
     assert pole.sum() == 2 and du[~pole].max() <= 1e-6 and np.abs(got[:, 1] - ref[:, 1]).max() <= 1e-6
+
+
+def test_walk_never_enters_a_zero_mass_child_next_to_a_denormal_one():
+    """u * (top + bottom) can round up to a denormal top mass, so `u * sum < top` alone would
+    send a sample into a zero-mass bottom row (choose_child guards against it): in a tree whose
+    only mass is one denormal texel, every sample lands in that texel, kernel and twin alike."""
+    leaves = np.zeros((2, 2), np.float32)
+    leaves[0, 0] = np.float32(3e-45)   # two ulps of the smallest denormal
+    t = HaarTree(leaves)
+    if not t.integral[0] > 0:
+        pytest.skip("this device flushes denormals to zero")
+    g = (np.arange(64) + 0.5) / 64
+    u = np.concatenate([np.stack(np.meshgrid(g, g), -1).reshape(-1, 2), EDGE_U]).astype(np.float32)
+    for uv, pdf in (t.sample(u), sample_reference(t.nodes(), t.n_levels, u, len(u))):
+        kx, ky = leaf_index(uv, 2)
+        assert (kx == 0).all() and (ky == 0).all()
+        np.testing.assert_allclose(pdf, 4.0, rtol=1e-6)

@@ -6,9 +6,10 @@ image over the node's square, ``2^-l F^0_{l,t}``, eq. 17). Warping and pdf
 evaluation run in the OpenCL kernels of ``kernels/tree.cl`` and ``kernels/warp.cl``;
 the ``*_reference`` functions here are their plain numpy twins, used by the tests.
 
-The product sampler (wavelet strategy) builds one tree per shading point from
-product scaling coefficients (eq. 25) and reuses the same kernels unchanged:
-sample ``i`` uses tree ``i // samples_per_tree``.
+Batched trees (one per shading point, e.g. the eq. 25 product pyramids of
+:mod:`wavlight.haar`) use the same kernels: sample ``i`` uses tree
+``i // samples_per_tree``. The wavelet strategy itself needs no per-point tree: its
+top-down product walk (``kernels/product.h``) shares the walk's child choice.
 
 Image orientation: ``image[y, x]``; a point ``(u, v)`` of the square lies in
 column ``floor(u 2^n)``, row ``floor(v 2^n)``.
@@ -78,7 +79,7 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
     returns : uv (N, 2) float32 in [0, 1), pdf (N,) float32 on the unit square
     """
     tree = np.asarray(tree, np.float32).reshape(-1, tree_size(n_levels))
-    u = np.clip(np.asarray(u, np.float32), 0, ONE_MINUS_EPS).copy()
+    u = np.clip(np.nan_to_num(np.asarray(u, np.float32), nan=0.0), 0, ONE_MINUS_EPS)  # as clamp_unit
     t = np.arange(len(u)) // samples_per_tree
     x = np.zeros(len(u), np.int64)
     y = np.zeros(len(u), np.int64)
@@ -91,14 +92,14 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
             # as kernels/warp.h choose_child: compare u * sum with a mass, rescale u by one division
             top, bottom = m00 + m10, m01 + m11
             s_row = top + bottom
-            go_top = u[:, 1] * s_row < top
+            go_top = (u[:, 1] * s_row < top) | ~(bottom > 0)   # never a side of zero mass
             row = np.where(go_top, top, bottom)
             u[:, 1] = np.fmin((u[:, 1] * s_row - np.where(go_top, np.float32(0), top)) / row, ONE_MINUS_EPS)
             left = np.where(go_top, m00, m01)
             right = np.where(go_top, m10, m11)
             y = 2 * y + (~go_top)
             s_col = left + right
-            go_left = u[:, 0] * s_col < left
+            go_left = (u[:, 0] * s_col < left) | (right == 0)
             col = np.where(go_left, left, right)
             u[:, 0] = np.fmin((u[:, 0] * s_col - np.where(go_left, np.float32(0), left)) / col, ONE_MINUS_EPS)
             x = 2 * x + (~go_left)
@@ -170,7 +171,7 @@ class HaarTree:
             cl.kernel(prog, name)(queue, (items,), (cl.WORK_GROUP,), *args, np.uint32(samples_per_tree),
                                   np.uint32(n), src, np.uint32(2), uv, pdf)
         else:
-            prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=1)
+            prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=int(samples_per_tree < n))
             cl.kernel(prog, name)(queue, (n,), None, *args, np.int32(self.n_levels),
                                   np.uint32(samples_per_tree), src, pdf)
         res = [cl.read(pdf, (n,), np.float32, queue)]

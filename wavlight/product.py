@@ -146,7 +146,7 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
     tree : (tree_size(n),) light masses; axis, n : (N, 3); kappa (N,); levels, shape (N,) int.
     """
     tree = np.asarray(tree, np.float64).ravel()
-    u = np.clip(np.asarray(u, np.float64), 0, ONE_MINUS_EPS).copy()
+    u = np.clip(np.nan_to_num(np.asarray(u, np.float64), nan=0.0), 0, ONE_MINUS_EPS)  # as clamp_unit
     count = len(u)
     x = np.zeros(count, np.int64)
     y = np.zeros(count, np.int64)
@@ -163,12 +163,12 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
             # as kernels/warp.h choose_child: compare u * sum with a mass, rescale u by one division
             top, bottom = w[:, 0] + w[:, 1], w[:, 2] + w[:, 3]
             s_row = top + bottom
-            go_top = u[:, 1] * s_row < top
+            go_top = (u[:, 1] * s_row < top) | ~(bottom > 0)   # never a side of zero mass
             row = np.where(go_top, top, bottom)
             u[:, 1] = np.fmin((u[:, 1] * s_row - np.where(go_top, 0.0, top)) / row, ONE_MINUS_EPS)
             left, right = np.where(go_top, w[:, 0], w[:, 2]), np.where(go_top, w[:, 1], w[:, 3])
             s_col = left + right
-            go_left = u[:, 0] * s_col < left
+            go_left = (u[:, 0] * s_col < left) | (right == 0)
             col = np.where(go_left, left, right)
             u[:, 0] = np.fmin((u[:, 0] * s_col - np.where(go_left, 0.0, left)) / col, ONE_MINUS_EPS)
             y = 2 * y + (~go_top)

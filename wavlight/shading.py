@@ -1,8 +1,10 @@
-"""Shading on the OpenCL device: the ``shade`` kernel of kernels/shade.cl.
+"""Shading on the OpenCL device: guide samples (kernels/warp.cl, product.cl), then kernels/shade.cl.
 
 :class:`KernelShader` uploads the environment (texels, rotation), the light tree
-and the material table once, then shades batches of points: for each point one
-direction per strategy sample (two for MIS) and its unoccluded estimate. Its numpy
+and the material table once, then shades batches of points: the light or product
+guide sample of each point first (walk kernels that PoCL vectorises), then the
+``shade`` kernel: for each point one direction per strategy sample (two for MIS)
+and its unoccluded estimate. Its numpy
 twin is :func:`wavlight.strategies.shade_reference`; :class:`NumpyShader` wraps
 that twin behind the same call, for tests and for devices without OpenCL.
 """
@@ -11,8 +13,6 @@ from __future__ import annotations
 import numpy as np
 
 from . import cl, product, strategies, warp
-
-
 
 
 class KernelShader:
