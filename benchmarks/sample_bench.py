@@ -6,7 +6,8 @@ the top-down product warp of kernels/product.h, which the renderer's wavelet
 strategy runs to draw its guide samples) and the light tree's `warp_sample` on 2^21
 random shading points (random normals and view directions: the least coherent case), and the eq. 25 product pyramids of
 wavlight.haar.ProductPyramids (dense per-point trees, the alternative design) in
-trees/s. Prints one JSON object. Timings are kernel time after a warm-up, best of 3,
+trees/s. "without_lookahead": the product walk built without its look-ahead
+importances at the coarse levels (kernels/product.h), for comparison. Prints one JSON object. Timings are kernel time after a warm-up, best of 3,
 including host<->device copies of inputs and outputs ("with_copies") and without.
 
     python benchmarks/sample_bench.py [--env ../shared/data/envmaps/rooitou_park_1k.hdr]
@@ -102,6 +103,10 @@ def main():
             row[name] = {"product_depth": depth,
                          "product_samples_per_second": round(n / best_of(run)),
                          "with_copies": round(n / best_of(run_with_copies))}
+            # the same walk without the look-ahead importances (kernels/product.h)
+            knl = cl.kernel(cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth,
+                                       LOBE_SHAPES=1 << shape, LOOKAHEAD_LEVELS=0), "product_sample_points")
+            row[name]["without_lookahead"] = round(n / best_of(run))
         out["levels"][str(n_levels)] = row
     # The alternative design: dense per-point product pyramids by eq. 25 (wavlight.haar).
     try:

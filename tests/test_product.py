@@ -781,14 +781,15 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
 
 
 def test_node_angle_table_layout_and_size():
-    """node_angles: for lat-long level L = 1..P, at offset 4 (2^L - 2), entry i holds
+    """node_angles: for lat-long level L = 1..P + 1, at offset 4 (2^L - 2), entry i holds
     sin and cos of phi_i = 2 pi (i + 0.5) / 2^L and of theta_i = pi (i + 0.5) / 2^L, from which
     kernels/product.h builds the centre direction of cell (x, y) of level L;
     node_angles_bytes reports its size without building it."""
     for levels in range(0, 8):
         table = product.node_angles(levels)
         assert table.dtype == np.float32 and table.nbytes == product.node_angles_bytes(levels)
-        for L in range(1, levels + 1):
+        assert table.size == 4 * ((4 << levels) - 2)
+        for L in range(1, levels + 2):
             side = 1 << L
             for x, y in ((0, 0), (side - 1, 0), (side // 2, side - 1)):
                 col = table[4 * (side - 2) + 4 * x:][:4]

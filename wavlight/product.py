@@ -50,22 +50,22 @@ def node_angles(levels: int) -> np.ndarray:
     Node (x, y) of lat-long level L has the centre direction
     (sin phi_x sin theta_y, cos theta_y, -cos phi_x sin theta_y) with
     phi_x = 2 pi (x + 0.5) / 2^L and theta_y = pi (y + 0.5) / 2^L, so a level needs only
-    its 2^L columns and 2^L rows: for L = 1..levels, at offset 4 (2^L - 2), entry i holds
-    (sin phi_i, cos phi_i, sin theta_i, cos theta_i). A few KB at any depth, so it stays
-    in the L1 cache (a table of every node's direction measured slower).
+    its 2^L columns and 2^L rows: for L = 1..levels + 1 (the look-ahead at level l reads
+    level l + 2), at offset 4 (2^L - 2), entry i holds (sin phi_i, cos phi_i,
+    sin theta_i, cos theta_i). A few KB at any depth, so it stays in the L1 cache (a
+    table of every node's direction measured slower).
     """
     out = [np.zeros((1, 4))]
-    for L in range(1, levels + 1):
+    for L in range(1, levels + 2):
         i = np.arange(1 << L) + 0.5
         phi, theta = 2 * np.pi * i / (1 << L), np.pi * i / (1 << L)
         out.append(np.stack([np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)], 1))
-    table = np.concatenate(out[1:] if levels > 0 else out).astype(np.float32).ravel()
-    return table
+    return np.concatenate(out[1:]).astype(np.float32).ravel()
 
 
 def node_angles_bytes(levels: int) -> int:
     """Size of :func:`node_angles` (levels) in bytes, without building it."""
-    return 16 * max((2 << levels) - 2, 1)
+    return 16 * ((4 << levels) - 2)
 
 
 GGX_HALF = 3                # lobe shape of wide ggx lobes: D at the true half vector (kernels/product.h)
@@ -126,14 +126,28 @@ def node_importance(env, mass, x, y, level, axis, n, kappa, shape):
     return mass * lobe
 
 
-def _children(tree, env, x, y, level, axis, n, kappa, shape):
+LOOKAHEAD_LEVELS = 3  # levels whose child importances sum the grandchildren's (kernels/product.h)
+
+
+def _children(tree, env, x, y, level, axis, n, kappa, shape, n_levels):
     cside = 2 << level
     base = level_offset(level + 1) + (2 * y) * cside + 2 * x
     idx = np.stack([base, base + 1, base + cside, base + cside + 1], 1)
     m = tree[idx].astype(np.float64)
-    imp = np.stack([node_importance(env, m[:, k], 2 * x + (k & 1), 2 * y + (k >> 1), level + 1, axis, n, kappa,
-                                    shape)
-                    for k in range(4)], 1)
+    if level < LOOKAHEAD_LEVELS and level + 2 <= n_levels:
+        # look-ahead: a child's importance is the sum of its four children's (level + 2)
+        gside = 4 << level
+        imp = np.zeros_like(m)
+        for k in range(4):
+            cx, cy = 2 * x + (k & 1), 2 * y + (k >> 1)
+            for j in range(4):
+                gx, gy = 2 * cx + (j & 1), 2 * cy + (j >> 1)
+                mg = tree[level_offset(level + 2) + gy * gside + gx].astype(np.float64)
+                imp[:, k] += node_importance(env, mg, gx, gy, level + 2, axis, n, kappa, shape)
+    else:
+        imp = np.stack([node_importance(env, m[:, k], 2 * x + (k & 1), 2 * y + (k >> 1), level + 1, axis, n,
+                                        kappa, shape)
+                        for k in range(4)], 1)
     s = imp.sum(1)
     bad = ~(s > 0) | ~np.isfinite(s)
     imp[bad] = m[bad]
@@ -159,7 +173,8 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
             m = np.stack([tree[c], tree[c + 1], tree[c + cside], tree[c + cside + 1]], 1)
             w = m.copy()
             if prod.any():
-                w[prod] = _children(tree, env, x[prod], y[prod], l, axis[prod], n[prod], kappa[prod], shape[prod])
+                w[prod] = _children(tree, env, x[prod], y[prod], l, axis[prod], n[prod], kappa[prod], shape[prod],
+                                    n_levels)
             # as kernels/warp.h choose_child: compare u * sum with a mass, rescale u by one division
             top, bottom = w[:, 0] + w[:, 1], w[:, 2] + w[:, 3]
             s_row = top + bottom
@@ -196,7 +211,7 @@ def pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv):
         for l in range(int(depth.max(initial=0))):
             sel = np.nonzero(l < depth)[0]
             cx, cy = lx[sel] >> (n_levels - l - 1), ly[sel] >> (n_levels - l - 1)
-            imp = _children(tree, env, cx >> 1, cy >> 1, l, axis[sel], n[sel], kappa[sel], shape[sel])
+            imp = _children(tree, env, cx >> 1, cy >> 1, l, axis[sel], n[sel], kappa[sel], shape[sel], n_levels)
             p[sel] *= imp[np.arange(len(sel)), (cx & 1) + 2 * (cy & 1)] / imp.sum(1)
         nx, ny = lx >> (n_levels - depth), ly >> (n_levels - depth)
         node = tree[np.array([level_offset(int(d)) for d in range(n_levels + 1)])[depth] + ny * (1 << depth) + nx]
