@@ -13,8 +13,9 @@ from the same render) is subtracted, so the figure estimates the error against t
 true image. Equal
 time: relMSE scales as 1/spp for these unbiased estimators, so the relMSE a
 strategy reaches in the time mis takes at s spp (setup included) is
-relMSE(s) * t_strategy(s) / t_mis(s), where t includes each render's setup
-(light tree, product tables) but not the once-per-process kernel compilation.
+relMSE(s) * t_strategy(s) / t_mis(s), where t (the median over seeds, strategies
+rendered in turn seed by seed) includes each render's setup (light tree, product
+tables) but not the once-per-process kernel compilation.
 --sampler stratified renders the compared images with stratified pixel samples.
 --floor D estimates, per spp, the pixel-footprint floor: the relMSE left when every
 pixel sample is shaded exactly (no direction noise), from an image whose pixel
@@ -150,19 +151,22 @@ def main():
         for strategy in STRATEGIES:
             wavlight.render_full(scene, spp=1, strategy=strategy, width=8, height=8, sampler=args.sampler)
         ref = wavlight.render_full(scene, spp=args.ref_spp, strategy="mis", seed=10_000, **kw)
-        row = {"reference_seconds": ref.stats["render_seconds"]}
-        for strategy in STRATEGIES:
-            per = {}
-            for spp in spps:
-                errs, secs = [], []
-                for seed in range(args.seeds):
+        row = {"reference_seconds": ref.stats["render_seconds"], **{s: {} for s in STRATEGIES}}
+        for spp in spps:
+            # strategies interleaved seed by seed, and the median time: a burst of load on this
+            # shared machine then slows every strategy alike instead of one
+            errs, secs = {s: [] for s in STRATEGIES}, {s: [] for s in STRATEGIES}
+            for seed in range(args.seeds):
+                for strategy in STRATEGIES:
                     r = wavlight.render_full(scene, spp=spp, strategy=strategy, seed=seed, sampler=args.sampler,
                                              **kw)
-                    errs.append(relmse(r.image, ref.image, ref.stderr))
-                    secs.append(r.stats["setup_seconds"] + r.stats["render_seconds"])
-                per[str(spp)] = {"relmse": float(np.mean(errs)), "relmse_sd": float(np.std(errs, ddof=1))
-                                 if len(errs) > 1 else None, "seconds": float(np.mean(secs))}
-            row[strategy] = per
+                    errs[strategy].append(relmse(r.image, ref.image, ref.stderr))
+                    secs[strategy].append(r.stats["setup_seconds"] + r.stats["render_seconds"])
+            for strategy in STRATEGIES:
+                e = errs[strategy]
+                row[strategy][str(spp)] = {"relmse": float(np.mean(e)),
+                                           "relmse_sd": float(np.std(e, ddof=1)) if len(e) > 1 else None,
+                                           "seconds": float(np.median(secs[strategy]))}
         for spp in spps:
             s = str(spp)
             mis = row["mis"][s]
