@@ -88,7 +88,7 @@ def main():
             prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth, LOBE_SHAPES=1 << shape)
             knl = cl.kernel(prog, "product_sample_points")
 
-            def launch(nb, wb, ub):
+            def launch(nb, wb, ub, knl=knl):
                 knl(q, (items,), (cl.WORK_GROUP,), tree.buffer, rot, np.uint32(n), nb, wb, mat_buf, kappa_buf,
                     code_buf, ub, np.uint32(2), angles, uv_buf, pdf_buf)
 
@@ -104,9 +104,10 @@ def main():
                          "product_samples_per_second": round(n / best_of(run)),
                          "with_copies": round(n / best_of(run_with_copies))}
             # the same walk without the look-ahead importances (kernels/product.h)
-            knl = cl.kernel(cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth,
-                                       LOBE_SHAPES=1 << shape, LOOKAHEAD_LEVELS=0), "product_sample_points")
-            row[name]["without_lookahead"] = round(n / best_of(run))
+            plain = cl.kernel(cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth,
+                                         LOBE_SHAPES=1 << shape, LOOKAHEAD_LEVELS=0), "product_sample_points")
+            row[name]["without_lookahead"] = round(n / best_of(lambda: (launch(n_buf, wo_buf, u_buf, plain),
+                                                                       q.finish())))
         out["levels"][str(n_levels)] = row
     # The alternative design: dense per-point product pyramids by eq. 25 (wavlight.haar).
     try:

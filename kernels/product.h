@@ -19,7 +19,8 @@
  * 1.02 / 0.25 / 0.37 under rooitou / st_fagans / potsdamer. For narrow lobes the
  * isotropic profile measured better (ggx 0.05 under st_fagans: 0.19 against 0.27),
  * hence the switch (wavlight.product.lobe_shape). Only the
- * four children of each visited node are evaluated: O(levels) per sample, no
+ * four children of each visited node are evaluated (their sixteen children at the
+ * LOOKAHEAD_LEVELS coarsest levels, see below): O(levels) per sample, no
  * per-point tree. Node centre directions are built from a small table of the
  * sines and cosines of each level's column and row angles (map frame,
  * wavlight.product.node_angles); the lobe is turned into the map frame once per
@@ -171,7 +172,7 @@ __attribute__((always_inline)) inline void child_importances(const Lobe *lb, __g
  * phong 200 0.67 / 0.11 / 0.50 -> 0.57 / 0.08 / 0.38 under rooitou / st_fagans /
  * potsdamer, ggx 0.05 0.71 / 0.15 / 0.49 -> 0.68 / 0.12 / 0.40, ggx 0.2 0.84 / 0.20 /
  * 0.28 -> 0.76 / 0.16 / 0.22, lambert 0.78 / 0.57 / 0.47 -> 0.61 / 0.41 / 0.33; 2 levels
- * gained less, 4 little more. It costs about a third of the product walk's speed (12
+ * gained less, 4 little more. It costs 20-36% of the product walk's speed (12
  * more lobe evaluations per look-ahead level). The shade kernel's product_pdf uses
  * this default; -DLOOKAHEAD_LEVELS=0 is only for timing the walk without it. */
 #ifndef LOOKAHEAD_LEVELS
