@@ -4,9 +4,11 @@ A structural check, not a timing: each program is built and launched once in a s
 PoCL's vectoriser remarks on, and every work-item loop must report "vectorized loop". LLVM's SLP
 vectoriser can pair two identical scalar chains into a short vector, after which PoCL's work-item
 vectoriser gives up and the walks run 1.5-3x slower with identical results; only this test notices.
-Skipped where the device gives no vectoriser remarks (another OpenCL driver, or a PoCL without them).
+Skipped where the device gives no vectoriser remarks (another OpenCL driver, or a PoCL without
+them), and on PoCL builds with LLVM older than 15 (checked on PoCL 3.1, LLVM 15).
 """
 import os
+import re
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -56,8 +58,13 @@ WALKS = ["warp,N_LEVELS=4,BATCHED=0", "warp,N_LEVELS=10,BATCHED=0", "warp,N_LEVE
 
 
 def test_tree_walk_kernels_are_vectorised():
-    if "pocl" not in __import__("wavlight").cl.runtime().description.lower():
+    desc = __import__("wavlight").cl.runtime().description
+    if "pocl" not in desc.lower():
         pytest.skip("not a PoCL device")
+    llvm = re.search(r"LLVM (\d+)", desc)
+    if not llvm or int(llvm.group(1)) < 15:
+        # verified with PoCL 3.1 on LLVM 15; LLVM 14's vectorisers were not available here to check
+        pytest.skip(f"vectorisation checked on PoCL with LLVM >= 15 only ({desc})")
     if "vectorized loop" not in remarks("probe"):
         pytest.skip("this PoCL gives no vectoriser remarks")
     with ThreadPoolExecutor(2) as pool:
