@@ -14,6 +14,8 @@ import numpy as np
 
 from . import cl, product, strategies, warp
 
+_WARMED = set()  # (shade program, guide program) pairs already launched in this process
+
 
 class KernelShader:
     """shade(n, wo, material, u) -> wi (N, 2, 3), value (N, 2, 3), float32."""
@@ -90,9 +92,17 @@ class KernelShader:
         return wi, value
 
     def warm_up(self):
-        """One tiny launch, so that PoCL's per-launch compilation lands in setup time, not render time."""
-        self(np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 1.0]]), np.zeros(1, np.int32),
-             np.full((1, 4), 0.5, np.float32))
+        """A tiny and a large launch, so that PoCL's per-launch compilation lands in setup time, not
+        render time: PoCL builds a kernel once per work-group size and again for large grids (its
+        "smallgrid" specialisation covers small ones; 4 096 work-items still counted as small,
+        65 536 did not), and renders launch both. Once per process and set of programs."""
+        key = (self.program, self.guide)
+        if key in _WARMED:
+            return
+        for count in (1, 1 << 16):
+            self(np.tile([[0.0, 0.0, 1.0]], (count, 1)), np.tile([[0.0, 0.0, 1.0]], (count, 1)),
+                 np.zeros(count, np.int32), np.full((count, 4), 0.5, np.float32))
+        _WARMED.add(key)
 
 
 class NumpyShader:
