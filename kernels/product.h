@@ -137,6 +137,20 @@ __attribute__((always_inline)) inline float lobe_weight(const Lobe *lb, const fl
     return w;
 }
 
+/* w0..w3 = the importances i0..i3, or the light masses m0..m3 where the importances sum
+ * to zero or are not finite (the same rule in the walk and the pdf). */
+__attribute__((always_inline)) inline void importances_or_masses(
+    const float i0, const float i1, const float i2, const float i3, const float m0, const float m1,
+    const float m2, const float m3, float *w0, float *w1, float *w2, float *w3)
+{
+    const float sum = ((i0 + i1) + i2) + i3;
+    const int ok = sum > 0.0f && isfinite(sum);
+    *w0 = ok ? i0 : m0;
+    *w1 = ok ? i1 : m1;
+    *w2 = ok ? i2 : m2;
+    *w3 = ok ? i3 : m3;
+}
+
 /* Importances of the four children (00 10 01 11) of node (x, y) at `level` whose light
  * masses are m0..m3, into w0..w3. angles: the centre directions' sines and cosines per
  * column and row of each level (product.node_angles): the children of (x, y) are
@@ -155,12 +169,7 @@ __attribute__((always_inline)) inline void child_importances(const Lobe *lb, __g
     const float i1 = m1 * lobe_weight(lb, sp1 * st0, ct0, -cp1 * st0, level);
     const float i2 = m2 * lobe_weight(lb, sp0 * st1, ct1, -cp0 * st1, level);
     const float i3 = m3 * lobe_weight(lb, sp1 * st1, ct1, -cp1 * st1, level);
-    const float sum = ((i0 + i1) + i2) + i3;
-    const int ok = sum > 0.0f && isfinite(sum);
-    *w0 = ok ? i0 : m0;
-    *w1 = ok ? i1 : m1;
-    *w2 = ok ? i2 : m2;
-    *w3 = ok ? i3 : m3;
+    importances_or_masses(i0, i1, i2, i3, m0, m1, m2, m3, w0, w1, w2, w3);
 }
 
 /* Levels whose children's importances look one level ahead (numpy twin:
@@ -198,12 +207,7 @@ __attribute__((always_inline)) inline void child_importances_ahead(const Lobe *l
     const float i2 = (GC(2, 0) + GC(2, 1)) + (GC(3, 0) + GC(3, 1));   /* child 01 */
     const float i3 = (GC(2, 2) + GC(2, 3)) + (GC(3, 2) + GC(3, 3));   /* child 11 */
 #undef GC
-    const float sum = ((i0 + i1) + i2) + i3;
-    const int ok = sum > 0.0f && isfinite(sum);
-    *w0 = ok ? i0 : m0;
-    *w1 = ok ? i1 : m1;
-    *w2 = ok ? i2 : m2;
-    *w3 = ok ? i3 : m3;
+    importances_or_masses(i0, i1, i2, i3, m0, m1, m2, m3, w0, w1, w2, w3);
 }
 
 /* One product sample: lobe lb for its first P levels (P <= PRODUCT_LEVELS, a compile-

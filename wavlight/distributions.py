@@ -72,6 +72,26 @@ def leaf_point(leaf: np.ndarray, u: np.ndarray, n_levels: int) -> np.ndarray:
             * np.float32(1.0 / (1 << n_levels))).astype(np.float32)
 
 
+def choose_child_reference(m00, m10, m01, m11, u: np.ndarray):
+    """One step of the walk for N samples (numpy twin of kernels/warp.h choose_child).
+
+    m.. : (N,) the four children's masses (00 10 01 11); u : (N, 2), rescaled in place in
+    its own dtype (float32 here is bitwise the kernel). Compares u * sum with a mass (no
+    division), never picks a side of zero mass. Returns (go_top, go_left) boolean arrays.
+    """
+    top, bottom = m00 + m10, m01 + m11
+    s_row = top + bottom
+    go_top = (u[:, 1] * s_row < top) | ~(bottom > 0)
+    row = np.where(go_top, top, bottom)
+    u[:, 1] = np.fmin((u[:, 1] * s_row - np.where(go_top, 0, top)) / row, ONE_MINUS_EPS)
+    left, right = np.where(go_top, m00, m01), np.where(go_top, m10, m11)
+    s_col = left + right
+    go_left = (u[:, 0] * s_col < left) | (right == 0)
+    col = np.where(go_left, left, right)
+    u[:, 0] = np.fmin((u[:, 0] * s_col - np.where(go_left, 0, left)) / col, ONE_MINUS_EPS)
+    return go_top, go_left
+
+
 def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per_tree: int):
     """Top-down warp of uniform points (numpy twin of ``warp_sample``).
 
@@ -89,19 +109,8 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
             c = level_offset(l + 1) + (2 * y) * cside + 2 * x
             m00, m10 = tree[t, c], tree[t, c + 1]
             m01, m11 = tree[t, c + cside], tree[t, c + cside + 1]
-            # as kernels/warp.h choose_child: compare u * sum with a mass, rescale u by one division
-            top, bottom = m00 + m10, m01 + m11
-            s_row = top + bottom
-            go_top = (u[:, 1] * s_row < top) | ~(bottom > 0)   # never a side of zero mass
-            row = np.where(go_top, top, bottom)
-            u[:, 1] = np.fmin((u[:, 1] * s_row - np.where(go_top, np.float32(0), top)) / row, ONE_MINUS_EPS)
-            left = np.where(go_top, m00, m01)
-            right = np.where(go_top, m10, m11)
+            go_top, go_left = choose_child_reference(m00, m10, m01, m11, u)
             y = 2 * y + (~go_top)
-            s_col = left + right
-            go_left = (u[:, 0] * s_col < left) | (right == 0)
-            col = np.where(go_left, left, right)
-            u[:, 0] = np.fmin((u[:, 0] * s_col - np.where(go_left, np.float32(0), left)) / col, ONE_MINUS_EPS)
             x = 2 * x + (~go_left)
     u = np.nan_to_num(u, nan=0.0)
     uv = leaf_point(np.stack([x, y], 1), u, n_levels)
@@ -165,13 +174,13 @@ class HaarTree:
         uv = cl.empty(pts.nbytes) if outputs == 2 else None
         pdf = cl.empty(4 * n)
         args = [self.buffer, np.uint64(self.stride)]
-        if name == "warp_sample":  # built per depth (the walk unrolls); one sample per work-item
-            prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=int(samples_per_tree < n))
+        # built per depth (the walk unrolls); BATCHED: a tree per samples_per_tree samples
+        prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=int(samples_per_tree < n))
+        if name == "warp_sample":  # one sample per work-item
             items = -(-n // cl.WORK_GROUP) * cl.WORK_GROUP
             cl.kernel(prog, name)(queue, (items,), (cl.WORK_GROUP,), *args, np.uint32(samples_per_tree),
                                   np.uint32(n), src, np.uint32(2), uv, pdf)
         else:
-            prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=int(samples_per_tree < n))
             cl.kernel(prog, name)(queue, (n,), None, *args, np.int32(self.n_levels),
                                   np.uint32(samples_per_tree), src, pdf)
         res = [cl.read(pdf, (n,), np.float32, queue)]

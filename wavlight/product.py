@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import bsdfs
-from .distributions import ONE_MINUS_EPS, level_offset
+from .distributions import ONE_MINUS_EPS, choose_child_reference, level_offset
 
 LOBE_BLUR = 0.35 * np.pi     # lobe widening at level l: LOBE_BLUR / 2^l (see kernels/product.h)
 HORIZON_BLUR = 0.75 * np.pi  # horizon softening at level l: HORIZON_BLUR / 2^l
@@ -175,17 +175,7 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
             if prod.any():
                 w[prod] = _children(tree, env, x[prod], y[prod], l, axis[prod], n[prod], kappa[prod], shape[prod],
                                     n_levels)
-            # as kernels/warp.h choose_child: compare u * sum with a mass, rescale u by one division
-            top, bottom = w[:, 0] + w[:, 1], w[:, 2] + w[:, 3]
-            s_row = top + bottom
-            go_top = (u[:, 1] * s_row < top) | ~(bottom > 0)   # never a side of zero mass
-            row = np.where(go_top, top, bottom)
-            u[:, 1] = np.fmin((u[:, 1] * s_row - np.where(go_top, 0.0, top)) / row, ONE_MINUS_EPS)
-            left, right = np.where(go_top, w[:, 0], w[:, 2]), np.where(go_top, w[:, 1], w[:, 3])
-            s_col = left + right
-            go_left = (u[:, 0] * s_col < left) | (right == 0)
-            col = np.where(go_left, left, right)
-            u[:, 0] = np.fmin((u[:, 0] * s_col - np.where(go_left, 0.0, left)) / col, ONE_MINUS_EPS)
+            go_top, go_left = choose_child_reference(w[:, 0], w[:, 1], w[:, 2], w[:, 3], u)
             y = 2 * y + (~go_top)
             x = 2 * x + (~go_left)
     side = 1 << n_levels

@@ -46,14 +46,13 @@ class KernelShader:
         self.levels_per_material = cl.to_device(levels + 256 * shapes)
         depth = int(max(np.max(levels, initial=0), 0))
         self.angles = cl.to_device(product.node_angles(depth))
-        kernel_id = strategies.KERNEL_ID[strategy.name]
-        self.program = cl.program("shade.cl", STRATEGY=kernel_id)
+        self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name])
         # the guide sample (light or product) is drawn first, by a kernel built for this
         # tree depth (and product depth and lobe shapes) that PoCL vectorises
         self.guide = None
-        if kernel_id in (3, 4):
+        if strategy.name in ("light", "mis"):
             self.guide = cl.program("warp.cl", N_LEVELS=int(self.levels), BATCHED=0), "warp_sample"
-        elif kernel_id == 5:
+        elif strategy.name == "wavelet":
             self.guide = (cl.program("product.cl", N_LEVELS=int(self.levels), PRODUCT_LEVELS=depth,
                                      LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0))),
                           "product_sample_points")
