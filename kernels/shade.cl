@@ -4,132 +4,152 @@
  * weight for MIS) with its direction; the host traces shadow rays for the
  * non-zero values. numpy twin: wavlight/strategies.py (shade_reference).
  *
- * 3-vectors travel as float4 (w unused): PoCL vectorises aligned loads far
- * better than vload3 (measured 3x).
  * STRATEGY: 0 uniform, 1 cosine, 2 bsdf, 3 light, 4 mis, 5 wavelet. Single
  * strategies use u.xy and write slot 0 (slot 1 is zero); MIS draws the light
  * sample from u.xy into slot 0 and the bsdf sample from u.zw into slot 1; wavelet
  * does the same with the product sampler (product.h) in place of the light. The
  * light and product samples (drawn from u.xy) come in as guide_uv / guide_pdf: the
- * host draws them first with warp.cl / product.cl, whose tree walks PoCL vectorises
- * across work-items (this kernel, with its float3 BSDF code, it cannot).
+ * host draws them first with warp.cl / product.cl.
+ *
+ * One point per work-item, scalar code only (sphere.h explains why): PoCL vectorises
+ * the work-item loop, 8 points per AVX instruction (measured 3x over the float3
+ * version), for every strategy but wavelet, whose MIS weight needs product_pdf
+ * (a loop over the point's own product depth). Inputs are float4 rows (normal,
+ * wo_world) and u rows of 4; outputs are planes of `count` floats, never adjacent
+ * stores: wi_out holds slot 0 x, y, z then slot 1 x, y, z, value_out the same
+ * for r, g, b. -DBSDF_KINDS: the material kinds present (bsdf.h).
  */
 #include "warp.h"
 #include "bsdf.h"
 #include "product.h"
 
-inline float light_pdf(const Env *e, __global const float *tree, const int levels, const float3 w)
-{
-    return tree_pdf(tree, levels, env_world_to_square(e, w)) * env_square_to_solid_angle(w);
-}
-
-inline float product_pdf_at(__global const float *tree, const int levels, __global const float *angles,
-                            const Lobe *lb, const float2 uv)
-{
-    return product_pdf(tree, levels, angles, lb, uv.x, uv.y);
-}
-
-inline float power_heuristic(const float pa, const float pb)
+__attribute__((always_inline)) inline float power_heuristic(const float pa, const float pb)
 {
     const float big = fmax(pa, pb);
-    if (!(big > 0.0f)) return 0.0f;
     const float a = pa / big, b = pb / big;
-    return a * a / (a * a + b * b);
+    return big > 0.0f ? a * a / (a * a + b * b) : 0.0f;
 }
 
-__kernel void shade(__global const float4 *normal, __global const float4 *wo_world,
-                    __global const int *material, __global const float4 *u_in, const uint count,
+/* Density per unit solid angle of the light tree at world direction w (MIS weight). */
+__attribute__((always_inline)) inline float light_pdf(__global const float *rot, __global const float *tree,
+                                                      const int levels, const float x, const float y, const float z)
+{
+    float u, v;
+    env_world_to_square(rot, x, y, z, &u, &v);
+    const uint side = 1u << levels;
+    const uint cx = (uint)min((int)(u * side), (int)side - 1), cy = (uint)min((int)(v * side), (int)side - 1);
+    const float root = tree[0], leaf = tree[LEVEL_OFFSET(levels) + (ulong)cy * side + cx];
+    return root > 0.0f ? leaf / root * (float)side * (float)side * env_square_to_solid_angle(x, z) : 0.0f;
+}
+
+__kernel void shade(__global const float *normal, __global const float *wo_world,
+                    __global const int *material, __global const float *u_in, const uint count,
                     __global const int *mat_kind, __global const float *mat_param,
-                    __global const float4 *mat_albedo, __global const float *mat_kappa,
+                    __global const float *mat_albedo, __global const float *mat_kappa,
                     __global const int *mat_levels, __global const float *angles,
-                    __global const float4 *texels, const int env_w, const int env_h,
+                    __global const float *texels, const int env_w, const int env_h,
                     __global const float *rot, __global const float *tree, const int tree_levels,
                     __global const float *guide_uv, __global const float *guide_pdf,
-                    __global float4 *wi_out, __global float4 *value_out)
+                    __global float *wi_out, __global float *value_out)
 {
-    /* One shading point per work-item. The guide sample (light or product) was drawn
-     * before, by warp.cl or product.cl (vectorised across work-items): guide_uv holds
-     * its point of the square (u plane, then v plane), guide_pdf its density there. */
-    const uint i = get_global_id(0);
-    if (i >= count) return;
-    const Env env = {texels, env_w, env_h, rot};
+    const uint gi = get_global_id(0);
+    const uint i = min(gi, count - 1);   /* padding work-items recompute the last point, store nothing */
+    const int mat = material[i];
+    const float nx = normal[4 * i], ny = normal[4 * i + 1], nz = normal[4 * i + 2];
+    const float ex = wo_world[4 * i], ey = wo_world[4 * i + 1], ez = wo_world[4 * i + 2];
+    float sx, sy, sz, tx, ty, tz;
+    make_frame(nx, ny, nz, &sx, &sy, &sz, &tx, &ty, &tz);
+    const float ox = ex * sx + ey * sy + ez * sz, oy = ex * tx + ey * ty + ez * tz, oz = ex * nx + ey * ny + ez * nz;
+    const int kind = mat_kind[mat];
+    const float param = mat_param[mat];
+    const float u0 = u_in[4 * i], u1 = u_in[4 * i + 1];
+    /* slot 0 (and 1): world direction, scalar f / pdf (x MIS weight) */
+    float ax = 0.0f, ay = 0.0f, az = 0.0f, sa = 0.0f;
+    float bx = 0.0f, by = 0.0f, bz = 0.0f, sb = 0.0f;
 #if STRATEGY >= 3
-    const float2 guide = (float2)(guide_uv[i], guide_uv[count + i]);
-    const float guide_density = guide_pdf[i];
-#endif
-    {
-        const int mat = material[i];
-        const float3 nk = normal[i].xyz, wowk = wo_world[i].xyz;
-        float3 s, t;
-        make_frame(nk, &s, &t);
-        const float3 wo = (float3)(dot(wowk, s), dot(wowk, t), dot(wowk, nk));
-        const int kind = mat_kind[mat];
-        const float param = mat_param[mat];
-        const float3 albedo = mat_albedo[mat].xyz;
-        const float4 uk = u_in[i];
-#if STRATEGY == 5
-        const Lobe lobe = make_lobe(rot, nk.x, nk.y, nk.z, wowk.x, wowk.y, wowk.z, mat_kappa[mat], mat_levels[mat]);
-#endif
-
-        float3 wi_w[2] = {(float3)(0.0f), (float3)(0.0f)};
-        float scal[2] = {0.0f, 0.0f};
-#if STRATEGY == 5
-#define PDF_GUIDE(w) (product_pdf_at(tree, tree_levels, angles, &lobe, env_world_to_square(&env, w)) \
-                     * env_square_to_solid_angle(w))
+    {   /* the light (light, mis) or product (wavelet) sample, drawn by the guide kernel */
+        env_square_to_world(rot, guide_uv[i], guide_uv[count + i], &ax, &ay, &az);
+        const float pdf = guide_pdf[i] * env_square_to_solid_angle(ax, az);
+        const float lx = ax * sx + ay * sy + az * sz, ly = ax * tx + ay * ty + az * tz;
+        const float lz = ax * nx + ay * ny + az * nz;
+        float f, pdf_bsdf;
+        bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &pdf_bsdf);
+#if STRATEGY == 3
+        sa = pdf > 0.0f ? f / pdf : 0.0f;
 #else
-#define PDF_GUIDE(w) light_pdf(&env, tree, tree_levels, w)
+        /* the other pdf matters only where the estimate can be non-zero */
+        sa = (pdf > 0.0f && f > 0.0f) ? f / pdf * power_heuristic(pdf, pdf_bsdf) : 0.0f;
+#endif
+    }
 #endif
 #if STRATEGY >= 4
-        {   /* light (mis) or product (wavelet) sample, weighted against the bsdf pdf */
-            const float3 w = env_square_to_world(&env, guide);
-            const float pdf = guide_density * env_square_to_solid_angle(w);
-            const float3 wl = (float3)(dot(w, s), dot(w, t), dot(w, nk));
-            const float f = bsdf_eval_cos(kind, param, wl, wo);
-            wi_w[0] = w;
-            if (pdf > 0.0f && f > 0.0f)  /* the other pdf only where the estimate can be non-zero */
-                scal[0] = f / pdf * power_heuristic(pdf, bsdf_pdf(kind, param, wl, wo));
-        }
-        {   /* bsdf sample, weighted against the light pdf */
-            const float3 wl = bsdf_sample(kind, param, wo, uk.zw);
-            const float pdf = bsdf_pdf(kind, param, wl, wo);
-            const float3 w = wl.x * s + wl.y * t + wl.z * nk;
-            const float f = bsdf_eval_cos(kind, param, wl, wo);
-            wi_w[1] = w;
-            if (pdf > 0.0f && f > 0.0f)
-                scal[1] = f / pdf * power_heuristic(pdf, PDF_GUIDE(w));
-        }
+    {   /* the bsdf sample from u.zw, weighted against the guide's pdf */
+        float lx, ly, lz, f, pdf;
+        bsdf_sample(kind, param, ox, oy, oz, u_in[4 * i + 2], u_in[4 * i + 3], &lx, &ly, &lz);
+        bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &pdf);
+        bx = lx * sx + ly * tx + lz * nx;
+        by = lx * sy + ly * ty + lz * ny;
+        bz = lx * sz + ly * tz + lz * nz;
+#if STRATEGY == 5
+        const Lobe lobe = make_lobe(rot, nx, ny, nz, ex, ey, ez, mat_kappa[mat], mat_levels[mat]);
+        float gu, gv;
+        env_world_to_square(rot, bx, by, bz, &gu, &gv);
+        const float other = product_pdf(tree, tree_levels, angles, &lobe, gu, gv) * env_square_to_solid_angle(bx, bz);
 #else
-        {
-            float3 wl, w;
-            float pdf;
-#if STRATEGY == 0
-            wl = (float3)(sqrt(fmax(0.0f, 1.0f - uk.x * uk.x)) * cos(2.0f * PI_F * uk.y),
-                          sqrt(fmax(0.0f, 1.0f - uk.x * uk.x)) * sin(2.0f * PI_F * uk.y), uk.x);
-            pdf = wl.z > 0.0f ? INV_2PI_F : 0.0f;
-            w = wl.x * s + wl.y * t + wl.z * nk;
-#elif STRATEGY == 1
-            wl = cosine_hemisphere(uk.xy);
-            pdf = fmax(wl.z, 0.0f) * INV_PI_F;
-            w = wl.x * s + wl.y * t + wl.z * nk;
-#elif STRATEGY == 2
-            wl = bsdf_sample(kind, param, wo, uk.xy);
-            pdf = bsdf_pdf(kind, param, wl, wo);
-            w = wl.x * s + wl.y * t + wl.z * nk;
+        const float other = light_pdf(rot, tree, tree_levels, bx, by, bz);
+#endif
+        sb = (pdf > 0.0f && f > 0.0f) ? f / pdf * power_heuristic(pdf, other) : 0.0f;
+    }
+#endif
+#if STRATEGY <= 2
+    {
+        float lx, ly, lz, pdf;
+#if STRATEGY == 0   /* uniform hemisphere */
+        const float r = sqrt(fmax(0.0f, 1.0f - u0 * u0));
+        float sp, cp;
+        fast_sincos(2.0f * PI_F * u1, &sp, &cp);
+        lx = r * cp;
+        ly = r * sp;
+        lz = u0;
+        pdf = lz > 0.0f ? INV_2PI_F : 0.0f;
+#elif STRATEGY == 1   /* cosine hemisphere: the lambert sampler */
+        bsdf_sample(BSDF_LAMBERT, 0.0f, ox, oy, oz, u0, u1, &lx, &ly, &lz);
+        pdf = fmax(lz, 0.0f) * INV_PI_F;
 #else
-            w = env_square_to_world(&env, guide);
-            pdf = guide_density * env_square_to_solid_angle(w);
-            wl = (float3)(dot(w, s), dot(w, t), dot(w, nk));
+        bsdf_sample(kind, param, ox, oy, oz, u0, u1, &lx, &ly, &lz);
 #endif
-            wi_w[0] = w;
-            if (pdf > 0.0f)
-                scal[0] = bsdf_eval_cos(kind, param, wl, wo) / pdf;
-        }
+        float f, pdf_bsdf;
+        bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &pdf_bsdf);
+#if STRATEGY == 2
+        pdf = pdf_bsdf;
 #endif
-        for (int j = 0; j < 2; ++j) {
-            const float3 v = (scal[j] > 0.0f && isfinite(scal[j])) ? scal[j] * albedo * env_eval(&env, wi_w[j])
-                                                                  : (float3)(0.0f);
-            wi_out[2 * i + j] = (float4)(wi_w[j], 0.0f);
-            value_out[2 * i + j] = (float4)(v, 0.0f);
-        }
+        ax = lx * sx + ly * tx + lz * nx;
+        ay = lx * sy + ly * ty + lz * ny;
+        az = lx * sz + ly * tz + lz * nz;
+        sa = pdf > 0.0f ? f / pdf : 0.0f;
+    }
+#endif
+    /* estimates: albedo x scalar x environment radiance (zero where the scalar is not a
+     * positive finite number) */
+    sa = (sa > 0.0f && isfinite(sa)) ? sa : 0.0f;
+    sb = (sb > 0.0f && isfinite(sb)) ? sb : 0.0f;
+    float ua, va, ub, vb;
+    env_world_to_square(rot, ax, ay, az, &ua, &va);
+    env_world_to_square(rot, bx, by, bz, &ub, &vb);
+    const int ka = 4 * env_texel(env_w, env_h, ua, va), kb = 4 * env_texel(env_w, env_h, ub, vb);
+    const float ar = mat_albedo[4 * mat], ag = mat_albedo[4 * mat + 1], ab = mat_albedo[4 * mat + 2];
+    if (gi < count) {
+        wi_out[i] = ax;
+        wi_out[count + i] = ay;
+        wi_out[2 * count + i] = az;
+        wi_out[3 * count + i] = bx;
+        wi_out[4 * count + i] = by;
+        wi_out[5 * count + i] = bz;
+        value_out[i] = sa * ar * texels[ka];
+        value_out[count + i] = sa * ag * texels[ka + 1];
+        value_out[2 * count + i] = sa * ab * texels[ka + 2];
+        value_out[3 * count + i] = sb * ar * texels[kb];
+        value_out[4 * count + i] = sb * ag * texels[kb + 1];
+        value_out[5 * count + i] = sb * ab * texels[kb + 2];
     }
 }

@@ -472,6 +472,45 @@ def test_world_to_square_kernel_matches_numpy():
     assert pole.sum() == 2 and du[~pole].max() <= 1e-6 and np.abs(got[:, 1] - ref[:, 1]).max() <= 1e-6
 
 
+def test_fast_sincos_within_2e7_absolute():
+    """fast_sincos (sphere.h) against float64 sin and cos on [-4 pi, 4 pi] (the kernels pass
+    angles in [-pi, 2 pi]) and at the quadrant boundaries.
+
+    Bound: Cody-Waite reduction with a two-part pi/2 (error ~|j| 2^-47, negligible), Cephes'
+    sinf / cosf polynomials on [-pi/4, pi/4] (< 1e-7 absolute), float32 rounding of the
+    argument itself (x is exact; the polynomial's rounding ~1 ulp of 1 = 1.2e-7): 2e-7.
+    """
+    from wavlight import cl
+
+    x = np.concatenate([np.random.default_rng(42).uniform(-4 * np.pi, 4 * np.pi, 1 << 18),
+                        np.arange(-8, 9) * np.pi / 4, [0.0, -0.0, 1e-30]]).astype(np.float32)
+    out = cl.empty(8 * len(x))
+    q = cl.thread_queue()
+    cl.kernel(cl.program("sphere.cl"), "sincos_points")(q, (len(x),), None, cl.to_device(x), out)
+    got = cl.read(out, (len(x), 2), np.float32, q).astype(np.float64)
+    x64 = x.astype(np.float64)
+    assert np.abs(got[:, 0] - np.sin(x64)).max() <= 2e-7
+    assert np.abs(got[:, 1] - np.cos(x64)).max() <= 2e-7
+
+
+def test_square_to_world_kernel_matches_numpy():
+    """env_square_to_world (sphere.h) against Environment.square_to_world, with rotate_y: unit
+    directions equal within float32 accuracy (2e-7 per sin / cos, a few roundings: 1e-6)."""
+    from wavlight import cl
+    from wavlight.envmap import Environment
+
+    env = Environment(np.ones((8, 16, 3), np.float32), 1.0, -70.0)
+    uv = np.random.default_rng(43).random((100_000, 2)).astype(np.float32)
+    uv = np.concatenate([uv, [[0, 0], [0.5, 0.5], [0.25, 1 - 2 ** -24], [1 - 2 ** -24, 0.75]]]).astype(np.float32)
+    out = cl.empty(16 * len(uv))
+    q = cl.thread_queue()
+    cl.kernel(cl.program("sphere.cl"), "square_to_world")(
+        q, (len(uv),), None, cl.to_device(env.map_from_world.astype(np.float32).ravel()), cl.to_device(uv), out)
+    got = cl.read(out, (len(uv), 4), np.float32, q)[:, :3].astype(np.float64)
+    ref = env.square_to_world(uv.astype(np.float64))
+    assert np.abs(got - ref).max() <= 1e-6
+
+
 def test_walk_never_enters_a_zero_mass_child_next_to_a_denormal_one():
     """u * (top + bottom) can round up to a denormal top mass, so `u * sum < top` alone would
     send a sample into a zero-mass bottom row (choose_child guards against it): in a tree whose

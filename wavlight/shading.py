@@ -46,7 +46,8 @@ class KernelShader:
         self.levels_per_material = cl.to_device(levels + 256 * shapes)
         depth = int(max(np.max(levels, initial=0), 0))
         self.angles = cl.to_device(product.node_angles(depth))
-        self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name])
+        kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
+        self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds)
         # the guide sample (light or product) is drawn first, by a kernel built for this
         # tree depth (and product depth and lobe shapes) that PoCL vectorises
         self.guide = None
@@ -71,7 +72,7 @@ class KernelShader:
         q = cl.thread_queue()
         n_buf, wo_buf, mat_buf = cl.to_device(n4), cl.to_device(wo4), cl.to_device(np.asarray(material, np.int32))
         u_buf = cl.to_device(np.asarray(u, np.float32))
-        wi_buf, val_buf = cl.empty(count * 32), cl.empty(count * 32)
+        wi_buf, val_buf = cl.empty(count * 24), cl.empty(count * 24)
         guide_uv, guide_pdf = cl.empty(8 * count), cl.empty(4 * count)
         if self.guide is not None:
             prog, name = self.guide
@@ -86,8 +87,9 @@ class KernelShader:
         knl(q, (items,), (cl.WORK_GROUP,), n_buf, wo_buf, mat_buf, u_buf, np.uint32(count),
             self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.angles, self.texels,
             *self.env_size, self.rot, self.tree, self.levels, guide_uv, guide_pdf, wi_buf, val_buf)
-        wi = cl.read(wi_buf, (count, 2, 4), np.float32, q)[:, :, :3]
-        value = cl.read(val_buf, (count, 2, 4), np.float32, q)[:, :, :3]
+        # planes (slot, component, point) -> (point, slot, component) views
+        wi = cl.read(wi_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
+        value = cl.read(val_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
         return wi, value
 
     def warm_up(self):
