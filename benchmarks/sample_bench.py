@@ -74,7 +74,7 @@ def main():
         warp = cl.kernel(cl.program("warp.cl", N_LEVELS=n_levels, BATCHED=0), "warp_sample")
 
         def light():
-            warp(q, (items,), (cl.WORK_GROUP,), tree.buffer, np.uint64(tree.stride), np.uint32(n), np.uint32(n),
+            warp(q, (cl.items(n, cl.LANES),), (cl.WORK_GROUP,), tree.buffer, np.uint64(tree.stride), np.uint32(n), np.uint32(n),
                  u_buf, np.uint32(2), uv_buf, pdf_buf)
             q.finish()
         row["light_samples_per_second"] = round(n / best_of(light))

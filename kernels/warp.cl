@@ -1,10 +1,10 @@
 /* Hierarchical warping of uniform points by sampling trees. The walk itself is
- * tree_walk (warp.h): one sample per work-item; the host builds this program per
- * tree depth (-DN_LEVELS) so that the walk unrolls and PoCL vectorises it across
- * work-items. -DBATCHED=1: sample i uses tree i / samples_per_tree, so the same
- * kernel serves per-shading-point trees; BATCHED=0: every sample uses the one tree
- * (no integer division per sample).
- * Launch any global size >= count (work-items past count store nothing).
+ * tree_walk8 (warp.h): eight samples per work-item (simd.h; launch ceil(count / 8)
+ * work-items or more); the host builds this program per tree depth (-DN_LEVELS) so
+ * that the walk unrolls. -DBATCHED=1: sample i uses tree i / samples_per_tree, so the
+ * same kernel serves per-shading-point trees; BATCHED=0: every sample uses the one
+ * tree (no integer division per sample). Outputs: the u plane then the v plane of
+ * uv_out, and the density on the square.
  */
 #include "warp.h"
 #if !defined(N_LEVELS) || !defined(BATCHED)
@@ -15,19 +15,19 @@ __kernel void warp_sample(__global const float *tree, const ulong tree_stride, c
                           const uint count, __global const float *u_in, const uint u_stride,
                           __global float *uv_out, __global float *pdf_out)
 {
-    const uint i = min((uint)get_global_id(0), count - 1);
+    const uint base = LANE_BASE();
+    if (base >= count) return;
+    const uintv i = LANE_INDEX(count);
 #if BATCHED
-    __global const float *t = tree + (ulong)(i / samples_per_tree) * tree_stride;
+    const uintv tree_base = (i / samples_per_tree) * (uint)tree_stride;
 #else
-    __global const float *t = tree;
+    const uintv tree_base = 0;
 #endif
-    float ux = u_in[i * u_stride], uy = u_in[i * u_stride + 1];
-    const float pdf = tree_walk(t, &ux, &uy);
-    if (get_global_id(0) < count) {
-        uv_out[i] = ux;          /* u then v planes: two adjacent stores would be paired */
-        uv_out[count + i] = uy;  /* by LLVM's SLP vectoriser, which stops PoCL's */
-        pdf_out[i] = pdf;        /* work-item vectoriser */
-    }
+    realv ux = GATHER(u_in, i * u_stride), uy = GATHER(u_in, i * u_stride + 1);
+    const realv pdf = tree_walk8(tree, tree_base, &ux, &uy);
+    STORE_LANES(ux, uv_out, base, count);
+    STORE_LANES(uy, uv_out + count, base, count);
+    STORE_LANES(pdf, pdf_out, base, count);
 }
 
 __kernel void warp_pdf(__global const float *tree, const ulong tree_stride, const int n_levels,

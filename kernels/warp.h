@@ -14,6 +14,7 @@
 #ifndef WAVLIGHT_WARP_H
 #define WAVLIGHT_WARP_H
 #include "common.h"
+#include "simd.h"
 
 inline float tree_pdf(__global const float *base, const int n_levels, float2 uv)
 {
@@ -30,7 +31,7 @@ inline float tree_pdf(__global const float *base, const int n_levels, float2 uv)
  * rescaling (ux, uy); (x, y) becomes the child. Returns the child's conditional
  * probability m_child / (m00 + m10 + m01 + m11) (eq. 21-22). Scalar and branch-free
  * (selects; u < top / (top + bottom) is compared as u (top + bottom) < top), so that
- * PoCL vectorises the work-item loop of a kernel built on it (see tree_walk). */
+ * PoCL can vectorise the work-item loop of a kernel built on it (product.h product_walk). */
 inline float choose_child(const float m00, const float m10, const float m01, const float m11,
                           float *ux, float *uy, uint *px, uint *py)
 {
@@ -81,30 +82,55 @@ inline void leaf_point(const uint x, const uint y, const int n_levels, float *ux
     *uy = ((float)y + (*uy < top ? *uy : top)) * inv;
 }
 
-/* One sample walks the tree (N_LEVELS levels below the root) from the root to a leaf:
- * (ux, uy) is its uniform point on entry and its point of the unit square on return;
- * returns its density there (eq. 19-20). One walk per work-item, scalar types only,
- * and the depth a compile-time constant (-DN_LEVELS, set by the host per tree): the
- * level loop unrolls and PoCL vectorises the work-item loop, 8 walks per AVX
- * instruction with gathers (measured 1.4-1.6x over interleaving 8 walks in one
- * work-item). */
-#ifdef N_LEVELS
-__attribute__((always_inline)) inline float tree_walk(__global const float *tree, float *ux, float *uy)
+/* choose_child for eight walks at a time (simd.h), the same arithmetic lane by lane
+ * (tests compare both with the numpy twin bit for bit). */
+inline realv choose_child8(const realv m00, const realv m10, const realv m01, const realv m11,
+                           realv *ux, realv *uy, uintv *px, uintv *py)
 {
-    const int n_levels = N_LEVELS;
-    uint x = 0, y = 0;
-    *ux = clamp_unit(*ux);
-    *uy = clamp_unit(*uy);
+#pragma OPENCL FP_CONTRACT OFF
+    const realv top = m00 + m10, bottom = m01 + m11, s_row = top + bottom;
+    const intv b = !(*uy * s_row < top) & (bottom > 0.0f);
+    const realv row = select(top, bottom, b);
+    const realv left = select(m00, m01, b), right = select(m10, m11, b), s_col = left + right;
+    const intv r = !(*ux * s_col < left) & (as_int8(right) != 0);
+    const realv col = select(left, right, r);
+    const realv ny = (*uy * s_row - select((realv)0.0f, top, b)) / row;
+    const realv nx = (*ux * s_col - select((realv)0.0f, left, r)) / col;
+    *py = 2 * *py + select((uintv)0, (uintv)1, b);
+    *px = 2 * *px + select((uintv)0, (uintv)1, r);
+    *uy = select((realv)ONE_MINUS_EPS, ny, ny < ONE_MINUS_EPS);   /* NaN -> 1 - eps */
+    *ux = select((realv)ONE_MINUS_EPS, nx, nx < ONE_MINUS_EPS);
+    return (row * col) / (s_row * s_col);
+}
+
+/* Eight samples walk the tree (N_LEVELS levels below the root, a compile-time constant
+ * set by the host per tree, so the level loop unrolls) from the root to a leaf, one
+ * per lane, lane k in the tree at tree_base[k]: (ux, uy) is the uniform point on entry
+ * and the point of the unit square on return; returns the density there (eq. 19-20).
+ * Written 8-wide (simd.h): 4x the speed of one scalar walk per work-item on an AVX2
+ * CPU, where PoCL does not vectorise the scalar walk itself. */
+#ifdef N_LEVELS
+inline realv tree_walk8(__global const float *tree, const uintv tree_base, realv *ux, realv *uy)
+{
+    uintv x = 0, y = 0;
+    *ux = select((realv)0.0f, select((realv)ONE_MINUS_EPS, *ux, *ux < ONE_MINUS_EPS), *ux > 0.0f);  /* NaN -> 0 */
+    *uy = select((realv)0.0f, select((realv)ONE_MINUS_EPS, *uy, *uy < ONE_MINUS_EPS), *uy > 0.0f);
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
         const uint cside = 2u << l;
-        __global const float *c = tree + node_index(l + 1, 2 * x, 2 * y);
-        choose_child(c[0], c[1], c[cside], c[cside + 1], ux, uy, &x, &y);
+        const uintv c = tree_base + (uint)LEVEL_OFFSET(l + 1) + (2 * y) * cside + 2 * x;
+        choose_child8(GATHER(tree, c), GATHER(tree, c + 1), GATHER(tree, c + cside), GATHER(tree, c + cside + 1),
+                      ux, uy, &x, &y);
     }
-    leaf_point(x, y, n_levels, ux, uy);
-    const uint side = 1u << n_levels;
-    const float root = tree[0], leaf = tree[node_index(n_levels, x, y)];
-    return (root > 0.0f) ? leaf / root * (float)side * (float)side : 0.0f;
+    /* leaf_point, per lane */
+    const float inv = 1.0f / (float)(1u << N_LEVELS);
+    const float top = 1.0f - 0x1p-23f * (float)(1u << N_LEVELS);
+    *ux = (convert_float8(x) + select((realv)top, *ux, as_uint8(*ux) < as_uint(top))) * inv;
+    *uy = (convert_float8(y) + select((realv)top, *uy, *uy < top)) * inv;
+    const uint side = 1u << N_LEVELS;
+    const realv root = GATHER(tree, tree_base);
+    const realv leaf = GATHER(tree, tree_base + (uint)LEVEL_OFFSET(N_LEVELS) + y * side + x);
+    return select((realv)0.0f, leaf / root * (float)side * (float)side, root > 0.0f);
 }
 #endif
 #endif

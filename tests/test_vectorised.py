@@ -1,7 +1,6 @@
-"""The walk kernels stay vectorisable by PoCL (kernels/warp.h tree_walk, kernels/product.h
-product_walk). (kernels/shade.cl is written the same way but was only checked on an AVX2 CPU, where
-the mis, cosine and uniform programs for lambert + ggx were legal and judged unprofitable; it is not
-listed here.)
+"""The product walk stays vectorisable by PoCL (kernels/product.h product_walk, one walk per
+work-item, scalar code). (kernels/warp.cl and kernels/shade.cl are written in vector types,
+kernels/simd.h, and need no vectoriser.)
 
 A structural check, not a timing: each program is built and launched once in a subprocess with
 PoCL's vectoriser remarks on, and no work-item loop may report "loop not vectorized" (a legality
@@ -40,9 +39,6 @@ for spec in sys.argv[1:]:
         prog = cl._cl().Program(cl.runtime().context, "__kernel void probe(__global float *a)"
                                 " { a[get_global_id(0)] *= 2.0f; }").build()
         cl.kernel(prog, "probe")(q, (n,), (64,), out_uv)
-    elif name == "warp":
-        knl = cl.kernel(cl.program("warp.cl", **defs), "warp_sample")
-        knl(q, (n,), (64,), f, np.uint64(0), np.uint32(n), np.uint32(n), f, np.uint32(2), out_uv, out_pdf)
     else:
         mat = cl.to_device(np.zeros(n, np.int32))
         code = cl.to_device(np.array([defs["PRODUCT_LEVELS"] + 256 * defs.pop("SHAPE")], np.int32))
@@ -61,7 +57,7 @@ def remarks(spec):
     return r.stdout + r.stderr
 
 
-WALKS = ["warp,N_LEVELS=4,BATCHED=0", "warp,N_LEVELS=10,BATCHED=0", "warp,N_LEVELS=8,BATCHED=1"] + [
+WALKS = [
     f"product,N_LEVELS=10,PRODUCT_LEVELS={p},LOBE_SHAPES={mask},SHAPE={shape}"
     for p, mask, shape in ((3, 1, 0), (7, 2, 1), (7, 4, 2), (5, 8, 3), (7, 15, 1), (3, 3, 0), (5, 12, 3))]
 

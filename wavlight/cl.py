@@ -40,6 +40,14 @@ DEVICE_ENV = "WAVLIGHT_CL_DEVICE"
 # per work-group size on first launch, so one fixed size keeps it to one compile, and 64
 # work-items fill whole vectors when PoCL vectorises the work-item loop.
 WORK_GROUP = 64
+# Points per work-item of the kernels written in vector types (kernels/simd.h: warp, shade).
+LANES = 8
+
+
+def items(count: int, lanes: int = 1) -> int:
+    """Global size for count points at `lanes` points per work-item, a multiple of WORK_GROUP."""
+    groups = -(-max(count, 1) // lanes)
+    return -(-groups // WORK_GROUP) * WORK_GROUP
 _PROBE_SRC = "__kernel void probe(__global float *a) { a[get_global_id(0)] *= 2.0f; }"
 
 

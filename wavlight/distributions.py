@@ -176,9 +176,8 @@ class HaarTree:
         args = [self.buffer, np.uint64(self.stride)]
         # built per depth (the walk unrolls); BATCHED: a tree per samples_per_tree samples
         prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=int(samples_per_tree < n))
-        if name == "warp_sample":  # one sample per work-item
-            items = -(-n // cl.WORK_GROUP) * cl.WORK_GROUP
-            cl.kernel(prog, name)(queue, (items,), (cl.WORK_GROUP,), *args, np.uint32(samples_per_tree),
+        if name == "warp_sample":  # eight samples per work-item (kernels/simd.h)
+            cl.kernel(prog, name)(queue, (cl.items(n, cl.LANES),), (cl.WORK_GROUP,), *args, np.uint32(samples_per_tree),
                                   np.uint32(n), src, np.uint32(2), uv, pdf)
         else:
             cl.kernel(prog, name)(queue, (n,), None, *args, np.int32(self.n_levels),

@@ -63,10 +63,10 @@ class KernelShader:
         count = len(n)
         if count == 0:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.float32)
-        # One point per work-item, the global size padded to a fixed work-group size:
-        # PoCL compiles a kernel per work-group size on first launch, so this keeps it
-        # to one compile (done in warm_up).
-        items = -(-count // cl.WORK_GROUP) * cl.WORK_GROUP
+        # The global size is padded to a fixed work-group size: PoCL compiles a kernel per
+        # work-group size on first launch, so this keeps it to one compile (done in warm_up).
+        # warp.cl and shade.cl take eight points per work-item (kernels/simd.h), product.cl one.
+        items1, items8 = cl.items(count), cl.items(count, cl.LANES)
         n4, wo4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
         n4[:, :3], wo4[:, :3] = n, wo
         q = cl.thread_queue()
@@ -78,13 +78,13 @@ class KernelShader:
             prog, name = self.guide
             knl = cl.kernel(prog, name)
             if name == "warp_sample":
-                knl(q, (items,), (cl.WORK_GROUP,), self.tree, np.uint64(0), np.uint32(count), np.uint32(count),
+                knl(q, (items8,), (cl.WORK_GROUP,), self.tree, np.uint64(0), np.uint32(count), np.uint32(count),
                     u_buf, np.uint32(4), guide_uv, guide_pdf)
             else:
-                knl(q, (items,), (cl.WORK_GROUP,), self.tree, self.rot, np.uint32(count), n_buf, wo_buf, mat_buf,
+                knl(q, (items1,), (cl.WORK_GROUP,), self.tree, self.rot, np.uint32(count), n_buf, wo_buf, mat_buf,
                     self.kappa, self.levels_per_material, u_buf, np.uint32(4), self.angles, guide_uv, guide_pdf)
         knl = cl.kernel(self.program, "shade")
-        knl(q, (items,), (cl.WORK_GROUP,), n_buf, wo_buf, mat_buf, u_buf, np.uint32(count),
+        knl(q, (items8,), (cl.WORK_GROUP,), n_buf, wo_buf, mat_buf, u_buf, np.uint32(count),
             self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.angles, self.texels,
             *self.env_size, self.rot, self.tree, self.levels, guide_uv, guide_pdf, wi_buf, val_buf)
         # planes (slot, component, point) -> (point, slot, component) views
