@@ -50,7 +50,7 @@ def main():
     q = cl.thread_queue()
     n = args.count
     # one sample per work-item, work-groups of cl.WORK_GROUP as the renderer launches them
-    items = -(-n // cl.WORK_GROUP) * cl.WORK_GROUP
+    items = cl.items(n, cl.LANES)   # eight points per work-item (kernels/simd.h)
     rng = np.random.default_rng(1)
     nrm = rng.normal(size=(n, 3))
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)

@@ -1,11 +1,12 @@
-/* Product samples (product.h product_walk), one per work-item, for the renderer's
+/* Product samples (product.h product_walk) for the renderer's
  * wavelet strategy (the guide samples kernels/shade.cl consumes), the benchmarks and
  * the tests. Per point: world-frame normal and direction to the viewer (float4 rows),
  * material index (kind, kappa and depth + 256 shape from the material tables) and
  * uniform u (u_stride floats apart) -> point of the square (u plane then v plane of
  * uv_out) and its density on the square. Built per tree depth (-DN_LEVELS), largest
- * product depth (-DPRODUCT_LEVELS) and set of lobe shapes (-DLOBE_SHAPES), so that PoCL
- * vectorises it across work-items. Launch any global size >= count.
+ * product depth (-DPRODUCT_LEVELS) and set of lobe shapes (-DLOBE_SHAPES), so that the
+ * walk unrolls. Eight points per work-item (simd.h): launch ceil(count / 8) work-items
+ * or more.
  */
 #include "product.h"
 #if !defined(N_LEVELS) || !defined(PRODUCT_LEVELS)
@@ -19,15 +20,16 @@ __kernel void product_sample_points(__global const float *tree, __global const f
                                     const uint u_stride, __global const float *angles,
                                     __global float *uv_out, __global float *pdf_out)
 {
-    const uint i = min((uint)get_global_id(0), count - 1);
-    const int m = material[i];
-    const Lobe lb = make_lobe(rot, normal[4 * i], normal[4 * i + 1], normal[4 * i + 2],
-                              wo_world[4 * i], wo_world[4 * i + 1], wo_world[4 * i + 2], mat_kappa[m], mat_levels[m]);
-    float ux = u_in[i * u_stride], uy = u_in[i * u_stride + 1];
-    const float pdf = product_walk(tree, angles, &lb, &ux, &uy);
-    if (get_global_id(0) < count) {
-        uv_out[i] = ux;          /* u and v planes (see warp.cl) */
-        uv_out[count + i] = uy;
-        pdf_out[i] = pdf;
-    }
+    const uint base = LANE_BASE();
+    if (base >= count) return;
+    const uintv i = LANE_INDEX(count);
+    const intv m = GATHER_INT(material, i);
+    const Lobe lb = make_lobe(rot, GATHER(normal, 4 * i), GATHER(normal, 4 * i + 1), GATHER(normal, 4 * i + 2),
+                              GATHER(wo_world, 4 * i), GATHER(wo_world, 4 * i + 1), GATHER(wo_world, 4 * i + 2),
+                              GATHER(mat_kappa, m), GATHER_INT(mat_levels, m));
+    realv ux = GATHER(u_in, i * u_stride), uy = GATHER(u_in, i * u_stride + 1);
+    const realv pdf = product_walk(tree, angles, &lb, &ux, &uy);
+    STORE_LANES(ux, uv_out, base, count);          /* u and v planes (see warp.cl) */
+    STORE_LANES(uy, uv_out + count, base, count);
+    STORE_LANES(pdf, pdf_out, base, count);
 }

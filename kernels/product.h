@@ -53,29 +53,29 @@
 #endif
 #define HAS_SHAPE(s) (LOBE_SHAPES & (1 << (s)))
 
-/* One shading point's lobe, scalar only (a kernel built on product_walk must have no
- * vector types for PoCL to vectorise it across work-items). */
+/* Eight shading points' lobes (simd.h lanes). */
 typedef struct {
-    float ax, ay, az;   /* lobe axis, in the map frame */
-    float nx, ny, nz;   /* shading normal, in the map frame */
-    float wx, wy, wz;   /* direction to the viewer, in the map frame (ggx: the half vector) */
-    float inv_kappa;    /* 1 / lobe concentration (phong n, ggx 1 / (2 alpha^2)); inf for lambert */
-    int levels;         /* product depth P (<= tree levels) */
-    int shape;          /* LOBE_LAMBERT | LOBE_PHONG | LOBE_GGX | LOBE_GGX_HALF */
+    realv ax, ay, az;   /* lobe axis, in the map frame */
+    realv nx, ny, nz;   /* shading normal, in the map frame */
+    realv wx, wy, wz;   /* direction to the viewer, in the map frame (ggx: the half vector) */
+    realv inv_kappa;    /* 1 / lobe concentration (phong n, ggx 1 / (2 alpha^2)); inf for lambert */
+    intv levels;        /* product depth P (<= tree levels) */
+    intv shape;         /* LOBE_LAMBERT | LOBE_PHONG | LOBE_GGX | LOBE_GGX_HALF */
 } Lobe;
 
-/* The lobe of a shading point from world-frame normal n and direction to the viewer wo:
- * axis = n (lambert) or the mirror direction; code = depth + 256 shape (as the host
- * packs it, wavlight/shading.py); rot = map_from_world (row-major). */
-__attribute__((always_inline)) inline Lobe make_lobe(__global const float *rot, const float nx, const float ny, const float nz,
-                      const float ox, const float oy, const float oz, const float kappa, const int code)
+/* The lobes from world-frame normals n and directions to the viewer o: axis = n
+ * (lambert) or the mirror direction; code = depth + 256 shape (as the host packs it,
+ * wavlight/shading.py); rot = map_from_world (row-major). */
+inline Lobe make_lobe(__global const float *rot, const realv nx, const realv ny, const realv nz,
+                      const realv ox, const realv oy, const realv oz, const realv kappa, const intv code)
 {
     Lobe lb;
-    const int shape = code >> 8;
-    const float c2 = 2.0f * (ox * nx + oy * ny + oz * nz);
-    const float ax = shape == LOBE_LAMBERT ? nx : c2 * nx - ox;
-    const float ay = shape == LOBE_LAMBERT ? ny : c2 * ny - oy;
-    const float az = shape == LOBE_LAMBERT ? nz : c2 * nz - oz;
+    const intv shape = code >> 8;
+    const intv lambert = shape == LOBE_LAMBERT;
+    const realv c2 = 2.0f * (ox * nx + oy * ny + oz * nz);
+    const realv ax = select(c2 * nx - ox, nx, lambert);
+    const realv ay = select(c2 * ny - oy, ny, lambert);
+    const realv az = select(c2 * nz - oz, nz, lambert);
     lb.ax = rot[0] * ax + rot[1] * ay + rot[2] * az;
     lb.ay = rot[3] * ax + rot[4] * ay + rot[5] * az;
     lb.az = rot[6] * ax + rot[7] * ay + rot[8] * az;
@@ -91,47 +91,43 @@ __attribute__((always_inline)) inline Lobe make_lobe(__global const float *rot, 
     return lb;
 }
 
-/* Importance (before the light mass) of the child of a level-`level` node whose centre
- * direction is d (map frame): the lobe formulas of the header comment. */
-__attribute__((always_inline)) inline float lobe_weight(const Lobe *lb, const float dx, const float dy, const float dz, const int level)
+/* Importance (before the light mass) of the children of level-`level` nodes whose
+ * centre directions are d (map frame): the lobe formulas of the header comment. */
+inline realv lobe_weight(const Lobe *lb, const realv dx, const realv dy, const realv dz, const int level)
 {
     /* the child's level is level + 1: inv = 2^-(level + 1), exactly and without a division */
     const float scale = (float)(2u << level), inv = as_float((uint)(126 - level) << 23);
     const float r = LOBE_BLUR_F * inv, rh = HORIZON_BLUR_F * inv;
-    const float cos_n = dx * lb->nx + dy * lb->ny + dz * lb->nz;
-    const float x1 = 1.0f - (dx * lb->ax + dy * lb->ay + dz * lb->az);
-    const float step = clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
-    const float hor = clamp(cos_n + rh, 0.0f, 1.0f);
-    float w = 0.0f;
+    const realv cos_n = dx * lb->nx + dy * lb->ny + dz * lb->nz;
+    const realv x1 = 1.0f - (dx * lb->ax + dy * lb->ay + dz * lb->az);
+    const realv step = clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
+    const realv hor = clamp(cos_n + rh, 0.0f, 1.0f);
+    realv w = 0.0f;
 #if HAS_SHAPE(LOBE_LAMBERT) || HAS_SHAPE(LOBE_PHONG)
-    /* phong: (1 + k x / 8)^-8 ~ exp(-k x), times the (softened) cosine; lambert is its
-     * kappa = 0 case (inv_kappa = inf: g = 1 exactly), the cosine alone. Sharing the
-     * formula is also what keeps LLVM's SLP vectoriser off the four children of a
-     * lambert-only program (their cheap chains were bundled into a 4-vector, which stops
-     * PoCL's work-item vectoriser: measured 2x slower). */
-    if (lb->shape <= LOBE_PHONG) {
-        const float a8 = 8.0f * fmin(lb->inv_kappa + r * r, 1e30f);   /* 8 / kappa_l */
-        float g = a8 / (a8 + x1);
+    {   /* phong: (1 + k x / 8)^-8 ~ exp(-k x), times the (softened) cosine; lambert is its
+         * kappa = 0 case (inv_kappa = inf: g = 1 exactly), the cosine alone */
+        const realv a8 = 8.0f * fmin(lb->inv_kappa + r * r, 1e30f);   /* 8 / kappa_l */
+        realv g = a8 / (a8 + x1);
         g *= g; g *= g;
-        w = g * g * hor;
+        w = select(w, g * g * hor, lb->shape <= LOBE_PHONG);
     }
 #endif
 #if HAS_SHAPE(LOBE_GGX)
-    if (lb->shape == LOBE_GGX) {                     /* (1 + c x)^-2 = (a / (a + x))^2, c = 1 / a */
-        const float a = fmin(lb->inv_kappa + r * r, 1e30f);
-        const float g = a / (a + x1);
-        w = g * g * step;
+    {   /* (1 + c x)^-2 = (a / (a + x))^2, c = 1 / a */
+        const realv a = fmin(lb->inv_kappa + r * r, 1e30f);
+        const realv g = a / (a + x1);
+        w = select(w, g * g * step, lb->shape == LOBE_GGX);
     }
 #endif
 #if HAS_SHAPE(LOBE_GGX_HALF)
-    if (lb->shape == LOBE_GGX_HALF) {                /* pi D(h) with alpha widened */
-        const float a2 = 0.5f * (lb->inv_kappa + r * r);     /* alpha_l^2 = alpha^2 + r^2 / 2 */
-        const float hx = dx + lb->wx, hy = dy + lb->wy, hz = dz + lb->wz;
-        const float hn = fmax(hx * lb->nx + hy * lb->ny + hz * lb->nz, 0.0f);
+    {   /* pi D(h) with alpha widened */
+        const realv a2 = 0.5f * (lb->inv_kappa + r * r);     /* alpha_l^2 = alpha^2 + r^2 / 2 */
+        const realv hx = dx + lb->wx, hy = dy + lb->wy, hz = dz + lb->wz;
+        const realv hn = fmax(hx * lb->nx + hy * lb->ny + hz * lb->nz, 0.0f);
         /* D ~ a2 / (cos^2 (a2 - 1) + 1)^2 with cos^2 = hn^2 / |h|^2: one division */
-        const float hh = hx * hx + hy * hy + hz * hz;
-        const float q = hh / (hn * hn * (a2 - 1.0f) + hh);
-        w = (a2 * q * q) * step;
+        const realv hh = hx * hx + hy * hy + hz * hz;
+        const realv q = hh / (hn * hn * (a2 - 1.0f) + hh);
+        w = select(w, (a2 * q * q) * step, lb->shape == LOBE_GGX_HALF);
     }
 #endif
     return w;
@@ -139,36 +135,37 @@ __attribute__((always_inline)) inline float lobe_weight(const Lobe *lb, const fl
 
 /* w0..w3 = the importances i0..i3, or the light masses m0..m3 where the importances sum
  * to zero or are not finite (the same rule in the walk and the pdf). */
-__attribute__((always_inline)) inline void importances_or_masses(
-    const float i0, const float i1, const float i2, const float i3, const float m0, const float m1,
-    const float m2, const float m3, float *w0, float *w1, float *w2, float *w3)
+inline void importances_or_masses(const realv i0, const realv i1, const realv i2, const realv i3,
+                                  const realv m0, const realv m1, const realv m2, const realv m3,
+                                  realv *w0, realv *w1, realv *w2, realv *w3)
 {
-    const float sum = ((i0 + i1) + i2) + i3;
-    const int ok = sum > 0.0f && isfinite(sum);
-    *w0 = ok ? i0 : m0;
-    *w1 = ok ? i1 : m1;
-    *w2 = ok ? i2 : m2;
-    *w3 = ok ? i3 : m3;
+    const realv sum = ((i0 + i1) + i2) + i3;
+    const intv ok = (sum > 0.0f) & isfinite(sum);
+    *w0 = select(m0, i0, ok);
+    *w1 = select(m1, i1, ok);
+    *w2 = select(m2, i2, ok);
+    *w3 = select(m3, i3, ok);
 }
 
-/* Importances of the four children (00 10 01 11) of node (x, y) at `level` whose light
+/* Importances of the four children (00 10 01 11) of nodes (x, y) at `level` whose light
  * masses are m0..m3, into w0..w3. angles: the centre directions' sines and cosines per
  * column and row of each level (product.node_angles): the children of (x, y) are
  * columns 2x, 2x + 1 and rows 2y, 2y + 1 of level + 1. Where all four are zero (or the
- * sum is not finite) the light masses are used instead. Scalars only, no arrays: an
- * array becomes a 4-vector, which stops PoCL's work-item vectoriser. */
-__attribute__((always_inline)) inline void child_importances(const Lobe *lb, __global const float *angles,
-                              const float m0, const float m1, const float m2, const float m3, const uint x,
-                              const uint y, const int level, float *w0, float *w1, float *w2, float *w3)
+ * sum is not finite) the light masses are used instead. */
+inline void child_importances(const Lobe *lb, __global const float *angles,
+                              const realv m0, const realv m1, const realv m2, const realv m3, const uintv x,
+                              const uintv y, const int level, realv *w0, realv *w1, realv *w2, realv *w3)
 {
-    __global const float *col = angles + 4 * ((2u << level) - 2u) + 8 * x;
-    __global const float *row = angles + 4 * ((2u << level) - 2u) + 8 * y;
-    const float sp0 = col[0], cp0 = col[1], sp1 = col[4], cp1 = col[5];
-    const float st0 = row[2], ct0 = row[3], st1 = row[6], ct1 = row[7];
-    const float i0 = m0 * lobe_weight(lb, sp0 * st0, ct0, -cp0 * st0, level);
-    const float i1 = m1 * lobe_weight(lb, sp1 * st0, ct0, -cp1 * st0, level);
-    const float i2 = m2 * lobe_weight(lb, sp0 * st1, ct1, -cp0 * st1, level);
-    const float i3 = m3 * lobe_weight(lb, sp1 * st1, ct1, -cp1 * st1, level);
+    const uintv col = 4 * ((2u << level) - 2u) + 8 * x;
+    const uintv row = 4 * ((2u << level) - 2u) + 8 * y;
+    const realv sp0 = GATHER(angles, col), cp0 = GATHER(angles, col + 1);
+    const realv sp1 = GATHER(angles, col + 4), cp1 = GATHER(angles, col + 5);
+    const realv st0 = GATHER(angles, row + 2), ct0 = GATHER(angles, row + 3);
+    const realv st1 = GATHER(angles, row + 6), ct1 = GATHER(angles, row + 7);
+    const realv i0 = m0 * lobe_weight(lb, sp0 * st0, ct0, -cp0 * st0, level);
+    const realv i1 = m1 * lobe_weight(lb, sp1 * st0, ct0, -cp1 * st0, level);
+    const realv i2 = m2 * lobe_weight(lb, sp0 * st1, ct1, -cp0 * st1, level);
+    const realv i3 = m3 * lobe_weight(lb, sp1 * st1, ct1, -cp1 * st1, level);
     importances_or_masses(i0, i1, i2, i3, m0, m1, m2, m3, w0, w1, w2, w3);
 }
 
@@ -181,106 +178,128 @@ __attribute__((always_inline)) inline void child_importances(const Lobe *lb, __g
  * phong 200 0.67 / 0.11 / 0.50 -> 0.57 / 0.08 / 0.38 under rooitou / st_fagans /
  * potsdamer, ggx 0.05 0.71 / 0.15 / 0.49 -> 0.68 / 0.12 / 0.40, ggx 0.2 0.84 / 0.20 /
  * 0.28 -> 0.76 / 0.16 / 0.22, lambert 0.78 / 0.57 / 0.47 -> 0.61 / 0.41 / 0.33; 2 levels
- * gained less, 4 little more. It costs 20-36% of the product walk's speed (12
- * more lobe evaluations per look-ahead level). The shade kernel's product_pdf uses
- * this default; -DLOOKAHEAD_LEVELS=0 is only for timing the walk without it. */
+ * gained less, 4 little more. It costs 20-50% of the product walk's speed (12
+ * more lobe evaluations per look-ahead level). -DLOOKAHEAD_LEVELS=0 is only for
+ * timing the walk without it. */
 #ifndef LOOKAHEAD_LEVELS
 #define LOOKAHEAD_LEVELS 3
 #endif
 
-/* child_importances with the look-ahead, for node (x, y) at `level` (level + 2 <= the
+/* child_importances with the look-ahead, for nodes (x, y) at `level` (level + 2 <= the
  * tree's depth; the angle table covers level + 2): the children's own masses m0..m3
  * are the fallback where the sum is zero or not finite. */
-__attribute__((always_inline)) inline void child_importances_ahead(const Lobe *lb, __global const float *angles,
-                              __global const float *tree, const float m0, const float m1, const float m2,
-                              const float m3, const uint x, const uint y, const int level,
-                              float *w0, float *w1, float *w2, float *w3)
+inline void child_importances_ahead(const Lobe *lb, __global const float *angles, __global const float *tree,
+                                    const realv m0, const realv m1, const realv m2, const realv m3,
+                                    const uintv x, const uintv y, const int level,
+                                    realv *w0, realv *w1, realv *w2, realv *w3)
 {
     const uint gside = 4u << level;                                     /* level + 2 */
-    __global const float *g = tree + node_index(level + 2, 4 * x, 4 * y);
-    __global const float *col = angles + 4 * ((4u << level) - 2u) + 16 * x;
-    __global const float *row = angles + 4 * ((4u << level) - 2u) + 16 * y;
-#define GC(i, j) (g[(i) * gside + (j)] * lobe_weight(lb, col[4 * (j)] * row[4 * (i) + 2], row[4 * (i) + 3], \
-                                                     -col[4 * (j) + 1] * row[4 * (i) + 2], level + 1))
-    const float i0 = (GC(0, 0) + GC(0, 1)) + (GC(1, 0) + GC(1, 1));   /* child 00: rows 0-1, columns 0-1 */
-    const float i1 = (GC(0, 2) + GC(0, 3)) + (GC(1, 2) + GC(1, 3));   /* child 10 */
-    const float i2 = (GC(2, 0) + GC(2, 1)) + (GC(3, 0) + GC(3, 1));   /* child 01 */
-    const float i3 = (GC(2, 2) + GC(2, 3)) + (GC(3, 2) + GC(3, 3));   /* child 11 */
+    const uintv g = (uint)LEVEL_OFFSET(level + 2) + (4 * y) * gside + 4 * x;
+    const uintv col = 4 * ((4u << level) - 2u) + 16 * x;
+    const uintv row = 4 * ((4u << level) - 2u) + 16 * y;
+#define GC(i, j) (GATHER(tree, g + ((i) * gside + (j))) *                                              \
+                  lobe_weight(lb, GATHER(angles, col + 4 * (j)) * GATHER(angles, row + (4 * (i) + 2)),   \
+                              GATHER(angles, row + (4 * (i) + 3)),                                        \
+                              -GATHER(angles, col + (4 * (j) + 1)) * GATHER(angles, row + (4 * (i) + 2)), level + 1))
+    const realv i0 = (GC(0, 0) + GC(0, 1)) + (GC(1, 0) + GC(1, 1));   /* child 00: rows 0-1, columns 0-1 */
+    const realv i1 = (GC(0, 2) + GC(0, 3)) + (GC(1, 2) + GC(1, 3));   /* child 10 */
+    const realv i2 = (GC(2, 0) + GC(2, 1)) + (GC(3, 0) + GC(3, 1));   /* child 01 */
+    const realv i3 = (GC(2, 2) + GC(2, 3)) + (GC(3, 2) + GC(3, 3));   /* child 11 */
 #undef GC
     importances_or_masses(i0, i1, i2, i3, m0, m1, m2, m3, w0, w1, w2, w3);
 }
 
-/* One product sample: lobe lb for its first P levels (P <= PRODUCT_LEVELS, a compile-
- * time bound), then the light tree; (ux, uy) uniform in, point of the square out;
- * returns its density on the square. One walk per work-item, unrolled over N_LEVELS,
- * scalar only: PoCL vectorises it across work-items (as warp.h tree_walk). The
- * importances are computed for every lane at levels < PRODUCT_LEVELS and selected per
- * lane (the angle table covers those levels, so every load is in bounds). PRODUCT_LEVELS
- * must be at least every lane's depth (the host builds with the largest). */
-#if defined(N_LEVELS) && defined(PRODUCT_LEVELS)
-__attribute__((always_inline)) inline float product_walk(__global const float *tree, __global const float *angles,
-                                                         const Lobe *lb, float *ux, float *uy)
+/* The importances of the four children of nodes (x, y) at `level` (compile-time after
+ * unrolling), look-ahead at the coarse levels. */
+inline void node_importances(const Lobe *lb, __global const float *angles, __global const float *tree,
+                             const realv m0, const realv m1, const realv m2, const realv m3,
+                             const uintv x, const uintv y, const int level, const int n_levels,
+                             realv *i0, realv *i1, realv *i2, realv *i3)
 {
-    uint x = 0, y = 0;
-    float p = 1.0f;
+    if (level < LOOKAHEAD_LEVELS && level + 2 <= n_levels)
+        child_importances_ahead(lb, angles, tree, m0, m1, m2, m3, x, y, level, i0, i1, i2, i3);
+    else
+        child_importances(lb, angles, m0, m1, m2, m3, x, y, level, i0, i1, i2, i3);
+}
+
+/* Node index of level `depth` (per lane) containing leaf (x, y) of level n_levels. */
+inline uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, const uintv y)
+{
+    const uintv d = as_uint8(depth), shift = (uint)n_levels - d;
+    return (((uintv)1 << (2 * d)) - 1) / 3 + (y >> shift) * ((uintv)1 << d) + (x >> shift);
+}
+
+#if defined(N_LEVELS) && defined(PRODUCT_LEVELS)
+/* Eight product samples: lobe lb for each lane's first P levels (P <= PRODUCT_LEVELS, a
+ * compile-time bound), then the light tree; (ux, uy) uniform in, point of the square
+ * out; returns the density on the square. Unrolled over N_LEVELS, eight lanes in vector
+ * types (simd.h). The importances are computed for every lane at levels <
+ * PRODUCT_LEVELS and selected per lane (the angle table covers those levels, so every
+ * load is in bounds). PRODUCT_LEVELS must be at least every lane's depth (the host
+ * builds with the largest). */
+inline realv product_walk(__global const float *tree, __global const float *angles, const Lobe *lb,
+                          realv *ux, realv *uy)
+{
+    uintv x = 0, y = 0;
+    realv p = 1.0f;
     *ux = clamp_unit(*ux);
     *uy = clamp_unit(*uy);
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
         const uint cside = 2u << l;
-        __global const float *c = tree + node_index(l + 1, 2 * x, 2 * y);
-        const float m0 = c[0], m1 = c[1], m2 = c[cside], m3 = c[cside + 1];
-        float w0 = m0, w1 = m1, w2 = m2, w3 = m3;
-        const int in_product = l < lb->levels;
+        const uintv c = (uint)LEVEL_OFFSET(l + 1) + (2 * y) * cside + 2 * x;
+        const realv m0 = GATHER(tree, c), m1 = GATHER(tree, c + 1);
+        const realv m2 = GATHER(tree, c + cside), m3 = GATHER(tree, c + cside + 1);
+        realv w0 = m0, w1 = m1, w2 = m2, w3 = m3;
+        const intv in_product = l < lb->levels;
         if (l < PRODUCT_LEVELS) {   /* compile-time */
-            float i0, i1, i2, i3;
-            if (l < LOOKAHEAD_LEVELS && l + 2 <= N_LEVELS)   /* compile-time */
-                child_importances_ahead(lb, angles, tree, m0, m1, m2, m3, x, y, l, &i0, &i1, &i2, &i3);
-            else
-                child_importances(lb, angles, m0, m1, m2, m3, x, y, l, &i0, &i1, &i2, &i3);
-            w0 = in_product ? i0 : m0;
-            w1 = in_product ? i1 : m1;
-            w2 = in_product ? i2 : m2;
-            w3 = in_product ? i3 : m3;
+            realv i0, i1, i2, i3;
+            node_importances(lb, angles, tree, m0, m1, m2, m3, x, y, l, N_LEVELS, &i0, &i1, &i2, &i3);
+            w0 = select(m0, i0, in_product);
+            w1 = select(m1, i1, in_product);
+            w2 = select(m2, i2, in_product);
+            w3 = select(m3, i3, in_product);
         }
-        const float q = choose_child(w0, w1, w2, w3, ux, uy, &x, &y);
-        p *= (l < PRODUCT_LEVELS && in_product) ? q : 1.0f;
+        const realv q = choose_child(w0, w1, w2, w3, ux, uy, &x, &y);
+        if (l < PRODUCT_LEVELS)
+            p *= select((realv)1.0f, q, in_product);
     }
-    const int depth = min(lb->levels, N_LEVELS);
-    const float node_mass = tree[node_index(depth, x >> (N_LEVELS - depth), y >> (N_LEVELS - depth))];
-    const float leaf = tree[node_index(N_LEVELS, x, y)];
+    const intv depth = min(lb->levels, N_LEVELS);
+    const realv node_mass = GATHER(tree, node_of_leaf(depth, N_LEVELS, x, y));
     const uint side = 1u << N_LEVELS;
+    const realv leaf = GATHER(tree, (uint)LEVEL_OFFSET(N_LEVELS) + y * side + x);
     leaf_point(x, y, N_LEVELS, ux, uy);
-    return (tree[0] > 0.0f && node_mass > 0.0f) ? p * (leaf / node_mass) * (float)side * (float)side : 0.0f;
+    const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
+    return tree[0] > 0.0f ? pdf : (realv)0.0f;   /* (a scalar test: 1, not a -1 lane mask) */
+}
+
+/* Density on the square of product_walk at points (u, v), for any directions (MIS). */
+inline realv product_pdf(__global const float *tree, __global const float *angles, const Lobe *lb,
+                         const realv u, const realv v)
+{
+    const intv depth = min(lb->levels, N_LEVELS);
+    const uint side = 1u << N_LEVELS;
+    const uintv lx = as_uint8(clamp(convert_int8(floor(u * (float)side)), 0, (int)side - 1));
+    const uintv ly = as_uint8(clamp(convert_int8(floor(v * (float)side)), 0, (int)side - 1));
+    realv p = 1.0f;
+#pragma unroll
+    for (int l = 0; l < PRODUCT_LEVELS && l < N_LEVELS; ++l) {
+        const uintv cx = lx >> (N_LEVELS - l - 1), cy = ly >> (N_LEVELS - l - 1);
+        const uintv px = cx >> 1, py = cy >> 1;
+        const uint cside = 2u << l;
+        const uintv c = (uint)LEVEL_OFFSET(l + 1) + (2 * py) * cside + 2 * px;
+        realv i0, i1, i2, i3;
+        node_importances(lb, angles, tree, GATHER(tree, c), GATHER(tree, c + 1), GATHER(tree, c + cside),
+                         GATHER(tree, c + cside + 1), px, py, l, N_LEVELS, &i0, &i1, &i2, &i3);
+        const realv sum = (i0 + i1) + (i2 + i3);
+        const intv right = (cx & 1) != 0, bottom = (cy & 1) != 0;
+        const realv mine = select(select(i0, i1, right), select(i2, i3, right), bottom);
+        p *= select((realv)1.0f, mine / sum, l < depth);
+    }
+    const realv node_mass = GATHER(tree, node_of_leaf(depth, N_LEVELS, lx, ly));
+    const realv leaf = GATHER(tree, (uint)LEVEL_OFFSET(N_LEVELS) + ly * side + lx);
+    const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
+    return tree[0] > 0.0f ? pdf : (realv)0.0f;   /* (a scalar test: 1, not a -1 lane mask) */
 }
 #endif
-
-/* Density on the square of product_walk at point (u, v), for any direction (MIS). */
-inline float product_pdf(__global const float *tree, const int n_levels, __global const float *angles,
-                         const Lobe *lb, const float u, const float v)
-{
-    if (!(tree[0] > 0.0f)) return 0.0f;
-    const int depth = min(lb->levels, n_levels);
-    const uint side = 1u << n_levels;
-    const uint lx = (uint)clamp((int)floor(u * side), 0, (int)side - 1);
-    const uint ly = (uint)clamp((int)floor(v * side), 0, (int)side - 1);
-    float p = 1.0f;
-    for (int l = 0; l < depth; ++l) {
-        const uint cx = lx >> (n_levels - l - 1), cy = ly >> (n_levels - l - 1);
-        const uint px = cx >> 1, py = cy >> 1, cside = 2u << l;
-        __global const float *c = tree + node_index(l + 1, 2 * px, 2 * py);
-        float i0, i1, i2, i3;
-        if (l < LOOKAHEAD_LEVELS && l + 2 <= n_levels)
-            child_importances_ahead(lb, angles, tree, c[0], c[1], c[cside], c[cside + 1], px, py, l,
-                                    &i0, &i1, &i2, &i3);
-        else
-            child_importances(lb, angles, c[0], c[1], c[cside], c[cside + 1], px, py, l, &i0, &i1, &i2, &i3);
-        const float sum = (i0 + i1) + (i2 + i3);
-        const uint k = (cx & 1) + 2 * (cy & 1);
-        p *= (k == 0 ? i0 : k == 1 ? i1 : k == 2 ? i2 : i3) / sum;
-    }
-    const float node_mass = tree[node_index(depth, lx >> (n_levels - depth), ly >> (n_levels - depth))];
-    const float leaf = tree[node_index(n_levels, lx, ly)];
-    return node_mass > 0.0f ? p * (leaf / node_mass) * (float)side * (float)side : 0.0f;
-}
 #endif

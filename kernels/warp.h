@@ -26,65 +26,17 @@ inline float tree_pdf(__global const float *base, const int n_levels, float2 uv)
     return (root > 0.0f) ? leaf / root * (float)side * (float)side : 0.0f;
 }
 
-/* One step of the walk: pick one of the four children of node (x, y) with masses
- * m00 m10 (top row) m01 m11 (bottom row), first the row pair then the column,
- * rescaling (ux, uy); (x, y) becomes the child. Returns the child's conditional
- * probability m_child / (m00 + m10 + m01 + m11) (eq. 21-22). Scalar and branch-free
- * (selects; u < top / (top + bottom) is compared as u (top + bottom) < top), so that
- * PoCL can vectorise the work-item loop of a kernel built on it (product.h product_walk). */
-inline float choose_child(const float m00, const float m10, const float m01, const float m11,
-                          float *ux, float *uy, uint *px, uint *py)
-{
-#pragma OPENCL FP_CONTRACT OFF
-    /* (no fused multiply-add: the numpy twin rounds u * sum and the subtraction apart) */
-    const float top = m00 + m10, bottom = m01 + m11, s_row = top + bottom;
-    /* top (row 2y) or bottom (row 2y + 1) pair; never a side of zero mass, which
-     * u * sum rounding up to a denormal mass could otherwise pick */
-    const int b = !(*uy * s_row < top) & (bottom > 0.0f);
-    const float row = b ? bottom : top;
-    const float left = b ? m01 : m00, right = b ? m11 : m10, s_col = left + right;
-    /* left (column 2x) or right (column 2x + 1) child */
-    const int r = !(*ux * s_col < left) & (as_uint(right) != 0u);   /* right >= +0: the bits (see below) */
-    const float col = r ? right : left;
-    const float ny = (*uy * s_row - (b ? top : 0.0f)) / row;
-    const float nx = (*ux * s_col - (r ? left : 0.0f)) / col;
-    *py = 2 * *py + (uint)b;
-    *px = 2 * *px + (uint)r;
-    /* Clamp below 1; NaN (a zero-mass pair) -> 1 - eps. x compares the bits (nx >= +0,
-     * so the integer order is the float order and NaN's bits are above 1's), y the
-     * floats: the same clamp, but not two identical chains, which LLVM's SLP vectoriser
-     * pairs into a 2-vector, which stops PoCL's work-item vectoriser (measured 1.5x). */
-    *uy = ny < ONE_MINUS_EPS ? ny : ONE_MINUS_EPS;
-    *ux = as_uint(nx) < as_uint(ONE_MINUS_EPS) ? nx : ONE_MINUS_EPS;
-    return (row * col) / (s_row * s_col);
-}
-
-/* Index of node (x, y) of `level` in a tree (common.h layout). */
-inline uint node_index(const int level, const uint x, const uint y)
-{
-    return (uint)LEVEL_OFFSET(level) + y * (1u << level) + x;
-}
-
-/* u in [0, 1) clamped to the largest float below 1 (NaN -> 0). */
-inline float clamp_unit(const float u)
-{
-    return u > 0.0f ? (u < ONE_MINUS_EPS ? u : ONE_MINUS_EPS) : 0.0f;
-}
-
-/* The point of the unit square at offset (ux, uy) inside leaf (x, y) of a 2^n grid.
- * The offsets are first clamped to 1 - 2^(n - 23): then x + u rounds below x + 1 for
- * every x < 2^n, so the point stays inside the chosen leaf. */
-inline void leaf_point(const uint x, const uint y, const int n_levels, float *ux, float *uy)
-{
-    const float inv = 1.0f / (float)(1u << n_levels);
-    const float top = 1.0f - 0x1p-23f * (float)(1u << n_levels);
-    *ux = ((float)x + (as_uint(*ux) < as_uint(top) ? *ux : top)) * inv;   /* (as choose_child) */
-    *uy = ((float)y + (*uy < top ? *uy : top)) * inv;
-}
-
-/* choose_child for eight walks at a time (simd.h), the same arithmetic lane by lane
- * (tests compare both with the numpy twin bit for bit). */
-inline realv choose_child8(const realv m00, const realv m10, const realv m01, const realv m11,
+/* One step of eight walks (simd.h lanes): pick one of the four children of nodes
+ * (x, y) with masses m00 m10 (top row) m01 m11 (bottom row), first the row pair then
+ * the column, rescaling (ux, uy); (x, y) becomes the child. Returns the child's
+ * conditional probability m_child / (m00 + m10 + m01 + m11) (eq. 21-22). Branch-free:
+ * u < top / (top + bottom) is compared as u (top + bottom) < top, without a division;
+ * no fused multiply-add (the numpy twin, distributions.choose_child_reference, rounds
+ * u * sum and the subtraction apart, and tests compare the two bit for bit). A side or
+ * child of zero mass is never picked (u * sum rounding up to a denormal mass could
+ * otherwise pick it: right is compared by its bits, right >= +0). u past 1 - eps (or
+ * NaN, a zero-mass pair) is clamped to 1 - eps. */
+inline realv choose_child(const realv m00, const realv m10, const realv m01, const realv m11,
                            realv *ux, realv *uy, uintv *px, uintv *py)
 {
 #pragma OPENCL FP_CONTRACT OFF
@@ -103,30 +55,45 @@ inline realv choose_child8(const realv m00, const realv m10, const realv m01, co
     return (row * col) / (s_row * s_col);
 }
 
+/* u in [0, 1) clamped to the largest float below 1 (NaN -> 0), per lane. */
+inline realv clamp_unit(const realv u)
+{
+    return select((realv)0.0f, select((realv)ONE_MINUS_EPS, u, u < ONE_MINUS_EPS), u > 0.0f);
+}
+
+/* The points of the unit square at offsets (ux, uy) inside leaves (x, y) of a 2^n grid.
+ * The offsets are first clamped to 1 - 2^(n - 23): then x + u rounds below x + 1 for
+ * every x < 2^n, so each point stays inside its leaf. (x compares the bits, y the
+ * floats, as numpy's twin distributions.leaf_point does.) */
+inline void leaf_point(const uintv x, const uintv y, const int n_levels, realv *ux, realv *uy)
+{
+    const float inv = 1.0f / (float)(1u << n_levels);
+    const float top = 1.0f - 0x1p-23f * (float)(1u << n_levels);
+    *ux = (convert_float8(x) + select((realv)top, *ux, as_uint8(*ux) < as_uint(top))) * inv;
+    *uy = (convert_float8(y) + select((realv)top, *uy, *uy < top)) * inv;
+}
+
 /* Eight samples walk the tree (N_LEVELS levels below the root, a compile-time constant
  * set by the host per tree, so the level loop unrolls) from the root to a leaf, one
  * per lane, lane k in the tree at tree_base[k]: (ux, uy) is the uniform point on entry
  * and the point of the unit square on return; returns the density there (eq. 19-20).
  * Written 8-wide (simd.h): 4x the speed of one scalar walk per work-item on an AVX2
- * CPU, where PoCL does not vectorise the scalar walk itself. */
+ * CPU (12.3 -> 48.9 M samples/s at 1024^2), where PoCL does not vectorise the scalar
+ * walk itself. */
 #ifdef N_LEVELS
 inline realv tree_walk8(__global const float *tree, const uintv tree_base, realv *ux, realv *uy)
 {
     uintv x = 0, y = 0;
-    *ux = select((realv)0.0f, select((realv)ONE_MINUS_EPS, *ux, *ux < ONE_MINUS_EPS), *ux > 0.0f);  /* NaN -> 0 */
-    *uy = select((realv)0.0f, select((realv)ONE_MINUS_EPS, *uy, *uy < ONE_MINUS_EPS), *uy > 0.0f);
+    *ux = clamp_unit(*ux);
+    *uy = clamp_unit(*uy);
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
         const uint cside = 2u << l;
         const uintv c = tree_base + (uint)LEVEL_OFFSET(l + 1) + (2 * y) * cside + 2 * x;
-        choose_child8(GATHER(tree, c), GATHER(tree, c + 1), GATHER(tree, c + cside), GATHER(tree, c + cside + 1),
+        choose_child(GATHER(tree, c), GATHER(tree, c + 1), GATHER(tree, c + cside), GATHER(tree, c + cside + 1),
                       ux, uy, &x, &y);
     }
-    /* leaf_point, per lane */
-    const float inv = 1.0f / (float)(1u << N_LEVELS);
-    const float top = 1.0f - 0x1p-23f * (float)(1u << N_LEVELS);
-    *ux = (convert_float8(x) + select((realv)top, *ux, as_uint8(*ux) < as_uint(top))) * inv;
-    *uy = (convert_float8(y) + select((realv)top, *uy, *uy < top)) * inv;
+    leaf_point(x, y, N_LEVELS, ux, uy);
     const uint side = 1u << N_LEVELS;
     const realv root = GATHER(tree, tree_base);
     const realv leaf = GATHER(tree, tree_base + (uint)LEVEL_OFFSET(N_LEVELS) + y * side + x);

@@ -93,7 +93,7 @@ def test_product_sample_points_kernel_matches_numpy():
     n4[:, :3], w4[:, :3] = nrm, wo
     uv_buf, pdf_buf = cl.empty(8 * count), cl.empty(4 * count)
     prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=n_levels, LOBE_SHAPES=15)
-    items = -(-count // cl.WORK_GROUP) * cl.WORK_GROUP
+    items = cl.items(count, cl.LANES)
     cl.kernel(prog, "product_sample_points")(
         q, (items,), (cl.WORK_GROUP,), tree.buffer, cl.to_device(env.map_from_world.astype(np.float32).ravel()),
         np.uint32(count), cl.to_device(n4), cl.to_device(w4), cl.to_device(material.astype(np.int32)),

@@ -18,8 +18,9 @@ Kernel sources live in the ``kernels/`` folder, installed as the package
 ``wavlight.kernels``. Local ``#include "x.h"`` lines are spliced on the host
 (PoCL has failed on ``-I`` include paths). Each program is built once per
 (context, file, defines) and memoised for the life of the process. Kernels that
-walk trees are built per tree depth (``-DN_LEVELS``): their level loop unrolls and
-PoCL vectorises the work-item loop (kernels/warp.h, tree_walk).
+walk trees are built per tree depth (``-DN_LEVELS``), so that their level loop
+unrolls. The per-sample kernels take eight points per work-item in OpenCL vector
+types (kernels/simd.h, :data:`LANES`, :func:`items`).
 """
 from __future__ import annotations
 
@@ -37,8 +38,7 @@ from .errors import WavlightError
 
 DEVICE_ENV = "WAVLIGHT_CL_DEVICE"
 # Work-group size of the per-sample kernels (warp, product, shade): PoCL compiles a kernel
-# per work-group size on first launch, so one fixed size keeps it to one compile, and 64
-# work-items fill whole vectors when PoCL vectorises the work-item loop.
+# per work-group size on first launch, so one fixed size keeps it to one compile.
 WORK_GROUP = 64
 # Points per work-item of the kernels written in vector types (kernels/simd.h: warp, shade).
 LANES = 8

@@ -2,7 +2,7 @@
 
 :class:`KernelShader` uploads the environment (texels, rotation), the light tree
 and the material table once, then shades batches of points: the light or product
-guide sample of each point first (walk kernels that PoCL vectorises), then the
+guide sample of each point first (walk kernels, eight points per work-item), then the
 ``shade`` kernel: for each point one direction per strategy sample (two for MIS)
 and its unoccluded estimate. Its numpy
 twin is :func:`wavlight.strategies.shade_reference`; :class:`NumpyShader` wraps
@@ -47,16 +47,19 @@ class KernelShader:
         depth = int(max(np.max(levels, initial=0), 0))
         self.angles = cl.to_device(product.node_angles(depth))
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
-        self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds)
+        walk = {}   # the product walk's compile-time sizes (kernels/product.h), for wavelet
+        if strategy.name == "wavelet":
+            walk = dict(N_LEVELS=int(self.levels), PRODUCT_LEVELS=depth,
+                        LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)))
+        self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds,
+                                  **walk)
         # the guide sample (light or product) is drawn first, by a kernel built for this
-        # tree depth (and product depth and lobe shapes) that PoCL vectorises
+        # tree depth (and product depth and lobe shapes)
         self.guide = None
         if strategy.name in ("light", "mis"):
             self.guide = cl.program("warp.cl", N_LEVELS=int(self.levels), BATCHED=0), "warp_sample"
         elif strategy.name == "wavelet":
-            self.guide = (cl.program("product.cl", N_LEVELS=int(self.levels), PRODUCT_LEVELS=depth,
-                                     LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0))),
-                          "product_sample_points")
+            self.guide = cl.program("product.cl", **walk), "product_sample_points"
         self.warm_up()
 
     def __call__(self, n, wo, material, u, **_):
@@ -65,8 +68,8 @@ class KernelShader:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.float32)
         # The global size is padded to a fixed work-group size: PoCL compiles a kernel per
         # work-group size on first launch, so this keeps it to one compile (done in warm_up).
-        # warp.cl and shade.cl take eight points per work-item (kernels/simd.h), product.cl one.
-        items1, items8 = cl.items(count), cl.items(count, cl.LANES)
+        # The kernels take eight points per work-item (kernels/simd.h).
+        items8 = cl.items(count, cl.LANES)
         n4, wo4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
         n4[:, :3], wo4[:, :3] = n, wo
         q = cl.thread_queue()
@@ -81,7 +84,7 @@ class KernelShader:
                 knl(q, (items8,), (cl.WORK_GROUP,), self.tree, np.uint64(0), np.uint32(count), np.uint32(count),
                     u_buf, np.uint32(4), guide_uv, guide_pdf)
             else:
-                knl(q, (items1,), (cl.WORK_GROUP,), self.tree, self.rot, np.uint32(count), n_buf, wo_buf, mat_buf,
+                knl(q, (items8,), (cl.WORK_GROUP,), self.tree, self.rot, np.uint32(count), n_buf, wo_buf, mat_buf,
                     self.kappa, self.levels_per_material, u_buf, np.uint32(4), self.angles, guide_uv, guide_pdf)
         knl = cl.kernel(self.program, "shade")
         knl(q, (items8,), (cl.WORK_GROUP,), n_buf, wo_buf, mat_buf, u_buf, np.uint32(count),
