@@ -1,6 +1,6 @@
-/* Product samples (product.h product_walk) for the renderer's
- * wavelet strategy (the guide samples kernels/shade.cl consumes), the benchmarks and
- * the tests. Per point: world-frame normal and direction to the viewer (float4 rows),
+/* Product samples (product.h product_walk) as a stand-alone kernel, for the benchmarks
+ * and the tests (the renderer's wavelet strategy runs the same walk inside
+ * kernels/shade.cl). Per point: world-frame normal and direction to the viewer (float4 rows),
  * material index (kind, kappa and depth + 256 shape from the material tables) and
  * uniform u (u_stride floats apart) -> point of the square (u plane then v plane of
  * uv_out) and its density on the square. Built per tree depth (-DN_LEVELS), largest

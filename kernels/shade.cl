@@ -8,20 +8,24 @@
  * strategies use u.xy and write slot 0 (slot 1 is zero); MIS draws the light
  * sample from u.xy into slot 0 and the bsdf sample from u.zw into slot 1; wavelet
  * does the same with the product sampler (product.h) in place of the light. The
- * light and product samples (drawn from u.xy) come in as guide_uv / guide_pdf: the
- * host draws them first with warp.cl / product.cl.
+ * light and product samples walk their trees here (warp.h tree_walk8, product.h
+ * product_walk): the program is built per light-tree depth (-DN_LEVELS) and, for
+ * wavelet, per largest product depth and set of lobe shapes (-DPRODUCT_LEVELS,
+ * -DLOBE_SHAPES). One launch per batch: PoCL's per-launch latency (~1 ms on 2
+ * cores) made a separate guide kernel cost 30% of a `light` batch.
  *
  * Eight points per work-item in vector types (simd.h; launch ceil(count / 8)
  * work-items or more): measured 3.7x over one scalar point per work-item on an AVX2
- * CPU. The wavelet program is built with the product walk's -DN_LEVELS,
- * -DPRODUCT_LEVELS and -DLOBE_SHAPES (its MIS weight is product_pdf). Inputs are float4 rows (normal, wo_world) and u rows of
- * 4; outputs are planes of `count` floats: wi_out holds slot 0 x, y, z then slot 1
- * x, y, z, value_out the same for r, g, b. -DBSDF_KINDS: the material kinds present
- * (bsdf.h).
+ * CPU. Inputs are float4 rows (normal, wo_world) and u rows of 4; outputs are
+ * planes of `count` floats: wi_out holds slot 0 x, y, z then slot 1 x, y, z,
+ * value_out the same for r, g, b. -DBSDF_KINDS: the material kinds present (bsdf.h).
  */
 #include "warp.h"
 #include "bsdf.h"
 #include "product.h"
+#if STRATEGY >= 3 && !defined(N_LEVELS)
+#error "shade.cl with the light or product sample is built with -DN_LEVELS (the light tree's depth)"
+#endif
 
 inline realv power_heuristic(const realv pa, const realv pb)
 {
@@ -50,13 +54,17 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
                     __global const float *mat_albedo, __global const float *mat_kappa,
                     __global const int *mat_levels, __global const float *angles,
                     __global const float *texels, const int env_w, const int env_h,
-                    __global const float *rot, __global const float *tree, const int tree_levels,
-                    __global const float *guide_uv, __global const float *guide_pdf,
+                    __global const float *rot, __global const float *tree,
                     __global float *wi_out, __global float *value_out)
 {
     const uint base = LANE_BASE();
     if (base >= count) return;
     const uintv i = LANE_INDEX(count);
+#if STRATEGY == 3 || STRATEGY == 4
+    /* the light sample first, while little else is live (the walk is a chain of gathers) */
+    realv gu = GATHER(u_in, 4 * i), gv = GATHER(u_in, 4 * i + 1);
+    const realv square_pdf = tree_walk8(tree, (uintv)0, &gu, &gv);
+#endif
     const intv mat = GATHER_INT(material, i);
     const realv nx = GATHER(normal, 4 * i), ny = GATHER(normal, 4 * i + 1), nz = GATHER(normal, 4 * i + 2);
     const realv ex = GATHER(wo_world, 4 * i), ey = GATHER(wo_world, 4 * i + 1), ez = GATHER(wo_world, 4 * i + 2);
@@ -69,11 +77,17 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     /* slot a (and b): world direction, scalar f / pdf (x MIS weight) */
     realv ax = 0.0f, ay = 0.0f, az = 0.0f, sa = 0.0f;
     realv bx = 0.0f, by = 0.0f, bz = 0.0f, sb = 0.0f;
+#if STRATEGY == 5
+    const Lobe lobe = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, mat), GATHER_INT(mat_levels, mat));
+#endif
 #if STRATEGY >= 3
-    {   /* the light (light, mis) or product (wavelet) sample, drawn by the guide kernel */
-        env_square_to_world(rot, LOAD_LANES(guide_uv, i, base, count), LOAD_LANES(guide_uv + count, i, base, count),
-                            &ax, &ay, &az);
-        const realv pdf = LOAD_LANES(guide_pdf, i, base, count) * env_square_to_solid_angle(ax, az);
+    {   /* the light (light, mis) or product (wavelet) sample from u.xy */
+#if STRATEGY == 5
+        realv gu = u0, gv = u1;
+        const realv square_pdf = product_walk(tree, angles, &lobe, &gu, &gv);
+#endif
+        env_square_to_world(rot, gu, gv, &ax, &ay, &az);
+        const realv pdf = square_pdf * env_square_to_solid_angle(ax, az);
         const realv lx = ax * sx + ay * sy + az * sz, ly = ax * tx + ay * ty + az * tz;
         const realv lz = ax * nx + ay * ny + az * nz;
         realv f, pdf_bsdf;
@@ -95,12 +109,11 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
         by = lx * sy + ly * ty + lz * ny;
         bz = lx * sz + ly * tz + lz * nz;
 #if STRATEGY == 5
-        const Lobe lobe = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, mat), GATHER_INT(mat_levels, mat));
         realv gu, gv;
         env_world_to_square(rot, bx, by, bz, &gu, &gv);
         const realv other = product_pdf(tree, angles, &lobe, gu, gv) * env_square_to_solid_angle(bx, bz);
 #else
-        const realv other = light_pdf(rot, tree, tree_levels, bx, by, bz);
+        const realv other = light_pdf(rot, tree, N_LEVELS, bx, by, bz);
 #endif
         sb = select((realv)0.0f, f / pdf * power_heuristic(pdf, other), (pdf > 0.0f) & (f > 0.0f));
     }
@@ -155,4 +168,23 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     STORE_LANES(sb * ar * GATHER(texels, kb), value_out + 3 * count, base, count);
     STORE_LANES(sb * ag * GATHER(texels, kb + 1), value_out + 4 * count, base, count);
     STORE_LANES(sb * ab * GATHER(texels, kb + 2), value_out + 5 * count, base, count);
+}
+
+/* Radiance of the environment seen along world directions (3 planes of count floats)
+ * -> 3 planes (r, g, b): the camera rays that miss the scene. numpy twin:
+ * Environment.eval. */
+__kernel void env_radiance(__global const float *dirs, const uint count, __global const float *texels,
+                           const int env_w, const int env_h, __global const float *rot,
+                           __global float *rgb_out)
+{
+    const uint base = LANE_BASE();
+    if (base >= count) return;
+    const uintv i = LANE_INDEX(count);
+    realv u, v;
+    env_world_to_square(rot, LOAD_LANES(dirs, i, base, count), LOAD_LANES(dirs + count, i, base, count),
+                        LOAD_LANES(dirs + 2 * count, i, base, count), &u, &v);
+    const uintv k = 4 * env_texel(env_w, env_h, u, v);
+    STORE_LANES(GATHER(texels, k), rgb_out, base, count);
+    STORE_LANES(GATHER(texels, k + 1), rgb_out + count, base, count);
+    STORE_LANES(GATHER(texels, k + 2), rgb_out + 2 * count, base, count);
 }

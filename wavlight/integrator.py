@@ -153,7 +153,7 @@ class _Renderer:
         self.count_rays(len(px))
         values = np.zeros((len(px), 3))
         miss = prim < 0
-        values[miss] = self.scene.environment.eval(d[miss])
+        values[miss] = self.shader.environment(d[miss])
         hit = np.nonzero(~miss)[0]
         if len(hit):
             values[hit] = self.shade(o[hit], d[hit], prim[hit], t[hit], rng,

@@ -1,10 +1,10 @@
-"""Shading on the OpenCL device: guide samples (kernels/warp.cl, product.cl), then kernels/shade.cl.
+"""Shading on the OpenCL device: kernels/shade.cl.
 
 :class:`KernelShader` uploads the environment (texels, rotation), the light tree
-and the material table once, then shades batches of points: the light or product
-guide sample of each point first (walk kernels, eight points per work-item), then the
-``shade`` kernel: for each point one direction per strategy sample (two for MIS)
-and its unoccluded estimate. Its numpy
+and the material table once, then shades batches of points with one launch of the
+``shade`` kernel (eight points per work-item): for each point one direction per
+strategy sample (two for MIS; the light or product sample walks its tree in the
+kernel) and its unoccluded estimate. Its numpy
 twin is :func:`wavlight.strategies.shade_reference`; :class:`NumpyShader` wraps
 that twin behind the same call, for tests and for devices without OpenCL.
 """
@@ -14,7 +14,7 @@ import numpy as np
 
 from . import cl, product, strategies, warp
 
-_WARMED = set()  # (shade program, guide program) pairs already launched in this process
+_WARMED = set()  # shade programs already launched in this process
 
 
 class KernelShader:
@@ -47,19 +47,13 @@ class KernelShader:
         depth = int(max(np.max(levels, initial=0), 0))
         self.angles = cl.to_device(product.node_angles(depth))
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
-        walk = {}   # the product walk's compile-time sizes (kernels/product.h), for wavelet
+        sizes = {}   # the walks' compile-time sizes: light tree depth; product depth and lobe shapes
+        if strategy.name in ("light", "mis", "wavelet"):
+            sizes["N_LEVELS"] = int(self.levels)
         if strategy.name == "wavelet":
-            walk = dict(N_LEVELS=int(self.levels), PRODUCT_LEVELS=depth,
-                        LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)))
+            sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)))
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds,
-                                  **walk)
-        # the guide sample (light or product) is drawn first, by a kernel built for this
-        # tree depth (and product depth and lobe shapes)
-        self.guide = None
-        if strategy.name in ("light", "mis"):
-            self.guide = cl.program("warp.cl", N_LEVELS=int(self.levels), BATCHED=0), "warp_sample"
-        elif strategy.name == "wavelet":
-            self.guide = cl.program("product.cl", **walk), "product_sample_points"
+                                  **sizes)
         self.warm_up()
 
     def __call__(self, n, wo, material, u, **_):
@@ -68,44 +62,48 @@ class KernelShader:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.float32)
         # The global size is padded to a fixed work-group size: PoCL compiles a kernel per
         # work-group size on first launch, so this keeps it to one compile (done in warm_up).
-        # The kernels take eight points per work-item (kernels/simd.h).
-        items8 = cl.items(count, cl.LANES)
-        n4, wo4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
+        # The kernel takes eight points per work-item (kernels/simd.h). Its buffers are the
+        # thread's scratch buffers, reused from batch to batch.
+        n4, wo4 = np.empty((count, 4), np.float32), np.empty((count, 4), np.float32)
         n4[:, :3], wo4[:, :3] = n, wo
+        n4[:, 3] = wo4[:, 3] = 0.0
         q = cl.thread_queue()
-        n_buf, wo_buf, mat_buf = cl.to_device(n4), cl.to_device(wo4), cl.to_device(np.asarray(material, np.int32))
-        u_buf = cl.to_device(np.asarray(u, np.float32))
-        wi_buf, val_buf = cl.empty(count * 24), cl.empty(count * 24)
-        guide_uv, guide_pdf = cl.empty(8 * count), cl.empty(4 * count)
-        if self.guide is not None:
-            prog, name = self.guide
-            knl = cl.kernel(prog, name)
-            if name == "warp_sample":
-                knl(q, (items8,), (cl.WORK_GROUP,), self.tree, np.uint64(0), np.uint32(count), np.uint32(count),
-                    u_buf, np.uint32(4), guide_uv, guide_pdf)
-            else:
-                knl(q, (items8,), (cl.WORK_GROUP,), self.tree, self.rot, np.uint32(count), n_buf, wo_buf, mat_buf,
-                    self.kappa, self.levels_per_material, u_buf, np.uint32(4), self.angles, guide_uv, guide_pdf)
-        knl = cl.kernel(self.program, "shade")
-        knl(q, (items8,), (cl.WORK_GROUP,), n_buf, wo_buf, mat_buf, u_buf, np.uint32(count),
-            self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.angles, self.texels,
-            *self.env_size, self.rot, self.tree, self.levels, guide_uv, guide_pdf, wi_buf, val_buf)
+        wi_buf, val_buf = cl.scratch("wi", count * 24), cl.scratch("value", count * 24)
+        cl.kernel(self.program, "shade")(
+            q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("normal", n4, q), cl.upload("wo", wo4, q),
+            cl.upload("material", np.asarray(material, np.int32), q), cl.upload("u", np.asarray(u, np.float32), q),
+            np.uint32(count), self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.angles,
+            self.texels, *self.env_size, self.rot, self.tree, wi_buf, val_buf)
         # planes (slot, component, point) -> (point, slot, component) views
         wi = cl.read(wi_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
         value = cl.read(val_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
         return wi, value
+
+    def environment(self, d):
+        """Radiance (N, 3) float32 of the environment along world directions d (N, 3): camera
+        rays that miss (kernels/shade.cl env_radiance; numpy twin Environment.eval)."""
+        count = len(d)
+        if count == 0:
+            return np.zeros((0, 3), np.float32)
+        q = cl.thread_queue()
+        out = cl.scratch("env_rgb", 12 * count)
+        cl.kernel(self.program, "env_radiance")(
+            q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("env_dirs", np.asarray(d, np.float32).T, q),
+            np.uint32(count), self.texels, *self.env_size, self.rot, out)
+        return cl.read(out, (3, count), np.float32, q).T
 
     def warm_up(self):
         """A tiny and a large launch, so that PoCL's per-launch compilation lands in setup time, not
         render time: PoCL builds a kernel once per work-group size and again for large grids (its
         "smallgrid" specialisation covers small ones; 4 096 work-items still counted as small,
         65 536 did not), and renders launch both. Once per process and set of programs."""
-        key = (self.program, self.guide)
+        key = self.program
         if key in _WARMED:
             return
         for count in (1, 1 << 16):
             self(np.tile([[0.0, 0.0, 1.0]], (count, 1)), np.tile([[0.0, 0.0, 1.0]], (count, 1)),
                  np.zeros(count, np.int32), np.full((count, 4), 0.5, np.float32))
+            self.environment(np.tile([[0.0, 0.0, 1.0]], (count, 1)))
         _WARMED.add(key)
 
 
@@ -119,6 +117,10 @@ class NumpyShader:
 
     def __init__(self, scene, strategy: strategies.Strategy):
         self.scene, self.strategy = scene, strategy
+
+    def environment(self, d):
+        """Radiance (N, 3) of the environment along world directions d (N, 3)."""
+        return self.scene.environment.eval(np.asarray(d, np.float64))
 
     def __call__(self, n, wo, material, u, p=None):
         sc = self.scene
