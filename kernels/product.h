@@ -225,7 +225,7 @@ inline void node_importances(const Lobe *lb, __global const float *angles, __glo
 /* Node index of level `depth` (per lane) containing leaf (x, y) of level n_levels. */
 inline uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, const uintv y)
 {
-    const uintv d = as_uint8(depth), shift = (uint)n_levels - d;
+    const uintv d = as_uintv(depth), shift = (uint)n_levels - d;
     return (((uintv)1 << (2 * d)) - 1) / 3 + (y >> shift) * ((uintv)1 << d) + (x >> shift);
 }
 
@@ -279,8 +279,8 @@ inline realv product_pdf(__global const float *tree, __global const float *angle
 {
     const intv depth = min(lb->levels, N_LEVELS);
     const uint side = 1u << N_LEVELS;
-    const uintv lx = as_uint8(clamp(convert_int8(floor(u * (float)side)), 0, (int)side - 1));
-    const uintv ly = as_uint8(clamp(convert_int8(floor(v * (float)side)), 0, (int)side - 1));
+    const uintv lx = as_uintv(clamp(convert_intv(floor(u * (float)side)), 0, (int)side - 1));
+    const uintv ly = as_uintv(clamp(convert_intv(floor(v * (float)side)), 0, (int)side - 1));
     realv p = 1.0f;
 #pragma unroll
     for (int l = 0; l < PRODUCT_LEVELS && l < N_LEVELS; ++l) {

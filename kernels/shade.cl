@@ -41,8 +41,8 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
     realv u, v;
     env_world_to_square(rot, x, y, z, &u, &v);
     const int side = 1 << levels;
-    const uintv cx = as_uint8(min(convert_int8(u * (float)side), side - 1));
-    const uintv cy = as_uint8(min(convert_int8(v * (float)side), side - 1));
+    const uintv cx = as_uintv(min(convert_intv(u * (float)side), side - 1));
+    const uintv cy = as_uintv(min(convert_intv(v * (float)side), side - 1));
     const realv leaf = GATHER(tree, (uint)LEVEL_OFFSET(levels) + cy * (uint)side + cx);
     const float root = tree[0];
     return root > 0.0f ? leaf / root * (float)side * (float)side * env_square_to_solid_angle(x, z) : (realv)0.0f;
@@ -154,7 +154,7 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     env_world_to_square(rot, ax, ay, az, &ua, &va);
     env_world_to_square(rot, bx, by, bz, &ub, &vb);
     const uintv ka = 4 * env_texel(env_w, env_h, ua, va), kb = 4 * env_texel(env_w, env_h, ub, vb);
-    const uintv am = as_uint8(4 * mat);
+    const uintv am = as_uintv(4 * mat);
     const realv ar = GATHER(mat_albedo, am), ag = GATHER(mat_albedo, am + 1), ab = GATHER(mat_albedo, am + 2);
     STORE_LANES(ax, wi_out, base, count);
     STORE_LANES(ay, wi_out + count, base, count);

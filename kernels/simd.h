@@ -8,34 +8,55 @@
  * types the kernels are 8-wide on every CPU. Conventions: comparisons give int8 masks
  * (-1 true, 0 false) and select(a, b, mask) / mask ? b : a pick per lane; per-lane
  * loads from tables are GATHER; a work-item owns points 8 g .. 8 g + 7 (LANE_INDEX),
- * loads clamp the index to count - 1, stores go through STORE_LANES (vstore8 when all
- * eight exist, else lane by lane).
+ * loads clamp the index to count - 1, stores go through STORE_LANES (one vector store
+ * when all lanes exist, else lane by lane).
  */
 #ifndef WAVLIGHT_SIMD_H
 #define WAVLIGHT_SIMD_H
 
-#define LANES 8
-typedef float8 realv;
-typedef int8 intv;
-typedef uint8 uintv;
+#ifndef LANES
+#define LANES 8      /* the host passes wavlight.cl.LANES; 16 also works, measured no faster on AVX2 */
+#endif
+#define SIMD_CAT_(a, b) a##b
+#define SIMD_CAT(a, b) SIMD_CAT_(a, b)
+typedef SIMD_CAT(float, LANES) realv;
+typedef SIMD_CAT(int, LANES) intv;
+typedef SIMD_CAT(uint, LANES) uintv;
+#define convert_realv SIMD_CAT(convert_float, LANES)
+#define convert_intv SIMD_CAT(convert_int, LANES)
+#define as_uintv SIMD_CAT(as_uint, LANES)
+#define as_intv SIMD_CAT(as_int, LANES)
+#define vloadv SIMD_CAT(vload, LANES)
+#define vstorev SIMD_CAT(vstore, LANES)
 
-#define GATHER(p, i) ((realv)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
-                              (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
-#define GATHER_INT(p, i) ((intv)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
-                                 (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
+#if LANES == 8
+#define LANE_IDS ((uintv)(0, 1, 2, 3, 4, 5, 6, 7))
+#define GATHER_T(T, p, i) ((T)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
+                               (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
+#elif LANES == 16
+#define LANE_IDS ((uintv)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#define GATHER_T(T, p, i) ((T)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
+                               (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7], \
+                               (p)[(i).s8], (p)[(i).s9], (p)[(i).sa], (p)[(i).sb], \
+                               (p)[(i).sc], (p)[(i).sd], (p)[(i).se], (p)[(i).sf]))
+#else
+#error "LANES is 8 or 16"
+#endif
+#define GATHER(p, i) GATHER_T(realv, p, i)
+#define GATHER_INT(p, i) GATHER_T(intv, p, i)
 
 /* The point indices of this work-item's lanes, clamped to count - 1 (for loads). */
-#define LANE_INDEX(count) min((uintv)(0, 1, 2, 3, 4, 5, 6, 7) + (uint)get_global_id(0) * LANES, \
+#define LANE_INDEX(count) min(LANE_IDS + (uint)get_global_id(0) * LANES, \
                               (uintv)((count) - 1))
 #define LANE_BASE() ((uint)get_global_id(0) * LANES)
 
-/* p[i] per lane: one vload8 when all eight lanes exist (idx = base .. base + 7), else a gather */
-#define LOAD_LANES(p, idx, base, count) (((base) + LANES <= (count)) ? vload8(0, (p) + (base)) : GATHER(p, idx))
+/* p[i] per lane: one vector load when all lanes exist (idx = base .. base + LANES - 1), else a gather */
+#define LOAD_LANES(p, idx, base, count) (((base) + LANES <= (count)) ? vloadv(0, (p) + (base)) : GATHER(p, idx))
 
-/* out[base .. base + 7] = v, for the lanes below count only */
+/* out[base .. base + LANES - 1] = v, for the lanes below count only */
 #define STORE_LANES(v, out, base, count)                                              \
     do {                                                                              \
-        if ((base) + LANES <= (count)) vstore8((v), 0, (out) + (base));               \
+        if ((base) + LANES <= (count)) vstorev((v), 0, (out) + (base));               \
         else for (uint k_ = 0; (base) + k_ < (count); ++k_) (out)[(base) + k_] = (v)[k_]; \
     } while (0)
 

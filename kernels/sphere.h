@@ -33,7 +33,7 @@ inline void make_frame(const realv nx, const realv ny, const realv nz,
 inline void fast_sincos(const realv x, realv *s, realv *c)
 {
     const realv j = rint(x * 0.63661977236758134f);
-    const intv q = convert_int8(j);
+    const intv q = convert_intv(j);
     realv y = fma(-j, (realv)1.5707963705062866f, x);
     y = fma(-j, (realv)-4.3711388286737929e-08f, y);
     const realv z = y * y;
@@ -105,8 +105,8 @@ inline realv env_square_to_solid_angle(const realv x, const realv z)
 /* Index of the texel (width w, height h, row-major) holding point (u, v) of the square. */
 inline uintv env_texel(const int w, const int h, const realv u, const realv v)
 {
-    const intv col = min(convert_int8(u * (float)w), w - 1);
-    const intv row = min(convert_int8(v * (float)h), h - 1);
-    return as_uint8(row * w + col);
+    const intv col = min(convert_intv(u * (float)w), w - 1);
+    const intv row = min(convert_intv(v * (float)h), h - 1);
+    return as_uintv(row * w + col);
 }
 #endif

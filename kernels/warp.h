@@ -44,7 +44,7 @@ inline realv choose_child(const realv m00, const realv m10, const realv m01, con
     const intv b = !(*uy * s_row < top) & (bottom > 0.0f);
     const realv row = select(top, bottom, b);
     const realv left = select(m00, m01, b), right = select(m10, m11, b), s_col = left + right;
-    const intv r = !(*ux * s_col < left) & (as_int8(right) != 0);
+    const intv r = !(*ux * s_col < left) & (as_intv(right) != 0);
     const realv col = select(left, right, r);
     const realv ny = (*uy * s_row - select((realv)0.0f, top, b)) / row;
     const realv nx = (*ux * s_col - select((realv)0.0f, left, r)) / col;
@@ -69,8 +69,8 @@ inline void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
 {
     const float inv = 1.0f / (float)(1u << n_levels);
     const float top = 1.0f - 0x1p-23f * (float)(1u << n_levels);
-    *ux = (convert_float8(x) + select((realv)top, *ux, as_uint8(*ux) < as_uint(top))) * inv;
-    *uy = (convert_float8(y) + select((realv)top, *uy, *uy < top)) * inv;
+    *ux = (convert_realv(x) + select((realv)top, *ux, as_uintv(*ux) < as_uint(top))) * inv;
+    *uy = (convert_realv(y) + select((realv)top, *uy, *uy < top)) * inv;
 }
 
 /* Eight samples walk the tree (N_LEVELS levels below the root, a compile-time constant
