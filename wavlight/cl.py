@@ -232,8 +232,9 @@ def scratch(name: str, nbytes: int):
 
     Per-batch buffers of the renderer (inputs and outputs of the shade kernels) are
     reused across batches instead of allocated each time: fresh buffers cost PoCL an
-    allocation and first-touch page faults, measured 40% of a `light` batch's host time.
-    A thread's buffers are only used by that thread's in-order queue.
+    allocation and first-touch page faults. A thread's buffers are only used by that
+    thread's in-order queue; they grow to its largest batch (the renderer's are bounded by
+    integrator.TILE_SAMPLES) and are freed with the thread.
     """
     pool = getattr(_local, "scratch", None)
     if pool is None:
