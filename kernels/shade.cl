@@ -18,7 +18,7 @@
  *
  * Eight points per work-item in vector types (simd.h; launch ceil(count / 8)
  * work-items or more): measured 3.7x over one scalar point per work-item on an AVX2
- * CPU. Inputs are float4 rows (normal, wo_world) and u rows of 4; outputs are
+ * CPU. Inputs are rows of 3 floats (normal, wo_world) and u rows of 4; outputs are
  * planes of `count` floats: wi_out holds slot 0 x, y, z then slot 1 x, y, z,
  * value_out the same for r, g, b. -DBSDF_KINDS: the material kinds present (bsdf.h).
  */
@@ -68,8 +68,8 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     const realv square_pdf = tree_walk8(tree, (uintv)0, &gu, &gv);
 #endif
     const intv mat = GATHER_INT(material, i);
-    const realv nx = GATHER(normal, 4 * i), ny = GATHER(normal, 4 * i + 1), nz = GATHER(normal, 4 * i + 2);
-    const realv ex = GATHER(wo_world, 4 * i), ey = GATHER(wo_world, 4 * i + 1), ez = GATHER(wo_world, 4 * i + 2);
+    const realv nx = GATHER(normal, 3 * i), ny = GATHER(normal, 3 * i + 1), nz = GATHER(normal, 3 * i + 2);
+    const realv ex = GATHER(wo_world, 3 * i), ey = GATHER(wo_world, 3 * i + 1), ez = GATHER(wo_world, 3 * i + 2);
     realv sx, sy, sz, tx, ty, tz;
     make_frame(nx, ny, nz, &sx, &sy, &sz, &tx, &ty, &tz);
     const realv ox = ex * sx + ey * sy + ez * sz, oy = ex * tx + ey * ty + ez * tz, oz = ex * nx + ey * ny + ez * nz;

@@ -64,13 +64,11 @@ class KernelShader:
         # work-group size on first launch, so this keeps it to one compile (done in warm_up).
         # The kernel takes eight points per work-item (kernels/simd.h). Its buffers are the
         # thread's scratch buffers, reused from batch to batch.
-        n4, wo4 = np.empty((count, 4), np.float32), np.empty((count, 4), np.float32)
-        n4[:, :3], wo4[:, :3] = n, wo
-        n4[:, 3] = wo4[:, 3] = 0.0
         q = cl.thread_queue()
         wi_buf, val_buf = cl.scratch("wi", count * 24), cl.scratch("value", count * 24)
         cl.kernel(self.program, "shade")(
-            q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("normal", n4, q), cl.upload("wo", wo4, q),
+            q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("normal", np.asarray(n, np.float32), q),
+            cl.upload("wo", np.asarray(wo, np.float32), q),
             cl.upload("material", np.asarray(material, np.int32), q), cl.upload("u", np.asarray(u, np.float32), q),
             np.uint32(count), self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.angles,
             self.texels, *self.env_size, self.rot, self.tree, wi_buf, val_buf)
