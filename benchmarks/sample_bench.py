@@ -49,8 +49,8 @@ def main():
     rt = cl.runtime()
     q = cl.thread_queue()
     n = args.count
-    # one sample per work-item, work-groups of cl.WORK_GROUP as the renderer launches them
-    items = cl.items(n, cl.LANES)   # eight points per work-item (kernels/simd.h)
+    # eight points per work-item (kernels/simd.h), work-groups of cl.WORK_GROUP as the renderer launches them
+    items = cl.items(n, cl.LANES)
     rng = np.random.default_rng(1)
     nrm = rng.normal(size=(n, 3))
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)

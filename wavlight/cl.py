@@ -50,6 +50,8 @@ def items(count: int, lanes: int = 1) -> int:
     """Global size for count points at `lanes` points per work-item, a multiple of WORK_GROUP."""
     groups = -(-max(count, 1) // lanes)
     return -(-groups // WORK_GROUP) * WORK_GROUP
+
+
 _PROBE_SRC = "__kernel void probe(__global float *a) { a[get_global_id(0)] *= 2.0f; }"
 
 
