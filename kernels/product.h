@@ -194,7 +194,7 @@ inline void child_importances_ahead(const Lobe *lb, __global const float *angles
                                     realv *w0, realv *w1, realv *w2, realv *w3)
 {
     const uint gside = 4u << level;                                     /* level + 2 */
-    const uintv g = (uint)LEVEL_OFFSET(level + 2) + (4 * y) * gside + 4 * x;
+    const uintv g = node_index(level + 2, 4 * x, 4 * y);
     const uintv col = 4 * ((4u << level) - 2u) + 16 * x;
     const uintv row = 4 * ((4u << level) - 2u) + 16 * y;
 #define GC(i, j) (GATHER(tree, g + ((i) * gside + (j))) *                                              \
@@ -247,7 +247,7 @@ inline realv product_walk(__global const float *tree, __global const float *angl
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
         const uint cside = 2u << l;
-        const uintv c = (uint)LEVEL_OFFSET(l + 1) + (2 * y) * cside + 2 * x;
+        const uintv c = node_index(l + 1, 2 * x, 2 * y);
         const realv m0 = GATHER(tree, c), m1 = GATHER(tree, c + 1);
         const realv m2 = GATHER(tree, c + cside), m3 = GATHER(tree, c + cside + 1);
         realv w0 = m0, w1 = m1, w2 = m2, w3 = m3;
@@ -267,7 +267,7 @@ inline realv product_walk(__global const float *tree, __global const float *angl
     const intv depth = min(lb->levels, N_LEVELS);
     const realv node_mass = GATHER(tree, node_of_leaf(depth, N_LEVELS, x, y));
     const uint side = 1u << N_LEVELS;
-    const realv leaf = GATHER(tree, (uint)LEVEL_OFFSET(N_LEVELS) + y * side + x);
+    const realv leaf = GATHER(tree, node_index(N_LEVELS, x, y));
     leaf_point(x, y, N_LEVELS, ux, uy);
     const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
     return tree[0] > 0.0f ? pdf : (realv)0.0f;   /* (a scalar test: 1, not a -1 lane mask) */
@@ -279,15 +279,14 @@ inline realv product_pdf(__global const float *tree, __global const float *angle
 {
     const intv depth = min(lb->levels, N_LEVELS);
     const uint side = 1u << N_LEVELS;
-    const uintv lx = as_uintv(clamp(convert_intv(floor(u * (float)side)), 0, (int)side - 1));
-    const uintv ly = as_uintv(clamp(convert_intv(floor(v * (float)side)), 0, (int)side - 1));
+    const uintv lx = leaf_of(u, N_LEVELS), ly = leaf_of(v, N_LEVELS);
     realv p = 1.0f;
 #pragma unroll
     for (int l = 0; l < PRODUCT_LEVELS && l < N_LEVELS; ++l) {
         const uintv cx = lx >> (N_LEVELS - l - 1), cy = ly >> (N_LEVELS - l - 1);
         const uintv px = cx >> 1, py = cy >> 1;
         const uint cside = 2u << l;
-        const uintv c = (uint)LEVEL_OFFSET(l + 1) + (2 * py) * cside + 2 * px;
+        const uintv c = node_index(l + 1, 2 * px, 2 * py);
         realv i0, i1, i2, i3;
         node_importances(lb, angles, tree, GATHER(tree, c), GATHER(tree, c + 1), GATHER(tree, c + cside),
                          GATHER(tree, c + cside + 1), px, py, l, N_LEVELS, &i0, &i1, &i2, &i3);
@@ -297,7 +296,7 @@ inline realv product_pdf(__global const float *tree, __global const float *angle
         p *= select((realv)1.0f, mine / sum, l < depth);
     }
     const realv node_mass = GATHER(tree, node_of_leaf(depth, N_LEVELS, lx, ly));
-    const realv leaf = GATHER(tree, (uint)LEVEL_OFFSET(N_LEVELS) + ly * side + lx);
+    const realv leaf = GATHER(tree, node_index(N_LEVELS, lx, ly));
     const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
     return tree[0] > 0.0f ? pdf : (realv)0.0f;   /* (a scalar test: 1, not a -1 lane mask) */
 }

@@ -8,7 +8,7 @@
  * strategies use u.xy and write slot 0 (slot 1 is zero); MIS draws the light
  * sample from u.xy into slot 0 and the bsdf sample from u.zw into slot 1; wavelet
  * does the same with the product sampler (product.h) in place of the light. The
- * light and product samples walk their trees here (warp.h tree_walk8, product.h
+ * light and product samples walk their trees here (warp.h tree_walk, product.h
  * product_walk): the program is built per light-tree depth (-DN_LEVELS) and, for
  * wavelet, per largest product depth and set of lobe shapes (-DPRODUCT_LEVELS,
  * -DLOBE_SHAPES). One launch per batch: as a separate kernel the light walk took
@@ -42,12 +42,7 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
 {
     realv u, v;
     env_world_to_square(rot, x, y, z, &u, &v);
-    const int side = 1 << levels;
-    const uintv cx = as_uintv(min(convert_intv(u * (float)side), side - 1));
-    const uintv cy = as_uintv(min(convert_intv(v * (float)side), side - 1));
-    const realv leaf = GATHER(tree, (uint)LEVEL_OFFSET(levels) + cy * (uint)side + cx);
-    const float root = tree[0];
-    return root > 0.0f ? leaf / root * (float)side * (float)side * env_square_to_solid_angle(x, z) : (realv)0.0f;
+    return tree_pdf(tree, (uintv)0, levels, u, v) * env_square_to_solid_angle(x, z);
 }
 
 __kernel void shade(__global const float *normal, __global const float *wo_world,
@@ -62,10 +57,11 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     const uint base = LANE_BASE();
     if (base >= count) return;
     const uintv i = LANE_INDEX(count);
+    const realv u0 = GATHER(u_in, 4 * i), u1 = GATHER(u_in, 4 * i + 1);
 #if STRATEGY == 3 || STRATEGY == 4
     /* the light sample first, while little else is live (the walk is a chain of gathers) */
-    realv gu = GATHER(u_in, 4 * i), gv = GATHER(u_in, 4 * i + 1);
-    const realv square_pdf = tree_walk8(tree, (uintv)0, &gu, &gv);
+    realv gu = u0, gv = u1;
+    const realv square_pdf = tree_walk(tree, (uintv)0, &gu, &gv);
 #endif
     const intv mat = GATHER_INT(material, i);
     const realv nx = GATHER(normal, 3 * i), ny = GATHER(normal, 3 * i + 1), nz = GATHER(normal, 3 * i + 2);
@@ -75,7 +71,6 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     const realv ox = ex * sx + ey * sy + ez * sz, oy = ex * tx + ey * ty + ez * tz, oz = ex * nx + ey * ny + ez * nz;
     const intv kind = GATHER_INT(mat_kind, mat);
     const realv param = GATHER(mat_param, mat);
-    const realv u0 = GATHER(u_in, 4 * i), u1 = GATHER(u_in, 4 * i + 1);
     /* slot a (and b): world direction, scalar f / pdf (x MIS weight) */
     realv ax = 0.0f, ay = 0.0f, az = 0.0f, sa = 0.0f;
     realv bx = 0.0f, by = 0.0f, bz = 0.0f, sb = 0.0f;

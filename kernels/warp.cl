@@ -1,5 +1,5 @@
 /* Hierarchical warping of uniform points by sampling trees. The walk itself is
- * tree_walk8 (warp.h): eight samples per work-item (simd.h; launch ceil(count / 8)
+ * tree_walk (warp.h): eight samples per work-item (simd.h; launch ceil(count / 8)
  * work-items or more); the host builds this program per tree depth (-DN_LEVELS) so
  * that the walk unrolls. -DBATCHED=1: sample i uses tree i / samples_per_tree, so the
  * same kernel serves per-shading-point trees; BATCHED=0: every sample uses the one
@@ -24,16 +24,21 @@ __kernel void warp_sample(__global const float *tree, const ulong tree_stride, c
     const uintv tree_base = 0;
 #endif
     realv ux = GATHER(u_in, i * u_stride), uy = GATHER(u_in, i * u_stride + 1);
-    const realv pdf = tree_walk8(tree, tree_base, &ux, &uy);
+    const realv pdf = tree_walk(tree, tree_base, &ux, &uy);
     STORE_LANES(ux, uv_out, base, count);
     STORE_LANES(uy, uv_out + count, base, count);
     STORE_LANES(pdf, pdf_out, base, count);
 }
 
+/* tree_pdf at count points (u, v rows of uv_in), eight per work-item like warp_sample. */
 __kernel void warp_pdf(__global const float *tree, const ulong tree_stride, const int n_levels,
-                       const uint samples_per_tree, __global const float2 *uv_in,
+                       const uint samples_per_tree, const uint count, __global const float *uv_in,
                        __global float *pdf_out)
 {
-    const uint i = get_global_id(0);
-    pdf_out[i] = tree_pdf(tree + (ulong)(i / samples_per_tree) * tree_stride, n_levels, uv_in[i]);
+    const uint base = LANE_BASE();
+    if (base >= count) return;
+    const uintv i = LANE_INDEX(count);
+    const uintv tree_base = (i / samples_per_tree) * (uint)tree_stride;
+    STORE_LANES(tree_pdf(tree, tree_base, n_levels, GATHER(uv_in, 2 * i), GATHER(uv_in, 2 * i + 1)),
+                pdf_out, base, count);
 }

@@ -16,14 +16,27 @@
 #include "common.h"
 #include "simd.h"
 
-inline float tree_pdf(__global const float *base, const int n_levels, float2 uv)
+/* Index of nodes (x, y) of `level` in a tree (common.h layout), per lane. */
+inline uintv node_index(const int level, const uintv x, const uintv y)
 {
-    const uint side = 1u << n_levels;
-    const uint x = (uint)clamp((int)floor(uv.x * side), 0, (int)side - 1);
-    const uint y = (uint)clamp((int)floor(uv.y * side), 0, (int)side - 1);
-    const float root = base[0];
-    const float leaf = base[LEVEL_OFFSET(n_levels) + (ulong)y * side + x];
-    return (root > 0.0f) ? leaf / root * (float)side * (float)side : 0.0f;
+    return (uint)LEVEL_OFFSET(level) + y * (1u << level) + x;
+}
+
+/* Column (or row) of the leaf of a 2^n grid holding coordinate u of the square, per lane. */
+inline uintv leaf_of(const realv u, const int n_levels)
+{
+    return as_uintv(clamp(convert_intv(floor(u * (float)(1u << n_levels))), 0, (1 << n_levels) - 1));
+}
+
+/* Density on the unit square of the walk (eq. 19-20) at points (u, v), per lane in the
+ * tree at tree_base: m_leaf / m_root * 4^n. */
+inline realv tree_pdf(__global const float *tree, const uintv tree_base, const int n_levels,
+                      const realv u, const realv v)
+{
+    const float side = (float)(1u << n_levels);
+    const realv root = GATHER(tree, tree_base);
+    const realv leaf = GATHER(tree, tree_base + node_index(n_levels, leaf_of(u, n_levels), leaf_of(v, n_levels)));
+    return select((realv)0.0f, leaf / root * side * side, root > 0.0f);
 }
 
 /* One step of eight walks (simd.h lanes): pick one of the four children of nodes
@@ -81,7 +94,7 @@ inline void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
  * CPU (12.3 -> 48.9 M samples/s at 1024^2), where PoCL does not vectorise the scalar
  * walk itself. */
 #ifdef N_LEVELS
-inline realv tree_walk8(__global const float *tree, const uintv tree_base, realv *ux, realv *uy)
+inline realv tree_walk(__global const float *tree, const uintv tree_base, realv *ux, realv *uy)
 {
     uintv x = 0, y = 0;
     *ux = clamp_unit(*ux);
@@ -89,15 +102,15 @@ inline realv tree_walk8(__global const float *tree, const uintv tree_base, realv
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
         const uint cside = 2u << l;
-        const uintv c = tree_base + (uint)LEVEL_OFFSET(l + 1) + (2 * y) * cside + 2 * x;
+        const uintv c = tree_base + node_index(l + 1, 2 * x, 2 * y);
         choose_child(GATHER(tree, c), GATHER(tree, c + 1), GATHER(tree, c + cside), GATHER(tree, c + cside + 1),
                       ux, uy, &x, &y);
     }
-    leaf_point(x, y, N_LEVELS, ux, uy);
-    const uint side = 1u << N_LEVELS;
+    const float side = (float)(1u << N_LEVELS);
     const realv root = GATHER(tree, tree_base);
-    const realv leaf = GATHER(tree, tree_base + (uint)LEVEL_OFFSET(N_LEVELS) + y * side + x);
-    return select((realv)0.0f, leaf / root * (float)side * (float)side, root > 0.0f);
+    const realv leaf = GATHER(tree, tree_base + node_index(N_LEVELS, x, y));
+    leaf_point(x, y, N_LEVELS, ux, uy);
+    return select((realv)0.0f, leaf / root * side * side, root > 0.0f);
 }
 #endif
 #endif

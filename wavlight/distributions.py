@@ -176,12 +176,13 @@ class HaarTree:
         args = [self.buffer, np.uint64(self.stride)]
         # built per depth (the walk unrolls); BATCHED: a tree per samples_per_tree samples
         prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=int(samples_per_tree < n))
-        if name == "warp_sample":  # eight samples per work-item (kernels/simd.h)
-            cl.kernel(prog, name)(queue, (cl.items(n, cl.LANES),), (cl.WORK_GROUP,), *args, np.uint32(samples_per_tree),
-                                  np.uint32(n), src, np.uint32(2), uv, pdf)
+        size = (cl.items(n, cl.LANES),), (cl.WORK_GROUP,)   # eight points per work-item (kernels/simd.h)
+        if name == "warp_sample":
+            cl.kernel(prog, name)(queue, *size, *args, np.uint32(samples_per_tree), np.uint32(n), src, np.uint32(2),
+                                  uv, pdf)
         else:
-            cl.kernel(prog, name)(queue, (n,), None, *args, np.int32(self.n_levels),
-                                  np.uint32(samples_per_tree), src, pdf)
+            cl.kernel(prog, name)(queue, *size, *args, np.int32(self.n_levels), np.uint32(samples_per_tree),
+                                  np.uint32(n), src, pdf)
         res = [cl.read(pdf, (n,), np.float32, queue)]
         if uv is not None:
             res.insert(0, np.ascontiguousarray(cl.read(uv, (2, n), np.float32, queue).T))  # u, v planes
