@@ -16,11 +16,12 @@
  * was 15-30% slower (light 1.42 -> 1.02-1.19 s, mis 1.75 -> 1.54 s, with the other
  * changes of that commit).
  *
- * Eight points per work-item in vector types (simd.h; launch ceil(count / 8)
- * work-items or more): measured 3.7x over one scalar point per work-item on an AVX2
- * CPU. Inputs are rows of 3 floats (normal, wo_world) and u rows of 4; outputs are
- * planes of `count` floats: wi_out holds slot 0 x, y, z then slot 1 x, y, z,
- * value_out the same for r, g, b. -DBSDF_KINDS: the material kinds present (bsdf.h).
+ * Two kernels share shade_lanes: shade_rays (the renderer's: camera rays straight
+ * from the ray tracer, misses included, hit set-up done here) and shade (shading
+ * points given directly; the tests'). Eight points per work-item in vector types
+ * (simd.h; launch ceil(count / 8) work-items or more): measured 3.7x over one scalar
+ * point per work-item on an AVX2 CPU. -DBSDF_KINDS: the material kinds present
+ * (bsdf.h).
  */
 #include "warp.h"
 #include "bsdf.h"
@@ -45,27 +46,34 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
     return tree_pdf(tree, (uintv)0, levels, u, v) * env_square_to_solid_angle(x, z);
 }
 
-__kernel void shade(__global const float *normal, __global const float *wo_world,
-                    __global const int *material, __global const float *u_in, const uint count,
-                    __global const int *mat_kind, __global const float *mat_param,
-                    __global const float *mat_albedo, __global const float *mat_kappa,
-                    __global const int *mat_levels, __global const float *angles,
-                    __global const float *texels, const int env_w, const int env_h,
-                    __global const float *rot, __global const float *tree,
-                    __global float *wi_out, __global float *value_out)
+/* The tables every shading launch reads: materials, the wavelet lobes' data, the
+ * environment and the light (or product) tree. */
+#define SHADE_TABLE_ARGS __global const int *mat_kind, __global const float *mat_param,            \
+                         __global const float *mat_albedo, __global const float *mat_kappa,        \
+                         __global const int *mat_levels, __global const float *angles,             \
+                         __global const float *texels, const int env_w, const int env_h,           \
+                         __global const float *rot, __global const float *tree
+#define SHADE_TABLES mat_kind, mat_param, mat_albedo, mat_kappa, mat_levels, angles, texels, env_w, env_h, \
+                     rot, tree
+
+/* Two directions (slot a, slot b) and their unoccluded estimates (r, g, b) per lane. */
+typedef struct {
+    realv ax, ay, az, bx, by, bz;
+    realv ra, ga, ba, rb, gb, bb;
+} Shaded;
+
+/* Shade the lanes' points: world normal n (facing the viewer), world view direction
+ * e = wo, material mat, uniforms u_in[4 i .. 4 i + 3]; estimates are zero where live is 0. */
+inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, const realv nz,
+                          const realv ex, const realv ey, const realv ez, const intv mat,
+                          __global const float *u_in, const uintv i, const intv live)
 {
-    const uint base = LANE_BASE();
-    if (base >= count) return;
-    const uintv i = LANE_INDEX(count);
     const realv u0 = GATHER(u_in, 4 * i), u1 = GATHER(u_in, 4 * i + 1);
 #if STRATEGY == 3 || STRATEGY == 4
     /* the light sample first, while little else is live (the walk is a chain of gathers) */
     realv gu = u0, gv = u1;
     const realv square_pdf = tree_walk(tree, (uintv)0, &gu, &gv);
 #endif
-    const intv mat = GATHER_INT(material, i);
-    const realv nx = GATHER(normal, 3 * i), ny = GATHER(normal, 3 * i + 1), nz = GATHER(normal, 3 * i + 2);
-    const realv ex = GATHER(wo_world, 3 * i), ey = GATHER(wo_world, 3 * i + 1), ez = GATHER(wo_world, 3 * i + 2);
     realv sx, sy, sz, tx, ty, tz;
     make_frame(nx, ny, nz, &sx, &sy, &sz, &tx, &ty, &tz);
     const realv ox = ex * sx + ey * sy + ez * sz, oy = ex * tx + ey * ty + ez * tz, oz = ex * nx + ey * ny + ez * nz;
@@ -144,44 +152,123 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     }
 #endif
     /* estimates: albedo x scalar x environment radiance (zero where the scalar is not a
-     * positive finite number) */
-    sa = select((realv)0.0f, sa, (sa > 0.0f) & isfinite(sa));
-    sb = select((realv)0.0f, sb, (sb > 0.0f) & isfinite(sb));
+     * positive finite number, and in the lanes that are not live) */
+    sa = select((realv)0.0f, sa, live & (sa > 0.0f) & isfinite(sa));
+    sb = select((realv)0.0f, sb, live & (sb > 0.0f) & isfinite(sb));
     realv ua, va, ub, vb;
     env_world_to_square(rot, ax, ay, az, &ua, &va);
     env_world_to_square(rot, bx, by, bz, &ub, &vb);
     const uintv ka = 4 * env_texel(env_w, env_h, ua, va), kb = 4 * env_texel(env_w, env_h, ub, vb);
     const uintv am = as_uintv(4 * mat);
     const realv ar = GATHER(mat_albedo, am), ag = GATHER(mat_albedo, am + 1), ab = GATHER(mat_albedo, am + 2);
-    STORE_LANES(ax, wi_out, base, count);
-    STORE_LANES(ay, wi_out + count, base, count);
-    STORE_LANES(az, wi_out + 2 * count, base, count);
-    STORE_LANES(bx, wi_out + 3 * count, base, count);
-    STORE_LANES(by, wi_out + 4 * count, base, count);
-    STORE_LANES(bz, wi_out + 5 * count, base, count);
-    STORE_LANES(sa * ar * GATHER(texels, ka), value_out, base, count);
-    STORE_LANES(sa * ag * GATHER(texels, ka + 1), value_out + count, base, count);
-    STORE_LANES(sa * ab * GATHER(texels, ka + 2), value_out + 2 * count, base, count);
-    STORE_LANES(sb * ar * GATHER(texels, kb), value_out + 3 * count, base, count);
-    STORE_LANES(sb * ag * GATHER(texels, kb + 1), value_out + 4 * count, base, count);
-    STORE_LANES(sb * ab * GATHER(texels, kb + 2), value_out + 5 * count, base, count);
+    Shaded s;
+    s.ax = ax; s.ay = ay; s.az = az; s.bx = bx; s.by = by; s.bz = bz;
+    s.ra = sa * ar * GATHER(texels, ka);
+    s.ga = sa * ag * GATHER(texels, ka + 1);
+    s.ba = sa * ab * GATHER(texels, ka + 2);
+    s.rb = sb * ar * GATHER(texels, kb);
+    s.gb = sb * ag * GATHER(texels, kb + 1);
+    s.bb = sb * ab * GATHER(texels, kb + 2);
+    return s;
 }
 
-/* Radiance of the environment seen along world directions (3 planes of count floats)
- * -> 3 planes (r, g, b): the camera rays that miss the scene. numpy twin:
- * Environment.eval. */
-__kernel void env_radiance(__global const float *dirs, const uint count, __global const float *texels,
-                           const int env_w, const int env_h, __global const float *rot,
-                           __global float *rgb_out)
+/* The estimates as planes of count floats: slot a r, g, b, then slot b r, g, b. */
+inline void store_values(const Shaded *s, __global float *value_out, const uint base, const uint count)
+{
+    STORE_LANES(s->ra, value_out, base, count);
+    STORE_LANES(s->ga, value_out + count, base, count);
+    STORE_LANES(s->ba, value_out + 2 * count, base, count);
+    STORE_LANES(s->rb, value_out + 3 * count, base, count);
+    STORE_LANES(s->gb, value_out + 4 * count, base, count);
+    STORE_LANES(s->bb, value_out + 5 * count, base, count);
+}
+
+/* Shading points given directly: normals and view directions as rows of 3 floats,
+ * material ids, u rows of 4; wi_out and value_out as planes (slot, component,
+ * point). The tests' entry point; the renderer uses shade_rays. */
+__kernel void shade(__global const float *normal, __global const float *wo_world,
+                    __global const int *material, __global const float *u_in, const uint count,
+                    SHADE_TABLE_ARGS, __global float *wi_out, __global float *value_out)
 {
     const uint base = LANE_BASE();
     if (base >= count) return;
     const uintv i = LANE_INDEX(count);
-    realv u, v;
-    env_world_to_square(rot, LOAD_LANES(dirs, i, base, count), LOAD_LANES(dirs + count, i, base, count),
-                        LOAD_LANES(dirs + 2 * count, i, base, count), &u, &v);
-    const uintv k = 4 * env_texel(env_w, env_h, u, v);
-    STORE_LANES(GATHER(texels, k), rgb_out, base, count);
-    STORE_LANES(GATHER(texels, k + 1), rgb_out + count, base, count);
-    STORE_LANES(GATHER(texels, k + 2), rgb_out + 2 * count, base, count);
+    const Shaded s = shade_lanes(SHADE_TABLES, GATHER(normal, 3 * i), GATHER(normal, 3 * i + 1),
+                                 GATHER(normal, 3 * i + 2), GATHER(wo_world, 3 * i), GATHER(wo_world, 3 * i + 1),
+                                 GATHER(wo_world, 3 * i + 2), GATHER_INT(material, i), u_in, i, (intv)-1);
+    STORE_LANES(s.ax, wi_out, base, count);
+    STORE_LANES(s.ay, wi_out + count, base, count);
+    STORE_LANES(s.az, wi_out + 2 * count, base, count);
+    STORE_LANES(s.bx, wi_out + 3 * count, base, count);
+    STORE_LANES(s.by, wi_out + 4 * count, base, count);
+    STORE_LANES(s.bz, wi_out + 5 * count, base, count);
+    store_values(&s, value_out, base, count);
+}
+
+/* (x, y, z) of the lanes below count into rows out[(point) * stride + offset + 0..2]. */
+inline void store_rows3(const realv x, const realv y, const realv z, __global float *out, const uint stride,
+                        const uint offset, const uint base, const uint count)
+{
+    for (uint k = 0; k < LANES && base + k < count; ++k) {
+        __global float *row = out + (base + k) * stride + offset;
+        row[0] = x[k];
+        row[1] = y[k];
+        row[2] = z[k];
+    }
+}
+
+/* The renderer's entry point: camera rays straight from the ray tracer. Per ray:
+ * direction (rows of 3 floats) from the eye, the hit triangle prim (-1: a miss) at
+ * distance tfar, uniforms u (rows of 4). A miss sees the environment (direct_out,
+ * 3 planes r, g, b; zero for hits) and has zero estimates. A hit takes its face
+ * normal, flipped to face the viewer (two-sided shading), its face's material and
+ * shade_lanes' directions and estimates; origin_out (rows of 3) is the hit point
+ * moved epsilon along that normal, where its shadow rays start; wi_out holds rows of
+ * 6 floats (slot a x y z, slot b x y z), value_out planes as in shade. Vectors of
+ * eight rays of one pixel mostly agree on hit or miss: each part runs only when some
+ * lane needs it. numpy twin: wavlight.shading.shade_rays_reference. */
+__kernel void shade_rays(__global const float *dirs, __global const int *prim, __global const float *tfar,
+                         const float eye_x, const float eye_y, const float eye_z, const float epsilon,
+                         __global const float *face_normal, __global const int *face_material,
+                         __global const float *u_in, const uint count, SHADE_TABLE_ARGS,
+                         __global float *origin_out, __global float *wi_out, __global float *value_out,
+                         __global float *direct_out)
+{
+    const uint base = LANE_BASE();
+    if (base >= count) return;
+    const uintv i = LANE_INDEX(count);
+    const intv face = GATHER_INT(prim, i);
+    const intv hit = face >= 0;
+    const realv dx = GATHER(dirs, 3 * i), dy = GATHER(dirs, 3 * i + 1), dz = GATHER(dirs, 3 * i + 2);
+    realv er = 0.0f, eg = 0.0f, eb = 0.0f;
+    if (!all(hit)) {
+        realv u, v;
+        env_world_to_square(rot, dx, dy, dz, &u, &v);
+        const uintv k = 4 * env_texel(env_w, env_h, u, v);
+        er = select(GATHER(texels, k), 0.0f, hit);
+        eg = select(GATHER(texels, k + 1), 0.0f, hit);
+        eb = select(GATHER(texels, k + 2), 0.0f, hit);
+    }
+    STORE_LANES(er, direct_out, base, count);
+    STORE_LANES(eg, direct_out + count, base, count);
+    STORE_LANES(eb, direct_out + 2 * count, base, count);
+    Shaded s;
+    if (any(hit)) {
+        const uintv f = as_uintv(max(face, 0));
+        realv nx = GATHER(face_normal, 3 * f), ny = GATHER(face_normal, 3 * f + 1), nz = GATHER(face_normal, 3 * f + 2);
+        const realv flip = select((realv)1.0f, (realv)-1.0f, nx * dx + ny * dy + nz * dz > 0.0f);
+        nx *= flip;
+        ny *= flip;
+        nz *= flip;
+        const realv t = GATHER(tfar, i);
+        store_rows3(eye_x + dx * t + nx * epsilon, eye_y + dy * t + ny * epsilon, eye_z + dz * t + nz * epsilon,
+                    origin_out, 3, 0, base, count);
+        s = shade_lanes(SHADE_TABLES, nx, ny, nz, -dx, -dy, -dz, GATHER_INT(face_material, f), u_in, i, hit);
+    } else {
+        s.ax = s.ay = s.az = s.bx = s.by = s.bz = 0.0f;
+        s.ra = s.ga = s.ba = s.rb = s.gb = s.bb = 0.0f;
+    }
+    store_rows3(s.ax, s.ay, s.az, wi_out, 6, 0, base, count);
+    store_rows3(s.bx, s.by, s.bz, wi_out, 6, 3, base, count);
+    store_values(&s, value_out, base, count);
 }

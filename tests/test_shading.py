@@ -114,20 +114,42 @@ def test_product_sample_points_kernel_matches_numpy():
     np.testing.assert_allclose(pdf_k[same_leaf], pdf_r[same_leaf], rtol=2e-2)
 
 
-def test_env_radiance_kernel_matches_numpy():
-    """kernels/shade.cl env_radiance (camera rays that miss) against Environment.eval, with
-    rotate_y, on a map of random texels: the same texel except where float32 and float64
-    round a direction to different sides of a texel edge (a few in 10^5); count not a
-    multiple of 8, so the last work-item's partial lanes are exercised."""
-    rng = np.random.default_rng(11)
-    scene = _scene(rng.random((64, 128, 3)).astype(np.float32), 50.0)
+@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "wavelet"])
+def test_shade_rays_kernel_matches_numpy(strategy):
+    """kernels/shade.cl shade_rays (the renderer's entry: camera rays from the tracer, hits and
+    misses) against shading.shade_rays_reference, on the default scene with its map rotated
+    and random texels added. Misses: the same texel as Environment.eval except where float32
+    and float64 round a direction to different sides of a texel edge (a few in 10^5); hits:
+    shadow origins, directions and estimates as in test_shade_kernel_matches_numpy. The ray
+    count is not a multiple of 8, so the last work-item's partial lanes are exercised."""
+    from wavlight import integrator
+    from wavlight.raytrace import RayTracer
+
+    scene = wavlight.load_scene("scenes/default.toml")
+    rng = np.random.default_rng(12)
     env = scene.environment
-    strat = strategies.make("light")
-    strat.prepare(env, scene.materials)
-    shader = KernelShader(scene, strat)
-    d = rng.normal(size=(100_003, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    got = shader.environment(d.astype(np.float32))
-    ref = env.eval(d.astype(np.float32).astype(np.float64))
-    same = np.all(got == ref, axis=1)
-    assert got.shape == ref.shape and same.mean() > 0.9995
+    scene.environment = Environment(env.pixels + rng.random(env.pixels.shape).astype(np.float32) * 0.2, 1.0, 50.0)
+    tracer = RayTracer(scene.vertices, scene.faces)
+    strat = strategies.make(strategy)
+    strat.prepare(scene.environment, scene.materials)
+    count = 40_003
+    w, h = 64, 48
+    o, d = integrator.camera_rays(scene, rng.integers(0, w, count), rng.integers(0, h, count), rng.random((count, 2)),
+                                  w, h)
+    prim, t = tracer.intersect(o, d)
+    assert 0.1 < (prim >= 0).mean() < 0.9                       # both hits and misses
+    u = rng.random((count, 4), dtype=np.float32)
+    got = KernelShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u)
+    ref = NumpyShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u)
+    miss, hit = prim < 0, prim >= 0
+    assert got.direct.shape == ref.direct.shape == (3, count)
+    assert np.all(got.direct[:, hit] == 0) and np.all(got.value[:, :, miss] == 0)
+    assert np.all(got.direct[:, miss] == ref.direct[:, miss], axis=0).mean() > 0.9995
+    np.testing.assert_allclose(got.origin[hit], ref.origin[hit], atol=1e-5 * tracer.scale)
+    live = np.abs(ref.value[:, :, hit]).max(axis=1) > 0            # (slot, hit)
+    dir_ok = np.abs(got.wi[hit] - ref.wi[hit]).max(axis=2).T < 2e-4
+    val_ok = np.isclose(got.value[:, :, hit], ref.value[:, :, hit], rtol=2e-3, atol=1e-6).all(axis=1)
+    assert np.isfinite(got.value).all()
+    assert (dir_ok | ~live).mean() > 0.999
+    assert val_ok.mean() > 0.999, f"{(~val_ok).sum()} of {val_ok.size} values differ"
+    assert live.any()

@@ -2,12 +2,13 @@
 
 Path of one pixel sample (see docs/architecture.md): :func:`camera_rays` makes a ray
 through a uniformly jittered point of the pixel (box filter); :class:`RayTracer`
-finds the closest hit; a miss returns the environment's radiance; a hit goes to the
-shader (:mod:`wavlight.shading`: face normal flipped towards the viewer, the
-strategy's directions and pdfs, the estimate ``albedo f cos L / pdf`` times the MIS
-weight); only non-zero estimates get a shadow ray (occlusion query from the point
-moved ``epsilon`` along the shading normal). Per-pixel means and standard errors
-come from the per-sample values.
+finds the closest hit; the shader's ``shade_rays`` (:mod:`wavlight.shading`, one
+kernel launch per batch) gives a miss the environment's radiance and a hit its
+face normal flipped towards the viewer, the strategy's directions and pdfs, the
+estimate ``albedo f cos L / pdf`` times the MIS weight, and the shadow-ray origin
+(the hit point moved ``epsilon`` along that normal); only non-zero estimates get a
+shadow ray (occlusion query, :meth:`_Renderer.visible_sum`). Per-pixel means and
+standard errors come from the per-sample values.
 
 Images are rendered in tiles, each in passes of about ``TILE_SAMPLES`` samples, so
 memory is bounded at any resolution and any spp; tiles run on a thread pool
@@ -84,7 +85,7 @@ class _Renderer:
         self.strategy.prepare(scene.environment, scene.materials)
         # Strategies without a shade kernel (no KERNEL_ID, e.g. sir) shade in numpy.
         numpy_shader = backend == "numpy" or strategy not in strategies.KERNEL_ID
-        self.shader = (NumpyShader if numpy_shader else KernelShader)(scene, self.strategy)
+        self.shader = (NumpyShader if numpy_shader else KernelShader)(scene, self.strategy, self.tracer)
         self.setup_seconds = time.perf_counter() - t0
         self.rays = 0
         self._rays_lock = threading.Lock()
@@ -93,28 +94,21 @@ class _Renderer:
         with self._rays_lock:
             self.rays += int(n)
 
-    # -- shading
-    def shade(self, o, d, prim, t, rng, u=None):
-        """Radiance estimates (N, 3) for camera rays that hit prim at distance t; u (N, 4) the
-        shading uniforms (drawn here from rng if None)."""
-        n = np.take(self.tracer.face_normals, prim, axis=0)   # (2x faster than fancy indexing)
-        n *= np.where(np.einsum("ij,ij->i", n, d) > 0, np.float32(-1), np.float32(1))[:, None]   # face the viewer
-        p = o + d * t[:, None]
-        if u is None:
-            u = rng.random((len(prim), 4), dtype=np.float32)
-        wi, value = self.shader(n, -d, self.scene.face_material[prim], u, p=p)
-        # Shadow rays only for non-zero estimates; MIS has two per point, sir N. (Channel-wise
-        # maxima and sums, not .max(axis=2) / einsum: those are 10x slower on a length-3 axis.)
-        nonzero = np.maximum(np.maximum(value[..., 0], value[..., 1]), value[..., 2]) > 0
-        pt, slot = np.nonzero(nonzero)
-        visible = np.zeros(value.shape[:2], value.dtype)
-        blocked = self.tracer.occluded(np.take(p, pt, axis=0) + np.take(n, pt, axis=0) * self.tracer.epsilon,
-                                       wi[pt, slot])
+    # -- shadow rays
+    def visible_sum(self, shaded):
+        """(3, N) radiance per camera ray: what it sees directly plus its visible estimates.
+        Shadow rays only for non-zero estimates (MIS has two per point, sir S), from the
+        origins the shader computed."""
+        value = shaded.value
+        # (channel-wise maxima over planes: no reduction over a length-3 axis)
+        slot, pt = np.nonzero(np.maximum(np.maximum(value[:, 0], value[:, 1]), value[:, 2]) > 0)
+        blocked = self.tracer.occluded(np.take(shaded.origin, pt, axis=0), shaded.wi[pt, slot])
         self.count_rays(len(pt))
-        visible[pt, slot] = ~blocked
-        out = value[:, 0] * visible[:, 0, None]
-        for j in range(1, value.shape[1]):  # slots, not samples: 2 for MIS
-            out += value[:, j] * visible[:, j, None]
+        visible = np.zeros((value.shape[0], value.shape[2]), value.dtype)
+        visible[slot, pt] = ~blocked
+        out = shaded.direct.astype(np.float64)
+        for j in range(value.shape[0]):  # slots, not samples: 2 for MIS
+            out += value[j] * visible[j]
         return out
 
     # -- one tile
@@ -122,43 +116,38 @@ class _Renderer:
         """Mean and standard error of the tile's pixels, in passes of at most ~TILE_SAMPLES samples."""
         spp = self.spp
         rng = np.random.default_rng([self.seed, index])
-        total = np.zeros((w * h, 3))
-        total_sq = np.zeros((w * h, 3))
+        total = np.zeros((3, w * h))
+        total_sq = np.zeros((3, w * h))
         per_pass = max(1, min(spp, TILE_SAMPLES // (w * h)))
         for first in range(0, spp, per_pass):
             k = min(per_pass, spp - first)
-            values = self._samples(rng, x0, y0, w, h, k).reshape(w * h, k, 3)
-            total += np.einsum("ijk->ik", values)  # 5x faster than .sum(axis=1) here
-            total_sq += np.einsum("ijk,ijk->ik", values, values)
+            values = self._samples(rng, x0, y0, w, h, k).reshape(3, w * h, k)
+            total += values.sum(axis=2)
+            total_sq += np.einsum("cik,cik->ci", values, values)
         mean = total / spp
         if spp > 1:
             var = np.maximum(total_sq - spp * mean ** 2, 0.0) / (spp - 1)
             err = np.sqrt(var / spp)
         else:
             err = np.full_like(mean, np.inf)
-        return mean.reshape(h, w, 3), err.reshape(h, w, 3)
+        return mean.T.reshape(h, w, 3), err.T.reshape(h, w, 3)
 
     def _samples(self, rng, x0, y0, w, h, k):
-        """(w h k, 3) radiance estimates: k jittered camera rays per pixel, pixel-major."""
+        """(3, w h k) radiance estimates (planes r, g, b): k jittered camera rays per pixel,
+        pixel-major."""
         pix = np.arange(w * h, dtype=np.int32)
         px = np.repeat(x0 + pix % w, k)
         py = np.repeat(y0 + pix // w, k)
         if self.sampler == "stratified":  # all six uniforms of each sample, stratified per pixel
             uu = sampler.stratified(rng, w * h, k)
-            jitter, u_all = uu[:, :2], uu[:, 2:]
-        else:  # independent: the jitters now, the shading uniforms for hits only
-            jitter, u_all = rng.random((len(px), 2)), None
+            jitter, u = uu[:, :2], uu[:, 2:]
+        else:  # independent: the jitters, then the shading uniforms
+            jitter = rng.random((len(px), 2))
+            u = rng.random((len(px), 4), dtype=np.float32)
         o, d = camera_rays(self.scene, px, py, jitter, self.width, self.height)
         prim, t = self.tracer.intersect(o, d)
         self.count_rays(len(px))
-        values = np.zeros((len(px), 3))
-        miss = prim < 0
-        values[miss] = self.shader.environment(d[miss])
-        hit = np.nonzero(~miss)[0]
-        if len(hit):
-            values[hit] = self.shade(o[hit], d[hit], prim[hit], t[hit], rng,
-                                     None if u_all is None else u_all[hit])
-        return values
+        return self.visible_sum(self.shader.shade_rays(self.scene.camera.eye, d, prim, t, u))
 
 
 def _tiles(width, height, spp):

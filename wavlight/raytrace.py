@@ -2,6 +2,11 @@
 
 Geometry is one triangle soup in float32 (embree's precision). Large batches are
 split over threads: embreex releases the GIL, so two threads use both cores.
+
+The scene is built without Embree's robust flag (``robust=False``), as Mitsuba 3
+does by default (its ``embree_use_robust_intersections`` is off): robust traversal
+measured 13-15% slower on the bunny's camera and shadow rays, and the tests of
+flat quads under uniform light and of shadows pass without it.
 """
 from __future__ import annotations
 
@@ -23,7 +28,7 @@ class RayTracer:
         self.threads = max(1, threads)
         self._scene = None
         if self.n_faces:
-            self._scene = rtcs.EmbreeScene()
+            self._scene = rtcs.EmbreeScene(robust=False)
             mc.TriangleMesh(self._scene, np.ascontiguousarray(vertices, np.float32),
                             np.ascontiguousarray(faces, np.int32))
         v = np.asarray(vertices, np.float64)

@@ -1,14 +1,18 @@
 """Shading on the OpenCL device: kernels/shade.cl.
 
-:class:`KernelShader` uploads the environment (texels, rotation), the light tree
-and the material table once, then shades batches of points with one launch of the
-``shade`` kernel (eight points per work-item): for each point one direction per
-strategy sample (two for MIS; the light or product sample walks its tree in the
-kernel) and its unoccluded estimate. Its numpy
-twin is :func:`wavlight.strategies.shade_reference`; :class:`NumpyShader` wraps
-that twin behind the same call, for tests and for devices without OpenCL.
+:class:`KernelShader` uploads the environment (texels, rotation), the light tree,
+the material table and the face normals once, then shades each batch of camera rays
+with one launch of the ``shade_rays`` kernel (eight rays per work-item): misses see
+the environment; each hit gets its shading frame and, per strategy sample (two for
+MIS; the light or product sample walks its tree in the kernel), a direction, its
+unoccluded estimate and the shadow ray's origin. Its numpy twin is
+:func:`shade_rays_reference` around :func:`wavlight.strategies.shade_reference`;
+:class:`NumpyShader` wraps that twin behind the same calls, for tests, for
+``backend="numpy"`` and for the numpy-only strategies.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -17,10 +21,25 @@ from . import cl, product, strategies, warp
 _WARMED = set()  # shade programs already launched in this process
 
 
-class KernelShader:
-    """shade(n, wo, material, u) -> wi (N, 2, 3), value (N, 2, 3), float32."""
+class ShadedRays(NamedTuple):
+    """Camera rays after shading, all float32 (float64 from the numpy twin).
 
-    def __init__(self, scene, strategy: strategies.Strategy):
+    direct (3, N): the radiance the camera sees directly (the environment, for misses;
+    zero for hits); origin (N, 3): shadow-ray origins (undefined for misses); wi (N, S, 3):
+    the S sampled directions; value (S, 3, N): their unoccluded estimates (zero for misses).
+    """
+
+    direct: np.ndarray
+    origin: np.ndarray
+    wi: np.ndarray
+    value: np.ndarray
+
+
+class KernelShader:
+    """The shade kernels. ``shade_rays`` (the renderer's) needs ``tracer`` for its face normals
+    and shadow-ray offset; calling the shader shades points given directly."""
+
+    def __init__(self, scene, strategy: strategies.Strategy, tracer=None):
         env = scene.environment
         self.strategy = strategy
         texels = np.zeros((env.height * env.width, 4), np.float32)
@@ -52,57 +71,105 @@ class KernelShader:
             sizes["N_LEVELS"] = int(self.levels)
         if strategy.name == "wavelet":
             sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)))
+        self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.angles,
+                        self.texels, *self.env_size, self.rot, self.tree)
+        self._geometry = None
+        if tracer is not None:   # face normals and materials for shade_rays (a dummy row without faces)
+            normals = tracer.face_normals if len(tracer.face_normals) else np.zeros((1, 3), np.float32)
+            materials = scene.face_material if len(scene.face_material) else np.zeros(1, np.int32)
+            self._geometry = (np.float32(tracer.epsilon), cl.to_device(np.asarray(normals, np.float32)),
+                              cl.to_device(np.asarray(materials, np.int32)))
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds,
                                   **sizes)
         self.warm_up()
 
     def __call__(self, n, wo, material, u, **_):
+        """Shading points given directly (the ``shade`` kernel; tests): world normals n and view
+        directions wo (N, 3), material ids (N,), uniforms u (N, 4) -> wi, value (N, 2, 3)."""
         count = len(n)
         if count == 0:
             return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.float32)
-        # The global size is padded to a fixed work-group size: PoCL compiles a kernel per
-        # work-group size on first launch, so this keeps it to one compile (done in warm_up).
-        # The kernel takes eight points per work-item (kernels/simd.h). Its buffers are the
-        # thread's scratch buffers, reused from batch to batch.
         q = cl.thread_queue()
         wi_buf, val_buf = cl.scratch("wi", count * 24), cl.scratch("value", count * 24)
         cl.kernel(self.program, "shade")(
             q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("normal", np.asarray(n, np.float32), q),
             cl.upload("wo", np.asarray(wo, np.float32), q),
             cl.upload("material", np.asarray(material, np.int32), q), cl.upload("u", np.asarray(u, np.float32), q),
-            np.uint32(count), self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.angles,
-            self.texels, *self.env_size, self.rot, self.tree, wi_buf, val_buf)
+            np.uint32(count), *self._tables, wi_buf, val_buf)
         # planes (slot, component, point) -> (point, slot, component) views
         wi = cl.read(wi_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
         value = cl.read(val_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
         return wi, value
 
-    def environment(self, d):
-        """Radiance (N, 3) float32 of the environment along world directions d (N, 3): camera
-        rays that miss (kernels/shade.cl env_radiance; numpy twin Environment.eval)."""
+    def shade_rays(self, eye, d, prim, t, u) -> ShadedRays:
+        """Camera rays from ``eye`` along d (N, 3) that hit triangle prim (N,) (-1: a miss) at
+        distance t (N,), with uniforms u (N, 4): one ``shade_rays`` launch into the thread's
+        reusable buffers (the global size padded to the fixed work-group size: PoCL compiles
+        once per work-group size, done in warm_up)."""
+        if self._geometry is None:
+            raise ValueError("KernelShader.shade_rays needs the ray tracer's geometry (tracer=...)")
         count = len(d)
-        if count == 0:
-            return np.zeros((0, 3), np.float32)
         q = cl.thread_queue()
-        out = cl.scratch("env_rgb", 12 * count)
-        cl.kernel(self.program, "env_radiance")(
-            q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("env_dirs", np.asarray(d, np.float32).T, q),
-            np.uint32(count), self.texels, *self.env_size, self.rot, out)
-        return cl.read(out, (3, count), np.float32, q).T
+        bufs = [cl.scratch(name, size * count) for name, size in
+                (("origin", 12), ("wi", 24), ("value", 24), ("direct", 12))]
+        if count:
+            cl.kernel(self.program, "shade_rays")(
+                q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("dirs", np.asarray(d, np.float32), q),
+                cl.upload("prim", np.asarray(prim, np.int32), q), cl.upload("tfar", np.asarray(t, np.float32), q),
+                *np.asarray(eye, np.float32), *self._geometry, cl.upload("u", np.asarray(u, np.float32), q),
+                np.uint32(count), *self._tables, *bufs)
+        origin, wi, value, direct = (cl.read(b, shape, np.float32, q) for b, shape in
+                                     zip(bufs, ((count, 3), (count, 2, 3), (2, 3, count), (3, count))))
+        return ShadedRays(direct, origin, wi, value)
 
     def warm_up(self):
         """A tiny and a large launch, so that PoCL's per-launch compilation lands in setup time, not
         render time: PoCL builds a kernel once per work-group size and again for large grids (its
         "smallgrid" specialisation covers small ones; 4 096 work-items still counted as small,
-        65 536 did not), and renders launch both. Once per process and set of programs."""
-        key = self.program
+        65 536 did not), and renders launch both. Once per process, program and kernel: the
+        renderer's ``shade_rays`` when the shader has geometry, else ``shade``."""
+        key = (self.program, self._geometry is not None)
         if key in _WARMED:
             return
         for count in (1, 1 << 16):
-            self(np.tile([[0.0, 0.0, 1.0]], (count, 1)), np.tile([[0.0, 0.0, 1.0]], (count, 1)),
-                 np.zeros(count, np.int32), np.full((count, 4), 0.5, np.float32))
-            self.environment(np.tile([[0.0, 0.0, 1.0]], (count, 1)))
+            up = np.tile(np.float32([0.0, 0.0, 1.0]), (count, 1))
+            u = np.full((count, 4), 0.5, np.float32)
+            if self._geometry is None:
+                self(up, up, np.zeros(count, np.int32), u)
+            else:
+                self.shade_rays(np.zeros(3), up, np.full(count, -1, np.int32), np.ones(count, np.float32), u)
         _WARMED.add(key)
+
+
+def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays:
+    """numpy twin of ``shade_rays`` in kernels/shade.cl, around a shader of points
+    ``shade(n, wo, material, u, p=...) -> wi, value (M, S, 3)``: misses see the environment;
+    hits take their face normal flipped towards the viewer, their face's material, and
+    shadow rays from the hit point moved ``tracer.epsilon`` along that normal."""
+    d = np.asarray(d, np.float32)
+    prim = np.asarray(prim)
+    count = len(d)
+    miss = prim < 0
+    hit = np.flatnonzero(~miss)
+    direct = np.zeros((3, count))
+    direct[:, miss] = scene.environment.eval(d[miss].astype(np.float64)).T
+    face = prim[hit]
+    n = tracer.face_normals[face] * np.where(np.einsum("ij,ij->i", tracer.face_normals[face], d[hit]) > 0,
+                                             np.float32(-1), np.float32(1))[:, None]
+    p = np.asarray(eye, np.float32) + d[hit] * np.asarray(t, np.float32)[hit, None]
+    origin = np.zeros((count, 3), np.float32)
+    origin[hit] = p + n * np.float32(tracer.epsilon)
+    slots = 2
+    wi = np.zeros((count, slots, 3))
+    value = np.zeros((slots, 3, count))
+    if len(hit):
+        wi_h, val_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p)
+        slots = val_h.shape[1]
+        wi = np.zeros((count, slots, 3))
+        value = np.zeros((slots, 3, count))
+        wi[hit] = wi_h
+        value[:, :, hit] = np.asarray(val_h).transpose(1, 2, 0)
+    return ShadedRays(direct, origin, wi, value)
 
 
 class NumpyShader:
@@ -113,12 +180,12 @@ class NumpyShader:
     number of slots S; those are called instead of :func:`strategies.shade_reference`.
     """
 
-    def __init__(self, scene, strategy: strategies.Strategy):
-        self.scene, self.strategy = scene, strategy
+    def __init__(self, scene, strategy: strategies.Strategy, tracer=None):
+        self.scene, self.strategy, self.tracer = scene, strategy, tracer
 
-    def environment(self, d):
-        """Radiance (N, 3) of the environment along world directions d (N, 3)."""
-        return self.scene.environment.eval(np.asarray(d, np.float64))
+    def shade_rays(self, eye, d, prim, t, u) -> ShadedRays:
+        """Camera rays as in :meth:`KernelShader.shade_rays`, by :func:`shade_rays_reference`."""
+        return shade_rays_reference(self, self.scene, self.tracer, eye, d, prim, t, u)
 
     def __call__(self, n, wo, material, u, p=None):
         sc = self.scene
