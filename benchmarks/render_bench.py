@@ -29,7 +29,7 @@ def embree_alone(scene, args):
     cores as the renderer runs it. The floor under wavlight's render time for the same rays."""
     import numpy as np
 
-    from wavlight.integrator import camera_rays
+    from wavlight.camera import camera_rays
     from wavlight.raytrace import RayTracer
 
     tracer = RayTracer(scene.vertices, scene.faces, threads=os.cpu_count() or 1)

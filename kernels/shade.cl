@@ -26,6 +26,7 @@
 #include "warp.h"
 #include "bsdf.h"
 #include "product.h"
+#include "rng.h"
 #if STRATEGY >= 3 && !defined(N_LEVELS)
 #error "shade.cl with the light or product sample is built with -DN_LEVELS (the light tree's depth)"
 #endif
@@ -63,12 +64,11 @@ typedef struct {
 } Shaded;
 
 /* Shade the lanes' points: world normal n (facing the viewer), world view direction
- * e = wo, material mat, uniforms u_in[4 i .. 4 i + 3]; estimates are zero where live is 0. */
+ * e = wo, material mat, uniforms u0 .. u3; estimates are zero where live is 0. */
 inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, const realv nz,
                           const realv ex, const realv ey, const realv ez, const intv mat,
-                          __global const float *u_in, const uintv i, const intv live)
+                          const realv u0, const realv u1, const realv u2, const realv u3, const intv live)
 {
-    const realv u0 = GATHER(u_in, 4 * i), u1 = GATHER(u_in, 4 * i + 1);
 #if STRATEGY == 3 || STRATEGY == 4
     /* the light sample first, while little else is live (the walk is a chain of gathers) */
     realv gu = u0, gv = u1;
@@ -108,7 +108,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
 #if STRATEGY >= 4
     {   /* the bsdf sample from u.zw, weighted against the guide's pdf */
         realv lx, ly, lz, f, pdf;
-        bsdf_sample(kind, param, ox, oy, oz, GATHER(u_in, 4 * i + 2), GATHER(u_in, 4 * i + 3), &lx, &ly, &lz);
+        bsdf_sample(kind, param, ox, oy, oz, u2, u3, &lx, &ly, &lz);
         bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &pdf);
         bx = lx * sx + ly * tx + lz * nx;
         by = lx * sy + ly * ty + lz * ny;
@@ -195,7 +195,9 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     const uintv i = LANE_INDEX(count);
     const Shaded s = shade_lanes(SHADE_TABLES, GATHER(normal, 3 * i), GATHER(normal, 3 * i + 1),
                                  GATHER(normal, 3 * i + 2), GATHER(wo_world, 3 * i), GATHER(wo_world, 3 * i + 1),
-                                 GATHER(wo_world, 3 * i + 2), GATHER_INT(material, i), u_in, i, (intv)-1);
+                                 GATHER(wo_world, 3 * i + 2), GATHER_INT(material, i), GATHER(u_in, 4 * i),
+                                 GATHER(u_in, 4 * i + 1), GATHER(u_in, 4 * i + 2), GATHER(u_in, 4 * i + 3),
+                                 (intv)-1);
     STORE_LANES(s.ax, wi_out, base, count);
     STORE_LANES(s.ay, wi_out + count, base, count);
     STORE_LANES(s.az, wi_out + 2 * count, base, count);
@@ -219,7 +221,9 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
 
 /* The renderer's entry point: camera rays straight from the ray tracer. Per ray:
  * direction (rows of 3 floats) from the eye, the hit triangle prim (-1: a miss) at
- * distance tfar, uniforms u (rows of 4). A miss sees the environment (direct_out,
+ * distance tfar, four uniforms: with draw_u, Philox stream RNG_SHADING of tile
+ * rng_tile at sample index rng_first + ray (rng.h; the independent sampler), else
+ * u_in (rows of 4). A miss sees the environment (direct_out,
  * 3 planes r, g, b; zero for hits) and has zero estimates. A hit takes its face
  * normal, flipped to face the viewer (two-sided shading), its face's material and
  * shade_lanes' directions and estimates; origin_out (rows of 3) is the hit point
@@ -230,8 +234,9 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
 __kernel void shade_rays(__global const float *dirs, __global const int *prim, __global const float *tfar,
                          const float eye_x, const float eye_y, const float eye_z, const float epsilon,
                          __global const float *face_normal, __global const int *face_material,
-                         __global const float *u_in, const uint count, SHADE_TABLE_ARGS,
-                         __global float *origin_out, __global float *wi_out, __global float *value_out,
+                         __global const float *u_in, const int draw_u, const uint rng_tile,
+                         const uint rng_first, const uint rng_k0, const uint rng_k1, const uint count,
+                         SHADE_TABLE_ARGS, __global float *origin_out, __global float *wi_out, __global float *value_out,
                          __global float *direct_out)
 {
     const uint base = LANE_BASE();
@@ -263,7 +268,17 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
         const realv t = GATHER(tfar, i);
         store_rows3(eye_x + dx * t + nx * epsilon, eye_y + dy * t + ny * epsilon, eye_z + dz * t + nz * epsilon,
                     origin_out, 3, 0, base, count);
-        s = shade_lanes(SHADE_TABLES, nx, ny, nz, -dx, -dy, -dz, GATHER_INT(face_material, f), u_in, i, hit);
+        realv u0, u1, u2, u3;
+        if (draw_u) {
+            rng_uniforms(rng_first + LANE_IDS + base, rng_tile, RNG_SHADING, rng_k0, rng_k1, &u0, &u1, &u2, &u3);
+        } else {
+            u0 = GATHER(u_in, 4 * i);
+            u1 = GATHER(u_in, 4 * i + 1);
+            u2 = GATHER(u_in, 4 * i + 2);
+            u3 = GATHER(u_in, 4 * i + 3);
+        }
+        s = shade_lanes(SHADE_TABLES, nx, ny, nz, -dx, -dy, -dz, GATHER_INT(face_material, f), u0, u1, u2, u3,
+                        hit);
     } else {
         s.ax = s.ay = s.az = s.bx = s.by = s.bz = 0.0f;
         s.ra = s.ga = s.ba = s.rb = s.gb = s.bb = 0.0f;

@@ -115,14 +115,17 @@ def test_product_sample_points_kernel_matches_numpy():
 
 
 @pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "wavelet"])
-def test_shade_rays_kernel_matches_numpy(strategy):
+@pytest.mark.parametrize("drawn", [False, True], ids=["u-given", "u-drawn"])
+def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     """kernels/shade.cl shade_rays (the renderer's entry: camera rays from the tracer, hits and
     misses) against shading.shade_rays_reference, on the default scene with its map rotated
     and random texels added. Misses: the same texel as Environment.eval except where float32
     and float64 round a direction to different sides of a texel edge (a few in 10^5); hits:
     shadow origins, directions and estimates as in test_shade_kernel_matches_numpy. The ray
-    count is not a multiple of 8, so the last work-item's partial lanes are exercised."""
-    from wavlight import integrator
+    count is not a multiple of 8, so the last work-item's partial lanes are exercised. The
+    uniforms are given (the stratified sampler) or drawn by the kernel from Philox (the
+    independent sampler; numpy twin rng.uniforms)."""
+    from wavlight import camera, rng as philox
     from wavlight.raytrace import RayTracer
 
     scene = wavlight.load_scene("scenes/default.toml")
@@ -134,11 +137,11 @@ def test_shade_rays_kernel_matches_numpy(strategy):
     strat.prepare(scene.environment, scene.materials)
     count = 40_003
     w, h = 64, 48
-    o, d = integrator.camera_rays(scene, rng.integers(0, w, count), rng.integers(0, h, count), rng.random((count, 2)),
+    o, d = camera.camera_rays(scene, rng.integers(0, w, count), rng.integers(0, h, count), rng.random((count, 2)),
                                   w, h)
     prim, t = tracer.intersect(o, d)
     assert 0.1 < (prim >= 0).mean() < 0.9                       # both hits and misses
-    u = rng.random((count, 4), dtype=np.float32)
+    u = philox.Stream(5, 17, 3000) if drawn else rng.random((count, 4), dtype=np.float32)
     got = KernelShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u)
     ref = NumpyShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u)
     miss, hit = prim < 0, prim >= 0

@@ -1,6 +1,6 @@
 """The direct-lighting integrator: camera rays, shading, shadow rays, tiles, accumulation.
 
-Path of one pixel sample (see docs/architecture.md): :func:`camera_rays` makes a ray
+Path of one pixel sample (see docs/architecture.md): :mod:`wavlight.camera` makes a ray
 through a uniformly jittered point of the pixel (box filter); :class:`RayTracer`
 finds the closest hit; the shader's ``shade_rays`` (:mod:`wavlight.shading`, one
 kernel launch per batch) gives a miss the environment's radiance and a hit its
@@ -16,8 +16,9 @@ memory is bounded at any resolution and any spp; tiles run on a thread pool
 that one tile's numpy and embree work overlaps another's wait for the OpenCL
 device (measured 10% faster than one per core on 2 cores). Rays, hit points and
 normals are float32 (embree's precision); sums are float64. Each tile draws its random numbers
-from its own stream (seed, tile index), so images do not depend on the number of
-threads.
+from its own stream (seed, tile index): counter-based Philox numbers drawn in the
+kernels for the ``independent`` sampler (:mod:`wavlight.rng`), a numpy generator
+for ``stratified``; so images do not depend on the number of threads.
 """
 from __future__ import annotations
 
@@ -29,7 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import sampler, strategies
+from . import camera, rng, sampler, strategies
+from .camera import camera_rays  # noqa: F401  (also the integrator's public name)
 from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
 from .sampler import SAMPLERS
@@ -49,30 +51,6 @@ class RenderResult:
     stats: dict = field(default_factory=dict)
 
 
-def camera_rays(scene: Scene, px: np.ndarray, py: np.ndarray, jitter: np.ndarray, width, height):
-    """Pinhole rays through points (px + jx, py + jy) of the image plane.
-
-    px, py : (N,) pixel column and row (row 0 at the top); jitter : (N, 2) in [0, 1)
-    returns origins (N, 3) (a broadcast view of the eye), unit directions (N, 3), float32
-    """
-    cam = scene.camera
-    fwd = cam.target - cam.eye
-    fwd = fwd / np.linalg.norm(fwd)
-    right = np.cross(fwd, cam.up)
-    right /= np.linalg.norm(right)
-    up = np.cross(right, fwd)
-    tan = np.tan(np.radians(cam.fov_y) * 0.5)
-    # x = (2 (px + jx) / W - 1) tan aspect, y = (1 - 2 (py + jy) / H) tan, as affine maps in float32
-    sx, sy = np.float32(2.0 * tan * (width / height) / width), np.float32(2.0 * tan / height)
-    x = (np.asarray(px, np.float32) + jitter[:, 0].astype(np.float32)) * sx - np.float32(tan * width / height)
-    y = np.float32(tan) - (np.asarray(py, np.float32) + jitter[:, 1].astype(np.float32)) * sy
-    d = np.empty((len(x), 3), np.float32)
-    for c in range(3):  # components, not pixels: three vectorised lines
-        d[:, c] = np.float32(fwd[c]) + x * np.float32(right[c]) + y * np.float32(up[c])
-    d /= np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
-    return np.broadcast_to(cam.eye.astype(np.float32), d.shape), d
-
-
 class _Renderer:
     def __init__(self, scene: Scene, strategy: str, spp: int, width: int, height: int, seed: int, threads,
                  backend="opencl", options=None, sampler_name="independent"):
@@ -86,6 +64,9 @@ class _Renderer:
         # Strategies without a shade kernel (no KERNEL_ID, e.g. sir) shade in numpy.
         numpy_shader = backend == "numpy" or strategy not in strategies.KERNEL_ID
         self.shader = (NumpyShader if numpy_shader else KernelShader)(scene, self.strategy, self.tracer)
+        self.kernel_camera = backend != "numpy"
+        if self.kernel_camera and self.sampler == "independent":
+            camera.warm_up(scene)
         self.setup_seconds = time.perf_counter() - t0
         self.rays = 0
         self._rays_lock = threading.Lock()
@@ -115,13 +96,13 @@ class _Renderer:
     def tile(self, index, x0, y0, w, h):
         """Mean and standard error of the tile's pixels, in passes of at most ~TILE_SAMPLES samples."""
         spp = self.spp
-        rng = np.random.default_rng([self.seed, index])
+        generator = np.random.default_rng([self.seed, index]) if self.sampler == "stratified" else None
         total = np.zeros((3, w * h))
         total_sq = np.zeros((3, w * h))
         per_pass = max(1, min(spp, TILE_SAMPLES // (w * h)))
         for first in range(0, spp, per_pass):
             k = min(per_pass, spp - first)
-            values = self._samples(rng, x0, y0, w, h, k).reshape(3, w * h, k)
+            values = self._samples(generator, index, first, x0, y0, w, h, k).reshape(3, w * h, k)
             total += values.sum(axis=2)
             total_sq += np.einsum("cik,cik->ci", values, values)
         mean = total / spp
@@ -132,22 +113,25 @@ class _Renderer:
             err = np.full_like(mean, np.inf)
         return mean.T.reshape(h, w, 3), err.T.reshape(h, w, 3)
 
-    def _samples(self, rng, x0, y0, w, h, k):
-        """(3, w h k) radiance estimates (planes r, g, b): k jittered camera rays per pixel,
-        pixel-major."""
-        pix = np.arange(w * h, dtype=np.int32)
-        px = np.repeat(x0 + pix % w, k)
-        py = np.repeat(y0 + pix // w, k)
-        if self.sampler == "stratified":  # all six uniforms of each sample, stratified per pixel
-            uu = sampler.stratified(rng, w * h, k)
-            jitter, u = uu[:, :2], uu[:, 2:]
-        else:  # independent: the jitters, then the shading uniforms
-            jitter = rng.random((len(px), 2))
-            u = rng.random((len(px), 4), dtype=np.float32)
-        o, d = camera_rays(self.scene, px, py, jitter, self.width, self.height)
-        prim, t = self.tracer.intersect(o, d)
-        self.count_rays(len(px))
-        return self.visible_sum(self.shader.shade_rays(self.scene.camera.eye, d, prim, t, u))
+    def _samples(self, generator, tile, first, x0, y0, w, h, k):
+        """(3, w h k) radiance estimates (planes r, g, b): samples first .. first + k - 1 of each
+        pixel of a tile, pixel-major. ``independent``: jitters and shading uniforms from Philox
+        (:mod:`wavlight.rng`) at tile sample indices first w h + (pixel k + j), drawn in the
+        kernels; ``stratified``: all six from :func:`sampler.stratified` and ``generator``."""
+        eye = self.scene.camera.eye
+        if self.sampler == "stratified":
+            uu = sampler.stratified(generator, w * h, k)
+            pix = np.arange(w * h, dtype=np.int32)
+            _, d = camera_rays(self.scene, np.repeat(x0 + pix % w, k), np.repeat(y0 + pix // w, k), uu[:, :2],
+                               self.width, self.height)
+            u = uu[:, 2:]
+        else:
+            u = rng.Stream(self.seed, tile, first * w * h)
+            d = camera.pass_rays(self.scene, self.width, self.height, self.seed, tile, x0, y0, w, h, k, u.first,
+                                 kernel=self.kernel_camera)
+        prim, t = self.tracer.intersect(np.broadcast_to(eye.astype(np.float32), d.shape), d)
+        self.count_rays(len(d))
+        return self.visible_sum(self.shader.shade_rays(eye, d, prim, t, u))
 
 
 def _tiles(width, height, spp):

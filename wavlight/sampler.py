@@ -6,8 +6,8 @@ direction) and the BSDF sample. Scene key ``[render] sampler``, flag ``--sampler
 
 ``independent`` (default)
     Every number independent and uniform (Mitsuba 3's default ``independent``
-    sampler). The integrator draws the jitters of a pass, then four uniforms for
-    each shading point only.
+    sampler): counter-based Philox-4x32-10 numbers, a function of (seed, tile,
+    sample index), drawn inside the camera and shade kernels (:mod:`wavlight.rng`).
 ``stratified``
     :func:`stratified` returns all six for ``k`` samples of each of ``P`` pixels,
     pixel-major (row ``p k + j`` is sample ``j`` of pixel ``p``), as ``(P k, 6)`` float32.

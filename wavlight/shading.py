@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import cl, product, strategies, warp
+from . import cl, product, rng, strategies, warp
 
 _WARMED = set()  # shade programs already launched in this process
 
@@ -103,7 +103,8 @@ class KernelShader:
 
     def shade_rays(self, eye, d, prim, t, u) -> ShadedRays:
         """Camera rays from ``eye`` along d (N, 3) that hit triangle prim (N,) (-1: a miss) at
-        distance t (N,), with uniforms u (N, 4): one ``shade_rays`` launch into the thread's
+        distance t (N,), with uniforms u: an (N, 4) array, or an :class:`rng.Stream` whose
+        SHADING numbers the kernel draws itself. One ``shade_rays`` launch into the thread's
         reusable buffers (the global size padded to the fixed work-group size: PoCL compiles
         once per work-group size, done in warm_up)."""
         if self._geometry is None:
@@ -113,11 +114,16 @@ class KernelShader:
         bufs = [cl.scratch(name, size * count) for name, size in
                 (("origin", 12), ("wi", 24), ("value", 24), ("direct", 12))]
         if count:
+            if isinstance(u, rng.Stream):
+                draw = (np.int32(1), np.uint32(u.tile), np.uint32(u.first), *(np.uint32(x) for x in rng.key(u.seed)))
+                u_buf = self.tree   # not read
+            else:
+                draw = (np.int32(0), *(np.uint32(0),) * 4)
+                u_buf = cl.upload("u", np.asarray(u, np.float32), q)
             cl.kernel(self.program, "shade_rays")(
                 q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("dirs", np.asarray(d, np.float32), q),
                 cl.upload("prim", np.asarray(prim, np.int32), q), cl.upload("tfar", np.asarray(t, np.float32), q),
-                *np.asarray(eye, np.float32), *self._geometry, cl.upload("u", np.asarray(u, np.float32), q),
-                np.uint32(count), *self._tables, *bufs)
+                *np.asarray(eye, np.float32), *self._geometry, u_buf, *draw, np.uint32(count), *self._tables, *bufs)
         origin, wi, value, direct = (cl.read(b, shape, np.float32, q) for b, shape in
                                      zip(bufs, ((count, 3), (count, 2, 3), (2, 3, count), (3, count))))
         return ShadedRays(direct, origin, wi, value)
@@ -143,12 +149,15 @@ class KernelShader:
 
 def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays:
     """numpy twin of ``shade_rays`` in kernels/shade.cl, around a shader of points
-    ``shade(n, wo, material, u, p=...) -> wi, value (M, S, 3)``: misses see the environment;
+    ``shade(n, wo, material, u, p=...) -> wi, value (M, S, 3)``, with u an (N, 4) array or an
+    :class:`rng.Stream` (its SHADING numbers, as the kernel draws them): misses see the environment;
     hits take their face normal flipped towards the viewer, their face's material, and
     shadow rays from the hit point moved ``tracer.epsilon`` along that normal."""
     d = np.asarray(d, np.float32)
     prim = np.asarray(prim)
     count = len(d)
+    if isinstance(u, rng.Stream):
+        u = u.uniforms(rng.SHADING, count)
     miss = prim < 0
     hit = np.flatnonzero(~miss)
     direct = np.zeros((3, count))

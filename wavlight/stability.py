@@ -237,7 +237,7 @@ def floor_radiance(pixels, albedo) -> np.ndarray:
 
 def floor_mask(scene, width, height, half_size) -> np.ndarray:
     """(H, W) bool: pixels whose four corner rays hit the floor quad (y = 0, |x|, |z| < half_size)."""
-    from .integrator import camera_rays
+    from .camera import camera_rays
 
     py, px = np.mgrid[0:height, 0:width]
     ok = np.ones(width * height, bool)
