@@ -22,7 +22,7 @@
  * four children of each visited node are evaluated (their sixteen children at the
  * LOOKAHEAD_LEVELS coarsest levels, see below): O(levels) per sample, no
  * per-point tree. Node centre directions are built from a small table of the
- * sines and cosines of each level's column and row angles (map frame,
+ * sines and cosines of each level's column and row angles, in pairs (map frame,
  * wavlight.product.node_angles); the lobe is turned into the map frame once per
  * point (make_lobe). Below the product depth P the BRDF is taken as constant and the
  * walk continues in the light tree (choose_child on the masses). The pdf is exact:
@@ -58,6 +58,7 @@ typedef struct {
     realv ax, ay, az;   /* lobe axis, in the map frame */
     realv nx, ny, nz;   /* shading normal, in the map frame */
     realv wx, wy, wz;   /* direction to the viewer, in the map frame (ggx: the half vector) */
+    realv wn;           /* wo . n */
     realv inv_kappa;    /* 1 / lobe concentration (phong n, ggx 1 / (2 alpha^2)); inf for lambert */
     intv levels;        /* product depth P (<= tree levels) */
     intv shape;         /* LOBE_LAMBERT | LOBE_PHONG | LOBE_GGX | LOBE_GGX_HALF */
@@ -66,7 +67,7 @@ typedef struct {
 /* The lobes from world-frame normals n and directions to the viewer o: axis = n
  * (lambert) or the mirror direction; code = depth + 256 shape (as the host packs it,
  * wavlight/shading.py); rot = map_from_world (row-major). */
-inline Lobe make_lobe(__global const float *rot, const realv nx, const realv ny, const realv nz,
+INLINE Lobe make_lobe(__global const float *rot, const realv nx, const realv ny, const realv nz,
                       const realv ox, const realv oy, const realv oz, const realv kappa, const intv code)
 {
     Lobe lb;
@@ -85,6 +86,7 @@ inline Lobe make_lobe(__global const float *rot, const realv nx, const realv ny,
     lb.wx = rot[0] * ox + rot[1] * oy + rot[2] * oz;
     lb.wy = rot[3] * ox + rot[4] * oy + rot[5] * oz;
     lb.wz = rot[6] * ox + rot[7] * oy + rot[8] * oz;
+    lb.wn = ox * nx + oy * ny + oz * nz;
     lb.inv_kappa = 1.0f / kappa;
     lb.levels = code & 0xff;
     lb.shape = shape;
@@ -92,14 +94,17 @@ inline Lobe make_lobe(__global const float *rot, const realv nx, const realv ny,
 }
 
 /* Importance (before the light mass) of the children of level-`level` nodes whose
- * centre directions are d (map frame): the lobe formulas of the header comment. */
-inline realv lobe_weight(const Lobe *lb, const realv dx, const realv dy, const realv dz, const int level)
+ * centre directions d (map frame, unit) have d . n = cos_n, d . axis = cos_a and
+ * d . wo = cos_w (used by LOBE_GGX_HALF only): the lobe formulas of the header comment. */
+INLINE realv lobe_weight(const Lobe *lb, const realv cos_n, const realv cos_a, const realv cos_w, const int level)
 {
     /* the child's level is level + 1: inv = 2^-(level + 1), exactly and without a division */
     const float scale = (float)(2u << level), inv = as_float((uint)(126 - level) << 23);
     const float r = LOBE_BLUR_F * inv, rh = HORIZON_BLUR_F * inv;
-    const realv cos_n = dx * lb->nx + dy * lb->ny + dz * lb->nz;
-    const realv x1 = 1.0f - (dx * lb->ax + dy * lb->ay + dz * lb->az);
+    const realv x1 = 1.0f - cos_a;
+#ifdef TRIVIAL_LOBE
+    return fmax(cos_n + cos_a + cos_w, 0.0f);
+#endif
     const realv step = clamp(cos_n * (scale * (1.0f / HORIZON_BLUR_F)) + 1.0f, 0.0f, 1.0f);
     const realv hor = clamp(cos_n + rh, 0.0f, 1.0f);
     realv w = 0.0f;
@@ -120,12 +125,11 @@ inline realv lobe_weight(const Lobe *lb, const realv dx, const realv dy, const r
     }
 #endif
 #if HAS_SHAPE(LOBE_GGX_HALF)
-    {   /* pi D(h) with alpha widened */
+    {   /* pi D(h) with alpha widened; h = d + wo: h . n = cos_n + wo . n, |h|^2 = 2 + 2 cos_w */
         const realv a2 = 0.5f * (lb->inv_kappa + r * r);     /* alpha_l^2 = alpha^2 + r^2 / 2 */
-        const realv hx = dx + lb->wx, hy = dy + lb->wy, hz = dz + lb->wz;
-        const realv hn = fmax(hx * lb->nx + hy * lb->ny + hz * lb->nz, 0.0f);
+        const realv hn = fmax(cos_n + lb->wn, 0.0f);
         /* D ~ a2 / (cos^2 (a2 - 1) + 1)^2 with cos^2 = hn^2 / |h|^2: one division */
-        const realv hh = hx * hx + hy * hy + hz * hz;
+        const realv hh = fmax(2.0f + 2.0f * cos_w, 0.0f);
         const realv q = hh / (hn * hn * (a2 - 1.0f) + hh);
         w = select(w, (a2 * q * q) * step, lb->shape == LOBE_GGX_HALF);
     }
@@ -133,9 +137,39 @@ inline realv lobe_weight(const Lobe *lb, const realv dx, const realv dy, const r
     return w;
 }
 
+/* Node centre directions are d(theta, phi) = (sin phi sin theta, cos theta, -cos phi sin theta)
+ * (map frame). Their dot products with the lobe's vectors v split into a part per column
+ * (phi) and one per row (theta): d . v = sin theta (sin phi v_x - cos phi v_z) + cos theta v_y.
+ * LobeColumn holds the column parts for v = n, axis, wo; the four (or sixteen) children
+ * of a node share two (four) columns and two (four) rows. */
+typedef struct {
+    realv n, a, w;
+} LobeColumn;
+
+INLINE LobeColumn lobe_column(const Lobe *lb, const realv sin_phi, const realv cos_phi)
+{
+    LobeColumn c;
+    c.n = sin_phi * lb->nx - cos_phi * lb->nz;
+    c.a = sin_phi * lb->ax - cos_phi * lb->az;
+#if HAS_SHAPE(LOBE_GGX_HALF)
+    c.w = sin_phi * lb->wx - cos_phi * lb->wz;
+#else
+    c.w = 0.0f;
+#endif
+    return c;
+}
+
+/* lobe_weight at the direction of column c and row (sin theta, cos theta). */
+INLINE realv lobe_weight_at(const Lobe *lb, const LobeColumn *c, const realv sin_theta, const realv cos_theta,
+                            const int level)
+{
+    return lobe_weight(lb, sin_theta * c->n + cos_theta * lb->ny, sin_theta * c->a + cos_theta * lb->ay,
+                       sin_theta * c->w + cos_theta * lb->wy, level);
+}
+
 /* w0..w3 = the importances i0..i3, or the light masses m0..m3 where the importances sum
  * to zero or are not finite (the same rule in the walk and the pdf). */
-inline void importances_or_masses(const realv i0, const realv i1, const realv i2, const realv i3,
+INLINE void importances_or_masses(const realv i0, const realv i1, const realv i2, const realv i3,
                                   const realv m0, const realv m1, const realv m2, const realv m3,
                                   realv *w0, realv *w1, realv *w2, realv *w3)
 {
@@ -147,25 +181,29 @@ inline void importances_or_masses(const realv i0, const realv i1, const realv i2
     *w3 = select(m3, i3, ok);
 }
 
+/* Offsets into the angle table (product.node_angles) of level L's column pair (sin phi,
+ * cos phi of columns 2 x and 2 x + 1) and row pair (sin theta, cos theta of rows 2 y and
+ * 2 y + 1): one 16-byte record each. */
+#define ANGLE_COLUMNS(L, x) (4 * ((1u << (L)) - 2u) + 4 * (x))
+#define ANGLE_ROWS(L, y) (4 * ((1u << (L)) - 2u) + (2u << (L)) + 4 * (y))
+
 /* Importances of the four children (00 10 01 11) of nodes (x, y) at `level` whose light
  * masses are m0..m3, into w0..w3. angles: the centre directions' sines and cosines per
- * column and row of each level (product.node_angles): the children of (x, y) are
+ * column and row pair of each level (product.node_angles): the children of (x, y) are
  * columns 2x, 2x + 1 and rows 2y, 2y + 1 of level + 1. Where all four are zero (or the
  * sum is not finite) the light masses are used instead. */
-inline void child_importances(const Lobe *lb, __global const float *angles,
+INLINE void child_importances(const Lobe *lb, __global const float *angles,
                               const realv m0, const realv m1, const realv m2, const realv m3, const uintv x,
                               const uintv y, const int level, realv *w0, realv *w1, realv *w2, realv *w3)
 {
-    const uintv col = 4 * ((2u << level) - 2u) + 8 * x;
-    const uintv row = 4 * ((2u << level) - 2u) + 8 * y;
-    const realv sp0 = GATHER(angles, col), cp0 = GATHER(angles, col + 1);
-    const realv sp1 = GATHER(angles, col + 4), cp1 = GATHER(angles, col + 5);
-    const realv st0 = GATHER(angles, row + 2), ct0 = GATHER(angles, row + 3);
-    const realv st1 = GATHER(angles, row + 6), ct1 = GATHER(angles, row + 7);
-    const realv i0 = m0 * lobe_weight(lb, sp0 * st0, ct0, -cp0 * st0, level);
-    const realv i1 = m1 * lobe_weight(lb, sp1 * st0, ct0, -cp1 * st0, level);
-    const realv i2 = m2 * lobe_weight(lb, sp0 * st1, ct1, -cp0 * st1, level);
-    const realv i3 = m3 * lobe_weight(lb, sp1 * st1, ct1, -cp1 * st1, level);
+    realv sp0, cp0, sp1, cp1, st0, ct0, st1, ct1;
+    GATHER4(angles, ANGLE_COLUMNS(level + 1, x), &sp0, &cp0, &sp1, &cp1);
+    GATHER4(angles, ANGLE_ROWS(level + 1, y), &st0, &ct0, &st1, &ct1);
+    const LobeColumn c0 = lobe_column(lb, sp0, cp0), c1 = lobe_column(lb, sp1, cp1);
+    const realv i0 = m0 * lobe_weight_at(lb, &c0, st0, ct0, level);
+    const realv i1 = m1 * lobe_weight_at(lb, &c1, st0, ct0, level);
+    const realv i2 = m2 * lobe_weight_at(lb, &c0, st1, ct1, level);
+    const realv i3 = m3 * lobe_weight_at(lb, &c1, st1, ct1, level);
     importances_or_masses(i0, i1, i2, i3, m0, m1, m2, m3, w0, w1, w2, w3);
 }
 
@@ -188,19 +226,26 @@ inline void child_importances(const Lobe *lb, __global const float *angles,
 /* child_importances with the look-ahead, for nodes (x, y) at `level` (level + 2 <= the
  * tree's depth; the angle table covers level + 2): the children's own masses m0..m3
  * are the fallback where the sum is zero or not finite. */
-inline void child_importances_ahead(const Lobe *lb, __global const float *angles, __global const float *tree,
+INLINE void child_importances_ahead(const Lobe *lb, __global const float *angles, __global const float *tree,
                                     const realv m0, const realv m1, const realv m2, const realv m3,
                                     const uintv x, const uintv y, const int level,
                                     realv *w0, realv *w1, realv *w2, realv *w3)
 {
     const uint gside = 4u << level;                                     /* level + 2 */
     const uintv g = node_index(level + 2, 4 * x, 4 * y);
-    const uintv col = 4 * ((4u << level) - 2u) + 16 * x;
-    const uintv row = 4 * ((4u << level) - 2u) + 16 * y;
-#define GC(i, j) (GATHER(tree, g + ((i) * gside + (j))) *                                              \
-                  lobe_weight(lb, GATHER(angles, col + 4 * (j)) * GATHER(angles, row + (4 * (i) + 2)),   \
-                              GATHER(angles, row + (4 * (i) + 3)),                                        \
-                              -GATHER(angles, col + (4 * (j) + 1)) * GATHER(angles, row + (4 * (i) + 2)), level + 1))
+    LobeColumn cols[4];
+    realv st[4], ct[4];
+    realv mass[4][4];
+    for (int j = 0; j < 2; ++j) {   /* the grandchildren's four columns and rows: two pairs each */
+        realv sp0, cp0, sp1, cp1;
+        GATHER4(angles, ANGLE_COLUMNS(level + 2, 2 * x + j), &sp0, &cp0, &sp1, &cp1);
+        cols[2 * j] = lobe_column(lb, sp0, cp0);
+        cols[2 * j + 1] = lobe_column(lb, sp1, cp1);
+        GATHER4(angles, ANGLE_ROWS(level + 2, 2 * y + j), &st[2 * j], &ct[2 * j], &st[2 * j + 1], &ct[2 * j + 1]);
+    }
+    for (int j = 0; j < 4; ++j)     /* their masses, by rows */
+        GATHER4(tree, g + j * gside, &mass[j][0], &mass[j][1], &mass[j][2], &mass[j][3]);
+#define GC(i, j) (mass[i][j] * lobe_weight_at(lb, &cols[j], st[i], ct[i], level + 1))
     const realv i0 = (GC(0, 0) + GC(0, 1)) + (GC(1, 0) + GC(1, 1));   /* child 00: rows 0-1, columns 0-1 */
     const realv i1 = (GC(0, 2) + GC(0, 3)) + (GC(1, 2) + GC(1, 3));   /* child 10 */
     const realv i2 = (GC(2, 0) + GC(2, 1)) + (GC(3, 0) + GC(3, 1));   /* child 01 */
@@ -211,7 +256,7 @@ inline void child_importances_ahead(const Lobe *lb, __global const float *angles
 
 /* The importances of the four children of nodes (x, y) at `level` (compile-time after
  * unrolling), look-ahead at the coarse levels. */
-inline void node_importances(const Lobe *lb, __global const float *angles, __global const float *tree,
+INLINE void node_importances(const Lobe *lb, __global const float *angles, __global const float *tree,
                              const realv m0, const realv m1, const realv m2, const realv m3,
                              const uintv x, const uintv y, const int level, const int n_levels,
                              realv *i0, realv *i1, realv *i2, realv *i3)
@@ -223,7 +268,7 @@ inline void node_importances(const Lobe *lb, __global const float *angles, __glo
 }
 
 /* Node index of level `depth` (per lane) containing leaf (x, y) of level n_levels. */
-inline uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, const uintv y)
+INLINE uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, const uintv y)
 {
     const uintv d = as_uintv(depth), shift = (uint)n_levels - d;
     return (((uintv)1 << (2 * d)) - 1) / 3 + (y >> shift) * ((uintv)1 << d) + (x >> shift);
@@ -237,7 +282,7 @@ inline uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, c
  * PRODUCT_LEVELS and selected per lane (the angle table covers those levels, so every
  * load is in bounds). PRODUCT_LEVELS must be at least every lane's depth (the host
  * builds with the largest). */
-inline realv product_walk(__global const float *tree, __global const float *angles, const Lobe *lb,
+INLINE realv product_walk(__global const float *tree, __global const float *angles, const Lobe *lb,
                           realv *ux, realv *uy)
 {
     uintv x = 0, y = 0;
@@ -248,8 +293,9 @@ inline realv product_walk(__global const float *tree, __global const float *angl
     for (int l = 0; l < N_LEVELS; ++l) {
         const uint cside = 2u << l;
         const uintv c = node_index(l + 1, 2 * x, 2 * y);
-        const realv m0 = GATHER(tree, c), m1 = GATHER(tree, c + 1);
-        const realv m2 = GATHER(tree, c + cside), m3 = GATHER(tree, c + cside + 1);
+        realv m0, m1, m2, m3;
+        GATHER2(tree, c, &m0, &m1);
+        GATHER2(tree, c + cside, &m2, &m3);
         realv w0 = m0, w1 = m1, w2 = m2, w3 = m3;
         const intv in_product = l < lb->levels;
         if (l < PRODUCT_LEVELS) {   /* compile-time */
@@ -274,7 +320,7 @@ inline realv product_walk(__global const float *tree, __global const float *angl
 }
 
 /* Density on the square of product_walk at points (u, v), for any directions (MIS). */
-inline realv product_pdf(__global const float *tree, __global const float *angles, const Lobe *lb,
+INLINE realv product_pdf(__global const float *tree, __global const float *angles, const Lobe *lb,
                          const realv u, const realv v)
 {
     const intv depth = min(lb->levels, N_LEVELS);
@@ -287,9 +333,10 @@ inline realv product_pdf(__global const float *tree, __global const float *angle
         const uintv px = cx >> 1, py = cy >> 1;
         const uint cside = 2u << l;
         const uintv c = node_index(l + 1, 2 * px, 2 * py);
-        realv i0, i1, i2, i3;
-        node_importances(lb, angles, tree, GATHER(tree, c), GATHER(tree, c + 1), GATHER(tree, c + cside),
-                         GATHER(tree, c + cside + 1), px, py, l, N_LEVELS, &i0, &i1, &i2, &i3);
+        realv m0, m1, m2, m3, i0, i1, i2, i3;
+        GATHER2(tree, c, &m0, &m1);
+        GATHER2(tree, c + cside, &m2, &m3);
+        node_importances(lb, angles, tree, m0, m1, m2, m3, px, py, l, N_LEVELS, &i0, &i1, &i2, &i3);
         const realv sum = (i0 + i1) + (i2 + i3);
         const intv right = (cx & 1) != 0, bottom = (cy & 1) != 0;
         const realv mine = select(select(i0, i1, right), select(i2, i3, right), bottom);

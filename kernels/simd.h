@@ -14,6 +14,10 @@
 #ifndef WAVLIGHT_SIMD_H
 #define WAVLIGHT_SIMD_H
 
+/* Kernel helpers are forced inline: LLVM in PoCL left the product walk and its importance
+ * functions as calls (Lobe and outputs through memory). */
+#define INLINE inline __attribute__((always_inline))
+
 #ifndef LANES
 #define LANES 8      /* the host passes wavlight.cl.LANES; 16 also works, measured no faster on AVX2 */
 #endif
@@ -43,6 +47,35 @@ typedef SIMD_CAT(uint, LANES) uintv;
 #error "LANES is 8 or 16"
 #endif
 #define GATHER(p, i) GATHER_T(realv, p, i)
+
+/* Two (four) adjacent floats per lane, p[i] .. p[i + 1] (p[i + 3]), into a, b (, c, d):
+ * one 8-byte (16-byte) load per lane instead of two (four) scalar gathers. */
+#if LANES == 8
+#define GATHER2(p, i, a, b)                                                                           \
+    do {                                                                                              \
+        const float2 q0_ = vload2(0, (p) + (i).s0), q1_ = vload2(0, (p) + (i).s1);                     \
+        const float2 q2_ = vload2(0, (p) + (i).s2), q3_ = vload2(0, (p) + (i).s3);                     \
+        const float2 q4_ = vload2(0, (p) + (i).s4), q5_ = vload2(0, (p) + (i).s5);                     \
+        const float2 q6_ = vload2(0, (p) + (i).s6), q7_ = vload2(0, (p) + (i).s7);                     \
+        *(a) = (realv)(q0_.x, q1_.x, q2_.x, q3_.x, q4_.x, q5_.x, q6_.x, q7_.x);                       \
+        *(b) = (realv)(q0_.y, q1_.y, q2_.y, q3_.y, q4_.y, q5_.y, q6_.y, q7_.y);                       \
+    } while (0)
+#define GATHER4(p, i, a, b, c, d)                                                                     \
+    do {                                                                                              \
+        const float4 q0_ = vload4(0, (p) + (i).s0), q1_ = vload4(0, (p) + (i).s1);                     \
+        const float4 q2_ = vload4(0, (p) + (i).s2), q3_ = vload4(0, (p) + (i).s3);                     \
+        const float4 q4_ = vload4(0, (p) + (i).s4), q5_ = vload4(0, (p) + (i).s5);                     \
+        const float4 q6_ = vload4(0, (p) + (i).s6), q7_ = vload4(0, (p) + (i).s7);                     \
+        *(a) = (realv)(q0_.x, q1_.x, q2_.x, q3_.x, q4_.x, q5_.x, q6_.x, q7_.x);                       \
+        *(b) = (realv)(q0_.y, q1_.y, q2_.y, q3_.y, q4_.y, q5_.y, q6_.y, q7_.y);                       \
+        *(c) = (realv)(q0_.z, q1_.z, q2_.z, q3_.z, q4_.z, q5_.z, q6_.z, q7_.z);                       \
+        *(d) = (realv)(q0_.w, q1_.w, q2_.w, q3_.w, q4_.w, q5_.w, q6_.w, q7_.w);                       \
+    } while (0)
+#else
+#define GATHER2(p, i, a, b) do { *(a) = GATHER(p, i); *(b) = GATHER(p, (i) + 1); } while (0)
+#define GATHER4(p, i, a, b, c, d) \
+    do { *(a) = GATHER(p, i); *(b) = GATHER(p, (i) + 1); *(c) = GATHER(p, (i) + 2); *(d) = GATHER(p, (i) + 3); } while (0)
+#endif
 #define GATHER_INT(p, i) GATHER_T(intv, p, i)
 
 /* The point indices of this work-item's lanes, clamped to count - 1 (for loads). */

@@ -17,20 +17,20 @@
 #include "simd.h"
 
 /* Index of nodes (x, y) of `level` in a tree (common.h layout), per lane. */
-inline uintv node_index(const int level, const uintv x, const uintv y)
+INLINE uintv node_index(const int level, const uintv x, const uintv y)
 {
     return (uint)LEVEL_OFFSET(level) + y * (1u << level) + x;
 }
 
 /* Column (or row) of the leaf of a 2^n grid holding coordinate u of the square, per lane. */
-inline uintv leaf_of(const realv u, const int n_levels)
+INLINE uintv leaf_of(const realv u, const int n_levels)
 {
     return as_uintv(clamp(convert_intv(floor(u * (float)(1u << n_levels))), 0, (1 << n_levels) - 1));
 }
 
 /* Density on the unit square of the walk (eq. 19-20) at points (u, v), per lane in the
  * tree at tree_base: m_leaf / m_root * 4^n. */
-inline realv tree_pdf(__global const float *tree, const uintv tree_base, const int n_levels,
+INLINE realv tree_pdf(__global const float *tree, const uintv tree_base, const int n_levels,
                       const realv u, const realv v)
 {
     const float side = (float)(1u << n_levels);
@@ -49,7 +49,7 @@ inline realv tree_pdf(__global const float *tree, const uintv tree_base, const i
  * child of zero mass is never picked (u * sum rounding up to a denormal mass could
  * otherwise pick it: right is compared by its bits, right >= +0). u past 1 - eps (or
  * NaN, a zero-mass pair) is clamped to 1 - eps. */
-inline realv choose_child(const realv m00, const realv m10, const realv m01, const realv m11,
+INLINE realv choose_child(const realv m00, const realv m10, const realv m01, const realv m11,
                            realv *ux, realv *uy, uintv *px, uintv *py)
 {
 #pragma OPENCL FP_CONTRACT OFF
@@ -69,7 +69,7 @@ inline realv choose_child(const realv m00, const realv m10, const realv m01, con
 }
 
 /* u in [0, 1) clamped to the largest float below 1 (NaN -> 0), per lane. */
-inline realv clamp_unit(const realv u)
+INLINE realv clamp_unit(const realv u)
 {
     return select((realv)0.0f, select((realv)ONE_MINUS_EPS, u, u < ONE_MINUS_EPS), u > 0.0f);
 }
@@ -78,7 +78,7 @@ inline realv clamp_unit(const realv u)
  * The offsets are first clamped to 1 - 2^(n - 23): then x + u rounds below x + 1 for
  * every x < 2^n, so each point stays inside its leaf. (x compares the bits, y the
  * floats, as numpy's twin distributions.leaf_point does.) */
-inline void leaf_point(const uintv x, const uintv y, const int n_levels, realv *ux, realv *uy)
+INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *ux, realv *uy)
 {
     const float inv = 1.0f / (float)(1u << n_levels);
     const float top = 1.0f - 0x1p-23f * (float)(1u << n_levels);
@@ -94,7 +94,7 @@ inline void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
  * CPU (12.3 -> 48.9 M samples/s at 1024^2), where PoCL does not vectorise the scalar
  * walk itself. */
 #ifdef N_LEVELS
-inline realv tree_walk(__global const float *tree, const uintv tree_base, realv *ux, realv *uy)
+INLINE realv tree_walk(__global const float *tree, const uintv tree_base, realv *ux, realv *uy)
 {
     uintv x = 0, y = 0;
     *ux = clamp_unit(*ux);
@@ -103,8 +103,10 @@ inline realv tree_walk(__global const float *tree, const uintv tree_base, realv 
     for (int l = 0; l < N_LEVELS; ++l) {
         const uint cside = 2u << l;
         const uintv c = tree_base + node_index(l + 1, 2 * x, 2 * y);
-        choose_child(GATHER(tree, c), GATHER(tree, c + 1), GATHER(tree, c + cside), GATHER(tree, c + cside + 1),
-                      ux, uy, &x, &y);
+        realv m0, m1, m2, m3;
+        GATHER2(tree, c, &m0, &m1);
+        GATHER2(tree, c + cside, &m2, &m3);
+        choose_child(m0, m1, m2, m3, ux, uy, &x, &y);
     }
     const float side = (float)(1u << N_LEVELS);
     const realv root = GATHER(tree, tree_base);

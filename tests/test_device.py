@@ -24,7 +24,7 @@ def test_local_includes_are_spliced_once():
     src = cl.kernel_source("shade.cl")
     assert '#include "' not in src
     # warp.h is included by shade.cl directly and through product.h: its body appears once
-    assert src.count("inline realv choose_child(") == 1
+    assert src.count("INLINE realv choose_child(") == 1
 
 
 def test_device_env_var_selects_and_rejects(tmp_path):

@@ -781,10 +781,11 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
 
 
 def test_node_angle_table_layout_and_size():
-    """node_angles: for lat-long level L = 1..P + 1, at offset 4 (2^L - 2), entry i holds
-    sin and cos of phi_i = 2 pi (i + 0.5) / 2^L and of theta_i = pi (i + 0.5) / 2^L, from which
-    kernels/product.h builds the centre direction of cell (x, y) of level L;
-    node_angles_bytes reports its size without building it."""
+    """node_angles: for lat-long level L = 1..P + 1, at offset 4 (2^L - 2), column pair records
+    (sin, cos of phi_2x and of phi_2x+1, phi_i = 2 pi (i + 0.5) / 2^L), then from 2^(L+1) on
+    row pair records (the same for theta_i = pi (i + 0.5) / 2^L), from which kernels/product.h
+    builds the centre direction of cell (x, y) of level L; node_angles_bytes reports its
+    size without building it."""
     for levels in range(0, 8):
         table = product.node_angles(levels)
         assert table.dtype == np.float32 and table.nbytes == product.node_angles_bytes(levels)
@@ -792,9 +793,9 @@ def test_node_angle_table_layout_and_size():
         for L in range(1, levels + 2):
             side = 1 << L
             for x, y in ((0, 0), (side - 1, 0), (side // 2, side - 1)):
-                col = table[4 * (side - 2) + 4 * x:][:4]
-                row = table[4 * (side - 2) + 4 * y:][:4]
-                d = [col[0] * row[2], row[3], -col[1] * row[2]]   # as child_importances builds it
+                col = table[4 * (side - 2) + 4 * (x // 2) + 2 * (x % 2):][:2]              # ANGLE_COLUMNS
+                row = table[4 * (side - 2) + 2 * side + 4 * (y // 2) + 2 * (y % 2):][:2]   # ANGLE_ROWS
+                d = [col[0] * row[0], row[1], -col[1] * row[0]]   # as child_importances builds it
                 u, v = (x + 0.5) / side, (y + 0.5) / side
                 want = [np.sin(2 * np.pi * u) * np.sin(np.pi * v), np.cos(np.pi * v),
                         -np.cos(2 * np.pi * u) * np.sin(np.pi * v)]

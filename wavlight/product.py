@@ -50,17 +50,21 @@ def node_angles(levels: int) -> np.ndarray:
     Node (x, y) of lat-long level L has the centre direction
     (sin phi_x sin theta_y, cos theta_y, -cos phi_x sin theta_y) with
     phi_x = 2 pi (x + 0.5) / 2^L and theta_y = pi (y + 0.5) / 2^L, so a level needs only
-    its 2^L columns and 2^L rows: for L = 1..levels + 1 (the look-ahead at level l reads
-    level l + 2), at offset 4 (2^L - 2), entry i holds (sin phi_i, cos phi_i,
-    sin theta_i, cos theta_i). A few KB at any depth, so it stays in the L1 cache (a
-    table of every node's direction measured slower).
+    its 2^L columns and 2^L rows. A node's children are two columns and two rows of the
+    next level, so those are stored in pairs, one 16-byte record (one load per lane in
+    the kernel): for L = 1..levels + 1 (the look-ahead at level l reads level l + 2), at
+    offset 4 (2^L - 2), first 2^(L-1) column records (sin phi_2x, cos phi_2x,
+    sin phi_2x+1, cos phi_2x+1), then 2^(L-1) row records (the same for theta_2y,
+    theta_2y+1). A few KB at any depth, so it stays in the L1 cache (a table of every
+    node's direction measured slower).
     """
-    out = [np.zeros((1, 4))]
+    out = [np.zeros(0)]
     for L in range(1, levels + 2):
         i = np.arange(1 << L) + 0.5
         phi, theta = 2 * np.pi * i / (1 << L), np.pi * i / (1 << L)
-        out.append(np.stack([np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)], 1))
-    return np.concatenate(out[1:]).astype(np.float32).ravel()
+        out.append(np.stack([np.sin(phi), np.cos(phi)], 1).ravel())     # pairs: sin, cos of 2x then 2x + 1
+        out.append(np.stack([np.sin(theta), np.cos(theta)], 1).ravel())
+    return np.concatenate(out).astype(np.float32)
 
 
 def node_angles_bytes(levels: int) -> int:
