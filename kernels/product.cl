@@ -24,10 +24,11 @@ __kernel void product_sample_points(__global const float *tree, __global const f
     if (base >= count) return;
     const uintv i = LANE_INDEX(count);
     const intv m = GATHER_INT(material, i);
-    const Lobe lb = make_lobe(rot, GATHER(normal, 4 * i), GATHER(normal, 4 * i + 1), GATHER(normal, 4 * i + 2),
-                              GATHER(wo_world, 4 * i), GATHER(wo_world, 4 * i + 1), GATHER(wo_world, 4 * i + 2),
-                              GATHER(mat_kappa, m), GATHER_INT(mat_levels, m));
-    realv ux = GATHER(u_in, i * u_stride), uy = GATHER(u_in, i * u_stride + 1);
+    realv nx, ny, nz, ex, ey, ez, ux, uy;
+    GATHER3(normal, 4 * i, &nx, &ny, &nz);
+    GATHER3(wo_world, 4 * i, &ex, &ey, &ez);
+    GATHER2(u_in, i * u_stride, &ux, &uy);
+    const Lobe lb = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, m), GATHER_INT(mat_levels, m));
     const realv pdf = product_walk(tree, angles, &lb, &ux, &uy);
     STORE_LANES(ux, uv_out, base, count);          /* u and v planes (see warp.cl) */
     STORE_LANES(uy, uv_out + count, base, count);

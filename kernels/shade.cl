@@ -160,15 +160,18 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     env_world_to_square(rot, bx, by, bz, &ub, &vb);
     const uintv ka = 4 * env_texel(env_w, env_h, ua, va), kb = 4 * env_texel(env_w, env_h, ub, vb);
     const uintv am = as_uintv(4 * mat);
-    const realv ar = GATHER(mat_albedo, am), ag = GATHER(mat_albedo, am + 1), ab = GATHER(mat_albedo, am + 2);
+    realv ar, ag, ab, unused, ta_r, ta_g, ta_b, tb_r, tb_g, tb_b;
+    GATHER4(mat_albedo, am, &ar, &ag, &ab, &unused);
+    GATHER4(texels, ka, &ta_r, &ta_g, &ta_b, &unused);
+    GATHER4(texels, kb, &tb_r, &tb_g, &tb_b, &unused);
     Shaded s;
     s.ax = ax; s.ay = ay; s.az = az; s.bx = bx; s.by = by; s.bz = bz;
-    s.ra = sa * ar * GATHER(texels, ka);
-    s.ga = sa * ag * GATHER(texels, ka + 1);
-    s.ba = sa * ab * GATHER(texels, ka + 2);
-    s.rb = sb * ar * GATHER(texels, kb);
-    s.gb = sb * ag * GATHER(texels, kb + 1);
-    s.bb = sb * ab * GATHER(texels, kb + 2);
+    s.ra = sa * ar * ta_r;
+    s.ga = sa * ag * ta_g;
+    s.ba = sa * ab * ta_b;
+    s.rb = sb * ar * tb_r;
+    s.gb = sb * ag * tb_g;
+    s.bb = sb * ab * tb_b;
     return s;
 }
 
@@ -193,10 +196,11 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     const uint base = LANE_BASE();
     if (base >= count) return;
     const uintv i = LANE_INDEX(count);
-    const Shaded s = shade_lanes(SHADE_TABLES, GATHER(normal, 3 * i), GATHER(normal, 3 * i + 1),
-                                 GATHER(normal, 3 * i + 2), GATHER(wo_world, 3 * i), GATHER(wo_world, 3 * i + 1),
-                                 GATHER(wo_world, 3 * i + 2), GATHER_INT(material, i), GATHER(u_in, 4 * i),
-                                 GATHER(u_in, 4 * i + 1), GATHER(u_in, 4 * i + 2), GATHER(u_in, 4 * i + 3),
+    realv nx, ny, nz, ex, ey, ez, u0, u1, u2, u3;
+    GATHER3(normal, 3 * i, &nx, &ny, &nz);
+    GATHER3(wo_world, 3 * i, &ex, &ey, &ez);
+    GATHER4(u_in, 4 * i, &u0, &u1, &u2, &u3);
+    const Shaded s = shade_lanes(SHADE_TABLES, nx, ny, nz, ex, ey, ez, GATHER_INT(material, i), u0, u1, u2, u3,
                                  (intv)-1);
     STORE_LANES(s.ax, wi_out, base, count);
     STORE_LANES(s.ay, wi_out + count, base, count);
@@ -244,15 +248,18 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
     const uintv i = LANE_INDEX(count);
     const intv face = GATHER_INT(prim, i);
     const intv hit = face >= 0;
-    const realv dx = GATHER(dirs, 3 * i), dy = GATHER(dirs, 3 * i + 1), dz = GATHER(dirs, 3 * i + 2);
+    realv dx, dy, dz;
+    GATHER3(dirs, 3 * i, &dx, &dy, &dz);
     realv er = 0.0f, eg = 0.0f, eb = 0.0f;
     if (!all(hit)) {
         realv u, v;
         env_world_to_square(rot, dx, dy, dz, &u, &v);
         const uintv k = 4 * env_texel(env_w, env_h, u, v);
-        er = select(GATHER(texels, k), 0.0f, hit);
-        eg = select(GATHER(texels, k + 1), 0.0f, hit);
-        eb = select(GATHER(texels, k + 2), 0.0f, hit);
+        realv r, g, b, unused;
+        GATHER4(texels, k, &r, &g, &b, &unused);
+        er = select(r, 0.0f, hit);
+        eg = select(g, 0.0f, hit);
+        eb = select(b, 0.0f, hit);
     }
     STORE_LANES(er, direct_out, base, count);
     STORE_LANES(eg, direct_out + count, base, count);
@@ -260,7 +267,8 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
     Shaded s;
     if (any(hit)) {
         const uintv f = as_uintv(max(face, 0));
-        realv nx = GATHER(face_normal, 3 * f), ny = GATHER(face_normal, 3 * f + 1), nz = GATHER(face_normal, 3 * f + 2);
+        realv nx, ny, nz;
+        GATHER3(face_normal, 3 * f, &nx, &ny, &nz);
         const realv flip = select((realv)1.0f, (realv)-1.0f, nx * dx + ny * dy + nz * dz > 0.0f);
         nx *= flip;
         ny *= flip;
@@ -272,10 +280,7 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
         if (draw_u) {
             rng_uniforms(rng_first + LANE_IDS + base, rng_tile, RNG_SHADING, rng_k0, rng_k1, &u0, &u1, &u2, &u3);
         } else {
-            u0 = GATHER(u_in, 4 * i);
-            u1 = GATHER(u_in, 4 * i + 1);
-            u2 = GATHER(u_in, 4 * i + 2);
-            u3 = GATHER(u_in, 4 * i + 3);
+            GATHER4(u_in, 4 * i, &u0, &u1, &u2, &u3);
         }
         s = shade_lanes(SHADE_TABLES, nx, ny, nz, -dx, -dy, -dz, GATHER_INT(face_material, f), u0, u1, u2, u3,
                         hit);

@@ -48,8 +48,9 @@ typedef SIMD_CAT(uint, LANES) uintv;
 #endif
 #define GATHER(p, i) GATHER_T(realv, p, i)
 
-/* Two (four) adjacent floats per lane, p[i] .. p[i + 1] (p[i + 3]), into a, b (, c, d):
- * one 8-byte (16-byte) load per lane instead of two (four) scalar gathers. */
+/* Two (three, four) adjacent floats per lane, p[i] .. p[i + 1] (p[i + 2], p[i + 3]), into
+ * a, b (, c, d): one 8-byte (12-, 16-byte) load per lane instead of two (three, four)
+ * scalar gathers. */
 #if LANES == 8
 #define GATHER2(p, i, a, b)                                                                           \
     do {                                                                                              \
@@ -59,6 +60,16 @@ typedef SIMD_CAT(uint, LANES) uintv;
         const float2 q6_ = vload2(0, (p) + (i).s6), q7_ = vload2(0, (p) + (i).s7);                     \
         *(a) = (realv)(q0_.x, q1_.x, q2_.x, q3_.x, q4_.x, q5_.x, q6_.x, q7_.x);                       \
         *(b) = (realv)(q0_.y, q1_.y, q2_.y, q3_.y, q4_.y, q5_.y, q6_.y, q7_.y);                       \
+    } while (0)
+#define GATHER3(p, i, a, b, c)                                                                        \
+    do {                                                                                              \
+        const float3 q0_ = vload3(0, (p) + (i).s0), q1_ = vload3(0, (p) + (i).s1);                     \
+        const float3 q2_ = vload3(0, (p) + (i).s2), q3_ = vload3(0, (p) + (i).s3);                     \
+        const float3 q4_ = vload3(0, (p) + (i).s4), q5_ = vload3(0, (p) + (i).s5);                     \
+        const float3 q6_ = vload3(0, (p) + (i).s6), q7_ = vload3(0, (p) + (i).s7);                     \
+        *(a) = (realv)(q0_.x, q1_.x, q2_.x, q3_.x, q4_.x, q5_.x, q6_.x, q7_.x);                       \
+        *(b) = (realv)(q0_.y, q1_.y, q2_.y, q3_.y, q4_.y, q5_.y, q6_.y, q7_.y);                       \
+        *(c) = (realv)(q0_.z, q1_.z, q2_.z, q3_.z, q4_.z, q5_.z, q6_.z, q7_.z);                       \
     } while (0)
 #define GATHER4(p, i, a, b, c, d)                                                                     \
     do {                                                                                              \
@@ -73,6 +84,7 @@ typedef SIMD_CAT(uint, LANES) uintv;
     } while (0)
 #else
 #define GATHER2(p, i, a, b) do { *(a) = GATHER(p, i); *(b) = GATHER(p, (i) + 1); } while (0)
+#define GATHER3(p, i, a, b, c) do { GATHER2(p, i, a, b); *(c) = GATHER(p, (i) + 2); } while (0)
 #define GATHER4(p, i, a, b, c, d) \
     do { *(a) = GATHER(p, i); *(b) = GATHER(p, (i) + 1); *(c) = GATHER(p, (i) + 2); *(d) = GATHER(p, (i) + 3); } while (0)
 #endif

@@ -23,7 +23,8 @@ __kernel void warp_sample(__global const float *tree, const ulong tree_stride, c
 #else
     const uintv tree_base = 0;
 #endif
-    realv ux = GATHER(u_in, i * u_stride), uy = GATHER(u_in, i * u_stride + 1);
+    realv ux, uy;
+    GATHER2(u_in, i * u_stride, &ux, &uy);
     const realv pdf = tree_walk(tree, tree_base, &ux, &uy);
     STORE_LANES(ux, uv_out, base, count);
     STORE_LANES(uy, uv_out + count, base, count);
