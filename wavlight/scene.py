@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import bsdfs
+from . import bsdfs, meshes
 from .envmap import Environment, procedural_sky, read_image
 from .errors import SceneError, WavlightError
 from .sampler import SAMPLERS
@@ -193,10 +193,28 @@ def quad_axes(normal):
     return n, t1, np.cross(n, t1)
 
 
+def _load_mesh(t: _Table, path: str):
+    """(vertices, faces) of a mesh file: PLY triangle meshes by :func:`meshes.read_ply`,
+    everything else (OBJ, other PLY) by trimesh, imported only then."""
+    try:
+        if path.lower().endswith(".ply"):
+            mesh = meshes.read_ply(path)
+            if mesh is not None:
+                return mesh
+        import trimesh
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            mesh = trimesh.load(path, force="mesh")
+    except Exception as e:  # trimesh raises many types for bad files
+        t.fail("mesh", f"cannot load {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
+    if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
+        t.fail("mesh", f"{path} holds no triangles")
+    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+
+
 def _shape(t: _Table, base_dir):
     """(vertices, faces) of one object before its transform."""
-    import trimesh
-
     if t.has("mesh") and t.has("shape"):
         t.fail("shape", "give either mesh or shape, not both")
     if t.has("mesh"):
@@ -204,22 +222,17 @@ def _shape(t: _Table, base_dir):
         path = os.path.join(base_dir, rel)
         if not os.path.isfile(path):
             t.fail("mesh", f"no such file: {path}")
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                mesh = trimesh.load(path, force="mesh")
-        except Exception as e:  # trimesh raises many types for bad files
-            t.fail("mesh", f"cannot load {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
-        if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
+        v, f = _load_mesh(t, path)
+        if len(f) == 0:
             t.fail("mesh", f"{path} holds no triangles")
-        return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+        return v, f
     kind = t.get("shape", "str", required=True)
     if kind == "sphere":
         center = t.get("center", "vec3", np.zeros(3))
         radius = _positive(t, "radius", t.get("radius", "float", 1.0), lo=1e-9)
         sub = _positive(t, "subdivisions", t.get("subdivisions", "int", 5), lo=0, hi=8)
-        ico = trimesh.creation.icosphere(subdivisions=sub, radius=radius)
-        return np.asarray(ico.vertices) + center, np.asarray(ico.faces, np.int64)
+        v, f = meshes.icosphere(sub, radius)
+        return v + center, f
     if kind == "quad":
         center = t.get("center", "vec3", np.zeros(3))
         normal = t.get("normal", "vec3", np.array([0.0, 1.0, 0.0]))
