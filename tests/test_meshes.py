@@ -1,5 +1,4 @@
 """wavlight/meshes.py: the PLY reader against trimesh, its fallback, and the icosphere."""
-import os
 from pathlib import Path
 
 import numpy as np

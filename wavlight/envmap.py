@@ -104,6 +104,21 @@ def rotation_y(degrees: float) -> np.ndarray:
     return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
 
 
+def _band_overlaps(leaf_edges, texel_edges, antiderivative):
+    """For each leaf interval [leaf_edges[i], leaf_edges[i + 1]): the texel intervals it overlaps,
+    as indices (L, B) and measures F(hi) - F(lo) of the overlaps (L, B), zero past the last one
+    (B = the most texels any leaf overlaps; the bands of a matrix product)."""
+    n_tex = len(texel_edges) - 1
+    first = np.clip(np.searchsorted(texel_edges, leaf_edges[:-1], side="right") - 1, 0, n_tex - 1)
+    last = np.clip(np.searchsorted(texel_edges, leaf_edges[1:], side="left") - 1, first, n_tex - 1)
+    band = first[:, None] + np.arange(int((last - first).max()) + 1)
+    idx = np.minimum(band, n_tex - 1)
+    lo = np.maximum(leaf_edges[:-1, None], texel_edges[idx])
+    hi = np.minimum(leaf_edges[1:, None], texel_edges[idx + 1])
+    inside = (band <= last[:, None]) & (hi > lo)
+    return idx, np.where(inside, antiderivative(hi) - antiderivative(lo), 0.0)
+
+
 class Environment:
     """An equirectangular environment map with scale and rotate_y.
 
@@ -166,8 +181,9 @@ class Environment:
         p_img = p.reshape(side, side)
         for n in range(2, top):
             k = 1 << (top - n)
-            coarse = p_img.reshape(1 << n, k, 1 << n, k).sum(axis=(1, 3)) / (k * k)
-            tv = 0.5 * float(np.abs(p_img - np.repeat(np.repeat(coarse, k, 0), k, 1)).sum())
+            blocks = p_img.reshape(1 << n, k, 1 << n, k)
+            coarse = blocks.sum(axis=(1, 3)) / (k * k)
+            tv = 0.5 * float(np.abs(blocks - coarse[:, None, :, None]).sum())
             if tv <= tolerance:
                 return n, tv
         return top, 0.0
@@ -182,18 +198,15 @@ class Environment:
         n = self.square_levels() if n_levels is None else n_levels
         side = 1 << n
         lum = (self._flat @ LUMINANCE).reshape(self.height, self.width).astype(np.float64)
-        # rows: solid-angle overlap of leaf row i with texel row r, in cos(theta)
-        leaf_t = np.arange(side + 1) / side * np.pi
-        tex_t = np.arange(self.height + 1) / self.height * np.pi
-        lo = np.maximum(leaf_t[:-1, None], tex_t[None, :-1])
-        hi = np.minimum(leaf_t[1:, None], tex_t[None, 1:])
-        rows = np.where(hi > lo, np.cos(lo) - np.cos(hi), 0.0)                    # (side, H)
-        # columns: overlap of leaf column j with texel column c, in phi
-        leaf_p = np.arange(side + 1) / side * 2 * np.pi
-        tex_p = np.arange(self.width + 1) / self.width * 2 * np.pi
-        cols = np.clip(np.minimum(leaf_p[None, 1:], tex_p[1:, None])
-                       - np.maximum(leaf_p[None, :-1], tex_p[:-1, None]), 0.0, None)  # (W, side)
-        return rows @ lum @ cols
+        # rows: solid-angle overlap of leaf row i with texel row r, in cos(theta); columns: in phi.
+        # Each leaf overlaps a band of a few texels, so the products rows @ lum @ cols run over
+        # the bands only (the dense products took 70 ms per call at 1024^2).
+        ri, rw = _band_overlaps(np.arange(side + 1) / side * np.pi, np.arange(self.height + 1) / self.height * np.pi,
+                                lambda x: -np.cos(x))
+        ci, cw = _band_overlaps(np.arange(side + 1) / side * 2 * np.pi,
+                                np.arange(self.width + 1) / self.width * 2 * np.pi, lambda x: x)
+        by_rows = sum(rw[:, b, None] * np.take(lum, ri[:, b], axis=0) for b in range(ri.shape[1]))     # (side, W)
+        return sum(np.take(by_rows, ci[:, b], axis=1) * cw[None, :, b] for b in range(ci.shape[1]))  # (side, side)
 
     def square_to_world(self, uv: np.ndarray) -> np.ndarray:
         """Square points (N, 2) -> world directions (N, 3): phi = 2 pi u, theta = pi v, then rotate_y."""

@@ -1,0 +1,49 @@
+"""Environment.luminance_square: the light tree's leaf masses, the exact integral of
+luminance over each leaf's solid angle, computed over the overlap bands only."""
+import numpy as np
+import pytest
+
+from wavlight.envmap import LUMINANCE, Environment
+
+
+def _dense(env, n):
+    """The same integral as dense matrices: rows (leaf x texel overlap in cos theta) @ luminance
+    @ columns (texel x leaf overlap in phi)."""
+    side = 1 << n
+    lum = (env.pixels.reshape(-1, 3) @ LUMINANCE).astype(np.float64).reshape(env.height, env.width)  # as wavlight: float32 luminance
+    lt, tt = np.arange(side + 1) / side * np.pi, np.arange(env.height + 1) / env.height * np.pi
+    lo, hi = np.maximum(lt[:-1, None], tt[None, :-1]), np.minimum(lt[1:, None], tt[None, 1:])
+    rows = np.where(hi > lo, np.cos(lo) - np.cos(hi), 0.0)
+    lp, tp = np.arange(side + 1) / side * 2 * np.pi, np.arange(env.width + 1) / env.width * 2 * np.pi
+    cols = np.clip(np.minimum(lp[None, 1:], tp[1:, None]) - np.maximum(lp[None, :-1], tp[:-1, None]), 0, None)
+    return rows @ lum @ cols
+
+
+@pytest.mark.parametrize("shape", [(8, 16), (37, 50), (300, 700)])
+@pytest.mark.parametrize("n", [1, 3, 6, 9])
+def test_banded_equals_dense(shape, n):
+    rng = np.random.default_rng(n)
+    env = Environment((rng.random(shape + (3,)) ** 6 * 50).astype(np.float32))
+    got, ref = env.luminance_square(n), _dense(env, n)
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-14 * ref.max())
+
+
+def test_leaf_masses_by_quadrature():
+    """Independent of both: midpoint quadrature in (phi, cos theta) over each leaf, 64 x 64 nodes,
+    luminance of the texel under each node (exact but for nodes in cells cut by texel edges)."""
+    rng = np.random.default_rng(2)
+    env = Environment(rng.random((6, 10, 3)).astype(np.float32))
+    n, q = 3, 64
+    side = 1 << n
+    lum = (env.pixels.reshape(-1, 3) @ LUMINANCE).astype(np.float64).reshape(6, 10)
+    got = env.luminance_square(n)
+    for y in range(side):
+        z_hi, z_lo = np.cos(np.pi * y / side), np.cos(np.pi * (y + 1) / side)
+        z = z_lo + (np.arange(q) + 0.5) / q * (z_hi - z_lo)
+        rows = np.minimum((np.arccos(z) / np.pi * 6).astype(int), 5)
+        for x in range(side):
+            phi = 2 * np.pi * (x + (np.arange(q) + 0.5) / q) / side
+            cols = np.minimum((phi / (2 * np.pi) * 10).astype(int), 9)
+            quad = lum[rows[:, None], cols[None, :]].mean() * (z_hi - z_lo) * 2 * np.pi / side
+            assert got[y, x] == pytest.approx(quad, rel=0.05)
+    assert got.sum() == pytest.approx((_dense(env, 0)).sum(), rel=1e-12)
