@@ -1,0 +1,118 @@
+"""Interleaved A/B of the sample-generation kernels against an earlier commit.
+
+Builds `warp.cl` (light walk) and `product.cl` (product walk) from the kernel sources
+of --against (read with `git show`, so run it in a checkout) and from this checkout,
+and times both on the same 2^21 random shading points and light tree, alternating
+launch by launch and keeping each kernel's best time: on a shared VM whose speed
+drifts by 20-40% between runs, sequential before/after runs cannot resolve a 15%
+change, alternating launches can. The angle table of the earlier build comes from
+that commit's `wavlight/product.py` (its `node_angles`). Needs kernels with the same
+arguments in both commits (true from 3291f7c on). Prints one JSON object.
+
+    python benchmarks/kernel_ab.py --against 3291f7c [--levels 10] [--repeat 12]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def git_show(commit, path):
+    return subprocess.run(["git", "-C", HERE, "show", f"{commit}:{path}"], capture_output=True, text=True,
+                          check=True).stdout
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--against", required=True)
+    ap.add_argument("--levels", type=int, default=10)
+    ap.add_argument("--repeat", type=int, default=12)
+    ap.add_argument("--env", default=os.path.join(HERE, "..", "..", "shared", "data", "envmaps",
+                                                  "rooitou_park_1k.hdr"))
+    args = ap.parse_args()
+
+    import pyopencl as pcl
+
+    from wavlight import bsdfs, cl, product
+    from wavlight.distributions import HaarTree
+    from wavlight.envmap import Environment, read_image
+
+    old_py = git_show(args.against, "wavlight/product.py")
+    ns = {"np": np}
+    exec(old_py[old_py.index("def node_angles(levels: int)"):old_py.index("def node_angles_bytes")], ns)
+    old_angles = ns["node_angles"]
+
+    def old_program(name, **defines):
+        def load(fname, seen):
+            if fname in seen:
+                return ""
+            seen.add(fname)
+            return re.sub(r'^\s*#include\s+"([^"]+)"\s*$', lambda m: load(m.group(1), seen),
+                          git_show(args.against, f"kernels/{fname}"), flags=re.M)
+        opts = [f"-D{k}={v}" for k, v in sorted(defines.items())] + [f"-DLANES={cl.LANES}"]
+        return pcl.Program(cl.runtime().context, load(name, set())).build(options=opts)
+
+    env = Environment(read_image(args.env))
+    q = cl.thread_queue()
+    n = 1 << 21
+    items = cl.items(n, cl.LANES)
+    rng = np.random.default_rng(1)
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    wo = rng.normal(size=(n, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wo *= np.sign(np.einsum("ij,ij->i", wo, nrm))[:, None]
+    n4, wo4 = np.zeros((n, 4), np.float32), np.zeros((n, 4), np.float32)
+    n4[:, :3], wo4[:, :3] = nrm, wo
+    u = rng.random((n, 2), dtype=np.float32)
+    rot = cl.to_device(env.map_from_world.astype(np.float32).ravel())
+    u_buf, n_buf, wo_buf, mat_buf = cl.to_device(u), cl.to_device(n4), cl.to_device(wo4), cl.to_device(np.zeros(n, np.int32))
+    uv_buf, pdf_buf = cl.empty(8 * n), cl.empty(4 * n)
+    tree = HaarTree(env.luminance_square(args.levels))
+    materials = {"lambert": (bsdfs.LAMBERT, 0.0), "ggx0.2": (bsdfs.GGX, 0.2), "ggx0.05": (bsdfs.GGX, 0.05),
+                 "phong200": (bsdfs.PHONG, 200.0)}
+    runs = {}
+    for ver in ("before", "now"):
+        prog = old_program if ver == "before" else cl.program
+        angles_fn = old_angles if ver == "before" else product.node_angles
+        w = pcl.Kernel(prog("warp.cl", N_LEVELS=args.levels, BATCHED=0), "warp_sample")
+        runs[("light", ver)] = lambda w=w: w(q, (items,), (cl.WORK_GROUP,), tree.buffer, np.uint64(tree.stride),
+                                             np.uint32(n), np.uint32(n), u_buf, np.uint32(2), uv_buf, pdf_buf)
+        for name, (kind, param) in materials.items():
+            kappa = product.lobe_kappa(kind, param)
+            depth = product.product_levels(kappa, args.levels)
+            shape = product.lobe_shape(kind, param)
+            k = pcl.Kernel(prog("product.cl", N_LEVELS=args.levels, PRODUCT_LEVELS=depth, LOBE_SHAPES=1 << shape),
+                           "product_sample_points")
+            kargs = (tree.buffer, rot, np.uint32(n), n_buf, wo_buf, mat_buf, cl.to_device(np.array([kappa], np.float32)),
+                     cl.to_device(np.array([depth + 256 * shape], np.int32)), u_buf, np.uint32(2),
+                     cl.to_device(angles_fn(depth)), uv_buf, pdf_buf)
+            runs[(name, ver)] = lambda k=k, kargs=kargs: k(q, (items,), (cl.WORK_GROUP,), *kargs)
+    for f in runs.values():   # compile and warm up
+        f()
+        q.finish()
+    best = {}
+    for _ in range(args.repeat):
+        for key, f in runs.items():
+            t = time.perf_counter()
+            f()
+            q.finish()
+            best[key] = min(best.get(key, 9.0), time.perf_counter() - t)
+    out = {"against": args.against, "levels": args.levels, "count": n, "repeat": args.repeat,
+           "device": cl.runtime().description,
+           "M_samples_per_second": {name: {"before": round(n / best[(name, "before")] / 1e6, 1),
+                                           "now": round(n / best[(name, "now")] / 1e6, 1)}
+                                    for name in ["light", *materials]}}
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
