@@ -22,6 +22,8 @@ import time
 
 import numpy as np
 
+from sample_bench import benchmark_materials, random_shading_points  # (benchmarks/ is on the path)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
@@ -41,7 +43,7 @@ def main():
 
     import pyopencl as pcl
 
-    from wavlight import bsdfs, cl, product
+    from wavlight import cl, product
     from wavlight.distributions import HaarTree
     from wavlight.envmap import Environment, read_image
 
@@ -64,21 +66,12 @@ def main():
     q = cl.thread_queue()
     n = 1 << 21
     items = cl.items(n, cl.LANES)
-    rng = np.random.default_rng(1)
-    nrm = rng.normal(size=(n, 3))
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    wo = rng.normal(size=(n, 3))
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    wo *= np.sign(np.einsum("ij,ij->i", wo, nrm))[:, None]
-    n4, wo4 = np.zeros((n, 4), np.float32), np.zeros((n, 4), np.float32)
-    n4[:, :3], wo4[:, :3] = nrm, wo
-    u = rng.random((n, 2), dtype=np.float32)
+    n4, wo4, u = random_shading_points(np.random.default_rng(1), n)
     rot = cl.to_device(env.map_from_world.astype(np.float32).ravel())
     u_buf, n_buf, wo_buf, mat_buf = cl.to_device(u), cl.to_device(n4), cl.to_device(wo4), cl.to_device(np.zeros(n, np.int32))
     uv_buf, pdf_buf = cl.empty(8 * n), cl.empty(4 * n)
     tree = HaarTree(env.luminance_square(args.levels))
-    materials = {"lambert": (bsdfs.LAMBERT, 0.0), "ggx0.2": (bsdfs.GGX, 0.2), "ggx0.05": (bsdfs.GGX, 0.05),
-                 "phong200": (bsdfs.PHONG, 200.0)}
+    materials = benchmark_materials()
     runs = {}
     for ver in ("before", "now"):
         prog = old_program if ver == "before" else cl.program

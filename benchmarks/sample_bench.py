@@ -24,6 +24,28 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
+def random_shading_points(rng, n):
+    """n shading points with random normals and view directions (the least coherent case):
+    normals and directions to the viewer as float4 rows (the product kernel's layout), and
+    one uniform pair each; float32."""
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    wo = rng.normal(size=(n, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wo *= np.sign(np.einsum("ij,ij->i", wo, nrm))[:, None]
+    n4, wo4 = np.zeros((n, 4), np.float32), np.zeros((n, 4), np.float32)
+    n4[:, :3], wo4[:, :3] = nrm, wo
+    return n4, wo4, rng.random((n, 2), dtype=np.float32)
+
+
+def benchmark_materials():
+    """The lobes the sample benchmarks time: name -> (kind, parameter)."""
+    from wavlight import bsdfs
+
+    return {"lambert": (bsdfs.LAMBERT, 0.0), "phong200": (bsdfs.PHONG, 200.0),
+            "ggx0.2": (bsdfs.GGX, 0.2), "ggx0.05": (bsdfs.GGX, 0.05)}
+
+
 def best_of(fn, repeat=3):
     fn()
     times = []
@@ -41,7 +63,7 @@ def main():
     ap.add_argument("--count", type=int, default=1 << 21)
     args = ap.parse_args()
 
-    from wavlight import bsdfs, cl, product
+    from wavlight import cl, product
     from wavlight.distributions import HaarTree
     from wavlight.envmap import Environment, read_image
 
@@ -52,22 +74,14 @@ def main():
     # eight points per work-item (kernels/simd.h), work-groups of cl.WORK_GROUP as the renderer launches them
     items = cl.items(n, cl.LANES)
     rng = np.random.default_rng(1)
-    nrm = rng.normal(size=(n, 3))
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    wo = rng.normal(size=(n, 3))
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    wo *= np.sign(np.einsum("ij,ij->i", wo, nrm))[:, None]
-    n4, wo4 = np.zeros((n, 4), np.float32), np.zeros((n, 4), np.float32)
-    n4[:, :3], wo4[:, :3] = nrm, wo
+    n4, wo4, u = random_shading_points(rng, n)
     material = np.zeros(n, np.int32)   # one material per run: the table has one row
-    u = rng.random((n, 2), dtype=np.float32)
     rot = cl.to_device(env.map_from_world.astype(np.float32).ravel())
     u_buf, n_buf, wo_buf, mat_buf = cl.to_device(u), cl.to_device(n4), cl.to_device(wo4), cl.to_device(material)
     uv_buf, pdf_buf = cl.empty(8 * n), cl.empty(4 * n)
     out = {"env": os.path.basename(args.env), "count": n, "device": rt.description,
            "shading_points": "random normals and view directions, one sample each", "levels": {}}
-    materials = {"lambert": (bsdfs.LAMBERT, 0.0), "phong200": (bsdfs.PHONG, 200.0),
-                 "ggx0.2": (bsdfs.GGX, 0.2), "ggx0.05": (bsdfs.GGX, 0.05)}
+    materials = benchmark_materials()
     for n_levels in (6, 8, 10, 11):
         tree = HaarTree(env.luminance_square(n_levels))
         row = {"tree_bytes": tree.stride * 4}

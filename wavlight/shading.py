@@ -168,16 +168,14 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays
     p = np.asarray(eye, np.float32) + d[hit] * np.asarray(t, np.float32)[hit, None]
     origin = np.zeros((count, 3), np.float32)
     origin[hit] = p + n * np.float32(tracer.epsilon)
-    slots = 2
-    wi = np.zeros((count, slots, 3))
-    value = np.zeros((slots, 3, count))
     if len(hit):
         wi_h, val_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p)
-        slots = val_h.shape[1]
-        wi = np.zeros((count, slots, 3))
-        value = np.zeros((slots, 3, count))
-        wi[hit] = wi_h
-        value[:, :, hit] = np.asarray(val_h).transpose(1, 2, 0)
+    else:   # (no call: some shaders do not take zero points)
+        wi_h = val_h = np.zeros((0, 2, 3))
+    wi = np.zeros((count,) + wi_h.shape[1:])
+    value = np.zeros((val_h.shape[1], 3, count))
+    wi[hit] = wi_h
+    value[:, :, hit] = np.asarray(val_h).transpose(1, 2, 0)
     return ShadedRays(direct, origin, wi, value)
 
 
