@@ -6,8 +6,9 @@ and times both on the same 2^21 random shading points and light tree, alternatin
 launch by launch and keeping each kernel's best time: on a shared VM whose speed
 drifts by 20-40% between runs, sequential before/after runs cannot resolve a 15%
 change, alternating launches can. The angle table of the earlier build comes from
-that commit's `wavlight/product.py` (its `node_angles`). Needs kernels with the same
-arguments in both commits (true from 3291f7c on). Prints one JSON object.
+that commit's `wavlight/product.py` (its `node_angles`; kernels after it build the node
+centres without a table). Needs kernels with the same arguments otherwise (true from
+3291f7c on). Prints one JSON object.
 
     python benchmarks/kernel_ab.py --against 3291f7c [--levels 10] [--repeat 12]
 """
@@ -47,10 +48,12 @@ def main():
     from wavlight.distributions import HaarTree
     from wavlight.envmap import Environment, read_image
 
-    old_py = git_show(args.against, "wavlight/product.py")
-    ns = {"np": np}
-    exec(old_py[old_py.index("def node_angles(levels: int)"):old_py.index("def node_angles_bytes")], ns)
-    old_angles = ns["node_angles"]
+    old_angles = None   # the angle table of a build that reads one (before the angle recurrence)
+    if "*angles" in git_show(args.against, "kernels/product.cl"):
+        old_py = git_show(args.against, "wavlight/product.py")
+        ns = {"np": np}
+        exec(old_py[old_py.index("def node_angles(levels: int)"):old_py.index("def node_angles_bytes")], ns)
+        old_angles = ns["node_angles"]
 
     def old_program(name, **defines):
         def load(fname, seen):
@@ -75,7 +78,7 @@ def main():
     runs = {}
     for ver in ("before", "now"):
         prog = old_program if ver == "before" else cl.program
-        angles_fn = old_angles if ver == "before" else product.node_angles
+        angles_fn = old_angles if ver == "before" else None
         w = pcl.Kernel(prog("warp.cl", N_LEVELS=args.levels, BATCHED=0), "warp_sample")
         runs[("light", ver)] = lambda w=w: w(q, (items,), (cl.WORK_GROUP,), tree.buffer, np.uint64(tree.stride),
                                              np.uint32(n), np.uint32(n), u_buf, np.uint32(2), uv_buf, pdf_buf)
@@ -87,7 +90,7 @@ def main():
                            "product_sample_points")
             kargs = (tree.buffer, rot, np.uint32(n), n_buf, wo_buf, mat_buf, cl.to_device(np.array([kappa], np.float32)),
                      cl.to_device(np.array([depth + 256 * shape], np.int32)), u_buf, np.uint32(2),
-                     cl.to_device(angles_fn(depth)), uv_buf, pdf_buf)
+                     *([cl.to_device(angles_fn(depth))] if angles_fn else []), uv_buf, pdf_buf)
             runs[(name, ver)] = lambda k=k, kargs=kargs: k(q, (items,), (cl.WORK_GROUP,), *kargs)
     for f in runs.values():   # compile and warm up
         f()

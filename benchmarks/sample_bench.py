@@ -3,12 +3,15 @@
 For each light-tree resolution (the environment resampled to 2^n x 2^n leaves) and
 each material lobe, time the `product_sample_points` kernel (kernels/product.cl:
 the top-down product warp of kernels/product.h, which the renderer's wavelet
-strategy runs to draw its guide samples) and the light tree's `warp_sample` on 2^21
+strategy runs inline in its shade kernel) and the light tree's `warp_sample` on 2^21
 random shading points (random normals and view directions: the least coherent case), and the eq. 25 product pyramids of
 wavlight.haar.ProductPyramids (dense per-point trees, the alternative design) in
 trees/s. "without_lookahead": the product walk built without its look-ahead
-importances at the coarse levels (kernels/product.h), for comparison. Prints one JSON object. Timings are kernel time after a warm-up, best of 3,
-including host<->device copies of inputs and outputs ("with_copies") and without.
+importances at the coarse levels (kernels/product.h), for comparison;
+"without_barriers": the walk depth-first, without the stand-alone kernels' level
+barriers (kernels/warp.h), as the renderer's shade kernel runs it inline. Prints
+one JSON object. Timings are kernel time after a warm-up, best of 3, including
+host<->device copies of inputs and outputs ("with_copies") and without.
 
     python benchmarks/sample_bench.py [--env ../shared/data/envmaps/rooitou_park_1k.hdr]
 """
@@ -98,13 +101,12 @@ def main():
             shape = product.lobe_shape(kind, param)
             kappa_buf = cl.to_device(np.array([kappa], np.float32))
             code_buf = cl.to_device(np.array([depth + 256 * shape], np.int32))
-            angles = cl.to_device(product.node_angles(depth))
             prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth, LOBE_SHAPES=1 << shape)
             knl = cl.kernel(prog, "product_sample_points")
 
             def launch(nb, wb, ub, knl=knl):
                 knl(q, (items,), (cl.WORK_GROUP,), tree.buffer, rot, np.uint32(n), nb, wb, mat_buf, kappa_buf,
-                    code_buf, ub, np.uint32(2), angles, uv_buf, pdf_buf)
+                    code_buf, ub, np.uint32(2), uv_buf, pdf_buf)
 
             def run():
                 launch(n_buf, wo_buf, u_buf)
@@ -122,6 +124,12 @@ def main():
                                          LOBE_SHAPES=1 << shape, LOOKAHEAD_LEVELS=0), "product_sample_points")
             row[name]["without_lookahead"] = round(n / best_of(lambda: (launch(n_buf, wo_buf, u_buf, plain),
                                                                        q.finish())))
+            # the same walk depth-first, without the level barriers (kernels/warp.h): as the
+            # renderer's shade kernel runs it
+            inline = cl.kernel(cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth,
+                                          LOBE_SHAPES=1 << shape, WALK_BARRIERS=0), "product_sample_points")
+            row[name]["without_barriers"] = round(n / best_of(lambda: (launch(n_buf, wo_buf, u_buf, inline),
+                                                                      q.finish())))
         out["levels"][str(n_levels)] = row
     # The alternative design: dense per-point product pyramids by eq. 25 (wavlight.haar).
     try:

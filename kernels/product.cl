@@ -8,6 +8,9 @@
  * walk unrolls. Eight points per work-item (simd.h): launch ceil(count / 8) work-items
  * or more.
  */
+#ifndef WALK_BARRIERS
+#define WALK_BARRIERS 1   /* breadth-first walks (warp.h); the kernel has no early return */
+#endif
 #include "product.h"
 #if !defined(N_LEVELS) || !defined(PRODUCT_LEVELS)
 #error "product.cl is built with -DN_LEVELS (light tree depth) and -DPRODUCT_LEVELS (largest product depth)"
@@ -17,11 +20,10 @@ __kernel void product_sample_points(__global const float *tree, __global const f
                                     __global const float *normal, __global const float *wo_world,
                                     __global const int *material, __global const float *mat_kappa,
                                     __global const int *mat_levels, __global const float *u_in,
-                                    const uint u_stride, __global const float *angles,
+                                    const uint u_stride,
                                     __global float *uv_out, __global float *pdf_out)
 {
     const uint base = LANE_BASE();
-    if (base >= count) return;
     const uintv i = LANE_INDEX(count);
     const intv m = GATHER_INT(material, i);
     realv nx, ny, nz, ex, ey, ez, ux, uy;
@@ -29,7 +31,7 @@ __kernel void product_sample_points(__global const float *tree, __global const f
     GATHER3(wo_world, 4 * i, &ex, &ey, &ez);
     GATHER2(u_in, i * u_stride, &ux, &uy);
     const Lobe lb = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, m), GATHER_INT(mat_levels, m));
-    const realv pdf = product_walk(tree, angles, &lb, &ux, &uy);
+    const realv pdf = product_walk(tree, &lb, &ux, &uy);
     STORE_LANES(ux, uv_out, base, count);          /* u and v planes (see warp.cl) */
     STORE_LANES(uy, uv_out + count, base, count);
     STORE_LANES(pdf, pdf_out, base, count);

@@ -181,24 +181,68 @@ INLINE void importances_or_masses(const realv i0, const realv i1, const realv i2
     *w3 = select(m3, i3, ok);
 }
 
-/* Offsets into the angle table (product.node_angles) of level L's column pair (sin phi,
- * cos phi of columns 2 x and 2 x + 1) and row pair (sin theta, cos theta of rows 2 y and
- * 2 y + 1): one 16-byte record each. */
-#define ANGLE_COLUMNS(L, x) (4 * ((1u << (L)) - 2u) + 4 * (x))
-#define ANGLE_ROWS(L, y) (4 * ((1u << (L)) - 2u) + (2u << (L)) + 4 * (y))
+/* The centre directions of a walk's current nodes, per lane, as the sines and cosines of
+ * their angles: d = (sin phi sin theta, cos theta, -cos phi sin theta). The root's centre
+ * is phi = pi, theta = pi / 2. A level-L node spans 2 pi / 2^L in phi and pi / 2^L in
+ * theta, so its children's centres lie at phi -+ pi / 2^(L+1) and theta -+ pi / 2^(L+2):
+ * their sines and cosines follow from the parent's by the angle-sum formulas with the
+ * constants below (no table, no gather; float32 rounding drifts by a few ulp over the
+ * product levels, far below a node's size). */
+typedef struct {
+    realv sp, cp, st, ct;
+} NodeAngles;
 
-/* Importances of the four children (00 10 01 11) of nodes (x, y) at `level` whose light
- * masses are m0..m3, into w0..w3. angles: the centre directions' sines and cosines per
- * column and row pair of each level (product.node_angles): the children of (x, y) are
- * columns 2x, 2x + 1 and rows 2y, 2y + 1 of level + 1. Where all four are zero (or the
- * sum is not finite) the light masses are used instead. */
-INLINE void child_importances(const Lobe *lb, __global const float *angles,
-                              const realv m0, const realv m1, const realv m2, const realv m3, const uintv x,
-                              const uintv y, const int level, realv *w0, realv *w1, realv *w2, realv *w3)
+INLINE NodeAngles root_angles(void)
+{
+    NodeAngles a;
+    a.sp = 0.0f; a.cp = -1.0f; a.st = 1.0f; a.ct = 0.0f;
+    return a;
+}
+
+/* sin and cos of pi / 2^k, k = 0 .. 15 */
+__constant float SIN_PI_2K[16] = {0.0f, 1.0f, 0x1.6a09e6p-1f, 0x1.87de2ap-2f, 0x1.8f8b84p-3f, 0x1.917a6cp-4f,
+                                  0x1.91f660p-5f, 0x1.921560p-6f, 0x1.921d20p-7f, 0x1.921f10p-8f, 0x1.921f8cp-9f,
+                                  0x1.921faap-10f, 0x1.921fb2p-11f, 0x1.921fb4p-12f, 0x1.921fb6p-13f, 0x1.921fb6p-14f};
+__constant float COS_PI_2K[16] = {-1.0f, 0.0f, 0x1.6a09e6p-1f, 0x1.d906bcp-1f, 0x1.f6297cp-1f, 0x1.fd88dap-1f,
+                                  0x1.ff621ep-1f, 0x1.ffd886p-1f, 0x1.fff622p-1f, 0x1.fffd88p-1f, 0x1.ffff62p-1f,
+                                  0x1.ffffd8p-1f, 0x1.fffff6p-1f, 0x1.fffffep-1f, 1.0f, 1.0f};
+
+/* sin and cos of a - d (s0, c0) and a + d (s1, c1) from those of a, d = pi / 2^k. */
+INLINE void split_angle(const realv s, const realv c, const int k, realv *s0, realv *c0, realv *s1, realv *c1)
+{
+    const float sd = SIN_PI_2K[k], cd = COS_PI_2K[k];
+    const realv sc = s * cd, cs = c * sd, cc = c * cd, ss = s * sd;
+    *s0 = sc - cs;
+    *c0 = cc + ss;
+    *s1 = sc + cs;
+    *c1 = cc - ss;
+}
+
+/* The centre angles of the children of nodes at `level` with centre angles a: columns 0
+ * and 1 (phi), rows 0 and 1 (theta). */
+INLINE NodeAngles child_angles(const NodeAngles *a, const int level, const intv right, const intv bottom)
+{
+    realv s0, c0, s1, c1;
+    NodeAngles r;
+    split_angle(a->sp, a->cp, level + 1, &s0, &c0, &s1, &c1);
+    r.sp = select(s0, s1, right);
+    r.cp = select(c0, c1, right);
+    split_angle(a->st, a->ct, level + 2, &s0, &c0, &s1, &c1);
+    r.st = select(s0, s1, bottom);
+    r.ct = select(c0, c1, bottom);
+    return r;
+}
+
+/* Importances of the four children (00 10 01 11) of nodes at `level` with centre angles
+ * a, whose light masses are m0..m3, into w0..w3. Where all four are zero (or the sum is
+ * not finite) the light masses are used instead. */
+INLINE void child_importances(const Lobe *lb, const NodeAngles *a,
+                              const realv m0, const realv m1, const realv m2, const realv m3,
+                              const int level, realv *w0, realv *w1, realv *w2, realv *w3)
 {
     realv sp0, cp0, sp1, cp1, st0, ct0, st1, ct1;
-    GATHER4(angles, ANGLE_COLUMNS(level + 1, x), &sp0, &cp0, &sp1, &cp1);
-    GATHER4(angles, ANGLE_ROWS(level + 1, y), &st0, &ct0, &st1, &ct1);
+    split_angle(a->sp, a->cp, level + 1, &sp0, &cp0, &sp1, &cp1);
+    split_angle(a->st, a->ct, level + 2, &st0, &ct0, &st1, &ct1);
     const LobeColumn c0 = lobe_column(lb, sp0, cp0), c1 = lobe_column(lb, sp1, cp1);
     const realv i0 = m0 * lobe_weight_at(lb, &c0, st0, ct0, level);
     const realv i1 = m1 * lobe_weight_at(lb, &c1, st0, ct0, level);
@@ -226,7 +270,7 @@ INLINE void child_importances(const Lobe *lb, __global const float *angles,
 /* child_importances with the look-ahead, for nodes (x, y) at `level` (level + 2 <= the
  * tree's depth; the angle table covers level + 2): the children's own masses m0..m3
  * are the fallback where the sum is zero or not finite. */
-INLINE void child_importances_ahead(const Lobe *lb, __global const float *angles, __global const float *tree,
+INLINE void child_importances_ahead(const Lobe *lb, const NodeAngles *a, __global const float *tree,
                                     const realv m0, const realv m1, const realv m2, const realv m3,
                                     const uintv x, const uintv y, const int level,
                                     realv *w0, realv *w1, realv *w2, realv *w3)
@@ -236,12 +280,18 @@ INLINE void child_importances_ahead(const Lobe *lb, __global const float *angles
     LobeColumn cols[4];
     realv st[4], ct[4];
     realv mass[4][4];
-    for (int j = 0; j < 2; ++j) {   /* the grandchildren's four columns and rows: two pairs each */
-        realv sp0, cp0, sp1, cp1;
-        GATHER4(angles, ANGLE_COLUMNS(level + 2, 2 * x + j), &sp0, &cp0, &sp1, &cp1);
-        cols[2 * j] = lobe_column(lb, sp0, cp0);
-        cols[2 * j + 1] = lobe_column(lb, sp1, cp1);
-        GATHER4(angles, ANGLE_ROWS(level + 2, 2 * y + j), &st[2 * j], &ct[2 * j], &st[2 * j + 1], &ct[2 * j + 1]);
+    {   /* the grandchildren's four columns and rows: the children's split once more */
+        realv sp0, cp0, sp1, cp1, st0, ct0, st1, ct1, sa, ca, sb, cb;
+        split_angle(a->sp, a->cp, level + 1, &sp0, &cp0, &sp1, &cp1);
+        split_angle(sp0, cp0, level + 2, &sa, &ca, &sb, &cb);
+        cols[0] = lobe_column(lb, sa, ca);
+        cols[1] = lobe_column(lb, sb, cb);
+        split_angle(sp1, cp1, level + 2, &sa, &ca, &sb, &cb);
+        cols[2] = lobe_column(lb, sa, ca);
+        cols[3] = lobe_column(lb, sb, cb);
+        split_angle(a->st, a->ct, level + 2, &st0, &ct0, &st1, &ct1);
+        split_angle(st0, ct0, level + 3, &st[0], &ct[0], &st[1], &ct[1]);
+        split_angle(st1, ct1, level + 3, &st[2], &ct[2], &st[3], &ct[3]);
     }
     for (int j = 0; j < 4; ++j)     /* their masses, by rows */
         GATHER4(tree, g + j * gside, &mass[j][0], &mass[j][1], &mass[j][2], &mass[j][3]);
@@ -256,15 +306,15 @@ INLINE void child_importances_ahead(const Lobe *lb, __global const float *angles
 
 /* The importances of the four children of nodes (x, y) at `level` (compile-time after
  * unrolling), look-ahead at the coarse levels. */
-INLINE void node_importances(const Lobe *lb, __global const float *angles, __global const float *tree,
+INLINE void node_importances(const Lobe *lb, const NodeAngles *a, __global const float *tree,
                              const realv m0, const realv m1, const realv m2, const realv m3,
                              const uintv x, const uintv y, const int level, const int n_levels,
                              realv *i0, realv *i1, realv *i2, realv *i3)
 {
     if (level < LOOKAHEAD_LEVELS && level + 2 <= n_levels)
-        child_importances_ahead(lb, angles, tree, m0, m1, m2, m3, x, y, level, i0, i1, i2, i3);
+        child_importances_ahead(lb, a, tree, m0, m1, m2, m3, x, y, level, i0, i1, i2, i3);
     else
-        child_importances(lb, angles, m0, m1, m2, m3, x, y, level, i0, i1, i2, i3);
+        child_importances(lb, a, m0, m1, m2, m3, level, i0, i1, i2, i3);
 }
 
 /* Node index of level `depth` (per lane) containing leaf (x, y) of level n_levels. */
@@ -282,15 +332,17 @@ INLINE uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, c
  * PRODUCT_LEVELS and selected per lane (the angle table covers those levels, so every
  * load is in bounds). PRODUCT_LEVELS must be at least every lane's depth (the host
  * builds with the largest). */
-INLINE realv product_walk(__global const float *tree, __global const float *angles, const Lobe *lb,
+INLINE realv product_walk(__global const float *tree, const Lobe *lb,
                           realv *ux, realv *uy)
 {
     uintv x = 0, y = 0;
     realv p = 1.0f;
+    NodeAngles a = root_angles();
     *ux = clamp_unit(*ux);
     *uy = clamp_unit(*uy);
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
+        LEVEL_BARRIER();
         const uint cside = 2u << l;
         const uintv c = node_index(l + 1, 2 * x, 2 * y);
         realv m0, m1, m2, m3;
@@ -300,15 +352,18 @@ INLINE realv product_walk(__global const float *tree, __global const float *angl
         const intv in_product = l < lb->levels;
         if (l < PRODUCT_LEVELS) {   /* compile-time */
             realv i0, i1, i2, i3;
-            node_importances(lb, angles, tree, m0, m1, m2, m3, x, y, l, N_LEVELS, &i0, &i1, &i2, &i3);
+            node_importances(lb, &a, tree, m0, m1, m2, m3, x, y, l, N_LEVELS, &i0, &i1, &i2, &i3);
             w0 = select(m0, i0, in_product);
             w1 = select(m1, i1, in_product);
             w2 = select(m2, i2, in_product);
             w3 = select(m3, i3, in_product);
         }
         const realv q = choose_child(w0, w1, w2, w3, ux, uy, &x, &y);
-        if (l < PRODUCT_LEVELS)
+        if (l < PRODUCT_LEVELS) {
             p *= select((realv)1.0f, q, in_product);
+            if (l + 1 < PRODUCT_LEVELS)
+                a = child_angles(&a, l, as_intv(x & 1u) != 0, as_intv(y & 1u) != 0);
+        }
     }
     const intv depth = min(lb->levels, N_LEVELS);
     const realv node_mass = GATHER(tree, node_of_leaf(depth, N_LEVELS, x, y));
@@ -320,13 +375,14 @@ INLINE realv product_walk(__global const float *tree, __global const float *angl
 }
 
 /* Density on the square of product_walk at points (u, v), for any directions (MIS). */
-INLINE realv product_pdf(__global const float *tree, __global const float *angles, const Lobe *lb,
+INLINE realv product_pdf(__global const float *tree, const Lobe *lb,
                          const realv u, const realv v)
 {
     const intv depth = min(lb->levels, N_LEVELS);
     const uint side = 1u << N_LEVELS;
     const uintv lx = leaf_of(u, N_LEVELS), ly = leaf_of(v, N_LEVELS);
     realv p = 1.0f;
+    NodeAngles a = root_angles();
 #pragma unroll
     for (int l = 0; l < PRODUCT_LEVELS && l < N_LEVELS; ++l) {
         const uintv cx = lx >> (N_LEVELS - l - 1), cy = ly >> (N_LEVELS - l - 1);
@@ -336,9 +392,11 @@ INLINE realv product_pdf(__global const float *tree, __global const float *angle
         realv m0, m1, m2, m3, i0, i1, i2, i3;
         GATHER2(tree, c, &m0, &m1);
         GATHER2(tree, c + cside, &m2, &m3);
-        node_importances(lb, angles, tree, m0, m1, m2, m3, px, py, l, N_LEVELS, &i0, &i1, &i2, &i3);
+        node_importances(lb, &a, tree, m0, m1, m2, m3, px, py, l, N_LEVELS, &i0, &i1, &i2, &i3);
         const realv sum = (i0 + i1) + (i2 + i3);
-        const intv right = (cx & 1) != 0, bottom = (cy & 1) != 0;
+        const intv right = as_intv(cx & 1u) != 0, bottom = as_intv(cy & 1u) != 0;
+        if (l + 1 < PRODUCT_LEVELS)
+            a = child_angles(&a, l, right, bottom);
         const realv mine = select(select(i0, i1, right), select(i2, i3, right), bottom);
         p *= select((realv)1.0f, mine / sum, l < depth);
     }

@@ -51,10 +51,10 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
  * environment and the light (or product) tree. */
 #define SHADE_TABLE_ARGS __global const int *mat_kind, __global const float *mat_param,            \
                          __global const float *mat_albedo, __global const float *mat_kappa,        \
-                         __global const int *mat_levels, __global const float *angles,             \
+                         __global const int *mat_levels,                                           \
                          __global const float *texels, const int env_w, const int env_h,           \
                          __global const float *rot, __global const float *tree
-#define SHADE_TABLES mat_kind, mat_param, mat_albedo, mat_kappa, mat_levels, angles, texels, env_w, env_h, \
+#define SHADE_TABLES mat_kind, mat_param, mat_albedo, mat_kappa, mat_levels, texels, env_w, env_h, \
                      rot, tree
 
 /* Two directions (slot a, slot b) and their unoccluded estimates (r, g, b) per lane. */
@@ -89,7 +89,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     {   /* the light (light, mis) or product (wavelet) sample from u.xy */
 #if STRATEGY == 5
         realv gu = u0, gv = u1;
-        const realv square_pdf = product_walk(tree, angles, &lobe, &gu, &gv);
+        const realv square_pdf = product_walk(tree, &lobe, &gu, &gv);
 #endif
         env_square_to_world(rot, gu, gv, &ax, &ay, &az);
         const realv pdf = square_pdf * env_square_to_solid_angle(ax, az);
@@ -116,7 +116,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
 #if STRATEGY == 5
         realv gu, gv;
         env_world_to_square(rot, bx, by, bz, &gu, &gv);
-        const realv other = product_pdf(tree, angles, &lobe, gu, gv) * env_square_to_solid_angle(bx, bz);
+        const realv other = product_pdf(tree, &lobe, gu, gv) * env_square_to_solid_angle(bx, bz);
 #else
         const realv other = light_pdf(rot, tree, N_LEVELS, bx, by, bz);
 #endif

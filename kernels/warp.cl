@@ -6,6 +6,9 @@
  * tree (no integer division per sample). Outputs: the u plane then the v plane of
  * uv_out, and the density on the square.
  */
+#ifndef WALK_BARRIERS
+#define WALK_BARRIERS 1   /* breadth-first walks (warp.h); warp_sample has no early return */
+#endif
 #include "warp.h"
 #if !defined(N_LEVELS) || !defined(BATCHED)
 #error "warp.cl is built with -DN_LEVELS (tree depth) and -DBATCHED (0: one tree, 1: one tree per samples_per_tree)"
@@ -16,7 +19,6 @@ __kernel void warp_sample(__global const float *tree, const ulong tree_stride, c
                           __global float *uv_out, __global float *pdf_out)
 {
     const uint base = LANE_BASE();
-    if (base >= count) return;
     const uintv i = LANE_INDEX(count);
 #if BATCHED
     const uintv tree_base = (i / samples_per_tree) * (uint)tree_stride;

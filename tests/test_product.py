@@ -780,23 +780,66 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
     assert img.shape[:2] == (12, 16) and np.all(np.isfinite(img)) and img.max() > 0
 
 
-def test_node_angle_table_layout_and_size():
-    """node_angles: for lat-long level L = 1..P + 1, at offset 4 (2^L - 2), column pair records
-    (sin, cos of phi_2x and of phi_2x+1, phi_i = 2 pi (i + 0.5) / 2^L), then from 2^(L+1) on
-    row pair records (the same for theta_i = pi (i + 0.5) / 2^L), from which kernels/product.h
-    builds the centre direction of cell (x, y) of level L; node_angles_bytes reports its
-    size without building it."""
-    for levels in range(0, 8):
-        table = product.node_angles(levels)
-        assert table.dtype == np.float32 and table.nbytes == product.node_angles_bytes(levels)
-        assert table.size == 4 * ((4 << levels) - 2)
-        for L in range(1, levels + 2):
-            side = 1 << L
-            for x, y in ((0, 0), (side - 1, 0), (side // 2, side - 1)):
-                col = table[4 * (side - 2) + 4 * (x // 2) + 2 * (x % 2):][:2]              # ANGLE_COLUMNS
-                row = table[4 * (side - 2) + 2 * side + 4 * (y // 2) + 2 * (y % 2):][:2]   # ANGLE_ROWS
-                d = [col[0] * row[0], row[1], -col[1] * row[0]]   # as child_importances builds it
-                u, v = (x + 0.5) / side, (y + 0.5) / side
-                want = [np.sin(2 * np.pi * u) * np.sin(np.pi * v), np.cos(np.pi * v),
-                        -np.cos(2 * np.pi * u) * np.sin(np.pi * v)]
-                np.testing.assert_allclose(d, want, atol=1e-6)
+def _kernel_float_literals(name):
+    """The float literals of the __constant array `name` in kernels/product.h."""
+    import re
+    from wavlight import cl
+    text = cl.kernel_source("product.h")
+    body = re.search(name + r"\[16\] = \{([^}]*)\}", text).group(1)
+    return np.array([float.fromhex(v.strip().rstrip("f")) if "0x" in v else float(v.strip().rstrip("f"))
+                     for v in body.split(",")])
+
+
+def test_angle_step_constants_are_sin_and_cos_of_pi_over_powers_of_two():
+    """kernels/product.h SIN_PI_2K / COS_PI_2K (and their numpy twins) hold sin and cos of pi / 2^k
+    rounded to float32 (pi and pi / 2 exactly)."""
+    k = np.arange(16)
+    want_s, want_c = np.sin(np.pi / 2.0 ** k), np.cos(np.pi / 2.0 ** k)
+    for got_s, got_c in ((_kernel_float_literals("SIN_PI_2K"), _kernel_float_literals("COS_PI_2K")),
+                         (product.SIN_PI_2K.astype(np.float64), product.COS_PI_2K.astype(np.float64))):
+        np.testing.assert_allclose(got_s, want_s, rtol=2 ** -24, atol=1e-15)
+        np.testing.assert_allclose(got_c, want_c, rtol=2 ** -24, atol=1e-15)
+
+
+def test_node_centre_angles_kernel_matches_numpy_and_exact():
+    """kernels/product.h child_angles, followed down random paths to levels 1..13, against its numpy
+    twin product.centre_angles and against the exact sin and cos of phi = 2 pi (x + 0.5) / 2^L,
+    theta = pi (y + 0.5) / 2^L: the float32 recurrence stays within a few ulp per level."""
+    import pyopencl as pcl
+    from wavlight import cl
+    src = cl.kernel_source("product.h") + """
+    __kernel void centre_angles_test(__global const uint *xs, __global const uint *ys, const int level,
+                                     const uint count, __global float *out)
+    {
+        const uint base = (uint)get_global_id(0) * LANES;
+        const uintv x = vloadv(0, xs + base), y = vloadv(0, ys + base);
+        NodeAngles a = root_angles();
+        for (int l = 0; l < level; ++l) {
+            const uint sh = (uint)(level - 1 - l);
+            a = child_angles(&a, l, as_intv((x >> sh) & 1u) != 0, as_intv((y >> sh) & 1u) != 0);
+        }
+        vstorev(a.sp, 0, out + base);
+        vstorev(a.cp, 0, out + count + base);
+        vstorev(a.st, 0, out + 2 * count + base);
+        vstorev(a.ct, 0, out + 3 * count + base);
+    }"""
+    prog = pcl.Program(cl.runtime().context, src).build(options=[f"-DLANES={cl.LANES}"])
+    q = cl.thread_queue()
+    rng = np.random.default_rng(5)
+    count = 64 * cl.LANES
+    for level in range(1, 14):
+        side = 1 << level
+        x = rng.integers(0, side, count).astype(np.uint32)
+        y = rng.integers(0, side, count).astype(np.uint32)
+        x[:4], y[:4] = [0, side - 1, 0, side - 1], [0, 0, side - 1, side - 1]   # the corners
+        out = cl.empty(16 * count)
+        pcl.Kernel(prog, "centre_angles_test")(q, (count // cl.LANES,), None, cl.to_device(x), cl.to_device(y),
+                                                np.int32(level), np.uint32(count), out)
+        got = cl.read(out, (4, count), np.float32, q).astype(np.float64)
+        twin = np.array(product.centre_angles(x, y, level), np.float64)
+        phi, theta = 2 * np.pi * (x + 0.5) / side, np.pi * (y + 0.5) / side
+        exact = np.array([np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)])
+        tol = 4e-7 * (level + 1)
+        np.testing.assert_allclose(got, twin, rtol=0, atol=tol, err_msg=f"level {level}")
+        np.testing.assert_allclose(twin, exact, rtol=0, atol=tol, err_msg=f"level {level}")
+        np.testing.assert_allclose(got, exact, rtol=0, atol=tol, err_msg=f"level {level}")

@@ -98,7 +98,7 @@ def test_product_sample_points_kernel_matches_numpy():
         q, (items,), (cl.WORK_GROUP,), tree.buffer, cl.to_device(env.map_from_world.astype(np.float32).ravel()),
         np.uint32(count), cl.to_device(n4), cl.to_device(w4), cl.to_device(material.astype(np.int32)),
         cl.to_device(mat_kappa.astype(np.float32)), cl.to_device((mat_depth + 256 * mat_shape).astype(np.int32)),
-        cl.to_device(u), np.uint32(4), cl.to_device(product.node_angles(n_levels)), uv_buf, pdf_buf)
+        cl.to_device(u), np.uint32(4), uv_buf, pdf_buf)
     uv_k = cl.read(uv_buf, (2, count), np.float32, q).T
     pdf_k = cl.read(pdf_buf, (count,), np.float32, q)
     u = u[:, :2]

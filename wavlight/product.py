@@ -44,32 +44,39 @@ HORIZON_BLUR = 0.75 * np.pi  # horizon softening at level l: HORIZON_BLUR / 2^l
 MAX_KAPPA = 1e6
 
 
-def node_angles(levels: int) -> np.ndarray:
-    """The angle table kernels/product.h reads for product depth `levels`, float32.
-
-    Node (x, y) of lat-long level L has the centre direction
-    (sin phi_x sin theta_y, cos theta_y, -cos phi_x sin theta_y) with
-    phi_x = 2 pi (x + 0.5) / 2^L and theta_y = pi (y + 0.5) / 2^L, so a level needs only
-    its 2^L columns and 2^L rows. A node's children are two columns and two rows of the
-    next level, so those are stored in pairs, one 16-byte record (one load per lane in
-    the kernel): for L = 1..levels + 1 (the look-ahead at level l reads level l + 2), at
-    offset 4 (2^L - 2), first 2^(L-1) column records (sin phi_2x, cos phi_2x,
-    sin phi_2x+1, cos phi_2x+1), then 2^(L-1) row records (the same for theta_2y,
-    theta_2y+1). A few KB at any depth, so it stays in the L1 cache (a table of every
-    node's direction measured slower).
-    """
-    out = [np.zeros(0)]
-    for L in range(1, levels + 2):
-        i = np.arange(1 << L) + 0.5
-        phi, theta = 2 * np.pi * i / (1 << L), np.pi * i / (1 << L)
-        out.append(np.stack([np.sin(phi), np.cos(phi)], 1).ravel())     # pairs: sin, cos of 2x then 2x + 1
-        out.append(np.stack([np.sin(theta), np.cos(theta)], 1).ravel())
-    return np.concatenate(out).astype(np.float32)
+def _pi_over_powers_of_two():
+    k = np.arange(16)
+    s, c = np.sin(np.pi / 2.0 ** k), np.cos(np.pi / 2.0 ** k)
+    s[:2], c[:2] = (0.0, 1.0), (-1.0, 0.0)   # pi and pi / 2 exactly, as the kernel's literals
+    return s.astype(np.float32), c.astype(np.float32)
 
 
-def node_angles_bytes(levels: int) -> int:
-    """Size of :func:`node_angles` (levels) in bytes, without building it."""
-    return 16 * ((4 << levels) - 2)
+SIN_PI_2K, COS_PI_2K = _pi_over_powers_of_two()   # sin, cos of pi / 2^k, k = 0..15 (kernels/product.h)
+
+
+def split_angle(s, c, k):
+    """sin and cos of a - pi/2^k and a + pi/2^k from those of a, float32 (kernels/product.h split_angle)."""
+    s, c = np.float32(s), np.float32(c)
+    sd, cd = SIN_PI_2K[k], COS_PI_2K[k]
+    sc, cs, cc, ss = s * cd, c * sd, c * cd, s * sd
+    return sc - cs, cc + ss, sc + cs, cc - ss
+
+
+def centre_angles(x, y, level):
+    """sin phi, cos phi, sin theta, cos theta of the centres of nodes (x, y) of `level` (arrays),
+    built as kernels/product.h builds them during a walk: from the root's centre (phi = pi,
+    theta = pi / 2) the children's by the angle-sum formulas, level by level along the path, in
+    float32 (phi = 2 pi (x + 0.5) / 2^level, theta = pi (y + 0.5) / 2^level up to rounding)."""
+    x, y = np.asarray(x, np.int64), np.asarray(y, np.int64)
+    sp, cp = np.zeros(x.shape, np.float32), np.full(x.shape, -1.0, np.float32)
+    st, ct = np.ones(y.shape, np.float32), np.zeros(y.shape, np.float32)
+    for l in range(level):
+        right, bottom = (x >> (level - 1 - l)) & 1 == 1, (y >> (level - 1 - l)) & 1 == 1
+        s0, c0, s1, c1 = split_angle(sp, cp, l + 1)
+        sp, cp = np.where(right, s1, s0), np.where(right, c1, c0)
+        s0, c0, s1, c1 = split_angle(st, ct, l + 2)
+        st, ct = np.where(bottom, s1, s0), np.where(bottom, c1, c0)
+    return sp, cp, st, ct
 
 
 GGX_HALF = 3                # lobe shape of wide ggx lobes: D at the true half vector (kernels/product.h)

@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import cl, product, rng, strategies, warp
+from . import cl, rng, strategies, warp
 
 _WARMED = set()  # shade programs already launched in this process
 
@@ -64,14 +64,13 @@ class KernelShader:
         # depth + 256 lobe shape (kernels/product.h make_lobe decodes both)
         self.levels_per_material = cl.to_device(levels + 256 * shapes)
         depth = int(max(np.max(levels, initial=0), 0))
-        self.angles = cl.to_device(product.node_angles(depth))
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
         sizes = {}   # the walks' compile-time sizes: light tree depth; product depth and lobe shapes
         if strategy.name in ("light", "mis", "wavelet"):
             sizes["N_LEVELS"] = int(self.levels)
         if strategy.name == "wavelet":
             sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)))
-        self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material, self.angles,
+        self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
                         self.texels, *self.env_size, self.rot, self.tree)
         self._geometry = None
         if tracer is not None:   # face normals and materials for shade_rays (a dummy row without faces)

@@ -234,13 +234,10 @@ class WaveletStrategy(Strategy):
                                      shape, uv) * self.env.square_to_solid_angle(wi_world)
 
     def info(self):
-        depth = int(self.levels.max(initial=0))
-        table = product.node_angles_bytes(depth)
         return {**self.light.info(),
                 "product_levels": dict(zip(self.names, self.levels.tolist())),
                 "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
-                "angle_table_bytes": table,
-                "memory_bytes": int(self.light.tree.stride * 4 + table)}
+                "memory_bytes": int(self.light.tree.stride * 4)}
 
 
 class MisStrategy(Strategy):
