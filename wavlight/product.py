@@ -13,7 +13,7 @@ the BRDF x cosine at the node's centre with a lobe pre-filtered to the node's si
     ggx      I = mass (1 + k_l x)^-2 clamp(d . n / h_l + 1, 0, 1)              (alpha <= 0.1)
     ggx      I = mass pi D_{alpha_l}(h) clamp(d . n / h_l + 1, 0, 1),  h = normalize(d + wo)  (alpha > 0.1)
 
-with x = 1 - d . axis, r_l = 0.35 pi / 2^l the lobe blur and h_l = 0.75 pi / 2^l
+with x = 1 - d . axis, r_l = 0.35 pi / 2^l the lobe blur (phong: 0.2 pi / 2^l) and h_l = 0.75 pi / 2^l
 the horizon blur (a node of the lat-long square spans pi / 2^l in theta; blurs
 near the node's half size measured best: wider lobes waste samples on bright
 nodes outside the lobe), and
@@ -40,6 +40,7 @@ from . import bsdfs
 from .distributions import ONE_MINUS_EPS, choose_child_reference, level_offset
 
 LOBE_BLUR = 0.35 * np.pi     # lobe widening at level l: LOBE_BLUR / 2^l (see kernels/product.h)
+PHONG_BLUR = 0.2 * np.pi     # phong's (measured, kernels/product.h)
 HORIZON_BLUR = 0.75 * np.pi  # horizon softening at level l: HORIZON_BLUR / 2^l
 MAX_KAPPA = 1e6
 
@@ -117,7 +118,7 @@ def node_importance(env, mass, x, y, level, axis, n, kappa, shape):
     inv = 1.0 / (1 << level)
     c = np.stack([(x + 0.5) * inv, (y + 0.5) * inv], 1)
     d = env.square_to_world(c)
-    r, rh = LOBE_BLUR * inv, HORIZON_BLUR * inv
+    r, rp, rh = LOBE_BLUR * inv, PHONG_BLUR * inv, HORIZON_BLUR * inv
     cos_n = np.einsum("ij,ij->i", d, n)
     x1 = 1.0 - np.einsum("ij,ij->i", d, axis)
     with np.errstate(divide="ignore", over="ignore"):
@@ -132,7 +133,9 @@ def node_importance(env, mass, x, y, level, axis, n, kappa, shape):
         a2 = 0.5 * (np.where(kappa > 0, 1.0 / np.where(kappa > 0, kappa, 1.0), 0.0) + r * r)
         ggx_half = a2 / (nh2 * (a2 - 1.0) + 1.0) ** 2 * horizon
     hor = np.clip(cos_n + rh, 0.0, 1.0)
-    phong = (1.0 / (1.0 + 0.125 * k * x1)) ** 8 * hor  # ~ exp(-k x), 8x cheaper in the kernel than exp
+    with np.errstate(divide="ignore", over="ignore"):
+        kp = np.where(kappa > 0, 1.0 / (1.0 / np.where(kappa > 0, kappa, 1.0) + rp * rp), 0.0)
+    phong = (1.0 / (1.0 + 0.125 * kp * x1)) ** 8 * hor  # ~ exp(-k x), 8x cheaper in the kernel than exp
     lobe = np.select([shape == GGX_HALF, shape == bsdfs.GGX, shape == bsdfs.PHONG], [ggx_half, ggx, phong], hor)
     return mass * lobe
 
