@@ -86,18 +86,24 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
     *uy = (convert_realv(y) + select((realv)top, *uy, *uy < top)) * inv;
 }
 
-/* Breadth-first walks. A walk is a chain of dependent loads, one per level: each level's
- * loads wait for the previous level's choice, and a work-item's walk is too long for the
- * CPU to reach the next work-item's independent loads while it waits (at 1024^2 the fine
- * levels miss the caches). In a stand-alone sample kernel (warp.cl, product.cl, which
- * define WALK_BARRIERS 1 and have no early return) a work-group barrier before every
- * level makes PoCL run each level for all work-items of the group before the next, so
- * the loads of 64 work-items are in flight together: measured +15-45% at 1024^2 (light
- * and product walks, interleaved runs). A barrier is only legal where every work-item
- * of the group reaches it, so the renderer's shade kernels (walks inside per-lane
- * branches) do without. */
+/* Breadth-first walks through big trees. A walk is a chain of dependent loads, one per
+ * level: each level's loads wait for the previous level's choice, and a work-item's walk
+ * is too long for the CPU to reach the next work-item's independent loads while it waits.
+ * Levels of 512^2 nodes and more (1 MB, past a core's L2 cache) miss the caches. In a
+ * stand-alone sample kernel (warp.cl, product.cl, which define WALK_BARRIERS 1 and have
+ * no early return) a work-group barrier before each step into such a level makes PoCL
+ * run that step for all work-items of the group before the next, so the loads of 64
+ * work-items are in flight together. Measured in interleaved runs: +5-45% at 1024^2 and
+ * 2048^2 (light and product walks; this VM's noise is +-20%), while barriers at the
+ * cached levels cost up to 20% (the live values go through memory at each barrier),
+ * hence BARRIER_LEVEL 9. A barrier is only legal where every work-item of the group
+ * reaches it, so the renderer's shade kernels (walks inside per-lane branches) do
+ * without. */
 #if defined(WALK_BARRIERS) && WALK_BARRIERS
-#define LEVEL_BARRIER() barrier(CLK_LOCAL_MEM_FENCE)
+#ifndef BARRIER_LEVEL
+#define BARRIER_LEVEL 9   /* the first level (512^2 nodes) whose step waits at a barrier */
+#endif
+#define LEVEL_BARRIER() do { if (l + 1 >= BARRIER_LEVEL) barrier(CLK_LOCAL_MEM_FENCE); } while (0)
 #else
 #define LEVEL_BARRIER() do { } while (0)
 #endif
