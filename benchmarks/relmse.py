@@ -4,8 +4,11 @@ Scenes: a sphere and the bunny (on a floor), each in ggx alpha 0.05, ggx alpha 0
 and phong n = 200, plus a lambert sphere (the case where product sampling has
 little to gain), under rooitou_park_1k (tiny sun), st_fagans_interior_1k (many
 small lights) and potsdamer_platz_1k (smooth overcast). For every scene and
-strategy (wavelet, mis, light, bsdf) and spp in --spp, --seeds renders are made;
-the reference is `mis` at --ref-spp with its own seed.
+strategy (wavelet, mis, mis_comp, light, bsdf) and spp in --spp, --seeds renders are
+made; the reference is `mis` at --ref-spp with its own seed. Ratios: wavelet over
+mis, wavelet over mis_comp (mis with MIS compensation, the stronger baseline, as
+pbrt-v4 renders by default) and mis_comp over mis, each at equal spp and at equal
+time (the time of the denominator's strategy).
 
 relMSE = mean over pixels and channels of ((x - ref)^2 - se_ref^2) / (ref^2 + 0.01)
 (wavlight.metrics.relmse): the reference's own variance (its squared standard error,
@@ -44,7 +47,7 @@ DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data"))
 MAPS = ["rooitou_park_1k", "st_fagans_interior_1k", "potsdamer_platz_1k"]
 MATERIALS = {"ggx0.05": 'type = "ggx"\nroughness = 0.05', "ggx0.2": 'type = "ggx"\nroughness = 0.2',
              "phong200": 'type = "phong"\nexponent = 200.0', "lambert": 'type = "lambert"'}
-STRATEGIES = ["wavelet", "mis", "light", "bsdf"]
+STRATEGIES = ["wavelet", "mis", "mis_comp", "light", "bsdf"]
 
 SPHERE = """
 [camera]
@@ -173,9 +176,11 @@ def main():
             for strategy in STRATEGIES:
                 cell = row[strategy][s]
                 cell["equal_time_relmse"] = cell["relmse"] * cell["seconds"] / mis["seconds"]
-            row.setdefault("wavelet_over_mis", {})[s] = {
-                "equal_spp": row["wavelet"][s]["relmse"] / mis["relmse"],
-                "equal_time": row["wavelet"][s]["equal_time_relmse"] / mis["relmse"]}
+            for num, den in (("wavelet", "mis"), ("wavelet", "mis_comp"), ("mis_comp", "mis")):
+                a, b = row[num][s], row[den][s]
+                row.setdefault(f"{num}_over_{den}", {})[s] = {
+                    "equal_spp": a["relmse"] / b["relmse"],
+                    "equal_time": a["relmse"] * a["seconds"] / b["seconds"] / b["relmse"]}
             if args.floor > 1:
                 # relMSE(D) = floor + dir / D and relMSE(mis) = floor + dir give the floor
                 e_d = relmse(floor_image(scene, spp, args.size, 0, args.floor, args.sampler), ref.image, ref.stderr)
@@ -183,7 +188,10 @@ def main():
                 row.setdefault("footprint_floor", {})[s] = {"relmse": fl, "over_mis": fl / mis["relmse"]}
         results["scenes"][name] = row
         print(f"{name}: " + " ".join(f"{k}={v['equal_spp']:.3f}/{v['equal_time']:.3f}"
-                                     for k, v in row["wavelet_over_mis"].items()), file=sys.stderr, flush=True)
+                                     for k, v in row["wavelet_over_mis"].items())
+              + " | over mis_comp " + " ".join(f"{k}={v['equal_spp']:.3f}/{v['equal_time']:.3f}"
+                                               for k, v in row["wavelet_over_mis_comp"].items()),
+              file=sys.stderr, flush=True)
     text = json.dumps(results, indent=1)
     if args.out:
         with open(args.out, "w") as fh:

@@ -38,8 +38,8 @@ def main():
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
               "Default: the scene's name with .png.")
 @click.option("--spp", type=int, default=None, help="Samples per pixel (overrides the scene).")
-@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis", "wavelet", "sir",
-                                                  "structured"]),
+@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet",
+                                                  "sir", "structured"]),
               default=None,
               help="Sampling strategy (overrides the scene).")
 @click.option("--width", type=int, default=None, help="Image width in pixels.")

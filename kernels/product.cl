@@ -6,7 +6,8 @@
  * uv_out) and its density on the square. Built per tree depth (-DN_LEVELS), largest
  * product depth (-DPRODUCT_LEVELS) and set of lobe shapes (-DLOBE_SHAPES), so that the
  * walk unrolls. Eight points per work-item (simd.h): launch ceil(count / 8) work-items
- * or more.
+ * or more, count >= 1, in whole work-groups (every work-item walks, also past count:
+ * the walk waits at work-group barriers, warp.h).
  */
 #ifndef WALK_BARRIERS
 #define WALK_BARRIERS 1   /* breadth-first walks (warp.h); the kernel has no early return */

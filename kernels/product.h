@@ -276,7 +276,7 @@ INLINE void child_importances(const Lobe *lb, const NodeAngles *a,
 #endif
 
 /* child_importances with the look-ahead, for nodes (x, y) at `level` (level + 2 <= the
- * tree's depth; the angle table covers level + 2): the children's own masses m0..m3
+ * tree's depth): the children's own masses m0..m3
  * are the fallback where the sum is zero or not finite. */
 INLINE void child_importances_ahead(const Lobe *lb, const NodeAngles *a, __global const float *tree,
                                     const realv m0, const realv m1, const realv m2, const realv m3,
@@ -337,9 +337,11 @@ INLINE uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, c
  * compile-time bound), then the light tree; (ux, uy) uniform in, point of the square
  * out; returns the density on the square. Unrolled over N_LEVELS, eight lanes in vector
  * types (simd.h). The importances are computed for every lane at levels <
- * PRODUCT_LEVELS and selected per lane (the angle table covers those levels, so every
- * load is in bounds). PRODUCT_LEVELS must be at least every lane's depth (the host
- * builds with the largest). */
+ * PRODUCT_LEVELS and selected per lane (every load stays in the tree). PRODUCT_LEVELS
+ * must be at least every lane's depth (the host builds with the largest). */
+#if PRODUCT_LEVELS > 14
+#error "PRODUCT_LEVELS > 14: the walk's angle steps pi / 2^k reach k = PRODUCT_LEVELS + 1, SIN_PI_2K ends at 15"
+#endif
 INLINE realv product_walk(__global const float *tree, const Lobe *lb,
                           realv *ux, realv *uy)
 {
@@ -350,7 +352,7 @@ INLINE realv product_walk(__global const float *tree, const Lobe *lb,
     *uy = clamp_unit(*uy);
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
-        LEVEL_BARRIER();
+        LEVEL_BARRIER(l);
         const uint cside = 2u << l;
         const uintv c = node_index(l + 1, 2 * x, 2 * y);
         realv m0, m1, m2, m3;

@@ -92,7 +92,7 @@ typedef SIMD_CAT(uint, LANES) uintv;
 
 /* The point indices of this work-item's lanes, clamped to count - 1 (for loads). */
 #define LANE_INDEX(count) min(LANE_IDS + (uint)get_global_id(0) * LANES, \
-                              (uintv)((count) - 1))
+                              (uintv)(max((uint)(count), 1u) - 1u))
 #define LANE_BASE() ((uint)get_global_id(0) * LANES)
 
 /* p[i] per lane: one vector load when all lanes exist (idx = base .. base + LANES - 1), else a gather */

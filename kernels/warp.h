@@ -90,22 +90,22 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
  * level: each level's loads wait for the previous level's choice, and a work-item's walk
  * is too long for the CPU to reach the next work-item's independent loads while it waits.
  * Levels of 512^2 nodes and more (1 MB, past a core's L2 cache) miss the caches. In a
- * stand-alone sample kernel (warp.cl, product.cl, which define WALK_BARRIERS 1 and have
- * no early return) a work-group barrier before each step into such a level makes PoCL
+ * stand-alone sample kernel (warp.cl, product.cl, which define WALK_BARRIERS 1; their
+ * walking kernels have no early return) a work-group barrier before each step into such a level makes PoCL
  * run that step for all work-items of the group before the next, so the loads of 64
- * work-items are in flight together. Measured in interleaved runs: +5-45% at 1024^2 and
- * 2048^2 (light and product walks; this VM's noise is +-20%), while barriers at the
- * cached levels cost up to 20% (the live values go through memory at each barrier),
- * hence BARRIER_LEVEL 9. A barrier is only legal where every work-item of the group
+ * work-items are in flight together. Measured: 0 to +45% at 1024^2 and 2048^2 in
+ * interleaved runs (light and product walks; this VM's noise is +-20%; one
+ * sample_bench run: -11 to +35%), while barriers at the cached levels cost up to 20%
+ * (the live values go through memory at each barrier), hence BARRIER_LEVEL 9. A barrier is only legal where every work-item of the group
  * reaches it, so the renderer's shade kernels (walks inside per-lane branches) do
  * without. */
 #if defined(WALK_BARRIERS) && WALK_BARRIERS
 #ifndef BARRIER_LEVEL
 #define BARRIER_LEVEL 9   /* the first level (512^2 nodes) whose step waits at a barrier */
 #endif
-#define LEVEL_BARRIER() do { if (l + 1 >= BARRIER_LEVEL) barrier(CLK_LOCAL_MEM_FENCE); } while (0)
+#define LEVEL_BARRIER(l) do { if ((l) + 1 >= BARRIER_LEVEL) barrier(CLK_LOCAL_MEM_FENCE); } while (0)
 #else
-#define LEVEL_BARRIER() do { } while (0)
+#define LEVEL_BARRIER(l) do { } while (0)
 #endif
 
 /* Eight samples walk the tree (N_LEVELS levels below the root, a compile-time constant
@@ -123,7 +123,7 @@ INLINE realv tree_walk(__global const float *tree, const uintv tree_base, realv 
     *uy = clamp_unit(*uy);
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
-        LEVEL_BARRIER();
+        LEVEL_BARRIER(l);
         const uint cside = 2u << l;
         const uintv c = tree_base + node_index(l + 1, 2 * x, 2 * y);
         realv m0, m1, m2, m3;

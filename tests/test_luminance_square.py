@@ -47,3 +47,23 @@ def test_leaf_masses_by_quadrature():
             quad = lum[rows[:, None], cols[None, :]].mean() * (z_hi - z_lo) * 2 * np.pi / side
             assert got[y, x] == pytest.approx(quad, rel=0.05)
     assert got.sum() == pytest.approx((_dense(env, 0)).sum(), rel=1e-12)
+
+
+@pytest.mark.parametrize("shape", [(8, 16), (37, 50)])
+def test_compensated_masses(shape):
+    """compensated=True (MIS compensation): the integral of max(luminance - mean, 0), the mean
+    over the sphere taken from the uncompensated masses (their sum / 4 pi); a map without texels
+    above its mean (a constant one) gives the integral of 1, uniform in solid angle."""
+    rng = np.random.default_rng(7)
+    env = Environment((rng.random(shape + (3,)) ** 6 * 50).astype(np.float32))
+    mean = _dense(env, 0).sum() / (4 * np.pi)
+    flat = env.pixels.reshape(-1, 3) @ LUMINANCE
+    above = np.maximum(flat.astype(np.float64) - mean, 0.0)
+    want = _dense(Environment(np.repeat(above.reshape(shape)[..., None], 3, axis=2) / LUMINANCE.sum()), 4)
+    got = env.luminance_square(4, compensated=True)
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-9 * want.max())
+    assert np.all(got <= env.luminance_square(4) + 1e-12) and (above == 0).any() and got.sum() > 0
+    const = Environment(np.full(shape + (3,), 2.0, np.float32))
+    np.testing.assert_allclose(const.luminance_square(3, compensated=True),
+                               _dense(Environment(np.ones(shape + (3,), np.float32)), 3) / LUMINANCE.sum(),
+                               rtol=1e-6)

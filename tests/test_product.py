@@ -647,6 +647,25 @@ def test_wavelet_estimate_equals_mis_at_a_point(case):
         f"wavelet {ma} vs mis {mb}: difference {ma - mb}, z = {np.abs(ma - mb) / np.maximum(se, 1e-300)} > {z:.2f}"
 
 
+def test_mis_comp_estimate_equals_mis_at_a_point(case):
+    """E[mis_comp] = E[mis] at one shading point (kernel, no visibility), as for wavelet above:
+    MIS compensation zeroes the light pdf below the map's mean luminance and the BSDF sample
+    must cover exactly that part (the adversarial maps include one lit texel and black
+    ones)."""
+    env = environment(case.map_id)
+    scene = _scene(env, [MATERIALS[case.mat_id]])
+    g = GEOMETRIES[case.geom_id]
+    n, _, _ = g.frame()
+    a = _kernel_estimates(scene, "mis_comp", n, g.wo_world(), N_POINT, seed_of("point-c/" + case.id))
+    b = _kernel_estimates(scene, "mis", n, g.wo_world(), N_POINT, seed_of("point-m/" + case.id))
+    assert np.all(np.isfinite(a)) and np.all(a >= 0)
+    ma, mb = a.mean(0), b.mean(0)
+    se = np.sqrt(a.var(0, ddof=1) / len(a) + b.var(0, ddof=1) / len(b))
+    z = stats.norm.isf(sidak_alpha(1e-3, 3 * len(CASES)) / 2)
+    assert np.all(np.abs(ma - mb) <= z * se + 1e-7 * np.maximum(ma, mb)), \
+        f"mis_comp {ma} vs mis {mb}: difference {ma - mb}, z = {np.abs(ma - mb) / np.maximum(se, 1e-300)} > {z:.2f}"
+
+
 REAL_MAPS = ("rooitou_park_1k.hdr", "st_fagans_interior_1k.hdr", "debevec_grace_256x128.hdr")
 # three spheres side by side, one per material, under the scene-format document's camera
 REAL_MATERIALS = {"ggx": dict(type="ggx", albedo=[0.95, 0.8, 0.6], roughness=0.1),
@@ -660,26 +679,34 @@ def real_scenes(tmp_path_factory):
     if not ENVMAPS.is_dir():
         pytest.skip(f"{ENVMAPS} is missing")
     folder = tmp_path_factory.mktemp("real")
+    loaded = {}
 
     def get(map_name):
         if not (ENVMAPS / map_name).is_file():
             pytest.skip(f"{ENVMAPS / map_name} is missing")
+        if map_name in loaded:
+            return loaded[map_name]
         sub = folder / Path(map_name).stem
         sub.mkdir()
-        return load(sub, render=dict(width=36, height=12, spp=16, seed=1),
+        loaded[map_name] = load(sub, render=dict(width=36, height=12, spp=16, seed=1),
                     camera=dict(eye=[0.0, 1.0, 4.0], target=[0.0, 0.5, 0.0], up=[0.0, 1.0, 0.0], fov_y=35.0),
                     environment=dict(file=str(ENVMAPS / map_name)),
                     objects=[dict(shape="sphere", center=[x, 0.5, 0.0], radius=0.75, subdivisions=4, material=m)
                              for x, m in zip((-1.7, 0.0, 1.7), REAL_MATERIALS)],
                     materials=REAL_MATERIALS)
+        return loaded[map_name]
 
     return get
 
 
+_MIS_RENDERS = {}
+
+
+@pytest.mark.parametrize("strategy", ["wavelet", "mis_comp"])
 @pytest.mark.parametrize("map_name", REAL_MAPS)
-def test_wavelet_render_equals_mis_under_real_maps(real_scenes, map_name):
+def test_render_equals_mis_under_real_maps(real_scenes, map_name, strategy):
     """Three spheres (ggx alpha 0.1, phong n = 100, lambert) under a real light probe: the
-    wavelet image equals the mis image within their combined standard error (render_full's
+    wavelet (and the mis_comp) image equals the mis image within their combined standard error (render_full's
     per-pixel stderr), pixel by pixel (two-sided, Student t, Bonferroni over the pixel
     channels at 1e-5, scenes_util.z_threshold) and on the image mean per channel (Bonferroni
     over the 3 channels). Different seeds. debevec_grace has black texels next to its lamps.
@@ -692,9 +719,12 @@ def test_wavelet_render_equals_mis_under_real_maps(real_scenes, map_name):
     is ~15x lighter, at 1024) the bootstrap rate of such false alarms is below 1/4000.
     """
     scene = real_scenes(map_name)
-    a = wavlight.render_full(scene, spp=WAVELET_SPP, strategy="wavelet", seed=101)
-    b = wavlight.render_full(scene, spp=MIS_SPP, strategy="mis", seed=202)
-    assert a.stats["strategy"] == "wavelet" and "product_levels" in a.stats
+    a = wavlight.render_full(scene, spp=WAVELET_SPP, strategy=strategy, seed=101)
+    if map_name not in _MIS_RENDERS:
+        _MIS_RENDERS[map_name] = wavlight.render_full(scene, spp=MIS_SPP, strategy="mis", seed=202)
+    b = _MIS_RENDERS[map_name]
+    assert a.stats["strategy"] == strategy
+    assert ("product_levels" in a.stats) == (strategy == "wavelet")
     ia, ib = a.image.astype(np.float64), b.image.astype(np.float64)
     sa, sb = a.stderr.astype(np.float64), b.stderr.astype(np.float64)
     assert np.all(np.isfinite(ia)) and np.all(np.isfinite(sa))
@@ -704,14 +734,14 @@ def test_wavelet_render_equals_mis_under_real_maps(real_scenes, map_name):
     z = z_threshold(diff.size, WAVELET_SPP)
     bad = np.abs(diff) > z * se + fixed
     assert not bad.any(), (f"{bad.sum()} of {diff.size} pixel channels differ beyond {z:.2f} combined stderr, "
-                           f"e.g. at {np.argwhere(bad)[:3].tolist()}: wavelet {ia[bad][:3]} mis {ib[bad][:3]} "
+                           f"e.g. at {np.argwhere(bad)[:3].tolist()}: {strategy} {ia[bad][:3]} mis {ib[bad][:3]} "
                            f"se {se[bad][:3]}")
     m = ia.shape[0] * ia.shape[1]
     d = diff.reshape(-1, 3).mean(0)
     se_mean = np.sqrt((se ** 2).reshape(-1, 3).sum(0)) / m
     z3 = z_threshold(3, WAVELET_SPP * m)
     assert np.all(np.abs(d) <= z3 * se_mean + fixed.mean()), \
-        f"image means differ: wavelet {ia.mean((0, 1))} mis {ib.mean((0, 1))} (se {se_mean}, z {np.abs(d) / se_mean})"
+        f"image means differ: {strategy} {ia.mean((0, 1))} mis {ib.mean((0, 1))} (se {se_mean}, z {np.abs(d) / se_mean})"
 
 
 @pytest.fixture(scope="module")
@@ -791,14 +821,14 @@ def _kernel_float_literals(name):
 
 
 def test_angle_step_constants_are_sin_and_cos_of_pi_over_powers_of_two():
-    """kernels/product.h SIN_PI_2K / COS_PI_2K (and their numpy twins) hold sin and cos of pi / 2^k
-    rounded to float32 (pi and pi / 2 exactly)."""
+    """kernels/product.h SIN_PI_2K / COS_PI_2K hold sin and cos of pi / 2^k rounded to float32
+    (pi and pi / 2 exactly), and the numpy twin's tables are the same floats."""
     k = np.arange(16)
-    want_s, want_c = np.sin(np.pi / 2.0 ** k), np.cos(np.pi / 2.0 ** k)
-    for got_s, got_c in ((_kernel_float_literals("SIN_PI_2K"), _kernel_float_literals("COS_PI_2K")),
-                         (product.SIN_PI_2K.astype(np.float64), product.COS_PI_2K.astype(np.float64))):
-        np.testing.assert_allclose(got_s, want_s, rtol=2 ** -24, atol=1e-15)
-        np.testing.assert_allclose(got_c, want_c, rtol=2 ** -24, atol=1e-15)
+    got_s, got_c = _kernel_float_literals("SIN_PI_2K"), _kernel_float_literals("COS_PI_2K")
+    np.testing.assert_allclose(got_s, np.sin(np.pi / 2.0 ** k), rtol=2 ** -24, atol=1e-15)
+    np.testing.assert_allclose(got_c, np.cos(np.pi / 2.0 ** k), rtol=2 ** -24, atol=1e-15)
+    np.testing.assert_array_equal(product.SIN_PI_2K, got_s.astype(np.float32))
+    np.testing.assert_array_equal(product.COS_PI_2K, got_c.astype(np.float32))
 
 
 def test_node_centre_angles_kernel_matches_numpy_and_exact():

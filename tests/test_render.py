@@ -18,7 +18,7 @@ import wavlight
 from scenes_util import (Pinhole, camera_of, check_estimates, dir_from_uv, line_distance, load,
                          ray_sphere, rot_y, texel_dir, texel_radius, uv_from_dir, write_env)
 
-ALL_STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "wavelet")
+ALL_STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet")
 
 
 def test_strategy_list_is_the_documented_one():

@@ -188,16 +188,30 @@ class Environment:
                 return n, tv
         return top, 0.0
 
-    def luminance_square(self, n_levels: int | None = None) -> np.ndarray:
+    def luminance_square(self, n_levels: int | None = None, compensated: bool = False) -> np.ndarray:
         """(2^n, 2^n) float64 leaf masses: the exact integral of luminance over each leaf's solid angle.
 
         Leaf (row y, column x) covers u in [x, x+1)/2^n (phi = 2 pi u) and v in [y, y+1)/2^n
         (theta = pi v) of the square parameterization. The map is piecewise constant, so the
         integral is separable: column overlaps in phi times row overlaps in cos(theta).
+
+        ``compensated``: the integral of max(luminance - its mean over the sphere, 0) instead
+        (MIS compensation, Karlik et al. 2019): a light sampler for MIS only, which leaves
+        the texels dimmer than the mean to the BSDF sample. A map with no texel above its
+        mean (a constant one) gives the integral of 1, uniform in solid angle.
         """
         n = self.square_levels() if n_levels is None else n_levels
         side = 1 << n
         lum = (self._flat @ LUMINANCE).reshape(self.height, self.width).astype(np.float64)
+        if compensated:
+            cos_edges = np.cos(np.arange(self.height + 1) / self.height * np.pi)
+            row_weight = cos_edges[:-1] - cos_edges[1:]                 # solid angle of a texel row / (2 pi / W)
+            mean = float((lum * row_weight[:, None]).sum() / (2.0 * self.width))   # / (4 pi) * (2 pi / W)
+            # texels within rounding of the mean are not above it (a constant map's mean comes
+            # out a few ulp off, which would leave a distribution of rounding noise)
+            lum = np.where(lum > mean * (1.0 + 1e-6), lum - mean, 0.0)
+            if not np.any(lum > 0):
+                lum = np.ones_like(lum)
         # rows: solid-angle overlap of leaf row i with texel row r, in cos(theta); columns: in phi.
         # Each leaf overlaps a band of a few texels, so the products rows @ lum @ cols run over
         # the bands only (the dense products took 70 ms per call at 1024^2).

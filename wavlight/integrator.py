@@ -188,6 +188,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     if structured_mode is not None and structured_mode not in STRUCTURED_MODES:
         raise WavlightError(f"unknown structured_mode {structured_mode!r} ({' | '.join(STRUCTURED_MODES)})")
     options = {"light": {"levels": light_levels}, "mis": {"light_levels": light_levels},
+               "mis_comp": {"light_levels": light_levels},
                "wavelet": {"levels": wavelet_levels, "light_levels": light_levels},
                "sir": {"candidates": sir_candidates, "samples": sir_samples,
                        "light_levels": light_levels},

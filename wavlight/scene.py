@@ -39,7 +39,7 @@ from .envmap import Environment, procedural_sky, read_image
 from .errors import SceneError, WavlightError
 from .sampler import SAMPLERS
 
-STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "wavelet", "sir", "structured")
+STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet", "sir", "structured")
 STRUCTURED_MODES = ("stratified", "preintegrated")
 MAX_STRUCTURED_STRATA = 1024
 MAX_SIR_CANDIDATES = 65536

@@ -66,7 +66,7 @@ class KernelShader:
         depth = int(max(np.max(levels, initial=0), 0))
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
         sizes = {}   # the walks' compile-time sizes: light tree depth; product depth and lobe shapes
-        if strategy.name in ("light", "mis", "wavelet"):
+        if strategy.name in ("light", "mis", "mis_comp", "wavelet"):
             sizes["N_LEVELS"] = int(self.levels)
         if strategy.name == "wavelet":
             sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)))

@@ -147,8 +147,9 @@ class LightStrategy(Strategy):
 
     name = "light"
 
-    def __init__(self, levels: int | None = None):
+    def __init__(self, levels: int | None = None, compensated: bool = False):
         self.override = levels
+        self.compensated = compensated   # only as one technique of MIS (MisCompensatedStrategy)
 
     def prepare(self, environment, materials=()):
         self.env = environment
@@ -156,7 +157,7 @@ class LightStrategy(Strategy):
             n, self.tv = environment.light_levels()
         else:
             n, self.tv = min(max(int(self.override), 1), environment.square_levels()), None
-        self.tree = HaarTree(environment.luminance_square(n))
+        self.tree = HaarTree(environment.luminance_square(n, compensated=self.compensated))
 
     def sample_directions(self, u):
         """u (N, 2) -> world directions (N, 3) and pdf per solid angle (N,)."""
@@ -256,14 +257,34 @@ class MisStrategy(Strategy):
         return self.light.info()
 
 
-#: kernel ids of the strategies (-DSTRATEGY in kernels/shade.cl)
-KERNEL_ID = {"uniform": 0, "cosine": 1, "bsdf": 2, "light": 3, "mis": 4, "wavelet": 5}
+class MisCompensatedStrategy(MisStrategy):
+    """``mis`` with MIS compensation (Karlik et al. 2019; pbrt-v4's default for image
+    lights, Mitsuba 3's ``mis_compensation``): the light sample follows max(luminance -
+    mean luminance, 0) x solid angle (Environment.luminance_square(compensated=True)),
+    so it spends no samples on the texels dimmer than the map's mean, which the BSDF
+    sample covers. Unbiased only as MIS: the light pdf is 0 there, and every BSDF here
+    samples its whole support (the power heuristic gives the BSDF sample weight 1
+    where the light pdf is 0). A map without texels above its mean falls back to
+    uniform in solid angle. Same shade kernel as ``mis``, another light tree."""
+
+    name = "mis_comp"
+
+    def __init__(self, light_levels: int | None = None):
+        self.light = LightStrategy(light_levels, compensated=True)
+        self.bsdf = BsdfStrategy()
+
+    def info(self):
+        return {**self.light.info(), "mis_compensation": True}
+
+
+#: kernel ids of the strategies (-DSTRATEGY in kernels/shade.cl); mis_comp runs mis's kernel
+KERNEL_ID = {"uniform": 0, "cosine": 1, "bsdf": 2, "light": 3, "mis": 4, "mis_comp": 4, "wavelet": 5}
 
 from .sir import SirStrategy  # noqa: E402  (sir.py builds on the classes above)
 from .structured import StructuredStrategy  # noqa: E402
 
 REGISTRY = {cls.name: cls for cls in (UniformStrategy, CosineStrategy, BsdfStrategy, LightStrategy, MisStrategy,
-                                     WaveletStrategy, SirStrategy, StructuredStrategy)}
+                                     MisCompensatedStrategy, WaveletStrategy, SirStrategy, StructuredStrategy)}
 
 
 def make(name: str, **options) -> Strategy:
