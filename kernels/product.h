@@ -43,7 +43,7 @@
  * centre lies further below the horizon gets no product samples; the BSDF sample
  * covers it). Measured per shading point (relative variance of wavelet over mis on
  * the sphere's visible points, 128 points x 512 samples): phong with 0.2 pi instead of
- * 0.35 pi, n = 200: 0.55 / 0.056 / 0.27 -> 0.42 / 0.048 / 0.20 under rooitou /
+ * 0.35 pi, n = 200: 0.55 / 0.050 / 0.27 -> 0.42 / 0.043 / 0.20 under rooitou /
  * st_fagans / potsdamer, and 15-40% lower on four of five other maps and at n = 50
  * and 1000; 0.1 pi and 0.5 pi were worse. ggx measured best at 0.35 pi (0.2 pi: up
  * to 15% worse), and the horizon blur (0.4 pi to 2 pi) made no difference. */

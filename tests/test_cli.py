@@ -324,7 +324,7 @@ def test_scene_settings_apply_without_flags_and_flags_override(tmp_path):
         assert (spec.width, spec.height) == (s["width"], s["height"])
 
 
-@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis"])
+@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp"])
 def test_every_strategy_flag_renders(tmp_path, strategy):
     scene = write_scene(tmp_path, scene_text())
     o = run_inproc("render", scene, "-o", tmp_path / "a.exr", "--strategy", strategy, "--json")
@@ -483,7 +483,7 @@ def test_output_folder_missing(tmp_path):
 
 
 # ----------------------------------------------------------------------------- bad texels
-@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis"])
+@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp"])
 def test_bad_texels_warn_once_and_never_reach_the_output(tmp_path, strategy):
     write_env(tmp_path / "bad.exr", bad_texel_env())
     scene = write_scene(tmp_path, scene_text(env='file = "bad.exr"\nrotate_y = 20.0',

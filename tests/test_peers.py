@@ -21,7 +21,8 @@ def test_envmap_lookup_matches_inside_texels():
         assert peers.envmap_mismatch(env, upsample=k, count=50_000) < 1.5 * band
 
 
-def test_furnace_agrees_with_wavlight(tmp_path):
+@pytest.mark.parametrize("strategy", ["mis", "mis_comp"])
+def test_furnace_agrees_with_wavlight(tmp_path, strategy):
     """Constant environment, lambert sphere: both renderers give the albedo on the sphere."""
     wavlight.save_image(str(tmp_path / "white.exr"), np.ones((8, 16, 3), np.float32))
     (tmp_path / "s.toml").write_text(
@@ -30,7 +31,7 @@ def test_furnace_agrees_with_wavlight(tmp_path):
         'center = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"\n[materials.m]\ntype = "lambert"\n'
         'albedo = [0.5, 0.5, 0.5]\n')
     scene = wavlight.load_scene(str(tmp_path / "s.toml"))
-    r = peers.render_mitsuba(scene, "mis", spp=256)
+    r = peers.render_mitsuba(scene, strategy, spp=256)
     centre = r.image[6:10, 6:10]
     # Mitsuba reports no per-pixel error; its per-pixel spread estimates the standard error of the mean
     se = centre.std() / np.sqrt(centre.size)

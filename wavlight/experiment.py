@@ -26,7 +26,7 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
 
     [[strategies]]
     id = "wavelet"            # uniform | cosine | bsdf | light | mis | wavelet | ...,
-                              # or a Mitsuba peer: mitsuba:mis | mitsuba:light | mitsuba:bsdf
+                              # or a Mitsuba peer: mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf
     label = "wavelet-p5"      # default: the id; names the output folders and chart lines
     wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels)
     light_levels = 9
@@ -309,7 +309,7 @@ def load_spec(path) -> Spec:
                              "(pip install 'wavlight[peers]'; Debian: libllvm19)")
         elif sid not in STRATEGIES:
             t.fail("id", f"unknown strategy {sid!r} ({' | '.join(STRATEGIES)} | "
-                         f"mitsuba:mis | mitsuba:light | mitsuba:bsdf)")
+                         f"mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf)")
         label = t.name_key("label", sid.replace(":", "-"))
         if any(x.label == label for x in strats):
             t.fail("label", f"label {label!r} is used twice (give each strategy a distinct label)")

@@ -36,7 +36,8 @@ from .integrator import RenderResult
 from .errors import WavlightError
 
 VARIANT = "llvm_ad_rgb"
-STRATEGIES = {"mis": (1, 1), "light": (1, 0), "bsdf": (0, 1)}  # (emitter_samples, bsdf_samples)
+STRATEGIES = {"mis": (1, 1), "mis_comp": (1, 1), "light": (1, 0), "bsdf": (0, 1)}  # (emitter_samples, bsdf_samples)
+# mis_comp: the envmap with mis_compensation = true, Mitsuba's MIS compensation
 
 
 def _mitsuba():
@@ -82,7 +83,7 @@ def scene_dict(scene, strategy, width, height, spp, folder, upsample=8):
 
     mi, _ = _mitsuba()
     if strategy not in STRATEGIES:
-        raise WavlightError(f"no Mitsuba equivalent of strategy {strategy!r} (mis | light | bsdf)")
+        raise WavlightError(f"no Mitsuba equivalent of strategy {strategy!r} ({' | '.join(STRATEGIES)})")
     em, bs = STRATEGIES[strategy]
     cam = scene.camera
     d = {"type": "scene",
@@ -94,6 +95,7 @@ def scene_dict(scene, strategy, width, height, spp, folder, upsample=8):
                              "rfilter": {"type": "box"}},
                     "sampler": {"type": "independent", "sample_count": int(spp)}},
          "environment": {"type": "envmap", "bitmap": _envmap_bitmap(mi, scene.environment, upsample),
+                         "mis_compensation": strategy == "mis_comp",
                          "to_world": mi.ScalarTransform4f().rotate([0.0, 1.0, 0.0], scene.environment.rotate_y)}}
     approximated = []
     for index, material in enumerate(scene.materials):

@@ -1,0 +1,118 @@
+"""Direction-sampling error per shading point, without the pixel footprint.
+
+On a unit sphere seen from (0, 0, 4), --points visible shading points spread as the
+image spreads them (uniform over the projected disc), each shaded with --samples
+independent estimates (both MIS slots, no visibility: a sphere never shadows itself)
+by the numpy twins of the strategies (wavlight.strategies.shade_reference). Per point
+the relative variance var / (mean^2 + 0.01), mean the average of all strategies'
+means; printed as the mean over the points of each strategy's relative variance over
+`mis`'s. This is the quantity the product sampler's model decides (the image relMSE
+of benchmarks/relmse.py adds the pixel-footprint variance that no direction sampler
+removes), and it is how the product model's parameters were chosen:
+--phong-blur sets the phong lobe widening of the numpy twin (wavlight.product
+PHONG_BLUR, in units of pi; the kernel's PHONG_BLUR_F must then be set to match
+before rendering).
+
+    python benchmarks/point_variance.py [--maps rooitou_park_1k,...] [--materials phong200,ggx0.05]
+                                        [--strategies wavelet,mis_comp] [--phong-blur 0.2,0.35]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data"))
+MATERIALS = {"phong50": ("phong", 50.0), "phong200": ("phong", 200.0), "phong1000": ("phong", 1000.0),
+             "ggx0.05": ("ggx", 0.05), "ggx0.2": ("ggx", 0.2), "lambert": ("lambert", None)}
+
+
+def sphere_points(scene, count, rng):
+    """count visible points of the unit sphere (uniform over the projected disc) as ShadingPoints."""
+    from wavlight import strategies, warp
+
+    xy = rng.random((3 * count, 2)) * 2 - 1
+    xy = xy[(xy ** 2).sum(1) < 0.97][:count]
+    n = np.concatenate([xy, np.sqrt(1 - (xy ** 2).sum(1, keepdims=True))], 1)
+    wo = np.array([0.0, 0.0, 4.0]) - n
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    m = scene.materials[0]
+
+    def points(idx):
+        s, t = warp.frame(n[idx])
+        k = len(idx)
+        return strategies.ShadingPoints(p=n[idx], n=n[idx], s=s, t=t, wo=warp.to_local(wo[idx], s, t, n[idx]),
+                                        kind=np.full(k, m.kind), param=np.full(k, m.param),
+                                        albedo=np.tile(m.albedo, (k, 1)), material=np.zeros(k, np.int64))
+    return len(n), points
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--maps", default="rooitou_park_1k,st_fagans_interior_1k,potsdamer_platz_1k")
+    ap.add_argument("--materials", default="phong200,ggx0.05,ggx0.2")
+    ap.add_argument("--strategies", default="wavelet,mis_comp")
+    ap.add_argument("--phong-blur", default="", help="comma-separated phong lobe widenings (units of pi)")
+    ap.add_argument("--points", type=int, default=128)
+    ap.add_argument("--samples", type=int, default=512)
+    args = ap.parse_args()
+    if not os.path.isdir(DATA):
+        sys.exit(f"point_variance: {DATA} not found (../shared/data beside the checkout)")
+
+    import tempfile
+
+    from wavlight import product, strategies
+    from wavlight.scene import load_scene
+
+    blurs = [float(b) for b in args.phong_blur.split(",")] if args.phong_blur else [product.PHONG_BLUR / np.pi]
+    out = {"points": args.points, "samples": args.samples, "phong_blur_pi": blurs, "cases": {}}
+    tmp = tempfile.mkdtemp(prefix="wavlight-points-")
+    for env_name in args.maps.split(","):
+        for mat_name in args.materials.split(","):
+            kind, param = MATERIALS[mat_name]
+            key = {"phong": "exponent", "ggx": "roughness"}.get(kind)
+            mat = f'type = "{kind}"\n' + (f"{key} = {param}\n" if key else "") + "albedo = [0.9, 0.9, 0.9]\n"
+            path = os.path.join(tmp, f"{env_name}-{mat_name}.toml")
+            with open(path, "w") as fh:
+                fh.write(f'[environment]\nfile = "{DATA}/envmaps/{env_name}.hdr"\n'
+                         '[camera]\neye = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n'
+                         'fov_y = 32.0\n[[objects]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\n'
+                         f'material = "m"\n[materials.m]\n{mat}')
+            scene = load_scene(path)
+            env = scene.environment
+            count, points = sphere_points(scene, args.points, np.random.default_rng(7))
+            idx = np.repeat(np.arange(count), args.samples)
+            sp = points(idx)
+            u = np.random.default_rng(11).random((len(idx), 4))
+
+            def estimates(strategy):
+                strategy.prepare(env, scene.materials)
+                _, val = strategies.shade_reference(strategy, env, sp, u)
+                return val.sum(1).mean(1).reshape(count, args.samples)
+
+            runs = {"mis": estimates(strategies.make("mis"))}
+            for name in args.strategies.split(","):
+                if name == "wavelet" and kind == "phong":
+                    for b in blurs:
+                        saved, product.PHONG_BLUR = product.PHONG_BLUR, b * np.pi
+                        try:
+                            runs[f"wavelet phong_blur={b}"] = estimates(strategies.make("wavelet"))
+                        finally:
+                            product.PHONG_BLUR = saved
+                else:
+                    runs[name] = estimates(strategies.make(name))
+            mean = np.mean([r.mean(1) for r in runs.values()], axis=0)
+            rel = {k: r.var(1) / (mean ** 2 + 1e-2) for k, r in runs.items()}
+            row = {k: round(float(v.mean() / rel["mis"].mean()), 4) for k, v in rel.items() if k != "mis"}
+            row["mis_relative_variance"] = round(float(rel["mis"].mean()), 5)
+            out["cases"][f"sphere/{mat_name}/{env_name}"] = row
+            print(f"sphere/{mat_name}/{env_name}: {row}", file=sys.stderr, flush=True)
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
