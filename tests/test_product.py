@@ -625,45 +625,35 @@ def _kernel_estimates(scene, name, normal, wo, count, seed, **options):
 N_POINT = 100_000
 
 
-def test_wavelet_estimate_equals_mis_at_a_point(case):
-    """E[wavelet] = E[mis] = integral of f cos L at one shading point (kernel, no visibility).
-
-    100k samples of each strategy with independent uniforms; per channel the difference of
-    the means must lie within z sqrt(se_w^2 + se_m^2), z the two-sided normal quantile at
-    1e-3 / (3 channels x the cases) (Sidak). Where the integrand is 0 both must be exactly 0.
-    """
+def _assert_point_estimate_equals_mis(case, name, tag, **options):
+    """E[name] = E[mis] at the case's shading point (kernel, no visibility): 100k samples of
+    each with independent uniforms; per channel the difference of the means must lie within
+    z sqrt(se_a^2 + se_m^2), z the two-sided normal quantile at 1e-3 / (3 channels x the cases)
+    (Sidak). Where the integrand is 0 both must be exactly 0."""
     env = environment(case.map_id)
     scene = _scene(env, [MATERIALS[case.mat_id]])
     g = GEOMETRIES[case.geom_id]
     n, _, _ = g.frame()
-    a = _kernel_estimates(scene, "wavelet", n, g.wo_world(), N_POINT, seed_of("point-w/" + case.id),
-                          levels=case.levels)
+    a = _kernel_estimates(scene, name, n, g.wo_world(), N_POINT, seed_of(f"point-{tag}/" + case.id), **options)
     b = _kernel_estimates(scene, "mis", n, g.wo_world(), N_POINT, seed_of("point-m/" + case.id))
     assert np.all(np.isfinite(a)) and np.all(a >= 0)
     ma, mb = a.mean(0), b.mean(0)
     se = np.sqrt(a.var(0, ddof=1) / len(a) + b.var(0, ddof=1) / len(b))
     z = stats.norm.isf(sidak_alpha(1e-3, 3 * len(CASES)) / 2)
     assert np.all(np.abs(ma - mb) <= z * se + 1e-7 * np.maximum(ma, mb)), \
-        f"wavelet {ma} vs mis {mb}: difference {ma - mb}, z = {np.abs(ma - mb) / np.maximum(se, 1e-300)} > {z:.2f}"
+        f"{name} {ma} vs mis {mb}: difference {ma - mb}, z = {np.abs(ma - mb) / np.maximum(se, 1e-300)} > {z:.2f}"
+
+
+def test_wavelet_estimate_equals_mis_at_a_point(case):
+    """E[wavelet] = E[mis] = integral of f cos L at one shading point (kernel, no visibility)."""
+    _assert_point_estimate_equals_mis(case, "wavelet", "w", levels=case.levels)
 
 
 def test_mis_comp_estimate_equals_mis_at_a_point(case):
-    """E[mis_comp] = E[mis] at one shading point (kernel, no visibility), as for wavelet above:
-    MIS compensation zeroes the light pdf below the map's mean luminance and the BSDF sample
-    must cover exactly that part (the adversarial maps include one lit texel and black
-    ones)."""
-    env = environment(case.map_id)
-    scene = _scene(env, [MATERIALS[case.mat_id]])
-    g = GEOMETRIES[case.geom_id]
-    n, _, _ = g.frame()
-    a = _kernel_estimates(scene, "mis_comp", n, g.wo_world(), N_POINT, seed_of("point-c/" + case.id))
-    b = _kernel_estimates(scene, "mis", n, g.wo_world(), N_POINT, seed_of("point-m/" + case.id))
-    assert np.all(np.isfinite(a)) and np.all(a >= 0)
-    ma, mb = a.mean(0), b.mean(0)
-    se = np.sqrt(a.var(0, ddof=1) / len(a) + b.var(0, ddof=1) / len(b))
-    z = stats.norm.isf(sidak_alpha(1e-3, 3 * len(CASES)) / 2)
-    assert np.all(np.abs(ma - mb) <= z * se + 1e-7 * np.maximum(ma, mb)), \
-        f"mis_comp {ma} vs mis {mb}: difference {ma - mb}, z = {np.abs(ma - mb) / np.maximum(se, 1e-300)} > {z:.2f}"
+    """E[mis_comp] = E[mis] at one shading point: MIS compensation zeroes the light pdf below the
+    map's mean luminance and the BSDF sample must cover exactly that part (the adversarial maps
+    include one lit texel and black ones)."""
+    _assert_point_estimate_equals_mis(case, "mis_comp", "c")
 
 
 REAL_MAPS = ("rooitou_park_1k.hdr", "st_fagans_interior_1k.hdr", "debevec_grace_256x128.hdr")
