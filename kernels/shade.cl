@@ -1,8 +1,9 @@
 /* Shading of direct environment lighting: for each shading point draw one (or,
  * for MIS, two) directions with the strategy chosen by -DSTRATEGY and return the
- * unoccluded estimator value  albedo f cos L / pdf  (times the power-heuristic
- * weight for MIS) with its direction; the host traces shadow rays for the
- * non-zero values. numpy twin: wavlight/strategies.py (shade_reference).
+ * unoccluded estimator value  albedo f cos L / pdf  (times the MIS weight: the
+ * power heuristic, or the balance heuristic with -DMIS_BALANCE=1) with its
+ * direction; the host traces shadow rays for the non-zero values. numpy twin:
+ * wavlight/strategies.py (shade_reference).
  *
  * STRATEGY: 0 uniform, 1 cosine, 2 bsdf, 3 light, 4 mis, 5 wavelet. Single
  * strategies use u.xy and write slot 0 (slot 1 is zero); MIS draws the light
@@ -37,6 +38,22 @@ inline realv power_heuristic(const realv pa, const realv pb)
     const realv a = pa / big, b = pb / big;
     return select((realv)0.0f, a * a / (a * a + b * b), big > 0.0f);
 }
+
+inline realv balance_heuristic(const realv pa, const realv pb)
+{
+    const realv big = fmax(pa, pb);
+    const realv a = pa / big, b = pb / big;
+    return select((realv)0.0f, a / (a + b), big > 0.0f);
+}
+
+/* The MIS weight of the two-sample strategies (numpy twin: Strategy.heuristic): the power
+ * heuristic for mis and mis_comp (as pbrt-v4 and Mitsuba 3), the balance heuristic for
+ * wavelet (wavlight.strategies.WaveletStrategy says why). */
+#if defined(MIS_BALANCE) && MIS_BALANCE
+#define mis_weight balance_heuristic
+#else
+#define mis_weight power_heuristic
+#endif
 
 /* Density per unit solid angle of the light tree at world directions (x, y, z) (MIS weight). */
 inline realv light_pdf(__global const float *rot, __global const float *tree, const int levels,
@@ -101,7 +118,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         sa = select((realv)0.0f, f / pdf, pdf > 0.0f);
 #else
         /* the other pdf matters only where the estimate can be non-zero */
-        sa = select((realv)0.0f, f / pdf * power_heuristic(pdf, pdf_bsdf), (pdf > 0.0f) & (f > 0.0f));
+        sa = select((realv)0.0f, f / pdf * mis_weight(pdf, pdf_bsdf), (pdf > 0.0f) & (f > 0.0f));
 #endif
     }
 #endif
@@ -120,7 +137,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
 #else
         const realv other = light_pdf(rot, tree, N_LEVELS, bx, by, bz);
 #endif
-        sb = select((realv)0.0f, f / pdf * power_heuristic(pdf, other), (pdf > 0.0f) & (f > 0.0f));
+        sb = select((realv)0.0f, f / pdf * mis_weight(pdf, other), (pdf > 0.0f) & (f > 0.0f));
     }
 #endif
 #if STRATEGY <= 2

@@ -24,7 +24,7 @@ from chi2 import SphereGrid, SquareGrid, chi2_test, frame_about, integral
 from scenes_util import map3x2, one_texel_map
 from wavlight import bsdfs, warp
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky
-from wavlight.strategies import LightStrategy, power_heuristic
+from wavlight.strategies import LightStrategy, balance_heuristic, power_heuristic
 
 
 def seed_of(name: str) -> int:
@@ -435,7 +435,11 @@ def test_light_zero_variance_on_leaf_constant_map(rotate):
 
 
 # ============================================================================= MIS
-def test_power_heuristic_range_and_partition():
+HEURISTICS = [(power_heuristic, 9 / 25), (balance_heuristic, 3 / 7)]   # with w(3, 4)
+
+
+@pytest.mark.parametrize("heuristic, w34", HEURISTICS, ids=["power", "balance"])
+def test_mis_heuristic_range_and_partition(heuristic, w34):
     """w(a, b) in [0, 1] and w(a, b) + w(b, a) = 1 whenever a + b > 0 (0 for a = b = 0).
 
     pdfs over 30 decades either side of 1 (log-uniform), exact zeros and equal pairs;
@@ -447,17 +451,18 @@ def test_power_heuristic_range_and_partition():
     a[::7] = 0
     b[::11] = 0
     b[::13] = a[::13]
-    wab, wba = power_heuristic(a, b), power_heuristic(b, a)
+    wab, wba = heuristic(a, b), heuristic(b, a)
     assert np.all(np.isfinite(wab)) and np.all((wab >= 0) & (wab <= 1))
     pos = a + b > 0
     np.testing.assert_allclose((wab + wba)[pos], 1.0, rtol=1e-12)
     assert np.all(wab[~pos] == 0)
-    # the heuristic itself: a^2 / (a^2 + b^2)
-    np.testing.assert_allclose(power_heuristic(3.0, 4.0), 9 / 25, rtol=1e-15)
-    np.testing.assert_allclose(power_heuristic(2.0, 0.0), 1.0)
+    # the heuristic itself: a^2 / (a^2 + b^2) (power), a / (a + b) (balance)
+    np.testing.assert_allclose(heuristic(3.0, 4.0), w34, rtol=1e-15)
+    np.testing.assert_allclose(heuristic(2.0, 0.0), 1.0)
 
 
-def test_power_heuristic_extreme_magnitudes():
+@pytest.mark.parametrize("heuristic", [h for h, _ in HEURISTICS], ids=["power", "balance"])
+def test_mis_heuristic_extreme_magnitudes(heuristic):
     """Same partition property where a^2 or b^2 leaves the float64 range.
 
     A Phong lobe of exponent 200 has pdf (201 / 2 pi) cos^200 ~ 1e-200 at 85 degrees from
@@ -465,6 +470,6 @@ def test_power_heuristic_extreme_magnitudes():
     """
     a = np.array([1e-200, 1e-170, 1e200, 1e160, 1e-200])
     b = np.array([0.0, 0.0, 1.0, 1e160, 1e-200])
-    wab, wba = power_heuristic(a, b), power_heuristic(b, a)
+    wab, wba = heuristic(a, b), heuristic(b, a)
     assert np.all(np.isfinite(wab)) and np.all((wab >= 0) & (wab <= 1)), wab
     np.testing.assert_allclose(wab + wba, 1.0, rtol=1e-12)

@@ -78,6 +78,8 @@ class KernelShader:
             materials = scene.face_material if len(scene.face_material) else np.zeros(1, np.int32)
             self._geometry = (np.float32(tracer.epsilon), cl.to_device(np.asarray(normals, np.float32)),
                               cl.to_device(np.asarray(materials, np.int32)))
+        if getattr(strategy, "heuristic", "power") == "balance":
+            sizes["MIS_BALANCE"] = 1
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds,
                                   **sizes)
         self.warm_up()
