@@ -3,7 +3,8 @@
  *
  * The importance of a node s at level l is its product scaling coefficient
  * approximated by the first term of eq. 25, F^0_s ~ 2^l G^0_s H^0_s: the
- * environment's exact box mass (the light tree) times the BRDF x cosine of the
+ * environment's exact box mass (the light tree; for lambert lobes the MIS-compensated
+ * one, max(L - mean, 0), see PRODUCT_TREES) times the BRDF x cosine of the
  * shading point evaluated at the node's centre direction d_s with a lobe
  * pre-filtered to the node's size (x = 1 - d_s . axis, k_l = 1 / (1/kappa + r_l^2),
  * r_l = 0.35 pi / 2^l the lobe blur (phong: 0.2 pi / 2^l), h_l = 0.75 pi / 2^l the horizon blur):
@@ -70,16 +71,29 @@ typedef struct {
     realv inv_kappa;    /* 1 / lobe concentration (phong n, ggx 1 / (2 alpha^2)); inf for lambert */
     intv levels;        /* product depth P (<= tree levels) */
     intv shape;         /* LOBE_LAMBERT | LOBE_PHONG | LOBE_GGX | LOBE_GGX_HALF */
+    uintv base;         /* offset of the lane's light tree in the buffer (PRODUCT_TREES > 1) */
 } Lobe;
 
+/* The product walk reads one of PRODUCT_TREES light trees per lane, one after another in
+ * the buffer (wavlight.strategies.WaveletStrategy: the plain light tree, and the MIS-
+ * compensated one for lambert materials); with one tree the offset is 0 at compile time. */
+#ifndef PRODUCT_TREES
+#define PRODUCT_TREES 1
+#endif
+#if PRODUCT_TREES > 1
+#define TREE_BASE(lb) ((lb)->base)
+#else
+#define TREE_BASE(lb) ((uintv)0)
+#endif
+
 /* The lobes from world-frame normals n and directions to the viewer o: axis = n
- * (lambert) or the mirror direction; code = depth + 256 shape (as the host packs it,
- * wavlight/shading.py); rot = map_from_world (row-major). */
+ * (lambert) or the mirror direction; code = depth + 256 shape + 65536 tree (as the host
+ * packs it, wavlight/shading.py); rot = map_from_world (row-major). */
 INLINE Lobe make_lobe(__global const float *rot, const realv nx, const realv ny, const realv nz,
                       const realv ox, const realv oy, const realv oz, const realv kappa, const intv code)
 {
     Lobe lb;
-    const intv shape = code >> 8;
+    const intv shape = (code >> 8) & 0xff;
     const intv lambert = shape == LOBE_LAMBERT;
     const realv c2 = 2.0f * (ox * nx + oy * ny + oz * nz);
     const realv ax = select(c2 * nx - ox, nx, lambert);
@@ -98,6 +112,11 @@ INLINE Lobe make_lobe(__global const float *rot, const realv nx, const realv ny,
     lb.inv_kappa = 1.0f / kappa;
     lb.levels = code & 0xff;
     lb.shape = shape;
+#ifdef N_LEVELS
+    lb.base = as_uintv(code >> 16) * (uint)LEVEL_OFFSET(N_LEVELS + 1);   /* tree index x tree size */
+#else
+    lb.base = 0;
+#endif
     return lb;
 }
 
@@ -284,7 +303,7 @@ INLINE void child_importances_ahead(const Lobe *lb, const NodeAngles *a, __globa
                                     realv *w0, realv *w1, realv *w2, realv *w3)
 {
     const uint gside = 4u << level;                                     /* level + 2 */
-    const uintv g = node_index(level + 2, 4 * x, 4 * y);
+    const uintv g = TREE_BASE(lb) + node_index(level + 2, 4 * x, 4 * y);
     LobeColumn cols[4];
     realv st[4], ct[4];
     realv mass[4][4];
@@ -339,6 +358,16 @@ INLINE uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, c
  * types (simd.h). The importances are computed for every lane at levels <
  * PRODUCT_LEVELS and selected per lane (every load stays in the tree). PRODUCT_LEVELS
  * must be at least every lane's depth (the host builds with the largest). */
+/* pdf where the lane's tree has mass, 0 where its root is 0 (an all-black map). */
+INLINE realv root_tested(__global const float *tree, const Lobe *lb, const realv pdf)
+{
+#if PRODUCT_TREES > 1
+    return select((realv)0.0f, pdf, GATHER(tree, lb->base) > 0.0f);
+#else
+    return tree[0] > 0.0f ? pdf : (realv)0.0f;   /* (a scalar test: 1, not a -1 lane mask) */
+#endif
+}
+
 #if PRODUCT_LEVELS > 14
 #error "PRODUCT_LEVELS > 14: the walk's angle steps pi / 2^k reach k = PRODUCT_LEVELS + 1, SIN_PI_2K ends at 15"
 #endif
@@ -354,7 +383,7 @@ INLINE realv product_walk(__global const float *tree, const Lobe *lb,
     for (int l = 0; l < N_LEVELS; ++l) {
         LEVEL_BARRIER(l);
         const uint cside = 2u << l;
-        const uintv c = node_index(l + 1, 2 * x, 2 * y);
+        const uintv c = TREE_BASE(lb) + node_index(l + 1, 2 * x, 2 * y);
         realv m0, m1, m2, m3;
         GATHER2(tree, c, &m0, &m1);
         GATHER2(tree, c + cside, &m2, &m3);
@@ -376,12 +405,12 @@ INLINE realv product_walk(__global const float *tree, const Lobe *lb,
         }
     }
     const intv depth = min(lb->levels, N_LEVELS);
-    const realv node_mass = GATHER(tree, node_of_leaf(depth, N_LEVELS, x, y));
+    const realv node_mass = GATHER(tree, TREE_BASE(lb) + node_of_leaf(depth, N_LEVELS, x, y));
     const uint side = 1u << N_LEVELS;
-    const realv leaf = GATHER(tree, node_index(N_LEVELS, x, y));
+    const realv leaf = GATHER(tree, TREE_BASE(lb) + node_index(N_LEVELS, x, y));
     leaf_point(x, y, N_LEVELS, ux, uy);
     const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
-    return tree[0] > 0.0f ? pdf : (realv)0.0f;   /* (a scalar test: 1, not a -1 lane mask) */
+    return root_tested(tree, lb, pdf);
 }
 
 /* Density on the square of product_walk at points (u, v), for any directions (MIS). */
@@ -398,7 +427,7 @@ INLINE realv product_pdf(__global const float *tree, const Lobe *lb,
         const uintv cx = lx >> (N_LEVELS - l - 1), cy = ly >> (N_LEVELS - l - 1);
         const uintv px = cx >> 1, py = cy >> 1;
         const uint cside = 2u << l;
-        const uintv c = node_index(l + 1, 2 * px, 2 * py);
+        const uintv c = TREE_BASE(lb) + node_index(l + 1, 2 * px, 2 * py);
         realv m0, m1, m2, m3, i0, i1, i2, i3;
         GATHER2(tree, c, &m0, &m1);
         GATHER2(tree, c + cside, &m2, &m3);
@@ -410,10 +439,10 @@ INLINE realv product_pdf(__global const float *tree, const Lobe *lb,
         const realv mine = select(select(i0, i1, right), select(i2, i3, right), bottom);
         p *= select((realv)1.0f, mine / sum, l < depth);
     }
-    const realv node_mass = GATHER(tree, node_of_leaf(depth, N_LEVELS, lx, ly));
-    const realv leaf = GATHER(tree, node_index(N_LEVELS, lx, ly));
+    const realv node_mass = GATHER(tree, TREE_BASE(lb) + node_of_leaf(depth, N_LEVELS, lx, ly));
+    const realv leaf = GATHER(tree, TREE_BASE(lb) + node_index(N_LEVELS, lx, ly));
     const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
-    return tree[0] > 0.0f ? pdf : (realv)0.0f;   /* (a scalar test: 1, not a -1 lane mask) */
+    return root_tested(tree, lb, pdf);
 }
 #endif
 #endif

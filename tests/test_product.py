@@ -377,8 +377,9 @@ def horizon_margin(depth: int) -> float:
 
 
 def test_product_pdf_positive_where_light_above_horizon(case):
-    """(d) pdf > 0 wherever the map has radiance and the direction is more than
-    horizon_margin(P) above the shading point's horizon (P the case's product depth).
+    """(d) pdf > 0 wherever the map has radiance (for lambert, which walks the compensated light
+    tree: radiance above the map's mean) and the direction is more than horizon_margin(P) above
+    the shading point's horizon (P the case's product depth).
 
     Closer to the horizon (and below it) the product pdf may be 0 by design: a node whose
     centre is far below the horizon gets importance 0 even if a corner of it is above; the
@@ -391,6 +392,12 @@ def test_product_pdf_positive_where_light_above_horizon(case):
     n, _, _ = GEOMETRIES[case.geom_id].frame()
     eps = horizon_margin(int(strat.levels[0]))
     lum = env.eval(d) @ LUMINANCE
+    if strat.tree_kinds[strat.tree_index[0]] == "compensated":
+        # the compensated leaves, from the map (not from the strategy's tree)
+        n_levels = strat.light.tree.n_levels
+        leaves = env.luminance_square(n_levels, compensated=True)
+        ij = np.minimum((env.world_to_square(d) * (1 << n_levels)).astype(np.int64), (1 << n_levels) - 1)
+        lum = np.where(leaves[ij[:, 1], ij[:, 0]] > 0, lum, 0.0)
     need = (lum > 0) & (d @ n > math.sin(eps))
     bad = need & ~(p > 0)
     assert need.sum() > 0 or case.geom_id == "down80" or case.map_id.startswith("one_texel"), \
@@ -530,6 +537,28 @@ def test_kernel_matches_numpy_on_lobe_axes_and_grazing(map_id):
                              + "; ".join(f"{normals[configs[i][0]].round(3).tolist()}, {configs[i][1]} deg, "
                                          f"{mats[configs[i][2]].name}: {okc[i]:.3f} of slots agree, means "
                                          f"{yk[i].mean(0)} vs {yr[i].mean(0)} (se {se[i]})" for i in k))
+
+
+@pytest.mark.parametrize("mat_ids, kinds, index", [
+    (["phong200"], ["plain"], [0]),
+    (["lambert"], ["compensated"], [0]),
+    (["lambert", "ggx0.05", "lambert"], ["plain", "compensated"], [1, 0, 1])])
+def test_light_trees_per_material(mat_ids, kinds, index):
+    """WaveletStrategy keeps one light tree per kind its materials need: plain for glossy
+    lobes, MIS-compensated for lambert; each tree's leaves are the map's (plain or
+    compensated) leaf masses, and info() reports the choice and the memory of all trees."""
+    env = environment("sky")
+    s = WaveletStrategy()
+    s.prepare(env, [MATERIALS[m] for m in mat_ids])
+    assert s.tree_kinds == kinds and s.tree_index.tolist() == index
+    nodes = s.light.tree.nodes()
+    n = s.light.tree.n_levels
+    for tree, kind in zip(nodes, kinds):
+        want = env.luminance_square(n, compensated=kind == "compensated").ravel()
+        np.testing.assert_allclose(tree[-want.size:], want, rtol=1e-6, atol=1e-30)
+    info = s.info()
+    assert info["memory_bytes"] == nodes.size * 4
+    assert info["product_light_tree"] == {MATERIALS[m].name: kinds[i] for m, i in zip(mat_ids, index)}
 
 
 # ============================================================================= 3. product depth

@@ -62,9 +62,12 @@ def test_render_kernel_equals_numpy_backend():
         assert close.mean() > 0.998
 
 
-def test_product_sample_points_kernel_matches_numpy():
+@pytest.mark.parametrize("n_trees", [1, 2])
+def test_product_sample_points_kernel_matches_numpy(n_trees):
     """kernels/product.cl (the renderer's product guide samples) against wavlight.product.sample_reference,
-    for every lobe shape and product depth, in one program built for all of them."""
+    for every lobe shape and product depth, in one program built for all of them; with two light
+    trees (plain and compensated, as WaveletStrategy holds them for lambert and glossy materials in
+    one scene) each material walks its own."""
     from wavlight import cl, product
     from wavlight.distributions import HaarTree
 
@@ -72,7 +75,7 @@ def test_product_sample_points_kernel_matches_numpy():
     env = Environment(procedural_sky(width=128, height=64, sun_radiance=300.0) + rng.random((64, 128, 3)) * 0.3,
                       1.0, 35.0)
     n_levels = env.square_levels()
-    tree = HaarTree(env.luminance_square(n_levels))
+    tree = HaarTree(np.stack([env.luminance_square(n_levels, compensated=c) for c in (False, True)][:n_trees]))
     count = 4093  # not a multiple of the work-group size: the masked tail is exercised too
     nrm = rng.normal(size=(count, 3))
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
@@ -83,6 +86,7 @@ def test_product_sample_points_kernel_matches_numpy():
     mat_shape = np.repeat(np.arange(4), n_levels + 1)
     mat_depth = np.tile(np.arange(n_levels + 1), 4)
     mat_kappa = np.where(mat_shape == bsdfs.LAMBERT, 0.0, np.where(mat_shape == bsdfs.PHONG, 50.0, 12.5))
+    mat_tree = np.arange(len(mat_shape)) % n_trees
     material = rng.integers(0, len(mat_shape), count)
     shape, levels, kappa = mat_shape[material], mat_depth[material], mat_kappa[material]
     mirror = 2 * np.einsum("ij,ij->i", wo, nrm)[:, None] * nrm - wo
@@ -92,18 +96,19 @@ def test_product_sample_points_kernel_matches_numpy():
     n4, w4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
     n4[:, :3], w4[:, :3] = nrm, wo
     uv_buf, pdf_buf = cl.empty(8 * count), cl.empty(4 * count)
-    prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=n_levels, LOBE_SHAPES=15)
+    prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=n_levels, LOBE_SHAPES=15,
+                      PRODUCT_TREES=n_trees)
     items = cl.items(count, cl.LANES)
     cl.kernel(prog, "product_sample_points")(
         q, (items,), (cl.WORK_GROUP,), tree.buffer, cl.to_device(env.map_from_world.astype(np.float32).ravel()),
         np.uint32(count), cl.to_device(n4), cl.to_device(w4), cl.to_device(material.astype(np.int32)),
-        cl.to_device(mat_kappa.astype(np.float32)), cl.to_device((mat_depth + 256 * mat_shape).astype(np.int32)),
+        cl.to_device(mat_kappa.astype(np.float32)), cl.to_device((mat_depth + 256 * mat_shape + 65536 * mat_tree).astype(np.int32)),
         cl.to_device(u), np.uint32(4), uv_buf, pdf_buf)
     uv_k = cl.read(uv_buf, (2, count), np.float32, q).T
     pdf_k = cl.read(pdf_buf, (count,), np.float32, q)
     u = u[:, :2]
-    uv_r, pdf_r = product.sample_reference(tree.nodes()[0], n_levels, env, axis, nrm, kappa, levels, shape,
-                                           u.astype(np.float64))
+    uv_r, pdf_r = product.sample_reference(tree.nodes(), n_levels, env, axis, nrm, kappa, levels, shape,
+                                           u.astype(np.float64), mat_tree[material])
     # float32 kernel vs float64 reference: the same leaf for all but rounding ties at sibling
     # boundaries of the rescaled u; pdfs agree to float32 accuracy over <= 2 n products, except
     # where 1 - d.axis cancels in float32 for nodes next to the lobe axis (a few in 10^4)

@@ -143,10 +143,10 @@ def node_importance(env, mass, x, y, level, axis, n, kappa, shape):
 LOOKAHEAD_LEVELS = 3  # levels whose child importances sum the grandchildren's (kernels/product.h)
 
 
-def _children(tree, env, x, y, level, axis, n, kappa, shape, n_levels):
+def _children(tree, env, x, y, level, axis, n, kappa, shape, n_levels, base):
     cside = 2 << level
-    base = level_offset(level + 1) + (2 * y) * cside + 2 * x
-    idx = np.stack([base, base + 1, base + cside, base + cside + 1], 1)
+    first = base + level_offset(level + 1) + (2 * y) * cside + 2 * x
+    idx = np.stack([first, first + 1, first + cside, first + cside + 1], 1)
     m = tree[idx].astype(np.float64)
     if level < LOOKAHEAD_LEVELS and level + 2 <= n_levels:
         # look-ahead: a child's importance is the sum of its four children's (level + 2)
@@ -156,7 +156,7 @@ def _children(tree, env, x, y, level, axis, n, kappa, shape, n_levels):
             cx, cy = 2 * x + (k & 1), 2 * y + (k >> 1)
             for j in range(4):
                 gx, gy = 2 * cx + (j & 1), 2 * cy + (j >> 1)
-                mg = tree[level_offset(level + 2) + gy * gside + gx].astype(np.float64)
+                mg = tree[base + level_offset(level + 2) + gy * gside + gx].astype(np.float64)
                 imp[:, k] += node_importance(env, mg, gx, gy, level + 2, axis, n, kappa, shape)
     else:
         imp = np.stack([node_importance(env, m[:, k], 2 * x + (k & 1), 2 * y + (k >> 1), level + 1, axis, n,
@@ -168,12 +168,22 @@ def _children(tree, env, x, y, level, axis, n, kappa, shape, n_levels):
     return imp
 
 
-def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
+def _offsets(tree_index, count, stride):
+    """Per-sample offsets of their light trees in the flat buffer (tree_index * stride)."""
+    if tree_index is None:
+        return np.zeros(count, np.int64)
+    return np.broadcast_to(np.asarray(tree_index, np.int64) * stride, (count,))
+
+
+def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u, tree_index=None):
     """Product samples: uv (N, 2) on the square and pdf (N,) on the square (numpy twin).
 
-    tree : (tree_size(n),) light masses; axis, n : (N, 3); kappa (N,); levels, shape (N,) int.
+    tree : light masses, one tree (tree_size(n),) or several (T, tree_size(n)); tree_index
+    (N,) picks each sample's tree (default 0); axis, n : (N, 3); kappa (N,); levels, shape (N,) int.
     """
+    stride = np.shape(tree)[-1]
     tree = np.asarray(tree, np.float64).ravel()
+    base = _offsets(tree_index, len(u), stride)
     u = np.clip(np.nan_to_num(np.asarray(u, np.float64), nan=0.0), 0, ONE_MINUS_EPS)  # as clamp_unit
     count = len(u)
     x = np.zeros(count, np.int64)
@@ -183,12 +193,12 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
         for l in range(n_levels):
             prod = l < depth
             cside = 2 << l
-            c = level_offset(l + 1) + (2 * y) * cside + 2 * x
+            c = base + level_offset(l + 1) + (2 * y) * cside + 2 * x
             m = np.stack([tree[c], tree[c + 1], tree[c + cside], tree[c + cside + 1]], 1)
             w = m.copy()
             if prod.any():
                 w[prod] = _children(tree, env, x[prod], y[prod], l, axis[prod], n[prod], kappa[prod], shape[prod],
-                                    n_levels)
+                                    n_levels, base[prod])
             go_top, go_left = choose_child_reference(w[:, 0], w[:, 1], w[:, 2], w[:, 3], u)
             y = 2 * y + (~go_top)
             x = 2 * x + (~go_left)
@@ -197,15 +207,17 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u):
     # float64 (the kernel's float32 leaf point, distributions.leaf_point, would put tiny
     # offsets exactly on the leaf's edge, where the direction's round trip may change leaf)
     uv = np.minimum((leaf + np.nan_to_num(u)) / side, np.nextafter((leaf + 1) / side, 0))
-    return uv, pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv)
+    return uv, pdf_reference(tree.reshape(-1, stride), n_levels, env, axis, n, kappa, levels, shape, uv,
+                             tree_index)
 
 
-def pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv):
-    """Density on the square of the product sampler at points uv (N, 2) (numpy twin of product_pdf)."""
+def pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv, tree_index=None):
+    """Density on the square of the product sampler at points uv (N, 2) (numpy twin of product_pdf);
+    tree and tree_index as for :func:`sample_reference`."""
+    stride = np.shape(tree)[-1]
     tree = np.asarray(tree, np.float64).ravel()
     count = len(uv)
-    if not tree[0] > 0:
-        return np.zeros(count)
+    base = _offsets(tree_index, count, stride)
     side = 1 << n_levels
     lx = np.clip(np.floor(uv[:, 0] * side).astype(np.int64), 0, side - 1)
     ly = np.clip(np.floor(uv[:, 1] * side).astype(np.int64), 0, side - 1)
@@ -215,9 +227,11 @@ def pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv):
         for l in range(int(depth.max(initial=0))):
             sel = np.nonzero(l < depth)[0]
             cx, cy = lx[sel] >> (n_levels - l - 1), ly[sel] >> (n_levels - l - 1)
-            imp = _children(tree, env, cx >> 1, cy >> 1, l, axis[sel], n[sel], kappa[sel], shape[sel], n_levels)
+            imp = _children(tree, env, cx >> 1, cy >> 1, l, axis[sel], n[sel], kappa[sel], shape[sel], n_levels,
+                            base[sel])
             p[sel] *= imp[np.arange(len(sel)), (cx & 1) + 2 * (cy & 1)] / imp.sum(1)
         nx, ny = lx >> (n_levels - depth), ly >> (n_levels - depth)
-        node = tree[np.array([level_offset(int(d)) for d in range(n_levels + 1)])[depth] + ny * (1 << depth) + nx]
-        leaf = tree[level_offset(n_levels) + ly * side + lx]
-        return np.where(node > 0, p * leaf / node * side * side, 0.0)
+        offsets = np.array([level_offset(int(d)) for d in range(n_levels + 1)])
+        node = tree[base + offsets[depth] + ny * (1 << depth) + nx]
+        leaf = tree[base + level_offset(n_levels) + ly * side + lx]
+        return np.where((node > 0) & (tree[base] > 0), p * leaf / node * side * side, 0.0)

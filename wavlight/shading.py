@@ -61,15 +61,17 @@ class KernelShader:
         levels = np.asarray(getattr(strategy, "levels", np.zeros(len(scene.materials), np.int32)), np.int32)
         self.kappa = cl.to_device(np.asarray(kappa, np.float32))
         shapes = np.asarray(getattr(strategy, "shapes", np.zeros(len(scene.materials), np.int32)), np.int32)
-        # depth + 256 lobe shape (kernels/product.h make_lobe decodes both)
-        self.levels_per_material = cl.to_device(levels + 256 * shapes)
+        trees = np.asarray(getattr(strategy, "tree_index", np.zeros(len(scene.materials), np.int32)), np.int32)
+        # depth + 256 lobe shape + 65536 light tree (kernels/product.h make_lobe decodes them)
+        self.levels_per_material = cl.to_device(levels + 256 * shapes + 65536 * trees)
         depth = int(max(np.max(levels, initial=0), 0))
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
         sizes = {}   # the walks' compile-time sizes: light tree depth; product depth and lobe shapes
         if strategy.name in ("light", "mis", "mis_comp", "wavelet"):
             sizes["N_LEVELS"] = int(self.levels)
         if strategy.name == "wavelet":
-            sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)))
+            sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)),
+                         PRODUCT_TREES=int(light.tree.n_trees))
         self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
                         self.texels, *self.env_size, self.rot, self.tree)
         self._geometry = None
