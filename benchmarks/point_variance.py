@@ -8,13 +8,16 @@ the relative variance var / (mean^2 + 0.01), mean the average of all strategies'
 means; printed as the mean over the points of each strategy's relative variance over
 `mis`'s. This is the quantity the product sampler's model decides (the image relMSE
 of benchmarks/relmse.py adds the pixel-footprint variance that no direction sampler
-removes), and it is how the product model's parameters were chosen:
---phong-blur sets the phong lobe widening of the numpy twin (wavlight.product
-PHONG_BLUR, in units of pi; the kernel's PHONG_BLUR_F must then be set to match
-before rendering).
+removes), and it is how the product model's parameters were chosen.
+--strategies may also name earlier designs of `wavelet` (VARIANTS): wavelet_power (the
+power heuristic), wavelet_plain (the plain light tree for lambert too),
+wavelet_all_compensated (the compensated tree for every material). --phong-blur sets
+the phong lobe widening of the numpy twin (wavlight.product PHONG_BLUR, in units of pi;
+the kernel's PHONG_BLUR_F must then be set to match before rendering).
 
     python benchmarks/point_variance.py [--maps rooitou_park_1k,...] [--materials phong200,ggx0.05]
-                                        [--strategies wavelet,mis_comp] [--phong-blur 0.2,0.35]
+                                        [--strategies wavelet,mis_comp,wavelet_power]
+                                        [--points 128] [--samples 512] [--phong-blur 0.2,0.35]
 """
 from __future__ import annotations
 
@@ -29,6 +32,22 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data"))
 MATERIALS = {"phong50": ("phong", 50.0), "phong200": ("phong", 200.0), "phong1000": ("phong", 1000.0),
              "ggx0.05": ("ggx", 0.05), "ggx0.2": ("ggx", 0.2), "lambert": ("lambert", None)}
+
+
+def _variant(heuristic="balance", compensated="lambert"):
+    from wavlight import bsdfs, strategies
+
+    kinds = {"lambert": (bsdfs.LAMBERT,), "none": (), "all": (bsdfs.LAMBERT, bsdfs.PHONG, bsdfs.GGX)}[compensated]
+    s = strategies.WaveletStrategy(compensated_kinds=kinds)
+    s.heuristic = heuristic
+    return s
+
+
+# earlier designs of `wavelet`, for comparison: the power heuristic (before session 7), the
+# plain light tree for lambert too, the compensated tree for every material
+VARIANTS = {"wavelet_power": lambda: _variant(heuristic="power", compensated="none"),
+            "wavelet_plain": lambda: _variant(compensated="none"),
+            "wavelet_all_compensated": lambda: _variant(compensated="all")}
 
 
 def sphere_points(scene, count, rng):
@@ -96,7 +115,9 @@ def main():
 
             runs = {"mis": estimates(strategies.make("mis"))}
             for name in args.strategies.split(","):
-                if name == "wavelet" and kind == "phong":
+                if name in VARIANTS:
+                    runs[name] = estimates(VARIANTS[name]())
+                elif name == "wavelet" and kind == "phong":
                     for b in blurs:
                         saved, product.PHONG_BLUR = product.PHONG_BLUR, b * np.pi
                         try:
