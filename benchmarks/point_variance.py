@@ -11,7 +11,10 @@ of benchmarks/relmse.py adds the pixel-footprint variance that no direction samp
 removes), and it is how the product model's parameters were chosen.
 --strategies may also name earlier designs of `wavelet` (VARIANTS): wavelet_power (the
 power heuristic), wavelet_plain (the plain light tree for lambert too),
-wavelet_all_compensated (the compensated tree for every material). --phong-blur sets
+wavelet_all_compensated (the compensated tree for every material), and exact_product
+(the product at the light tree's leaf resolution, exactly, per point: the ideal the walk
+approximates). A name with ":mixS" (wavelet:mix0.9, exact_product:mix0.9) gives the product
+the share S of the samples by one-sample MIS instead of the pair. --phong-blur sets
 the phong lobe widening of the numpy twin (wavlight.product PHONG_BLUR, in units of pi;
 the kernel's PHONG_BLUR_F must then be set to match before rendering).
 
@@ -43,11 +46,104 @@ def _variant(heuristic="balance", compensated="lambert"):
     return s
 
 
+def _exact_product():
+    """The ideal the product walk approximates: per shading point, a table of light leaf mass x
+    BRDF x cosine at every leaf centre of the light tree, sampled exactly (inverse CDF over the
+    leaves, uniform in the leaf). A per-point table of 4^n entries: a yardstick, far too slow
+    to render with."""
+    from wavlight import bsdfs, strategies
+    from wavlight.distributions import level_offset
+
+    class ExactProduct(strategies.WaveletStrategy):
+        def prepare(self, environment, materials=()):
+            super().prepare(environment, materials)
+            n = self.light.tree.n_levels
+            side = 1 << n
+            leaf = self._nodes[0][level_offset(n):].astype(np.float64)
+            y, x = np.divmod(np.arange(side * side), side)
+            self.leaf_dirs = environment.square_to_world(np.stack([(x + 0.5) / side, (y + 0.5) / side], 1))
+            self.leaf_mass, self.side, self.tables = leaf, side, {}
+
+        def _table(self, sp, i):
+            key = tuple(sp.p[i]) + tuple(sp.wo[i])
+            if key not in self.tables:
+                d = self.leaf_dirs
+                local = np.stack([d @ sp.s[i], d @ sp.t[i], d @ sp.n[i]], 1)
+                f = bsdfs.eval_cos(int(sp.kind[i]), np.full(len(d), sp.param[i]), local,
+                                   np.repeat(sp.wo[i:i + 1], len(d), 0))
+                w = self.leaf_mass * np.nan_to_num(f)
+                total = w.sum()
+                p = w / total if total > 0 else np.zeros_like(w)
+                self.tables[key] = (p, np.cumsum(p))
+            return self.tables[key]
+
+        def _groups(self, sp):
+            _, first, inverse = np.unique(np.concatenate([sp.p, sp.wo], 1), axis=0, return_index=True,
+                                          return_inverse=True)
+            return first, inverse.ravel()
+
+        def sample(self, sp, u):
+            side = self.side
+            uv, pdf = np.zeros((len(sp), 2)), np.zeros(len(sp))
+            first, inverse = self._groups(sp)
+            for g, i in enumerate(first):
+                sel = np.nonzero(inverse == g)[0]
+                p, cdf = self._table(sp, i)
+                k = np.minimum(np.searchsorted(cdf, u[sel, 0] * cdf[-1], side="right"), len(p) - 1)
+                below = np.where(k > 0, cdf[np.maximum(k - 1, 0)], 0.0)
+                rx = np.clip((u[sel, 0] * cdf[-1] - below) / np.where(p[k] > 0, p[k], 1.0), 0, 1 - 1e-9)
+                uv[sel] = np.stack([(k % side + rx) / side, (k // side + u[sel, 1]) / side], 1)
+                pdf[sel] = p[k] * side * side
+            d = self.env.square_to_world(uv)
+            return strategies.DirectionSamples(d, sp.to_local(d), pdf * self.env.square_to_solid_angle(d))
+
+        def pdf(self, sp, wi_local, wi_world):
+            side = self.side
+            uv = self.env.world_to_square(wi_world)
+            ij = np.minimum((uv * side).astype(np.int64), side - 1)
+            out = np.zeros(len(sp))
+            first, inverse = self._groups(sp)
+            for g, i in enumerate(first):
+                sel = np.nonzero(inverse == g)[0]
+                p, _ = self._table(sp, i)
+                out[sel] = p[ij[sel, 1] * side + ij[sel, 0]] * side * side
+            return out * self.env.square_to_solid_angle(wi_world)
+
+    return ExactProduct(compensated_kinds=())
+
+
 # earlier designs of `wavelet`, for comparison: the power heuristic (before session 7), the
-# plain light tree for lambert too, the compensated tree for every material
+# plain light tree for lambert too, the compensated tree for every material; and the exact
+# product (the yardstick above)
 VARIANTS = {"wavelet_power": lambda: _variant(heuristic="power", compensated="none"),
             "wavelet_plain": lambda: _variant(compensated="none"),
-            "wavelet_all_compensated": lambda: _variant(compensated="all")}
+            "wavelet_all_compensated": lambda: _variant(compensated="all"),
+            "exact_product": _exact_product}
+
+
+def mixture_estimates(strategy, env, sp, u, share):
+    """One-sample MIS (Veach's one-sample model) instead of the strategy's pair: each of the two
+    slots draws from the product with probability `share`, else from the BSDF (the choice made
+    with u.x, rescaled), and weighs f L cos / (share p_product + (1 - share) p_bsdf); the two
+    slots are averaged. Returns (N, 2, 3) like shade_reference, summing to the estimate."""
+    from wavlight import strategies
+
+    out = np.zeros((len(sp), 2, 3))
+    for slot in range(2):
+        uu = u[:, 2 * slot:2 * slot + 2]
+        pick = uu[:, 0] < share
+        up, ub = uu.copy(), uu.copy()
+        up[:, 0] = np.minimum(uu[:, 0] / share, 1 - 1e-9)
+        ub[:, 0] = np.clip((uu[:, 0] - share) / (1 - share), 0, 1 - 1e-9)
+        a, b = strategy.sample(sp, up), strategy.bsdf.sample(sp, ub)
+        ds = strategies.DirectionSamples(np.where(pick[:, None], a.wi_world, b.wi_world),
+                                         np.where(pick[:, None], a.wi_local, b.wi_local), np.where(pick, a.pdf, b.pdf))
+        p_prod = np.where(pick, a.pdf, strategy.pdf(sp, ds.wi_local, ds.wi_world))
+        p_bsdf = np.where(pick, strategy.bsdf.pdf(sp, ds.wi_local, ds.wi_world), b.pdf)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w = np.where(ds.pdf > 0, ds.pdf / (share * p_prod + (1 - share) * p_bsdf), 0.0)
+        out[:, slot] = 0.5 * strategies._unoccluded(sp, env, ds, w)
+    return out
 
 
 def sphere_points(scene, count, rng):
@@ -108,14 +204,21 @@ def main():
             sp = points(idx)
             u = np.random.default_rng(11).random((len(idx), 4))
 
-            def estimates(strategy):
+            def estimates(strategy, share=None):
                 strategy.prepare(env, scene.materials)
-                _, val = strategies.shade_reference(strategy, env, sp, u)
+                if share is None:
+                    _, val = strategies.shade_reference(strategy, env, sp, u)
+                else:
+                    val = mixture_estimates(strategy, env, sp, u, share)
                 return val.sum(1).mean(1).reshape(count, args.samples)
 
             runs = {"mis": estimates(strategies.make("mis"))}
             for name in args.strategies.split(","):
-                if name in VARIANTS:
+                base, _, share = name.partition(":mix")
+                if share:
+                    runs[name] = estimates(VARIANTS[base]() if base in VARIANTS else strategies.make(base),
+                                           float(share))
+                elif name in VARIANTS:
                     runs[name] = estimates(VARIANTS[name]())
                 elif name == "wavelet" and kind == "phong":
                     for b in blurs:
