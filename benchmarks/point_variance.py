@@ -57,7 +57,7 @@ def _exact_product():
     class ExactProduct(strategies.WaveletStrategy):
         def prepare(self, environment, materials=()):
             super().prepare(environment, materials)
-            n = self.light.tree.n_levels
+            n = self.trees.n_levels
             side = 1 << n
             leaf = self._nodes[0][level_offset(n):].astype(np.float64)
             y, x = np.divmod(np.arange(side * side), side)

@@ -352,12 +352,6 @@ INLINE uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, c
 }
 
 #if defined(N_LEVELS) && defined(PRODUCT_LEVELS)
-/* Eight product samples: lobe lb for each lane's first P levels (P <= PRODUCT_LEVELS, a
- * compile-time bound), then the light tree; (ux, uy) uniform in, point of the square
- * out; returns the density on the square. Unrolled over N_LEVELS, eight lanes in vector
- * types (simd.h). The importances are computed for every lane at levels <
- * PRODUCT_LEVELS and selected per lane (every load stays in the tree). PRODUCT_LEVELS
- * must be at least every lane's depth (the host builds with the largest). */
 /* pdf where the lane's tree has mass, 0 where its root is 0 (an all-black map). */
 INLINE realv root_tested(__global const float *tree, const Lobe *lb, const realv pdf)
 {
@@ -371,6 +365,12 @@ INLINE realv root_tested(__global const float *tree, const Lobe *lb, const realv
 #if PRODUCT_LEVELS > 14
 #error "PRODUCT_LEVELS > 14: the walk's angle steps pi / 2^k reach k = PRODUCT_LEVELS + 1, SIN_PI_2K ends at 15"
 #endif
+/* Eight product samples: lobe lb for each lane's first P levels (P <= PRODUCT_LEVELS, a
+ * compile-time bound), then the light tree; (ux, uy) uniform in, point of the square
+ * out; returns the density on the square. Unrolled over N_LEVELS, eight lanes in vector
+ * types (simd.h). The importances are computed for every lane at levels <
+ * PRODUCT_LEVELS and selected per lane (every load stays in the tree). PRODUCT_LEVELS
+ * must be at least every lane's depth (the host builds with the largest). */
 INLINE realv product_walk(__global const float *tree, const Lobe *lb,
                           realv *ux, realv *uy)
 {

@@ -251,7 +251,7 @@ def texel_centre_directions(env: Environment) -> np.ndarray:
 
 
 def leaf_side(case: Case) -> int:
-    return 1 << strategy_of(case.map_id, case.mat_id, case.levels).light.tree.n_levels
+    return 1 << strategy_of(case.map_id, case.mat_id, case.levels).trees.n_levels
 
 
 # ============================================================================= 1. the numpy sampler
@@ -269,7 +269,8 @@ def test_product_chi2_on_leaves(case):
     env = environment(case.map_id)
     uv = env.world_to_square(ds.wi_world)
     side = leaf_side(case)
-    lit = int((strategy_of(case.map_id, case.mat_id, case.levels).light.tree.nodes()[0][-side * side:] > 0).sum())
+    strat = strategy_of(case.map_id, case.mat_id, case.levels)
+    lit = int((strat.trees.nodes()[strat.tree_index[0]][-side * side:] > 0).sum())
     cells = max(side * (2 if lit < 256 else 1), 32)
     ok, p, msg = chi2_test(uv, pdf_square(case), SquareGrid.uniform(cells), n_tests=N_CHI2, quad=1,
                            rule="midpoint")
@@ -394,7 +395,7 @@ def test_product_pdf_positive_where_light_above_horizon(case):
     lum = env.eval(d) @ LUMINANCE
     if strat.tree_kinds[strat.tree_index[0]] == "compensated":
         # the compensated leaves, from the map (not from the strategy's tree)
-        n_levels = strat.light.tree.n_levels
+        n_levels = strat.trees.n_levels
         leaves = env.luminance_square(n_levels, compensated=True)
         ij = np.minimum((env.world_to_square(d) * (1 << n_levels)).astype(np.int64), (1 << n_levels) - 1)
         lum = np.where(leaves[ij[:, 1], ij[:, 0]] > 0, lum, 0.0)
@@ -408,7 +409,7 @@ def test_product_pdf_positive_where_light_above_horizon(case):
 
 def test_mis_pair_covers_the_integrand(case):
     """(e) The MIS unbiasedness condition: wherever f cos L > 0, the product pdf or the bsdf
-    pdf is > 0 (the power heuristic's weights then sum to 1 there). 32k stratified uniform
+    pdf is > 0 (the MIS weights, balance heuristic, then sum to 1 there). 32k stratified uniform
     directions and every texel centre."""
     env = environment(case.map_id)
     d, p_prod = uniform_directions(case)
@@ -459,7 +460,8 @@ def _scene(env, mats):
 # float32 Jacobian: the kernel computes sin(theta) = sqrt(1 - y^2) from a float32 direction whose
 # y carries an absolute error of a few ulp(1) (JAC_DY); the Jacobian 1 / sin(theta) then has a
 # relative error <= JAC_DY / (1 - y^2). A slot's value depends on its pdf with a relative
-# sensitivity <= 2 (the bsdf slot's weight q^2 / (q^2 + p^2) has d log / d log p >= -2).
+# sensitivity <= 2 (the bsdf slot's weight, q / (q + p) for wavelet's balance heuristic, q^2 / (q^2 + p^2)
+# for mis's power heuristic, has d log / d log p >= -2).
 JAC_DY = 2.4e-7
 RTOL = 2e-3   # float32 vs float64 elsewhere (as tests/test_shading.py)
 ATOL = 1e-6
@@ -551,8 +553,8 @@ def test_light_trees_per_material(mat_ids, kinds, index):
     s = WaveletStrategy()
     s.prepare(env, [MATERIALS[m] for m in mat_ids])
     assert s.tree_kinds == kinds and s.tree_index.tolist() == index
-    nodes = s.light.tree.nodes()
-    n = s.light.tree.n_levels
+    nodes = s.trees.nodes()
+    n = s.trees.n_levels
     for tree, kind in zip(nodes, kinds):
         want = env.luminance_square(n, compensated=kind == "compensated").ravel()
         np.testing.assert_allclose(tree[-want.size:], want, rtol=1e-6, atol=1e-30)
@@ -631,7 +633,7 @@ def test_strategy_product_levels_per_material(override):
     mats = list(MATERIALS.values())
     strat = WaveletStrategy(levels=override)
     strat.prepare(environment("sky"), mats)
-    n = strat.light.tree.n_levels
+    n = strat.trees.n_levels
     expect = [product.product_levels(product.lobe_kappa(m.kind, m.param), n, override) for m in mats]
     assert strat.levels.tolist() == expect
     np.testing.assert_allclose(strat.kappa, [product.lobe_kappa(m.kind, m.param) for m in mats])

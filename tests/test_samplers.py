@@ -461,6 +461,16 @@ def test_mis_heuristic_range_and_partition(heuristic, w34):
     np.testing.assert_allclose(heuristic(2.0, 0.0), 1.0)
 
 
+def test_mis_heuristic_of_each_strategy():
+    """mis and mis_comp weigh by the power heuristic (as pbrt-v4 and Mitsuba 3), wavelet by the
+    balance heuristic (measured better for it: WaveletStrategy's docstring)."""
+    from wavlight import strategies
+
+    assert strategies.make("mis").heuristic == "power"
+    assert strategies.make("mis_comp").heuristic == "power"
+    assert strategies.make("wavelet").heuristic == "balance"
+
+
 @pytest.mark.parametrize("heuristic", [h for h, _ in HEURISTICS], ids=["power", "balance"])
 def test_mis_heuristic_extreme_magnitudes(heuristic):
     """Same partition property where a^2 or b^2 leaves the float64 range.

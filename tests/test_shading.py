@@ -25,13 +25,17 @@ def _scene(pixels, rotate_y=0.0):
                  np.zeros((0, 3), np.int32), np.zeros(0, np.int32), mats)
 
 
-@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet"])
+@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet",
+                                      "wavelet:levels=6"])
 @pytest.mark.parametrize("rotate_y", [0.0, 70.0])
 def test_shade_kernel_matches_numpy(strategy, rotate_y):
+    """wavelet:levels=6: product depth 6 for every material, so that lambert (default depth 3, all
+    look-ahead levels) also reads its own light tree's child masses in product_pdf."""
     rng = np.random.default_rng(11)
     scene = _scene(procedural_sky(width=128, height=64, sun_radiance=500.0) + rng.random((64, 128, 3)) * 0.2,
                    rotate_y)
-    strat = strategies.make(strategy)
+    name, _, levels = strategy.partition(":levels=")
+    strat = strategies.make(name, **({"levels": int(levels)} if levels else {}))
     strat.prepare(scene.environment, scene.materials)
     n_pts = 20000
     n = rng.normal(size=(n_pts, 3))

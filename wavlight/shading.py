@@ -48,8 +48,10 @@ class KernelShader:
         self.texels = cl.to_device(texels)
         self.rot = cl.to_device(env.map_from_world.astype(np.float32).ravel())
         light = getattr(strategy, "light", strategy if isinstance(strategy, strategies.LightStrategy) else None)
-        if light is not None:
-            self.tree, self.levels = light.tree.buffer, np.int32(light.tree.n_levels)
+        trees = getattr(strategy, "trees", None)   # wavelet: its light trees; the others: the light tree
+        trees = trees if trees is not None else getattr(light, "tree", None)
+        if trees is not None:
+            self.tree, self.levels = trees.buffer, np.int32(trees.n_levels)
         else:
             self.tree, self.levels = cl.to_device(np.zeros(1, np.float32)), np.int32(0)
         self.kind = cl.to_device(scene.material_kind.astype(np.int32))
@@ -61,9 +63,9 @@ class KernelShader:
         levels = np.asarray(getattr(strategy, "levels", np.zeros(len(scene.materials), np.int32)), np.int32)
         self.kappa = cl.to_device(np.asarray(kappa, np.float32))
         shapes = np.asarray(getattr(strategy, "shapes", np.zeros(len(scene.materials), np.int32)), np.int32)
-        trees = np.asarray(getattr(strategy, "tree_index", np.zeros(len(scene.materials), np.int32)), np.int32)
+        tree_of = np.asarray(getattr(strategy, "tree_index", np.zeros(len(scene.materials), np.int32)), np.int32)
         # depth + 256 lobe shape + 65536 light tree (kernels/product.h make_lobe decodes them)
-        self.levels_per_material = cl.to_device(levels + 256 * shapes + 65536 * trees)
+        self.levels_per_material = cl.to_device(levels + 256 * shapes + 65536 * tree_of)
         depth = int(max(np.max(levels, initial=0), 0))
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
         sizes = {}   # the walks' compile-time sizes: light tree depth; product depth and lobe shapes
@@ -71,7 +73,7 @@ class KernelShader:
             sizes["N_LEVELS"] = int(self.levels)
         if strategy.name == "wavelet":
             sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)),
-                         PRODUCT_TREES=int(light.tree.n_trees))
+                         PRODUCT_TREES=int(trees.n_trees))
         self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
                         self.texels, *self.env_size, self.rot, self.tree)
         self._geometry = None

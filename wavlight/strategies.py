@@ -202,26 +202,28 @@ class WaveletStrategy(Strategy):
     heuristic's sharper weights then only add variance (Veach 1997, sec. 9.2, recommends
     it where one technique matches far better). Measured per shading point
     (benchmarks/point_variance.py, 48 sphere points x 256 samples, variance relative to
-    ``mis``), power -> balance: phong 200 0.40 / 0.12 / 0.24 -> 0.34 / 0.095 / 0.20
-    under rooitou / st_fagans / potsdamer, ggx 0.05 0.77 / 0.25 / 0.43 -> 0.74 / 0.25 /
-    0.42, ggx 0.2 0.70 / 0.20 / 0.21 -> 0.54 / 0.16 / 0.19, lambert 0.56 / 0.37 / 0.30
+    ``mis``), power -> balance: phong 200 0.40 / 0.12 / 0.24 -> 0.34 / 0.097 / 0.20
+    under rooitou / st_fagans / potsdamer, ggx 0.05 0.77 / 0.26 / 0.43 -> 0.74 / 0.25 /
+    0.42, ggx 0.2 0.70 / 0.19 / 0.21 -> 0.54 / 0.16 / 0.19, lambert 0.56 / 0.37 / 0.30
     -> 0.48 / 0.30 / 0.28: lower on all twelve. (Not for ``mis``: it copies pbrt-v4's
     and Mitsuba 3's power heuristic, the baseline users know; the balance heuristic gives
     it 0-8%.) A mixture that gives the product more than half of the samples (one-sample
-    MIS, product with probability 0.6 / 0.75 / 0.9: 0.52 / 0.67 / 1.05 for phong 200
+    MIS, product with probability 0.6 / 0.75 / 0.9: 0.53 / 0.70 / 1.10 for phong 200
     under rooitou) is worse with this approximate product; with the exact product at
-    leaf resolution (a per-point table, far too slow to render with) it gave 0.03.
+    leaf resolution (a per-point table, far too slow to render with) 0.9 gave 0.030
+    (point_variance.py exact_product:mix0.9; results point-variance-*-session7-*.json).
 
     Lambert materials walk the MIS-compensated light tree (max(L - mean, 0), as
     ``mis_comp``; ``compensated_kinds``): the product sample then leaves the texels
     dimmer than the map's mean to the BSDF (cosine) sample, which covers them about as
     well, and spends itself on the bright ones. Unbiased as MIS: the cosine sample's pdf
     is > 0 wherever the product's is 0. Per shading point (variance relative to
-    ``mis``): lambert 0.48 / 0.30 / 0.28 -> 0.45 / 0.14 / 0.23 under rooitou /
+    ``mis``): lambert 0.48 / 0.30 / 0.28 -> 0.45 / 0.13 / 0.22 under rooitou /
     st_fagans / potsdamer. Glossy lobes keep the plain tree: compensated, phong 200
-    went 0.35 -> 0.81 under rooitou (where the sun lifts the mean above the whole sky,
+    went 0.34 -> 0.81 under rooitou (where the sun lifts the mean above the whole sky,
     a lobe reflecting the sky gets no product samples and its BSDF sample carries it
-    alone). A scene with both kinds holds both trees in one buffer (twice the memory).
+    alone). A scene with both kinds holds both trees in one HaarTree buffer, ``trees``
+    (twice the memory); ``light`` only chooses their depth.
     """
 
     name = "wavelet"
@@ -239,11 +241,10 @@ class WaveletStrategy(Strategy):
         the plain one, or for lambert materials the MIS-compensated one (see the class
         docstring); both in one HaarTree buffer when the scene needs both."""
         self.env = environment
-        self.light.env = environment
-        n, self.light.tv = self.light.depth(environment)
+        n, self.tv = self.light.depth(environment)   # (self.light only chooses the depth: no tree of its own)
         compensated = np.array([m.kind in self.compensated_kinds for m in materials], bool)
         kinds = [False] * bool((~compensated).any() or not len(compensated)) + [True] * bool(compensated.any())
-        self.light.tree = HaarTree(np.stack([environment.luminance_square(n, compensated=c) for c in kinds]))
+        self.trees = HaarTree(np.stack([environment.luminance_square(n, compensated=c) for c in kinds]))
         self.tree_index = np.where(compensated, len(kinds) - 1, 0).astype(np.int32)
         self.tree_kinds = ["compensated" if c else "plain" for c in kinds]
         self.names = [m.name for m in materials]
@@ -256,7 +257,7 @@ class WaveletStrategy(Strategy):
     def _nodes(self):
         """The light trees on the host, (trees, tree size) (only the numpy twin needs them)."""
         if self._host_nodes is None:
-            self._host_nodes = self.light.tree.nodes()
+            self._host_nodes = self.trees.nodes()
         return self._host_nodes
 
     def _lobes(self, sp, material):
@@ -267,7 +268,7 @@ class WaveletStrategy(Strategy):
 
     def sample(self, sp, u):
         axis, kappa, levels, shape = self._lobes(sp, sp.material)
-        uv, pdf_sq = product.sample_reference(self._nodes, self.light.tree.n_levels, self.env, axis, sp.n,
+        uv, pdf_sq = product.sample_reference(self._nodes, self.trees.n_levels, self.env, axis, sp.n,
                                               kappa, levels, shape, u, self.tree_index[sp.material])
         d = self.env.square_to_world(uv)
         return DirectionSamples(d, sp.to_local(d), pdf_sq * self.env.square_to_solid_angle(d))
@@ -275,15 +276,17 @@ class WaveletStrategy(Strategy):
     def pdf(self, sp, wi_local, wi_world):
         axis, kappa, levels, shape = self._lobes(sp, sp.material)
         uv = self.env.world_to_square(wi_world)
-        return product.pdf_reference(self._nodes, self.light.tree.n_levels, self.env, axis, sp.n, kappa, levels,
+        return product.pdf_reference(self._nodes, self.trees.n_levels, self.env, axis, sp.n, kappa, levels,
                                      shape, uv, self.tree_index[sp.material]) * self.env.square_to_solid_angle(wi_world)
 
     def info(self):
-        return {**self.light.info(),
+        side = 1 << self.trees.n_levels
+        return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(self.trees.stride * self.trees.n_trees * 4),
+                "light_tree_tv": None if self.tv is None else round(self.tv, 5),
                 "product_levels": dict(zip(self.names, self.levels.tolist())),
                 "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
                 "product_light_tree": dict(zip(self.names, [self.tree_kinds[i] for i in self.tree_index])),
-                "memory_bytes": int(self.light.tree.stride * self.light.tree.n_trees * 4)}
+                "memory_bytes": int(self.trees.stride * self.trees.n_trees * 4)}
 
 
 class MisStrategy(Strategy):
