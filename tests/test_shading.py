@@ -66,12 +66,14 @@ def test_render_kernel_equals_numpy_backend():
         assert close.mean() > 0.998
 
 
-@pytest.mark.parametrize("n_trees", [1, 2])
-def test_product_sample_points_kernel_matches_numpy(n_trees):
+@pytest.mark.parametrize("n_trees, shapes", [(1, 15), (2, 15), (1, 1), (2, 1)],
+                         ids=["one_tree", "two_trees", "one_tree-lambert_only", "two_trees-lambert_only"])
+def test_product_sample_points_kernel_matches_numpy(n_trees, shapes):
     """kernels/product.cl (the renderer's product guide samples) against wavlight.product.sample_reference,
     for every lobe shape and product depth, in one program built for all of them; with two light
     trees (plain and compensated, as WaveletStrategy holds them for lambert and glossy materials in
-    one scene) each material walks its own."""
+    one scene) each material walks its own. shapes: the LOBE_SHAPES the program is built for (15
+    every shape; 1 lambert alone, whose lobe_weight returns the softened cosine directly)."""
     from wavlight import cl, product
     from wavlight.distributions import HaarTree
 
@@ -87,8 +89,9 @@ def test_product_sample_points_kernel_matches_numpy(n_trees):
     wo /= np.linalg.norm(wo, axis=1, keepdims=True)
     wo *= np.sign(np.einsum("ij,ij->i", wo, nrm))[:, None]
     # materials: every shape (lambert, phong, ggx, ggx with the half-vector model) at every depth
-    mat_shape = np.repeat(np.arange(4), n_levels + 1)
-    mat_depth = np.tile(np.arange(n_levels + 1), 4)
+    kinds = [k for k in range(4) if shapes >> k & 1]
+    mat_shape = np.repeat(np.array(kinds), n_levels + 1)
+    mat_depth = np.tile(np.arange(n_levels + 1), len(kinds))
     mat_kappa = np.where(mat_shape == bsdfs.LAMBERT, 0.0, np.where(mat_shape == bsdfs.PHONG, 50.0, 12.5))
     mat_tree = np.arange(len(mat_shape)) % n_trees
     material = rng.integers(0, len(mat_shape), count)
@@ -100,7 +103,7 @@ def test_product_sample_points_kernel_matches_numpy(n_trees):
     n4, w4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
     n4[:, :3], w4[:, :3] = nrm, wo
     uv_buf, pdf_buf = cl.empty(8 * count), cl.empty(4 * count)
-    prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=n_levels, LOBE_SHAPES=15,
+    prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=n_levels, LOBE_SHAPES=shapes,
                       PRODUCT_TREES=n_trees)
     items = cl.items(count, cl.LANES)
     cl.kernel(prog, "product_sample_points")(
