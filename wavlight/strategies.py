@@ -206,9 +206,9 @@ class WaveletStrategy(Strategy):
     under rooitou / st_fagans / potsdamer, ggx 0.05 0.77 / 0.26 / 0.43 -> 0.74 / 0.25 /
     0.42, ggx 0.2 0.70 / 0.19 / 0.21 -> 0.54 / 0.16 / 0.19, lambert 0.56 / 0.37 / 0.30
     -> 0.48 / 0.30 / 0.28: lower on all twelve. (Not for ``mis``: it copies pbrt-v4's
-    and Mitsuba 3's power heuristic, the baseline users know.) A mixture that gives the product more than half of the samples (one-sample
-    MIS, product with probability 0.6 / 0.75 / 0.9: 0.53 / 0.70 / 1.10 for phong 200
-    under rooitou) is worse with this approximate product; with the exact product at
+    and Mitsuba 3's power heuristic, the baseline users know.) A mixture that gives the
+    product more than half of the samples (one-sample MIS, product with probability 0.6
+    / 0.75 / 0.9: 0.53 / 0.70 / 1.10 for phong 200 under rooitou) is worse with this approximate product; with the exact product at
     leaf resolution (a per-point table, far too slow to render with) 0.9 gave 0.030
     (point_variance.py exact_product:mix0.9; results point-variance-*-session7-*.json).
 
