@@ -1,13 +1,15 @@
 /* Product samples (product.h product_walk) as a stand-alone kernel, for the benchmarks
  * and the tests (the renderer's wavelet strategy runs the same walk inside
  * kernels/shade.cl). Per point: world-frame normal and direction to the viewer (float4 rows),
- * material index (kind, kappa and depth + 256 shape + 65536 tree from the material tables) and
+ * material index (kind, kappa and depth + 256 shape + 65536 tree from the material
+ * tables) and
  * uniform u (u_stride floats apart) -> point of the square (u plane then v plane of
  * uv_out) and its density on the square. Built per tree depth (-DN_LEVELS), largest
  * product depth (-DPRODUCT_LEVELS), set of lobe shapes (-DLOBE_SHAPES) and number of
- * light trees in the buffer (-DPRODUCT_TREES, default 1), so that the walk unrolls. Eight points per work-item (simd.h): launch ceil(count / 8) work-items
- * or more, count >= 1, in whole work-groups (every work-item walks, also past count:
- * the walk waits at work-group barriers, warp.h).
+ * light trees in the buffer (-DPRODUCT_TREES, default 1), so that the walk unrolls.
+ * Eight points per work-item (simd.h): launch ceil(count / 8) work-items or more,
+ * count >= 1, in whole work-groups (every work-item walks, also past count: the walk
+ * waits at work-group barriers, warp.h).
  */
 #ifndef WALK_BARRIERS
 #define WALK_BARRIERS 1   /* breadth-first walks (warp.h); the kernel has no early return */

@@ -7,7 +7,8 @@
  * one, max(L - mean, 0), see PRODUCT_TREES) times the BRDF x cosine of the
  * shading point evaluated at the node's centre direction d_s with a lobe
  * pre-filtered to the node's size (x = 1 - d_s . axis, k_l = 1 / (1/kappa + r_l^2),
- * r_l = 0.35 pi / 2^l the lobe blur (phong: 0.2 pi / 2^l), h_l = 0.75 pi / 2^l the horizon blur):
+ * r_l = 0.35 pi / 2^l the lobe blur (phong: 0.2 pi / 2^l), h_l = 0.75 pi / 2^l the
+ * horizon blur):
  *     lambert  I = mass clamp(d_s . n + h_l, 0, 1)
  *     phong    I = mass (1 + k_l x / 8)^-8 clamp(d_s . n + h_l, 0, 1)   (~ exp(-k_l x))
  *     ggx      I = mass (1 + k_l x)^-2 clamp(d_s . n / h_l + 1, 0, 1)         (alpha <= 0.1)
@@ -26,8 +27,9 @@
  * cosines of their angles, the children's from the parent's by the angle-sum formulas
  * (NodeAngles; numpy twin wavlight.product.centre_angles): no table and no gathers
  * (a table of the angles, read per lane, measured 11-35% slower at 1024^2). The lobe
- * is turned into the map frame once per point (make_lobe). Below the product depth P the BRDF is taken as constant and the
- * walk continues in the light tree (choose_child on the masses). The pdf is exact:
+ * is turned into the map frame once per point (make_lobe). Below the product depth P
+ * the BRDF is taken as constant and the walk continues in the light tree (choose_child
+ * on the masses). The pdf is exact:
  *     pdf_square = prod_l I(child_l) / sum I(siblings_l) * mass(leaf) / mass(node_P) * 4^n
  * and product_pdf recomputes it for any direction. Where all four children have
  * zero importance the walk falls back to their light masses (same rule in both).
@@ -112,7 +114,7 @@ INLINE Lobe make_lobe(__global const float *rot, const realv nx, const realv ny,
     lb.inv_kappa = 1.0f / kappa;
     lb.levels = code & 0xff;
     lb.shape = shape;
-#ifdef N_LEVELS
+#if defined(N_LEVELS) && PRODUCT_TREES > 1
     lb.base = as_uintv(code >> 16) * (uint)LEVEL_OFFSET(N_LEVELS + 1);   /* tree index x tree size */
 #else
     lb.base = 0;
@@ -358,9 +360,17 @@ INLINE uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, c
 }
 
 #if defined(N_LEVELS) && defined(PRODUCT_LEVELS)
-/* pdf where the lane's tree has mass, 0 where its root is 0 (an all-black map). */
-INLINE realv root_tested(__global const float *tree, const Lobe *lb, const realv pdf)
+/* The density on the square of the walk that ended in leaf (x, y) with product p of its
+ * conditionals over the product levels: p * mass(leaf) / mass(node at depth P) * 4^n, 0
+ * where that node or the lane's whole tree (an all-black map) has no mass. */
+INLINE realv product_density(__global const float *tree, const Lobe *lb, const realv p,
+                             const uintv x, const uintv y)
 {
+    const intv depth = min(lb->levels, N_LEVELS);
+    const uint side = 1u << N_LEVELS;
+    const realv node_mass = GATHER(tree, TREE_BASE(lb) + node_of_leaf(depth, N_LEVELS, x, y));
+    const realv leaf = GATHER(tree, TREE_BASE(lb) + node_index(N_LEVELS, x, y));
+    const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
 #if PRODUCT_TREES > 1
     return select((realv)0.0f, pdf, GATHER(tree, lb->base) > 0.0f);
 #else
@@ -410,13 +420,8 @@ INLINE realv product_walk(__global const float *tree, const Lobe *lb,
                 a = child_angles(&a, l, as_intv(x & 1u) != 0, as_intv(y & 1u) != 0);
         }
     }
-    const intv depth = min(lb->levels, N_LEVELS);
-    const realv node_mass = GATHER(tree, TREE_BASE(lb) + node_of_leaf(depth, N_LEVELS, x, y));
-    const uint side = 1u << N_LEVELS;
-    const realv leaf = GATHER(tree, TREE_BASE(lb) + node_index(N_LEVELS, x, y));
     leaf_point(x, y, N_LEVELS, ux, uy);
-    const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
-    return root_tested(tree, lb, pdf);
+    return product_density(tree, lb, p, x, y);
 }
 
 /* Density on the square of product_walk at points (u, v), for any directions (MIS). */
@@ -424,7 +429,6 @@ INLINE realv product_pdf(__global const float *tree, const Lobe *lb,
                          const realv u, const realv v)
 {
     const intv depth = min(lb->levels, N_LEVELS);
-    const uint side = 1u << N_LEVELS;
     const uintv lx = leaf_of(u, N_LEVELS), ly = leaf_of(v, N_LEVELS);
     realv p = 1.0f;
     NodeAngles a = root_angles();
@@ -445,10 +449,7 @@ INLINE realv product_pdf(__global const float *tree, const Lobe *lb,
         const realv mine = select(select(i0, i1, right), select(i2, i3, right), bottom);
         p *= select((realv)1.0f, mine / sum, l < depth);
     }
-    const realv node_mass = GATHER(tree, TREE_BASE(lb) + node_of_leaf(depth, N_LEVELS, lx, ly));
-    const realv leaf = GATHER(tree, TREE_BASE(lb) + node_index(N_LEVELS, lx, ly));
-    const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
-    return root_tested(tree, lb, pdf);
+    return product_density(tree, lb, p, lx, ly);
 }
 #endif
 #endif

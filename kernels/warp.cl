@@ -1,8 +1,8 @@
 /* Hierarchical warping of uniform points by sampling trees. The walk itself is
  * tree_walk (warp.h): eight samples per work-item (simd.h; launch ceil(count / 8)
  * work-items or more, count >= 1, in whole work-groups: every work-item walks, also
- * past count, because the walk waits at work-group barriers); the host builds this program per tree depth (-DN_LEVELS) so
- * that the walk unrolls. -DBATCHED=1: sample i uses tree i / samples_per_tree, so the
+ * past count, because the walk waits at work-group barriers); the host builds this
+ * program per tree depth (-DN_LEVELS) so that the walk unrolls. -DBATCHED=1: sample i uses tree i / samples_per_tree, so the
  * same kernel serves per-shading-point trees; BATCHED=0: every sample uses the one
  * tree (no integer division per sample). Outputs: the u plane then the v plane of
  * uv_out, and the density on the square.

@@ -91,13 +91,14 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
  * is too long for the CPU to reach the next work-item's independent loads while it waits.
  * Levels of 512^2 nodes and more (1 MB, past a core's L2 cache) miss the caches. In a
  * stand-alone sample kernel (warp.cl, product.cl, which define WALK_BARRIERS 1; their
- * walking kernels have no early return) a work-group barrier before each step into such a level makes PoCL
- * run that step for all work-items of the group before the next, so the loads of 64
+ * walking kernels have no early return) a work-group barrier before each step into
+ * such a level makes PoCL run that step for all work-items of the group before the
+ * next, so the loads of 64
  * work-items are in flight together. Measured: 0 to +45% at 1024^2 and 2048^2 in
  * interleaved runs (light and product walks; this VM's noise is +-20%; one
  * sample_bench run: -11 to +35%), while barriers at the cached levels cost up to 20%
- * (the live values go through memory at each barrier), hence BARRIER_LEVEL 9. A barrier is only legal where every work-item of the group
- * reaches it, so the renderer's shade kernels (walks inside per-lane branches) do
+ * (the live values go through memory at each barrier), hence BARRIER_LEVEL 9. A
+ * barrier is only legal where every work-item of the group reaches it, so the renderer's shade kernels (walks inside per-lane branches) do
  * without. */
 #if defined(WALK_BARRIERS) && WALK_BARRIERS
 #ifndef BARRIER_LEVEL

@@ -183,9 +183,15 @@ class LightStrategy(Strategy):
         return self.pdf_directions(wi_world)
 
     def info(self):
-        side = 1 << self.tree.n_levels
-        return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(self.tree.stride * self.tree.n_trees * 4),
-                "light_tree_tv": None if self.tv is None else round(self.tv, 5)}
+        return tree_info(self.tree, self.tv)
+
+
+def tree_info(tree: HaarTree, tv) -> dict:
+    """--json's light tree entries: leaf grid, bytes of all trees in the buffer, the total
+    variation that chose the depth (None where overridden)."""
+    side = 1 << tree.n_levels
+    return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(tree.stride * tree.n_trees * 4),
+            "light_tree_tv": None if tv is None else round(tv, 5)}
 
 
 class WaveletStrategy(Strategy):
@@ -279,9 +285,7 @@ class WaveletStrategy(Strategy):
                                      shape, uv, self.tree_index[sp.material]) * self.env.square_to_solid_angle(wi_world)
 
     def info(self):
-        side = 1 << self.trees.n_levels
-        return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(self.trees.stride * self.trees.n_trees * 4),
-                "light_tree_tv": None if self.tv is None else round(self.tv, 5),
+        return {**tree_info(self.trees, self.tv),
                 "product_levels": dict(zip(self.names, self.levels.tolist())),
                 "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
                 "product_light_tree": dict(zip(self.names, [self.tree_kinds[i] for i in self.tree_index])),
