@@ -11,10 +11,13 @@ of benchmarks/relmse.py adds the pixel-footprint variance that no direction samp
 removes), and it is how the product model's parameters were chosen.
 --strategies may also name earlier designs of `wavelet` (VARIANTS): wavelet_power (the
 power heuristic), wavelet_plain (the plain light tree for lambert too),
-wavelet_all_compensated (the compensated tree for every material), and exact_product
-(the product at the light tree's leaf resolution, exactly, per point: the ideal the walk
-approximates). A name with ":mixS" (wavelet:mix0.9, exact_product:mix0.9) gives the product
-the share S of the samples by one-sample MIS instead of the pair. --phong-blur sets
+wavelet_all_compensated (the compensated tree for every material); and per-point product
+tables, the ideals the walk approximates (_table_product): exact_product (the product at
+the light tree's leaf resolution, exactly), depth_table (at the walk's product depth P,
+the light tree below), depth_table_fine (at P + 1) and depth_table_footprint (at P, only
+where BRDF x cosine >= 1% of its peak). Strategy options follow the name
+(wavelet:levels=9). A name with ":mixS" (wavelet:mix0.9, exact_product:mix0.9) gives
+the product the share S of the samples by one-sample MIS instead of the pair. --phong-blur sets
 the phong lobe widening of the numpy twin (wavlight.product PHONG_BLUR, in units of pi;
 the kernel's PHONG_BLUR_F must then be set to match before rendering).
 
@@ -46,32 +49,41 @@ def _variant(heuristic="balance", compensated="lambert"):
     return s
 
 
-def _exact_product():
-    """The ideal the product walk approximates: per shading point, a table of light leaf mass x
-    BRDF x cosine at every leaf centre of the light tree, sampled exactly (inverse CDF over the
-    leaves, uniform in the leaf). A per-point table of 4^n entries: a yardstick, far too slow
-    to render with."""
+def _table_product(extra_levels=None, footprint=0.0):
+    """Per-point product tables: the ideal the product walk approximates, far too slow to
+    render with (one table of 4^k entries per shading point).
+
+    extra_levels None: exact_product, light leaf mass x BRDF x cosine at every leaf centre
+    of the light tree, sampled by inverse CDF over the leaves, uniform inside the leaf.
+    extra_levels e: depth_table, the same at the product depth P + e (node mass x BRDF x
+    cosine at the node centre), then the light tree inside the chosen node, as the walk
+    continues below P: the walk's target without its level-by-level approximation.
+    footprint f > 0 keeps only the nodes whose BRDF x cosine is at least f times the
+    table's largest (the lobe's footprint, what a renderer could afford to tabulate)."""
     from wavlight import bsdfs, strategies
     from wavlight.distributions import level_offset
 
-    class ExactProduct(strategies.WaveletStrategy):
+    class TableProduct(strategies.WaveletStrategy):
         def prepare(self, environment, materials=()):
             super().prepare(environment, materials)
             n = self.trees.n_levels
-            side = 1 << n
-            leaf = self._nodes[0][level_offset(n):].astype(np.float64)
+            k = n if extra_levels is None else min(max(int(self.levels.max()) + extra_levels, 0), n)
+            side = 1 << k
+            nodes = self._nodes[0].astype(np.float64)
+            self.table_mass = nodes[level_offset(k):level_offset(k) + side * side]
+            self.leaf = nodes[level_offset(n):]
             y, x = np.divmod(np.arange(side * side), side)
-            self.leaf_dirs = environment.square_to_world(np.stack([(x + 0.5) / side, (y + 0.5) / side], 1))
-            self.leaf_mass, self.side, self.tables = leaf, side, {}
+            self.dirs = environment.square_to_world(np.stack([(x + 0.5) / side, (y + 0.5) / side], 1))
+            self.k, self.n, self.side, self.tables = k, n, side, {}
 
         def _table(self, sp, i):
             key = tuple(sp.p[i]) + tuple(sp.wo[i])
             if key not in self.tables:
-                d = self.leaf_dirs
+                d = self.dirs
                 local = np.stack([d @ sp.s[i], d @ sp.t[i], d @ sp.n[i]], 1)
-                f = bsdfs.eval_cos(int(sp.kind[i]), np.full(len(d), sp.param[i]), local,
-                                   np.repeat(sp.wo[i:i + 1], len(d), 0))
-                w = self.leaf_mass * np.nan_to_num(f)
+                f = np.nan_to_num(bsdfs.eval_cos(int(sp.kind[i]), np.full(len(d), sp.param[i]), local,
+                                                 np.repeat(sp.wo[i:i + 1], len(d), 0)))
+                w = self.table_mass * np.where(f >= footprint * f.max(), f, 0.0)
                 total = w.sum()
                 p = w / total if total > 0 else np.zeros_like(w)
                 self.tables[key] = (p, np.cumsum(p))
@@ -82,34 +94,56 @@ def _exact_product():
                                           return_inverse=True)
             return first, inverse.ravel()
 
+        def _inside(self, uv):
+            """Density on the square, given its table node, of the light tree below the node
+            (4^k for k = n: uniform in the leaf), and the node's index."""
+            n, k, ls = self.n, self.k, 1 << self.n
+            ij = np.minimum((uv * ls).astype(np.int64), ls - 1)
+            node = (ij[:, 1] >> (n - k)) * self.side + (ij[:, 0] >> (n - k))
+            mass = self.table_mass[node]
+            leaf = self.leaf[ij[:, 1] * ls + ij[:, 0]]
+            ok = mass > 0
+            return np.where(ok, leaf / np.where(ok, mass, 1.0), 0.0) * ls * ls, node
+
         def sample(self, sp, u):
-            side = self.side
-            uv, pdf = np.zeros((len(sp), 2)), np.zeros(len(sp))
+            u = np.asarray(u, np.float64)
+            node, rx, p_node = np.zeros(len(sp), np.int64), np.zeros(len(sp)), np.zeros(len(sp))
             first, inverse = self._groups(sp)
             for g, i in enumerate(first):
                 sel = np.nonzero(inverse == g)[0]
                 p, cdf = self._table(sp, i)
-                k = np.minimum(np.searchsorted(cdf, u[sel, 0] * cdf[-1], side="right"), len(p) - 1)
-                below = np.where(k > 0, cdf[np.maximum(k - 1, 0)], 0.0)
-                rx = np.clip((u[sel, 0] * cdf[-1] - below) / np.where(p[k] > 0, p[k], 1.0), 0, 1 - 1e-9)
-                uv[sel] = np.stack([(k % side + rx) / side, (k // side + u[sel, 1]) / side], 1)
-                pdf[sel] = p[k] * side * side
+                j = np.minimum(np.searchsorted(cdf, u[sel, 0] * cdf[-1], side="right"), len(p) - 1)
+                below = np.where(j > 0, cdf[np.maximum(j - 1, 0)], 0.0)
+                rx[sel] = np.clip((u[sel, 0] * cdf[-1] - below) / np.where(p[j] > 0, p[j], 1.0), 0, 1 - 1e-9)
+                node[sel], p_node[sel] = j, p[j]
+            s, ls = 1 << (self.n - self.k), 1 << self.n
+            uv = np.zeros((len(sp), 2))
+            for j in np.unique(node):   # below the table: inverse CDF over the node's leaves
+                sel = np.nonzero(node == j)[0]
+                ny, nx = divmod(int(j), self.side)
+                block = self.leaf.reshape(ls, ls)[ny * s:(ny + 1) * s, nx * s:(nx + 1) * s].ravel()
+                cdf = np.cumsum(block)
+                t = rx[sel] * cdf[-1]
+                q = np.minimum(np.searchsorted(cdf, t, side="right"), len(block) - 1)
+                below = np.where(q > 0, cdf[np.maximum(q - 1, 0)], 0.0)
+                fx = np.clip((t - below) / np.where(block[q] > 0, block[q], 1.0), 0, 1 - 1e-9)
+                qy, qx = np.divmod(q, s)
+                uv[sel] = np.stack([(nx * s + qx + fx) / ls, (ny * s + qy + u[sel, 1]) / ls], 1)
+            inside, _ = self._inside(uv)
             d = self.env.square_to_world(uv)
-            return strategies.DirectionSamples(d, sp.to_local(d), pdf * self.env.square_to_solid_angle(d))
+            return strategies.DirectionSamples(d, sp.to_local(d),
+                                               p_node * inside * self.env.square_to_solid_angle(d))
 
         def pdf(self, sp, wi_local, wi_world):
-            side = self.side
-            uv = self.env.world_to_square(wi_world)
-            ij = np.minimum((uv * side).astype(np.int64), side - 1)
+            inside, node = self._inside(self.env.world_to_square(wi_world))
             out = np.zeros(len(sp))
             first, inverse = self._groups(sp)
             for g, i in enumerate(first):
                 sel = np.nonzero(inverse == g)[0]
-                p, _ = self._table(sp, i)
-                out[sel] = p[ij[sel, 1] * side + ij[sel, 0]] * side * side
+                out[sel] = self._table(sp, i)[0][node[sel]] * inside[sel]
             return out * self.env.square_to_solid_angle(wi_world)
 
-    return ExactProduct(compensated_kinds=())
+    return TableProduct(compensated_kinds=())
 
 
 # earlier designs of `wavelet`, for comparison: the power heuristic (before session 7), the
@@ -118,7 +152,9 @@ def _exact_product():
 VARIANTS = {"wavelet_power": lambda: _variant(heuristic="power", compensated="none"),
             "wavelet_plain": lambda: _variant(compensated="none"),
             "wavelet_all_compensated": lambda: _variant(compensated="all"),
-            "exact_product": _exact_product}
+            "exact_product": _table_product,
+            "depth_table": lambda: _table_product(0), "depth_table_fine": lambda: _table_product(1),
+            "depth_table_footprint": lambda: _table_product(0, footprint=0.01)}
 
 
 def mixture_estimates(strategy, env, sp, u, share):
@@ -212,12 +248,18 @@ def main():
                     val = mixture_estimates(strategy, env, sp, u, share)
                 return val.sum(1).mean(1).reshape(count, args.samples)
 
+            def make(spec):
+                """'wavelet', 'wavelet:levels=9' (strategy options) or a VARIANTS name."""
+                base, *opts = spec.split(":")
+                if base in VARIANTS:
+                    return VARIANTS[base]()
+                return strategies.make(base, **{k: int(v) for k, v in (o.split("=") for o in opts)})
+
             runs = {"mis": estimates(strategies.make("mis"))}
             for name in args.strategies.split(","):
                 base, _, share = name.partition(":mix")
                 if share:
-                    runs[name] = estimates(VARIANTS[base]() if base in VARIANTS else strategies.make(base),
-                                           float(share))
+                    runs[name] = estimates(make(base), float(share))
                 elif name in VARIANTS:
                     runs[name] = estimates(VARIANTS[name]())
                 elif name == "wavelet" and kind == "phong":
@@ -228,7 +270,7 @@ def main():
                         finally:
                             product.PHONG_BLUR = saved
                 else:
-                    runs[name] = estimates(strategies.make(name))
+                    runs[name] = estimates(make(name))
             mean = np.mean([r.mean(1) for r in runs.values()], axis=0)
             rel = {k: r.var(1) / (mean ** 2 + 1e-2) for k, r in runs.items()}
             row = {k: round(float(v.mean() / rel["mis"].mean()), 4) for k, v in rel.items() if k != "mis"}
