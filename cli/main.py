@@ -45,7 +45,7 @@ def main():
 @click.option("--width", type=int, default=None, help="Image width in pixels.")
 @click.option("--height", type=int, default=None, help="Image height in pixels.")
 @click.option("--seed", type=int, default=None, help="Random seed.")
-@click.option("--wavelet-levels", type=click.IntRange(0, 12), default=None,
+@click.option("--wavelet-levels", type=click.IntRange(0, 11), default=None,
               help="Product depth of the wavelet strategy (default: per material, from its lobe).")
 @click.option("--light-levels", type=click.IntRange(1, 11), default=None,
               help="Depth of the light tree, 2^n x 2^n leaves (default: from the map's content).")

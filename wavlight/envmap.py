@@ -77,7 +77,7 @@ def procedural_sky(sun_elevation=35.0, sun_azimuth=30.0, sun_radius=0.75, sun_ra
                    width=512, height=256) -> np.ndarray:
     """A lat-long sky: zenith-to-horizon gradient, flat ground, sun disk.
 
-    Angles in degrees; the sun's azimuth is measured from -Z towards +X (the u = 0.5 + az/360 column).
+    Angles in degrees; the sun's azimuth is measured from -Z towards +X (the u = az/360 column).
     """
     v = (np.arange(height) + 0.5) / height
     u = (np.arange(width) + 0.5) / width
@@ -164,7 +164,7 @@ class Environment:
     def light_levels(self, tolerance: float = TREE_TOLERANCE) -> tuple[int, float]:
         """Tree depth chosen from the map's content, and the approximation error it leaves.
 
-        The smallest n whose leaves, taken as constant, are within ``tolerance`` in total
+        The smallest n >= 2 whose leaves, taken as constant, are within ``tolerance`` in total
         variation, 0.5 sum |p_full - p_n| over the finest leaves, of the distribution at
         :meth:`square_levels` (a smooth overcast map needs few levels, a tiny sun all of
         them). Returns (n, that distance).

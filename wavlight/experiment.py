@@ -9,7 +9,7 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
     [experiment]
     name = "example"          # default: the file's stem
     size = [64, 48]           # width, height for every scene (default: each scene's own)
-    threads = 2               # render threads (default: all cores)
+    threads = 2               # render threads (default: two per core, as render_full)
     pilot_spp = 4             # time budgets: first pilot renders at pilot_spp and 4 x pilot_spp
 
     [reference]               # for scenes without a reference file
@@ -69,7 +69,7 @@ Decisions:
   files the scene refers to). A run whose record exists with the same hash and whose
   image exists is not rendered again (``resume=False`` renders everything again,
   references and pilots included). Both files are written atomically, the record last.
-- **Mitsuba peers.** ``id = "mitsuba:<mis|light|bsdf>"`` renders with
+- **Mitsuba peers.** ``id = "mitsuba:<mis|mis_comp|light|bsdf>"`` renders with
   :func:`wavlight.peers.render_mitsuba` (same scene, size, spp, seed; its setup includes
   scene conversion and a JIT warm-up; ``threads`` does not apply). The default label is
   the id with ``-`` for ``:`` (``mitsuba-mis``); wavlight options are rejected. Without

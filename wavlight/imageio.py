@@ -1,4 +1,4 @@
-"""Writing images: linear float (.exr, .hdr, .pfm) or tone-mapped sRGB (.png), atomically.
+"""Writing images: linear float (.exr, .hdr, .pfm) or clamped, sRGB-encoded 8-bit (.png), atomically.
 
 The file appears complete or not at all: pixels go to a temporary file in the
 same folder, which is renamed over the target only after a successful write.

@@ -157,7 +157,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     ``sir_candidates`` (M) and ``sir_samples`` (N) set the sir strategy's candidates and
     resampled directions per shading sample (default: the scene's, else 32 and 1).
     ``structured_strata`` (K) and ``structured_mode`` set the structured strategy's number of
-    strata and mode (default: the scene's, else 64 and "stratified").
+    strata and mode (default: the scene's, else 16 and "stratified").
     ``sampler`` is "independent" (default) or "stratified" (:mod:`wavlight.sampler`).
     """
     spp = scene.spp if spp is None else int(spp)

@@ -5,7 +5,8 @@ Debian's ``libllvm19``). :func:`render_mitsuba` takes a loaded :class:`Scene` an
 renders it with equivalent settings: pinhole camera (``fov_axis = "y"``), box
 filter, independent sampler, ``twosided`` BSDFs on face-normal meshes, the
 environment rotated by ``rotate_y`` about +Y. Strategies: ``mis`` (1 emitter + 1
-BSDF sample), ``light`` (emitter only), ``bsdf`` (BSDF only).
+BSDF sample), ``mis_comp`` (the same with the envmap's ``mis_compensation``), ``light``
+(emitter only), ``bsdf`` (BSDF only).
 
 Equivalences and their limits:
 

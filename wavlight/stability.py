@@ -2,7 +2,7 @@
 
     results = wavlight.stability.run_stability("out/stability")
 
-or ``wavlight experiment --suite stability -o out/stability`` (about a minute on 2 cores). The
+or ``wavlight experiment --suite stability -o out/stability`` (about 2-2.5 minutes on 2 cores). The
 strategies are every id of ``wavlight.scene.STRATEGIES`` at call time, so new ones join without
 an edit. A small version runs in ``tests/test_stability.py``: ``QUICK_CASES`` (the cases with
 analytic answers and light enough tails, and the all-black map) at 12 x 12 pixels, 3 x 32 spp.
@@ -74,8 +74,8 @@ Bonferroni corrections, so
     t_mean  = Student-t quantile(1 - alpha / (2 n 3) / 2, nu)
     t_pixel = Student-t quantile(1 - alpha / (2 n 3 N) / 2, nu)
 
-(the quantile by the Cornish-Fisher expansion of the normal one; for the full suite, n = 84, N =
-576, nu = 508: t_mean = 4.31, t_pixel = 5.60). A cell is "biased?" only when |z_mean| > t_mean,
+(the quantile by the Cornish-Fisher expansion of the normal one; for the full suite, n = 108, N =
+576, nu = 508: t_mean = 4.36, t_pixel = 5.65). A cell is "biased?" only when |z_mean| > t_mean,
 or when the per-pixel test applies and some pixel's |z_pixel| > t_pixel.
 
 **Heavy tails.** These z-scores assume that the means are close to normal. An unbiased estimator

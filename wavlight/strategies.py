@@ -1,8 +1,9 @@
 """Direction sampling strategies for direct environment lighting.
 
-Every strategy draws directions with an exact pdf per unit solid angle and can
-evaluate that pdf for any direction (MIS needs it). A pdf of 0 means "no sample":
-its contribution is 0, never NaN.
+Every strategy draws directions with an exact pdf per unit solid angle, and every
+strategy that MIS combines can evaluate that pdf for any direction (``sir`` cannot:
+its resampling weights replace the pdf). A pdf of 0 means "no sample": its
+contribution is 0, never NaN.
 
 | id        | draws wi from                                  | pdf                                   |
 |-----------|------------------------------------------------|---------------------------------------|
@@ -12,8 +13,11 @@ its contribution is 0, never NaN.
 | light     | the environment: luminance x solid angle, by a | tree pdf on the lat-long square /     |
 |           | hierarchical warp of a :class:`HaarTree`       | (2 pi^2 sin theta) (eq. 19-22)        |
 | mis       | one light and one bsdf sample, power heuristic | both, weighted (Veach 1997)           |
+| mis_comp  | as mis, the light tree of max(L - mean, 0)     | both, power heuristic (Karlik 2019)   |
 | wavelet   | product light x BRDF x cos (top-down warp) and | both, balance heuristic               |
 |           | bsdf (:mod:`wavlight.product`)                 |                                       |
+| sir       | M light candidates, N resampled by f cos L     | RIS weights (:mod:`wavlight.sir`)     |
+| structured| strata of the map (k-center), one per stratum  | per stratum (:mod:`wavlight.structured`) |
 
 The ``mis`` estimator is Mitsuba 3's ``direct`` integrator with one emitter and one
 BSDF sample: each sample's contribution f L cos V / p is weighted by

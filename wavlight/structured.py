@@ -355,7 +355,8 @@ class StructuredStrategy(Strategy):
 
     def shade(self, env, sp: ShadingPoints, u: np.ndarray):
         """The shader's call: wi (P, S, 3) world directions and value (P, S, 3) unoccluded
-        estimates per slot (S = samples for stratified, 1 or K for preintegrated)."""
+        estimates per slot (stratified: S = K with samples = "strata", the default, else
+        ``samples``; preintegrated: 1 or K)."""
         if self.env is None or env is not self.env:
             self.prepare(env)
         u = np.asarray(u, np.float64)

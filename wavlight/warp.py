@@ -1,8 +1,8 @@
 """Warps between the unit square and directions, with their densities (numpy, vectorised).
 
 Naming follows Mitsuba 3's ``warp.h``: ``square_to_X(u)`` maps uniform points to
-directions, ``X_to_square(d)`` inverts it, ``square_to_X_pdf(d)`` is the density
-per unit solid angle. Local frames have the normal along +z.
+directions and ``square_to_X_pdf(d)`` is the density per unit solid angle (no inverse
+warps are needed here). Local frames have the normal along +z.
 The environment's own square (the light tree's lat-long parameterization) is in
 :mod:`wavlight.envmap`.
 """
