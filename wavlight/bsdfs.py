@@ -37,14 +37,19 @@ def _phong_cos_alpha(wi, wo):
     return np.einsum("ij,ij->i", wi, reflect(wo))
 
 
+def _phong_lobe(wi, wo, exponent):
+    """cos^n(alpha) where cos(alpha) > 0, else 0 (also for n = 0, where 0 ** 0 would be 1:
+    the sampler never leaves the hemisphere about the mirror direction; as kernels/bsdf.h)."""
+    ca = _phong_cos_alpha(wi, wo)
+    return np.where(ca > 0.0, np.maximum(ca, 0.0) ** exponent, 0.0)
+
+
 def phong_eval(wi, wo, exponent):
-    ca = np.maximum(_phong_cos_alpha(wi, wo), 0.0)
-    return (exponent + 2.0) * warp.INV_2PI * ca ** exponent * np.maximum(wi[:, 2], 0.0)
+    return (exponent + 2.0) * warp.INV_2PI * _phong_lobe(wi, wo, exponent) * np.maximum(wi[:, 2], 0.0)
 
 
 def phong_pdf(wi, wo, exponent):
-    ca = np.maximum(_phong_cos_alpha(wi, wo), 0.0)
-    return (exponent + 1.0) * warp.INV_2PI * ca ** exponent
+    return (exponent + 1.0) * warp.INV_2PI * _phong_lobe(wi, wo, exponent)
 
 
 def phong_sample(u, wo, exponent):
