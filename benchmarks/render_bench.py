@@ -52,7 +52,7 @@ def embree_alone(scene, args):
     w = np.where((np.einsum("ij,ij->i", w, n_f) < 0)[:, None], -w, w)
     w /= np.linalg.norm(w, axis=1, keepdims=True)
     t0 = time.perf_counter()
-    tracer.occluded(p + n_f * tracer.epsilon, w)
+    tracer.occluded(p + n_f * tracer.shadow_offsets(p, prim[hit], o[0])[:, None], w)
     t_occ = time.perf_counter() - t0
     return {"camera_rays": n, "closest_hit_seconds": round(t_hit, 4),
             "closest_hit_rays_per_second": round(n / t_hit), "shadow_rays": int(len(p)),

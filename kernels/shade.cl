@@ -28,6 +28,9 @@
 #include "bsdf.h"
 #include "product.h"
 #include "rng.h"
+#ifndef OFFSET_RELATIVE
+#define OFFSET_RELATIVE 1e-4   /* shadow-ray offset per unit of |p|: the host passes wavlight.raytrace's */
+#endif
 #if STRATEGY >= 3 && !defined(N_LEVELS)
 #error "shade.cl with the light or product sample is built with -DN_LEVELS (the light tree's depth)"
 #endif
@@ -247,13 +250,15 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
  * u_in (rows of 4). A miss sees the environment (direct_out,
  * 3 planes r, g, b; zero for hits) and has zero estimates. A hit takes its face
  * normal, flipped to face the viewer (two-sided shading), its face's material and
- * shade_lanes' directions and estimates; origin_out (rows of 3) is the hit point
- * moved epsilon along that normal, where its shadow rays start; wi_out holds rows of
+ * shade_lanes' directions and estimates; origin_out (rows of 3) is the hit point p
+ * moved max(OFFSET_RELATIVE |p|, face_normal's 4th column, eye_offset) along that normal
+ * (wavlight/raytrace.py: the offset floors of the face and of the eye), where its
+ * shadow rays start; wi_out holds rows of
  * 6 floats (slot a x y z, slot b x y z), value_out planes as in shade. Vectors of
  * eight rays of one pixel mostly agree on hit or miss: each part runs only when some
  * lane needs it. numpy twin: wavlight.shading.shade_rays_reference. */
 __kernel void shade_rays(__global const float *dirs, __global const int *prim, __global const float *tfar,
-                         const float eye_x, const float eye_y, const float eye_z, const float epsilon,
+                         const float eye_x, const float eye_y, const float eye_z, const float eye_offset,
                          __global const float *face_normal, __global const int *face_material,
                          __global const float *u_in, const int draw_u, const uint rng_tile,
                          const uint rng_first, const uint rng_k0, const uint rng_k1, const uint count,
@@ -284,15 +289,17 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
     Shaded s;
     if (any(hit)) {
         const uintv f = as_uintv(max(face, 0));
-        realv nx, ny, nz;
-        GATHER3(face_normal, 3 * f, &nx, &ny, &nz);
+        realv nx, ny, nz, floor;
+        GATHER4(face_normal, 4 * f, &nx, &ny, &nz, &floor);   /* rows: normal, offset floor */
         const realv flip = select((realv)1.0f, (realv)-1.0f, nx * dx + ny * dy + nz * dz > 0.0f);
         nx *= flip;
         ny *= flip;
         nz *= flip;
         const realv t = GATHER(tfar, i);
-        store_rows3(eye_x + dx * t + nx * epsilon, eye_y + dy * t + ny * epsilon, eye_z + dz * t + nz * epsilon,
-                    origin_out, 3, 0, base, count);
+        const realv px = eye_x + dx * t, py = eye_y + dy * t, pz = eye_z + dz * t;
+        const realv size = fmax(fmax(fabs(px), fabs(py)), fabs(pz));
+        const realv eps = fmax(fmax((float)OFFSET_RELATIVE * size, floor), eye_offset);
+        store_rows3(px + nx * eps, py + ny * eps, pz + nz * eps, origin_out, 3, 0, base, count);
         realv u0, u1, u2, u3;
         if (draw_u) {
             rng_uniforms(rng_first + LANE_IDS + base, rng_tile, RNG_SHADING, rng_k0, rng_k1, &u0, &u1, &u2, &u3);

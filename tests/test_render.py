@@ -443,6 +443,24 @@ def _texel_cos_integral(row, H, W):
     return (2 * math.pi / W) * (math.sin(th1) ** 2 - math.sin(th0) ** 2) / 2
 
 
+def test_far_geometry_does_not_move_shadows(tmp_path):
+    """Shadow rays start a distance from the hit point set by the hit point, its face and the
+    eye, not by the whole scene: a 1 cm quad 3000 units away (it blocks no light that
+    matters) leaves the image of a sphere on a floor unchanged. With an offset relative to
+    the scene's size it moved from 6e-4 to 0.3 and the contact shadow brightened."""
+    sky = write_env(tmp_path, "sky.exr", wavlight.envmap.procedural_sky(width=64, height=32, sun_radiance=300.0))
+    objects = [dict(shape="quad", center=[0.0, 0.0, 0.0], normal=[0.0, 1.0, 0.0], size=6.0, material="m"),
+               dict(shape="sphere", center=[0.0, 0.5, 0.0], radius=0.5, subdivisions=3, material="m")]
+    far = dict(shape="quad", center=[0.0, 1.0, 3000.0], normal=[0.0, 0.0, -1.0], size=0.01, material="m")
+    common = dict(render=dict(width=24, height=24, spp=8, seed=3),
+                  camera=dict(eye=[0.0, 1.5, -3.0], target=[0.0, 0.3, 0.0], up=[0.0, 1.0, 0.0], fov_y=40.0),
+                  environment=dict(file=sky), materials={"m": dict(type="lambert", albedo=[0.7, 0.7, 0.7])})
+    near = _render(load(tmp_path, objects=objects, **common), "mis", 8).image
+    with_far = _render(load(tmp_path, objects=objects + [far], **common), "mis", 8).image
+    assert near.max() > 0
+    np.testing.assert_allclose(with_far, near, rtol=0, atol=1e-5 * near.max())
+
+
 SHADOW_W, SHADOW_H, SHADOW_ROW, SHADOW_COL = 64, 32, 6, 40   # elevation ~53 deg
 
 

@@ -6,8 +6,8 @@ finds the closest hit; the shader's ``shade_rays`` (:mod:`wavlight.shading`, one
 kernel launch per batch) gives a miss the environment's radiance and a hit its
 face normal flipped towards the viewer, the strategy's directions and pdfs, the
 estimate ``albedo f cos L / pdf`` times the MIS weight, and the shadow-ray origin
-(the hit point moved ``epsilon`` along that normal); only non-zero estimates get a
-shadow ray (occlusion query, :meth:`_Renderer.visible_sum`). Per-pixel means and
+(the hit point moved along that normal by ``RayTracer.shadow_offsets``); only non-zero
+estimates get a shadow ray (occlusion query, :meth:`_Renderer.visible_sum`). Per-pixel means and
 standard errors come from the per-sample values.
 
 Images are rendered in tiles, each in passes of about ``TILE_SAMPLES`` samples, so

@@ -16,6 +16,15 @@ import numpy as np
 
 _CHUNK = 1 << 15
 
+# Shadow rays start at the hit point moved along the face normal by
+#     max(OFFSET_RELATIVE |p|, OFFSET_FLOOR max(|v| of the face's vertices), OFFSET_FLOOR |eye|)
+# (|.| the largest coordinate): local, so that geometry elsewhere in the scene (a large
+# floor, a far object) does not move the shadows here, and far above float32's rounding of
+# embree's hit distance and of eye + t d (~1e-7 of those magnitudes). Mitsuba 3 offsets by
+# (1 + |p|) 1.8e-4, which assumes scenes of unit size.
+OFFSET_RELATIVE = 1e-4
+OFFSET_FLOOR = 1e-6
+
 
 class RayTracer:
     """Closest-hit and occlusion queries against vertices (V, 3) and faces (F, 3)."""
@@ -38,11 +47,22 @@ class RayTracer:
             self.face_normals = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
             extent = float(np.ptp(v, axis=0).max())
             self.scale = max(extent, float(np.abs(v).max()), 1e-6)
+            self.face_offset_floor = (OFFSET_FLOOR * np.abs(v[f]).max(axis=(1, 2))).astype(np.float32)
         else:
             self.face_normals = np.zeros((0, 3), np.float32)
+            self.face_offset_floor = np.zeros(0, np.float32)
             self.scale = 1.0
-        # Shadow-ray origins move this far along the shading normal (relative to the scene size).
-        self.epsilon = 1e-4 * self.scale
+
+    @staticmethod
+    def eye_offset_floor(eye) -> np.float32:
+        """The part of the shadow-ray offset that the eye's position sets (OFFSET_FLOOR |eye|)."""
+        return np.float32(OFFSET_FLOOR * float(np.abs(np.asarray(eye, np.float64)).max()))
+
+    def shadow_offsets(self, p: np.ndarray, face: np.ndarray, eye) -> np.ndarray:
+        """How far shadow rays from hit points p (N, 3) on faces (N,) move along the normal (float32)."""
+        p = np.asarray(p, np.float32)
+        return np.maximum(np.maximum(np.float32(OFFSET_RELATIVE) * np.abs(p).max(axis=1, initial=0.0),
+                                     self.face_offset_floor[face]), self.eye_offset_floor(eye))
 
     def _map(self, fn, origins, dirs):
         n = len(origins)

@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import cl, rng, strategies, warp
+from . import cl, raytrace, rng, strategies, warp
 
 _WARMED = set()  # shade programs already launched in this process
 
@@ -78,12 +78,14 @@ class KernelShader:
                         self.texels, *self.env_size, self.rot, self.tree)
         self._geometry = None
         if tracer is not None:   # face normals and materials for shade_rays (a dummy row without faces)
-            normals = tracer.face_normals if len(tracer.face_normals) else np.zeros((1, 3), np.float32)
+            rows = np.zeros((max(len(tracer.face_normals), 1), 4), np.float32)   # normal, offset floor
+            rows[:len(tracer.face_normals), :3] = tracer.face_normals
+            rows[:len(tracer.face_normals), 3] = tracer.face_offset_floor
             materials = scene.face_material if len(scene.face_material) else np.zeros(1, np.int32)
-            self._geometry = (np.float32(tracer.epsilon), cl.to_device(np.asarray(normals, np.float32)),
-                              cl.to_device(np.asarray(materials, np.int32)))
+            self._geometry = (cl.to_device(rows), cl.to_device(np.asarray(materials, np.int32)))
         if getattr(strategy, "heuristic", "power") == "balance":
             sizes["MIS_BALANCE"] = 1
+        sizes["OFFSET_RELATIVE"] = repr(float(np.float32(raytrace.OFFSET_RELATIVE)))   # shadow-ray offsets
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds,
                                   **sizes)
         self.warm_up()
@@ -128,7 +130,7 @@ class KernelShader:
             cl.kernel(self.program, "shade_rays")(
                 q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("dirs", np.asarray(d, np.float32), q),
                 cl.upload("prim", np.asarray(prim, np.int32), q), cl.upload("tfar", np.asarray(t, np.float32), q),
-                *np.asarray(eye, np.float32), *self._geometry, u_buf, *draw, np.uint32(count), *self._tables, *bufs)
+                *np.asarray(eye, np.float32), raytrace.RayTracer.eye_offset_floor(eye), *self._geometry, u_buf, *draw, np.uint32(count), *self._tables, *bufs)
         origin, wi, value, direct = (cl.read(b, shape, np.float32, q) for b, shape in
                                      zip(bufs, ((count, 3), (count, 2, 3), (2, 3, count), (3, count))))
         return ShadedRays(direct, origin, wi, value)
@@ -157,7 +159,7 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays
     ``shade(n, wo, material, u, p=...) -> wi, value (M, S, 3)``, with u an (N, 4) array or an
     :class:`rng.Stream` (its SHADING numbers, as the kernel draws them): misses see the environment;
     hits take their face normal flipped towards the viewer, their face's material, and
-    shadow rays from the hit point moved ``tracer.epsilon`` along that normal."""
+    shadow rays from the hit point moved ``tracer.shadow_offsets`` along that normal."""
     d = np.asarray(d, np.float32)
     prim = np.asarray(prim)
     count = len(d)
@@ -172,7 +174,7 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays
                                              np.float32(-1), np.float32(1))[:, None]
     p = np.asarray(eye, np.float32) + d[hit] * np.asarray(t, np.float32)[hit, None]
     origin = np.zeros((count, 3), np.float32)
-    origin[hit] = p + n * np.float32(tracer.epsilon)
+    origin[hit] = p + n * tracer.shadow_offsets(p, face, eye)[:, None]
     if len(hit):
         wi_h, val_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p)
     else:   # (no call: some shaders do not take zero points)
