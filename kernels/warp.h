@@ -65,7 +65,7 @@ INLINE realv choose_child(const realv m00, const realv m10, const realv m01, con
     *px = 2 * *px + select((uintv)0, (uintv)1, r);
     *uy = select((realv)ONE_MINUS_EPS, ny, ny < ONE_MINUS_EPS);   /* NaN -> 1 - eps */
     *ux = select((realv)ONE_MINUS_EPS, nx, nx < ONE_MINUS_EPS);
-    return (row * col) / (s_row * s_col);
+    return (row / s_row) * (col / s_col);   /* (row col) / (s_row s_col) overflows past ~1e19 */
 }
 
 /* u in [0, 1) clamped to the largest float below 1 (NaN -> 0), per lane. */

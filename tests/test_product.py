@@ -687,6 +687,24 @@ def test_mis_comp_estimate_equals_mis_at_a_point(case):
     _assert_point_estimate_equals_mis(case, "mis_comp", "c")
 
 
+@pytest.mark.parametrize("mat_id", ["lambert", "phong20", "ggx0.3"])
+def test_wavelet_estimate_equals_mis_under_a_1e30_texel(mat_id):
+    """A sun of 1e30 over a sky of 1: the product walk's conditionals once multiplied two
+    importance sums, which overflowed float32 past ~1e19, so the walk lost the sun (the image
+    1000x too dark from 1e24 on, while mis and the numpy twin were right). Same test as above."""
+    px = np.ones((32, 64, 3), np.float32)
+    px[9, 24] = 1e30
+    scene = _scene(Environment(px), [MATERIALS[mat_id]])
+    n, wo = np.array([0.0, 1.0, 0.0]), np.array([0.3, 0.9, 0.1]) / np.linalg.norm([0.3, 0.9, 0.1])
+    a = _kernel_estimates(scene, "wavelet", n, wo, N_POINT, seed_of("sun1e30-w/" + mat_id))
+    b = _kernel_estimates(scene, "mis", n, wo, N_POINT, seed_of("sun1e30-m/" + mat_id))
+    assert np.all(np.isfinite(a)) and np.all(a >= 0)
+    ma, mb = a.mean(0), b.mean(0)
+    se = np.sqrt(a.var(0, ddof=1) / len(a) + b.var(0, ddof=1) / len(b))
+    z = stats.norm.isf(sidak_alpha(1e-3, 3 * 3) / 2)
+    assert np.all(np.abs(ma - mb) <= z * se), f"wavelet {ma} vs mis {mb}, z = {np.abs(ma - mb) / se}"
+
+
 REAL_MAPS = ("rooitou_park_1k.hdr", "st_fagans_interior_1k.hdr", "debevec_grace_256x128.hdr")
 # three spheres side by side, one per material, under the scene-format document's camera
 REAL_MATERIALS = {"ggx": dict(type="ggx", albedo=[0.95, 0.8, 0.6], roughness=0.1),

@@ -745,6 +745,20 @@ def test_environment_scale_overflow_never_gives_inf(tmp_path):
         assert np.all(np.isfinite(s.environment.pixels))
 
 
+@pytest.mark.parametrize("value, scale, key", [(1e33, 1.0, "[environment].file"), (1e28, 1e4, "[environment].scale")])
+def test_environment_radiance_above_the_limit_is_refused(tmp_path, value, scale, key):
+    """Radiance above envmap.MAX_RADIANCE (1e30) would overflow the float32 estimates: a one-line
+    error naming the file or the scale that took it there."""
+    px = np.full((4, 8, 3), 1.0, np.float32)
+    px[1, 2] = value
+    write_env(tmp_path / "env.exr", px)
+    path = write_scene(tmp_path, f'[environment]\nfile = "env.exr"\nscale = {scale}\n')
+    with pytest.raises(SceneError) as e:
+        wavlight.load_scene(str(path))
+    _check_scene_error(e.value, path, key)
+    assert "1e+30" in str(e.value)
+
+
 def test_single_channel_environment_is_grey(tmp_path):
     import OpenImageIO as oiio
 

@@ -61,6 +61,11 @@ def read_image(path: str) -> np.ndarray:
     return np.ascontiguousarray(px[..., :3])
 
 
+#: Radiance above this is refused: estimates (radiance x BRDF / pdf) and per-pixel sums run in
+#: float32 and would overflow to Inf (real light probes stay below 1e6; a sun of 1e30 is tested).
+MAX_RADIANCE = 1e30
+
+
 def sanitize(pixels: np.ndarray, name: str) -> np.ndarray:
     """Replace NaN, Inf and negative texels with 0, with one warning that counts them."""
     bad = ~np.isfinite(pixels) | (pixels < 0)
@@ -131,6 +136,10 @@ class Environment:
             raise WavlightError(f"{name}: expected an (H, W, 3) image, got shape {pixels.shape}")
         self.name = name
         self.pixels = np.ascontiguousarray(pixels * np.float32(scale))
+        peak = float(self.pixels.max(initial=0.0))
+        if not peak <= MAX_RADIANCE:
+            raise WavlightError(f"{name}: radiance up to {peak:.3g} (after scale {scale:g}); at most "
+                                f"{MAX_RADIANCE:g} is supported (float32 estimates): rescale the map")
         self.height, self.width = self.pixels.shape[:2]
         self.rotate_y = float(rotate_y)
         self.map_from_world = rotation_y(rotate_y).T

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import bsdfs, meshes
-from .envmap import Environment, procedural_sky, read_image
+from .envmap import MAX_RADIANCE, Environment, procedural_sky, read_image
 from .errors import SceneError, WavlightError
 from .sampler import SAMPLERS
 
@@ -425,6 +425,11 @@ def _environment(t: _Table, base) -> Environment:
         name = fname
     t.done()
     with np.errstate(over="ignore", invalid="ignore"):
-        if not np.all(np.isfinite(np.nan_to_num(pixels, nan=0, posinf=0, neginf=0) * np.float32(scale))):
+        scaled = np.nan_to_num(pixels, nan=0, posinf=0, neginf=0) * np.float32(scale)
+        if not np.all(np.isfinite(scaled)):
             t.fail("scale", f"{scale} makes the environment's radiance overflow to Inf")
+    peak = float(scaled.max(initial=0.0))
+    if peak > MAX_RADIANCE:
+        t.fail("scale" if scale != 1.0 else "file", f"radiance up to {peak:.3g}; at most {MAX_RADIANCE:g} is "
+               "supported (float32 estimates would overflow): rescale the map")
     return Environment(pixels, scale, rotate_y, name)
