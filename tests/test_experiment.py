@@ -19,6 +19,7 @@ import wavlight
 from cli.main import main
 from wavlight import experiment, metrics
 from wavlight.envmap import read_image
+from scenes_util import write_raw_image
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_SCENE = (REPO / "scenes" / "default.toml").as_posix()
@@ -272,6 +273,20 @@ repetitions = 1
     spec.write_text(spec.read_text().replace("size = [8, 6]", "size = [8, 8]"))
     with pytest.raises(wavlight.WavlightError, match=r"default\.exr: reference image is 8x6"):
         experiment.run_experiment(spec, tmp_path / "out2")
+    # so is a reference with NaN pixels (every metric would be NaN)
+    bad = read_image(str(ref)).copy()
+    bad[2, 3] = np.nan
+    write_raw_image(str(tmp_path / "nan.exr"), bad)   # (save_image refuses NaN)
+    spec.write_text(spec.read_text().replace("size = [8, 8]", "size = [8, 6]").replace(ref.as_posix(),
+                                                                                        (tmp_path / "nan.exr").as_posix()))
+    with pytest.raises(wavlight.WavlightError, match=r"nan\.exr: reference image has 1 NaN or Inf pixel"):
+        experiment.run_experiment(spec, tmp_path / "out3")
+
+
+def test_results_json_has_no_nan_tokens(tmp_path):
+    """JSON has no NaN: a metric that is not a number is written as null."""
+    experiment._write_json(tmp_path / "r.json", {"a": [1.0, float("nan")], "b": {"c": float("inf")}, "d": "x"})
+    assert json.loads((tmp_path / "r.json").read_text()) == {"a": [1.0, None], "b": {"c": None}, "d": "x"}
 
 
 # ----------------------------------------------------------------------------- the command line

@@ -378,8 +378,19 @@ def _write_text(path, text):
         raise
 
 
+def _json_safe(obj):
+    """obj with every non-finite float as None (JSON has no NaN or Infinity)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
 def _write_json(path, obj):
-    _write_text(path, json.dumps(obj, indent=1) + "\n")
+    _write_text(path, json.dumps(_json_safe(obj), indent=1, allow_nan=False) + "\n")
 
 
 def _read_json(path):
@@ -460,6 +471,9 @@ class _Runner:
             if image.shape[:2] != (h, w):
                 raise WavlightError(f"{s.reference}: reference image is {image.shape[1]}x{image.shape[0]}, "
                                     f"the experiment renders {s.name} at {w}x{h}")
+            bad = int((~np.isfinite(image)).any(axis=-1).sum())
+            if bad:   # every metric would be NaN
+                raise WavlightError(f"{s.reference}: reference image has {bad} NaN or Inf pixel(s)")
             stderr = None
             if s.reference_stderr is not None:
                 stderr = _read_image(s.reference_stderr)
