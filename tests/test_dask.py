@@ -92,3 +92,15 @@ def test_workers_and_dask_are_exclusive(local, tmp_path):
     assert r.exit_code == 2 and "not both" in r.stderr
     r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "x"), "--workers", "0"])
     assert r.exit_code == 2
+
+
+@pytest.mark.parametrize("address", ["notaurl", "tcp://host-without-port", "127.0.0.1:8786"])
+def test_bad_dask_address_is_one_line_before_any_work(local, tmp_path, address):
+    """A malformed scheduler address is refused before references or pilots are rendered."""
+    pytest.importorskip("distributed")
+    spec = local[0]
+    r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "x"), "--dask", address])
+    assert r.exit_code == 2, r.output
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "expected a scheduler address tcp://HOST:PORT" in lines[0], r.stderr
+    assert not (tmp_path / "x").exists()

@@ -642,6 +642,25 @@ def run_task(task: dict) -> dict:
     return {"image": np.asarray(r.image, np.float32), "stats": r.stats}
 
 
+_DASK_ADDRESS = re.compile(r"^(tcp|tls|ucx|ws|wss)://[^/\s]+:\d+/?$")
+
+
+def _dask_client(address):
+    """A dask.distributed client of the scheduler at ``address`` (tcp://HOST:PORT), or a one-line
+    WavlightError: not installed, not an address, or no scheduler there within 20 s."""
+    if not isinstance(address, str) or not _DASK_ADDRESS.match(address):
+        raise WavlightError(f"dask {address!r}: expected a scheduler address tcp://HOST:PORT")
+    try:
+        from distributed import Client
+    except ImportError:
+        raise WavlightError(f"dask {address}: dask.distributed is not installed "
+                            "(pip install 'wavlight[dask]')") from None
+    try:
+        return Client(address, timeout=20)
+    except (OSError, TimeoutError, ValueError) as e:
+        raise WavlightError(f"dask {address}: cannot connect to the scheduler ({e})") from None
+
+
 def _execute(runner: _Runner, jobs, workers: int, dask_address):
     """Render ``jobs`` [(index, job)] -> {index: record}: in this process, in a spawn-context
     process pool, or on a dask.distributed scheduler. Records are written as runs finish."""
@@ -654,15 +673,8 @@ def _execute(runner: _Runner, jobs, workers: int, dask_address):
         return out
     tasks = [runner.task(job) for _, job in jobs]
     if dask_address is not None:
-        try:
-            from distributed import Client, as_completed
-        except ImportError:
-            raise WavlightError(f"dask {dask_address}: dask.distributed is not installed "
-                                "(pip install 'wavlight[dask]')") from None
-        try:
-            client = Client(dask_address, timeout=20)
-        except (OSError, TimeoutError) as e:
-            raise WavlightError(f"dask {dask_address}: cannot connect to the scheduler ({e})") from None
+        from distributed import as_completed
+        client = _dask_client(dask_address)
         try:
             futures = client.map(run_task, tasks, pure=False)
             where = {f.key: n for n, f in enumerate(futures)}
@@ -713,6 +725,8 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, da
     if dask_address is not None and workers != 1:
         raise WavlightError("give workers or a dask scheduler address, not both")
     spec = load_spec(spec_path)
+    if dask_address is not None:
+        _dask_client(dask_address).close()   # fail before rendering references and pilots
     out_dir = str(out_dir)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise WavlightError(f"{out_dir}: exists and is not a folder")
