@@ -42,7 +42,7 @@ class RunBar:
 
 
 @click.command()
-@click.argument("spec_file", metavar="SPEC", required=False, type=click.Path(dir_okay=False))
+@click.argument("spec_file", metavar="[SPEC]", required=False, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "out_dir", metavar="DIR", required=True, type=click.Path(),
               help="Output folder: results.csv/.json, charts/, runs/, reference/.")
 @click.option("--suite", type=click.Choice(["stability"]), default=None,
@@ -57,7 +57,7 @@ class RunBar:
               help="Submit the runs to this dask.distributed scheduler (workers need the scene files at the "
                    "same paths). Not with --workers.")
 def experiment(spec_file, out_dir, suite, quiet, no_resume, workers, dask_address):
-    """Run the batch experiment SPEC (TOML) into the folder DIR.
+    """Run the batch experiment SPEC (TOML), or a built-in --suite, into the folder -o DIR.
 
     Renders every scene x strategy x budget x seed, measures each against the reference
     (relMSE, MSE, variance, bias, largest error) and writes results.csv/.json and charts.

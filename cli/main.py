@@ -15,15 +15,27 @@ import click
 from .progress import ProgressBar
 
 
+def _one_line(text) -> str:
+    """Messages from libraries (OpenImageIO) may span lines: joined with '; '."""
+    return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
+
+
 def _warn_line(message, category, filename, lineno, file=None, line=None):
-    click.echo(f"warning: {message}", err=True)
+    click.echo(f"warning: {_one_line(message)}", err=True)
 
 
 def _fail(message) -> None:
-    raise click.ClickException(str(message))
+    raise click.ClickException(_one_line(message))
+
+
+def _show_usage_error(self, file=None):
+    """Bad options and arguments in one line too, instead of click's usage block."""
+    hint = f" (see '{self.ctx.command_path} --help')" if self.ctx is not None else ""
+    click.echo(f"Error: {_one_line(self.format_message())}{hint}", file=file, err=True)
 
 
 click.ClickException.exit_code = 2
+click.UsageError.show = _show_usage_error
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -74,10 +86,19 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
         output = os.path.splitext(os.path.basename(scene_file))[0] + ".png"
     if os.path.splitext(output)[1].lower() not in FORMATS:
         _fail(f"{output}: unsupported output format (use {', '.join(FORMATS)})")
+    folder = os.path.dirname(os.path.abspath(output))
+    if os.path.isdir(output):
+        _fail(f"{output}: is a folder, not an image file")
+    if not os.path.isdir(folder):
+        _fail(f"{output}: no folder {folder}")
+    if not os.access(folder, os.W_OK):
+        _fail(f"{output}: cannot write into {folder}")
     for name, value, lo in (("--spp", spp, 1), ("--width", width, 1), ("--height", height, 1),
                             ("--seed", seed, 0)):
         if value is not None and value < lo:
             _fail(f"{name} must be at least {lo}, got {value}")
+    if seed is not None and seed > 2 ** 63 - 1:
+        _fail(f"--seed must be at most 2^63 - 1, got {seed}")
     try:
         scene = wavlight.load_scene(scene_file)
         if scene.environment.is_black:

@@ -476,10 +476,22 @@ def test_output_path_is_a_folder(tmp_path):
     assert (tmp_path / "taken.png").is_dir()
 
 
-def test_output_folder_missing(tmp_path):
+def test_output_folder_missing(tmp_path, monkeypatch):
+    """Refused before rendering (a long render would otherwise be thrown away at the end)."""
+    import wavlight
+
     scene = write_scene(tmp_path, scene_text())
     out = tmp_path / "no" / "such" / "dir" / "o.exr"
+    monkeypatch.setattr(wavlight, "render_full", lambda *a, **k: pytest.fail("rendered before checking the output"))
     assert_clean_failure(run_inproc("render", scene, "-o", out), "o.exr", output=out, folder=tmp_path)
+
+
+def test_seed_beyond_63_bits_is_refused(tmp_path):
+    """The scene file caps seed at 2^63 - 1; so does --seed (numbers past 2^64 once wrapped to 0)."""
+    scene = write_scene(tmp_path, scene_text())
+    out = tmp_path / "o.png"
+    assert_clean_failure(run_inproc("render", scene, "-o", out, "--seed", 2 ** 64), "--seed", output=out,
+                         folder=tmp_path)
 
 
 # ----------------------------------------------------------------------------- bad texels
@@ -559,15 +571,25 @@ def test_bad_input(tmp_path, case):
     assert_clean_failure(o, *names, output=out, folder=tmp_path)
 
 
-def test_unknown_strategy_flag(tmp_path):
-    """A click usage error: exit 2 and an 'Error:' line naming the option (click adds a usage hint)."""
+@pytest.mark.parametrize("args, name", [(("--strategy", "best"), "--strategy"), (("--width", "abc"), "--width"),
+                                        (("--wavelet-levels", "99"), "--wavelet-levels"), (("--nope",), "--nope")])
+def test_bad_option_is_one_line(tmp_path, args, name):
+    """A click usage error: exit 2 and one 'Error:' line naming the option, with a --help hint
+    (not click's usage block)."""
     scene = write_scene(tmp_path, scene_text())
     out = tmp_path / "o.png"
-    o = run_inproc("render", scene, "-o", out, "--strategy", "best")
+    o = run_inproc("render", scene, "-o", out, *args)
     assert o.exception is None and o.code == 2, o.describe()
-    errors = [line for line in stderr_lines(o) if line.startswith("Error:")]
-    assert len(errors) == 1 and "--strategy" in errors[0]
+    lines = stderr_lines(o)
+    assert len(lines) == 1 and lines[0].startswith("Error:") and name in lines[0], lines
+    assert "--help" in lines[0]
     assert not out.exists()
+
+
+def test_library_messages_spanning_lines_print_as_one():
+    from cli.main import _one_line
+
+    assert _one_line("file.pfm: bad header\n  size 0 x 0\n") == "file.pfm: bad header; size 0 x 0"
 
 
 def test_scene_path_is_a_folder(tmp_path):
