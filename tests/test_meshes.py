@@ -89,6 +89,40 @@ def test_malformed_ply_is_a_scene_error(tmp_path):
         load_scene(str(tmp_path / "s.toml"))
 
 
+SCENE_WITH_MESH = ('[render]\nwidth = 8\nheight = 8\n[camera]\neye = [0, 0, 5]\ntarget = [0, 0, 0]\n'
+                   '[environment]\nprocedural = "sky"\n[[objects]]\nmesh = "{mesh}"\nmaterial = "m"\n'
+                   '[materials.m]\ntype = "lambert"\nalbedo = [0.5, 0.5, 0.5]\n')
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian"])
+def test_truncated_ply_is_a_scene_error(tmp_path, fmt):
+    """A header that declares more faces than the file holds: an error naming the truncation,
+    not a mesh with fewer triangles (trimesh read such files without a word)."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
+    _write_ply(tmp_path / "full.ply", fmt, v, [[0, 1, 2], [0, 2, 3]])
+    data = (tmp_path / "full.ply").read_bytes()
+    cut = data[:data.rindex(b"\n", 0, len(data) - 1) + 1] if fmt == "ascii" else data[:-13]
+    (tmp_path / "cut.ply").write_bytes(cut)
+    (tmp_path / "s.toml").write_text(SCENE_WITH_MESH.format(mesh="cut.ply"))
+    with pytest.raises(SceneError, match="truncated"):
+        load_scene(str(tmp_path / "s.toml"))
+
+
+def test_obj_with_bytes_that_are_not_utf8_loads(tmp_path):
+    """A Latin-1 comment in an OBJ file (trimesh alone needs charset_normalizer for it)."""
+    (tmp_path / "m.obj").write_bytes(b"# caf\xe9 cr\xe8me\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    (tmp_path / "s.toml").write_text(SCENE_WITH_MESH.format(mesh="m.obj"))
+    assert len(load_scene(str(tmp_path / "s.toml")).faces) == 1
+
+
+def test_obj_with_a_nan_vertex_is_a_scene_error(tmp_path):
+    """As for PLY: trimesh's processing dropped the face without a warning."""
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv nan 1 0\nf 1 2 3\nf 1 2 4\n")
+    (tmp_path / "s.toml").write_text(SCENE_WITH_MESH.format(mesh="m.obj"))
+    with pytest.raises(SceneError, match="NaN"):
+        load_scene(str(tmp_path / "s.toml"))
+
+
 @pytest.mark.parametrize("sub", [0, 1, 3, 5])
 def test_icosphere_is_trimesh_icosphere(sub):
     """The same sphere as trimesh.creation.icosphere: vertex set, face count, area; closed,

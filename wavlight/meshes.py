@@ -68,6 +68,9 @@ def read_ply(path: str):
             tokens = np.array(data[start:].split(), dtype=np.float64)
         except ValueError:
             return None
+        if len(tokens) < nv * len(vprops) + nf * width:
+            raise ValueError(f"truncated: the header declares {nv} vertices and {nf} faces, the file "
+                             f"holds fewer values")
         if len(tokens) != nv * len(vprops) + nf * width:
             return None                             # polygons other than triangles, or trailing data
         verts = tokens[:nv * len(vprops)].reshape(nv, len(vprops))[:, xyz]
@@ -81,6 +84,9 @@ def read_ply(path: str):
         vdt = np.dtype([(f"p{k}", e + _TYPES[t]) for k, (_, t) in enumerate(vprops)])
         fdt = np.dtype([("n", e + _TYPES[fprops[0][1]]), ("i", e + _TYPES[fprops[0][2]], (3,))]
                        + [(f"q{k}", e + _TYPES[t]) for k, (_, t) in enumerate(fprops[1:])])
+        if len(data) - start < nv * vdt.itemsize + nf * fdt.itemsize:
+            raise ValueError(f"truncated: the header declares {nv} vertices and {nf} faces, the file "
+                             f"is {nv * vdt.itemsize + nf * fdt.itemsize - (len(data) - start)} bytes short")
         if len(data) - start != nv * vdt.itemsize + nf * fdt.itemsize:
             return None
         v = np.frombuffer(data, vdt, count=nv, offset=start)

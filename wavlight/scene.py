@@ -26,6 +26,7 @@ key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
 """
 from __future__ import annotations
 
+import io
 import math
 import os
 import tomllib
@@ -195,7 +196,10 @@ def quad_axes(normal):
 
 def _load_mesh(t: _Table, path: str):
     """(vertices, faces) of a mesh file: PLY triangle meshes by :func:`meshes.read_ply`,
-    everything else (OBJ, other PLY) by trimesh, imported only then."""
+    everything else (OBJ, other PLY) by trimesh, imported only then. OBJ text is decoded here
+    (bytes that are not UTF-8, say in a comment, become U+FFFD) and loaded without trimesh's
+    processing, which would drop faces with NaN vertices silently (:func:`_clean_triangles`
+    then refuses them with an error, as for PLY)."""
     try:
         if path.lower().endswith(".ply"):
             mesh = meshes.read_ply(path)
@@ -205,7 +209,12 @@ def _load_mesh(t: _Table, path: str):
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            mesh = trimesh.load(path, force="mesh")
+            if path.lower().endswith(".obj"):
+                with open(path, "rb") as fh:
+                    text = fh.read().decode("utf-8", errors="replace")
+                mesh = trimesh.load(io.StringIO(text), file_type="obj", force="mesh", process=False)
+            else:
+                mesh = trimesh.load(path, force="mesh")
     except Exception as e:  # trimesh raises many types for bad files
         t.fail("mesh", f"cannot load {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
     if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
