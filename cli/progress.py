@@ -1,4 +1,5 @@
-"""A one-line terminal progress bar: tiles done, samples per second, time left."""
+"""A one-line terminal progress bar: parts of the render done (tiles, or runs of a tile's passes),
+samples per second, time left."""
 from __future__ import annotations
 
 
@@ -11,7 +12,7 @@ class ProgressBar:
         fill = int(frac * self.width)
         rate = samples / seconds if seconds > 0 else 0.0
         left = seconds * (1 - frac) / frac if frac > 0 else 0.0
-        self.stream.write(f"\r[{'#' * fill}{'.' * (self.width - fill)}] {done}/{total} tiles  "
+        self.stream.write(f"\r[{'#' * fill}{'.' * (self.width - fill)}] {done}/{total} parts  "
                           f"{rate / 1e6:6.2f} M samples/s  {left:5.1f} s left ")
         self.stream.flush()
 

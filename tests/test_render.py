@@ -623,6 +623,27 @@ def test_same_seed_same_image_any_thread_count(busy_scene, strategy):
     assert np.array_equal(wavlight.render(busy_scene, strategy=strategy, threads=2), a.image)
 
 
+@pytest.mark.parametrize("sampler", ["independent", "stratified"])
+def test_small_image_with_many_spp_is_cut_into_parts(busy_scene, sampler):
+    """One 8 x 8 tile of 4096 spp holds four passes: it renders as four parts (the progress
+    bar moves, both threads work), the image does not depend on the thread count, and with
+    independent samples it equals the tile rendered in one piece (Philox numbers are indexed
+    by sample, so the cut changes only the order of float64 sums)."""
+    from wavlight import integrator
+
+    events = []
+    kw = dict(strategy="mis", spp=4096, width=8, height=8, sampler=sampler)
+    a = wavlight.render_full(busy_scene, threads=1, progress=lambda *e: events.append(e), **kw)
+    b = wavlight.render_full(busy_scene, threads=2, **kw)
+    assert a.stats["tiles"] == 1 and [e[:2] for e in events] == [(1, 4), (2, 4), (3, 4), (4, 4)]
+    assert events[-1][2] == 8 * 8 * 4096
+    assert np.array_equal(a.image, b.image) and np.array_equal(a.stderr, b.stderr)
+    if sampler == "independent":
+        r = integrator._Renderer(busy_scene, "mis", 4096, 8, 8, busy_scene.seed, 1)
+        whole, err = r.tile(0, 0, 0, 8, 8)
+        np.testing.assert_allclose(a.image, whole, rtol=1e-6, atol=1e-7)
+
+
 def test_different_seeds_differ(busy_scene):
     a = wavlight.render(busy_scene, strategy="mis", seed=1)
     b = wavlight.render(busy_scene, strategy="mis", seed=2)

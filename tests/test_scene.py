@@ -423,12 +423,14 @@ def test_procedural_sky_keys(tmp_path, el, az):
     h, w = px.shape[:2]
     lum = px @ [0.2126, 0.7152, 0.0722]
     np.testing.assert_allclose(px.max(axis=(0, 1)), 0.5 * 1000.0 * np.array([1.0, 0.95, 0.85]), rtol=1e-5)
-    # every sun texel lies within the sun radius of (elevation, azimuth from -Z towards +X)
+    # every sun texel (half covered or more) touches the sun's disk about (elevation, azimuth
+    # from -Z towards +X): its centre within the radius plus half a texel's diagonal
     rows, cols = np.nonzero(lum > 0.5 * lum.max())
     assert len(rows) > 3
+    half_diagonal = math.degrees(math.hypot(math.pi / h, 2 * math.pi / w)) / 2
     for r, c in zip(rows, cols):
         ang = math.degrees(math.acos(np.clip(_dir(r, c, h, w) @ _sun(el, az), -1, 1)))
-        assert ang < 3.0 + 1e-6
+        assert ang < 3.0 + half_diagonal
     # the sky is far dimmer than the sun, and the sun is looked up where it should be
     assert np.median(lum) < 2.0
     np.testing.assert_allclose(s.environment.eval(_sun(el, az)[None]), [[500.0, 475.0, 425.0]], rtol=1e-5)
@@ -770,3 +772,17 @@ def test_single_channel_environment_is_grey(tmp_path):
     s = load(tmp_path, '[environment]\nfile = "g.exr"\n')
     np.testing.assert_allclose(s.environment.pixels, 0.7, rtol=1e-6)
     assert s.environment.pixels.shape == (4, 8, 3)
+
+
+@pytest.mark.parametrize("radius", [0.05, 0.27, 0.75, 3.0])
+def test_procedural_sun_keeps_its_power_at_any_radius(radius):
+    """The sun disk's power, radiance x 2 pi (1 - cos r), within 0.1% whatever its size against
+    the texels (a 0.1 degree sun once vanished, one of 0.25 covered twice its solid angle)."""
+    from wavlight.envmap import procedural_sky
+
+    black = dict(zenith=(0.0, 0.0, 0.0), horizon=(0.0, 0.0, 0.0), ground=(0.0, 0.0, 0.0))
+    px = procedural_sky(sun_radius=radius, sun_radiance=1.0, width=256, height=128, **black)[..., 0]
+    theta = (np.arange(128) + 0.5) / 128 * np.pi
+    omega = (2 * np.pi / 256) * (np.cos(theta - np.pi / 256) - np.cos(theta + np.pi / 256))
+    power = float((px * omega[:, None]).sum())
+    assert power == pytest.approx(2 * np.pi * (1 - math.cos(math.radians(radius))), rel=1e-3)

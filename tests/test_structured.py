@@ -180,8 +180,9 @@ def test_strata_partition_and_conserve_power(k, monkeypatch):
     np.testing.assert_allclose(np.linalg.norm(s.centroid, axis=1), 1.0, rtol=1e-12)
     if k == 64:
         # the sun (5 degrees, 70% of the power) is the top layer: it shares no stratum with the sky
+        # (the texels at its edge, partly covered, may form layers between the two)
         sun = np.isin(s.texel, np.nonzero(lum > 400)[0])
-        assert s.layers == 3 and set(s.level[s.stratum_of[sun]]) == {2}
+        assert s.layers >= 3 and set(s.level[s.stratum_of[sun]]) == {s.layers - 1}
         assert not np.intersect1d(s.stratum_of[sun], s.stratum_of[~sun]).size
 
 

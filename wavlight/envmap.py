@@ -83,6 +83,10 @@ def procedural_sky(sun_elevation=35.0, sun_azimuth=30.0, sun_radius=0.75, sun_ra
     """A lat-long sky: zenith-to-horizon gradient, flat ground, sun disk.
 
     Angles in degrees; the sun's azimuth is measured from -Z towards +X (the u = az/360 column).
+    Texels inside the disk have sun_radiance; those at its edge the fraction of them it covers
+    (8 x 8 points per texel), scaled so that the sun keeps its power, sun_radiance x 2 pi (1 -
+    cos r), exactly. A sun smaller than a texel (at 512 x 256 a texel is 0.7 degrees; the real
+    sun's radius is 0.27) thus lights its texel(s) dimmer than sun_radiance, with its power.
     """
     v = (np.arange(height) + 0.5) / height
     u = (np.arange(width) + 0.5) / width
@@ -97,9 +101,48 @@ def procedural_sky(sun_elevation=35.0, sun_azimuth=30.0, sun_radius=0.75, sun_ra
     img = np.where(d[..., 1:2] >= 0, sky, np.array(ground))
     el, az = np.radians(sun_elevation), np.radians(sun_azimuth)
     sun = np.array([np.cos(el) * np.sin(az), np.sin(el), -np.cos(el) * np.cos(az)])
-    disk = d @ sun > np.cos(np.radians(sun_radius))
-    img[disk] = sun_radiance * np.array([1.0, 0.95, 0.85])
+    radius = np.radians(sun_radius)
+    cov = _disk_coverage(sun, radius, width, height)
+    omega = (2 * np.pi / width) * (np.cos(theta - np.pi / (2 * height)) - np.cos(theta + np.pi / (2 * height)))
+    target = 2 * np.pi * (1 - np.cos(radius))
+    edge = (cov > 0) & (cov < 1)
+    full = float(((cov >= 1) * omega[:, None]).sum())
+    partial = float((np.where(edge, cov, 0.0) * omega[:, None]).sum())
+    if partial > 0 and target > full:   # the edge texels carry the rest of the disk's power
+        cov = np.where(edge, cov * ((target - full) / partial), cov)
+    elif full == 0 and partial == 0:    # no sample point fell inside: the centre's texel has it all
+        row = min(int((np.pi / 2 - el) / np.pi * height), height - 1)
+        col = int((az / (2 * np.pi)) % 1.0 * width) % width
+        cov[row, col] = target / omega[row]
+    inside = np.minimum(cov, 1.0)[..., None]
+    img = img * (1 - inside) + cov[..., None] * sun_radiance * np.array([1.0, 0.95, 0.85])
     return img.astype(np.float32)
+
+
+def _disk_coverage(center, radius, width, height, sub=8):
+    """Fraction of each texel of a lat-long map inside the disk of angular radius `radius` about
+    the unit vector `center`, from sub x sub points per texel near the disk (0 elsewhere)."""
+    cov = np.zeros((height, width))
+    v = (np.arange(height) + 0.5) / height
+    u = (np.arange(width) + 0.5) / width
+    theta, phi = v * np.pi, u * 2 * np.pi
+    d = np.stack(np.broadcast_arrays(np.sin(theta)[:, None] * np.sin(phi)[None, :],
+                                     np.cos(theta)[:, None] + 0 * phi[None, :],
+                                     -np.sin(theta)[:, None] * np.cos(phi)[None, :]), -1)
+    reach = radius + 2 * np.pi / min(width, 2 * height) * 1.5   # the disk plus a texel's diagonal
+    near = d @ center > np.cos(min(reach, np.pi))
+    near[0, :] |= center[1] > np.cos(reach)       # the pole rows' texels are wide in angle
+    near[-1, :] |= -center[1] > np.cos(reach)
+    rows, cols = np.nonzero(near)
+    if len(rows) == 0:
+        return cov
+    s = (np.arange(sub) + 0.5) / sub
+    su, sv = np.meshgrid(s, s)
+    pu = (cols[:, None] + su.ravel()[None, :]) / width * 2 * np.pi
+    pv = (rows[:, None] + sv.ravel()[None, :]) / height * np.pi
+    p = np.stack([np.sin(pv) * np.sin(pu), np.cos(pv), -np.sin(pv) * np.cos(pu)], -1)
+    cov[rows, cols] = (p @ center > np.cos(radius)).mean(axis=1)
+    return cov
 
 
 def rotation_y(degrees: float) -> np.ndarray:
@@ -137,7 +180,7 @@ class Environment:
         self.name = name
         self.pixels = np.ascontiguousarray(pixels * np.float32(scale))
         peak = float(self.pixels.max(initial=0.0))
-        if not peak <= MAX_RADIANCE:
+        if not peak <= np.float32(MAX_RADIANCE):
             raise WavlightError(f"{name}: radiance up to {peak:.3g} (after scale {scale:g}); at most "
                                 f"{MAX_RADIANCE:g} is supported (float32 estimates): rescale the map")
         self.height, self.width = self.pixels.shape[:2]

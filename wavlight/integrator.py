@@ -95,16 +95,28 @@ class _Renderer:
     # -- one tile
     def tile(self, index, x0, y0, w, h):
         """Mean and standard error of the tile's pixels, in passes of at most ~TILE_SAMPLES samples."""
-        spp = self.spp
-        generator = np.random.default_rng([self.seed, index]) if self.sampler == "stratified" else None
+        return self.finish(*self.sums(index, x0, y0, w, h, 0, self.spp), w, h)
+
+    def sums(self, index, x0, y0, w, h, first, count):
+        """Per-pixel sums (3, w h) of samples first .. first + count - 1 of each pixel of a tile,
+        and of their squares, in passes of at most ~TILE_SAMPLES samples (``first`` a multiple of
+        the pass size). ``stratified`` draws from default_rng([seed, tile]), or [seed, tile,
+        first] for a later part of the tile (:func:`_parts`)."""
+        key = [self.seed, index] if first == 0 else [self.seed, index, first]
+        generator = np.random.default_rng(key) if self.sampler == "stratified" else None
         total = np.zeros((3, w * h))
         total_sq = np.zeros((3, w * h))
-        per_pass = max(1, min(spp, TILE_SAMPLES // (w * h)))
-        for first in range(0, spp, per_pass):
-            k = min(per_pass, spp - first)
-            values = self._samples(generator, index, first, x0, y0, w, h, k).reshape(3, w * h, k)
+        per_pass = _pass_size(self.spp, w, h)
+        for start in range(first, first + count, per_pass):
+            k = min(per_pass, first + count - start)
+            values = self._samples(generator, index, start, x0, y0, w, h, k).reshape(3, w * h, k)
             total += values.sum(axis=2)
             total_sq += np.einsum("cik,cik->ci", values, values)
+        return total, total_sq
+
+    def finish(self, total, total_sq, w, h):
+        """Mean and standard error (h, w, 3) from the sums of all spp samples of each pixel."""
+        spp = self.spp
         mean = total / spp
         if spp > 1:
             var = np.maximum(total_sq - spp * mean ** 2, 0.0) / (spp - 1)
@@ -143,6 +155,44 @@ def _tiles(width, height, spp):
     return tiles
 
 
+def _pass_size(spp, w, h):
+    """Samples per pixel in one pass over a w x h tile (about TILE_SAMPLES samples)."""
+    return max(1, min(spp, TILE_SAMPLES // (w * h)))
+
+
+#: A render is cut into at least this many parts where it can be (tiles, and the passes of a
+#: tile when there are fewer tiles): so that a small image with many spp still uses every
+#: thread and moves its progress bar. A constant, not the thread count, so that images do not
+#: depend on the number of threads.
+MIN_PARTS = 32
+
+
+def _parts(tiles, spp):
+    """Work items (tile, first, count): each tile's spp, cut at pass boundaries into
+    ceil(MIN_PARTS / tiles) contiguous parts where it has that many passes."""
+    parts = []
+    for tile in tiles:
+        _, _, _, w, h = tile
+        per_pass = _pass_size(spp, w, h)
+        passes = -(-spp // per_pass)
+        cuts = min(passes, max(1, -(-MIN_PARTS // len(tiles))))
+        bounds = [per_pass * (passes * j // cuts) for j in range(cuts)] + [spp]
+        parts += [(tile, a, b - a) for a, b in zip(bounds[:-1], bounds[1:])]
+    return parts
+
+
+BACKENDS = ("opencl", "numpy")
+
+
+def _integer(name, value, lo, hi):
+    """value as an int in [lo, hi], else a one-line WavlightError (no silent truncation of 2.7)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise WavlightError(f"{name} must be an integer, got {value!r}")
+    if not lo <= value <= hi:
+        raise WavlightError(f"{name} must be between {lo} and {hi}, got {value}")
+    return int(value)
+
+
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
                 progress=None, threads=None, backend="opencl", wavelet_levels=None,
                 light_levels=None, sir_candidates=None, sir_samples=None, structured_strata=None,
@@ -150,7 +200,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     """Render with statistics: image, per-pixel standard error and timings.
 
     Arguments left as None come from the scene file. ``progress(done, total, samples, seconds)``
-    is called after each tile. ``backend="numpy"`` shades with the numpy reference
+    is called after each part (a tile, or a run of its passes: :func:`_parts`). ``backend="numpy"`` shades with the numpy reference
     instead of the OpenCL kernel (same random numbers, same estimator).
     ``wavelet_levels`` overrides the wavelet strategy's per-material product depth,
     ``light_levels`` the light tree's depth (default: chosen from the map's content).
@@ -160,31 +210,28 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     strata and mode (default: the scene's, else 16 and "stratified").
     ``sampler`` is "independent" (default) or "stratified" (:mod:`wavlight.sampler`).
     """
-    spp = scene.spp if spp is None else int(spp)
+    spp = scene.spp if spp is None else _integer("spp", spp, 1, MAX_SPP)
     strategy = scene.strategy if strategy is None else strategy
-    width = scene.width if width is None else int(width)
-    height = scene.height if height is None else int(height)
-    seed = scene.seed if seed is None else int(seed)
-    if not 1 <= spp <= MAX_SPP:
-        raise WavlightError(f"spp must be between 1 and {MAX_SPP}, got {spp}")
-    if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
-        raise WavlightError(f"resolution must be between 1x1 and {MAX_SIDE}x{MAX_SIDE}, got {width}x{height}")
-    if seed < 0:
-        raise WavlightError(f"seed must be non-negative, got {seed}")
+    width = scene.width if width is None else _integer("width", width, 1, MAX_SIDE)
+    height = scene.height if height is None else _integer("height", height, 1, MAX_SIDE)
+    seed = scene.seed if seed is None else _integer("seed", seed, 0, 2 ** 63 - 1)
     if strategy not in STRATEGIES:
         raise WavlightError(f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
-    wavelet_levels = scene.wavelet_levels if wavelet_levels is None else wavelet_levels
-    light_levels = scene.light_levels if light_levels is None else light_levels
-    sir_candidates = scene.sir_candidates if sir_candidates is None else int(sir_candidates)
-    sir_samples = scene.sir_samples if sir_samples is None else int(sir_samples)
-    for name, value in (("sir_candidates", sir_candidates), ("sir_samples", sir_samples)):
-        if value is not None and value < 1:
-            raise WavlightError(f"{name} must be at least 1, got {value}")
-    structured_strata = scene.structured_strata if structured_strata is None else int(structured_strata)
+    if backend not in BACKENDS:
+        raise WavlightError(f"unknown backend {backend!r} ({' | '.join(BACKENDS)})")
+    if threads is not None:
+        threads = _integer("threads", threads, 1, 4096)
+    if progress is not None and not callable(progress):
+        raise WavlightError(f"progress must be a callable or None, got {progress!r}")
+    wavelet_levels = scene.wavelet_levels if wavelet_levels is None else _integer("wavelet_levels", wavelet_levels,
+                                                                                  0, 11)
+    light_levels = scene.light_levels if light_levels is None else _integer("light_levels", light_levels, 1, 11)
+    sir_candidates = scene.sir_candidates if sir_candidates is None else _integer("sir_candidates", sir_candidates,
+                                                                                  1, 65536)
+    sir_samples = scene.sir_samples if sir_samples is None else _integer("sir_samples", sir_samples, 1, 1024)
+    structured_strata = (scene.structured_strata if structured_strata is None
+                         else _integer("structured_strata", structured_strata, 1, MAX_STRUCTURED_STRATA))
     structured_mode = scene.structured_mode if structured_mode is None else structured_mode
-    if structured_strata is not None and not 1 <= structured_strata <= MAX_STRUCTURED_STRATA:
-        raise WavlightError(f"structured_strata must be between 1 and {MAX_STRUCTURED_STRATA}, "
-                            f"got {structured_strata}")
     if structured_mode is not None and structured_mode not in STRUCTURED_MODES:
         raise WavlightError(f"unknown structured_mode {structured_mode!r} ({' | '.join(STRUCTURED_MODES)})")
     options = {"light": {"levels": light_levels}, "mis": {"light_levels": light_levels},
@@ -200,15 +247,23 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     image = np.zeros((height, width, 3), np.float32)
     stderr = np.zeros((height, width, 3), np.float32)
     tiles = _tiles(width, height, spp)
+    parts = _parts(tiles, spp)
     t0 = time.perf_counter()
     done = 0
+    sums = {}
     with ThreadPoolExecutor(r.threads) as pool:
-        for (i, x0, y0, w, h), (mean, err) in zip(tiles, pool.map(lambda tl: r.tile(*tl), tiles)):
-            image[y0:y0 + h, x0:x0 + w] = mean
-            stderr[y0:y0 + h, x0:x0 + w] = err
-            done += w * h * spp
+        results = pool.map(lambda part: r.sums(*part[0], part[1], part[2]), parts)
+        for n, ((tile, first, count), (total, total_sq)) in enumerate(zip(parts, results)):
+            i, x0, y0, w, h = tile
+            if i in sums:   # the parts of a tile arrive in order: sums do not depend on threads
+                sums[i] = (sums[i][0] + total, sums[i][1] + total_sq)
+            else:
+                sums[i] = (total, total_sq)
+            if first + count == spp:
+                image[y0:y0 + h, x0:x0 + w], stderr[y0:y0 + h, x0:x0 + w] = r.finish(*sums.pop(i), w, h)
+            done += w * h * count
             if progress:
-                progress(i + 1, len(tiles), done, time.perf_counter() - t0)
+                progress(n + 1, len(parts), done, time.perf_counter() - t0)
     seconds = time.perf_counter() - t0
     samples = width * height * spp
     stats = {"strategy": strategy, "spp": spp, "width": width, "height": height, "seed": seed,

@@ -438,7 +438,7 @@ def _environment(t: _Table, base) -> Environment:
         if not np.all(np.isfinite(scaled)):
             t.fail("scale", f"{scale} makes the environment's radiance overflow to Inf")
     peak = float(scaled.max(initial=0.0))
-    if peak > MAX_RADIANCE:
+    if peak > np.float32(MAX_RADIANCE):
         t.fail("scale" if scale != 1.0 else "file", f"radiance up to {peak:.3g}; at most {MAX_RADIANCE:g} is "
                "supported (float32 estimates would overflow): rescale the map")
     return Environment(pixels, scale, rotate_y, name)
