@@ -786,3 +786,28 @@ def test_procedural_sun_keeps_its_power_at_any_radius(radius):
     omega = (2 * np.pi / 256) * (np.cos(theta - np.pi / 256) - np.cos(theta + np.pi / 256))
     power = float((px * omega[:, None]).sum())
     assert power == pytest.approx(2 * np.pi * (1 - math.cos(math.radians(radius))), rel=1e-3)
+
+
+def test_ldr_environment_is_decoded_from_srgb_with_a_warning(tmp_path):
+    """An 8-bit PNG holds sRGB-encoded values: read as linear radiance after decoding, with a
+    warning that a light probe should be HDR."""
+    import OpenImageIO as oiio
+
+    px = np.zeros((4, 8, 3), np.uint8)
+    px[..., 0], px[..., 1], px[..., 2] = 255, 128, 10
+    out = oiio.ImageOutput.create(str(tmp_path / "env.png"))
+    out.open(str(tmp_path / "env.png"), oiio.ImageSpec(8, 4, 3, oiio.UINT8))
+    out.write_image(px)
+    out.close()
+    path = write_scene(tmp_path, '[environment]\nfile = "env.png"\n')
+    with pytest.warns(UserWarning, match="low-dynamic-range"):
+        s = wavlight.load_scene(str(path))
+    srgb = np.array([255, 128, 10]) / 255.0
+    linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    np.testing.assert_allclose(s.environment.pixels[0, 0], linear, rtol=1e-5)
+
+
+def test_albedo_above_one_warns(tmp_path):
+    with pytest.warns(UserWarning, match=r"\[materials.m\].albedo: above 1"):
+        load(tmp_path, SKY + '[materials.m]\ntype = "lambert"\nalbedo = [1.2, 0.5, 0.5]\n'
+             '[[objects]]\nshape = "quad"\nmaterial = "m"\n')

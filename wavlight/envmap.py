@@ -33,8 +33,16 @@ TREE_TOLERANCE = 0.01  # total-variation distance a coarser light tree may leave
 MAX_TEXELS = 1 << 26
 
 
+def srgb_decode(x: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] -> linear (IEC 61966-2-1)."""
+    x = np.asarray(x, np.float32)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
 def read_image(path: str) -> np.ndarray:
-    """(H, W, 3) float32 linear RGB from any format OpenImageIO reads."""
+    """(H, W, 3) float32 linear RGB from any format OpenImageIO reads. Integer (LDR) images,
+    such as 8-bit PNG or JPEG, hold sRGB-encoded values: they are decoded to linear, as
+    Mitsuba 3 and pbrt-v4 do, with a warning (a light probe needs HDR: .hdr, .exr, .pfm)."""
     import OpenImageIO as oiio
 
     if not os.path.isfile(path):
@@ -54,6 +62,10 @@ def read_image(path: str) -> np.ndarray:
     if px is None or px.size == 0:
         raise WavlightError(f"{path}: cannot read pixels")
     px = np.asarray(px, np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    if spec.format.basetype not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE):
+        px = srgb_decode(np.clip(px, 0.0, 1.0))
+        warnings.warn(f"{path}: a low-dynamic-range ({spec.format}) image, read as sRGB and decoded to linear "
+                      "radiance of at most 1; light probes should be HDR (.hdr, .exr, .pfm)", stacklevel=2)
     if spec.nchannels == 1:
         px = np.repeat(px, 3, axis=2)
     elif spec.nchannels == 2:

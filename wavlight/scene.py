@@ -368,6 +368,9 @@ def load_scene(path: str) -> Scene:
         albedo = t.get("albedo", "vec3", np.array([0.8, 0.8, 0.8]))
         if np.any(albedo < 0):
             t.fail("albedo", "must not be negative")
+        if np.any(albedo > 1):
+            warnings.warn(f"{path}: [materials.{name}].albedo: above 1, the surface reflects more light than "
+                          "it receives", stacklevel=2)
         # Both keys are accepted on every type (the format's own example does so); each type uses its own.
         roughness = _positive(t, "roughness", t.get("roughness", "float", 0.2), 1e-4, 1.0)
         exponent = _positive(t, "exponent", t.get("exponent", "float", 100.0), 0.0, 1e6)
