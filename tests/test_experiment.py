@@ -321,6 +321,8 @@ BAD = [
     (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\nsampler = 'sobol'\n[budgets]\nspp = [1]\n",
      "[[strategies]][0].sampler: unknown sampler 'sobol'"),
     ("[budgets\nspp = [1]\n", "malformed TOML"),
+    (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\nreference = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n"
+     "[budgets]\nspp = [1]\n", "[[scenes]][0].reference: cannot read"),
     ("[runs]\n", "runs: unknown table"),
 ]
 

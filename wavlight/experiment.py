@@ -283,12 +283,14 @@ def load_spec(path) -> Spec:
             ref = rel(ref)
             if not os.path.isfile(ref):
                 t.fail("reference", f"no such file {ref}")
+            _check_image(t, "reference", ref)
         if ref_se is not None:
             if ref is None:
                 t.fail("reference_stderr", "needs reference")
             ref_se = rel(ref_se)
             if not os.path.isfile(ref_se):
                 t.fail("reference_stderr", f"no such file {ref_se}")
+            _check_image(t, "reference_stderr", ref_se)
         t.done()
         scenes.append(SceneSpec(sname, full, ssize, ref, ref_se))
 
@@ -387,6 +389,16 @@ def _json_safe(obj):
     if isinstance(obj, (list, tuple)):
         return [_json_safe(v) for v in obj]
     return obj
+
+
+def _check_image(t, key, path):
+    """A spec error, before anything is written, if OpenImageIO cannot open the image."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        t.fail(key, f"cannot read {path} as an image ({oiio.geterror().strip() or 'unknown format'})")
+    inp.close()
 
 
 def _write_json(path, obj):
