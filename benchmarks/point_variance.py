@@ -252,6 +252,8 @@ def main():
                 """'wavelet', 'wavelet:levels=9' (strategy options) or a VARIANTS name."""
                 base, *opts = spec.split(":")
                 if base in VARIANTS:
+                    if opts:
+                        sys.exit(f"point_variance: {spec}: options apply to strategies, not to {base}")
                     return VARIANTS[base]()
                 return strategies.make(base, **{k: int(v) for k, v in (o.split("=") for o in opts)})
 

@@ -289,8 +289,8 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
     Shaded s;
     if (any(hit)) {
         const uintv f = as_uintv(max(face, 0));
-        realv nx, ny, nz, floor;
-        GATHER4(face_normal, 4 * f, &nx, &ny, &nz, &floor);   /* rows: normal, offset floor */
+        realv nx, ny, nz, offset_floor;
+        GATHER4(face_normal, 4 * f, &nx, &ny, &nz, &offset_floor);   /* rows: normal, offset floor */
         const realv flip = select((realv)1.0f, (realv)-1.0f, nx * dx + ny * dy + nz * dz > 0.0f);
         nx *= flip;
         ny *= flip;
@@ -298,7 +298,7 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
         const realv t = GATHER(tfar, i);
         const realv px = eye_x + dx * t, py = eye_y + dy * t, pz = eye_z + dz * t;
         const realv size = fmax(fmax(fabs(px), fabs(py)), fabs(pz));
-        const realv eps = fmax(fmax((float)OFFSET_RELATIVE * size, floor), eye_offset);
+        const realv eps = fmax(fmax((float)OFFSET_RELATIVE * size, offset_floor), eye_offset);
         store_rows3(px + nx * eps, py + ny * eps, pz + nz * eps, origin_out, 3, 0, base, count);
         realv u0, u1, u2, u3;
         if (draw_u) {

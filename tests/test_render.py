@@ -461,6 +461,28 @@ def test_far_geometry_does_not_move_shadows(tmp_path):
     np.testing.assert_allclose(with_far, near, rtol=0, atol=1e-5 * near.max())
 
 
+@pytest.mark.parametrize("eye_distance", [10.0, 7000.0])
+def test_no_self_shadowing_near_the_origin_seen_from_afar(tmp_path, eye_distance):
+    """A tilted quad through the origin under a constant sky of 1, lambert albedo 0.5,
+    cosine sampling: every estimate is exactly 0.5 unless its shadow ray hits the quad it
+    left. Near the origin 1e-4 |p| is tiny, so the offset floors of the face and of the
+    eye (RayTracer.shadow_offsets; float32 rounding of eye + t d grows with |eye|) must hold
+    the ray off the surface. Without them (kernel offset 1e-4 |p| alone) most pixels of
+    the far view showed acne."""
+    sky = write_env(tmp_path, "white.exr", np.ones((4, 8, 3)))
+    normal = np.array([1.0, 2.0, 3.0]) / np.linalg.norm([1.0, 2.0, 3.0])
+    eye = normal * eye_distance + np.array([0.3, -0.2, 0.1]) * eye_distance * 0.3
+    fov = math.degrees(2 * math.atan(0.5 / np.linalg.norm(eye)))
+    scene = load(tmp_path, render=dict(width=16, height=16, spp=8, seed=3),
+                 camera=dict(eye=eye.tolist(), target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0], fov_y=fov),
+                 environment=dict(file=sky),
+                 objects=[dict(shape="quad", center=[0.0, 0.0, 0.0], normal=normal.tolist(), size=4.0,
+                               material="m")],
+                 materials={"m": dict(type="lambert", albedo=[0.5, 0.5, 0.5])})
+    img = _render(scene, "cosine", 8).image
+    np.testing.assert_allclose(img, 0.5, rtol=1e-5)
+
+
 SHADOW_W, SHADOW_H, SHADOW_ROW, SHADOW_COL = 64, 32, 6, 40   # elevation ~53 deg
 
 

@@ -65,7 +65,7 @@ def read_image(path: str) -> np.ndarray:
     if spec.format.basetype not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE):
         px = srgb_decode(np.clip(px, 0.0, 1.0))
         warnings.warn(f"{path}: a low-dynamic-range ({spec.format}) image, read as sRGB and decoded to linear "
-                      "radiance of at most 1; light probes should be HDR (.hdr, .exr, .pfm)", stacklevel=2)
+                      "values of at most 1 (HDR formats, .hdr .exr .pfm, keep the range)", stacklevel=2)
     if spec.nchannels == 1:
         px = np.repeat(px, 3, axis=2)
     elif spec.nchannels == 2:
@@ -73,8 +73,11 @@ def read_image(path: str) -> np.ndarray:
     return np.ascontiguousarray(px[..., :3])
 
 
-#: Radiance above this is refused: estimates (radiance x BRDF / pdf) and per-pixel sums run in
-#: float32 and would overflow to Inf (real light probes stay below 1e6; a sun of 1e30 is tested).
+#: Radiance above this is refused: estimates (radiance x BRDF x cos / pdf) are float32, and
+#: the light tree's sums too; past it they overflow to Inf. Below it an estimate can still
+#: overflow where BRDF x cos / pdf exceeds ~3e8 (a ggx lobe of roughness 1e-4 seen by uniform
+#: sampling): the renderer then refuses to write the image. Real light probes stay below 1e6;
+#: a sun of 1e30 is tested.
 MAX_RADIANCE = 1e30
 
 
@@ -146,14 +149,14 @@ def _disk_coverage(center, radius, width, height, sub=8):
     near[0, :] |= center[1] > np.cos(reach)       # the pole rows' texels are wide in angle
     near[-1, :] |= -center[1] > np.cos(reach)
     rows, cols = np.nonzero(near)
-    if len(rows) == 0:
-        return cov
     s = (np.arange(sub) + 0.5) / sub
-    su, sv = np.meshgrid(s, s)
-    pu = (cols[:, None] + su.ravel()[None, :]) / width * 2 * np.pi
-    pv = (rows[:, None] + sv.ravel()[None, :]) / height * np.pi
-    p = np.stack([np.sin(pv) * np.sin(pu), np.cos(pv), -np.sin(pv) * np.cos(pu)], -1)
-    cov[rows, cols] = (p @ center > np.cos(radius)).mean(axis=1)
+    su, sv = (a.ravel()[None, :] for a in np.meshgrid(s, s))
+    for a in range(0, len(rows), 16384):   # in blocks: a sun of 90 degrees covers half the map
+        r, c = rows[a:a + 16384, None], cols[a:a + 16384, None]
+        pu, pv = (c + su) / width * 2 * np.pi, (r + sv) / height * np.pi
+        dots = (np.sin(pv) * np.sin(pu) * center[0] + np.cos(pv) * center[1]
+                - np.sin(pv) * np.cos(pu) * center[2])
+        cov[r[:, 0], c[:, 0]] = (dots > np.cos(radius)).mean(axis=1)
     return cov
 
 

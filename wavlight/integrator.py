@@ -15,10 +15,11 @@ memory is bounded at any resolution and any spp; tiles run on a thread pool
 (numpy, embree and OpenCL release the GIL) of two threads per core by default, so
 that one tile's numpy and embree work overlaps another's wait for the OpenCL
 device (measured 10% faster than one per core on 2 cores). Rays, hit points and
-normals are float32 (embree's precision); sums are float64. Each tile draws its random numbers
-from its own stream (seed, tile index): counter-based Philox numbers drawn in the
-kernels for the ``independent`` sampler (:mod:`wavlight.rng`), a numpy generator
-for ``stratified``; so images do not depend on the number of threads.
+normals are float32 (embree's precision); sums are float64. A tile with few siblings is cut
+into parts at pass boundaries (:func:`_parts`, a constant count) so that every thread
+works. Random numbers: counter-based Philox numbers of (seed, tile, sample index) drawn in
+the kernels for the ``independent`` sampler (:mod:`wavlight.rng`), a numpy generator per
+(seed, tile, part) for ``stratified``; so images do not depend on the number of threads.
 """
 from __future__ import annotations
 
@@ -100,9 +101,10 @@ class _Renderer:
     def sums(self, index, x0, y0, w, h, first, count):
         """Per-pixel sums (3, w h) of samples first .. first + count - 1 of each pixel of a tile,
         and of their squares, in passes of at most ~TILE_SAMPLES samples (``first`` a multiple of
-        the pass size). ``stratified`` draws from default_rng([seed, tile]), or [seed, tile,
-        first] for a later part of the tile (:func:`_parts`)."""
-        key = [self.seed, index] if first == 0 else [self.seed, index, first]
+        the pass size). ``stratified`` draws from SeedSequence(seed, spawn_key=(tile, first)),
+        one stream per part (:func:`_parts`; a spawn key cannot alias another seed's, as the
+        flat list [seed, tile, first] could for seeds past 2^32)."""
+        key = np.random.SeedSequence(self.seed, spawn_key=(index, first))
         generator = np.random.default_rng(key) if self.sampler == "stratified" else None
         total = np.zeros((3, w * h))
         total_sq = np.zeros((3, w * h))

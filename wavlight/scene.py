@@ -4,7 +4,7 @@ Every key of the scene format is accepted as written there. wavlight adds:
 
 - ``[environment] procedural = "sky"`` instead of ``file``: the built-in sky
   (:func:`wavlight.envmap.procedural_sky`) with optional ``sun_elevation``,
-  ``sun_azimuth`` (degrees; azimuth from -Z towards +X), ``sun_radius`` (degrees,
+  ``sun_azimuth`` (degrees; azimuth from -Z towards +X), ``sun_radius`` (degrees, at most 90,
   default 0.75) and ``sun_radiance`` (default 2e4). ``scale`` and ``rotate_y`` apply.
 - ``[[objects]]`` without ``material`` get a grey lambert (albedo 0.5).
 - ``[render] wavelet_levels = P``: the wavelet strategy's product depth for every
@@ -422,11 +422,11 @@ def _environment(t: _Table, base) -> Environment:
             t.fail("procedural", f"unknown procedural environment {kind!r} (sky)")
         kw = {k: t.get(k, "float") for k in ("sun_elevation", "sun_azimuth", "sun_radius", "sun_radiance")
               if t.has(k)}
-        if kw.get("sun_radius", 1.0) <= 0:
-            t.fail("sun_radius", "must be positive")
+        if not 0 < kw.get("sun_radius", 1.0) <= 90:
+            t.fail("sun_radius", "must be in (0, 90] degrees")
         if kw.get("sun_radiance", 1.0) < 0:
             t.fail("sun_radiance", "must not be negative")
-        pixels, name = procedural_sky(**kw), "procedural sky"
+        pixels, name, source = procedural_sky(**kw), "procedural sky", "sun_radiance"
     else:
         rel = t.get("file", "str", required=True)
         fname = os.path.join(base, rel)
@@ -434,7 +434,7 @@ def _environment(t: _Table, base) -> Environment:
             pixels = read_image(fname)
         except WavlightError as e:
             t.fail("file", str(e))
-        name = fname
+        name, source = fname, "file"
     t.done()
     with np.errstate(over="ignore", invalid="ignore"):
         scaled = np.nan_to_num(pixels, nan=0, posinf=0, neginf=0) * np.float32(scale)
@@ -442,6 +442,6 @@ def _environment(t: _Table, base) -> Environment:
             t.fail("scale", f"{scale} makes the environment's radiance overflow to Inf")
     peak = float(scaled.max(initial=0.0))
     if peak > np.float32(MAX_RADIANCE):
-        t.fail("scale" if scale != 1.0 else "file", f"radiance up to {peak:.3g}; at most {MAX_RADIANCE:g} is "
+        t.fail("scale" if scale != 1.0 else source, f"radiance up to {peak:.3g}; at most {MAX_RADIANCE:g} is "
                "supported (float32 estimates would overflow): rescale the map")
     return Environment(pixels, scale, rotate_y, name)
