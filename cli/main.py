@@ -45,6 +45,19 @@ def main():
     warnings.showwarning = _warn_line
 
 
+def _check_output(path, formats):
+    """Before rendering: a known extension, a folder that exists and can be written."""
+    if os.path.splitext(path)[1].lower() not in formats:
+        _fail(f"{path}: unsupported output format (use {', '.join(formats)})")
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        _fail(f"{path}: is a folder, not an image file")
+    if not os.path.isdir(folder):
+        _fail(f"{path}: no folder {folder}")
+    if not os.access(folder, os.W_OK):
+        _fail(f"{path}: cannot write into {folder}")
+
+
 @main.command()
 @click.argument("scene_file", metavar="SCENE", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
@@ -71,28 +84,26 @@ def main():
               help="structured: stratified (unbiased, default) or preintegrated (biased: one light per stratum).")
 @click.option("--sampler", type=click.Choice(["independent", "stratified"]), default=None,
               help="Pixel-sample uniforms: independent (default) or stratified per pixel.")
+@click.option("--stderr-out", "stderr_out", default=None, metavar="FILE",
+              help="Also write each pixel's standard error of the mean (linear: .exr .hdr .pfm; needs spp >= 2).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, light_levels, sir_candidates,
-           sir_samples, structured_strata, structured_mode, sampler, as_json, quiet):
+           sir_samples, structured_strata, structured_mode, sampler, stderr_out, as_json, quiet):
     """Render SCENE (a TOML scene file) to an image."""
     import time
 
     import wavlight
-    from wavlight.imageio import FORMATS
+    from wavlight.imageio import FORMATS, LINEAR
 
     t0 = time.perf_counter()
     if output is None:
         output = os.path.splitext(os.path.basename(scene_file))[0] + ".png"
-    if os.path.splitext(output)[1].lower() not in FORMATS:
-        _fail(f"{output}: unsupported output format (use {', '.join(FORMATS)})")
-    folder = os.path.dirname(os.path.abspath(output))
-    if os.path.isdir(output):
-        _fail(f"{output}: is a folder, not an image file")
-    if not os.path.isdir(folder):
-        _fail(f"{output}: no folder {folder}")
-    if not os.access(folder, os.W_OK):
-        _fail(f"{output}: cannot write into {folder}")
+    _check_output(output, FORMATS)
+    if stderr_out is not None:
+        _check_output(stderr_out, LINEAR)
+        if os.path.abspath(stderr_out) == os.path.abspath(output):
+            _fail(f"{stderr_out}: --stderr-out must differ from the output image")
     for name, value, lo in (("--spp", spp, 1), ("--width", width, 1), ("--height", height, 1),
                             ("--seed", seed, 0)):
         if value is not None and value < lo:
@@ -105,6 +116,8 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
             _fail(f"{scene_file}: [environment]: the environment is black everywhere; "
                   "the image would be black")
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr)
+        if stderr_out is not None and (scene.spp if spp is None else spp) < 2:
+            _fail(f"{stderr_out}: a standard error needs spp >= 2")
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
                                       seed=seed, progress=bar, wavelet_levels=wavelet_levels,
                                       light_levels=light_levels, sir_candidates=sir_candidates,
@@ -113,11 +126,15 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
         if bar:
             bar.close()
         wavlight.save_image(output, result.image)
+        if stderr_out is not None:
+            wavlight.save_image(stderr_out, result.stderr)
     except wavlight.WavlightError as e:
         _fail(e)
     stats = dict(result.stats)
     stats["load_seconds"] = round(time.perf_counter() - t0 - stats["setup_seconds"] - stats["render_seconds"], 4)
     stats["output"] = output
+    if stderr_out is not None:
+        stats["stderr_output"] = stderr_out
     if as_json:
         click.echo(json.dumps(stats))
     elif not quiet:

@@ -486,6 +486,32 @@ def test_output_folder_missing(tmp_path, monkeypatch):
     assert_clean_failure(run_inproc("render", scene, "-o", out), "o.exr", output=out, folder=tmp_path)
 
 
+def test_stderr_out_writes_the_standard_error_image(tmp_path):
+    """--stderr-out writes render_full's per-pixel standard error (linear), next to the image."""
+    import wavlight
+
+    scene = write_scene(tmp_path, scene_text(render="width = 8\nheight = 6\nspp = 8\nseed = 4\n"))
+    out, se = tmp_path / "o.exr", tmp_path / "se.exr"
+    o = run_inproc("render", scene, "-o", out, "--stderr-out", se, "--json")
+    assert_success(o)
+    assert json.loads(o.stdout)["stderr_output"] == str(se)
+    got = read_image(se)[0]
+    ref = wavlight.render_full(wavlight.load_scene(str(scene)))
+    np.testing.assert_array_equal(read_image(out)[0], ref.image)
+    np.testing.assert_array_equal(got, ref.stderr)
+    assert np.all(np.isfinite(got)) and got.min() >= 0 and got.max() > 0
+
+
+@pytest.mark.parametrize("args, name", [(("--stderr-out", "{tmp}/se.png"), "se.png"),
+                                        (("--stderr-out", "{tmp}/se.exr", "--spp", "1"), "spp >= 2"),
+                                        (("--stderr-out", "{tmp}/o.exr"), "must differ")])
+def test_stderr_out_bad_use_is_one_line(tmp_path, args, name):
+    scene = write_scene(tmp_path, scene_text())
+    out = tmp_path / "o.exr"
+    o = run_inproc("render", scene, "-o", out, *[a.format(tmp=tmp_path) for a in args])
+    assert_clean_failure(o, name, output=out, folder=tmp_path)
+
+
 def test_seed_beyond_63_bits_is_refused(tmp_path):
     """The scene file caps seed at 2^63 - 1; so does --seed (numbers past 2^64 once wrapped to 0)."""
     scene = write_scene(tmp_path, scene_text())
