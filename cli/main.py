@@ -93,6 +93,8 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
     """Render SCENE (a TOML scene file) to an image."""
     import time
 
+    import numpy as np
+
     import wavlight
     from wavlight.imageio import FORMATS, LINEAR
 
@@ -125,6 +127,10 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
                                       structured_mode=structured_mode, sampler=sampler)
         if bar:
             bar.close()
+        bad = int((~np.isfinite(result.image)).any(axis=-1).sum())
+        if bad:   # (the inputs are finite and bounded: an estimate overflowed float32)
+            _fail(f"{output}: {bad} pixel(s) came out NaN or Inf (an estimate radiance x BRDF / pdf overflowed "
+                  "float32; try another strategy or a dimmer map); nothing written")
         wavlight.save_image(output, result.image)
         if stderr_out is not None:
             wavlight.save_image(stderr_out, result.stderr)

@@ -512,6 +512,24 @@ def test_stderr_out_bad_use_is_one_line(tmp_path, args, name):
     assert_clean_failure(o, name, output=out, folder=tmp_path)
 
 
+def test_overflowed_render_is_one_line_and_writes_nothing(tmp_path, monkeypatch):
+    """Finite, bounded inputs can still overflow an estimate (a near-mirror lobe seen by uniform
+    sampling under a sun of 1e30): the command says so, in one line, and writes nothing."""
+    import wavlight
+
+    real = wavlight.render_full
+
+    def overflowing(*a, **k):
+        r = real(*a, **k)
+        r.image[0, 0, 1] = np.inf
+        return r
+
+    scene = write_scene(tmp_path, scene_text())
+    out = tmp_path / "o.exr"
+    monkeypatch.setattr(wavlight, "render_full", overflowing)
+    assert_clean_failure(run_inproc("render", scene, "-o", out), "overflowed", output=out, folder=tmp_path)
+
+
 def test_seed_beyond_63_bits_is_refused(tmp_path):
     """The scene file caps seed at 2^63 - 1; so does --seed (numbers past 2^64 once wrapped to 0)."""
     scene = write_scene(tmp_path, scene_text())
