@@ -200,6 +200,19 @@ def test_summary_table(tiny):
                                                   ["wav", "spp1"], ["wav", "spp2"], ["wav", "0.05s"]]
 
 
+def test_summary_notes_a_peers_approximated_materials(tiny):
+    """A Mitsuba peer that approximates a material (phong as ggx) carries a bias no spp removes:
+    the summary says so under the scene's table."""
+    import copy
+
+    results = copy.deepcopy(tiny["results"])
+    run = results["runs"][0]
+    run["stats"] = {**run.get("stats", {}), "approximated_materials": ["plastic"]}
+    text = experiment.format_summary(results)
+    assert f"note: {run['strategy']} renders material 'plastic' with an approximation" in text
+    assert "approximation" not in experiment.format_summary(tiny["results"])
+
+
 # ----------------------------------------------------------------------------- resume
 def test_resume_renders_nothing_when_finished(tiny, tmp_path):
     out = copy_of(tiny, tmp_path)
@@ -321,6 +334,8 @@ BAD = [
     (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\nsampler = 'sobol'\n[budgets]\nspp = [1]\n",
      "[[strategies]][0].sampler: unknown sampler 'sobol'"),
     ("[budgets\nspp = [1]\n", "malformed TOML"),
+    (f"[reference]\nseed = 1\n[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n"
+     "[budgets]\nspp = [1]\nrepetitions = 3\n", "[budgets].repetitions: the runs' seeds 0..2 include"),
     (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\nreference = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n"
      "[budgets]\nspp = [1]\n", "[[scenes]][0].reference: cannot read"),
     ("[runs]\n", "runs: unknown table"),

@@ -666,6 +666,52 @@ def test_small_image_with_many_spp_is_cut_into_parts(busy_scene, sampler):
         np.testing.assert_allclose(a.image, whole, rtol=1e-6, atol=1e-7)
 
 
+def _edited(scene, **changes):
+    import copy
+    import dataclasses
+
+    return dataclasses.replace(copy.copy(scene), **changes)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: _edited(s, face_material=s.face_material[:-3]), "face_material"),
+    (lambda s: _edited(s, face_material=s.face_material + 7), "face_material out of range"),
+    (lambda s: _edited(s, faces=s.faces + len(s.vertices)), "face indices out of range"),
+    (lambda s: _edited(s, spp=0), "spp"),
+    (lambda s: _edited(s, width=0), "width"),
+    (lambda s: _edited(s, seed=-1), "seed"),
+    (lambda s: _edited(s, light_levels=50), "light_levels"),
+    (lambda s: _edited(s, environment=None), "environment"),
+    (lambda s: _edited(s, camera=wavlight.scene.Camera(s.camera.eye, s.camera.eye, s.camera.up, 40.0)), "eye"),
+    (lambda s: _edited(s, camera=wavlight.scene.Camera(s.camera.eye, s.camera.target, s.camera.up, 200.0)), "fov"),
+    (lambda s: _edited(s, materials=[]), "face_material out of range"),
+    (lambda s: _edited(s, materials=[wavlight.scene.Material("g", 2, np.ones(3, np.float32), 0.0)] * 3),
+     "parameter"),
+    (lambda s: "no such scene", "no such file"),
+    (lambda s: None, "expected a Scene"),
+])
+def test_render_full_checks_the_scene_itself(busy_scene, edit, message):
+    """A Scene built or edited in Python skips load_scene's checks: render_full checks what the
+    kernels rely on (a face_material shorter than the faces once crashed the interpreter)."""
+    with pytest.raises(wavlight.WavlightError, match=message):
+        wavlight.render_full(edit(busy_scene))
+
+
+def test_render_takes_a_path_and_render_full_options(tmp_path, busy_scene):
+    path = tmp_path / "s.toml"
+    path.write_text('[render]\nwidth = 8\nheight = 6\nspp = 2\n[camera]\neye = [0, 1, 4]\ntarget = [0, 0, 0]\n'
+                    '[environment]\nprocedural = "sky"\n')
+    a = wavlight.render(str(path), sampler="stratified")
+    b = wavlight.render(wavlight.load_scene(str(path)), sampler="stratified")
+    assert a.shape == (6, 8, 3) and np.array_equal(a, b)
+
+
+def test_submodules_are_attributes_of_the_package():
+    assert callable(wavlight.experiment.run_experiment) and callable(wavlight.stability.run_stability)
+    with pytest.raises(AttributeError):
+        wavlight.no_such_module
+
+
 def test_different_seeds_differ(busy_scene):
     a = wavlight.render(busy_scene, strategy="mis", seed=1)
     b = wavlight.render(busy_scene, strategy="mis", seed=2)

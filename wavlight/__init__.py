@@ -13,3 +13,15 @@ from .scene import STRATEGIES, Scene, load_scene
 __version__ = "0.1.0"
 __all__ = ["load_scene", "render", "render_full", "save_image", "Scene", "RenderResult",
            "WavlightError", "SceneError", "STRATEGIES", "__version__"]
+
+#: Submodules reachable as attributes (wavlight.experiment.run_experiment, ...) without importing
+#: them here: experiment and stability pull in matplotlib, which costs a second at start-up.
+_LAZY = ("bsdfs", "distributions", "envmap", "experiment", "haar", "metrics", "peers", "product",
+         "sampler", "stability", "strategies")
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'wavlight' has no attribute {name!r}")

@@ -202,7 +202,6 @@ class Environment:
         self.rotate_y = float(rotate_y)
         self.map_from_world = rotation_y(rotate_y).T
         self.world_from_map = rotation_y(rotate_y)
-        self._flat = self.pixels.reshape(-1, 3)
 
     # -- lookup
     def texel_index(self, d_world: np.ndarray) -> np.ndarray:
@@ -214,7 +213,7 @@ class Environment:
 
     def eval(self, d_world: np.ndarray) -> np.ndarray:
         """Radiance (N, 3) float32 arriving from world directions d (N, 3) (nearest texel)."""
-        return self._flat[self.texel_index(d_world)]
+        return self.pixels.reshape(-1, 3)[self.texel_index(d_world)]   # (a view, not a cached copy)
 
     @property
     def is_black(self) -> bool:
@@ -269,7 +268,7 @@ class Environment:
         """
         n = self.square_levels() if n_levels is None else n_levels
         side = 1 << n
-        lum = (self._flat @ LUMINANCE).reshape(self.height, self.width).astype(np.float64)
+        lum = (self.pixels.reshape(-1, 3) @ LUMINANCE).reshape(self.height, self.width).astype(np.float64)
         if compensated:
             cos_edges = np.cos(np.arange(self.height + 1) / self.height * np.pi)
             row_weight = cos_edges[:-1] - cos_edges[1:]                 # solid angle of a texel row / (2 pi / W)

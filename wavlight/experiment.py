@@ -15,7 +15,9 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
     [reference]               # for scenes without a reference file
     strategy = "mis"          # default "mis"
     spp = 1024                # default 1024, at least 2 (its stderr is needed)
-    seed = 1000003            # default 1000003 (apart from the repetitions' seeds 0..R-1)
+    seed = 1000003            # default 1000003; not one of the repetitions' seeds 0..R-1
+                              # (rendered with independent samples whatever the scene says:
+                              # its standard error, subtracted from the metrics, is exact then)
 
     [[scenes]]
     path = "../scenes/default.toml"
@@ -65,8 +67,8 @@ Decisions:
 - **Runs and resume.** Each run writes its image ``DIR/runs/<scene>/<strategy>/<budget>/
   <seed>.exr`` (float32, so metrics can be recomputed exactly) and then its record
   ``<seed>.json`` (settings, timings, render stats, hash). The hash covers the scene
-  file's bytes, size, strategy id and options, spp, seed and wavlight's version (not
-  files the scene refers to). A run whose record exists with the same hash and whose
+  file's bytes, size, strategy id and options, spp, seed, ``threads`` (timings depend on
+  it) and wavlight's version (not files the scene refers to). A run whose record exists with the same hash and whose
   image exists is not rendered again (``resume=False`` renders everything again,
   references and pilots included). Both files are written atomically, the record last.
 - **Mitsuba peers.** ``id = "mitsuba:<mis|mis_comp|light|bsdf>"`` renders with
@@ -344,6 +346,9 @@ def load_spec(path) -> Spec:
         b.fail("spp", "give spp = [...] and/or seconds = [...]")
     if spps is not None and max(spps) > MAX_SPP:
         b.fail("spp", f"must be at most {MAX_SPP}, got {max(spps)}")
+    if reference["seed"] < repetitions:   # the reference would repeat a run's samples exactly
+        b.fail("repetitions", f"the runs' seeds 0..{repetitions - 1} include the reference's seed "
+               f"{reference['seed']} ([reference].seed)")
     b.done()
     budgets = [Budget("spp", v) for v in sorted(spps or [])] + [Budget("seconds", v) for v in sorted(seconds or [])]
     keys = [x.key for x in budgets]
@@ -464,7 +469,7 @@ class _Runner:
     def base_key(self, scene_name):
         w, h = self.size[scene_name]
         return {"scene": self.scene_hash[scene_name], "width": w, "height": h,
-                "wavlight": self.wavlight.__version__}
+                "wavlight": self.wavlight.__version__, "threads": self.spec.threads}   # threads: timings
 
     @staticmethod
     def strategy_key(st: StrategySpec):
@@ -501,12 +506,14 @@ class _Runner:
         img_path = os.path.join(folder, f"{s.name}.exr")
         se_path = os.path.join(folder, f"{s.name}.stderr.exr")
         rec_path = os.path.join(folder, f"{s.name}.json")
-        key = _hash({**self.base_key(s.name), **ref})
+        key = _hash({**self.base_key(s.name), **ref, "sampler": "independent"})
         rec = _read_json(rec_path) if self.resume else None
         if rec and rec.get("hash") == key and os.path.isfile(img_path) and os.path.isfile(se_path):
             self.step(f"{s.name}: reference (done before)")
             return _read_image(img_path), _read_image(se_path), rec
-        r = self.render(s.name, ref["strategy"], {}, ref["spp"], ref["seed"])
+        # always independent samples: the per-pixel standard error subtracted from every metric
+        # is exact for them, an upper bound (about 2x the variance, measured) for stratified
+        r = self.render(s.name, ref["strategy"], {"sampler": "independent"}, ref["spp"], ref["seed"])
         _save_image(img_path, r.image)
         _save_image(se_path, r.stderr)
         rec = {"hash": key, "scene": s.name, **ref, "width": w, "height": h,
@@ -896,7 +903,8 @@ def format_summary(results: dict) -> str:
             "bias", "±se", "max err"]
     lines = [f"experiment {results['experiment']}: {len(results['runs'])} runs "
              f"({results['rendered']} rendered, {results['reused']} reused), "
-             f"{results['repetitions']} repetitions; relMSE: mean over repetitions"]
+             f"{results['repetitions']} repetition{'s' if results['repetitions'] != 1 else ''}; "
+             "relMSE: mean over repetitions"]
     for scene in results["scenes"]:
         ref = results["reference"][scene]
         src = ref.get("file") or f"{ref['strategy']} {ref['spp']} spp"
@@ -913,6 +921,11 @@ def format_summary(results: dict) -> str:
         widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
         for r in rows:
             lines.append("  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))))
+        approx = sorted({(run["strategy"], m) for run in results["runs"] if run["scene"] == scene
+                         for m in (run.get("stats") or {}).get("approximated_materials") or []})
+        for strategy, material in approx:   # a peer's error then holds a bias that spp never removes
+            lines.append(f"  note: {strategy} renders material {material!r} with an approximation "
+                         "(wavlight.peers): its error includes that difference")
     return "\n".join(lines)
 
 

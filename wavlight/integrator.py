@@ -36,7 +36,8 @@ from .camera import camera_rays  # noqa: F401  (also the integrator's public nam
 from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
 from .sampler import SAMPLERS
-from .scene import MAX_SIDE, MAX_SPP, MAX_STRUCTURED_STRATA, STRATEGIES, STRUCTURED_MODES, Scene
+from .scene import (MAX_SIDE, MAX_SPP, MAX_STRUCTURED_STRATA, STRATEGIES, STRUCTURED_MODES, Scene, check_scene,
+                    load_scene)
 from .errors import WavlightError
 
 TILE_SAMPLES = 1 << 16
@@ -212,11 +213,20 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     strata and mode (default: the scene's, else 16 and "stratified").
     ``sampler`` is "independent" (default) or "stratified" (:mod:`wavlight.sampler`).
     """
-    spp = scene.spp if spp is None else _integer("spp", spp, 1, MAX_SPP)
+    if isinstance(scene, (str, os.PathLike)):
+        scene = load_scene(scene)
+    check_scene(scene)
+
+    def pick(name, value, fallback, lo, hi, optional=False):
+        """The argument, else the scene's value; validated either way (a Scene may be edited)."""
+        value = fallback if value is None else value
+        return None if (value is None and optional) else _integer(name, value, lo, hi)
+
+    spp = pick("spp", spp, scene.spp, 1, MAX_SPP)
+    width = pick("width", width, scene.width, 1, MAX_SIDE)
+    height = pick("height", height, scene.height, 1, MAX_SIDE)
+    seed = pick("seed", seed, scene.seed, 0, 2 ** 63 - 1)
     strategy = scene.strategy if strategy is None else strategy
-    width = scene.width if width is None else _integer("width", width, 1, MAX_SIDE)
-    height = scene.height if height is None else _integer("height", height, 1, MAX_SIDE)
-    seed = scene.seed if seed is None else _integer("seed", seed, 0, 2 ** 63 - 1)
     if strategy not in STRATEGIES:
         raise WavlightError(f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
     if backend not in BACKENDS:
@@ -225,14 +235,12 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
         threads = _integer("threads", threads, 1, 4096)
     if progress is not None and not callable(progress):
         raise WavlightError(f"progress must be a callable or None, got {progress!r}")
-    wavelet_levels = scene.wavelet_levels if wavelet_levels is None else _integer("wavelet_levels", wavelet_levels,
-                                                                                  0, 11)
-    light_levels = scene.light_levels if light_levels is None else _integer("light_levels", light_levels, 1, 11)
-    sir_candidates = scene.sir_candidates if sir_candidates is None else _integer("sir_candidates", sir_candidates,
-                                                                                  1, 65536)
-    sir_samples = scene.sir_samples if sir_samples is None else _integer("sir_samples", sir_samples, 1, 1024)
-    structured_strata = (scene.structured_strata if structured_strata is None
-                         else _integer("structured_strata", structured_strata, 1, MAX_STRUCTURED_STRATA))
+    wavelet_levels = pick("wavelet_levels", wavelet_levels, scene.wavelet_levels, 0, 11, optional=True)
+    light_levels = pick("light_levels", light_levels, scene.light_levels, 1, 11, optional=True)
+    sir_candidates = pick("sir_candidates", sir_candidates, scene.sir_candidates, 1, 65536, optional=True)
+    sir_samples = pick("sir_samples", sir_samples, scene.sir_samples, 1, 1024, optional=True)
+    structured_strata = pick("structured_strata", structured_strata, scene.structured_strata, 1,
+                             MAX_STRUCTURED_STRATA, optional=True)
     structured_mode = scene.structured_mode if structured_mode is None else structured_mode
     if structured_mode is not None and structured_mode not in STRUCTURED_MODES:
         raise WavlightError(f"unknown structured_mode {structured_mode!r} ({' | '.join(STRUCTURED_MODES)})")
@@ -277,6 +285,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
 
 
 def render(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
-           progress=None, threads=None) -> np.ndarray:
-    """Render a scene; returns a float32 (H, W, 3) linear RGB image. See :func:`render_full`."""
-    return render_full(scene, spp, strategy, width, height, seed, progress, threads).image
+           progress=None, threads=None, **options) -> np.ndarray:
+    """Render a scene (a Scene, or a scene file's path); returns a float32 (H, W, 3) linear RGB
+    image. The other keywords (sampler, wavelet_levels, ...) are :func:`render_full`'s."""
+    return render_full(scene, spp, strategy, width, height, seed, progress, threads, **options).image

@@ -105,6 +105,51 @@ class Scene:
         return np.array([m.albedo for m in self.materials], np.float32).reshape(-1, 3)
 
 
+def check_scene(scene) -> None:
+    """What a renderer relies on in a Scene, checked again at render time (a Scene can be built
+    or edited in Python, past load_scene's checks): a one-line WavlightError for a wrong type,
+    shape or range, so that no kernel ever reads out of bounds."""
+    def bad(what):
+        raise WavlightError(f"scene {getattr(scene, 'path', '?')}: {what}")
+
+    if not isinstance(scene, Scene):
+        raise WavlightError(f"expected a Scene (wavlight.load_scene(path)) or a scene file's path, got "
+                            f"{type(scene).__name__}")
+    if not isinstance(scene.environment, Environment):
+        bad(f"environment must be an Environment, got {type(scene.environment).__name__}")
+    cam = scene.camera
+    try:
+        eye, target, up = (np.asarray(v, np.float64).reshape(3) for v in (cam.eye, cam.target, cam.up))
+        fov = float(cam.fov_y)
+    except (AttributeError, TypeError, ValueError):
+        bad("camera must have eye, target and up (3 numbers each) and fov_y")
+    if not (np.all(np.isfinite([*eye, *target, *up])) and 0 < fov < 180):
+        bad("camera eye, target and up must be finite and fov_y in (0, 180) degrees")
+    view = target - eye
+    if np.linalg.norm(view) == 0 or np.linalg.norm(np.cross(view, up)) == 0:
+        bad("camera eye equals target, or up is parallel to the view")
+    v, f, fm = (np.asarray(a) for a in (scene.vertices, scene.faces, scene.face_material))
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or fm.shape != (len(f),):
+        bad(f"vertices (V, 3), faces (F, 3) and face_material (F,) expected, got {v.shape}, {f.shape}, {fm.shape}")
+    if len(f) and not (np.issubdtype(f.dtype, np.integer) and np.issubdtype(fm.dtype, np.integer)):
+        bad("faces and face_material must be integers")
+    if not np.all(np.isfinite(v)):
+        bad("vertices hold NaN or Inf")
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        bad("face indices out of range")
+    if len(fm) and (fm.min() < 0 or fm.max() >= len(scene.materials)):
+        bad(f"face_material out of range (0..{len(scene.materials) - 1})")
+    limits = {bsdfs.LAMBERT: (0.0, np.inf), bsdfs.PHONG: (0.0, 1e6), bsdfs.GGX: (1e-4, 1.0)}
+    for m in scene.materials:
+        albedo = np.asarray(getattr(m, "albedo", None), np.float64)
+        if getattr(m, "kind", None) not in limits or albedo.shape != (3,):
+            bad(f"material {getattr(m, 'name', m)!r}: kind must be lambert, phong or ggx, albedo 3 numbers")
+        lo, hi = limits[m.kind]
+        if not (np.all(np.isfinite(albedo)) and albedo.min() >= 0 and lo <= float(m.param) <= hi):
+            bad(f"material {m.name!r}: albedo must be finite and >= 0, the parameter in [{lo:g}, {hi:g}], "
+                f"got {albedo.tolist()} and {m.param}")
+
+
 # ----------------------------------------------------------------------------- validation helpers
 class _Table:
     """One TOML table, reading typed keys and rejecting unknown ones."""
