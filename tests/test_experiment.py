@@ -296,6 +296,16 @@ repetitions = 1
         experiment.run_experiment(spec, tmp_path / "out3")
 
 
+@pytest.mark.parametrize("kwargs, message", [(dict(out_dir=None), "out_dir"), (dict(progress=5), "progress")])
+def test_run_experiment_checks_its_arguments_first(tmp_path, kwargs, message):
+    spec = tmp_path / "s.toml"
+    spec.write_text(TINY)
+    args = {"out_dir": tmp_path / "out", **kwargs}
+    with pytest.raises(wavlight.WavlightError, match=message):
+        experiment.run_experiment(spec, **args)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "None").exists()
+
+
 def test_results_json_has_no_nan_tokens(tmp_path):
     """JSON has no NaN: a metric that is not a number is written as null."""
     experiment._write_json(tmp_path / "r.json", {"a": [1.0, float("nan")], "b": {"c": float("inf")}, "d": "x"})

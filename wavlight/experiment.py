@@ -741,6 +741,10 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, da
     t_start = time.perf_counter()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise WavlightError(f"workers must be an integer >= 1, got {workers!r}")
+    if not isinstance(out_dir, (str, os.PathLike)) or not str(out_dir):
+        raise WavlightError(f"out_dir must be a folder path, got {out_dir!r}")
+    if progress is not None and not callable(progress):
+        raise WavlightError(f"progress must be a callable or None, got {progress!r}")
     if dask_address is not None and workers != 1:
         raise WavlightError("give workers or a dask scheduler address, not both")
     spec = load_spec(spec_path)
