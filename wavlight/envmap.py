@@ -117,7 +117,7 @@ def procedural_sky(sun_elevation=35.0, sun_azimuth=30.0, sun_radius=0.75, sun_ra
     el, az = np.radians(sun_elevation), np.radians(sun_azimuth)
     sun = np.array([np.cos(el) * np.sin(az), np.sin(el), -np.cos(el) * np.cos(az)])
     radius = np.radians(sun_radius)
-    cov = _disk_coverage(sun, radius, width, height)
+    cov = _disk_coverage(d, sun, radius)
     omega = (2 * np.pi / width) * (np.cos(theta - np.pi / (2 * height)) - np.cos(theta + np.pi / (2 * height)))
     target = 2 * np.pi * (1 - np.cos(radius))
     edge = (cov > 0) & (cov < 1)
@@ -134,16 +134,12 @@ def procedural_sky(sun_elevation=35.0, sun_azimuth=30.0, sun_radius=0.75, sun_ra
     return img.astype(np.float32)
 
 
-def _disk_coverage(center, radius, width, height, sub=8):
-    """Fraction of each texel of a lat-long map inside the disk of angular radius `radius` about
-    the unit vector `center`, from sub x sub points per texel near the disk (0 elsewhere)."""
+def _disk_coverage(d, center, radius, sub=8):
+    """Fraction of each texel of a lat-long map, whose centre directions are d (H, W, 3), inside
+    the disk of angular radius `radius` about the unit vector `center`, from sub x sub points
+    per texel near the disk (0 elsewhere)."""
+    height, width = d.shape[:2]
     cov = np.zeros((height, width))
-    v = (np.arange(height) + 0.5) / height
-    u = (np.arange(width) + 0.5) / width
-    theta, phi = v * np.pi, u * 2 * np.pi
-    d = np.stack(np.broadcast_arrays(np.sin(theta)[:, None] * np.sin(phi)[None, :],
-                                     np.cos(theta)[:, None] + 0 * phi[None, :],
-                                     -np.sin(theta)[:, None] * np.cos(phi)[None, :]), -1)
     reach = radius + 2 * np.pi / min(width, 2 * height) * 1.5   # the disk plus a texel's diagonal
     near = d @ center > np.cos(min(reach, np.pi))
     near[0, :] |= center[1] > np.cos(reach)       # the pole rows' texels are wide in angle

@@ -202,8 +202,9 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
                 structured_mode=None, sampler=None) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
-    Arguments left as None come from the scene file. ``progress(done, total, samples, seconds)``
-    is called after each part (a tile, or a run of its passes: :func:`_parts`). ``backend="numpy"`` shades with the numpy reference
+    ``scene`` is a Scene or a scene file's path. Arguments left as None come from the scene
+    file. ``progress(done, total, samples, seconds)`` is called after each part (a tile, or a
+    run of its passes: :func:`_parts`). ``backend="numpy"`` shades with the numpy reference
     instead of the OpenCL kernel (same random numbers, same estimator).
     ``wavelet_levels`` overrides the wavelet strategy's per-material product depth,
     ``light_levels`` the light tree's depth (default: chosen from the map's content).
@@ -266,9 +267,8 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
         for n, ((tile, first, count), (total, total_sq)) in enumerate(zip(parts, results)):
             i, x0, y0, w, h = tile
             if i in sums:   # the parts of a tile arrive in order: sums do not depend on threads
-                sums[i] = (sums[i][0] + total, sums[i][1] + total_sq)
-            else:
-                sums[i] = (total, total_sq)
+                total, total_sq = sums[i][0] + total, sums[i][1] + total_sq
+            sums[i] = (total, total_sq)
             if first + count == spp:
                 image[y0:y0 + h, x0:x0 + w], stderr[y0:y0 + h, x0:x0 + w] = r.finish(*sums.pop(i), w, h)
             done += w * h * count

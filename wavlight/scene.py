@@ -43,6 +43,8 @@ from .sampler import SAMPLERS
 STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet", "sir", "structured")
 STRUCTURED_MODES = ("stratified", "preintegrated")
 MAX_STRUCTURED_STRATA = 1024
+ROUGHNESS_RANGE = (1e-4, 1.0)   # ggx alpha
+EXPONENT_RANGE = (0.0, 1e6)     # phong n
 MAX_SIR_CANDIDATES = 65536
 MAX_SIR_SAMPLES = 1024
 MAX_SIDE = 16384
@@ -139,7 +141,7 @@ def check_scene(scene) -> None:
         bad("face indices out of range")
     if len(fm) and (fm.min() < 0 or fm.max() >= len(scene.materials)):
         bad(f"face_material out of range (0..{len(scene.materials) - 1})")
-    limits = {bsdfs.LAMBERT: (0.0, np.inf), bsdfs.PHONG: (0.0, 1e6), bsdfs.GGX: (1e-4, 1.0)}
+    limits = {bsdfs.LAMBERT: (0.0, np.inf), bsdfs.PHONG: EXPONENT_RANGE, bsdfs.GGX: ROUGHNESS_RANGE}
     for m in scene.materials:
         albedo = np.asarray(getattr(m, "albedo", None), np.float64)
         if getattr(m, "kind", None) not in limits or albedo.shape != (3,):
@@ -417,8 +419,8 @@ def load_scene(path: str) -> Scene:
             warnings.warn(f"{path}: [materials.{name}].albedo: above 1, the surface reflects more light than "
                           "it receives", stacklevel=2)
         # Both keys are accepted on every type (the format's own example does so); each type uses its own.
-        roughness = _positive(t, "roughness", t.get("roughness", "float", 0.2), 1e-4, 1.0)
-        exponent = _positive(t, "exponent", t.get("exponent", "float", 100.0), 0.0, 1e6)
+        roughness = _positive(t, "roughness", t.get("roughness", "float", 0.2), *ROUGHNESS_RANGE)
+        exponent = _positive(t, "exponent", t.get("exponent", "float", 100.0), *EXPONENT_RANGE)
         param = {"ggx": roughness, "phong": exponent}.get(kind, 0.0)
         t.done()
         index[name] = len(materials)
