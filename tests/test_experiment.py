@@ -122,6 +122,10 @@ def test_csv_and_json_hold_every_group_and_run(tiny):
         for key in ("mse", "relmse", "relmse_sd", "variance", "rel_variance", "bias", "bias_se", "max_error",
                     "setup_seconds", "render_seconds", "total_seconds"):
             assert isinstance(g[key], float) and np.isfinite(g[key]), (key, g)
+    for item in res["runs"] + res["groups"]:
+        assert isinstance(item["budget_exceeded"], bool)
+        if item["budget_kind"] == "spp":
+            assert item["budget_exceeded"] is False
     # the returned dict is what results.json holds
     assert json.loads(json.dumps(tiny["results"])) == res
 
@@ -173,9 +177,39 @@ def test_metrics_agree_with_the_saved_images(tiny):
         assert g["relmse"] == pytest.approx(np.mean([r["relmse"] for r in mine]), rel=1e-12)
         assert g["relmse_min"] <= g["relmse"] <= g["relmse_max"]
         assert g["variance"] == pytest.approx(float(np.mean(np.var(imgs.astype(float), axis=0, ddof=1))), rel=1e-12)
-        b, b_se = metrics.bias(imgs, ref, se)
+        # bias and its SE on the channel mean (correlated channels); the reference's SE: mean of the channels'
+        b, b_se = metrics.bias(*(np.mean(a.astype(float), axis=-1, keepdims=True) for a in (imgs, ref, se)))
         assert (g["bias"], g["bias_se"]) == (pytest.approx(b, rel=1e-12), pytest.approx(b_se, rel=1e-12))
+        assert g["bias"] == pytest.approx(metrics.bias(imgs, ref, se)[0], rel=1e-9, abs=1e-12)
         assert g["relmse_x_seconds"] == pytest.approx(g["relmse"] * g["total_seconds"])
+
+
+def test_bias_se_accounts_for_correlated_channels():
+    """Channel noise perfectly correlated (as grey pixels give): pooling the 3 channels as
+    independent values makes the SE sqrt(3) too small; the SE of the channel mean is the true
+    standard deviation of the bias estimate, for the runs' spread and the reference's alike."""
+    rng = np.random.default_rng(7)
+    reps, h, w = 4, 64, 64
+    ref = np.broadcast_to(rng.uniform(0.5, 1.5, (h, w, 1)), (h, w, 3)).copy()
+    noise = rng.normal(0.0, 1.0, (reps, h, w, 1))
+    images = ref + noise                                   # the same noise in R, G and B
+    b, se = experiment._bias(images, ref, None)
+    pooled = metrics.bias(images, ref, None)
+    assert b == pytest.approx(pooled[0], rel=1e-12)
+    assert se == pytest.approx(np.sqrt(3) * pooled[1], rel=1e-9)
+    assert se == pytest.approx(1 / np.sqrt(reps * h * w), rel=0.05)   # sd of the mean of R*H*W unit normals
+    # the reference's own SE: as correlated, the same sqrt(3)
+    ref_se = np.full((h, w, 3), 0.5)
+    only_ref = experiment._bias(np.broadcast_to(ref, (reps, h, w, 3)), ref, ref_se)[1]
+    assert only_ref == pytest.approx(np.sqrt(3) * metrics.bias(np.broadcast_to(ref, (reps, h, w, 3)), ref,
+                                                               ref_se)[1], rel=1e-9)
+    assert only_ref == pytest.approx(0.5 / np.sqrt(h * w), rel=1e-9)
+    # honest: over many experiments, bias / SE has a standard deviation of about 1
+    z = []
+    for _ in range(300):
+        b, se = experiment._bias(ref[:8, :8] + rng.normal(0.0, 1.0, (reps, 8, 8, 1)), ref[:8, :8], None)
+        z.append(b / se)
+    assert 0.85 < np.std(z) < 1.15, np.std(z)
 
 
 def test_runs_are_reproducible_from_their_seed(tiny):
@@ -232,6 +266,33 @@ def test_resume_renders_only_what_is_missing_or_changed(tiny, tmp_path):
     results, counter = run_counted(tiny["spec"], out)
     assert sorted(counter.timed) == [(1, 8, 6, 0), (2, 8, 6, 1)]
     assert results["rendered"] == 2 and results["reused"] == 10
+
+
+def test_resume_renders_a_broken_run_image_again(tiny, tmp_path):
+    """A run whose record is intact but whose image is truncated, not an image, of another size,
+    has a NaN pixel or is gone is rendered again with a one-line warning (it aborted the whole
+    experiment with OpenImageIO's error); the new images are the old ones (seeded renders)."""
+    out = copy_of(tiny, tmp_path)
+    runs = out / "runs" / "default"
+    truncated = runs / "mis" / "spp1" / "0.exr"
+    truncated.write_bytes(truncated.read_bytes()[:300])
+    (runs / "mis" / "spp2" / "1.exr").write_bytes(b"not an image")
+    write_raw_image(runs / "wav" / "spp1" / "0.exr", np.ones((4, 4, 3), np.float32))
+    nan = read_image(str(runs / "wav" / "spp2" / "1.exr")).copy()
+    nan[1, 2, 0] = np.nan
+    write_raw_image(runs / "wav" / "spp2" / "1.exr", nan)
+    (runs / "mis" / "0.05s" / "0.exr").unlink()
+    with pytest.warns(UserWarning) as caught:
+        results, counter = run_counted(tiny["spec"], out)
+    again = sorted(str(w.message) for w in caught if "again" in str(w.message))
+    assert len(again) == 5 and all("\n" not in m for m in again), again
+    for part, problem in [("mis/spp1/seed 0", "cannot be read"), ("mis/spp2/seed 1", "cannot be read"),
+                          ("wav/spp1/seed 0", "has shape (4, 4, 3), not (6, 8, 3)"),
+                          ("wav/spp2/seed 1", "has 1 NaN or Inf pixel(s)"), ("mis/0.05s/seed 0", "is missing")]:
+        assert any(f"the run's image {problem}: rendering default/{part} again" in m for m in again), (part, again)
+    assert sorted((c[1], c[2], c[3]) for c in counter.timed) == [(8, 6, 0)] * 3 + [(8, 6, 1)] * 2
+    assert results["rendered"] == 5 and results["reused"] == 7
+    assert [g["relmse"] for g in results["groups"]] == [g["relmse"] for g in tiny["results"]["groups"]]
 
 
 def test_a_new_budget_adds_only_its_runs(tiny, tmp_path):
@@ -344,6 +405,8 @@ BAD = [
     (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\nsampler = 'sobol'\n[budgets]\nspp = [1]\n",
      "[[strategies]][0].sampler: unknown sampler 'sobol'"),
     ("[budgets\nspp = [1]\n", "malformed TOML"),
+    (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\nwavelet_levels = 4\n[budgets]\nspp = [1]\n",
+     "[[strategies]][0].wavelet_levels: does not apply to 'mis' (only to wavelet)"),
     (f"[reference]\nseed = 1\n[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n"
      "[budgets]\nspp = [1]\nrepetitions = 3\n", "[budgets].repetitions: the runs' seeds 0..2 include"),
     (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\nreference = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\n"
@@ -467,3 +530,70 @@ def test_strategy_sampler_option_reaches_the_renderer(tmp_path):
     scene = wavlight.load_scene(DEFAULT_SCENE)
     r = experiment._render(scene, st.id, st.options, 2, 8, 6, 0, 1)
     assert r.stats["sampler"] == "stratified"
+
+
+# ----------------------------------------------------------------------------- strategy options
+def strategy_spec(tmp_path, lines):
+    spec = tmp_path / "opts.toml"
+    spec.write_text(f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[budgets]\nspp = [1]\n[[strategies]]\n" + lines)
+    return spec
+
+
+@pytest.mark.parametrize("sid, option, value", [("mis", "wavelet_levels", 4), ("light", "wavelet_levels", 4),
+                                                ("bsdf", "light_levels", 6), ("uniform", "light_levels", 6),
+                                                ("structured", "light_levels", 6)])
+def test_an_option_the_strategy_does_not_take_is_refused(tmp_path, sid, option, value):
+    """It was accepted and ignored (a wavelet-only option given to mis): one keyed error instead."""
+    spec = strategy_spec(tmp_path, f"id = '{sid}'\n{option} = {value}\n")
+    with pytest.raises(wavlight.WavlightError) as e:
+        experiment.load_spec(spec)
+    assert str(e.value).startswith(f"{spec}: [[strategies]][0].{option}: does not apply to '{sid}' (only to ")
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("sid, lines, options", [
+    ("wavelet", "wavelet_levels = 4\nlight_levels = 6\n", {"wavelet_levels": 4, "light_levels": 6}),
+    ("sir", "light_levels = 6\n", {"light_levels": 6}), ("mis_comp", "light_levels = 6\n", {"light_levels": 6}),
+    ("light", "light_levels = 6\n", {"light_levels": 6}), ("uniform", "sampler = 'stratified'\n",
+                                                           {"sampler": "stratified"})])
+def test_options_the_strategy_takes_are_kept(tmp_path, sid, lines, options):
+    assert experiment.load_spec(strategy_spec(tmp_path, f"id = '{sid}'\n" + lines)).strategies[0].options == options
+
+
+def test_option_table_matches_the_renderer():
+    """OPTION_STRATEGIES says which strategies a level option reaches: exactly those whose render
+    reports a light tree of that depth (light_levels) or product levels (wavelet_levels)."""
+    for sid in wavlight.STRATEGIES:
+        r = wavlight.render_full(DEFAULT_SCENE, spp=1, strategy=sid, width=4, height=4, seed=0,
+                                 light_levels=2, wavelet_levels=1)
+        assert (r.stats.get("light_tree") == "4x4") == (sid in experiment.OPTION_STRATEGIES["light_levels"]), sid
+        levels = r.stats.get("product_levels")
+        assert (levels is not None and set(levels.values()) == {1}) == \
+            (sid in experiment.OPTION_STRATEGIES["wavelet_levels"]), sid
+    assert set(experiment.OPTION_STRATEGIES["sampler"]) == set(wavlight.STRATEGIES)
+
+
+# ----------------------------------------------------------------------------- time budgets
+def test_a_time_budget_below_one_spp_is_warned_about_and_recorded(tmp_path):
+    """A budget that even 1 spp exceeds gave 1 spp silently: now one warning naming the strategy,
+    the budget and the time 1 spp took, and budget_exceeded in results.json."""
+    spec = tmp_path / "short.toml"
+    spec.write_text(TINY.replace("spp = [1, 2]\nseconds = [0.05]\nrepetitions = 2", "seconds = [0.0001]\nrepetitions = 2")
+                    .replace('[[strategies]]\nid = "wavelet"\nlabel = "wav"\nwavelet_levels = 4\n', ""))
+    with pytest.warns(UserWarning) as caught:
+        results = experiment.run_experiment(spec, tmp_path / "out")
+    msgs = [str(w.message) for w in caught if "time budget" in str(w.message)]
+    assert len(msgs) == 1, msgs
+    g = results["groups"][0]
+    assert msgs[0] == (f"default/mis: the time budget of 0.0001 s cannot be met even at 1 spp: 1 spp took "
+                       f"{g['total_seconds']:.3g} s (setup {g['setup_seconds']:.3g} s)")
+    assert g["spp"] == 1 and g["budget_exceeded"] is True
+    assert [r["budget_exceeded"] for r in results["runs"]] == [True, True]
+    saved = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert [r["budget_exceeded"] for r in saved["runs"]] == [True, True] and saved["groups"][0]["budget_exceeded"]
+    # only a 1-spp run over its time budget: more spp over it is the pilot fit's noise, spp budgets have no time
+    base = {"budget_kind": "seconds", "spp": 1, "total_seconds": 0.2, "target_seconds": 0.1}
+    assert experiment._budget_exceeded(base)
+    assert not experiment._budget_exceeded({**base, "total_seconds": 0.05})
+    assert not experiment._budget_exceeded({**base, "spp": 2})
+    assert not experiment._budget_exceeded({**base, "budget_kind": "spp", "target_seconds": None})

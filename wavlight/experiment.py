@@ -30,8 +30,10 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
     id = "wavelet"            # uniform | cosine | bsdf | light | mis | wavelet | ...,
                               # or a Mitsuba peer: mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf
     label = "wavelet-p5"      # default: the id; names the output folders and chart lines
-    wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels)
-    light_levels = 9
+    wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels):
+    light_levels = 9          # wavelet_levels for wavelet only, light_levels for light, mis,
+                              # mis_comp, wavelet and sir (OPTION_STRATEGIES); given to another
+                              # strategy, an option is an error, not silently ignored
     sampler = "stratified"    # optional: independent (default) | stratified (as --sampler)
 
     [budgets]
@@ -58,7 +60,10 @@ Decisions:
   fitted as a + b spp by least squares through the pilots, setup is their mean, and
   spp = max(1, round((T - setup - a) / b)). The pilot is cached in
   ``DIR/pilot/<scene>/<strategy>.json`` so that a resumed experiment keeps the same spp.
-  The charts use the measured total time of each run, not T.
+  The charts use the measured total time of each run, not T. A budget that even 1 spp
+  exceeds (a run at 1 spp took longer than T, e.g. T below the setup time) is kept at
+  1 spp, marked ``budget_exceeded`` in its runs and group of ``results.json``, and
+  warned about once per (scene, strategy, budget), naming T and the time 1 spp took.
 - **Reference.** Rendered once per scene with ``[reference]`` and cached as
   ``DIR/reference/<scene>.exr`` with its standard error ``<scene>.stderr.exr`` and a
   ``<scene>.json`` (settings, hash, timings); re-rendered when its settings or the scene
@@ -69,8 +74,10 @@ Decisions:
   ``<seed>.json`` (settings, timings, render stats, hash). The hash covers the scene
   file's bytes, size, strategy id and options, spp, seed, ``threads`` (timings depend on
   it) and wavlight's version (not files the scene refers to). A run whose record exists with the same hash and whose
-  image exists is not rendered again (``resume=False`` renders everything again,
-  references and pilots included). Both files are written atomically, the record last.
+  image reads as a finite image of the right size is not rendered again (``resume=False``
+  renders everything again, references and pilots included); an image that is missing,
+  cannot be read (truncated, corrupt), has another size or NaN / Inf pixels is rendered
+  again, with a one-line warning. Both files are written atomically, the record last.
 - **Mitsuba peers.** ``id = "mitsuba:<mis|mis_comp|light|bsdf>"`` renders with
   :func:`wavlight.peers.render_mitsuba` (same scene, size, spp, seed; its setup includes
   scene conversion and a JIT warm-up; ``threads`` does not apply). The default label is
@@ -96,7 +103,12 @@ Decisions:
   max_error, max_rel_error; per (scene, strategy, budget) the mean, sd, min and max of
   those over the repetitions, the mean per-pixel variance over the repetitions
   (``variance``, ``rel_variance``), ``bias`` with ``bias_se``, and relMSE x time
-  (``relmse_x_seconds``, lower is better at any budget).
+  (``relmse_x_seconds``, lower is better at any budget). ``bias`` and ``bias_se`` are
+  :func:`wavlight.metrics.bias` of the per-pixel channel mean (:func:`_bias`): the channels
+  share a pixel's samples and their noise correlates (about 0.95), so pooling them as
+  independent values would understate the SE (by up to sqrt(3)); the reference's SE of
+  a channel mean is the mean of its channels' SEs (exact for perfect correlation, an
+  upper bound otherwise).
 - **Outputs** in DIR: ``results.json`` (everything), ``results.csv`` (one row per scene,
   strategy and budget), ``runs.csv`` (one row per run), ``spec.toml`` (a copy of the
   experiment file), and in ``charts/`` (PNG and SVG, matplotlib without pyplot, so no
@@ -123,6 +135,7 @@ import re
 import tempfile
 import time
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -137,6 +150,12 @@ PILOT_SEED = 999_999
 PEER_PREFIX = "mitsuba:"
 WARMUP_SIZE = 8
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+#: [[strategies]] options -> the wavlight strategies that take them (as render_full passes them on:
+#: wavelet_levels is the product depth of wavelet; light_levels the depth of a light tree, which
+#: uniform, cosine, bsdf and structured do not build; the sampler draws every strategy's numbers)
+OPTION_STRATEGIES = {"wavelet_levels": ("wavelet",),
+                     "light_levels": ("light", "mis", "mis_comp", "wavelet", "sir"),
+                     "sampler": STRATEGIES}
 
 
 # ----------------------------------------------------------------------------- the experiment file
@@ -335,6 +354,9 @@ def load_spec(path) -> Spec:
             options["sampler"] = smp
         if options and sid.startswith(PEER_PREFIX):
             t.fail(sorted(options)[0], f"is a wavlight option; {sid!r} takes none")
+        for opt in options:
+            if sid not in OPTION_STRATEGIES[opt]:
+                t.fail(opt, f"does not apply to {sid!r} (only to {' | '.join(OPTION_STRATEGIES[opt])})")
         t.done()
         strats.append(StrategySpec(label, sid, options))
 
@@ -421,6 +443,21 @@ def _read_json(path):
 def _read_image(path):
     from .envmap import read_image
     return read_image(path)
+
+
+def _image_problem(path, width, height):
+    """Why a finished run's image cannot be reused (None: it can): missing, unreadable (a
+    truncated or corrupt file), another size, or NaN / Inf pixels."""
+    if not os.path.isfile(path):
+        return "is missing"
+    try:
+        image = _read_image(path)
+    except (WavlightError, ValueError, OSError):
+        return "cannot be read"
+    if image.shape != (height, width, 3):
+        return f"has shape {image.shape}, not ({height}, {width}, 3)"
+    bad = int((~np.isfinite(image)).any(axis=-1).sum())
+    return f"has {bad} NaN or Inf pixel(s)" if bad else None
 
 
 def _save_image(path, image):
@@ -578,10 +615,13 @@ class _Runner:
         what = f"{s.name}/{st.label}/{budget.key}/seed {seed}"
         key = _hash({**self.base_key(s.name), **self.strategy_key(st), "spp": spp, "seed": seed})
         rec = _read_json(rec_path) if self.resume else None
-        if rec and rec.get("hash") == key and os.path.isfile(img_path):
-            self.reused += 1
-            self.step(what + " (done before)")
-            return rec, None
+        if rec and rec.get("hash") == key:
+            problem = _image_problem(img_path, *self.size[s.name])
+            if problem is None:
+                self.reused += 1
+                self.step(what + " (done before)")
+                return rec, None
+            warnings.warn(f"{img_path}: the run's image {problem}: rendering {what} again", stacklevel=4)
         job = {"s": s, "st": st, "budget": budget, "spp": spp, "seed": seed, "key": key, "what": what,
                "img_path": img_path, "rec_path": rec_path}
         return None, job
@@ -813,6 +853,7 @@ def _run(spec: Spec, out_dir, progress, resume, t_start, workers=1, dask_address
             row = {k: r[k] for k in ("scene", "strategy", "strategy_id", "budget", "budget_kind", "target_seconds",
                                      "spp", "seed", "setup_seconds", "render_seconds", "total_seconds", "image")}
             row.update(m)
+            row["budget_exceeded"] = _budget_exceeded(r)
             per.append(row)
         runs.extend(per)
         g = {k: recs[0][k] for k in ("scene", "strategy", "strategy_id", "options", "budget", "budget_kind",
@@ -829,7 +870,12 @@ def _run(spec: Spec, out_dir, progress, resume, t_start, workers=1, dask_address
             g["rel_variance"] = metrics.relative_variance(images, ref)
         else:
             g["variance"] = g["rel_variance"] = None
-        g["bias"], g["bias_se"] = metrics.bias(images, ref, ref_se)
+        g["bias"], g["bias_se"] = _bias(images, ref, ref_se)
+        g["budget_exceeded"] = any(p["budget_exceeded"] for p in per)
+        if g["budget_exceeded"]:
+            warnings.warn(f"{scene}/{label}: the time budget of {g['target_seconds']:g} s cannot be met even at "
+                          f"1 spp: 1 spp took {g['total_seconds']:.3g} s (setup {g['setup_seconds']:.3g} s)",
+                          stacklevel=3)
         g["max_error"] = max(p["max_error"] for p in per)
         g["max_rel_error"] = max(p["max_rel_error"] for p in per)
         g["relmse_x_seconds"] = g["relmse"] * g["total_seconds"]
@@ -858,6 +904,22 @@ def _run(spec: Spec, out_dir, progress, resume, t_start, workers=1, dask_address
     results["seconds"] = round(time.perf_counter() - t_start, 2)
     _write_json(os.path.join(out_dir, "results.json"), results)
     return results
+
+
+def _budget_exceeded(rec) -> bool:
+    """A time budget not met even at 1 spp: the run took longer than the budget."""
+    return rec["budget_kind"] == "seconds" and rec["spp"] == 1 and rec["total_seconds"] > rec["target_seconds"]
+
+
+def _bias(images, ref, ref_se):
+    """:func:`metrics.bias` of the channel means, (bias, SE or None): a pixel's colour channels
+    share its samples, so their noise correlates (~0.95) and pooling them as independent values
+    understates the SE (up to sqrt(3)x). The reference's SE of a channel mean is taken as the
+    mean of its channels' SEs: exact for perfectly correlated channels, an upper bound always."""
+    x = np.asarray(images, np.float64).mean(axis=-1, keepdims=True)
+    r = np.asarray(ref, np.float64).mean(axis=-1, keepdims=True)
+    s = None if ref_se is None else np.asarray(ref_se, np.float64).mean(axis=-1, keepdims=True)
+    return metrics.bias(x, r, s)
 
 
 def _equal_time(spec: Spec, groups) -> dict:
