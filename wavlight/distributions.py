@@ -16,9 +16,12 @@ column ``floor(u 2^n)``, row ``floor(v 2^n)``.
 """
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
 from . import cl
+from .errors import ArgumentError, check_int, check_real, shown
 
 ONE_MINUS_EPS = np.float32(np.nextafter(np.float32(1), np.float32(0)))
 
@@ -34,11 +37,43 @@ def tree_size(n_levels: int) -> int:
 
 
 def leaf_levels(side: int) -> int:
-    """n for a 2^n x 2^n image; raises ValueError for other sides."""
-    n = int(side).bit_length() - 1
-    if side < 1 or (1 << n) != side:
-        raise ValueError(f"tree images must be 2^n x 2^n, got side {side}")
-    return n
+    """n for a 2^n x 2^n image; raises ArgumentError (a ValueError) for other sides."""
+    if (isinstance(side, (bool, np.bool_)) or not isinstance(side, numbers.Integral) or side < 1
+            or side & (side - 1)):
+        raise ArgumentError(f"distributions.leaf_levels: tree images must be 2^n x 2^n, got side {shown(side)}")
+    return int(side).bit_length() - 1
+
+
+def _leaves(where: str, leaves) -> np.ndarray:
+    """leaves as float32 (T, 2^n, 2^n), finite and non-negative, else ArgumentError."""
+    a = np.asarray(check_real(where, "leaves", leaves), np.float32)
+    a = a[None] if a.ndim == 2 else a
+    side = a.shape[-1] if a.ndim == 3 else 0
+    if a.ndim != 3 or a.shape[1] != side or side < 1 or side & (side - 1):
+        raise ArgumentError(f"{where}: leaves must be (T, 2^n, 2^n) or (2^n, 2^n), got shape {np.shape(leaves)}")
+    if not np.all(np.isfinite(a)) or np.any(a < 0):
+        raise ArgumentError(f"{where}: tree leaves must be finite and non-negative")
+    return a
+
+
+def _walk_args(where: str, tree, n_levels, points, name: str, samples_per_tree):
+    """Checked arguments of the numpy twins: tree (T, tree_size(n)) float32, n, points (N, 2), and
+    samples_per_tree, which must give every point a tree."""
+    n_levels = check_int(where, "n_levels", n_levels, 0, 30)
+    tree = check_real(where, "tree", tree)
+    size = tree_size(n_levels)
+    if tree.size == 0 or tree.size % size:
+        raise ArgumentError(f"{where}: tree must hold whole pyramids of tree_size({n_levels}) = {size} nodes, "
+                            f"got shape {tree.shape}")
+    points = check_real(where, name, points)
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ArgumentError(f"{where}: {name} must be (N, 2), got shape {points.shape}")
+    n, trees = len(points), tree.size // size
+    samples_per_tree = check_int(where, "samples_per_tree", samples_per_tree, 1 if n else 0)
+    if n and -(-n // samples_per_tree) > trees:
+        raise ArgumentError(f"{where}: {n} points at {samples_per_tree} per tree need "
+                            f"{-(-n // samples_per_tree)} trees, tree holds {trees}")
+    return np.asarray(tree, np.float32).reshape(trees, size), n_levels, points, samples_per_tree
 
 
 # ----------------------------------------------------------------------------- numpy reference
@@ -48,9 +83,7 @@ def build_reference(leaves: np.ndarray) -> np.ndarray:
     leaves : (T, 2^n, 2^n) or (2^n, 2^n) float, non-negative
     returns : (T, tree_size(n)) float32
     """
-    leaves = np.asarray(leaves, np.float32)
-    if leaves.ndim == 2:
-        leaves = leaves[None]
+    leaves = _leaves("distributions.build_reference", leaves)
     n = leaf_levels(leaves.shape[-1])
     out = np.empty((leaves.shape[0], tree_size(n)), np.float32)
     level = leaves
@@ -98,7 +131,8 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
     tree : (T, tree_size(n)) float32;  u : (N, 2) float in [0, 1)
     returns : uv (N, 2) float32 in [0, 1), pdf (N,) float32 on the unit square
     """
-    tree = np.asarray(tree, np.float32).reshape(-1, tree_size(n_levels))
+    tree, n_levels, u, samples_per_tree = _walk_args("distributions.sample_reference", tree, n_levels, u, "u",
+                                                     samples_per_tree)
     u = np.clip(np.nan_to_num(np.asarray(u, np.float32), nan=0.0), 0, ONE_MINUS_EPS)  # as clamp_unit
     t = np.arange(len(u)) // samples_per_tree
     x = np.zeros(len(u), np.int64)
@@ -119,7 +153,8 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
 
 def pdf_reference(tree: np.ndarray, n_levels: int, uv: np.ndarray, samples_per_tree: int) -> np.ndarray:
     """Density on the unit square of given points (numpy twin of ``warp_pdf``)."""
-    tree = np.asarray(tree, np.float32).reshape(-1, tree_size(n_levels))
+    tree, n_levels, uv, samples_per_tree = _walk_args("distributions.pdf_reference", tree, n_levels, uv, "uv",
+                                                      samples_per_tree)
     side = 1 << n_levels
     t = np.arange(len(uv)) // samples_per_tree
     ix = np.clip(np.floor(uv[:, 0] * side).astype(np.int64), 0, side - 1)
@@ -139,11 +174,10 @@ class HaarTree:
     """
 
     def __init__(self, leaves: np.ndarray):
-        leaves = np.asarray(leaves, np.float32)
-        if leaves.ndim == 2:
-            leaves = leaves[None]
-        if not np.all(np.isfinite(leaves)) or np.any(leaves < 0):
-            raise ValueError("tree leaves must be finite and non-negative")
+        leaves = _leaves("distributions.HaarTree", leaves)
+        if not len(leaves):
+            raise ArgumentError("distributions.HaarTree: leaves must hold at least one image, got shape "
+                                f"{leaves.shape}")
         self.n_levels = leaf_levels(leaves.shape[-1])
         self.n_trees = leaves.shape[0]
         self.stride = tree_size(self.n_levels)
@@ -163,10 +197,17 @@ class HaarTree:
         return cl.read(self.buffer, (self.n_trees, self.stride), np.float32)
 
     def _run(self, name, pts, samples_per_tree, outputs):
-        pts = np.ascontiguousarray(pts, np.float32).reshape(-1, 2)
+        where, arg = ("distributions.HaarTree.sample", "u") if outputs == 2 else ("distributions.HaarTree.pdf", "uv")
+        pts = np.ascontiguousarray(check_real(where, arg, pts), np.float32)
+        if pts.ndim != 2 or pts.shape[1] != 2:
+            raise ArgumentError(f"{where}: {arg} must be (N, 2), got shape {pts.shape}")
         n = len(pts)
         if samples_per_tree is None:
             samples_per_tree = max(1, -(-n // self.n_trees))
+        samples_per_tree = check_int(where, "samples_per_tree", samples_per_tree, 1)
+        if -(-n // samples_per_tree) > self.n_trees:  # sample i reads tree i // samples_per_tree
+            raise ArgumentError(f"{where}: {n} points at {samples_per_tree} per tree need "
+                                f"{-(-n // samples_per_tree)} trees, this HaarTree holds {self.n_trees}")
         if n == 0:
             return [np.empty((0, 2), np.float32), np.empty(0, np.float32)][-outputs:]
         queue = cl.thread_queue()  # callers may be threads

@@ -71,7 +71,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cl
-from .distributions import leaf_levels, level_offset, tree_size
+from .distributions import level_offset, tree_size
+from .errors import ArgumentError, check_int, check_integers, check_number, check_real
 
 __all__ = [
     "coeff_index", "coeff_basis", "node_scale", "forward", "inverse", "scaling_pyramid",
@@ -80,12 +81,26 @@ __all__ = [
     "ProductPyramids",
 ]
 
+MAX_LEVELS = 31  # flat indices 4^n - 1 fit int64
+
 
 # ============================================================================= layout
 def coeff_index(level, x, y, m, n_levels: int):
     """Flat dense index of basis function (level, x, y, m); m = 0 is the scaling function
     (level = x = y = 0). Vectorised."""
-    level, x, y, m = (np.asarray(a, np.int64) for a in (level, x, y, m))
+    where = "haar.coeff_index"
+    n_levels = check_int(where, "n_levels", n_levels, 0, MAX_LEVELS)
+    level, x, y, m = _broadcast(where, {k: check_integers(where, k, v) for k, v in
+                                        (("level", level), ("x", x), ("y", y), ("m", m))})
+    if np.any((m < 0) | (m > 3)):
+        raise ArgumentError(f"{where}: m must be 0 (scaling) or 1, 2, 3 (wavelets), got {m[(m < 0) | (m > 3)][0]}")
+    wav = m > 0
+    if np.any(wav & ((level < 0) | (level >= n_levels))):
+        raise ArgumentError(f"{where}: a wavelet's level must be in [0, {n_levels}), got "
+                            f"{level[wav & ((level < 0) | (level >= n_levels))][0]}")
+    side = np.left_shift(1, np.where(wav, level, 0))
+    if np.any(wav & ((x < 0) | (y < 0) | (x >= side) | (y >= side))):
+        raise ArgumentError(f"{where}: a wavelet's x and y must be in [0, 2^level)")
     s = np.left_shift(1, level)
     row = np.where((m == 2) | (m == 3), s + y, y)
     col = np.where((m == 1) | (m == 3), s + x, x)
@@ -94,7 +109,8 @@ def coeff_index(level, x, y, m, n_levels: int):
 
 def coeff_basis(index, n_levels: int):
     """(level, x, y, m) of flat dense indices; the scaling function is (0, 0, 0, 0). Vectorised."""
-    index = np.asarray(index, np.int64)
+    n_levels = check_int("haar.coeff_basis", "n_levels", n_levels, 0, MAX_LEVELS)
+    index = check_integers("haar.coeff_basis", "index", index, 4 ** n_levels)
     row, col = np.divmod(index, 1 << n_levels)
     big = np.maximum(row, col)
     level = np.frexp(np.maximum(big, 1).astype(np.float64))[1].astype(np.int64) - 1
@@ -108,18 +124,44 @@ def coeff_basis(index, n_levels: int):
 
 def node_scale(n_levels: int) -> np.ndarray:
     """2^l for every node of a pyramid: F^0 = node_scale * masses (eq. 17)."""
+    n_levels = check_int("haar.node_scale", "n_levels", n_levels, 0, MAX_LEVELS)
     return np.concatenate([np.full(4 ** l, 2.0 ** l) for l in range(n_levels + 1)])
 
 
-def _levels_of(a: np.ndarray) -> int:
-    if a.ndim < 2 or a.shape[-1] != a.shape[-2]:
-        raise ValueError(f"expected (..., 2^n, 2^n) arrays, got shape {a.shape}")
-    return leaf_levels(a.shape[-1])
+def _levels_of(a: np.ndarray, where: str, name: str) -> int:
+    """n of (..., 2^n, 2^n) arrays, else ArgumentError."""
+    side = a.shape[-1] if a.ndim >= 2 else 0
+    if a.ndim < 2 or a.shape[-2] != side or side < 1 or side & (side - 1):
+        raise ArgumentError(f"{where}: {name} must be (..., 2^n, 2^n) arrays, got shape {a.shape}")
+    return side.bit_length() - 1
 
 
-def _float(a) -> np.ndarray:
-    a = np.asarray(a)
+def _float(a, where: str, name: str) -> np.ndarray:
+    """a as a float array (float32 or wider) of finite real numbers, else ArgumentError."""
+    a = check_real(where, name, a, finite=True)
     return a.astype(np.result_type(a.dtype, np.float32), copy=False)
+
+
+def _square(a, where: str, name: str):
+    """a as finite float (..., 2^n, 2^n) arrays, and n."""
+    a = _float(a, where, name)
+    return a, _levels_of(a, where, name)
+
+
+def _broadcast(where: str, arrays: dict) -> list:
+    """The named arrays broadcast together, else ArgumentError naming their shapes."""
+    try:
+        return np.broadcast_arrays(*arrays.values())
+    except ValueError:
+        shapes = ", ".join(f"{k} {np.shape(v)}" for k, v in arrays.items())
+        raise ArgumentError(f"{where}: shapes do not broadcast: {shapes}") from None
+
+
+def _channels(where: str, *sets: "SparseHaar"):
+    """Sparse sets' channel counts (values (K,) or (K, C)) must agree or be 1."""
+    counts = {s.value.shape[1] for s in sets if s.value.ndim == 2} - {1}
+    if len(counts) > 1:
+        raise ArgumentError(f"{where}: sparse sets have different channel counts {sorted(counts)}")
 
 
 def _embed(c: np.ndarray, n: int) -> np.ndarray:
@@ -135,8 +177,7 @@ def _embed(c: np.ndarray, n: int) -> np.ndarray:
 # ============================================================================= transform (sec. 4.1)
 def forward(images) -> np.ndarray:
     """Orthonormal nonstandard Haar transform of (..., 2^n, 2^n) images (eq. 13), dense layout."""
-    a = _float(images)
-    n = _levels_of(a)
+    a, n = _square(images, "haar.forward", "images")
     out = np.empty_like(a)
     s = a * 2.0 ** -n  # F^0_{n,t} = 2^-n * pixel
     for l in range(n - 1, -1, -1):
@@ -169,8 +210,7 @@ def _scaling_levels(c: np.ndarray, last: int):
 
 def inverse(coeffs) -> np.ndarray:
     """Images (..., 2^n, 2^n) from dense coefficients; inverse of :func:`forward`."""
-    c = _float(coeffs)
-    n = _levels_of(c)
+    c, n = _square(coeffs, "haar.inverse", "coeffs")
     for _, s in _scaling_levels(c, n):
         pass
     return s * 2.0 ** n
@@ -187,15 +227,18 @@ class SparseHaar:
     value: np.ndarray
 
     def __post_init__(self):
-        idx = np.asarray(self.index, np.int64).reshape(-1)
-        val = _float(self.value)
+        where = "haar.SparseHaar"
+        n = check_int(where, "n_levels", self.n_levels, 0, MAX_LEVELS)
+        idx = check_integers(where, "index", self.index, 4 ** n).reshape(-1)
+        val = _float(self.value, where, "value")
         if val.shape[:1] != idx.shape or val.ndim > 2:
-            raise ValueError(f"index {idx.shape} and value {val.shape} do not match")
-        if idx.size and (idx.min() < 0 or idx.max() >= 4 ** self.n_levels):
-            raise ValueError("sparse Haar index out of range")
+            raise ArgumentError(f"{where}: value must be (K,) or (K, C) for K = {len(idx)} indices, "
+                                f"got shape {val.shape}")
         order = np.argsort(idx, kind="stable")
-        if np.any(np.diff(idx[order]) == 0):
-            raise ValueError("duplicate sparse Haar indices")
+        dup = np.diff(idx[order]) == 0
+        if np.any(dup):
+            raise ArgumentError(f"{where}: index {idx[order][1:][dup][0]} appears more than once")
+        object.__setattr__(self, "n_levels", n)
         object.__setattr__(self, "index", idx[order])
         object.__setattr__(self, "value", val[order])
 
@@ -213,24 +256,29 @@ class SparseHaar:
     def from_dense(cls, coeffs, keep=None) -> "SparseHaar":
         """From (2^n, 2^n) or (C, 2^n, 2^n) coefficients; ``keep`` = flat indices or a flat
         boolean mask (default: the coefficients non-zero in any channel)."""
-        c = _float(coeffs)
-        n = _levels_of(c)
+        where = "haar.SparseHaar.from_dense"
+        c, n = _square(coeffs, where, "coeffs")
         if c.ndim > 3:
-            raise ValueError("one coefficient set, with at most a leading channel axis")
+            raise ArgumentError(f"{where}: coeffs must be one set, (2^n, 2^n) or (C, 2^n, 2^n), got shape {c.shape}")
         flat = c.reshape(c.shape[:-2] + (-1,))
         flat = flat.T if c.ndim == 3 else flat
         if keep is None:
             keep = np.flatnonzero(np.any(flat.reshape(len(flat), -1) != 0, axis=1))
-        keep = np.asarray(keep)
-        keep = np.flatnonzero(keep) if keep.dtype == bool else keep.astype(np.int64)
+        elif check_real(where, "keep", keep).dtype == bool:
+            keep = np.asarray(keep)
+            if keep.size != len(flat):
+                raise ArgumentError(f"{where}: a boolean keep must have one entry per coefficient ({len(flat)}), "
+                                    f"got {keep.size}")
+            keep = np.flatnonzero(keep)
+        else:
+            keep = check_integers(where, "keep", keep, len(flat))
         return cls(n, keep, flat[keep])
 
 
-def _energy(coeffs) -> np.ndarray:
-    c = _float(coeffs)
-    _levels_of(c)
+def _energy(coeffs, where: str) -> np.ndarray:
+    c, _ = _square(coeffs, where, "coeffs")
     if c.ndim > 3:
-        raise ValueError("compress one coefficient set, (2^n, 2^n) or (C, 2^n, 2^n)")
+        raise ArgumentError(f"{where}: coeffs must be one set, (2^n, 2^n) or (C, 2^n, 2^n), got shape {c.shape}")
     e = np.square(c.astype(np.float64)).reshape(-1, c.shape[-1] ** 2)
     return e.sum(axis=0)
 
@@ -245,18 +293,16 @@ def _by_energy(e: np.ndarray) -> np.ndarray:
 def compress_topk(coeffs, k: int) -> SparseHaar:
     """Keep k coefficients in all: the scaling coefficient and the k - 1 wavelets of largest
     magnitude (L2 norm over channels). Ng et al. 2003 nonlinear approximation."""
-    if k < 1:
-        raise ValueError(f"k must be at least 1, got {k}")
-    order = _by_energy(_energy(coeffs))
+    k = check_int("haar.compress_topk", "k", k, 1)
+    order = _by_energy(_energy(coeffs, "haar.compress_topk"))
     return SparseHaar.from_dense(coeffs, order[:k])
 
 
 def compress_energy(coeffs, fraction: float) -> SparseHaar:
     """Keep the fewest coefficients (scaling coefficient included first) whose sum of squares
     reaches ``fraction`` of the total energy."""
-    if not 0.0 <= fraction <= 1.0:
-        raise ValueError(f"fraction must be in [0, 1], got {fraction}")
-    e = _energy(coeffs)
+    fraction = check_number("haar.compress_energy", "fraction", fraction, 0.0, 1.0)
+    e = _energy(coeffs, "haar.compress_energy")
     order = _by_energy(e)
     cum = np.cumsum(e[order])
     k = int(np.searchsorted(cum, fraction * cum[-1], side="left")) + 1
@@ -267,7 +313,10 @@ def compress_energy(coeffs, fraction: float) -> SparseHaar:
 def tripling(i, j, k, n_levels: int) -> np.ndarray:
     """C_ijk = integral of psi_i psi_j psi_k over the unit square (eq. 16), by the Haar tripling
     coefficient theorem (Ng et al. 2004). Indices are flat dense indices; vectorised."""
-    i, j, k = np.broadcast_arrays(*(np.asarray(a, np.int64) for a in (i, j, k)))
+    where = "haar.tripling"
+    n_levels = check_int(where, "n_levels", n_levels, 0, MAX_LEVELS)
+    i, j, k = _broadcast(where, {name: check_integers(where, name, a, 4 ** n_levels)
+                                 for name, a in (("i", i), ("j", j), ("k", k))})
     b = {"i": coeff_basis(i, n_levels), "j": coeff_basis(j, n_levels), "k": coeff_basis(k, n_levels)}
     ids = {"i": i, "j": j, "k": k}
     (li, xi, yi, mi), (lj, xj, yj, mj), (lk, xk, yk, mk) = b["i"], b["j"], b["k"]
@@ -367,20 +416,29 @@ def _shape_out(total: np.ndarray, *sets: SparseHaar):
 def double_product_integral(G, H):
     """Integral of G H from coefficients (dense (..., 2^n, 2^n) or SparseHaar): orthonormality
     makes it the dot product of the coefficient vectors."""
+    where = "haar.double_product_integral"
     if isinstance(G, SparseHaar) and isinstance(H, SparseHaar):
+        _channels(where, G, H)
         kg, vg = _canon(G)
         kh, vh = _canon(H)
         ck, a, b = _common(kg, vg, kh, vh)
         total = (a * b).sum(axis=0) + _lookup(kg, vg, 0) * _lookup(kh, vh, 0)
         return _shape_out(total, G, H)
-    g, h = _dense_common(G, H)
+    g, h = _dense_common(where, G=G, H=H)
     return np.sum(g * h, axis=(-2, -1))
 
 
-def _dense_common(*sets):
-    arrs = [_float(s.to_dense() if isinstance(s, SparseHaar) else s) for s in sets]
-    n = max(_levels_of(a) for a in arrs)
-    return [_embed(a, n) for a in arrs]
+def _dense_common(where: str, **sets):
+    """The named sets (dense or SparseHaar) as dense arrays of one resolution, batch shapes
+    checked to broadcast."""
+    arrs = {k: s.to_dense() if isinstance(s, SparseHaar) else _float(s, where, k) for k, s in sets.items()}
+    n = max(_levels_of(a, where, k) for k, a in arrs.items())
+    try:
+        np.broadcast_shapes(*(a.shape[:-2] for a in arrs.values()))
+    except ValueError:
+        shapes = ", ".join(f"{k} {a.shape}" for k, a in arrs.items())
+        raise ArgumentError(f"{where}: batch shapes do not broadcast: {shapes}") from None
+    return [_embed(a, n) for a in arrs.values()]
 
 
 def _permanent(g1, g2, g3, h1, h2, h3, k1, k2, k3):
@@ -391,10 +449,12 @@ def _permanent(g1, g2, g3, h1, h2, h3, k1, k2, k3):
 def triple_product_integral(G, H, K):
     """Integral of G H K from coefficients (dense (..., 2^n, 2^n) or all three SparseHaar),
     linear in the number of coefficients (see the module notes)."""
+    where = "haar.triple_product_integral"
     if all(isinstance(s, SparseHaar) for s in (G, H, K)):
+        _channels(where, G, H, K)
         return _triple_sparse(G, H, K)
-    g, h, k = _dense_common(G, H, K)
-    n = _levels_of(g)
+    g, h, k = _dense_common(where, G=G, H=H, K=K)
+    n = _levels_of(g, where, "G")
     total = g[..., 0, 0] * h[..., 0, 0] * k[..., 0, 0]  # case 1
     pyramids = (_scaling_levels(c, n) for c in (g, h, k))
     for l, (_, sg), (_, sh), (_, sk) in zip(range(n), *pyramids):  # wavelet levels 0..n-1
@@ -438,21 +498,17 @@ def scaling_pyramid(coeffs, levels: int | None = None) -> np.ndarray:
     """Box-mass pyramid (..., tree_size(L)) of a coefficient set, levels 0..L (default n),
     in the layout of distributions.py: node value 2^-l F^0_{l,t} (eq. 17). Only coefficients
     of levels < L are read; a SparseHaar gives (tree_size(L),) or (C, tree_size(L))."""
+    where = "haar.scaling_pyramid"
     if isinstance(coeffs, SparseHaar):
         n = coeffs.n_levels
-        L = n if levels is None else levels
-        if not 0 <= L <= n:
-            raise ValueError(f"levels must be in [0, {n}], got {levels}")
+        L = n if levels is None else check_int(where, "levels", levels, 0, n)
         keep = coeff_basis(coeffs.index, n)
         sel = (keep[3] == 0) | (keep[0] < L)
         sub = SparseHaar(L, coeff_index(keep[0][sel], keep[1][sel], keep[2][sel], keep[3][sel], L),
                          coeffs.value[sel])
         return scaling_pyramid(sub.to_dense())
-    c = _float(coeffs)
-    n = _levels_of(c)
-    L = n if levels is None else levels
-    if not 0 <= L <= n:
-        raise ValueError(f"levels must be in [0, {n}], got {levels}")
+    c, n = _square(coeffs, where, "coeffs")
+    L = n if levels is None else check_int(where, "levels", levels, 0, n)
     out = np.empty(c.shape[:-2] + (tree_size(L),), c.dtype)
     for l, s in _scaling_levels(c[..., :1 << L, :1 << L], L):
         out[..., level_offset(l):level_offset(l + 1)] = s.reshape(s.shape[:-2] + (-1,)) * 2.0 ** -l
@@ -471,12 +527,13 @@ def product_scaling(G, H, levels: int | None = None) -> np.ndarray:
     or SparseHaar (values (K, C) give a leading channel axis). L defaults to the finer n.
     Sparse pairs cost O(4^L + K): only their common wavelets enter the sum.
     """
+    where = "haar.product_scaling"
     sparse = isinstance(G, SparseHaar) and isinstance(H, SparseHaar)
-    n = max(s.n_levels if isinstance(s, SparseHaar) else _levels_of(np.asarray(s)) for s in (G, H))
-    L = n if levels is None else levels
-    if not 0 <= L <= n:
-        raise ValueError(f"levels must be in [0, {n}], got {levels}")
+    G, H = (s if isinstance(s, SparseHaar) else _square(s, where, k)[0] for k, s in (("G", G), ("H", H)))
+    n = max(s.n_levels if isinstance(s, SparseHaar) else s.shape[-1].bit_length() - 1 for s in (G, H))
+    L = n if levels is None else check_int(where, "levels", levels, 0, n)
     if sparse:
+        _channels(where, G, H)
         # scaling pyramids from the coefficients of levels < L; D from the common wavelets
         pg, ph = (_pad_pyramid(scaling_pyramid(s, min(L, s.n_levels)), min(L, s.n_levels), L)
                   for s in (G, H))
@@ -495,7 +552,7 @@ def product_scaling(G, H, levels: int | None = None) -> np.ndarray:
             D[:, level_offset(l):level_offset(l + 1)] += _reduce4(child).reshape(-1, s * s)
         out = pg * ph * node_scale(L) ** 2 + D  # G^0 H^0 + D (F^0 = 2^l mass)
         return out if any(s.value.ndim == 2 for s in (G, H)) else out[0]
-    g, h = _dense_common(G, H)
+    g, h = _dense_common(where, G=G, H=H)
     shape = np.broadcast_shapes(g.shape[:-2], h.shape[:-2])
     out = np.empty(shape + (tree_size(L),), np.result_type(g, h))
     # D_{l,t}: own wavelet products plus the children's D, bottom up from level n - 1
@@ -537,12 +594,31 @@ def _morton(x, y):
     return part(x) | (part(y) << np.uint64(1))
 
 
+def _sparse_of(where: str, name: str, s) -> SparseHaar:
+    """A SparseHaar as is; dense (2^n, 2^n) or (C, 2^n, 2^n) coefficients as their non-zeros."""
+    if isinstance(s, SparseHaar):
+        return s
+    c, _ = _square(s, where, name)
+    if c.ndim > 3:
+        raise ArgumentError(f"{where}: {name} must be one set, (2^n, 2^n) or (C, 2^n, 2^n), got shape {c.shape}")
+    return SparseHaar.from_dense(c)
+
+
 def product_scaling_at(G, H, level, x, y) -> np.ndarray:
     """Eq. 25 at single nodes (level, x, y) (arrays, Q), from sparse coefficient lists: box
-    masses (Q,) or (C, Q) of G H without building the pyramid, O((K + Q) n log K)."""
-    G = G if isinstance(G, SparseHaar) else SparseHaar.from_dense(G)
-    H = H if isinstance(H, SparseHaar) else SparseHaar.from_dense(H)
-    level, x, y = np.broadcast_arrays(*(np.asarray(a, np.int64).reshape(-1) for a in (level, x, y)))
+    masses (Q,) or (C, Q) of G H without building the pyramid, O((K + Q) n log K).
+    G, H: SparseHaar or dense (2^n, 2^n) / (C, 2^n, 2^n) coefficients; levels 0..max n."""
+    where = "haar.product_scaling_at"
+    G, H = (_sparse_of(where, k, s) for k, s in (("G", G), ("H", H)))
+    _channels(where, G, H)
+    level, x, y = _broadcast(where, {k: check_integers(where, k, a).reshape(-1)
+                                     for k, a in (("level", level), ("x", x), ("y", y))})
+    n = max(G.n_levels, H.n_levels)
+    if np.any((level < 0) | (level > n)):
+        raise ArgumentError(f"{where}: level must be in [0, {n}], got {level[(level < 0) | (level > n)][0]}")
+    side = np.left_shift(1, level)
+    if np.any((x < 0) | (y < 0) | (x >= side) | (y >= side)):
+        raise ArgumentError(f"{where}: x and y must be in [0, 2^level)")
     (kg, vg), (kh, vh) = _canon(G), _canon(H)
     nid = (np.left_shift(1, 2 * level) - 1) // 3 + (y << level) + x
     out = _averages(kg, vg, nid) * _averages(kh, vh, nid) * np.ldexp(1.0, -2 * level)[:, None]
@@ -573,11 +649,16 @@ def forward_cl(images, queue=None):
     returns coeffs (T, 2^n, 2^n) float32 (dense layout) and the box-mass pyramids
     (T, tree_size(n)) float32 computed on the way (distributions.py layout).
     """
-    img = np.ascontiguousarray(images, np.float32)
+    where = "haar.forward_cl"
+    img = np.ascontiguousarray(_float(images, where, "images"), np.float32)
     if img.ndim == 2:
         img = img[None]
-    n = _levels_of(img)
+    if img.ndim != 3:
+        raise ArgumentError(f"{where}: images must be (T, 2^n, 2^n) or (2^n, 2^n), got shape {img.shape}")
+    n = _levels_of(img, where, "images")
     T, side = img.shape[0], 1 << n
+    if T == 0:
+        return img.copy(), np.empty((0, tree_size(n)), np.float32)
     if n == 0:  # one pixel: F^0 = pixel = mass
         return img.copy(), img.reshape(T, 1).copy()
     queue = queue or cl.thread_queue()
@@ -609,18 +690,25 @@ class ProductPyramids:
 
     def __init__(self, G, h_levels: int, levels: int | None = None, nonnegative: bool = False,
                  work_group: int = 16):
-        n = G.n_levels if isinstance(G, SparseHaar) else _levels_of(np.asarray(G))
-        self.h_levels = m = int(h_levels)
-        self.levels = L = m if levels is None else int(levels)
+        where = "haar.ProductPyramids"
+        if isinstance(G, SparseHaar):
+            n, channels = G.n_levels, G.value.ndim - 1
+        else:
+            G, n = _square(G, where, "G")
+            channels = G.ndim - 2
+        if channels:
+            raise ArgumentError(f"{where}: G must be one single-channel coefficient set, (2^n, 2^n) or "
+                                f"a SparseHaar with values (K,)")
+        self.h_levels = m = check_int(where, "h_levels", h_levels, 0, MAX_LEVELS)
+        self.levels = L = m if levels is None else check_int(where, "levels", levels, 0, max(n, m))
         self.leaf_level = P = max(L, m)
-        if not 0 <= L <= max(n, m):
-            raise ValueError(f"levels must be in [0, {max(n, m)}], got {levels}")
-        if 8 * 4 ** P > cl.runtime().device.local_mem_size:
-            raise ValueError(f"product trees of leaf level {P} do not fit the device's local memory")
+        device = cl.runtime().device
+        if 8 * 4 ** P > device.local_mem_size:
+            raise ArgumentError(f"{where}: product trees of leaf level {P} do not fit the device's local memory "
+                                f"({device.local_mem_size} bytes)")
+        work_group = check_int(where, "work_group", work_group, 1, device.max_work_group_size)
         k = min(P, n)
         masses = scaling_pyramid(G, k)
-        if masses.ndim != 1:
-            raise ValueError("G must be a single-channel coefficient set")
         leaf = _pad_pyramid(masses, k, P)[0, level_offset(P):]  # G's masses at level P
         self.stride = tree_size(L)
         self.nonnegative = bool(nonnegative)
@@ -640,10 +728,12 @@ class ProductPyramids:
 
     def __call__(self, H, queue=None) -> np.ndarray:
         """Pyramids (T, stride) float32 for H (T, 2^m, 2^m) or (2^m, 2^m) dense coefficients."""
-        h = np.ascontiguousarray(H, np.float32)
+        h = np.ascontiguousarray(_float(H, "haar.ProductPyramids", "H"), np.float32)
         h = h[None] if h.ndim == 2 else h
-        if h.shape[1:] != (1 << self.h_levels,) * 2:
-            raise ValueError(f"H must be (T, {1 << self.h_levels}, {1 << self.h_levels}), got {h.shape}")
+        side = 1 << self.h_levels
+        if h.ndim != 3 or h.shape[1:] != (side, side):
+            raise ArgumentError(f"haar.ProductPyramids: H must be (T, {side}, {side}) or ({side}, {side}), "
+                                f"got shape {h.shape}")
         queue = queue or cl.thread_queue()
         out = cl.empty(4 * len(h) * self.stride)
         if len(h):

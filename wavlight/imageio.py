@@ -10,7 +10,7 @@ import tempfile
 
 import numpy as np
 
-from .errors import WavlightError
+from .errors import ArgumentError, WavlightError
 
 LINEAR = (".exr", ".hdr", ".pfm")
 DISPLAY = (".png",)
@@ -32,7 +32,10 @@ def save_image(path: str, image: np.ndarray) -> None:
     if ext not in FORMATS:
         raise WavlightError(f"{path}: unsupported output format {ext or '(none)'!r} "
                             f"(use {', '.join(FORMATS)})")
-    image = np.asarray(image, np.float32)
+    try:
+        image = np.asarray(image, np.float32)
+    except (TypeError, ValueError):
+        raise ArgumentError(f"{path}: expected an (H, W, 3) image of numbers, got {type(image).__name__}") from None
     if image.ndim != 3 or image.shape[2] != 3:
         raise WavlightError(f"{path}: expected an (H, W, 3) image, got shape {image.shape}")
     if not np.all(np.isfinite(image)):

@@ -34,10 +34,13 @@ where the approximate importance is 0.
 """
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
 from . import bsdfs
-from .distributions import ONE_MINUS_EPS, choose_child_reference, level_offset
+from .distributions import ONE_MINUS_EPS, choose_child_reference, level_offset, tree_size
+from .errors import ArgumentError, check_int, check_integers, check_number, check_real, shown
 
 LOBE_BLUR = 0.35 * np.pi     # lobe widening at level l: LOBE_BLUR / 2^l (see kernels/product.h)
 PHONG_BLUR = 0.2 * np.pi     # phong's (measured, kernels/product.h)
@@ -68,7 +71,9 @@ def centre_angles(x, y, level):
     built as kernels/product.h builds them during a walk: from the root's centre (phi = pi,
     theta = pi / 2) the children's by the angle-sum formulas, level by level along the path, in
     float32 (phi = 2 pi (x + 0.5) / 2^level, theta = pi (y + 0.5) / 2^level up to rounding)."""
-    x, y = np.asarray(x, np.int64), np.asarray(y, np.int64)
+    where = "product.centre_angles"
+    level = check_int(where, "level", level, 0, len(SIN_PI_2K) - 2)   # split_angle(.., level + 1) below
+    x, y = check_integers(where, "x", x, 1 << level), check_integers(where, "y", y, 1 << level)
     sp, cp = np.zeros(x.shape, np.float32), np.full(x.shape, -1.0, np.float32)
     st, ct = np.ones(y.shape, np.float32), np.zeros(y.shape, np.float32)
     for l in range(level):
@@ -84,13 +89,30 @@ GGX_HALF = 3                # lobe shape of wide ggx lobes: D at the true half v
 GGX_HALF_MIN_ALPHA = 0.1    # ggx roughness above which GGX_HALF is used (measured, see kernels/product.h)
 
 
+def _material(where: str, kind, param):
+    """A material's kind (bsdfs.TYPES) and parameter (ggx alpha > 0, phong exponent >= 0; lambert's
+    is not read), else ArgumentError."""
+    kinds = tuple(bsdfs.TYPES.values())
+    if isinstance(kind, (bool, np.bool_)) or not isinstance(kind, numbers.Integral) or kind not in kinds:
+        names = ", ".join(f"{v} ({k})" for k, v in bsdfs.TYPES.items())
+        raise ArgumentError(f"{where}: kind must be one of {names}, got {shown(kind)}")
+    if kind == bsdfs.LAMBERT:
+        return int(kind), param
+    param = check_number(where, "param", param, 0.0)
+    if kind == bsdfs.GGX and param == 0.0:
+        raise ArgumentError(f"{where}: param (ggx alpha) must be positive, got 0")
+    return int(kind), param
+
+
 def lobe_shape(kind: int, param: float) -> int:
     """The node-importance model of a material: its kind, or GGX_HALF for ggx with alpha > 0.1."""
+    kind, param = _material("product.lobe_shape", kind, param)
     return GGX_HALF if kind == bsdfs.GGX and param > GGX_HALF_MIN_ALPHA else int(kind)
 
 
 def lobe_kappa(kind: int, param: float) -> float:
     """von Mises-Fisher concentration of a material's lobe (0 for lambert)."""
+    kind, param = _material("product.lobe_kappa", kind, param)
     if kind == bsdfs.LAMBERT:
         return 0.0
     if kind == bsdfs.PHONG:
@@ -103,9 +125,13 @@ MIN_PRODUCT_LEVELS = 3  # the cosine lobe is broad: 8 x 8 nodes of 22.5 x 45 deg
 
 def product_levels(kappa: float, tree_levels: int, override: int | None = None) -> int:
     """Product depth P: nodes (theta extent pi / 2^l) no wider than half the lobe width 1/sqrt(kappa),
-    at least MIN_PRODUCT_LEVELS (lambert, kappa = 0), at most the light tree's depth."""
+    at least MIN_PRODUCT_LEVELS (lambert, kappa = 0), at most the light tree's depth. An integer
+    override wins, clamped to [0, tree_levels]."""
+    where = "product.product_levels"
+    kappa = check_number(where, "kappa", kappa, 0.0)
+    tree_levels = check_int(where, "tree_levels", tree_levels, 0)
     if override is not None:
-        return int(min(max(override, 0), tree_levels))
+        return int(min(max(check_int(where, "override", override), 0), tree_levels))
     if kappa <= 0:
         return min(MIN_PRODUCT_LEVELS, tree_levels)
     # lobe width ~ 1/sqrt(kappa) (phong) or sqrt(2) alpha = 1/sqrt(kappa) (ggx)
@@ -168,6 +194,31 @@ def _children(tree, env, x, y, level, axis, n, kappa, shape, n_levels, base):
     return imp
 
 
+def _walk_args(where, tree, n_levels, axis, n, kappa, levels, shape, points, name, tree_index):
+    """Checked arguments of the product twins (shapes, the tree's depth, tree_index in range)."""
+    n_levels = check_int(where, "n_levels", n_levels, 0, 30)
+    tree = check_real(where, "tree", tree)
+    size = tree_size(n_levels)
+    if tree.ndim not in (1, 2) or tree.shape[-1] != size or tree.size == 0:
+        raise ArgumentError(f"{where}: tree must be (tree_size(n),) or (T, tree_size(n)) with tree_size({n_levels}) "
+                            f"= {size}, got shape {tree.shape}")
+    points = check_real(where, name, points)
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ArgumentError(f"{where}: {name} must be (N, 2), got shape {points.shape}")
+    count = len(points)
+    for arg, a, tail in (("axis", axis, (3,)), ("n", n, (3,)), ("kappa", kappa, ()), ("levels", levels, ()),
+                         ("shape", shape, ())):
+        if np.shape(a) != (count,) + tail:
+            raise ArgumentError(f"{where}: {arg} must be {(count,) + tail} like {name}, got shape {np.shape(a)}")
+    if count and np.min(check_integers(where, "levels", levels)) < 0:
+        raise ArgumentError(f"{where}: levels must be non-negative")
+    if tree_index is not None:
+        idx = check_integers(where, "tree_index", tree_index, tree.size // size)
+        if idx.ndim > 1 or idx.size not in (1, count):
+            raise ArgumentError(f"{where}: tree_index must be one index or ({count},), got shape {idx.shape}")
+    return n_levels, points
+
+
 def _offsets(tree_index, count, stride):
     """Per-sample offsets of their light trees in the flat buffer (tree_index * stride)."""
     if tree_index is None:
@@ -181,6 +232,8 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u, tree
     tree : light masses, one tree (tree_size(n),) or several (T, tree_size(n)); tree_index
     (N,) picks each sample's tree (default 0); axis, n : (N, 3); kappa (N,); levels, shape (N,) int.
     """
+    n_levels, u = _walk_args("product.sample_reference", tree, n_levels, axis, n, kappa, levels, shape, u, "u",
+                             tree_index)
     stride = np.shape(tree)[-1]
     tree = np.asarray(tree, np.float64).ravel()
     base = _offsets(tree_index, len(u), stride)
@@ -214,6 +267,8 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u, tree
 def pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv, tree_index=None):
     """Density on the square of the product sampler at points uv (N, 2) (numpy twin of product_pdf);
     tree and tree_index as for :func:`sample_reference`."""
+    n_levels, uv = _walk_args("product.pdf_reference", tree, n_levels, axis, n, kappa, levels, shape, uv, "uv",
+                              tree_index)
     stride = np.shape(tree)[-1]
     tree = np.asarray(tree, np.float64).ravel()
     count = len(uv)

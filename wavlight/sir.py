@@ -70,6 +70,7 @@ import hashlib
 import numpy as np
 
 from .envmap import LUMINANCE
+from .errors import ArgumentError, check_int, shown
 from .strategies import DirectionSamples, LightStrategy, ShadingPoints, Strategy
 
 #: about this many candidates (points x M) are processed at once (bounded memory)
@@ -113,14 +114,13 @@ class SirStrategy(Strategy):
 
     def __init__(self, candidates: int | None = None, samples: int | None = None, source: str = "light",
                  light_levels: int | None = None):
-        self.candidates = DEFAULT_CANDIDATES if candidates is None else int(candidates)
-        self.samples = DEFAULT_SAMPLES if samples is None else int(samples)
-        if self.candidates < 1 or self.samples < 1:
-            raise ValueError(f"sir needs candidates >= 1 and samples >= 1, got {self.candidates}, {self.samples}")
-        if source not in SOURCES:
-            raise ValueError(f"sir source must be one of {SOURCES}, got {source!r}")
+        where = "strategies.SirStrategy"
+        self.candidates = DEFAULT_CANDIDATES if candidates is None else check_int(where, "candidates", candidates, 1)
+        self.samples = DEFAULT_SAMPLES if samples is None else check_int(where, "samples", samples, 1)
+        if not isinstance(source, str) or source not in SOURCES:
+            raise ArgumentError(f"{where}: source must be one of {' | '.join(SOURCES)}, got {shown(source)}")
         self.source = source
-        self.light = LightStrategy(light_levels)
+        self.light = LightStrategy(None if light_levels is None else check_int(where, "light_levels", light_levels, 1))
         self.env = None
 
     def prepare(self, environment, materials=()):

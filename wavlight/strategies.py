@@ -26,12 +26,15 @@ p_s / (p_product + p_bsdf) (the balance heuristic; :class:`WaveletStrategy` says
 """
 from __future__ import annotations
 
+import inspect
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import bsdfs, product, warp
 from .distributions import HaarTree
+from .errors import ArgumentError, check_int, shown
 
 
 @dataclass
@@ -90,6 +93,11 @@ class DirectionSamples:
     wi_world: np.ndarray
     wi_local: np.ndarray
     pdf: np.ndarray
+
+
+def _levels_option(where: str, name: str, value, lo: int):
+    """None, or a depth override >= lo (an int; depths beyond the map's are clamped when used)."""
+    return None if value is None else check_int(where, name, value, lo)
 
 
 class Strategy:
@@ -154,7 +162,7 @@ class LightStrategy(Strategy):
     name = "light"
 
     def __init__(self, levels: int | None = None, compensated: bool = False):
-        self.override = levels
+        self.override = _levels_option("strategies.LightStrategy", "levels", levels, 1)
         self.compensated = compensated   # only as one technique of MIS (MisCompensatedStrategy)
 
     def depth(self, environment):
@@ -240,10 +248,18 @@ class WaveletStrategy(Strategy):
 
     def __init__(self, levels: int | None = None, light_levels: int | None = None,
                  compensated_kinds: tuple = (bsdfs.LAMBERT,)):
-        self.light = LightStrategy(light_levels)
+        where = "strategies.WaveletStrategy"
+        self.light = LightStrategy(_levels_option(where, "light_levels", light_levels, 1))
         self.bsdf = BsdfStrategy()
-        self.override = levels
-        self.compensated_kinds = tuple(compensated_kinds)
+        self.override = _levels_option(where, "levels", levels, 0)
+        kinds = tuple(bsdfs.TYPES.values())
+        ok = np.iterable(compensated_kinds) and not isinstance(compensated_kinds, str)
+        self.compensated_kinds = tuple(compensated_kinds) if ok else ()
+        if not ok or not all(isinstance(k, numbers.Integral) and not isinstance(k, (bool, np.bool_)) and k in kinds
+                             for k in self.compensated_kinds):
+            names = ", ".join(f"{v} ({k})" for k, v in bsdfs.TYPES.items())
+            raise ArgumentError(f"{where}: compensated_kinds must be a tuple of bsdf kinds ({names}), "
+                                f"got {shown(compensated_kinds)}")
 
     def prepare(self, environment, materials=()):
         """The light trees, and per material its product depth, lobe shape and light tree:
@@ -302,7 +318,7 @@ class MisStrategy(Strategy):
     name = "mis"
 
     def __init__(self, light_levels: int | None = None):
-        self.light = LightStrategy(light_levels)
+        self.light = LightStrategy(_levels_option("strategies.MisStrategy", "light_levels", light_levels, 1))
         self.bsdf = BsdfStrategy()
 
     def prepare(self, environment, materials=()):
@@ -330,6 +346,7 @@ class MisCompensatedStrategy(MisStrategy):
     name = "mis_comp"
 
     def __init__(self, light_levels: int | None = None):
+        light_levels = _levels_option("strategies.MisCompensatedStrategy", "light_levels", light_levels, 1)
         self.light = LightStrategy(light_levels, compensated=True)
         self.bsdf = BsdfStrategy()
 
@@ -348,7 +365,16 @@ REGISTRY = {cls.name: cls for cls in (UniformStrategy, CosineStrategy, BsdfStrat
 
 
 def make(name: str, **options) -> Strategy:
-    return REGISTRY[name](**options)
+    """The strategy registered as ``name`` (REGISTRY), built with its constructor's options."""
+    cls = REGISTRY.get(name) if isinstance(name, str) else None
+    if cls is None:
+        raise ArgumentError(f"strategies.make: unknown strategy {shown(name)} ({' | '.join(REGISTRY)})")
+    accepted = [p for p in inspect.signature(cls).parameters if p not in ("args", "kwargs")]
+    unknown = [k for k in options if k not in accepted]
+    if unknown:
+        raise ArgumentError(f"strategies.make: strategy {name!r} has no option {unknown[0]!r} "
+                            f"(options: {', '.join(accepted) or 'none'})")
+    return cls(**options)
 
 
 def power_heuristic(p_a, p_b):

@@ -76,6 +76,7 @@ import warnings
 import numpy as np
 
 from .envmap import LUMINANCE
+from .errors import ArgumentError, check_int, shown
 from .sir import _repeat, _slice, rng_from_uniforms
 from .strategies import DirectionSamples, ShadingPoints, Strategy
 
@@ -248,16 +249,18 @@ class StructuredStrategy(Strategy):
 
     def __init__(self, strata: int | None = None, mode: str | None = None, samples: int | str = PER_STRATUM,
                  levels: int = DEFAULT_LEVELS):
-        self.k = DEFAULT_STRATA if strata is None else int(strata)
+        where = "strategies.StructuredStrategy"
+        self.k = DEFAULT_STRATA if strata is None else check_int(where, "strata", strata, 1, MAX_STRATA)
         self.mode = MODES[0] if mode is None else mode
-        self.samples = PER_STRATUM if samples in (None, PER_STRATUM) else int(samples)
-        self.levels = int(levels)
-        if not 1 <= self.k <= MAX_STRATA:
-            raise ValueError(f"structured needs 1 <= strata <= {MAX_STRATA}, got {self.k}")
-        if self.mode not in MODES:
-            raise ValueError(f"structured mode must be one of {MODES}, got {self.mode!r}")
-        if (self.samples != PER_STRATUM and self.samples < 1) or self.levels < 1:
-            raise ValueError(f"structured needs samples >= 1 and levels >= 1, got {self.samples}, {self.levels}")
+        if not isinstance(self.mode, str) or self.mode not in MODES:
+            raise ArgumentError(f"{where}: mode must be one of {' | '.join(MODES)}, got {shown(mode)}")
+        if samples is None or isinstance(samples, str):
+            if samples not in (None, PER_STRATUM):
+                raise ArgumentError(f"{where}: samples must be {PER_STRATUM!r} or an integer, got {samples!r}")
+            self.samples = PER_STRATUM
+        else:
+            self.samples = check_int(where, "samples", samples, 1)
+        self.levels = check_int(where, "levels", levels, 1)
         self.env = None
 
     def prepare(self, environment, materials=()):

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import ArgumentError, check_real
+
 INV_PI = 1.0 / np.pi
 INV_2PI = 0.5 / np.pi
 
@@ -18,9 +20,27 @@ def _norm(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def _rows(where: str, name: str, a, width: int, count: int | None = None) -> np.ndarray:
+    """a as an (N, width) array of numbers (N = count if given), else ArgumentError."""
+    a = check_real(where, name, a)
+    if a.ndim != 2 or a.shape[1] != width or (count is not None and len(a) != count):
+        want = f"({'N' if count is None else count}, {width})"
+        raise ArgumentError(f"{where}: {name} must be {want}, got shape {a.shape}")
+    return a
+
+
+def _unit_square(where: str, u) -> np.ndarray:
+    """u as (N, 2) points of [0, 1]^2 (NaN refused), else ArgumentError."""
+    u = _rows(where, "u", u, 2)
+    if u.size and not (np.all(u >= 0) and np.all(u <= 1)):
+        raise ArgumentError(f"{where}: u must lie in [0, 1]^2 (no NaN), got values in [{np.min(u)}, {np.max(u)}]")
+    return u
+
+
 # ----------------------------------------------------------------------------- hemisphere
 def square_to_uniform_hemisphere(u: np.ndarray) -> np.ndarray:
     """(N, 2) -> (N, 3) directions, uniform over the +z hemisphere."""
+    u = _unit_square("warp.square_to_uniform_hemisphere", u)
     z = u[:, 0]
     r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
     phi = 2.0 * np.pi * u[:, 1]
@@ -28,11 +48,13 @@ def square_to_uniform_hemisphere(u: np.ndarray) -> np.ndarray:
 
 
 def square_to_uniform_hemisphere_pdf(d: np.ndarray) -> np.ndarray:
+    d = _rows("warp.square_to_uniform_hemisphere_pdf", "d", d, 3)
     return np.where(d[:, 2] > 0, INV_2PI, 0.0)
 
 
 def square_to_cosine_hemisphere(u: np.ndarray) -> np.ndarray:
     """(N, 2) -> (N, 3) directions with density cos(theta) / pi (Malley: concentric disk lifted)."""
+    u = _unit_square("warp.square_to_cosine_hemisphere", u)
     a = 2.0 * u[:, 0] - 1.0
     b = 2.0 * u[:, 1] - 1.0
     use_a = np.abs(a) > np.abs(b)
@@ -46,12 +68,14 @@ def square_to_cosine_hemisphere(u: np.ndarray) -> np.ndarray:
 
 
 def square_to_cosine_hemisphere_pdf(d: np.ndarray) -> np.ndarray:
+    d = _rows("warp.square_to_cosine_hemisphere_pdf", "d", d, 3)
     return np.maximum(d[:, 2], 0.0) * INV_PI
 
 
 # ----------------------------------------------------------------------------- frames
 def frame(n: np.ndarray):
     """Orthonormal tangent frames (s, t) for unit normals n (N, 3) (Duff et al. 2017)."""
+    n = _rows("warp.frame", "n", n, 3)
     sign = np.where(n[:, 2] >= 0, 1.0, -1.0)
     a = -1.0 / (sign + n[:, 2])
     b = n[:, 0] * n[:, 1] * a
@@ -60,10 +84,19 @@ def frame(n: np.ndarray):
     return s, t
 
 
+def _frame_args(where: str, v, s, t, n):
+    v = _rows(where, "v", v, 3)
+    return (v,) + tuple(_rows(where, k, a, 3, len(v)) for k, a in (("s", s), ("t", t), ("n", n)))
+
+
 def to_local(v, s, t, n):
+    """World vectors v (N, 3) in the frames (s, t, n) (each (N, 3))."""
+    v, s, t, n = _frame_args("warp.to_local", v, s, t, n)
     return np.stack([np.einsum("ij,ij->i", v, s), np.einsum("ij,ij->i", v, t),
                      np.einsum("ij,ij->i", v, n)], 1)
 
 
 def to_world(v, s, t, n):
+    """Local vectors v (N, 3) of the frames (s, t, n) (each (N, 3)) in world space."""
+    v, s, t, n = _frame_args("warp.to_world", v, s, t, n)
     return v[:, 0:1] * s + v[:, 1:2] * t + v[:, 2:3] * n
