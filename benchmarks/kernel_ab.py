@@ -7,8 +7,10 @@ launch by launch and keeping each kernel's best time: on a shared VM whose speed
 drifts by 20-40% between runs, sequential before/after runs cannot resolve a 15%
 change, alternating launches can. The angle table of the earlier build comes from
 that commit's `wavlight/product.py` (its `node_angles`; kernels after it build the node
-centres without a table). Needs kernels with the same arguments otherwise (true from
-3291f7c on). Prints one JSON object.
+centres without a table). A build from before the Morton tree layout (kernels/common.h)
+walks a row-major copy of the same tree. Needs kernels with the same arguments otherwise
+(true from 3291f7c on). "identical" says whether both builds returned the same points
+and densities bit for bit. Prints one JSON object.
 
     python benchmarks/kernel_ab.py --against 3291f7c [--levels 10] [--repeat 12]
 """
@@ -74,13 +76,17 @@ def main():
     u_buf, n_buf, wo_buf, mat_buf = cl.to_device(u), cl.to_device(n4), cl.to_device(wo4), cl.to_device(np.zeros(n, np.int32))
     uv_buf, pdf_buf = cl.empty(8 * n), cl.empty(4 * n)
     tree = HaarTree(env.luminance_square(args.levels))
+    trees = {"now": tree.buffer,   # the device layout of this checkout, and of --against:
+             "before": tree.buffer if "Morton" in git_show(args.against, "kernels/common.h")
+             else cl.to_device(tree.nodes())}   # row-major before the Morton layout
     materials = benchmark_materials()
-    runs = {}
+    runs, outputs = {}, {}
     for ver in ("before", "now"):
         prog = old_program if ver == "before" else cl.program
         angles_fn = old_angles if ver == "before" else None
+        tree_buf = trees[ver]
         w = pcl.Kernel(prog("warp.cl", N_LEVELS=args.levels, BATCHED=0), "warp_sample")
-        runs[("light", ver)] = lambda w=w: w(q, (items,), (cl.WORK_GROUP,), tree.buffer, np.uint64(tree.stride),
+        runs[("light", ver)] = lambda w=w, tree_buf=tree_buf: w(q, (items,), (cl.WORK_GROUP,), tree_buf, np.uint64(tree.stride),
                                              np.uint32(n), np.uint32(n), u_buf, np.uint32(2), uv_buf, pdf_buf)
         for name, (kind, param) in materials.items():
             kappa = product.lobe_kappa(kind, param)
@@ -88,13 +94,14 @@ def main():
             shape = product.lobe_shape(kind, param)
             k = pcl.Kernel(prog("product.cl", N_LEVELS=args.levels, PRODUCT_LEVELS=depth, LOBE_SHAPES=1 << shape),
                            "product_sample_points")
-            kargs = (tree.buffer, rot, np.uint32(n), n_buf, wo_buf, mat_buf, cl.to_device(np.array([kappa], np.float32)),
+            kargs = (tree_buf, rot, np.uint32(n), n_buf, wo_buf, mat_buf, cl.to_device(np.array([kappa], np.float32)),
                      cl.to_device(np.array([depth + 256 * shape], np.int32)), u_buf, np.uint32(2),
                      *([cl.to_device(angles_fn(depth))] if angles_fn else []), uv_buf, pdf_buf)
             runs[(name, ver)] = lambda k=k, kargs=kargs: k(q, (items,), (cl.WORK_GROUP,), *kargs)
-    for f in runs.values():   # compile and warm up
+    for key, f in runs.items():   # compile and warm up, keep the outputs
         f()
         q.finish()
+        outputs[key] = (cl.read(uv_buf, (2, n), np.float32, q), cl.read(pdf_buf, (n,), np.float32, q))
     best = {}
     for _ in range(args.repeat):
         for key, f in runs.items():
@@ -105,7 +112,9 @@ def main():
     out = {"against": args.against, "levels": args.levels, "count": n, "repeat": args.repeat,
            "device": cl.runtime().description,
            "M_samples_per_second": {name: {"before": round(n / best[(name, "before")] / 1e6, 1),
-                                           "now": round(n / best[(name, "now")] / 1e6, 1)}
+                                           "now": round(n / best[(name, "now")] / 1e6, 1),
+                                           "identical": all(np.array_equal(a, b) for a, b in
+                                                            zip(outputs[(name, "before")], outputs[(name, "now")]))}
                                     for name in ["light", *materials]}}
     print(json.dumps(out, indent=1))
 

@@ -4,7 +4,9 @@
  * Coefficients use the dense in-place layout of a 2^n x 2^n array: [0][0] the
  * scaling coefficient, level l (s = 2^l) wavelets at [y][s+x] (m = 1, left - right),
  * [s+y][x] (m = 2, top - bottom), [s+y][s+x] (m = 3, diagonal). Pyramids are box
- * masses 2^-l F^0_{l,t} in the layout of common.h.
+ * masses 2^-l F^0_{l,t} at the offsets of common.h: those of the transform row-major
+ * within a level (y 2^l + x, the host's layout), the product trees for the warp in the
+ * device's Morton order (morton_index).
  */
 #include "common.h"
 
@@ -49,8 +51,9 @@ __kernel void haar_forward_level(__global float *pyr, const ulong tree_stride,
  *      which is eq. 25 at the leaves (no finer wavelets of H);
  *   3. parent = sum of the four children up to the root, which equals eq. 25 at every level
  *      and keeps the pyramid additive in float32, as the warp (warp.h) needs.
- * Levels 0..L (L <= P) are written to out + t * tree_stride. g_leaf holds G's 4^P masses
- * at level P; each local buffer holds 4^P floats. */
+ * Levels 0..L (L <= P) are written to out + t * tree_stride in Morton order, ready for the
+ * warp (common.h). g_leaf holds G's 4^P masses at level P, row-major; each local buffer
+ * holds 4^P floats, row-major. */
 __kernel void haar_product_tree(__global const float *g_leaf, __global const float *h_coeffs,
                                 const int m, const int P, const int L,
                                 __global float *out, const ulong tree_stride, const int nonnegative,
@@ -96,7 +99,7 @@ __kernel void haar_product_tree(__global const float *g_leaf, __global const flo
             v = fmax(v, 0.0f);
         nxt[i] = v;
         if (P <= L)
-            tree[LEVEL_OFFSET(P) + i] = v;
+            tree[LEVEL_OFFSET(P) + morton_index(x, y)] = v;
     }
     barrier(CLK_LOCAL_MEM_FENCE);
     tmp = cur; cur = nxt; nxt = tmp;
@@ -110,7 +113,7 @@ __kernel void haar_product_tree(__global const float *g_leaf, __global const flo
             const float v = (cur[c] + cur[c + 1]) + (cur[c + cs] + cur[c + cs + 1]);
             nxt[i] = v;
             if (l <= L)
-                tree[LEVEL_OFFSET(l) + i] = v;
+                tree[LEVEL_OFFSET(l) + morton_index(x, y)] = v;
         }
         barrier(CLK_LOCAL_MEM_FENCE);
         tmp = cur; cur = nxt; nxt = tmp;

@@ -302,16 +302,16 @@ INLINE void child_importances(const Lobe *lb, const NodeAngles *a,
 #define LOOKAHEAD_LEVELS 3
 #endif
 
-/* child_importances with the look-ahead, for nodes (x, y) at `level` (level + 2 <= the
- * tree's depth): the children's own masses m0..m3
+/* child_importances with the look-ahead, for the nodes of index k in `level` (level + 2 <=
+ * the tree's depth): the children's own masses m0..m3
  * are the fallback where the sum is zero or not finite. */
 INLINE void child_importances_ahead(const Lobe *lb, const NodeAngles *a, __global const float *tree,
                                     const realv m0, const realv m1, const realv m2, const realv m3,
-                                    const uintv x, const uintv y, const int level,
+                                    const uintv k, const int level,
                                     realv *w0, realv *w1, realv *w2, realv *w3)
 {
-    const uint gside = 4u << level;                                     /* level + 2 */
-    const uintv g = TREE_BASE(lb) + node_index(level + 2, 4 * x, 4 * y);
+    /* the sixteen grandchildren, 16 k .. 16 k + 15 of level + 2: four per child (common.h) */
+    const uintv g = TREE_BASE(lb) + (uint)LEVEL_OFFSET(level + 2) + 16 * k;
     LobeColumn cols[4];
     realv st[4], ct[4];
     realv mass[4][4];
@@ -328,8 +328,11 @@ INLINE void child_importances_ahead(const Lobe *lb, const NodeAngles *a, __globa
         split_angle(st0, ct0, level + 3, &st[0], &ct[0], &st[1], &ct[1]);
         split_angle(st1, ct1, level + 3, &st[2], &ct[2], &st[3], &ct[3]);
     }
-    for (int j = 0; j < 4; ++j)     /* their masses, by rows */
-        GATHER4(tree, g + j * gside, &mass[j][0], &mass[j][1], &mass[j][2], &mass[j][3]);
+    /* their masses by rows and columns: child c's four at g + 4 c, (column, row) order 00 10 01 11 */
+    GATHER4(tree, g, &mass[0][0], &mass[0][1], &mass[1][0], &mass[1][1]);
+    GATHER4(tree, g + 4, &mass[0][2], &mass[0][3], &mass[1][2], &mass[1][3]);
+    GATHER4(tree, g + 8, &mass[2][0], &mass[2][1], &mass[3][0], &mass[3][1]);
+    GATHER4(tree, g + 12, &mass[2][2], &mass[2][3], &mass[3][2], &mass[3][3]);
 #define GC(i, j) (mass[i][j] * lobe_weight_at(lb, &cols[j], st[i], ct[i], level + 1))
     const realv i0 = (GC(0, 0) + GC(0, 1)) + (GC(1, 0) + GC(1, 1));   /* child 00: rows 0-1, columns 0-1 */
     const realv i1 = (GC(0, 2) + GC(0, 3)) + (GC(1, 2) + GC(1, 3));   /* child 10 */
@@ -339,37 +342,37 @@ INLINE void child_importances_ahead(const Lobe *lb, const NodeAngles *a, __globa
     importances_or_masses(i0, i1, i2, i3, m0, m1, m2, m3, w0, w1, w2, w3);
 }
 
-/* The importances of the four children of nodes (x, y) at `level` (compile-time after
- * unrolling), look-ahead at the coarse levels. */
+/* The importances of the four children of the nodes of index k in `level` (compile-time
+ * after unrolling), look-ahead at the coarse levels. */
 INLINE void node_importances(const Lobe *lb, const NodeAngles *a, __global const float *tree,
                              const realv m0, const realv m1, const realv m2, const realv m3,
-                             const uintv x, const uintv y, const int level, const int n_levels,
+                             const uintv k, const int level, const int n_levels,
                              realv *i0, realv *i1, realv *i2, realv *i3)
 {
     if (level < LOOKAHEAD_LEVELS && level + 2 <= n_levels)
-        child_importances_ahead(lb, a, tree, m0, m1, m2, m3, x, y, level, i0, i1, i2, i3);
+        child_importances_ahead(lb, a, tree, m0, m1, m2, m3, k, level, i0, i1, i2, i3);
     else
         child_importances(lb, a, m0, m1, m2, m3, level, i0, i1, i2, i3);
 }
 
-/* Node index of level `depth` (per lane) containing leaf (x, y) of level n_levels. */
-INLINE uintv node_of_leaf(const intv depth, const int n_levels, const uintv x, const uintv y)
+/* Node index of level `depth` (per lane) containing the leaf of index k in level n_levels:
+ * its ancestor's index is k >> 2 (n_levels - depth) (common.h). */
+INLINE uintv node_of_leaf(const intv depth, const int n_levels, const uintv k)
 {
-    const uintv d = as_uintv(depth), shift = (uint)n_levels - d;
-    return (((uintv)1 << (2 * d)) - 1) / 3 + (y >> shift) * ((uintv)1 << d) + (x >> shift);
+    const uintv d = as_uintv(depth);
+    return (((uintv)1 << (2 * d)) - 1) / 3 + (k >> (2 * ((uint)n_levels - d)));
 }
 
 #if defined(N_LEVELS) && defined(PRODUCT_LEVELS)
-/* The density on the square of the walk that ended in leaf (x, y) with product p of its
- * conditionals over the product levels: p * mass(leaf) / mass(node at depth P) * 4^n, 0
- * where that node or the lane's whole tree (an all-black map) has no mass. */
-INLINE realv product_density(__global const float *tree, const Lobe *lb, const realv p,
-                             const uintv x, const uintv y)
+/* The density on the square of the walk that ended in the leaf of index k with product p
+ * of its conditionals over the product levels: p * mass(leaf) / mass(node at depth P) *
+ * 4^n, 0 where that node or the lane's whole tree (an all-black map) has no mass. */
+INLINE realv product_density(__global const float *tree, const Lobe *lb, const realv p, const uintv k)
 {
     const intv depth = min(lb->levels, N_LEVELS);
     const uint side = 1u << N_LEVELS;
-    const realv node_mass = GATHER(tree, TREE_BASE(lb) + node_of_leaf(depth, N_LEVELS, x, y));
-    const realv leaf = GATHER(tree, TREE_BASE(lb) + node_index(N_LEVELS, x, y));
+    const realv node_mass = GATHER(tree, TREE_BASE(lb) + node_of_leaf(depth, N_LEVELS, k));
+    const realv leaf = GATHER(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(N_LEVELS) + k);
     const realv pdf = select((realv)0.0f, p * (leaf / node_mass) * (float)side * (float)side, node_mass > 0.0f);
 #if PRODUCT_TREES > 1
     return select((realv)0.0f, pdf, GATHER(tree, lb->base) > 0.0f);
@@ -390,7 +393,7 @@ INLINE realv product_density(__global const float *tree, const Lobe *lb, const r
 INLINE realv product_walk(__global const float *tree, const Lobe *lb,
                           realv *ux, realv *uy)
 {
-    uintv x = 0, y = 0;
+    uintv x = 0, y = 0, k = 0;   /* the node's coordinates and its index in its level */
     realv p = 1.0f;
     NodeAngles a = root_angles();
     *ux = clamp_unit(*ux);
@@ -398,22 +401,21 @@ INLINE realv product_walk(__global const float *tree, const Lobe *lb,
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
         LEVEL_BARRIER(l);
-        const uint cside = 2u << l;
-        const uintv c = TREE_BASE(lb) + node_index(l + 1, 2 * x, 2 * y);
         realv m0, m1, m2, m3;
-        GATHER2(tree, c, &m0, &m1);
-        GATHER2(tree, c + cside, &m2, &m3);
+        GATHER4(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(l + 1) + 4 * k, &m0, &m1, &m2, &m3);
         realv w0 = m0, w1 = m1, w2 = m2, w3 = m3;
         const intv in_product = l < lb->levels;
         if (l < PRODUCT_LEVELS) {   /* compile-time */
             realv i0, i1, i2, i3;
-            node_importances(lb, &a, tree, m0, m1, m2, m3, x, y, l, N_LEVELS, &i0, &i1, &i2, &i3);
+            node_importances(lb, &a, tree, m0, m1, m2, m3, k, l, N_LEVELS, &i0, &i1, &i2, &i3);
             w0 = select(m0, i0, in_product);
             w1 = select(m1, i1, in_product);
             w2 = select(m2, i2, in_product);
             w3 = select(m3, i3, in_product);
         }
         const realv q = choose_child(w0, w1, w2, w3, ux, uy, &x, &y);
+        k = child_index(k, x, y);
+        PREFETCH_CHILDREN(tree, TREE_BASE(lb), l, k);
         if (l < PRODUCT_LEVELS) {
             p *= select((realv)1.0f, q, in_product);
             if (l + 1 < PRODUCT_LEVELS)
@@ -421,7 +423,7 @@ INLINE realv product_walk(__global const float *tree, const Lobe *lb,
         }
     }
     leaf_point(x, y, N_LEVELS, ux, uy);
-    return product_density(tree, lb, p, x, y);
+    return product_density(tree, lb, p, k);
 }
 
 /* Density on the square of product_walk at points (u, v), for any directions (MIS). */
@@ -429,27 +431,23 @@ INLINE realv product_pdf(__global const float *tree, const Lobe *lb,
                          const realv u, const realv v)
 {
     const intv depth = min(lb->levels, N_LEVELS);
-    const uintv lx = leaf_of(u, N_LEVELS), ly = leaf_of(v, N_LEVELS);
+    const uintv leaf = node_index(N_LEVELS, leaf_of(u, N_LEVELS), leaf_of(v, N_LEVELS)) - (uint)LEVEL_OFFSET(N_LEVELS);
     realv p = 1.0f;
     NodeAngles a = root_angles();
 #pragma unroll
     for (int l = 0; l < PRODUCT_LEVELS && l < N_LEVELS; ++l) {
-        const uintv cx = lx >> (N_LEVELS - l - 1), cy = ly >> (N_LEVELS - l - 1);
-        const uintv px = cx >> 1, py = cy >> 1;
-        const uint cside = 2u << l;
-        const uintv c = TREE_BASE(lb) + node_index(l + 1, 2 * px, 2 * py);
+        const uintv child = leaf >> (2 * (N_LEVELS - l - 1)), parent = child >> 2;   /* indices in levels l + 1, l */
         realv m0, m1, m2, m3, i0, i1, i2, i3;
-        GATHER2(tree, c, &m0, &m1);
-        GATHER2(tree, c + cside, &m2, &m3);
-        node_importances(lb, &a, tree, m0, m1, m2, m3, px, py, l, N_LEVELS, &i0, &i1, &i2, &i3);
+        GATHER4(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(l + 1) + 4 * parent, &m0, &m1, &m2, &m3);
+        node_importances(lb, &a, tree, m0, m1, m2, m3, parent, l, N_LEVELS, &i0, &i1, &i2, &i3);
         const realv sum = (i0 + i1) + (i2 + i3);
-        const intv right = as_intv(cx & 1u) != 0, bottom = as_intv(cy & 1u) != 0;
+        const intv right = as_intv(child & 1u) != 0, bottom = as_intv(child & 2u) != 0;
         if (l + 1 < PRODUCT_LEVELS)
             a = child_angles(&a, l, right, bottom);
         const realv mine = select(select(i0, i1, right), select(i2, i3, right), bottom);
         p *= select((realv)1.0f, mine / sum, l < depth);
     }
-    return product_density(tree, lb, p, lx, ly);
+    return product_density(tree, lb, p, leaf);
 }
 #endif
 #endif

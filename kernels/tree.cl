@@ -3,19 +3,16 @@
  * The mass of a parent square is the sum of its four children's masses; in
  * scaling coefficients this is F^0_{l,t} = (1/2) sum of the four F^0_{l+1,t'}
  * (the relation behind eq. 22). One launch per level, coarsest last, batched
- * over trees: global size (4^level, n_trees).
+ * over trees: global size (4^level, n_trees). The leaves are uploaded in the device's
+ * Morton order (common.h; wavlight.distributions.HaarTree).
  */
 #include "common.h"
 
 __kernel void tree_reduce(__global float *tree, const ulong tree_stride, const int level)
 {
-    const ulong node = get_global_id(0);
+    const ulong node = get_global_id(0);   /* its index in the level (Morton order, common.h) */
     const ulong t = get_global_id(1);
-    const uint side = 1u << level;
-    const uint x = (uint)(node % side), y = (uint)(node / side);
     __global float *base = tree + t * tree_stride;
-    __global const float *child = base + LEVEL_OFFSET(level + 1);
-    const uint cside = side << 1;
-    const uint c = (2 * y) * cside + 2 * x;
-    base[LEVEL_OFFSET(level) + node] = (child[c] + child[c + 1]) + (child[c + cside] + child[c + cside + 1]);
+    __global const float *child = base + LEVEL_OFFSET(level + 1) + 4 * node;   /* 00 10 01 11 */
+    base[LEVEL_OFFSET(level) + node] = (child[0] + child[1]) + (child[2] + child[3]);
 }

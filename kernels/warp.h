@@ -16,10 +16,20 @@
 #include "common.h"
 #include "simd.h"
 
-/* Index of nodes (x, y) of `level` in a tree (common.h layout), per lane. */
+/* Index of nodes (x, y) of `level` in a tree (common.h layout: Morton order), per lane. */
 INLINE uintv node_index(const int level, const uintv x, const uintv y)
 {
-    return (uint)LEVEL_OFFSET(level) + y * (1u << level) + x;
+    uintv sx, sy;
+    SPREAD_BITS_INTO(sx, x);
+    SPREAD_BITS_INTO(sy, y);
+    return (uint)LEVEL_OFFSET(level) + (sx | (sy << 1));
+}
+
+/* The index within its level of the child of node k picked by choose_child, which left
+ * (x, y) at the child's coordinates: children 4k .. 4k + 3 (common.h). */
+INLINE uintv child_index(const uintv k, const uintv x, const uintv y)
+{
+    return 4 * k + (x & 1u) + 2 * (y & 1u);
 }
 
 /* Column (or row) of the leaf of a 2^n grid holding coordinate u of the square, per lane. */
@@ -105,8 +115,23 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
 #define BARRIER_LEVEL 9   /* the first level (512^2 nodes) whose step waits at a barrier */
 #endif
 #define LEVEL_BARRIER(l) do { if ((l) + 1 >= BARRIER_LEVEL) barrier(CLK_LOCAL_MEM_FENCE); } while (0)
+/* The step into level l + 1 also prefetches the children of the node it picked when the
+ * next step waits at a barrier: the other work-items' steps run before they are read.
+ * Measured at 1024^2 and 2048^2 (interleaved runs): lambert product walk +6 to +23%,
+ * glossy ones -6 to +14%, within this VM's noise. */
+#ifndef WALK_PREFETCH
+#define WALK_PREFETCH 1
+#endif
+#define PREFETCH_CHILDREN(tree, base, level, k)                                    \
+    do {                                                                           \
+        if (WALK_PREFETCH && (level) + 2 >= BARRIER_LEVEL && (level) + 2 <= N_LEVELS) {             \
+            const uintv pf_at_ = (base) + (uint)LEVEL_OFFSET((level) + 2) + 4 * (k); \
+            PREFETCH_LANES(tree, pf_at_);                                          \
+        }                                                                          \
+    } while (0)
 #else
 #define LEVEL_BARRIER(l) do { } while (0)
+#define PREFETCH_CHILDREN(tree, base, level, k) do { } while (0)
 #endif
 
 /* Eight samples walk the tree (N_LEVELS levels below the root, a compile-time constant
@@ -119,22 +144,21 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
 #ifdef N_LEVELS
 INLINE realv tree_walk(__global const float *tree, const uintv tree_base, realv *ux, realv *uy)
 {
-    uintv x = 0, y = 0;
+    uintv x = 0, y = 0, k = 0;   /* the node's coordinates and its index in its level */
     *ux = clamp_unit(*ux);
     *uy = clamp_unit(*uy);
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
         LEVEL_BARRIER(l);
-        const uint cside = 2u << l;
-        const uintv c = tree_base + node_index(l + 1, 2 * x, 2 * y);
         realv m0, m1, m2, m3;
-        GATHER2(tree, c, &m0, &m1);
-        GATHER2(tree, c + cside, &m2, &m3);
+        GATHER4(tree, tree_base + (uint)LEVEL_OFFSET(l + 1) + 4 * k, &m0, &m1, &m2, &m3);
         choose_child(m0, m1, m2, m3, ux, uy, &x, &y);
+        k = child_index(k, x, y);
+        PREFETCH_CHILDREN(tree, tree_base, l, k);
     }
     const float side = (float)(1u << N_LEVELS);
     const realv root = GATHER(tree, tree_base);
-    const realv leaf = GATHER(tree, tree_base + node_index(N_LEVELS, x, y));
+    const realv leaf = GATHER(tree, tree_base + (uint)LEVEL_OFFSET(N_LEVELS) + k);
     leaf_point(x, y, N_LEVELS, ux, uy);
     return select((realv)0.0f, leaf / root * side * side, root > 0.0f);
 }

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wavlight import haar
-from wavlight.distributions import HaarTree, build_reference, level_offset, tree_size
+from wavlight import cl, haar
+from wavlight.distributions import HaarTree, build_reference, device_order, level_offset, tree_size
 
 EPS32 = float(np.finfo(np.float32).eps)
 TOL64 = 1e-12
@@ -386,6 +386,11 @@ def test_product_kernel_matches_eq25(device, n, m, L):
     P = max(m, L)
     if P == L:  # additive in float32, exactly as HaarTree builds it from the leaves
         np.testing.assert_array_equal(out, HaarTree(out[:, level_offset(L):].reshape(7, 1 << L, 1 << L)).nodes())
+    # on the device (enqueue) the trees are in the warp's Morton order; __call__ returns them row-major
+    pp = haar.ProductPyramids(G, m, levels=L)
+    buf = cl.empty(4 * 7 * pp.stride)
+    pp.enqueue(cl.thread_queue(), cl.to_device(np.ascontiguousarray(H)), 7, buf)
+    np.testing.assert_array_equal(cl.read(buf, (7, pp.stride), np.float32, cl.thread_queue()), device_order(out, L))
 
 
 def test_product_kernel_sparse_light_and_clamp(device):

@@ -16,8 +16,8 @@ import pytest
 from scipy import stats
 
 from chi2 import SquareGrid, chi2_test
-from wavlight.distributions import (ONE_MINUS_EPS, HaarTree, build_reference, level_offset,
-                                    pdf_reference, sample_reference, tree_size)
+from wavlight.distributions import (ONE_MINUS_EPS, HaarTree, build_reference, device_order, host_order,
+                                    level_offset, morton_index, pdf_reference, sample_reference, tree_size)
 
 U32 = 2.0 ** -24  # unit roundoff of float32
 
@@ -133,6 +133,34 @@ def test_build_batched():
     for k in range(6):
         np.testing.assert_array_equal(got[k], HaarTree(leaves[k]).nodes()[0])
     np.testing.assert_array_equal(t.integral, got[:, 0])
+
+
+# ----------------------------------------------------------------------------- device layout
+def test_device_order_puts_a_nodes_children_together():
+    """On the device (Morton levels, kernels/common.h) the children of node k of level l are
+    nodes 4k .. 4k + 3 of level l + 1, top-left, top-right, bottom-left, bottom-right; host_order
+    undoes device_order; the HaarTree buffer holds device_order(nodes())."""
+    n = 5
+    leaves = np.random.default_rng(21).random((2, 1 << n, 1 << n)).astype(np.float32)
+    host = build_reference(leaves)
+    dev = device_order(host, n)
+    np.testing.assert_array_equal(host_order(dev, n), host)
+    for l in range(n):
+        side = 1 << l
+        y, x = np.divmod(np.arange(side * side), side)
+        k = morton_index(x, y)   # each host node's index in its device level
+        parent = dev[:, level_offset(l) + k]
+        kids = [dev[:, level_offset(l + 1) + 4 * k + c] for c in range(4)]
+        host_kids = [host[:, level_offset(l + 1) + (2 * y + dy) * 2 * side + 2 * x + dx]
+                     for dy in (0, 1) for dx in (0, 1)]
+        for got, want in zip(kids, host_kids):
+            np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(parent, host[:, level_offset(l):level_offset(l + 1)])
+    t = HaarTree(leaves)
+    from wavlight import cl
+    raw = cl.read(t.buffer, (2, tree_size(n)), np.float32)
+    np.testing.assert_array_equal(raw, device_order(t.nodes(), n))
+    assert morton_index(5, 3).item() == 0b011011   # x = 101, y = 011 interleaved (y1 x1 y1 x0 y0 x1)
 
 
 # ============================================================================= warp_sample / warp_pdf

@@ -13,9 +13,17 @@ top-down product walk (``kernels/product.h``) shares the walk's child choice.
 
 Image orientation: ``image[y, x]``; a point ``(u, v)`` of the square lies in
 column ``floor(u 2^n)``, row ``floor(v 2^n)``.
+
+Layout: on the host a pyramid's level l is row-major, node (x, y) at
+``level_offset(l) + y 2^l + x``. On the device (``HaarTree.buffer``, the product trees
+of :class:`wavlight.haar.ProductPyramids`) each level is in Morton order, so that a
+walk step reads a node's four children from one cache line (kernels/common.h);
+:func:`device_order` and :func:`host_order` convert, ``HaarTree`` and ``nodes()`` do
+it for their callers.
 """
 from __future__ import annotations
 
+import functools
 import numbers
 
 import numpy as np
@@ -34,6 +42,42 @@ def level_offset(level: int) -> int:
 def tree_size(n_levels: int) -> int:
     """Number of nodes in a pyramid whose leaves are at level ``n_levels``."""
     return level_offset(n_levels + 1)
+
+
+def morton_index(x, y) -> np.ndarray:
+    """Index of node (x, y) within its level on the device: the bits of x at the even
+    positions, those of y at the odd ones (kernels/common.h morton_index), for
+    coordinates below 2^32, as uint64."""
+    def spread(v):
+        v = np.asarray(v, np.uint64) & np.uint64(0xFFFFFFFF)
+        for s, mk in ((16, 0x0000FFFF0000FFFF), (8, 0x00FF00FF00FF00FF), (4, 0x0F0F0F0F0F0F0F0F),
+                      (2, 0x3333333333333333), (1, 0x5555555555555555)):
+            v = (v | (v << np.uint64(s))) & np.uint64(mk)
+        return v
+    return spread(x) | (spread(y) << np.uint64(1))
+
+
+@functools.lru_cache(maxsize=None)
+def _device_positions(n_levels: int) -> np.ndarray:
+    """For every node of a host (row-major) pyramid, its position in the device's (Morton) one."""
+    out = np.empty(tree_size(n_levels), np.int64)
+    for level in range(n_levels + 1):
+        y, x = np.divmod(np.arange(4 ** level), 1 << level)
+        out[level_offset(level):level_offset(level + 1)] = level_offset(level) + morton_index(x, y).astype(np.int64)
+    out.flags.writeable = False
+    return out
+
+
+def device_order(nodes: np.ndarray, n_levels: int) -> np.ndarray:
+    """Host pyramids (..., tree_size(n)) (row-major levels) in the device's Morton order."""
+    out = np.empty_like(nodes)
+    out[..., _device_positions(n_levels)] = nodes
+    return out
+
+
+def host_order(nodes: np.ndarray, n_levels: int) -> np.ndarray:
+    """Device pyramids (..., tree_size(n)) (Morton levels) in the host's row-major order."""
+    return nodes[..., _device_positions(n_levels)]
 
 
 def leaf_levels(side: int) -> int:
@@ -184,7 +228,7 @@ class HaarTree:
         host = np.zeros((self.n_trees, self.stride), np.float32)
         host[:, level_offset(self.n_levels):] = leaves.reshape(self.n_trees, -1)
         rt = cl.runtime()
-        self.buffer = cl.to_device(host, writable=True)
+        self.buffer = cl.to_device(device_order(host, self.n_levels), writable=True)   # Morton levels
         prog = cl.program("tree.cl")
         knl = cl.kernel(prog, "tree_reduce")
         for level in range(self.n_levels - 1, -1, -1):
@@ -193,8 +237,8 @@ class HaarTree:
         self.integral = cl.read(self.buffer, (self.n_trees, self.stride), np.float32)[:, 0].copy()
 
     def nodes(self) -> np.ndarray:
-        """The whole pyramid, (T, tree_size(n)) float32, copied to the host."""
-        return cl.read(self.buffer, (self.n_trees, self.stride), np.float32)
+        """The whole pyramid, (T, tree_size(n)) float32, copied to the host (row-major levels)."""
+        return host_order(cl.read(self.buffer, (self.n_trees, self.stride), np.float32), self.n_levels)
 
     def _run(self, name, pts, samples_per_tree, outputs):
         where, arg = ("distributions.HaarTree.sample", "u") if outputs == 2 else ("distributions.HaarTree.pdf", "uv")

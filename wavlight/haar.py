@@ -71,7 +71,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import cl
-from .distributions import level_offset, tree_size
+from .distributions import host_order, level_offset, morton_index, tree_size
 from .errors import ArgumentError, check_int, check_integers, check_number, check_real
 
 __all__ = [
@@ -583,17 +583,6 @@ def _pad_pyramid(p: np.ndarray, k: int, L: int) -> np.ndarray:
     return out
 
 
-def _morton(x, y):
-    """Interleave the bits of x (even) and y (odd), 32-bit inputs."""
-    def part(v):
-        v = np.asarray(v, np.uint64) & np.uint64(0xFFFFFFFF)
-        for s, mk in ((16, 0x0000FFFF0000FFFF), (8, 0x00FF00FF00FF00FF), (4, 0x0F0F0F0F0F0F0F0F),
-                      (2, 0x3333333333333333), (1, 0x5555555555555555)):
-            v = (v | (v << np.uint64(s))) & np.uint64(mk)
-        return v
-    return part(x) | (part(y) << np.uint64(1))
-
-
 def _sparse_of(where: str, name: str, s) -> SparseHaar:
     """A SparseHaar as is; dense (2^n, 2^n) or (C, 2^n, 2^n) coefficients as their non-zeros."""
     if isinstance(s, SparseHaar):
@@ -626,8 +615,8 @@ def product_scaling_at(G, H, level, x, y) -> np.ndarray:
     if len(keys):
         prod = a * b
         lv, px, py = _node_of((keys - 1) // 3)
-        z = _morton(px, py)
-        zq = _morton(x, y)
+        z = morton_index(px, py)
+        zq = morton_index(x, y)
         for lp in np.unique(lv):
             sel = lv == lp
             order = np.argsort(z[sel], kind="stable")
@@ -717,7 +706,8 @@ class ProductPyramids:
         self._prog = cl.program("haar.cl")
 
     def enqueue(self, queue, h_buf, n_trees: int, out_buf):
-        """Launch on device buffers: h_buf (T, 2^m, 2^m) float32 -> out_buf (T, stride) float32."""
+        """Launch on device buffers: h_buf (T, 2^m, 2^m) float32 -> out_buf (T, stride) float32,
+        the trees in the device's Morton order, ready for the warp (distributions.py Layout)."""
         import pyopencl  # deferred like in cl.py
         nbytes = 4 * 4 ** self.leaf_level
         knl = cl.kernel(self._prog, "haar_product_tree")
@@ -727,7 +717,8 @@ class ProductPyramids:
                    pyopencl.LocalMemory(nbytes), pyopencl.LocalMemory(nbytes))
 
     def __call__(self, H, queue=None) -> np.ndarray:
-        """Pyramids (T, stride) float32 for H (T, 2^m, 2^m) or (2^m, 2^m) dense coefficients."""
+        """Pyramids (T, stride) float32 for H (T, 2^m, 2^m) or (2^m, 2^m) dense coefficients,
+        row-major (the host's layout)."""
         h = np.ascontiguousarray(_float(H, "haar.ProductPyramids", "H"), np.float32)
         h = h[None] if h.ndim == 2 else h
         side = 1 << self.h_levels
@@ -738,4 +729,4 @@ class ProductPyramids:
         out = cl.empty(4 * len(h) * self.stride)
         if len(h):
             self.enqueue(queue, cl.to_device(h), len(h), out)
-        return cl.read(out, (len(h), self.stride), np.float32, queue)
+        return host_order(cl.read(out, (len(h), self.stride), np.float32, queue), self.levels)
