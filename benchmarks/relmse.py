@@ -98,15 +98,30 @@ def floor_image(scene, spp, size, seed, directions, sampler):
     """The image at `spp` whose every pixel sample is shaded with the mean of `directions`
     independent `mis` estimates (same camera ray, same hit): its error is the pixel-footprint
     variance that no direction sampler can remove, plus the mis direction variance / directions."""
-    from wavlight import integrator
+    from wavlight import camera, integrator, sampler as sampling
+    from wavlight.camera import camera_rays
 
     r = integrator._Renderer(scene, "mis", spp, size, size, seed, None, sampler_name=sampler)
-    shade = r.shade
+    eye = scene.camera.eye
 
-    def averaged(o, d, prim, t, rng, u=None):
-        return sum(shade(o, d, prim, t, rng) for _ in range(directions)) / directions  # D, not samples
+    def averaged(generator, tile, first, x0, y0, w, h, k):
+        if r.sampler == "stratified":
+            uu = sampling.stratified(generator, w * h, k)
+            pix = np.arange(w * h, dtype=np.int32)
+            _, d = camera_rays(scene, np.repeat(x0 + pix % w, k), np.repeat(y0 + pix // w, k), uu[:, :2],
+                               size, size)
+        else:
+            u = integrator.rng.Stream(seed, tile, first * w * h)
+            d = camera.pass_rays(scene, size, size, seed, tile, x0, y0, w, h, k, u.first, kernel=r.kernel_camera)
+        prim, t = r.tracer.intersect(np.broadcast_to(eye.astype(np.float32), d.shape), d)
+        draws = np.random.default_rng([seed, tile, first, 1])
+        total = 0.0
+        for _ in range(directions):   # D, not samples: each a batched launch over the pass
+            u = draws.random((len(d), 4), dtype=np.float32)
+            total = total + r.visible_sum(r.shader.shade_rays(eye, d, prim, t, u))
+        return total / directions
 
-    r.shade = averaged
+    r._samples = averaged
     image = np.zeros((size, size, 3))
     for (i, x0, y0, w, h) in integrator._tiles(size, size, spp):
         image[y0:y0 + h, x0:x0 + w] = r.tile(i, x0, y0, w, h)[0]
@@ -182,10 +197,16 @@ def main():
                     "equal_spp": a["relmse"] / b["relmse"],
                     "equal_time": a["relmse"] * a["seconds"] / b["seconds"] / b["relmse"]}
             if args.floor > 1:
-                # relMSE(D) = floor + dir / D and relMSE(mis) = floor + dir give the floor
-                e_d = relmse(floor_image(scene, spp, args.size, 0, args.floor, args.sampler), ref.image, ref.stderr)
-                fl = max(0.0, (args.floor * e_d - mis["relmse"]) / (args.floor - 1))
-                row.setdefault("footprint_floor", {})[s] = {"relmse": fl, "over_mis": fl / mis["relmse"]}
+                # relMSE(D) = floor + dir / D and relMSE(mis) = floor + dir give the floor; one
+                # floor image per seed (the seeds of the compared renders), their spread reported
+                d = args.floor
+                e_d = [relmse(floor_image(scene, spp, args.size, seed, d, args.sampler), ref.image, ref.stderr)
+                       for seed in range(args.seeds)]
+                fl = [(d * e - mis["relmse"]) / (d - 1) for e in e_d]
+                mean = max(0.0, float(np.mean(fl)))
+                row.setdefault("footprint_floor", {})[s] = {
+                    "relmse": mean, "relmse_sd": float(np.std(fl, ddof=1)) if len(fl) > 1 else None,
+                    "over_mis": mean / mis["relmse"]}
         results["scenes"][name] = row
         print(f"{name}: " + " ".join(f"{k}={v['equal_spp']:.3f}/{v['equal_time']:.3f}"
                                      for k, v in row["wavelet_over_mis"].items())
