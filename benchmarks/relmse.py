@@ -117,7 +117,11 @@ def floor_image(scene, spp, size, seed, directions, sampler):
         draws = np.random.default_rng([seed, tile, first, 1])
         total = 0.0
         for _ in range(directions):   # D, not samples: each a batched launch over the pass
-            u = draws.random((len(d), 4), dtype=np.float32)
+            if r.sampler == "stratified":   # as the compared renders draw them: stratified per pixel
+                u = np.minimum(sampling.stratified_pairs(draws, w * h, k, 2).astype(np.float32),
+                               np.float32(1.0 - 2.0 ** -24))
+            else:
+                u = draws.random((len(d), 4), dtype=np.float32)
             total = total + r.visible_sum(r.shader.shade_rays(eye, d, prim, t, u))
         return total / directions
 

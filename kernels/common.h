@@ -9,10 +9,15 @@
  * morton_index(x, y), the bits of x at the even positions and those of y at the odd
  * ones, so the four children of node k of level l are nodes 4k .. 4k + 3 of level
  * l + 1 (top-left, top-right, bottom-left, bottom-right): a walk step reads them with
- * one 16-byte load from one cache line (row-major levels put the two pairs a row
- * apart, two lines) and carries its node's index down as 4k + child. Measured on the
- * product walk at 1024^2 (interleaved runs, bit-identical samples): +8 to +25%. The
- * host keeps trees row-major (y 2^l + x; wavlight.distributions.device_order converts).
+ * one 16-byte load, from one cache line three times in four (LEVEL_OFFSET(l) is 5 mod
+ * 16 floats from level 2 on; row-major levels put the two pairs a row apart, always two
+ * lines), and carries its node's index down as 4k + child, with no bit interleaving
+ * per step. Measured against the row-major walks (benchmarks/kernel_ab.py, interleaved,
+ * bit-identical samples; results/kernel-ab-2026-12-02-session9-morton-*.json): light
+ * walk +9 / +37 / +32% at 256^2 / 1024^2 / 2048^2, product walks +5 to +21% / +11 to
+ * +47% / +10 to +45%. Aligning the levels to 16 floats measured no better. The host
+ * keeps trees row-major (y 2^l + x): wavlight.distributions.device_order / host_order
+ * convert, tree_load_leaves (tree.cl) places the leaves.
  */
 #ifndef WAVLIGHT_COMMON_H
 #define WAVLIGHT_COMMON_H

@@ -23,7 +23,6 @@ it for their callers.
 """
 from __future__ import annotations
 
-import functools
 import numbers
 
 import numpy as np
@@ -57,27 +56,36 @@ def morton_index(x, y) -> np.ndarray:
     return spread(x) | (spread(y) << np.uint64(1))
 
 
-@functools.lru_cache(maxsize=None)
-def _device_positions(n_levels: int) -> np.ndarray:
-    """For every node of a host (row-major) pyramid, its position in the device's (Morton) one."""
-    out = np.empty(tree_size(n_levels), np.int64)
-    for level in range(n_levels + 1):
-        y, x = np.divmod(np.arange(4 ** level), 1 << level)
-        out[level_offset(level):level_offset(level + 1)] = level_offset(level) + morton_index(x, y).astype(np.int64)
-    out.flags.writeable = False
+def _level_axes(l: int) -> list[int]:
+    """Axes of a level's (2,) * 2l view (y's bits, then x's, most significant first) in Morton
+    order: y_{l-1} x_{l-1} .. y_0 x_0, so that flattening gives morton_index(x, y)."""
+    return [a for b in range(l) for a in (b, l + b)]
+
+
+def _reorder(nodes: np.ndarray, n_levels: int, to_device: bool) -> np.ndarray:
+    nodes = np.asarray(nodes)
+    if nodes.shape[-1] != tree_size(n_levels):
+        raise ArgumentError(f"distributions.{'device' if to_device else 'host'}_order: pyramids of {n_levels} "
+                            f"levels have {tree_size(n_levels)} nodes, got shape {nodes.shape}")
+    lead = nodes.shape[:-1]
+    out = np.empty_like(nodes)
+    for l in range(n_levels + 1):
+        a = nodes[..., level_offset(l):level_offset(l + 1)].reshape(lead + (2,) * (2 * l))
+        axes = _level_axes(l)
+        perm = axes if to_device else list(np.argsort(axes))
+        out[..., level_offset(l):level_offset(l + 1)] = a.transpose(
+            list(range(len(lead))) + [len(lead) + p for p in perm]).reshape(lead + (-1,))
     return out
 
 
 def device_order(nodes: np.ndarray, n_levels: int) -> np.ndarray:
     """Host pyramids (..., tree_size(n)) (row-major levels) in the device's Morton order."""
-    out = np.empty_like(nodes)
-    out[..., _device_positions(n_levels)] = nodes
-    return out
+    return _reorder(nodes, n_levels, True)
 
 
 def host_order(nodes: np.ndarray, n_levels: int) -> np.ndarray:
     """Device pyramids (..., tree_size(n)) (Morton levels) in the host's row-major order."""
-    return nodes[..., _device_positions(n_levels)]
+    return _reorder(nodes, n_levels, False)
 
 
 def leaf_levels(side: int) -> int:
@@ -225,11 +233,13 @@ class HaarTree:
         self.n_levels = leaf_levels(leaves.shape[-1])
         self.n_trees = leaves.shape[0]
         self.stride = tree_size(self.n_levels)
-        host = np.zeros((self.n_trees, self.stride), np.float32)
-        host[:, level_offset(self.n_levels):] = leaves.reshape(self.n_trees, -1)
         rt = cl.runtime()
-        self.buffer = cl.to_device(device_order(host, self.n_levels), writable=True)   # Morton levels
+        self.buffer = cl.empty(4 * self.n_trees * self.stride)
         prog = cl.program("tree.cl")
+        # the leaves into level n in Morton order on the device, then the levels above them
+        leaf_buf = cl.to_device(leaves)   # (kept until the blocking read below)
+        cl.kernel(prog, "tree_load_leaves")(rt.queue, (4 ** self.n_levels, self.n_trees), None, self.buffer,
+                                            np.uint64(self.stride), leaf_buf, np.int32(self.n_levels))
         knl = cl.kernel(prog, "tree_reduce")
         for level in range(self.n_levels - 1, -1, -1):
             knl(rt.queue, (4 ** level, self.n_trees), None, self.buffer,
