@@ -15,7 +15,8 @@
  * per step. Measured against the row-major walks (benchmarks/kernel_ab.py, interleaved,
  * bit-identical samples; results/kernel-ab-2026-12-02-session9-morton-*.json): light
  * walk +9 / +37 / +32% at 256^2 / 1024^2 / 2048^2, product walks +5 to +21% / +11 to
- * +47% / +10 to +45%. Aligning the levels to 16 floats measured no better. The host
+ * +47% / +10 to +45%. Shifting the tree by 3 floats, so that no group of children
+ * straddles a line, measured no better (interleaved, -7 to +10%: noise). The host
  * keeps trees row-major (y 2^l + x): wavlight.distributions.device_order / host_order
  * convert, tree_load_leaves (tree.cl) places the leaves.
  */

@@ -284,7 +284,8 @@ class HaarTree:
         return res
 
     def sample(self, u: np.ndarray, samples_per_tree: int | None = None):
-        """Warp uniform points: u (N, 2) -> uv (N, 2) in [0, 1)^2 and pdf (N,) on the square.
+        """Warp uniform points: u (N, 2) -> uv (N, 2) in [0, 1)^2 and pdf (N,) on the square
+        (u must be (N, 2): a flat (2N,) array is refused, no longer reshaped).
 
         Sample i uses tree ``i // samples_per_tree`` (default: N / T, all of one tree for T = 1).
         """
