@@ -63,19 +63,18 @@ def _level_axes(l: int) -> list[int]:
 
 
 def _reorder(nodes: np.ndarray, n_levels: int, to_device: bool) -> np.ndarray:
+    """nodes (..., tree_size(n)) in the other layout: one gather, its index built per call by
+    transposing each level's (2,) * 2l view of arange (no table kept between calls)."""
     nodes = np.asarray(nodes)
     if nodes.shape[-1] != tree_size(n_levels):
         raise ArgumentError(f"distributions.{'device' if to_device else 'host'}_order: pyramids of {n_levels} "
                             f"levels have {tree_size(n_levels)} nodes, got shape {nodes.shape}")
-    lead = nodes.shape[:-1]
-    out = np.empty_like(nodes)
+    index = np.empty(tree_size(n_levels), np.int64)
     for l in range(n_levels + 1):
-        a = nodes[..., level_offset(l):level_offset(l + 1)].reshape(lead + (2,) * (2 * l))
         axes = _level_axes(l)
-        perm = axes if to_device else list(np.argsort(axes))
-        out[..., level_offset(l):level_offset(l + 1)] = a.transpose(
-            list(range(len(lead))) + [len(lead) + p for p in perm]).reshape(lead + (-1,))
-    return out
+        source = np.arange(4 ** l).reshape((2,) * (2 * l)).transpose(axes if to_device else np.argsort(axes))
+        index[level_offset(l):level_offset(l + 1)] = level_offset(l) + source.ravel()
+    return np.take(nodes, index, axis=-1)
 
 
 def device_order(nodes: np.ndarray, n_levels: int) -> np.ndarray:
