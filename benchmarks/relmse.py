@@ -98,22 +98,13 @@ def floor_image(scene, spp, size, seed, directions, sampler):
     """The image at `spp` whose every pixel sample is shaded with the mean of `directions`
     independent `mis` estimates (same camera ray, same hit): its error is the pixel-footprint
     variance that no direction sampler can remove, plus the mis direction variance / directions."""
-    from wavlight import camera, integrator, sampler as sampling
-    from wavlight.camera import camera_rays
+    from wavlight import integrator, sampler as sampling
 
     r = integrator._Renderer(scene, "mis", spp, size, size, seed, None, sampler_name=sampler)
     eye = scene.camera.eye
 
     def averaged(generator, tile, first, x0, y0, w, h, k):
-        if r.sampler == "stratified":
-            uu = sampling.stratified(generator, w * h, k)
-            pix = np.arange(w * h, dtype=np.int32)
-            _, d = camera_rays(scene, np.repeat(x0 + pix % w, k), np.repeat(y0 + pix // w, k), uu[:, :2],
-                               size, size)
-        else:
-            u = integrator.rng.Stream(seed, tile, first * w * h)
-            d = camera.pass_rays(scene, size, size, seed, tile, x0, y0, w, h, k, u.first, kernel=r.kernel_camera)
-        prim, t = r.tracer.intersect(np.broadcast_to(eye.astype(np.float32), d.shape), d)
+        d, prim, t, _ = r.camera_samples(generator, tile, first, x0, y0, w, h, k)
         draws = np.random.default_rng([seed, tile, first, 1])
         total = 0.0
         for _ in range(directions):   # D, not samples: each a batched launch over the pass

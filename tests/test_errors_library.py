@@ -346,15 +346,6 @@ def test_valid_edge_cases_unchanged():
 
 
 # ============================================================================= checks that need the device
-@pytest.fixture(scope="module")
-def device():
-    from wavlight import cl
-    try:
-        return cl.runtime()
-    except WavlightError as e:
-        pytest.skip(str(e))
-
-
 def test_haar_tree_sample_and_pdf_arguments(device):
     tree = distributions.HaarTree(np.random.default_rng(4).random((2, 4, 4)))
     for fn, arg in ((tree.sample, "u"), (tree.pdf, "uv")):

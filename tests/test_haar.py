@@ -347,16 +347,6 @@ def test_product_scaling_at_nodes():
 
 
 # ============================================================================= OpenCL kernels
-@pytest.fixture(scope="module")
-def device():
-    from wavlight import cl
-    from wavlight.errors import WavlightError
-    try:
-        return cl.runtime()
-    except WavlightError as e:
-        pytest.skip(str(e))
-
-
 @pytest.mark.parametrize("n,T", [(0, 3), (1, 2), (3, 5), (6, 4), (9, 1)])
 def test_forward_kernel(device, n, T):
     rng = np.random.default_rng(26 + n)

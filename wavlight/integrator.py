@@ -130,9 +130,16 @@ class _Renderer:
 
     def _samples(self, generator, tile, first, x0, y0, w, h, k):
         """(3, w h k) radiance estimates (planes r, g, b): samples first .. first + k - 1 of each
-        pixel of a tile, pixel-major. ``independent``: jitters and shading uniforms from Philox
-        (:mod:`wavlight.rng`) at tile sample indices first w h + (pixel k + j), drawn in the
-        kernels; ``stratified``: all six from :func:`sampler.stratified` and ``generator``."""
+        pixel of a tile, pixel-major."""
+        d, prim, t, u = self.camera_samples(generator, tile, first, x0, y0, w, h, k)
+        return self.visible_sum(self.shader.shade_rays(self.scene.camera.eye, d, prim, t, u))
+
+    def camera_samples(self, generator, tile, first, x0, y0, w, h, k):
+        """The camera rays of samples first .. first + k - 1 of each pixel of a tile, pixel-major:
+        directions d, hit triangle prim and distance t, and the shading uniforms u.
+        ``independent``: jitters and shading uniforms from Philox (:mod:`wavlight.rng`) at tile
+        sample indices first w h + (pixel k + j), drawn in the kernels (u an ``rng.Stream``);
+        ``stratified``: all six from :func:`sampler.stratified` and ``generator``."""
         eye = self.scene.camera.eye
         if self.sampler == "stratified":
             uu = sampler.stratified(generator, w * h, k)
@@ -146,7 +153,7 @@ class _Renderer:
                                  kernel=self.kernel_camera)
         prim, t = self.tracer.intersect(np.broadcast_to(eye.astype(np.float32), d.shape), d)
         self.count_rays(len(d))
-        return self.visible_sum(self.shader.shade_rays(eye, d, prim, t, u))
+        return d, prim, t, u
 
 
 def _tiles(width, height, spp):
