@@ -1,7 +1,10 @@
 """The `wavlight` command line: a thin layer over the library.
 
 Errors in input (scene, files, options) print one line and exit with code 2;
-warnings (sanitised texels, removed triangles) print one line each to stderr.
+warnings print one line each to stderr. Input repaired rather than refused (NaN, Inf or
+negative texels set to 0, degenerate triangles removed: wavlight.SanitisedInputWarning)
+lets the command finish and write its output, then exit with code 3, so that scripts
+notice; other warnings (an LDR map, albedo above 1) leave the exit code 0.
 """
 from __future__ import annotations
 
@@ -20,7 +23,16 @@ def _one_line(text) -> str:
     return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
 
 
+#: set when a SanitisedInputWarning was shown during this invocation (the exit code becomes 3)
+_sanitised = False
+
+
 def _warn_line(message, category, filename, lineno, file=None, line=None):
+    global _sanitised
+    from wavlight.errors import SanitisedInputWarning
+
+    if issubclass(category, SanitisedInputWarning):
+        _sanitised = True
     click.echo(f"warning: {_one_line(message)}", err=True)
 
 
@@ -41,8 +53,24 @@ click.UsageError.show = _show_usage_error
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="wavlight")
 def main():
-    """wavlight: render direct environment lighting with Haar wavelet importance sampling."""
+    """wavlight: render direct environment lighting with Haar wavelet importance sampling.
+
+    Exit codes: 0 success; 2 bad input or options (one 'Error:' line, nothing written);
+    3 finished and written, but input was sanitised (NaN, Inf or negative texels set to 0,
+    degenerate triangles removed; a 'warning:' line says which).
+    """
+    global _sanitised
+    _sanitised = False
     warnings.showwarning = _warn_line
+
+
+@main.result_callback()
+def _exit_code(*args, **kwargs):
+    """After a command that completed: exit code 3 if its input had to be sanitised."""
+    from wavlight.errors import SANITISED_EXIT_CODE
+
+    if _sanitised:
+        sys.exit(SANITISED_EXIT_CODE)
 
 
 def _check_output(path, formats):

@@ -91,10 +91,20 @@ def assert_clean_failure(o: Outcome, *names, output=None, folder=None):
     return errors[0]
 
 
-def assert_success(o: Outcome):
+def assert_success(o: Outcome, code: int = 0):
+    """Finished without an exception; code 3 (SANITISED_EXIT_CODE): finished on sanitised input."""
     assert o.exception is None, o.describe()
     assert "Traceback" not in o.stderr, o.describe()
-    assert o.code == 0, o.describe()
+    assert o.code == code, o.describe()
+
+
+def assert_sanitised(o: Outcome):
+    """Finished and wrote its output, but the input was sanitised: exit code 3, no Error line."""
+    from wavlight.errors import SANITISED_EXIT_CODE
+
+    assert SANITISED_EXIT_CODE == 3
+    assert_success(o, SANITISED_EXIT_CODE)
+    assert not [line for line in stderr_lines(o) if line.startswith("Error")], o.describe()
 
 
 # ----------------------------------------------------------------------------- files
@@ -226,7 +236,7 @@ def test_e2e_nan_texels_never_reach_the_exr(tmp_path):
                                              camera='eye = [0.0, 0.6, 3.0]\ntarget = [0.0, 0.6, 0.0]\nfov_y = 90.0\n'))
     out = tmp_path / "out.exr"
     o = run_process("render", scene, "-o", out, cwd=tmp_path)
-    assert_success(o)
+    assert_sanitised(o)
     warns = [line for line in stderr_lines(o) if line.startswith("warning:")]
     assert len(warns) == 1, o.describe()
     assert "bad.exr" in warns[0]
@@ -547,7 +557,7 @@ def test_bad_texels_warn_once_and_never_reach_the_output(tmp_path, strategy):
                                                     'fov_y = 100.0\n'))
     out = tmp_path / "o.exr"
     o = run_inproc("render", scene, "-o", out, "--strategy", strategy, "--spp", 4)
-    assert_success(o)
+    assert_sanitised(o)
     warns = [line for line in stderr_lines(o) if line.startswith("warning:")]
     assert len(warns) == 1 and "bad.exr" in warns[0], o.describe()
     assert not [line for line in stderr_lines(o) if line.startswith("Error")]
@@ -661,9 +671,21 @@ def test_degenerate_triangles_warn_and_render(tmp_path):
     scene = write_scene(tmp_path, scene_text(objects='[[objects]]\nmesh = "m.obj"\n'))
     out = tmp_path / "o.png"
     o = run_inproc("render", scene, "-o", out, "-q")
-    assert_success(o)
+    assert_sanitised(o)
     warns = [line for line in stderr_lines(o) if line.startswith("warning:")]
     assert len(warns) == 1 and "degenerate" in warns[0] and "scene.toml" in warns[0], o.describe()
+    assert out.is_file()
+
+
+def test_other_warnings_keep_exit_code_0(tmp_path):
+    """Only sanitised input sets exit code 3: an albedo above 1 warns but is rendered as asked."""
+    scene = write_scene(tmp_path, scene_text(objects='[[objects]]\nshape = "sphere"\nmaterial = "m"\n'
+                                                     '[materials.m]\ntype = "lambert"\nalbedo = [1.2, 0.5, 0.5]\n'))
+    out = tmp_path / "o.exr"
+    o = run_inproc("render", scene, "-o", out, "-q")
+    assert_success(o)
+    warns = [line for line in stderr_lines(o) if line.startswith("warning:")]
+    assert len(warns) == 1 and "albedo: above 1" in warns[0], o.describe()
     assert out.is_file()
 
 

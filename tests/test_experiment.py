@@ -597,3 +597,36 @@ def test_a_time_budget_below_one_spp_is_warned_about_and_recorded(tmp_path):
     assert not experiment._budget_exceeded({**base, "total_seconds": 0.05})
     assert not experiment._budget_exceeded({**base, "spp": 2})
     assert not experiment._budget_exceeded({**base, "budget_kind": "spp", "target_seconds": None})
+
+
+def _scene_with_map(tmp_path, pixels):
+    write_raw_image(tmp_path / "map.exr", pixels)
+    scene = tmp_path / "scene.toml"
+    scene.write_text('[environment]\nfile = "map.exr"\n[camera]\neye = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\n'
+                     '[[objects]]\nshape = "sphere"\nmaterial = "m"\n[materials.m]\ntype = "lambert"\n')
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f"[experiment]\nsize = [8, 6]\n[reference]\nspp = 4\n[[scenes]]\npath = '{scene.as_posix()}'\n"
+                    "[[strategies]]\nid = 'mis'\n[budgets]\nspp = [1]\n")
+    return spec
+
+
+def test_cli_all_black_environment_is_refused_as_by_render(tmp_path):
+    spec = _scene_with_map(tmp_path, np.zeros((8, 16, 3), np.float32))
+    r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "out"), "-q"])
+    assert r.exit_code == 2, r.output
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "scene.toml: [environment]: the environment is black everywhere" in lines[0], r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_sanitised_map_finishes_then_exits_3(tmp_path):
+    """Bad texels: one warning line, the experiment runs and writes its results, exit code 3."""
+    px = np.ones((8, 16, 3), np.float32)
+    px[2, 3], px[4, 5, 1] = np.nan, -1.0
+    spec = _scene_with_map(tmp_path, px)
+    r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "out"), "-q"])
+    assert r.exit_code == 3, r.output
+    warns = [line for line in r.stderr.splitlines() if line.startswith("warning:")]
+    assert len(warns) == 1 and "2 texel(s) with NaN, Inf or negative values" in warns[0], r.stderr
+    assert not [line for line in r.stderr.splitlines() if line.startswith("Error")]
+    assert (tmp_path / "out" / "results.json").is_file()

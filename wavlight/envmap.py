@@ -25,7 +25,7 @@ import warnings
 import numpy as np
 
 from . import warp
-from .errors import WavlightError
+from .errors import SanitisedInputWarning, WavlightError
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
 ONE_BELOW = float(np.nextafter(1.0, 0.0))
@@ -87,7 +87,7 @@ def sanitize(pixels: np.ndarray, name: str) -> np.ndarray:
     if bad.any():
         texels = int(bad.any(axis=-1).sum())
         warnings.warn(f"{name}: {texels} texel(s) with NaN, Inf or negative values: those values set to 0",
-                      stacklevel=2)
+                      SanitisedInputWarning, stacklevel=2)
         pixels = np.where(bad, np.float32(0), pixels).astype(np.float32)
     return pixels
 

@@ -19,6 +19,16 @@ class SceneError(WavlightError):
         super().__init__(f"{path}: {key}: {message}" if key else f"{path}: {message}")
 
 
+class SanitisedInputWarning(UserWarning):
+    """Bad input that was repaired rather than refused (NaN, Inf or negative texels set to 0,
+    degenerate triangles removed): the result is usable but not what the file asked for.
+    The CLI finishes its work and then exits with code 3 (:data:`SANITISED_EXIT_CODE`)."""
+
+
+#: the CLI's exit code after a run that completed on sanitised input
+SANITISED_EXIT_CODE = 3
+
+
 class ArgumentError(WavlightError, ValueError):
     """A bad argument to a library function, named with the function; also a ValueError, so
     existing ``except ValueError`` callers keep working."""

@@ -142,7 +142,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import metrics
-from .errors import WavlightError
+from .errors import SanitisedInputWarning, WavlightError
 from .sampler import SAMPLERS
 from .scene import MAX_SIDE, MAX_SPP, STRATEGIES
 from .scene import _Table as SceneTable
@@ -477,6 +477,9 @@ class _Runner:
         self.scenes, self.scene_hash, self.size = {}, {}, {}
         for s in spec.scenes:
             scene = wavlight.load_scene(s.path)
+            if scene.environment.is_black:   # as `wavlight render`: every image and error would be 0
+                raise WavlightError(f"{s.path}: [environment]: the environment is black everywhere; "
+                                    "relative errors against a black reference are undefined")
             self.scenes[s.name] = scene
             with open(s.path, "rb") as fh:
                 self.scene_hash[s.name] = hashlib.sha256(fh.read()).hexdigest()
@@ -691,7 +694,9 @@ def run_task(task: dict) -> dict:
         with open(path, "rb") as fh:
             if hashlib.sha256(fh.read()).hexdigest() != digest:
                 raise WavlightError(f"{path}: this worker sees a different scene file than the experiment read")
-        scene = _WORKER["scenes"][(path, digest)] = wavlight.load_scene(path)
+        with warnings.catch_warnings():   # the experiment's own process warned when it read the scene
+            warnings.simplefilter("ignore", SanitisedInputWarning)
+            scene = _WORKER["scenes"][(path, digest)] = wavlight.load_scene(path)
     w, h = task["size"]
     strategy, options, threads = task["strategy"], task["options"], task["threads"]
     warm = (path, digest, strategy, tuple(sorted(options.items())))
@@ -794,13 +799,14 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, da
     out_dir = str(out_dir)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise WavlightError(f"{out_dir}: exists and is not a folder")
+    runner = _Runner(spec, out_dir, progress, resume)   # loads and checks the scenes before out_dir exists
     try:
         os.makedirs(out_dir, exist_ok=True)
         _write_text(os.path.join(out_dir, "spec.toml"), spec.text.decode("utf-8"))
     except OSError as e:
         raise WavlightError(f"{out_dir}: cannot write ({e.strerror})") from None
     try:
-        return _run(spec, out_dir, progress, resume, t_start, workers, dask_address)
+        return _run(runner, t_start, workers, dask_address)
     except OSError as e:
         raise WavlightError(f"{e.filename or out_dir}: cannot write ({e.strerror})") from None
 
@@ -820,8 +826,8 @@ def run_suite(name, out_dir, progress=None, **options) -> tuple[dict, str]:
     return results, stability.format_table(results)
 
 
-def _run(spec: Spec, out_dir, progress, resume, t_start, workers=1, dask_address=None):
-    runner = _Runner(spec, out_dir, progress, resume)
+def _run(runner: _Runner, t_start, workers=1, dask_address=None):
+    spec, out_dir = runner.spec, runner.out
     references = {}
     records, jobs = [], []
     # references and pilots here (they set the spp of time budgets), then the runs

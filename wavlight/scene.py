@@ -37,7 +37,7 @@ import numpy as np
 
 from . import bsdfs, meshes
 from .envmap import MAX_RADIANCE, Environment, procedural_sky, read_image
-from .errors import SceneError, WavlightError
+from .errors import SanitisedInputWarning, SceneError, WavlightError
 from .sampler import SAMPLERS
 
 STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet", "sir", "structured")
@@ -334,7 +334,8 @@ def _clean_triangles(path, key, v, f):
     extent = np.ptp(v, axis=0).max() if len(v) else 0.0
     good = area2 > 1e-14 * extent ** 2 if extent > 0 else area2 > 0
     if not good.all():
-        warnings.warn(f"{path}: {key}: {int((~good).sum())} degenerate triangle(s) removed", stacklevel=3)
+        warnings.warn(f"{path}: {key}: {int((~good).sum())} degenerate triangle(s) removed", SanitisedInputWarning,
+                      stacklevel=3)
     if not good.any():
         raise SceneError(path, key, "every triangle is degenerate (zero area)")
     return f[good]
