@@ -14,8 +14,14 @@ power heuristic), wavelet_plain (the plain light tree for lambert too),
 wavelet_all_compensated (the compensated tree for every material); and per-point product
 tables, the ideals the walk approximates (_table_product): exact_product (the product at
 the light tree's leaf resolution, exactly), depth_table (at the walk's product depth P,
-the light tree below), depth_table_fine (at P + 1) and depth_table_footprint (at P, only
-where BRDF x cosine >= 1% of its peak). Strategy options follow the name
+the light tree below), depth_table_fine (at P + 1), depth_table_footprint (at P, only
+where BRDF x cosine >= 1% of its peak) and depth_table[_fine]_offsetA (the table built
+for the point's frame tilted by A degrees: a table per pixel serving the pixel's other
+points). Where the walk loses to the tables (2026-12-02, session 10): coarseC (a table of
+the walk's own lobe model, summed exactly, for the first C levels), exact_fineF[_plus1]
+(the true BRDF at node centres from level F on, [one level deeper]), centroidS[_geoG]
+[_nolook] (the lobe evaluated at each node's light centroid, widened by S x the light's
+spread [+ G x the node-size blur]), wavelet_nolook and wavelet_lookK (K look-ahead levels). Strategy options follow the name
 (wavelet:levels=9). A name with ":mixS" (wavelet:mix0.9, exact_product:mix0.9) gives
 the product the share S of the samples by one-sample MIS instead of the pair. --phong-blur sets
 the phong lobe widening of the numpy twin (wavlight.product PHONG_BLUR, in units of pi;
@@ -49,7 +55,7 @@ def _variant(heuristic="balance", compensated="lambert"):
     return s
 
 
-def _table_product(extra_levels=None, footprint=0.0):
+def _table_product(extra_levels=None, footprint=0.0, offset_degrees=0.0):
     """Per-point product tables: the ideal the product walk approximates, far too slow to
     render with (one table of 4^k entries per shading point).
 
@@ -59,7 +65,13 @@ def _table_product(extra_levels=None, footprint=0.0):
     cosine at the node centre), then the light tree inside the chosen node, as the walk
     continues below P: the walk's target without its level-by-level approximation.
     footprint f > 0 keeps only the nodes whose BRDF x cosine is at least f times the
-    table's largest (the lobe's footprint, what a renderer could afford to tabulate)."""
+    table's largest (the lobe's footprint, what a renderer could afford to tabulate).
+    offset_degrees > 0 builds each point's table for its shading frame (normal and view
+    together) tilted by that angle about a random tangent axis, so the lobe's mirror direction
+    moves by that angle: a table per pixel, built at the pixel's centre, serves samples whose
+    shading points lie elsewhere in the pixel (on the 96^2 sphere of relmse.py one pixel turns
+    the normal by about 1.3 degrees and the mirror direction by 2.6; a sample lies 0.38 pixel
+    from the centre on average, about 1 degree of mirror direction)."""
     from wavlight import bsdfs, strategies
     from wavlight.distributions import level_offset
 
@@ -80,7 +92,16 @@ def _table_product(extra_levels=None, footprint=0.0):
             key = tuple(sp.p[i]) + tuple(sp.wo[i])
             if key not in self.tables:
                 d = self.dirs
-                local = np.stack([d @ sp.s[i], d @ sp.t[i], d @ sp.n[i]], 1)
+                s_, t_, n_ = sp.s[i], sp.t[i], sp.n[i]
+                if offset_degrees:
+                    rng = np.random.default_rng(abs(hash(key)) % (1 << 32))
+                    phi, ang = rng.uniform(0, 2 * np.pi), np.radians(offset_degrees)
+                    axis = np.cos(phi) * s_ + np.sin(phi) * t_   # tilt the frame about a tangent axis
+                    def rot(v):
+                        return (v * np.cos(ang) + np.cross(axis, v) * np.sin(ang)
+                                + axis * (axis @ v) * (1 - np.cos(ang)))
+                    s_, t_, n_ = rot(s_), rot(t_), rot(n_)
+                local = np.stack([d @ s_, d @ t_, d @ n_], 1)
                 f = np.nan_to_num(bsdfs.eval_cos(int(sp.kind[i]), np.full(len(d), sp.param[i]), local,
                                                  np.repeat(sp.wo[i:i + 1], len(d), 0)))
                 w = self.table_mass * np.where(f >= footprint * f.max(), f, 0.0)
@@ -146,6 +167,267 @@ def _table_product(extra_levels=None, footprint=0.0):
     return TableProduct(compensated_kinds=())
 
 
+def _coarse_table(coarse, extra=0):
+    """A per-point table for the walk's first `coarse` levels only: the importances of the
+    nodes of levels 1..coarse are the sums of the depth-(P + extra) node importances
+    (light mass x the walk's lobe model at the node centre) below them, so the coarse
+    choices see the product as the full table does; below level `coarse` the walk goes on
+    with its own importances. What a per-pixel table of 4^coarse entries would buy."""
+    from wavlight import product, strategies
+    from wavlight.distributions import choose_child_reference, level_offset
+
+    class CoarseTable(strategies.WaveletStrategy):
+        def prepare(self, environment, materials=()):
+            super().prepare(environment, materials)
+            self.cache = {}
+            self.coarse = min(coarse, int(self.levels.max()))
+
+        def _levels_of(self, sp):
+            """Per sample, the table pyramids' levels 1..coarse, stacked over the points: {l: (N, 2^l, 2^l)}."""
+            key = id(sp)
+            if self.cache.get("key") != key:
+                n = self.trees.n_levels
+                axis, kappa, levels, shape = self._lobes(sp, sp.material)
+                base = self._bases(sp)
+                _, first, inverse = np.unique(np.concatenate([sp.p, sp.wo], 1), axis=0, return_index=True,
+                                              return_inverse=True)
+                tree = self._nodes.ravel().astype(np.float64)
+                stacks = {l: [] for l in range(1, self.coarse + 1)}
+                for i in first:
+                    d = min(int(levels[i]) + extra, n)
+                    side = 1 << d
+                    y, x = np.divmod(np.arange(side * side), side)
+                    mass = tree[base[i] + level_offset(d) + y * side + x]
+                    rep = lambda a: np.repeat(a[i:i + 1], side * side, 0)
+                    a = product.node_importance(self.env, mass, x, y, d, rep(axis), rep(sp.n), rep(kappa),
+                                                rep(shape)).reshape(side, side)
+                    for l in range(d, 0, -1):
+                        if l <= self.coarse:
+                            stacks[l].append(a)
+                        a = a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]
+                self.cache = {"key": key, "group": inverse.ravel(),
+                              "levels": {l: np.stack(v) for l, v in stacks.items()}, "keep": sp}
+            return self.cache["group"], self.cache["levels"]
+
+        def _weights(self, sp, sel, l, x, y, base):
+            """(len(sel), 4) child importances at step l (children on level l + 1)."""
+            axis, kappa, levels, shape = self._lobes(sp, sp.material)
+            if l < self.coarse:
+                group, pyr = self._levels_of(sp)
+                a, g = pyr[l + 1], group[sel]
+                return np.stack([a[g, 2 * y, 2 * x], a[g, 2 * y, 2 * x + 1], a[g, 2 * y + 1, 2 * x],
+                                 a[g, 2 * y + 1, 2 * x + 1]], 1)
+            return product._children(self._nodes.ravel().astype(np.float64), self.env, x, y, l, axis[sel], sp.n[sel],
+                                     kappa[sel], shape[sel], self.trees.n_levels, base[sel])
+
+        def _bases(self, sp):
+            return self.tree_index[sp.material].astype(np.int64) * self.trees.stride
+
+        def _walk_pdf(self, sp, uv):
+            n = self.trees.n_levels
+            tree = self._nodes.ravel().astype(np.float64)
+            base = self._bases(sp)
+            _, _, levels, _ = self._lobes(sp, sp.material)
+            side = 1 << n
+            lx = np.clip((uv[:, 0] * side).astype(np.int64), 0, side - 1)
+            ly = np.clip((uv[:, 1] * side).astype(np.int64), 0, side - 1)
+            depth = np.minimum(levels, n)
+            p = np.ones(len(uv))
+            for l in range(int(depth.max())):
+                sel = np.nonzero(l < depth)[0]
+                cx, cy = lx[sel] >> (n - l - 1), ly[sel] >> (n - l - 1)
+                w = self._weights(sp, sel, l, cx >> 1, cy >> 1, base)
+                s = w.sum(1)
+                p[sel] *= np.where(s > 0, w[np.arange(len(sel)), (cx & 1) + 2 * (cy & 1)] / np.where(s > 0, s, 1), 0)
+            nx, ny = lx >> (n - depth), ly >> (n - depth)
+            offsets = np.array([level_offset(int(d)) for d in range(n + 1)])
+            node = tree[base + offsets[depth] + ny * (1 << depth) + nx]
+            leaf = tree[base + level_offset(n) + ly * side + lx]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return np.where(node > 0, p * leaf / node * side * side, 0.0)
+
+        def sample(self, sp, u):
+            n = self.trees.n_levels
+            tree = self._nodes.ravel().astype(np.float64)
+            base = self._bases(sp)
+            _, _, levels, _ = self._lobes(sp, sp.material)
+            u = np.clip(np.asarray(u, np.float64)[:, :2].copy(), 0, 1 - 1e-9)
+            x = np.zeros(len(u), np.int64)
+            y = np.zeros(len(u), np.int64)
+            depth = np.minimum(levels, n)
+            for l in range(n):
+                cside = 2 << l
+                c = base + level_offset(l + 1) + (2 * y) * cside + 2 * x
+                w = np.stack([tree[c], tree[c + 1], tree[c + cside], tree[c + cside + 1]], 1)
+                prod = np.nonzero(l < depth)[0]
+                if len(prod):
+                    w[prod] = self._weights(sp, prod, l, x[prod], y[prod], base)
+                go_top, go_left = choose_child_reference(w[:, 0], w[:, 1], w[:, 2], w[:, 3], u)
+                y = 2 * y + (~go_top)
+                x = 2 * x + (~go_left)
+            uv = np.minimum((np.stack([x, y], 1) + u) / (1 << n), 1 - 1e-9)
+            d = self.env.square_to_world(uv)
+            return strategies.DirectionSamples(d, sp.to_local(d), self._walk_pdf(sp, uv) * self.env.square_to_solid_angle(d))
+
+        def pdf(self, sp, wi_local, wi_world):
+            return self._walk_pdf(sp, self.env.world_to_square(wi_world)) * self.env.square_to_solid_angle(wi_world)
+
+    return CoarseTable()
+
+
+def _exact_importance(mass, d, axis, n, kappa, shape):
+    """mass x the true BRDF x cosine at directions d (world), from the walk's lobe arguments
+    (axis the mirror direction, kappa = n for phong, 1 / (2 alpha^2) for ggx)."""
+    from wavlight import bsdfs
+
+    dot = lambda a, b: np.einsum("ij,ij->i", a, b)
+    cos_i = dot(d, n)
+    wo = 2.0 * dot(axis, n)[:, None] * n - axis
+    cos_o = dot(wo, n)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        phong = (kappa + 2) / (2 * np.pi) * np.maximum(dot(d, axis), 0) ** kappa * np.maximum(cos_i, 0)
+        a2 = 1.0 / (2.0 * np.where(kappa > 0, kappa, 1.0))
+        h = d + wo
+        h /= np.linalg.norm(h, axis=1, keepdims=True)
+        ch = dot(h, n)
+        D = np.where(ch > 0, a2 / (np.pi * (ch * ch * (a2 - 1) + 1) ** 2), 0)
+        g1 = lambda c: np.where(c > 0, 2 / (1 + np.sqrt(1 + a2 * np.maximum(1 - c * c, 0) / np.maximum(c * c, 1e-30))), 0)
+        ggx = np.where((cos_i > 0) & (cos_o > 0) & (dot(d, h) > 0), D * g1(cos_i) * g1(cos_o) / (4 * np.maximum(cos_o, 1e-12)), 0)
+        lam = np.maximum(cos_i, 0) / np.pi
+    lobe = np.select([shape == bsdfs.PHONG, (shape == bsdfs.GGX) | (shape == 3)], [phong, ggx], lam)
+    return mass * np.nan_to_num(lobe)
+
+
+def _exact_fine(first_level, plus=0):
+    """`wavelet` whose node importances on levels >= first_level use the true BRDF x cosine at
+    the node centre (no lobe model, no widening); plus > 0 deepens the product by that many levels."""
+    from wavlight import product, strategies
+
+    class ExactFine(strategies.WaveletStrategy):
+        def prepare(self, environment, materials=()):
+            super().prepare(environment, materials)
+            self.levels = np.minimum(self.levels + plus, self.trees.n_levels).astype(np.int32)
+
+        def _patched(self, fn, *args):
+            model = product.node_importance
+
+            def importance(env, mass, x, y, level, axis, n, kappa, shape):
+                if level < first_level:
+                    return model(env, mass, x, y, level, axis, n, kappa, shape)
+                inv = 1.0 / (1 << level)
+                d = env.square_to_world(np.stack([(x + 0.5) * inv, (y + 0.5) * inv], 1))
+                return _exact_importance(mass, d, axis, n, kappa, shape)
+            product.node_importance = importance
+            try:
+                return fn(*args)
+            finally:
+                product.node_importance = model
+
+        def sample(self, sp, u):
+            return self._patched(super().sample, sp, u)
+
+        def pdf(self, sp, wi_local, wi_world):
+            return self._patched(super().pdf, sp, wi_local, wi_world)
+
+    return ExactFine()
+
+
+def _centroid(spread=1.0, lookahead=True, horizon="node", geometric=0.0):
+    """`wavelet` whose node importances evaluate the lobe at the node's light centroid (the
+    mass-weighted mean direction of its leaves) instead of its centre, widened by the light's
+    own spread in the node, 1 - |mean vector| / mass (a von Mises-Fisher light of
+    1/kappa_L ~ 1 - rho: the product of two such lobes widens as 1/kappa + 1/kappa_L),
+    times `spread`, instead of the node's size. lookahead False: no look-ahead levels."""
+    from wavlight import product, strategies
+
+    class Centroid(strategies.WaveletStrategy):
+        def prepare(self, environment, materials=()):
+            super().prepare(environment, materials)
+            n = self.trees.n_levels
+            side = 1 << n
+            y, x = np.divmod(np.arange(side * side), side)
+            d = environment.square_to_world(np.stack([(x + 0.5) / side, (y + 0.5) / side], 1))
+            from wavlight.distributions import level_offset
+            self.vectors = []
+            for t in range(self._nodes.shape[0]):
+                leaf = self._nodes[t, level_offset(n):].astype(np.float64)
+                v = (leaf[:, None] * d).reshape(side, side, 3)
+                levels = {n: v}
+                for l in range(n - 1, -1, -1):
+                    a = levels[l + 1]
+                    levels[l] = a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]
+                self.vectors.append(levels)
+
+        def _patched(self, fn, *args):
+            model, saved = product.node_importance, product.LOOKAHEAD_LEVELS
+            vectors = self.vectors[0]
+
+            def importance(env, mass, x, y, level, axis, n, kappa, shape):
+                v = vectors[level][y, x]
+                length = np.linalg.norm(v, axis=1)
+                ok = (mass > 0) & (length > 0)
+                inv = 1.0 / (1 << level)
+                centre = env.square_to_world(np.stack([(x + 0.5) * inv, (y + 0.5) * inv], 1))
+                d = np.where(ok[:, None], v / np.where(ok, length, 1.0)[:, None], centre)
+                rho = np.where(ok, length / np.where(ok, mass, 1.0), 1.0)
+                r2 = spread * np.maximum(1.0 - rho, 0.0) + geometric * (product.LOBE_BLUR * inv) ** 2
+                rh = product.HORIZON_BLUR * inv if horizon == "node" else np.sqrt(2 * r2) * horizon
+                cos_n = np.einsum("ij,ij->i", d, n)
+                x1 = 1.0 - np.einsum("ij,ij->i", d, axis)
+                with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+                    ik = np.where(kappa > 0, 1.0 / np.where(kappa > 0, kappa, 1.0), 0.0)
+                    k = np.where(kappa > 0, 1.0 / (ik + r2), 0.0)
+                    hz = np.clip(cos_n / np.maximum(rh, 1e-6) + 1.0, 0.0, 1.0)
+                    ggx = (1.0 / (1.0 + k * x1)) ** 2 * hz
+                    wo = 2.0 * np.einsum("ij,ij->i", axis, n)[:, None] * n - axis
+                    h = d + wo
+                    hn = np.einsum("ij,ij->i", h, n)
+                    nh2 = np.where(hn > 0, hn * hn / np.einsum("ij,ij->i", h, h), 0.0)
+                    a2 = 0.5 * (ik + r2)
+                    ggx_half = a2 / (nh2 * (a2 - 1.0) + 1.0) ** 2 * hz
+                    kp = np.where(kappa > 0, 1.0 / (ik + r2), 0.0)
+                    hor = np.clip(cos_n + rh, 0.0, 1.0)
+                    phong = (1.0 / (1.0 + 0.125 * kp * x1)) ** 8 * hor
+                lobe = np.select([shape == product.GGX_HALF, shape == 2, shape == 1], [ggx_half, ggx, phong], hor)
+                return mass * np.nan_to_num(lobe)
+            product.node_importance = importance
+            if not lookahead:
+                product.LOOKAHEAD_LEVELS = 0
+            try:
+                return fn(*args)
+            finally:
+                product.node_importance, product.LOOKAHEAD_LEVELS = model, saved
+
+        def sample(self, sp, u):
+            return self._patched(super().sample, sp, u)
+
+        def pdf(self, sp, wi_local, wi_world):
+            return self._patched(super().pdf, sp, wi_local, wi_world)
+
+    return Centroid()
+
+
+def _lookahead(levels=0):
+    """`wavelet` with `levels` look-ahead levels (0: none)."""
+    from wavlight import product, strategies
+
+    class NoLook(strategies.WaveletStrategy):
+        def _patched(self, fn, *args):
+            saved, product.LOOKAHEAD_LEVELS = product.LOOKAHEAD_LEVELS, levels
+            try:
+                return fn(*args)
+            finally:
+                product.LOOKAHEAD_LEVELS = saved
+
+        def sample(self, sp, u):
+            return self._patched(super().sample, sp, u)
+
+        def pdf(self, sp, wi_local, wi_world):
+            return self._patched(super().pdf, sp, wi_local, wi_world)
+
+    return NoLook()
+
+
 # earlier designs of `wavelet`, for comparison: the power heuristic (before session 7), the
 # plain light tree for lambert too, the compensated tree for every material; and the exact
 # product (the yardstick above)
@@ -154,7 +436,22 @@ VARIANTS = {"wavelet_power": lambda: _variant(heuristic="power", compensated="no
             "wavelet_all_compensated": lambda: _variant(compensated="all"),
             "exact_product": _table_product,
             "depth_table": lambda: _table_product(0), "depth_table_fine": lambda: _table_product(1),
-            "depth_table_footprint": lambda: _table_product(0, footprint=0.01)}
+            "depth_table_footprint": lambda: _table_product(0, footprint=0.01),
+            **{f"depth_table_offset{a}": (lambda a=a: _table_product(0, offset_degrees=a)) for a in (0.35, 0.7, 1.4)},
+            **{f"depth_table_fine_offset{a}": (lambda a=a: _table_product(1, offset_degrees=a)) for a in (0.35, 0.7, 1.4)},
+            "coarse2": lambda: _coarse_table(2), "coarse3": lambda: _coarse_table(3),
+            "coarse4": lambda: _coarse_table(4), "coarse5": lambda: _coarse_table(5),
+            "coarse6": lambda: _coarse_table(6), "coarse7": lambda: _coarse_table(7),
+            **{f"exact_fine{f}": (lambda f=f: _exact_fine(f)) for f in range(1, 11)},
+            **{f"exact_fine{f}_plus1": (lambda f=f: _exact_fine(f, 1)) for f in range(1, 11)},
+            **{f"centroid{c}": (lambda c=c: _centroid(c)) for c in (0.1, 0.25, 0.5, 1, 2, 4, 8)},
+            **{f"centroid{c}_nolook": (lambda c=c: _centroid(c, False)) for c in (0.1, 0.25, 0.5, 1, 2, 4, 8)},
+            **{f"centroid{c}_geo{g}": (lambda c=c, g=g: _centroid(c, geometric=g)) for c in (0.1, 0.25, 0.5, 1)
+               for g in (0.25, 0.5, 1)},
+            **{f"centroid{c}_geo{g}_nolook": (lambda c=c, g=g: _centroid(c, False, geometric=g))
+               for c in (0.1, 0.25, 0.5, 1) for g in (0.25, 0.5, 1)},
+            "wavelet_nolook": lambda: _lookahead(),
+            **{f"wavelet_look{k}": (lambda k=k: _lookahead(k)) for k in range(1, 6)}}
 
 
 def mixture_estimates(strategy, env, sp, u, share):
