@@ -10,7 +10,9 @@ trees/s, built on the device (and "with_copies_to_host": through ProductPyramids
 which uploads H and returns the trees row-major on the host). "without_lookahead": the product walk built without its look-ahead
 importances at the coarse levels (kernels/product.h), for comparison;
 "without_barriers": the walk depth-first, without the stand-alone kernels' level
-barriers (kernels/warp.h), as the renderer's shade kernel runs it inline. Prints
+barriers (kernels/warp.h), as the renderer's shade kernel runs it inline. "per_point_16"
+(and without barriers): 16 consecutive samples share each random shading point, as a
+pixel's samples do in the renderer (its eight-lane vectors then walk one lobe). Prints
 one JSON object. Timings are kernel time after a warm-up, best of 3, including
 host<->device copies of inputs and outputs ("with_copies") and without.
 
@@ -50,6 +52,11 @@ def benchmark_materials():
             "ggx0.2": (bsdfs.GGX, 0.2), "ggx0.05": (bsdfs.GGX, 0.05)}
 
 
+#: samples per shading point in the coherent runs: a pixel's samples at 16 spp (Clarberg et
+#: al. 2005 draw 100 per point; the random runs draw one)
+PER_POINT = 16
+
+
 def best_of(fn, repeat=3):
     fn()
     times = []
@@ -82,6 +89,11 @@ def main():
     material = np.zeros(n, np.int32)   # one material per run: the table has one row
     rot = cl.to_device(env.map_from_world.astype(np.float32).ravel())
     u_buf, n_buf, wo_buf, mat_buf = cl.to_device(u), cl.to_device(n4), cl.to_device(wo4), cl.to_device(material)
+    # the renderer's pattern: consecutive samples share a shading point (a pixel's samples,
+    # PER_POINT of them), each with its own u
+    nc4, woc4, _ = random_shading_points(rng, -(-n // PER_POINT))
+    nc_buf = cl.to_device(np.ascontiguousarray(np.repeat(nc4, PER_POINT, 0)[:n]))
+    woc_buf = cl.to_device(np.ascontiguousarray(np.repeat(woc4, PER_POINT, 0)[:n]))
     uv_buf, pdf_buf = cl.empty(8 * n), cl.empty(4 * n)
     out = {"env": os.path.basename(args.env), "count": n, "device": rt.description,
            "shading_points": "random normals and view directions, one sample each", "levels": {}}
@@ -131,6 +143,11 @@ def main():
                                           LOBE_SHAPES=1 << shape, WALK_BARRIERS=0), "product_sample_points")
             row[name]["without_barriers"] = round(n / best_of(lambda: (launch(n_buf, wo_buf, u_buf, inline),
                                                                       q.finish())))
+            # PER_POINT samples per shading point in a row, with and without the barriers
+            row[name][f"per_point_{PER_POINT}"] = round(n / best_of(lambda: (launch(nc_buf, woc_buf, u_buf),
+                                                                           q.finish())))
+            row[name][f"per_point_{PER_POINT}_without_barriers"] = round(n / best_of(
+                lambda: (launch(nc_buf, woc_buf, u_buf, inline), q.finish())))
         out["levels"][str(n_levels)] = row
     # The alternative design: dense per-point product pyramids by eq. 25 (wavlight.haar).
     try:
