@@ -298,38 +298,54 @@ def _exact_importance(mass, d, axis, n, kappa, shape):
     return mass * np.nan_to_num(lobe)
 
 
-def _exact_fine(first_level, plus=0):
-    """`wavelet` whose node importances on levels >= first_level use the true BRDF x cosine at
-    the node centre (no lobe model, no widening); plus > 0 deepens the product by that many levels."""
+def _patched(patches, prepare=None):
+    """A `wavelet` strategy whose sample and pdf run with names of wavlight.product replaced:
+    patches(strategy) -> {name: value}; prepare(strategy) runs after its own prepare."""
     from wavlight import product, strategies
 
-    class ExactFine(strategies.WaveletStrategy):
+    class Patched(strategies.WaveletStrategy):
         def prepare(self, environment, materials=()):
             super().prepare(environment, materials)
-            self.levels = np.minimum(self.levels + plus, self.trees.n_levels).astype(np.int32)
+            if prepare is not None:
+                prepare(self)
 
-        def _patched(self, fn, *args):
-            model = product.node_importance
-
-            def importance(env, mass, x, y, level, axis, n, kappa, shape):
-                if level < first_level:
-                    return model(env, mass, x, y, level, axis, n, kappa, shape)
-                inv = 1.0 / (1 << level)
-                d = env.square_to_world(np.stack([(x + 0.5) * inv, (y + 0.5) * inv], 1))
-                return _exact_importance(mass, d, axis, n, kappa, shape)
-            product.node_importance = importance
+        def _run(self, fn, *args):
+            new = patches(self)
+            saved = {k: getattr(product, k) for k in new}
+            for k, v in new.items():
+                setattr(product, k, v)
             try:
                 return fn(*args)
             finally:
-                product.node_importance = model
+                for k, v in saved.items():
+                    setattr(product, k, v)
 
         def sample(self, sp, u):
-            return self._patched(super().sample, sp, u)
+            return self._run(super().sample, sp, u)
 
         def pdf(self, sp, wi_local, wi_world):
-            return self._patched(super().pdf, sp, wi_local, wi_world)
+            return self._run(super().pdf, sp, wi_local, wi_world)
 
-    return ExactFine()
+    return Patched()
+
+
+def _exact_fine(first_level, plus=0):
+    """`wavelet` whose node importances on levels >= first_level use the true BRDF x cosine at
+    the node centre (no lobe model, no widening); plus > 0 deepens the product by that many levels."""
+    from wavlight import product
+
+    model = product.node_importance
+
+    def importance(env, mass, x, y, level, axis, n, kappa, shape):
+        if level < first_level:
+            return model(env, mass, x, y, level, axis, n, kappa, shape)
+        inv = 1.0 / (1 << level)
+        d = env.square_to_world(np.stack([(x + 0.5) * inv, (y + 0.5) * inv], 1))
+        return _exact_importance(mass, d, axis, n, kappa, shape)
+
+    def deeper(s):
+        s.levels = np.minimum(s.levels + plus, s.trees.n_levels).astype(np.int32)
+    return _patched(lambda s: {"node_importance": importance}, deeper)
 
 
 def _centroid(spread=1.0, lookahead=True, horizon="node", geometric=0.0):
@@ -337,95 +353,58 @@ def _centroid(spread=1.0, lookahead=True, horizon="node", geometric=0.0):
     mass-weighted mean direction of its leaves) instead of its centre, widened by the light's
     own spread in the node, 1 - |mean vector| / mass (a von Mises-Fisher light of
     1/kappa_L ~ 1 - rho: the product of two such lobes widens as 1/kappa + 1/kappa_L),
-    times `spread`, instead of the node's size. lookahead False: no look-ahead levels."""
-    from wavlight import product, strategies
+    times `spread` (plus `geometric` times the node-size blur). lookahead False: no
+    look-ahead levels."""
+    from wavlight import product
+    from wavlight.distributions import level_offset
 
-    class Centroid(strategies.WaveletStrategy):
-        def prepare(self, environment, materials=()):
-            super().prepare(environment, materials)
-            n = self.trees.n_levels
-            side = 1 << n
-            y, x = np.divmod(np.arange(side * side), side)
-            d = environment.square_to_world(np.stack([(x + 0.5) / side, (y + 0.5) / side], 1))
-            from wavlight.distributions import level_offset
-            self.vectors = []
-            for t in range(self._nodes.shape[0]):
-                leaf = self._nodes[t, level_offset(n):].astype(np.float64)
-                v = (leaf[:, None] * d).reshape(side, side, 3)
-                levels = {n: v}
-                for l in range(n - 1, -1, -1):
-                    a = levels[l + 1]
-                    levels[l] = a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]
-                self.vectors.append(levels)
+    def vectors(s):
+        """Per level, the mass-weighted sums of the leaf directions below each node (first tree)."""
+        n = s.trees.n_levels
+        side = 1 << n
+        y, x = np.divmod(np.arange(side * side), side)
+        d = s.env.square_to_world(np.stack([(x + 0.5) / side, (y + 0.5) / side], 1))
+        leaf = s._nodes[0, level_offset(n):].astype(np.float64)
+        s.vectors = {n: (leaf[:, None] * d).reshape(side, side, 3)}
+        for lv in range(n - 1, -1, -1):
+            a = s.vectors[lv + 1]
+            s.vectors[lv] = a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2]
 
-        def _patched(self, fn, *args):
-            model, saved = product.node_importance, product.LOOKAHEAD_LEVELS
-            vectors = self.vectors[0]
-
-            def importance(env, mass, x, y, level, axis, n, kappa, shape):
-                v = vectors[level][y, x]
-                length = np.linalg.norm(v, axis=1)
-                ok = (mass > 0) & (length > 0)
-                inv = 1.0 / (1 << level)
-                centre = env.square_to_world(np.stack([(x + 0.5) * inv, (y + 0.5) * inv], 1))
-                d = np.where(ok[:, None], v / np.where(ok, length, 1.0)[:, None], centre)
-                rho = np.where(ok, length / np.where(ok, mass, 1.0), 1.0)
-                r2 = spread * np.maximum(1.0 - rho, 0.0) + geometric * (product.LOBE_BLUR * inv) ** 2
-                rh = product.HORIZON_BLUR * inv if horizon == "node" else np.sqrt(2 * r2) * horizon
-                cos_n = np.einsum("ij,ij->i", d, n)
-                x1 = 1.0 - np.einsum("ij,ij->i", d, axis)
-                with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-                    ik = np.where(kappa > 0, 1.0 / np.where(kappa > 0, kappa, 1.0), 0.0)
-                    k = np.where(kappa > 0, 1.0 / (ik + r2), 0.0)
-                    hz = np.clip(cos_n / np.maximum(rh, 1e-6) + 1.0, 0.0, 1.0)
-                    ggx = (1.0 / (1.0 + k * x1)) ** 2 * hz
-                    wo = 2.0 * np.einsum("ij,ij->i", axis, n)[:, None] * n - axis
-                    h = d + wo
-                    hn = np.einsum("ij,ij->i", h, n)
-                    nh2 = np.where(hn > 0, hn * hn / np.einsum("ij,ij->i", h, h), 0.0)
-                    a2 = 0.5 * (ik + r2)
-                    ggx_half = a2 / (nh2 * (a2 - 1.0) + 1.0) ** 2 * hz
-                    kp = np.where(kappa > 0, 1.0 / (ik + r2), 0.0)
-                    hor = np.clip(cos_n + rh, 0.0, 1.0)
-                    phong = (1.0 / (1.0 + 0.125 * kp * x1)) ** 8 * hor
-                lobe = np.select([shape == product.GGX_HALF, shape == 2, shape == 1], [ggx_half, ggx, phong], hor)
-                return mass * np.nan_to_num(lobe)
-            product.node_importance = importance
-            if not lookahead:
-                product.LOOKAHEAD_LEVELS = 0
-            try:
-                return fn(*args)
-            finally:
-                product.node_importance, product.LOOKAHEAD_LEVELS = model, saved
-
-        def sample(self, sp, u):
-            return self._patched(super().sample, sp, u)
-
-        def pdf(self, sp, wi_local, wi_world):
-            return self._patched(super().pdf, sp, wi_local, wi_world)
-
-    return Centroid()
+    def patches(s):
+        def importance(env, mass, x, y, level, axis, n, kappa, shape):
+            v = s.vectors[level][y, x]
+            length = np.linalg.norm(v, axis=1)
+            ok = (mass > 0) & (length > 0)
+            inv = 1.0 / (1 << level)
+            centre = env.square_to_world(np.stack([(x + 0.5) * inv, (y + 0.5) * inv], 1))
+            d = np.where(ok[:, None], v / np.where(ok, length, 1.0)[:, None], centre)
+            rho = np.where(ok, length / np.where(ok, mass, 1.0), 1.0)
+            r2 = spread * np.maximum(1.0 - rho, 0.0) + geometric * (product.LOBE_BLUR * inv) ** 2
+            rh = product.HORIZON_BLUR * inv if horizon == "node" else np.sqrt(2 * r2) * horizon
+            cos_n = np.einsum("ij,ij->i", d, n)
+            x1 = 1.0 - np.einsum("ij,ij->i", d, axis)
+            with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+                ik = np.where(kappa > 0, 1.0 / np.where(kappa > 0, kappa, 1.0), 0.0)
+                k = np.where(kappa > 0, 1.0 / (ik + r2), 0.0)
+                hz = np.clip(cos_n / np.maximum(rh, 1e-6) + 1.0, 0.0, 1.0)
+                ggx = (1.0 / (1.0 + k * x1)) ** 2 * hz
+                wo = 2.0 * np.einsum("ij,ij->i", axis, n)[:, None] * n - axis
+                h = d + wo
+                hn = np.einsum("ij,ij->i", h, n)
+                nh2 = np.where(hn > 0, hn * hn / np.einsum("ij,ij->i", h, h), 0.0)
+                a2 = 0.5 * (ik + r2)
+                ggx_half = a2 / (nh2 * (a2 - 1.0) + 1.0) ** 2 * hz
+                hor = np.clip(cos_n + rh, 0.0, 1.0)
+                phong = (1.0 / (1.0 + 0.125 * k * x1)) ** 8 * hor
+            lobe = np.select([shape == product.GGX_HALF, shape == 2, shape == 1], [ggx_half, ggx, phong], hor)
+            return mass * np.nan_to_num(lobe)
+        return {"node_importance": importance, **({} if lookahead else {"LOOKAHEAD_LEVELS": 0})}
+    return _patched(patches, vectors)
 
 
 def _lookahead(levels=0):
     """`wavelet` with `levels` look-ahead levels (0: none)."""
-    from wavlight import product, strategies
-
-    class NoLook(strategies.WaveletStrategy):
-        def _patched(self, fn, *args):
-            saved, product.LOOKAHEAD_LEVELS = product.LOOKAHEAD_LEVELS, levels
-            try:
-                return fn(*args)
-            finally:
-                product.LOOKAHEAD_LEVELS = saved
-
-        def sample(self, sp, u):
-            return self._patched(super().sample, sp, u)
-
-        def pdf(self, sp, wi_local, wi_world):
-            return self._patched(super().pdf, sp, wi_local, wi_world)
-
-    return NoLook()
+    return _patched(lambda s: {"LOOKAHEAD_LEVELS": levels})
 
 
 # earlier designs of `wavelet`, for comparison: the power heuristic (before session 7), the
