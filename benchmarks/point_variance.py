@@ -183,9 +183,12 @@ def _coarse_table(coarse, extra=0):
             self.coarse = min(coarse, int(self.levels.max()))
 
         def _levels_of(self, sp):
-            """Per sample, the table pyramids' levels 1..coarse, stacked over the points: {l: (N, 2^l, 2^l)}."""
+            """Per sample, the table pyramids' levels 1..coarse, stacked over the points: {l: (N, 2^l, 2^l)}.
+            One material per run (as main() makes them): every point then has the same depth."""
             key = id(sp)
             if self.cache.get("key") != key:
+                if len(np.unique(sp.material)) > 1:
+                    raise ValueError("coarse tables: one material per run")
                 n = self.trees.n_levels
                 axis, kappa, levels, shape = self._lobes(sp, sp.material)
                 base = self._bases(sp)
@@ -359,7 +362,10 @@ def _centroid(spread=1.0, lookahead=True, horizon="node", geometric=0.0):
     from wavlight.distributions import level_offset
 
     def vectors(s):
-        """Per level, the mass-weighted sums of the leaf directions below each node (first tree)."""
+        """Per level, the mass-weighted sums of the leaf directions below each node, of the first
+        light tree: for scenes of one tree (one material per run, as main() makes them)."""
+        if s.trees.n_trees != 1:
+            raise ValueError("centroid: one light tree per run")
         n = s.trees.n_levels
         side = 1 << n
         y, x = np.divmod(np.arange(side * side), side)

@@ -9,7 +9,11 @@ on an existing dask.distributed scheduler; references and pilots stay in this pr
 
 A progress bar over runs (references, pilots and runs; finished runs count as done) is
 drawn on stderr when it is a terminal, never with ``--quiet``. The summary table goes
-to stdout. Bad input prints one line ``Error: FILE: [table].key: problem`` and exits 2.
+to stdout. Bad input prints one line ``Error: FILE: [table].key: problem`` and exits 2
+(runs finished before the error stay in DIR, for a resume). A spec whose scenes had to be
+sanitised (NaN, Inf or negative texels; degenerate triangles) runs and then exits 3, as
+``render`` does; the stability suite, whose cases are such input on purpose, records those
+warnings in its results and exits 0.
 """
 from __future__ import annotations
 

@@ -55,13 +55,18 @@ click.UsageError.show = _show_usage_error
 def main():
     """wavlight: render direct environment lighting with Haar wavelet importance sampling.
 
-    Exit codes: 0 success; 2 bad input or options (one 'Error:' line, nothing written);
-    3 finished and written, but input was sanitised (NaN, Inf or negative texels set to 0,
-    degenerate triangles removed; a 'warning:' line says which).
+    Exit codes: 0 success; 2 bad input or options (one 'Error:' line; render writes no
+    image); 3 finished and written, but input was sanitised (NaN, Inf or negative texels set
+    to 0, degenerate triangles removed; a 'warning:' line says which).
     """
     global _sanitised
+    from wavlight.errors import SanitisedInputWarning
+
     _sanitised = False
     warnings.showwarning = _warn_line
+    # shown once per invocation whatever the process saw before (a new filter also resets the
+    # "once per location" registries) and whatever -W / PYTHONWARNINGS say: exit code 3 needs it
+    warnings.filterwarnings("default", category=SanitisedInputWarning)
 
 
 @main.result_callback()

@@ -565,6 +565,29 @@ def test_bad_texels_warn_once_and_never_reach_the_output(tmp_path, strategy):
     assert np.all(np.isfinite(px)) and px.min() >= 0
 
 
+def test_sanitised_exit_code_survives_an_earlier_warning_in_the_process(tmp_path):
+    """Python shows a warning once per location: a library load of the same bad map earlier in
+    the process (or -W ignore) must not hide it from the command, nor its exit code 3."""
+    import warnings
+
+    import wavlight
+
+    write_env(tmp_path / "bad.exr", bad_texel_env())
+    scene = write_scene(tmp_path, scene_text(env='file = "bad.exr"'))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        wavlight.load_scene(scene)                     # the library's own load: silenced
+        warnings.simplefilter("default")
+        wavlight.load_scene(scene)                     # shown once here, registered
+        for _ in range(2):                             # then twice through the CLI
+            o = run_inproc("render", scene, "-o", tmp_path / "o.exr", "-q")
+            assert_sanitised(o)
+            warns = [line for line in stderr_lines(o) if line.startswith("warning:")]
+            assert len(warns) == 1 and "bad.exr" in warns[0], o.describe()
+        warnings.simplefilter("ignore")                # a user's -W ignore
+        assert_sanitised(run_inproc("render", scene, "-o", tmp_path / "o.exr", "-q"))
+
+
 def test_environment_of_only_bad_texels_is_black(tmp_path):
     env = np.full((4, 8, 3), np.nan, np.float32)
     env[1] = -1.0

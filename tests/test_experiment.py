@@ -381,7 +381,10 @@ def test_cli_prints_the_summary(tiny, tmp_path):
     assert "experiment tiny: 12 runs (0 rendered, 12 reused)" in r.stdout
     assert "wrote " in r.stderr
     r = CliRunner().invoke(main, ["experiment", str(tiny["spec"]), "-o", str(out), "--quiet"])
-    assert r.exit_code == 0 and r.stderr == ""
+    # --quiet: no progress and no "wrote" lines; warnings stay (TINY's 0.05 s budget is below
+    # what 1 spp takes here, which the experiment says once per group)
+    assert r.exit_code == 0, r.output
+    assert all(line.startswith("warning: ") for line in r.stderr.splitlines()), r.stderr
 
 
 BAD = [

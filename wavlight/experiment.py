@@ -481,8 +481,11 @@ class _Runner:
                 raise WavlightError(f"{s.path}: [environment]: the environment is black everywhere; "
                                     "relative errors against a black reference are undefined")
             self.scenes[s.name] = scene
-            with open(s.path, "rb") as fh:
-                self.scene_hash[s.name] = hashlib.sha256(fh.read()).hexdigest()
+            try:
+                with open(s.path, "rb") as fh:
+                    self.scene_hash[s.name] = hashlib.sha256(fh.read()).hexdigest()
+            except OSError as e:
+                raise WavlightError(f"{s.path}: cannot read ({e.strerror})") from None
             self.size[s.name] = s.size or spec.size or (scene.width, scene.height)
         self.warm = set()
         self.done = 0
