@@ -105,6 +105,9 @@ def _check_output(path, formats):
 @click.option("--seed", type=int, default=None, help="Random seed.")
 @click.option("--wavelet-levels", type=click.IntRange(0, 11), default=None,
               help="Product depth of the wavelet strategy (default: per material, from its lobe).")
+@click.option("--wavelet-candidates", type=click.IntRange(0, 64), default=None,
+              help="wavelet: resampling candidates per shading sample (0: the MIS pair of one product and "
+                   "one BSDF sample; default 8).")
 @click.option("--light-levels", type=click.IntRange(1, 11), default=None,
               help="Depth of the light tree, 2^n x 2^n leaves (default: from the map's content).")
 @click.option("--sir-candidates", type=click.IntRange(1, 65536), default=None,
@@ -121,7 +124,8 @@ def _check_output(path, formats):
               help="Also write each pixel's standard error of the mean (linear: .exr .hdr .pfm; needs spp >= 2).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, light_levels, sir_candidates,
+def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, wavelet_candidates, light_levels,
+           sir_candidates,
            sir_samples, structured_strata, structured_mode, sampler, stderr_out, as_json, quiet):
     """Render SCENE (a TOML scene file) to an image."""
     import time
@@ -155,6 +159,7 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
             _fail(f"{stderr_out}: a standard error needs spp >= 2")
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
                                       seed=seed, progress=bar, wavelet_levels=wavelet_levels,
+                                      wavelet_candidates=wavelet_candidates,
                                       light_levels=light_levels, sir_candidates=sir_candidates,
                                       sir_samples=sir_samples, structured_strata=structured_strata,
                                       structured_mode=structured_mode, sampler=sampler)

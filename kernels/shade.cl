@@ -77,6 +77,36 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
 #define SHADE_TABLES mat_kind, mat_param, mat_albedo, mat_kappa, mat_levels, texels, env_w, env_h, \
                      rot, tree
 
+/* Resampled importance sampling from product candidates (wavelet with -DRIS_PRODUCT = M_p,
+ * -DRIS_BSDF = M_b; numpy twin wavlight.strategies.ris_shade_reference, which says why it is
+ * unbiased): candidate j from the uniforms frac(u.xy + j R2) (R2 in 24-bit fixed point:
+ * exact float32 offsets), from the product walk for j < M_p, else from the BSDF; weight
+ * w_j = f cos lum(L) / (M_p p_prod + M_b p_bsdf); two directions resampled with u.z and
+ * u.z + 1/2, each with the scalar sum(w) / (2 lum(L(y))) (the kernel's value is scalar x
+ * albedo x L(y)). The candidates are a loop, not unrolled: the walk inside it is. */
+#ifdef RIS_PRODUCT
+#define RIS_CANDIDATES (RIS_PRODUCT + RIS_BSDF)
+#define R2_FIXED_X 12664746u
+#define R2_FIXED_Y 9560334u
+
+/* The luminance of the texel seen along world direction (x, y, z) (envmap.LUMINANCE). */
+inline realv texel_luminance(__global const float *rot, __global const float *texels, const int env_w,
+                             const int env_h, const realv x, const realv y, const realv z)
+{
+    realv u, v, r, g, b, unused;
+    env_world_to_square(rot, x, y, z, &u, &v);
+    GATHER4(texels, 4 * env_texel(env_w, env_h, u, v), &r, &g, &b, &unused);
+    return 0.2126f * r + 0.7152f * g + 0.0722f * b;
+}
+
+/* frac(u + offset) for an offset in [0, 1), as the twin computes it */
+inline realv shifted_uniform(const realv u, const uint fixed_offset)
+{
+    const realv c = u + (float)(fixed_offset & 0xFFFFFFu) * 0x1p-24f;
+    return select(c, c - 1.0f, c >= 1.0f);
+}
+#endif
+
 /* Two directions (slot a, slot b) and their unoccluded estimates (r, g, b) per lane. */
 typedef struct {
     realv ax, ay, az, bx, by, bz;
@@ -105,7 +135,61 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
 #if STRATEGY == 5
     const Lobe lobe = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, mat), GATHER_INT(mat_levels, mat));
 #endif
-#if STRATEGY >= 3
+#if STRATEGY == 5 && defined(RIS_PRODUCT)
+    {   /* wavelet with candidates: resampled from product (and BSDF) candidates */
+        realv cx[RIS_CANDIDATES], cy[RIS_CANDIDATES], cz[RIS_CANDIDATES], cw[RIS_CANDIDATES];
+        realv total = 0.0f;
+#pragma unroll 1
+        for (int j = 0; j < RIS_CANDIDATES; ++j) {
+            const realv cu = shifted_uniform(u0, (uint)j * R2_FIXED_X), cv = shifted_uniform(u1, (uint)j * R2_FIXED_Y);
+            realv dx, dy, dz, p_prod, f, p_bsdf, lx, ly, lz;
+            if (j < RIS_PRODUCT) {
+                realv gu = cu, gv = cv;
+                const realv square_pdf = product_walk(tree, &lobe, &gu, &gv);
+                env_square_to_world(rot, gu, gv, &dx, &dy, &dz);
+                p_prod = square_pdf * env_square_to_solid_angle(dx, dz);
+                lx = dx * sx + dy * sy + dz * sz;
+                ly = dx * tx + dy * ty + dz * tz;
+                lz = dx * nx + dy * ny + dz * nz;
+                bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &p_bsdf);
+            } else {
+                bsdf_sample(kind, param, ox, oy, oz, cu, cv, &lx, &ly, &lz);
+                bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &p_bsdf);
+                dx = lx * sx + ly * tx + lz * nx;
+                dy = lx * sy + ly * ty + lz * ny;
+                dz = lx * sz + ly * tz + lz * nz;
+                realv gu, gv;
+                env_world_to_square(rot, dx, dy, dz, &gu, &gv);
+                p_prod = product_pdf(tree, &lobe, gu, gv) * env_square_to_solid_angle(dx, dz);
+            }
+            const realv target = f * texel_luminance(rot, texels, env_w, env_h, dx, dy, dz);
+            const realv denom = (float)RIS_PRODUCT * p_prod + (float)RIS_BSDF * p_bsdf;
+            const realv w = target / denom;
+            cw[j] = select((realv)0.0f, w, (denom > 0.0f) & (target > 0.0f) & isfinite(w));
+            cx[j] = dx; cy[j] = dy; cz[j] = dz;
+            total += cw[j];
+        }
+        /* each slot takes the first candidate whose running sum reaches u total (the last one
+         * if rounding leaves none) */
+        const realv ta = u2 * total, tb = select(u2 + 0.5f, u2 - 0.5f, u2 >= 0.5f) * total;
+        realv cum = 0.0f;
+        intv found_a = 0, found_b = 0;
+#pragma unroll 1
+        for (int j = 0; j < RIS_CANDIDATES; ++j) {
+            cum += cw[j];
+            const intv last = (intv)(j == RIS_CANDIDATES - 1 ? -1 : 0);
+            const intv take_a = !found_a & ((cum >= ta) | last), take_b = !found_b & ((cum >= tb) | last);
+            ax = select(ax, cx[j], take_a); ay = select(ay, cy[j], take_a); az = select(az, cz[j], take_a);
+            bx = select(bx, cx[j], take_b); by = select(by, cy[j], take_b); bz = select(bz, cz[j], take_b);
+            found_a |= take_a;
+            found_b |= take_b;
+        }
+        const realv la = texel_luminance(rot, texels, env_w, env_h, ax, ay, az);
+        const realv lb = texel_luminance(rot, texels, env_w, env_h, bx, by, bz);
+        sa = select((realv)0.0f, 0.5f * total / la, (total > 0.0f) & (la > 0.0f));
+        sb = select((realv)0.0f, 0.5f * total / lb, (total > 0.0f) & (lb > 0.0f));
+    }
+#elif STRATEGY >= 3
     {   /* the light (light, mis) or product (wavelet) sample from u.xy */
 #if STRATEGY == 5
         realv gu = u0, gv = u1;
@@ -125,7 +209,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
 #endif
     }
 #endif
-#if STRATEGY >= 4
+#if STRATEGY >= 4 && !(STRATEGY == 5 && defined(RIS_PRODUCT))
     {   /* the bsdf sample from u.zw, weighted against the guide's pdf */
         realv lx, ly, lz, f, pdf;
         bsdf_sample(kind, param, ox, oy, oz, u2, u3, &lx, &ly, &lz);

@@ -500,7 +500,7 @@ def test_kernel_matches_numpy_on_lobe_axes_and_grazing(map_id):
     env = environment(map_id)
     mats = list(MATERIALS.values())
     scene = _scene(env, mats)
-    strat = strategies.make("wavelet")
+    strat = strategies.make("wavelet", candidates=0)   # the pair; resampling: test_kernel_matches_numpy_with_candidates
     strat.prepare(env, mats)
     normals = _special_normals(env)
     views = (0.0, 80.0, 89.0, 89.9)
@@ -539,6 +539,43 @@ def test_kernel_matches_numpy_on_lobe_axes_and_grazing(map_id):
                              + "; ".join(f"{normals[configs[i][0]].round(3).tolist()}, {configs[i][1]} deg, "
                                          f"{mats[configs[i][2]].name}: {okc[i]:.3f} of slots agree, means "
                                          f"{yk[i].mean(0)} vs {yr[i].mean(0)} (se {se[i]})" for i in k))
+
+
+@pytest.mark.parametrize("candidates", [2, 8, 17])
+@pytest.mark.parametrize("map_id", ["sky", "sky_rot90", "map3x2"])
+def test_kernel_matches_numpy_with_candidates(map_id, candidates):
+    """The shade kernel's resampling estimator (wavelet with candidates, kernels/shade.cl
+    RIS_PRODUCT) against its numpy twin (strategies.ris_shade_reference), from the same
+    uniforms: random normals and views (none at exact normal incidence, where the ggx
+    sampler's azimuth is left to rounding), all five materials, 4000 points. The candidates'
+    uniforms are the same float32 numbers in both (R2_FIXED); a candidate whose walk or
+    direction rounds into a neighbouring leaf or texel changes the weights a little and may
+    change which candidate is picked, so 99.5% of the slots must agree (values within
+    RTOL + ATOL, directions within 2e-4), and the means within a quarter of their
+    standard error."""
+    env = environment(map_id)
+    mats = list(MATERIALS.values())
+    scene = _scene(env, mats)
+    strat = strategies.make("wavelet", candidates=candidates)
+    strat.prepare(env, mats)
+    rng = np.random.default_rng(seed_of(f"kernel-ris/{map_id}/{candidates}"))
+    count = 4000
+    n = rng.normal(size=(count, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    wo = rng.normal(size=(count, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wo *= np.sign(np.einsum("ij,ij->i", wo, n))[:, None]
+    mat = rng.integers(0, len(mats), count).astype(np.int32)
+    u = rng.random((count, 4), dtype=np.float32)
+    wi_k, val_k = KernelShader(scene, strat)(n, wo, mat, u)
+    wi_r, val_r = NumpyShader(scene, strat)(n, wo, mat, u)
+    assert np.all(np.isfinite(val_k)) and np.all(val_k >= 0)
+    ok = np.all(np.abs(val_k - val_r) <= ATOL + RTOL * np.abs(val_r), axis=2)
+    ok &= (np.abs(wi_k - wi_r).max(axis=2) < 2e-4) | (np.abs(val_r).max(axis=2) <= ATOL)
+    assert ok.mean() >= 0.995, f"{(~ok).sum()} of {ok.size} slots differ"
+    yk, yr = val_k.sum(1), val_r.sum(1)
+    se = yr.std(0, ddof=1) / np.sqrt(count)
+    assert np.all(np.abs(yk.mean(0) - yr.mean(0)) <= 0.25 * se + ATOL), (yk.mean(0), yr.mean(0), se)
 
 
 @pytest.mark.parametrize("mat_ids, kinds, index", [
@@ -676,8 +713,18 @@ def _assert_point_estimate_equals_mis(case, name, tag, **options):
 
 
 def test_wavelet_estimate_equals_mis_at_a_point(case):
-    """E[wavelet] = E[mis] = integral of f cos L at one shading point (kernel, no visibility)."""
+    """E[wavelet] = E[mis] = integral of f cos L at one shading point (kernel, no visibility):
+    the default resampling estimator (strategies.DEFAULT_CANDIDATES) and the MIS pair."""
+    assert strategies.DEFAULT_CANDIDATES >= 2
     _assert_point_estimate_equals_mis(case, "wavelet", "w", levels=case.levels)
+    _assert_point_estimate_equals_mis(case, "wavelet", "w0", levels=case.levels, candidates=0)
+
+
+@pytest.mark.parametrize("candidates", [2, 5])
+def test_wavelet_few_candidates_estimate_equals_mis_at_a_point(case, candidates):
+    """The same with 2 (one product, one BSDF candidate) and 5 (four and one) candidates."""
+    _assert_point_estimate_equals_mis(case, "wavelet", f"w{candidates}", levels=case.levels,
+                                      candidates=candidates)
 
 
 def test_mis_comp_estimate_equals_mis_at_a_point(case):
@@ -741,11 +788,12 @@ def real_scenes(tmp_path_factory):
 _MIS_RENDERS = {}
 
 
-@pytest.mark.parametrize("strategy", ["wavelet", "mis_comp"])
+@pytest.mark.parametrize("strategy", ["wavelet", "wavelet-pair", "mis_comp"])
 @pytest.mark.parametrize("map_name", REAL_MAPS)
 def test_render_equals_mis_under_real_maps(real_scenes, map_name, strategy):
     """Three spheres (ggx alpha 0.1, phong n = 100, lambert) under a real light probe: the
-    wavelet (and the mis_comp) image equals the mis image within their combined standard error (render_full's
+    wavelet image (the default resampling estimator and the MIS pair, wavelet_candidates = 0), and the
+    mis_comp image, equals the mis image within their combined standard error (render_full's
     per-pixel stderr), pixel by pixel (two-sided, Student t, Bonferroni over the pixel
     channels at 1e-5, scenes_util.z_threshold) and on the image mean per channel (Bonferroni
     over the 3 channels). Different seeds. debevec_grace has black texels next to its lamps.
@@ -758,7 +806,9 @@ def test_render_equals_mis_under_real_maps(real_scenes, map_name, strategy):
     is ~15x lighter, at 1024) the bootstrap rate of such false alarms is below 1/4000.
     """
     scene = real_scenes(map_name)
-    a = wavlight.render_full(scene, spp=WAVELET_SPP, strategy=strategy, seed=101)
+    options = {"wavelet_candidates": 0} if strategy == "wavelet-pair" else {}   # the MIS pair
+    strategy = strategy.split("-")[0]
+    a = wavlight.render_full(scene, spp=WAVELET_SPP, strategy=strategy, seed=101, **options)
     if map_name not in _MIS_RENDERS:
         _MIS_RENDERS[map_name] = wavlight.render_full(scene, spp=MIS_SPP, strategy="mis", seed=202)
     b = _MIS_RENDERS[map_name]
@@ -809,18 +859,22 @@ def furnace_scene(tmp_path_factory):
     return scene, np.array(albedo), inner, background
 
 
-@pytest.mark.parametrize("levels", [None, 0, 1, 4, 11])
-def test_wavelet_white_furnace_every_depth(furnace_scene, levels):
+@pytest.mark.parametrize("levels, candidates", [(None, None), (0, None), (1, None), (4, None), (11, None),
+                                                (None, 0), (0, 0), (None, 2), (None, 32)])
+def test_wavelet_white_furnace_every_depth(furnace_scene, levels, candidates):
     """A lambert sphere under a constant environment of 1 shows its albedo exactly in
     expectation, whatever the product depth (None: the default, 3 for lambert; 0: light
-    sampling; 12: clamped to the light tree's depth); the background is exactly 1."""
+    sampling; 12: clamped to the light tree's depth) and the resampling candidates (None:
+    the default; 0: the MIS pair); the background is exactly 1."""
     scene, albedo, inner, background = furnace_scene
-    r = wavlight.render_full(scene, spp=64, strategy="wavelet", seed=7, wavelet_levels=levels)
+    r = wavlight.render_full(scene, spp=64, strategy="wavelet", seed=7, wavelet_levels=levels,
+                             wavelet_candidates=candidates)
+    assert r.stats["wavelet_candidates"] == (strategies.DEFAULT_CANDIDATES if candidates is None else candidates)
     side = int(r.stats["light_tree"].split("x")[0])
     expect = product.product_levels(0.0, side.bit_length() - 1, levels)
     assert _levels_by_name(r.stats, ["white"]) == [expect]
     assert np.all(r.image[background] == 1.0) and np.all(r.stderr[background] == 0.0)
-    check_estimates(r.image, r.stderr, albedo, inner, 64, label=f"furnace/wavelet P={levels}")
+    check_estimates(r.image, r.stderr, albedo, inner, 64, label=f"furnace/wavelet P={levels} M={candidates}")
 
 
 # ============================================================================= 5. command line

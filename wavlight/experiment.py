@@ -30,10 +30,11 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
     id = "wavelet"            # uniform | cosine | bsdf | light | mis | wavelet | ...,
                               # or a Mitsuba peer: mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf
     label = "wavelet-p5"      # default: the id; names the output folders and chart lines
-    wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels):
-    light_levels = 9          # wavelet_levels for wavelet only, light_levels for light, mis,
-                              # mis_comp, wavelet and sir (OPTION_STRATEGIES); given to another
-                              # strategy, an option is an error, not silently ignored
+    wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels,
+    light_levels = 9          # --wavelet-candidates): wavelet_levels and wavelet_candidates for
+    wavelet_candidates = 16   # wavelet only, light_levels for light, mis, mis_comp, wavelet and
+                              # sir (OPTION_STRATEGIES); given to another strategy, an option is
+                              # an error, not silently ignored
     sampler = "stratified"    # optional: independent (default) | stratified (as --sampler)
 
     [budgets]
@@ -154,7 +155,7 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 #: [[strategies]] options -> the wavlight strategies that take them (as render_full passes them on:
 #: wavelet_levels is the product depth of wavelet; light_levels the depth of a light tree, which
 #: uniform, cosine, bsdf and structured do not build; the sampler draws every strategy's numbers)
-OPTION_STRATEGIES = {"wavelet_levels": ("wavelet",),
+OPTION_STRATEGIES = {"wavelet_levels": ("wavelet",), "wavelet_candidates": ("wavelet",),
                      "light_levels": ("light", "mis", "mis_comp", "wavelet", "sir"),
                      "sampler": STRATEGIES}
 
@@ -343,6 +344,11 @@ def load_spec(path) -> Spec:
             if wl > 11:
                 t.fail("wavelet_levels", f"must be at most 11, got {wl}")
             options["wavelet_levels"] = wl
+        wc = t.get("wavelet_candidates", "int", lo=0)
+        if wc is not None:
+            if wc == 1 or wc > 64:
+                t.fail("wavelet_candidates", f"must be 0 (the MIS pair) or 2..64, got {wc}")
+            options["wavelet_candidates"] = wc
         ll = t.get("light_levels", "int", lo=1)
         if ll is not None:
             if ll > 11:

@@ -206,7 +206,7 @@ def _integer(name, value, lo, hi):
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
                 progress=None, threads=None, backend="opencl", wavelet_levels=None,
                 light_levels=None, sir_candidates=None, sir_samples=None, structured_strata=None,
-                structured_mode=None, sampler=None) -> RenderResult:
+                structured_mode=None, sampler=None, wavelet_candidates=None) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     ``scene`` is a Scene or a scene file's path. Arguments left as None come from the scene
@@ -220,6 +220,9 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     ``structured_strata`` (K) and ``structured_mode`` set the structured strategy's number of
     strata and mode (default: the scene's, else 16 and "stratified").
     ``sampler`` is "independent" (default) or "stratified" (:mod:`wavlight.sampler`).
+    ``wavelet_candidates`` (0 or 2..64) sets the wavelet strategy's resampling candidates
+    (:func:`wavlight.strategies.ris_shade_reference`; 0: the MIS pair; default: the scene's,
+    else strategies.DEFAULT_CANDIDATES).
     """
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
@@ -244,6 +247,10 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     if progress is not None and not callable(progress):
         raise WavlightError(f"progress must be a callable or None, got {progress!r}")
     wavelet_levels = pick("wavelet_levels", wavelet_levels, scene.wavelet_levels, 0, 11, optional=True)
+    wavelet_candidates = pick("wavelet_candidates", wavelet_candidates, scene.wavelet_candidates, 0,
+                              strategies.MAX_CANDIDATES, optional=True)
+    if wavelet_candidates == 1:
+        raise WavlightError("wavelet_candidates must be 0 (the MIS pair) or 2..64, got 1")
     light_levels = pick("light_levels", light_levels, scene.light_levels, 1, 11, optional=True)
     sir_candidates = pick("sir_candidates", sir_candidates, scene.sir_candidates, 1, 65536, optional=True)
     sir_samples = pick("sir_samples", sir_samples, scene.sir_samples, 1, 1024, optional=True)
@@ -254,7 +261,8 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
         raise WavlightError(f"unknown structured_mode {structured_mode!r} ({' | '.join(STRUCTURED_MODES)})")
     options = {"light": {"levels": light_levels}, "mis": {"light_levels": light_levels},
                "mis_comp": {"light_levels": light_levels},
-               "wavelet": {"levels": wavelet_levels, "light_levels": light_levels},
+               "wavelet": {"levels": wavelet_levels, "light_levels": light_levels,
+                           **({} if wavelet_candidates is None else {"candidates": wavelet_candidates})},
                "sir": {"candidates": sir_candidates, "samples": sir_samples,
                        "light_levels": light_levels},
                "structured": {"strata": structured_strata, "mode": structured_mode}}.get(strategy)

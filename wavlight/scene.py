@@ -9,6 +9,9 @@ Every key of the scene format is accepted as written there. wavlight adds:
 - ``[[objects]]`` without ``material`` get a grey lambert (albedo 0.5).
 - ``[render] wavelet_levels = P``: the wavelet strategy's product depth for every
   material (default: chosen per material from its lobe width).
+- ``[render] wavelet_candidates = M`` (0 or 2..64): the wavelet strategy's resampling
+  candidates per shading sample (0: the MIS pair of one product and one BSDF sample;
+  default :data:`wavlight.strategies.DEFAULT_CANDIDATES`).
 - ``[render] light_levels = n``: the light tree's depth, 2^n x 2^n leaves (default:
   chosen from the map's content, :meth:`Environment.light_levels`).
 - ``[render] sir_candidates = M`` (1..65536, default 32) and ``sir_samples = N`` (1..1024,
@@ -46,6 +49,7 @@ MAX_STRUCTURED_STRATA = 1024
 ROUGHNESS_RANGE = (1e-4, 1.0)   # ggx alpha
 EXPONENT_RANGE = (0.0, 1e6)     # phong n
 MAX_SIR_CANDIDATES = 65536
+MAX_WAVELET_CANDIDATES = 64   # wavlight.strategies.MAX_CANDIDATES
 MAX_SIR_SAMPLES = 1024
 MAX_SIDE = 16384
 MAX_SPP = 1_000_000
@@ -93,6 +97,7 @@ class Scene:
     structured_strata: int | None = None
     structured_mode: str | None = None
     sampler: str | None = None
+    wavelet_candidates: int | None = None
 
     @property
     def material_kind(self):
@@ -370,6 +375,11 @@ def load_scene(path: str) -> Scene:
     wavelet_levels = r.get("wavelet_levels", "int")
     if wavelet_levels is not None:
         _positive(r, "wavelet_levels", wavelet_levels, 0, 11)
+    wavelet_candidates = r.get("wavelet_candidates", "int")
+    if wavelet_candidates is not None:
+        _positive(r, "wavelet_candidates", wavelet_candidates, 0, MAX_WAVELET_CANDIDATES)
+        if wavelet_candidates == 1:
+            r.fail("wavelet_candidates", "must be 0 (the MIS pair) or 2..64, got 1")
     light_levels = r.get("light_levels", "int")
     if light_levels is not None:
         _positive(r, "light_levels", light_levels, 1, 11)
@@ -456,7 +466,8 @@ def load_scene(path: str) -> Scene:
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
                  np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, wavelet_levels,
-                 light_levels, sir_candidates, sir_samples, structured_strata, structured_mode, sampler)
+                 light_levels, sir_candidates, sir_samples, structured_strata, structured_mode, sampler,
+                 wavelet_candidates)
 
 
 def _environment(t: _Table, base) -> Environment:

@@ -74,6 +74,8 @@ class KernelShader:
         if strategy.name == "wavelet":
             sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)),
                          PRODUCT_TREES=int(trees.n_trees))
+            if getattr(strategy, "candidates", 0):   # resampling from product candidates
+                sizes.update(zip(("RIS_PRODUCT", "RIS_BSDF"), strategy.ris_split))
         self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
                         self.texels, *self.env_size, self.rot, self.tree)
         self._geometry = None

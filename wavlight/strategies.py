@@ -14,15 +14,18 @@ contribution is 0, never NaN.
 |           | hierarchical warp of a :class:`HaarTree`       | (2 pi^2 sin theta) (eq. 19-22)        |
 | mis       | one light and one bsdf sample, power heuristic | both, weighted (Veach 1997)           |
 | mis_comp  | as mis, the light tree of max(L - mean, 0)     | both, power heuristic (Karlik 2019)   |
-| wavelet   | product light x BRDF x cos (top-down warp) and | both, balance heuristic               |
-|           | bsdf (:mod:`wavlight.product`)                 |                                       |
+| wavelet   | M candidates from the product walk (top-down   | RIS weights over both pdfs            |
+|           | warp, :mod:`wavlight.product`) and the BSDF,   | (ris_shade_reference); M = 0: both,   |
+|           | two resampled by f cos L; M = 0: one of each   | balance heuristic                     |
 | sir       | M light candidates, N resampled by f cos L     | RIS weights (:mod:`wavlight.sir`)     |
 | structured| strata of the map (k-center), one per stratum  | per stratum (:mod:`wavlight.structured`) |
 
 The ``mis`` estimator is Mitsuba 3's ``direct`` integrator with one emitter and one
 BSDF sample: each sample's contribution f L cos V / p is weighted by
-p_s^2 / (p_light^2 + p_bsdf^2) (the power heuristic). ``wavelet`` weights by
-p_s / (p_product + p_bsdf) (the balance heuristic; :class:`WaveletStrategy` says why).
+p_s^2 / (p_light^2 + p_bsdf^2) (the power heuristic). ``wavelet`` with candidates = 0 weights
+by p_s / (p_product + p_bsdf) (the balance heuristic; :class:`WaveletStrategy` says why); with
+candidates M >= 2 (default 8) it resamples two directions from M candidates
+(:func:`ris_shade_reference`).
 """
 from __future__ import annotations
 
@@ -35,6 +38,15 @@ import numpy as np
 from . import bsdfs, product, warp
 from .distributions import HaarTree
 from .errors import ArgumentError, check_int, shown
+
+
+#: the wavelet strategy's resampling candidates per shading sample (ris_shade_reference): 8 by
+#: measurement (README, "The wavelet strategy"); 0 is the MIS pair of one product and one BSDF sample
+DEFAULT_CANDIDATES = 8
+MAX_CANDIDATES = 64
+#: candidate j's uniforms are frac(u.xy + j R2) (Roberts' R2 sequence), the offsets in 24-bit
+#: fixed point so that the kernel's float32 sums are the twin's bit for bit (kernels/shade.cl)
+R2_FIXED = (12664746, 9560334)
 
 
 @dataclass
@@ -241,14 +253,22 @@ class WaveletStrategy(Strategy):
     a lobe reflecting the sky gets no product samples and its BSDF sample carries it
     alone). A scene with both kinds holds both trees in one HaarTree buffer, ``trees``
     (twice the memory); ``light`` only chooses their depth.
+
+    ``candidates`` M (default DEFAULT_CANDIDATES = 8; 0 or 2..64): with M >= 2 the shade
+    kernel does not pair one product and one BSDF sample but resamples two directions from M
+    candidates of both (:func:`ris_shade_reference`); ``sample`` and ``pdf`` stay the walk's.
     """
 
     name = "wavelet"
     heuristic = "balance"
 
     def __init__(self, levels: int | None = None, light_levels: int | None = None,
-                 compensated_kinds: tuple = (bsdfs.LAMBERT,)):
+                 compensated_kinds: tuple = (bsdfs.LAMBERT,), candidates: int | None = None):
         where = "strategies.WaveletStrategy"
+        candidates = DEFAULT_CANDIDATES if candidates is None else candidates
+        self.candidates = check_int(where, "candidates", candidates, 0, MAX_CANDIDATES)
+        if self.candidates == 1:
+            raise ArgumentError(f"{where}: candidates must be 0 (the MIS pair) or 2..{MAX_CANDIDATES}, got 1")
         self.light = LightStrategy(_levels_option(where, "light_levels", light_levels, 1))
         self.bsdf = BsdfStrategy()
         self.override = _levels_option(where, "levels", levels, 0)
@@ -304,8 +324,15 @@ class WaveletStrategy(Strategy):
         return product.pdf_reference(self._nodes, self.trees.n_levels, self.env, axis, sp.n, kappa, levels,
                                      shape, uv, self.tree_index[sp.material]) * self.env.square_to_solid_angle(wi_world)
 
+    @property
+    def ris_split(self):
+        """(product candidates, BSDF candidates) of the resampling estimator: a quarter from
+        the BSDF (at least one), the rest from the product walk."""
+        bsdf = max(1, self.candidates // 4)
+        return self.candidates - bsdf, bsdf
+
     def info(self):
-        return {**tree_info(self.trees, self.tv),
+        return {**tree_info(self.trees, self.tv), "wavelet_candidates": self.candidates,
                 "product_levels": dict(zip(self.names, self.levels.tolist())),
                 "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
                 "product_light_tree": dict(zip(self.names, [self.tree_kinds[i] for i in self.tree_index])),
@@ -407,6 +434,67 @@ def _unoccluded(sp, env, ds, mis_weight):
     return scalar[:, None] * sp.albedo * env.eval(ds.wi_world)
 
 
+
+
+def candidate_uniforms(u: np.ndarray, j: int) -> np.ndarray:
+    """float32 (N, 2): frac(u + j R2) computed as the kernel does (one float32 add, minus 1)."""
+    off = np.array([((j * r) & 0xFFFFFF) * 2.0 ** -24 for r in R2_FIXED], np.float32)
+    c = np.asarray(u, np.float32)[:, :2] + off
+    return np.where(c >= np.float32(1), c - np.float32(1), c)
+
+
+def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: np.ndarray):
+    """The wavelet strategy with ``candidates`` M >= 2: resampled importance sampling from
+    product candidates (numpy twin of kernels/shade.cl, RIS_PRODUCT).
+
+    Chen & Gao's bidirectional estimator (sec. 3.2, eq. 10-12: the unshadowed integral times
+    the mean visibility of directions drawn from the product) with the directions drawn as
+    Burke et al. 2005 do, by resampling, but from candidates that already follow the product:
+    M_p from the product walk and M_b from the BSDF (:attr:`WaveletStrategy.ris_split`),
+    candidate j from the uniforms frac(u.xy + j R2). Weights w_j = p^(x_j) / (M_p p_prod(x_j)
+    + M_b p_bsdf(x_j)), p^ = f cos lum(L): the balance heuristic over the candidates' own
+    pdfs (generalized RIS, Lin et al. 2022). Two directions y are resampled in proportion to
+    w, with u.z and u.z + 1/2; each slot's estimate is albedo L(y) / lum(L(y)) sum(w) / 2,
+    times its visibility. Unbiased for every M: the expectation involves only each
+    candidate's own marginal pdf, and M_p p_prod + M_b p_bsdf > 0 wherever f cos L > 0 (the
+    BSDF covers its support). On an unoccluded point the estimate is the M-candidate MIS
+    estimate of the unshadowed integral: its noise falls about as 1/M, for two shadow rays.
+    Returns wi (N, 2, 3) and value (N, 2, 3)."""
+    from .envmap import LUMINANCE
+
+    mp, mb = strategy.ris_split
+    m = mp + mb
+    n = len(sp)
+    u = np.asarray(u)
+    dirs = np.zeros((m, n, 3))
+    w = np.zeros((m, n))
+    for j in range(m):
+        uu = candidate_uniforms(u, j).astype(np.float64)
+        ds = strategy.sample(sp, uu) if j < mp else strategy.bsdf.sample(sp, uu)
+        p_prod = ds.pdf if j < mp else strategy.pdf(sp, ds.wi_local, ds.wi_world)
+        p_bsdf = strategy.bsdf.pdf(sp, ds.wi_local, ds.wi_world) if j < mp else ds.pdf
+        target = sp.bsdf_eval_cos(ds.wi_local) * (env.eval(ds.wi_world) @ LUMINANCE)
+        denom = mp * p_prod + mb * p_bsdf
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            wj = np.where((denom > 0) & (target > 0), target / denom, 0.0)
+        w[j] = np.where(np.isfinite(wj), wj, 0.0)
+        dirs[j] = ds.wi_world
+    total = w.sum(0)
+    cum = np.cumsum(w, 0)
+    wi = np.zeros((n, 2, 3))
+    value = np.zeros((n, 2, 3))
+    us = np.asarray(u, np.float32)[:, 2]
+    for slot, v in enumerate((us, np.where(us >= np.float32(0.5), us - np.float32(0.5), us + np.float32(0.5)))):
+        pick = np.minimum((cum < v.astype(np.float64) * total).sum(0), m - 1)
+        y = dirs[pick, np.arange(n)]
+        rgb = env.eval(y)
+        lum = rgb @ LUMINANCE
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = np.where((total > 0) & (lum > 0), 0.5 * total / lum, 0.0)
+        wi[:, slot], value[:, slot] = y, scale[:, None] * sp.albedo * rgb
+    return wi, value
+
+
 def shade_reference(strategy: Strategy, env, sp: ShadingPoints, u: np.ndarray):
     """numpy twin of the ``shade`` kernel (kernels/shade.cl).
 
@@ -414,6 +502,8 @@ def shade_reference(strategy: Strategy, env, sp: ShadingPoints, u: np.ndarray):
     from u[:, :2] (slot 0) and its bsdf sample from u[:, 2:] (slot 1).
     returns wi (N, 2, 3) world directions and value (N, 2, 3) unoccluded estimates.
     """
+    if isinstance(strategy, WaveletStrategy) and strategy.candidates:
+        return ris_shade_reference(strategy, env, sp, u)
     n = len(sp)
     wi = np.zeros((n, 2, 3))
     value = np.zeros((n, 2, 3))
