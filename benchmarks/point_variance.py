@@ -9,6 +9,9 @@ means; printed as the mean over the points of each strategy's relative variance 
 `mis`'s. This is the quantity the product sampler's model decides (the image relMSE
 of benchmarks/relmse.py adds the pixel-footprint variance that no direction sampler
 removes), and it is how the product model's parameters were chosen.
+`wavelet` is the library's default (since 2026-12-02 the resampling estimator with 8
+candidates; `wavelet:candidates=0` the MIS pair, which the variants below modify), and
+`wavelet:risP+B` that estimator with P product and B BSDF candidates (ris_estimates).
 --strategies may also name earlier designs of `wavelet` (VARIANTS): wavelet_power (the
 power heuristic), wavelet_plain (the plain light tree for lambert too),
 wavelet_all_compensated (the compensated tree for every material); and per-point product
@@ -50,7 +53,7 @@ def _variant(heuristic="balance", compensated="lambert"):
     from wavlight import bsdfs, strategies
 
     kinds = {"lambert": (bsdfs.LAMBERT,), "none": (), "all": (bsdfs.LAMBERT, bsdfs.PHONG, bsdfs.GGX)}[compensated]
-    s = strategies.WaveletStrategy(compensated_kinds=kinds)
+    s = strategies.WaveletStrategy(compensated_kinds=kinds, candidates=0)
     s.heuristic = heuristic
     return s
 
@@ -164,7 +167,7 @@ def _table_product(extra_levels=None, footprint=0.0, offset_degrees=0.0):
                 out[sel] = self._table(sp, i)[0][node[sel]] * inside[sel]
             return out * self.env.square_to_solid_angle(wi_world)
 
-    return TableProduct(compensated_kinds=())
+    return TableProduct(compensated_kinds=(), candidates=0)
 
 
 def _coarse_table(coarse, extra=0):
@@ -275,7 +278,7 @@ def _coarse_table(coarse, extra=0):
         def pdf(self, sp, wi_local, wi_world):
             return self._walk_pdf(sp, self.env.world_to_square(wi_world)) * self.env.square_to_solid_angle(wi_world)
 
-    return CoarseTable()
+    return CoarseTable(candidates=0)
 
 
 def _exact_importance(mass, d, axis, n, kappa, shape):
@@ -302,7 +305,7 @@ def _exact_importance(mass, d, axis, n, kappa, shape):
 
 
 def _patched(patches, prepare=None):
-    """A `wavelet` strategy whose sample and pdf run with names of wavlight.product replaced:
+    """A `wavelet` strategy (the MIS pair) whose sample and pdf run with names of wavlight.product replaced:
     patches(strategy) -> {name: value}; prepare(strategy) runs after its own prepare."""
     from wavlight import product, strategies
 
@@ -329,7 +332,7 @@ def _patched(patches, prepare=None):
         def pdf(self, sp, wi_local, wi_world):
             return self._run(super().pdf, sp, wi_local, wi_world)
 
-    return Patched()
+    return Patched(candidates=0)
 
 
 def _exact_fine(first_level, plus=0):

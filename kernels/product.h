@@ -390,8 +390,29 @@ INLINE realv product_density(__global const float *tree, const Lobe *lb, const r
  * types (simd.h). The importances are computed for every lane at levels <
  * PRODUCT_LEVELS and selected per lane (every load stays in the tree). PRODUCT_LEVELS
  * must be at least every lane's depth (the host builds with the largest). */
-INLINE realv product_walk(__global const float *tree, const Lobe *lb,
-                          realv *ux, realv *uy)
+/* The root's four children: their light masses m and importances i (node_importances at
+ * level 0), the same for every walk of one lobe: the resampling estimator (shade.cl,
+ * RIS_PRODUCT) computes them once per shading point for all its candidates. */
+typedef struct {
+    realv m[4], i[4];
+} RootChildren;
+
+INLINE RootChildren root_children(__global const float *tree, const Lobe *lb)
+{
+    RootChildren r;
+    const NodeAngles a = root_angles();
+    GATHER4(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(1), &r.m[0], &r.m[1], &r.m[2], &r.m[3]);
+    if (0 < PRODUCT_LEVELS)
+        node_importances(lb, &a, tree, r.m[0], r.m[1], r.m[2], r.m[3], (uintv)0, 0, N_LEVELS,
+                         &r.i[0], &r.i[1], &r.i[2], &r.i[3]);
+    else
+        r.i[0] = r.m[0], r.i[1] = r.m[1], r.i[2] = r.m[2], r.i[3] = r.m[3];
+    return r;
+}
+
+/* product_walk with the root's children given (root, from root_children) or computed (NULL). */
+INLINE realv product_walk_from(__global const float *tree, const Lobe *lb, const RootChildren *root,
+                               realv *ux, realv *uy)
 {
     uintv x = 0, y = 0, k = 0;   /* the node's coordinates and its index in its level */
     realv p = 1.0f;
@@ -402,12 +423,20 @@ INLINE realv product_walk(__global const float *tree, const Lobe *lb,
     for (int l = 0; l < N_LEVELS; ++l) {
         LEVEL_BARRIER(l);
         realv m0, m1, m2, m3;
-        GATHER4(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(l + 1) + 4 * k, &m0, &m1, &m2, &m3);
+        if (l == 0 && root) {
+            m0 = root->m[0]; m1 = root->m[1]; m2 = root->m[2]; m3 = root->m[3];
+        } else {
+            GATHER4(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(l + 1) + 4 * k, &m0, &m1, &m2, &m3);
+        }
         realv w0 = m0, w1 = m1, w2 = m2, w3 = m3;
         const intv in_product = l < lb->levels;
         if (l < PRODUCT_LEVELS) {   /* compile-time */
             realv i0, i1, i2, i3;
-            node_importances(lb, &a, tree, m0, m1, m2, m3, k, l, N_LEVELS, &i0, &i1, &i2, &i3);
+            if (l == 0 && root) {
+                i0 = root->i[0]; i1 = root->i[1]; i2 = root->i[2]; i3 = root->i[3];
+            } else {
+                node_importances(lb, &a, tree, m0, m1, m2, m3, k, l, N_LEVELS, &i0, &i1, &i2, &i3);
+            }
             w0 = select(m0, i0, in_product);
             w1 = select(m1, i1, in_product);
             w2 = select(m2, i2, in_product);
@@ -426,9 +455,15 @@ INLINE realv product_walk(__global const float *tree, const Lobe *lb,
     return product_density(tree, lb, p, k);
 }
 
-/* Density on the square of product_walk at points (u, v), for any directions (MIS). */
-INLINE realv product_pdf(__global const float *tree, const Lobe *lb,
-                         const realv u, const realv v)
+INLINE realv product_walk(__global const float *tree, const Lobe *lb, realv *ux, realv *uy)
+{
+    return product_walk_from(tree, lb, (const RootChildren *)0, ux, uy);
+}
+
+/* Density on the square of product_walk at points (u, v), for any directions (MIS); with
+ * the root's children given (root) or computed (NULL). */
+INLINE realv product_pdf_from(__global const float *tree, const Lobe *lb, const RootChildren *root,
+                              const realv u, const realv v)
 {
     const intv depth = min(lb->levels, N_LEVELS);
     const uintv leaf = node_index(N_LEVELS, leaf_of(u, N_LEVELS), leaf_of(v, N_LEVELS)) - (uint)LEVEL_OFFSET(N_LEVELS);
@@ -438,8 +473,12 @@ INLINE realv product_pdf(__global const float *tree, const Lobe *lb,
     for (int l = 0; l < PRODUCT_LEVELS && l < N_LEVELS; ++l) {
         const uintv child = leaf >> (2 * (N_LEVELS - l - 1)), parent = child >> 2;   /* indices in levels l + 1, l */
         realv m0, m1, m2, m3, i0, i1, i2, i3;
-        GATHER4(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(l + 1) + 4 * parent, &m0, &m1, &m2, &m3);
-        node_importances(lb, &a, tree, m0, m1, m2, m3, parent, l, N_LEVELS, &i0, &i1, &i2, &i3);
+        if (l == 0 && root) {
+            i0 = root->i[0]; i1 = root->i[1]; i2 = root->i[2]; i3 = root->i[3];
+        } else {
+            GATHER4(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(l + 1) + 4 * parent, &m0, &m1, &m2, &m3);
+            node_importances(lb, &a, tree, m0, m1, m2, m3, parent, l, N_LEVELS, &i0, &i1, &i2, &i3);
+        }
         const realv sum = (i0 + i1) + (i2 + i3);
         const intv right = as_intv(child & 1u) != 0, bottom = as_intv(child & 2u) != 0;
         if (l + 1 < PRODUCT_LEVELS)
@@ -448,6 +487,11 @@ INLINE realv product_pdf(__global const float *tree, const Lobe *lb,
         p *= select((realv)1.0f, mine / sum, l < depth);
     }
     return product_density(tree, lb, p, leaf);
+}
+
+INLINE realv product_pdf(__global const float *tree, const Lobe *lb, const realv u, const realv v)
+{
+    return product_pdf_from(tree, lb, (const RootChildren *)0, u, v);
 }
 #endif
 #endif

@@ -139,13 +139,14 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     {   /* wavelet with candidates: resampled from product (and BSDF) candidates */
         realv cx[RIS_CANDIDATES], cy[RIS_CANDIDATES], cz[RIS_CANDIDATES], cw[RIS_CANDIDATES];
         realv total = 0.0f;
+        const RootChildren root = root_children(tree, &lobe);   /* shared by every candidate's walk */
 #pragma unroll 1
         for (int j = 0; j < RIS_CANDIDATES; ++j) {
             const realv cu = shifted_uniform(u0, (uint)j * R2_FIXED_X), cv = shifted_uniform(u1, (uint)j * R2_FIXED_Y);
             realv dx, dy, dz, p_prod, f, p_bsdf, lx, ly, lz;
             if (j < RIS_PRODUCT) {
                 realv gu = cu, gv = cv;
-                const realv square_pdf = product_walk(tree, &lobe, &gu, &gv);
+                const realv square_pdf = product_walk_from(tree, &lobe, &root, &gu, &gv);
                 env_square_to_world(rot, gu, gv, &dx, &dy, &dz);
                 p_prod = square_pdf * env_square_to_solid_angle(dx, dz);
                 lx = dx * sx + dy * sy + dz * sz;
@@ -160,7 +161,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
                 dz = lx * sz + ly * tz + lz * nz;
                 realv gu, gv;
                 env_world_to_square(rot, dx, dy, dz, &gu, &gv);
-                p_prod = product_pdf(tree, &lobe, gu, gv) * env_square_to_solid_angle(dx, dz);
+                p_prod = product_pdf_from(tree, &lobe, &root, gu, gv) * env_square_to_solid_angle(dx, dz);
             }
             const realv target = f * texel_luminance(rot, texels, env_w, env_h, dx, dy, dz);
             const realv denom = (float)RIS_PRODUCT * p_prod + (float)RIS_BSDF * p_bsdf;
