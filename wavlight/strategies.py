@@ -220,9 +220,11 @@ def tree_info(tree: HaarTree, tv) -> dict:
 
 class WaveletStrategy(Strategy):
     """Product (light x BRDF x cosine) samples by a top-down hierarchical warp
-    (:mod:`wavlight.product`), combined with BSDF samples by the balance heuristic.
+    (:mod:`wavlight.product`), combined with BSDF samples: by default as the candidates of
+    a resampling estimator (``candidates``, below, and :func:`ris_shade_reference`), with
+    ``candidates=0`` by the balance heuristic in a pair.
 
-    Like ``mis``: one product sample and one BSDF sample per shading sample. The
+    The pair, like ``mis``: one product sample and one BSDF sample per shading sample. The
     BSDF sample keeps the estimator unbiased where the approximate product is 0.
     ``levels`` overrides the per-material product depth.
 
