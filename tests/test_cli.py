@@ -617,6 +617,12 @@ BAD = {
     "absurd resolution in the scene": (scene_text(render="width = 100000\nheight = 100000\n"), (), ("scene.toml", "[render].width")),
     "unknown strategy in the scene": (scene_text(render='strategy = "path"\n'), (), ("scene.toml", "[render].strategy")),
     "unknown sampler in the scene": (scene_text(render='sampler = "sobol"\n'), (), ("scene.toml", "[render].sampler", "sobol")),
+    "one wavelet candidate in the scene": (scene_text(render="wavelet_candidates = 1\n"), (),
+                                           ("scene.toml", "[render].wavelet_candidates")),
+    "too many wavelet candidates in the scene": (scene_text(render="wavelet_candidates = 65\n"), (),
+                                                 ("scene.toml", "[render].wavelet_candidates")),
+    "one wavelet candidate on the command line": (scene_text(), ("--strategy", "wavelet", "--wavelet-candidates", 1),
+                                                  ("wavelet_candidates",)),
     "black environment (scale 0)": (scene_text(env='procedural = "sky"\nscale = 0.0'), (), ("scene.toml", "[environment]", "black")),
     "black environment (file)": (scene_text(env='file = "black.exr"'), (), ("scene.toml", "[environment]", "black")),
     "only degenerate triangles": (scene_text(objects='[[objects]]\nmesh = "flat.obj"\n'), (), ("scene.toml", "[[objects]][0]", "degenerate")),
@@ -710,6 +716,16 @@ def test_other_warnings_keep_exit_code_0(tmp_path):
     warns = [line for line in stderr_lines(o) if line.startswith("warning:")]
     assert len(warns) == 1 and "albedo: above 1" in warns[0], o.describe()
     assert out.is_file()
+
+
+def test_wavelet_candidates_from_scene_and_flag(tmp_path):
+    """[render] wavelet_candidates reaches the strategy; --wavelet-candidates overrides it (--json)."""
+    scene = write_scene(tmp_path, scene_text(render="width = 8\nheight = 6\nspp = 2\nstrategy = \"wavelet\"\n"
+                                                    "wavelet_candidates = 4\n"))
+    for args, want in (((), 4), (("--wavelet-candidates", 0), 0), (("--wavelet-candidates", 12), 12)):
+        o = run_inproc("render", scene, "-o", tmp_path / "o.exr", "--json", *args)
+        assert_success(o)
+        assert json.loads(o.stdout)["wavelet_candidates"] == want, o.describe()
 
 
 def test_version_flag():
