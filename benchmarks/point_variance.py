@@ -11,7 +11,8 @@ of benchmarks/relmse.py adds the pixel-footprint variance that no direction samp
 removes), and it is how the product model's parameters were chosen.
 `wavelet` is the library's default (since 2026-12-02 the resampling estimator with 8
 candidates; `wavelet:candidates=0` the MIS pair, which the variants below modify), and
-`wavelet:risP+B` that estimator with P product and B BSDF candidates (ris_estimates).
+`wavelet:risP+B` that estimator with P product and B BSDF candidates
+(wavlight.strategies.ris_shade_reference).
 --strategies may also name earlier designs of `wavelet` (VARIANTS): wavelet_power (the
 power heuristic), wavelet_plain (the plain light tree for lambert too),
 wavelet_all_compensated (the compensated tree for every material); and per-point product
@@ -467,49 +468,6 @@ def mixture_estimates(strategy, env, sp, u, share):
     return out
 
 
-R2 = np.array([0.7548776662466927, 0.5698402909980532])   # Roberts' R2 generator (Kronecker offsets)
-
-
-def ris_estimates(strategy, env, sp, u, product_candidates, bsdf_candidates):
-    """Resampled importance sampling with product candidates (Chen & Gao 3.2, eq. 10-12, with
-    the wavelet walk's samples as candidates instead of SIR's light samples): per point,
-    M_p candidates from the product walk and M_b from the BSDF, candidate j's uniforms
-    frac(u.xy + j R2) (each uniform by itself), weights w_j = p^(x_j) / (M_p p_prod + M_b
-    p_bsdf)(x_j) with p^ = f cos lum(L) (the balance heuristic over the candidates: generalized
-    RIS), two directions resampled from them with u.z and u.z + 1/2, each estimate
-    albedo L(y) / lum(L(y)) sum(w) / 2. Unbiased for every M: only the candidates' marginals
-    enter. Returns (N, 2, 3) like shade_reference."""
-    from wavlight.envmap import LUMINANCE
-
-    mp, mb = product_candidates, bsdf_candidates
-    m = mp + mb
-    n = len(sp)
-    dirs = np.zeros((m, n, 3))
-    w = np.zeros((m, n))
-    for j in range(m):
-        uu = np.mod(u[:, :2] + j * R2, 1.0)
-        ds = strategy.sample(sp, uu) if j < mp else strategy.bsdf.sample(sp, uu)
-        p_prod = ds.pdf if j < mp else strategy.pdf(sp, ds.wi_local, ds.wi_world)
-        p_bsdf = strategy.bsdf.pdf(sp, ds.wi_local, ds.wi_world) if j < mp else ds.pdf
-        target = sp.bsdf_eval_cos(ds.wi_local) * (env.eval(ds.wi_world) @ LUMINANCE)
-        denom = mp * p_prod + mb * p_bsdf
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w[j] = np.where((denom > 0) & (target > 0), target / denom, 0.0)
-        dirs[j] = ds.wi_world
-    total = w.sum(0)
-    cum = np.cumsum(w, 0)
-    out = np.zeros((n, 2, 3))
-    for slot, us in enumerate((u[:, 2], np.mod(u[:, 2] + 0.5, 1.0))):
-        pick = np.minimum((cum < (us * total)[None]).sum(0), m - 1)
-        y = dirs[pick, np.arange(n)]
-        rgb = env.eval(y)
-        lum = rgb @ LUMINANCE
-        with np.errstate(divide="ignore", invalid="ignore"):
-            scale = np.where((total > 0) & (lum > 0), 0.5 * total / lum, 0.0)
-        out[:, slot] = scale[:, None] * sp.albedo * rgb
-    return out
-
-
 def sphere_points(scene, count, rng):
     """count visible points of the unit sphere (uniform over the projected disc) as ShadingPoints."""
     from wavlight import strategies, warp
@@ -593,7 +551,8 @@ def main():
                     mp, mb = (int(x) for x in ris.split("+"))
                     strat = make(rbase)
                     strat.prepare(env, scene.materials)
-                    runs[name] = ris_estimates(strat, env, sp, u, mp, mb).sum(1).mean(1).reshape(count, args.samples)
+                    _, val = strategies.ris_shade_reference(strat, env, sp, u.astype(np.float32), split=(mp, mb))
+                    runs[name] = val.sum(1).mean(1).reshape(count, args.samples)
                 elif share:
                     runs[name] = estimates(make(base), float(share))
                 elif name in VARIANTS:

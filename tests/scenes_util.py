@@ -82,6 +82,17 @@ def shading_points(normal, view_deg, kind, param, count, albedo=(1.0, 1.0, 1.0))
                                     np.tile(np.asarray(albedo, np.float64), (count, 1)), np.zeros(count, np.int32))
 
 
+def random_normals_views(rng, count):
+    """count random unit normals n and unit view directions wo on their side (n . wo >= 0),
+    (count, 3) float64 each: shading points in no particular configuration."""
+    n = rng.normal(size=(count, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    wo = rng.normal(size=(count, 3))
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wo *= np.sign(np.einsum("ij,ij->i", wo, n))[:, None]
+    return n, wo
+
+
 def load(folder: Path, **kw) -> "wavlight.Scene":
     return wavlight.load_scene(write_scene(folder, **kw))
 

@@ -57,8 +57,8 @@ from scipy import stats
 
 import wavlight
 from chi2 import SquareGrid, chi2_test, sidak_alpha
-from scenes_util import (camera_of, check_estimates, load, map3x2, one_texel_map, ray_sphere, write_env,
-                         z_threshold)
+from scenes_util import (camera_of, check_estimates, load, map3x2, one_texel_map, random_normals_views, ray_sphere,
+                         write_env, z_threshold)
 from wavlight import bsdfs, product, strategies, warp
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky, read_image
 from wavlight.scene import Camera, Material, Scene
@@ -560,11 +560,7 @@ def test_kernel_matches_numpy_with_candidates(map_id, candidates):
     strat.prepare(env, mats)
     rng = np.random.default_rng(seed_of(f"kernel-ris/{map_id}/{candidates}"))
     count = 4000
-    n = rng.normal(size=(count, 3))
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    wo = rng.normal(size=(count, 3))
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    wo *= np.sign(np.einsum("ij,ij->i", wo, n))[:, None]
+    n, wo = random_normals_views(rng, count)
     mat = rng.integers(0, len(mats), count).astype(np.int32)
     u = rng.random((count, 4), dtype=np.float32)
     wi_k, val_k = KernelShader(scene, strat)(n, wo, mat, u)

@@ -13,6 +13,7 @@ from wavlight import bsdfs, strategies
 from wavlight.envmap import Environment, procedural_sky
 from wavlight.scene import Camera, Material, Scene
 from wavlight.shading import KernelShader, NumpyShader
+from scenes_util import random_normals_views
 
 
 def _scene(pixels, rotate_y=0.0, phong_exponent=80.0):
@@ -51,11 +52,7 @@ def test_phong_exponent_zero_kernel_matches_numpy(strategy):
 def _compare_shaders(scene, strat, rng):
     strat.prepare(scene.environment, scene.materials)
     n_pts = 20000
-    n = rng.normal(size=(n_pts, 3))
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    wo = rng.normal(size=(n_pts, 3))
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    wo *= np.sign(np.einsum("ij,ij->i", wo, n))[:, None]
+    n, wo = random_normals_views(rng, n_pts)
     mat = rng.integers(0, 4, n_pts).astype(np.int32)
     u = rng.random((n_pts, 4), dtype=np.float32)
     wi_k, val_k = KernelShader(scene, strat)(n, wo, mat, u)
@@ -96,11 +93,7 @@ def test_product_sample_points_kernel_matches_numpy(n_trees, shapes):
     n_levels = env.square_levels()
     tree = HaarTree(np.stack([env.luminance_square(n_levels, compensated=c) for c in (False, True)][:n_trees]))
     count = 4093  # not a multiple of the work-group size: the masked tail is exercised too
-    nrm = rng.normal(size=(count, 3))
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    wo = rng.normal(size=(count, 3))
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    wo *= np.sign(np.einsum("ij,ij->i", wo, nrm))[:, None]
+    nrm, wo = random_normals_views(rng, count)
     # materials: every shape (lambert, phong, ggx, ggx with the half-vector model) at every depth
     kinds = [k for k in range(4) if shapes >> k & 1]
     mat_shape = np.repeat(np.array(kinds), n_levels + 1)
@@ -154,10 +147,7 @@ def test_breadth_first_walks_match_depth_first():
     n_levels = 10
     tree = HaarTree(env.luminance_square(n_levels))
     count = 3001
-    nrm = rng.normal(size=(count, 3))
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    wo = rng.normal(size=(count, 3))
-    wo *= np.sign(np.einsum("ij,ij->i", wo, nrm))[:, None] / np.linalg.norm(wo, axis=1, keepdims=True)
+    nrm, wo = random_normals_views(rng, count)
     n4, w4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
     n4[:, :3], w4[:, :3] = nrm, wo
     mat_shape = np.array([0, 1, 2, 3])

@@ -451,7 +451,7 @@ def candidate_uniforms(u: np.ndarray, j: int) -> np.ndarray:
     return np.where(c >= np.float32(1), c - np.float32(1), c)
 
 
-def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: np.ndarray):
+def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: np.ndarray, split=None):
     """The wavelet strategy with ``candidates`` M >= 2: resampled importance sampling from
     product candidates (numpy twin of kernels/shade.cl, RIS_PRODUCT).
 
@@ -467,10 +467,11 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     candidate's own marginal pdf, and M_p p_prod + M_b p_bsdf > 0 wherever f cos L > 0 (the
     BSDF covers its support). On an unoccluded point the estimate is the M-candidate MIS
     estimate of the unshadowed integral: its noise falls about as 1/M, for two shadow rays.
+    split (M_p, M_b) overrides the strategy's (benchmarks/point_variance.py compares splits).
     Returns wi (N, 2, 3) and value (N, 2, 3)."""
     from .envmap import LUMINANCE
 
-    mp, mb = strategy.ris_split
+    mp, mb = strategy.ris_split if split is None else split
     m = mp + mb
     n = len(sp)
     u = np.asarray(u)
