@@ -50,3 +50,39 @@ def test_thread_queues_are_per_thread():
     assert queues[0] is not cl.thread_queue()
     assert cl.thread_queue() is cl.thread_queue()
     assert np.isfinite(cl.read(cl.to_device(np.ones(4, np.float32)), (4,), np.float32)).all()
+
+
+def test_inline_builtins_equal_the_librarys():
+    """kernels/simd.h's inline builtins (INLINE_BUILTINS=1, the default on PoCL) give the
+    device library's results bit for bit, rsqrt within 2 ulp (the library's own bound), on
+    ordinary values, NaN, +-inf, +-0, denormals, and halves for rint (ties to even)."""
+    rng = np.random.default_rng(60)
+    n = 4096 + 5   # a partial last work-item
+    special = np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, 1e-40, -1e-40, 0.5, 1.5, 2.5, -0.5, -2.5,
+                        1.0, -1.0, 3e38, 1e-30], np.float32)
+    a, b, c = (np.concatenate([rng.choice(special, 1024), rng.normal(0, 4, n - 1024)]).astype(np.float32)
+               for _ in range(3))
+    a[:len(special)] = special
+    m = rng.choice(np.array([-1, 0, 5, -7, 2 ** 31 - 1, -2 ** 31], np.int32), n)
+    m[:8 * 64] = np.repeat(rng.choice([-1, 0], (64, 1)), 8, 1).ravel()   # whole work-items true / false for any / all
+    x, y = (rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32) for _ in range(2))
+    q = cl.thread_queue()
+    outs = {}
+    for flag in (0, 1):
+        knl = cl.kernel(cl.program("simd.cl", INLINE_BUILTINS=flag), "builtin_ops")
+        out = cl.empty(4 * 19 * n)
+        knl(q, (cl.items(n, cl.LANES),), (cl.WORK_GROUP,), np.uint32(n), *(cl.to_device(v) for v in (a, b, c, m, x, y)),
+            out)
+        outs[flag] = cl.read(out, (19, n), np.float32, q)
+    lib, mine = outs[0].view(np.uint32), outs[1].view(np.uint32)
+    rsqrt = 10
+    for k in range(19):
+        if k == rsqrt:
+            continue
+        bad = np.flatnonzero(lib[k] != mine[k])
+        assert bad.size == 0, f"output {k}: {bad.size} lanes differ, e.g. a={a[bad[0]]} b={b[bad[0]]}"
+    r_lib, r_mine = outs[0][rsqrt].astype(np.float64), outs[1][rsqrt].astype(np.float64)
+    same = (r_lib == r_mine) | (np.isnan(r_lib) & np.isnan(r_mine))
+    ulp = np.spacing(np.abs(outs[0][rsqrt])).astype(np.float64)
+    with np.errstate(invalid="ignore"):   # inf - inf where both are inf (then `same`)
+        assert np.all(same | (np.abs(r_lib - r_mine) <= 2 * ulp))

@@ -187,9 +187,19 @@ def _build(ctx, name: str, defines: tuple):
         return cl.Program(ctx, kernel_source(name)).build(options=opts)
 
 
+def inline_builtins(device) -> bool:
+    """Whether programs for `device` replace OpenCL builtins by kernels/simd.h's inline
+    equivalents (-DINLINE_BUILTINS=1): on PoCL CPU devices, whose kernel library the
+    PyPI build calls out of line (2.3x slower product walks, see there)."""
+    cl = _cl()
+    return "portable" in device.platform.name.lower() and bool(device.type & cl.device_type.CPU)
+
+
 def program(name: str, **defines):
-    """The built program ``kernels/<name>``, memoised per (context, name, defines)."""
+    """The built program ``kernels/<name>``, memoised per (context, name, defines).
+    INLINE_BUILTINS defaults to :func:`inline_builtins` of the runtime's device."""
     rt = runtime()
+    defines.setdefault("INLINE_BUILTINS", int(inline_builtins(rt.device)))
     with _lock:
         return _build(rt.context, name, tuple(sorted(defines.items())))
 
