@@ -64,6 +64,8 @@ def main():
             seen.add(fname)
             return re.sub(r'^\s*#include\s+"([^"]+)"\s*$', lambda m: load(m.group(1), seen),
                           git_show(args.against, f"kernels/{fname}"), flags=re.M)
+        # as cl.program builds them (a revision before the flag ignores it)
+        defines.setdefault("INLINE_BUILTINS", int(cl.inline_builtins(cl.runtime().device)))
         opts = [f"-D{k}={v}" for k, v in sorted(defines.items())] + [f"-DLANES={cl.LANES}"]
         return pcl.Program(cl.runtime().context, load(name, set())).build(options=opts)
 

@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from wavlight import cl
 
@@ -53,9 +54,18 @@ def test_thread_queues_are_per_thread():
 
 
 def test_inline_builtins_equal_the_librarys():
-    """kernels/simd.h's inline builtins (INLINE_BUILTINS=1, the default on PoCL) give the
-    device library's results bit for bit, rsqrt within 2 ulp (the library's own bound), on
-    ordinary values, NaN, +-inf, +-0, denormals, and halves for rint (ties to even)."""
+    """kernels/simd.h's inline builtins (INLINE_BUILTINS=1, the default on PoCL CPU devices)
+    give the device library's results bit for bit, rsqrt within 2 ulp (the library's own
+    bound), in the argument forms the kernels use, on ordinary values, NaN, +-inf, +-0,
+    denormals and halves (rint: ties to even); and the unaligned GATHER2 / GATHER4 loads
+    give the floats they point at."""
+    rt = cl.runtime()
+    if not cl.inline_builtins(rt.device):
+        pytest.skip("inline builtins are used on PoCL CPU devices only")
+    q = cl.thread_queue()
+    flag = cl.empty(4)
+    cl.kernel(cl.program("simd.cl", INLINE_BUILTINS=1), "builtins_inlined")(q, (1,), None, flag)
+    assert cl.read(flag, (1,), np.int32, q)[0] == 1   # this compiler takes them: the comparison below is real
     rng = np.random.default_rng(60)
     n = 4096 + 5   # a partial last work-item
     special = np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, 1e-40, -1e-40, 0.5, 1.5, 2.5, -0.5, -2.5,
@@ -66,17 +76,17 @@ def test_inline_builtins_equal_the_librarys():
     m = rng.choice(np.array([-1, 0, 5, -7, 2 ** 31 - 1, -2 ** 31], np.int32), n)
     m[:8 * 64] = np.repeat(rng.choice([-1, 0], (64, 1)), 8, 1).ravel()   # whole work-items true / false for any / all
     x, y = (rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32) for _ in range(2))
-    q = cl.thread_queue()
+    rows = 29
     outs = {}
-    for flag in (0, 1):
-        knl = cl.kernel(cl.program("simd.cl", INLINE_BUILTINS=flag), "builtin_ops")
-        out = cl.empty(4 * 19 * n)
+    for inline in (0, 1):
+        knl = cl.kernel(cl.program("simd.cl", INLINE_BUILTINS=inline), "builtin_ops")
+        out = cl.empty(4 * rows * n)
         knl(q, (cl.items(n, cl.LANES),), (cl.WORK_GROUP,), np.uint32(n), *(cl.to_device(v) for v in (a, b, c, m, x, y)),
             out)
-        outs[flag] = cl.read(out, (19, n), np.float32, q)
+        outs[inline] = cl.read(out, (rows, n), np.float32, q)
     lib, mine = outs[0].view(np.uint32), outs[1].view(np.uint32)
     rsqrt = 10
-    for k in range(19):
+    for k in range(rows):
         if k == rsqrt:
             continue
         bad = np.flatnonzero(lib[k] != mine[k])
@@ -86,3 +96,7 @@ def test_inline_builtins_equal_the_librarys():
     ulp = np.spacing(np.abs(outs[0][rsqrt])).astype(np.float64)
     with np.errstate(invalid="ignore"):   # inf - inf where both are inf (then `same`)
         assert np.all(same | (np.abs(r_lib - r_mine) <= 2 * ulp))
+    # the gathers against numpy: a[j .. j + 3] and a[j + 2 .. j + 3], j = min(i, n - 5) + 1
+    j = np.minimum(np.arange(n), n - 5) + 1
+    want = np.stack([a[j], a[j + 1], a[j + 2], a[j + 3], a[j + 2], a[j + 3]]).view(np.uint32)
+    assert np.array_equal(mine[23:29], want) and np.array_equal(lib[23:29], want)

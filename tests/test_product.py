@@ -941,7 +941,8 @@ def test_node_centre_angles_kernel_matches_numpy_and_exact():
         vstorev(a.st, 0, out + 2 * count + base);
         vstorev(a.ct, 0, out + 3 * count + base);
     }"""
-    prog = pcl.Program(cl.runtime().context, src).build(options=[f"-DLANES={cl.LANES}"])
+    inline = int(cl.inline_builtins(cl.runtime().device))   # as cl.program builds the walks
+    prog = pcl.Program(cl.runtime().context, src).build(options=[f"-DLANES={cl.LANES}", f"-DINLINE_BUILTINS={inline}"])
     q = cl.thread_queue()
     rng = np.random.default_rng(5)
     count = 64 * cl.LANES
