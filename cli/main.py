@@ -202,6 +202,8 @@ def info():
         click.echo(f"  [{pi}:{di}] {p.name} {p.version.strip()} / {d.name}")
     try:
         click.echo(f"device in use: {cl.runtime().description}")
+        click.echo("OpenCL builtins: " + ("inlined (kernels/simd.h)" if cl.builtins_inlined()
+                                          else "the device's library"))
     except wavlight.WavlightError as e:
         _fail(e)
     click.echo(f"(set {cl.DEVICE_ENV}=P:D or a name fragment to choose another)")

@@ -291,7 +291,7 @@ def test_e2e_info():
     assert_success(o)
     text = o.stdout
     assert f"wavlight {wavlight.__version__}" in text
-    for word in ("python", "numpy", "pyopencl", "device in use:"):
+    for word in ("python", "numpy", "pyopencl", "device in use:", "OpenCL builtins: "):
         assert word in text, o.describe()
     assert re.search(r"^\s+\[\d+:\d+\] \S", text, re.M), o.describe()  # the platform/device list
 

@@ -62,10 +62,8 @@ def test_inline_builtins_equal_the_librarys():
     rt = cl.runtime()
     if not cl.inline_builtins(rt.device):
         pytest.skip("inline builtins are used on PoCL CPU devices only")
+    assert cl.builtins_inlined()   # this compiler takes them: the comparison below is real
     q = cl.thread_queue()
-    flag = cl.empty(4)
-    cl.kernel(cl.program("simd.cl", INLINE_BUILTINS=1), "builtins_inlined")(q, (1,), None, flag)
-    assert cl.read(flag, (1,), np.int32, q)[0] == 1   # this compiler takes them: the comparison below is real
     rng = np.random.default_rng(60)
     n = 4096 + 5   # a partial last work-item
     special = np.array([np.nan, np.inf, -np.inf, 0.0, -0.0, 1e-40, -1e-40, 0.5, 1.5, 2.5, -0.5, -2.5,

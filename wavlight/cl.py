@@ -195,6 +195,19 @@ def inline_builtins(device) -> bool:
     return "portable" in device.platform.name.lower() and bool(device.type & cl.device_type.CPU)
 
 
+@functools.lru_cache(maxsize=None)
+def builtins_inlined() -> bool:
+    """Whether the runtime's programs use kernels/simd.h's inline builtins: requested by
+    :func:`inline_builtins` and accepted by the compiler (clang 14 or newer). Builds and
+    runs one tiny kernel, once per process."""
+    import numpy as np
+
+    out = empty(4)
+    q = thread_queue()
+    kernel(program("simd.cl"), "builtins_inlined")(q, (1,), None, out)
+    return bool(read(out, (1,), np.int32, q)[0])
+
+
 def program(name: str, **defines):
     """The built program ``kernels/<name>``, memoised per (context, name, defines).
     INLINE_BUILTINS defaults to :func:`inline_builtins` of the runtime's device."""
