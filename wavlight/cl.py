@@ -200,8 +200,6 @@ def builtins_inlined() -> bool:
     """Whether the runtime's programs use kernels/simd.h's inline builtins: requested by
     :func:`inline_builtins` and accepted by the compiler (clang 14 or newer). Builds and
     runs one tiny kernel, once per process."""
-    import numpy as np
-
     out = empty(4)
     q = thread_queue()
     kernel(program("simd.cl"), "builtins_inlined")(q, (1,), None, out)
