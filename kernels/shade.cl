@@ -89,12 +89,11 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
 #define R2_FIXED_X 12664746u
 #define R2_FIXED_Y 9560334u
 
-/* The luminance of the texel seen along world direction (x, y, z) (envmap.LUMINANCE). */
-inline realv texel_luminance(__global const float *rot, __global const float *texels, const int env_w,
-                             const int env_h, const realv x, const realv y, const realv z)
+/* The luminance of the texel at (u, v) of the square (envmap.LUMINANCE). */
+inline realv texel_luminance(__global const float *texels, const int env_w, const int env_h,
+                             const realv u, const realv v)
 {
-    realv u, v, r, g, b, unused;
-    env_world_to_square(rot, x, y, z, &u, &v);
+    realv r, g, b, unused;
     GATHER4(texels, 4 * env_texel(env_w, env_h, u, v), &r, &g, &b, &unused);
     return 0.2126f * r + 0.7152f * g + 0.0722f * b;
 }
@@ -137,13 +136,15 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
 #endif
 #if STRATEGY == 5 && defined(RIS_PRODUCT)
     {   /* wavelet with candidates: resampled from product (and BSDF) candidates */
-        realv cx[RIS_CANDIDATES], cy[RIS_CANDIDATES], cz[RIS_CANDIDATES], cw[RIS_CANDIDATES];
+        /* each candidate's direction, weight and texel luminance (the target's, kept for the
+         * chosen ones' estimates) */
+        realv cx[RIS_CANDIDATES], cy[RIS_CANDIDATES], cz[RIS_CANDIDATES], cw[RIS_CANDIDATES], cl[RIS_CANDIDATES];
         realv total = 0.0f;
         const RootChildren root = root_children(tree, &lobe);   /* shared by every candidate's walk */
 #pragma unroll 1
         for (int j = 0; j < RIS_CANDIDATES; ++j) {
             const realv cu = shifted_uniform(u0, (uint)j * R2_FIXED_X), cv = shifted_uniform(u1, (uint)j * R2_FIXED_Y);
-            realv dx, dy, dz, p_prod, f, p_bsdf, lx, ly, lz;
+            realv dx, dy, dz, p_prod, f, p_bsdf, lx, ly, lz, su, sv;   /* (su, sv): d on the square */
             if (j < RIS_PRODUCT) {
                 realv gu = cu, gv = cv;
                 const realv square_pdf = product_walk_from(tree, &lobe, &root, &gu, &gv);
@@ -153,17 +154,18 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
                 ly = dx * tx + dy * ty + dz * tz;
                 lz = dx * nx + dy * ny + dz * nz;
                 bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &p_bsdf);
+                env_world_to_square(rot, dx, dy, dz, &su, &sv);   /* the texel of d, as for every direction */
             } else {
                 bsdf_sample(kind, param, ox, oy, oz, cu, cv, &lx, &ly, &lz);
                 bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &p_bsdf);
                 dx = lx * sx + ly * tx + lz * nx;
                 dy = lx * sy + ly * ty + lz * ny;
                 dz = lx * sz + ly * tz + lz * nz;
-                realv gu, gv;
-                env_world_to_square(rot, dx, dy, dz, &gu, &gv);
-                p_prod = product_pdf_from(tree, &lobe, &root, gu, gv) * env_square_to_solid_angle(dx, dz);
+                env_world_to_square(rot, dx, dy, dz, &su, &sv);
+                p_prod = product_pdf_from(tree, &lobe, &root, su, sv) * env_square_to_solid_angle(dx, dz);
             }
-            const realv target = f * texel_luminance(rot, texels, env_w, env_h, dx, dy, dz);
+            cl[j] = texel_luminance(texels, env_w, env_h, su, sv);
+            const realv target = f * cl[j];
             const realv denom = (float)RIS_PRODUCT * p_prod + (float)RIS_BSDF * p_bsdf;
             const realv w = target / denom;
             cw[j] = select((realv)0.0f, w, (denom > 0.0f) & (target > 0.0f) & isfinite(w));
@@ -173,7 +175,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         /* each slot takes the first candidate whose running sum reaches u total (the last one
          * if rounding leaves none) */
         const realv ta = u2 * total, tb = select(u2 + 0.5f, u2 - 0.5f, u2 >= 0.5f) * total;
-        realv cum = 0.0f;
+        realv cum = 0.0f, la = 0.0f, lb = 0.0f;
         intv found_a = 0, found_b = 0;
 #pragma unroll 1
         for (int j = 0; j < RIS_CANDIDATES; ++j) {
@@ -182,11 +184,11 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
             const intv take_a = !found_a & ((cum >= ta) | last), take_b = !found_b & ((cum >= tb) | last);
             ax = select(ax, cx[j], take_a); ay = select(ay, cy[j], take_a); az = select(az, cz[j], take_a);
             bx = select(bx, cx[j], take_b); by = select(by, cy[j], take_b); bz = select(bz, cz[j], take_b);
+            la = select(la, cl[j], take_a);
+            lb = select(lb, cl[j], take_b);
             found_a |= take_a;
             found_b |= take_b;
         }
-        const realv la = texel_luminance(rot, texels, env_w, env_h, ax, ay, az);
-        const realv lb = texel_luminance(rot, texels, env_w, env_h, bx, by, bz);
         sa = select((realv)0.0f, 0.5f * total / la, (total > 0.0f) & (la > 0.0f));
         sb = select((realv)0.0f, 0.5f * total / lb, (total > 0.0f) & (lb > 0.0f));
     }
