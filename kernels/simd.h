@@ -46,9 +46,10 @@ typedef SIMD_CAT(uint, LANES) uintv;
  * spilled their live vectors around each of some 1500 call sites in the product kernel
  * (1024^2 leaves). These equivalents
  * are operators and clang builtins, which LLVM inlines (vblendvps, vmaxps, vsqrtps,
- * vroundps, vfmadd, unaligned vector loads): the product walk over 1024^2 leaves went
- * from 11.5 to 26 M samples/s, the bunny's wavelet render from 2.9 to 1.7 s (64^2
- * leaves: no change). They keep the library's semantics for the types the kernels use:
+ * vroundps, vfmadd, merged loads): the product walk (ggx 0.05) over 1024^2 leaves went
+ * from 11.5 to 27 M samples/s, over 256^2 from 7 to 28, over 64^2 from 13 to 35, the
+ * bunny's wavelet render from 2.8 to 1.7 s. With Debian's PoCL 3.1 (LLVM 15), which
+ * inlines its library, they are as fast or a few percent faster. They keep the library's semantics for the types the kernels use:
  * select tests the mask's sign bit, as the vector ternary does; fmin / fmax return the
  * other argument where one is NaN; rsqrt is 1 / sqrt (the library's is within 2 ulp).
  * tests/test_device.py checks them against the library, bit for bit. Other devices'
@@ -166,14 +167,20 @@ OVERLOAD uint wl_max(const uint a, const uint b) { return a > b ? a : b; }
 #define mul_hi wl_mul_hi
 #define min wl_min
 #define max wl_max
-/* unaligned vector loads and stores of 2, 4 and LANES floats at p + j */
-typedef float2 __attribute__((aligned(4))) float2_unaligned;
-typedef float4 __attribute__((aligned(4))) float4_unaligned;
-typedef realv __attribute__((aligned(4))) realv_unaligned;
-#define LOAD2_(p, j) (*(__global const float2_unaligned *)((p) + (j)))
-#define LOAD4_(p, j) (*(__global const float4_unaligned *)((p) + (j)))
-#define LOADV_(p, j) (*(__global const realv_unaligned *)((p) + (j)))
-#define STOREV_(v, p, j) (*(__global realv_unaligned *)((p) + (j)) = (v))
+/* loads and stores of 2, 4 and LANES adjacent floats at p + j, float by float: LLVM merges
+ * them into vector loads. (Through a vector type of alignment 4 they were as fast on PoCL
+ * 3.0 but 2x slower on Debian's PoCL 3.1, LLVM 15: the product walk at 1024^2 26.8 / 26.5
+ * M/s float by float, 26 / 12.9 through the type, 18.0 / 22.8 with vload4.) */
+#define LOAD2_(p, j) ((float2)((p)[(j)], (p)[(j) + 1]))
+#define LOAD4_(p, j) ((float4)((p)[(j)], (p)[(j) + 1], (p)[(j) + 2], (p)[(j) + 3]))
+INLINE realv load_lanes_(__global const float *p)
+{
+    realv r;
+    for (int k = 0; k < LANES; ++k) r[k] = p[k];
+    return r;
+}
+#define LOADV_(p, j) load_lanes_((p) + (j))
+#define STOREV_(v, p, j) do { for (int k_ = 0; k_ < LANES; ++k_) ((p) + (j))[k_] = (v)[k_]; } while (0)
 #else
 #define LOAD2_(p, j) vload2(0, (p) + (j))
 #define LOAD4_(p, j) vload4(0, (p) + (j))

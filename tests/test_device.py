@@ -98,3 +98,11 @@ def test_inline_builtins_equal_the_librarys():
     j = np.minimum(np.arange(n), n - 5) + 1
     want = np.stack([a[j], a[j + 1], a[j + 2], a[j + 3], a[j + 2], a[j + 3]]).view(np.uint32)
     assert np.array_equal(mine[23:29], want) and np.array_equal(lib[23:29], want)
+
+
+def test_inline_builtins_env_var_overrides(monkeypatch):
+    dev = cl.runtime().device
+    monkeypatch.setenv(cl.INLINE_ENV, "0")
+    assert cl.inline_builtins(dev) is False
+    monkeypatch.setenv(cl.INLINE_ENV, "1")
+    assert cl.inline_builtins(dev) is True

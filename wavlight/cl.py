@@ -11,6 +11,9 @@ works, and the probe picks whichever does.
 ``WAVLIGHT_CL_DEVICE`` overrides the choice: ``"P:D"`` (platform and device
 indices as ``wavlight info`` lists them) or any text that occurs in
 "platform name + device name" (case-insensitive), e.g. ``"NVIDIA"``.
+On PoCL CPU devices the kernels use kernels/simd.h's inline equivalents of the
+OpenCL builtins (:func:`inline_builtins`); ``WAVLIGHT_INLINE_BUILTINS=0`` or ``1``
+overrides that.
 
 Programs
 --------
@@ -37,6 +40,7 @@ import numpy as np
 from .errors import WavlightError
 
 DEVICE_ENV = "WAVLIGHT_CL_DEVICE"
+INLINE_ENV = "WAVLIGHT_INLINE_BUILTINS"
 # Work-group size of the per-sample kernels (warp, product, shade): PoCL compiles a kernel
 # per work-group size on first launch, so one fixed size keeps it to one compile.
 WORK_GROUP = 64
@@ -190,7 +194,11 @@ def _build(ctx, name: str, defines: tuple):
 def inline_builtins(device) -> bool:
     """Whether programs for `device` replace OpenCL builtins by kernels/simd.h's inline
     equivalents (-DINLINE_BUILTINS=1): on PoCL CPU devices, whose kernel library the
-    PyPI build calls out of line (2.3x slower product walks, see there)."""
+    PyPI build calls out of line (2.3x slower product walks, see there).
+    ``WAVLIGHT_INLINE_BUILTINS=0`` or ``1`` overrides the choice."""
+    want = os.environ.get(INLINE_ENV, "").strip()
+    if want in ("0", "1"):
+        return want == "1"
     cl = _cl()
     return "portable" in device.platform.name.lower() and bool(device.type & cl.device_type.CPU)
 
