@@ -167,10 +167,13 @@ OVERLOAD uint wl_max(const uint a, const uint b) { return a > b ? a : b; }
 #define mul_hi wl_mul_hi
 #define min wl_min
 #define max wl_max
-/* loads and stores of 2, 4 and LANES adjacent floats at p + j, float by float: LLVM merges
- * them into vector loads. (Through a vector type of alignment 4 they were as fast on PoCL
- * 3.0 but 2x slower on Debian's PoCL 3.1, LLVM 15: the product walk at 1024^2 26.8 / 26.5
- * M/s float by float, 26 / 12.9 through the type, 18.0 / 22.8 with vload4.) */
+/* Loads and stores of 2, 4 and LANES adjacent floats at p + j. For LLVM 15 and newer
+ * (Debian's PoCL 3.1) float by float, which LLVM merges into vector loads; through a vector
+ * type of alignment 4 the product walk at 1024^2 ran 2x slower there (12.9 against 26.5
+ * M/s; vload4 22.8). For LLVM 14 (the PyPI PoCL 3.0) through that type: float by float
+ * the product walk was as fast (26.8 M/s), but the light walk 12% slower (120 against 137
+ * M/s at 64^2) and vload4 is a call there. */
+#if __clang_major__ >= 15
 #define LOAD2_(p, j) ((float2)((p)[(j)], (p)[(j) + 1]))
 #define LOAD4_(p, j) ((float4)((p)[(j)], (p)[(j) + 1], (p)[(j) + 2], (p)[(j) + 3]))
 INLINE realv load_lanes_(__global const float *p)
@@ -181,6 +184,15 @@ INLINE realv load_lanes_(__global const float *p)
 }
 #define LOADV_(p, j) load_lanes_((p) + (j))
 #define STOREV_(v, p, j) do { for (int k_ = 0; k_ < LANES; ++k_) ((p) + (j))[k_] = (v)[k_]; } while (0)
+#else
+typedef float2 __attribute__((aligned(4))) float2_unaligned;
+typedef float4 __attribute__((aligned(4))) float4_unaligned;
+typedef realv __attribute__((aligned(4))) realv_unaligned;
+#define LOAD2_(p, j) (*(__global const float2_unaligned *)((p) + (j)))
+#define LOAD4_(p, j) (*(__global const float4_unaligned *)((p) + (j)))
+#define LOADV_(p, j) (*(__global const realv_unaligned *)((p) + (j)))
+#define STOREV_(v, p, j) (*(__global realv_unaligned *)((p) + (j)) = (v))
+#endif
 #else
 #define LOAD2_(p, j) vload2(0, (p) + (j))
 #define LOAD4_(p, j) vload4(0, (p) + (j))
