@@ -47,7 +47,7 @@ typedef SIMD_CAT(uint, LANES) uintv;
  * (1024^2 leaves). These equivalents
  * are operators and clang builtins, which LLVM inlines (vblendvps, vmaxps, vsqrtps,
  * vroundps, vfmadd, merged loads): the product walk (ggx 0.05) over 1024^2 leaves went
- * from 11.5 to 27 M samples/s, over 256^2 from 7 to 28, over 64^2 from 13 to 35, the
+ * from 11.5 to 26 M samples/s, over 256^2 from 7 to 28, over 64^2 from 13 to 35, the
  * bunny's wavelet render from 2.8 to 1.7 s. With Debian's PoCL 3.1 (LLVM 15), which
  * inlines its library, they are as fast or a few percent faster. They keep the library's semantics for the types the kernels use:
  * select tests the mask's sign bit, as the vector ternary does; fmin / fmax return the
