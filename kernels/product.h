@@ -393,8 +393,21 @@ INLINE realv product_density(__global const float *tree, const Lobe *lb, const r
 /* The root's four children: their light masses m and importances i (node_importances at
  * level 0), the same for every walk of one lobe: the resampling estimator (shade.cl,
  * RIS_PRODUCT) computes them once per shading point for all its candidates. */
+/* With CACHE_LEVEL_1 (PRODUCT_LEVELS > 1 and N_LEVELS > 1) the same for level 1: the
+ * masses m1[c][.] and importances i1[c][.] of the four children of each level-1 node c,
+ * computed as the walk would (the same angles, the same look-ahead), so the walks and pdfs
+ * that use them give the same values bit for bit; the candidates then skip level 1's
+ * look-ahead (sixteen lobe evaluations and five four-float gathers each). */
+#if PRODUCT_LEVELS > 1 && N_LEVELS > 1
+#define CACHE_LEVEL_1 1
+#else
+#define CACHE_LEVEL_1 0
+#endif
 typedef struct {
     realv m[4], i[4];
+#if CACHE_LEVEL_1
+    realv m1[4][4], i1[4][4];
+#endif
 } RootChildren;
 
 INLINE RootChildren root_children(__global const float *tree, const Lobe *lb)
@@ -407,8 +420,29 @@ INLINE RootChildren root_children(__global const float *tree, const Lobe *lb)
                          &r.i[0], &r.i[1], &r.i[2], &r.i[3]);
     else
         r.i[0] = r.m[0], r.i[1] = r.m[1], r.i[2] = r.m[2], r.i[3] = r.m[3];
+#if CACHE_LEVEL_1
+#pragma unroll
+    for (int c = 0; c < 4; ++c) {
+        const NodeAngles ac = child_angles(&a, 0, (intv)(c & 1 ? -1 : 0), (intv)(c & 2 ? -1 : 0));
+        GATHER4(tree, TREE_BASE(lb) + (uint)(LEVEL_OFFSET(2) + 4 * c), &r.m1[c][0], &r.m1[c][1], &r.m1[c][2],
+                &r.m1[c][3]);
+        node_importances(lb, &ac, tree, r.m1[c][0], r.m1[c][1], r.m1[c][2], r.m1[c][3], (uintv)c, 1, N_LEVELS,
+                         &r.i1[c][0], &r.i1[c][1], &r.i1[c][2], &r.i1[c][3]);
+    }
+#endif
     return r;
 }
+
+#if CACHE_LEVEL_1
+/* v[k][0..3] for the level-1 node k (0..3) of each lane, into o[0..3]. */
+INLINE void pick_level_1(const realv v[4][4], const uintv k, realv o[4])
+{
+    const intv right = as_intv(k & 1u) != 0, bottom = as_intv(k & 2u) != 0;
+#pragma unroll
+    for (int j = 0; j < 4; ++j)
+        o[j] = select(select(v[0][j], v[1][j], right), select(v[2][j], v[3][j], right), bottom);
+}
+#endif
 
 /* product_walk with the root's children given (root, from root_children) or computed (NULL). */
 INLINE realv product_walk_from(__global const float *tree, const Lobe *lb, const RootChildren *root,
@@ -425,6 +459,12 @@ INLINE realv product_walk_from(__global const float *tree, const Lobe *lb, const
         realv m0, m1, m2, m3;
         if (l == 0 && root) {
             m0 = root->m[0]; m1 = root->m[1]; m2 = root->m[2]; m3 = root->m[3];
+#if CACHE_LEVEL_1
+        } else if (l == 1 && root) {
+            realv o[4];
+            pick_level_1(root->m1, k, o);
+            m0 = o[0]; m1 = o[1]; m2 = o[2]; m3 = o[3];
+#endif
         } else {
             GATHER4(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(l + 1) + 4 * k, &m0, &m1, &m2, &m3);
         }
@@ -434,6 +474,12 @@ INLINE realv product_walk_from(__global const float *tree, const Lobe *lb, const
             realv i0, i1, i2, i3;
             if (l == 0 && root) {
                 i0 = root->i[0]; i1 = root->i[1]; i2 = root->i[2]; i3 = root->i[3];
+#if CACHE_LEVEL_1
+            } else if (l == 1 && root) {
+                realv o[4];
+                pick_level_1(root->i1, k, o);
+                i0 = o[0]; i1 = o[1]; i2 = o[2]; i3 = o[3];
+#endif
             } else {
                 node_importances(lb, &a, tree, m0, m1, m2, m3, k, l, N_LEVELS, &i0, &i1, &i2, &i3);
             }
@@ -475,6 +521,12 @@ INLINE realv product_pdf_from(__global const float *tree, const Lobe *lb, const 
         realv m0, m1, m2, m3, i0, i1, i2, i3;
         if (l == 0 && root) {
             i0 = root->i[0]; i1 = root->i[1]; i2 = root->i[2]; i3 = root->i[3];
+#if CACHE_LEVEL_1
+        } else if (l == 1 && root) {
+            realv o[4];
+            pick_level_1(root->i1, parent, o);
+            i0 = o[0]; i1 = o[1]; i2 = o[2]; i3 = o[3];
+#endif
         } else {
             GATHER4(tree, TREE_BASE(lb) + (uint)LEVEL_OFFSET(l + 1) + 4 * parent, &m0, &m1, &m2, &m3);
             node_importances(lb, &a, tree, m0, m1, m2, m3, parent, l, N_LEVELS, &i0, &i1, &i2, &i3);
