@@ -3,14 +3,14 @@ luminance over each leaf's solid angle, computed over the overlap bands only."""
 import numpy as np
 import pytest
 
-from wavlight.envmap import LUMINANCE, Environment
+from wavlight.envmap import LUMINANCE, Environment, luminance
 
 
 def _dense(env, n):
     """The same integral as dense matrices: rows (leaf x texel overlap in cos theta) @ luminance
     @ columns (texel x leaf overlap in phi)."""
     side = 1 << n
-    lum = (env.pixels.reshape(-1, 3) @ LUMINANCE).astype(np.float64).reshape(env.height, env.width)  # as wavlight: float32 luminance
+    lum = luminance(env.pixels.astype(np.float64))  # as wavlight: float64 luminance of the float32 texels
     lt, tt = np.arange(side + 1) / side * np.pi, np.arange(env.height + 1) / env.height * np.pi
     lo, hi = np.maximum(lt[:-1, None], tt[None, :-1]), np.minimum(lt[1:, None], tt[None, 1:])
     rows = np.where(hi > lo, np.cos(lo) - np.cos(hi), 0.0)
@@ -35,7 +35,7 @@ def test_leaf_masses_by_quadrature():
     env = Environment(rng.random((6, 10, 3)).astype(np.float32))
     n, q = 3, 64
     side = 1 << n
-    lum = (env.pixels.reshape(-1, 3) @ LUMINANCE).astype(np.float64).reshape(6, 10)
+    lum = luminance(env.pixels.astype(np.float64))
     got = env.luminance_square(n)
     for y in range(side):
         z_hi, z_lo = np.cos(np.pi * y / side), np.cos(np.pi * (y + 1) / side)
@@ -57,8 +57,7 @@ def test_compensated_masses(shape):
     rng = np.random.default_rng(7)
     env = Environment((rng.random(shape + (3,)) ** 6 * 50).astype(np.float32))
     mean = _dense(env, 0).sum() / (4 * np.pi)
-    flat = env.pixels.reshape(-1, 3) @ LUMINANCE
-    above = np.maximum(flat.astype(np.float64) - mean, 0.0)
+    above = np.maximum(luminance(env.pixels.astype(np.float64)) - mean, 0.0)
     want = _dense(Environment(np.repeat(above.reshape(shape)[..., None], 3, axis=2) / LUMINANCE.sum()), 4)
     got = env.luminance_square(4, compensated=True)
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-9 * want.max())
@@ -67,3 +66,15 @@ def test_compensated_masses(shape):
     np.testing.assert_allclose(const.luminance_square(3, compensated=True),
                                _dense(Environment(np.ones(shape + (3,), np.float32)), 3) / LUMINANCE.sum(),
                                rtol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_luminance_is_the_weighted_sum(dtype):
+    """envmap.luminance: the LUMINANCE-weighted sum over the last axis, in the colours' float
+    type and shape (elementwise, without BLAS), equal to the matrix product within rounding."""
+    rng = np.random.default_rng(11)
+    rgb = (rng.random((5, 7, 3)) * 100).astype(dtype)
+    got = luminance(rgb)
+    assert got.shape == (5, 7) and got.dtype == dtype
+    want = rgb.astype(np.float64) @ LUMINANCE.astype(np.float64)
+    np.testing.assert_allclose(got, want, rtol=4 * np.finfo(dtype).eps)

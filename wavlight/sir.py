@@ -69,7 +69,7 @@ import hashlib
 
 import numpy as np
 
-from .envmap import LUMINANCE
+from .envmap import luminance
 from .errors import ArgumentError, check_int, shown
 from .strategies import DirectionSamples, LightStrategy, ShadingPoints, Strategy
 
@@ -80,7 +80,6 @@ CHUNK_COMPARISONS = 1 << 24
 DEFAULT_CANDIDATES = 32
 DEFAULT_SAMPLES = 1
 SOURCES = ("light", "bsdf")
-_LUM = LUMINANCE.astype(np.float64)
 
 
 def _repeat(sp: ShadingPoints, m: int) -> ShadingPoints:
@@ -143,7 +142,7 @@ class SirStrategy(Strategy):
             d = rep.to_world(wl)
         fcos = rep.bsdf_eval_cos(wl)
         radiance = self.env.eval(d).astype(np.float64)
-        p_hat = np.maximum(fcos, 0.0) * (radiance @ _LUM)
+        p_hat = np.maximum(fcos, 0.0) * luminance(radiance)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             w = np.where(q > 0, p_hat / q, 0.0)
         w = np.where(np.isfinite(w) & (w > 0), w, 0.0)

@@ -469,7 +469,7 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     estimate of the unshadowed integral: its noise falls about as 1/M, for two shadow rays.
     split (M_p, M_b) overrides the strategy's (benchmarks/point_variance.py compares splits).
     Returns wi (N, 2, 3) and value (N, 2, 3)."""
-    from .envmap import LUMINANCE
+    from .envmap import luminance
 
     mp, mb = strategy.ris_split if split is None else split
     m = mp + mb
@@ -482,7 +482,7 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
         ds = strategy.sample(sp, uu) if j < mp else strategy.bsdf.sample(sp, uu)
         p_prod = ds.pdf if j < mp else strategy.pdf(sp, ds.wi_local, ds.wi_world)
         p_bsdf = strategy.bsdf.pdf(sp, ds.wi_local, ds.wi_world) if j < mp else ds.pdf
-        target = sp.bsdf_eval_cos(ds.wi_local) * (env.eval(ds.wi_world) @ LUMINANCE)
+        target = sp.bsdf_eval_cos(ds.wi_local) * luminance(env.eval(ds.wi_world))
         denom = mp * p_prod + mb * p_bsdf
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             wj = np.where((denom > 0) & (target > 0), target / denom, 0.0)
@@ -497,7 +497,7 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
         pick = np.minimum((cum < v.astype(np.float64) * total).sum(0), m - 1)
         y = dirs[pick, np.arange(n)]
         rgb = env.eval(y)
-        lum = rgb @ LUMINANCE
+        lum = luminance(rgb)
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = np.where((total > 0) & (lum > 0), 0.5 * total / lum, 0.0)
         wi[:, slot], value[:, slot] = y, scale[:, None] * sp.albedo * rgb

@@ -75,7 +75,7 @@ import warnings
 
 import numpy as np
 
-from .envmap import LUMINANCE
+from .envmap import luminance
 from .errors import ArgumentError, check_int, shown
 from .sir import _repeat, _slice, rng_from_uniforms
 from .strategies import DirectionSamples, ShadingPoints, Strategy
@@ -91,7 +91,6 @@ MAX_CANDIDATES = 4096
 ALL_LIGHTS = 8
 #: about this many (point, light) or (texel, center) pairs are processed at once
 CHUNK = 1 << 20
-_LUM = LUMINANCE.astype(np.float64)
 
 
 # ----------------------------------------------------------------------------- the strata
@@ -164,7 +163,7 @@ class Strata:
         h, w = env.height, env.width
         dirs, d_omega = texel_geometry(h, w)
         rgb = env.pixels.reshape(-1, 3).astype(np.float64)
-        lum = rgb @ _LUM
+        lum = luminance(rgb)
         nz = np.nonzero(lum > 0)[0]
         self.texel_count = h * w
         if len(nz) == 0:
