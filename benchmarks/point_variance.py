@@ -12,7 +12,8 @@ removes), and it is how the product model's parameters were chosen.
 `wavelet` is the library's default (since 2026-12-02 the resampling estimator with 8
 candidates; `wavelet:candidates=0` the MIS pair, which the variants below modify), and
 `wavelet:risP+B` that estimator with P product and B BSDF candidates
-(wavlight.strategies.ris_shade_reference).
+(wavlight.strategies.ris_shade_reference), `wavelet:control_variate=0` without its control
+variate (with it, an unshadowed point's estimate is the candidates' U, no pick).
 --strategies may also name earlier designs of `wavelet` (VARIANTS): wavelet_power (the
 power heuristic), wavelet_plain (the plain light tree for lambert too),
 wavelet_all_compensated (the compensated tree for every material); and per-point product
@@ -528,10 +529,10 @@ def main():
 
             def estimates(strategy, share=None):
                 strategy.prepare(env, scene.materials)
-                if share is None:
-                    _, val = strategies.shade_reference(strategy, env, sp, u)
-                else:
-                    val = mixture_estimates(strategy, env, sp, u, share)
+                if share is None:   # (the whole estimate: the control variate's offset too)
+                    _, val, off = strategies.shade_reference(strategy, env, sp, u, with_offset=True)
+                    return (val.sum(1) + off).mean(1).reshape(count, args.samples)
+                val = mixture_estimates(strategy, env, sp, u, share)
                 return val.sum(1).mean(1).reshape(count, args.samples)
 
             def make(spec):
@@ -541,7 +542,8 @@ def main():
                     if opts:
                         sys.exit(f"point_variance: {spec}: options apply to strategies, not to {base}")
                     return VARIANTS[base]()
-                return strategies.make(base, **{k: int(v) for k, v in (o.split("=") for o in opts)})
+                return strategies.make(base, **{k: bool(int(v)) if k == "control_variate" else int(v)
+                                                for k, v in (o.split("=") for o in opts)})
 
             runs = {"mis": estimates(strategies.make("mis"))}
             for name in args.strategies.split(","):
@@ -551,8 +553,9 @@ def main():
                     mp, mb = (int(x) for x in ris.split("+"))
                     strat = make(rbase)
                     strat.prepare(env, scene.materials)
-                    _, val = strategies.ris_shade_reference(strat, env, sp, u.astype(np.float32), split=(mp, mb))
-                    runs[name] = val.sum(1).mean(1).reshape(count, args.samples)
+                    _, val, off = strategies.ris_shade_reference(strat, env, sp, u.astype(np.float32),
+                                                                 split=(mp, mb), with_offset=True)
+                    runs[name] = (val.sum(1) + off).mean(1).reshape(count, args.samples)
                 elif share:
                     runs[name] = estimates(make(base), float(share))
                 elif name in VARIANTS:

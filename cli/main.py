@@ -108,6 +108,9 @@ def _check_output(path, formats):
 @click.option("--wavelet-candidates", type=click.IntRange(0, 64), default=None,
               help="wavelet: resampling candidates per shading sample (0: the MIS pair of one product and "
                    "one BSDF sample; default 8).")
+@click.option("--wavelet-control-variate/--no-wavelet-control-variate", default=True,
+              help="wavelet with candidates: carry the candidates' unshadowed estimate as a control "
+                   "variate (default on; unbiased either way).")
 @click.option("--light-levels", type=click.IntRange(1, 11), default=None,
               help="Depth of the light tree, 2^n x 2^n leaves (default: from the map's content).")
 @click.option("--sir-candidates", type=click.IntRange(1, 65536), default=None,
@@ -124,7 +127,8 @@ def _check_output(path, formats):
               help="Also write each pixel's standard error of the mean (linear: .exr .hdr .pfm; needs spp >= 2).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, wavelet_candidates, light_levels,
+def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, wavelet_candidates,
+           wavelet_control_variate, light_levels,
            sir_candidates,
            sir_samples, structured_strata, structured_mode, sampler, stderr_out, as_json, quiet):
     """Render SCENE (a TOML scene file) to an image."""
@@ -160,6 +164,7 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
                                       seed=seed, progress=bar, wavelet_levels=wavelet_levels,
                                       wavelet_candidates=wavelet_candidates,
+                                      wavelet_control_variate=wavelet_control_variate,
                                       light_levels=light_levels, sir_candidates=sir_candidates,
                                       sir_samples=sir_samples, structured_strata=structured_strata,
                                       structured_mode=structured_mode, sampler=sampler)

@@ -83,19 +83,26 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
  * exact float32 offsets), from the product walk for j < M_p, else from the BSDF; weight
  * w_j = f cos lum(L) / (M_p p_prod + M_b p_bsdf); two directions resampled with u.z and
  * u.z + 1/2, each with the scalar sum(w) / (2 lum(L(y))) (the kernel's value is scalar x
- * albedo x L(y)). The candidates are a loop, not unrolled: the walk inside it is. */
+ * albedo x L(y)). With RIS_CONTROL_VARIATE (the default) the estimate also carries,
+ * without a shadow ray, albedo U - value_a - value_b, U = sum_j w_j L(x_j) / lum(L(x_j))
+ * the candidates' own MIS estimate of the unshadowed integral per channel: unbiased as
+ * both U and value_a + value_b are, and exact U where both directions are visible.
+ * The candidates are a loop, not unrolled: the walk inside it is. */
 #ifdef RIS_PRODUCT
+#ifndef RIS_CONTROL_VARIATE
+#define RIS_CONTROL_VARIATE 1
+#endif
 #define RIS_CANDIDATES (RIS_PRODUCT + RIS_BSDF)
 #define R2_FIXED_X 12664746u
 #define R2_FIXED_Y 9560334u
 
 /* The luminance of the texel at (u, v) of the square (envmap.LUMINANCE). */
 inline realv texel_luminance(__global const float *texels, const int env_w, const int env_h,
-                             const realv u, const realv v)
+                             const realv u, const realv v, realv *r, realv *g, realv *b)
 {
-    realv r, g, b, unused;
-    GATHER4(texels, 4 * env_texel(env_w, env_h, u, v), &r, &g, &b, &unused);
-    return 0.2126f * r + 0.7152f * g + 0.0722f * b;
+    realv unused;
+    GATHER4(texels, 4 * env_texel(env_w, env_h, u, v), r, g, b, &unused);
+    return 0.2126f * *r + 0.7152f * *g + 0.0722f * *b;
 }
 
 /* frac(u + offset) for an offset in [0, 1), as the twin computes it */
@@ -106,10 +113,13 @@ inline realv shifted_uniform(const realv u, const uint fixed_offset)
 }
 #endif
 
-/* Two directions (slot a, slot b) and their unoccluded estimates (r, g, b) per lane. */
+/* Two directions (slot a, slot b) and their unoccluded estimates (r, g, b) per lane, and
+ * the part of the estimate that needs no shadow ray (o: the resampling estimator's control
+ * variate, zero otherwise). */
 typedef struct {
     realv ax, ay, az, bx, by, bz;
     realv ra, ga, ba, rb, gb, bb;
+    realv o_r, o_g, o_b;
 } Shaded;
 
 /* Shade the lanes' points: world normal n (facing the viewer), world view direction
@@ -131,6 +141,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     /* slot a (and b): world direction, scalar f / pdf (x MIS weight) */
     realv ax = 0.0f, ay = 0.0f, az = 0.0f, sa = 0.0f;
     realv bx = 0.0f, by = 0.0f, bz = 0.0f, sb = 0.0f;
+    realv cv_r = 0.0f, cv_g = 0.0f, cv_b = 0.0f;   /* U, the control variate (RIS) */
 #if STRATEGY == 5
     const Lobe lobe = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, mat), GATHER_INT(mat_levels, mat));
 #endif
@@ -140,6 +151,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
          * chosen ones' estimates) */
         realv cx[RIS_CANDIDATES], cy[RIS_CANDIDATES], cz[RIS_CANDIDATES], cw[RIS_CANDIDATES], cl[RIS_CANDIDATES];
         realv total = 0.0f;
+        cv_r = 0.0f; cv_g = 0.0f; cv_b = 0.0f;
         const RootChildren root = root_children(tree, &lobe);   /* shared by every candidate's walk */
 #pragma unroll 1
         for (int j = 0; j < RIS_CANDIDATES; ++j) {
@@ -164,13 +176,18 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
                 env_world_to_square(rot, dx, dy, dz, &su, &sv);
                 p_prod = product_pdf_from(tree, &lobe, &root, su, sv) * env_square_to_solid_angle(dx, dz);
             }
-            cl[j] = texel_luminance(texels, env_w, env_h, su, sv);
+            realv tr, tg, tb;
+            cl[j] = texel_luminance(texels, env_w, env_h, su, sv, &tr, &tg, &tb);
             const realv target = f * cl[j];
             const realv denom = (float)RIS_PRODUCT * p_prod + (float)RIS_BSDF * p_bsdf;
             const realv w = target / denom;
             cw[j] = select((realv)0.0f, w, (denom > 0.0f) & (target > 0.0f) & isfinite(w));
             cx[j] = dx; cy[j] = dy; cz[j] = dz;
             total += cw[j];
+            if (RIS_CONTROL_VARIATE) {   /* w_j L(x_j) / lum(L(x_j)): w_j > 0 implies lum > 0 */
+                const realv k = select((realv)0.0f, cw[j] / cl[j], cw[j] > 0.0f);
+                cv_r += k * tr; cv_g += k * tg; cv_b += k * tb;
+            }
         }
         /* each slot takes the first candidate whose running sum reaches u total (the last one
          * if rounding leaves none) */
@@ -279,6 +296,15 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     s.rb = sb * ar * tb_r;
     s.gb = sb * ag * tb_g;
     s.bb = sb * ab * tb_b;
+#if STRATEGY == 5 && defined(RIS_PRODUCT)
+    if (RIS_CONTROL_VARIATE) {   /* albedo U - value_a - value_b, zero where not live */
+        s.o_r = select((realv)0.0f, ar * cv_r - s.ra - s.rb, live);
+        s.o_g = select((realv)0.0f, ag * cv_g - s.ga - s.gb, live);
+        s.o_b = select((realv)0.0f, ab * cv_b - s.ba - s.bb, live);
+        return s;
+    }
+#endif
+    s.o_r = s.o_g = s.o_b = 0.0f;
     return s;
 }
 
@@ -295,10 +321,12 @@ inline void store_values(const Shaded *s, __global float *value_out, const uint 
 
 /* Shading points given directly: normals and view directions as rows of 3 floats,
  * material ids, u rows of 4; wi_out and value_out as planes (slot, component,
- * point). The tests' entry point; the renderer uses shade_rays. */
+ * point), offset_out (the part without a shadow ray) as planes r, g, b. The tests' entry
+ * point; the renderer uses shade_rays. */
 __kernel void shade(__global const float *normal, __global const float *wo_world,
                     __global const int *material, __global const float *u_in, const uint count,
-                    SHADE_TABLE_ARGS, __global float *wi_out, __global float *value_out)
+                    SHADE_TABLE_ARGS, __global float *wi_out, __global float *value_out,
+                    __global float *offset_out)
 {
     const uint base = LANE_BASE();
     if (base >= count) return;
@@ -316,6 +344,9 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     STORE_LANES(s.by, wi_out + 4 * count, base, count);
     STORE_LANES(s.bz, wi_out + 5 * count, base, count);
     store_values(&s, value_out, base, count);
+    STORE_LANES(s.o_r, offset_out, base, count);
+    STORE_LANES(s.o_g, offset_out + count, base, count);
+    STORE_LANES(s.o_b, offset_out + 2 * count, base, count);
 }
 
 /* (x, y, z) of the lanes below count into rows out[(point) * stride + offset + 0..2]. */
@@ -335,7 +366,8 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
  * distance tfar, four uniforms: with draw_u, Philox stream RNG_SHADING of tile
  * rng_tile at sample index rng_first + ray (rng.h; the independent sampler), else
  * u_in (rows of 4). A miss sees the environment (direct_out,
- * 3 planes r, g, b; zero for hits) and has zero estimates. A hit takes its face
+ * 3 planes r, g, b; for hits the estimate's part without a shadow ray, Shaded's o) and has
+ * zero estimates. A hit takes its face
  * normal, flipped to face the viewer (two-sided shading), its face's material and
  * shade_lanes' directions and estimates; origin_out (rows of 3) is the hit point p
  * moved max(OFFSET_RELATIVE |p|, face_normal's 4th column, eye_offset) along that normal
@@ -395,6 +427,9 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
         }
         s = shade_lanes(SHADE_TABLES, nx, ny, nz, -dx, -dy, -dz, GATHER_INT(face_material, f), u0, u1, u2, u3,
                         hit);
+        STORE_LANES(er + s.o_r, direct_out, base, count);   /* (er: 0 for hits) */
+        STORE_LANES(eg + s.o_g, direct_out + count, base, count);
+        STORE_LANES(eb + s.o_b, direct_out + 2 * count, base, count);
     } else {
         s.ax = s.ay = s.az = s.bx = s.by = s.bz = 0.0f;
         s.ra = s.ga = s.ba = s.rb = s.gb = s.bb = 0.0f;

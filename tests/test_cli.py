@@ -728,6 +728,17 @@ def test_wavelet_candidates_from_scene_and_flag(tmp_path):
         assert json.loads(o.stdout)["wavelet_candidates"] == want, o.describe()
 
 
+def test_wavelet_control_variate_flag(tmp_path):
+    """--no-wavelet-control-variate reaches the strategy (--json wavelet_control_variate); it is
+    on by default, and reported off for the MIS pair, which has no candidates."""
+    scene = write_scene(tmp_path, scene_text(render="width = 8\nheight = 6\nspp = 2\nstrategy = \"wavelet\"\n"))
+    for args, want in (((), True), (("--no-wavelet-control-variate",), False),
+                       (("--wavelet-control-variate",), True), (("--wavelet-candidates", 0), False)):
+        o = run_inproc("render", scene, "-o", tmp_path / "o.exr", "--json", *args)
+        assert_success(o)
+        assert json.loads(o.stdout)["wavelet_control_variate"] is want, o.describe()
+
+
 def test_version_flag():
     o = run_inproc("--version")
     assert_success(o)

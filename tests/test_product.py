@@ -563,12 +563,18 @@ def test_kernel_matches_numpy_with_candidates(map_id, candidates):
     n, wo = random_normals_views(rng, count)
     mat = rng.integers(0, len(mats), count).astype(np.int32)
     u = rng.random((count, 4), dtype=np.float32)
-    wi_k, val_k = KernelShader(scene, strat)(n, wo, mat, u)
-    wi_r, val_r = NumpyShader(scene, strat)(n, wo, mat, u)
-    assert np.all(np.isfinite(val_k)) and np.all(val_k >= 0)
+    wi_k, val_k, off_k = KernelShader(scene, strat)(n, wo, mat, u, with_offset=True)
+    wi_r, val_r, off_r = NumpyShader(scene, strat)(n, wo, mat, u, with_offset=True)
+    assert np.all(np.isfinite(val_k)) and np.all(val_k >= 0) and np.all(np.isfinite(off_k))
     ok = np.all(np.abs(val_k - val_r) <= ATOL + RTOL * np.abs(val_r), axis=2)
     ok &= (np.abs(wi_k - wi_r).max(axis=2) < 2e-4) | (np.abs(val_r).max(axis=2) <= ATOL)
     assert ok.mean() >= 0.995, f"{(~ok).sum()} of {ok.size} slots differ"
+    # the control variate: offset + both values = albedo U, the candidates' unshadowed estimate
+    # (no pick involved), so it agrees where the candidates do
+    u_k, u_r = off_k + val_k.sum(1), off_r + val_r.sum(1)
+    agree = np.all(np.abs(u_k - u_r) <= ATOL + RTOL * np.abs(u_r), axis=1)
+    assert agree.mean() >= 0.995, f"{(~agree).sum()} of {agree.size} points' U differ"
+    assert np.all(u_k >= -ATOL - RTOL * np.abs(val_k).sum((1, 2))[:, None].max())
     yk, yr = val_k.sum(1), val_r.sum(1)
     se = yr.std(0, ddof=1) / np.sqrt(count)
     assert np.all(np.abs(yk.mean(0) - yr.mean(0)) <= 0.25 * se + ATOL), (yk.mean(0), yr.mean(0), se)
@@ -674,23 +680,30 @@ def test_strategy_product_levels_per_material(override):
 
 
 # ============================================================================= 4. unbiasedness
-def _kernel_estimates(scene, name, normal, wo, count, seed, **options):
-    """count one-point shading samples of strategy `name` with the kernel: (count, 3) values
-    (both slots summed, no visibility)."""
+def _kernel_estimates(scene, name, normal, wo, count, seed, visible=None, **options):
+    """count one-point shading samples of strategy `name` with the kernel: (count, 3) estimates,
+    the part without a shadow ray (the control variate's offset) plus each slot's value times
+    its visibility, visible(wi (count, 3)) -> bool (count,) (None: nothing occludes)."""
     strat = strategies.make(name, **options)
     strat.prepare(scene.environment, scene.materials)
     rng = np.random.default_rng(seed)
     n = np.broadcast_to(normal, (count, 3)).astype(np.float64)
     w = np.broadcast_to(wo, (count, 3)).astype(np.float64)
-    _, val = KernelShader(scene, strat)(n, w, np.zeros(count, np.int32), rng.random((count, 4), dtype=np.float32))
-    return val.astype(np.float64).sum(1)
+    wi, val, off = KernelShader(scene, strat)(n, w, np.zeros(count, np.int32), rng.random((count, 4), dtype=np.float32),
+                                             with_offset=True)
+    vis = np.ones(wi.shape[:2]) if visible is None else np.stack([visible(wi[:, k]) for k in range(2)], 1)
+    estimate = off.astype(np.float64) + (val.astype(np.float64) * vis[:, :, None]).sum(1)
+    if visible is None:
+        return estimate
+    return estimate, np.abs(off).astype(np.float64) + np.abs(val).astype(np.float64).sum(1)
 
 
 N_POINT = 100_000
 
 
-def _assert_point_estimate_equals_mis(case, name, tag, **options):
-    """E[name] = E[mis] at the case's shading point (kernel, no visibility): 100k samples of
+def _assert_point_estimate_equals_mis(case, name, tag, visible=None, **options):
+    """E[name] = E[mis] at the case's shading point (kernel; without visibility, or with the
+    same visible(wi) for both): 100k samples of
     each with independent uniforms; per channel the difference of the means must lie within
     z sqrt(se_a^2 + se_m^2), z the two-sided normal quantile at 1e-3 / (3 channels x the cases)
     (Sidak). Where the integrand is 0 both must be exactly 0."""
@@ -698,13 +711,20 @@ def _assert_point_estimate_equals_mis(case, name, tag, **options):
     scene = _scene(env, [MATERIALS[case.mat_id]])
     g = GEOMETRIES[case.geom_id]
     n, _, _ = g.frame()
-    a = _kernel_estimates(scene, name, n, g.wo_world(), N_POINT, seed_of(f"point-{tag}/" + case.id), **options)
-    b = _kernel_estimates(scene, "mis", n, g.wo_world(), N_POINT, seed_of("point-m/" + case.id))
-    assert np.all(np.isfinite(a)) and np.all(a >= 0)
+    a = _kernel_estimates(scene, name, n, g.wo_world(), N_POINT, seed_of(f"point-{tag}/" + case.id), visible,
+                          **options)
+    b = _kernel_estimates(scene, "mis", n, g.wo_world(), N_POINT, seed_of("point-m/" + case.id), visible)
+    size = None
+    if visible is not None:   # (estimates, their parts' magnitudes)
+        (a, size), b = a, b[0]
+    assert np.all(np.isfinite(a)) and (visible is not None or np.all(a >= 0))
     ma, mb = a.mean(0), b.mean(0)
     se = np.sqrt(a.var(0, ddof=1) / len(a) + b.var(0, ddof=1) / len(b))
     z = stats.norm.isf(sidak_alpha(1e-3, 3 * len(CASES)) / 2)
-    assert np.all(np.abs(ma - mb) <= z * se + 1e-7 * np.maximum(ma, mb)), \
+    # + float32 rounding: relative 1e-7 of the means, and with an occluder 1e-6 of the samples'
+    # magnitudes (the offset albedo U - value_a - value_b cancels to ~10 roundings, not to 0)
+    tol = 1e-7 * np.maximum(ma, mb) + (0.0 if visible is None else 1e-6 * size.mean(0))
+    assert np.all(np.abs(ma - mb) <= z * se + tol), \
         f"{name} {ma} vs mis {mb}: difference {ma - mb}, z = {np.abs(ma - mb) / np.maximum(se, 1e-300)} > {z:.2f}"
 
 
@@ -714,6 +734,21 @@ def test_wavelet_estimate_equals_mis_at_a_point(case):
     assert strategies.DEFAULT_CANDIDATES >= 2
     _assert_point_estimate_equals_mis(case, "wavelet", "w", levels=case.levels)
     _assert_point_estimate_equals_mis(case, "wavelet", "w0", levels=case.levels, candidates=0)
+
+
+def _half_blocked(wi):
+    """A synthetic occluder for the point tests: directions with world x + 0.4 z > 0.1 are blocked
+    (a wall across part of every case's hemisphere)."""
+    return wi[:, 0] + 0.4 * wi[:, 2] <= 0.1
+
+
+def test_wavelet_control_variate_unbiased_under_occlusion(case):
+    """With an occluder the control variate's offset (albedo U - value_a - value_b, no shadow
+    ray) no longer cancels: E[offset + value_a V(y_a) + value_b V(y_b)] must still equal mis's
+    E[value_a V + value_b V] under the same visibility; and without the control variate too."""
+    _assert_point_estimate_equals_mis(case, "wavelet", "wv", _half_blocked, levels=case.levels)
+    _assert_point_estimate_equals_mis(case, "wavelet", "wv0", _half_blocked, levels=case.levels,
+                                      control_variate=False)
 
 
 def test_wavelet_two_candidates_estimate_equals_mis_at_a_point(case):

@@ -1,5 +1,9 @@
 """Writing images: linear float (.exr, .hdr, .pfm) or clamped, sRGB-encoded 8-bit (.png), atomically.
 
+Negative pixels (an unbiased estimator's shadowed pixels at low spp can average below 0:
+the wavelet strategy's control variate) are kept by .exr and .pfm, written as 0 to .hdr,
+whose RGBE encoding has no sign (it turned -0.5 into 1.5), and clamped to 0 in .png.
+
 The file appears complete or not at all: pixels go to a temporary file in the
 same folder, which is renamed over the target only after a successful write.
 """
@@ -45,6 +49,8 @@ def save_image(path: str, image: np.ndarray) -> None:
         raise WavlightError(f"{path}: folder {folder} does not exist")
     if ext in DISPLAY:
         pixels, fmt = (srgb_encode(image) * 255.0 + 0.5).astype(np.uint8), oiio.UINT8
+    elif ext == ".hdr":   # RGBE has no sign
+        pixels, fmt = np.ascontiguousarray(np.maximum(image, 0.0)), oiio.FLOAT
     else:
         pixels, fmt = np.ascontiguousarray(image), oiio.FLOAT
     if os.path.isdir(path):

@@ -206,7 +206,8 @@ def _integer(name, value, lo, hi):
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
                 progress=None, threads=None, backend="opencl", wavelet_levels=None,
                 light_levels=None, sir_candidates=None, sir_samples=None, structured_strata=None,
-                structured_mode=None, sampler=None, wavelet_candidates=None) -> RenderResult:
+                structured_mode=None, sampler=None, wavelet_candidates=None,
+                wavelet_control_variate=True) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     ``scene`` is a Scene or a scene file's path. Arguments left as None come from the scene
@@ -222,7 +223,9 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     ``sampler`` is "independent" (default) or "stratified" (:mod:`wavlight.sampler`).
     ``wavelet_candidates`` (0 or 2..64) sets the wavelet strategy's resampling candidates
     (:func:`wavlight.strategies.ris_shade_reference`; 0: the MIS pair; default: the scene's,
-    else strategies.DEFAULT_CANDIDATES).
+    else strategies.DEFAULT_CANDIDATES). ``wavelet_control_variate`` (default True): whether
+    the resampling estimator carries its candidates' unshadowed estimate as a control variate
+    (:func:`wavlight.strategies.ris_shade_reference`).
     """
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
@@ -249,6 +252,9 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     wavelet_levels = pick("wavelet_levels", wavelet_levels, scene.wavelet_levels, 0, 11, optional=True)
     wavelet_candidates = pick("wavelet_candidates", wavelet_candidates, scene.wavelet_candidates, 0,
                               strategies.MAX_CANDIDATES, optional=True)
+    if not isinstance(wavelet_control_variate, (bool, np.bool_)):
+        raise WavlightError(f"wavelet_control_variate must be True or False, got {wavelet_control_variate!r}")
+    wavelet_control_variate = bool(wavelet_control_variate)
     if wavelet_candidates == 1:
         raise WavlightError("wavelet_candidates must be 0 (the MIS pair) or 2..64, got 1")
     light_levels = pick("light_levels", light_levels, scene.light_levels, 1, 11, optional=True)
@@ -262,6 +268,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     options = {"light": {"levels": light_levels}, "mis": {"light_levels": light_levels},
                "mis_comp": {"light_levels": light_levels},
                "wavelet": {"levels": wavelet_levels, "light_levels": light_levels,
+                           "control_variate": wavelet_control_variate,
                            **({} if wavelet_candidates is None else {"candidates": wavelet_candidates})},
                "sir": {"candidates": sir_candidates, "samples": sir_samples,
                        "light_levels": light_levels},

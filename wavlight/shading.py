@@ -24,8 +24,9 @@ _WARMED = set()  # shade programs already launched in this process
 class ShadedRays(NamedTuple):
     """Camera rays after shading, all float32 (float64 from the numpy twin).
 
-    direct (3, N): the radiance the camera sees directly (the environment, for misses;
-    zero for hits); origin (N, 3): shadow-ray origins (undefined for misses); wi (N, S, 3):
+    direct (3, N): the radiance the camera sees directly (the environment) for misses; for
+    hits the part of their estimate that needs no shadow ray (the wavelet resampling
+    estimator's control variate, :func:`strategies.ris_shade_reference`; else zero); origin (N, 3): shadow-ray origins (undefined for misses); wi (N, S, 3):
     the S sampled directions; value (S, 3, N): their unoccluded estimates (zero for misses).
     """
 
@@ -76,6 +77,7 @@ class KernelShader:
                          PRODUCT_TREES=int(trees.n_trees))
             if getattr(strategy, "candidates", 0):   # resampling from product candidates
                 sizes.update(zip(("RIS_PRODUCT", "RIS_BSDF"), strategy.ris_split))
+                sizes["RIS_CONTROL_VARIATE"] = int(bool(strategy.control_variate))
         self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
                         self.texels, *self.env_size, self.rot, self.tree)
         self._geometry = None
@@ -92,22 +94,28 @@ class KernelShader:
                                   **sizes)
         self.warm_up()
 
-    def __call__(self, n, wo, material, u, **_):
+    def __call__(self, n, wo, material, u, with_offset=False, **_):
         """Shading points given directly (the ``shade`` kernel; tests): world normals n and view
-        directions wo (N, 3), material ids (N,), uniforms u (N, 4) -> wi, value (N, 2, 3)."""
+        directions wo (N, 3), material ids (N,), uniforms u (N, 4) -> wi, value (N, 2, 3), and
+        with ``with_offset`` the estimates' part without a shadow ray, offset (N, 3) (the
+        point's estimate is offset + the values of its visible slots)."""
         count = len(n)
         if count == 0:
-            return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.float32)
+            empty = np.zeros((0, 2, 3), np.float32)
+            return (empty, empty, np.zeros((0, 3), np.float32)) if with_offset else (empty, empty)
         q = cl.thread_queue()
         wi_buf, val_buf = cl.scratch("wi", count * 24), cl.scratch("value", count * 24)
+        off_buf = cl.scratch("offset", count * 12)
         cl.kernel(self.program, "shade")(
             q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("normal", np.asarray(n, np.float32), q),
             cl.upload("wo", np.asarray(wo, np.float32), q),
             cl.upload("material", np.asarray(material, np.int32), q), cl.upload("u", np.asarray(u, np.float32), q),
-            np.uint32(count), *self._tables, wi_buf, val_buf)
+            np.uint32(count), *self._tables, wi_buf, val_buf, off_buf)
         # planes (slot, component, point) -> (point, slot, component) views
         wi = cl.read(wi_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
         value = cl.read(val_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
+        if with_offset:
+            return wi, value, cl.read(off_buf, (3, count), np.float32, q).T
         return wi, value
 
     def shade_rays(self, eye, d, prim, t, u) -> ShadedRays:
@@ -178,7 +186,8 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays
     origin = np.zeros((count, 3), np.float32)
     origin[hit] = p + n * tracer.shadow_offsets(p, face, eye)[:, None]
     if len(hit):
-        wi_h, val_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p)
+        wi_h, val_h, off_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p, with_offset=True)
+        direct[:, hit] = np.asarray(off_h).T
     else:   # (no call: some shaders do not take zero points)
         wi_h = val_h = np.zeros((0, 2, 3))
     wi = np.zeros((count,) + wi_h.shape[1:])
@@ -203,7 +212,8 @@ class NumpyShader:
         """Camera rays as in :meth:`KernelShader.shade_rays`, by :func:`shade_rays_reference`."""
         return shade_rays_reference(self, self.scene, self.tracer, eye, d, prim, t, u)
 
-    def __call__(self, n, wo, material, u, p=None):
+    def __call__(self, n, wo, material, u, p=None, with_offset=False):
+        """As :meth:`KernelShader.__call__` (``p``: the hit points, for shaders that need them)."""
         sc = self.scene
         n = np.asarray(n, np.float64)
         s, t = warp.frame(n)
@@ -212,5 +222,7 @@ class NumpyShader:
                                       sc.material_albedo[material], np.asarray(material))
         own = getattr(self.strategy, "shade", None)
         if own is not None:
-            return own(sc.environment, sp, np.asarray(u, np.float64))
-        return strategies.shade_reference(self.strategy, sc.environment, sp, np.asarray(u, np.float64))
+            wi, value = own(sc.environment, sp, np.asarray(u, np.float64))
+            return (wi, value, np.zeros((len(n), 3))) if with_offset else (wi, value)
+        return strategies.shade_reference(self.strategy, sc.environment, sp, np.asarray(u, np.float64),
+                                          with_offset=with_offset)
