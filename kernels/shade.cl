@@ -96,7 +96,7 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
 #define R2_FIXED_X 12664746u
 #define R2_FIXED_Y 9560334u
 
-/* The luminance of the texel at (u, v) of the square (envmap.LUMINANCE). */
+/* The luminance of the texel at (u, v) of the square (envmap.LUMINANCE), and its r, g, b. */
 inline realv texel_luminance(__global const float *texels, const int env_w, const int env_h,
                              const realv u, const realv v, realv *r, realv *g, realv *b)
 {
