@@ -142,6 +142,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     realv ax = 0.0f, ay = 0.0f, az = 0.0f, sa = 0.0f;
     realv bx = 0.0f, by = 0.0f, bz = 0.0f, sb = 0.0f;
     realv cv_r = 0.0f, cv_g = 0.0f, cv_b = 0.0f;   /* U, the control variate (RIS) */
+    intv ris_finite = -1;                          /* both slots' scalars finite (RIS) */
 #if STRATEGY == 5
     const Lobe lobe = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, mat), GATHER_INT(mat_levels, mat));
 #endif
@@ -189,8 +190,8 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
                 cv_r += k * tr; cv_g += k * tg; cv_b += k * tb;
             }
         }
-        /* each slot takes the first candidate whose running sum reaches u total (the last one
-         * if rounding leaves none) */
+        /* each slot takes the first candidate of positive weight whose running sum reaches
+         * u total (the last one if rounding leaves none) */
         const realv ta = u2 * total, tb = select(u2 + 0.5f, u2 - 0.5f, u2 >= 0.5f) * total;
         realv cum = 0.0f, la = 0.0f, lb = 0.0f;
         intv found_a = 0, found_b = 0;
@@ -198,7 +199,9 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         for (int j = 0; j < RIS_CANDIDATES; ++j) {
             cum += cw[j];
             const intv last = (intv)(j == RIS_CANDIDATES - 1 ? -1 : 0);
-            const intv take_a = !found_a & ((cum >= ta) | last), take_b = !found_b & ((cum >= tb) | last);
+            const intv pos = cw[j] > 0.0f;   /* (u.z = 0 must not pick a zero-weight candidate) */
+            const intv take_a = !found_a & ((pos & (cum >= ta)) | last);
+            const intv take_b = !found_b & ((pos & (cum >= tb)) | last);
             ax = select(ax, cx[j], take_a); ay = select(ay, cy[j], take_a); az = select(az, cz[j], take_a);
             bx = select(bx, cx[j], take_b); by = select(by, cy[j], take_b); bz = select(bz, cz[j], take_b);
             la = select(la, cl[j], take_a);
@@ -208,6 +211,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         }
         sa = select((realv)0.0f, 0.5f * total / la, (total > 0.0f) & (la > 0.0f));
         sb = select((realv)0.0f, 0.5f * total / lb, (total > 0.0f) & (lb > 0.0f));
+        ris_finite = isfinite(sa) & isfinite(sb);
     }
 #elif STRATEGY >= 3
     {   /* the light (light, mis) or product (wavelet) sample from u.xy */
@@ -297,10 +301,16 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     s.gb = sb * ag * tb_g;
     s.bb = sb * ab * tb_b;
 #if STRATEGY == 5 && defined(RIS_PRODUCT)
-    if (RIS_CONTROL_VARIATE) {   /* albedo U - value_a - value_b, zero where not live */
-        s.o_r = select((realv)0.0f, ar * cv_r - s.ra - s.rb, live);
-        s.o_g = select((realv)0.0f, ag * cv_g - s.ga - s.gb, live);
-        s.o_b = select((realv)0.0f, ab * cv_b - s.ba - s.bb, live);
+    if (RIS_CONTROL_VARIATE) {
+        /* albedo U - value_a - value_b; where it or a slot's scalar is not finite (an
+         * overflow), the whole sample is 0, offset and values together (numpy twin: the same) */
+        const realv o_r = ar * cv_r - s.ra - s.rb, o_g = ag * cv_g - s.ga - s.gb, o_b = ab * cv_b - s.ba - s.bb;
+        const intv ok = live & ris_finite & isfinite(o_r) & isfinite(o_g) & isfinite(o_b);
+        s.o_r = select((realv)0.0f, o_r, ok);
+        s.o_g = select((realv)0.0f, o_g, ok);
+        s.o_b = select((realv)0.0f, o_b, ok);
+        s.ra = select((realv)0.0f, s.ra, ok); s.ga = select((realv)0.0f, s.ga, ok); s.ba = select((realv)0.0f, s.ba, ok);
+        s.rb = select((realv)0.0f, s.rb, ok); s.gb = select((realv)0.0f, s.gb, ok); s.bb = select((realv)0.0f, s.bb, ok);
         return s;
     }
 #endif

@@ -180,7 +180,8 @@ def test_breadth_first_walks_match_depth_first():
             np.testing.assert_array_equal(got, want, err_msg=build)
 
 
-@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet"])
+@pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet",
+                                      "wavelet:no-control-variate"])
 @pytest.mark.parametrize("drawn", [False, True], ids=["u-given", "u-drawn"])
 def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     """kernels/shade.cl shade_rays (the renderer's entry: camera rays from the tracer, hits and
@@ -190,7 +191,8 @@ def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     shadow origins, directions and estimates as in test_shade_kernel_matches_numpy. The ray
     count is not a multiple of 8, so the last work-item's partial lanes are exercised. The
     uniforms are given (the stratified sampler) or drawn by the kernel from Philox (the
-    independent sampler; numpy twin rng.uniforms)."""
+    independent sampler; numpy twin rng.uniforms). Hits' direct part is 0 but for the wavelet
+    control variate's offset (compared through U = offset + both values)."""
     from wavlight import camera, rng as philox
     from wavlight.raytrace import RayTracer
 
@@ -199,7 +201,8 @@ def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     env = scene.environment
     scene.environment = Environment(env.pixels + rng.random(env.pixels.shape).astype(np.float32) * 0.2, 1.0, 50.0)
     tracer = RayTracer(scene.vertices, scene.faces)
-    strat = strategies.make(strategy)
+    name, _, variant = strategy.partition(":")
+    strat = strategies.make(name, **({"control_variate": False} if variant == "no-control-variate" else {}))
     strat.prepare(scene.environment, scene.materials)
     count = 40_003
     w, h = 64, 48

@@ -166,10 +166,11 @@ class KernelShader:
 
 def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays:
     """numpy twin of ``shade_rays`` in kernels/shade.cl, around a shader of points
-    ``shade(n, wo, material, u, p=...) -> wi, value (M, S, 3)``, with u an (N, 4) array or an
-    :class:`rng.Stream` (its SHADING numbers, as the kernel draws them): misses see the environment;
-    hits take their face normal flipped towards the viewer, their face's material, and
-    shadow rays from the hit point moved ``tracer.shadow_offsets`` along that normal."""
+    ``shade(n, wo, material, u, p=..., with_offset=True) -> wi, value (M, S, 3), offset (M, 3)``,
+    with u an (N, 4) array or an :class:`rng.Stream` (its SHADING numbers, as the kernel draws
+    them): misses see the environment; hits take their face normal flipped towards the viewer,
+    their face's material, the offset as their direct part, and shadow rays from the hit point
+    moved ``tracer.shadow_offsets`` along that normal."""
     d = np.asarray(d, np.float32)
     prim = np.asarray(prim)
     count = len(d)
