@@ -745,10 +745,12 @@ def _half_blocked(wi):
 def test_wavelet_control_variate_unbiased_under_occlusion(case):
     """With an occluder the control variate's offset (albedo U - value_a - value_b, no shadow
     ray) no longer cancels: E[offset + value_a V(y_a) + value_b V(y_b)] must still equal mis's
-    E[value_a V + value_b V] under the same visibility; and without the control variate too."""
+    E[value_a V + value_b V] under the same visibility; and without the control variate too,
+    on the first map's cases (every material: each case is another kernel build, 4 s cold)."""
     _assert_point_estimate_equals_mis(case, "wavelet", "wv", _half_blocked, 2, levels=case.levels)
-    _assert_point_estimate_equals_mis(case, "wavelet", "wv0", _half_blocked, 2, levels=case.levels,
-                                      control_variate=False)
+    if case in CASES[:len(MATERIALS)]:
+        _assert_point_estimate_equals_mis(case, "wavelet", "wv0", _half_blocked, 2, levels=case.levels,
+                                          control_variate=False)
 
 
 def test_wavelet_two_candidates_estimate_equals_mis_at_a_point(case):
