@@ -152,7 +152,6 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
          * chosen ones' estimates) */
         realv cx[RIS_CANDIDATES], cy[RIS_CANDIDATES], cz[RIS_CANDIDATES], cw[RIS_CANDIDATES], cl[RIS_CANDIDATES];
         realv total = 0.0f;
-        cv_r = 0.0f; cv_g = 0.0f; cv_b = 0.0f;
         const RootChildren root = root_children(tree, &lobe);   /* shared by every candidate's walk */
 #pragma unroll 1
         for (int j = 0; j < RIS_CANDIDATES; ++j) {

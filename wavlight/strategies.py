@@ -498,25 +498,23 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     u = np.asarray(u)
     dirs = np.zeros((m, n, 3))
     w = np.zeros((m, n))
+    colour = np.zeros((n, 3))   # U: sum_j w_j L(x_j) / lum(L(x_j))
     for j in range(m):
         uu = candidate_uniforms(u, j).astype(np.float64)
         ds = strategy.sample(sp, uu) if j < mp else strategy.bsdf.sample(sp, uu)
         p_prod = ds.pdf if j < mp else strategy.pdf(sp, ds.wi_local, ds.wi_world)
         p_bsdf = strategy.bsdf.pdf(sp, ds.wi_local, ds.wi_world) if j < mp else ds.pdf
-        target = sp.bsdf_eval_cos(ds.wi_local) * luminance(env.eval(ds.wi_world))
+        rgb = env.eval(ds.wi_world)
+        lum = luminance(rgb)
+        target = sp.bsdf_eval_cos(ds.wi_local) * lum
         denom = mp * p_prod + mb * p_bsdf
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             wj = np.where((denom > 0) & (target > 0), target / denom, 0.0)
-        w[j] = np.where(np.isfinite(wj), wj, 0.0)
+            w[j] = np.where(np.isfinite(wj), wj, 0.0)
+            colour += np.where((w[j] > 0)[:, None], w[j][:, None] * rgb / lum[:, None], 0.0)
         dirs[j] = ds.wi_world
     total = w.sum(0)
     cum = np.cumsum(w, 0)
-    colour = np.zeros((n, 3))   # U: sum_j w_j L(x_j) / lum(L(x_j))
-    if with_offset and strategy.control_variate:
-        for j in range(m):
-            rgb = env.eval(dirs[j])
-            with np.errstate(divide="ignore", invalid="ignore"):
-                colour += np.where((w[j] > 0)[:, None], w[j][:, None] * rgb / luminance(rgb)[:, None], 0.0)
     wi = np.zeros((n, 2, 3))
     value = np.zeros((n, 2, 3))
     us = np.asarray(u, np.float32)[:, 2]
@@ -530,15 +528,14 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = np.where((total > 0) & (lum > 0), 0.5 * total / lum, 0.0)
         wi[:, slot], value[:, slot] = y, scale[:, None] * sp.albedo * rgb
-    if not strategy.control_variate:
-        return (wi, value, np.zeros((n, 3))) if with_offset else (wi, value)
-    if with_offset:
+    offset = np.zeros((n, 3))
+    if strategy.control_variate:
         with np.errstate(invalid="ignore", over="ignore"):
             offset = sp.albedo * colour - value.sum(1)
         # where the offset or a slot's value overflowed, the whole sample is 0 (as the kernel)
         ok = np.isfinite(offset).all(1) & np.isfinite(value).all((1, 2))
-        return wi, np.where(ok[:, None, None], value, 0.0), np.where(ok[:, None], offset, 0.0)
-    return wi, value
+        value, offset = np.where(ok[:, None, None], value, 0.0), np.where(ok[:, None], offset, 0.0)
+    return (wi, value, offset) if with_offset else (wi, value)
 
 
 def shade_reference(strategy: Strategy, env, sp: ShadingPoints, u: np.ndarray, with_offset=False):
