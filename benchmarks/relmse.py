@@ -20,6 +20,8 @@ relMSE(s) * t_strategy(s) / t_mis(s), where t (the median over seeds, strategies
 rendered in turn seed by seed) includes each render's setup (light tree, product
 tables) but not the once-per-process kernel compilation.
 --sampler stratified renders the compared images with stratified pixel samples.
+--candidates M gives the wavelet strategy M resampling candidates instead of its default
+(strategies.DEFAULT_CANDIDATES).
 --floor D estimates, per spp, the pixel-footprint floor: the relMSE left when every
 pixel sample is shaded exactly (no direction noise), from an image whose pixel
 samples average D mis estimates each: floor = (D relMSE_D - relMSE_mis) / (D - 1).
@@ -28,7 +30,7 @@ wavelet / mis ratio from below. Prints one JSON object (and writes it to
 --out if given).
 
     python benchmarks/relmse.py [--spp 4,16,64] [--seeds 3] [--size 128] [--ref-spp 1024]
-                                [--sampler independent|stratified] [--floor D]
+                                [--sampler independent|stratified] [--floor D] [--candidates M]
 """
 from __future__ import annotations
 
@@ -98,22 +100,18 @@ def floor_image(scene, spp, size, seed, directions, sampler):
     """The image at `spp` whose every pixel sample is shaded with the mean of `directions`
     independent `mis` estimates (same camera ray, same hit): its error is the pixel-footprint
     variance that no direction sampler can remove, plus the mis direction variance / directions."""
-    from wavlight import integrator, sampler as sampling
+    from wavlight import integrator
 
     r = integrator._Renderer(scene, "mis", spp, size, size, seed, None, sampler_name=sampler)
     eye = scene.camera.eye
 
-    def averaged(generator, tile, first, x0, y0, w, h, k):
-        d, prim, t, _ = r.camera_samples(generator, tile, first, x0, y0, w, h, k)
-        draws = np.random.default_rng([seed, tile, first, 1])
+    def averaged(tile, first, x0, y0, w, h, k):
+        d, prim, t, u = r.camera_samples(tile, first, x0, y0, w, h, k)
         total = 0.0
-        for _ in range(directions):   # D, not samples: each a batched launch over the pass
-            if r.sampler == "stratified":   # as the compared renders draw them: stratified per pixel
-                u = np.minimum(sampling.stratified_pairs(draws, w * h, k, 2).astype(np.float32),
-                               np.float32(1.0 - 2.0 ** -24))
-            else:
-                u = draws.random((len(d), 4), dtype=np.float32)
-            total = total + r.visible_sum(r.shader.shade_rays(eye, d, prim, t, u))
+        for j in range(directions):   # D, not samples: each a batched launch over the pass
+            # the shading numbers of another seed (stratified per pixel as the compared renders')
+            draws = u._replace(seed=(1 << 40) + directions * seed + j)
+            total = total + r.visible_sum(r.shader.shade_rays(eye, d, prim, t, draws))
         return total / directions
 
     r._samples = averaged
@@ -134,6 +132,8 @@ def main():
                     help="pixel-sample uniforms of the compared renders (the reference: independent)")
     ap.add_argument("--floor", type=int, default=0, metavar="D",
                     help="also estimate the footprint floor with D directions per pixel sample")
+    ap.add_argument("--candidates", type=int, default=None, metavar="M",
+                    help="the wavelet strategy's resampling candidates (default: the library's)")
     ap.add_argument("--out", default="")
     args = ap.parse_args()
     if not os.path.isdir(DATA):
@@ -149,7 +149,8 @@ def main():
     for strategy in STRATEGIES:
         wavlight.render_full(warm, spp=1, strategy=strategy, width=8, height=8)
     results = {"size": args.size, "ref_spp": args.ref_spp, "seeds": args.seeds, "spp": spps,
-               "sampler": args.sampler, "floor_directions": args.floor, "scenes": {}}
+               "sampler": args.sampler, "floor_directions": args.floor,
+               "wavelet_candidates": args.candidates, "scenes": {}}
     tmp = tempfile.mkdtemp(prefix="wavlight-relmse-")
     for name, text in scenes():
         if args.only and args.only not in name:
@@ -162,7 +163,8 @@ def main():
         # the walk kernels are built per tree depth, product depth and lobe shapes: compile
         # this scene's variants before timing (once per process and configuration)
         for strategy in STRATEGIES:
-            wavlight.render_full(scene, spp=1, strategy=strategy, width=8, height=8, sampler=args.sampler)
+            wavlight.render_full(scene, spp=1, strategy=strategy, width=8, height=8, sampler=args.sampler,
+                                 wavelet_candidates=args.candidates)
         ref = wavlight.render_full(scene, spp=args.ref_spp, strategy="mis", seed=10_000, **kw)
         row = {"reference_seconds": ref.stats["render_seconds"], **{s: {} for s in STRATEGIES}}
         for spp in spps:
@@ -172,7 +174,7 @@ def main():
             for seed in range(args.seeds):
                 for strategy in STRATEGIES:
                     r = wavlight.render_full(scene, spp=spp, strategy=strategy, seed=seed, sampler=args.sampler,
-                                             **kw)
+                                             wavelet_candidates=args.candidates, **kw)
                     errs[strategy].append(relmse(r.image, ref.image, ref.stderr))
                     secs[strategy].append(r.stats["setup_seconds"] + r.stats["render_seconds"])
             for strategy in STRATEGIES:

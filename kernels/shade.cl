@@ -373,8 +373,10 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
 /* The renderer's entry point: camera rays straight from the ray tracer. Per ray:
  * direction (rows of 3 floats) from the eye, the hit triangle prim (-1: a miss) at
  * distance tfar, four uniforms: with draw_u, Philox stream RNG_SHADING of tile
- * rng_tile at sample index rng_first + ray (rng.h; the independent sampler), else
- * u_in (rows of 4). A miss sees the environment (direct_out,
+ * rng_tile at sample index rng_first + ray (rng.h; the independent sampler), and with
+ * rng_k > 0 (the stratified sampler; rays r = p k + j, k = rng_k samples per pixel) each
+ * pair moved into its cell (stratify_pair, keyed by words 1 and 2 of stream RNG_STRATA
+ * at index rng_first + p, as the camera kernel's jitter by word 0); else u_in (rows of 4). A miss sees the environment (direct_out,
  * 3 planes r, g, b; for hits the estimate's part without a shadow ray, Shaded's o) and has
  * zero estimates. A hit takes its face
  * normal, flipped to face the viewer (two-sided shading), its face's material and
@@ -389,7 +391,8 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
                          const float eye_x, const float eye_y, const float eye_z, const float eye_offset,
                          __global const float *face_normal, __global const int *face_material,
                          __global const float *u_in, const int draw_u, const uint rng_tile,
-                         const uint rng_first, const uint rng_k0, const uint rng_k1, const uint count,
+                         const uint rng_first, const uint rng_k0, const uint rng_k1, const uint rng_k,
+                         const uint count,
                          SHADE_TABLE_ARGS, __global float *origin_out, __global float *wi_out, __global float *value_out,
                          __global float *direct_out)
 {
@@ -431,6 +434,14 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
         realv u0, u1, u2, u3;
         if (draw_u) {
             rng_uniforms(rng_first + LANE_IDS + base, rng_tile, RNG_SHADING, rng_k0, rng_k1, &u0, &u1, &u2, &u3);
+            if (rng_k) {   /* the stratified sampler: ray r is sample r % k of pixel r / k */
+                uintv j, unused, key_guide, key_bsdf, unused3;
+                const uintv pixel = div_small(LANE_IDS + base, rng_k, &j);   /* (count < 2^22: the host checks) */
+                philox4x32_10(rng_first + pixel, (uintv)rng_tile, (uintv)RNG_STRATA, (uintv)0u, rng_k0, rng_k1,
+                              &unused, &key_guide, &key_bsdf, &unused3);
+                stratify_pair(&u0, &u1, j, rng_k, key_guide);
+                stratify_pair(&u2, &u3, j, rng_k, key_bsdf);
+            }
         } else {
             GATHER4(u_in, 4 * i, &u0, &u1, &u2, &u3);
         }

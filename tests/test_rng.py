@@ -61,12 +61,15 @@ def test_consecutive_samples_chi_square():
     assert p > 1 - (1 - 0.01) ** (1 / (len(PAIRS) + 1))
 
 
+@pytest.mark.parametrize("stratified", [False, True], ids=["independent", "stratified"])
 @pytest.mark.parametrize("tile, first, side, k", [(0, 0, 8, 16), (37, 4096, 5, 3)])
-def test_camera_kernel_matches_numpy(tile, first, side, k):
-    """kernels/camera.cl (Philox jitters drawn in the kernel) against camera.camera_rays with
-    rng.uniforms; a tile whose ray count is not a multiple of 8 exercises the partial lanes."""
+def test_camera_kernel_matches_numpy(tile, first, side, k, stratified):
+    """kernels/camera.cl (Philox jitters drawn in the kernel, stratified per pixel or not)
+    against camera.camera_rays with rng.Stream's numbers; a tile whose ray count is not a
+    multiple of 8 exercises the partial lanes."""
     scene = wavlight.load_scene("scenes/default.toml")
-    got = camera.pass_rays(scene, 320, 240, 11, tile, 100, 60, side, side + 1, k, first)
-    ref = camera.pass_rays(scene, 320, 240, 11, tile, 100, 60, side, side + 1, k, first, kernel=False)
+    got = camera.pass_rays(scene, 320, 240, 11, tile, 100, 60, side, side + 1, k, first, stratified=stratified)
+    ref = camera.pass_rays(scene, 320, 240, 11, tile, 100, 60, side, side + 1, k, first, kernel=False,
+                           stratified=stratified)
     assert got.shape == ref.shape == (side * (side + 1) * k, 3)
     np.testing.assert_allclose(got, ref, atol=2e-6)

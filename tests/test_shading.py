@@ -66,12 +66,14 @@ def _compare_shaders(scene, strat, rng):
     assert live.any()
 
 
-def test_render_kernel_equals_numpy_backend():
-    """The whole renderer with the kernel and with the numpy twin, same seeds."""
+@pytest.mark.parametrize("sampler", ["independent", "stratified"])
+def test_render_kernel_equals_numpy_backend(sampler):
+    """The whole renderer with the kernel and with the numpy twin, same seeds and sampler."""
     scene = wavlight.load_scene("scenes/default.toml")
     for strategy in ("bsdf", "mis"):
-        a = wavlight.render_full(scene, strategy=strategy, spp=4, width=32, height=24)
-        b = wavlight.render_full(scene, strategy=strategy, spp=4, width=32, height=24, backend="numpy")
+        a = wavlight.render_full(scene, strategy=strategy, spp=4, width=32, height=24, sampler=sampler)
+        b = wavlight.render_full(scene, strategy=strategy, spp=4, width=32, height=24, backend="numpy",
+                                 sampler=sampler)
         close = np.isclose(a.image, b.image, rtol=1e-3, atol=1e-4)
         assert close.mean() > 0.998
 
@@ -182,7 +184,7 @@ def test_breadth_first_walks_match_depth_first():
 
 @pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet",
                                       "wavelet:no-control-variate"])
-@pytest.mark.parametrize("drawn", [False, True], ids=["u-given", "u-drawn"])
+@pytest.mark.parametrize("drawn", [None, 0, 13], ids=["u-given", "u-drawn", "u-stratified"])
 def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     """kernels/shade.cl shade_rays (the renderer's entry: camera rays from the tracer, hits and
     misses) against shading.shade_rays_reference, on the default scene with its map rotated
@@ -190,8 +192,9 @@ def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     and float64 round a direction to different sides of a texel edge (a few in 10^5); hits:
     shadow origins, directions and estimates as in test_shade_kernel_matches_numpy. The ray
     count is not a multiple of 8, so the last work-item's partial lanes are exercised. The
-    uniforms are given (the stratified sampler) or drawn by the kernel from Philox (the
-    independent sampler; numpy twin rng.uniforms). Hits' direct part is 0 but for the wavelet
+    uniforms are given, or drawn by the kernel from Philox: independent (numpy twin
+    rng.uniforms) or stratified over pixels of 13 samples (rng.Stream with k = 13, whose
+    count is not a multiple of 13 either). Hits' direct part is 0 but for the wavelet
     control variate's offset (compared through U = offset + both values)."""
     from wavlight import camera, rng as philox
     from wavlight.raytrace import RayTracer
@@ -210,7 +213,7 @@ def test_shade_rays_kernel_matches_numpy(strategy, drawn):
                                   w, h)
     prim, t = tracer.intersect(o, d)
     assert 0.1 < (prim >= 0).mean() < 0.9                       # both hits and misses
-    u = philox.Stream(5, 17, 3000) if drawn else rng.random((count, 4), dtype=np.float32)
+    u = rng.random((count, 4), dtype=np.float32) if drawn is None else philox.Stream(5, 17, 3000, drawn)
     got = KernelShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u)
     ref = NumpyShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u)
     miss, hit = prim < 0, prim >= 0

@@ -1,10 +1,10 @@
 """The pinhole camera: rays through uniformly jittered points of the pixels (box filter).
 
-:func:`camera_rays` is the numpy version for given jitters (the ``stratified``
-sampler's, tests); :func:`pass_rays` makes the rays of one pass of a tile with the
-``independent`` sampler's jitters (Philox stream ``rng.JITTER``), in the
-``camera_rays`` kernel (``kernels/camera.cl``) or, with ``kernel=False``, in numpy
-with the same numbers.
+:func:`camera_rays` is the numpy version for given jitters (tests);
+:func:`pass_rays` makes the rays of one pass of a tile with the sampler's jitters
+(Philox stream ``rng.JITTER``, stratified per pixel with the ``stratified`` sampler:
+:mod:`wavlight.sampler`), in the ``camera_rays`` kernel (``kernels/camera.cl``) or,
+with ``kernel=False``, in numpy with the same numbers.
 """
 from __future__ import annotations
 
@@ -13,6 +13,10 @@ import numpy as np
 from . import cl, rng
 
 _WARMED = set()
+
+#: a stratified pass's rays (kernels/rng.h ``div_small``: pixel and sample index by one float
+#: division, exact below 2^22); the integrator's passes hold about integrator.TILE_SAMPLES
+STRATIFIED_MAX_COUNT = 1 << 22
 
 
 def _basis(cam, width, height):
@@ -44,14 +48,18 @@ def camera_rays(scene, px: np.ndarray, py: np.ndarray, jitter: np.ndarray, width
     return np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape), d
 
 
-def pass_rays(scene, width, height, seed, tile, x0, y0, w, h, k, first, kernel=True) -> np.ndarray:
+def pass_rays(scene, width, height, seed, tile, x0, y0, w, h, k, first, kernel=True,
+              stratified=False) -> np.ndarray:
     """(w h k, 3) float32 directions of one pass: k samples of each pixel of the w x h tile at
     (x0, y0), pixel-major, with jitters from Philox stream JITTER at tile sample indices
-    first .. first + w h k - 1."""
+    first .. first + w h k - 1 (``stratified``: stratified over each pixel's k samples,
+    ``rng.Stream(seed, tile, first, k)``)."""
     count = w * h * k
+    if stratified and count >= STRATIFIED_MAX_COUNT:
+        raise ValueError(f"camera.pass_rays: a stratified pass holds at most {STRATIFIED_MAX_COUNT - 1} rays, got {count}")
     if not kernel:
         pix = np.arange(w * h, dtype=np.int32)
-        jitter = rng.uniforms(seed, tile, rng.JITTER, first, count)
+        jitter = rng.Stream(seed, tile, first, k if stratified else 0).uniforms(rng.JITTER, count)
         return camera_rays(scene, np.repeat(x0 + pix % w, k), np.repeat(y0 + pix // w, k), jitter, width, height)[1]
     fwd, right, up, consts = _basis(scene.camera, width, height)
     q = cl.thread_queue()
@@ -60,7 +68,7 @@ def pass_rays(scene, width, height, seed, tile, x0, y0, w, h, k, first, kernel=T
     cl.kernel(prog, "camera_rays")(
         q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.int32(x0), np.int32(y0), np.uint32(w), np.uint32(k),
         np.uint32(count), np.uint32(first), np.uint32(tile), *(np.uint32(x) for x in rng.key(seed)),
-        *fwd, *right, *up, *consts, out)
+        np.int32(bool(stratified)), *fwd, *right, *up, *consts, out)
     return cl.read(out, (count, 3), np.float32, q)
 
 

@@ -18,8 +18,8 @@ device (measured 10% faster than one per core on 2 cores). Rays, hit points and
 normals are float32 (embree's precision); sums are float64. A tile with few siblings is cut
 into parts at pass boundaries (:func:`_parts`, a constant count) so that every thread
 works. Random numbers: counter-based Philox numbers of (seed, tile, sample index) drawn in
-the kernels for the ``independent`` sampler (:mod:`wavlight.rng`), a numpy generator per
-(seed, tile, part) for ``stratified``; so images do not depend on the number of threads.
+the kernels (:mod:`wavlight.rng`; stratified per pixel and pass with the ``stratified``
+sampler, :mod:`wavlight.sampler`); so images do not depend on the number of threads.
 """
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import camera, rng, sampler, strategies
+from . import camera, rng, strategies
 from .camera import camera_rays  # noqa: F401  (also the integrator's public name)
 from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
@@ -67,7 +67,7 @@ class _Renderer:
         numpy_shader = backend == "numpy" or strategy not in strategies.KERNEL_ID
         self.shader = (NumpyShader if numpy_shader else KernelShader)(scene, self.strategy, self.tracer)
         self.kernel_camera = backend != "numpy"
-        if self.kernel_camera and self.sampler == "independent":
+        if self.kernel_camera:
             camera.warm_up(scene)
         self.setup_seconds = time.perf_counter() - t0
         self.rays = 0
@@ -102,17 +102,13 @@ class _Renderer:
     def sums(self, index, x0, y0, w, h, first, count):
         """Per-pixel sums (3, w h) of samples first .. first + count - 1 of each pixel of a tile,
         and of their squares, in passes of at most ~TILE_SAMPLES samples (``first`` a multiple of
-        the pass size). ``stratified`` draws from SeedSequence(seed, spawn_key=(tile, first)),
-        one stream per part (:func:`_parts`; a spawn key cannot alias another seed's, as the
-        flat list [seed, tile, first] could for seeds past 2^32)."""
-        key = np.random.SeedSequence(self.seed, spawn_key=(index, first))
-        generator = np.random.default_rng(key) if self.sampler == "stratified" else None
+        the pass size)."""
         total = np.zeros((3, w * h))
         total_sq = np.zeros((3, w * h))
         per_pass = _pass_size(self.spp, w, h)
         for start in range(first, first + count, per_pass):
             k = min(per_pass, first + count - start)
-            values = self._samples(generator, index, start, x0, y0, w, h, k).reshape(3, w * h, k)
+            values = self._samples(index, start, x0, y0, w, h, k).reshape(3, w * h, k)
             total += values.sum(axis=2)
             total_sq += np.einsum("cik,cik->ci", values, values)
         return total, total_sq
@@ -128,29 +124,21 @@ class _Renderer:
             err = np.full_like(mean, np.inf)
         return mean.T.reshape(h, w, 3), err.T.reshape(h, w, 3)
 
-    def _samples(self, generator, tile, first, x0, y0, w, h, k):
+    def _samples(self, tile, first, x0, y0, w, h, k):
         """(3, w h k) radiance estimates (planes r, g, b): samples first .. first + k - 1 of each
         pixel of a tile, pixel-major."""
-        d, prim, t, u = self.camera_samples(generator, tile, first, x0, y0, w, h, k)
+        d, prim, t, u = self.camera_samples(tile, first, x0, y0, w, h, k)
         return self.visible_sum(self.shader.shade_rays(self.scene.camera.eye, d, prim, t, u))
 
-    def camera_samples(self, generator, tile, first, x0, y0, w, h, k):
+    def camera_samples(self, tile, first, x0, y0, w, h, k):
         """The camera rays of samples first .. first + k - 1 of each pixel of a tile, pixel-major:
-        directions d, hit triangle prim and distance t, and the shading uniforms u.
-        ``independent``: jitters and shading uniforms from Philox (:mod:`wavlight.rng`) at tile
-        sample indices first w h + (pixel k + j), drawn in the kernels (u an ``rng.Stream``);
-        ``stratified``: all six from :func:`sampler.stratified` and ``generator``."""
+        directions d, hit triangle prim and distance t, and the shading uniforms u (an
+        ``rng.Stream``: Philox numbers at tile sample indices first w h + (pixel k + j), drawn
+        in the kernels; ``stratified``: each pair stratified over the pixel's k samples)."""
         eye = self.scene.camera.eye
-        if self.sampler == "stratified":
-            uu = sampler.stratified(generator, w * h, k)
-            pix = np.arange(w * h, dtype=np.int32)
-            _, d = camera_rays(self.scene, np.repeat(x0 + pix % w, k), np.repeat(y0 + pix // w, k), uu[:, :2],
-                               self.width, self.height)
-            u = uu[:, 2:]
-        else:
-            u = rng.Stream(self.seed, tile, first * w * h)
-            d = camera.pass_rays(self.scene, self.width, self.height, self.seed, tile, x0, y0, w, h, k, u.first,
-                                 kernel=self.kernel_camera)
+        u = rng.Stream(self.seed, tile, first * w * h, k if self.sampler == "stratified" else 0)
+        d = camera.pass_rays(self.scene, self.width, self.height, self.seed, tile, x0, y0, w, h, k, u.first,
+                             kernel=self.kernel_camera, stratified=bool(u.k))
         prim, t = self.tracer.intersect(np.broadcast_to(eye.astype(np.float32), d.shape), d)
         self.count_rays(len(d))
         return d, prim, t, u

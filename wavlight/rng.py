@@ -1,5 +1,5 @@
 """Counter-based uniforms: Philox-4x32-10 (Salmon et al. 2011, "Parallel random
-numbers: as easy as 1, 2, 3"), the ``independent`` sampler's numbers.
+numbers: as easy as 1, 2, 3"), the samplers' numbers (:mod:`wavlight.sampler`).
 
 Each number is a pure function of (seed, tile, stream, sample index), so a kernel
 draws the uniforms where it uses them (``kernels/rng.h``: the camera-ray kernel its
@@ -11,7 +11,10 @@ the kernels.
 Counter (c0, c1, c2, c3) = (sample index in its tile, tile index, stream, 0), key =
 the seed's low and high 32 bits. Stream ``JITTER`` gives the pixel jitter (words 0,
 1), stream ``SHADING`` the four shading uniforms (guide pair, BSDF pair). A 32-bit
-word w becomes the float32 (w >> 8) 2^-24 in [0, 1).
+word w becomes the float32 (w >> 8) 2^-24 in [0, 1). The ``stratified`` sampler moves
+each pair into a cell of its pixel's grid (:func:`sampler.stratify_pair`), keyed by
+words 0, 1, 2 (jitter, guide, BSDF pair) of stream ``STRATA`` at index (the pass's first
+index + pixel): one counter per pixel and pass.
 """
 from __future__ import annotations
 
@@ -19,7 +22,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-JITTER, SHADING = 0, 1
+from .sampler import stratify_pair
+
+JITTER, SHADING, STRATA = 0, 1, 2
 _M0, _M1 = np.uint64(0xD2511F53), np.uint64(0xCD9E8D57)
 _W0, _W1 = 0x9E3779B9, 0xBB67AE85
 _MASK = np.uint64(0xFFFFFFFF)
@@ -42,24 +47,39 @@ def key(seed: int) -> tuple[int, int]:
     return int(seed) & 0xFFFFFFFF, (int(seed) >> 32) & 0xFFFFFFFF
 
 
-def uniforms(seed: int, tile: int, stream: int, first: int, count: int) -> np.ndarray:
-    """(count, 4) float32 in [0, 1): the numbers of samples first .. first + count - 1 of a tile."""
+def words(seed: int, tile: int, stream: int, first: int, count: int) -> np.ndarray:
+    """(count, 4) uint32: the Philox words of indices first .. first + count - 1 of a tile's stream."""
     counter = np.zeros((count, 4), np.uint32)
     counter[:, 0] = np.arange(first, first + count, dtype=np.uint64).astype(np.uint32)
     counter[:, 1] = tile
     counter[:, 2] = stream
-    words = philox4x32_10(counter, key(seed))
-    return (words >> np.uint32(8)).astype(np.float32) * np.float32(2.0 ** -24)
+    return philox4x32_10(counter, key(seed))
+
+
+def uniforms(seed: int, tile: int, stream: int, first: int, count: int) -> np.ndarray:
+    """(count, 4) float32 in [0, 1): the numbers of samples first .. first + count - 1 of a tile."""
+    return (words(seed, tile, stream, first, count) >> np.uint32(8)).astype(np.float32) * np.float32(2.0 ** -24)
 
 
 class Stream(NamedTuple):
-    """The independent sampler's numbers of one pass of a tile: samples first, first + 1, ...
-    of tile ``tile`` of a render with seed ``seed``."""
+    """The sampler's numbers of one pass of a tile: samples first, first + 1, ... of tile
+    ``tile`` of a render with seed ``seed``; with ``k`` > 0 (the ``stratified`` sampler) the
+    pass holds k samples of each pixel, pixel-major, and each pair is stratified over them."""
 
     seed: int
     tile: int
     first: int
+    k: int = 0
 
     def uniforms(self, stream: int, count: int) -> np.ndarray:
-        """(count, 4) float32: the pass's numbers in ``stream`` (JITTER or SHADING)."""
-        return uniforms(self.seed, self.tile, stream, self.first, count)
+        """(count, 4) float32: the pass's numbers in ``stream`` (JITTER: words 0, 1 the jitter;
+        SHADING: the guide pair and the BSDF pair)."""
+        u = uniforms(self.seed, self.tile, stream, self.first, count)
+        if self.k:
+            r = np.arange(count, dtype=np.uint32)
+            pixel, j = r // np.uint32(self.k), r % np.uint32(self.k)
+            keys = words(self.seed, self.tile, STRATA, self.first, int(pixel[-1]) + 1 if count else 0)[pixel]
+            pairs = ((0, 0),) if stream == JITTER else ((0, 1), (2, 2))   # (first column, key word)
+            for col, word in pairs:   # pairs, not samples
+                u[:, col], u[:, col + 1] = stratify_pair(u[:, col], u[:, col + 1], j, self.k, keys[:, word])
+        return u

@@ -2,55 +2,84 @@
 
 Every pixel sample consumes six uniforms in three 2D pairs: the jitter inside the
 pixel (box filter), the guide sample (light, product or the strategy's first
-direction) and the BSDF sample. Scene key ``[render] sampler``, flag ``--sampler``:
+direction) and the BSDF sample. All are counter-based Philox-4x32-10 numbers, a
+function of (seed, tile, sample index), drawn inside the camera and shade kernels
+(:mod:`wavlight.rng`; nothing is generated on the host or uploaded). Scene key
+``[render] sampler``, flag ``--sampler``:
 
 ``independent`` (default)
-    Every number independent and uniform (Mitsuba 3's default ``independent``
-    sampler): counter-based Philox-4x32-10 numbers, a function of (seed, tile,
-    sample index), drawn inside the camera and shade kernels (:mod:`wavlight.rng`).
+    Every number independent and uniform (Mitsuba 3's default ``independent`` sampler).
 ``stratified``
-    :func:`stratified` returns all six for ``k`` samples of each of ``P`` pixels,
-    pixel-major (row ``p k + j`` is sample ``j`` of pixel ``p``), as ``(P k, 6)`` float32.
-    Each 2D pair is stratified over the k samples of a pixel: the unit square is cut
-    into an m x n grid (m = floor(sqrt(k)), n = ceil(k / m), so m n >= k), every pixel
-    and every pair draws k distinct cells at random and one uniform point in each.
-    Distinct pairs use independent cell orders ("padding", pbrt's stratified
-    sampler), so the pairs stay independent of each other. Each sample is uniform on
-    the square by itself (a uniformly chosen cell, a uniform point in it), so every
-    estimator stays unbiased. The hierarchical warps preserve stratification (paper
-    sec. 4.3), so light and product samples come out stratified over their pdf.
+    Each 2D pair is stratified over the k samples of a pixel in one pass: the unit
+    square is cut into an m x n grid (m = floor(sqrt(k)), n = ceil(k / m), so m n >= k)
+    and sample j of the pixel takes cell ``permute(j, m n, key)`` (:func:`permute`, a
+    random permutation chosen by a key per pixel, pass and pair) with its own Philox
+    pair as the point inside the cell (:func:`stratify_pair`). So the k samples fill k
+    distinct cells. Distinct pairs have independent keys ("padding", as pbrt's
+    stratified sampler), so the pairs stay independent of each other. Each sample is
+    uniform on the square by itself (a uniformly chosen cell, a uniform point in it),
+    so every estimator stays unbiased. The hierarchical warps preserve stratification
+    (paper sec. 4.3), so light and product samples come out stratified over their pdf.
+    It costs no more than ``independent``: one more Philox draw per sample for the keys
+    and the permutation's hash.
 
 The integrator draws a pass's k samples of a pixel together, and a pass holds all
 spp of a pixel up to ``integrator.TILE_SAMPLES / 64`` = 1024 spp; beyond that each
 pass is stratified on its own. The per-pixel standard error is computed as for
 independent samples; with ``stratified`` it is an upper bound (stratification only
-removes variance between strata).
+removes variance between strata). This module holds the numpy twins of the kernels'
+``permute_index`` and ``stratify_pair`` (kernels/rng.h); :class:`wavlight.rng.Stream`
+applies them.
 """
 from __future__ import annotations
 
 import numpy as np
 
 SAMPLERS = ("independent", "stratified")
-DIMENSIONS = 6  # jitter (2), guide sample (2), BSDF sample (2)
 
 
-def stratified_pairs(rng: np.random.Generator, pixels: int, k: int, pairs: int) -> np.ndarray:
-    """(pixels k, 2 pairs) float64: per pixel and pair, k points in k distinct cells of an m x n grid."""
+def grid(k: int) -> tuple[int, int]:
+    """(m, n): the m x n grid of cells a pixel's k samples are stratified over (m n >= k)."""
     m = max(1, int(np.floor(np.sqrt(k))))
-    n = -(-k // m)
-    out = np.empty((pixels, k, 2 * pairs))
-    for d in range(pairs):  # pairs, not samples: 3 iterations
-        # k distinct cells of m n per pixel: the first k of a random permutation (argsort of keys)
-        cells = np.argsort(rng.random((pixels, m * n)), axis=1)[:, :k]
-        cx, cy = cells % m, cells // m
-        jitter = rng.random((pixels, k, 2))
-        out[:, :, 2 * d] = (cx + jitter[..., 0]) / m
-        out[:, :, 2 * d + 1] = (cy + jitter[..., 1]) / n
-    return out.reshape(pixels * k, 2 * pairs)
+    return m, -(-k // m)
 
 
-def stratified(rng: np.random.Generator, pixels: int, k: int) -> np.ndarray:
-    """(pixels k, 6) float32 uniforms in [0, 1), pixel-major, each pair stratified per pixel."""
-    u = stratified_pairs(rng, pixels, k, DIMENSIONS // 2).astype(np.float32)
-    # (c + j) / m can round up to 1.0 in float32: keep every number below 1
-    return np.minimum(u, np.float32(1.0 - 2.0 ** -24))
+def permute(i: np.ndarray, length: int, key: np.ndarray) -> np.ndarray:
+    """Element i of the random permutation of 0 .. length - 1 chosen by key (uint32 arrays;
+    Kensler 2013, "Correlated Multi-Jittered Sampling": a hash that is a bijection on the
+    smallest power-of-two range holding length, walked until it lands below length), then
+    rotated by (key >> 16) mod length (kernels/rng.h ``permute_index``)."""
+    i = np.asarray(i, np.uint32).copy()
+    p = np.broadcast_to(np.asarray(key, np.uint32), i.shape)
+    w = length - 1
+    for s in (1, 2, 4, 8, 16):
+        w |= w >> s
+    w = np.uint32(w)
+    out = i.copy()
+    todo = np.ones(i.shape, bool)
+    u32 = np.uint32
+    with np.errstate(over="ignore"):
+        while todo.any():   # cycle-walking rounds (about 2 expected), not samples
+            x, q = i[todo], p[todo]
+            x ^= q; x *= u32(0xe170893d); x ^= q >> u32(16); x ^= (x & w) >> u32(4)
+            x ^= q >> u32(8); x *= u32(0x0929eb3f); x ^= q >> u32(23); x ^= (x & w) >> u32(1)
+            x *= u32(1) | q >> u32(27); x *= u32(0x6935fa69); x ^= (x & w) >> u32(11); x *= u32(0x74dcb303)
+            x ^= (x & w) >> u32(2); x *= u32(0x9e501cc3); x ^= (x & w) >> u32(2); x *= u32(0xc860a3df)
+            x &= w; x ^= x >> u32(5)
+            i[todo] = x
+            done = np.zeros(i.shape, bool)
+            done[todo] = x < length
+            out[done] = i[done]
+            todo &= ~done
+        return (out + (p >> u32(16)) % u32(length)) % u32(length)
+
+
+def stratify_pair(a: np.ndarray, b: np.ndarray, j: np.ndarray, k: int, key: np.ndarray):
+    """Uniforms (a, b) float32 of sample j of a pixel's k -> the point (a, b) of cell
+    permute(j, m n, key) of the m x n grid (kernels/rng.h ``stratify_pair``), float32 below 1."""
+    m, n = grid(k)
+    cell = permute(j, m * n, key)
+    top = np.float32(1.0 - 2.0 ** -24)
+    x = np.minimum(((cell % m).astype(np.float32) + np.asarray(a, np.float32)) / np.float32(m), top)
+    y = np.minimum(((cell // m).astype(np.float32) + np.asarray(b, np.float32)) / np.float32(n), top)
+    return x, y

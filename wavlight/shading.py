@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import cl, raytrace, rng, strategies, warp
+from . import camera, cl, raytrace, rng, strategies, warp
 
 _WARMED = set()  # shade programs already launched in this process
 
@@ -121,7 +121,7 @@ class KernelShader:
     def shade_rays(self, eye, d, prim, t, u) -> ShadedRays:
         """Camera rays from ``eye`` along d (N, 3) that hit triangle prim (N,) (-1: a miss) at
         distance t (N,), with uniforms u: an (N, 4) array, or an :class:`rng.Stream` whose
-        SHADING numbers the kernel draws itself. One ``shade_rays`` launch into the thread's
+        SHADING numbers the kernel draws itself (stratified as the stream says). One ``shade_rays`` launch into the thread's
         reusable buffers (the global size padded to the fixed work-group size: PoCL compiles
         once per work-group size, done in warm_up)."""
         if self._geometry is None:
@@ -132,10 +132,14 @@ class KernelShader:
                 (("origin", 12), ("wi", 24), ("value", 24), ("direct", 12))]
         if count:
             if isinstance(u, rng.Stream):
-                draw = (np.int32(1), np.uint32(u.tile), np.uint32(u.first), *(np.uint32(x) for x in rng.key(u.seed)))
+                if u.k and count >= camera.STRATIFIED_MAX_COUNT:
+                    raise ValueError(f"KernelShader.shade_rays: a stratified batch holds at most "
+                                     f"{camera.STRATIFIED_MAX_COUNT - 1} rays, got {count}")
+                draw = (np.int32(1), np.uint32(u.tile), np.uint32(u.first), *(np.uint32(x) for x in rng.key(u.seed)),
+                        np.uint32(u.k))
                 u_buf = self.tree   # not read
             else:
-                draw = (np.int32(0), *(np.uint32(0),) * 4)
+                draw = (np.int32(0), *(np.uint32(0),) * 5)
                 u_buf = cl.upload("u", np.asarray(u, np.float32), q)
             cl.kernel(self.program, "shade_rays")(
                 q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("dirs", np.asarray(d, np.float32), q),
