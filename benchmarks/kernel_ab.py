@@ -8,7 +8,8 @@ drifts by 20-40% between runs, sequential before/after runs cannot resolve a 15%
 change, alternating launches can. The angle table of the earlier build comes from
 that commit's `wavlight/product.py` (its `node_angles`; kernels after it build the node
 centres without a table). A build from before the Morton tree layout (kernels/common.h)
-walks a row-major copy of the same tree. Needs kernels with the same arguments otherwise
+walks a row-major copy of the same tree, one from before the trees' cache-line origin
+(TREE_ORIGIN) a copy with node 0 at the buffer's start. Needs kernels with the same arguments otherwise
 (true from 3291f7c on). "identical" says whether both builds returned the same points
 and densities bit for bit. Prints one JSON object.
 
@@ -78,8 +79,10 @@ def main():
     u_buf, n_buf, wo_buf, mat_buf = cl.to_device(u), cl.to_device(n4), cl.to_device(wo4), cl.to_device(np.zeros(n, np.int32))
     uv_buf, pdf_buf = cl.empty(8 * n), cl.empty(4 * n)
     tree = HaarTree(env.luminance_square(args.levels))
+    old_common = git_show(args.against, "kernels/common.h")
     trees = {"now": tree.buffer,   # the device layout of this checkout, and of --against:
-             "before": tree.buffer if "Morton" in git_show(args.against, "kernels/common.h")
+             "before": tree.buffer if "TREE_ORIGIN" in old_common
+             else cl.to_device(tree.device_nodes()) if "Morton" in old_common   # node 0 first
              else cl.to_device(tree.nodes())}   # row-major before the Morton layout
     materials = benchmark_materials()
     runs, outputs = {}, {}

@@ -15,15 +15,28 @@
  * per step. Measured against the row-major walks (benchmarks/kernel_ab.py, interleaved,
  * bit-identical samples; results/kernel-ab-2026-12-02-session9-morton-*.json): light
  * walk +9 / +37 / +32% at 256^2 / 1024^2 / 2048^2, product walks +5 to +21% / +11 to
- * +47% / +10 to +45%. Shifting the tree by 3 floats, so that no group of children
- * straddles a line, measured no better (interleaved, -7 to +10%: noise). The host
- * keeps trees row-major (y 2^l + x): wavlight.distributions.device_order / host_order
- * convert, tree_load_leaves (tree.cl) places the leaves.
+ * +47% / +10 to +45%. The host keeps trees row-major (y 2^l + x):
+ * wavlight.distributions.device_order / host_order convert, tree_load_leaves (tree.cl)
+ * places the leaves.
+ *
+ * A light tree's node 0 sits TREE_ORIGIN = 11 floats into its place in the buffer, and
+ * trees sit TREE_STRIDE(n) floats apart (a multiple of 16): as LEVEL_OFFSET(l) is 5 mod
+ * 16 from level 2 on and OpenCL buffers are at least 64-byte aligned, every level from 2
+ * on then starts on a 64-byte cache line, and a node's four children (one walk step) and
+ * its sixteen grandchildren (the product walk's look-ahead) each lie in one line instead
+ * of straddling two. Kernels that take a light tree add TREE_ORIGIN to its pointer on
+ * entry. Measured (13th session, the product kernel, four alternated runs, bit-identical
+ * samples): 2048^2 trees +15 to +25% (phong 200 13.8-15.1 -> 17.1-18.0 M/s, ggx 0.05
+ * 17.2-18.1 -> 21.3-21.6), 1024^2 +0 to +8%, 256^2 no change. (An origin of 3, which
+ * keeps the groups of four in one line but not the sixteen, measured close to it here; in
+ * the ninth session, before the look-ahead, it measured no better than none.)
  */
 #ifndef WAVLIGHT_COMMON_H
 #define WAVLIGHT_COMMON_H
 
 #define LEVEL_OFFSET(l) ((((1ul) << (2 * (l))) - 1ul) / 3ul)
+#define TREE_ORIGIN 11
+#define TREE_STRIDE(n) ((LEVEL_OFFSET((n) + 1) + TREE_ORIGIN + 15ul) & ~15ul)
 
 /* Bits 0..15 of v moved to the even bit positions 0, 2, .., 30 (a macro so that it serves
  * uint and uint vectors alike; v is evaluated once, into t). */

@@ -51,8 +51,8 @@ __kernel void haar_forward_level(__global float *pyr, const ulong tree_stride,
  *      which is eq. 25 at the leaves (no finer wavelets of H);
  *   3. parent = sum of the four children up to the root, which equals eq. 25 at every level
  *      and keeps the pyramid additive in float32, as the warp (warp.h) needs.
- * Levels 0..L (L <= P) are written to out + t * tree_stride in Morton order, ready for the
- * warp (common.h). g_leaf holds G's 4^P masses at level P, row-major; each local buffer
+ * Levels 0..L (L <= P) are written to out + t * tree_stride in Morton order, the walks'
+ * level order (common.h; node 0 at the tree's start, not at a light tree's TREE_ORIGIN). g_leaf holds G's 4^P masses at level P, row-major; each local buffer
  * holds 4^P floats, row-major. */
 __kernel void haar_product_tree(__global const float *g_leaf, __global const float *h_coeffs,
                                 const int m, const int P, const int L,

@@ -34,7 +34,7 @@ __kernel void product_sample_points(__global const float *tree, __global const f
     GATHER3(wo_world, 4 * i, &ex, &ey, &ez);
     GATHER2(u_in, i * u_stride, &ux, &uy);
     const Lobe lb = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, m), GATHER_INT(mat_levels, m));
-    const realv pdf = product_walk(tree, &lb, &ux, &uy);
+    const realv pdf = product_walk(tree + TREE_ORIGIN, &lb, &ux, &uy);   /* (common.h) */
     STORE_LANES(ux, uv_out, base, count);          /* u and v planes (see warp.cl) */
     STORE_LANES(uy, uv_out + count, base, count);
     STORE_LANES(pdf, pdf_out, base, count);

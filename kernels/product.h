@@ -115,7 +115,7 @@ INLINE Lobe make_lobe(__global const float *rot, const realv nx, const realv ny,
     lb.levels = code & 0xff;
     lb.shape = shape;
 #if defined(N_LEVELS) && PRODUCT_TREES > 1
-    lb.base = as_uintv(code >> 16) * (uint)LEVEL_OFFSET(N_LEVELS + 1);   /* tree index x tree size */
+    lb.base = as_uintv(code >> 16) * (uint)TREE_STRIDE(N_LEVELS);   /* tree index x tree stride (common.h) */
 #else
     lb.base = 0;
 #endif

@@ -339,6 +339,7 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
 {
     const uint base = LANE_BASE();
     if (base >= count) return;
+    tree += TREE_ORIGIN;   /* the light tree's node 0 (common.h) */
     const uintv i = LANE_INDEX(count);
     realv nx, ny, nz, ex, ey, ez, u0, u1, u2, u3;
     GATHER3(normal, 3 * i, &nx, &ny, &nz);
@@ -398,6 +399,7 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
 {
     const uint base = LANE_BASE();
     if (base >= count) return;
+    tree += TREE_ORIGIN;   /* the light tree's node 0 (common.h) */
     const uintv i = LANE_INDEX(count);
     const intv face = GATHER_INT(prim, i);
     const intv hit = face >= 0;

@@ -16,6 +16,7 @@ __kernel void tree_load_leaves(__global float *tree, const ulong tree_stride, __
     const uint i = get_global_id(0);
     const ulong t = get_global_id(1);
     const uint x = i & ((1u << n) - 1u), y = i >> n;
+    tree += TREE_ORIGIN;   /* (common.h) */
     tree[t * tree_stride + LEVEL_OFFSET(n) + morton_index(x, y)] = leaves[(t << (2 * n)) + i];
 }
 
@@ -23,7 +24,7 @@ __kernel void tree_reduce(__global float *tree, const ulong tree_stride, const i
 {
     const ulong node = get_global_id(0);   /* its index in the level (Morton order, common.h) */
     const ulong t = get_global_id(1);
-    __global float *base = tree + t * tree_stride;
+    __global float *base = tree + TREE_ORIGIN + t * tree_stride;
     __global const float *child = base + LEVEL_OFFSET(level + 1) + 4 * node;   /* 00 10 01 11 */
     base[LEVEL_OFFSET(level) + node] = (child[0] + child[1]) + (child[2] + child[3]);
 }

@@ -21,6 +21,7 @@ __kernel void warp_sample(__global const float *tree, const ulong tree_stride, c
 {
     const uint base = LANE_BASE();
     const uintv i = LANE_INDEX(count);
+    tree += TREE_ORIGIN;   /* (common.h) */
 #if BATCHED
     const uintv tree_base = (i / samples_per_tree) * (uint)tree_stride;
 #else
@@ -43,6 +44,7 @@ __kernel void warp_pdf(__global const float *tree, const ulong tree_stride, cons
     if (base >= count) return;
     const uintv i = LANE_INDEX(count);
     const uintv tree_base = (i / samples_per_tree) * (uint)tree_stride;
+    tree += TREE_ORIGIN;
     STORE_LANES(tree_pdf(tree, tree_base, n_levels, GATHER(uv_in, 2 * i), GATHER(uv_in, 2 * i + 1)),
                 pdf_out, base, count);
 }

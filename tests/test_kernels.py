@@ -16,8 +16,9 @@ import pytest
 from scipy import stats
 
 from chi2 import SquareGrid, chi2_test
-from wavlight.distributions import (ONE_MINUS_EPS, HaarTree, build_reference, device_order, host_order,
-                                    level_offset, morton_index, pdf_reference, sample_reference, tree_size)
+from wavlight.distributions import (ONE_MINUS_EPS, TREE_ORIGIN, HaarTree, build_reference, device_order,
+                                    host_order, level_offset, morton_index, pdf_reference, sample_reference,
+                                    tree_size)
 
 U32 = 2.0 ** -24  # unit roundoff of float32
 
@@ -157,8 +158,12 @@ def test_device_order_puts_a_nodes_children_together():
             np.testing.assert_array_equal(got, want)
         np.testing.assert_array_equal(parent, host[:, level_offset(l):level_offset(l + 1)])
     from wavlight import cl
-    raw = cl.read(HaarTree(leaves).buffer, (2, tree_size(n)), np.float32)   # as tree_load_leaves and tree_reduce built it
-    np.testing.assert_allclose(raw, dev, rtol=4 * n * U32, atol=0)
+    built = HaarTree(leaves)
+    raw = cl.read(built.buffer, (2, built.stride), np.float32)   # as tree_load_leaves and tree_reduce built it
+    # node 0 at TREE_ORIGIN, trees a multiple of 16 floats apart (every level from 2 on line-aligned)
+    assert built.stride % 16 == 0 and built.stride >= TREE_ORIGIN + tree_size(n)
+    assert all((TREE_ORIGIN + level_offset(l)) % 16 == 0 for l in range(2, n + 1))
+    np.testing.assert_allclose(raw[:, TREE_ORIGIN:TREE_ORIGIN + tree_size(n)], dev, rtol=4 * n * U32, atol=0)
     assert morton_index(5, 3).item() == 0b011011   # x = 101, y = 011 interleaved: y2 x2 y1 x1 y0 x0
 
 

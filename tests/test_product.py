@@ -587,7 +587,8 @@ def test_kernel_matches_numpy_with_candidates(map_id, candidates):
 def test_light_trees_per_material(mat_ids, kinds, index):
     """WaveletStrategy keeps one light tree per kind its materials need: plain for glossy
     lobes, MIS-compensated for lambert; each tree's leaves are the map's (plain or
-    compensated) leaf masses, and info() reports the choice and the memory of all trees."""
+    compensated) leaf masses, and info() reports the choice and the memory of all trees (the
+    device buffer: their nodes plus each tree's cache-line origin and padding, < 27 floats)."""
     env = environment("sky")
     s = WaveletStrategy()
     s.prepare(env, [MATERIALS[m] for m in mat_ids])
@@ -598,7 +599,8 @@ def test_light_trees_per_material(mat_ids, kinds, index):
         want = env.luminance_square(n, compensated=kind == "compensated").ravel()
         np.testing.assert_allclose(tree[-want.size:], want, rtol=1e-6, atol=1e-30)
     info = s.info()
-    assert info["memory_bytes"] == nodes.size * 4
+    assert info["memory_bytes"] == s.trees.buffer.size
+    assert 0 <= info["memory_bytes"] - nodes.size * 4 < 27 * 4 * len(nodes)
     assert info["product_light_tree"] == {MATERIALS[m].name: kinds[i] for m, i in zip(mat_ids, index)}
 
 

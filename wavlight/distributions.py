@@ -19,7 +19,8 @@ Layout: on the host a pyramid's level l is row-major, node (x, y) at
 of :class:`wavlight.haar.ProductPyramids`) each level is in Morton order, so that a
 walk step reads a node's four children from one cache line (kernels/common.h);
 :func:`device_order` and :func:`host_order` convert, ``HaarTree`` and ``nodes()`` do
-it for their callers.
+it for their callers. In ``HaarTree.buffer`` tree t's node i is float
+``t tree_stride(n) + TREE_ORIGIN + i`` (every level from 2 on cache-line aligned).
 """
 from __future__ import annotations
 
@@ -36,6 +37,17 @@ ONE_MINUS_EPS = np.float32(np.nextafter(np.float32(1), np.float32(0)))
 def level_offset(level: int) -> int:
     """Index of the first node of ``level`` in a pyramid (see kernels/common.h)."""
     return (4 ** level - 1) // 3
+
+
+#: A light tree's node 0 lies TREE_ORIGIN floats into its place in ``HaarTree.buffer``, and
+#: trees lie ``tree_stride(n)`` floats apart, so that every level from 2 on starts on a
+#: 64-byte cache line on the device (kernels/common.h, which measures it)
+TREE_ORIGIN = 11
+
+
+def tree_stride(n_levels: int) -> int:
+    """Floats from one tree to the next in ``HaarTree.buffer`` (a multiple of 16; TREE_STRIDE)."""
+    return (tree_size(n_levels) + TREE_ORIGIN + 15) & ~15
 
 
 def tree_size(n_levels: int) -> int:
@@ -231,7 +243,7 @@ class HaarTree:
                                 f"{leaves.shape}")
         self.n_levels = leaf_levels(leaves.shape[-1])
         self.n_trees = leaves.shape[0]
-        self.stride = tree_size(self.n_levels)
+        self.stride = tree_stride(self.n_levels)
         rt = cl.runtime()
         self.buffer = cl.empty(4 * self.n_trees * self.stride)
         prog = cl.program("tree.cl")
@@ -243,11 +255,16 @@ class HaarTree:
         for level in range(self.n_levels - 1, -1, -1):
             knl(rt.queue, (4 ** level, self.n_trees), None, self.buffer,
                 np.uint64(self.stride), np.int32(level))
-        self.integral = cl.read(self.buffer, (self.n_trees, self.stride), np.float32)[:, 0].copy()
+        self.integral = self.device_nodes()[:, 0].copy()
+
+    def device_nodes(self) -> np.ndarray:
+        """(T, tree_size(n)) float32: the trees as the device holds them (Morton order), copied."""
+        raw = cl.read(self.buffer, (self.n_trees, self.stride), np.float32)
+        return raw[:, TREE_ORIGIN:TREE_ORIGIN + tree_size(self.n_levels)]
 
     def nodes(self) -> np.ndarray:
         """The whole pyramid, (T, tree_size(n)) float32, copied to the host (row-major levels)."""
-        return host_order(cl.read(self.buffer, (self.n_trees, self.stride), np.float32), self.n_levels)
+        return host_order(self.device_nodes(), self.n_levels)
 
     def _run(self, name, pts, samples_per_tree, outputs):
         where, arg = ("distributions.HaarTree.sample", "u") if outputs == 2 else ("distributions.HaarTree.pdf", "uv")

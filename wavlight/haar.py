@@ -707,7 +707,8 @@ class ProductPyramids:
 
     def enqueue(self, queue, h_buf, n_trees: int, out_buf):
         """Launch on device buffers: h_buf (T, 2^m, 2^m) float32 -> out_buf (T, stride) float32,
-        the trees in the device's Morton order, ready for the warp (distributions.py Layout)."""
+        the trees in the device's Morton order, the walks' level order (distributions.py Layout;
+        node 0 at each tree's start, not at HaarTree's TREE_ORIGIN)."""
         import pyopencl  # deferred like in cl.py
         nbytes = 4 * 4 ** self.leaf_level
         knl = cl.kernel(self._prog, "haar_product_tree")
