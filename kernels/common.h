@@ -25,11 +25,12 @@
  * on then starts on a 64-byte cache line, and a node's four children (one walk step) and
  * its sixteen grandchildren (the product walk's look-ahead) each lie in one line instead
  * of straddling two. Kernels that take a light tree add TREE_ORIGIN to its pointer on
- * entry. Measured (13th session, the product kernel, four alternated runs, bit-identical
- * samples): 2048^2 trees +15 to +25% (phong 200 13.8-15.1 -> 17.1-18.0 M/s, ggx 0.05
- * 17.2-18.1 -> 21.3-21.6), 1024^2 +0 to +8%, 256^2 no change. (An origin of 3, which
- * keeps the groups of four in one line but not the sixteen, measured close to it here; in
- * the ninth session, before the look-ahead, it measured no better than none.)
+ * entry. Measured (13th session, the product kernel on copies of one tree made alike,
+ * four alternated runs, bit-identical samples): 2048^2 trees +18 to +25% (phong 200
+ * 14.7-15.8 -> 18.3-18.7 M/s, ggx 0.05 16.0-18.9 -> 18.4-23.1), 1024^2 ggx 0.05 +10%
+ * (21.2-23.3 -> 25.3-25.7), phong 200 within noise; 256^2 no change. (An origin of 3,
+ * which keeps the groups of four in one line but not the sixteen, measured close to 11;
+ * in the ninth session, before the look-ahead, it measured no better than none.)
  */
 #ifndef WAVLIGHT_COMMON_H
 #define WAVLIGHT_COMMON_H
