@@ -455,7 +455,15 @@ INLINE realv product_walk_from(__global const float *tree, const Lobe *lb, const
     *uy = clamp_unit(*uy);
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
+        /* below the product levels, the light tree's levels from PAIR_LEVEL on two at a time */
+        if (PAIRED_SECOND(l, max(PAIR_LEVEL, PRODUCT_LEVELS)))
+            continue;
         LEVEL_BARRIER(l);
+        if (PAIRED_FIRST(l, max(PAIR_LEVEL, PRODUCT_LEVELS))) {
+            paired_step(tree, TREE_BASE(lb), l, &k, &x, &y, ux, uy);
+            PREFETCH_CHILDREN(tree, TREE_BASE(lb), l + 1, k);
+            continue;
+        }
         realv m0, m1, m2, m3;
         if (l == 0 && root) {
             m0 = root->m[0]; m1 = root->m[1]; m2 = root->m[2]; m3 = root->m[3];

@@ -142,6 +142,55 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
  * CPU (12.3 -> 48.9 M samples/s at 1024^2), where PoCL does not vectorise the scalar
  * walk itself. */
 #ifdef N_LEVELS
+/* Paired steps through the deep levels of a mass tree: from about level PAIR_LEVEL on (and,
+ * in the product walk, below its product levels) one step reads the node's sixteen
+ * grandchildren, one cache line (common.h, TREE_ORIGIN), and takes two levels: the
+ * children's masses are the sums of their four children, in the order tree_reduce
+ * (tree.cl) added them, so bit for bit the stored ones, and the walk's choices are
+ * unchanged. One dependent load per two levels instead of two where they miss the caches.
+ * The pairs end at the leaves (they start at the first level >= f of N_LEVELS' parity).
+ * PAIRED_FIRST(l, f): level l starts a pair; PAIRED_SECOND(l, f): level l was taken by the
+ * pair before it. Compile-time. Only in walks without level barriers, the renderer's: the
+ * barriers and prefetches of the stand-alone kernels hide these loads better. Measured
+ * (13th session, three alternated runs of the kernels without barriers, 2^21 random
+ * points): 2048^2 trees light walk 30-34 -> 37-40 M/s, phong 200 11.5-13.3 -> 13.8-15.6,
+ * ggx 0.2 12.1-13.1 -> 10.1-15.6 (ggx 0.05 14.1-15.3 -> 17.6-17.9 in a second run);
+ * 1024^2 (one pair, levels 8-9) light 55-59 -> 59-60, phong 200 18.8-19.6 -> 21.6-21.9;
+ * with barriers they measured 5-35% slower. */
+#ifndef PAIR_LEVEL
+#if defined(WALK_BARRIERS) && WALK_BARRIERS
+#define PAIR_LEVEL 64   /* none */
+#else
+#define PAIR_LEVEL 7
+#endif
+#endif
+#define PAIR_START(f) ((f) + ((N_LEVELS - (f)) & 1))
+#define PAIRED_FIRST(l, f) ((l) >= PAIR_START(f) && ((l) - PAIR_START(f)) % 2 == 0 && (l) + 2 <= N_LEVELS)
+#define PAIRED_SECOND(l, f) ((l) > PAIR_START(f) && ((l) - PAIR_START(f)) % 2 == 1)
+
+/* Two steps of eight walks from the nodes of index k in `level` (see above). */
+INLINE void paired_step(__global const float *tree, const uintv base, const int level, uintv *k, uintv *x,
+                        uintv *y, realv *ux, realv *uy)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const uintv g = base + (uint)LEVEL_OFFSET(level + 2) + 16 * *k;
+    realv q[16];
+    GATHER4(tree, g, &q[0], &q[1], &q[2], &q[3]);
+    GATHER4(tree, g + 4, &q[4], &q[5], &q[6], &q[7]);
+    GATHER4(tree, g + 8, &q[8], &q[9], &q[10], &q[11]);
+    GATHER4(tree, g + 12, &q[12], &q[13], &q[14], &q[15]);
+    choose_child((q[0] + q[1]) + (q[2] + q[3]), (q[4] + q[5]) + (q[6] + q[7]), (q[8] + q[9]) + (q[10] + q[11]),
+                 (q[12] + q[13]) + (q[14] + q[15]), ux, uy, x, y);
+    *k = child_index(*k, *x, *y);
+    const intv right = as_intv(*k & 1u) != 0, bottom = as_intv(*k & 2u) != 0;
+    realv o[4];
+#pragma unroll
+    for (int j = 0; j < 4; ++j)
+        o[j] = select(select(q[j], q[4 + j], right), select(q[8 + j], q[12 + j], right), bottom);
+    choose_child(o[0], o[1], o[2], o[3], ux, uy, x, y);
+    *k = child_index(*k, *x, *y);
+}
+
 INLINE realv tree_walk(__global const float *tree, const uintv tree_base, realv *ux, realv *uy)
 {
     uintv x = 0, y = 0, k = 0;   /* the node's coordinates and its index in its level */
@@ -149,7 +198,14 @@ INLINE realv tree_walk(__global const float *tree, const uintv tree_base, realv 
     *uy = clamp_unit(*uy);
 #pragma unroll
     for (int l = 0; l < N_LEVELS; ++l) {
+        if (PAIRED_SECOND(l, PAIR_LEVEL))
+            continue;
         LEVEL_BARRIER(l);
+        if (PAIRED_FIRST(l, PAIR_LEVEL)) {
+            paired_step(tree, tree_base, l, &k, &x, &y, ux, uy);
+            PREFETCH_CHILDREN(tree, tree_base, l + 1, k);
+            continue;
+        }
         realv m0, m1, m2, m3;
         GATHER4(tree, tree_base + (uint)LEVEL_OFFSET(l + 1) + 4 * k, &m0, &m1, &m2, &m3);
         choose_child(m0, m1, m2, m3, ux, uy, &x, &y);

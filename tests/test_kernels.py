@@ -167,6 +167,64 @@ def test_device_order_puts_a_nodes_children_together():
     assert morton_index(5, 3).item() == 0b011011   # x = 101, y = 011 interleaved: y2 x2 y1 x1 y0 x0
 
 
+# ============================================================================= paired steps
+@pytest.mark.parametrize("barriers", [0, 1], ids=["inline", "barriers"])
+@pytest.mark.parametrize("pair_level", [3, 6])
+def test_paired_steps_are_bit_identical(pair_level, barriers):
+    """kernels/warp.h paired_step (two levels per load, from level pair_level or the next of
+    the leaves' parity on) against the walks built without pairs (PAIR_LEVEL past the
+    tree): the light walk (warp.cl) and the product walk below its product levels
+    (product.cl, depths 3 and 4, so that pairs start at and after the product levels)
+    return the same points and densities bit for bit, on a 2^10 tree with zero masses
+    among its leaves; as the renderer walks (without barriers) and as the stand-alone
+    kernels do."""
+    from wavlight import bsdfs, cl, product
+
+    rng = np.random.default_rng(pair_level)
+    n = 10
+    leaves = rng.random((1 << n, 1 << n)).astype(np.float32) ** 8
+    leaves[rng.random(leaves.shape) < 0.2] = 0.0
+    tree = HaarTree(leaves)
+    count = 20_003
+    u = rng.random((count, 2), dtype=np.float32)
+    u[:5] = [[0.0, 0.0], [ONE_MINUS_EPS, ONE_MINUS_EPS], [0.5, 0.5], [0.0, ONE_MINUS_EPS], [ONE_MINUS_EPS, 0.0]]
+    q = cl.thread_queue()
+    size = (cl.items(count, cl.LANES),), (cl.WORK_GROUP,)
+    u_buf, uv_buf, pdf_buf = cl.to_device(u), cl.empty(8 * count), cl.empty(4 * count)
+
+    def outputs():
+        return cl.read(uv_buf, (2, count), np.float32, q), cl.read(pdf_buf, (count,), np.float32, q)
+
+    runs = {}
+    for pairs in (pair_level, 64):
+        knl = cl.kernel(cl.program("warp.cl", N_LEVELS=n, BATCHED=0, PAIR_LEVEL=pairs, WALK_BARRIERS=barriers),
+                        "warp_sample")
+        knl(q, *size, tree.buffer, np.uint64(tree.stride), np.uint32(count), np.uint32(count), u_buf, np.uint32(2),
+            uv_buf, pdf_buf)
+        runs[("light", pairs)] = outputs()
+    nrm = rng.normal(size=(count, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    n4, wo4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
+    n4[:, :3], wo4[:, :3] = nrm, nrm + 0.3 * rng.normal(size=(count, 3))
+    wo4[:, :3] /= np.linalg.norm(wo4[:, :3], axis=1, keepdims=True)
+    rot = cl.to_device(np.eye(3, dtype=np.float32).ravel())
+    kappa = product.lobe_kappa(bsdfs.PHONG, 200.0)
+    shape = product.lobe_shape(bsdfs.PHONG, 200.0)
+    for depth in (3, 4):
+        for pairs in (pair_level, 64):
+            knl = cl.kernel(cl.program("product.cl", N_LEVELS=n, PRODUCT_LEVELS=depth, LOBE_SHAPES=1 << shape,
+                                       PAIR_LEVEL=pairs, WALK_BARRIERS=barriers), "product_sample_points")
+            knl(q, *size, tree.buffer, rot, np.uint32(count), cl.to_device(n4), cl.to_device(wo4),
+                cl.to_device(np.zeros(count, np.int32)), cl.to_device(np.array([kappa], np.float32)),
+                cl.to_device(np.array([depth + 256 * shape], np.int32)), u_buf, np.uint32(2), uv_buf, pdf_buf)
+            runs[(f"product{depth}", pairs)] = outputs()
+    for walk in ("light", "product3", "product4"):
+        (uv_a, pdf_a), (uv_b, pdf_b) = runs[(walk, pair_level)], runs[(walk, 64)]
+        np.testing.assert_array_equal(uv_a, uv_b, err_msg=walk)
+        np.testing.assert_array_equal(pdf_a, pdf_b, err_msg=walk)
+        assert np.isfinite(pdf_a).all() and (pdf_a > 0).all()
+
+
 # ============================================================================= warp_sample / warp_pdf
 @pytest.mark.parametrize("tree_id", list(TREES))
 def test_warp_sample_matches_reference(tree_id):
