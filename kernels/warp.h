@@ -153,9 +153,9 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
  * pair before it. Compile-time. Only in walks without level barriers, the renderer's: the
  * barriers and prefetches of the stand-alone kernels hide these loads better. Measured
  * (13th session, three alternated runs of the kernels without barriers, 2^21 random
- * points): 2048^2 trees light walk 30-34 -> 37-40 M/s, phong 200 11.5-13.3 -> 13.8-15.6,
- * ggx 0.2 12.1-13.1 -> 10.1-15.6 (ggx 0.05 14.1-15.3 -> 17.6-17.9 in a second run);
- * 1024^2 (one pair, levels 8-9) light 55-59 -> 59-60, phong 200 18.8-19.6 -> 21.6-21.9;
+ * points, M samples/s): 2048^2 trees light walk 34.6-36.4 -> 39.6-41.8, phong 200
+ * 14.5-15.1 -> 16.6-16.8, ggx 0.2 14.9-15.2 -> 18.7-19.0, ggx 0.05 15.7-16.3 -> 18.5-18.7;
+ * 1024^2 (one pair, levels 8-9) light 60.9-61.6 -> 57.7-61.0, the product walks +4 to +7%;
  * with barriers they measured 5-35% slower. */
 #ifndef PAIR_LEVEL
 #if defined(WALK_BARRIERS) && WALK_BARRIERS
