@@ -23,7 +23,7 @@ __kernel void camera_rays(const int x0, const int y0, const uint w, const uint k
     realv jx, jy, unused0, unused1;
     rng_uniforms(first + r, tile, RNG_JITTER, k0, k1, &jx, &jy, &unused0, &unused1);
     uintv j;
-    const uintv pixel = div_small(r, k, &j);   /* (count < 2^22: wavlight.camera.pass_rays) */
+    const uintv pixel = div_small(r, k, &j);   /* (count < 2^22: wavlight.camera.MAX_PASS_RAYS) */
     if (stratified) {
         uintv key, unused2, unused3, unused4;
         philox4x32_10(first + pixel, (uintv)tile, (uintv)RNG_STRATA, (uintv)0u, k0, k1, &key, &unused2, &unused3,

@@ -73,3 +73,11 @@ def test_camera_kernel_matches_numpy(tile, first, side, k, stratified):
                            stratified=stratified)
     assert got.shape == ref.shape == (side * (side + 1) * k, 3)
     np.testing.assert_allclose(got, ref, atol=2e-6)
+
+
+def test_camera_pass_size_is_bounded():
+    """The kernels find a ray's pixel by one float division, exact below 2^22 rays per pass
+    (kernels/rng.h div_small): a larger pass is refused, not silently mis-assigned."""
+    scene = wavlight.load_scene("scenes/default.toml")
+    with pytest.raises(ValueError, match="at most"):
+        camera.pass_rays(scene, 4096, 4096, 1, 0, 0, 0, 2048, 2048, 1, 0)

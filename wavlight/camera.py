@@ -14,9 +14,10 @@ from . import cl, rng
 
 _WARMED = set()
 
-#: a stratified pass's rays (kernels/rng.h ``div_small``: pixel and sample index by one float
-#: division, exact below 2^22); the integrator's passes hold about integrator.TILE_SAMPLES
-STRATIFIED_MAX_COUNT = 1 << 22
+#: a pass's rays (the kernels find a ray's pixel and sample index by one float division,
+#: kernels/rng.h ``div_small``, exact below 2^22); the integrator's passes hold about
+#: integrator.TILE_SAMPLES = 2^16
+MAX_PASS_RAYS = 1 << 22
 
 
 def _basis(cam, width, height):
@@ -55,8 +56,9 @@ def pass_rays(scene, width, height, seed, tile, x0, y0, w, h, k, first, kernel=T
     first .. first + w h k - 1 (``stratified``: stratified over each pixel's k samples,
     ``rng.Stream(seed, tile, first, k)``)."""
     count = w * h * k
-    if stratified and count >= STRATIFIED_MAX_COUNT:
-        raise ValueError(f"camera.pass_rays: a stratified pass holds at most {STRATIFIED_MAX_COUNT - 1} rays, got {count}")
+    if count >= MAX_PASS_RAYS:
+        raise ValueError(f"camera.pass_rays: a pass holds at most {MAX_PASS_RAYS - 1} rays, "
+                         f"got {count}")
     if not kernel:
         pix = np.arange(w * h, dtype=np.int32)
         jitter = rng.Stream(seed, tile, first, k if stratified else 0).uniforms(rng.JITTER, count)

@@ -121,9 +121,9 @@ class KernelShader:
     def shade_rays(self, eye, d, prim, t, u) -> ShadedRays:
         """Camera rays from ``eye`` along d (N, 3) that hit triangle prim (N,) (-1: a miss) at
         distance t (N,), with uniforms u: an (N, 4) array, or an :class:`rng.Stream` whose
-        SHADING numbers the kernel draws itself (stratified as the stream says). One ``shade_rays`` launch into the thread's
-        reusable buffers (the global size padded to the fixed work-group size: PoCL compiles
-        once per work-group size, done in warm_up)."""
+        SHADING numbers the kernel draws itself (stratified as the stream says). One
+        ``shade_rays`` launch into the thread's reusable buffers (the global size padded to the
+        fixed work-group size: PoCL compiles once per work-group size, done in warm_up)."""
         if self._geometry is None:
             raise ValueError("KernelShader.shade_rays needs the ray tracer's geometry (tracer=...)")
         count = len(d)
@@ -132,9 +132,9 @@ class KernelShader:
                 (("origin", 12), ("wi", 24), ("value", 24), ("direct", 12))]
         if count:
             if isinstance(u, rng.Stream):
-                if u.k and count >= camera.STRATIFIED_MAX_COUNT:
+                if u.k and count >= camera.MAX_PASS_RAYS:
                     raise ValueError(f"KernelShader.shade_rays: a stratified batch holds at most "
-                                     f"{camera.STRATIFIED_MAX_COUNT - 1} rays, got {count}")
+                                     f"{camera.MAX_PASS_RAYS - 1} rays, got {count}")
                 draw = (np.int32(1), np.uint32(u.tile), np.uint32(u.first), *(np.uint32(x) for x in rng.key(u.seed)),
                         np.uint32(u.k))
                 u_buf = self.tree   # not read
