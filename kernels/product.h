@@ -466,7 +466,7 @@ INLINE realv product_walk_from(__global const float *tree, const Lobe *lb, const
         LEVEL_BARRIER(l);
         if (PAIRED_FIRST(l, PRODUCT_PAIR_FROM)) {
             paired_step(tree, TREE_BASE(lb), l, &k, &x, &y, ux, uy);
-            PREFETCH_CHILDREN(tree, TREE_BASE(lb), l + 1, k);
+            PREFETCH_STEP(tree, TREE_BASE(lb), l + 2, k, PRODUCT_PAIR_FROM);
             continue;
         }
         realv m0, m1, m2, m3;
@@ -503,7 +503,7 @@ INLINE realv product_walk_from(__global const float *tree, const Lobe *lb, const
         }
         const realv q = choose_child(w0, w1, w2, w3, ux, uy, &x, &y);
         k = child_index(k, x, y);
-        PREFETCH_CHILDREN(tree, TREE_BASE(lb), l, k);
+        PREFETCH_STEP(tree, TREE_BASE(lb), l + 1, k, PRODUCT_PAIR_FROM);
         if (l < PRODUCT_LEVELS) {
             p *= select((realv)1.0f, q, in_product);
             if (l + 1 < PRODUCT_LEVELS)
