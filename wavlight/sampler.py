@@ -49,26 +49,23 @@ def permute(i: np.ndarray, length: int, key: np.ndarray) -> np.ndarray:
     Kensler 2013, "Correlated Multi-Jittered Sampling": a hash that is a bijection on the
     smallest power-of-two range holding length, walked until it lands below length), then
     rotated by (key >> 16) mod length (kernels/rng.h ``permute_index``)."""
-    i = np.asarray(i, np.uint32).copy()
-    p = np.broadcast_to(np.asarray(key, np.uint32), i.shape)
+    u32 = np.uint32
+    i = np.array(i, u32)
+    p = np.broadcast_to(np.asarray(key, u32), i.shape)
     w = length - 1
     for s in (1, 2, 4, 8, 16):
         w |= w >> s
-    w = np.uint32(w)
+    w = u32(w)
     out = i.copy()
     todo = np.ones(i.shape, bool)
-    u32 = np.uint32
     with np.errstate(over="ignore"):
-        while todo.any():   # cycle-walking rounds (about 2 expected), not samples
-            x, q = i[todo], p[todo]
-            x ^= q; x *= u32(0xe170893d); x ^= q >> u32(16); x ^= (x & w) >> u32(4)
-            x ^= q >> u32(8); x *= u32(0x0929eb3f); x ^= q >> u32(23); x ^= (x & w) >> u32(1)
-            x *= u32(1) | q >> u32(27); x *= u32(0x6935fa69); x ^= (x & w) >> u32(11); x *= u32(0x74dcb303)
-            x ^= (x & w) >> u32(2); x *= u32(0x9e501cc3); x ^= (x & w) >> u32(2); x *= u32(0xc860a3df)
-            x &= w; x ^= x >> u32(5)
-            i[todo] = x
-            done = np.zeros(i.shape, bool)
-            done[todo] = x < length
+        while todo.any():   # cycle-walking rounds (about 2 expected), not samples; as the kernel
+            i ^= p; i *= u32(0xe170893d); i ^= p >> u32(16); i ^= (i & w) >> u32(4)
+            i ^= p >> u32(8); i *= u32(0x0929eb3f); i ^= p >> u32(23); i ^= (i & w) >> u32(1)
+            i *= u32(1) | p >> u32(27); i *= u32(0x6935fa69); i ^= (i & w) >> u32(11); i *= u32(0x74dcb303)
+            i ^= (i & w) >> u32(2); i *= u32(0x9e501cc3); i ^= (i & w) >> u32(2); i *= u32(0xc860a3df)
+            i &= w; i ^= i >> u32(5)
+            done = todo & (i < length)
             out[done] = i[done]
             todo &= ~done
         return (out + (p >> u32(16)) % u32(length)) % u32(length)
