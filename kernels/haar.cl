@@ -44,6 +44,28 @@ __kernel void haar_forward_level(__global float *pyr, const ulong tree_stride,
         co[0] = parent;
 }
 
+/* Inverse transform, one level (coarsest first): the scaling coefficients F^0 of level
+ * level + 1 from those of `level` (cur) and the level's three wavelets, written to nxt
+ * times `scale` (1, and 2^n at the last level: pixel = 2^n F^0_n). cur and nxt hold a
+ * tree's 2^l x 2^l scaling coefficients row-major at t * 4^n. Global size (4^level, T). */
+__kernel void haar_inverse_level(__global const float *coeffs, __global const float *cur,
+                                 __global float *nxt, const int n, const int level, const float scale)
+{
+    const uint node = get_global_id(0);
+    const ulong t = get_global_id(1);
+    const uint s = 1u << level, cs = 2u * s, side = 1u << n;
+    const uint x = node & (s - 1), y = node >> level;
+    __global const float *co = coeffs + t * side * side;
+    const float a = cur[t * side * side + node];
+    const float d1 = co[y * side + s + x], d2 = co[(s + y) * side + x], d3 = co[(s + y) * side + s + x];
+    __global float *out = nxt + t * side * side + (2 * y) * cs + 2 * x;
+    const float h = 0.5f * scale;
+    out[0] = h * ((a + d1) + (d2 + d3));
+    out[1] = h * ((a - d1) + (d2 - d3));
+    out[cs] = h * ((a + d1) - (d2 + d3));
+    out[cs + 1] = h * ((a - d1) - (d2 - d3));
+}
+
 /* Product pyramids of one shared G and T coefficient sets H (eq. 25), one work-group
  * per tree, global size (WG, T), local size (WG, 1):
  *   1. H's scaling coefficients top-down to level m (inverse transform steps), in local memory;

@@ -360,6 +360,22 @@ def test_forward_kernel(device, n, T):
     np.testing.assert_array_equal(pyr, HaarTree(img * np.float32(4.0 ** -n)).nodes())
 
 
+@pytest.mark.parametrize("n,T", [(0, 3), (1, 2), (3, 5), (6, 4), (9, 1)])
+def test_inverse_kernel(device, n, T):
+    """inverse_cl against the numpy inverse (float32 twin: the same operations up to exact
+    powers of two) and against float64, and the round trip with forward_cl; a single
+    2-D set comes back 2-D."""
+    rng = np.random.default_rng(43 + n)
+    img = rng.random((T, 1 << n, 1 << n)).astype(np.float32)
+    coeffs = haar.forward(img.astype(np.float64)).astype(np.float32)
+    got = haar.inverse_cl(coeffs)
+    assert got.shape == img.shape and got.dtype == np.float32
+    np.testing.assert_allclose(got, haar.inverse(coeffs), rtol=0, atol=4 * EPS32)
+    np.testing.assert_allclose(got, haar.inverse(coeffs.astype(np.float64)), atol=4 * (n + 1) * EPS32)
+    np.testing.assert_allclose(haar.inverse_cl(haar.forward_cl(img)[0]), img, atol=8 * (n + 1) * EPS32)
+    np.testing.assert_array_equal(haar.inverse_cl(coeffs[0]), got[0])
+
+
 @pytest.mark.parametrize("n,m,L", [(5, 5, 5), (9, 5, 5), (9, 6, 6), (9, 8, 8), (6, 6, 3), (4, 6, 6),
                                    (7, 4, 6), (2, 3, 0)])
 def test_product_kernel_matches_eq25(device, n, m, L):

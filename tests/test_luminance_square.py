@@ -78,3 +78,35 @@ def test_luminance_is_the_weighted_sum(dtype):
     assert got.shape == (5, 7) and got.dtype == dtype
     want = rgb.astype(np.float64) @ LUMINANCE.astype(np.float64)
     np.testing.assert_allclose(got, want, rtol=4 * np.finfo(dtype).eps)
+
+
+def _tv(env, n):
+    """Total variation between the full-depth leaf distribution and its depth-n blocks taken as
+    constant (Environment.light_levels' definition), from luminance_square at both depths."""
+    top = env.square_levels()
+    full = env.luminance_square(top)
+    k = 1 << (top - n)
+    coarse = np.kron(env.luminance_square(n), np.ones((k, k))) / (k * k)   # spread over its fine leaves
+    return 0.5 * np.abs(full - coarse).sum() / full.sum()
+
+
+def test_light_levels_follow_the_content():
+    """The light tree's depth is the smallest n >= 2 within the tolerance (checked against the
+    TV computed here from luminance_square at each depth): a smooth sky needs fewer levels
+    than the same sky with one tiny, bright texel (a sun), which needs every level."""
+    h, w = 64, 128
+    theta = (np.arange(h) + 0.5) / h * np.pi
+    smooth = np.broadcast_to((1.0 + 0.5 * np.cos(theta))[:, None, None], (h, w, 3)).astype(np.float32).copy()
+    sun = smooth.copy()
+    sun[20, 77] = 1e5
+    top = Environment(smooth).square_levels()
+    assert top == 7
+    chosen = {}
+    for name, px in (("smooth", smooth), ("sun", sun)):
+        env = Environment(px)
+        n, tv = env.light_levels()
+        assert tv == pytest.approx(_tv(env, n), rel=1e-4) if n < top else tv == 0.0   # (its tree is float32)
+        assert n == top or tv <= 0.01
+        assert n == 2 or _tv(env, n - 1) > 0.01
+        chosen[name] = n
+    assert chosen["smooth"] < chosen["sun"] == top, chosen

@@ -60,6 +60,7 @@ from chi2 import SquareGrid, chi2_test, sidak_alpha
 from scenes_util import (camera_of, check_estimates, load, map3x2, one_texel_map, random_normals_views, ray_sphere,
                          write_env, z_threshold)
 from wavlight import bsdfs, product, strategies, warp
+from wavlight.distributions import HaarTree
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky, read_image
 from wavlight.scene import Camera, Material, Scene
 from wavlight.shading import KernelShader, NumpyShader
@@ -681,6 +682,43 @@ def test_strategy_product_levels_per_material(override):
     assert _levels_by_name(strat.info(), [m.name for m in mats]) == expect
 
 
+@pytest.mark.parametrize("levels,tree_levels", [(0, 5), (1, 5), (2, 5), (3, 5), (5, 5), (7, 10), (4, 3), (9, 2)])
+def test_coefficients_per_walk_counts_the_twins_lobe_evaluations(monkeypatch, levels, tree_levels):
+    """product.coefficients_per_walk (--json's product_coefficients_per_walk) is the number of
+    node importances (product scaling coefficients) the numpy twin evaluates per walk: counted
+    by wrapping node_importance during pdf_reference, which walks the sampled path."""
+    env = environment("sky")
+    rng = np.random.default_rng(5)
+    tree = HaarTree(rng.random((1 << tree_levels, 1 << tree_levels)) + 0.1).nodes()[0]
+    count = 64
+    calls = []
+    real = product.node_importance
+
+    def counting(env_, mass, *args):
+        calls.append(np.size(mass))
+        return real(env_, mass, *args)
+
+    monkeypatch.setattr(product, "node_importance", counting)
+    axis = np.tile([0.0, 1.0, 0.0], (count, 1))
+    product.pdf_reference(tree, tree_levels, env, axis, axis, np.full(count, 50.0), np.full(count, levels),
+                          np.full(count, bsdfs.PHONG), rng.random((count, 2)))
+    assert sum(calls) == count * product.coefficients_per_walk(levels, tree_levels)
+
+
+def test_strategy_reports_coefficients():
+    """info() reports the light coefficients kept (4^n of 4^N) and per material the product
+    coefficients per walk."""
+    mats = list(MATERIALS.values())
+    env = environment("sky")
+    strat = WaveletStrategy(light_levels=4)
+    strat.prepare(env, mats)
+    info = strat.info()
+    assert info["light_tree"] == "16x16" and info["light_coefficients_kept"] == 4 ** 4
+    assert info["light_coefficients_full"] == 4 ** env.square_levels()
+    assert info["product_coefficients_per_walk"] == {
+        m.name: product.coefficients_per_walk(p, 4) for m, p in zip(mats, strat.levels.tolist())}
+
+
 # ============================================================================= 4. unbiasedness
 def _kernel_estimates(scene, name, normal, wo, count, seed, visible=None, **options):
     """count one-point shading samples of strategy `name` with the kernel: (count, 3) estimates,
@@ -935,6 +973,35 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
     assert values == [2, 2, 2], levels
     img = read_image(str(out))
     assert img.shape[:2] == (12, 16) and np.all(np.isfinite(img)) and img.max() > 0
+
+
+def _default_scene_with(tmp_path, render_keys: str) -> Path:
+    """scenes/default.toml with extra lines in its [render] table, written to tmp_path."""
+    text = (REPO / "scenes" / "default.toml").read_text()
+    assert "[render]\n" in text
+    path = tmp_path / "keys.toml"
+    path.write_text(text.replace("[render]\n", "[render]\n" + render_keys, 1))
+    return path
+
+
+def test_scene_keys_choose_the_trees_and_flags_override_them(tmp_path):
+    """[render] light_levels and wavelet_levels in a scene file set the light tree's depth and
+    every material's product depth (reported with the coefficients they keep);
+    --light-levels and --wavelet-levels on the command line win over the keys."""
+    path = _default_scene_with(tmp_path, "light_levels = 3\nwavelet_levels = 1\n")
+    st = wavlight.render_full(str(path), spp=1, strategy="wavelet", width=8, height=6).stats
+    assert st["light_tree"] == "8x8" and st["light_coefficients_kept"] == 64
+    assert list(st["product_levels"].values()) == [1, 1, 1]
+    assert list(st["product_coefficients_per_walk"].values()) == [16, 16, 16]   # level 0's look-ahead
+    out = tmp_path / "w.pfm"
+    p = subprocess.run(_command() + ["render", str(path), "-o", str(out), "--strategy", "wavelet",
+                                     "--light-levels", "2", "--wavelet-levels", "2", "--spp", "1",
+                                     "--width", "8", "--height", "6", "--json", "--quiet"],
+                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert p.returncode == 0, f"exit {p.returncode}\n{p.stdout}\n{p.stderr}"
+    st = json.loads(p.stdout.strip().splitlines()[-1])
+    assert st["light_tree"] == "4x4" and st["light_coefficients_kept"] == 16
+    assert list(st["product_levels"].values()) == [2, 2, 2]
 
 
 def _kernel_float_literals(name):

@@ -664,6 +664,35 @@ def forward_cl(images, queue=None):
     return cl.read(coef, img.shape, np.float32, queue), cl.read(pyr, (T, stride), np.float32, queue)
 
 
+def inverse_cl(coeffs, queue=None):
+    """Inverse transform of (T, 2^n, 2^n) (or (2^n, 2^n)) dense coefficients on the device, one
+    launch per level (kernels/haar.cl ``haar_inverse_level``; numpy twin :func:`inverse`):
+    images of the same shape, float32."""
+    where = "haar.inverse_cl"
+    c = np.ascontiguousarray(_float(coeffs, where, "coeffs"), np.float32)
+    single = c.ndim == 2
+    if single:
+        c = c[None]
+    if c.ndim != 3:
+        raise ArgumentError(f"{where}: coeffs must be (T, 2^n, 2^n) or (2^n, 2^n), got shape {c.shape}")
+    n = _levels_of(c, where, "coeffs")
+    T = c.shape[0]
+    if T == 0 or n == 0:   # one pixel: pixel = F^0
+        out = c.copy()
+    else:
+        queue = queue or cl.thread_queue()
+        knl = cl.kernel(cl.program("haar.cl"), "haar_inverse_level")
+        src = cl.to_device(c)
+        bufs = [cl.to_device(np.ascontiguousarray(np.pad(c[:, :1, :1].reshape(T, 1), ((0, 0), (0, c[0].size - 1))))),
+                cl.empty(c.nbytes)]
+        for level in range(n):
+            scale = np.float32(2.0 ** n if level == n - 1 else 1.0)
+            knl(queue, (4 ** level, T), None, src, bufs[0], bufs[1], np.int32(n), np.int32(level), scale)
+            bufs.reverse()
+        out = cl.read(bufs[0], c.shape, np.float32, queue)
+    return out[0] if single else out
+
+
 class ProductPyramids:
     """Eq. 25 on the device for one shared G (the environment) and batches of H.
 

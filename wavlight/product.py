@@ -169,6 +169,18 @@ def node_importance(env, mass, x, y, level, axis, n, kappa, shape):
 LOOKAHEAD_LEVELS = 3  # levels whose child importances sum the grandchildren's (kernels/product.h)
 
 
+def coefficients_per_walk(levels: int, tree_levels: int) -> int:
+    """Product scaling coefficients (eq. 25's first term, one lobe evaluation each) that one
+    walk of product depth ``levels`` computes on a light tree of ``tree_levels`` levels: the
+    four children of the node it visits at each of its first P = min(levels, tree_levels)
+    levels, or their sixteen grandchildren at the LOOKAHEAD_LEVELS coarsest (as
+    :func:`_children` and kernels/product.h ``node_importances``). The walk's sparse share of
+    the product: phong 200 (P = 7) computes 64, against the 4^7 = 16 384 leaves of a dense
+    product tree at that depth (wavlight.haar.ProductPyramids)."""
+    p = min(int(levels), int(tree_levels))
+    return sum(16 if (l < LOOKAHEAD_LEVELS and l + 2 <= tree_levels) else 4 for l in range(p))
+
+
 def _children(tree, env, x, y, level, axis, n, kappa, shape, n_levels, base):
     cside = 2 << level
     first = base + level_offset(level + 1) + (2 * y) * cside + 2 * x

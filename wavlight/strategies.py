@@ -207,15 +207,21 @@ class LightStrategy(Strategy):
         return self.pdf_directions(wi_world)
 
     def info(self):
-        return tree_info(self.tree, self.tv)
+        return tree_info(self.tree, self.tv, self.env)
 
 
-def tree_info(tree: HaarTree, tv) -> dict:
+def tree_info(tree: HaarTree, tv, environment) -> dict:
     """--json's light tree entries: leaf grid, bytes of all trees in the buffer, the total
-    variation that chose the depth (None where overridden)."""
+    variation that chose the depth (None where overridden), and the Haar coefficients of the
+    map's luminance that the depth keeps per tree, 4^n (the scaling coefficient and every
+    detail coefficient of the levels above the leaves: a tree of depth n is the map's Haar
+    expansion cut below level n), against the 4^N of the map's full square (depth N,
+    Environment.square_levels)."""
     side = 1 << tree.n_levels
     return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(tree.stride * tree.n_trees * 4),
-            "light_tree_tv": None if tv is None else round(tv, 5)}
+            "light_tree_tv": None if tv is None else round(tv, 5),
+            "light_coefficients_kept": 4 ** tree.n_levels,
+            "light_coefficients_full": 4 ** environment.square_levels()}
 
 
 class WaveletStrategy(Strategy):
@@ -346,11 +352,13 @@ class WaveletStrategy(Strategy):
         return self.candidates - bsdf, bsdf
 
     def info(self):
-        return {**tree_info(self.trees, self.tv), "wavelet_candidates": self.candidates,
+        return {**tree_info(self.trees, self.tv, self.env), "wavelet_candidates": self.candidates,
                 "wavelet_control_variate": bool(self.candidates and self.control_variate),
                 "product_levels": dict(zip(self.names, self.levels.tolist())),
                 "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
                 "product_light_tree": dict(zip(self.names, [self.tree_kinds[i] for i in self.tree_index])),
+                "product_coefficients_per_walk": dict(zip(self.names, [
+                    product.coefficients_per_walk(p, self.trees.n_levels) for p in self.levels.tolist()])),
                 "memory_bytes": int(self.trees.stride * self.trees.n_trees * 4)}
 
 

@@ -1,0 +1,81 @@
+"""Haar machinery timings (numpy, wavlight/haar.py): the double and triple product integrals
+(sec. 4.2, Ng et al. 2004) against the number of coefficients, to show how their cost grows.
+
+Dense: three random (2^n x 2^n) coefficient sets, n = 5..10 (4^n coefficients each).
+Sparse: each set compressed to its K largest coefficients (compress_topk) of one 1024 x 1024
+random image with a power-law spectrum (as real maps have), K = 10^3 .. 10^6 (the module notes
+give the sparse cost as O(K n log K): the indices are matched by sorting, and every wavelet
+two sets share walks its n ancestors). Reports seconds (best of 3), nanoseconds per
+coefficient and, for the sparse triple product, per shared wavelet and level: the share
+of shared wavelets grows with K (three top-K sets of one size overlap more as K nears 4^n),
+so the cost per kept coefficient grows with it while the cost per shared wavelet and
+level stays flat.
+Prints one JSON object.
+
+    python benchmarks/haar_bench.py [--max-level 10]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+
+def best_of(fn, repeat=3):
+    fn()
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def power_law_image(rng, n):
+    """A random 2^n x 2^n image whose spectrum falls as 1/f (positive, like a light probe)."""
+    side = 1 << n
+    f = np.fft.fftfreq(side)
+    amp = 1.0 / np.maximum(np.hypot(*np.meshgrid(f, f)), 1.0 / side)
+    field = np.fft.ifft2(amp * np.exp(2j * np.pi * rng.random((side, side)))).real
+    return np.exp(3 * field / field.std())
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--max-level", type=int, default=10)
+    args = ap.parse_args()
+    from wavlight import haar
+
+    rng = np.random.default_rng(3)
+    out = {"dense": {}, "sparse": {}}
+    for n in range(5, args.max_level + 1):
+        g, h, k = (rng.standard_normal((1 << n, 1 << n)) for _ in range(3))
+        t3 = best_of(lambda: haar.triple_product_integral(g, h, k))
+        t2 = best_of(lambda: haar.double_product_integral(g, h))
+        c = 4 ** n
+        out["dense"][str(n)] = {"coefficients": c, "triple_seconds": round(t3, 6), "double_seconds": round(t2, 6),
+                                "triple_ns_per_coefficient": round(1e9 * t3 / c, 2),
+                                "double_ns_per_coefficient": round(1e9 * t2 / c, 2)}
+    n = args.max_level
+    dense = [haar.forward(power_law_image(rng, n)) for _ in range(3)]
+    for kept in (10 ** 3, 10 ** 4, 10 ** 5, 10 ** 6):
+        if kept > 4 ** n:
+            break
+        g, h, k = (haar.compress_topk(d, kept) for d in dense)
+        t3 = best_of(lambda: haar.triple_product_integral(g, h, k))
+        t2 = best_of(lambda: haar.double_product_integral(g, h))
+        # the wavelets two sets share (case 3 walks each one's ancestors: n lookups)
+        c = [haar._canon(s) for s in (g, h, k)]
+        common = sum(len(haar._common(*a, *b)[0]) for a, b in ((c[0], c[1]), (c[0], c[2]), (c[1], c[2])))
+        out["sparse"][str(kept)] = {"levels": n, "common_wavelets": common,
+                                    "triple_seconds": round(t3, 6), "double_seconds": round(t2, 6),
+                                    "triple_ns_per_coefficient": round(1e9 * t3 / kept, 2),
+                                    "triple_ns_per_common_wavelet_and_level": round(1e9 * t3 / max(common * n, 1), 2),
+                                    "double_ns_per_coefficient": round(1e9 * t2 / kept, 2)}
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
