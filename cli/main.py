@@ -80,15 +80,19 @@ def _exit_code(*args, **kwargs):
 
 def _check_output(path, formats):
     """Before rendering: a known extension, a folder that exists and can be written."""
+    if os.path.isdir(path):
+        _fail(f"{path}: is a folder, not an image file")
     if os.path.splitext(path)[1].lower() not in formats:
         _fail(f"{path}: unsupported output format (use {', '.join(formats)})")
     folder = os.path.dirname(os.path.abspath(path))
-    if os.path.isdir(path):
-        _fail(f"{path}: is a folder, not an image file")
     if not os.path.isdir(folder):
         _fail(f"{path}: no folder {folder}")
     if not os.access(folder, os.W_OK):
         _fail(f"{path}: cannot write into {folder}")
+    # the file is replaced by a rename, which a read-only file would not stop: refuse a file that
+    # its owner cannot write or that has no write permission at all (also for root)
+    if os.path.isfile(path) and (not os.access(path, os.W_OK) or not os.stat(path).st_mode & 0o222):
+        _fail(f"{path}: the file exists and is read-only")
 
 
 @main.command()
@@ -104,10 +108,11 @@ def _check_output(path, formats):
 @click.option("--height", type=int, default=None, help="Image height in pixels.")
 @click.option("--seed", type=int, default=None, help="Random seed.")
 @click.option("--wavelet-levels", type=click.IntRange(0, 11), default=None,
-              help="Product depth of the wavelet strategy (default: per material, from its lobe).")
-@click.option("--wavelet-candidates", type=click.IntRange(0, 64), default=None,
-              help="wavelet: resampling candidates per shading sample (0: the MIS pair of one product and "
-                   "one BSDF sample; default 8).")
+              help="Product depth of the wavelet strategy for every material, at most the light tree's "
+                   "depth (deeper is cut to it; 0: the light tree alone). Default: per material, from its lobe.")
+@click.option("--wavelet-candidates", type=click.IntRange(0, 64), default=None, metavar="0|2..64",
+              help="wavelet: resampling candidates per shading sample, 2..64 (0: the MIS pair of one product "
+                   "and one BSDF sample; default 8).")
 @click.option("--wavelet-control-variate/--no-wavelet-control-variate", default=True,
               help="wavelet with candidates: carry the candidates' unshadowed estimate as a control "
                    "variate (default on; unbiased either way).")
@@ -126,7 +131,7 @@ def _check_output(path, formats):
 @click.option("--stderr-out", "stderr_out", default=None, metavar="FILE",
               help="Also write each pixel's standard error of the mean (linear: .exr .hdr .pfm; needs spp >= 2).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
 def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, wavelet_candidates,
            wavelet_control_variate, light_levels,
            sir_candidates,
@@ -147,12 +152,11 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
         _check_output(stderr_out, LINEAR)
         if os.path.abspath(stderr_out) == os.path.abspath(output):
             _fail(f"{stderr_out}: --stderr-out must differ from the output image")
-    for name, value, lo in (("--spp", spp, 1), ("--width", width, 1), ("--height", height, 1),
-                            ("--seed", seed, 0)):
-        if value is not None and value < lo:
-            _fail(f"{name} must be at least {lo}, got {value}")
-    if seed is not None and seed > 2 ** 63 - 1:
-        _fail(f"--seed must be at most 2^63 - 1, got {seed}")
+    from wavlight.scene import MAX_SIDE, MAX_SPP
+    for name, value, lo, hi in (("--spp", spp, 1, MAX_SPP), ("--width", width, 1, MAX_SIDE),
+                                ("--height", height, 1, MAX_SIDE), ("--seed", seed, 0, 2 ** 63 - 1)):
+        if value is not None and not lo <= value <= hi:
+            _fail(f"{name} must be between {lo} and {hi}, got {value}")
     try:
         scene = wavlight.load_scene(scene_file)
         if scene.environment.is_black:

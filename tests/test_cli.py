@@ -522,6 +522,21 @@ def test_stderr_out_bad_use_is_one_line(tmp_path, args, name):
     assert_clean_failure(o, name, output=out, folder=tmp_path)
 
 
+def test_output_that_is_a_folder_or_read_only_is_refused(tmp_path):
+    """-o naming a folder says so (before the extension check), and a read-only output file is
+    refused, not replaced by the atomic rename; both in one line, leaving them as they were."""
+    scene = write_scene(tmp_path, scene_text())
+    folder = tmp_path / "sub"
+    folder.mkdir()
+    assert_clean_failure(run_inproc("render", scene, "-o", folder), "is a folder")
+    assert folder.is_dir()
+    locked = tmp_path / "locked.exr"
+    locked.write_bytes(b"keep")
+    locked.chmod(0o444)
+    assert_clean_failure(run_inproc("render", scene, "-o", locked), "read-only")
+    assert locked.read_bytes() == b"keep"
+
+
 def test_overflowed_render_is_one_line_and_writes_nothing(tmp_path, monkeypatch):
     """Finite, bounded inputs can still overflow an estimate (a near-mirror lobe seen by uniform
     sampling under a sun of 1e30): the command says so, in one line, and writes nothing."""

@@ -109,4 +109,6 @@ def test_light_levels_follow_the_content():
         assert n == top or tv <= 0.01
         assert n == 2 or _tv(env, n - 1) > 0.01
         chosen[name] = n
+        for m in (2, 4, top - 1, top, top + 1):   # the measure also for a depth set by hand
+            assert env.tree_tv(m) == pytest.approx(_tv(env, min(m, top)), rel=1e-4, abs=1e-12)
     assert chosen["smooth"] < chosen["sun"] == top, chosen

@@ -991,6 +991,8 @@ def test_scene_keys_choose_the_trees_and_flags_override_them(tmp_path):
     path = _default_scene_with(tmp_path, "light_levels = 3\nwavelet_levels = 1\n")
     st = wavlight.render_full(str(path), spp=1, strategy="wavelet", width=8, height=6).stats
     assert st["light_tree"] == "8x8" and st["light_coefficients_kept"] == 64
+    env = wavlight.load_scene(str(path)).environment
+    assert st["light_tree_tv"] == round(env.tree_tv(3), 5) and st["light_tree_tv"] > 0.01   # (set by hand)
     assert list(st["product_levels"].values()) == [1, 1, 1]
     assert list(st["product_coefficients_per_walk"].values()) == [16, 16, 16]   # level 0's look-ahead
     out = tmp_path / "w.pfm"

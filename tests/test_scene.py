@@ -493,6 +493,7 @@ BAD = {
     "procedural unknown": ('[environment]\nprocedural = "clouds"\n', "[environment].procedural"),
     "sun_radius zero": (SKY + 'sun_radius = 0.0\n', "[environment].sun_radius"),
     "sun_radius past 90": (SKY + 'sun_radius = 120.0\n', "[environment].sun_radius"),
+    "sun_elevation past 90": (SKY + 'sun_elevation = 500.0\n', "[environment].sun_elevation"),
     "sun_radiance past 1e30": (SKY + 'sun_radiance = 1e31\n', "[environment].sun_radiance"),
     "sun_radiance negative": (SKY + 'sun_radiance = -5.0\n', "[environment].sun_radiance"),
     "sun_elevation string": (SKY + 'sun_elevation = "high"\n', "[environment].sun_elevation"),

@@ -240,24 +240,39 @@ class Environment:
         :meth:`square_levels` (a smooth overcast map needs few levels, a tiny sun all of
         them). Returns (n, that distance).
         """
+        top = self.square_levels()
+        tv_of = self._tree_tvs()
+        for n in range(2, top):
+            tv = tv_of(n)
+            if tv <= tolerance:
+                return n, tv
+        return top, 0.0
+
+    def tree_tv(self, n: int) -> float:
+        """The total variation a light tree of depth n leaves (:meth:`light_levels`' measure; 0
+        at the full depth and deeper): --json's ``light_tree_tv`` also where the depth is set
+        by hand."""
+        return self._tree_tvs()(n)
+
+    def _tree_tvs(self):
+        """n -> 0.5 sum |p_full - p_n| over the finest leaves, p_n the depth-n leaves spread
+        evenly over the finest ones (float32 tree, as the walk's)."""
         from .distributions import build_reference, level_offset
 
         top = self.square_levels()
         full = build_reference(self.luminance_square(top))[0].astype(np.float64)
         total = full[0]
-        if not total > 0:
-            return top, 0.0
-        p = full[level_offset(top):] / total
         side = 1 << top
-        p_img = p.reshape(side, side)
-        for n in range(2, top):
+        p_img = full[level_offset(top):].reshape(side, side) / total if total > 0 else None
+
+        def tv(n):
+            if p_img is None or n >= top:
+                return 0.0
             k = 1 << (top - n)
             blocks = p_img.reshape(1 << n, k, 1 << n, k)
             coarse = blocks.sum(axis=(1, 3)) / (k * k)
-            tv = 0.5 * float(np.abs(blocks - coarse[:, None, :, None]).sum())
-            if tv <= tolerance:
-                return n, tv
-        return top, 0.0
+            return 0.5 * float(np.abs(blocks - coarse[:, None, :, None]).sum())
+        return tv
 
     def luminance_square(self, n_levels: int | None = None, compensated: bool = False) -> np.ndarray:
         """(2^n, 2^n) float64 leaf masses: the exact integral of luminance over each leaf's solid angle.

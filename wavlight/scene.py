@@ -4,7 +4,7 @@ Every key of the scene format is accepted as written there. wavlight adds:
 
 - ``[environment] procedural = "sky"`` instead of ``file``: the built-in sky
   (:func:`wavlight.envmap.procedural_sky`) with optional ``sun_elevation``,
-  ``sun_azimuth`` (degrees; azimuth from -Z towards +X), ``sun_radius`` (degrees, at most 90,
+  ``sun_azimuth`` (degrees, elevation in [-90, 90]; azimuth from -Z towards +X), ``sun_radius`` (degrees, at most 90,
   default 0.75) and ``sun_radiance`` (default 2e4). ``scale`` and ``rotate_y`` apply.
 - ``[[objects]]`` without ``material`` get a grey lambert (albedo 0.5).
 - ``[render] wavelet_levels = P``: the wavelet strategy's product depth for every
@@ -481,6 +481,8 @@ def _environment(t: _Table, base) -> Environment:
             t.fail("procedural", f"unknown procedural environment {kind!r} (sky)")
         kw = {k: t.get(k, "float") for k in ("sun_elevation", "sun_azimuth", "sun_radius", "sun_radiance")
               if t.has(k)}
+        if not -90 <= kw.get("sun_elevation", 0.0) <= 90:
+            t.fail("sun_elevation", "must be in [-90, 90] degrees")
         if not 0 < kw.get("sun_radius", 1.0) <= 90:
             t.fail("sun_radius", "must be in (0, 90] degrees")
         if kw.get("sun_radiance", 1.0) < 0:

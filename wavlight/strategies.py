@@ -178,11 +178,13 @@ class LightStrategy(Strategy):
         self.compensated = compensated   # only as one technique of MIS (MisCompensatedStrategy)
 
     def depth(self, environment):
-        """The light tree's depth n (2^n x 2^n leaves) and the total variation that chose it
-        (Environment.light_levels; None where --light-levels overrides it)."""
+        """The light tree's depth n (2^n x 2^n leaves) and the total variation it leaves
+        (Environment.light_levels, which chooses n by it; Environment.tree_tv where
+        --light-levels sets n, cut to the map's full depth)."""
         if self.override is None:
             return environment.light_levels()
-        return min(max(int(self.override), 1), environment.square_levels()), None
+        n = min(max(int(self.override), 1), environment.square_levels())
+        return n, environment.tree_tv(n)
 
     def prepare(self, environment, materials=()):
         self.env = environment
@@ -212,14 +214,14 @@ class LightStrategy(Strategy):
 
 def tree_info(tree: HaarTree, tv, environment) -> dict:
     """--json's light tree entries: leaf grid, bytes of all trees in the buffer, the total
-    variation that chose the depth (None where overridden), and the Haar coefficients of the
+    variation the depth leaves, and the Haar coefficients of the
     map's luminance that the depth keeps per tree, 4^n (the scaling coefficient and every
     detail coefficient of the levels above the leaves: a tree of depth n is the map's Haar
     expansion cut below level n), against the 4^N of the map's full square (depth N,
     Environment.square_levels)."""
     side = 1 << tree.n_levels
     return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(tree.stride * tree.n_trees * 4),
-            "light_tree_tv": None if tv is None else round(tv, 5),
+            "light_tree_tv": round(float(tv), 5),
             "light_coefficients_kept": 4 ** tree.n_levels,
             "light_coefficients_full": 4 ** environment.square_levels()}
 
