@@ -85,13 +85,19 @@ def main():
              else cl.to_device(tree.device_nodes()) if "Morton" in old_common   # node 0 first
              else cl.to_device(tree.nodes())}   # row-major before the Morton layout
     materials = benchmark_materials()
+    # each version's work-groups as it launched its walks: cl.WALK_WORK_GROUP since the
+    # fourteenth session, cl.WORK_GROUP (64) before
+    found = re.search(r"^WALK_WORK_GROUP = (\d+)", git_show(args.against, "wavlight/cl.py"), re.M)
+    groups = {"before": int(found.group(1)) if found else 64, "now": cl.WALK_WORK_GROUP}
     runs, outputs = {}, {}
     for ver in ("before", "now"):
         prog = old_program if ver == "before" else cl.program
         angles_fn = old_angles if ver == "before" else None
         tree_buf = trees[ver]
+        group = groups[ver]
         w = pcl.Kernel(prog("warp.cl", N_LEVELS=args.levels, BATCHED=0), "warp_sample")
-        runs[("light", ver)] = lambda w=w, tree_buf=tree_buf: w(q, (items,), (cl.WORK_GROUP,), tree_buf, np.uint64(tree.stride),
+        runs[("light", ver)] = lambda w=w, tree_buf=tree_buf, group=group: w(q, (items,), (group,), tree_buf,
+                                                                           np.uint64(tree.stride),
                                              np.uint32(n), np.uint32(n), u_buf, np.uint32(2), uv_buf, pdf_buf)
         for name, (kind, param) in materials.items():
             kappa = product.lobe_kappa(kind, param)
@@ -102,7 +108,7 @@ def main():
             kargs = (tree_buf, rot, np.uint32(n), n_buf, wo_buf, mat_buf, cl.to_device(np.array([kappa], np.float32)),
                      cl.to_device(np.array([depth + 256 * shape], np.int32)), u_buf, np.uint32(2),
                      *([cl.to_device(angles_fn(depth))] if angles_fn else []), uv_buf, pdf_buf)
-            runs[(name, ver)] = lambda k=k, kargs=kargs: k(q, (items,), (cl.WORK_GROUP,), *kargs)
+            runs[(name, ver)] = lambda k=k, kargs=kargs, group=group: k(q, (items,), (group,), *kargs)
     for key, f in runs.items():   # compile and warm up, keep the outputs
         f()
         q.finish()
@@ -114,7 +120,7 @@ def main():
             f()
             q.finish()
             best[key] = min(best.get(key, 9.0), time.perf_counter() - t)
-    out = {"against": args.against, "levels": args.levels, "count": n, "repeat": args.repeat,
+    out = {"against": args.against, "levels": args.levels, "work_groups": groups, "count": n, "repeat": args.repeat,
            "device": cl.runtime().description,
            "M_samples_per_second": {name: {"before": round(n / best[(name, "before")] / 1e6, 1),
                                            "now": round(n / best[(name, "now")] / 1e6, 1),

@@ -82,7 +82,8 @@ def main():
     rt = cl.runtime()
     q = cl.thread_queue()
     n = args.count
-    # eight points per work-item (kernels/simd.h), work-groups of cl.WORK_GROUP as the renderer launches them
+    # eight points per work-item (kernels/simd.h); work-groups of cl.WALK_WORK_GROUP for the kernels
+    # with level barriers (HaarTree.sample's), of cl.WORK_GROUP for the walks without (the renderer's)
     items = cl.items(n, cl.LANES)
     rng = np.random.default_rng(1)
     n4, wo4, u = random_shading_points(rng, n)
@@ -104,7 +105,7 @@ def main():
         warp = cl.kernel(cl.program("warp.cl", N_LEVELS=n_levels, BATCHED=0), "warp_sample")
 
         def light():
-            warp(q, (cl.items(n, cl.LANES),), (cl.WORK_GROUP,), tree.buffer, np.uint64(tree.stride), np.uint32(n), np.uint32(n),
+            warp(q, (cl.items(n, cl.LANES),), (cl.WALK_WORK_GROUP,), tree.buffer, np.uint64(tree.stride), np.uint32(n), np.uint32(n),
                  u_buf, np.uint32(2), uv_buf, pdf_buf)
             q.finish()
         row["light_samples_per_second"] = round(n / best_of(light))
@@ -117,8 +118,8 @@ def main():
             prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth, LOBE_SHAPES=1 << shape)
             knl = cl.kernel(prog, "product_sample_points")
 
-            def launch(nb, wb, ub, knl=knl):
-                knl(q, (items,), (cl.WORK_GROUP,), tree.buffer, rot, np.uint32(n), nb, wb, mat_buf, kappa_buf,
+            def launch(nb, wb, ub, knl=knl, group=cl.WALK_WORK_GROUP):
+                knl(q, (items,), (group,), tree.buffer, rot, np.uint32(n), nb, wb, mat_buf, kappa_buf,
                     code_buf, ub, np.uint32(2), uv_buf, pdf_buf)
 
             def run():
@@ -141,13 +142,13 @@ def main():
             # renderer's shade kernel runs it
             inline = cl.kernel(cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth,
                                           LOBE_SHAPES=1 << shape, WALK_BARRIERS=0), "product_sample_points")
-            row[name]["without_barriers"] = round(n / best_of(lambda: (launch(n_buf, wo_buf, u_buf, inline),
-                                                                      q.finish())))
+            row[name]["without_barriers"] = round(n / best_of(lambda: (launch(n_buf, wo_buf, u_buf, inline,
+                                                                             cl.WORK_GROUP), q.finish())))
             # PER_POINT samples per shading point in a row, with and without the barriers
             row[name][f"per_point_{PER_POINT}"] = round(n / best_of(lambda: (launch(nc_buf, woc_buf, u_buf),
                                                                            q.finish())))
             row[name][f"per_point_{PER_POINT}_without_barriers"] = round(n / best_of(
-                lambda: (launch(nc_buf, woc_buf, u_buf, inline), q.finish())))
+                lambda: (launch(nc_buf, woc_buf, u_buf, inline, cl.WORK_GROUP), q.finish())))
         out["levels"][str(n_levels)] = row
     # The alternative design: dense per-point product pyramids by eq. 25 (wavlight.haar).
     try:

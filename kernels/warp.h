@@ -107,12 +107,19 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
  * work-items are in flight together. Measured: 0 to +45% at 1024^2 and 2048^2 in
  * interleaved runs (light and product walks; this VM's noise is +-20%; one
  * sample_bench run: -11 to +35%), while barriers at the cached levels cost up to 20%
- * (the live values go through memory at each barrier), hence BARRIER_LEVEL 9. A
+ * (the live values go through memory at each barrier), hence BARRIER_LEVEL 9 at first.
+ * With work-groups of 32 (wavlight.cl.WALK_WORK_GROUP, whose live values then stay in
+ * the cache) level 8 measured better (14th session, eight alternated runs each): against
+ * level 9 with groups of 64, light walk 2048^2 55.2 -> 59.4 M/s, 1024^2 69.9 -> 74.6; product
+ * walks at 2048^2 lambert 31.1 -> 34.9, phong 200 18.5 -> 21.1, ggx 0.2 20.1 -> 22.3,
+ * ggx 0.05 22.1 -> 22.8, at 1024^2 +5 to +14%, at 256^2 and 64^2 within 2%
+ * (benchmarks/kernel_ab.py). (Level 8 with groups of 64 made ggx 0.05 at 2048^2 33%
+ * slower.) A
  * barrier is only legal where every work-item of the group reaches it, so the renderer's shade kernels (walks inside per-lane branches) do
  * without. */
 #if defined(WALK_BARRIERS) && WALK_BARRIERS
 #ifndef BARRIER_LEVEL
-#define BARRIER_LEVEL 9   /* the first level (512^2 nodes) whose step waits at a barrier */
+#define BARRIER_LEVEL 8   /* the first level (256^2 nodes) whose step waits at a barrier */
 #endif
 #define LEVEL_BARRIER(l) do { if ((l) + 1 >= BARRIER_LEVEL) barrier(CLK_LOCAL_MEM_FENCE); } while (0)
 /* The step into level l + 1 also prefetches the children of the node it picked when the

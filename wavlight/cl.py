@@ -44,6 +44,13 @@ INLINE_ENV = "WAVLIGHT_INLINE_BUILTINS"
 # Work-group size of the per-sample kernels (warp, product, shade): PoCL compiles a kernel
 # per work-group size on first launch, so one fixed size keeps it to one compile.
 WORK_GROUP = 64
+# Work-group size of the stand-alone walking kernels with level barriers (warp.cl,
+# product.cl; kernels/warp.h): a smaller group keeps what PoCL stores per work-item at each
+# barrier in the cache. Measured with BARRIER_LEVEL 8 against 64 and level 9 (14th session,
+# eight alternated runs, 2^21 random points): light walk 2048^2 55 -> 59 M/s, product walks
+# at 2048^2 and 1024^2 +3 to +15%, within 2% at 64^2 and 256^2. A divisor of WORK_GROUP, so
+# that items() fits both.
+WALK_WORK_GROUP = 32
 # Points per work-item of the kernels written in vector types (kernels/simd.h: warp,
 # product, shade), passed to every program as -DLANES (8 or 16; 16 measured no faster on
 # an AVX2 CPU).

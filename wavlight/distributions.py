@@ -287,7 +287,7 @@ class HaarTree:
         args = [self.buffer, np.uint64(self.stride)]
         # built per depth (the walk unrolls); BATCHED: a tree per samples_per_tree samples
         prog = cl.program("warp.cl", N_LEVELS=self.n_levels, BATCHED=int(samples_per_tree < n))
-        size = (cl.items(n, cl.LANES),), (cl.WORK_GROUP,)   # eight points per work-item (kernels/simd.h)
+        size = (cl.items(n, cl.LANES),), (cl.WALK_WORK_GROUP,)   # eight points per work-item (kernels/simd.h)
         if name == "warp_sample":
             cl.kernel(prog, name)(queue, *size, *args, np.uint32(samples_per_tree), np.uint32(n), src, np.uint32(2),
                                   uv, pdf)
