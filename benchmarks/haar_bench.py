@@ -9,7 +9,7 @@ two sets share walks its n ancestors). Reports seconds (best of 3), nanoseconds 
 coefficient and, for the sparse triple product, per shared wavelet and level: the share
 of shared wavelets grows with K (three top-K sets of one size overlap more as K nears 4^n),
 so the cost per kept coefficient grows with it while the cost per shared wavelet and
-level stays flat.
+level does not (it falls towards ~100 ns as the fixed costs spread).
 Prints one JSON object.
 
     python benchmarks/haar_bench.py [--max-level 10]

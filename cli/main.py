@@ -90,7 +90,7 @@ def _check_output(path, formats):
     if not os.access(folder, os.W_OK):
         _fail(f"{path}: cannot write into {folder}")
     # the file is replaced by a rename, which a read-only file would not stop: refuse a file that
-    # its owner cannot write or that has no write permission at all (also for root)
+    # the caller cannot write or that has no write permission at all (also for root)
     if os.path.isfile(path) and (not os.access(path, os.W_OK) or not os.stat(path).st_mode & 0o222):
         _fail(f"{path}: the file exists and is read-only")
 

@@ -136,11 +136,13 @@ def test_product_sample_points_kernel_matches_numpy(n_trees, shapes):
 
 def test_breadth_first_walks_match_depth_first():
     """The stand-alone sample kernels wait at a work-group barrier before each step into a
-    level of >= 512^2 nodes (kernels/warp.h BARRIER_LEVEL): the light walk (warp.cl) and the
+    level of >= 256^2 nodes (kernels/warp.h BARRIER_LEVEL): the light walk (warp.cl) and the
     product walk (product.cl) through a 1024^2 tree give the same points and pdfs bit for bit
     with those barriers, with a barrier at every level and without any (the build the numpy
     comparisons above check), for a count that leaves whole work-items past its end (3001
-    points: 376 work-items in 7 groups of 64; an early return there breaks the barriers)."""
+    points: 376 work-items of 384, in 12 groups of cl.WALK_WORK_GROUP = 32 as HaarTree.sample
+    launches them, the build without barriers in 6 of 64 as the renderer; an early return
+    there breaks the barriers)."""
     from wavlight import cl
     from wavlight.distributions import HaarTree
 
@@ -172,7 +174,8 @@ def test_breadth_first_walks_match_depth_first():
                 ("warp.cl", "warp_sample", dict(BATCHED=0), light_args)):
             uv_buf, pdf_buf = cl.empty(8 * count), cl.empty(4 * count)
             prog = cl.program(name, N_LEVELS=n_levels, **defines, **build)
-            cl.kernel(prog, kernel)(q, (items,), (cl.WORK_GROUP,), *args, uv_buf, pdf_buf)
+            group = cl.WORK_GROUP if build.get("WALK_BARRIERS") == 0 else cl.WALK_WORK_GROUP
+            cl.kernel(prog, kernel)(q, (items,), (group,), *args, uv_buf, pdf_buf)
             out += [cl.read(uv_buf, (2, count), np.float32, q), cl.read(pdf_buf, (count,), np.float32, q)]
         results[str(build)] = out
     base = results["{'WALK_BARRIERS': 0}"]

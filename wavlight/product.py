@@ -170,13 +170,16 @@ LOOKAHEAD_LEVELS = 3  # levels whose child importances sum the grandchildren's (
 
 
 def coefficients_per_walk(levels: int, tree_levels: int) -> int:
-    """Product scaling coefficients (eq. 25's first term, one lobe evaluation each) that one
-    walk of product depth ``levels`` computes on a light tree of ``tree_levels`` levels: the
-    four children of the node it visits at each of its first P = min(levels, tree_levels)
-    levels, or their sixteen grandchildren at the LOOKAHEAD_LEVELS coarsest (as
-    :func:`_children` and kernels/product.h ``node_importances``). The walk's sparse share of
-    the product: phong 200 (P = 7) computes 64, against the 4^7 = 16 384 leaves of a dense
-    product tree at that depth (wavlight.haar.ProductPyramids)."""
+    """Product scaling coefficients (eq. 25's first term, one lobe evaluation each) that the
+    choices of one walk of product depth ``levels`` use, on a light tree of ``tree_levels``
+    levels: the four children of the node it visits at each of its first P = min(levels,
+    tree_levels) levels, or their sixteen grandchildren at the LOOKAHEAD_LEVELS coarsest (as
+    :func:`_children` and kernels/product.h ``node_importances``); 4P + 36 for P >= 3 on a
+    tree of 4 levels or more. The walk's sparse share of the product: phong 200 (P = 7) uses
+    64, against the 4^7 = 16 384 leaves of a dense product tree at that depth
+    (wavlight.haar.ProductPyramids). (The kernel, eight walks to a vector, evaluates every
+    lane to the deepest P of the scene's materials, and the resampling estimator computes
+    levels 0 and 1 once per shading point for all its candidates.)"""
     p = min(int(levels), int(tree_levels))
     return sum(16 if (l < LOOKAHEAD_LEVELS and l + 2 <= tree_levels) else 4 for l in range(p))
 
