@@ -13,8 +13,10 @@ importances at the coarse levels (kernels/product.h), for comparison;
 barriers (kernels/warp.h), as the renderer's shade kernel runs it inline. "per_point_16"
 (and without barriers): 16 consecutive samples share each random shading point, as a
 pixel's samples do in the renderer (its eight-lane vectors then walk one lobe). Prints
-one JSON object. Timings are kernel time after a warm-up, best of 3, including
-host<->device copies of inputs and outputs ("with_copies") and without.
+one JSON object. Timings are kernel time after a warm-up, the best of 3 rounds in which
+every figure is timed once in turn (a slow stretch of this shared VM then costs one round
+of many figures, not every repeat of a few), including host<->device copies of inputs
+and outputs ("with_copies") and without.
 
     python benchmarks/sample_bench.py [--env ../shared/data/envmaps/rooitou_park_1k.hdr]
 """
@@ -57,14 +59,39 @@ def benchmark_materials():
 PER_POINT = 16
 
 
-def best_of(fn, repeat=3):
-    fn()
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
+class Rounds:
+    """Timings in interleaved rounds: ``rate(fn, count)`` registers a run (and warms it up:
+    compilation, first touch) and returns a placeholder; ``run()`` times every function
+    registered since the last call once per round, ``repeat`` rounds (the benchmark calls
+    it once per light tree, so that a tree stays as warm in the caches as the renderer
+    keeps it); ``fill(out)`` puts count / best time in place of each placeholder. A slow
+    stretch of this shared VM (seconds long) then costs one round of many figures instead
+    of every repeat of the few timed during it."""
+
+    def __init__(self, repeat=3):
+        self.repeat, self.fns, self.best = repeat, [], []
+
+    def rate(self, fn, count):
         fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
+        self.fns.append(fn)
+        return ("rate", len(self.fns) - 1, count)
+
+    def run(self):
+        first = len(self.best)
+        self.best += [np.inf] * (len(self.fns) - first)
+        for _ in range(self.repeat):
+            for i in range(first, len(self.fns)):
+                t = time.perf_counter()
+                self.fns[i]()
+                self.best[i] = min(self.best[i], time.perf_counter() - t)
+
+    def fill(self, out):
+        self.run()
+        if isinstance(out, dict):
+            return {k: self.fill(v) for k, v in out.items()}
+        if isinstance(out, tuple) and len(out) == 3 and out[0] == "rate":
+            return round(out[2] / self.best[out[1]])
+        return out
 
 
 def main():
@@ -99,16 +126,17 @@ def main():
     out = {"env": os.path.basename(args.env), "count": n, "device": rt.description,
            "shading_points": "random normals and view directions, one sample each", "levels": {}}
     materials = benchmark_materials()
+    rounds = Rounds()
     for n_levels in (6, 8, 10, 11):
         tree = HaarTree(env.luminance_square(n_levels))
         row = {"tree_bytes": tree.stride * 4}
         warp = cl.kernel(cl.program("warp.cl", N_LEVELS=n_levels, BATCHED=0), "warp_sample")
 
-        def light():
+        def light(warp=warp, tree=tree):
             warp(q, (cl.items(n, cl.LANES),), (cl.WALK_WORK_GROUP,), tree.buffer, np.uint64(tree.stride), np.uint32(n), np.uint32(n),
                  u_buf, np.uint32(2), uv_buf, pdf_buf)
             q.finish()
-        row["light_samples_per_second"] = round(n / best_of(light))
+        row["light_samples_per_second"] = rounds.rate(light, n)
         for name, (kind, param) in materials.items():
             kappa = product.lobe_kappa(kind, param)
             depth = product.product_levels(kappa, n_levels)
@@ -118,38 +146,36 @@ def main():
             prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth, LOBE_SHAPES=1 << shape)
             knl = cl.kernel(prog, "product_sample_points")
 
-            def launch(nb, wb, ub, knl=knl, group=cl.WALK_WORK_GROUP):
+            def launch(nb, wb, ub, knl=knl, group=cl.WALK_WORK_GROUP, tree=tree, kappa_buf=kappa_buf,
+                       code_buf=code_buf):
                 knl(q, (items,), (group,), tree.buffer, rot, np.uint32(n), nb, wb, mat_buf, kappa_buf,
                     code_buf, ub, np.uint32(2), uv_buf, pdf_buf)
 
-            def run():
-                launch(n_buf, wo_buf, u_buf)
-                q.finish()
+            def timed(*a, launch=launch, **k):
+                return lambda: (launch(*a, **k), q.finish())
 
-            def run_with_copies():
+            def run_with_copies(launch=launch):
                 launch(cl.to_device(n4), cl.to_device(wo4), cl.to_device(u))
                 cl.read(uv_buf, (2, n), np.float32, q)
                 cl.read(pdf_buf, (n,), np.float32, q)
             row[name] = {"product_depth": depth,
-                         "product_samples_per_second": round(n / best_of(run)),
-                         "with_copies": round(n / best_of(run_with_copies))}
+                         "product_samples_per_second": rounds.rate(timed(n_buf, wo_buf, u_buf), n),
+                         "with_copies": rounds.rate(run_with_copies, n)}
             # the same walk without the look-ahead importances (kernels/product.h)
             plain = cl.kernel(cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth,
                                          LOBE_SHAPES=1 << shape, LOOKAHEAD_LEVELS=0), "product_sample_points")
-            row[name]["without_lookahead"] = round(n / best_of(lambda: (launch(n_buf, wo_buf, u_buf, plain),
-                                                                       q.finish())))
+            row[name]["without_lookahead"] = rounds.rate(timed(n_buf, wo_buf, u_buf, plain), n)
             # the same walk depth-first, without the level barriers (kernels/warp.h): as the
             # renderer's shade kernel runs it
             inline = cl.kernel(cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=depth,
                                           LOBE_SHAPES=1 << shape, WALK_BARRIERS=0), "product_sample_points")
-            row[name]["without_barriers"] = round(n / best_of(lambda: (launch(n_buf, wo_buf, u_buf, inline,
-                                                                             cl.WORK_GROUP), q.finish())))
+            row[name]["without_barriers"] = rounds.rate(timed(n_buf, wo_buf, u_buf, inline, cl.WORK_GROUP), n)
             # PER_POINT samples per shading point in a row, with and without the barriers
-            row[name][f"per_point_{PER_POINT}"] = round(n / best_of(lambda: (launch(nc_buf, woc_buf, u_buf),
-                                                                           q.finish())))
-            row[name][f"per_point_{PER_POINT}_without_barriers"] = round(n / best_of(
-                lambda: (launch(nc_buf, woc_buf, u_buf, inline, cl.WORK_GROUP), q.finish())))
+            row[name][f"per_point_{PER_POINT}"] = rounds.rate(timed(nc_buf, woc_buf, u_buf), n)
+            row[name][f"per_point_{PER_POINT}_without_barriers"] = rounds.rate(
+                timed(nc_buf, woc_buf, u_buf, inline, cl.WORK_GROUP), n)
         out["levels"][str(n_levels)] = row
+        rounds.run()
     # The alternative design: dense per-point product pyramids by eq. 25 (wavlight.haar).
     try:
         from wavlight import haar
@@ -166,12 +192,12 @@ def main():
                 q.finish()
             # on the device, ready for the warp (as a renderer would use them); and through
             # __call__: upload, kernel, read-back and conversion to the host's row-major layout
-            pyr[str(m)] = {"trees_per_second": round(trees / best_of(on_device)),
-                           "with_copies_to_host": round(trees / best_of(lambda: pp(h)))}
+            pyr[str(m)] = {"trees_per_second": rounds.rate(on_device, trees),
+                           "with_copies_to_host": rounds.rate(lambda pp=pp, h=h: pp(h), trees)}
         out["eq25_dense_product_pyramids"] = pyr
     except Exception as e:  # report, do not hide
         out["eq25_dense_product_pyramids"] = {"error": f"{type(e).__name__}: {e}"}
-    print(json.dumps(out, indent=1))
+    print(json.dumps(rounds.fill(out), indent=1))
 
 
 if __name__ == "__main__":
