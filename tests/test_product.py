@@ -959,13 +959,8 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
     """`wavlight render --strategy wavelet --wavelet-levels 2 --json` renders and reports the
     product depth of every material of the default scene: 2 for all three (light trees have
     at least 2 levels, so the override is not clamped)."""
-    out = tmp_path / "w.pfm"
-    p = subprocess.run(_command() + ["render", str(REPO / "scenes" / "default.toml"), "-o", str(out),
-                                     "--strategy", "wavelet", "--wavelet-levels", "2", "--spp", "2",
-                                     "--width", "16", "--height", "12", "--json", "--quiet"],
-                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
-    assert p.returncode == 0, f"exit {p.returncode}\n{p.stdout}\n{p.stderr}"
-    stats_ = json.loads(p.stdout.strip().splitlines()[-1])
+    out, stats_ = _render_json(tmp_path, REPO / "scenes" / "default.toml", "--wavelet-levels", "2", "--spp", "2",
+                               "--width", "16", "--height", "12")
     assert stats_["strategy"] == "wavelet" and stats_["spp"] == 2
     assert "product_levels" in stats_, sorted(stats_)
     levels = stats_["product_levels"]
@@ -973,6 +968,17 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
     assert values == [2, 2, 2], levels
     img = read_image(str(out))
     assert img.shape[:2] == (12, 16) and np.all(np.isfinite(img)) and img.max() > 0
+
+
+def _render_json(tmp_path, scene, *flags):
+    """`wavlight render SCENE -o tmp_path/w.pfm --strategy wavelet FLAGS --json --quiet` in a
+    subprocess: the output's path and the printed statistics (exit code 0 asserted)."""
+    out = tmp_path / "w.pfm"
+    p = subprocess.run(_command() + ["render", str(scene), "-o", str(out), "--strategy", "wavelet", *flags,
+                                     "--json", "--quiet"],
+                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert p.returncode == 0, f"exit {p.returncode}\n{p.stdout}\n{p.stderr}"
+    return out, json.loads(p.stdout.strip().splitlines()[-1])
 
 
 def _default_scene_with(tmp_path, render_keys: str) -> Path:
@@ -995,13 +1001,8 @@ def test_scene_keys_choose_the_trees_and_flags_override_them(tmp_path):
     assert st["light_tree_tv"] == round(env.tree_tv(3), 5) and st["light_tree_tv"] > 0.01   # (set by hand)
     assert list(st["product_levels"].values()) == [1, 1, 1]
     assert list(st["product_coefficients_per_walk"].values()) == [16, 16, 16]   # level 0's look-ahead
-    out = tmp_path / "w.pfm"
-    p = subprocess.run(_command() + ["render", str(path), "-o", str(out), "--strategy", "wavelet",
-                                     "--light-levels", "2", "--wavelet-levels", "2", "--spp", "1",
-                                     "--width", "8", "--height", "6", "--json", "--quiet"],
-                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
-    assert p.returncode == 0, f"exit {p.returncode}\n{p.stdout}\n{p.stderr}"
-    st = json.loads(p.stdout.strip().splitlines()[-1])
+    _, st = _render_json(tmp_path, path, "--light-levels", "2", "--wavelet-levels", "2", "--spp", "1",
+                         "--width", "8", "--height", "6")
     assert st["light_tree"] == "4x4" and st["light_coefficients_kept"] == 16
     assert list(st["product_levels"].values()) == [2, 2, 2]
 
