@@ -20,7 +20,8 @@ relMSE(s) * t_strategy(s) / t_mis(s), where t (the median over seeds, strategies
 rendered in turn seed by seed) includes each render's setup (light tree, product
 tables) but not the once-per-process kernel compilation.
 --sampler stratified renders the compared images with stratified pixel samples.
---candidates M gives the wavelet strategy M resampling candidates instead of its default
+--candidates M gives the wavelet strategy M resampling candidates instead of its default;
+--slots S (2 or 4) its directions (shadow rays) per sample.
 (strategies.DEFAULT_CANDIDATES).
 --floor D estimates, per spp, the pixel-footprint floor: the relMSE left when every
 pixel sample is shaded exactly (no direction noise), from an image whose pixel
@@ -30,7 +31,7 @@ wavelet / mis ratio from below. Prints one JSON object (and writes it to
 --out if given).
 
     python benchmarks/relmse.py [--spp 4,16,64] [--seeds 3] [--size 128] [--ref-spp 1024]
-                                [--sampler independent|stratified] [--floor D] [--candidates M]
+                                [--sampler independent|stratified] [--floor D] [--candidates M] [--slots S]
 """
 from __future__ import annotations
 
@@ -134,6 +135,8 @@ def main():
                     help="also estimate the footprint floor with D directions per pixel sample")
     ap.add_argument("--candidates", type=int, default=None, metavar="M",
                     help="the wavelet strategy's resampling candidates (default: the library's)")
+    ap.add_argument("--slots", type=int, default=None, choices=(2, 4),
+                    help="the wavelet strategy's directions per sample (default: the library's)")
     ap.add_argument("--out", default="")
     args = ap.parse_args()
     if not os.path.isdir(DATA):
@@ -150,7 +153,7 @@ def main():
         wavlight.render_full(warm, spp=1, strategy=strategy, width=8, height=8)
     results = {"size": args.size, "ref_spp": args.ref_spp, "seeds": args.seeds, "spp": spps,
                "sampler": args.sampler, "floor_directions": args.floor,
-               "wavelet_candidates": args.candidates, "scenes": {}}
+               "wavelet_candidates": args.candidates, "wavelet_slots": args.slots, "scenes": {}}
     tmp = tempfile.mkdtemp(prefix="wavlight-relmse-")
     for name, text in scenes():
         if args.only and args.only not in name:
@@ -164,7 +167,7 @@ def main():
         # this scene's variants before timing (once per process and configuration)
         for strategy in STRATEGIES:
             wavlight.render_full(scene, spp=1, strategy=strategy, width=8, height=8, sampler=args.sampler,
-                                 wavelet_candidates=args.candidates)
+                                 wavelet_candidates=args.candidates, wavelet_slots=args.slots)
         ref = wavlight.render_full(scene, spp=args.ref_spp, strategy="mis", seed=10_000, **kw)
         row = {"reference_seconds": ref.stats["render_seconds"], **{s: {} for s in STRATEGIES}}
         for spp in spps:
@@ -174,7 +177,7 @@ def main():
             for seed in range(args.seeds):
                 for strategy in STRATEGIES:
                     r = wavlight.render_full(scene, spp=spp, strategy=strategy, seed=seed, sampler=args.sampler,
-                                             wavelet_candidates=args.candidates, **kw)
+                                             wavelet_candidates=args.candidates, wavelet_slots=args.slots, **kw)
                     errs[strategy].append(relmse(r.image, ref.image, ref.stderr))
                     secs[strategy].append(r.stats["setup_seconds"] + r.stats["render_seconds"])
             for strategy in STRATEGIES:

@@ -113,6 +113,9 @@ def _check_output(path, formats):
 @click.option("--wavelet-candidates", type=click.IntRange(0, 64), default=None, metavar="0|2..64",
               help="wavelet: resampling candidates per shading sample, 2..64 (0: the MIS pair of one product "
                    "and one BSDF sample; default 8).")
+@click.option("--wavelet-slots", type=click.Choice(["2", "4"]), default=None,
+              help="wavelet with candidates: directions resampled per shading sample, one shadow ray "
+                   "each (default 2; 4 halves the visibility's noise for two more rays).")
 @click.option("--wavelet-control-variate/--no-wavelet-control-variate", default=True,
               help="wavelet with candidates: carry the candidates' unshadowed estimate as a control "
                    "variate (default on; unbiased either way).")
@@ -133,7 +136,7 @@ def _check_output(path, formats):
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
 def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, wavelet_candidates,
-           wavelet_control_variate, light_levels,
+           wavelet_slots, wavelet_control_variate, light_levels,
            sir_candidates,
            sir_samples, structured_strata, structured_mode, sampler, stderr_out, as_json, quiet):
     """Render SCENE (a TOML scene file) to an image."""
@@ -168,6 +171,7 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
                                       seed=seed, progress=bar, wavelet_levels=wavelet_levels,
                                       wavelet_candidates=wavelet_candidates,
+                                      wavelet_slots=None if wavelet_slots is None else int(wavelet_slots),
                                       wavelet_control_variate=wavelet_control_variate,
                                       light_levels=light_levels, sir_candidates=sir_candidates,
                                       sir_samples=sir_samples, structured_strata=structured_strata,

@@ -93,6 +93,12 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
 #define RIS_CONTROL_VARIATE 1
 #endif
 #define RIS_CANDIDATES (RIS_PRODUCT + RIS_BSDF)
+#ifndef RIS_SLOTS
+#define RIS_SLOTS 2   /* directions resampled per shading sample, one shadow ray each: 2 or 4 */
+#endif
+#if RIS_SLOTS != 2 && RIS_SLOTS != 4
+#error "RIS_SLOTS is 2 or 4"
+#endif
 #define R2_FIXED_X 12664746u
 #define R2_FIXED_Y 9560334u
 
@@ -113,12 +119,24 @@ inline realv shifted_uniform(const realv u, const uint fixed_offset)
 }
 #endif
 
-/* Two directions (slot a, slot b) and their unoccluded estimates (r, g, b) per lane, and
- * the part of the estimate that needs no shadow ray (o: the resampling estimator's control
- * variate, zero otherwise). */
+/* Slots per shading sample: two (every strategy), or four for the resampling estimator
+ * built with RIS_SLOTS 4. */
+#if defined(RIS_PRODUCT) && RIS_SLOTS == 4
+#define SLOTS 4
+#else
+#define SLOTS 2
+#endif
+
+/* Two directions (slot a, slot b; with SLOTS 4 also c and d) and their unoccluded estimates
+ * (r, g, b) per lane, and the part of the estimate that needs no shadow ray (o: the
+ * resampling estimator's control variate, zero otherwise). */
 typedef struct {
     realv ax, ay, az, bx, by, bz;
     realv ra, ga, ba, rb, gb, bb;
+#if SLOTS == 4
+    realv c_x, c_y, c_z, d_x, d_y, d_z;
+    realv rc, gc, bc, rd, gd, bd;
+#endif
     realv o_r, o_g, o_b;
 } Shaded;
 
@@ -141,6 +159,9 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     /* slot a (and b): world direction, scalar f / pdf (x MIS weight) */
     realv ax = 0.0f, ay = 0.0f, az = 0.0f, sa = 0.0f;
     realv bx = 0.0f, by = 0.0f, bz = 0.0f, sb = 0.0f;
+#if SLOTS == 4
+    realv c_x = 0.0f, c_y = 0.0f, c_z = 0.0f, sc = 0.0f, d_x = 0.0f, d_y = 0.0f, d_z = 0.0f, sd = 0.0f;
+#endif
     realv cv_r = 0.0f, cv_g = 0.0f, cv_b = 0.0f;   /* U, the control variate (RIS) */
     intv ris_finite = -1;                          /* both slots' scalars finite (RIS) */
 #if STRATEGY == 5
@@ -194,6 +215,12 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         const realv ta = u2 * total, tb = select(u2 + 0.5f, u2 - 0.5f, u2 >= 0.5f) * total;
         realv cum = 0.0f, la = 0.0f, lb = 0.0f;
         intv found_a = 0, found_b = 0;
+#if SLOTS == 4   /* slots c and d at u.z + 1/4 and u.z + 3/4 */
+        const realv tc = select(u2 + 0.25f, u2 - 0.75f, u2 >= 0.75f) * total;
+        const realv td = select(u2 + 0.75f, u2 - 0.25f, u2 >= 0.25f) * total;
+        realv lc = 0.0f, ld = 0.0f;
+        intv found_c = 0, found_d = 0;
+#endif
 #pragma unroll 1
         for (int j = 0; j < RIS_CANDIDATES; ++j) {
             cum += cw[j];
@@ -207,10 +234,26 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
             lb = select(lb, cl[j], take_b);
             found_a |= take_a;
             found_b |= take_b;
+#if SLOTS == 4
+            const intv take_c = !found_c & ((pos & (cum >= tc)) | last);
+            const intv take_d = !found_d & ((pos & (cum >= td)) | last);
+            c_x = select(c_x, cx[j], take_c); c_y = select(c_y, cy[j], take_c); c_z = select(c_z, cz[j], take_c);
+            d_x = select(d_x, cx[j], take_d); d_y = select(d_y, cy[j], take_d); d_z = select(d_z, cz[j], take_d);
+            lc = select(lc, cl[j], take_c);
+            ld = select(ld, cl[j], take_d);
+            found_c |= take_c;
+            found_d |= take_d;
+#endif
         }
-        sa = select((realv)0.0f, 0.5f * total / la, (total > 0.0f) & (la > 0.0f));
-        sb = select((realv)0.0f, 0.5f * total / lb, (total > 0.0f) & (lb > 0.0f));
+        const float share = 1.0f / (float)SLOTS;   /* each slot's part of sum(w) */
+        sa = select((realv)0.0f, share * total / la, (total > 0.0f) & (la > 0.0f));
+        sb = select((realv)0.0f, share * total / lb, (total > 0.0f) & (lb > 0.0f));
         ris_finite = isfinite(sa) & isfinite(sb);
+#if SLOTS == 4
+        sc = select((realv)0.0f, share * total / lc, (total > 0.0f) & (lc > 0.0f));
+        sd = select((realv)0.0f, share * total / ld, (total > 0.0f) & (ld > 0.0f));
+        ris_finite &= isfinite(sc) & isfinite(sd);
+#endif
     }
 #elif STRATEGY >= 3
     {   /* the light (light, mis) or product (wavelet) sample from u.xy */
@@ -299,17 +342,40 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     s.rb = sb * ar * tb_r;
     s.gb = sb * ag * tb_g;
     s.bb = sb * ab * tb_b;
+#if SLOTS == 4
+    {
+        sc = select((realv)0.0f, sc, live & (sc > 0.0f) & isfinite(sc));
+        sd = select((realv)0.0f, sd, live & (sd > 0.0f) & isfinite(sd));
+        realv uc, vc, ud, vd, tc_r, tc_g, tc_b, td_r, td_g, td_b;
+        env_world_to_square(rot, c_x, c_y, c_z, &uc, &vc);
+        env_world_to_square(rot, d_x, d_y, d_z, &ud, &vd);
+        GATHER4(texels, 4 * env_texel(env_w, env_h, uc, vc), &tc_r, &tc_g, &tc_b, &unused);
+        GATHER4(texels, 4 * env_texel(env_w, env_h, ud, vd), &td_r, &td_g, &td_b, &unused);
+        s.c_x = c_x; s.c_y = c_y; s.c_z = c_z; s.d_x = d_x; s.d_y = d_y; s.d_z = d_z;
+        s.rc = sc * ar * tc_r; s.gc = sc * ag * tc_g; s.bc = sc * ab * tc_b;
+        s.rd = sd * ar * td_r; s.gd = sd * ag * td_g; s.bd = sd * ab * td_b;
+    }
+#endif
 #if STRATEGY == 5 && defined(RIS_PRODUCT)
     if (RIS_CONTROL_VARIATE) {
         /* albedo U - value_a - value_b; where it or a slot's scalar is not finite (an
          * overflow), the whole sample is 0, offset and values together (numpy twin: the same) */
+#if SLOTS == 4
+        const realv o_r = ar * cv_r - s.ra - s.rb - s.rc - s.rd, o_g = ag * cv_g - s.ga - s.gb - s.gc - s.gd;
+        const realv o_b = ab * cv_b - s.ba - s.bb - s.bc - s.bd;
+#else
         const realv o_r = ar * cv_r - s.ra - s.rb, o_g = ag * cv_g - s.ga - s.gb, o_b = ab * cv_b - s.ba - s.bb;
+#endif
         const intv ok = live & ris_finite & isfinite(o_r) & isfinite(o_g) & isfinite(o_b);
         s.o_r = select((realv)0.0f, o_r, ok);
         s.o_g = select((realv)0.0f, o_g, ok);
         s.o_b = select((realv)0.0f, o_b, ok);
         s.ra = select((realv)0.0f, s.ra, ok); s.ga = select((realv)0.0f, s.ga, ok); s.ba = select((realv)0.0f, s.ba, ok);
         s.rb = select((realv)0.0f, s.rb, ok); s.gb = select((realv)0.0f, s.gb, ok); s.bb = select((realv)0.0f, s.bb, ok);
+#if SLOTS == 4
+        s.rc = select((realv)0.0f, s.rc, ok); s.gc = select((realv)0.0f, s.gc, ok); s.bc = select((realv)0.0f, s.bc, ok);
+        s.rd = select((realv)0.0f, s.rd, ok); s.gd = select((realv)0.0f, s.gd, ok); s.bd = select((realv)0.0f, s.bd, ok);
+#endif
         return s;
     }
 #endif
@@ -317,7 +383,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     return s;
 }
 
-/* The estimates as planes of count floats: slot a r, g, b, then slot b r, g, b. */
+/* The estimates as planes of count floats: slot a r, g, b, then slot b r, g, b (then c, d). */
 inline void store_values(const Shaded *s, __global float *value_out, const uint base, const uint count)
 {
     STORE_LANES(s->ra, value_out, base, count);
@@ -326,6 +392,14 @@ inline void store_values(const Shaded *s, __global float *value_out, const uint 
     STORE_LANES(s->rb, value_out + 3 * count, base, count);
     STORE_LANES(s->gb, value_out + 4 * count, base, count);
     STORE_LANES(s->bb, value_out + 5 * count, base, count);
+#if SLOTS == 4
+    STORE_LANES(s->rc, value_out + 6 * count, base, count);
+    STORE_LANES(s->gc, value_out + 7 * count, base, count);
+    STORE_LANES(s->bc, value_out + 8 * count, base, count);
+    STORE_LANES(s->rd, value_out + 9 * count, base, count);
+    STORE_LANES(s->gd, value_out + 10 * count, base, count);
+    STORE_LANES(s->bd, value_out + 11 * count, base, count);
+#endif
 }
 
 /* Shading points given directly: normals and view directions as rows of 3 floats,
@@ -353,6 +427,14 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     STORE_LANES(s.bx, wi_out + 3 * count, base, count);
     STORE_LANES(s.by, wi_out + 4 * count, base, count);
     STORE_LANES(s.bz, wi_out + 5 * count, base, count);
+#if SLOTS == 4
+    STORE_LANES(s.c_x, wi_out + 6 * count, base, count);
+    STORE_LANES(s.c_y, wi_out + 7 * count, base, count);
+    STORE_LANES(s.c_z, wi_out + 8 * count, base, count);
+    STORE_LANES(s.d_x, wi_out + 9 * count, base, count);
+    STORE_LANES(s.d_y, wi_out + 10 * count, base, count);
+    STORE_LANES(s.d_z, wi_out + 11 * count, base, count);
+#endif
     store_values(&s, value_out, base, count);
     STORE_LANES(s.o_r, offset_out, base, count);
     STORE_LANES(s.o_g, offset_out + count, base, count);
@@ -385,7 +467,7 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
  * moved max(OFFSET_RELATIVE |p|, face_normal's 4th column, eye_offset) along that normal
  * (wavlight/raytrace.py: the offset floors of the face and of the eye), where its
  * shadow rays start; wi_out holds rows of
- * 6 floats (slot a x y z, slot b x y z), value_out planes as in shade. Vectors of
+ * 3 SLOTS floats (slot a x y z, slot b x y z, and c, d), value_out planes as in shade. Vectors of
  * eight rays of one pixel mostly agree on hit or miss: each part runs only when some
  * lane needs it. numpy twin: wavlight.shading.shade_rays_reference. */
 __kernel void shade_rays(__global const float *dirs, __global const int *prim, __global const float *tfar,
@@ -455,8 +537,16 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
     } else {
         s.ax = s.ay = s.az = s.bx = s.by = s.bz = 0.0f;
         s.ra = s.ga = s.ba = s.rb = s.gb = s.bb = 0.0f;
+#if SLOTS == 4
+        s.c_x = s.c_y = s.c_z = s.d_x = s.d_y = s.d_z = 0.0f;
+        s.rc = s.gc = s.bc = s.rd = s.gd = s.bd = 0.0f;
+#endif
     }
-    store_rows3(s.ax, s.ay, s.az, wi_out, 6, 0, base, count);
-    store_rows3(s.bx, s.by, s.bz, wi_out, 6, 3, base, count);
+    store_rows3(s.ax, s.ay, s.az, wi_out, 3 * SLOTS, 0, base, count);
+    store_rows3(s.bx, s.by, s.bz, wi_out, 3 * SLOTS, 3, base, count);
+#if SLOTS == 4
+    store_rows3(s.c_x, s.c_y, s.c_z, wi_out, 12, 6, base, count);
+    store_rows3(s.d_x, s.d_y, s.d_z, wi_out, 12, 9, base, count);
+#endif
     store_values(&s, value_out, base, count);
 }

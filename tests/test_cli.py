@@ -638,6 +638,10 @@ BAD = {
                                                  ("scene.toml", "[render].wavelet_candidates")),
     "one wavelet candidate on the command line": (scene_text(), ("--strategy", "wavelet", "--wavelet-candidates", 1),
                                                   ("wavelet_candidates",)),
+    "three wavelet slots in the scene": (scene_text(render="wavelet_slots = 3\n"), (),
+                                         ("scene.toml", "[render].wavelet_slots")),
+    "four slots for the MIS pair": (scene_text(), ("--strategy", "wavelet", "--wavelet-candidates", 0,
+                                                   "--wavelet-slots", 4), ("wavelet_slots",)),
     "black environment (scale 0)": (scene_text(env='procedural = "sky"\nscale = 0.0'), (), ("scene.toml", "[environment]", "black")),
     "black environment (file)": (scene_text(env='file = "black.exr"'), (), ("scene.toml", "[environment]", "black")),
     "only degenerate triangles": (scene_text(objects='[[objects]]\nmesh = "flat.obj"\n'), (), ("scene.toml", "[[objects]][0]", "degenerate")),
@@ -741,6 +745,22 @@ def test_wavelet_candidates_from_scene_and_flag(tmp_path):
         o = run_inproc("render", scene, "-o", tmp_path / "o.exr", "--json", *args)
         assert_success(o)
         assert json.loads(o.stdout)["wavelet_candidates"] == want, o.describe()
+
+
+def test_wavelet_slots_from_scene_and_flag(tmp_path):
+    """[render] wavelet_slots reaches the strategy; --wavelet-slots overrides it (--json); the
+    four slots' directions are traced: slots a and b pick as with two (the same thresholds),
+    so the shadow rays (rays less one camera ray per sample) grow, at most to twice."""
+    scene = write_scene(tmp_path, scene_text(render="width = 8\nheight = 6\nspp = 2\nstrategy = \"wavelet\"\n"
+                                                    "wavelet_slots = 4\n"))
+    shadow = {}
+    for args, want in (((), 4), (("--wavelet-slots", "2"), 2)):
+        o = run_inproc("render", scene, "-o", tmp_path / "o.exr", "--json", *args)
+        assert_success(o)
+        stats = json.loads(o.stdout)
+        assert stats["wavelet_slots"] == want, o.describe()
+        shadow[want] = stats["rays"] - 8 * 6 * 2
+    assert 0 < shadow[2] < shadow[4] <= 2 * shadow[2], shadow
 
 
 def test_wavelet_control_variate_flag(tmp_path):

@@ -568,13 +568,14 @@ def test_option_table_matches_the_renderer():
     reports a light tree of that depth (light_levels) or product levels (wavelet_levels)."""
     for sid in wavlight.STRATEGIES:
         r = wavlight.render_full(DEFAULT_SCENE, spp=1, strategy=sid, width=4, height=4, seed=0,
-                                 light_levels=2, wavelet_levels=1, wavelet_candidates=3)
+                                 light_levels=2, wavelet_levels=1, wavelet_candidates=3, wavelet_slots=4)
         assert (r.stats.get("light_tree") == "4x4") == (sid in experiment.OPTION_STRATEGIES["light_levels"]), sid
         levels = r.stats.get("product_levels")
         assert (levels is not None and set(levels.values()) == {1}) == \
             (sid in experiment.OPTION_STRATEGIES["wavelet_levels"]), sid
         assert (r.stats.get("wavelet_candidates") == 3) == \
             (sid in experiment.OPTION_STRATEGIES["wavelet_candidates"]), sid
+        assert (r.stats.get("wavelet_slots") == 4) == (sid in experiment.OPTION_STRATEGIES["wavelet_slots"]), sid
     assert set(experiment.OPTION_STRATEGIES["sampler"]) == set(wavlight.STRATEGIES)
 
 

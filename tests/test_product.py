@@ -731,7 +731,7 @@ def _kernel_estimates(scene, name, normal, wo, count, seed, visible=None, **opti
     w = np.broadcast_to(wo, (count, 3)).astype(np.float64)
     wi, val, off = KernelShader(scene, strat)(n, w, np.zeros(count, np.int32), rng.random((count, 4), dtype=np.float32),
                                              with_offset=True)
-    vis = np.ones(wi.shape[:2]) if visible is None else np.stack([visible(wi[:, k]) for k in range(2)], 1)
+    vis = np.ones(wi.shape[:2]) if visible is None else np.stack([visible(wi[:, k]) for k in range(wi.shape[1])], 1)
     estimate = off.astype(np.float64) + (val.astype(np.float64) * vis[:, :, None]).sum(1)
     if visible is None:
         return estimate
@@ -791,6 +791,15 @@ def test_wavelet_control_variate_unbiased_under_occlusion(case):
     if case in CASES[:len(MATERIALS)]:
         _assert_point_estimate_equals_mis(case, "wavelet", "wv0", _half_blocked, 2, levels=case.levels,
                                           control_variate=False)
+
+
+@pytest.mark.parametrize("four_slot_case", CASES[:len(MATERIALS)], ids=CASE_IDS[:len(MATERIALS)])
+def test_wavelet_four_slots_unbiased_under_occlusion(four_slot_case):
+    """Four directions per sample (slots=4, two more shadow rays): E[offset + the four values
+    times their visibilities] equals mis's under the same occluder, on the first map's cases
+    (every material; each case is another kernel build)."""
+    c = four_slot_case
+    _assert_point_estimate_equals_mis(c, "wavelet", "w4", _half_blocked, 2, levels=c.levels, slots=4)
 
 
 def test_wavelet_two_candidates_estimate_equals_mis_at_a_point(case):

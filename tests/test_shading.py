@@ -49,6 +49,15 @@ def test_phong_exponent_zero_kernel_matches_numpy(strategy):
     _compare_shaders(scene, strategies.make(strategy), rng)
 
 
+def test_shade_kernel_matches_numpy_four_slots():
+    """The resampling estimator with four slots (two more directions per sample, at u.z + 1/4 and
+    + 3/4): kernel and numpy twin, as above; the shapes carry four slots."""
+    rng = np.random.default_rng(13)
+    scene = _scene(procedural_sky(width=128, height=64, sun_radiance=500.0) + rng.random((64, 128, 3)) * 0.2, 30.0)
+    strat = strategies.make("wavelet", slots=4)
+    assert _compare_shaders(scene, strat, rng)[0].shape[1] == 4
+
+
 def _compare_shaders(scene, strat, rng):
     strat.prepare(scene.environment, scene.materials)
     n_pts = 20000
@@ -64,6 +73,7 @@ def _compare_shaders(scene, strat, rng):
     assert (dir_ok | ~live).mean() > 0.999
     assert val_ok.mean() > 0.999, f"{(~val_ok).sum()} of {val_ok.size} values differ"
     assert live.any()
+    return wi_k, val_k
 
 
 @pytest.mark.parametrize("sampler", ["independent", "stratified"])
@@ -186,7 +196,7 @@ def test_breadth_first_walks_match_depth_first():
 
 
 @pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet",
-                                      "wavelet:no-control-variate"])
+                                      "wavelet:no-control-variate", "wavelet:four-slots"])
 @pytest.mark.parametrize("drawn", [None, 0, 13], ids=["u-given", "u-drawn", "u-stratified"])
 def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     """kernels/shade.cl shade_rays (the renderer's entry: camera rays from the tracer, hits and
@@ -208,7 +218,8 @@ def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     scene.environment = Environment(env.pixels + rng.random(env.pixels.shape).astype(np.float32) * 0.2, 1.0, 50.0)
     tracer = RayTracer(scene.vertices, scene.faces)
     name, _, variant = strategy.partition(":")
-    strat = strategies.make(name, **({"control_variate": False} if variant == "no-control-variate" else {}))
+    strat = strategies.make(name, **{"no-control-variate": {"control_variate": False},
+                                     "four-slots": {"slots": 4}}.get(variant, {}))
     strat.prepare(scene.environment, scene.materials)
     count = 40_003
     w, h = 64, 48

@@ -31,8 +31,9 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
                               # or a Mitsuba peer: mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf
     label = "wavelet-p5"      # default: the id; names the output folders and chart lines
     wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels,
-    light_levels = 9          # --wavelet-candidates): wavelet_levels and wavelet_candidates for
-    wavelet_candidates = 16   # wavelet only, light_levels for light, mis, mis_comp, wavelet and
+    light_levels = 9          # --wavelet-candidates, --wavelet-slots): wavelet_levels,
+    wavelet_candidates = 16   # wavelet_candidates and wavelet_slots (2 or 4) for wavelet only,
+                              # light_levels for light, mis, mis_comp, wavelet and
                               # sir (OPTION_STRATEGIES); given to another strategy, an option is
                               # an error, not silently ignored
     sampler = "stratified"    # optional: independent (default) | stratified (as --sampler)
@@ -155,7 +156,7 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 #: [[strategies]] options -> the wavlight strategies that take them (as render_full passes them on:
 #: wavelet_levels is the product depth of wavelet; light_levels the depth of a light tree, which
 #: uniform, cosine, bsdf and structured do not build; the sampler draws every strategy's numbers)
-OPTION_STRATEGIES = {"wavelet_levels": ("wavelet",), "wavelet_candidates": ("wavelet",),
+OPTION_STRATEGIES = {"wavelet_levels": ("wavelet",), "wavelet_candidates": ("wavelet",), "wavelet_slots": ("wavelet",),
                      "light_levels": ("light", "mis", "mis_comp", "wavelet", "sir"),
                      "sampler": STRATEGIES}
 
@@ -349,6 +350,11 @@ def load_spec(path) -> Spec:
             if wc == 1 or wc > 64:
                 t.fail("wavelet_candidates", f"must be 0 (the MIS pair) or 2..64, got {wc}")
             options["wavelet_candidates"] = wc
+        ws = t.get("wavelet_slots", "int", lo=2)
+        if ws is not None:
+            if ws not in (2, 4):
+                t.fail("wavelet_slots", f"must be 2 or 4, got {ws}")
+            options["wavelet_slots"] = ws
         ll = t.get("light_levels", "int", lo=1)
         if ll is not None:
             if ll > 11:

@@ -195,7 +195,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
                 progress=None, threads=None, backend="opencl", wavelet_levels=None,
                 light_levels=None, sir_candidates=None, sir_samples=None, structured_strata=None,
                 structured_mode=None, sampler=None, wavelet_candidates=None,
-                wavelet_control_variate=True) -> RenderResult:
+                wavelet_control_variate=True, wavelet_slots=None) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     ``scene`` is a Scene or a scene file's path. Arguments left as None come from the scene
@@ -213,7 +213,8 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     (:func:`wavlight.strategies.ris_shade_reference`; 0: the MIS pair; default: the scene's,
     else strategies.DEFAULT_CANDIDATES). ``wavelet_control_variate`` (default True): whether
     the resampling estimator carries its candidates' unshadowed estimate as a control variate
-    (:func:`wavlight.strategies.ris_shade_reference`).
+    (:func:`wavlight.strategies.ris_shade_reference`). ``wavelet_slots`` (2 or 4; default: the
+    scene's, else 2): directions, one shadow ray each, that estimator resamples per sample.
     """
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
@@ -245,6 +246,11 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     wavelet_control_variate = bool(wavelet_control_variate)
     if wavelet_candidates == 1:
         raise WavlightError("wavelet_candidates must be 0 (the MIS pair) or 2..64, got 1")
+    wavelet_slots = pick("wavelet_slots", wavelet_slots, scene.wavelet_slots, 2, 4, optional=True)
+    if wavelet_slots not in (None, *strategies.SLOT_COUNTS):
+        raise WavlightError(f"wavelet_slots must be 2 or 4, got {wavelet_slots}")
+    if wavelet_slots == 4 and wavelet_candidates == 0:
+        raise WavlightError("wavelet_slots = 4 needs the resampling estimator (wavelet_candidates 2..64), not 0")
     light_levels = pick("light_levels", light_levels, scene.light_levels, 1, 11, optional=True)
     sir_candidates = pick("sir_candidates", sir_candidates, scene.sir_candidates, 1, 65536, optional=True)
     sir_samples = pick("sir_samples", sir_samples, scene.sir_samples, 1, 1024, optional=True)
@@ -257,7 +263,8 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
                "mis_comp": {"light_levels": light_levels},
                "wavelet": {"levels": wavelet_levels, "light_levels": light_levels,
                            "control_variate": wavelet_control_variate,
-                           **({} if wavelet_candidates is None else {"candidates": wavelet_candidates})},
+                           **({} if wavelet_candidates is None else {"candidates": wavelet_candidates}),
+                           **({} if wavelet_slots is None else {"slots": wavelet_slots})},
                "sir": {"candidates": sir_candidates, "samples": sir_samples,
                        "light_levels": light_levels},
                "structured": {"strata": structured_strata, "mode": structured_mode}}.get(strategy)

@@ -12,6 +12,8 @@ Every key of the scene format is accepted as written there. wavlight adds:
 - ``[render] wavelet_candidates = M`` (0 or 2..64): the wavelet strategy's resampling
   candidates per shading sample (0: the MIS pair of one product and one BSDF sample;
   default :data:`wavlight.strategies.DEFAULT_CANDIDATES`).
+- ``[render] wavelet_slots = S`` (2 or 4): directions, one shadow ray each, that the wavelet
+  strategy resamples from its candidates per shading sample (default 2).
 - ``[render] light_levels = n``: the light tree's depth, 2^n x 2^n leaves (default:
   chosen from the map's content, :meth:`Environment.light_levels`).
 - ``[render] sir_candidates = M`` (1..65536, default 32) and ``sir_samples = N`` (1..1024,
@@ -98,6 +100,7 @@ class Scene:
     structured_mode: str | None = None
     sampler: str | None = None
     wavelet_candidates: int | None = None
+    wavelet_slots: int | None = None
 
     @property
     def material_kind(self):
@@ -380,6 +383,9 @@ def load_scene(path: str) -> Scene:
         _positive(r, "wavelet_candidates", wavelet_candidates, 0, MAX_WAVELET_CANDIDATES)
         if wavelet_candidates == 1:
             r.fail("wavelet_candidates", "must be 0 (the MIS pair) or 2..64, got 1")
+    wavelet_slots = r.get("wavelet_slots", "int")
+    if wavelet_slots is not None and wavelet_slots not in (2, 4):
+        r.fail("wavelet_slots", f"must be 2 or 4, got {wavelet_slots}")
     light_levels = r.get("light_levels", "int")
     if light_levels is not None:
         _positive(r, "light_levels", light_levels, 1, 11)
@@ -467,7 +473,7 @@ def load_scene(path: str) -> Scene:
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
                  np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, wavelet_levels,
                  light_levels, sir_candidates, sir_samples, structured_strata, structured_mode, sampler,
-                 wavelet_candidates)
+                 wavelet_candidates, wavelet_slots)
 
 
 def _environment(t: _Table, base) -> Environment:

@@ -70,6 +70,7 @@ class KernelShader:
         depth = int(max(np.max(levels, initial=0), 0))
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
         sizes = {}   # the walks' compile-time sizes: light tree depth; product depth and lobe shapes
+        self.slots = 2   # directions (shadow rays) per shading sample: 4 for the resampling estimator's option
         if strategy.name in ("light", "mis", "mis_comp", "wavelet"):
             sizes["N_LEVELS"] = int(self.levels)
         if strategy.name == "wavelet":
@@ -78,6 +79,7 @@ class KernelShader:
             if getattr(strategy, "candidates", 0):   # resampling from product candidates
                 sizes.update(zip(("RIS_PRODUCT", "RIS_BSDF"), strategy.ris_split))
                 sizes["RIS_CONTROL_VARIATE"] = int(bool(strategy.control_variate))
+                sizes["RIS_SLOTS"] = self.slots = int(strategy.slots)
         self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
                         self.texels, *self.env_size, self.rot, self.tree)
         self._geometry = None
@@ -96,15 +98,17 @@ class KernelShader:
 
     def __call__(self, n, wo, material, u, with_offset=False, **_):
         """Shading points given directly (the ``shade`` kernel; tests): world normals n and view
-        directions wo (N, 3), material ids (N,), uniforms u (N, 4) -> wi, value (N, 2, 3), and
+        directions wo (N, 3), material ids (N,), uniforms u (N, 4) -> wi, value (N, S, 3) (S =
+        ``slots``: 2, or 4 for the wavelet strategy's ``slots=4``), and
         with ``with_offset`` the estimates' part without a shadow ray, offset (N, 3) (the
         point's estimate is offset + the values of its visible slots)."""
         count = len(n)
+        S = self.slots
         if count == 0:
-            empty = np.zeros((0, 2, 3), np.float32)
+            empty = np.zeros((0, S, 3), np.float32)
             return (empty, empty, np.zeros((0, 3), np.float32)) if with_offset else (empty, empty)
         q = cl.thread_queue()
-        wi_buf, val_buf = cl.scratch("wi", count * 24), cl.scratch("value", count * 24)
+        wi_buf, val_buf = cl.scratch("wi", count * 12 * S), cl.scratch("value", count * 12 * S)
         off_buf = cl.scratch("offset", count * 12)
         cl.kernel(self.program, "shade")(
             q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("normal", np.asarray(n, np.float32), q),
@@ -112,8 +116,8 @@ class KernelShader:
             cl.upload("material", np.asarray(material, np.int32), q), cl.upload("u", np.asarray(u, np.float32), q),
             np.uint32(count), *self._tables, wi_buf, val_buf, off_buf)
         # planes (slot, component, point) -> (point, slot, component) views
-        wi = cl.read(wi_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
-        value = cl.read(val_buf, (2, 3, count), np.float32, q).transpose(2, 0, 1)
+        wi = cl.read(wi_buf, (S, 3, count), np.float32, q).transpose(2, 0, 1)
+        value = cl.read(val_buf, (S, 3, count), np.float32, q).transpose(2, 0, 1)
         if with_offset:
             return wi, value, cl.read(off_buf, (3, count), np.float32, q).T
         return wi, value
@@ -128,8 +132,9 @@ class KernelShader:
             raise ValueError("KernelShader.shade_rays needs the ray tracer's geometry (tracer=...)")
         count = len(d)
         q = cl.thread_queue()
+        S = self.slots
         bufs = [cl.scratch(name, size * count) for name, size in
-                (("origin", 12), ("wi", 24), ("value", 24), ("direct", 12))]
+                (("origin", 12), ("wi", 12 * S), ("value", 12 * S), ("direct", 12))]
         if count:
             if isinstance(u, rng.Stream):
                 if u.k and count >= camera.MAX_PASS_RAYS:
@@ -146,7 +151,7 @@ class KernelShader:
                 cl.upload("prim", np.asarray(prim, np.int32), q), cl.upload("tfar", np.asarray(t, np.float32), q),
                 *np.asarray(eye, np.float32), raytrace.RayTracer.eye_offset_floor(eye), *self._geometry, u_buf, *draw, np.uint32(count), *self._tables, *bufs)
         origin, wi, value, direct = (cl.read(b, shape, np.float32, q) for b, shape in
-                                     zip(bufs, ((count, 3), (count, 2, 3), (2, 3, count), (3, count))))
+                                     zip(bufs, ((count, 3), (count, S, 3), (S, 3, count), (3, count))))
         return ShadedRays(direct, origin, wi, value)
 
     def warm_up(self):

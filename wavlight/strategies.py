@@ -40,6 +40,11 @@ from .distributions import HaarTree
 from .errors import ArgumentError, check_int, shown
 
 
+#: the wavelet strategy's directions (shadow rays) per shading sample with candidates: 2 by
+#: default (as mis's pair); 4 halves the visibility's share of the variance for two more rays
+#: (README, "Resampling from product candidates")
+DEFAULT_SLOTS = 2
+SLOT_COUNTS = (2, 4)
 #: the wavelet strategy's resampling candidates per shading sample (ris_shade_reference): 8 by
 #: measurement (README, "The wavelet strategy"); 0 is the MIS pair of one product and one BSDF sample
 DEFAULT_CANDIDATES = 8
@@ -269,6 +274,8 @@ class WaveletStrategy(Strategy):
     candidates of both (:func:`ris_shade_reference`); ``sample`` and ``pdf`` stay the walk's.
     ``control_variate`` (default True; only with candidates): the estimate carries the
     candidates' own unshadowed estimate as a control variate (:func:`ris_shade_reference`).
+    ``slots`` (2, the default, or 4; 4 only with candidates): directions resampled from the
+    candidates per shading sample, one shadow ray each (:func:`ris_shade_reference`).
     """
 
     name = "wavelet"
@@ -276,7 +283,7 @@ class WaveletStrategy(Strategy):
 
     def __init__(self, levels: int | None = None, light_levels: int | None = None,
                  compensated_kinds: tuple = (bsdfs.LAMBERT,), candidates: int | None = None,
-                 control_variate: bool = True):
+                 control_variate: bool = True, slots: int | None = None):
         where = "strategies.WaveletStrategy"
         if not isinstance(control_variate, (bool, np.bool_)):
             raise ArgumentError(f"{where}: control_variate must be True or False, got {shown(control_variate)}")
@@ -285,6 +292,10 @@ class WaveletStrategy(Strategy):
         self.candidates = check_int(where, "candidates", candidates, 0, MAX_CANDIDATES)
         if self.candidates == 1:
             raise ArgumentError(f"{where}: candidates must be 0 (the MIS pair) or 2..{MAX_CANDIDATES}, got 1")
+        self.slots = DEFAULT_SLOTS if slots is None else check_int(where, "slots", slots, 2, 4)
+        if self.slots not in SLOT_COUNTS or (self.slots != 2 and not self.candidates):
+            raise ArgumentError(f"{where}: slots must be 2, or 4 with candidates (the MIS pair has 2), "
+                                f"got {self.slots}")
         self.light = LightStrategy(_levels_option(where, "light_levels", light_levels, 1))
         self.bsdf = BsdfStrategy()
         self.override = _levels_option(where, "levels", levels, 0)
@@ -356,6 +367,7 @@ class WaveletStrategy(Strategy):
     def info(self):
         return {**tree_info(self.trees, self.tv, self.env), "wavelet_candidates": self.candidates,
                 "wavelet_control_variate": bool(self.candidates and self.control_variate),
+                "wavelet_slots": self.slots,
                 "product_levels": dict(zip(self.names, self.levels.tolist())),
                 "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
                 "product_light_tree": dict(zip(self.names, [self.tree_kinds[i] for i in self.tree_index])),
@@ -499,7 +511,10 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     whole sample is 0, as in the kernel. Measured on images (96², 16 spp, 4 seeds, relMSE
     with / without, README): the glossy and lambert spheres 0.44-0.98, the bunny scenes
     0.88-1.02.
-    Returns wi (N, 2, 3) and value (N, 2, 3), and with ``with_offset`` offset (N, 3)."""
+    With ``strategy.slots`` = 4 four directions are resampled, at u.z, u.z + 1/2, u.z + 1/4
+    and u.z + 3/4, each valued sum(w) / 4 instead of / 2 (the same estimator with twice the
+    shadow rays: the visibility's variance halves; the offset subtracts all four values).
+    Returns wi (N, S, 3) and value (N, S, 3) (S = slots), and with ``with_offset`` offset (N, 3)."""
     from .envmap import luminance
 
     mp, mb = strategy.ris_split if split is None else split
@@ -525,10 +540,16 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
         dirs[j] = ds.wi_world
     total = w.sum(0)
     cum = np.cumsum(w, 0)
-    wi = np.zeros((n, 2, 3))
-    value = np.zeros((n, 2, 3))
+    slots = getattr(strategy, "slots", 2)
+    wi = np.zeros((n, slots, 3))
+    value = np.zeros((n, slots, 3))
     us = np.asarray(u, np.float32)[:, 2]
-    for slot, v in enumerate((us, np.where(us >= np.float32(0.5), us - np.float32(0.5), us + np.float32(0.5)))):
+    # slot k at u.z + k' / S (k' = 0, 2, 1, 3: slots a, b as with two, then c and d between them),
+    # wrapped into [0, 1) by float32 operations as the kernel does
+    shifts = [0.0, 0.5] if slots == 2 else [0.0, 0.5, 0.25, 0.75]
+    thresholds = [us if h == 0 else np.where(us >= np.float32(1 - h), us - np.float32(1 - h), us + np.float32(h))
+                  for h in shifts]
+    for slot, v in enumerate(thresholds):
         # the first candidate of positive weight whose running sum reaches v total (the last if none)
         reach = (cum >= v.astype(np.float64) * total) & (w > 0)
         pick = np.where(reach.any(0), reach.argmax(0), m - 1)
@@ -536,7 +557,7 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
         rgb = env.eval(y)
         lum = luminance(rgb)
         with np.errstate(divide="ignore", invalid="ignore"):
-            scale = np.where((total > 0) & (lum > 0), 0.5 * total / lum, 0.0)
+            scale = np.where((total > 0) & (lum > 0), np.float32(1.0 / slots) * total / lum, 0.0)
         wi[:, slot], value[:, slot] = y, scale[:, None] * sp.albedo * rgb
     offset = np.zeros((n, 3))
     if strategy.control_variate:
