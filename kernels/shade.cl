@@ -111,6 +111,20 @@ inline realv texel_luminance(__global const float *texels, const int env_w, cons
     return 0.2126f * *r + 0.7152f * *g + 0.0722f * *b;
 }
 
+/* One slot's step of the inverse CDF over the candidates: the slot takes candidate (x, y, z)
+ * of texel luminance l if it has found none yet and the running sum cum reaches its
+ * threshold t with a positive weight (pos), or the candidate is the last one. */
+inline void ris_pick(const realv cum, const realv t, const intv pos, const intv last, const realv x, const realv y,
+                     const realv z, const realv l, intv *found, realv *px, realv *py, realv *pz, realv *pl)
+{
+    const intv take = !*found & ((pos & (cum >= t)) | last);
+    *px = select(*px, x, take);
+    *py = select(*py, y, take);
+    *pz = select(*pz, z, take);
+    *pl = select(*pl, l, take);
+    *found |= take;
+}
+
 /* frac(u + offset) for an offset in [0, 1), as the twin computes it */
 inline realv shifted_uniform(const realv u, const uint fixed_offset)
 {
@@ -226,23 +240,11 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
             cum += cw[j];
             const intv last = (intv)(j == RIS_CANDIDATES - 1 ? -1 : 0);
             const intv pos = cw[j] > 0.0f;   /* (u.z = 0 must not pick a zero-weight candidate) */
-            const intv take_a = !found_a & ((pos & (cum >= ta)) | last);
-            const intv take_b = !found_b & ((pos & (cum >= tb)) | last);
-            ax = select(ax, cx[j], take_a); ay = select(ay, cy[j], take_a); az = select(az, cz[j], take_a);
-            bx = select(bx, cx[j], take_b); by = select(by, cy[j], take_b); bz = select(bz, cz[j], take_b);
-            la = select(la, cl[j], take_a);
-            lb = select(lb, cl[j], take_b);
-            found_a |= take_a;
-            found_b |= take_b;
+            ris_pick(cum, ta, pos, last, cx[j], cy[j], cz[j], cl[j], &found_a, &ax, &ay, &az, &la);
+            ris_pick(cum, tb, pos, last, cx[j], cy[j], cz[j], cl[j], &found_b, &bx, &by, &bz, &lb);
 #if SLOTS == 4
-            const intv take_c = !found_c & ((pos & (cum >= tc)) | last);
-            const intv take_d = !found_d & ((pos & (cum >= td)) | last);
-            c_x = select(c_x, cx[j], take_c); c_y = select(c_y, cy[j], take_c); c_z = select(c_z, cz[j], take_c);
-            d_x = select(d_x, cx[j], take_d); d_y = select(d_y, cy[j], take_d); d_z = select(d_z, cz[j], take_d);
-            lc = select(lc, cl[j], take_c);
-            ld = select(ld, cl[j], take_d);
-            found_c |= take_c;
-            found_d |= take_d;
+            ris_pick(cum, tc, pos, last, cx[j], cy[j], cz[j], cl[j], &found_c, &c_x, &c_y, &c_z, &lc);
+            ris_pick(cum, td, pos, last, cx[j], cy[j], cz[j], cl[j], &found_d, &d_x, &d_y, &d_z, &ld);
 #endif
         }
         const float share = 1.0f / (float)SLOTS;   /* each slot's part of sum(w) */
