@@ -87,11 +87,14 @@ class Rounds:
 
     def fill(self, out):
         self.run()
-        if isinstance(out, dict):
-            return {k: self.fill(v) for k, v in out.items()}
-        if isinstance(out, tuple) and len(out) == 3 and out[0] == "rate":
-            return round(out[2] / self.best[out[1]])
-        return out
+
+        def rates(x):
+            if isinstance(x, dict):
+                return {k: rates(v) for k, v in x.items()}
+            if isinstance(x, tuple) and len(x) == 3 and x[0] == "rate":
+                return round(x[2] / self.best[x[1]])
+            return x
+        return rates(out)
 
 
 def main():

@@ -683,8 +683,9 @@ def inverse_cl(coeffs, queue=None):
         queue = queue or cl.thread_queue()
         knl = cl.kernel(cl.program("haar.cl"), "haar_inverse_level")
         src = cl.to_device(c)
-        bufs = [cl.to_device(np.ascontiguousarray(np.pad(c[:, :1, :1].reshape(T, 1), ((0, 0), (0, c[0].size - 1))))),
-                cl.empty(c.nbytes)]
+        first = np.zeros((T, c[0].size), np.float32)   # level 0: F^0 of each set, at its tree's start
+        first[:, 0] = c[:, 0, 0]
+        bufs = [cl.to_device(first), cl.empty(c.nbytes)]
         for level in range(n):
             scale = np.float32(2.0 ** n if level == n - 1 else 1.0)
             knl(queue, (4 ** level, T), None, src, bufs[0], bufs[1], np.int32(n), np.int32(level), scale)

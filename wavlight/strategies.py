@@ -42,7 +42,7 @@ from .errors import ArgumentError, check_int, shown
 
 #: the wavelet strategy's directions (shadow rays) per shading sample with candidates: 2 by
 #: default (as mis's pair); 4 halves the visibility's share of the variance for two more rays
-#: (README, "Resampling from product candidates")
+#: (README, "Four slots")
 DEFAULT_SLOTS = 2
 SLOT_COUNTS = (2, 4)
 #: the wavelet strategy's resampling candidates per shading sample (ris_shade_reference): 8 by
@@ -540,7 +540,7 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
         dirs[j] = ds.wi_world
     total = w.sum(0)
     cum = np.cumsum(w, 0)
-    slots = getattr(strategy, "slots", 2)
+    slots = strategy.slots
     wi = np.zeros((n, slots, 3))
     value = np.zeros((n, slots, 3))
     us = np.asarray(u, np.float32)[:, 2]
