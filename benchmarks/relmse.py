@@ -20,9 +20,9 @@ relMSE(s) * t_strategy(s) / t_mis(s), where t (the median over seeds, strategies
 rendered in turn seed by seed) includes each render's setup (light tree, product
 tables) but not the once-per-process kernel compilation.
 --sampler stratified renders the compared images with stratified pixel samples.
---candidates M gives the wavelet strategy M resampling candidates instead of its default;
---slots S (2 or 4) its directions (shadow rays) per sample.
-(strategies.DEFAULT_CANDIDATES).
+--candidates M gives the wavelet strategy M resampling candidates and --slots S (2 or 4)
+its directions (shadow rays) per sample, instead of what a render chooses from the scene's
+shadows (strategies.AUTO_BUDGET: the lone spheres 16 and 2, the bunny on its floor 8 and 4).
 --floor D estimates, per spp, the pixel-footprint floor: the relMSE left when every
 pixel sample is shaded exactly (no direction noise), from an image whose pixel
 samples average D mis estimates each: floor = (D relMSE_D - relMSE_mis) / (D - 1).
@@ -134,9 +134,9 @@ def main():
     ap.add_argument("--floor", type=int, default=0, metavar="D",
                     help="also estimate the footprint floor with D directions per pixel sample")
     ap.add_argument("--candidates", type=int, default=None, metavar="M",
-                    help="the wavelet strategy's resampling candidates (default: the library's)")
+                    help="the wavelet strategy's resampling candidates (default: chosen from the scene)")
     ap.add_argument("--slots", type=int, default=None, choices=(2, 4),
-                    help="the wavelet strategy's directions per sample (default: the library's)")
+                    help="the wavelet strategy's directions per sample (default: chosen from the scene)")
     ap.add_argument("--out", default="")
     args = ap.parse_args()
     if not os.path.isdir(DATA):
@@ -179,6 +179,9 @@ def main():
                     r = wavlight.render_full(scene, spp=spp, strategy=strategy, seed=seed, sampler=args.sampler,
                                              wavelet_candidates=args.candidates, wavelet_slots=args.slots, **kw)
                     errs[strategy].append(relmse(r.image, ref.image, ref.stderr))
+                    if strategy == "wavelet":   # what the render chose from the scene's shadows
+                        row["wavelet_budget"] = {k: r.stats[k] for k in (
+                            "wavelet_candidates", "wavelet_slots", "visibility_variance")}
                     secs[strategy].append(r.stats["setup_seconds"] + r.stats["render_seconds"])
             for strategy in STRATEGIES:
                 e = errs[strategy]

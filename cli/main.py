@@ -112,10 +112,12 @@ def _check_output(path, formats):
                    "depth (deeper is cut to it; 0: the light tree alone). Default: per material, from its lobe.")
 @click.option("--wavelet-candidates", type=click.IntRange(0, 64), default=None, metavar="0|2..64",
               help="wavelet: resampling candidates per shading sample, 2..64 (0: the MIS pair of one product "
-                   "and one BSDF sample; default 8).")
+                   "and one BSDF sample). Default: from the scene's shadows, 16 where little of what the camera "
+                   "sees is shadowed, else 8 (README, 'Budget from the scene's shadows').")
 @click.option("--wavelet-slots", type=click.Choice(["2", "4"]), default=None,
               help="wavelet with candidates: directions resampled per shading sample, one shadow ray "
-                   "each (default 2; 4 halves the visibility's noise for two more rays).")
+                   "each; 4 halves the visibility's noise for two more rays. Default: 4 in scenes with "
+                   "shadows, else 2.")
 @click.option("--wavelet-control-variate/--no-wavelet-control-variate", default=True,
               help="wavelet with candidates: carry the candidates' unshadowed estimate as a control "
                    "variate (default on; unbiased either way).")

@@ -950,7 +950,9 @@ def test_wavelet_white_furnace_every_depth(furnace_scene, levels, candidates):
     scene, albedo, inner, background = furnace_scene
     r = wavlight.render_full(scene, spp=64, strategy="wavelet", seed=7, wavelet_levels=levels,
                              wavelet_candidates=candidates)
-    assert r.stats["wavelet_candidates"] == (strategies.DEFAULT_CANDIDATES if candidates is None else candidates)
+    # (a lone sphere: nothing in shadow, so unset candidates come from AUTO_BUDGET's unshadowed pair)
+    assert r.stats["visibility_variance"] in (None, 0.0)
+    assert r.stats["wavelet_candidates"] == (strategies.AUTO_BUDGET[False][0] if candidates is None else candidates)
     side = int(r.stats["light_tree"].split("x")[0])
     expect = product.product_levels(0.0, side.bit_length() - 1, levels)
     assert _levels_by_name(r.stats, ["white"]) == [expect]
@@ -967,7 +969,8 @@ def _command():
 def test_cli_wavelet_strategy_and_levels(tmp_path):
     """`wavlight render --strategy wavelet --wavelet-levels 2 --json` renders and reports the
     product depth of every material of the default scene: 2 for all three (light trees have
-    at least 2 levels, so the override is not clamped)."""
+    at least 2 levels, so the override is not clamped); and the budget chosen from the
+    scene's shadows (two spheres on a floor: shadowed, AUTO_BUDGET's second pair)."""
     out, stats_ = _render_json(tmp_path, REPO / "scenes" / "default.toml", "--wavelet-levels", "2", "--spp", "2",
                                "--width", "16", "--height", "12")
     assert stats_["strategy"] == "wavelet" and stats_["spp"] == 2
@@ -975,6 +978,8 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
     levels = stats_["product_levels"]
     values = list(levels.values()) if isinstance(levels, dict) else list(levels)
     assert values == [2, 2, 2], levels
+    assert stats_["visibility_variance"] > strategies.SHADOWED_VARIANCE, stats_
+    assert (stats_["wavelet_candidates"], stats_["wavelet_slots"]) == strategies.AUTO_BUDGET[True], stats_
     img = read_image(str(out))
     assert img.shape[:2] == (12, 16) and np.all(np.isfinite(img)) and img.max() > 0
 

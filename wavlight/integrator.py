@@ -20,6 +20,9 @@ into parts at pass boundaries (:func:`_parts`, a constant count) so that every t
 works. Random numbers: counter-based Philox numbers of (seed, tile, sample index) drawn in
 the kernels (:mod:`wavlight.rng`; stratified per pixel and pass with the ``stratified``
 sampler, :mod:`wavlight.sampler`); so images do not depend on the number of threads.
+At setup a ``wavelet`` render whose candidates or slots are not given traces a pilot of
+shadow rays (:mod:`wavlight.occlusion`) and chooses them from the scene's shadows
+(``strategies.AUTO_BUDGET``); the pilot's time is part of ``setup_seconds``.
 """
 from __future__ import annotations
 
@@ -31,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import camera, rng, strategies
+from . import camera, occlusion, rng, strategies
 from .camera import camera_rays  # noqa: F401  (also the integrator's public name)
 from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
@@ -62,6 +65,8 @@ class _Renderer:
         t0 = time.perf_counter()
         self.tracer = RayTracer(scene.vertices, scene.faces)
         self.strategy = strategies.make(strategy, **(options or {}))
+        if getattr(self.strategy, "wants_visibility", False):   # the wavelet budget from the scene's shadows
+            self.strategy.fit_to_visibility(occlusion.visibility_variance(scene, self.tracer, width, height))
         self.strategy.prepare(scene.environment, scene.materials)
         # Strategies without a shade kernel (no KERNEL_ID, e.g. sir) shade in numpy.
         numpy_shader = backend == "numpy" or strategy not in strategies.KERNEL_ID
@@ -211,10 +216,11 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     ``sampler`` is "independent" (default) or "stratified" (:mod:`wavlight.sampler`).
     ``wavelet_candidates`` (0 or 2..64) sets the wavelet strategy's resampling candidates
     (:func:`wavlight.strategies.ris_shade_reference`; 0: the MIS pair; default: the scene's,
-    else strategies.DEFAULT_CANDIDATES). ``wavelet_control_variate`` (default True): whether
-    the resampling estimator carries its candidates' unshadowed estimate as a control variate
+    else chosen from the scene's shadows: strategies.AUTO_BUDGET, :mod:`wavlight.occlusion`).
+    ``wavelet_control_variate`` (default True): whether the resampling estimator carries its candidates' unshadowed estimate as a control variate
     (:func:`wavlight.strategies.ris_shade_reference`). ``wavelet_slots`` (2 or 4; default: the
-    scene's, else 2): directions, one shadow ray each, that estimator resamples per sample.
+    scene's, else chosen as the candidates are): directions, one shadow ray each, that
+    estimator resamples per sample.
     """
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)

@@ -11,9 +11,10 @@ Every key of the scene format is accepted as written there. wavlight adds:
   material (default: chosen per material from its lobe width).
 - ``[render] wavelet_candidates = M`` (0 or 2..64): the wavelet strategy's resampling
   candidates per shading sample (0: the MIS pair of one product and one BSDF sample;
-  default :data:`wavlight.strategies.DEFAULT_CANDIDATES`).
+  default: chosen from the scene's shadows, :data:`wavlight.strategies.AUTO_BUDGET`).
 - ``[render] wavelet_slots = S`` (2 or 4): directions, one shadow ray each, that the wavelet
-  strategy resamples from its candidates per shading sample (default 2).
+  strategy resamples from its candidates per shading sample (default: chosen from the
+  scene's shadows, :data:`wavlight.strategies.AUTO_BUDGET`).
 - ``[render] light_levels = n``: the light tree's depth, 2^n x 2^n leaves (default:
   chosen from the map's content, :meth:`Environment.light_levels`).
 - ``[render] sir_candidates = M`` (1..65536, default 32) and ``sir_samples = N`` (1..1024,

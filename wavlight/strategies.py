@@ -24,8 +24,8 @@ The ``mis`` estimator is Mitsuba 3's ``direct`` integrator with one emitter and 
 BSDF sample: each sample's contribution f L cos V / p is weighted by
 p_s^2 / (p_light^2 + p_bsdf^2) (the power heuristic). ``wavelet`` with candidates = 0 weights
 by p_s / (p_product + p_bsdf) (the balance heuristic; :class:`WaveletStrategy` says why); with
-candidates M >= 2 (default 8) it resamples two directions from M candidates
-(:func:`ris_shade_reference`).
+candidates M >= 2 (by default chosen from the scene's shadows, AUTO_BUDGET) it resamples two
+or four directions from M candidates (:func:`ris_shade_reference`).
 """
 from __future__ import annotations
 
@@ -40,14 +40,21 @@ from .distributions import HaarTree
 from .errors import ArgumentError, check_int, shown
 
 
-#: the wavelet strategy's directions (shadow rays) per shading sample with candidates: 2 by
-#: default (as mis's pair); 4 halves the visibility's share of the variance for two more rays
-#: (README, "Four slots")
+#: the wavelet strategy's directions (shadow rays) per shading sample with candidates: 2 (as
+#: mis's pair) unless chosen from the scene (AUTO_BUDGET); 4 halves the visibility's share of
+#: the variance for two more rays (README, "Four slots")
 DEFAULT_SLOTS = 2
 SLOT_COUNTS = (2, 4)
-#: the wavelet strategy's resampling candidates per shading sample (ris_shade_reference): 8 by
-#: measurement (README, "The wavelet strategy"); 0 is the MIS pair of one product and one BSDF sample
+#: the wavelet strategy's resampling candidates per shading sample (ris_shade_reference) unless
+#: chosen from the scene (AUTO_BUDGET): 8 by measurement (README, "The wavelet strategy"); 0 is
+#: the MIS pair of one product and one BSDF sample
 DEFAULT_CANDIDATES = 8
+#: (candidates, slots) that a render gives the wavelet strategy where neither option nor scene
+#: sets them, by the scene's visibility variance (wavlight.occlusion.visibility_variance):
+#: below SHADOWED_VARIANCE nothing the camera sees is much in shadow and the candidates carry the
+#: variance; from it on, the slots' visibility does (README, "Budget from the scene's shadows")
+SHADOWED_VARIANCE = 0.1
+AUTO_BUDGET = {False: (16, 2), True: (8, 4)}
 MAX_CANDIDATES = 64
 #: candidate j's uniforms are frac(u.xy + j R2) (Roberts' R2 sequence), the offsets in 24-bit
 #: fixed point so that the kernel's float32 sums are the twin's bit for bit (kernels/shade.cl)
@@ -269,13 +276,16 @@ class WaveletStrategy(Strategy):
     alone). A scene with both kinds holds both trees in one HaarTree buffer, ``trees``
     (twice the memory); ``light`` only chooses their depth.
 
-    ``candidates`` M (default DEFAULT_CANDIDATES = 8; 0 or 2..64): with M >= 2 the shade
-    kernel does not pair one product and one BSDF sample but resamples two directions from M
-    candidates of both (:func:`ris_shade_reference`); ``sample`` and ``pdf`` stay the walk's.
+    ``candidates`` M (0 or 2..64; default DEFAULT_CANDIDATES = 8, in a render AUTO_BUDGET's):
+    with M >= 2 the shade kernel does not pair one product and one BSDF sample but resamples
+    two directions from M candidates of both (:func:`ris_shade_reference`); ``sample`` and
+    ``pdf`` stay the walk's.
     ``control_variate`` (default True; only with candidates): the estimate carries the
     candidates' own unshadowed estimate as a control variate (:func:`ris_shade_reference`).
     ``slots`` (2, the default, or 4; 4 only with candidates): directions resampled from the
     candidates per shading sample, one shadow ray each (:func:`ris_shade_reference`).
+    Candidates and slots left as None take the defaults here; a render then chooses them
+    from its scene's shadows (:meth:`fit_to_visibility`).
     """
 
     name = "wavelet"
@@ -288,11 +298,14 @@ class WaveletStrategy(Strategy):
         if not isinstance(control_variate, (bool, np.bool_)):
             raise ArgumentError(f"{where}: control_variate must be True or False, got {shown(control_variate)}")
         self.control_variate = bool(control_variate)
+        self._candidates_given = candidates is not None
         candidates = DEFAULT_CANDIDATES if candidates is None else candidates
         self.candidates = check_int(where, "candidates", candidates, 0, MAX_CANDIDATES)
         if self.candidates == 1:
             raise ArgumentError(f"{where}: candidates must be 0 (the MIS pair) or 2..{MAX_CANDIDATES}, got 1")
         self.slots = DEFAULT_SLOTS if slots is None else check_int(where, "slots", slots, 2, 4)
+        self._slots_given = slots is not None
+        self.visibility_variance = None
         if self.slots not in SLOT_COUNTS or (self.slots != 2 and not self.candidates):
             raise ArgumentError(f"{where}: slots must be 2, or 4 with candidates (the MIS pair has 2), "
                                 f"got {self.slots}")
@@ -307,6 +320,23 @@ class WaveletStrategy(Strategy):
             names = ", ".join(f"{v} ({k})" for k, v in bsdfs.TYPES.items())
             raise ArgumentError(f"{where}: compensated_kinds must be a tuple of bsdf kinds ({names}), "
                                 f"got {shown(compensated_kinds)}")
+
+    @property
+    def wants_visibility(self) -> bool:
+        """Whether candidates or slots are left to :meth:`fit_to_visibility` (with candidates 0,
+        the MIS pair, the slots are 2 and nothing is)."""
+        return not self._candidates_given or (not self._slots_given and self.candidates > 0)
+
+    def fit_to_visibility(self, variance: float):
+        """Candidates and slots not given to the constructor, from the scene's visibility
+        variance (:func:`wavlight.occlusion.visibility_variance`): AUTO_BUDGET's pair for an
+        unshadowed scene (variance < SHADOWED_VARIANCE) or a shadowed one."""
+        self.visibility_variance = float(variance)
+        candidates, slots = AUTO_BUDGET[self.visibility_variance >= SHADOWED_VARIANCE]
+        if not self._candidates_given:
+            self.candidates = candidates
+        if not self._slots_given:
+            self.slots = slots if self.candidates else DEFAULT_SLOTS
 
     def prepare(self, environment, materials=()):
         """The light trees, and per material its product depth, lobe shape and light tree:
@@ -368,6 +398,8 @@ class WaveletStrategy(Strategy):
         return {**tree_info(self.trees, self.tv, self.env), "wavelet_candidates": self.candidates,
                 "wavelet_control_variate": bool(self.candidates and self.control_variate),
                 "wavelet_slots": self.slots,
+                "visibility_variance": (None if self.visibility_variance is None
+                                        else round(self.visibility_variance, 4)),
                 "product_levels": dict(zip(self.names, self.levels.tolist())),
                 "product_kappa": dict(zip(self.names, [round(k, 3) for k in self.kappa.tolist()])),
                 "product_light_tree": dict(zip(self.names, [self.tree_kinds[i] for i in self.tree_index])),

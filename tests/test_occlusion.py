@@ -1,0 +1,117 @@
+"""The scene's visibility variance (wavlight.occlusion, the setup's pilot of shadow rays) and
+the wavelet budget (candidates, slots) a render chooses from it."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import wavlight
+from wavlight import occlusion, strategies
+from wavlight.raytrace import RayTracer
+
+from scenes_util import load
+
+SKY = dict(procedural="sky")
+SPHERE = dict(shape="sphere", center=[0.0, 0.0, 0.0], radius=1.0, subdivisions=3, material="m")
+FLOOR = dict(shape="quad", center=[0.0, -1.0, 0.0], normal=[0.0, 1.0, 0.0], size=200.0, material="m")
+LOOK_AT_SPHERE = dict(eye=[0.0, 0.5, 4.0], target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0], fov_y=40.0)
+LOOK_DOWN = dict(eye=[0.0, 2.0, 0.0], target=[0.0, -1.0, 0.0], up=[0.0, 0.0, -1.0], fov_y=60.0)
+
+
+def _scene(tmp_path, objects, camera, width=40, height=30, **render):
+    return load(tmp_path, render=dict(width=width, height=height, spp=2, strategy="wavelet", **render),
+                camera=camera, environment=SKY, objects=objects,
+                materials={"m": dict(type="ggx", roughness=0.2)})
+
+
+def _variance(scene, tracer=None):
+    tracer = tracer or RayTracer(scene.vertices, scene.faces)
+    return occlusion.visibility_variance(scene, tracer, scene.width, scene.height)
+
+
+class _RuleTracer:
+    """The scene's own hits, but occlusion decided by a rule on the direction alone."""
+
+    def __init__(self, tracer, rule):
+        self.tracer, self.rule = tracer, rule
+
+    def __getattr__(self, name):
+        return getattr(self.tracer, name)
+
+    def occluded(self, origins, dirs):
+        return self.rule(np.asarray(dirs, np.float64))
+
+
+def test_nothing_in_shadow_is_zero(tmp_path):
+    """A lone (convex) sphere, a lone floor seen from above and from below (its normal turned
+    towards the viewer, so no direction goes through it), and a camera that sees nothing:
+    exactly 0."""
+    assert _variance(_scene(tmp_path, [SPHERE], LOOK_AT_SPHERE)) == 0.0
+    assert _variance(_scene(tmp_path, [FLOOR], LOOK_DOWN)) == 0.0
+    look_up = dict(LOOK_DOWN, eye=[0.0, -3.0, 0.0], target=[0.0, 0.0, 0.0])
+    assert _variance(_scene(tmp_path, [FLOOR], look_up)) == 0.0
+    assert _variance(_scene(tmp_path, [SPHERE], dict(LOOK_AT_SPHERE, target=[0.0, 0.5, 8.0]))) == 0.0
+
+
+def test_all_blocked_is_zero(tmp_path):
+    """A floor under a ceiling that covers its whole hemisphere: every ray blocked, no
+    variance."""
+    ceiling = dict(FLOOR, center=[0.0, 3.0, 0.0], size=1e4)
+    assert _variance(_scene(tmp_path, [dict(FLOOR, size=1e4), ceiling], LOOK_DOWN)) == 0.0
+
+
+@pytest.mark.parametrize("cos_limit, b", [(0.5, 0.25), (np.sqrt(0.5), 0.5), (0.9, 0.19)])
+def test_estimate_is_unbiased(tmp_path, cos_limit, b):
+    """Directions within an angle of the floor's normal blocked by rule: cosine-distributed
+    directions are blocked with probability b = 1 - cos_limit^2 (so the directions are
+    cosine-distributed about the right normal); the pilot's mean of 4 b (1 - b) K / (K - 1)
+    per point is unbiased, within 4 standard errors (each point's Binomial(K, b) count
+    enumerated exactly)."""
+    scene = _scene(tmp_path, [FLOOR], LOOK_DOWN, width=32, height=32)
+    tracer = RayTracer(scene.vertices, scene.faces)
+    got = _variance(scene, _RuleTracer(tracer, lambda d: d[:, 1] > cos_limit))
+    b = 1.0 - cos_limit ** 2
+    k = occlusion.PILOT_DIRECTIONS
+    counts = np.arange(k + 1)
+    per_point = 4.0 * (counts / k) * (1.0 - counts / k) * k / (k - 1)
+    pmf = stats.binom.pmf(counts, k, b)
+    mean = float(pmf @ per_point)
+    se = np.sqrt(float(pmf @ (per_point - mean) ** 2) / occlusion.PILOT_SIDE ** 2)
+    assert mean == pytest.approx(4 * b * (1 - b), rel=1e-12)
+    assert abs(got - mean) < 4 * se, (got, mean, se)
+
+
+def test_object_on_floor_is_shadowed(tmp_path):
+    """A sphere on a floor (the floor's contact shadow, the sphere's lower half facing the
+    floor) and the built-in default scene count as shadowed."""
+    on_floor = _scene(tmp_path, [SPHERE, FLOOR], LOOK_AT_SPHERE)
+    assert _variance(on_floor) > strategies.SHADOWED_VARIANCE
+    default = wavlight.load_scene(str(Path(__file__).parents[1] / "scenes" / "default.toml"))
+    assert _variance(default) > strategies.SHADOWED_VARIANCE
+
+
+def test_render_chooses_the_budget_from_the_scene(tmp_path):
+    """Unset candidates and slots come from AUTO_BUDGET by the scene's visibility variance,
+    which --json reports; what is given wins, and a render that has nothing left to choose
+    runs no pilot (visibility_variance None)."""
+    (tmp_path / "lone").mkdir()
+    (tmp_path / "shadowed").mkdir()
+    lone = _scene(tmp_path / "lone", [SPHERE], LOOK_AT_SPHERE)
+    shadowed = _scene(tmp_path / "shadowed", [SPHERE, FLOOR], LOOK_AT_SPHERE)
+
+    def run(scene, **kw):
+        s = wavlight.render_full(scene, spp=1, width=8, height=6, **kw).stats
+        return s["wavelet_candidates"], s["wavelet_slots"], s["visibility_variance"]
+
+    m, s, v = run(lone)
+    assert (m, s) == strategies.AUTO_BUDGET[False] and v == 0.0
+    m, s, v = run(shadowed)
+    assert (m, s) == strategies.AUTO_BUDGET[True] and v > strategies.SHADOWED_VARIANCE
+    assert run(shadowed, wavelet_candidates=12)[:2] == (12, strategies.AUTO_BUDGET[True][1])
+    assert run(shadowed, wavelet_slots=2)[:2] == (strategies.AUTO_BUDGET[True][0], 2)
+    assert run(shadowed, wavelet_candidates=12, wavelet_slots=2) == (12, 2, None)
+    assert run(shadowed, wavelet_candidates=0) == (0, 2, None)
+    assert "visibility_variance" not in wavlight.render_full(lone, spp=1, width=8, height=6, strategy="mis").stats

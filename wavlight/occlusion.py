@@ -1,0 +1,60 @@
+"""How much of what the camera sees lies in partial shadow: a pilot of shadow rays at setup.
+
+The wavelet strategy's resampling estimator (README, "Resampling") spends its work on two
+things: candidates (walks, no rays) and slots (directions that get a shadow ray). With its
+control variate an unshadowed point's estimate is the candidates' own unshadowed estimate,
+exact in the slots, so there only candidates reduce the variance; where a point's lighting is
+partly blocked, the slots' visibility carries the rest. :func:`visibility_variance` measures
+which case a scene is, so that the strategy can spend on the one it needs
+(:meth:`wavlight.strategies.WaveletStrategy.fit_to_visibility`).
+
+The pilot: camera rays through the centres of a ``side`` x ``side`` grid over the image
+(``side`` on the longer edge), and at every hit ``directions`` cosine-distributed directions
+about the face normal turned towards the viewer, traced as shadow rays from the renderer's own
+offset origins (:meth:`RayTracer.shadow_offsets`). The directions come from a fixed
+generator, so the figure (and the choice made from it) does not depend on the render's seed
+or spp. 1024 camera rays and at most 16 384 shadow rays: 2-3 ms on the scenes in scenes/
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import warp
+from .camera import camera_rays
+from .raytrace import RayTracer
+
+PILOT_SIDE = 32
+PILOT_DIRECTIONS = 16
+_PILOT_SEED = 0x5EED
+
+
+def visibility_variance(scene, tracer: RayTracer, width: int, height: int, side: int = PILOT_SIDE,
+                        directions: int = PILOT_DIRECTIONS) -> float:
+    """4 b (1 - b) averaged over the pilot's hit points (module docstring), b the share of a
+    point's cosine-distributed directions that are blocked: the variance of one direction's
+    visibility, scaled to 1 where every point has half its (cosine-weighted) hemisphere
+    blocked; 0 where nothing is shadowed or the camera hits nothing. Each point's b (1 - b)
+    is estimated without bias from its ``directions`` rays (times K / (K - 1))."""
+    aspect = width / height
+    gw, gh = (side, max(1, round(side / aspect))) if aspect >= 1 else (max(1, round(side * aspect)), side)
+    gx, gy = np.meshgrid(np.arange(gw), np.arange(gh))
+    # the pilot cells' centres in the render's own pixel coordinates
+    px = ((gx.ravel() + 0.5) * width / gw).astype(np.float32)
+    py = ((gy.ravel() + 0.5) * height / gh).astype(np.float32)
+    eye, d = camera_rays(scene, px, py, np.zeros((len(px), 2), np.float32), width, height)
+    prim, t = tracer.intersect(eye, d)
+    hit = np.flatnonzero(prim >= 0)
+    if len(hit) == 0 or directions < 2:
+        return 0.0
+    face = prim[hit]
+    n = tracer.face_normals[face]
+    n = n * np.where(np.einsum("ij,ij->i", n, d[hit]) > 0, np.float32(-1), np.float32(1))[:, None]
+    p = eye[hit] + d[hit] * t[hit, None]
+    origin = p + n * tracer.shadow_offsets(p, face, scene.camera.eye)[:, None]
+    u = np.random.default_rng(_PILOT_SEED).random((len(hit) * directions, 2))
+    n = np.repeat(n.astype(np.float64), directions, axis=0)
+    s, t = warp.frame(n)
+    wi = warp.to_world(warp.square_to_cosine_hemisphere(u), s, t, n).astype(np.float32)
+    blocked = tracer.occluded(np.repeat(origin, directions, axis=0), wi)
+    b = blocked.reshape(len(hit), directions).mean(axis=1)
+    return float(np.mean(4.0 * b * (1.0 - b)) * directions / (directions - 1))
