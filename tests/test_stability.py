@@ -102,6 +102,32 @@ def test_all_black_map_gives_exactly_zero(quick, tmp_path):
     assert r.exit_code == 2 and "black everywhere" in r.output
 
 
+def test_room_slit_is_closed_but_for_its_slit(tmp_path):
+    """The room_slit case's scene: every pixel sees the room's inside, the sky is seen only
+    through the slit (every upward direction from the floor's centre is blocked, directions
+    towards the slit are not), and the budget pilot counts it as shadowed."""
+    from wavlight import occlusion, strategies
+    from wavlight.camera import camera_rays
+    from wavlight.raytrace import RayTracer
+
+    built = stability.CASES["room_slit"].build(str(tmp_path), 16, 16, stability.DATA_DIR)
+    scene = wavlight.load_scene(built.scene_path)
+    tracer = RayTracer(scene.vertices, scene.faces)
+    py, px = np.mgrid[0:16, 0:16]
+    for corner in ((0.0, 0.0), (1.0, 1.0)):
+        o, d = camera_rays(scene, px.ravel(), py.ravel(), np.tile(corner, (256, 1)), 16, 16)
+        assert np.all(tracer.intersect(o, d)[0] >= 0)
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(4096, 3)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    centre = np.float32([[0.0, 0.01, 0.0]])
+    up = d[d[:, 1] > 0.2]
+    assert np.all(tracer.occluded(np.repeat(centre, len(up), 0), up))
+    to_slit = np.float32([[0.0, 0.1, 1.0]]) / np.linalg.norm([0.0, 0.1, 1.0])
+    assert not tracer.occluded(centre, to_slit)[0]
+    assert occlusion.visibility_variance(scene, tracer, 16, 16) >= strategies.SHADOWED_VARIANCE
+
+
 def test_bad_texels_warning_is_recorded(quick):
     _, results, _ = quick
     info = next(ci for ci in results["cases"] if ci["case"] == "bad_texels")

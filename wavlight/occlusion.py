@@ -30,11 +30,14 @@ _PILOT_SEED = 0x5EED
 
 def visibility_variance(scene, tracer: RayTracer, width: int, height: int, side: int = PILOT_SIDE,
                         directions: int = PILOT_DIRECTIONS) -> float:
-    """4 b (1 - b) averaged over the pilot's hit points (module docstring), b the share of a
-    point's cosine-distributed directions that are blocked: the variance of one direction's
-    visibility, scaled to 1 where every point has half its (cosine-weighted) hemisphere
-    blocked; 0 where nothing is shadowed or the camera hits nothing. Each point's b (1 - b)
-    is estimated without bias from its ``directions`` rays (times K / (K - 1))."""
+    """The relative variance of visibility over what the camera sees: E[b (1 - b)] / E[1 - b]^2,
+    b a pilot hit point's blocked share of its cosine-distributed directions (module
+    docstring), the means over the hits. 0 where nothing is shadowed, the camera hits nothing
+    or everything it sees is fully blocked; it grows as shadows cover more of what is lit,
+    and without bound where light arrives through small openings (a room lit through a
+    slit). Relative, as relMSE is: where most of the light is blocked, what gets through
+    is noisy against the little that is seen. b (1 - b) per point is estimated without bias
+    from its ``directions`` rays (times K / (K - 1))."""
     aspect = width / height
     gw, gh = (side, max(1, round(side / aspect))) if aspect >= 1 else (max(1, round(side * aspect)), side)
     gx, gy = np.meshgrid(np.arange(gw), np.arange(gh))
@@ -57,4 +60,7 @@ def visibility_variance(scene, tracer: RayTracer, width: int, height: int, side:
     wi = warp.to_world(warp.square_to_cosine_hemisphere(u), s, t, n).astype(np.float32)
     blocked = tracer.occluded(np.repeat(origin, directions, axis=0), wi)
     b = blocked.reshape(len(hit), directions).mean(axis=1)
-    return float(np.mean(4.0 * b * (1.0 - b)) * directions / (directions - 1))
+    visible = float(np.mean(1.0 - b))
+    if visible == 0.0:
+        return 0.0
+    return float(np.mean(b * (1.0 - b)) * directions / (directions - 1)) / visible ** 2
