@@ -197,8 +197,11 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
     if as_json:
         click.echo(json.dumps(stats))
     elif not quiet:
+        how = stats["strategy"]
+        if stats.get("wavelet_candidates"):   # the resampling estimator's budget, chosen or given
+            how += f" ({stats['wavelet_candidates']} candidates, {stats['wavelet_slots']} slots)"
         click.echo(f"wrote {output}: {stats['width']}x{stats['height']}, {stats['spp']} spp, "
-                   f"{stats['strategy']}, render {stats['render_seconds']:.2f} s "
+                   f"{how}, render {stats['render_seconds']:.2f} s "
                    f"({stats['samples_per_second'] / 1e6:.2f} M samples/s)", err=True)
 
 

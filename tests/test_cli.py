@@ -763,6 +763,19 @@ def test_wavelet_slots_from_scene_and_flag(tmp_path):
     assert 0 < shadow[2] < shadow[4] <= 2 * shadow[2], shadow
 
 
+def test_closing_message_names_the_wavelet_budget(tmp_path):
+    """The closing line on stderr gives the wavelet strategy's candidates and slots (chosen
+    from the scene or given), and nothing more for the MIS pair or another strategy."""
+    scene = write_scene(tmp_path, scene_text(render="width = 8\nheight = 6\nspp = 2\nstrategy = \"wavelet\"\n"))
+    for args, want in (((), " candidates, "), (("--wavelet-candidates", 6, "--wavelet-slots", "4"),
+                                                 "wavelet (6 candidates, 4 slots)"),
+                       (("--wavelet-candidates", 0), "wavelet, render"), (("--strategy", "mis"), "mis, render")):
+        o = run_inproc("render", scene, "-o", tmp_path / "o.exr", *args)
+        assert_success(o)
+        closing = [line for line in stderr_lines(o) if line.startswith("wrote ")]
+        assert len(closing) == 1 and want in closing[0], o.describe()
+
+
 def test_wavelet_control_variate_flag(tmp_path):
     """--no-wavelet-control-variate reaches the strategy (--json wavelet_control_variate); it is
     on by default, and reported off for the MIS pair, which has no candidates."""

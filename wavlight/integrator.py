@@ -219,7 +219,8 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     ``wavelet_candidates`` (0 or 2..64) sets the wavelet strategy's resampling candidates
     (:func:`wavlight.strategies.ris_shade_reference`; 0: the MIS pair; default: the scene's,
     else chosen from the scene's shadows: strategies.AUTO_BUDGET, :mod:`wavlight.occlusion`).
-    ``wavelet_control_variate`` (default True): whether the resampling estimator carries its candidates' unshadowed estimate as a control variate
+    ``wavelet_control_variate`` (default True): whether the resampling estimator carries its
+    candidates' unshadowed estimate as a control variate
     (:func:`wavlight.strategies.ris_shade_reference`). ``wavelet_slots`` (2 or 4; default: the
     scene's, else chosen as the candidates are): directions, one shadow ray each, that
     estimator resamples per sample.
