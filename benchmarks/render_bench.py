@@ -89,6 +89,9 @@ def main():
         out["wavlight"][strategy] = {k: best[k] for k in (
             "setup_seconds", "render_seconds", "rays", "rays_per_second", "samples_per_second")}
         out["wavlight"][strategy]["first_setup_seconds"] = runs[0]["setup_seconds"]
+        for k in ("wavelet_candidates", "wavelet_slots", "visibility_variance"):   # the budget it chose
+            if k in best:
+                out["wavlight"][strategy][k] = best[k]
     import resource
 
     out["peak_rss_mib"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)  # the renders

@@ -36,12 +36,13 @@ class _RuleTracer:
     """The scene's own hits, but occlusion decided by a rule on the direction alone."""
 
     def __init__(self, tracer, rule):
-        self.tracer, self.rule = tracer, rule
+        self.tracer, self.rule, self.rays = tracer, rule, 0
 
     def __getattr__(self, name):
         return getattr(self.tracer, name)
 
     def occluded(self, origins, dirs):
+        self.rays += len(dirs)
         return self.rule(np.asarray(dirs, np.float64))
 
 
@@ -59,8 +60,10 @@ def test_nothing_in_shadow_is_zero(tmp_path):
 def test_all_blocked_is_zero(tmp_path):
     """A floor under a ceiling that covers its whole hemisphere: every ray blocked, no
     variance."""
-    ceiling = dict(FLOOR, center=[0.0, 3.0, 0.0], size=1e4)
-    assert _variance(_scene(tmp_path, [dict(FLOOR, size=1e4), ceiling], LOOK_DOWN)) == 0.0
+    # (1e5 wide, 3.5 above the floor: a ray escapes below 7e-5 rad of elevation, about 5e-9
+    # of cosine-distributed directions)
+    ceiling = dict(FLOOR, center=[0.0, 2.5, 0.0], size=1e5)
+    assert _variance(_scene(tmp_path, [dict(FLOOR, size=1e5), ceiling], LOOK_DOWN)) == 0.0
 
 
 @pytest.mark.parametrize("cos_limit", [0.5, np.sqrt(0.5), 0.9, 0.2])
@@ -73,11 +76,12 @@ def test_estimate_is_consistent(tmp_path, cos_limit):
     exactly (a ratio of means over the pilot's 1024 points, so its own bias, O(1/N), is far
     below that)."""
     scene = _scene(tmp_path, [FLOOR], LOOK_DOWN, width=32, height=32)
-    tracer = RayTracer(scene.vertices, scene.faces)
-    got = _variance(scene, _RuleTracer(tracer, lambda d: d[:, 1] > cos_limit))
+    tracer = _RuleTracer(RayTracer(scene.vertices, scene.faces), lambda d: d[:, 1] > cos_limit)
+    got = _variance(scene, tracer)
     b = 1.0 - cos_limit ** 2
     k = occlusion.PILOT_DIRECTIONS
     n_points = occlusion.PILOT_SIDE ** 2
+    assert tracer.rays == n_points * k   # every pilot camera ray hit the floor
     counts = np.arange(k + 1)
     x = (counts / k) * (1.0 - counts / k) * k / (k - 1)     # numerator per point
     y = 1.0 - counts / k                                    # visible share per point
@@ -93,7 +97,8 @@ def test_estimate_is_consistent(tmp_path, cos_limit):
 
 def test_mostly_blocked_light_counts_as_shadowed(tmp_path):
     """Light through a small opening (97% of the cosine-weighted hemisphere blocked at every
-    point) is the most shadowed case, not the least: the relative variance is b / (1 - b)."""
+    point) is the most shadowed case, not the least: the relative variance, b / (1 - b) = 32
+    in expectation, is far above the threshold."""
     scene = _scene(tmp_path, [FLOOR], LOOK_DOWN, width=32, height=32)
     tracer = RayTracer(scene.vertices, scene.faces)
     got = _variance(scene, _RuleTracer(tracer, lambda d: d[:, 1] < np.sqrt(0.97)))
@@ -123,11 +128,28 @@ def test_render_chooses_the_budget_from_the_scene(tmp_path):
         return s["wavelet_candidates"], s["wavelet_slots"], s["visibility_variance"]
 
     m, s, v = run(lone)
-    assert (m, s) == strategies.AUTO_BUDGET[False] and v == 0.0
+    assert (m, s) == strategies.AUTO_BUDGET["unshadowed"] and v == 0.0
     m, s, v = run(shadowed)
-    assert (m, s) == strategies.AUTO_BUDGET[True] and v > strategies.SHADOWED_VARIANCE
-    assert run(shadowed, wavelet_candidates=12)[:2] == (12, strategies.AUTO_BUDGET[True][1])
-    assert run(shadowed, wavelet_slots=2)[:2] == (strategies.AUTO_BUDGET[True][0], 2)
+    assert (m, s) == strategies.AUTO_BUDGET["shadowed"] and v > strategies.SHADOWED_VARIANCE
+    assert run(shadowed, wavelet_candidates=12)[:2] == (12, strategies.AUTO_BUDGET["shadowed"][1])
+    assert run(shadowed, wavelet_slots=2)[:2] == (strategies.AUTO_BUDGET["shadowed"][0], 2)
     assert run(shadowed, wavelet_candidates=12, wavelet_slots=2) == (12, 2, None)
     assert run(shadowed, wavelet_candidates=0) == (0, 2, None)
     assert "visibility_variance" not in wavlight.render_full(lone, spp=1, width=8, height=6, strategy="mis").stats
+
+
+def test_fit_to_visibility_refuses_bad_values_and_late_calls():
+    """A variance that is not a finite number >= 0 is refused in one line, and so is a call
+    after prepare(), whose tables and kernels are built for the budget it saw."""
+    from wavlight.errors import ArgumentError
+    from wavlight.envmap import Environment
+
+    for bad in (float("nan"), float("inf"), -0.1, "0.2", None):
+        with pytest.raises(ArgumentError, match="variance must be a finite number"):
+            strategies.make("wavelet").fit_to_visibility(bad)
+    strat = strategies.make("wavelet")
+    strat.fit_to_visibility(0.0)
+    assert (strat.candidates, strat.slots) == strategies.AUTO_BUDGET["unshadowed"]
+    strat.prepare(Environment(np.ones((8, 16, 3), np.float32)))
+    with pytest.raises(ArgumentError, match="before prepare"):
+        strat.fit_to_visibility(1.0)

@@ -951,8 +951,8 @@ def test_wavelet_white_furnace_every_depth(furnace_scene, levels, candidates):
     r = wavlight.render_full(scene, spp=64, strategy="wavelet", seed=7, wavelet_levels=levels,
                              wavelet_candidates=candidates)
     # (a lone sphere: nothing in shadow, so unset candidates come from AUTO_BUDGET's unshadowed pair)
-    assert r.stats["visibility_variance"] in (None, 0.0)
-    assert r.stats["wavelet_candidates"] == (strategies.AUTO_BUDGET[False][0] if candidates is None else candidates)
+    assert r.stats["visibility_variance"] == (None if candidates == 0 else 0.0)
+    assert r.stats["wavelet_candidates"] == (strategies.AUTO_BUDGET["unshadowed"][0] if candidates is None else candidates)
     side = int(r.stats["light_tree"].split("x")[0])
     expect = product.product_levels(0.0, side.bit_length() - 1, levels)
     assert _levels_by_name(r.stats, ["white"]) == [expect]
@@ -979,7 +979,7 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
     values = list(levels.values()) if isinstance(levels, dict) else list(levels)
     assert values == [2, 2, 2], levels
     assert stats_["visibility_variance"] > strategies.SHADOWED_VARIANCE, stats_
-    assert (stats_["wavelet_candidates"], stats_["wavelet_slots"]) == strategies.AUTO_BUDGET[True], stats_
+    assert (stats_["wavelet_candidates"], stats_["wavelet_slots"]) == strategies.AUTO_BUDGET["shadowed"], stats_
     img = read_image(str(out))
     assert img.shape[:2] == (12, 16) and np.all(np.isfinite(img)) and img.max() > 0
 

@@ -8,12 +8,13 @@ partly blocked, the slots' visibility carries the rest. :func:`visibility_varian
 which case a scene is, so that the strategy can spend on the one it needs
 (:meth:`wavlight.strategies.WaveletStrategy.fit_to_visibility`).
 
-The pilot: camera rays through the centres of a ``side`` x ``side`` grid over the image
-(``side`` on the longer edge), and at every hit ``directions`` cosine-distributed directions
+The pilot: camera rays through the centres of a grid of about ``side`` x ``side`` cells over
+the image, shaped as the image, and at every hit ``directions`` cosine-distributed directions
 about the face normal turned towards the viewer, traced as shadow rays from the renderer's own
 offset origins (:meth:`RayTracer.shadow_offsets`). The directions come from a fixed
 generator, so the figure (and the choice made from it) does not depend on the render's seed
-or spp. 1024 camera rays and at most 16 384 shadow rays: 2-3 ms on the scenes in scenes/
+or spp. About 1024 camera rays and at most 16 times as many shadow rays: 3-4 ms on the
+scenes in scenes/ (the ray-tracing structure is built before, with the RayTracer).
 """
 from __future__ import annotations
 
@@ -38,8 +39,8 @@ def visibility_variance(scene, tracer: RayTracer, width: int, height: int, side:
     slit). Relative, as relMSE is: where most of the light is blocked, what gets through
     is noisy against the little that is seen. b (1 - b) per point is estimated without bias
     from its ``directions`` rays (times K / (K - 1))."""
-    aspect = width / height
-    gw, gh = (side, max(1, round(side / aspect))) if aspect >= 1 else (max(1, round(side * aspect)), side)
+    aspect = width / height   # about side^2 cells, shaped as the image
+    gw, gh = max(1, round(side * np.sqrt(aspect))), max(1, round(side / np.sqrt(aspect)))
     gx, gy = np.meshgrid(np.arange(gw), np.arange(gh))
     # the pilot cells' centres in the render's own pixel coordinates
     px = ((gx.ravel() + 0.5) * width / gw).astype(np.float32)
@@ -49,15 +50,11 @@ def visibility_variance(scene, tracer: RayTracer, width: int, height: int, side:
     hit = np.flatnonzero(prim >= 0)
     if len(hit) == 0 or directions < 2:
         return 0.0
-    face = prim[hit]
-    n = tracer.face_normals[face]
-    n = n * np.where(np.einsum("ij,ij->i", n, d[hit]) > 0, np.float32(-1), np.float32(1))[:, None]
-    p = eye[hit] + d[hit] * t[hit, None]
-    origin = p + n * tracer.shadow_offsets(p, face, scene.camera.eye)[:, None]
+    normal, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
     u = np.random.default_rng(_PILOT_SEED).random((len(hit) * directions, 2))
-    n = np.repeat(n.astype(np.float64), directions, axis=0)
-    s, t = warp.frame(n)
-    wi = warp.to_world(warp.square_to_cosine_hemisphere(u), s, t, n).astype(np.float32)
+    normal = np.repeat(normal.astype(np.float64), directions, axis=0)
+    tangent, bitangent = warp.frame(normal)
+    wi = warp.to_world(warp.square_to_cosine_hemisphere(u), tangent, bitangent, normal).astype(np.float32)
     blocked = tracer.occluded(np.repeat(origin, directions, axis=0), wi)
     b = blocked.reshape(len(hit), directions).mean(axis=1)
     visible = float(np.mean(1.0 - b))

@@ -40,6 +40,9 @@ class RayTracer:
             self._scene = rtcs.EmbreeScene(robust=False)
             mc.TriangleMesh(self._scene, np.ascontiguousarray(vertices, np.float32),
                             np.ascontiguousarray(faces, np.int32))
+            # embree builds its acceleration structure at the first query: one query here, so
+            # that the build is part of every render's setup rather than of its first batch
+            self._scene.run(np.zeros((1, 3), np.float32), np.float32([[0.0, 0.0, 1.0]]), query="OCCLUDED")
         v = np.asarray(vertices, np.float64)
         f = np.asarray(faces, np.int64)
         if self.n_faces:
@@ -63,6 +66,15 @@ class RayTracer:
         p = np.asarray(p, np.float32)
         return np.maximum(np.maximum(np.float32(OFFSET_RELATIVE) * np.abs(p).max(axis=1, initial=0.0),
                                      self.face_offset_floor[face]), self.eye_offset_floor(eye))
+
+    def surface(self, eye, d, t, face):
+        """At hits of rays eye + t d (d (N, 3), t (N,), float32) on faces (N,): the face normal
+        turned towards the viewer, the hit point p and the shadow-ray origin p moved
+        :meth:`shadow_offsets` along that normal (float32, as the shade kernel computes them)."""
+        fn = self.face_normals[face]
+        n = fn * np.where(np.einsum("ij,ij->i", fn, d) > 0, np.float32(-1), np.float32(1))[:, None]
+        p = np.asarray(eye, np.float32) + d * np.asarray(t, np.float32)[:, None]
+        return n, p, p + n * self.shadow_offsets(p, face, eye)[:, None]
 
     def _map(self, fn, origins, dirs):
         n = len(origins)

@@ -190,11 +190,8 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays
     direct = np.zeros((3, count))
     direct[:, miss] = scene.environment.eval(d[miss].astype(np.float64)).T
     face = prim[hit]
-    n = tracer.face_normals[face] * np.where(np.einsum("ij,ij->i", tracer.face_normals[face], d[hit]) > 0,
-                                             np.float32(-1), np.float32(1))[:, None]
-    p = np.asarray(eye, np.float32) + d[hit] * np.asarray(t, np.float32)[hit, None]
     origin = np.zeros((count, 3), np.float32)
-    origin[hit] = p + n * tracer.shadow_offsets(p, face, eye)[:, None]
+    n, p, origin[hit] = tracer.surface(eye, d[hit], np.asarray(t, np.float32)[hit], face)
     if len(hit):
         wi_h, val_h, off_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p, with_offset=True)
         direct[:, hit] = np.asarray(off_h).T

@@ -30,6 +30,7 @@ or four directions from M candidates (:func:`ris_shade_reference`).
 from __future__ import annotations
 
 import inspect
+import math
 import numbers
 from dataclasses import dataclass
 
@@ -55,7 +56,7 @@ DEFAULT_CANDIDATES = 8
 #: bunny's own shadows, 0.22-0.30 for objects on floors) the candidates carry the variance; from
 #: it on, the slots' visibility does (README, "Budget from the scene's shadows")
 SHADOWED_VARIANCE = 0.05
-AUTO_BUDGET = {False: (16, 2), True: (8, 4)}
+AUTO_BUDGET = {"unshadowed": (16, 2), "shadowed": (8, 4)}
 MAX_CANDIDATES = 64
 #: candidate j's uniforms are frac(u.xy + j R2) (Roberts' R2 sequence), the offsets in 24-bit
 #: fixed point so that the kernel's float32 sums are the twin's bit for bit (kernels/shade.cl)
@@ -331,9 +332,16 @@ class WaveletStrategy(Strategy):
     def fit_to_visibility(self, variance: float):
         """Candidates and slots not given to the constructor, from the scene's visibility
         variance (:func:`wavlight.occlusion.visibility_variance`): AUTO_BUDGET's pair for an
-        unshadowed scene (variance < SHADOWED_VARIANCE) or a shadowed one."""
+        unshadowed scene (variance < SHADOWED_VARIANCE) or a shadowed one. Before
+        :meth:`prepare` only."""
+        where = "strategies.WaveletStrategy.fit_to_visibility"
+        if hasattr(self, "trees"):   # the kernels are built for the budget that prepare saw
+            raise ArgumentError(f"{where}: call it before prepare()")
+        if not isinstance(variance, numbers.Real) or not math.isfinite(variance) or variance < 0:
+            raise ArgumentError(f"{where}: variance must be a finite number >= 0, got {shown(variance)}")
         self.visibility_variance = float(variance)
-        candidates, slots = AUTO_BUDGET[self.visibility_variance >= SHADOWED_VARIANCE]
+        candidates, slots = AUTO_BUDGET["shadowed" if self.visibility_variance >= SHADOWED_VARIANCE
+                                        else "unshadowed"]
         if not self._candidates_given:
             self.candidates = candidates
         if not self._slots_given:
