@@ -45,14 +45,12 @@ def embree_alone(scene, args):
     prim, t = tracer.intersect(o, d)
     t_hit = time.perf_counter() - t0
     hit = prim >= 0
-    p = (o[hit] + d[hit] * t[hit, None]).astype(np.float32)
-    n_f = tracer.face_normals[prim[hit]]
-    n_f = np.where((np.einsum("ij,ij->i", n_f, d[hit]) > 0)[:, None], -n_f, n_f)
+    n_f, p, origin = tracer.surface(o[0], d[hit], t[hit], prim[hit])   # as the renderer's shadow rays
     w = rng.normal(size=(len(p), 3)).astype(np.float32)
     w = np.where((np.einsum("ij,ij->i", w, n_f) < 0)[:, None], -w, w)
     w /= np.linalg.norm(w, axis=1, keepdims=True)
     t0 = time.perf_counter()
-    tracer.occluded(p + n_f * tracer.shadow_offsets(p, prim[hit], o[0])[:, None], w)
+    tracer.occluded(origin, w)
     t_occ = time.perf_counter() - t0
     return {"camera_rays": n, "closest_hit_seconds": round(t_hit, 4),
             "closest_hit_rays_per_second": round(n / t_hit), "shadow_rays": int(len(p)),

@@ -95,6 +95,20 @@ def test_estimate_is_consistent(tmp_path, cos_limit):
     assert abs(got - b / (1 - b)) < 4 * se, (got, b / (1 - b), se)
 
 
+@pytest.mark.parametrize("width, height", [(64, 16), (16, 64), (1000, 1), (32, 32)])
+def test_pilot_grid_is_shaped_as_the_image(tmp_path, width, height):
+    """About PILOT_SIDE^2 camera rays whatever the aspect ratio (a grid of round(32 sqrt(a))
+    x round(32 / sqrt(a)) cells, at least one each way), every one of them hitting the floor
+    below, each with PILOT_DIRECTIONS shadow rays."""
+    scene = _scene(tmp_path, [dict(FLOOR, size=1e4)], dict(LOOK_DOWN, fov_y=20.0), width=width, height=height)
+    tracer = _RuleTracer(RayTracer(scene.vertices, scene.faces), lambda d: d[:, 1] > 0.5)
+    _variance(scene, tracer)
+    a = width / height
+    cells = max(1, round(32 * np.sqrt(a))) * max(1, round(32 / np.sqrt(a)))
+    assert tracer.rays == cells * occlusion.PILOT_DIRECTIONS
+    assert 0.5 * occlusion.PILOT_SIDE ** 2 <= cells <= 2 * occlusion.PILOT_SIDE ** 2
+
+
 def test_mostly_blocked_light_counts_as_shadowed(tmp_path):
     """Light through a small opening (97% of the cosine-weighted hemisphere blocked at every
     point) is the most shadowed case, not the least: the relative variance, b / (1 - b) = 32
