@@ -13,7 +13,7 @@ the image, shaped as the image, and at every hit ``directions`` cosine-distribut
 about the face normal turned towards the viewer, traced as shadow rays from the renderer's own
 offset origins (:meth:`RayTracer.shadow_offsets`). The directions come from a fixed
 generator, so the figure (and the choice made from it) does not depend on the render's seed
-or spp. About 1024 camera rays and at most 16 times as many shadow rays: 3-4 ms on the
+or spp. About 1024 camera rays and at most 16 times as many shadow rays: about 3 ms on the
 scenes in scenes/ (the ray-tracing structure is built before, with the RayTracer).
 """
 from __future__ import annotations
