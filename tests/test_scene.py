@@ -814,3 +814,11 @@ def test_albedo_above_one_warns(tmp_path):
     with pytest.warns(UserWarning, match=r"\[materials.m\].albedo: above 1"):
         load(tmp_path, SKY + '[materials.m]\ntype = "lambert"\nalbedo = [1.2, 0.5, 0.5]\n'
              '[[objects]]\nshape = "quad"\nmaterial = "m"\n')
+
+
+def test_scene_limits_repeat_the_strategies():
+    """The scene file's wavelet limits are the strategy's own (scene.py keeps copies so that
+    parsing a scene does not import the strategies)."""
+    from wavlight import scene, strategies
+    assert scene.WAVELET_SLOTS == strategies.SLOT_COUNTS
+    assert scene.MAX_WAVELET_CANDIDATES == strategies.MAX_CANDIDATES

@@ -146,7 +146,7 @@ import numpy as np
 from . import metrics
 from .errors import SanitisedInputWarning, WavlightError
 from .sampler import SAMPLERS
-from .scene import MAX_SIDE, MAX_SPP, STRATEGIES
+from .scene import MAX_SIDE, MAX_SPP, STRATEGIES, WAVELET_SLOTS
 from .scene import _Table as SceneTable
 
 PILOT_SEED = 999_999
@@ -352,7 +352,7 @@ def load_spec(path) -> Spec:
             options["wavelet_candidates"] = wc
         ws = t.get("wavelet_slots", "int", lo=2)
         if ws is not None:
-            if ws not in (2, 4):
+            if ws not in WAVELET_SLOTS:
                 t.fail("wavelet_slots", f"must be 2 or 4, got {ws}")
             options["wavelet_slots"] = ws
         ll = t.get("light_levels", "int", lo=1)

@@ -65,7 +65,7 @@ class _Renderer:
         t0 = time.perf_counter()
         self.tracer = RayTracer(scene.vertices, scene.faces)
         self.strategy = strategies.make(strategy, **(options or {}))
-        if getattr(self.strategy, "wants_visibility", False):   # the wavelet budget from the scene's shadows
+        if self.strategy.wants_visibility:   # the wavelet budget from the scene's shadows
             self.strategy.fit_to_visibility(occlusion.visibility_variance(scene, self.tracer, width, height))
         self.strategy.prepare(scene.environment, scene.materials)
         # Strategies without a shade kernel (no KERNEL_ID, e.g. sir) shade in numpy.

@@ -53,6 +53,7 @@ ROUGHNESS_RANGE = (1e-4, 1.0)   # ggx alpha
 EXPONENT_RANGE = (0.0, 1e6)     # phong n
 MAX_SIR_CANDIDATES = 65536
 MAX_WAVELET_CANDIDATES = 64   # wavlight.strategies.MAX_CANDIDATES
+WAVELET_SLOTS = (2, 4)        # wavlight.strategies.SLOT_COUNTS
 MAX_SIR_SAMPLES = 1024
 MAX_SIDE = 16384
 MAX_SPP = 1_000_000
@@ -385,7 +386,7 @@ def load_scene(path: str) -> Scene:
         if wavelet_candidates == 1:
             r.fail("wavelet_candidates", "must be 0 (the MIS pair) or 2..64, got 1")
     wavelet_slots = r.get("wavelet_slots", "int")
-    if wavelet_slots is not None and wavelet_slots not in (2, 4):
+    if wavelet_slots is not None and wavelet_slots not in WAVELET_SLOTS:
         r.fail("wavelet_slots", f"must be 2 or 4, got {wavelet_slots}")
     light_levels = r.get("light_levels", "int")
     if light_levels is not None:

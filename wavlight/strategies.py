@@ -45,7 +45,7 @@ from .errors import ArgumentError, check_int, shown
 #: mis's pair) unless chosen from the scene (AUTO_BUDGET); 4 halves the visibility's share of
 #: the variance for two more rays (README, "Four slots")
 DEFAULT_SLOTS = 2
-SLOT_COUNTS = (2, 4)
+SLOT_COUNTS = (2, 4)   # (wavlight.scene.WAVELET_SLOTS, which validates scene files, repeats it)
 #: the wavelet strategy's resampling candidates per shading sample (ris_shade_reference) unless
 #: chosen from the scene (AUTO_BUDGET): 8 by measurement (README, "The wavelet strategy"); 0 is
 #: the MIS pair of one product and one BSDF sample
@@ -131,6 +131,11 @@ class Strategy:
 
     name = ""
     heuristic = "power"   # MIS weight of the two-sample strategies: "power" or "balance"
+    wants_visibility = False   # whether a render should measure the scene's shadows for it first
+
+    def fit_to_visibility(self, variance: float):
+        """Adapt to the scene's visibility variance (wavlight.occlusion); before :meth:`prepare`,
+        and only when :attr:`wants_visibility`."""
 
     def prepare(self, environment, materials=()):
         """Per-render precomputation (trees, tables); called once before shading."""
