@@ -14,6 +14,7 @@ from wavlight.envmap import Environment, procedural_sky
 from wavlight.scene import Camera, Material, Scene
 from wavlight.shading import KernelShader, NumpyShader
 from scenes_util import random_normals_views
+from walks import product_kernel_samples
 
 
 def _scene(pixels, rotate_y=0.0, phong_exponent=80.0):
@@ -58,6 +59,17 @@ def test_shade_kernel_matches_numpy_four_slots():
     assert _compare_shaders(scene, strat, rng)[0].shape[1] == 4
 
 
+def test_slot_shifts_nest():
+    """Slot k picks at u.z + k' / S, k' the bit reversal of k: two slots at 0 and 1/2, four at
+    0, 1/2, 1/4, 3/4 (the kernel's a, b, c, d), and the first S' of S slots are the S' slots of a
+    smaller budget; every shift is a distinct multiple of 1/S."""
+    assert [strategies.slot_shift(k, 2) for k in range(2)] == [0.0, 0.5]
+    assert [strategies.slot_shift(k, 4) for k in range(4)] == [0.0, 0.5, 0.25, 0.75]
+    eight = [strategies.slot_shift(k, 8) for k in range(8)]
+    assert eight[:4] == [0.0, 0.5, 0.25, 0.75]
+    assert sorted(eight) == [k / 8 for k in range(8)]
+
+
 def _compare_shaders(scene, strat, rng):
     strat.prepare(scene.environment, scene.materials)
     n_pts = 20000
@@ -96,7 +108,7 @@ def test_product_sample_points_kernel_matches_numpy(n_trees, shapes):
     trees (plain and compensated, as WaveletStrategy holds them for lambert and glossy materials in
     one scene) each material walks its own. shapes: the LOBE_SHAPES the program is built for (15
     every shape; 1 lambert alone, whose lobe_weight returns the softened cosine directly)."""
-    from wavlight import cl, product
+    from wavlight import product
     from wavlight.distributions import HaarTree
 
     rng = np.random.default_rng(5)
@@ -117,20 +129,8 @@ def test_product_sample_points_kernel_matches_numpy(n_trees, shapes):
     mirror = 2 * np.einsum("ij,ij->i", wo, nrm)[:, None] * nrm - wo
     axis = np.where((shape == bsdfs.LAMBERT)[:, None], nrm, mirror)
     u = rng.random((count, 4), dtype=np.float32)   # the renderer's layout: u.xy draws the guide sample
-    q = cl.thread_queue()
-    n4, w4 = np.zeros((count, 4), np.float32), np.zeros((count, 4), np.float32)
-    n4[:, :3], w4[:, :3] = nrm, wo
-    uv_buf, pdf_buf = cl.empty(8 * count), cl.empty(4 * count)
-    prog = cl.program("product.cl", N_LEVELS=n_levels, PRODUCT_LEVELS=n_levels, LOBE_SHAPES=shapes,
-                      PRODUCT_TREES=n_trees)
-    items = cl.items(count, cl.LANES)
-    cl.kernel(prog, "product_sample_points")(
-        q, (items,), (cl.WORK_GROUP,), tree.buffer, cl.to_device(env.map_from_world.astype(np.float32).ravel()),
-        np.uint32(count), cl.to_device(n4), cl.to_device(w4), cl.to_device(material.astype(np.int32)),
-        cl.to_device(mat_kappa.astype(np.float32)), cl.to_device((mat_depth + 256 * mat_shape + 65536 * mat_tree).astype(np.int32)),
-        cl.to_device(u), np.uint32(4), uv_buf, pdf_buf)
-    uv_k = cl.read(uv_buf, (2, count), np.float32, q).T
-    pdf_k = cl.read(pdf_buf, (count,), np.float32, q)
+    uv_k, pdf_k = product_kernel_samples(tree, env, n_levels, nrm, wo, material, mat_kappa, mat_depth, mat_shape,
+                                         mat_tree, u, shapes, n_trees)
     u = u[:, :2]
     uv_r, pdf_r = product.sample_reference(tree.nodes(), n_levels, env, axis, nrm, kappa, levels, shape,
                                            u.astype(np.float64), mat_tree[material])

@@ -526,6 +526,13 @@ def candidate_uniforms(u: np.ndarray, j: int) -> np.ndarray:
     return np.where(c >= np.float32(1), c - np.float32(1), c)
 
 
+def slot_shift(k: int, slots: int) -> float:
+    """Where slot k of S (a power of two) picks among the candidates: at u.z + k' / S, k' the
+    bit reversal of k, so that the first S' slots of S are the S' slots of an S' budget."""
+    bits = slots.bit_length() - 1
+    return int(format(k, f"0{bits}b")[::-1], 2) / slots if bits else 0.0
+
+
 def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: np.ndarray, split=None,
                         with_offset=False):
     """The wavelet strategy with ``candidates`` M >= 2: resampled importance sampling from
@@ -590,9 +597,9 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     wi = np.zeros((n, slots, 3))
     value = np.zeros((n, slots, 3))
     us = np.asarray(u, np.float32)[:, 2]
-    # slot k at u.z + k' / S (k' = 0, 2, 1, 3: slots a, b as with two, then c and d between them),
-    # wrapped into [0, 1) by float32 operations as the kernel does
-    shifts = [0.0, 0.5] if slots == 2 else [0.0, 0.5, 0.25, 0.75]
+    # slot k at u.z + k' / S, k' the bit reversal of k (0, 2, 1, 3 for four: slots a, b as with
+    # two, then c and d between them), wrapped into [0, 1) by float32 operations as the kernel does
+    shifts = [slot_shift(k, slots) for k in range(slots)]
     thresholds = [us if h == 0 else np.where(us >= np.float32(1 - h), us - np.float32(1 - h), us + np.float32(h))
                   for h in shifts]
     for slot, v in enumerate(thresholds):
