@@ -346,6 +346,30 @@ def test_product_scaling_at_nodes():
     np.testing.assert_allclose(got, ref, atol=TOL64)
 
 
+@pytest.mark.parametrize("direct_keys", ["direct", "binary_search"])
+def test_sparse_lookups_by_table_and_by_search(monkeypatch, direct_keys):
+    """The sparse paths find coefficients through a table over the key space (sets of up to 12
+    levels) or, beyond haar.DIRECT_TABLE_KEYS, by binary search: both give the pointwise
+    integrals and box sums (the search forced here by a limit of 0), with mixed resolutions,
+    channels, sets that share few wavelets and a set without its scaling coefficient."""
+    if direct_keys == "binary_search":
+        monkeypatch.setattr(haar, "DIRECT_TABLE_KEYS", 0)
+    rng = np.random.default_rng(27)
+    G = haar.compress_topk(haar.forward(rng.random((2, 32, 32)) ** 4), 150)   # two channels
+    H = haar.compress_topk(haar.forward(rng.random((16, 16))), 40)           # coarser
+    c = haar.forward(rng.random((32, 32)) ** 2)
+    c[0, 0] = 0.0                                                            # no scaling coefficient
+    K = haar.compress_topk(c, 60)
+    g, h, k = recon(G), upsample(recon(H), 5), recon(K)
+    np.testing.assert_allclose(haar.triple_product_integral(G, H, K), np.mean(g * h * k, axis=(-2, -1)), atol=TOL64)
+    np.testing.assert_allclose(haar.double_product_integral(G, K), np.mean(g * k, axis=(-2, -1)), atol=TOL64)
+    np.testing.assert_allclose(haar.product_scaling(G, K), box_sums(g * k), atol=TOL64)
+    level = np.repeat(np.arange(6), 4 ** np.arange(6))
+    r = np.arange(tree_size(5)) - (4 ** level - 1) // 3
+    got = haar.product_scaling_at(G, H, level, r & ((1 << level) - 1), r >> level)
+    np.testing.assert_allclose(got, box_sums(g * h), atol=TOL64)
+
+
 # ============================================================================= OpenCL kernels
 @pytest.mark.parametrize("n,T", [(0, 3), (1, 2), (3, 5), (6, 4), (9, 1)])
 def test_forward_kernel(device, n, T):

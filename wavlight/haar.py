@@ -47,8 +47,13 @@ running sum of its parents' scaling coefficients. Hence
                   + 2^l sum over permutations (a, b, c) of (1, 2, 3) of G^a H^b K^c ].
 
 Dense: one top-down pass gives every average, O(4^n). Sparse: only nodes where two
-sets share a wavelet contribute; each needs one ancestor walk of depth <= n, so the
-cost is O(K n log K) for K kept coefficients. The double product is a dot product.
+sets share a wavelet contribute, and their averages come from one top-down pass over
+the distinct nodes on their paths to the root (Ng et al.'s traversal; ``_averages``);
+coefficients are found by key in O(1) through a table over the key space (sets of up
+to 12 levels; binary search beyond), so the cost is linear in the K kept coefficients
+plus those paths' distinct nodes (at most the K nodes again once the kept wavelets'
+parents are kept, as they are for images compressed by magnitude; ``haar_bench.py``).
+The double product is a dot product.
 
 *Product scaling coefficients* (eq. 23-25). On a node's square Q, G is its average
 plus the wavelets inside Q; wavelets integrate to zero over Q and are orthonormal,
@@ -345,14 +350,63 @@ def tripling(i, j, k, n_levels: int) -> np.ndarray:
 
 
 # ============================================================================= sparse helpers
-def _canon(sp: SparseHaar):
-    """Level-ordered keys (0: scaling; wavelet (l, x, y, m): 1 + 3 nid + m - 1 with nid the
-    node's pyramid index, independent of n) and values as (K, C)."""
-    l, x, y, m = coeff_basis(sp.index, sp.n_levels)
-    nid = (np.left_shift(1, 2 * l) - 1) // 3 + (y << l) + x
-    key = np.where(m == 0, 0, 1 + 3 * nid + m - 1)
-    order = np.argsort(key, kind="stable")
-    return key[order], sp.value.reshape(len(sp.value), -1)[order]
+#: Key spaces up to this size (4^12 keys: sets of n <= 12 levels) are indexed by a table over
+#: the whole space (np.zeros, whose pages the OS maps on first touch, so building and querying
+#: it costs O(K)); larger ones by binary search (O(log K) per lookup).
+DIRECT_TABLE_KEYS = 4 ** 12
+
+
+class _Keyed:
+    """A coefficient set by key: wavelet (l, x, y, m) -> 1 + 3 nid + m - 1 with nid the node's
+    pyramid index (independent of n), the scaling function -> 0; values (K, C). ``slot`` finds
+    a key's row in O(1) (a table over the key space) or O(log K) (sorted keys, beyond
+    DIRECT_TABLE_KEYS); no sorting below that size."""
+
+    def __init__(self, sp: SparseHaar, n_levels: int):
+        l, x, y, m = coeff_basis(sp.index, sp.n_levels)
+        nid = (np.left_shift(1, 2 * l) - 1) // 3 + (y << l) + x
+        self.keys = np.where(m == 0, 0, 1 + 3 * nid + m - 1)
+        self.vals = sp.value.reshape(len(sp.value), -1).astype(np.float64)
+        self._rows = _Rows(self.keys, 4 ** n_levels)
+
+    def get(self, q) -> np.ndarray:
+        """Values (..., C) at keys q, 0 where absent."""
+        row = self._rows.find(np.asarray(q, np.int64))
+        return np.where((row >= 0)[..., None], self.vals[row], 0.0)
+
+
+class _Rows:
+    """Row of each of ``keys`` (distinct, < space): find(q) -> row, or -1 where absent."""
+
+    def __init__(self, keys: np.ndarray, space: int):
+        self.keys = keys
+        self.direct = space <= DIRECT_TABLE_KEYS
+        if self.direct:
+            self.slot = np.zeros(space, np.int64)   # 1 + row; 0: absent
+            self.slot[keys] = np.arange(1, len(keys) + 1)
+        else:
+            self.order = np.argsort(keys, kind="stable")
+            self.sorted = keys[self.order]
+
+    def find(self, q: np.ndarray) -> np.ndarray:
+        if self.direct:
+            return self.slot[q] - 1
+        if len(self.keys) == 0:
+            return np.full(q.shape, -1, np.int64)
+        pos = np.minimum(np.searchsorted(self.sorted, q), len(self.keys) - 1)
+        return np.where(self.sorted[pos] == q, self.order[pos], -1)
+
+
+def _distinct(idx: np.ndarray, space: int):
+    """The distinct values of idx (< space) and each element's position among them: O(len)
+    through a table over the space (up to DIRECT_TABLE_KEYS), else np.unique."""
+    if space > DIRECT_TABLE_KEYS:
+        return np.unique(idx, return_inverse=True)
+    slot = np.zeros(space, np.int64)
+    slot[idx] = np.arange(1, len(idx) + 1)   # the last occurrence of each value wins
+    first = slot[idx] == np.arange(1, len(idx) + 1)
+    rank = np.cumsum(first) - 1
+    return idx[first], rank[slot[idx] - 1]
 
 
 def _node_of(nid):
@@ -363,48 +417,51 @@ def _node_of(nid):
     return l, r & (np.left_shift(1, l) - 1), r >> l
 
 
-def _lookup(keys, vals, q):
-    """vals at keys q (0 where absent); keys sorted."""
-    q = np.asarray(q, np.int64)
-    if len(keys) == 0:
-        return np.zeros(q.shape + vals.shape[1:])
-    pos = np.minimum(np.searchsorted(keys, q), len(keys) - 1)
-    hit = keys[pos] == q
-    return np.where(hit[..., None], vals[pos], 0.0)
-
-
-def _averages(keys, vals, nid):
+def _averages(t: _Keyed, nid):
     """Average of the function over the squares of nodes ``nid``: 2^l F^0_{l,t}, the scaling
-    coefficient plus the parents' wavelets at the right sign (ancestor walk), (Q, C)."""
+    coefficient plus the parents' wavelets at the right sign, (Q, C). Top-down over the
+    distinct nodes on the queries' paths to the root, one level at a time (the traversal of
+    Ng et al. 2004): a node's average is its parent's plus 2^(l-1) (s_x W1 + s_y W2 + s_x s_y W3)
+    of the parent's wavelets, so the cost is the number of those nodes, not queries x depth."""
     l, x, y = _node_of(nid)
-    avg = np.broadcast_to(_lookup(keys, vals, 0), (len(l), vals.shape[1])).copy()
-    for lp in range(int(l.max(initial=0))):
-        sel = l > lp
-        d = np.where(sel, l - lp, 1)
-        ax, ay = x >> d, y >> d
-        sx, sy = 1 - 2 * ((x >> (d - 1)) & 1), 1 - 2 * ((y >> (d - 1)) & 1)
-        anc = (4 ** lp - 1) // 3 + (ay << lp) + ax
-        base = 1 + 3 * anc
-        term = (_lookup(keys, vals, base) * sx[:, None] + _lookup(keys, vals, base + 1) * sy[:, None]
-                + _lookup(keys, vals, base + 2) * (sx * sy)[:, None])
-        avg += np.where(sel[:, None], term * 2.0 ** lp, 0.0)
-    return avg
+    depth = int(l.max(initial=0))
+    asked = [l == lv for lv in range(depth + 1)]
+    count = [int(a.sum()) for a in asked]
+    # per level, bottom-up: the distinct nodes needed (the queries there, then the parents of
+    # the nodes needed below) and each entry's position among them
+    flat, pos = [None] * (depth + 1), [None] * (depth + 1)
+    parents = np.empty(0, np.int64)
+    for lv in range(depth, -1, -1):
+        flat[lv], pos[lv] = _distinct(np.concatenate([(y[asked[lv]] << lv) + x[asked[lv]], parents]), 4 ** lv)
+        fx, fy = flat[lv] & ((1 << lv) - 1), flat[lv] >> lv
+        parents = ((fy >> 1) << max(lv - 1, 0)) + (fx >> 1)
+    out = np.empty((len(l), t.vals.shape[1]))
+    avg = np.broadcast_to(t.get(np.int64(0)), (len(flat[0]), t.vals.shape[1]))
+    out[asked[0]] = avg[pos[0][:count[0]]]
+    for lv in range(1, depth + 1):   # top-down
+        fx, fy = flat[lv] & ((1 << lv) - 1), flat[lv] >> lv
+        base = 1 + 3 * ((4 ** (lv - 1) - 1) // 3 + ((fy >> 1) << (lv - 1)) + (fx >> 1))
+        sx, sy = (1 - 2 * (fx & 1))[:, None], (1 - 2 * (fy & 1))[:, None]
+        avg = avg[pos[lv - 1][count[lv - 1]:]] + 2.0 ** (lv - 1) * (
+            t.get(base) * sx + t.get(base + 1) * sy + t.get(base + 2) * (sx * sy))
+        out[asked[lv]] = avg[pos[lv][:count[lv]]]
+    return out
 
 
-def _common(ka, va, kb, vb):
-    """Keys present in both sets (wavelets only) with both value rows."""
-    ck, ia, ib = np.intersect1d(ka, kb, assume_unique=True, return_indices=True)
-    w = ck > 0
-    return ck[w], va[ia[w]], vb[ib[w]]
+def _common(a: _Keyed, b: _Keyed):
+    """Wavelet keys present in both sets, with both value rows."""
+    row = b._rows.find(a.keys)
+    w = (a.keys > 0) & (row >= 0)
+    return a.keys[w], a.vals[w], b.vals[row[w]]
 
 
-def _node_table(keys, vals):
-    """Unique wavelet nodes and their (U, 3, C) coefficient table."""
-    w = keys > 0
-    nid, m = np.divmod(keys[w] - 1, 3)
-    uniq, inv = np.unique(nid, return_inverse=True)
-    table = np.zeros((len(uniq), 3, vals.shape[1]))
-    table[inv, m] = vals[w]
+def _node_table(t: _Keyed, n_levels: int):
+    """Distinct wavelet nodes of a set and their (U, 3, C) coefficient table."""
+    w = t.keys > 0
+    nid, m = np.divmod(t.keys[w] - 1, 3)
+    uniq, inv = _distinct(nid, max((4 ** n_levels - 1) // 3, 1))
+    table = np.zeros((len(uniq), 3, t.vals.shape[1]))
+    table[inv, m] = t.vals[w]
     return uniq, table
 
 
@@ -419,10 +476,10 @@ def double_product_integral(G, H):
     where = "haar.double_product_integral"
     if isinstance(G, SparseHaar) and isinstance(H, SparseHaar):
         _channels(where, G, H)
-        kg, vg = _canon(G)
-        kh, vh = _canon(H)
-        ck, a, b = _common(kg, vg, kh, vh)
-        total = (a * b).sum(axis=0) + _lookup(kg, vg, 0) * _lookup(kh, vh, 0)
+        n = max(G.n_levels, H.n_levels)
+        g, h = _Keyed(G, n), _Keyed(H, n)
+        _, a, b = _common(g, h)
+        total = (a * b).sum(axis=0) + g.get(np.int64(0)) * h.get(np.int64(0))
         return _shape_out(total, G, H)
     g, h = _dense_common(where, G=G, H=H)
     return np.sum(g * h, axis=(-2, -1))
@@ -474,19 +531,22 @@ def _details(c: np.ndarray, l: int):
 
 
 def _triple_sparse(G, H, K):
-    cg, ch, ck = _canon(G), _canon(H), _canon(K)
-    total = _lookup(*cg, 0) * _lookup(*ch, 0) * _lookup(*ck, 0)
+    n = max(G.n_levels, H.n_levels, K.n_levels)
+    cg, ch, ck = _Keyed(G, n), _Keyed(H, n), _Keyed(K, n)
+    total = cg.get(np.int64(0)) * ch.get(np.int64(0)) * ck.get(np.int64(0))
     # case 3: identical wavelet pairs times the third function's average (its coarser part)
-    for (ka, va), (kb, vb), (kc, vc) in ((cg, ch, ck), (cg, ck, ch), (ch, ck, cg)):
-        keys, a, b = _common(ka, va, kb, vb)
+    for a_set, b_set, c_set in ((cg, ch, ck), (cg, ck, ch), (ch, ck, cg)):
+        keys, a, b = _common(a_set, b_set)
         if len(keys):
-            total = total + (a * b * _averages(kc, vc, (keys - 1) // 3)).sum(axis=0)
+            total = total + (a * b * _averages(c_set, (keys - 1) // 3)).sum(axis=0)
     # case 2: three different wavelet types on one square
-    (ng, tg), (nh, th), (nk, tk) = _node_table(*cg), _node_table(*ch), _node_table(*ck)
-    both, ig, ih = np.intersect1d(ng, nh, assume_unique=True, return_indices=True)
-    allk, j, ik = np.intersect1d(both, nk, assume_unique=True, return_indices=True)
+    (ng, tg), (nh, th), (nk, tk) = (_node_table(c, n) for c in (cg, ch, ck))
+    space = max((4 ** n - 1) // 3, 1)
+    ih, ik = _Rows(nh, space).find(ng), _Rows(nk, space).find(ng)
+    in_all = (ih >= 0) & (ik >= 0)
+    allk = ng[in_all]
     if len(allk):
-        a, b, c = tg[ig[j]], th[ih[j]], tk[ik]
+        a, b, c = tg[in_all], th[ih[in_all]], tk[ik[in_all]]
         scale = np.ldexp(1.0, _node_of(allk)[0])[:, None]
         total = total + (scale * _permanent(a[:, 0], a[:, 1], a[:, 2], b[:, 0], b[:, 1], b[:, 2],
                                             c[:, 0], c[:, 1], c[:, 2])).sum(axis=0)
@@ -537,8 +597,7 @@ def product_scaling(G, H, levels: int | None = None) -> np.ndarray:
         # scaling pyramids from the coefficients of levels < L; D from the common wavelets
         pg, ph = (_pad_pyramid(scaling_pyramid(s, min(L, s.n_levels)), min(L, s.n_levels), L)
                   for s in (G, H))
-        (kg, vg), (kh, vh) = _canon(G), _canon(H)
-        keys, a, b = _common(kg, vg, kh, vh)
+        keys, a, b = _common(_Keyed(G, n), _Keyed(H, n))
         prod = (a * b).T  # (C, Kc)
         lv, x, y = _node_of((keys - 1) // 3)
         d = np.maximum(lv - L, 0)
@@ -595,7 +654,8 @@ def _sparse_of(where: str, name: str, s) -> SparseHaar:
 
 def product_scaling_at(G, H, level, x, y) -> np.ndarray:
     """Eq. 25 at single nodes (level, x, y) (arrays, Q), from sparse coefficient lists: box
-    masses (Q,) or (C, Q) of G H without building the pyramid, O((K + Q) n log K).
+    masses (Q,) or (C, Q) of G H without building the pyramid, O((K + Q) log K) (the
+    common wavelets' prefix sums in Morton order are searched per level).
     G, H: SparseHaar or dense (2^n, 2^n) / (C, 2^n, 2^n) coefficients; levels 0..max n."""
     where = "haar.product_scaling_at"
     G, H = (_sparse_of(where, k, s) for k, s in (("G", G), ("H", H)))
@@ -608,10 +668,10 @@ def product_scaling_at(G, H, level, x, y) -> np.ndarray:
     side = np.left_shift(1, level)
     if np.any((x < 0) | (y < 0) | (x >= side) | (y >= side)):
         raise ArgumentError(f"{where}: x and y must be in [0, 2^level)")
-    (kg, vg), (kh, vh) = _canon(G), _canon(H)
+    g, h = _Keyed(G, n), _Keyed(H, n)
     nid = (np.left_shift(1, 2 * level) - 1) // 3 + (y << level) + x
-    out = _averages(kg, vg, nid) * _averages(kh, vh, nid) * np.ldexp(1.0, -2 * level)[:, None]
-    keys, a, b = _common(kg, vg, kh, vh)
+    out = _averages(g, nid) * _averages(h, nid) * np.ldexp(1.0, -2 * level)[:, None]
+    keys, a, b = _common(g, h)
     if len(keys):
         prod = a * b
         lv, px, py = _node_of((keys - 1) // 3)
