@@ -183,10 +183,10 @@ def main():
     try:
         from wavlight import haar
         pyr = {}
-        for m in (4, 5, 6):
+        for m in (4, 5, 6, 7, 8):   # P = 7 is the phong 200 / ggx 0.05 depth; 8 the device's largest
             g = haar.forward(env.luminance_square(m).astype(np.float32))
             pp = haar.ProductPyramids(g, m)
-            trees = 4096
+            trees = 4096 >> max(0, 2 * (m - 6))   # about 90 MB of trees at P >= 6
             h = rng.random((trees, 1 << m, 1 << m)).astype(np.float32)
             h_buf, out_buf = cl.to_device(h), cl.empty(4 * trees * pp.stride)
 
