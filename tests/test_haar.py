@@ -384,6 +384,25 @@ def test_forward_kernel(device, n, T):
     np.testing.assert_array_equal(pyr, HaarTree(img * np.float32(4.0 ** -n)).nodes())
 
 
+@pytest.mark.parametrize("shape", [(3, 2, 16, 16), (3, 8, 8), (32, 32), (1, 1, 4, 4), (2, 0, 8, 8)])
+def test_kernels_take_any_leading_axes(device, shape):
+    """Colour images and batches of them go to the device as they are: forward_cl and
+    inverse_cl fold every leading axis into the batch and give it back, each set transformed
+    as the numpy transform does it alone (a single 2-D image comes back 2-D)."""
+    rng = np.random.default_rng(44)
+    img = rng.random(shape).astype(np.float32)
+    n = shape[-1].bit_length() - 1
+    coeffs, pyr = haar.forward_cl(img)
+    assert coeffs.shape == shape and pyr.shape == shape[:-2] + (tree_size(n),)
+    flat = img.reshape((-1,) + shape[-2:])
+    np.testing.assert_allclose(coeffs.reshape(flat.shape), haar.forward(flat), rtol=0, atol=4 * EPS32 * 2.0 ** -n)
+    if len(flat):
+        np.testing.assert_array_equal(pyr.reshape(-1, tree_size(n)), build_reference(flat * np.float32(4.0 ** -n)))
+    back = haar.inverse_cl(coeffs)
+    assert back.shape == shape
+    np.testing.assert_allclose(back, img, atol=8 * (n + 1) * EPS32)
+
+
 @pytest.mark.parametrize("n,T", [(0, 3), (1, 2), (3, 5), (6, 4), (9, 1)])
 def test_inverse_kernel(device, n, T):
     """inverse_cl against the numpy inverse (float32 twin: the same operations up to exact

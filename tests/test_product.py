@@ -589,7 +589,8 @@ def test_light_trees_per_material(mat_ids, kinds, index):
     """WaveletStrategy keeps one light tree per kind its materials need: plain for glossy
     lobes, MIS-compensated for lambert; each tree's leaves are the map's (plain or
     compensated) leaf masses, and info() reports the choice and the memory of all trees (the
-    device buffer: their nodes plus each tree's cache-line origin and padding, < 27 floats)."""
+    device buffer: their nodes plus each tree's cache-line origin and padding, < 27 floats)
+    plus the per-material lobe tables (8 bytes each)."""
     env = environment("sky")
     s = WaveletStrategy()
     s.prepare(env, [MATERIALS[m] for m in mat_ids])
@@ -600,8 +601,9 @@ def test_light_trees_per_material(mat_ids, kinds, index):
         want = env.luminance_square(n, compensated=kind == "compensated").ravel()
         np.testing.assert_allclose(tree[-want.size:], want, rtol=1e-6, atol=1e-30)
     info = s.info()
-    assert info["memory_bytes"] == s.trees.buffer.size
-    assert 0 <= info["memory_bytes"] - nodes.size * 4 < 27 * 4 * len(nodes)
+    trees = info["memory_bytes"] - 8 * len(mat_ids)
+    assert trees == s.trees.buffer.size
+    assert 0 <= trees - nodes.size * 4 < 27 * 4 * len(nodes)
     assert info["product_light_tree"] == {MATERIALS[m].name: kinds[i] for m, i in zip(mat_ids, index)}
 
 
@@ -848,20 +850,28 @@ def real_scenes(tmp_path_factory):
     folder = tmp_path_factory.mktemp("real")
     loaded = {}
 
-    def get(map_name):
+    def get(map_name, floor=False):
+        """The three spheres under map_name; with ``floor``, standing on a lambert floor (their
+        contact shadows, and the sky they hide from it and from each other)."""
         if not (ENVMAPS / map_name).is_file():
             pytest.skip(f"{ENVMAPS / map_name} is missing")
-        if map_name in loaded:
-            return loaded[map_name]
-        sub = folder / Path(map_name).stem
+        if (map_name, floor) in loaded:
+            return loaded[map_name, floor]
+        sub = folder / (Path(map_name).stem + ("-floor" if floor else ""))
         sub.mkdir()
-        loaded[map_name] = load(sub, render=dict(width=36, height=12, spp=16, seed=1),
-                    camera=dict(eye=[0.0, 1.0, 4.0], target=[0.0, 0.5, 0.0], up=[0.0, 1.0, 0.0], fov_y=35.0),
-                    environment=dict(file=str(ENVMAPS / map_name)),
-                    objects=[dict(shape="sphere", center=[x, 0.5, 0.0], radius=0.75, subdivisions=4, material=m)
-                             for x, m in zip((-1.7, 0.0, 1.7), REAL_MATERIALS)],
-                    materials=REAL_MATERIALS)
-        return loaded[map_name]
+        objects = [dict(shape="sphere", center=[x, 0.5, 0.0], radius=0.75, subdivisions=4, material=m)
+                   for x, m in zip((-1.7, 0.0, 1.7), REAL_MATERIALS)]
+        materials = dict(REAL_MATERIALS)
+        if floor:
+            objects.append(dict(shape="quad", center=[0.0, -0.25, 0.0], normal=[0.0, 1.0, 0.0], size=8.0,
+                                material="floor"))
+            materials["floor"] = dict(type="lambert", albedo=[0.5, 0.5, 0.5])
+        loaded[map_name, floor] = load(
+            sub, render=dict(width=36, height=12 if not floor else 18, spp=16, seed=1),
+            camera=dict(eye=[0.0, 1.0, 4.0], target=[0.0, 0.5 if not floor else 0.2, 0.0], up=[0.0, 1.0, 0.0],
+                        fov_y=35.0 if not floor else 45.0),
+            environment=dict(file=str(ENVMAPS / map_name)), objects=objects, materials=materials)
+        return loaded[map_name, floor]
 
     return get
 
@@ -890,11 +900,33 @@ def test_render_equals_mis_under_real_maps(real_scenes, map_name, strategy):
     options = {"wavelet_candidates": 0} if strategy == "wavelet-pair" else {}   # the MIS pair
     strategy = strategy.split("-")[0]
     a = wavlight.render_full(scene, spp=WAVELET_SPP, strategy=strategy, seed=101, **options)
-    if map_name not in _MIS_RENDERS:
-        _MIS_RENDERS[map_name] = wavlight.render_full(scene, spp=MIS_SPP, strategy="mis", seed=202)
-    b = _MIS_RENDERS[map_name]
     assert a.stats["strategy"] == strategy
     assert ("product_levels" in a.stats) == (strategy == "wavelet")
+    _assert_equals_mis(a, _mis_render(scene, map_name), strategy)
+
+
+@pytest.mark.parametrize("map_name", REAL_MAPS)
+def test_render_equals_mis_with_shadows_under_real_maps(real_scenes, map_name):
+    """The same three spheres standing on a lambert floor: shadows everywhere below them, so
+    the wavelet strategy chooses its shadowed budget from the scene (8 candidates, 4 slots,
+    strategies.AUTO_BUDGET) and its control variate subtracts blocked directions. Its image
+    equals the mis image within their combined standard error, as above."""
+    scene = real_scenes(map_name, floor=True)
+    a = wavlight.render_full(scene, spp=WAVELET_SPP, strategy="wavelet", seed=103)
+    assert a.stats["visibility_variance"] >= strategies.SHADOWED_VARIANCE
+    assert (a.stats["wavelet_candidates"], a.stats["wavelet_slots"]) == strategies.AUTO_BUDGET["shadowed"]
+    _assert_equals_mis(a, _mis_render(scene, map_name + "-floor"), "wavelet")
+
+
+def _mis_render(scene, key):
+    if key not in _MIS_RENDERS:
+        _MIS_RENDERS[key] = wavlight.render_full(scene, spp=MIS_SPP, strategy="mis", seed=202)
+    return _MIS_RENDERS[key]
+
+
+def _assert_equals_mis(a, b, strategy):
+    """Image a equals mis image b within their combined standard error: per pixel channel
+    (Bonferroni over them at 1e-5) and on the image mean per channel."""
     ia, ib = a.image.astype(np.float64), b.image.astype(np.float64)
     sa, sb = a.stderr.astype(np.float64), b.stderr.astype(np.float64)
     assert np.all(np.isfinite(ia)) and np.all(np.isfinite(sa))
@@ -980,6 +1012,8 @@ def test_cli_wavelet_strategy_and_levels(tmp_path):
     assert values == [2, 2, 2], levels
     assert stats_["visibility_variance"] > strategies.SHADOWED_VARIANCE, stats_
     assert (stats_["wavelet_candidates"], stats_["wavelet_slots"]) == strategies.AUTO_BUDGET["shadowed"], stats_
+    # the memory used: the light trees (reported on their own too) and the per-material tables
+    assert stats_["memory_bytes"] == stats_["light_tree_bytes"] + 8 * len(values), stats_
     img = read_image(str(out))
     assert img.shape[:2] == (12, 16) and np.all(np.isfinite(img)) and img.max() > 0
 

@@ -693,26 +693,24 @@ def product_scaling_at(G, H, level, x, y) -> np.ndarray:
 
 # ============================================================================= OpenCL (kernels/haar.cl)
 def forward_cl(images, queue=None):
-    """Forward transform of (T, 2^n, 2^n) images on the device, one launch per level.
+    """Forward transform of (..., 2^n, 2^n) images on the device (any leading axes, e.g.
+    colour channels or a batch, folded into one batch of T), one launch per level.
 
-    returns coeffs (T, 2^n, 2^n) float32 (dense layout) and the box-mass pyramids
-    (T, tree_size(n)) float32 computed on the way (distributions.py layout).
+    returns coeffs (..., 2^n, 2^n) float32 (dense layout) and the box-mass pyramids
+    (..., tree_size(n)) float32 computed on the way (distributions.py layout).
     """
     where = "haar.forward_cl"
     img = np.ascontiguousarray(_float(images, where, "images"), np.float32)
-    if img.ndim == 2:
-        img = img[None]
-    if img.ndim != 3:
-        raise ArgumentError(f"{where}: images must be (T, 2^n, 2^n) or (2^n, 2^n), got shape {img.shape}")
+    if img.ndim < 2:
+        raise ArgumentError(f"{where}: images must be (..., 2^n, 2^n), got shape {img.shape}")
     n = _levels_of(img, where, "images")
-    T, side = img.shape[0], 1 << n
-    if T == 0:
-        return img.copy(), np.empty((0, tree_size(n)), np.float32)
-    if n == 0:  # one pixel: F^0 = pixel = mass
-        return img.copy(), img.reshape(T, 1).copy()
+    lead, side, stride = img.shape[:-2], 1 << n, tree_size(n)
+    img = img.reshape(-1, side, side)
+    T = img.shape[0]
+    if T == 0 or n == 0:  # no image, or one pixel: F^0 = pixel = mass
+        return img.reshape(lead + (side, side)).copy(), img.reshape(lead + (stride,)).copy()
     queue = queue or cl.thread_queue()
     prog = cl.program("haar.cl")
-    stride = tree_size(n)
     src = cl.to_device(img)
     pyr = cl.empty(4 * T * stride)
     coef = cl.empty(img.nbytes)
@@ -721,21 +719,21 @@ def forward_cl(images, queue=None):
     knl = cl.kernel(prog, "haar_forward_level")
     for level in range(n - 1, -1, -1):
         knl(queue, (4 ** level, T), None, pyr, np.uint64(stride), coef, np.int32(n), np.int32(level))
-    return cl.read(coef, img.shape, np.float32, queue), cl.read(pyr, (T, stride), np.float32, queue)
+    return (cl.read(coef, img.shape, np.float32, queue).reshape(lead + (side, side)),
+            cl.read(pyr, (T, stride), np.float32, queue).reshape(lead + (stride,)))
 
 
 def inverse_cl(coeffs, queue=None):
-    """Inverse transform of (T, 2^n, 2^n) (or (2^n, 2^n)) dense coefficients on the device, one
-    launch per level (kernels/haar.cl ``haar_inverse_level``; numpy twin :func:`inverse`):
-    images of the same shape, float32."""
+    """Inverse transform of (..., 2^n, 2^n) dense coefficients on the device (any leading axes,
+    folded into one batch), one launch per level (kernels/haar.cl ``haar_inverse_level``;
+    numpy twin :func:`inverse`): images of the same shape, float32."""
     where = "haar.inverse_cl"
     c = np.ascontiguousarray(_float(coeffs, where, "coeffs"), np.float32)
-    single = c.ndim == 2
-    if single:
-        c = c[None]
-    if c.ndim != 3:
-        raise ArgumentError(f"{where}: coeffs must be (T, 2^n, 2^n) or (2^n, 2^n), got shape {c.shape}")
+    if c.ndim < 2:
+        raise ArgumentError(f"{where}: coeffs must be (..., 2^n, 2^n), got shape {c.shape}")
     n = _levels_of(c, where, "coeffs")
+    shape = c.shape
+    c = c.reshape((-1,) + shape[-2:])
     T = c.shape[0]
     if T == 0 or n == 0:   # one pixel: pixel = F^0
         out = c.copy()
@@ -751,7 +749,7 @@ def inverse_cl(coeffs, queue=None):
             knl(queue, (4 ** level, T), None, src, bufs[0], bufs[1], np.int32(n), np.int32(level), scale)
             bufs.reverse()
         out = cl.read(bufs[0], c.shape, np.float32, queue)
-    return out[0] if single else out
+    return out.reshape(shape)
 
 
 class ProductPyramids:

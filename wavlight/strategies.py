@@ -419,7 +419,10 @@ class WaveletStrategy(Strategy):
                 "product_light_tree": dict(zip(self.names, [self.tree_kinds[i] for i in self.tree_index])),
                 "product_coefficients_per_walk": dict(zip(self.names, [
                     product.coefficients_per_walk(p, self.trees.n_levels) for p in self.levels.tolist()])),
-                "memory_bytes": int(self.trees.stride * self.trees.n_trees * 4)}
+                # the light trees and the shade kernel's per-material lobe tables (kappa and
+                # the coded depth, shape and tree: 8 bytes); the product itself is walked per
+                # sample, so nothing here grows with the image or the spp
+                "memory_bytes": int(self.trees.stride * self.trees.n_trees * 4 + 8 * len(self.names))}
 
 
 class MisStrategy(Strategy):
