@@ -190,7 +190,7 @@ def main():
             h = rng.random((trees, 1 << m, 1 << m)).astype(np.float32)
             h_buf, out_buf = cl.to_device(h), cl.empty(4 * trees * pp.stride)
 
-            def on_device(pp=pp, h_buf=h_buf, out_buf=out_buf):
+            def on_device(pp=pp, h_buf=h_buf, out_buf=out_buf, trees=trees):   # bound now: timed later
                 pp.enqueue(q, h_buf, trees, out_buf)
                 q.finish()
             # on the device, ready for the warp (as a renderer would use them); and through

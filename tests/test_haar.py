@@ -346,20 +346,20 @@ def test_product_scaling_at_nodes():
     np.testing.assert_allclose(got, ref, atol=TOL64)
 
 
-@pytest.mark.parametrize("direct_keys", ["direct", "binary_search"])
-def test_sparse_lookups_by_table_and_by_search(monkeypatch, direct_keys):
-    """The sparse paths find coefficients through a table over the key space (sets of up to 12
-    levels) or, beyond haar.DIRECT_TABLE_KEYS, by binary search: both give the pointwise
-    integrals and box sums (the search forced here by a limit of 0), with mixed resolutions,
-    channels, sets that share few wavelets and a set without its scaling coefficient."""
-    if direct_keys == "binary_search":
-        monkeypatch.setattr(haar, "DIRECT_TABLE_KEYS", 0)
+@pytest.mark.parametrize("spread", [10 ** 9, 0, None], ids=["tables", "binary_search", "default"])
+def test_sparse_lookups_by_table_and_by_search(monkeypatch, spread):
+    """The sparse paths find coefficients through a table over the key space or, for sets
+    sparser than 1 / haar.TABLE_SPREAD of it, by binary search: with every set tabled, none,
+    or as chosen, they give the pointwise integrals and box sums, with mixed resolutions,
+    channels, few shared wavelets, a set without its scaling coefficient and an empty set."""
+    if spread is not None:
+        monkeypatch.setattr(haar, "TABLE_SPREAD", spread)
     rng = np.random.default_rng(27)
     G = haar.compress_topk(haar.forward(rng.random((2, 32, 32)) ** 4), 150)   # two channels
     H = haar.compress_topk(haar.forward(rng.random((16, 16))), 40)           # coarser
-    c = haar.forward(rng.random((32, 32)) ** 2)
-    c[0, 0] = 0.0                                                            # no scaling coefficient
-    K = haar.compress_topk(c, 60)
+    top = haar.compress_topk(haar.forward(rng.random((32, 32)) ** 2), 60)
+    K = haar.SparseHaar(5, top.index[top.index != 0], top.value[top.index != 0])   # no scaling coefficient
+    assert len(K) == 59
     g, h, k = recon(G), upsample(recon(H), 5), recon(K)
     np.testing.assert_allclose(haar.triple_product_integral(G, H, K), np.mean(g * h * k, axis=(-2, -1)), atol=TOL64)
     np.testing.assert_allclose(haar.double_product_integral(G, K), np.mean(g * k, axis=(-2, -1)), atol=TOL64)
@@ -368,6 +368,10 @@ def test_sparse_lookups_by_table_and_by_search(monkeypatch, direct_keys):
     r = np.arange(tree_size(5)) - (4 ** level - 1) // 3
     got = haar.product_scaling_at(G, H, level, r & ((1 << level) - 1), r >> level)
     np.testing.assert_allclose(got, box_sums(g * h), atol=TOL64)
+    empty = haar.SparseHaar(5, [], [])
+    assert haar.triple_product_integral(H, K, empty) == 0 and haar.double_product_integral(empty, K) == 0
+    np.testing.assert_array_equal(haar.product_scaling_at(np.zeros((32, 32)), H, level, r & ((1 << level) - 1),
+                                                          r >> level), 0.0)
 
 
 # ============================================================================= OpenCL kernels

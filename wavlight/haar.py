@@ -49,11 +49,10 @@ running sum of its parents' scaling coefficients. Hence
 Dense: one top-down pass gives every average, O(4^n). Sparse: only nodes where two
 sets share a wavelet contribute, and their averages come from one top-down pass over
 the distinct nodes on their paths to the root (Ng et al.'s traversal; ``_averages``);
-coefficients are found by key in O(1) through a table over the key space (sets of up
-to 12 levels; binary search beyond), so the cost is linear in the K kept coefficients
-plus those paths' distinct nodes (at most the K nodes again once the kept wavelets'
-parents are kept, as they are for images compressed by magnitude; ``haar_bench.py``).
-The double product is a dot product.
+coefficients are found by key in O(1) through a table over the key space where the set
+fills at least 1/64 of it (binary search, O(log K), for sparser sets), so the cost is
+linear in the K kept coefficients plus those paths' distinct nodes (at most min(C n,
+4^n / 3) for C shared wavelets; ``haar_bench.py``). The double product is a dot product.
 
 *Product scaling coefficients* (eq. 23-25). On a node's square Q, G is its average
 plus the wavelets inside Q; wavelets integrate to zero over Q and are orthonormal,
@@ -350,60 +349,65 @@ def tripling(i, j, k, n_levels: int) -> np.ndarray:
 
 
 # ============================================================================= sparse helpers
-#: Key spaces up to this size (4^12 keys: sets of n <= 12 levels) are indexed by a table over
-#: the whole space (np.zeros, whose pages the OS maps on first touch, so building and querying
-#: it costs O(K)); larger ones by binary search (O(log K) per lookup).
-DIRECT_TABLE_KEYS = 4 ** 12
+#: A set of K keys in a key space of S is indexed by a table over the whole space (int32
+#: slots, so at most 4 TABLE_SPREAD bytes per key) when S <= TABLE_SPREAD K: lookups O(1),
+#: building O(S) = O(K). Sparser sets are indexed by binary search, O(log K) per lookup.
+TABLE_SPREAD = 64
 
 
 class _Keyed:
     """A coefficient set by key: wavelet (l, x, y, m) -> 1 + 3 nid + m - 1 with nid the node's
-    pyramid index (independent of n), the scaling function -> 0; values (K, C). ``slot`` finds
-    a key's row in O(1) (a table over the key space) or O(log K) (sorted keys, beyond
-    DIRECT_TABLE_KEYS); no sorting below that size."""
+    pyramid index (independent of n), the scaling function -> 0; values (K, C) in the set's
+    dtype. ``get`` finds keys through :class:`_Rows` (no sorting for sets dense enough for a
+    table)."""
 
     def __init__(self, sp: SparseHaar, n_levels: int):
         l, x, y, m = coeff_basis(sp.index, sp.n_levels)
         nid = (np.left_shift(1, 2 * l) - 1) // 3 + (y << l) + x
         self.keys = np.where(m == 0, 0, 1 + 3 * nid + m - 1)
-        self.vals = sp.value.reshape(len(sp.value), -1).astype(np.float64)
-        self._rows = _Rows(self.keys, 4 ** n_levels)
+        self.vals = sp.value.reshape(len(sp.value), 1 if sp.value.ndim == 1 else sp.value.shape[1])
+        self.rows = _Rows(self.keys, 4 ** n_levels)
 
     def get(self, q) -> np.ndarray:
         """Values (..., C) at keys q, 0 where absent."""
-        row = self._rows.find(np.asarray(q, np.int64))
-        return np.where((row >= 0)[..., None], self.vals[row], 0.0)
+        q = np.asarray(q, np.int64)
+        if len(self.keys) == 0:
+            return np.zeros(q.shape + self.vals.shape[1:], self.vals.dtype)
+        row = self.rows.find(q)
+        return np.where((row >= 0)[..., None], self.vals[row], self.vals.dtype.type(0))
 
 
 class _Rows:
-    """Row of each of ``keys`` (distinct, < space): find(q) -> row, or -1 where absent."""
+    """Row of each of ``keys`` (distinct, in [0, space)): find(q) -> row, or -1 where absent;
+    a table over the space where it holds at most TABLE_SPREAD slots per key, else binary
+    search over the sorted keys."""
 
     def __init__(self, keys: np.ndarray, space: int):
         self.keys = keys
-        self.direct = space <= DIRECT_TABLE_KEYS
-        if self.direct:
-            self.slot = np.zeros(space, np.int64)   # 1 + row; 0: absent
-            self.slot[keys] = np.arange(1, len(keys) + 1)
+        self.table = len(keys) > 0 and space <= TABLE_SPREAD * len(keys)
+        if self.table:
+            self.slot = np.zeros(space, np.int32)   # 1 + row; 0: absent
+            self.slot[keys] = np.arange(1, len(keys) + 1, dtype=np.int32)
         else:
             self.order = np.argsort(keys, kind="stable")
             self.sorted = keys[self.order]
 
     def find(self, q: np.ndarray) -> np.ndarray:
-        if self.direct:
-            return self.slot[q] - 1
+        if self.table:
+            return self.slot[q].astype(np.int64) - 1
         if len(self.keys) == 0:
-            return np.full(q.shape, -1, np.int64)
+            return np.full(np.shape(q), -1, np.int64)
         pos = np.minimum(np.searchsorted(self.sorted, q), len(self.keys) - 1)
         return np.where(self.sorted[pos] == q, self.order[pos], -1)
 
 
 def _distinct(idx: np.ndarray, space: int):
-    """The distinct values of idx (< space) and each element's position among them: O(len)
-    through a table over the space (up to DIRECT_TABLE_KEYS), else np.unique."""
-    if space > DIRECT_TABLE_KEYS:
+    """The distinct values of idx (in [0, space)) and each element's position among them:
+    O(len + space) through a table where space <= TABLE_SPREAD len, else np.unique."""
+    if len(idx) == 0 or space > TABLE_SPREAD * len(idx):
         return np.unique(idx, return_inverse=True)
     slot = np.zeros(space, np.int64)
-    slot[idx] = np.arange(1, len(idx) + 1)   # the last occurrence of each value wins
+    slot[idx] = np.arange(1, len(idx) + 1)   # one occurrence of each value keeps its slot
     first = slot[idx] == np.arange(1, len(idx) + 1)
     rank = np.cumsum(first) - 1
     return idx[first], rank[slot[idx] - 1]
@@ -422,11 +426,14 @@ def _averages(t: _Keyed, nid):
     coefficient plus the parents' wavelets at the right sign, (Q, C). Top-down over the
     distinct nodes on the queries' paths to the root, one level at a time (the traversal of
     Ng et al. 2004): a node's average is its parent's plus 2^(l-1) (s_x W1 + s_y W2 + s_x s_y W3)
-    of the parent's wavelets, so the cost is the number of those nodes, not queries x depth."""
+    of the parent's wavelets. The queries are grouped by level in one stable sort of their
+    levels, so the cost is the number of distinct nodes on the paths (at most min(Q n,
+    4^n / 3)), not Q times the depth."""
     l, x, y = _node_of(nid)
     depth = int(l.max(initial=0))
-    asked = [l == lv for lv in range(depth + 1)]
-    count = [int(a.sum()) for a in asked]
+    by_level = np.argsort(l.astype(np.int8), kind="stable")   # a radix sort of small integers
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(l, minlength=depth + 1))])
+    asked = [by_level[bounds[lv]:bounds[lv + 1]] for lv in range(depth + 1)]
     # per level, bottom-up: the distinct nodes needed (the queries there, then the parents of
     # the nodes needed below) and each entry's position among them
     flat, pos = [None] * (depth + 1), [None] * (depth + 1)
@@ -435,22 +442,22 @@ def _averages(t: _Keyed, nid):
         flat[lv], pos[lv] = _distinct(np.concatenate([(y[asked[lv]] << lv) + x[asked[lv]], parents]), 4 ** lv)
         fx, fy = flat[lv] & ((1 << lv) - 1), flat[lv] >> lv
         parents = ((fy >> 1) << max(lv - 1, 0)) + (fx >> 1)
-    out = np.empty((len(l), t.vals.shape[1]))
+    out = np.empty((len(l), t.vals.shape[1]), t.vals.dtype)
     avg = np.broadcast_to(t.get(np.int64(0)), (len(flat[0]), t.vals.shape[1]))
-    out[asked[0]] = avg[pos[0][:count[0]]]
+    out[asked[0]] = avg[pos[0][:len(asked[0])]]
     for lv in range(1, depth + 1):   # top-down
         fx, fy = flat[lv] & ((1 << lv) - 1), flat[lv] >> lv
         base = 1 + 3 * ((4 ** (lv - 1) - 1) // 3 + ((fy >> 1) << (lv - 1)) + (fx >> 1))
         sx, sy = (1 - 2 * (fx & 1))[:, None], (1 - 2 * (fy & 1))[:, None]
-        avg = avg[pos[lv - 1][count[lv - 1]:]] + 2.0 ** (lv - 1) * (
+        avg = avg[pos[lv - 1][len(asked[lv - 1]):]] + 2.0 ** (lv - 1) * (
             t.get(base) * sx + t.get(base + 1) * sy + t.get(base + 2) * (sx * sy))
-        out[asked[lv]] = avg[pos[lv][:count[lv]]]
+        out[asked[lv]] = avg[pos[lv][:len(asked[lv])]]
     return out
 
 
 def _common(a: _Keyed, b: _Keyed):
     """Wavelet keys present in both sets, with both value rows."""
-    row = b._rows.find(a.keys)
+    row = b.rows.find(a.keys)
     w = (a.keys > 0) & (row >= 0)
     return a.keys[w], a.vals[w], b.vals[row[w]]
 
@@ -654,8 +661,8 @@ def _sparse_of(where: str, name: str, s) -> SparseHaar:
 
 def product_scaling_at(G, H, level, x, y) -> np.ndarray:
     """Eq. 25 at single nodes (level, x, y) (arrays, Q), from sparse coefficient lists: box
-    masses (Q,) or (C, Q) of G H without building the pyramid, O((K + Q) log K) (the
-    common wavelets' prefix sums in Morton order are searched per level).
+    masses (Q,) or (C, Q) of G H without building the pyramid, O(K log K + Q n log K) (the
+    common wavelets' prefix sums in Morton order are searched once per level).
     G, H: SparseHaar or dense (2^n, 2^n) / (C, 2^n, 2^n) coefficients; levels 0..max n."""
     where = "haar.product_scaling_at"
     G, H = (_sparse_of(where, k, s) for k, s in (("G", G), ("H", H)))
