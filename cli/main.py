@@ -184,9 +184,9 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
         if bad:   # (the inputs are finite and bounded: an estimate overflowed float32)
             _fail(f"{output}: {bad} pixel(s) came out NaN or Inf (an estimate radiance x BRDF / pdf overflowed "
                   "float32; try another strategy or a dimmer map); nothing written")
-        wavlight.save_image(output, result.image)
-        if stderr_out is not None:
-            wavlight.save_image(stderr_out, result.stderr)
+        # the image and its standard errors appear together or not at all
+        wavlight.imageio.save_images([(output, result.image)]
+                                     + ([] if stderr_out is None else [(stderr_out, result.stderr)]))
     except wavlight.WavlightError as e:
         _fail(e)
     stats = dict(result.stats)

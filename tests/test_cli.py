@@ -512,6 +512,40 @@ def test_stderr_out_writes_the_standard_error_image(tmp_path):
     assert np.all(np.isfinite(got)) and got.min() >= 0 and got.max() > 0
 
 
+def test_stderr_out_that_cannot_be_written_leaves_no_image(tmp_path, monkeypatch):
+    """The image and its standard errors appear together or not at all: when the second write
+    fails (here the standard-error writer reports an error), exit 2, one line, and no image."""
+    import OpenImageIO as oiio
+
+    scene = write_scene(tmp_path, scene_text(render="width = 8\nheight = 6\nspp = 4\n"))
+    out, se = tmp_path / "o.exr", tmp_path / "se.pfm"
+    real_create = oiio.ImageOutput.create
+
+    class Failing:   # a writer whose pixels do not get written
+        def __init__(self, inner):
+            self.inner = inner
+
+        def open(self, *a):
+            return self.inner.open(*a)
+
+        def write_image(self, *a):
+            return False
+
+        def geterror(self):
+            return "no space left on device"
+
+        def close(self):
+            return self.inner.close()
+
+    def create(path):
+        return Failing(real_create(path)) if str(path).endswith(".pfm") else real_create(path)
+
+    monkeypatch.setattr(oiio.ImageOutput, "create", create)
+    o = run_inproc("render", scene, "-o", out, "--stderr-out", se)
+    assert_clean_failure(o, "se.pfm", output=out, folder=tmp_path)
+    assert not se.exists()
+
+
 @pytest.mark.parametrize("args, name", [(("--stderr-out", "{tmp}/se.png"), "se.png"),
                                         (("--stderr-out", "{tmp}/se.exr", "--spp", "1"), "spp >= 2"),
                                         (("--stderr-out", "{tmp}/o.exr"), "must differ")])

@@ -822,3 +822,36 @@ def test_scene_limits_repeat_the_strategies():
     from wavlight import scene, strategies
     assert scene.WAVELET_SLOTS == strategies.SLOT_COUNTS
     assert scene.MAX_WAVELET_CANDIDATES == strategies.MAX_CANDIDATES
+
+
+@pytest.mark.parametrize("text, key", [
+    ('[[objects]]\nshape = "quad"\ncenter = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\nsize = 4e18\n',
+     "[[objects]][0]"),
+    ('[[objects]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1e20\n', "[[objects]][0]"),
+    ('[[objects]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nscale = 1e30\n', "[[objects]][0]"),
+    ('[camera]\neye = [0.0, 1.0, 4e19]\n', "[camera].eye"),
+    ('[camera]\ntarget = [-2e18, 0.0, 0.0]\n', "[camera].target")])
+def test_coordinates_beyond_the_ray_tracers_range_are_refused(tmp_path, text, key):
+    """embree ignores geometry beyond about +-1.8e18: such a quad, sphere or scaled object would
+    vanish from the image without a word (found by probing: exit 0, the image as if the
+    object were not there). Beyond scene.MAX_COORDINATE the scene is refused in one line naming
+    the object or camera key; up to it, it loads."""
+    from wavlight.scene import MAX_COORDINATE
+
+    path = write_scene(tmp_path, SKY + text)
+    with pytest.raises(SceneError) as e:
+        wavlight.load_scene(str(path))
+    _check_scene_error(e.value, path, key)
+    assert f"{MAX_COORDINATE:g}" in str(e.value)
+    s = load(tmp_path / "ok", SKY + '[[objects]]\nshape = "quad"\ncenter = [0.0, 0.0, 0.0]\n'
+                              'normal = [0.0, 0.0, 1.0]\nsize = 1e18\n')
+    assert np.abs(s.vertices).max() <= MAX_COORDINATE
+
+
+def test_check_scene_refuses_edited_coordinates_beyond_range(tmp_path):
+    """A Scene edited in Python past load_scene's checks is checked again at render time."""
+    s = load(tmp_path, SKY + '[[objects]]\nshape = "quad"\ncenter = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\n'
+                            'size = 2.0\n')
+    s.vertices = s.vertices * np.float32(1e19)
+    with pytest.raises(WavlightError, match="ray tracer's range"):
+        wavlight.render(s, spp=1, width=4, height=4)

@@ -29,9 +29,39 @@ def srgb_encode(linear: np.ndarray) -> np.ndarray:
 
 def save_image(path: str, image: np.ndarray) -> None:
     """Write an (H, W, 3) float image; the format follows the extension (.exr .hdr .pfm .png)."""
+    save_images([(path, image)])
+
+
+def save_images(outputs) -> None:
+    """Write several (path, image) pairs all or nothing: every image goes to its temporary
+    file first, and the temporaries are renamed over the targets only once all are written
+    (an error in any leaves none of them written)."""
+    outputs = [(str(path), image) for path, image in outputs]
+    temps = []
+    try:
+        for path, image in outputs:
+            temps.append((_write_temporary(path, image), path))
+        for tmp, path in temps:
+            os.replace(tmp, path)
+    except OSError as e:
+        _remove(t for t, _ in temps)
+        raise WavlightError(f"{path}: cannot write ({e.strerror})") from None
+    except BaseException:
+        _remove(t for t, _ in temps)
+        raise
+
+
+def _remove(paths):
+    for tmp in paths:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _write_temporary(path: str, image) -> str:
+    """Check the image and the target, write the pixels to a temporary file beside the target
+    and return its name (removed again if anything fails)."""
     import OpenImageIO as oiio
 
-    path = str(path)
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise WavlightError(f"{path}: unsupported output format {ext or '(none)'!r} "
@@ -68,17 +98,18 @@ def save_image(path: str, image: np.ndarray) -> None:
             raise WavlightError(f"{path}: cannot create writer ({oiio.geterror().strip()})")
         spec = oiio.ImageSpec(image.shape[1], image.shape[0], 3, fmt)
         ok = out.open(tmp, spec) and out.write_image(pixels)
+        # a writer may report a failed write (a full disk) only in its error text, while
+        # write_image and close return True (OpenImageIO's PNG writer does): both count
         err = out.geterror()
-        out.close()
-        if not ok:
-            raise WavlightError(f"{path}: write failed ({err.strip() or 'unknown error'})")
+        ok = out.close() and ok
+        err = (err + " " + out.geterror()).strip()
+        if not ok or err:
+            raise WavlightError(f"{path}: write failed ({err.splitlines()[0].strip() if err else 'unknown error'})")
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes files private; outputs get the usual mode
-        os.replace(tmp, path)
+        return tmp
     except OSError as e:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        _remove([tmp])
         raise WavlightError(f"{path}: cannot write ({e.strerror})") from None
     except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        _remove([tmp])
         raise

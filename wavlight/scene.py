@@ -57,6 +57,9 @@ WAVELET_SLOTS = (2, 4)        # wavlight.strategies.SLOT_COUNTS
 MAX_SIR_SAMPLES = 1024
 MAX_SIDE = 16384
 MAX_SPP = 1_000_000
+#: Largest |coordinate| of a vertex or of the camera: embree ignores geometry beyond about
+#: +-1.8e18 (its documented range), which would vanish from the image without a word.
+MAX_COORDINATE = 1e18
 
 
 @dataclass
@@ -137,6 +140,8 @@ def check_scene(scene) -> None:
         bad("camera must have eye, target and up (3 numbers each) and fov_y")
     if not (np.all(np.isfinite([*eye, *target, *up])) and 0 < fov < 180):
         bad("camera eye, target and up must be finite and fov_y in (0, 180) degrees")
+    if max(np.abs(eye).max(), np.abs(target).max()) > MAX_COORDINATE:
+        bad(f"camera eye and target must be within the ray tracer's range (|x| <= {MAX_COORDINATE:g})")
     view = target - eye
     if np.linalg.norm(view) == 0 or np.linalg.norm(np.cross(view, up)) == 0:
         bad("camera eye equals target, or up is parallel to the view")
@@ -147,6 +152,8 @@ def check_scene(scene) -> None:
         bad("faces and face_material must be integers")
     if not np.all(np.isfinite(v)):
         bad("vertices hold NaN or Inf")
+    if v.size and np.abs(v).max() > MAX_COORDINATE:
+        bad(f"vertex coordinates beyond the ray tracer's range (|x| <= {MAX_COORDINATE:g})")
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
         bad("face indices out of range")
     if len(fm) and (fm.min() < 0 or fm.max() >= len(scene.materials)):
@@ -339,6 +346,9 @@ def _clean_triangles(path, key, v, f):
         raise SceneError(path, key, "face indices out of range")
     if not np.all(np.isfinite(v)):
         raise SceneError(path, key, "vertices hold NaN or Inf")
+    if v.size and np.abs(v).max() > MAX_COORDINATE:
+        raise SceneError(path, key, f"vertex coordinates reach {np.abs(v).max():.3g}, beyond the ray tracer's "
+                                    f"range (|x| <= {MAX_COORDINATE:g})")
     e = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     area2 = np.linalg.norm(e, axis=1)
     extent = np.ptp(v, axis=0).max() if len(v) else 0.0
@@ -413,6 +423,9 @@ def load_scene(path: str) -> Scene:
                     c.get("target", "vec3", np.array([0.0, 0.5, 0.0])),
                     c.get("up", "vec3", np.array([0.0, 1.0, 0.0])),
                     _positive(c, "fov_y", c.get("fov_y", "float", 35.0), 1e-3, 179.0))
+    for key, point in (("eye", camera.eye), ("target", camera.target)):
+        if np.abs(point).max() > MAX_COORDINATE:
+            c.fail(key, f"must be within the ray tracer's range (|x| <= {MAX_COORDINATE:g}), got {point.tolist()}")
     fwd = camera.target - camera.eye
     if np.linalg.norm(fwd) == 0:
         c.fail("target", "must differ from eye")
