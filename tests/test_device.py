@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from wavlight import cl
+from wavlight.errors import WavlightError
 
 WAVLIGHT = os.path.join(os.path.dirname(sys.executable), "wavlight")
 
@@ -106,3 +107,7 @@ def test_inline_builtins_env_var_overrides(monkeypatch):
     assert cl.inline_builtins(dev) is False
     monkeypatch.setenv(cl.INLINE_ENV, "1")
     assert cl.inline_builtins(dev) is True
+    for bad in ("yes", "2"):   # not silently the automatic choice: a one-line error
+        monkeypatch.setenv(cl.INLINE_ENV, bad)
+        with pytest.raises(WavlightError, match=f"{cl.INLINE_ENV}='{bad}': must be 0 or 1"):
+            cl.inline_builtins(dev)

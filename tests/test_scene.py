@@ -456,6 +456,9 @@ def test_procedural_sky_defaults(tmp_path):
 # ----------------------------------------------------------------------------- errors
 # (scene text, the key the message must name); every message also names the file.
 BAD = {
+    "slots without candidates": ('[render]\nwavelet_candidates = 0\nwavelet_slots = 4\n' + SKY,
+                                 "[render].wavelet_slots"),
+    "albedo absurd": ('[materials.m]\ntype = "ggx"\nalbedo = [1e300, 1.0, 1.0]\n' + SKY, "[materials.m].albedo"),
     "unknown table": ('[rendr]\nspp = 1\n' + SKY, "rendr"),
     "render not a table": ('render = 3\n' + SKY, "[render]"),
     "unknown render key": ('[render]\nspp = 2\nsamples = 4\n' + SKY, "[render].samples"),

@@ -206,6 +206,8 @@ def inline_builtins(device) -> bool:
     want = os.environ.get(INLINE_ENV, "").strip()
     if want in ("0", "1"):
         return want == "1"
+    if want:
+        raise WavlightError(f"{INLINE_ENV}={want!r}: must be 0 or 1 (or unset: chosen per device)")
     cl = _cl()
     return "portable" in device.platform.name.lower() and bool(device.type & cl.device_type.CPU)
 

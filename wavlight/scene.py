@@ -60,6 +60,9 @@ MAX_SPP = 1_000_000
 #: Largest |coordinate| of a vertex or of the camera: embree ignores geometry beyond about
 #: +-1.8e18 (its documented range), which would vanish from the image without a word.
 MAX_COORDINATE = 1e18
+#: Largest albedo component: above 1 a surface reflects more than it receives (a warning);
+#: beyond this, albedo x radiance (up to envmap.MAX_RADIANCE = 1e30) nears float32's limit.
+MAX_ALBEDO = 1e6
 
 
 @dataclass
@@ -398,6 +401,8 @@ def load_scene(path: str) -> Scene:
     wavelet_slots = r.get("wavelet_slots", "int")
     if wavelet_slots is not None and wavelet_slots not in WAVELET_SLOTS:
         r.fail("wavelet_slots", f"must be 2 or 4, got {wavelet_slots}")
+    if wavelet_slots == 4 and wavelet_candidates == 0:
+        r.fail("wavelet_slots", "4 needs the resampling estimator (wavelet_candidates 2..64), not 0")
     light_levels = r.get("light_levels", "int")
     if light_levels is not None:
         _positive(r, "light_levels", light_levels, 1, 11)
@@ -447,6 +452,8 @@ def load_scene(path: str) -> Scene:
         albedo = t.get("albedo", "vec3", np.array([0.8, 0.8, 0.8]))
         if np.any(albedo < 0):
             t.fail("albedo", "must not be negative")
+        if np.any(albedo > MAX_ALBEDO):
+            t.fail("albedo", f"must be at most {MAX_ALBEDO:g} (1 reflects all light), got {albedo.tolist()}")
         if np.any(albedo > 1):
             warnings.warn(f"{path}: [materials.{name}].albedo: above 1, the surface reflects more light than "
                           "it receives", stacklevel=2)
