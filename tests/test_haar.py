@@ -346,6 +346,22 @@ def test_product_scaling_at_nodes():
     np.testing.assert_allclose(got, ref, atol=TOL64)
 
 
+def test_node_of_is_exact_at_every_level():
+    """haar._node_of inverts the pyramid index (4^l - 1) / 3 + y 2^l + x exactly at the first,
+    last and a middle node of every level up to MAX_LEVELS (a float64 logarithm misplaces the
+    last nodes of levels >= 27)."""
+    levels, xs, ys = [], [], []
+    for l in range(haar.MAX_LEVELS + 1):
+        side = 1 << l
+        for x, y in ((0, 0), (side - 1, side - 1), (side // 3, side - 1), (side - 1, 0)):
+            levels.append(l), xs.append(x), ys.append(y)
+    l, x, y = (np.array(a, np.int64) for a in (levels, xs, ys))
+    nid = (np.left_shift(1, 2 * l) - 1) // 3 + (y << l) + x
+    got = haar._node_of(nid)
+    for a, b in zip(got, (l, x, y)):
+        np.testing.assert_array_equal(a, b)
+
+
 @pytest.mark.parametrize("spread", [10 ** 9, 0, None], ids=["tables", "binary_search", "default"])
 def test_sparse_lookups_by_table_and_by_search(monkeypatch, spread):
     """The sparse paths find coefficients through a table over the key space or, for sets

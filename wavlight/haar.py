@@ -413,11 +413,16 @@ def _distinct(idx: np.ndarray, space: int):
     return idx[first], rank[slot[idx] - 1]
 
 
+#: The pyramid index of each level's first node, (4^l - 1) / 3 for l = 0..32 (exact in int64).
+_LEVEL_STARTS = np.array([(4 ** l - 1) // 3 for l in range(33)], np.int64)
+
+
 def _node_of(nid):
-    """(level, x, y) of pyramid node indices."""
+    """(level, x, y) of pyramid node indices (the level by integer search, exact at every
+    level up to MAX_LEVELS)."""
     nid = np.asarray(nid, np.int64)
-    l = (np.frexp((3 * nid + 1).astype(np.float64))[1].astype(np.int64) - 1) // 2
-    r = nid - (np.left_shift(1, 2 * l) - 1) // 3
+    l = np.searchsorted(_LEVEL_STARTS, nid, side="right").astype(np.int64) - 1
+    r = nid - _LEVEL_STARTS[l]
     return l, r & (np.left_shift(1, l) - 1), r >> l
 
 
