@@ -65,10 +65,10 @@ def experiment(spec_file, out_dir, suite, quiet, no_resume, workers, dask_addres
 
     Renders every scene x strategy x budget x seed, measures each against the reference
     (relMSE, MSE, variance, bias, largest error) and writes results.csv/.json and charts.
-    Runs finished by an earlier call are reused. Format: see wavlight/experiment.py.
-    With --suite stability, runs the stability suite instead (see wavlight/stability.py)."""
+    Runs finished by an earlier call are reused. Format: docs/experiments.md.
+    With --suite stability, runs the stability suite instead (docs/experiments.md)."""
     import wavlight
-    from wavlight.experiment import format_summary, run_experiment, run_suite
+    from wavlight.evaluation import format_summary, run_experiment, run_suite
 
     if (spec_file is None) == (suite is None):
         raise _InputError("give either SPEC or --suite NAME")

@@ -15,6 +15,8 @@ import warnings
 
 import click
 
+from wavlight.strategies import APPLIES, OPTIONS, STRATEGIES
+
 from .progress import ProgressBar
 
 
@@ -95,52 +97,48 @@ def _check_output(path, formats):
         _fail(f"{path}: the file exists and is read-only")
 
 
+def _strategy_options(command):
+    """The strategies' and the sampler's flags, one per option of wavlight.strategies.OPTIONS (the one
+    declaration of each range, default and help text); each is checked by its record."""
+    def checked(option):
+        def callback(ctx, param, value):
+            why = None if value is None else option.problem(value)
+            if why:
+                raise click.BadParameter(why)
+            return value
+        return callback
+
+    for option in reversed(list(OPTIONS.values())):
+        applies = "every strategy" if set(APPLIES[option.key]) == set(STRATEGIES) else ", ".join(APPLIES[option.key])
+        text = f"{option.help} Default: {option.default_text()}. ({applies})"
+        if option.kind is bool:
+            decorator = click.option(f"{option.flag}/{option.off_flag}", option.key, default=None, help=text)
+        elif option.kind is str:
+            decorator = click.option(option.flag, option.key, type=click.Choice(option.values), default=None,
+                                     help=text)
+        else:
+            decorator = click.option(option.flag, option.key, type=int, default=None, metavar=option.allowed(),
+                                     callback=checked(option), help=text)
+        command = decorator(command)
+    return command
+
+
 @main.command()
 @click.argument("scene_file", metavar="SCENE", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
               "Default: the scene's name with .png.")
 @click.option("--spp", type=int, default=None, help="Samples per pixel (overrides the scene).")
-@click.option("--strategy", type=click.Choice(["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet",
-                                                  "sir", "structured"]),
-              default=None,
-              help="Sampling strategy (overrides the scene).")
+@click.option("--strategy", type=click.Choice(STRATEGIES),
+              default=None, help="Sampling strategy (overrides the scene).")
 @click.option("--width", type=int, default=None, help="Image width in pixels.")
 @click.option("--height", type=int, default=None, help="Image height in pixels.")
 @click.option("--seed", type=int, default=None, help="Random seed.")
-@click.option("--wavelet-levels", type=click.IntRange(0, 11), default=None,
-              help="Product depth of the wavelet strategy for every material, at most the light tree's "
-                   "depth (deeper is cut to it; 0: the light tree alone). Default: per material, from its lobe.")
-@click.option("--wavelet-candidates", type=click.IntRange(0, 64), default=None, metavar="0|2..64",
-              help="wavelet: resampling candidates per shading sample, 2..64 (0: the MIS pair of one product "
-                   "and one BSDF sample). Default: from the scene's shadows, 16 where little of what the camera "
-                   "sees is shadowed, else 8 (README, 'Budget from the scene's shadows').")
-@click.option("--wavelet-slots", type=click.Choice(["2", "4"]), default=None,
-              help="wavelet with candidates: directions resampled per shading sample, one shadow ray "
-                   "each; 4 halves the visibility's noise for two more rays. Default: 4 in scenes with "
-                   "shadows, else 2.")
-@click.option("--wavelet-control-variate/--no-wavelet-control-variate", default=True,
-              help="wavelet with candidates: carry the candidates' unshadowed estimate as a control "
-                   "variate (default on; unbiased either way).")
-@click.option("--light-levels", type=click.IntRange(1, 11), default=None,
-              help="Depth of the light tree, 2^n x 2^n leaves (default: from the map's content).")
-@click.option("--sir-candidates", type=click.IntRange(1, 65536), default=None,
-              help="sir: candidates M drawn from the environment per shading sample (default 32).")
-@click.option("--sir-samples", type=click.IntRange(1, 1024), default=None,
-              help="sir: directions N resampled from the candidates, one shadow ray each (default 1).")
-@click.option("--structured-strata", type=click.IntRange(1, 1024), default=None,
-              help="structured: number of strata K (default 16; one shadow ray per stratum).")
-@click.option("--structured-mode", type=click.Choice(["stratified", "preintegrated"]), default=None,
-              help="structured: stratified (unbiased, default) or preintegrated (biased: one light per stratum).")
-@click.option("--sampler", type=click.Choice(["independent", "stratified"]), default=None,
-              help="Pixel-sample uniforms: independent (default) or stratified per pixel.")
+@_strategy_options
 @click.option("--stderr-out", "stderr_out", default=None, metavar="FILE",
               help="Also write each pixel's standard error of the mean (linear: .exr .hdr .pfm; needs spp >= 2).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def render(scene_file, output, spp, strategy, width, height, seed, wavelet_levels, wavelet_candidates,
-           wavelet_slots, wavelet_control_variate, light_levels,
-           sir_candidates,
-           sir_samples, structured_strata, structured_mode, sampler, stderr_out, as_json, quiet):
+def render(scene_file, output, spp, strategy, width, height, seed, stderr_out, as_json, quiet, **options):
     """Render SCENE (a TOML scene file) to an image."""
     import time
 
@@ -171,13 +169,7 @@ def render(scene_file, output, spp, strategy, width, height, seed, wavelet_level
         if stderr_out is not None and (scene.spp if spp is None else spp) < 2:
             _fail(f"{stderr_out}: a standard error needs spp >= 2")
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
-                                      seed=seed, progress=bar, wavelet_levels=wavelet_levels,
-                                      wavelet_candidates=wavelet_candidates,
-                                      wavelet_slots=None if wavelet_slots is None else int(wavelet_slots),
-                                      wavelet_control_variate=wavelet_control_variate,
-                                      light_levels=light_levels, sir_candidates=sir_candidates,
-                                      sir_samples=sir_samples, structured_strata=structured_strata,
-                                      structured_mode=structured_mode, sampler=sampler)
+                                      seed=seed, progress=bar, **options)
         if bar:
             bar.close()
         bad = int((~np.isfinite(result.image)).any(axis=-1).sum())

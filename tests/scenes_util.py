@@ -6,6 +6,7 @@ tests compare wavlight against an independent reading of the conventions.
 """
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -15,25 +16,45 @@ from scipy import stats
 import wavlight
 
 
-# ----------------------------------------------------------------------------- scene files
-# TOML values are written by the library's own writer (the stability suite's).
-from wavlight.stability import _toml_value  # noqa: E402
+# ----------------------------------------------------------------------------- scenes
+def scene_dict(*, render: dict, camera: dict, environment: dict, objects=(), materials=None) -> dict:
+    """A scene as the dict that wavlight.load_dict takes (the TOML file's structure)."""
+    return {"render": render, "camera": camera, "environment": environment, "objects": list(objects),
+            "materials": materials or {}}
 
 
-def _table(name, d):
-    return [f"[{name}]"] + [f"{k} = {_toml_value(v)}" for k, v in d.items()] + [""]
+def toml_value(v):
+    """One value as TOML text (for the tests that need a scene *file*: the command line)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, (str, Path)):
+        return json.dumps(str(v))  # a TOML basic string is a JSON string
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {v!r} as TOML")
 
 
-def write_scene(folder: Path, *, render: dict, camera: dict, environment: dict,
-                objects=(), materials=None, name="scene.toml") -> Path:
-    """Write a scene TOML file into ``folder`` and return its path."""
-    lines = _table("render", render) + _table("camera", camera) + _table("environment", environment)
-    for o in objects:
-        lines += ["[[objects]]"] + [f"{k} = {_toml_value(v)}" for k, v in o.items()] + [""]
-    for mname, m in (materials or {}).items():
-        lines += _table(f"materials.{mname}", m)
+def toml_text(d: dict) -> str:
+    """A scene dict (scene_dict's structure) as a TOML file's text."""
+    lines = []
+    for name in ("render", "camera", "environment"):
+        if name in d:
+            lines += [f"[{name}]"] + [f"{k} = {toml_value(v)}" for k, v in d[name].items()] + [""]
+    for o in d.get("objects", ()):
+        lines += ["[[objects]]"] + [f"{k} = {toml_value(v)}" for k, v in o.items()] + [""]
+    for mname, m in d.get("materials", {}).items():
+        lines += [f"[materials.{mname}]"] + [f"{k} = {toml_value(v)}" for k, v in m.items()] + [""]
+    return "\n".join(lines)
+
+
+def write_scene(folder: Path, *, name="scene.toml", **kw) -> Path:
+    """Write a scene TOML file (scene_dict's keywords) into ``folder`` and return its path."""
     path = Path(folder) / name
-    path.write_text("\n".join(lines))
+    path.write_text(toml_text(scene_dict(**kw)))
     return path
 
 
@@ -94,7 +115,8 @@ def random_normals_views(rng, count):
 
 
 def load(folder: Path, **kw) -> "wavlight.Scene":
-    return wavlight.load_scene(write_scene(folder, **kw))
+    """A scene from scene_dict's keywords, its relative paths resolved against ``folder``."""
+    return wavlight.load_dict(scene_dict(**kw), base_dir=folder)
 
 
 # ----------------------------------------------------------------------------- lat-long convention

@@ -11,6 +11,7 @@ errors, the key), no traceback, no output file or temporary left behind. Bad tex
 from __future__ import annotations
 
 import json
+import tomllib
 import os
 import re
 import shutil
@@ -26,7 +27,7 @@ from click.testing import CliRunner
 
 import wavlight
 from scenes_util import write_raw_image
-from cli.main import main
+from wavlight.cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_SCENE = REPO / "scenes" / "default.toml"
@@ -188,9 +189,10 @@ def test_e2e_default_scene_png_json(tmp_path):
     for k in JSON_KEYS:
         assert k in stats, f"missing {k}: {stats}"
     assert (stats["width"], stats["height"], stats["spp"]) == (16, 12, 2)
-    assert stats["strategy"] == "mis"            # from the scene
-    if "seed" in stats:
-        assert stats["seed"] == 7                # from the scene
+    with open(DEFAULT_SCENE, "rb") as fh:
+        render = tomllib.load(fh)["render"]
+    assert stats["strategy"] == render["strategy"] == "wavelet"   # from the scene: the product sampler
+    assert stats["seed"] == render["seed"]
     for k in ("setup_seconds", "render_seconds", "samples_per_second"):
         assert isinstance(stats[k], (int, float)) and stats[k] >= 0, (k, stats[k])
     assert stats["samples_per_second"] > 0
@@ -671,7 +673,7 @@ BAD = {
     "too many wavelet candidates in the scene": (scene_text(render="wavelet_candidates = 65\n"), (),
                                                  ("scene.toml", "[render].wavelet_candidates")),
     "one wavelet candidate on the command line": (scene_text(), ("--strategy", "wavelet", "--wavelet-candidates", 1),
-                                                  ("wavelet_candidates",)),
+                                                  ("--wavelet-candidates",)),
     "three wavelet slots in the scene": (scene_text(render="wavelet_slots = 3\n"), (),
                                          ("scene.toml", "[render].wavelet_slots")),
     "four slots for the MIS pair": (scene_text(), ("--strategy", "wavelet", "--wavelet-candidates", 0,
@@ -723,7 +725,7 @@ def test_bad_option_is_one_line(tmp_path, args, name):
 
 
 def test_library_messages_spanning_lines_print_as_one():
-    from cli.main import _one_line
+    from wavlight.cli.main import _one_line
 
     assert _one_line("file.pfm: bad header\n  size 0 x 0\n") == "file.pfm: bad header; size 0 x 0"
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli.main import main
-from wavlight import experiment
+from wavlight.cli.main import main
+from wavlight.evaluation import experiment
 from wavlight.envmap import read_image
 
 REPO = Path(__file__).resolve().parents[1]

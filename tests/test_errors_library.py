@@ -8,14 +8,16 @@ import re
 import numpy as np
 import pytest
 
-from wavlight import bsdfs, distributions, haar, product, strategies, warp
+from wavlight import bsdfs, haar, strategies, warp
+from wavlight.haar import tree as haar_tree
+from wavlight.strategies import product
 from wavlight.errors import ArgumentError, WavlightError
 
 C8 = haar.forward(np.random.default_rng(1).random((8, 8)))        # dense coefficients, n = 3
 SP = haar.compress_topk(C8, 5)                                     # sparse, n = 3
 SP2 = haar.SparseHaar(2, [0, 1], np.ones((2, 2)))                  # 2 channels
 SP3 = haar.SparseHaar(2, [0, 1], np.ones((2, 3)))                  # 3 channels
-TREE = distributions.build_reference(np.random.default_rng(2).random((2, 4, 4)))   # 2 trees, n = 2
+TREE = haar_tree.build_reference(np.random.default_rng(2).random((2, 4, 4)))   # 2 trees, n = 2
 U8 = np.random.default_rng(3).random((8, 2))
 N3 = np.tile([0.0, 0.0, 1.0], (4, 1))
 PRODUCT_ARGS = dict(tree=TREE, n_levels=2, env=None, axis=N3, n=N3, kappa=np.zeros(4),
@@ -155,80 +157,80 @@ CASES = [
     ("ProductPyramids levels", lambda: haar.ProductPyramids(C8, 2, levels=4),
      r"haar\.ProductPyramids: levels must be between 0 and 3, got 4"),
     # ---------------------------------------------------------------- distributions
-    ("leaf_levels 6", lambda: distributions.leaf_levels(6),
-     r"distributions\.leaf_levels: tree images must be 2\^n x 2\^n, got side 6"),
-    ("leaf_levels str", lambda: distributions.leaf_levels("8"), r"distributions\.leaf_levels: .* got side '8'"),
-    ("build_reference 1d", lambda: distributions.build_reference(np.zeros(4)),
-     r"distributions\.build_reference: leaves must be \(T, 2\^n, 2\^n\) or \(2\^n, 2\^n\), got shape \(4,\)"),
-    ("build_reference 4d", lambda: distributions.build_reference(np.zeros((1, 1, 4, 4))),
-     r"distributions\.build_reference: leaves must be .* got shape \(1, 1, 4, 4\)"),
-    ("build_reference non-square", lambda: distributions.build_reference(np.zeros((4, 8))),
-     r"distributions\.build_reference: leaves must be .* got shape \(4, 8\)"),
-    ("build_reference negative", lambda: distributions.build_reference(-np.ones((4, 4))),
-     r"distributions\.build_reference: tree leaves must be finite and non-negative"),
-    ("build_reference str", lambda: distributions.build_reference([["a"]]),
-     r"distributions\.build_reference: leaves must be an array of real numbers"),
-    ("sample_reference n_levels", lambda: distributions.sample_reference(TREE, 3, U8, 4),
-     r"distributions\.sample_reference: tree must hold whole pyramids of tree_size\(3\) = 85 nodes"),
-    ("sample_reference spt 0", lambda: distributions.sample_reference(TREE, 2, U8, 0),
-     r"distributions\.sample_reference: samples_per_tree must be at least 1, got 0"),
-    ("sample_reference spt small", lambda: distributions.sample_reference(TREE, 2, U8, 1),
-     r"distributions\.sample_reference: 8 points at 1 per tree need 8 trees, tree holds 2"),
-    ("sample_reference u", lambda: distributions.sample_reference(TREE, 2, np.zeros((8, 3)), 4),
-     r"distributions\.sample_reference: u must be \(N, 2\), got shape \(8, 3\)"),
-    ("pdf_reference spt small", lambda: distributions.pdf_reference(TREE, 2, U8, 1),
-     r"distributions\.pdf_reference: 8 points at 1 per tree need 8 trees"),
-    ("pdf_reference n_levels", lambda: distributions.pdf_reference(TREE, -1, U8, 4),
-     r"distributions\.pdf_reference: n_levels must be between 0 and 30, got -1"),
-    ("HaarTree 1d", lambda: distributions.HaarTree(np.ones(4)),
-     r"distributions\.HaarTree: leaves must be \(T, 2\^n, 2\^n\) or \(2\^n, 2\^n\), got shape \(4,\)"),
-    ("HaarTree 4d", lambda: distributions.HaarTree(np.ones((1, 1, 4, 4))),
-     r"distributions\.HaarTree: leaves must be .* got shape \(1, 1, 4, 4\)"),
-    ("HaarTree empty", lambda: distributions.HaarTree(np.ones((0, 4, 4))),
-     r"distributions\.HaarTree: leaves must hold at least one image"),
-    ("HaarTree negative", lambda: distributions.HaarTree(-np.ones((4, 4))),
-     r"distributions\.HaarTree: tree leaves must be finite and non-negative"),
-    ("HaarTree None", lambda: distributions.HaarTree(None),
-     r"distributions\.HaarTree: leaves must be an array of real numbers"),
+    ("leaf_levels 6", lambda: haar_tree.leaf_levels(6),
+     r"haar\.tree\.leaf_levels: tree images must be 2\^n x 2\^n, got side 6"),
+    ("leaf_levels str", lambda: haar_tree.leaf_levels("8"), r"haar\.tree\.leaf_levels: .* got side '8'"),
+    ("build_reference 1d", lambda: haar_tree.build_reference(np.zeros(4)),
+     r"haar\.tree\.build_reference: leaves must be \(T, 2\^n, 2\^n\) or \(2\^n, 2\^n\), got shape \(4,\)"),
+    ("build_reference 4d", lambda: haar_tree.build_reference(np.zeros((1, 1, 4, 4))),
+     r"haar\.tree\.build_reference: leaves must be .* got shape \(1, 1, 4, 4\)"),
+    ("build_reference non-square", lambda: haar_tree.build_reference(np.zeros((4, 8))),
+     r"haar\.tree\.build_reference: leaves must be .* got shape \(4, 8\)"),
+    ("build_reference negative", lambda: haar_tree.build_reference(-np.ones((4, 4))),
+     r"haar\.tree\.build_reference: tree leaves must be finite and non-negative"),
+    ("build_reference str", lambda: haar_tree.build_reference([["a"]]),
+     r"haar\.tree\.build_reference: leaves must be an array of real numbers"),
+    ("sample_reference n_levels", lambda: haar_tree.sample_reference(TREE, 3, U8, 4),
+     r"haar\.tree\.sample_reference: tree must hold whole pyramids of tree_size\(3\) = 85 nodes"),
+    ("sample_reference spt 0", lambda: haar_tree.sample_reference(TREE, 2, U8, 0),
+     r"haar\.tree\.sample_reference: samples_per_tree must be at least 1, got 0"),
+    ("sample_reference spt small", lambda: haar_tree.sample_reference(TREE, 2, U8, 1),
+     r"haar\.tree\.sample_reference: 8 points at 1 per tree need 8 trees, tree holds 2"),
+    ("sample_reference u", lambda: haar_tree.sample_reference(TREE, 2, np.zeros((8, 3)), 4),
+     r"haar\.tree\.sample_reference: u must be \(N, 2\), got shape \(8, 3\)"),
+    ("pdf_reference spt small", lambda: haar_tree.pdf_reference(TREE, 2, U8, 1),
+     r"haar\.tree\.pdf_reference: 8 points at 1 per tree need 8 trees"),
+    ("pdf_reference n_levels", lambda: haar_tree.pdf_reference(TREE, -1, U8, 4),
+     r"haar\.tree\.pdf_reference: n_levels must be between 0 and 30, got -1"),
+    ("HaarTree 1d", lambda: haar_tree.HaarTree(np.ones(4)),
+     r"haar\.tree\.HaarTree: leaves must be \(T, 2\^n, 2\^n\) or \(2\^n, 2\^n\), got shape \(4,\)"),
+    ("HaarTree 4d", lambda: haar_tree.HaarTree(np.ones((1, 1, 4, 4))),
+     r"haar\.tree\.HaarTree: leaves must be .* got shape \(1, 1, 4, 4\)"),
+    ("HaarTree empty", lambda: haar_tree.HaarTree(np.ones((0, 4, 4))),
+     r"haar\.tree\.HaarTree: leaves must hold at least one image"),
+    ("HaarTree negative", lambda: haar_tree.HaarTree(-np.ones((4, 4))),
+     r"haar\.tree\.HaarTree: tree leaves must be finite and non-negative"),
+    ("HaarTree None", lambda: haar_tree.HaarTree(None),
+     r"haar\.tree\.HaarTree: leaves must be an array of real numbers"),
     # ---------------------------------------------------------------- product
     ("centre_angles level", lambda: product.centre_angles(0, 0, 20),
-     r"product\.centre_angles: level must be between 0 and 14, got 20"),
+     r"strategies\.product\.centre_angles: level must be between 0 and 14, got 20"),
     ("centre_angles x", lambda: product.centre_angles(5, 0, 2),
-     r"product\.centre_angles: x must be in \[0, 4\), got 5"),
+     r"strategies\.product\.centre_angles: x must be in \[0, 4\), got 5"),
     ("lobe_shape kind", lambda: product.lobe_shape(7, 0.1),
-     r"product\.lobe_shape: kind must be one of 0 \(lambert\), 1 \(phong\), 2 \(ggx\), got 7"),
+     r"strategies\.product\.lobe_shape: kind must be one of 0 \(lambert\), 1 \(phong\), 2 \(ggx\), got 7"),
     ("lobe_kappa kind str", lambda: product.lobe_kappa("ggx", 0.1),
-     r"product\.lobe_kappa: kind must be one of .* got 'ggx'"),
+     r"strategies\.product\.lobe_kappa: kind must be one of .* got 'ggx'"),
     ("lobe_kappa ggx 0", lambda: product.lobe_kappa(bsdfs.GGX, 0.0),
-     r"product\.lobe_kappa: param \(ggx alpha\) must be positive"),
+     r"strategies\.product\.lobe_kappa: param \(ggx alpha\) must be positive"),
     ("lobe_kappa ggx nan", lambda: product.lobe_kappa(bsdfs.GGX, float("nan")),
-     r"product\.lobe_kappa: param must be a finite number >= 0, got nan"),
+     r"strategies\.product\.lobe_kappa: param must be a finite number >= 0, got nan"),
     ("lobe_kappa phong negative", lambda: product.lobe_kappa(bsdfs.PHONG, -5.0),
-     r"product\.lobe_kappa: param must be a finite number >= 0, got -5"),
+     r"strategies\.product\.lobe_kappa: param must be a finite number >= 0, got -5"),
     ("product_levels kappa nan", lambda: product.product_levels(float("nan"), 8),
-     r"product\.product_levels: kappa must be a finite number >= 0, got nan"),
+     r"strategies\.product\.product_levels: kappa must be a finite number >= 0, got nan"),
     ("product_levels kappa inf", lambda: product.product_levels(float("inf"), 8),
-     r"product\.product_levels: kappa must be a finite number >= 0, got inf"),
+     r"strategies\.product\.product_levels: kappa must be a finite number >= 0, got inf"),
     ("product_levels tree_levels", lambda: product.product_levels(10.0, -1),
-     r"product\.product_levels: tree_levels must be at least 0, got -1"),
+     r"strategies\.product\.product_levels: tree_levels must be at least 0, got -1"),
     ("product_levels override", lambda: product.product_levels(10.0, 8, 2.7),
-     r"product\.product_levels: override must be an integer, got 2\.7"),
+     r"strategies\.product\.product_levels: override must be an integer, got 2\.7"),
     ("sample_reference tree", lambda: product_twin(n_levels=3),
-     r"product\.sample_reference: tree must be \(tree_size\(n\),\) or \(T, tree_size\(n\)\) with tree_size\(3\) = 85"),
+     r"strategies\.product\.sample_reference: tree must be \(tree_size\(n\),\) or \(T, tree_size\(n\)\) with tree_size\(3\) = 85"),
     ("sample_reference u", lambda: product_twin(u=np.zeros((4, 3))),
-     r"product\.sample_reference: u must be \(N, 2\), got shape \(4, 3\)"),
+     r"strategies\.product\.sample_reference: u must be \(N, 2\), got shape \(4, 3\)"),
     ("sample_reference axis", lambda: product_twin(axis=N3[:3]),
-     r"product\.sample_reference: axis must be \(4, 3\) like u, got shape \(3, 3\)"),
+     r"strategies\.product\.sample_reference: axis must be \(4, 3\) like u, got shape \(3, 3\)"),
     ("sample_reference kappa", lambda: product_twin(kappa=0.0),
-     r"product\.sample_reference: kappa must be \(4,\) like u, got shape \(\)"),
+     r"strategies\.product\.sample_reference: kappa must be \(4,\) like u, got shape \(\)"),
     ("sample_reference levels", lambda: product_twin(levels=np.full(4, -1)),
-     r"product\.sample_reference: levels must be non-negative"),
+     r"strategies\.product\.sample_reference: levels must be non-negative"),
     ("sample_reference levels float", lambda: product_twin(levels=np.full(4, 2.0)),
-     r"product\.sample_reference: levels must be integers"),
+     r"strategies\.product\.sample_reference: levels must be integers"),
     ("sample_reference tree_index", lambda: product_twin(tree_index=np.full(4, 2)),
-     r"product\.sample_reference: tree_index must be in \[0, 2\), got 2"),
+     r"strategies\.product\.sample_reference: tree_index must be in \[0, 2\), got 2"),
     ("pdf_reference tree_index shape", lambda: product_twin(product.pdf_reference, "uv", tree_index=np.zeros(3, int)),
-     r"product\.pdf_reference: tree_index must be one index or \(4,\)"),
+     r"strategies\.product\.pdf_reference: tree_index must be one index or \(4,\)"),
     # ---------------------------------------------------------------- warp
     ("uniform_hemisphere shape", lambda: warp.square_to_uniform_hemisphere(np.zeros((4, 3))),
      r"warp\.square_to_uniform_hemisphere: u must be \(N, 2\), got shape \(4, 3\)"),
@@ -253,21 +255,21 @@ CASES = [
      r"strategies\.make: strategy 'uniform' has no option 'levels' \(options: none\)"),
     ("make list", lambda: strategies.make(["mis"]), r"strategies\.make: unknown strategy \['mis'\]"),
     ("LightStrategy levels", lambda: strategies.LightStrategy(levels=0),
-     r"strategies\.LightStrategy: levels must be at least 1, got 0"),
+     r"strategies\.LightStrategy: levels must be between 1 and 11, got 0"),
     ("LightStrategy levels float", lambda: strategies.make("light", levels=2.7),
      r"strategies\.LightStrategy: levels must be an integer, got 2\.7"),
     ("MisStrategy light_levels", lambda: strategies.make("mis", light_levels=-1),
-     r"strategies\.MisStrategy: light_levels must be at least 1, got -1"),
+     r"strategies\.MisStrategy: light_levels must be between 1 and 11, got -1"),
     ("MisCompensatedStrategy light_levels", lambda: strategies.make("mis_comp", light_levels="4"),
      r"strategies\.MisCompensatedStrategy: light_levels must be an integer, got '4'"),
     ("WaveletStrategy slots 3", lambda: strategies.make("wavelet", slots=3),
-     r"strategies\.WaveletStrategy: slots must be 2, or 4 with candidates \(the MIS pair has 2\), got 3"),
+     r"strategies\.WaveletStrategy: slots must be 2 \| 4, got 3"),
     ("WaveletStrategy slots 4 without candidates", lambda: strategies.make("wavelet", slots=4, candidates=0),
      r"strategies\.WaveletStrategy: slots must be 2, or 4 with candidates \(the MIS pair has 2\), got 4"),
     ("WaveletStrategy levels", lambda: strategies.make("wavelet", levels=-2),
-     r"strategies\.WaveletStrategy: levels must be at least 0, got -2"),
+     r"strategies\.WaveletStrategy: levels must be between 0 and 11, got -2"),
     ("WaveletStrategy light_levels", lambda: strategies.make("wavelet", light_levels=0),
-     r"strategies\.WaveletStrategy: light_levels must be at least 1, got 0"),
+     r"strategies\.WaveletStrategy: light_levels must be between 1 and 11, got 0"),
     ("WaveletStrategy compensated_kinds str", lambda: strategies.make("wavelet", compensated_kinds="lambert"),
      r"strategies\.WaveletStrategy: compensated_kinds must be a tuple of bsdf kinds"),
     ("WaveletStrategy compensated_kinds int", lambda: strategies.make("wavelet", compensated_kinds=5),
@@ -275,11 +277,11 @@ CASES = [
     ("SirStrategy candidates", lambda: strategies.make("sir", candidates=2.7),
      r"strategies\.SirStrategy: candidates must be an integer, got 2\.7"),
     ("SirStrategy samples", lambda: strategies.make("sir", samples=0),
-     r"strategies\.SirStrategy: samples must be at least 1, got 0"),
+     r"strategies\.SirStrategy: samples must be between 1 and 1024, got 0"),
     ("SirStrategy source", lambda: strategies.make("sir", source="sky"),
      r"strategies\.SirStrategy: source must be one of light \| bsdf, got 'sky'"),
     ("SirStrategy light_levels", lambda: strategies.make("sir", light_levels=0),
-     r"strategies\.SirStrategy: light_levels must be at least 1, got 0"),
+     r"strategies\.SirStrategy: light_levels must be between 1 and 11, got 0"),
     ("StructuredStrategy strata", lambda: strategies.make("structured", strata=5000),
      r"strategies\.StructuredStrategy: strata must be between 1 and 1024, got 5000"),
     ("StructuredStrategy mode", lambda: strategies.make("structured", mode="points"),
@@ -340,20 +342,20 @@ def test_valid_edge_cases_unchanged():
     assert len(haar.SparseHaar(2, [], [])) == 0                             # an empty set
     np.testing.assert_array_equal(haar.coeff_index(5, 9, 9, 0, 3), 0)        # m = 0 ignores level, x, y
     empty_u = np.zeros((0, 2))
-    uv, pdf = distributions.sample_reference(TREE, 2, empty_u, 0)           # no points, len(u) per tree
+    uv, pdf = haar_tree.sample_reference(TREE, 2, empty_u, 0)           # no points, len(u) per tree
     assert uv.shape == (0, 2) and pdf.shape == (0,)
     coeffs, pyr = haar.forward_cl(np.zeros((0, 4, 4)))                      # no images: no device work
     assert coeffs.shape == (0, 4, 4) and pyr.shape == (0, 21)
     assert isinstance(strategies.make("structured", samples="strata"), strategies.Strategy)
-    st = strategies.make("light", levels=30)                                # deeper than any map: clamped when used
-    assert st.override == 30
+    st = strategies.make("light", levels=11)                                # deeper than small maps: cut when used
+    assert st.override == 11
 
 
 # ============================================================================= checks that need the device
 def test_haar_tree_sample_and_pdf_arguments(device):
-    tree = distributions.HaarTree(np.random.default_rng(4).random((2, 4, 4)))
+    tree = haar_tree.HaarTree(np.random.default_rng(4).random((2, 4, 4)))
     for fn, arg in ((tree.sample, "u"), (tree.pdf, "uv")):
-        where = re.escape(f"distributions.HaarTree.{fn.__name__}")
+        where = re.escape(f"haar.tree.HaarTree.{fn.__name__}")
         check_one_line(lambda: fn(np.zeros((8, 3))), rf"{where}: {arg} must be \(N, 2\), got shape \(8, 3\)")
         check_one_line(lambda: fn(np.zeros(7)), rf"{where}: {arg} must be \(N, 2\), got shape \(7,\)")
         check_one_line(lambda: fn("abc"), rf"{where}: {arg} must be an array of real numbers")
@@ -373,6 +375,8 @@ def test_product_pyramids_arguments(device):
     check_one_line(lambda: pp("abc"), r"haar\.ProductPyramids: H must be an array of real numbers")
     check_one_line(lambda: haar.ProductPyramids(C8, 2, work_group=0),
                    r"haar\.ProductPyramids: work_group must be between 1 and ")
-    check_one_line(lambda: haar.ProductPyramids(C8, 9),
-                   r"haar\.ProductPyramids: product trees of leaf level 9 do not fit")
-    assert pp(np.zeros((4, 4))).shape == (1, distributions.tree_size(2))
+    # the smallest leaf level whose two 4^P-float work arrays exceed this device's local memory
+    too_deep = next(p for p in range(1, 32) if 8 * 4 ** p > device.device.local_mem_size)
+    check_one_line(lambda: haar.ProductPyramids(C8, too_deep),
+                   rf"haar\.ProductPyramids: product trees of leaf level {too_deep} do not fit")
+    assert pp(np.zeros((4, 4))).shape == (1, haar_tree.tree_size(2))

@@ -16,8 +16,10 @@ import pytest
 from click.testing import CliRunner
 
 import wavlight
-from cli.main import main
-from wavlight import experiment, metrics
+from wavlight.cli.main import main
+from wavlight.evaluation import experiment, records
+from wavlight.strategies import APPLIES
+from wavlight.evaluation import metrics
 from wavlight.envmap import read_image
 from scenes_util import write_raw_image
 
@@ -71,7 +73,7 @@ class Counter:
 def run_counted(spec, out, **kw):
     counter = Counter(wavlight.render_full)
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(wavlight, "render_full", counter)
+        mp.setattr(experiment, "render_full", counter)
         results = experiment.run_experiment(spec, out, **kw)
     return results, counter
 
@@ -312,7 +314,7 @@ def test_no_resume_renders_everything_again(tmp_path):
     assert first["rendered"] == 1 and len(counter.timed) == 2          # the reference and the run
     counter = Counter(wavlight.render_full)
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(wavlight, "render_full", counter)
+        mp.setattr(experiment, "render_full", counter)
         r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "out"), "-q", "--no-resume"])
     assert r.exit_code == 0, r.output
     assert "(1 rendered, 0 reused)" in r.stdout
@@ -369,7 +371,7 @@ def test_run_experiment_checks_its_arguments_first(tmp_path, kwargs, message):
 
 def test_results_json_has_no_nan_tokens(tmp_path):
     """JSON has no NaN: a metric that is not a number is written as null."""
-    experiment._write_json(tmp_path / "r.json", {"a": [1.0, float("nan")], "b": {"c": float("inf")}, "d": "x"})
+    records.write_json(tmp_path / "r.json", {"a": [1.0, float("nan")], "b": {"c": float("inf")}, "d": "x"})
     assert json.loads((tmp_path / "r.json").read_text()) == {"a": [1.0, None], "b": {"c": None}, "d": "x"}
 
 
@@ -406,7 +408,7 @@ BAD = [
      "[budgets]\nspp = [1]\n", "[reference].spp: must be an integer >= 2"),
     (f"[experiment]\nsize = [8]\n[[scenes]]\npath = '{DEFAULT_SCENE}'\n", "[experiment].size: must be [width, height]"),
     (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\nsampler = 'sobol'\n[budgets]\nspp = [1]\n",
-     "[[strategies]][0].sampler: unknown sampler 'sobol'"),
+     "[[strategies]][0].sampler: must be one of independent | stratified, got 'sobol'"),
     ("[budgets\nspp = [1]\n", "malformed TOML"),
     (f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[[strategies]]\nid = 'mis'\nwavelet_levels = 4\n[budgets]\nspp = [1]\n",
      "[[strategies]][0].wavelet_levels: does not apply to 'mis' (only to wavelet)"),
@@ -472,7 +474,7 @@ albedo = [0.5, 0.5, 0.5]
 
 
 def test_mitsuba_peer_runs_against_the_wavlight_reference(tmp_path):
-    from wavlight import peers
+    from wavlight.evaluation import peers
     if not peers.available():
         pytest.skip("Mitsuba 3 (llvm_ad_rgb) not available")
     v = np.linspace(0.2, 1.0, 8, dtype=np.float32)[:, None, None]          # a smooth sky: bright at the top
@@ -509,7 +511,7 @@ repetitions = 1
 
 
 def test_mitsuba_strategy_errors(tmp_path, monkeypatch):
-    from wavlight import peers
+    from wavlight.evaluation import peers
     spec = tmp_path / "bad.toml"
     base = f"[[scenes]]\npath = '{DEFAULT_SCENE}'\n[budgets]\nspp = [1]\n[[strategies]]\n"
     spec.write_text(base + "id = 'mitsuba:wavelet'\n")
@@ -564,19 +566,20 @@ def test_options_the_strategy_takes_are_kept(tmp_path, sid, lines, options):
 
 
 def test_option_table_matches_the_renderer():
-    """OPTION_STRATEGIES says which strategies a level option reaches: exactly those whose render
-    reports a light tree of that depth (light_levels) or product levels (wavelet_levels)."""
+    """APPLIES (derived from the strategies' own option declarations) says which strategies an
+    option reaches: exactly those whose render reports a light tree of that depth (light_levels),
+    product levels (wavelet_levels), candidates or slots."""
     for sid in wavlight.STRATEGIES:
         r = wavlight.render_full(DEFAULT_SCENE, spp=1, strategy=sid, width=4, height=4, seed=0,
                                  light_levels=2, wavelet_levels=1, wavelet_candidates=3, wavelet_slots=4)
-        assert (r.stats.get("light_tree") == "4x4") == (sid in experiment.OPTION_STRATEGIES["light_levels"]), sid
+        assert (r.stats.get("light_tree") == "4x4") == (sid in APPLIES["light_levels"]), sid
         levels = r.stats.get("product_levels")
         assert (levels is not None and set(levels.values()) == {1}) == \
-            (sid in experiment.OPTION_STRATEGIES["wavelet_levels"]), sid
+            (sid in APPLIES["wavelet_levels"]), sid
         assert (r.stats.get("wavelet_candidates") == 3) == \
-            (sid in experiment.OPTION_STRATEGIES["wavelet_candidates"]), sid
-        assert (r.stats.get("wavelet_slots") == 4) == (sid in experiment.OPTION_STRATEGIES["wavelet_slots"]), sid
-    assert set(experiment.OPTION_STRATEGIES["sampler"]) == set(wavlight.STRATEGIES)
+            (sid in APPLIES["wavelet_candidates"]), sid
+        assert (r.stats.get("wavelet_slots") == 4) == (sid in APPLIES["wavelet_slots"]), sid
+    assert set(APPLIES["sampler"]) == set(wavlight.STRATEGIES)
 
 
 # ----------------------------------------------------------------------------- time budgets

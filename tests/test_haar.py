@@ -1,4 +1,4 @@
-"""Haar wavelets (wavlight/haar.py, kernels/haar.cl) against definitions and pointwise integration.
+"""Haar wavelets (wavlight/haar/, kernels/haar.cl) against definitions and pointwise integration.
 
 Basis images are built here from the definitions (module notes of haar.py), independently
 of the transform. Integrals of piecewise-constant images are exact pixel sums.
@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from wavlight import cl, haar
-from wavlight.distributions import HaarTree, build_reference, device_order, level_offset, tree_size
+from wavlight.haar import sparse as haar_sparse
+from wavlight.haar.tree import HaarTree, build_reference, device_order, level_offset, tree_size
 
 EPS32 = float(np.finfo(np.float32).eps)
 TOL64 = 1e-12
@@ -290,7 +291,7 @@ def test_scaling_pyramid_dense_and_sparse():
     c = haar.forward(img)
     p = haar.scaling_pyramid(c)
     np.testing.assert_allclose(p, box_sums(img), atol=TOL64)
-    # distributions.py layout: build_reference takes leaf masses, float32
+    # haar/tree.py layout: build_reference takes leaf masses, float32
     np.testing.assert_allclose(p, build_reference(img / 1024.0), rtol=8 * 5 * EPS32)
     np.testing.assert_allclose(haar.scaling_pyramid(c, 3), p[:, :tree_size(3)], atol=TOL64)
     s = haar.compress_topk(c[0], 100)
@@ -347,7 +348,7 @@ def test_product_scaling_at_nodes():
 
 
 def test_node_of_is_exact_at_every_level():
-    """haar._node_of inverts the pyramid index (4^l - 1) / 3 + y 2^l + x exactly at the first,
+    """haar.sparse._node_of inverts the pyramid index (4^l - 1) / 3 + y 2^l + x exactly at the first,
     last and a middle node of every level up to MAX_LEVELS (a float64 logarithm misplaces the
     last nodes of levels >= 27)."""
     levels, xs, ys = [], [], []
@@ -357,7 +358,7 @@ def test_node_of_is_exact_at_every_level():
             levels.append(l), xs.append(x), ys.append(y)
     l, x, y = (np.array(a, np.int64) for a in (levels, xs, ys))
     nid = (np.left_shift(1, 2 * l) - 1) // 3 + (y << l) + x
-    got = haar._node_of(nid)
+    got = haar_sparse._node_of(nid)
     for a, b in zip(got, (l, x, y)):
         np.testing.assert_array_equal(a, b)
 
@@ -365,11 +366,11 @@ def test_node_of_is_exact_at_every_level():
 @pytest.mark.parametrize("spread", [10 ** 9, 0, None], ids=["tables", "binary_search", "default"])
 def test_sparse_lookups_by_table_and_by_search(monkeypatch, spread):
     """The sparse paths find coefficients through a table over the key space or, for sets
-    sparser than 1 / haar.TABLE_SPREAD of it, by binary search: with every set tabled, none,
+    sparser than 1 / haar.sparse.TABLE_SPREAD of it, by binary search: with every set tabled, none,
     or as chosen, they give the pointwise integrals and box sums, with mixed resolutions,
     channels, few shared wavelets, a set without its scaling coefficient and an empty set."""
     if spread is not None:
-        monkeypatch.setattr(haar, "TABLE_SPREAD", spread)
+        monkeypatch.setattr(haar_sparse, "TABLE_SPREAD", spread)
     rng = np.random.default_rng(27)
     G = haar.compress_topk(haar.forward(rng.random((2, 32, 32)) ** 4), 150)   # two channels
     H = haar.compress_topk(haar.forward(rng.random((16, 16))), 40)           # coarser
@@ -483,8 +484,9 @@ def test_product_kernel_sparse_light_and_clamp(device):
 
 def test_product_kernel_rejects_bad_input(device):
     G = haar.forward(np.ones((8, 8)))
+    too_deep = next(p for p in range(1, 32) if 8 * 4 ** p > device.device.local_mem_size)   # this device's limit
     with pytest.raises(ValueError):
-        haar.ProductPyramids(G, 9)
+        haar.ProductPyramids(G, too_deep)
     with pytest.raises(ValueError):
         haar.ProductPyramids(G, 2, levels=4)
     with pytest.raises(ValueError):

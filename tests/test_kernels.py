@@ -1,7 +1,7 @@
 """OpenCL sampling-tree kernels against their numpy twins and against the maths.
 
 kernels/tree.cl (tree_reduce) and kernels/warp.cl (warp_sample, warp_pdf), driven by
-wavlight.distributions.HaarTree, are compared with build_reference, sample_reference
+wavlight.haar.tree.HaarTree, are compared with build_reference, sample_reference
 and pdf_reference, and checked for the properties the warp promises: samples never
 in zero-mass leaves, u in [0, 1] maps into [0, 1)^2, pdf 0 (not NaN) for an all-zero
 tree, stratification preserved, the pdf integrates to one, and the samples follow
@@ -16,7 +16,7 @@ import pytest
 from scipy import stats
 
 from chi2 import SquareGrid, chi2_test
-from wavlight.distributions import (ONE_MINUS_EPS, TREE_ORIGIN, HaarTree, build_reference, device_order,
+from wavlight.haar.tree import (ONE_MINUS_EPS, TREE_ORIGIN, HaarTree, build_reference, device_order,
                                     host_order, level_offset, morton_index, pdf_reference, sample_reference,
                                     tree_size)
 
@@ -177,7 +177,8 @@ def test_paired_steps_are_bit_identical(pair_level, barriers):
     return the same points and densities bit for bit, on a 2^10 tree with zero masses
     among its leaves; as the renderer walks (without barriers) and as the stand-alone
     kernels do. (Two cases, not four: each builds six programs, cold in CI.)"""
-    from wavlight import bsdfs, cl, product
+    from wavlight import bsdfs, cl
+    from wavlight.strategies import product
 
     rng = np.random.default_rng(pair_level)
     n = 10

@@ -1,4 +1,4 @@
-"""wavlight.metrics: known answers on hand-computable images, and the reference-variance correction.
+"""wavlight.evaluation.metrics: known answers on hand-computable images, and the reference-variance correction.
 
 The statistical checks draw a synthetic "true image" mu, images x = mu + noise and noisy
 references (the mean of n samples, with their standard error as a renderer reports it), with a
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wavlight import metrics
+from wavlight.evaluation import metrics
 
 REPO = Path(__file__).resolve().parents[1]
 

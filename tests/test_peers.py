@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import wavlight
-from wavlight import peers
+from wavlight.evaluation import peers
 from wavlight.envmap import Environment
 
 pytestmark = pytest.mark.skipif(not peers.available(), reason="Mitsuba 3 (llvm_ad_rgb) not available")

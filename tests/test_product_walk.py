@@ -1,6 +1,6 @@
 """The product walk at the edges of its input and on stratified input (paper sec. 4.3; issue 3,
 section 3), for the renderer's walk (kernels/product.cl ``product_sample_points``) and its
-numpy twin (``wavlight.product.sample_reference``); the light walk's own tests of the same
+numpy twin (``wavlight.strategies.product.sample_reference``); the light walk's own tests of the same
 properties are in test_kernels.py.
 
 Light trees with zero-mass nodes next to lit ones (black sky, a lit band, single bright
@@ -15,8 +15,9 @@ import pytest
 
 from scenes_util import random_normals_views
 from walks import product_kernel_samples
-from wavlight import bsdfs, product
-from wavlight.distributions import HaarTree
+from wavlight import bsdfs
+from wavlight.strategies import product
+from wavlight.haar.tree import HaarTree
 from wavlight.envmap import Environment
 
 # u at and next to 0, 1/2 and 1 - 2^-24 (the largest float32 below 1), 1.0 itself (clamped), and

@@ -680,7 +680,8 @@ def _edited(scene, **changes):
     (lambda s: _edited(s, spp=0), "spp"),
     (lambda s: _edited(s, width=0), "width"),
     (lambda s: _edited(s, seed=-1), "seed"),
-    (lambda s: _edited(s, light_levels=50), "light_levels"),
+    (lambda s: _edited(s, options={"light_levels": 50}), "light_levels"),
+    (lambda s: _edited(s, options=None), "options must be a dict"),
     (lambda s: _edited(s, environment=None), "environment"),
     (lambda s: _edited(s, camera=wavlight.scene.Camera(s.camera.eye, s.camera.eye, s.camera.up, 40.0)), "eye"),
     (lambda s: _edited(s, camera=wavlight.scene.Camera(s.camera.eye, s.camera.target, s.camera.up, 200.0)), "fov"),
@@ -707,7 +708,7 @@ def test_render_takes_a_path_and_render_full_options(tmp_path, busy_scene):
 
 
 def test_submodules_are_attributes_of_the_package():
-    assert callable(wavlight.experiment.run_experiment) and callable(wavlight.stability.run_stability)
+    assert callable(wavlight.evaluation.experiment.run_experiment) and callable(wavlight.evaluation.stability.run_stability)
     with pytest.raises(AttributeError):
         wavlight.no_such_module
 

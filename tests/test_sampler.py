@@ -140,5 +140,5 @@ def test_stratification_lowers_the_error_of_a_smooth_image(tmp_path):
 
 
 def test_unknown_sampler_is_a_one_line_error(white):
-    with pytest.raises(wavlight.WavlightError, match="unknown sampler"):
+    with pytest.raises(wavlight.WavlightError, match=r"sampler must be one of independent \| stratified"):
         wavlight.render_full(white, spp=1, sampler="sobol")

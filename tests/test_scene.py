@@ -819,14 +819,6 @@ def test_albedo_above_one_warns(tmp_path):
              '[[objects]]\nshape = "quad"\nmaterial = "m"\n')
 
 
-def test_scene_limits_repeat_the_strategies():
-    """The scene file's wavelet limits are the strategy's own (scene.py keeps copies so that
-    parsing a scene does not import the strategies)."""
-    from wavlight import scene, strategies
-    assert scene.WAVELET_SLOTS == strategies.SLOT_COUNTS
-    assert scene.MAX_WAVELET_CANDIDATES == strategies.MAX_CANDIDATES
-
-
 @pytest.mark.parametrize("text, key", [
     ('[[objects]]\nshape = "quad"\ncenter = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\nsize = 4e18\n',
      "[[objects]][0]"),

@@ -103,13 +103,13 @@ def test_render_kernel_equals_numpy_backend(sampler):
 @pytest.mark.parametrize("n_trees, shapes", [(1, 15), (2, 15), (1, 1), (2, 1)],
                          ids=["one_tree", "two_trees", "one_tree-lambert_only", "two_trees-lambert_only"])
 def test_product_sample_points_kernel_matches_numpy(n_trees, shapes):
-    """kernels/product.cl (the renderer's product guide samples) against wavlight.product.sample_reference,
+    """kernels/product.cl (the renderer's product guide samples) against wavlight.strategies.product.sample_reference,
     for every lobe shape and product depth, in one program built for all of them; with two light
     trees (plain and compensated, as WaveletStrategy holds them for lambert and glossy materials in
     one scene) each material walks its own. shapes: the LOBE_SHAPES the program is built for (15
     every shape; 1 lambert alone, whose lobe_weight returns the softened cosine directly)."""
-    from wavlight import product
-    from wavlight.distributions import HaarTree
+    from wavlight.strategies import product
+    from wavlight.haar.tree import HaarTree
 
     rng = np.random.default_rng(5)
     env = Environment(procedural_sky(width=128, height=64, sun_radiance=300.0) + rng.random((64, 128, 3)) * 0.3,
@@ -154,7 +154,7 @@ def test_breadth_first_walks_match_depth_first():
     launches them, the build without barriers in 6 of 64 as the renderer; an early return
     there breaks the barriers)."""
     from wavlight import cl
-    from wavlight.distributions import HaarTree
+    from wavlight.haar.tree import HaarTree
 
     rng = np.random.default_rng(8)
     env = Environment(procedural_sky(width=256, height=128, sun_radiance=300.0) + rng.random((128, 256, 3)), 1.0, 20.0)

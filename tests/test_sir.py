@@ -1,4 +1,4 @@
-"""The ``sir`` strategy (wavlight/sir.py): resampled importance sampling of f cos L.
+"""The ``sir`` strategy (wavlight/strategies/sir.py): resampled importance sampling of f cos L.
 
 Checked here:
 - registration, options (scene keys, render_full, CLI), determinism;
@@ -28,7 +28,8 @@ from scipy import stats
 import wavlight
 from scenes_util import (ALPHA, camera_of, check_estimates, dir_from_uv, load, shading_points, write_env,
                          write_scene, z_threshold)
-from wavlight import bsdfs, sir, strategies, warp
+from wavlight import bsdfs, strategies, warp
+from wavlight.strategies import sir
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky
 from wavlight.errors import SceneError
 
@@ -105,7 +106,7 @@ def _tiny_scene(folder, **render):
 
 def test_scene_keys_and_render_options(tmp_path):
     scene = _tiny_scene(tmp_path, strategy="sir", sir_candidates=5, sir_samples=3)
-    assert (scene.sir_candidates, scene.sir_samples) == (5, 3)
+    assert scene.options == {"sir_candidates": 5, "sir_samples": 3}
     r = wavlight.render_full(scene)
     assert (r.stats["sir_candidates"], r.stats["sir_samples"], r.stats["sir_source"]) == (5, 3, "light")
     assert np.all(np.isfinite(r.image)) and np.all(r.image >= 0)
@@ -115,11 +116,11 @@ def test_scene_keys_and_render_options(tmp_path):
     assert r.stats["rays"] > r2.stats["rays"]
     (tmp_path / "plain").mkdir()
     plain = _tiny_scene(tmp_path / "plain")
-    assert (plain.sir_candidates, plain.sir_samples) == (None, None)
+    assert plain.options == {}
     with pytest.raises(wavlight.WavlightError):
         wavlight.render_full(plain, strategy="sir", sir_candidates=0)
-    for key, value, msg in (("sir_candidates", 0, "at least 1"), ("sir_samples", 0, "at least 1"),
-                            ("sir_candidates", 70000, "at most"), ("sir_samples", 2.5, "integer")):
+    for key, value, msg in (("sir_candidates", 0, "between 1 and 65536"), ("sir_samples", 0, "between 1 and 1024"),
+                            ("sir_candidates", 70000, "between 1 and 65536"), ("sir_samples", 2.5, "integer")):
         d = tmp_path / f"bad_{key}_{value}"
         d.mkdir()
         with pytest.raises(SceneError, match=rf"\[render\]\.{key}.*{msg}"):
@@ -136,7 +137,7 @@ def test_deterministic_per_seed_and_thread_count(tmp_path):
 
 
 def test_cli_accepts_sir_options(tmp_path):
-    from cli.main import main
+    from wavlight.cli.main import main
 
     scene = _tiny_scene_file(tmp_path)
     out = tmp_path / "o.exr"
@@ -164,7 +165,7 @@ def test_sample_pdf_is_reciprocal_contribution_weight():
     ds = st.sample(sp, u)
     assert wi.shape == value.shape == (len(sp), 1, 3)
     np.testing.assert_allclose(ds.wi_world, wi[:, 0])
-    np.testing.assert_allclose(strategies._unoccluded(sp, env, ds, 1.0), value[:, 0], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(strategies.base._unoccluded(sp, env, ds, 1.0), value[:, 0], rtol=1e-9, atol=1e-12)
 
 
 def test_black_lobe_and_bsdf_furnace_at_shading_level():

@@ -1,4 +1,4 @@
-"""The stability suite (wavlight/stability.py), small: the quick cases (analytic references and the
+"""The stability suite (wavlight/evaluation/stability.py), small: the quick cases (analytic references and the
 all-black map) x every strategy at 12 x 12 pixels, 3 x 32 spp, run once per module; then its
 statistics on synthetic data, deliberately biased, NaN-producing and crashing renders, a case
 whose data is missing, and the command line.
@@ -15,8 +15,10 @@ from click.testing import CliRunner
 from scipy import stats
 
 import wavlight
-from cli.main import main
-from wavlight import stability
+from wavlight.cli.main import main
+
+from scenes_util import toml_text
+from wavlight.evaluation import stability
 
 QUICK = dict(size=(12, 12), spp=32, repetitions=3)
 
@@ -98,7 +100,9 @@ def test_all_black_map_gives_exactly_zero(quick, tmp_path):
     assert len(cells) == len(wavlight.STRATEGIES) and all(c["exact_zero"] is True for c in cells)
     # and the command line refuses the same scene with one line and exit code 2
     built = stability.CASES["all_black"].build(str(tmp_path), 8, 8, stability.DATA_DIR)
-    r = CliRunner().invoke(main, ["render", built.scene_path, "-o", str(tmp_path / "x.exr"), "--quiet"])
+    path = tmp_path / "scene.toml"
+    path.write_text(toml_text(built.scene))
+    r = CliRunner().invoke(main, ["render", str(path), "-o", str(tmp_path / "x.exr"), "--quiet"])
     assert r.exit_code == 2 and "black everywhere" in r.output
 
 
@@ -111,7 +115,7 @@ def test_room_slit_is_closed_but_for_its_slit(tmp_path):
     from wavlight.raytrace import RayTracer
 
     built = stability.CASES["room_slit"].build(str(tmp_path), 16, 16, stability.DATA_DIR)
-    scene = wavlight.load_scene(built.scene_path)
+    scene = wavlight.load_dict(built.scene, base_dir=built.folder)
     tracer = RayTracer(scene.vertices, scene.faces)
     py, px = np.mgrid[0:16, 0:16]
     for corner in ((0.0, 0.0), (1.0, 1.0)):

@@ -1,4 +1,4 @@
-"""The ``structured`` strategy (wavlight/structured.py): structured importance sampling
+"""The ``structured`` strategy (wavlight/strategies/structured.py): structured importance sampling
 (Agarwal et al. 2003).
 
 Checked here:
@@ -30,7 +30,8 @@ from scipy import stats
 import wavlight
 from scenes_util import (ALPHA, camera_of, check_estimates, dir_from_uv, load, shading_points, write_env,
                          write_scene, z_threshold)
-from wavlight import bsdfs, strategies, structured, warp
+from wavlight import bsdfs, strategies, warp
+from wavlight.strategies import structured
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky
 from wavlight.errors import SceneError
 
@@ -94,7 +95,7 @@ def _tiny_scene_file(folder, **render):
 
 def test_scene_keys_render_options_and_flags(tmp_path):
     scene = wavlight.load_scene(_tiny_scene_file(tmp_path, strategy="structured", structured_strata=12))
-    assert (scene.structured_strata, scene.structured_mode) == (12, None)
+    assert scene.options == {"structured_strata": 12}
     r = wavlight.render_full(scene)
     assert (r.stats["structured_strata"], r.stats["structured_mode"], r.stats["structured_biased"]) == \
         (12, "stratified", False)
@@ -105,8 +106,8 @@ def test_scene_keys_render_options_and_flags(tmp_path):
     for kw in (dict(structured_strata=0), dict(structured_mode="x")):
         with pytest.raises(wavlight.WavlightError):
             wavlight.render_full(scene, **kw)
-    for key, value, msg in (("structured_strata", 0, "at least 1"), ("structured_strata", 2000, "at most"),
-                            ("structured_mode", "points", "unknown mode"), ("structured_strata", 2.5, "integer")):
+    for key, value, msg in (("structured_strata", 0, "between 1 and 1024"), ("structured_strata", 2000, "between 1 and 1024"),
+                            ("structured_mode", "points", "must be one of stratified"), ("structured_strata", 2.5, "integer")):
         d = tmp_path / f"bad_{key}_{value}"
         d.mkdir()
         with pytest.raises(SceneError, match=rf"\[render\]\.{key}.*{msg}"):
@@ -114,7 +115,7 @@ def test_scene_keys_render_options_and_flags(tmp_path):
 
 
 def test_cli_accepts_structured_options(tmp_path):
-    from cli.main import main
+    from wavlight.cli.main import main
 
     scene = _tiny_scene_file(tmp_path)
     out = tmp_path / "o.exr"

@@ -1,23 +1,28 @@
 """wavlight: direct environment lighting with Haar wavelet product importance sampling.
 
     import wavlight
-    scene = wavlight.load_scene("scenes/default.toml")
-    image = wavlight.render(scene, spp=16, strategy="mis")   # float32 (H, W, 3)
+    scene = wavlight.load_scene("scenes/default.toml")     # or wavlight.load_dict({...})
+    image = wavlight.render(scene, spp=16)            # float32 (H, W, 3)
     wavlight.save_image("default.exr", image)
+
+Core modules (scene, envmap, bsdfs, warp, camera, raytrace, integrator, shading, ...) are flat;
+the families are packages: :mod:`wavlight.strategies` (direction sampling),
+:mod:`wavlight.haar` (transform, sparse sets, products, pyramids, sampling trees) and
+:mod:`wavlight.evaluation` (metrics, experiments, the stability suite, peer renderers).
 """
 from .errors import ArgumentError, SanitisedInputWarning, SceneError, WavlightError
 from .imageio import save_image
 from .integrator import RenderResult, render, render_full
-from .scene import STRATEGIES, Scene, load_scene
+from .scene import Scene, load_dict, load_scene
+from .strategies import STRATEGIES
+from .version import __version__
 
-__version__ = "0.1.0"
-__all__ = ["load_scene", "render", "render_full", "save_image", "Scene", "RenderResult",
+__all__ = ["load_scene", "load_dict", "render", "render_full", "save_image", "Scene", "RenderResult",
            "WavlightError", "SceneError", "ArgumentError", "SanitisedInputWarning", "STRATEGIES", "__version__"]
 
-#: Submodules reachable as attributes (wavlight.experiment.run_experiment, ...) without importing
-#: them here: experiment and stability pull in matplotlib, which costs a second at start-up.
-_LAZY = ("bsdfs", "distributions", "envmap", "experiment", "haar", "metrics", "peers", "product",
-         "sampler", "stability", "strategies")
+#: Subpackages and modules reachable as attributes (wavlight.evaluation.run_experiment, ...) without
+#: importing them here: the evaluation package pulls in matplotlib, which costs a second at start-up.
+_LAZY = ("bsdfs", "envmap", "evaluation", "haar", "sampler", "strategies", "warp")
 
 
 def __getattr__(name):

@@ -46,8 +46,8 @@ INLINE_ENV = "WAVLIGHT_INLINE_BUILTINS"
 WORK_GROUP = 64
 # Work-group size of the stand-alone walking kernels with level barriers (warp.cl,
 # product.cl; kernels/warp.h): a smaller group keeps what PoCL stores per work-item at each
-# barrier in the cache. Measured with BARRIER_LEVEL 8 against 64 and level 9 (14th session,
-# eight alternated runs, 2^21 random points): light walk 2048^2 55 -> 59 M/s, product walks
+# barrier in the cache. Measured with benchmarks/kernel_ab.py, BARRIER_LEVEL 8 in groups of 32
+# against level 9 in groups of 64 (eight alternated runs, 2^21 random points): light walk 2048^2 55 -> 59 M/s, product walks
 # at 2048^2 and 1024^2 +3 to +15%, within 2% at 64^2 and 256^2. A divisor of WORK_GROUP, so
 # that items() fits both.
 WALK_WORK_GROUP = 32

@@ -25,12 +25,18 @@ import warnings
 import numpy as np
 
 from . import warp
-from .errors import SanitisedInputWarning, WavlightError
+from .errors import SanitisedInputWarning, WavlightError, file_problem
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
 ONE_BELOW = float(np.nextafter(1.0, 0.0))
 TREE_TOLERANCE = 0.01  # total-variation distance a coarser light tree may leave (Environment.light_levels)
 MAX_TEXELS = 1 << 26
+
+
+def _oiio_error(text: str) -> str:
+    """OpenImageIO's error text as one short line."""
+    line = "; ".join(part.strip() for part in str(text or "").splitlines() if part.strip())
+    return line if len(line) <= 200 else line[:197] + "..."
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
@@ -54,23 +60,34 @@ def read_image(path: str) -> np.ndarray:
     Mitsuba 3 and pbrt-v4 do, with a warning (a light probe needs HDR: .hdr, .exr, .pfm)."""
     import OpenImageIO as oiio
 
-    if not os.path.isfile(path):
-        raise WavlightError(f"{path}: no such file")
+    problem = file_problem(path)
+    if problem is not None:   # (a FIFO would block the reader; a folder is not "no such file")
+        raise WavlightError(f"{path}: {problem}")
     config = oiio.ImageSpec()
     config.attribute("pnm:pfmflip", 1)  # PFM stores the bottom row first; read it upright
     inp = oiio.ImageInput.open(path, config)
     if inp is None:
-        raise WavlightError(f"{path}: cannot read image ({oiio.geterror().strip() or 'unknown format'})")
+        raise WavlightError(f"{path}: cannot read image ({_oiio_error(oiio.geterror()) or 'unknown format'})")
     try:
         spec = inp.spec()
+        if spec.deep or spec.depth > 1:
+            raise WavlightError(f"{path}: a {'deep' if spec.deep else 'volume'} image; an environment map is a "
+                                "flat RGB image")
+        if spec.width < 1 or spec.height < 1 or spec.nchannels < 1:
+            raise WavlightError(f"{path}: an empty image ({spec.width}x{spec.height}, {spec.nchannels} channels)")
         if spec.width * spec.height > MAX_TEXELS:
-            raise WavlightError(f"{path}: image of {spec.width}x{spec.height} texels is too large")
-        px = inp.read_image(format=oiio.FLOAT)
+            raise WavlightError(f"{path}: image of {spec.width}x{spec.height} texels is too large "
+                                f"(at most {MAX_TEXELS} texels, {MAX_TEXELS * 12 >> 20} MiB as float RGB)")
+        channels = min(spec.nchannels, 3)   # a file of 1000 channels is read as its first three
+        px = inp.read_image(0, 0, 0, channels, oiio.FLOAT)
+        err = _oiio_error(inp.geterror())
+    except MemoryError:
+        raise WavlightError(f"{path}: not enough memory to read a {spec.width}x{spec.height} image") from None
     finally:
         inp.close()
-    if px is None or px.size == 0:
-        raise WavlightError(f"{path}: cannot read pixels")
-    px = np.asarray(px, np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    if px is None or px.size == 0 or px.size != spec.width * spec.height * channels:
+        raise WavlightError(f"{path}: cannot read pixels{f' ({err})' if err else ''}")
+    px = np.asarray(px, np.float32).reshape(spec.height, spec.width, channels)
     if spec.format.basetype not in (oiio.FLOAT, oiio.HALF, oiio.DOUBLE):
         px = srgb_decode(np.clip(px, 0.0, 1.0))
         warnings.warn(f"{path}: a low-dynamic-range ({spec.format}) image, read as sRGB and decoded to linear "
@@ -257,7 +274,7 @@ class Environment:
     def _tree_tvs(self):
         """n -> 0.5 sum |p_full - p_n| over the finest leaves, p_n the depth-n leaves spread
         evenly over the finest ones (float32 tree, as the walk's)."""
-        from .distributions import build_reference, level_offset
+        from .haar.tree import build_reference, level_offset
 
         top = self.square_levels()
         full = build_reference(self.luminance_square(top))[0].astype(np.float64)

@@ -1,8 +1,11 @@
 """Errors that wavlight reports to users as one line (the CLI exits with code 2)."""
 from __future__ import annotations
 
+import errno
 import math
 import numbers
+import os
+import stat
 
 import numpy as np
 
@@ -35,12 +38,85 @@ class ArgumentError(WavlightError, ValueError):
 
 
 # ----------------------------------------------------------------------------- argument checks
-def shown(value) -> str:
-    """A short one-line description of a bad argument for a message (never an array's repr)."""
+#: The longest value a message shows (longer ones are cut, with their length).
+SHOWN_CHARS = 80
+
+
+def shown(value, limit: int = SHOWN_CHARS) -> str:
+    """A short one-line description of a bad value for a message: its repr cut to ``limit``
+    characters (a 10 MB list must not become a 10 MB line), never an array's repr. Safe on
+    anything: a value whose repr fails or recurses is named by its type."""
     if isinstance(value, np.ndarray):
         return f"an array of shape {value.shape} and dtype {value.dtype}"
-    text = " ".join(repr(value).split())
-    return text if len(text) <= 60 else f"{text[:57]}..."
+    if isinstance(value, (list, tuple, dict, set, str, bytes)) and len(value) > 4 * limit:
+        # the repr of a huge container is not built at all: its first items tell enough
+        head = value[:limit] if isinstance(value, (list, tuple, str, bytes)) else list(value)[:limit]
+        kind = type(value).__name__
+        try:
+            text = " ".join(repr(head).split())
+        except Exception:
+            text = kind
+        unit = "characters" if isinstance(value, str) else "bytes" if isinstance(value, bytes) else "items"
+        return f"{text[:limit - 3]}... ({kind} of {len(value)} {unit})"
+    try:
+        text = " ".join(repr(value).split())
+    except Exception:   # RecursionError (deeply nested), a repr that raises
+        return f"a {type(value).__name__}"
+    return text if len(text) <= limit else f"{text[:limit - 3]}..."
+
+
+def file_problem(path, want: str = "file") -> str | None:
+    """Why ``path`` cannot be read as a regular file (``want="file"``) or used as a folder
+    (``want="folder"``), as a short phrase for a message, or None when it can: "no such file",
+    "is a folder", "is a FIFO, not a regular file" (opening one would wait for a writer),
+    "is a symbolic link loop", "is a broken symbolic link to ...", "permission denied", ..."""
+    try:
+        path = os.fspath(path)
+    except TypeError:
+        return f"is not a path ({shown(path)})"
+    if not isinstance(path, str) or not path:
+        return "is not a path (empty)"
+    if "\0" in path:
+        return "is not a path (it holds a NUL character)"
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return "is a symbolic link loop"
+        if e.errno == errno.ENOENT:
+            if os.path.islink(path):
+                return f"is a broken symbolic link (to {shown(os.readlink(path))})"
+            parent = os.path.dirname(os.path.abspath(path))
+            return "no such file" if want == "file" or os.path.isdir(parent) else "no such folder"
+        if e.errno == errno.ENOTDIR:
+            return "no such file (a part of the path is not a folder)"
+        if e.errno == errno.ENAMETOOLONG:
+            return "is not a path (the name is too long)"
+        if e.errno == errno.EACCES:
+            return "permission denied"
+        return f"cannot be read ({e.strerror})"
+    mode = st.st_mode
+    if want == "folder":
+        return None if stat.S_ISDIR(mode) else "is not a folder"
+    if stat.S_ISDIR(mode):
+        return "is a folder, not a file"
+    if not stat.S_ISREG(mode):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+                else "a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode)
+                else "not a regular file")
+        return f"is {kind}, not a regular file"
+    if not os.access(path, os.R_OK):
+        return "permission denied"
+    return None
+
+
+def check_file(path, what: str = "") -> str:
+    """``path`` (as a str) if it is a readable regular file, else a one-line WavlightError
+    naming it and saying why (:func:`file_problem`)."""
+    problem = file_problem(path)
+    if problem is not None:
+        raise WavlightError(f"{what + ': ' if what else ''}{path}: {problem}")
+    return os.fspath(path)
 
 
 def check_int(where: str, name: str, value, lo=None, hi=None) -> int:

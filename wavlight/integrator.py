@@ -38,10 +38,10 @@ from . import camera, occlusion, rng, strategies
 from .camera import camera_rays  # noqa: F401  (also the integrator's public name)
 from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
-from .sampler import SAMPLERS
-from .scene import (MAX_SIDE, MAX_SPP, MAX_STRUCTURED_STRATA, STRATEGIES, STRUCTURED_MODES, Scene, check_scene,
-                    load_scene)
-from .errors import WavlightError
+from .errors import WavlightError, shown
+from .sampler import SAMPLER
+from .scene import MAX_SIDE, MAX_SPP, Scene, check_scene, load_scene
+from .strategies import STRATEGIES
 
 TILE_SAMPLES = 1 << 16
 
@@ -199,40 +199,31 @@ def _integer(name, value, lo, hi):
 
 
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
-                progress=None, threads=None, backend="opencl", wavelet_levels=None,
-                light_levels=None, sir_candidates=None, sir_samples=None, structured_strata=None,
-                structured_mode=None, sampler=None, wavelet_candidates=None,
-                wavelet_control_variate=True, wavelet_slots=None) -> RenderResult:
+                progress=None, threads=None, backend="opencl", **options) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     ``scene`` is a Scene or a scene file's path. Arguments left as None come from the scene
     file. ``progress(done, total, samples, seconds)`` is called after each part (a tile, or a
     run of its passes: :func:`_parts`). ``backend="numpy"`` shades with the numpy reference
     instead of the OpenCL kernel (same random numbers, same estimator).
-    ``wavelet_levels`` overrides the wavelet strategy's per-material product depth,
-    ``light_levels`` the light tree's depth (default: chosen from the map's content).
-    ``sir_candidates`` (M) and ``sir_samples`` (N) set the sir strategy's candidates and
-    resampled directions per shading sample (default: the scene's, else 32 and 1).
-    ``structured_strata`` (K) and ``structured_mode`` set the structured strategy's number of
-    strata and mode (default: the scene's, else 16 and "stratified").
-    ``sampler`` is "independent" (default) or "stratified" (:mod:`wavlight.sampler`).
-    ``wavelet_candidates`` (0 or 2..64) sets the wavelet strategy's resampling candidates
-    (:func:`wavlight.strategies.ris_shade_reference`; 0: the MIS pair; default: the scene's,
-    else chosen from the scene's shadows: strategies.AUTO_BUDGET, :mod:`wavlight.occlusion`).
-    ``wavelet_control_variate`` (default True): whether the resampling estimator carries its
-    candidates' unshadowed estimate as a control variate
-    (:func:`wavlight.strategies.ris_shade_reference`). ``wavelet_slots`` (2 or 4; default: the
-    scene's, else chosen as the candidates are): directions, one shadow ray each, that
-    estimator resamples per sample.
+
+    ``options`` are the strategies' and the sampler's settings by key, as in the scene file's
+    ``[render]`` table and the CLI's flags: ``wavelet_candidates``, ``wavelet_slots``,
+    ``wavelet_levels``, ``wavelet_control_variate``, ``light_levels``, ``sir_candidates``,
+    ``sir_samples``, ``structured_strata``, ``structured_mode``, ``sampler``
+    (:data:`wavlight.strategies.OPTIONS` declares each one's range and default; docs/cli.md
+    lists them). A value of None, or a key left out, takes the scene's value, else the
+    default; options of strategies other than the one rendered are checked and ignored.
+    ``wavelet`` without candidates or slots chooses them from the scene's shadows
+    (strategies.AUTO_BUDGET, :mod:`wavlight.occlusion`).
     """
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
     check_scene(scene)
 
-    def pick(name, value, fallback, lo, hi, optional=False):
+    def pick(name, value, fallback, lo, hi):
         """The argument, else the scene's value; validated either way (a Scene may be edited)."""
-        value = fallback if value is None else value
-        return None if (value is None and optional) else _integer(name, value, lo, hi)
+        return _integer(name, fallback if value is None else value, lo, hi)
 
     spp = pick("spp", spp, scene.spp, 1, MAX_SPP)
     width = pick("width", width, scene.width, 1, MAX_SIDE)
@@ -240,46 +231,18 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     seed = pick("seed", seed, scene.seed, 0, 2 ** 63 - 1)
     strategy = scene.strategy if strategy is None else strategy
     if strategy not in STRATEGIES:
-        raise WavlightError(f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
+        raise WavlightError(f"unknown strategy {shown(strategy)} ({' | '.join(STRATEGIES)})")
     if backend not in BACKENDS:
-        raise WavlightError(f"unknown backend {backend!r} ({' | '.join(BACKENDS)})")
+        raise WavlightError(f"unknown backend {shown(backend)} ({' | '.join(BACKENDS)})")
     if threads is not None:
         threads = _integer("threads", threads, 1, 4096)
     if progress is not None and not callable(progress):
-        raise WavlightError(f"progress must be a callable or None, got {progress!r}")
-    wavelet_levels = pick("wavelet_levels", wavelet_levels, scene.wavelet_levels, 0, 11, optional=True)
-    wavelet_candidates = pick("wavelet_candidates", wavelet_candidates, scene.wavelet_candidates, 0,
-                              strategies.MAX_CANDIDATES, optional=True)
-    if not isinstance(wavelet_control_variate, (bool, np.bool_)):
-        raise WavlightError(f"wavelet_control_variate must be True or False, got {wavelet_control_variate!r}")
-    wavelet_control_variate = bool(wavelet_control_variate)
-    if wavelet_candidates == 1:
-        raise WavlightError("wavelet_candidates must be 0 (the MIS pair) or 2..64, got 1")
-    wavelet_slots = pick("wavelet_slots", wavelet_slots, scene.wavelet_slots, 2, 4, optional=True)
-    if wavelet_slots not in (None, *strategies.SLOT_COUNTS):
-        raise WavlightError(f"wavelet_slots must be 2 or 4, got {wavelet_slots}")
-    if wavelet_slots == 4 and wavelet_candidates == 0:
-        raise WavlightError("wavelet_slots = 4 needs the resampling estimator (wavelet_candidates 2..64), not 0")
-    light_levels = pick("light_levels", light_levels, scene.light_levels, 1, 11, optional=True)
-    sir_candidates = pick("sir_candidates", sir_candidates, scene.sir_candidates, 1, 65536, optional=True)
-    sir_samples = pick("sir_samples", sir_samples, scene.sir_samples, 1, 1024, optional=True)
-    structured_strata = pick("structured_strata", structured_strata, scene.structured_strata, 1,
-                             MAX_STRUCTURED_STRATA, optional=True)
-    structured_mode = scene.structured_mode if structured_mode is None else structured_mode
-    if structured_mode is not None and structured_mode not in STRUCTURED_MODES:
-        raise WavlightError(f"unknown structured_mode {structured_mode!r} ({' | '.join(STRUCTURED_MODES)})")
-    options = {"light": {"levels": light_levels}, "mis": {"light_levels": light_levels},
-               "mis_comp": {"light_levels": light_levels},
-               "wavelet": {"levels": wavelet_levels, "light_levels": light_levels,
-                           "control_variate": wavelet_control_variate,
-                           **({} if wavelet_candidates is None else {"candidates": wavelet_candidates}),
-                           **({} if wavelet_slots is None else {"slots": wavelet_slots})},
-               "sir": {"candidates": sir_candidates, "samples": sir_samples,
-                       "light_levels": light_levels},
-               "structured": {"strata": structured_strata, "mode": structured_mode}}.get(strategy)
-    sampler_name = (scene.sampler or "independent") if sampler is None else sampler
-    if sampler_name not in SAMPLERS:
-        raise WavlightError(f"unknown sampler {sampler_name!r} ({' | '.join(SAMPLERS)})")
+        raise WavlightError(f"progress must be a callable or None, got {shown(progress)}")
+    scene_options = scene.options if isinstance(scene.options, dict) else {}
+    given = strategies.check_options(options, "render_full")      # unknown keys and bad values refused
+    values = strategies.check_options({**scene_options, **given}, "render_full")
+    sampler_name = values.get("sampler", SAMPLER.default)
+    options = strategies.constructor_options(strategy, values)
     r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend, options, sampler_name)
     image = np.zeros((height, width, 3), np.float32)
     stderr = np.zeros((height, width, 3), np.float32)
@@ -313,5 +276,5 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
 def render(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
            progress=None, threads=None, **options) -> np.ndarray:
     """Render a scene (a Scene, or a scene file's path); returns a float32 (H, W, 3) linear RGB
-    image. The other keywords (sampler, wavelet_levels, ...) are :func:`render_full`'s."""
+    image. The other keywords (backend, sampler, wavelet_candidates, ...) are :func:`render_full`'s."""
     return render_full(scene, spp, strategy, width, height, seed, progress, threads, **options).image

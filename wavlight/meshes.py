@@ -14,7 +14,12 @@ midpoints, projected onto the sphere).
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
+
+#: Mesh files are read whole into memory: larger ones are refused before reading.
+MAX_MESH_BYTES = 2 << 30
 
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
           "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
@@ -45,11 +50,36 @@ def _header(data: bytes):
     return fmt, elements, body
 
 
+def _read_bytes(path: str) -> bytes:
+    size = os.stat(path).st_size
+    if size > MAX_MESH_BYTES:
+        raise ValueError(f"the file is {size / 1e9:.1f} GB; meshes of up to {MAX_MESH_BYTES >> 30} GiB are read")
+    with open(path, "rb") as fh:
+        return fh.read()
+
+
+def _check_indices(idx, nv: int, what: str = "face"):
+    """idx (F, 3) float64 or integer -> int64, or a ValueError naming the first bad face."""
+    idx = np.asarray(idx)
+    if idx.dtype.kind == "f":
+        frac = ~np.isfinite(idx) | (idx != np.round(idx))
+        if frac.any():
+            i = int(np.argmax(frac.any(axis=1)))
+            bad = idx[i][frac[i]][0]
+            raise ValueError(f"{what} {i}: vertex index {bad:g} is not an integer")
+    out = np.asarray(idx, np.int64) if idx.dtype.kind != "f" else np.round(idx).astype(np.int64)
+    bad = (out < 0) | (out >= nv)
+    if bad.any():
+        i = int(np.argmax(bad.any(axis=1)))
+        raise ValueError(f"{what} {i}: vertex index {int(out[i][bad[i]][0])} is outside 0..{nv - 1} "
+                         f"(the file holds {nv} vertices)")
+    return out
+
+
 def read_ply(path: str):
     """(vertices (V, 3) float64, faces (F, 3) int64) of a triangle PLY in the subset above,
-    or None when the file is outside it. ValueError for a malformed header."""
-    with open(path, "rb") as fh:
-        data = fh.read()
+    or None when the file is outside it. ValueError for a malformed header or bad indices."""
+    data = _read_bytes(path)
     fmt, elements, start = _header(data)
     if [e[0] for e in elements] != ["vertex", "face"]:
         return None
@@ -61,6 +91,9 @@ def read_ply(path: str):
             or fprops[0][1] not in _TYPES or fprops[0][2] not in _TYPES
             or any(p[0] == "list" for p in fprops[1:])):
         return None
+    if _TYPES[fprops[0][2]][0] == "f" or _TYPES[fprops[0][1]][0] == "f":
+        raise ValueError(f"the face list '{' '.join(fprops[0])}' has a floating-point type; "
+                         "counts and vertex indices must be integer types")
     xyz = [names.index(c) for c in "xyz"]
     width = 4 + len(fprops) - 1                     # count, three indices, the other face properties
     if fmt == "ascii":
@@ -97,7 +130,75 @@ def read_ply(path: str):
         return None
     if not np.all(counts == 3):
         return None
-    return verts, np.asarray(idx, np.int64)
+    return verts, _check_indices(idx, nv)
+
+
+def read_obj(path: str):
+    """(vertices (V, 3) float64, faces (F, 3) int64) of a Wavefront OBJ file's geometry: ``v x y
+    z [...]`` and ``f a b c ...`` lines (references ``i``, ``i/t``, ``i//n``, ``i/t/n``; 1-based,
+    negative ones relative to the vertices read so far; a quad as (0, 1, 2), (2, 3, 0) and a
+    polygon of k > 4 vertices as the fan of k - 2 triangles (0, j, j + 1), as trimesh splits them). Other lines (vt, vn, o, g, s, usemtl, mtllib, l, p, ...) are
+    ignored; a backslash at the end of a line continues it. Bytes that are not UTF-8 (say in
+    a comment) are replaced. ValueError naming the line for a vertex without three numbers, a
+    face of fewer than three vertices, an index that is not an integer, 0 or outside the
+    vertices."""
+    text = _read_bytes(path).decode("utf-8", errors="replace").replace("\\\r\n", " ").replace("\\\n", " ")
+    coords, vlines = [], []
+    tris, tlines = [], []
+    nv = 0
+    for number, line in enumerate(text.splitlines(), 1):
+        w = line.split()
+        if not w:
+            continue
+        key = w[0]
+        if key == "v":
+            if len(w) < 4:
+                raise ValueError(f"line {number}: a vertex needs three numbers, got {line.strip()[:60]!r}")
+            coords += w[1:4]
+            vlines.append(number)
+            nv += 1
+        elif key == "f":
+            if len(w) < 4:
+                raise ValueError(f"line {number}: a face needs at least three vertices, got {line.strip()[:60]!r}")
+            refs = []
+            for ref in w[1:]:
+                head = ref.split("/", 1)[0]
+                try:
+                    i = int(head)
+                except ValueError:
+                    raise ValueError(f"line {number}: face index {head[:30]!r} is not an integer") from None
+                if i == 0:
+                    raise ValueError(f"line {number}: face index 0 (OBJ indices start at 1; negative ones count "
+                                     "back from the last vertex)")
+                if i < 0:
+                    if -i > nv:
+                        raise ValueError(f"line {number}: face index {i} reaches before the first vertex "
+                                         f"({nv} read so far)")
+                    i = nv + i
+                else:
+                    i -= 1
+                refs.append(i)
+            if len(refs) == 4:   # trimesh's split of a quad, so that the triangles match its reader's
+                tris += [(refs[0], refs[1], refs[2]), (refs[2], refs[3], refs[0])]
+                tlines += [number, number]
+                continue
+            for j in range(1, len(refs) - 1):
+                tris.append((refs[0], refs[j], refs[j + 1]))
+                tlines.append(number)
+    try:
+        verts = np.array(coords, np.float64).reshape(-1, 3)
+    except ValueError:
+        for k, c in enumerate(coords):
+            try:
+                float(c)
+            except ValueError:
+                raise ValueError(f"line {vlines[k // 3]}: vertex coordinate {c[:30]!r} is not a number") from None
+        raise
+    faces = np.array(tris, np.int64).reshape(-1, 3)
+    if faces.size and faces.max() >= nv:
+        k = int(np.argmax(faces.max(axis=1) >= nv))
+        raise ValueError(f"line {tlines[k]}: face index {int(faces[k].max()) + 1} but the file holds {nv} vertices")
+    return verts, faces
 
 
 def icosphere(subdivisions: int, radius: float = 1.0):

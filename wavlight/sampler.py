@@ -35,7 +35,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from .options import Option
+
 SAMPLERS = ("independent", "stratified")
+#: the render setting that chooses the sampler (every strategy draws its numbers through it)
+SAMPLER = Option("sampler", str, "Pixel-sample uniforms: independent, or each 2D pair stratified over the "
+                 "pixel's samples (wavlight.sampler).", default="independent", values=SAMPLERS)
 
 
 def grid(k: int) -> tuple[int, int]:

@@ -1,4 +1,4 @@
-"""Scene files (TOML, ``shared/docs/scene-format.md``): parse, validate, build geometry.
+"""Scene files (TOML, docs/scene-format.md) and dicts of the same structure: parse, validate, build geometry.
 
 Every key of the scene format is accepted as written there. wavlight adds:
 
@@ -7,24 +7,12 @@ Every key of the scene format is accepted as written there. wavlight adds:
   ``sun_azimuth`` (degrees, elevation in [-90, 90]; azimuth from -Z towards +X), ``sun_radius`` (degrees, at most 90,
   default 0.75) and ``sun_radiance`` (default 2e4). ``scale`` and ``rotate_y`` apply.
 - ``[[objects]]`` without ``material`` get a grey lambert (albedo 0.5).
-- ``[render] wavelet_levels = P``: the wavelet strategy's product depth for every
-  material (default: chosen per material from its lobe width).
-- ``[render] wavelet_candidates = M`` (0 or 2..64): the wavelet strategy's resampling
-  candidates per shading sample (0: the MIS pair of one product and one BSDF sample;
-  default: chosen from the scene's shadows, :data:`wavlight.strategies.AUTO_BUDGET`).
-- ``[render] wavelet_slots = S`` (2 or 4): directions, one shadow ray each, that the wavelet
-  strategy resamples from its candidates per shading sample (default: chosen from the
-  scene's shadows, :data:`wavlight.strategies.AUTO_BUDGET`).
-- ``[render] light_levels = n``: the light tree's depth, 2^n x 2^n leaves (default:
-  chosen from the map's content, :meth:`Environment.light_levels`).
-- ``[render] sir_candidates = M`` (1..65536, default 32) and ``sir_samples = N`` (1..1024,
-  default 1): the ``sir`` strategy's candidates and resampled directions per shading
-  sample (:mod:`wavlight.sir`).
-- ``[render] structured_strata = K`` (1..1024, default 16) and ``structured_mode =
-  "stratified" | "preintegrated"`` (default stratified; preintegrated is biased): the
-  ``structured`` strategy (:mod:`wavlight.structured`).
-- ``[render] sampler = "independent" | "stratified"`` (default independent): the
-  pixel-sample uniforms (:mod:`wavlight.sampler`).
+- ``[render]`` takes every strategy option and the sampler by its key (``wavelet_candidates``,
+  ``light_levels``, ``sampler``, ...): the table :data:`wavlight.strategies.OPTIONS` declares
+  each one's type, range and default (docs/scene-format.md lists them).
+
+Scenes also come from Python dicts of the same structure (:func:`load_dict`). A Scene records
+its ``content_hash``: the settings as parsed and the bytes of every file it reads.
 
 Limits: width and height 1..16384, spp 1..1_000_000. Errors name the file and the
 key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
@@ -32,7 +20,9 @@ key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
 """
 from __future__ import annotations
 
+import hashlib
 import io
+import json
 import math
 import os
 import tomllib
@@ -43,18 +33,11 @@ import numpy as np
 
 from . import bsdfs, meshes
 from .envmap import MAX_RADIANCE, Environment, procedural_sky, read_image
-from .errors import SanitisedInputWarning, SceneError, WavlightError
-from .sampler import SAMPLERS
+from .errors import SanitisedInputWarning, SceneError, WavlightError, shown
+from .strategies import CONSTRAINTS, OPTIONS, STRATEGIES
 
-STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet", "sir", "structured")
-STRUCTURED_MODES = ("stratified", "preintegrated")
-MAX_STRUCTURED_STRATA = 1024
 ROUGHNESS_RANGE = (1e-4, 1.0)   # ggx alpha
 EXPONENT_RANGE = (0.0, 1e6)     # phong n
-MAX_SIR_CANDIDATES = 65536
-MAX_WAVELET_CANDIDATES = 64   # wavlight.strategies.MAX_CANDIDATES
-WAVELET_SLOTS = (2, 4)        # wavlight.strategies.SLOT_COUNTS
-MAX_SIR_SAMPLES = 1024
 MAX_SIDE = 16384
 MAX_SPP = 1_000_000
 #: Largest |coordinate| of a vertex or of the camera: embree ignores geometry beyond about
@@ -100,15 +83,11 @@ class Scene:
     faces: np.ndarray
     face_material: np.ndarray
     materials: list = field(default_factory=list)
-    wavelet_levels: int | None = None
-    light_levels: int | None = None
-    sir_candidates: int | None = None
-    sir_samples: int | None = None
-    structured_strata: int | None = None
-    structured_mode: str | None = None
-    sampler: str | None = None
-    wavelet_candidates: int | None = None
-    wavelet_slots: int | None = None
+    #: the strategies' and the sampler's settings that the scene's [render] table gives, by key
+    #: (wavlight.strategies.OPTIONS); render_full's keywords override them
+    options: dict = field(default_factory=dict)
+    #: sha256 of the scene's content: its settings as parsed and the bytes of every file it reads
+    content_hash: str = ""
 
     @property
     def material_kind(self):
@@ -133,6 +112,8 @@ def check_scene(scene) -> None:
     if not isinstance(scene, Scene):
         raise WavlightError(f"expected a Scene (wavlight.load_scene(path)) or a scene file's path, got "
                             f"{type(scene).__name__}")
+    if not isinstance(getattr(scene, "options", None), dict):
+        bad(f"options must be a dict of option values by key, got {type(getattr(scene, 'options', None)).__name__}")
     if not isinstance(scene.environment, Environment):
         bad(f"environment must be an Environment, got {type(scene.environment).__name__}")
     cam = scene.camera
@@ -198,18 +179,18 @@ class _Table:
         v = self.data[key]
         if kind == "int":
             if isinstance(v, bool) or not isinstance(v, int):
-                self.fail(key, f"must be an integer, got {v!r}")
+                self.fail(key, f"must be an integer, got {shown(v)}")
         elif kind == "float":
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                self.fail(key, f"must be a finite number, got {v!r}")
+                self.fail(key, f"must be a finite number, got {shown(v)}")
             v = float(v)
         elif kind == "str":
             if not isinstance(v, str):
-                self.fail(key, f"must be a string, got {v!r}")
+                self.fail(key, f"must be a string, got {shown(v)}")
         elif kind == "vec3":
             if (not isinstance(v, list) or len(v) != 3
                     or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
-                self.fail(key, f"must be a list of 3 finite numbers, got {v!r}")
+                self.fail(key, f"must be a list of 3 finite numbers, got {shown(v)}")
             v = np.array(v, np.float64)
         return v
 
@@ -224,7 +205,7 @@ class _Table:
             return np.full(n, float(v))
         if isinstance(v, list) and len(v) == n and all(ok_num(x) for x in v):
             return np.array(v, np.float64)
-        self.fail(key, f"must be a number or a list of {n} numbers, got {v!r}")
+        self.fail(key, f"must be a number or a list of {n} numbers, got {shown(v)}")
 
     def done(self):
         extra = sorted(set(self.data) - self.used)
@@ -289,7 +270,7 @@ def _load_mesh(t: _Table, path: str):
     return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
 
 
-def _shape(t: _Table, base_dir):
+def _shape(t: _Table, base_dir, files: list):
     """(vertices, faces) of one object before its transform."""
     if t.has("mesh") and t.has("shape"):
         t.fail("shape", "give either mesh or shape, not both")
@@ -299,6 +280,7 @@ def _shape(t: _Table, base_dir):
         if not os.path.isfile(path):
             t.fail("mesh", f"no such file: {path}")
         v, f = _load_mesh(t, path)
+        files.append(path)
         if len(f) == 0:
             t.fail("mesh", f"{path} holds no triangles")
         return v, f
@@ -335,7 +317,7 @@ def _transform(t: _Table, v):
         t.used.add("rotate")
         if (not isinstance(r, list) or len(r) != 4
                 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in r)):
-            t.fail("rotate", f"must be [axis x, y, z, degrees] of finite numbers, got {r!r}")
+            t.fail("rotate", f"must be [axis x, y, z, degrees] of finite numbers, got {shown(r)}")
         axis = np.array(r[:3], np.float64)
         if np.linalg.norm(axis) == 0:
             t.fail("rotate", "axis must not be zero")
@@ -365,8 +347,15 @@ def _clean_triangles(path, key, v, f):
 
 
 # ----------------------------------------------------------------------------- loading
-def load_scene(path: str) -> Scene:
-    """Read and validate a scene file; build its environment and merged geometry."""
+#: how deep a scene's values may nest (a table in a list in a table is 3): deeper input is refused
+#: before any of it is read, rather than recursing without bound
+MAX_NESTING = 16
+
+
+def load_scene(path) -> Scene:
+    """Read and validate a scene file (TOML, docs/scene-format.md); build its environment and
+    merged geometry. Relative paths in it resolve against the file's folder. Errors name the
+    file and the key (:class:`wavlight.errors.SceneError`)."""
     path = str(path)
     if not os.path.isfile(path):
         raise SceneError(path, "", "no such file")
@@ -375,12 +364,66 @@ def load_scene(path: str) -> Scene:
             doc = tomllib.load(fh)
     except tomllib.TOMLDecodeError as e:
         raise SceneError(path, "", f"malformed TOML: {e}") from None
+    except RecursionError:
+        raise SceneError(path, "", f"values nested too deeply (a scene nests at most {MAX_NESTING} levels)") from None
     except (OSError, UnicodeDecodeError) as e:
         raise SceneError(path, "", f"cannot read: {e}") from None
-    base = os.path.dirname(os.path.abspath(path))
+    return _parse(doc, path, os.path.dirname(os.path.abspath(path)))
+
+
+def load_dict(d: dict, base_dir=None) -> Scene:
+    """A scene from a Python dict with exactly the TOML file's structure (Mitsuba 3's
+    ``load_dict`` is the model)::
+
+        wavlight.load_dict({"render": {"width": 64, "height": 48, "strategy": "wavelet"},
+                            "environment": {"procedural": "sky"},
+                            "objects": [{"shape": "sphere", "radius": 0.5, "material": "gold"}],
+                            "materials": {"gold": {"type": "ggx", "roughness": 0.1}}})
+
+    Tuples and numpy arrays stand for TOML arrays, numpy scalars for numbers, ``pathlib``
+    paths for strings. Relative paths resolve against ``base_dir`` (default: the current
+    folder). Validation and errors are those of :func:`load_scene`, naming ``<dict>`` for the file."""
+    if base_dir is None:
+        base_dir = os.getcwd()
+    if not isinstance(base_dir, (str, os.PathLike)) or not os.path.isdir(base_dir):
+        raise SceneError("<dict>", "", f"base_dir must be an existing folder, got {shown(base_dir)}")
+    return _parse(_plain(d, "<dict>", "", 0), "<dict>", os.path.abspath(base_dir))
+
+
+def _plain(v, path, key, depth):
+    """A dict scene's values as TOML's types (dict, list, str, int, float, bool)."""
+    if depth > MAX_NESTING:
+        raise SceneError(path, key, f"values nested too deeply (a scene nests at most {MAX_NESTING} levels)")
+    if isinstance(v, dict):
+        bad = [k for k in v if not isinstance(k, str)]
+        if bad:
+            raise SceneError(path, key, f"keys must be strings, got {shown(bad[0])}")
+        return {k: _plain(x, path, f"{key}.{k}" if key else k, depth + 1) for k, x in v.items()}
+    if isinstance(v, np.ndarray):
+        if v.size > 16:   # no scene value is a long array: refuse it without converting it
+            raise SceneError(path, key, f"must be a short list, got {shown(v)}")
+        v = v.tolist()
+    if isinstance(v, (list, tuple)):
+        return [_plain(x, path, f"{key}[{i}]", depth + 1) for i, x in enumerate(v)]
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, os.PathLike):
+        return os.fspath(v)
+    if v is None or not isinstance(v, (str, int, float, bool)):
+        raise SceneError(path, key, f"must be a TOML value (table, list, string, number or boolean), "
+                                    f"got {type(v).__name__}")
+    return v
+
+
+def _parse(doc, path: str, base: str) -> Scene:
+    """A Scene from a parsed document (TOML's types); ``path`` names it in errors."""
+    if not isinstance(doc, dict):
+        raise SceneError(path, "", f"must be a table of tables, got {type(doc).__name__}")
+    _check_depth(doc, path)
     unknown = sorted(set(doc) - {"render", "camera", "environment", "objects", "materials"})
     if unknown:
         raise SceneError(path, unknown[0], "unknown table")
+    files = []   # the files the scene reads, for its content hash
 
     r = _Table(path, "[render]", doc.get("render", {}))
     width = _positive(r, "width", r.get("width", "int", 256), 1, MAX_SIDE)
@@ -388,39 +431,20 @@ def load_scene(path: str) -> Scene:
     spp = _positive(r, "spp", r.get("spp", "int", 16), 1, MAX_SPP)
     strategy = r.get("strategy", "str", "mis")
     if strategy not in STRATEGIES:
-        r.fail("strategy", f"unknown strategy {strategy!r} ({' | '.join(STRATEGIES)})")
+        r.fail("strategy", f"unknown strategy {shown(strategy)} ({' | '.join(STRATEGIES)})")
     seed = _positive(r, "seed", r.get("seed", "int", 0), 0, 2 ** 63 - 1)
-    wavelet_levels = r.get("wavelet_levels", "int")
-    if wavelet_levels is not None:
-        _positive(r, "wavelet_levels", wavelet_levels, 0, 11)
-    wavelet_candidates = r.get("wavelet_candidates", "int")
-    if wavelet_candidates is not None:
-        _positive(r, "wavelet_candidates", wavelet_candidates, 0, MAX_WAVELET_CANDIDATES)
-        if wavelet_candidates == 1:
-            r.fail("wavelet_candidates", "must be 0 (the MIS pair) or 2..64, got 1")
-    wavelet_slots = r.get("wavelet_slots", "int")
-    if wavelet_slots is not None and wavelet_slots not in WAVELET_SLOTS:
-        r.fail("wavelet_slots", f"must be 2 or 4, got {wavelet_slots}")
-    if wavelet_slots == 4 and wavelet_candidates == 0:
-        r.fail("wavelet_slots", "4 needs the resampling estimator (wavelet_candidates 2..64), not 0")
-    light_levels = r.get("light_levels", "int")
-    if light_levels is not None:
-        _positive(r, "light_levels", light_levels, 1, 11)
-    sir_candidates = r.get("sir_candidates", "int")
-    if sir_candidates is not None:
-        _positive(r, "sir_candidates", sir_candidates, 1, MAX_SIR_CANDIDATES)
-    sir_samples = r.get("sir_samples", "int")
-    if sir_samples is not None:
-        _positive(r, "sir_samples", sir_samples, 1, MAX_SIR_SAMPLES)
-    structured_strata = r.get("structured_strata", "int")
-    if structured_strata is not None:
-        _positive(r, "structured_strata", structured_strata, 1, MAX_STRUCTURED_STRATA)
-    structured_mode = r.get("structured_mode", "str")
-    if structured_mode is not None and structured_mode not in STRUCTURED_MODES:
-        r.fail("structured_mode", f"unknown mode {structured_mode!r} ({' | '.join(STRUCTURED_MODES)})")
-    sampler = r.get("sampler", "str")
-    if sampler is not None and sampler not in SAMPLERS:
-        r.fail("sampler", f"unknown sampler {sampler!r} ({' | '.join(SAMPLERS)})")
+    options = {}
+    for key, option in OPTIONS.items():   # the strategies' and the sampler's settings
+        if r.has(key):
+            r.used.add(key)
+            why = option.problem(r.data[key])
+            if why:
+                r.fail(key, why)
+            options[key] = option.kind(r.data[key])
+    for constraint in CONSTRAINTS:
+        bad = constraint.problem(options)
+        if bad:
+            r.fail(*bad)
     r.done()
 
     c = _Table(path, "[camera]", doc.get("camera", {}))
@@ -438,7 +462,7 @@ def load_scene(path: str) -> Scene:
         c.fail("up", "must not be parallel to the view direction")
     c.done()
 
-    environment = _environment(_Table(path, "[environment]", doc.get("environment", {})), base)
+    environment = _environment(_Table(path, "[environment]", doc.get("environment", {})), base, files)
 
     mats_doc = doc.get("materials", {})
     if not isinstance(mats_doc, dict):
@@ -472,7 +496,7 @@ def load_scene(path: str) -> Scene:
     offset = 0
     for i, o in enumerate(objs):
         t = _Table(path, f"[[objects]][{i}]", o)
-        v, f = _shape(t, base)
+        v, f = _shape(t, base, files)
         v = _transform(t, v)
         name = t.get("material", "str")
         if name is None:
@@ -491,14 +515,37 @@ def load_scene(path: str) -> Scene:
     if not materials:
         materials.append(Material("__default__", bsdfs.LAMBERT, np.full(3, 0.5, np.float32), 0.0))
     vertices = np.concatenate(verts).astype(np.float32) if verts else np.zeros((0, 3), np.float32)
+    digest = hashlib.sha256(json.dumps(doc, sort_keys=True).encode())
+    for name in files:
+        digest.update(_file_digest(name))
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
-                 np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, wavelet_levels,
-                 light_levels, sir_candidates, sir_samples, structured_strata, structured_mode, sampler,
-                 wavelet_candidates, wavelet_slots)
+                 np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, options, digest.hexdigest())
 
 
-def _environment(t: _Table, base) -> Environment:
+def _check_depth(doc, path):
+    """Refuse values nested deeper than MAX_NESTING before anything walks them (iteratively)."""
+    stack = [(doc, 0)]
+    while stack:
+        v, depth = stack.pop()
+        if depth > MAX_NESTING:
+            raise SceneError(path, "", f"values nested too deeply (a scene nests at most {MAX_NESTING} levels)")
+        if isinstance(v, dict):
+            stack += [(x, depth + 1) for x in v.values()]
+        elif isinstance(v, list):
+            stack += [(x, depth + 1) for x in v]
+
+
+def _file_digest(name) -> bytes:
+    """sha256 of a file's bytes, read in blocks."""
+    h = hashlib.sha256()
+    with open(name, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.digest()
+
+
+def _environment(t: _Table, base, files: list) -> Environment:
     scale = _positive(t, "scale", t.get("scale", "float", 1.0), 0.0)
     rotate_y = t.get("rotate_y", "float", 0.0)
     if t.has("file") and t.has("procedural"):
@@ -524,6 +571,7 @@ def _environment(t: _Table, base) -> Environment:
         except WavlightError as e:
             t.fail("file", str(e))
         name, source = fname, "file"
+        files.append(fname)
     t.done()
     with np.errstate(over="ignore", invalid="ignore"):
         scaled = np.nan_to_num(pixels, nan=0, posinf=0, neginf=0) * np.float32(scale)

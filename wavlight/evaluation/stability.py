@@ -151,7 +151,8 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics
-from .errors import WavlightError
+from ..errors import WavlightError
+from ..version import __version__
 
 REFERENCE_SEED = 1_000_003
 Z_CAP = 1e9
@@ -164,40 +165,18 @@ REPO = Path(__file__).resolve().parents[1]
 DATA_DIR = REPO.parent / "shared" / "data"
 
 
-# ----------------------------------------------------------------------------- scene files
-def _toml_value(v):
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        return repr(float(v))
-    if isinstance(v, (str, Path)):
-        return json.dumps(str(v))  # a TOML basic string is a JSON string
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {v!r} as TOML")
-
-
-def write_scene(folder, *, camera, environment, objects, materials, width, height, name="scene.toml") -> str:
-    """A scene TOML file in ``folder`` (render settings: size only; the rest is passed to render_full)."""
-    lines = ["[render]", f"width = {width}", f"height = {height}", ""]
-    for table, d in (("camera", camera), ("environment", environment)):
-        lines += [f"[{table}]"] + [f"{k} = {_toml_value(v)}" for k, v in d.items()] + [""]
-    for o in objects:
-        lines += ["[[objects]]"] + [f"{k} = {_toml_value(v)}" for k, v in o.items()] + [""]
-    for mname, m in materials.items():
-        lines += [f"[materials.{mname}]"] + [f"{k} = {_toml_value(v)}" for k, v in m.items()] + [""]
-    path = os.path.join(folder, name)
-    with open(path, "w") as fh:
-        fh.write("\n".join(lines))
-    return path
+# ----------------------------------------------------------------------------- scenes
+def scene_dict(*, camera, environment, objects, materials, width, height) -> dict:
+    """A case's scene as a dict for :func:`wavlight.load_dict` (render settings: size only; the rest
+    is passed to render_full)."""
+    return {"render": {"width": width, "height": height}, "camera": camera, "environment": environment,
+            "objects": list(objects), "materials": materials}
 
 
 def write_map(folder, name, pixels) -> str:
     """Write an (H, W, 3) float32 map (.exr or .pfm) and check that it reads back bit for bit."""
-    from .envmap import read_image
-    from .imageio import save_image
+    from ..envmap import read_image
+    from ..imageio import save_image
 
     pixels = np.asarray(pixels, np.float32)
     path = os.path.join(folder, name)
@@ -240,7 +219,7 @@ def floor_radiance(pixels, albedo) -> np.ndarray:
 
 def floor_mask(scene, width, height, half_size) -> np.ndarray:
     """(H, W) bool: pixels whose four corner rays hit the floor quad (y = 0, |x|, |z| < half_size)."""
-    from .camera import camera_rays
+    from ..camera import camera_rays
 
     py, px = np.mgrid[0:height, 0:width]
     ok = np.ones(width * height, bool)
@@ -257,9 +236,10 @@ def floor_mask(scene, width, height, half_size) -> np.ndarray:
 # ----------------------------------------------------------------------------- cases
 @dataclass
 class Built:
-    """A case's scene file and how to judge it."""
+    """A case's scene (a dict for wavlight.load_dict, its files in ``folder``) and how to judge it."""
 
-    scene_path: str
+    scene: dict
+    folder: str
     reference: str                  # "analytic" | "mis" | "zero"
     expected: np.ndarray | None = None   # (3,) or (H, W, 3): the analytic reference
     floor_half: float | None = None      # analytic floor: pixels must hit it (see floor_mask)
@@ -293,13 +273,13 @@ FLOOR_ALBEDO = np.array([0.6, 0.6, 0.6])
 def _floor_case(folder, width, height, env_table, pixels, *, eye=(0.0, 3.0, 3.0), target=(0.0, 0.0, 0.0),
                 fov=30.0, half=15.0, expect_warning=None, note="") -> Built:
     scale = float(env_table.get("scale", 1.0))
-    path = write_scene(folder, camera={"eye": list(eye), "target": list(target), "up": [0.0, 1.0, 0.0],
+    scene = scene_dict(camera={"eye": list(eye), "target": list(target), "up": [0.0, 1.0, 0.0],
                                        "fov_y": fov},
                        environment=env_table,
                        objects=[{"shape": "quad", "center": [0.0, 0.0, 0.0], "normal": [0.0, 1.0, 0.0],
                                  "size": 2 * half, "material": "floor"}],
                        materials={"floor": LAMBERT_FLOOR}, width=width, height=height)
-    return Built(path, "analytic", floor_radiance(pixels, FLOOR_ALBEDO) * scale, floor_half=half,
+    return Built(scene, folder, "analytic", floor_radiance(pixels, FLOOR_ALBEDO) * scale, floor_half=half,
                  expect_warning=expect_warning, note=note)
 
 
@@ -312,14 +292,14 @@ def _sphere_floor(folder, width, height, env_table, sphere_mat, *, eye=(0.0, 1.4
         objects.append({"shape": "quad", "center": [0.0, 0.0, 0.0], "normal": [0.0, 1.0, 0.0], "size": 12.0,
                         "material": "floor"})
         mats["floor"] = LAMBERT_FLOOR
-    path = write_scene(folder, camera={"eye": list(eye), "target": list(target), "up": [0.0, 1.0, 0.0],
+    scene = scene_dict(camera={"eye": list(eye), "target": list(target), "up": [0.0, 1.0, 0.0],
                                        "fov_y": fov},
                        environment=env_table, objects=objects, materials=mats, width=width, height=height)
-    return Built(path, reference)
+    return Built(scene, folder, reference)
 
 
 def _dim_sky(width, height, factor=0.5):
-    from .envmap import procedural_sky
+    from ..envmap import procedural_sky
     return procedural_sky(sun_radiance=0.0, width=width, height=height).astype(np.float64) * factor
 
 
@@ -379,7 +359,7 @@ def _overcast(folder, width, height, data):
 
 @case("grazing", "ggx 0.2 and phong 50 quads seen 80-89 deg off their normal, procedural sky")
 def _grazing(folder, width, height, data):
-    path = write_scene(folder, camera={"eye": [0.0, 0.35, 6.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0],
+    scene = scene_dict(camera={"eye": [0.0, 0.35, 6.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0],
                                        "fov_y": 8.0},
                        environment={"procedural": "sky", "sun_elevation": 12.0, "sun_azimuth": 170.0},
                        objects=[{"shape": "quad", "center": [-50.0, 0.0, 0.0], "normal": [0.0, 1.0, 0.0],
@@ -389,7 +369,7 @@ def _grazing(folder, width, height, data):
                        materials={"glossy": {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.2},
                                   "shiny": {"type": "phong", "albedo": [0.8, 0.8, 0.8], "exponent": 50.0}},
                        width=width, height=height)
-    return Built(path, "mis")
+    return Built(scene, folder, "mis")
 
 
 @case("room_slit", "a closed room lit through a slit under the front wall (procedural sky, low sun), "
@@ -406,14 +386,14 @@ def _room_slit(folder, width, height, data):
                dict(wall, shape="quad", center=[2.0, 1.5, 0.0], normal=[-1.0, 0.0, 0.0], size=[4.0, 3.0]),
                dict(wall, shape="quad", center=[0.0, 1.7, 2.0], normal=[0.0, 0.0, -1.0], size=[4.0, 2.6]),
                {"shape": "sphere", "center": [0.0, 0.6, -0.6], "radius": 0.6, "subdivisions": 4, "material": "ball"}]
-    path = write_scene(folder, camera={"eye": [0.0, 1.6, 1.6], "target": [0.0, 0.5, -1.0], "up": [0.0, 1.0, 0.0],
+    scene = scene_dict(camera={"eye": [0.0, 1.6, 1.6], "target": [0.0, 0.5, -1.0], "up": [0.0, 1.0, 0.0],
                                        "fov_y": 60.0},
                        environment={"procedural": "sky", "sun_elevation": 8.0, "sun_azimuth": 180.0},
                        objects=objects,
                        materials={"wall": LAMBERT_FLOOR,
                                   "ball": {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.1}},
                        width=width, height=height)
-    return Built(path, "mis", note="light enters only through a 0.4-high slit")
+    return Built(scene, folder, "mis", note="light enters only through a 0.4-high slit")
 
 
 @case("one_texel", "a 32x16 map black but one texel of 500, lambert floor")
@@ -622,8 +602,8 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
     :func:`wavlight.render_full` (tests inject failures with it). ``data_dir``: the shared data
     folder (default ``../shared/data`` beside the repository).
     """
-    import wavlight
-    from . import scene as scene_mod
+    from .. import scene as scene_mod
+    from ..integrator import render_full
 
     t_start = time.perf_counter()
     cfg = dict(DEFAULTS)
@@ -644,7 +624,7 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
     for s in strats:
         if s not in scene_mod.STRATEGIES:
             raise WavlightError(f"stability: unknown strategy {s!r} ({' | '.join(scene_mod.STRATEGIES)})")
-    render = render or wavlight.render_full
+    render = render or render_full
     data = Path(data_dir) if data_dir is not None else DATA_DIR
     out_dir = str(out_dir)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
@@ -682,7 +662,7 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
                 built = c.build(folder, width, height, data)
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
-                    sc = wavlight.load_scene(built.scene_path)
+                    sc = scene_mod.load_dict(built.scene, base_dir=built.folder)
                 info["warnings"] = sorted({str(w.message).replace(folder + os.sep, "") for w in caught})
                 info["reference"] = {"analytic": "analytic", "zero": "exactly 0",
                                      "mis": f"mis {cfg['reference_spp']} spp"}[built.reference]
@@ -736,7 +716,7 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
         if cell["verdict"] == "pending":
             cell["verdict"] = j["verdict"]
     t_mean, t_pixel = thresholds(cfg["alpha"], n_cells, width * height, dof)
-    results = {"suite": "stability", "out_dir": os.path.abspath(out_dir), "wavlight": wavlight.__version__,
+    results = {"suite": "stability", "out_dir": os.path.abspath(out_dir), "wavlight": __version__,
                "settings": {**cfg, "size": [width, height], "reference_seed": REFERENCE_SEED,
                             "vov_limit": VOV_LIMIT, "pixel_skew_limit": PIXEL_SKEW_LIMIT, "pixel_spread_limit": PIXEL_SPREAD_LIMIT, "z_cap": Z_CAP},
                "strategies": strats, "cases": case_info, "cells_tested": n_cells,
@@ -745,8 +725,8 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
                                       "image-mean test (3 channels) and half to the per-pixel test (3 N values)"},
                "cells": cells}
     files = ["stability.csv", "stability.json"]
-    from .experiment import _csv, _write_json, _write_text
-    _write_text(os.path.join(out_dir, "stability.csv"), _csv(cells, COLUMNS))
+    from .records import csv_text, write_json, write_text
+    write_text(os.path.join(out_dir, "stability.csv"), csv_text(cells, COLUMNS))
     files += chart(results, out_dir)
     results["files"] = files
     results["counts"] = {v: sum(1 for c in cells if c["verdict"] == v)
@@ -754,7 +734,7 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
     results["seconds"] = round(time.perf_counter() - t_start, 2)
     results = _clean(results)
     json.dumps(results, allow_nan=False)  # never a NaN in the output
-    _write_json(os.path.join(out_dir, "stability.json"), results)
+    write_json(os.path.join(out_dir, "stability.json"), results)
     return results
 
 
@@ -882,7 +862,7 @@ def chart(results: dict, out_dir) -> list:
     from matplotlib import colors
     from matplotlib.figure import Figure
 
-    from .experiment import _save_figure
+    from .charts import save_figure
 
     case_names = [c["case"] for c in results["cases"]]
     strats = results["strategies"]
@@ -931,4 +911,4 @@ def chart(results: dict, out_dir) -> list:
     st = results["settings"]
     fig.suptitle(f"stability: {st['size'][0]}x{st['size'][1]} px, {st['repetitions']} x {st['spp']} spp, "
                  f"alpha {st['alpha']:g} over {results['cells_tested']} cells", fontsize=10)
-    return _save_figure(fig, out_dir, "stability")
+    return save_figure(fig, out_dir, "stability")

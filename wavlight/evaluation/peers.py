@@ -18,8 +18,8 @@ Equivalences and their limits:
   interpolates bilinearly between texel centres. wavlight looks up the nearest
   texel. We feed Mitsuba the map upsampled by nearest neighbour ``upsample`` times
   in each direction, so its bilinear blend only acts within half a fine texel of
-  the original texel edges; :func:`envmap_mismatch` measures what is left. Measured on
-  2026-11-22 (400k random directions, rotate_y 30): rooitou_park_1k at k = 8, mean
+  the original texel edges; :func:`envmap_mismatch` measures what is left (400k random
+  directions, rotate_y 30): rooitou_park_1k at k = 8, mean
   |Mitsuba - wavlight| / mean = 2.0% (k = 4: 6.0%); debevec_grace_256x128 at k = 32: 2.2%
   (k = 8: 8.3%); the directions inside a blend band are 1 - (1 - 1/k)^2 of the square
   (23% at k = 8), everywhere else the lookups are identical.
@@ -32,9 +32,9 @@ import time
 
 import numpy as np
 
-from . import bsdfs
-from .integrator import RenderResult
-from .errors import WavlightError
+from .. import bsdfs
+from ..integrator import RenderResult
+from ..errors import WavlightError
 
 VARIANT = "llvm_ad_rgb"
 STRATEGIES = {"mis": (1, 1), "mis_comp": (1, 1), "light": (1, 0), "bsdf": (0, 1)}  # (emitter_samples, bsdf_samples)

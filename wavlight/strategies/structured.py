@@ -75,16 +75,21 @@ import warnings
 
 import numpy as np
 
-from .envmap import luminance
-from .errors import ArgumentError, check_int, shown
+from ..envmap import luminance
+from ..errors import ArgumentError, check_int
+from ..options import Option
 from .sir import _repeat, _slice, rng_from_uniforms
-from .strategies import DirectionSamples, ShadingPoints, Strategy
+from .base import DirectionSamples, ShadingPoints, Strategy
 
 MODES = ("stratified", "preintegrated")
 DEFAULT_STRATA = 16
 PER_STRATUM = "strata"  # samples: one jittered direction in every stratum (the default)
 DEFAULT_LEVELS = 4
 MAX_STRATA = 1024
+STRUCTURED_STRATA = Option("structured_strata", int, "structured: number of strata K (one shadow ray per stratum "
+                           "and sample).", default=DEFAULT_STRATA, lo=1, hi=MAX_STRATA)
+STRUCTURED_MODE = Option("structured_mode", str, "structured: stratified (unbiased) or preintegrated (biased: one "
+                         "light per stratum).", default=MODES[0], values=MODES)
 #: at most this many candidate texels per level enter the farthest-point loop
 MAX_CANDIDATES = 4096
 #: preintegrated: with at most this many strata, all lights get a shadow ray
@@ -245,14 +250,13 @@ class StructuredStrategy(Strategy):
     farthest-point k-center; ``mode`` "stratified" (unbiased) or "preintegrated" (biased)."""
 
     name = "structured"
+    options = {"strata": STRUCTURED_STRATA, "mode": STRUCTURED_MODE}
 
     def __init__(self, strata: int | None = None, mode: str | None = None, samples: int | str = PER_STRATUM,
                  levels: int = DEFAULT_LEVELS):
         where = "strategies.StructuredStrategy"
-        self.k = DEFAULT_STRATA if strata is None else check_int(where, "strata", strata, 1, MAX_STRATA)
-        self.mode = MODES[0] if mode is None else mode
-        if not isinstance(self.mode, str) or self.mode not in MODES:
-            raise ArgumentError(f"{where}: mode must be one of {' | '.join(MODES)}, got {shown(mode)}")
+        self.k = DEFAULT_STRATA if strata is None else self.checked("strata", strata)
+        self.mode = MODES[0] if mode is None else self.checked("mode", mode)
         if samples is None or isinstance(samples, str):
             if samples not in (None, PER_STRATUM):
                 raise ArgumentError(f"{where}: samples must be {PER_STRATUM!r} or an integer, got {samples!r}")

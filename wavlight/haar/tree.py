@@ -28,8 +28,8 @@ import numbers
 
 import numpy as np
 
-from . import cl
-from .errors import ArgumentError, check_int, check_real, shown
+from .. import cl
+from ..errors import ArgumentError, check_int, check_real, shown
 
 ONE_MINUS_EPS = np.float32(np.nextafter(np.float32(1), np.float32(0)))
 
@@ -79,7 +79,7 @@ def _reorder(nodes: np.ndarray, n_levels: int, to_device: bool) -> np.ndarray:
     transposing each level's (2,) * 2l view of arange (no table kept between calls)."""
     nodes = np.asarray(nodes)
     if nodes.shape[-1] != tree_size(n_levels):
-        raise ArgumentError(f"distributions.{'device' if to_device else 'host'}_order: pyramids of {n_levels} "
+        raise ArgumentError(f"haar.tree.{'device' if to_device else 'host'}_order: pyramids of {n_levels} "
                             f"levels have {tree_size(n_levels)} nodes, got shape {nodes.shape}")
     index = np.empty(tree_size(n_levels), np.int64)
     for l in range(n_levels + 1):
@@ -103,7 +103,7 @@ def leaf_levels(side: int) -> int:
     """n for a 2^n x 2^n image; raises ArgumentError (a ValueError) for other sides."""
     if (isinstance(side, (bool, np.bool_)) or not isinstance(side, numbers.Integral) or side < 1
             or side & (side - 1)):
-        raise ArgumentError(f"distributions.leaf_levels: tree images must be 2^n x 2^n, got side {shown(side)}")
+        raise ArgumentError(f"haar.tree.leaf_levels: tree images must be 2^n x 2^n, got side {shown(side)}")
     return int(side).bit_length() - 1
 
 
@@ -146,7 +146,7 @@ def build_reference(leaves: np.ndarray) -> np.ndarray:
     leaves : (T, 2^n, 2^n) or (2^n, 2^n) float, non-negative
     returns : (T, tree_size(n)) float32
     """
-    leaves = _leaves("distributions.build_reference", leaves)
+    leaves = _leaves("haar.tree.build_reference", leaves)
     n = leaf_levels(leaves.shape[-1])
     out = np.empty((leaves.shape[0], tree_size(n)), np.float32)
     level = leaves
@@ -194,7 +194,7 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
     tree : (T, tree_size(n)) float32;  u : (N, 2) float in [0, 1)
     returns : uv (N, 2) float32 in [0, 1), pdf (N,) float32 on the unit square
     """
-    tree, n_levels, u, samples_per_tree = _walk_args("distributions.sample_reference", tree, n_levels, u, "u",
+    tree, n_levels, u, samples_per_tree = _walk_args("haar.tree.sample_reference", tree, n_levels, u, "u",
                                                      samples_per_tree)
     u = np.clip(np.nan_to_num(np.asarray(u, np.float32), nan=0.0), 0, ONE_MINUS_EPS)  # as clamp_unit
     t = np.arange(len(u)) // samples_per_tree
@@ -216,7 +216,7 @@ def sample_reference(tree: np.ndarray, n_levels: int, u: np.ndarray, samples_per
 
 def pdf_reference(tree: np.ndarray, n_levels: int, uv: np.ndarray, samples_per_tree: int) -> np.ndarray:
     """Density on the unit square of given points (numpy twin of ``warp_pdf``)."""
-    tree, n_levels, uv, samples_per_tree = _walk_args("distributions.pdf_reference", tree, n_levels, uv, "uv",
+    tree, n_levels, uv, samples_per_tree = _walk_args("haar.tree.pdf_reference", tree, n_levels, uv, "uv",
                                                       samples_per_tree)
     side = 1 << n_levels
     t = np.arange(len(uv)) // samples_per_tree
@@ -237,9 +237,9 @@ class HaarTree:
     """
 
     def __init__(self, leaves: np.ndarray):
-        leaves = _leaves("distributions.HaarTree", leaves)
+        leaves = _leaves("haar.tree.HaarTree", leaves)
         if not len(leaves):
-            raise ArgumentError("distributions.HaarTree: leaves must hold at least one image, got shape "
+            raise ArgumentError("haar.tree.HaarTree: leaves must hold at least one image, got shape "
                                 f"{leaves.shape}")
         self.n_levels = leaf_levels(leaves.shape[-1])
         self.n_trees = leaves.shape[0]
@@ -267,7 +267,7 @@ class HaarTree:
         return host_order(self.device_nodes(), self.n_levels)
 
     def _run(self, name, pts, samples_per_tree, outputs):
-        where, arg = ("distributions.HaarTree.sample", "u") if outputs == 2 else ("distributions.HaarTree.pdf", "uv")
+        where, arg = ("haar.tree.HaarTree.sample", "u") if outputs == 2 else ("haar.tree.HaarTree.pdf", "uv")
         pts = np.ascontiguousarray(check_real(where, arg, pts), np.float32)
         if pts.ndim != 2 or pts.shape[1] != 2:
             raise ArgumentError(f"{where}: {arg} must be (N, 2), got shape {pts.shape}")

@@ -30,13 +30,10 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
     id = "wavelet"            # uniform | cosine | bsdf | light | mis | wavelet | ...,
                               # or a Mitsuba peer: mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf
     label = "wavelet-p5"      # default: the id; names the output folders and chart lines
-    wavelet_levels = 5        # optional strategy options (as --wavelet-levels, --light-levels,
-    light_levels = 9          # --wavelet-candidates, --wavelet-slots): wavelet_levels,
-    wavelet_candidates = 16   # wavelet_candidates and wavelet_slots (2 or 4) for wavelet only,
-                              # light_levels for light, mis, mis_comp, wavelet and
-                              # sir (OPTION_STRATEGIES); given to another strategy, an option is
-                              # an error, not silently ignored
-    sampler = "stratified"    # optional: independent (default) | stratified (as --sampler)
+    wavelet_levels = 5        # optional: any strategy option by its scene key, as in a scene's
+    light_levels = 9          # [render] table (wavlight.strategies.OPTIONS, docs/cli.md); an option
+    wavelet_candidates = 16   # that does not apply to the id (APPLIES) is an error, not ignored
+    sampler = "stratified"    # (the sampler applies to every strategy)
 
     [budgets]
     spp = [4, 16, 64]         # equal-spp budgets
@@ -128,367 +125,83 @@ Decisions:
 """
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
-import json
 import math
 import os
 import re
-import tempfile
+import socket
+import struct
+import threading
 import time
-import tomllib
 import warnings
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import metrics
-from .errors import SanitisedInputWarning, WavlightError
-from .sampler import SAMPLERS
-from .scene import MAX_SIDE, MAX_SPP, STRATEGIES, WAVELET_SLOTS
-from .scene import _Table as SceneTable
+from .charts import error_charts, error_maps
+from .records import (INTEGER, NUMBER, ROWS, TABLE, TEXT, content_hash, csv_text, image_problem, read_image,
+                      read_json, record_problem, remove_stale, save_run_image, write_json, write_text)
+from .spec import PEER_PREFIX, Budget, SceneSpec, Spec, StrategySpec, load_spec
+from ..errors import SanitisedInputWarning, WavlightError, shown
+from ..imageio import check_memory, check_not_input, remove_stale_temporaries, same_file, scene_files
+from ..integrator import render_full
+from ..scene import MAX_SPP, load_scene
+from ..version import __version__
+
 
 PILOT_SEED = 999_999
-PEER_PREFIX = "mitsuba:"
 WARMUP_SIZE = 8
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
-#: [[strategies]] options -> the wavlight strategies that take them (as render_full passes them on:
-#: wavelet_levels is the product depth of wavelet; light_levels the depth of a light tree, which
-#: uniform, cosine, bsdf and structured do not build; the sampler draws every strategy's numbers)
-OPTION_STRATEGIES = {"wavelet_levels": ("wavelet",), "wavelet_candidates": ("wavelet",), "wavelet_slots": ("wavelet",),
-                     "light_levels": ("light", "mis", "mis_comp", "wavelet", "sir"),
-                     "sampler": STRATEGIES}
+#: Most runs (scenes x strategies x budgets x repetitions) in one experiment: each is a render
+#: and two files, and the run list is built before the first render. Checked before anything
+#: is rendered or allocated.
+MAX_RUNS = 100_000
+#: Most local worker processes (``workers``): each is a Python with OpenCL (about 0.3-0.4 GB)
+#: rendering one run at a time; more processes than runs are never started.
+MAX_WORKERS = 64
+#: Seconds that ``dask_address`` gets to answer as a Dask scheduler with at least one worker
+#: (connecting, its greeting, the client's registration, a worker): past it, a one-line error
+#: naming the address. A service there that is not Dask is refused as soon as it answers.
+DASK_TIMEOUT = 20.0
+#: A Dask scheduler's greeting (its handshake message) is about 100 bytes; a length beyond this
+#: in the first 8 bytes means another protocol (an HTTP server's "HTTP/1.1" read as a length
+#: asked distributed for 3 EiB).
+_DASK_GREETING_MAX = 1 << 16
+
+#: What the records of a resume must hold to be used (records.record_problem); anything else is
+#: a damaged record: a one-line warning, and the run, reference or pilot is made again.
+RUN_FIELDS = {"hash": TEXT, "scene": TEXT, "strategy": TEXT, "strategy_id": TEXT, "options": TABLE,
+              "budget": TEXT, "budget_kind": TEXT, "target_seconds": (NUMBER, None), "spp": INTEGER,
+              "seed": INTEGER, "setup_seconds": NUMBER, "render_seconds": NUMBER, "total_seconds": NUMBER,
+              "image": TEXT, "stats": (TABLE, None)}
+REFERENCE_FIELDS = {"hash": TEXT, "strategy": TEXT, "spp": INTEGER, "seed": INTEGER}
+PILOT_FIELDS = {"hash": TEXT, "points": ROWS, "setup_seconds": NUMBER, "render_a": NUMBER, "render_b": NUMBER}
 
 
 # ----------------------------------------------------------------------------- the experiment file
-@dataclass
-class SceneSpec:
-    name: str
-    path: str
-    size: tuple | None = None
-    reference: str | None = None
-    reference_stderr: str | None = None
-
-
-@dataclass
-class StrategySpec:
-    label: str
-    id: str
-    options: dict = field(default_factory=dict)  # wavelet_levels, light_levels, sampler
-
-
-@dataclass
-class Budget:
-    kind: str     # "spp" | "seconds"
-    value: float
-
-    @property
-    def key(self):
-        return f"spp{int(self.value)}" if self.kind == "spp" else f"{self.value:g}s"
-
-
-@dataclass
-class Spec:
-    path: str
-    name: str
-    scenes: list
-    strategies: list
-    budgets: list
-    repetitions: int
-    reference: dict
-    size: tuple | None = None
-    threads: int | None = None
-    pilot_spp: int = 4
-    text: bytes = b""
-
-
-class _Table(SceneTable):
-    """One TOML table of the experiment file: the scene parser's table (errors name the file
-    and the key, unknown keys rejected) with the experiment's own value kinds."""
-
-    def get(self, key, kind, default=None, required=False, lo=None):
-        self.used.add(key)
-        if key not in self.data:
-            if required:
-                self.fail(key, "is required")
-            return default
-        v = self.data[key]
-        is_int = lambda x: isinstance(x, int) and not isinstance(x, bool)
-        is_num = lambda x: (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
-        if kind == "int":
-            if not is_int(v) or (lo is not None and v < lo):
-                self.fail(key, f"must be an integer{f' >= {lo}' if lo is not None else ''}, got {v!r}")
-        elif kind == "float":
-            if not is_num(v) or (lo is not None and v <= lo):
-                self.fail(key, f"must be a number{f' > {lo}' if lo is not None else ''}, got {v!r}")
-            v = float(v)
-        elif kind == "str":
-            if not isinstance(v, str) or not v:
-                self.fail(key, f"must be a non-empty string, got {v!r}")
-        elif kind == "ints":
-            if not isinstance(v, list) or not v or not all(is_int(x) and x >= lo for x in v):
-                self.fail(key, f"must be a non-empty list of integers >= {lo}, got {v!r}")
-            if len(set(v)) != len(v):
-                self.fail(key, f"has repeated values: {v!r}")
-        elif kind == "floats":
-            if not isinstance(v, list) or not v or not all(is_num(x) and x > lo for x in v):
-                self.fail(key, f"must be a non-empty list of numbers > {lo}, got {v!r}")
-            v = [float(x) for x in v]
-            if len(set(v)) != len(v):
-                self.fail(key, f"has repeated values: {v!r}")
-        elif kind == "size":
-            if (not isinstance(v, list) or len(v) != 2
-                    or not all(is_int(x) and 1 <= x <= MAX_SIDE for x in v)):
-                self.fail(key, f"must be [width, height], integers 1..{MAX_SIDE}, got {v!r}")
-            v = (int(v[0]), int(v[1]))
-        return v
-
-    def name_key(self, key, default):
-        v = self.get(key, "str", default)
-        if not _NAME.match(v):
-            self.fail(key, f"must be letters, digits, '_', '.', '+', '-' (it names folders), got {v!r}")
-        return v
-
-
-def load_spec(path) -> Spec:
-    """Read and validate an experiment file (see the module docstring for its format)."""
-    path = str(path)
-    if not os.path.isfile(path):
-        raise WavlightError(f"{path}: no such file")
-    try:
-        with open(path, "rb") as fh:
-            text = fh.read()
-        doc = tomllib.loads(text.decode("utf-8"))
-    except tomllib.TOMLDecodeError as e:
-        raise WavlightError(f"{path}: malformed TOML: {e}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise WavlightError(f"{path}: cannot read: {e}") from None
-    base = os.path.dirname(os.path.abspath(path))
-    unknown = sorted(set(doc) - {"experiment", "reference", "scenes", "strategies", "budgets"})
-    if unknown:
-        raise WavlightError(f"{path}: {unknown[0]}: unknown table")
-
-    e = _Table(path, "[experiment]", doc.get("experiment", {}))
-    name = e.name_key("name", os.path.splitext(os.path.basename(path))[0])
-    size = e.get("size", "size")
-    threads = e.get("threads", "int", lo=1)
-    pilot_spp = e.get("pilot_spp", "int", 4, lo=1)
-    e.done()
-
-    r = _Table(path, "[reference]", doc.get("reference", {}))
-    reference = {"strategy": r.get("strategy", "str", "mis"), "spp": r.get("spp", "int", 1024, lo=2),
-                 "seed": r.get("seed", "int", 1_000_003, lo=0)}
-    if reference["strategy"] not in STRATEGIES:
-        r.fail("strategy", f"unknown strategy {reference['strategy']!r} ({' | '.join(STRATEGIES)})")
-    if reference["spp"] > MAX_SPP:
-        r.fail("spp", f"must be at most {MAX_SPP}, got {reference['spp']}")
-    r.done()
-
-    def rel(p):
-        return os.path.normpath(os.path.join(base, p))
-
-    scenes_doc = doc.get("scenes")
-    if not isinstance(scenes_doc, list) or not scenes_doc:
-        raise WavlightError(f"{path}: [[scenes]]: at least one [[scenes]] table with a path is required")
-    scenes = []
-    for i, s in enumerate(scenes_doc):
-        t = _Table(path, f"[[scenes]][{i}]", s)
-        p = t.get("path", "str", required=True)
-        full = rel(p)
-        if not os.path.isfile(full):
-            t.fail("path", f"no such file {full}")
-        sname = t.name_key("name", os.path.splitext(os.path.basename(p))[0])
-        if any(x.name == sname for x in scenes):
-            t.fail("name", f"scene name {sname!r} is used twice (give each a distinct name)")
-        ssize = t.get("size", "size")
-        ref, ref_se = t.get("reference", "str"), t.get("reference_stderr", "str")
-        if ref is not None:
-            ref = rel(ref)
-            if not os.path.isfile(ref):
-                t.fail("reference", f"no such file {ref}")
-            _check_image(t, "reference", ref)
-        if ref_se is not None:
-            if ref is None:
-                t.fail("reference_stderr", "needs reference")
-            ref_se = rel(ref_se)
-            if not os.path.isfile(ref_se):
-                t.fail("reference_stderr", f"no such file {ref_se}")
-            _check_image(t, "reference_stderr", ref_se)
-        t.done()
-        scenes.append(SceneSpec(sname, full, ssize, ref, ref_se))
-
-    strat_doc = doc.get("strategies")
-    if not isinstance(strat_doc, list) or not strat_doc:
-        raise WavlightError(f"{path}: [[strategies]]: at least one [[strategies]] table with an id is required")
-    strats = []
-    for i, s in enumerate(strat_doc):
-        t = _Table(path, f"[[strategies]][{i}]", s)
-        sid = t.get("id", "str", required=True)
-        if sid.startswith(PEER_PREFIX):
-            from . import peers
-            if sid[len(PEER_PREFIX):] not in peers.STRATEGIES:
-                t.fail("id", f"unknown Mitsuba strategy {sid!r} "
-                             f"({' | '.join(PEER_PREFIX + k for k in peers.STRATEGIES)})")
-            if not peers.available():
-                t.fail("id", f"{sid!r} needs Mitsuba 3 with its llvm_ad_rgb variant, which is not available "
-                             "(pip install 'wavlight[peers]'; Debian: libllvm19)")
-        elif sid not in STRATEGIES:
-            t.fail("id", f"unknown strategy {sid!r} ({' | '.join(STRATEGIES)} | "
-                         f"mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf)")
-        label = t.name_key("label", sid.replace(":", "-"))
-        if any(x.label == label for x in strats):
-            t.fail("label", f"label {label!r} is used twice (give each strategy a distinct label)")
-        options = {}
-        wl = t.get("wavelet_levels", "int", lo=0)
-        if wl is not None:
-            if wl > 11:
-                t.fail("wavelet_levels", f"must be at most 11, got {wl}")
-            options["wavelet_levels"] = wl
-        wc = t.get("wavelet_candidates", "int", lo=0)
-        if wc is not None:
-            if wc == 1 or wc > 64:
-                t.fail("wavelet_candidates", f"must be 0 (the MIS pair) or 2..64, got {wc}")
-            options["wavelet_candidates"] = wc
-        ws = t.get("wavelet_slots", "int", lo=2)
-        if ws is not None:
-            if ws not in WAVELET_SLOTS:
-                t.fail("wavelet_slots", f"must be 2 or 4, got {ws}")
-            options["wavelet_slots"] = ws
-        ll = t.get("light_levels", "int", lo=1)
-        if ll is not None:
-            if ll > 11:
-                t.fail("light_levels", f"must be at most 11, got {ll}")
-            options["light_levels"] = ll
-        smp = t.get("sampler", "str")
-        if smp is not None:
-            if smp not in SAMPLERS:
-                t.fail("sampler", f"unknown sampler {smp!r} ({' | '.join(SAMPLERS)})")
-            options["sampler"] = smp
-        if options and sid.startswith(PEER_PREFIX):
-            t.fail(sorted(options)[0], f"is a wavlight option; {sid!r} takes none")
-        for opt in options:
-            if sid not in OPTION_STRATEGIES[opt]:
-                t.fail(opt, f"does not apply to {sid!r} (only to {' | '.join(OPTION_STRATEGIES[opt])})")
-        t.done()
-        strats.append(StrategySpec(label, sid, options))
-
-    b = _Table(path, "[budgets]", doc.get("budgets", {}))
-    spps = b.get("spp", "ints", lo=1)
-    seconds = b.get("seconds", "floats", lo=0)
-    repetitions = b.get("repetitions", "int", 3, lo=1)
-    if spps is None and seconds is None:
-        b.fail("spp", "give spp = [...] and/or seconds = [...]")
-    if spps is not None and max(spps) > MAX_SPP:
-        b.fail("spp", f"must be at most {MAX_SPP}, got {max(spps)}")
-    if reference["seed"] < repetitions:   # the reference would repeat a run's samples exactly
-        b.fail("repetitions", f"the runs' seeds 0..{repetitions - 1} include the reference's seed "
-               f"{reference['seed']} ([reference].seed)")
-    b.done()
-    budgets = [Budget("spp", v) for v in sorted(spps or [])] + [Budget("seconds", v) for v in sorted(seconds or [])]
-    keys = [x.key for x in budgets]
-    if len(set(keys)) != len(keys):
-        b.fail("seconds", f"values too close to tell apart in folder names: {keys}")
-    return Spec(path, name, scenes, strats, budgets, repetitions, reference, size, threads, pilot_spp, text)
 
 
 # ----------------------------------------------------------------------------- files
-def _hash(obj) -> str:
-    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:16]
-
-
-def _publish(tmp, path):
-    """Give a finished temporary file the usual mode (mkstemp makes it private), rename it."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    os.replace(tmp, path)
-
-
-def _write_text(path, text):
-    """Atomically: a temporary file in the same folder renamed over the target."""
-    folder = os.path.dirname(path)
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            fh.write(text)
-        _publish(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _json_safe(obj):
-    """obj with every non-finite float as None (JSON has no NaN or Infinity)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    return obj
-
-
-def _check_image(t, key, path):
-    """A spec error, before anything is written, if OpenImageIO cannot open the image."""
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(path)
-    if inp is None:
-        t.fail(key, f"cannot read {path} as an image ({oiio.geterror().strip() or 'unknown format'})")
-    inp.close()
-
-
-def _write_json(path, obj):
-    _write_text(path, json.dumps(_json_safe(obj), indent=1, allow_nan=False) + "\n")
-
-
-def _read_json(path):
-    try:
-        with open(path) as fh:
-            return json.load(fh)
-    except (OSError, ValueError):
-        return None
-
-
-def _read_image(path):
-    from .envmap import read_image
-    return read_image(path)
-
-
-def _image_problem(path, width, height):
-    """Why a finished run's image cannot be reused (None: it can): missing, unreadable (a
-    truncated or corrupt file), another size, or NaN / Inf pixels."""
-    if not os.path.isfile(path):
-        return "is missing"
-    try:
-        image = _read_image(path)
-    except (WavlightError, ValueError, OSError):
-        return "cannot be read"
-    if image.shape != (height, width, 3):
-        return f"has shape {image.shape}, not ({height}, {width}, 3)"
-    bad = int((~np.isfinite(image)).any(axis=-1).sum())
-    return f"has {bad} NaN or Inf pixel(s)" if bad else None
-
-
-def _save_image(path, image):
-    from .imageio import save_image
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    save_image(path, image)
 
 
 # ----------------------------------------------------------------------------- running
 class _Runner:
-    def __init__(self, spec: Spec, out_dir: str, progress, resume: bool):
-        import wavlight
-
-        self.wavlight = wavlight
+    def __init__(self, spec: Spec, out_dir: str, progress, resume: bool, workers: int = 1):
         self.spec, self.out, self.progress, self.resume = spec, out_dir, progress, resume
         self.scenes, self.scene_hash, self.size = {}, {}, {}
+        self.file_references = {}
+        runs = len(spec.scenes) * len(spec.strategies) * len(spec.budgets) * spec.repetitions
+        if runs > MAX_RUNS:   # before any scene is loaded or any run listed
+            raise WavlightError(f"{spec.path}: [budgets].repetitions: {len(spec.scenes)} scene(s) x "
+                                f"{len(spec.strategies)} strateg{'y' if len(spec.strategies) == 1 else 'ies'} x "
+                                f"{len(spec.budgets)} budget(s) x {spec.repetitions} repetition(s) make {runs} runs; "
+                                f"at most {MAX_RUNS} are supported")
+        if any(b.kind == "seconds" for b in spec.budgets) and 4 * spec.pilot_spp > MAX_SPP:
+            raise WavlightError(f"{spec.path}: [experiment].pilot_spp: the pilots render pilot_spp and 4 x pilot_spp; "
+                                f"must be at most {MAX_SPP // 4}, got {spec.pilot_spp}")
+        if spec.threads is not None and spec.threads > 4096:
+            raise WavlightError(f"{spec.path}: [experiment].threads: must be at most 4096, got {spec.threads}")
         for s in spec.scenes:
-            scene = wavlight.load_scene(s.path)
+            scene = load_scene(s.path)
             if scene.environment.is_black:   # as `wavlight render`: every image and error would be 0
                 raise WavlightError(f"{s.path}: [environment]: the environment is black everywhere; "
                                     "relative errors against a black reference are undefined")
@@ -499,12 +212,60 @@ class _Runner:
             except OSError as e:
                 raise WavlightError(f"{s.path}: cannot read ({e.strerror})") from None
             self.size[s.name] = s.size or spec.size or (scene.width, scene.height)
+            if s.reference is not None:   # read and checked now, not after other scenes' renders
+                self.file_references[s.name] = self._reference_file(s)
+        self._check_outputs()
+        w, h = max(self.size.values(), key=lambda wh: wh[0] * wh[1])
+        check_memory(f"{spec.path}: {'[experiment].size' if spec.size else 'a scene size'}", w, h,
+                     copies=max(1, min(workers, runs)))
         self.warm = set()
         self.done = 0
         self.rendered = self.reused = 0
         n_ref = sum(1 for s in spec.scenes if s.reference is None)
         n_pilot = len(spec.scenes) * len(spec.strategies) if any(b.kind == "seconds" for b in spec.budgets) else 0
         self.total = n_ref + n_pilot + len(spec.scenes) * len(spec.strategies) * len(spec.budgets) * spec.repetitions
+
+    def _check_outputs(self):
+        """Refuse, before anything is written, an input (the spec, a scene file, its map or a mesh,
+        a reference file) that lies where this experiment writes: its files in out_dir and the
+        folders runs/, reference/, pilot/ and charts/ there."""
+        spec, out = self.spec, os.path.abspath(self.out)
+        inputs = [spec.path] + [f for s in spec.scenes for f in scene_files(s.path)]
+        inputs += [f for s in spec.scenes for f in (s.reference, s.reference_stderr) if f is not None]
+        mine = [os.path.join(out, n) for n in ("spec.toml", "results.json", "results.csv", "runs.csv")]
+        check_not_input(mine, inputs)
+        for folder in ("runs", "reference", "pilot", "charts"):
+            root = os.path.join(out, folder)
+            for inp in inputs:
+                real = os.path.realpath(inp)
+                if any(p == root or p.startswith(root + os.sep) for p in (os.path.abspath(inp), real)) or (
+                        os.path.isdir(root) and same_file(os.path.dirname(real), root)):
+                    raise WavlightError(f"{self.out}: {folder}/ is written by the experiment and holds an input of "
+                                        f"it ({inp}); choose another output folder")
+
+    def _reference_file(self, s: SceneSpec):
+        """A given reference image (and stderr) read and checked: (image, stderr or None, info)."""
+        w, h = self.size[s.name]
+        image = read_image(s.reference)
+        if image.shape[:2] != (h, w):
+            raise WavlightError(f"{s.reference}: reference image is {image.shape[1]}x{image.shape[0]}, "
+                                f"the experiment renders {s.name} at {w}x{h}")
+        bad = int((~np.isfinite(image)).any(axis=-1).sum())
+        if bad:   # every metric would be NaN
+            raise WavlightError(f"{s.reference}: reference image has {bad} NaN or Inf pixel(s)")
+        if not np.any(image > 0):   # as a black environment: relative errors would be undefined
+            raise WavlightError(f"{s.reference}: reference image is black everywhere; relative errors against "
+                                "a black reference are undefined")
+        stderr = None
+        if s.reference_stderr is not None:
+            stderr = read_image(s.reference_stderr)
+            if stderr.shape != image.shape:
+                raise WavlightError(f"{s.reference_stderr}: stderr image is {stderr.shape[1]}x"
+                                    f"{stderr.shape[0]}, the reference is {w}x{h}")
+            if not np.all(np.isfinite(stderr)) or np.any(stderr < 0):
+                raise WavlightError(f"{s.reference_stderr}: stderr must be finite and non-negative")
+        return image, stderr, {"file": s.reference, "stderr_file": s.reference_stderr,
+                               "corrected": stderr is not None}
 
     def step(self, what):
         self.done += 1
@@ -525,7 +286,7 @@ class _Runner:
     def base_key(self, scene_name):
         w, h = self.size[scene_name]
         return {"scene": self.scene_hash[scene_name], "width": w, "height": h,
-                "wavlight": self.wavlight.__version__, "threads": self.spec.threads}   # threads: timings
+                "wavlight": __version__, "threads": self.spec.threads}   # threads: timings
 
     @staticmethod
     def strategy_key(st: StrategySpec):
@@ -540,43 +301,35 @@ class _Runner:
         """(image, stderr or None, info) for one scene."""
         w, h = self.size[s.name]
         if s.reference is not None:
-            image = _read_image(s.reference)
-            if image.shape[:2] != (h, w):
-                raise WavlightError(f"{s.reference}: reference image is {image.shape[1]}x{image.shape[0]}, "
-                                    f"the experiment renders {s.name} at {w}x{h}")
-            bad = int((~np.isfinite(image)).any(axis=-1).sum())
-            if bad:   # every metric would be NaN
-                raise WavlightError(f"{s.reference}: reference image has {bad} NaN or Inf pixel(s)")
-            stderr = None
-            if s.reference_stderr is not None:
-                stderr = _read_image(s.reference_stderr)
-                if stderr.shape != image.shape:
-                    raise WavlightError(f"{s.reference_stderr}: stderr image is {stderr.shape[1]}x"
-                                        f"{stderr.shape[0]}, the reference is {w}x{h}")
-                if not np.all(np.isfinite(stderr)) or np.any(stderr < 0):
-                    raise WavlightError(f"{s.reference_stderr}: stderr must be finite and non-negative")
-            return image, stderr, {"file": s.reference, "stderr_file": s.reference_stderr,
-                                   "corrected": stderr is not None}
+            return self.file_references[s.name]
         ref = self.spec.reference
         folder = os.path.join(self.out, "reference")
         img_path = os.path.join(folder, f"{s.name}.exr")
         se_path = os.path.join(folder, f"{s.name}.stderr.exr")
         rec_path = os.path.join(folder, f"{s.name}.json")
-        key = _hash({**self.base_key(s.name), **ref, "sampler": "independent"})
-        rec = _read_json(rec_path) if self.resume else None
-        if rec and rec.get("hash") == key and os.path.isfile(img_path) and os.path.isfile(se_path):
-            self.step(f"{s.name}: reference (done before)")
-            return _read_image(img_path), _read_image(se_path), rec
+        key = content_hash({**self.base_key(s.name), **ref, "sampler": "independent"})
+        rec = self._record(rec_path, REFERENCE_FIELDS, f"{s.name}'s reference")
+        if rec is not None and rec["hash"] == key:
+            problem = next((f"{os.path.basename(p)} {why}" for p in (img_path, se_path)
+                            for why in [image_problem(p, w, h)] if why), None)
+            if problem is None:
+                image, stderr = read_image(img_path), read_image(se_path)
+                if np.all(stderr >= 0):
+                    self.step(f"{s.name}: reference (done before)")
+                    return image, stderr, rec
+                problem = f"{os.path.basename(se_path)} has negative standard errors"
+            warnings.warn(f"{rec_path}: the reference's image {problem}: rendering {s.name}'s reference again",
+                          stacklevel=4)
         # always independent samples: the per-pixel standard error subtracted from every metric
         # is exact for them, an upper bound (about 2x the variance, measured) for stratified
         r = self.render(s.name, ref["strategy"], {"sampler": "independent"}, ref["spp"], ref["seed"])
-        _save_image(img_path, r.image)
-        _save_image(se_path, r.stderr)
+        save_run_image(img_path, r.image)
+        save_run_image(se_path, r.stderr)
         rec = {"hash": key, "scene": s.name, **ref, "width": w, "height": h,
                "image": os.path.relpath(img_path, self.out), "stderr": os.path.relpath(se_path, self.out),
                "setup_seconds": r.stats["setup_seconds"], "render_seconds": r.stats["render_seconds"],
                "corrected": True}
-        _write_json(rec_path, rec)
+        write_json(rec_path, rec)
         self.step(f"{s.name}: reference, {ref['strategy']} {ref['spp']} spp")
         return r.image, r.stderr, rec
 
@@ -586,11 +339,14 @@ class _Runner:
         path = os.path.join(self.out, "pilot", s.name, f"{st.label}.json")
         p1, p2 = self.spec.pilot_spp, 4 * self.spec.pilot_spp
         longest = max(b.value for b in self.spec.budgets if b.kind == "seconds")
-        key = _hash({**self.base_key(s.name), **self.strategy_key(st), "pilot": [p1, p2], "longest": longest})
-        rec = _read_json(path) if self.resume else None
-        if rec and rec.get("hash") == key:
-            self.step(f"{s.name}/{st.label}: pilot (done before)")
-            return rec
+        key = content_hash({**self.base_key(s.name), **self.strategy_key(st), "pilot": [p1, p2], "longest": longest})
+        rec = self._record(path, PILOT_FIELDS, f"the {s.name}/{st.label} pilot")
+        if rec is not None and rec["hash"] == key:
+            if rec["render_b"] > 0 and rec["render_a"] >= 0 and rec["setup_seconds"] >= 0:
+                self.step(f"{s.name}/{st.label}: pilot (done before)")
+                return rec
+            warnings.warn(f"{path}: the pilot's fit is not usable (a cost per spp of {rec['render_b']!r} s): "
+                          f"measuring the {s.name}/{st.label} pilot again", stacklevel=4)
         self.warm_up(s.name, st.id, st.options)
         points = []
 
@@ -616,14 +372,35 @@ class _Runner:
             measure(p3)
         model = fit()
         rec = {"hash": key, "scene": s.name, "strategy": st.label, "points": points, **model}
-        _write_json(path, rec)
+        write_json(path, rec)
         self.step(f"{s.name}/{st.label}: pilot")
         return rec
 
+    def _record(self, path, fields, what):
+        """A resume record that can be used (None: none, or resume off). A damaged one (not JSON,
+        not an object, a field missing or of the wrong kind) warns in one line and is redone."""
+        if not self.resume or not os.path.exists(path):
+            return None
+        rec = read_json(path)
+        problem = "is not valid JSON" if rec is None else record_problem(rec, fields)
+        if problem is None:
+            return rec
+        warnings.warn(f"{path}: the record of {what} {problem}: making it again", stacklevel=4)
+        return None
+
     @staticmethod
-    def spp_for(pilot, seconds):
-        spp = (seconds - pilot["setup_seconds"] - pilot["render_a"]) / pilot["render_b"]
-        return int(min(max(1, round(spp)), MAX_SPP))
+    def spp_for(pilot, seconds, where=None):
+        """The spp that the pilot's fit gives for a budget of ``seconds`` (1 .. MAX_SPP). A budget
+        that would need more than MAX_SPP is capped there with a warning naming ``where``."""
+        with np.errstate(all="ignore"):
+            spp = (seconds - pilot["setup_seconds"] - pilot["render_a"]) / pilot["render_b"]
+        if not math.isfinite(spp) or spp > MAX_SPP:
+            if where is not None:
+                warnings.warn(f"{where}: a time budget of {seconds:g} s would need about "
+                              f"{spp:.3g} spp; capped at the most a render takes, {MAX_SPP} spp "
+                              "(the run will take less time than its budget)", stacklevel=4)
+            return MAX_SPP
+        return int(max(1, round(spp)))
 
     # -- one run
     def prepare(self, s: SceneSpec, st: StrategySpec, budget: Budget, spp: int, seed: int):
@@ -632,10 +409,14 @@ class _Runner:
         img_path = os.path.join(folder, f"{seed}.exr")
         rec_path = os.path.join(folder, f"{seed}.json")
         what = f"{s.name}/{st.label}/{budget.key}/seed {seed}"
-        key = _hash({**self.base_key(s.name), **self.strategy_key(st), "spp": spp, "seed": seed})
-        rec = _read_json(rec_path) if self.resume else None
-        if rec and rec.get("hash") == key:
-            problem = _image_problem(img_path, *self.size[s.name])
+        key = content_hash({**self.base_key(s.name), **self.strategy_key(st), "spp": spp, "seed": seed})
+        rec = self._record(rec_path, RUN_FIELDS, what)
+        if rec is not None and rec["hash"] == key:
+            expected = {"scene": s.name, "strategy": st.label, "budget": budget.key, "spp": spp, "seed": seed,
+                        "image": os.path.relpath(img_path, self.out)}
+            wrong = next((k for k, v in expected.items() if rec[k] != v), None)
+            problem = (image_problem(img_path, *self.size[s.name]) if wrong is None
+                       else f"is not this run's (its record's {wrong!r} is {shown(rec[wrong])})")
             if problem is None:
                 self.reused += 1
                 self.step(what + " (done before)")
@@ -661,7 +442,7 @@ class _Runner:
     def finish(self, job, result):
         """Write a rendered run's image, then its record."""
         s, st, budget = job["s"], job["st"], job["budget"]
-        _save_image(job["img_path"], result["image"])
+        save_run_image(job["img_path"], result["image"])
         stats = result["stats"]
         rec = {"hash": job["key"], "scene": s.name, "strategy": st.label, "strategy_id": st.id,
                "options": st.options, "budget": budget.key, "budget_kind": budget.kind,
@@ -671,7 +452,7 @@ class _Runner:
                "total_seconds": round(stats["setup_seconds"] + stats["render_seconds"], 4),
                "image": os.path.relpath(job["img_path"], self.out), "stats": stats,
                "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
-        _write_json(job["rec_path"], rec)
+        write_json(job["rec_path"], rec)
         self.rendered += 1
         self.step(job["what"])
         return rec
@@ -687,8 +468,7 @@ def _render(scene, strategy_id, options, spp, width, height, seed, threads):
         from . import peers
         return peers.render_mitsuba(scene, strategy_id[len(PEER_PREFIX):], spp=spp, width=width, height=height,
                                     seed=seed)
-    import wavlight
-    return wavlight.render_full(scene, spp=spp, strategy=strategy_id, width=width, height=height, seed=seed,
+    return render_full(scene, spp=spp, strategy=strategy_id, width=width, height=height, seed=seed,
                                 threads=threads, **options)
 
 
@@ -702,7 +482,6 @@ def run_task(task: dict) -> dict:
     The scene is loaded (untimed) once per process and checked against the hash of the file the
     experiment read; each (scene, strategy) gets the untimed 8x8 warm-up before its first run in
     this process, as in-process runs do."""
-    import wavlight
     path, digest = task["scene_path"], task["scene_hash"]
     scene = _WORKER["scenes"].get((path, digest))
     if scene is None:
@@ -711,7 +490,7 @@ def run_task(task: dict) -> dict:
                 raise WavlightError(f"{path}: this worker sees a different scene file than the experiment read")
         with warnings.catch_warnings():   # the experiment's own process warned when it read the scene
             warnings.simplefilter("ignore", SanitisedInputWarning)
-            scene = _WORKER["scenes"][(path, digest)] = wavlight.load_scene(path)
+            scene = _WORKER["scenes"][(path, digest)] = load_scene(path)
     w, h = task["size"]
     strategy, options, threads = task["strategy"], task["options"], task["threads"]
     warm = (path, digest, strategy, tuple(sorted(options.items())))
@@ -725,20 +504,146 @@ def run_task(task: dict) -> dict:
 _DASK_ADDRESS = re.compile(r"^(tcp|tls|ucx|ws|wss)://[^/\s]+:\d+/?$")
 
 
-def _dask_client(address):
-    """A dask.distributed client of the scheduler at ``address`` (tcp://HOST:PORT), or a one-line
-    WavlightError: not installed, not an address, or no scheduler there within 20 s."""
+def _dask_client(address, timeout: float = DASK_TIMEOUT):
+    """A dask.distributed client of the scheduler at ``address`` (tcp://HOST:PORT) with at least
+    one worker, or a one-line WavlightError naming the address within ``timeout`` seconds: not
+    installed, not an address, nothing listening, a service that is not a Dask scheduler (it
+    answers something else, or nothing at all), or a scheduler without workers.
+
+    distributed's own Client(timeout=...) bounds only the TCP connection: a service that accepts
+    and never answers kept it waiting for the scheduler's greeting without end, and one that
+    answers another protocol made it allocate what the first 8 bytes said (3 EiB for "HTTP/1.1").
+    So the greeting is first read here, with a deadline and a size limit (:func:`_greeting`),
+    and the client is then made on a thread that is given the time left."""
     if not isinstance(address, str) or not _DASK_ADDRESS.match(address):
-        raise WavlightError(f"dask {address!r}: expected a scheduler address tcp://HOST:PORT")
+        raise WavlightError(f"dask {shown(address)}: expected a scheduler address tcp://HOST:PORT")
+    timeout = float(timeout)
     try:
         from distributed import Client
     except ImportError:
         raise WavlightError(f"dask {address}: dask.distributed is not installed "
                             "(pip install 'wavlight[dask]')") from None
+    deadline = time.monotonic() + timeout
+    if address.startswith("tcp://"):
+        _greeting(address, deadline, timeout)
+    box = {}
+
+    def connect():
+        try:
+            box["client"] = Client(address, timeout=max(deadline - time.monotonic(), 0.1))
+        except BaseException as e:   # noqa: BLE001 (handed to the caller below)
+            box["error"] = e
+
+    thread = threading.Thread(target=connect, name=f"wavlight dask connect {address}", daemon=True)
+    thread.start()
+    thread.join(max(deadline - time.monotonic(), 0.1))
+    if thread.is_alive():
+        raise WavlightError(f"dask {address}: no answer from a Dask scheduler within {timeout:g} s")
+    if "error" in box:
+        e = box["error"]
+        if isinstance(e, MemoryError):
+            raise WavlightError(f"dask {address}: the service there does not speak Dask's protocol") from None
+        if not isinstance(e, Exception):   # KeyboardInterrupt, SystemExit
+            raise e
+        if isinstance(e, (OSError, TimeoutError)):
+            raise WavlightError(f"dask {address}: cannot connect to the scheduler ({_one_line(e)})") from None
+        # anything else came from the other end (a worker's or a nanny's address answers the
+        # client's registration with a TypeError, an incompatible version with another error)
+        raise WavlightError(f"dask {address}: not a usable Dask scheduler ({type(e).__name__}: "
+                            f"{_one_line(e)})") from None
+    client = box["client"]
     try:
-        return Client(address, timeout=20)
-    except (OSError, TimeoutError, ValueError) as e:
-        raise WavlightError(f"dask {address}: cannot connect to the scheduler ({e})") from None
+        client.wait_for_workers(1, timeout=max(deadline - time.monotonic(), 0.1))
+    except BaseException as e:
+        client.close(timeout=2)
+        if isinstance(e, (TimeoutError, OSError)) or type(e).__module__.startswith(("distributed", "asyncio")):
+            raise WavlightError(f"dask {address}: the scheduler has no workers (waited {timeout:g} s): start "
+                                "one with 'dask worker " + address + "'") from None
+        raise
+    return client
+
+
+def _dask_completed(client, futures, address, timeout):
+    """The futures as they finish. While none finishes for ``timeout`` seconds the scheduler is
+    asked who it is, which it must answer within ``timeout`` seconds: a scheduler that stopped
+    answering (a frozen process, a dead host whose TCP connection stays open), or one left
+    without workers for two such rounds, is a one-line WavlightError instead of a wait without
+    end (a run may take long; a silent scheduler may not)."""
+    from distributed import wait
+
+    pending = set(futures)
+    idle = 0
+    while pending:
+        try:
+            done, pending = wait(pending, timeout=timeout, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            try:
+                info = client.sync(client.scheduler.identity, callback_timeout=timeout)
+            except Exception:   # noqa: BLE001 (TimeoutError, a closed comm)
+                raise WavlightError(f"dask {address}: the scheduler stopped answering (no reply within "
+                                    f"{timeout:g} s); the runs finished before are kept: run the experiment "
+                                    "again to resume") from None
+            idle = 0 if (info or {}).get("workers") else idle + 1
+            if idle >= 2:   # (one round for a worker that a nanny restarts)
+                raise WavlightError(f"dask {address}: the scheduler has had no workers for {2 * timeout:g} s; the "
+                                    "runs finished before are kept: start a worker and run the experiment again "
+                                    "to resume")
+            continue
+        idle = 0
+        yield from done
+
+
+def _one_line(e: BaseException) -> str:
+    text = " ".join(str(e).split()) or type(e).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+def _greeting(address, deadline, timeout):
+    """Read a Dask comm's greeting (its handshake: the listener speaks first) from ``address``
+    with a raw socket by ``deadline``; a one-line WavlightError when nothing listens, nothing
+    comes in time, or what comes is not a Dask handshake. The connection is then closed (the
+    scheduler logs nothing worse than a closed comm)."""
+    host, port = address[len("tcp://"):].rstrip("/").rsplit(":", 1)
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+
+    def left():
+        t = deadline - time.monotonic()
+        if t <= 0:
+            raise socket.timeout
+        return t
+
+    try:
+        with socket.create_connection((host, int(port)), timeout=left()) as sock:
+            def read(n):
+                buf = b""
+                while len(buf) < n:
+                    sock.settimeout(left())
+                    chunk = sock.recv(n - len(buf))
+                    if not chunk:
+                        raise ConnectionResetError("the connection was closed")
+                    buf += chunk
+                return buf
+
+            (size,) = struct.unpack("<Q", read(8))
+            if not 0 < size <= _DASK_GREETING_MAX:
+                raise WavlightError(f"dask {address}: the service there does not speak Dask's protocol (its first "
+                                    "bytes are not a Dask greeting)")
+            body = read(size)
+    except socket.timeout:
+        raise WavlightError(f"dask {address}: no answer from a Dask scheduler within {timeout:g} s "
+                            "(the connection was accepted, nothing came back)") from None
+    except (OSError, ValueError) as e:
+        raise WavlightError(f"dask {address}: cannot connect to the scheduler "
+                            f"({getattr(e, 'strerror', None) or _one_line(e)})") from None
+    try:
+        from distributed.protocol import loads
+        from distributed.protocol.utils import unpack_frames
+        info = loads(unpack_frames(body))
+    except Exception:   # noqa: BLE001 (any garbage: msgpack, struct, ... errors)
+        info = None
+    if not isinstance(info, dict) or "compression" not in info or "python" not in info:
+        raise WavlightError(f"dask {address}: the service there does not speak Dask's protocol (its greeting "
+                            "is not a Dask handshake)")
 
 
 def _execute(runner: _Runner, jobs, workers: int, dask_address):
@@ -753,29 +658,62 @@ def _execute(runner: _Runner, jobs, workers: int, dask_address):
         return out
     tasks = [runner.task(job) for _, job in jobs]
     if dask_address is not None:
-        from distributed import as_completed
-        client = _dask_client(dask_address)
+        import logging
+
+        client = _dask_client(dask_address, getattr(runner, "dask_timeout", DASK_TIMEOUT))
+        # distributed logs a lost scheduler as tracebacks (its reconnection attempts) on stderr:
+        # while this experiment uses the cluster, only its critical messages; the error raised
+        # below names the address and what failed, in one line
+        logs = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict)
+                if name == "distributed" or name.startswith("distributed.")]
+        levels = [log.level for log in logs]
+        for log in logs:
+            log.setLevel(logging.CRITICAL)
         try:
             futures = client.map(run_task, tasks, pure=False)
             where = {f.key: n for n, f in enumerate(futures)}
             try:
-                for f in as_completed(futures):
+                for f in _dask_completed(client, futures, dask_address, getattr(runner, "dask_timeout", DASK_TIMEOUT)):
                     n = where[f.key]
-                    out[jobs[n][0]] = runner.finish(jobs[n][1], f.result())
+                    try:
+                        result = f.result()
+                    except WavlightError:
+                        raise
+                    except Exception as e:   # noqa: BLE001 (the cluster's: lost scheduler, killed worker)
+                        raise WavlightError(f"dask {dask_address}: {jobs[n][1]['what']} failed on the cluster "
+                                            f"({type(e).__name__}: {_one_line(e)}); the runs finished before are "
+                                            "kept: run the experiment again to resume") from None
+                    out[jobs[n][0]] = runner.finish(jobs[n][1], result)
             except BaseException:
-                client.cancel(futures)
+                try:
+                    client.cancel(futures)
+                except Exception:   # noqa: BLE001 (the scheduler is gone)
+                    pass
                 raise
         finally:
-            client.close()
+            try:
+                client.close(timeout=5)
+            except Exception:   # noqa: BLE001
+                pass
+            for log, level in zip(logs, levels):
+                log.setLevel(level)
         return out
     import concurrent.futures as cf
     import multiprocessing
-    pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    from concurrent.futures.process import BrokenProcessPool
+    pool = cf.ProcessPoolExecutor(max_workers=min(workers, len(tasks)),
+                                  mp_context=multiprocessing.get_context("spawn"))
     try:
         futures = {pool.submit(run_task, t): n for n, t in enumerate(tasks)}
         for f in cf.as_completed(futures):
             n = futures[f]
-            out[jobs[n][0]] = runner.finish(jobs[n][1], f.result())
+            try:
+                result = f.result()
+            except BrokenProcessPool:
+                raise WavlightError(f"a worker process died while rendering {jobs[n][1]['what']} (killed, or out of "
+                                    "memory); the runs finished before are kept: run the experiment again to "
+                                    "resume") from None
+            out[jobs[n][0]] = runner.finish(jobs[n][1], result)
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
     return out
@@ -790,7 +728,8 @@ def _stat(values):
     return float(a.mean()), sd, float(a.min()), float(a.max())
 
 
-def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, dask_address=None) -> dict:
+def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, dask_address=None,
+                   dask_timeout=DASK_TIMEOUT) -> dict:
     """Run (or resume) an experiment; write results, charts and error maps to out_dir.
 
     ``progress(done, total, what)`` is called after each reference, pilot and run
@@ -798,32 +737,55 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, da
     ``groups`` (one per scene, strategy and budget), ``runs``, ``reference``,
     ``equal_time`` (the budget each strategy shows in the error maps), ``files``,
     ``rendered`` and ``reused`` (run counts of this call).
+
+    ``workers`` (1 .. MAX_WORKERS) local processes, or ``dask_address``, whose scheduler must
+    answer, with a worker, within ``dask_timeout`` seconds (DASK_TIMEOUT). Temporaries that a
+    killed experiment left in ``out_dir`` are removed first (:func:`records.remove_stale`).
     """
     t_start = time.perf_counter()
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise WavlightError(f"workers must be an integer >= 1, got {workers!r}")
-    if not isinstance(out_dir, (str, os.PathLike)) or not str(out_dir):
-        raise WavlightError(f"out_dir must be a folder path, got {out_dir!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_WORKERS:
+        raise WavlightError(f"workers must be an integer in 1..{MAX_WORKERS} (local processes, each a Python with "
+                            f"OpenCL rendering one run at a time), got {shown(workers)}")
+    if not isinstance(out_dir, (str, os.PathLike)) or not os.fspath(out_dir):
+        raise WavlightError(f"out_dir must be a folder path, got {shown(out_dir)}")
     if progress is not None and not callable(progress):
-        raise WavlightError(f"progress must be a callable or None, got {progress!r}")
+        raise WavlightError(f"progress must be a callable or None, got {shown(progress)}")
+    if not isinstance(resume, bool):
+        raise WavlightError(f"resume must be True or False, got {shown(resume)}")
+    if (isinstance(dask_timeout, bool) or not isinstance(dask_timeout, (int, float))
+            or not 0 < dask_timeout <= 3600):
+        raise WavlightError(f"dask_timeout must be a number of seconds in (0, 3600], got {shown(dask_timeout)}")
     if dask_address is not None and workers != 1:
         raise WavlightError("give workers or a dask scheduler address, not both")
     spec = load_spec(spec_path)
-    if dask_address is not None:
-        _dask_client(dask_address).close()   # fail before rendering references and pilots
-    out_dir = str(out_dir)
+    if dask_address is not None:   # fail before rendering references and pilots
+        _dask_client(dask_address, dask_timeout).close()
+    out_dir = os.fspath(out_dir)
+    if not isinstance(out_dir, str):
+        out_dir = os.fsdecode(out_dir)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise WavlightError(f"{out_dir}: exists and is not a folder")
-    runner = _Runner(spec, out_dir, progress, resume)   # loads and checks the scenes before out_dir exists
+    try:   # loads and checks the scenes before out_dir exists
+        runner = _Runner(spec, out_dir, progress, resume, 1 if dask_address is not None else workers)
+        runner.dask_timeout = dask_timeout
+    except MemoryError:
+        raise WavlightError(f"{spec.path}: not enough memory to load the experiment's scenes") from None
     try:
         os.makedirs(out_dir, exist_ok=True)
-        _write_text(os.path.join(out_dir, "spec.toml"), spec.text.decode("utf-8"))
+        remove_stale_temporaries(out_dir)   # what a killed experiment's writers left
+        for folder in ("charts", "reference", "pilot", "runs"):
+            remove_stale(os.path.join(out_dir, folder))
+        write_text(os.path.join(out_dir, "spec.toml"), spec.text.decode("utf-8", errors="replace"))
     except OSError as e:
         raise WavlightError(f"{out_dir}: cannot write ({e.strerror})") from None
     try:
         return _run(runner, t_start, workers, dask_address)
     except OSError as e:
         raise WavlightError(f"{e.filename or out_dir}: cannot write ({e.strerror})") from None
+    except MemoryError:
+        raise WavlightError(f"{spec.path}: not enough memory for the experiment (at "
+                            f"{'x'.join(map(str, max(runner.size.values(), key=lambda wh: wh[0] * wh[1])))} "
+                            "pixels per run)") from None
 
 
 SUITES = ("stability",)
@@ -843,15 +805,22 @@ def run_suite(name, out_dir, progress=None, **options) -> tuple[dict, str]:
 
 def _run(runner: _Runner, t_start, workers=1, dask_address=None):
     spec, out_dir = runner.spec, runner.out
-    references = {}
+    references, pilots = {}, {}
     records, jobs = [], []
-    # references and pilots here (they set the spp of time budgets), then the runs
+    # every reference and pilot first (they set the spp of time budgets, and whatever fails in
+    # them fails before any run), then the runs
     for s in spec.scenes:
         references[s.name] = runner.reference(s)
+    if any(b.kind == "seconds" for b in spec.budgets):
+        for s in spec.scenes:
+            for st in spec.strategies:
+                pilots[s.name, st.label] = runner.pilot(s, st)
+    for s in spec.scenes:
         for st in spec.strategies:
-            pilot = runner.pilot(s, st) if any(b.kind == "seconds" for b in spec.budgets) else None
             for budget in spec.budgets:
-                spp = int(budget.value) if budget.kind == "spp" else runner.spp_for(pilot, budget.value)
+                spp = (int(budget.value) if budget.kind == "spp" else
+                       runner.spp_for(pilots[s.name, st.label], budget.value,
+                                      f"{spec.path}: [budgets].seconds: {s.name}/{st.label}"))
                 for seed in range(spec.repetitions):
                     rec, job = runner.prepare(s, st, budget, spp, seed)
                     if job is not None:
@@ -867,7 +836,7 @@ def _run(runner: _Runner, t_start, workers=1, dask_address=None):
         by_group.setdefault((rec["scene"], rec["strategy"], rec["budget"]), []).append(rec)
     for (scene, label, bkey), recs in by_group.items():
         ref, ref_se, _ = references[scene]
-        images = np.stack([_read_image(os.path.join(out_dir, r["image"])) for r in recs])
+        images = np.stack([read_image(os.path.join(out_dir, r["image"])) for r in recs])
         per = []
         for r, img in zip(recs, images):
             m = {"mse": metrics.mse(img, ref, ref_se), "relmse": metrics.relmse(img, ref, ref_se),
@@ -920,13 +889,13 @@ def _run(runner: _Runner, t_start, workers=1, dask_address=None):
                "executor": (f"dask {dask_address}" if dask_address is not None
                             else "in-process" if workers == 1 else f"{workers} processes")}
     files = ["results.json", "results.csv", "runs.csv"]
-    _write_text(os.path.join(out_dir, "results.csv"), _csv(groups, GROUP_COLUMNS))
-    _write_text(os.path.join(out_dir, "runs.csv"), _csv(runs, RUN_COLUMNS))
-    files += _charts(spec, groups, out_dir)
-    files += _error_maps(spec, groups, runs, references, equal_time, out_dir)
+    write_text(os.path.join(out_dir, "results.csv"), csv_text(groups, GROUP_COLUMNS))
+    write_text(os.path.join(out_dir, "runs.csv"), csv_text(runs, RUN_COLUMNS))
+    files += error_charts(spec, groups, out_dir)
+    files += error_maps(spec, groups, runs, references, equal_time, out_dir)
     results["files"] = files
     results["seconds"] = round(time.perf_counter() - t_start, 2)
-    _write_json(os.path.join(out_dir, "results.json"), results)
+    write_json(os.path.join(out_dir, "results.json"), results)
     return results
 
 
@@ -975,15 +944,6 @@ RUN_COLUMNS = ["scene", "strategy", "strategy_id", "budget", "spp", "target_seco
                "image"]
 
 
-def _csv(rows, columns) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(columns)
-    for row in rows:
-        w.writerow(["" if row.get(c) is None else row[c] for c in columns])
-    return buf.getvalue()
-
-
 def _g(x, fmt=".3g"):
     return "-" if x is None else format(x, fmt)
 
@@ -1021,100 +981,5 @@ def format_summary(results: dict) -> str:
 
 
 # ----------------------------------------------------------------------------- charts
-def _colours(spec):
-    from matplotlib import colormaps
-    cmap = colormaps["tab10"]
-    return {st.label: cmap(i % 10) for i, st in enumerate(spec.strategies)}
 
 
-def _save_figure(fig, out_dir, stem):
-    folder = os.path.join(out_dir, "charts")
-    os.makedirs(folder, exist_ok=True)
-    names = []
-    for ext in ("png", "svg"):
-        path = os.path.join(folder, f"{stem}.{ext}")
-        fd, tmp = tempfile.mkstemp(prefix=".wavlight-", suffix="." + ext, dir=folder)
-        os.close(fd)
-        try:
-            fig.savefig(tmp, format=ext, dpi=120, metadata={"Date": None} if ext == "svg" else None)
-            _publish(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        names.append(os.path.relpath(path, out_dir))
-    return names
-
-
-def _charts(spec: Spec, groups, out_dir) -> list:
-    from matplotlib.figure import Figure
-
-    colours = _colours(spec)
-    files = []
-    for s in spec.scenes:
-        mine = [g for g in groups if g["scene"] == s.name]
-        positive = [v for g in mine for v in (g["relmse_min"], g["relmse"]) if v is not None and v > 0]
-        floor = min(positive) / 10 if positive else None
-        for axis, xkey, xlabel in (("spp", "spp", "samples per pixel"),
-                                   ("time", "total_seconds", "total seconds per render (setup + sampling)")):
-            fig = Figure(figsize=(6.4, 4.4), layout="constrained")
-            ax = fig.add_subplot()
-            for st in spec.strategies:
-                # joined in spp order on both charts: a noisy time must not zig-zag the line
-                pts = sorted((g for g in mine if g["strategy"] == st.label), key=lambda g: (g["spp"], g[xkey]))
-                x = np.array([g[xkey] for g in pts], float)
-                y = np.array([g["relmse"] for g in pts], float)
-                lo = np.array([g["relmse_min"] for g in pts], float)
-                hi = np.array([g["relmse_max"] for g in pts], float)
-                c = colours[st.label]
-                ax.plot(x, np.where(y > 0, y, np.nan), "o-", color=c, label=st.label, lw=1.5, ms=4)
-                if floor is not None and len(pts) and spec.repetitions > 1:
-                    ax.fill_between(x, np.maximum(lo, floor), np.maximum(hi, floor), color=c, alpha=0.18, lw=0)
-            if floor is not None:
-                ax.set_xscale("log")
-                ax.set_yscale("log")
-            ax.set_xlabel(xlabel)
-            ax.set_ylabel("relMSE")
-            ax.grid(True, which="both", alpha=0.3)
-            band = f"band: min-max of {spec.repetitions} repetitions" if spec.repetitions > 1 else "1 repetition"
-            ax.set_title(f"{s.name}: relMSE vs {'spp' if axis == 'spp' else 'time'} (line: mean; {band})",
-                         fontsize=9)
-            ax.legend(fontsize=8)
-            files += _save_figure(fig, out_dir, f"{s.name}-{axis}")
-    return files
-
-
-def _error_maps(spec: Spec, groups, runs, references, equal_time, out_dir) -> list:
-    from matplotlib.figure import Figure
-
-    from .imageio import srgb_encode
-
-    rows, cols = len(spec.scenes), 1 + len(spec.strategies)
-    w0, h0 = max((references[s.name][0].shape[1], references[s.name][0].shape[0]) for s in spec.scenes)
-    cell = 2.4
-    fig = Figure(figsize=(cols * cell + 1.0, rows * (cell * h0 / w0 + 0.5) + 0.4), layout="constrained")
-    axes = np.asarray(fig.subplots(rows, cols, squeeze=False))
-    im = None
-    for i, s in enumerate(spec.scenes):
-        ref = references[s.name][0]
-        ax = axes[i, 0]
-        ax.imshow(srgb_encode(ref), interpolation="nearest")
-        ax.set_title(f"{s.name}\nreference", fontsize=8)
-        for j, st in enumerate(spec.strategies):
-            ax = axes[i, j + 1]
-            bkey = equal_time[s.name][st.label]
-            g = next(g for g in groups if g["scene"] == s.name and g["strategy"] == st.label and g["budget"] == bkey)
-            run = next(r for r in runs if r["scene"] == s.name and r["strategy"] == st.label
-                       and r["budget"] == bkey and r["seed"] == 0)
-            img = _read_image(os.path.join(out_dir, run["image"]))
-            im = ax.imshow(metrics.error_map(img, ref), cmap="inferno", vmin=0.0, vmax=1.0, interpolation="nearest")
-            ax.set_title(f"{st.label}: {g['spp']} spp, {run['total_seconds']:.2f} s\nrelMSE {run['relmse']:.3g}",
-                         fontsize=8)
-    for ax in axes.ravel():
-        ax.set_xticks([])
-        ax.set_yticks([])
-    if im is not None:
-        bar = fig.colorbar(im, ax=axes[:, 1:].ravel().tolist(), extend="max", shrink=0.9)
-        bar.set_label("relative error √(mean (x−r)² / (r²+0.01))", fontsize=8)
-    fig.suptitle(f"{spec.name}: error maps at equal time (seed 0)", fontsize=10)
-    return _save_figure(fig, out_dir, "error-maps")

@@ -38,9 +38,9 @@ import numbers
 
 import numpy as np
 
-from . import bsdfs
-from .distributions import ONE_MINUS_EPS, choose_child_reference, level_offset, tree_size
-from .errors import ArgumentError, check_int, check_integers, check_number, check_real, shown
+from .. import bsdfs
+from ..haar.tree import ONE_MINUS_EPS, choose_child_reference, level_offset, tree_size
+from ..errors import ArgumentError, check_int, check_integers, check_number, check_real, shown
 
 LOBE_BLUR = 0.35 * np.pi     # lobe widening at level l: LOBE_BLUR / 2^l (see kernels/product.h)
 PHONG_BLUR = 0.2 * np.pi     # phong's (measured, kernels/product.h)
@@ -71,7 +71,7 @@ def centre_angles(x, y, level):
     built as kernels/product.h builds them during a walk: from the root's centre (phi = pi,
     theta = pi / 2) the children's by the angle-sum formulas, level by level along the path, in
     float32 (phi = 2 pi (x + 0.5) / 2^level, theta = pi (y + 0.5) / 2^level up to rounding)."""
-    where = "product.centre_angles"
+    where = "strategies.product.centre_angles"
     level = check_int(where, "level", level, 0, len(SIN_PI_2K) - 2)   # split_angle(.., level + 1) below
     x, y = check_integers(where, "x", x, 1 << level), check_integers(where, "y", y, 1 << level)
     sp, cp = np.zeros(x.shape, np.float32), np.full(x.shape, -1.0, np.float32)
@@ -106,13 +106,13 @@ def _material(where: str, kind, param):
 
 def lobe_shape(kind: int, param: float) -> int:
     """The node-importance model of a material: its kind, or GGX_HALF for ggx with alpha > 0.1."""
-    kind, param = _material("product.lobe_shape", kind, param)
+    kind, param = _material("strategies.product.lobe_shape", kind, param)
     return GGX_HALF if kind == bsdfs.GGX and param > GGX_HALF_MIN_ALPHA else int(kind)
 
 
 def lobe_kappa(kind: int, param: float) -> float:
     """von Mises-Fisher concentration of a material's lobe (0 for lambert)."""
-    kind, param = _material("product.lobe_kappa", kind, param)
+    kind, param = _material("strategies.product.lobe_kappa", kind, param)
     if kind == bsdfs.LAMBERT:
         return 0.0
     if kind == bsdfs.PHONG:
@@ -127,7 +127,7 @@ def product_levels(kappa: float, tree_levels: int, override: int | None = None) 
     """Product depth P: nodes (theta extent pi / 2^l) no wider than half the lobe width 1/sqrt(kappa),
     at least MIN_PRODUCT_LEVELS (lambert, kappa = 0), at most the light tree's depth. An integer
     override wins, clamped to [0, tree_levels]."""
-    where = "product.product_levels"
+    where = "strategies.product.product_levels"
     kappa = check_number(where, "kappa", kappa, 0.0)
     tree_levels = check_int(where, "tree_levels", tree_levels, 0)
     if override is not None:
@@ -247,7 +247,7 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u, tree
     tree : light masses, one tree (tree_size(n),) or several (T, tree_size(n)); tree_index
     (N,) picks each sample's tree (default 0); axis, n : (N, 3); kappa (N,); levels, shape (N,) int.
     """
-    n_levels, u = _walk_args("product.sample_reference", tree, n_levels, axis, n, kappa, levels, shape, u, "u",
+    n_levels, u = _walk_args("strategies.product.sample_reference", tree, n_levels, axis, n, kappa, levels, shape, u, "u",
                              tree_index)
     stride = np.shape(tree)[-1]
     tree = np.asarray(tree, np.float64).ravel()
@@ -272,7 +272,7 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u, tree
             x = 2 * x + (~go_left)
     side = 1 << n_levels
     leaf = np.stack([x, y], 1)
-    # float64 (the kernel's float32 leaf point, distributions.leaf_point, would put tiny
+    # float64 (the kernel's float32 leaf point, haar.tree.leaf_point, would put tiny
     # offsets exactly on the leaf's edge, where the direction's round trip may change leaf)
     uv = np.minimum((leaf + np.nan_to_num(u)) / side, np.nextafter((leaf + 1) / side, 0))
     return uv, pdf_reference(tree.reshape(-1, stride), n_levels, env, axis, n, kappa, levels, shape, uv,
@@ -282,7 +282,7 @@ def sample_reference(tree, n_levels, env, axis, n, kappa, levels, shape, u, tree
 def pdf_reference(tree, n_levels, env, axis, n, kappa, levels, shape, uv, tree_index=None):
     """Density on the square of the product sampler at points uv (N, 2) (numpy twin of product_pdf);
     tree and tree_index as for :func:`sample_reference`."""
-    n_levels, uv = _walk_args("product.pdf_reference", tree, n_levels, axis, n, kappa, levels, shape, uv, "uv",
+    n_levels, uv = _walk_args("strategies.product.pdf_reference", tree, n_levels, axis, n, kappa, levels, shape, uv, "uv",
                               tree_index)
     stride = np.shape(tree)[-1]
     tree = np.asarray(tree, np.float64).ravel()

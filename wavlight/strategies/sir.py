@@ -69,9 +69,11 @@ import hashlib
 
 import numpy as np
 
-from .envmap import luminance
-from .errors import ArgumentError, check_int, shown
-from .strategies import DirectionSamples, LightStrategy, ShadingPoints, Strategy
+from ..envmap import luminance
+from ..errors import ArgumentError, shown
+from ..options import Option
+from .base import DirectionSamples, ShadingPoints, Strategy
+from .light import LIGHT_LEVELS, LightStrategy
 
 #: about this many candidates (points x M) are processed at once (bounded memory)
 CHUNK_CANDIDATES = 1 << 17
@@ -80,6 +82,10 @@ CHUNK_COMPARISONS = 1 << 24
 DEFAULT_CANDIDATES = 32
 DEFAULT_SAMPLES = 1
 SOURCES = ("light", "bsdf")
+SIR_CANDIDATES = Option("sir_candidates", int, "sir: candidates M drawn from the environment per shading sample.",
+                        default=DEFAULT_CANDIDATES, lo=1, hi=65536)
+SIR_SAMPLES = Option("sir_samples", int, "sir: directions N resampled from the candidates, one shadow ray each.",
+                     default=DEFAULT_SAMPLES, lo=1, hi=1024)
 
 
 def _repeat(sp: ShadingPoints, m: int) -> ShadingPoints:
@@ -110,16 +116,17 @@ class SirStrategy(Strategy):
     """
 
     name = "sir"
+    options = {"candidates": SIR_CANDIDATES, "samples": SIR_SAMPLES, "light_levels": LIGHT_LEVELS}
 
     def __init__(self, candidates: int | None = None, samples: int | None = None, source: str = "light",
                  light_levels: int | None = None):
         where = "strategies.SirStrategy"
-        self.candidates = DEFAULT_CANDIDATES if candidates is None else check_int(where, "candidates", candidates, 1)
-        self.samples = DEFAULT_SAMPLES if samples is None else check_int(where, "samples", samples, 1)
+        self.candidates = DEFAULT_CANDIDATES if candidates is None else self.checked("candidates", candidates)
+        self.samples = DEFAULT_SAMPLES if samples is None else self.checked("samples", samples)
         if not isinstance(source, str) or source not in SOURCES:
             raise ArgumentError(f"{where}: source must be one of {' | '.join(SOURCES)}, got {shown(source)}")
         self.source = source
-        self.light = LightStrategy(None if light_levels is None else check_int(where, "light_levels", light_levels, 1))
+        self.light = LightStrategy(self.checked("light_levels", light_levels))
         self.env = None
 
     def prepare(self, environment, materials=()):

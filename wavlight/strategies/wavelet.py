@@ -1,51 +1,29 @@
-"""Direction sampling strategies for direct environment lighting.
-
-Every strategy draws directions with an exact pdf per unit solid angle, and every
-strategy that MIS combines can evaluate that pdf for any direction (``sir`` cannot:
-its resampling weights replace the pdf). A pdf of 0 means "no sample": its
-contribution is 0, never NaN.
-
-| id        | draws wi from                                  | pdf                                   |
-|-----------|------------------------------------------------|---------------------------------------|
-| uniform   | the hemisphere about the shading normal        | 1 / 2 pi                              |
-| cosine    | the hemisphere, cosine-weighted                | cos / pi                              |
-| bsdf      | the BRDF (lambert cosine, phong lobe, ggx VNDF) | :mod:`wavlight.bsdfs`                 |
-| light     | the environment: luminance x solid angle, by a | tree pdf on the lat-long square /     |
-|           | hierarchical warp of a :class:`HaarTree`       | (2 pi^2 sin theta) (eq. 19-22)        |
-| mis       | one light and one bsdf sample, power heuristic | both, weighted (Veach 1997)           |
-| mis_comp  | as mis, the light tree of max(L - mean, 0)     | both, power heuristic (Karlik 2019)   |
-| wavelet   | M candidates from the product walk (top-down   | RIS weights over both pdfs            |
-|           | warp, :mod:`wavlight.product`) and the BSDF,   | (ris_shade_reference); M = 0: both,   |
-|           | two resampled by f cos L; M = 0: one of each   | balance heuristic                     |
-| sir       | M light candidates, N resampled by f cos L     | RIS weights (:mod:`wavlight.sir`)     |
-| structured| strata of the map (k-center), one per stratum  | per stratum (:mod:`wavlight.structured`) |
-
-The ``mis`` estimator is Mitsuba 3's ``direct`` integrator with one emitter and one
-BSDF sample: each sample's contribution f L cos V / p is weighted by
-p_s^2 / (p_light^2 + p_bsdf^2) (the power heuristic). ``wavelet`` with candidates = 0 weights
-by p_s / (p_product + p_bsdf) (the balance heuristic; :class:`WaveletStrategy` says why); with
-candidates M >= 2 (by default chosen from the scene's shadows, AUTO_BUDGET) it resamples two
-or four directions from M candidates (:func:`ris_shade_reference`).
-"""
+"""The ``wavelet`` strategy: product (light x BRDF x cosine) samples by a top-down hierarchical
+warp (:mod:`wavlight.strategies.product`), resampled with BSDF candidates (Chen & Gao sec. 3.2
+and 4.3-4.4; Burke et al. 2005; generalized RIS, Lin et al. 2022)."""
 from __future__ import annotations
 
-import inspect
 import math
 import numbers
-from dataclasses import dataclass
 
 import numpy as np
 
-from . import bsdfs, product, warp
-from .distributions import HaarTree
-from .errors import ArgumentError, check_int, shown
+from .. import bsdfs
+from ..envmap import luminance
+from ..errors import ArgumentError, shown
+from ..haar.tree import HaarTree
+from ..options import Constraint, Option
+from . import product
+from .base import DirectionSamples, ShadingPoints, Strategy
+from .light import LIGHT_LEVELS, LightStrategy, tree_info
+from .simple import BsdfStrategy
 
 
 #: the wavelet strategy's directions (shadow rays) per shading sample with candidates: 2 (as
 #: mis's pair) unless chosen from the scene (AUTO_BUDGET); 4 halves the visibility's share of
 #: the variance for two more rays (README, "Four slots")
 DEFAULT_SLOTS = 2
-SLOT_COUNTS = (2, 4)   # (wavlight.scene.WAVELET_SLOTS, which validates scene files, repeats it)
+SLOT_COUNTS = (2, 4)
 #: the wavelet strategy's resampling candidates per shading sample (ris_shade_reference) unless
 #: chosen from the scene (AUTO_BUDGET): 8 by measurement (README, "The wavelet strategy"); 0 is
 #: the MIS pair of one product and one BSDF sample
@@ -62,188 +40,23 @@ MAX_CANDIDATES = 64
 #: fixed point so that the kernel's float32 sums are the twin's bit for bit (kernels/shade.cl)
 R2_FIXED = (12664746, 9560334)
 
-
-@dataclass
-class ShadingPoints:
-    """Surface points to shade (N of them), in world space with local frames.
-
-    p, n, s, t : (N, 3) position, shading normal (facing the viewer) and tangents
-    wo : (N, 3) local direction to the viewer; kind, param, albedo : per point material
-    """
-
-    p: np.ndarray
-    n: np.ndarray
-    s: np.ndarray
-    t: np.ndarray
-    wo: np.ndarray
-    kind: np.ndarray
-    param: np.ndarray
-    albedo: np.ndarray
-    material: np.ndarray = None
-
-    def __len__(self):
-        return len(self.n)
-
-    def to_local(self, w):
-        return warp.to_local(w, self.s, self.t, self.n)
-
-    def to_world(self, w):
-        return warp.to_world(w, self.s, self.t, self.n)
-
-    def _by_kind(self, fn, out, *arrays):
-        for k in np.unique(self.kind):
-            idx = np.nonzero(self.kind == k)[0]
-            out[idx] = fn(int(k), self.param[idx], *(a[idx] for a in arrays))
-        return out
-
-    def bsdf_eval_cos(self, wi_local):
-        """f(wi, wo) cos_i without albedo, (N,)."""
-        return self._by_kind(bsdfs.eval_cos, np.zeros(len(self)), wi_local, self.wo)
-
-    def bsdf_pdf(self, wi_local):
-        return self._by_kind(bsdfs.pdf, np.zeros(len(self)), wi_local, self.wo)
-
-    def bsdf_sample(self, u):
-        wi = np.zeros((len(self), 3))
-        pdf = np.zeros(len(self))
-        for k in np.unique(self.kind):
-            idx = np.nonzero(self.kind == k)[0]
-            wi[idx], pdf[idx] = bsdfs.sample(int(k), self.param[idx], u[idx], self.wo[idx])
-        return wi, pdf
-
-
-@dataclass
-class DirectionSamples:
-    """wi_world, wi_local (N, 3) and pdf (N,) per unit solid angle (0: no sample)."""
-
-    wi_world: np.ndarray
-    wi_local: np.ndarray
-    pdf: np.ndarray
-
-
-def _levels_option(where: str, name: str, value, lo: int):
-    """None, or a depth override >= lo (an int; depths beyond the map's are clamped when used)."""
-    return None if value is None else check_int(where, name, value, lo)
-
-
-class Strategy:
-    """A way of drawing one direction per shading point."""
-
-    name = ""
-    heuristic = "power"   # MIS weight of the two-sample strategies: "power" or "balance"
-    wants_visibility = False   # whether a render should measure the scene's shadows for it first
-
-    def fit_to_visibility(self, variance: float):
-        """Adapt to the scene's visibility variance (wavlight.occlusion); before :meth:`prepare`,
-        and only when :attr:`wants_visibility`."""
-
-    def prepare(self, environment, materials=()):
-        """Per-render precomputation (trees, tables); called once before shading."""
-
-    def sample(self, sp: ShadingPoints, u: np.ndarray) -> DirectionSamples:
-        raise NotImplementedError
-
-    def pdf(self, sp: ShadingPoints, wi_local: np.ndarray, wi_world: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
-    def info(self) -> dict:
-        return {}
-
-
-class UniformStrategy(Strategy):
-    name = "uniform"
-
-    def sample(self, sp, u):
-        wl = warp.square_to_uniform_hemisphere(u)
-        return DirectionSamples(sp.to_world(wl), wl, warp.square_to_uniform_hemisphere_pdf(wl))
-
-    def pdf(self, sp, wi_local, wi_world):
-        return warp.square_to_uniform_hemisphere_pdf(wi_local)
-
-
-class CosineStrategy(Strategy):
-    name = "cosine"
-
-    def sample(self, sp, u):
-        wl = warp.square_to_cosine_hemisphere(u)
-        return DirectionSamples(sp.to_world(wl), wl, warp.square_to_cosine_hemisphere_pdf(wl))
-
-    def pdf(self, sp, wi_local, wi_world):
-        return warp.square_to_cosine_hemisphere_pdf(wi_local)
-
-
-class BsdfStrategy(Strategy):
-    name = "bsdf"
-
-    def sample(self, sp, u):
-        wl, pdf = sp.bsdf_sample(u)
-        return DirectionSamples(sp.to_world(wl), wl, pdf)
-
-    def pdf(self, sp, wi_local, wi_world):
-        return sp.bsdf_pdf(wi_local)
-
-
-class LightStrategy(Strategy):
-    """Environment importance sampling: luminance x solid angle, by a hierarchical
-    warp of a :class:`HaarTree` on the map's lat-long square (Chen & Gao eq. 17-22).
-
-    pdf(wi) = tree pdf at the square point of wi / (2 pi^2 sin theta).
-    """
-
-    name = "light"
-
-    def __init__(self, levels: int | None = None, compensated: bool = False):
-        self.override = _levels_option("strategies.LightStrategy", "levels", levels, 1)
-        self.compensated = compensated   # only as one technique of MIS (MisCompensatedStrategy)
-
-    def depth(self, environment):
-        """The light tree's depth n (2^n x 2^n leaves) and the total variation it leaves
-        (Environment.light_levels, which chooses n by it; Environment.tree_tv where
-        --light-levels sets n, cut to the map's full depth)."""
-        if self.override is None:
-            return environment.light_levels()
-        n = min(max(int(self.override), 1), environment.square_levels())
-        return n, environment.tree_tv(n)
-
-    def prepare(self, environment, materials=()):
-        self.env = environment
-        n, self.tv = self.depth(environment)
-        self.tree = HaarTree(environment.luminance_square(n, compensated=self.compensated))
-
-    def sample_directions(self, u):
-        """u (N, 2) -> world directions (N, 3) and pdf per solid angle (N,)."""
-        uv, pdf_sq = self.tree.sample(u)
-        d = self.env.square_to_world(uv.astype(np.float64))
-        return d, pdf_sq.astype(np.float64) * self.env.square_to_solid_angle(d)
-
-    def pdf_directions(self, d_world):
-        uv = self.env.world_to_square(d_world)
-        return self.tree.pdf(uv).astype(np.float64) * self.env.square_to_solid_angle(d_world)
-
-    def sample(self, sp, u):
-        d, pdf = self.sample_directions(u)
-        return DirectionSamples(d, sp.to_local(d), pdf)
-
-    def pdf(self, sp, wi_local, wi_world):
-        return self.pdf_directions(wi_world)
-
-    def info(self):
-        return tree_info(self.tree, self.tv, self.env)
-
-
-def tree_info(tree: HaarTree, tv, environment) -> dict:
-    """--json's light tree entries: leaf grid, bytes of all trees in the buffer, the total
-    variation the depth leaves, and the Haar coefficients of the
-    map's luminance that the depth keeps per tree, 4^n (the scaling coefficient and every
-    detail coefficient of the levels above the leaves: a tree of depth n is the map's Haar
-    expansion cut below level n), against the 4^N of the map's full square (depth N,
-    Environment.square_levels)."""
-    side = 1 << tree.n_levels
-    return {"light_tree": f"{side}x{side}", "light_tree_bytes": int(tree.stride * tree.n_trees * 4),
-            "light_tree_tv": round(float(tv), 5),
-            "light_coefficients_kept": 4 ** tree.n_levels,
-            "light_coefficients_full": 4 ** environment.square_levels()}
-
+WAVELET_LEVELS = Option("wavelet_levels", int, "Product depth of the wavelet walk for every material, cut to the "
+                        "light tree's depth (0: the walk follows the light tree alone).",
+                        default_doc="per material, from its lobe", lo=0, hi=11)
+WAVELET_CANDIDATES = Option("wavelet_candidates", int, "wavelet: resampling candidates per shading sample, half "
+                            "from the product walk, half from the BSDF (0: the MIS pair of one product and one "
+                            "BSDF sample).",
+                            default_doc="from the scene's shadows: 16, or 8 where the camera sees shadows",
+                            lo=0, hi=MAX_CANDIDATES, refused={1: "0 is the MIS pair"})
+WAVELET_SLOTS = Option("wavelet_slots", int, "wavelet with candidates: directions resampled per shading sample, one "
+                       "shadow ray each; 4 halves the visibility's noise for two more rays.",
+                       default_doc="from the scene's shadows: 2, or 4 where the camera sees shadows",
+                       values=SLOT_COUNTS)
+WAVELET_CONTROL_VARIATE = Option("wavelet_control_variate", bool, "wavelet with candidates: carry the candidates' "
+                                 "unshadowed estimate as a control variate (unbiased either way).", default=True)
+#: four slots resample from candidates; the MIS pair (candidates 0) has two directions
+SLOTS_NEED_CANDIDATES = Constraint(("wavelet_slots", "wavelet_candidates"), lambda slots, m: slots == 2 or m != 0,
+                                   "4 needs the resampling estimator (wavelet_candidates 2..64), not 0")
 
 class WaveletStrategy(Strategy):
     """Product (light x BRDF x cosine) samples by a top-down hierarchical warp
@@ -297,28 +110,26 @@ class WaveletStrategy(Strategy):
 
     name = "wavelet"
     heuristic = "balance"
+    options = {"levels": WAVELET_LEVELS, "light_levels": LIGHT_LEVELS, "candidates": WAVELET_CANDIDATES,
+               "slots": WAVELET_SLOTS, "control_variate": WAVELET_CONTROL_VARIATE}
+    constraints = (SLOTS_NEED_CANDIDATES,)
 
     def __init__(self, levels: int | None = None, light_levels: int | None = None,
                  compensated_kinds: tuple = (bsdfs.LAMBERT,), candidates: int | None = None,
                  control_variate: bool = True, slots: int | None = None):
         where = "strategies.WaveletStrategy"
-        if not isinstance(control_variate, (bool, np.bool_)):
-            raise ArgumentError(f"{where}: control_variate must be True or False, got {shown(control_variate)}")
-        self.control_variate = bool(control_variate)
+        self.control_variate = self.checked("control_variate", control_variate)
         self._candidates_given = candidates is not None
-        candidates = DEFAULT_CANDIDATES if candidates is None else candidates
-        self.candidates = check_int(where, "candidates", candidates, 0, MAX_CANDIDATES)
-        if self.candidates == 1:
-            raise ArgumentError(f"{where}: candidates must be 0 (the MIS pair) or 2..{MAX_CANDIDATES}, got 1")
-        self.slots = DEFAULT_SLOTS if slots is None else check_int(where, "slots", slots, 2, 4)
+        self.candidates = DEFAULT_CANDIDATES if candidates is None else self.checked("candidates", candidates)
         self._slots_given = slots is not None
+        self.slots = DEFAULT_SLOTS if slots is None else self.checked("slots", slots)
         self.visibility_variance = None
-        if self.slots not in SLOT_COUNTS or (self.slots != 2 and not self.candidates):
+        if not SLOTS_NEED_CANDIDATES.ok(self.slots, self.candidates):
             raise ArgumentError(f"{where}: slots must be 2, or 4 with candidates (the MIS pair has 2), "
                                 f"got {self.slots}")
-        self.light = LightStrategy(_levels_option(where, "light_levels", light_levels, 1))
+        self.light = LightStrategy(self.checked("light_levels", light_levels))
         self.bsdf = BsdfStrategy()
-        self.override = _levels_option(where, "levels", levels, 0)
+        self.override = self.checked("levels", levels)
         kinds = tuple(bsdfs.TYPES.values())
         ok = np.iterable(compensated_kinds) and not isinstance(compensated_kinds, str)
         self.compensated_kinds = tuple(compensated_kinds) if ok else ()
@@ -425,101 +236,6 @@ class WaveletStrategy(Strategy):
                 "memory_bytes": int(self.trees.stride * self.trees.n_trees * 4 + 8 * len(self.names))}
 
 
-class MisStrategy(Strategy):
-    """One light and one BSDF sample per shading sample, power heuristic."""
-
-    name = "mis"
-
-    def __init__(self, light_levels: int | None = None):
-        self.light = LightStrategy(_levels_option("strategies.MisStrategy", "light_levels", light_levels, 1))
-        self.bsdf = BsdfStrategy()
-
-    def prepare(self, environment, materials=()):
-        self.light.prepare(environment)
-
-    def info(self):
-        return self.light.info()
-
-
-class MisCompensatedStrategy(MisStrategy):
-    """``mis`` with MIS compensation (Karlik et al. 2019; pbrt-v4's default for image
-    lights, Mitsuba 3's ``mis_compensation``): the light sample follows max(luminance -
-    mean luminance, 0) x solid angle (Environment.luminance_square(compensated=True)),
-    so it spends no samples on the texels dimmer than the map's mean, which the BSDF
-    sample covers. Unbiased only as MIS: the light pdf is 0 there, and every BSDF here
-    samples its whole support (the power heuristic gives the BSDF sample weight 1
-    where the light pdf is 0). A map without texels above its mean falls back to
-    uniform in solid angle. Same shade kernel as ``mis``, another light tree.
-
-    Weak spot (README, stability suite): where visibility blocks a glossy lobe's core,
-    the light that arrives comes through the lobe's tail from texels dimmer than the
-    mean, which only the rare BSDF samples there find: same mean, far more variance
-    (2 500x at a pixel of a near-mirror sphere on a floor). Hence not the default."""
-
-    name = "mis_comp"
-
-    def __init__(self, light_levels: int | None = None):
-        light_levels = _levels_option("strategies.MisCompensatedStrategy", "light_levels", light_levels, 1)
-        self.light = LightStrategy(light_levels, compensated=True)
-        self.bsdf = BsdfStrategy()
-
-    def info(self):
-        return {**self.light.info(), "mis_compensation": True}
-
-
-#: kernel ids of the strategies (-DSTRATEGY in kernels/shade.cl); mis_comp runs mis's kernel
-KERNEL_ID = {"uniform": 0, "cosine": 1, "bsdf": 2, "light": 3, "mis": 4, "mis_comp": 4, "wavelet": 5}
-
-from .sir import SirStrategy  # noqa: E402  (sir.py builds on the classes above)
-from .structured import StructuredStrategy  # noqa: E402
-
-REGISTRY = {cls.name: cls for cls in (UniformStrategy, CosineStrategy, BsdfStrategy, LightStrategy, MisStrategy,
-                                     MisCompensatedStrategy, WaveletStrategy, SirStrategy, StructuredStrategy)}
-
-
-def make(name: str, **options) -> Strategy:
-    """The strategy registered as ``name`` (REGISTRY), built with its constructor's options."""
-    cls = REGISTRY.get(name) if isinstance(name, str) else None
-    if cls is None:
-        raise ArgumentError(f"strategies.make: unknown strategy {shown(name)} ({' | '.join(REGISTRY)})")
-    accepted = [p for p in inspect.signature(cls).parameters if p not in ("args", "kwargs")]
-    unknown = [k for k in options if k not in accepted]
-    if unknown:
-        raise ArgumentError(f"strategies.make: strategy {name!r} has no option {unknown[0]!r} "
-                            f"(options: {', '.join(accepted) or 'none'})")
-    return cls(**options)
-
-
-def power_heuristic(p_a, p_b):
-    """p_a^2 / (p_a^2 + p_b^2), computed on ratios so that it neither under- nor overflows."""
-    p_a, p_b = np.asarray(p_a, np.float64), np.asarray(p_b, np.float64)
-    big = np.maximum(p_a, p_b)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a, b = p_a / big, p_b / big
-        return np.where(big > 0, a * a / (a * a + b * b), 0.0)
-
-
-def balance_heuristic(p_a, p_b):
-    """p_a / (p_a + p_b), computed on ratios so that it neither under- nor overflows."""
-    p_a, p_b = np.asarray(p_a, np.float64), np.asarray(p_b, np.float64)
-    big = np.maximum(p_a, p_b)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a, b = p_a / big, p_b / big
-        return np.where(big > 0, a / (a + b), 0.0)
-
-
-HEURISTICS = {"power": power_heuristic, "balance": balance_heuristic}
-
-
-def _unoccluded(sp, env, ds, mis_weight):
-    """albedo f cos L / pdf (x MIS weight) per sample, (N, 3); 0 where pdf is 0."""
-    fcos = sp.bsdf_eval_cos(ds.wi_local)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scalar = np.where(ds.pdf > 0, fcos * mis_weight / ds.pdf, 0.0)
-    scalar = np.where((scalar > 0) & np.isfinite(scalar), scalar, 0.0)
-    return scalar[:, None] * sp.albedo * env.eval(ds.wi_world)
-
-
 
 
 def candidate_uniforms(u: np.ndarray, j: int) -> np.ndarray:
@@ -571,7 +287,6 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     and u.z + 3/4, each valued sum(w) / 4 instead of / 2 (the same estimator with twice the
     shadow rays: the visibility's variance halves; the offset subtracts all four values).
     Returns wi (N, S, 3) and value (N, S, 3) (S = slots), and with ``with_offset`` offset (N, 3)."""
-    from .envmap import luminance
 
     mp, mb = strategy.ris_split if split is None else split
     m = mp + mb
@@ -625,29 +340,3 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     return (wi, value, offset) if with_offset else (wi, value)
 
 
-def shade_reference(strategy: Strategy, env, sp: ShadingPoints, u: np.ndarray, with_offset=False):
-    """numpy twin of the ``shade`` kernel (kernels/shade.cl).
-
-    u : (N, 4) uniforms; single strategies use u[:, :2], MIS draws its light sample
-    from u[:, :2] (slot 0) and its bsdf sample from u[:, 2:] (slot 1).
-    returns wi (N, 2, 3) world directions and value (N, 2, 3) unoccluded estimates, and with
-    ``with_offset`` the part of the estimate without a shadow ray, offset (N, 3) (zero but
-    for the wavelet resampling estimator's control variate, :func:`ris_shade_reference`).
-    """
-    if isinstance(strategy, WaveletStrategy) and strategy.candidates:
-        return ris_shade_reference(strategy, env, sp, u, with_offset=with_offset)
-    n = len(sp)
-    wi = np.zeros((n, 2, 3))
-    value = np.zeros((n, 2, 3))
-    if isinstance(strategy, (MisStrategy, WaveletStrategy)):
-        guide = strategy if isinstance(strategy, WaveletStrategy) else strategy.light
-        pairs = ((0, guide, strategy.bsdf, u[:, :2]), (1, strategy.bsdf, guide, u[:, 2:4]))
-        weight = HEURISTICS[strategy.heuristic]
-        for slot, mine, other, uu in pairs:
-            ds = mine.sample(sp, uu)
-            w = weight(ds.pdf, other.pdf(sp, ds.wi_local, ds.wi_world))
-            wi[:, slot], value[:, slot] = ds.wi_world, _unoccluded(sp, env, ds, w)
-    else:
-        ds = strategy.sample(sp, u[:, :2])
-        wi[:, 0], value[:, 0] = ds.wi_world, _unoccluded(sp, env, ds, 1.0)
-    return (wi, value, np.zeros((n, 3))) if with_offset else (wi, value)

@@ -1,0 +1,12 @@
+"""Measuring the strategies: error metrics against references (:mod:`.metrics`), batch
+experiments of scenes x strategies x budgets (:mod:`.experiment`, files :mod:`.spec`, outputs
+:mod:`.records` and :mod:`.charts`), the stability suite of adversarial cases (:mod:`.stability`)
+and Mitsuba 3 as a peer renderer (:mod:`.peers`).
+
+    from wavlight.evaluation import run_experiment
+    results = run_experiment("experiments/example.toml", "out/example")
+"""
+from .experiment import format_summary, run_experiment, run_suite
+from .spec import load_spec
+
+__all__ = ["run_experiment", "run_suite", "format_summary", "load_spec"]

@@ -1,0 +1,245 @@
+"""Experiment files (TOML): parsing and validation. The format: :mod:`wavlight.evaluation.experiment`."""
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+from dataclasses import dataclass, field
+
+from ..errors import WavlightError
+from ..scene import MAX_SIDE, MAX_SPP
+from ..strategies import APPLIES, CONSTRAINTS, OPTIONS, STRATEGIES
+from ..scene import _Table as SceneTable
+
+
+PEER_PREFIX = "mitsuba:"
+
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+
+
+@dataclass
+class SceneSpec:
+    name: str
+    path: str
+    size: tuple | None = None
+    reference: str | None = None
+    reference_stderr: str | None = None
+
+
+@dataclass
+class StrategySpec:
+    label: str
+    id: str
+    options: dict = field(default_factory=dict)  # wavelet_levels, light_levels, sampler
+
+
+@dataclass
+class Budget:
+    kind: str     # "spp" | "seconds"
+    value: float
+
+    @property
+    def key(self):
+        return f"spp{int(self.value)}" if self.kind == "spp" else f"{self.value:g}s"
+
+
+@dataclass
+class Spec:
+    path: str
+    name: str
+    scenes: list
+    strategies: list
+    budgets: list
+    repetitions: int
+    reference: dict
+    size: tuple | None = None
+    threads: int | None = None
+    pilot_spp: int = 4
+    text: bytes = b""
+
+
+class SpecTable(SceneTable):
+    """One TOML table of the experiment file: the scene parser's table (errors name the file
+    and the key, unknown keys rejected) with the experiment's own value kinds."""
+
+    def get(self, key, kind, default=None, required=False, lo=None):
+        self.used.add(key)
+        if key not in self.data:
+            if required:
+                self.fail(key, "is required")
+            return default
+        v = self.data[key]
+        is_int = lambda x: isinstance(x, int) and not isinstance(x, bool)
+        is_num = lambda x: (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
+        if kind == "int":
+            if not is_int(v) or (lo is not None and v < lo):
+                self.fail(key, f"must be an integer{f' >= {lo}' if lo is not None else ''}, got {v!r}")
+        elif kind == "float":
+            if not is_num(v) or (lo is not None and v <= lo):
+                self.fail(key, f"must be a number{f' > {lo}' if lo is not None else ''}, got {v!r}")
+            v = float(v)
+        elif kind == "str":
+            if not isinstance(v, str) or not v:
+                self.fail(key, f"must be a non-empty string, got {v!r}")
+        elif kind == "ints":
+            if not isinstance(v, list) or not v or not all(is_int(x) and x >= lo for x in v):
+                self.fail(key, f"must be a non-empty list of integers >= {lo}, got {v!r}")
+            if len(set(v)) != len(v):
+                self.fail(key, f"has repeated values: {v!r}")
+        elif kind == "floats":
+            if not isinstance(v, list) or not v or not all(is_num(x) and x > lo for x in v):
+                self.fail(key, f"must be a non-empty list of numbers > {lo}, got {v!r}")
+            v = [float(x) for x in v]
+            if len(set(v)) != len(v):
+                self.fail(key, f"has repeated values: {v!r}")
+        elif kind == "size":
+            if (not isinstance(v, list) or len(v) != 2
+                    or not all(is_int(x) and 1 <= x <= MAX_SIDE for x in v)):
+                self.fail(key, f"must be [width, height], integers 1..{MAX_SIDE}, got {v!r}")
+            v = (int(v[0]), int(v[1]))
+        return v
+
+    def name_key(self, key, default):
+        v = self.get(key, "str", default)
+        if not _NAME.match(v):
+            self.fail(key, f"must be letters, digits, '_', '.', '+', '-' (it names folders), got {v!r}")
+        return v
+
+
+def load_spec(path) -> Spec:
+    """Read and validate an experiment file (see the module docstring for its format)."""
+    path = str(path)
+    if not os.path.isfile(path):
+        raise WavlightError(f"{path}: no such file")
+    try:
+        with open(path, "rb") as fh:
+            text = fh.read()
+        doc = tomllib.loads(text.decode("utf-8"))
+    except tomllib.TOMLDecodeError as e:
+        raise WavlightError(f"{path}: malformed TOML: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise WavlightError(f"{path}: cannot read: {e}") from None
+    base = os.path.dirname(os.path.abspath(path))
+    unknown = sorted(set(doc) - {"experiment", "reference", "scenes", "strategies", "budgets"})
+    if unknown:
+        raise WavlightError(f"{path}: {unknown[0]}: unknown table")
+
+    e = SpecTable(path, "[experiment]", doc.get("experiment", {}))
+    name = e.name_key("name", os.path.splitext(os.path.basename(path))[0])
+    size = e.get("size", "size")
+    threads = e.get("threads", "int", lo=1)
+    pilot_spp = e.get("pilot_spp", "int", 4, lo=1)
+    e.done()
+
+    r = SpecTable(path, "[reference]", doc.get("reference", {}))
+    reference = {"strategy": r.get("strategy", "str", "mis"), "spp": r.get("spp", "int", 1024, lo=2),
+                 "seed": r.get("seed", "int", 1_000_003, lo=0)}
+    if reference["strategy"] not in STRATEGIES:
+        r.fail("strategy", f"unknown strategy {reference['strategy']!r} ({' | '.join(STRATEGIES)})")
+    if reference["spp"] > MAX_SPP:
+        r.fail("spp", f"must be at most {MAX_SPP}, got {reference['spp']}")
+    r.done()
+
+    def rel(p):
+        return os.path.normpath(os.path.join(base, p))
+
+    scenes_doc = doc.get("scenes")
+    if not isinstance(scenes_doc, list) or not scenes_doc:
+        raise WavlightError(f"{path}: [[scenes]]: at least one [[scenes]] table with a path is required")
+    scenes = []
+    for i, s in enumerate(scenes_doc):
+        t = SpecTable(path, f"[[scenes]][{i}]", s)
+        p = t.get("path", "str", required=True)
+        full = rel(p)
+        if not os.path.isfile(full):
+            t.fail("path", f"no such file {full}")
+        sname = t.name_key("name", os.path.splitext(os.path.basename(p))[0])
+        if any(x.name == sname for x in scenes):
+            t.fail("name", f"scene name {sname!r} is used twice (give each a distinct name)")
+        ssize = t.get("size", "size")
+        ref, ref_se = t.get("reference", "str"), t.get("reference_stderr", "str")
+        if ref is not None:
+            ref = rel(ref)
+            if not os.path.isfile(ref):
+                t.fail("reference", f"no such file {ref}")
+            check_image(t, "reference", ref)
+        if ref_se is not None:
+            if ref is None:
+                t.fail("reference_stderr", "needs reference")
+            ref_se = rel(ref_se)
+            if not os.path.isfile(ref_se):
+                t.fail("reference_stderr", f"no such file {ref_se}")
+            check_image(t, "reference_stderr", ref_se)
+        t.done()
+        scenes.append(SceneSpec(sname, full, ssize, ref, ref_se))
+
+    strat_doc = doc.get("strategies")
+    if not isinstance(strat_doc, list) or not strat_doc:
+        raise WavlightError(f"{path}: [[strategies]]: at least one [[strategies]] table with an id is required")
+    strats = []
+    for i, s in enumerate(strat_doc):
+        t = SpecTable(path, f"[[strategies]][{i}]", s)
+        sid = t.get("id", "str", required=True)
+        if sid.startswith(PEER_PREFIX):
+            from . import peers
+            if sid[len(PEER_PREFIX):] not in peers.STRATEGIES:
+                t.fail("id", f"unknown Mitsuba strategy {sid!r} "
+                             f"({' | '.join(PEER_PREFIX + k for k in peers.STRATEGIES)})")
+            if not peers.available():
+                t.fail("id", f"{sid!r} needs Mitsuba 3 with its llvm_ad_rgb variant, which is not available "
+                             "(pip install 'wavlight[peers]'; Debian: libllvm19)")
+        elif sid not in STRATEGIES:
+            t.fail("id", f"unknown strategy {sid!r} ({' | '.join(STRATEGIES)} | "
+                         f"mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf)")
+        label = t.name_key("label", sid.replace(":", "-"))
+        if any(x.label == label for x in strats):
+            t.fail("label", f"label {label!r} is used twice (give each strategy a distinct label)")
+        options = {}
+        for key, option in OPTIONS.items():   # the strategies' settings, as in a scene's [render] table
+            if t.has(key):
+                t.used.add(key)
+                why = option.problem(t.data[key])
+                if why:
+                    t.fail(key, why)
+                options[key] = option.kind(t.data[key])
+        for constraint in CONSTRAINTS:
+            bad = constraint.problem(options)
+            if bad:
+                t.fail(*bad)
+        if options and sid.startswith(PEER_PREFIX):
+            t.fail(sorted(options)[0], f"is a wavlight option; {sid!r} takes none")
+        for opt in options:
+            if sid not in APPLIES[opt]:
+                t.fail(opt, f"does not apply to {sid!r} (only to {' | '.join(APPLIES[opt])})")
+        t.done()
+        strats.append(StrategySpec(label, sid, options))
+
+    b = SpecTable(path, "[budgets]", doc.get("budgets", {}))
+    spps = b.get("spp", "ints", lo=1)
+    seconds = b.get("seconds", "floats", lo=0)
+    repetitions = b.get("repetitions", "int", 3, lo=1)
+    if spps is None and seconds is None:
+        b.fail("spp", "give spp = [...] and/or seconds = [...]")
+    if spps is not None and max(spps) > MAX_SPP:
+        b.fail("spp", f"must be at most {MAX_SPP}, got {max(spps)}")
+    if reference["seed"] < repetitions:   # the reference would repeat a run's samples exactly
+        b.fail("repetitions", f"the runs' seeds 0..{repetitions - 1} include the reference's seed "
+               f"{reference['seed']} ([reference].seed)")
+    b.done()
+    budgets = [Budget("spp", v) for v in sorted(spps or [])] + [Budget("seconds", v) for v in sorted(seconds or [])]
+    keys = [x.key for x in budgets]
+    if len(set(keys)) != len(keys):
+        b.fail("seconds", f"values too close to tell apart in folder names: {keys}")
+    return Spec(path, name, scenes, strats, budgets, repetitions, reference, size, threads, pilot_spp, text)
+
+
+def check_image(t, key, path):
+    """A spec error, before anything is written, if OpenImageIO cannot open the image."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        t.fail(key, f"cannot read {path} as an image ({oiio.geterror().strip() or 'unknown format'})")
+    inp.close()
