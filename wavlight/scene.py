@@ -207,6 +207,23 @@ class _Table:
             return np.array(v, np.float64)
         self.fail(key, f"must be a number or a list of {n} numbers, got {shown(v)}")
 
+    def options(self) -> dict:
+        """The strategies' and the sampler's settings that this table gives, by key, each checked by
+        its declaration (wavlight.strategies.OPTIONS) and together by the constraints."""
+        found = {}
+        for key, option in OPTIONS.items():
+            if key in self.data:
+                self.used.add(key)
+                why = option.problem(self.data[key])
+                if why:
+                    self.fail(key, why)
+                found[key] = option.kind(self.data[key])
+        for constraint in CONSTRAINTS:
+            bad = constraint.problem(found)
+            if bad:
+                self.fail(*bad)
+        return found
+
     def done(self):
         extra = sorted(set(self.data) - self.used)
         if extra:
@@ -433,18 +450,7 @@ def _parse(doc, path: str, base: str) -> Scene:
     if strategy not in STRATEGIES:
         r.fail("strategy", f"unknown strategy {shown(strategy)} ({' | '.join(STRATEGIES)})")
     seed = _positive(r, "seed", r.get("seed", "int", 0), 0, 2 ** 63 - 1)
-    options = {}
-    for key, option in OPTIONS.items():   # the strategies' and the sampler's settings
-        if r.has(key):
-            r.used.add(key)
-            why = option.problem(r.data[key])
-            if why:
-                r.fail(key, why)
-            options[key] = option.kind(r.data[key])
-    for constraint in CONSTRAINTS:
-        bad = constraint.problem(options)
-        if bad:
-            r.fail(*bad)
+    options = r.options()
     r.done()
 
     c = _Table(path, "[camera]", doc.get("camera", {}))

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 from ..errors import WavlightError
 from ..scene import MAX_SIDE, MAX_SPP
-from ..strategies import APPLIES, CONSTRAINTS, OPTIONS, STRATEGIES
+from ..strategies import APPLIES, STRATEGIES
 from ..scene import _Table as SceneTable
 
 
@@ -196,18 +196,7 @@ def load_spec(path) -> Spec:
         label = t.name_key("label", sid.replace(":", "-"))
         if any(x.label == label for x in strats):
             t.fail("label", f"label {label!r} is used twice (give each strategy a distinct label)")
-        options = {}
-        for key, option in OPTIONS.items():   # the strategies' settings, as in a scene's [render] table
-            if t.has(key):
-                t.used.add(key)
-                why = option.problem(t.data[key])
-                if why:
-                    t.fail(key, why)
-                options[key] = option.kind(t.data[key])
-        for constraint in CONSTRAINTS:
-            bad = constraint.problem(options)
-            if bad:
-                t.fail(*bad)
+        options = t.options()   # the strategies' settings, as in a scene's [render] table
         if options and sid.startswith(PEER_PREFIX):
             t.fail(sorted(options)[0], f"is a wavlight option; {sid!r} takes none")
         for opt in options:
