@@ -25,12 +25,12 @@ def test_envmap_lookup_matches_inside_texels():
 def test_furnace_agrees_with_wavlight(tmp_path, strategy):
     """Constant environment, lambert sphere: both renderers give the albedo on the sphere."""
     wavlight.save_image(str(tmp_path / "white.exr"), np.ones((8, 16, 3), np.float32))
-    (tmp_path / "s.toml").write_text(
-        '[render]\nwidth = 16\nheight = 16\nspp = 8\n[camera]\neye = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\n'
-        'fov_y = 20.0\n[environment]\nfile = "white.exr"\n[[objects]]\nshape = "sphere"\n'
-        'center = [0.0, 0.0, 0.0]\nradius = 1.0\nmaterial = "m"\n[materials.m]\ntype = "lambert"\n'
-        'albedo = [0.5, 0.5, 0.5]\n')
-    scene = wavlight.load_scene(str(tmp_path / "s.toml"))
+    scene = wavlight.load_dict({
+        "render": {"width": 16, "height": 16, "spp": 8},
+        "camera": {"eye": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0], "fov_y": 20.0},
+        "environment": {"file": "white.exr"},
+        "objects": [{"shape": "sphere", "center": [0.0, 0.0, 0.0], "radius": 1.0, "material": "m"}],
+        "materials": {"m": {"type": "lambert", "albedo": [0.5, 0.5, 0.5]}}}, base_dir=tmp_path)
     r = peers.render_mitsuba(scene, strategy, spp=256)
     centre = r.image[6:10, 6:10]
     # Mitsuba reports no per-pixel error; its per-pixel spread estimates the standard error of the mean
