@@ -219,7 +219,11 @@ def info():
     click.echo(f"(set {cl.DEVICE_ENV}=P:D or a name fragment to choose another)")
 
 
-from .experiment import experiment; main.add_command(experiment)  # noqa: E402, E702
+from .experiment import experiment  # noqa: E402
+from .relight import bake, frame  # noqa: E402
+
+for _command in (experiment, bake, frame):
+    main.add_command(_command)
 
 if __name__ == "__main__":
     main()

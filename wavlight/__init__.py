@@ -8,16 +8,18 @@
 Core modules (scene, envmap, bsdfs, warp, camera, raytrace, integrator, shading, ...) are flat;
 the families are packages: :mod:`wavlight.strategies` (direction sampling),
 :mod:`wavlight.haar` (transform, sparse sets, products, pyramids, sampling trees) and
-:mod:`wavlight.evaluation` (metrics, experiments, the stability suite, peer renderers).
+:mod:`wavlight.evaluation` (metrics, experiments, the stability suite, peer renderers) and
+:mod:`wavlight.relight` (dynamic lighting from precomputed transfer: bake, frames, viewer).
 """
 from .errors import ArgumentError, SanitisedInputWarning, SceneError, WavlightError
 from .imageio import save_image
 from .integrator import RenderResult, render, render_full
 from .scene import Scene, load_dict, load_scene
 from .strategies import STRATEGIES
+from .relight import Transfer, bake
 from .version import __version__
 
-__all__ = ["load_scene", "load_dict", "render", "render_full", "save_image", "Scene", "RenderResult",
+__all__ = ["load_scene", "load_dict", "render", "bake", "Transfer", "render_full", "save_image", "Scene", "RenderResult",
            "WavlightError", "SceneError", "ArgumentError", "SanitisedInputWarning", "STRATEGIES", "__version__"]
 
 #: Subpackages and modules reachable as attributes (wavlight.evaluation.run_experiment, ...) without

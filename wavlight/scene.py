@@ -88,6 +88,8 @@ class Scene:
     options: dict = field(default_factory=dict)
     #: sha256 of the scene's content: its settings as parsed and the bytes of every file it reads
     content_hash: str = ""
+    #: the files the scene reads (environment map, meshes), as found
+    files: list = field(default_factory=list)
 
     @property
     def material_kind(self):
@@ -526,7 +528,8 @@ def _parse(doc, path: str, base: str) -> Scene:
         digest.update(_file_digest(name))
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
-                 np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, options, digest.hexdigest())
+                 np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, options, digest.hexdigest(),
+                 files)
 
 
 def _check_depth(doc, path):

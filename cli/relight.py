@@ -1,0 +1,179 @@
+"""`wavlight bake` and `wavlight frame`: thin layers over :mod:`wavlight.relight`.
+
+``bake SCENE -o PATH`` precomputes the transfer of the scene's camera and objects;
+``frame PATH`` relights it: one frame under another map, rotation or scale, a turntable of
+frames (``--turntable N -o DIR``), or with ``--spp N`` the unbiased estimate that converges to
+the true image. Errors are one line and exit 2, as for ``render``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import sys
+
+import click
+
+from .progress import ProgressBar
+
+
+def _fail(message):
+    from .main import _fail as fail
+    fail(message)
+
+
+def _check_output(path, formats):
+    from .main import _check_output as check
+    check(path, formats)
+
+
+def _refuse_inputs(output, inputs):
+    """An output that names one of the run's inputs would destroy it: refused before any work."""
+    out = os.path.realpath(output)
+    for name in inputs:
+        if name and os.path.exists(name) and os.path.realpath(name) == out:
+            _fail(f"{output}: is an input of this run ({name}); choose another output")
+
+
+@click.command()
+@click.argument("scene_file", metavar="SCENE", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, metavar="PATH", help="The bake file to write (any name).")
+@click.option("--width", type=int, default=None, help="Image width (default: the scene's).")
+@click.option("--height", type=int, default=None, help="Image height (default: the scene's).")
+@click.option("--spp", type=click.IntRange(1, 64), default=16, show_default=True,
+              help="Camera samples per pixel, stratified over the pixel (they share each texel's shadow ray).")
+@click.option("--levels", type=click.IntRange(2, 8), default=6, show_default=True,
+              help="Texels: 2^n x 2^n on the lat-long square.")
+@click.option("--tolerance", type=click.FloatRange(0.0, 1.0), default=0.01, show_default=True,
+              help="Compression: each block's frame under a held-out rotation within this relative error.")
+@click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
+              help="Quantization of the stored coefficients.")
+@click.option("--terms", type=click.IntRange(1, 1 << 22), default=256, show_default=True,
+              help="The lighting terms K a frame keeps by default.")
+@click.option("--seed", type=click.IntRange(0, 2 ** 63 - 1), default=0, show_default=True, help="Random seed.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the choices, sizes and timings.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
+def bake(scene_file, output, width, height, spp, levels, tolerance, bits, terms, seed, as_json, quiet):
+    """Bake the transfer of SCENE (its camera, objects and materials) into PATH, for relighting."""
+    import wavlight
+
+    if os.path.isdir(output):
+        _fail(f"{output}: is a folder, not a file")
+    folder = os.path.dirname(os.path.abspath(output))
+    if not os.path.isdir(folder):
+        _fail(f"{output}: no folder {folder}")
+    try:
+        scene = wavlight.load_scene(scene_file)
+        _refuse_inputs(output, [scene_file, *scene.files])
+        if scene.environment.is_black:
+            _fail(f"{scene_file}: [environment]: the environment is black everywhere; nothing to relight")
+        bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
+        transfer = wavlight.bake(scene, output, width=width, height=height, spp=spp, levels=levels,
+                                 tolerance=tolerance, bits=int(bits), terms=terms, seed=seed, progress=bar)
+        if bar:
+            bar.close()
+    except wavlight.WavlightError as e:
+        _fail(e)
+    stats = transfer.summary()
+    if as_json:
+        click.echo(json.dumps(stats))
+    elif not quiet:
+        click.echo(f"wrote {output}: {stats['width']}x{stats['height']}, {stats['texels']} texels, "
+                   f"{stats['file_bytes'] / 1e6:.1f} MB, bake {stats['bake_seconds']:.1f} s "
+                   f"({stats['rays_per_second'] / 1e6:.2f} M rays/s)", err=True)
+
+
+@click.command()
+@click.argument("bake_file", metavar="PATH", type=click.Path(dir_okay=False))
+@click.option("--env", "env_file", default=None, metavar="FILE", help="Another environment map (default: the baked one).")
+@click.option("--rotate-y", type=float, default=None,
+              help="Rotation of the map about +Y, degrees, absolute as the scene's rotate_y (default: the scene's).")
+@click.option("--scale", type=click.FloatRange(0.0, 1e30), default=1.0, show_default=True, help="Radiance scale.")
+@click.option("--terms", type=click.IntRange(1, 1 << 22), default=None,
+              help="Lighting terms K kept (default: the bake's choice).")
+@click.option("--priority", type=click.Choice(["transfer", "area", "magnitude"]), default=None,
+              help="How the K terms are chosen (default: the bake's).")
+@click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB), or with "
+              "--turntable a folder. Default: the bake file's name with .png.")
+@click.option("--turntable", type=click.IntRange(1, 3600), default=None, metavar="N",
+              help="N frames of a full turn about +Y into the folder -o DIR (PNG; and an animated GIF).")
+@click.option("--repeat", type=click.IntRange(1, 1000), default=5, show_default=True,
+              help="Frames computed to time one (the median is reported).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object with timings and choices.")
+@click.option("--quiet", "-q", is_flag=True, help="No closing message.")
+def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntable, repeat, as_json, quiet):
+    """Relight the bake file PATH: one frame under new lighting (or a turntable of frames)."""
+    import math
+
+
+    import wavlight
+    from wavlight.imageio import FORMATS
+
+    if rotate_y is not None and not math.isfinite(rotate_y):
+        _fail(f"--rotate-y must be a finite number of degrees, got {rotate_y}")
+    try:
+        transfer = wavlight.Transfer.load(bake_file)
+        env = None
+        if env_file is not None:
+            env = transfer.environment(env_file, scale)
+            if env.is_black:
+                _fail(f"{env_file}: the environment is black everywhere; the frame would be black")
+            scale_used = 1.0
+        else:
+            scale_used = scale
+        if turntable is None:
+            if output is None:
+                output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
+            _check_output(output, FORMATS)
+            _refuse_inputs(output, [bake_file, env_file])
+            times = []
+            for _ in range(repeat):
+                image, st = transfer.frame_timed(env, rotate_y, scale_used, terms, priority)
+                times.append(st["frame_seconds"])
+            wavlight.save_image(output, image)
+            outputs = [output]
+        else:
+            if output is None:
+                _fail("--turntable writes a folder of frames: give it with -o DIR")
+            os.makedirs(output, exist_ok=True)
+            base = transfer.scene_rotate_y if rotate_y is None else rotate_y
+            times, outputs, frames = [], [], []
+            for i in range(turntable):
+                image, st = transfer.frame_timed(env, base + 360.0 * i / turntable, scale_used, terms, priority)
+                times.append(st["frame_seconds"])
+                name = os.path.join(output, f"frame-{i:04d}.png")
+                wavlight.save_image(name, image)
+                outputs.append(name)
+                frames.append(name)
+            gif = _animated_gif(frames, os.path.join(output, "turntable.gif"))
+            if gif:
+                outputs.append(gif)
+    except wavlight.WavlightError as e:
+        _fail(e)
+    median = statistics.median(times)
+    stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
+             "terms": st["terms"], "entries_read": st["entries_read"], "width": transfer.width,
+             "height": transfer.height, "texels": f"{1 << transfer.n_levels}x{1 << transfer.n_levels}",
+             "priority": priority or transfer.priority, "frames": len(times),
+             "rotate_y": transfer.scene_rotate_y if rotate_y is None else rotate_y,
+             "memory_bytes_per_frame": int(st["entries_read"] * (transfer.block ** 2 * transfer.bits // 8 + 20)),
+             "measured": transfer.measured, "output": outputs if turntable else outputs[0]}
+    if as_json:
+        click.echo(json.dumps(stats))
+    elif not quiet:
+        click.echo(f"wrote {stats['output'] if not turntable else output}: {transfer.width}x{transfer.height}, "
+                   f"{stats['terms']} terms, frame {median * 1e3:.1f} ms ({stats['frames_per_second']} frames/s)",
+                   err=True)
+
+
+def _animated_gif(frames, path):
+    """An animated GIF of the PNG frames where Pillow is installed (it is a dependency); None if not."""
+    try:
+        from PIL import Image
+    except ImportError:
+        return None
+    images = [Image.open(f).convert("RGB") for f in frames]
+    tmp = path + ".part"
+    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=40, loop=0)
+    os.replace(tmp, path)
+    return path

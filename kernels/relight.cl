@@ -1,0 +1,182 @@
+/* Relighting from precomputed transfer (Chen & Gao sec. 2.2, eq. 6-8): the bake's texel
+ * rays and the frame's sparse product of transfer and lighting coefficients.
+ * numpy twins: wavlight/relight/bake.py (texel_rays_reference), wavlight/relight/frame.py
+ * (product_reference). */
+#include "rng.h"
+#include "bsdf.h"
+
+#define RNG_TEXEL 8u
+
+/* Pair g = p 4^n + t of a tile (pixel p, texel t = row 2^n + col of the world-frame lat-long
+ * square); eight pairs per work-item, all of one pixel (4^n is a multiple of eight). The
+ * pixel's camera samples come as groups (the samples on one triangle: one normal and
+ * material; wavlight/relight/bake.py): group j of pixel p at p S + j, of count[p] groups,
+ * with its normal, mean view direction wo, material, weight c_j = (sum of its samples' albedo
+ * ratios) / S and its members (sample indices members[first_j .. first_j + size_j - 1]).
+ * The texel gets Q = 4 points, 2 x 2 strata uniform in solid angle (u from col, cos theta
+ * from row) at one jitter (u0, u1) of Philox stream RNG_TEXEL at pair index first + g of tile
+ * `tile`; f_jq = c_j f cos(point q; group j). One (j, q) is picked with probability
+ * f_jq / sum f by one uniform u2 (reservoir sampling, u2 rescaled at each step), and the
+ * shadow ray goes from a member of group j chosen by u3 towards point q, with
+ * weight = Omega_t sum f / Q: weight x V is an unbiased estimate of the pixel's mean over
+ * its samples of the texel's Q-point quadrature of f cos V, exact where V is the same over
+ * the texel and the pixel. A texel the BRDF does not reach gets weight 0 (no ray). */
+#define TEXEL_POINTS 4
+__kernel void bake_texel_rays(const uint count, const uint first, const uint n_levels, const uint samples,
+                              const uint tile, const uint k0, const uint k1, __global const uint *group_count,
+                              __global const float *normal, __global const float *wo,
+                              __global const int *kind, __global const float *param,
+                              __global const float *weight, __global const uint *group_first,
+                              __global const uint *group_size, __global const uint *members,
+                              __global float *dir_out, __global float *weight_out, __global uint *pick_out)
+{
+    const uint base = LANE_BASE();
+    if (base >= count) return;
+    const uintv gidx = LANE_INDEX(count);
+    const uint side = 1u << n_levels;
+    const uint p = base >> (2u * n_levels);            /* one pixel for all lanes */
+    const uintv t = gidx & (side * side - 1u);
+    const uintv row = t >> n_levels, col = t & (side - 1u);
+    realv u0, u1, u2, u3;
+    rng_uniforms(first + gidx, tile, RNG_TEXEL, k0, k1, &u0, &u1, &u2, &u3);
+    const realv inv = 1.0f / (float)side;
+    realv st0, z0, st1, z1;
+    fast_sincos(PI_F * convert_realv(row) * inv, &st0, &z0);
+    fast_sincos(PI_F * convert_realv(row + 1u) * inv, &st1, &z1);
+    realv dx[TEXEL_POINTS], dy[TEXEL_POINTS], dz[TEXEL_POINTS];
+    for (int q = 0; q < TEXEL_POINTS; ++q) {
+        const realv uu = (convert_realv(col) + ((float)(q & 1) + u0) * 0.5f) * inv;
+        const realv zz = z0 + ((float)(q >> 1) + u1) * 0.5f * (z1 - z0);
+        const realv sn = sqrt(fmax(1.0f - zz * zz, 0.0f));
+        realv sp, cp;
+        fast_sincos(2.0f * PI_F * uu, &sp, &cp);
+        dx[q] = sp * sn;
+        dy[q] = zz;
+        dz[q] = -cp * sn;
+    }
+    realv total = 0.0f, u = u2, px = dx[0], py = dy[0], pz = dz[0];
+    uintv picked = (uintv)(p * samples);
+    const uint groups = group_count[p];
+    for (uint j = 0; j < groups; ++j) {
+        const uint gj = p * samples + j;
+        const float nx = normal[3 * gj], ny = normal[3 * gj + 1], nz = normal[3 * gj + 2];
+        const float wx = wo[3 * gj], wy = wo[3 * gj + 1], wz = wo[3 * gj + 2];
+        realv sx, sy, sz, tx, ty, tz;
+        make_frame((realv)nx, (realv)ny, (realv)nz, &sx, &sy, &sz, &tx, &ty, &tz);
+        const realv ox = wx * sx + wy * sy + wz * sz, oy = wx * tx + wy * ty + wz * tz;
+        const realv oz = (realv)(wx * nx + wy * ny + wz * nz);
+        const intv kd = (intv)kind[gj];
+        const realv pa = (realv)param[gj];
+        const float c = weight[gj];
+        for (int q = 0; q < TEXEL_POINTS; ++q) {
+            realv fv, unused;
+            bsdf_eval_pdf(kd, pa, dx[q] * sx + dy[q] * sy + dz[q] * sz, dx[q] * tx + dy[q] * ty + dz[q] * tz,
+                          dx[q] * nx + dy[q] * ny + dz[q] * nz, ox, oy, oz, &fv, &unused);
+            fv = select(fv * c, (realv)0.0f, !(fv > 0.0f));
+            /* reservoir step: take (j, q) with probability fv / (total + fv), reusing u */
+            const realv grown = total + fv;
+            const realv x = u * grown;
+            const intv take = x < fv;
+            u = select(select(u, (x - fv) / total, total > 0.0f), x / fv, take);
+            u = fmin(fmax(u, 0.0f), 0.99999994f);
+            px = select(px, dx[q], take);
+            py = select(py, dy[q], take);
+            pz = select(pz, dz[q], take);
+            picked = select(picked, (uintv)gj, take);
+            total = grown;
+        }
+    }
+    /* a member of the picked group, by u3: its sample's origin starts the shadow ray */
+    uintv sample;
+    for (uint l = 0; l < LANES; ++l) {
+        const uint gj = picked[l];
+        const uint size = max(group_size[gj], 1u);
+        const uint k = min((uint)(u3[l] * (float)size), size - 1u);
+        sample[l] = members[p * samples + group_first[gj] + k];
+    }
+    const realv omega = (z0 - z1) * (2.0f * PI_F) * inv;
+    const realv w = select((realv)0.0f, omega * total * (1.0f / TEXEL_POINTS), total > 0.0f);
+    for (uint l = 0; l < LANES && base + l < count; ++l) {
+        __global float *d = dir_out + 3 * (base + l);
+        d[0] = px[l];
+        d[1] = py[l];
+        d[2] = pz[l];
+        weight_out[base + l] = w[l];
+        pick_out[base + l] = sample[l];
+    }
+}
+
+/* The sparse product of a frame (wavlight/relight/frame.py): block b's entries
+ * block_start[b] .. block_start[b + 1] - 1, entry j the row data[ids[j]] of QBITS-bit quantized
+ * coefficients of the block's `pixels` pixels and its weight w_j (RGB, a pad); eight pixels
+ * per work-item (pixels / 8 work-items per block) sum q w_j over the block's entries. The
+ * output is three planes (channel, block, pixel). */
+#ifndef QBITS
+#define QBITS 8
+#endif
+#if QBITS == 8
+#define QTYPE char
+#define QLOAD(j, p) convert_float8(vload8(0, (p)))
+#else
+#define QTYPE short
+#define QLOAD(j, p) convert_float8(vload8(0, (p)))
+#endif
+
+__kernel void frame_product(const uint n_blocks, const uint pixels, __global const uint *block_start,
+                            __global const uint *ids, __global const float *weight,
+                            __global const QTYPE *data, __global float *out)
+{
+    const uint per = pixels / 8u;
+    const uint gid = get_global_id(0);
+    const uint b = gid / per;
+    if (b >= n_blocks) return;
+    const uint first = (gid - b * per) * 8u;
+    float8 r = 0.0f, g = 0.0f, bl = 0.0f;
+    const uint end = block_start[b + 1];
+    for (uint j = block_start[b]; j < end; ++j) {
+        const float8 q = QLOAD(j, data + (size_t)ids[j] * pixels + first);
+        const float4 w = vload4(j, weight);
+        r = fma(q, (float8)w.x, r);
+        g = fma(q, (float8)w.y, g);
+        bl = fma(q, (float8)w.z, bl);
+    }
+    const size_t plane = (size_t)n_blocks * pixels, at = (size_t)b * pixels + first;
+    vstore8(r, 0, out + at);
+    vstore8(g, 0, out + plane + at);
+    vstore8(bl, 0, out + 2 * plane + at);
+}
+
+/* The environment seen where a frame's pixels' camera samples miss: background pixel i's
+ * samples s with bit s of mask[i] set, directions dirs[i, s] (world), turned into the map's
+ * frame by m = map_from_world (row-major) and looked up at the nearest texel of the
+ * env_w x env_h map (the scene format's u, v); out[i] = (1 / samples) sum of those radiances.
+ * numpy twin: wavlight/relight/frame.py background_reference. */
+__kernel void frame_background(const uint count, const uint samples, const int env_w, const int env_h,
+                               __global const float *m, __global const ulong *mask, __global const float *dirs,
+                               __global const float *env, __global float *out)
+{
+    const uint i = get_global_id(0);
+    if (i >= count) return;
+    const ulong bits = mask[i];
+    float r = 0.0f, g = 0.0f, b = 0.0f;
+    for (uint s = 0; s < samples; ++s) {
+        if (!((bits >> s) & 1ul)) continue;
+        __global const float *d = dirs + 3 * ((size_t)i * samples + s);
+        const float x = m[0] * d[0] + m[1] * d[1] + m[2] * d[2];
+        const float y = m[3] * d[0] + m[4] * d[1] + m[5] * d[2];
+        const float z = m[6] * d[0] + m[7] * d[1] + m[8] * d[2];
+        float u = atan2(x, -z) * INV_2PI_F;   /* in (-1/2, 1/2]: wrapped to [0, 1) */
+        if (u < 0.0f) u += 1.0f;
+        const float v = acos(clamp(y, -1.0f, 1.0f)) * INV_PI_F;
+        const int col = min((int)(u * (float)env_w), env_w - 1);
+        const int row = min((int)(v * (float)env_h), env_h - 1);
+        __global const float *px = env + 3 * ((size_t)row * env_w + col);
+        r += px[0];
+        g += px[1];
+        b += px[2];
+    }
+    const float inv = 1.0f / (float)samples;
+    out[3 * i] = r * inv;
+    out[3 * i + 1] = g * inv;
+    out[3 * i + 2] = b * inv;
+}

@@ -1,0 +1,16 @@
+"""Dynamic lighting from precomputed transfer (Chen & Gao sec. 2, eq. 6-8): the camera, objects
+and materials stay fixed, the lighting varies. The bake (:mod:`.bake`) stores each pixel's
+transfer T1 = f_r cos V on the lat-long square in Haar coefficients (:mod:`.store`, the file
+format); a frame (:mod:`.transfer`) projects the new lighting T2 = L on the same texels
+(:mod:`.lighting`), keeps its K most important coefficients and takes the sparse product
+(:mod:`.frame`, kernels/relight.cl).
+
+    import wavlight
+    transfer = wavlight.bake("scenes/bunny_ggx.toml", output="bunny.wlt")
+    image = transfer.frame(rotate_y=120, terms=256)
+    again = wavlight.relight.Transfer.load("bunny.wlt")
+"""
+from .bake import bake
+from .transfer import Transfer
+
+__all__ = ["bake", "Transfer"]

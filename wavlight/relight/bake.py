@@ -1,0 +1,367 @@
+"""The bake: each pixel's transfer T1 = f_r cos V on the world-frame lat-long square, the fixed
+factor of a relit frame (Chen & Gao sec. 2.2, eq. 6-8, with the lighting as T2).
+
+For pixel p with camera samples s = 1..S (jittered in the pixel, stratified over it) and
+texel t of solid angle Omega_t,
+
+    T_p,t = (1 / S) sum_s  ratio_s  integral over t of  f_s(w, wo_s) cos(theta) V(x_s, w) dw,
+
+f without its albedo (lambert, normalized phong and the ggx conductor here are albedo x shape),
+the pixel's albedo a_p stored apart (the mean albedo of its samples that hit; ratio_s =
+lum(albedo_s) / lum(a_p), so that luminance is exact where a pixel mixes materials and only
+its chroma is the mean's). A frame is then a_p sum_t T_p,t L_t with L_t the lighting's mean
+radiance over texel t (:mod:`wavlight.relight.lighting`), plus (1 / S) sum over the samples
+that miss of the environment in their direction (a bit mask per pixel; the frame draws the
+same camera samples again).
+
+Estimator (kernels/relight.cl, bake_texel_rays; numpy twin :func:`texel_rays_reference`):
+one shadow ray per (pixel, texel) pair. The pixel's samples are grouped by the triangle they
+hit (one normal and material per group: :class:`PixelSamples`); the texel gets four points
+stratified 2 x 2 and uniform in solid angle; f cos is evaluated for every group at every point
+(weighted by the group's share of the pixel's samples), and the ray goes from a sample of the
+group picked with probability f / sum f towards its point; the estimate Omega_t (sum f / 4) V
+is unbiased for the pixel's mean of the texel's four-point quadrature of f cos V over its
+footprint, and exact where V is the same over texel and pixel: only the visibility's variance is
+left, and the cost grows with the triangles a pixel sees, not with its samples. Texels where
+the BRDF is 0 (below the horizon, outside a phong lobe) cost no ray. The texels then go
+through the Haar transform (:func:`wavlight.haar.forward_cl`), and a block of BLOCK x BLOCK
+pixels is compressed and quantized (:mod:`wavlight.relight.store`).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import bsdfs, cl, haar, rng
+from ..camera import camera_rays
+from ..envmap import LUMINANCE
+from ..errors import ArgumentError, check_int, check_number
+from ..raytrace import RayTracer
+from ..scene import MAX_SIDE, check_scene, load_scene
+from ..version import __version__
+from ..warp import frame as tangent_frame
+from . import lighting, store
+from .transfer import Transfer
+
+#: Philox stream of the bake's texel uniforms (kernels/relight.cl RNG_TEXEL)
+TEXEL_STREAM = 8
+#: a block is BLOCK x BLOCK pixels: one tile of the bake, one unit of storage
+BLOCK = 16
+
+
+@dataclass
+class PixelSamples:
+    """The camera samples of a tile's P pixels, S each, and their groups.
+
+    A group is the samples of one pixel that hit one triangle (one normal, one material: f
+    depends on the sample only through its view direction, whose spread over a pixel is
+    negligible), so a texel needs one BRDF evaluation per group and point, not per sample.
+    Group j of pixel p sits at p S + j (count[p] of them): normal, wo (its members' mean
+    view direction), kind, param, weight (sum of its members' albedo ratios / S), first and
+    size (its members: members[p S + first .. + size - 1], sample indices p S + s).
+
+    origin (P S, 3) float32: each sample's shadow-ray origin; albedo (P, 3) float32 a_p;
+    miss (P,) uint64, bit s set where sample s misses; dirs (P S, 3) float32 the samples'
+    directions.
+    """
+
+    samples: int
+    count: np.ndarray
+    normal: np.ndarray
+    wo: np.ndarray
+    kind: np.ndarray
+    param: np.ndarray
+    weight: np.ndarray
+    first: np.ndarray
+    size: np.ndarray
+    members: np.ndarray
+    origin: np.ndarray
+    albedo: np.ndarray
+    miss: np.ndarray
+    dirs: np.ndarray
+
+    def __len__(self):
+        return len(self.albedo)
+
+
+def camera_jitter(seed: int, tile: int, pixels: int, samples: int) -> np.ndarray:
+    """(P S, 2) float32: the jitters of a tile's camera samples (Philox stream JITTER, stratified
+    over each pixel's S samples as the stratified sampler does, :mod:`wavlight.sampler`)."""
+    return rng.Stream(seed, tile, 0, samples).uniforms(rng.JITTER, pixels * samples)[:, :2]
+
+
+def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, seed: int, tile: int) -> PixelSamples:
+    """S jittered camera samples per pixel of the w x h tile at (x0, y0), traced to their hits
+    and grouped by pixel and triangle."""
+    P, S = w * h, samples
+    count = P * S
+    pix = np.arange(P)
+    px, py = np.repeat(x0 + pix % w, S), np.repeat(y0 + pix // w, S)
+    eye, d = camera_rays(scene, px, py, camera_jitter(seed, tile, P, S), width, height)
+    prim, t = tracer.intersect(eye, d)
+    hit = prim >= 0
+    normal = np.zeros((count, 3), np.float32)
+    origin = np.zeros((count, 3), np.float32)
+    if hit.any():
+        n, _, o = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+        normal[hit], origin[hit] = n, o
+    mat = np.where(hit, scene.face_material[np.maximum(prim, 0)] if len(scene.face_material) else 0, 0)
+    albedo_s = np.where(hit[:, None], scene.material_albedo[mat], 0.0)
+    hits = hit.reshape(P, S).sum(1)
+    albedo = (albedo_s.reshape(P, S, 3).sum(1) / np.maximum(hits, 1)[:, None]).astype(np.float32)
+    lum_p = np.repeat(albedo @ LUMINANCE, S)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(lum_p > 0, (albedo_s @ LUMINANCE) / lum_p, 0.0)
+    # groups: a pixel's hits on one triangle, in order of (pixel, triangle)
+    sample = np.arange(count)
+    live = sample[hit]
+    order = live[np.lexsort((prim[live], live // S))]
+    pixel_of = order // S
+    new = np.ones(len(order), bool)
+    new[1:] = (pixel_of[1:] != pixel_of[:-1]) | (prim[order][1:] != prim[order][:-1])
+    starts = np.flatnonzero(new)
+    sizes = np.diff(np.append(starts, len(order)))
+    gpix = pixel_of[starts]
+    rank = np.arange(len(starts)) - np.searchsorted(gpix, gpix)     # the group's index in its pixel
+    slot = gpix * S + rank
+    group_count = np.bincount(gpix, minlength=P).astype(np.uint32)
+    members = np.zeros(count, np.uint32)
+    within = np.arange(len(order)) - np.repeat(starts, sizes)        # position inside the group
+    members[np.repeat(gpix * S, sizes) + np.repeat(starts - np.searchsorted(pixel_of, gpix), sizes) + within] = order
+    first = np.zeros(count, np.uint32)
+    first[slot] = starts - np.searchsorted(pixel_of, gpix)
+    size = np.zeros(count, np.uint32)
+    size[slot] = sizes
+    g_normal = np.zeros((count, 3), np.float32)
+    g_normal[slot] = normal[order[starts]]
+    wo_sum = np.add.reduceat(-d[order].astype(np.float64), starts, axis=0) if len(order) else np.zeros((0, 3))
+    g_wo = np.zeros((count, 3), np.float32)
+    g_wo[slot] = wo_sum / np.linalg.norm(wo_sum, axis=1, keepdims=True)
+    g_kind = np.zeros(count, np.int32)
+    g_kind[slot] = scene.material_kind[mat[order[starts]]]
+    g_param = np.zeros(count, np.float32)
+    g_param[slot] = scene.material_param[mat[order[starts]]]
+    g_weight = np.zeros(count, np.float32)
+    g_weight[slot] = (np.add.reduceat(ratio[order], starts) if len(order) else np.zeros(0)) / S
+    missed = (~hit).reshape(P, S).astype(np.uint64)
+    mask = (missed << np.arange(S, dtype=np.uint64)).sum(1, dtype=np.uint64)
+    return PixelSamples(S, group_count, g_normal, g_wo, g_kind, g_param, g_weight, first, size, members,
+                        origin, albedo, mask, d)
+
+
+TEXEL_POINTS = 4   # kernels/relight.cl
+
+
+def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, first: int = 0,
+                         count: int | None = None):
+    """numpy twin of ``bake_texel_rays``: directions (C, 3), weights (C,) and the picked samples
+    (C,) of pairs first .. first + C - 1 (float64; the kernel's float32 agrees to rounding and
+    picks the same point unless a reservoir step lies within rounding of its threshold)."""
+    side, S = 1 << n_levels, ps.samples
+    count = len(ps) * side * side - first if count is None else count
+    g = np.arange(first, first + count, dtype=np.int64)
+    p, t = g >> (2 * n_levels), g & (side * side - 1)
+    row, col = t >> n_levels, t & (side - 1)
+    u = rng.uniforms(seed, tile, TEXEL_STREAM, first, count).astype(np.float64)
+    z0, z1 = np.cos(np.pi * row / side), np.cos(np.pi * (row + 1) / side)
+    points = []
+    for q in range(TEXEL_POINTS):   # the texel's strata, not pairs
+        uu = (col + ((q & 1) + u[:, 0]) * 0.5) / side
+        zz = z0 + ((q >> 1) + u[:, 1]) * 0.5 * (z1 - z0)
+        sn = np.sqrt(np.maximum(1.0 - zz * zz, 0.0))
+        points.append(np.stack([np.sin(2 * np.pi * uu) * sn, zz, -np.cos(2 * np.pi * uu) * sn], 1))
+    total = np.zeros(count)
+    r = u[:, 2].copy()
+    pick_dir = points[0].copy()
+    picked = p * S
+    groups = ps.count[p]
+    for j in range(int(ps.count.max(initial=0))):   # groups, not pairs
+        on = j < groups
+        gj = p * S + j
+        n = ps.normal[gj].astype(np.float64)
+        sx, tx = tangent_frame(np.where(on[:, None], n, [0.0, 0.0, 1.0]))
+        wo_w = ps.wo[gj].astype(np.float64)
+        wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (sx, tx, n)], 1)
+        kind, param, c = ps.kind[gj], ps.param[gj].astype(np.float64), ps.weight[gj].astype(np.float64)
+        for q, d in enumerate(points):   # the texel's points, not pairs
+            wi = np.stack([np.einsum("ij,ij->i", d, a) for a in (sx, tx, n)], 1)
+            f = np.zeros(count)
+            for kd in np.unique(kind[on]):   # material kinds, not pairs
+                sel = on & (kind == kd)
+                f[sel] = bsdfs.eval_cos(int(kd), param[sel], wi[sel], wo[sel])
+            f = np.where(on & np.isfinite(f) & (f > 0), f * c, 0.0)
+            grown = total + f
+            x = r * grown
+            take = x < f
+            with np.errstate(divide="ignore", invalid="ignore"):
+                r = np.where(take, x / np.where(f > 0, f, 1.0), np.where(total > 0, (x - f) / np.where(total > 0, total, 1.0), r))
+            r = np.clip(r, 0.0, 1.0 - 2.0 ** -24)
+            pick_dir = np.where(take[:, None], d, pick_dir)
+            picked = np.where(take, gj, picked)
+            total = grown
+    size = np.maximum(ps.size[picked].astype(np.int64), 1)
+    k = np.minimum((u[:, 3].astype(np.float32) * size.astype(np.float32)).astype(np.int64), size - 1)
+    sample = ps.members[p * S + ps.first[picked].astype(np.int64) + k]
+    omega = (z0 - z1) * 2 * np.pi / side
+    weight = np.where(total > 0, omega * total / TEXEL_POINTS, 0.0)
+    return pick_dir, weight, sample.astype(np.int64)
+
+
+def texel_rays(ps: PixelSamples, n_levels: int, seed: int, tile: int, bsdf_kinds: int = 7, queue=None):
+    """The kernel ``bake_texel_rays`` over all of a tile's (pixel, texel) pairs: directions
+    (P 4^n, 3), weights (P 4^n,) float32 and the picked samples (P 4^n,) uint32. ``bsdf_kinds``:
+    the bit mask of the material kinds the scene has (the kernel evaluates only those)."""
+    count = len(ps) << (2 * n_levels)
+    queue = queue or cl.thread_queue()
+    prog = cl.program("relight.cl", BSDF_KINDS=int(bsdf_kinds))
+    dirs, weights, picks = cl.empty(12 * count), cl.empty(4 * count), cl.empty(4 * count)
+    k0, k1 = rng.key(seed)
+    cl.kernel(prog, "bake_texel_rays")(
+        queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(0),
+        np.uint32(n_levels), np.uint32(ps.samples), np.uint32(tile), np.uint32(k0), np.uint32(k1),
+        *(cl.to_device(a) for a in (ps.count, ps.normal, ps.wo, ps.kind, ps.param, ps.weight, ps.first, ps.size,
+                                    ps.members)), dirs, weights, picks)
+    return (cl.read(dirs, (count, 3), np.float32, queue), cl.read(weights, (count,), np.float32, queue),
+            cl.read(picks, (count,), np.uint32, queue))
+
+
+def tile_transfer(ps: PixelSamples, tracer, n_levels: int, seed: int, tile: int, backend: str = "opencl",
+                  bsdf_kinds: int = 7):
+    """(P, N, N) float32 texel transfer of a tile's pixels (module docstring) and the number of
+    shadow rays it traced."""
+    if backend == "opencl":
+        dirs, weight, pick = texel_rays(ps, n_levels, seed, tile, bsdf_kinds)
+    else:
+        dirs, weight, pick = texel_rays_reference(ps, n_levels, seed, tile)
+    live = np.flatnonzero(weight > 0)
+    blocked = tracer.occluded(np.take(ps.origin, pick[live].astype(np.int64), axis=0), np.take(dirs, live, axis=0))
+    out = np.zeros(len(weight), np.float32)
+    out[live] = np.where(blocked, 0.0, weight[live])
+    side = 1 << n_levels
+    return out.reshape(-1, side, side), len(live)
+
+
+# ----------------------------------------------------------------------------- the whole image
+#: the held-out lighting of a bake: the scene's map turned this far from its own rotation (no
+#: frame is likely to test exactly there), on which compression and terms are measured
+HELD_OUT_DEGREES = 137.0
+MAX_SAMPLES = 64
+BITS = (8, 16)
+
+
+def _tiles(width: int, height: int):
+    """(block id, x0, y0, w, h) of the BLOCK x BLOCK tiles, row-major."""
+    bw, bh = -(-width // BLOCK), -(-height // BLOCK)
+    return [(by * bw + bx, bx * BLOCK, by * BLOCK, min(BLOCK, width - bx * BLOCK), min(BLOCK, height - by * BLOCK))
+            for by in range(bh) for bx in range(bw)], (bw, bh)
+
+
+def _padded(values: np.ndarray, w: int, h: int):
+    """A tile's per-pixel rows (w h, ...) placed in the block's BLOCK x BLOCK grid (zeros elsewhere)."""
+    out = np.zeros((BLOCK, BLOCK) + values.shape[1:], values.dtype)
+    out[:h, :w] = values.reshape((h, w) + values.shape[1:])
+    return out.reshape((BLOCK * BLOCK,) + values.shape[1:])
+
+
+def bake(scene, output=None, width=None, height=None, spp: int = 4, levels: int = 6, tolerance: float = 0.01,
+         bits: int = 8, terms: int = 256, priority: str = "transfer", seed: int = 0, threads=None,
+         progress=None, backend: str = "opencl"):
+    """Bake the transfer of ``scene`` (a Scene or a scene file) for its camera at width x height
+    (default: the scene's) with ``spp`` camera samples per pixel, on 2^levels x 2^levels texels;
+    compress each block to ``tolerance`` (relative, on the held-out lighting) and quantize to
+    ``bits``; write it to ``output`` (default: a temporary file the Transfer owns). Returns the
+    :class:`wavlight.relight.Transfer`. ``progress(done, total, rays, seconds)`` after each block."""
+    where = "relight.bake"
+    if isinstance(scene, (str, os.PathLike)):
+        scene = load_scene(scene)
+    check_scene(scene)
+    width = check_int(where, "width", scene.width if width is None else width, 1, MAX_SIDE)
+    height = check_int(where, "height", scene.height if height is None else height, 1, MAX_SIDE)
+    spp = check_int(where, "spp", spp, 1, MAX_SAMPLES)
+    n = check_int(where, "levels", levels, 2, 8)
+    tolerance = check_number(where, "tolerance", tolerance, 0.0, 1.0)
+    if bits not in BITS:
+        raise ArgumentError(f"{where}: bits must be 8 or 16, got {bits!r}")
+    seed = check_int(where, "seed", seed, 0, 2 ** 63 - 1)
+    env = scene.environment
+    held = lighting.coefficients(lighting.project(env, n, env.rotate_y + HELD_OUT_DEGREES)).reshape(3, -1).T
+    held = held * float(4 ** n)
+    tiles, (bw, bh) = _tiles(width, height)
+    side2 = 4 ** n
+    tracer = RayTracer(scene.vertices, scene.faces, threads=1)
+    kinds = int(np.bitwise_or.reduce(1 << np.unique(scene.material_kind))) if len(scene.materials) else 1
+    writer = store.TransferWriter(n, BLOCK, bits)
+    albedo = np.zeros((height, width, 3), np.float32)
+    background = []   # (pixels, masks, directions) of the tiles' pixels with samples that miss
+    sum_sq = np.zeros(side2)
+    totals = {"rays": 0, "error2": 0.0, "norm2": 0.0, "done": 0}
+    lock = threading.Lock()
+    t0 = time.perf_counter()
+
+    def one(tile):
+        block_id, x0, y0, w, h = tile
+        ps = camera_samples(scene, tracer, width, height, x0, y0, w, h, spp, seed, block_id)
+        texels, rays = tile_transfer(ps, tracer, n, seed, block_id, backend, kinds)
+        coeffs = haar.forward_cl(texels)[0] if backend == "opencl" else haar.forward(texels)
+        coeffs = _padded(np.asarray(coeffs, np.float32).reshape(w * h, side2), w, h)
+        rng = np.random.default_rng([seed, block_id])
+        cols, scales, q, e2, n2 = store.compress_block(coeffs, held, tolerance, bits, rng)
+        with lock:
+            writer.add(block_id, cols, scales, q)
+            albedo[y0:y0 + h, x0:x0 + w] = ps.albedo.reshape(h, w, 3)
+            some = np.flatnonzero(ps.miss)
+            if len(some):
+                pixel = (y0 + some // w) * width + x0 + some % w
+                background.append((pixel.astype(np.uint32), ps.miss[some], ps.dirs.reshape(-1, spp, 3)[some]))
+            sum_sq[:] += np.einsum("pc,pc->c", coeffs.astype(np.float64), coeffs.astype(np.float64))
+            totals["rays"] += rays
+            totals["error2"] += e2
+            totals["norm2"] += n2
+            totals["done"] += 1
+            if progress:
+                progress(totals["done"], len(tiles), totals["rays"], time.perf_counter() - t0)
+
+    threads = threads or 2 * (os.cpu_count() or 1)
+    try:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(one, tiles))
+        seconds = time.perf_counter() - t0
+        header = {
+            "format": "wavlight-transfer", "version": store.FORMAT_VERSION, "wavlight": __version__,
+            "scene": {"path": None if scene.path == "<dict>" else os.path.abspath(scene.path),
+                      "content_hash": scene.content_hash},
+            "camera": {"eye": scene.camera.eye.tolist(), "target": scene.camera.target.tolist(),
+                       "up": scene.camera.up.tolist(), "fov_y": float(scene.camera.fov_y)},
+            "width": width, "height": height, "spp": spp, "seed": seed, "n_levels": n, "block": BLOCK,
+            "blocks": [bw, bh], "bits": bits, "tolerance": tolerance, "terms": int(terms), "priority": priority,
+            "environment_rotate_y": float(env.rotate_y), "environment_name": env.name,
+            "measured": {"bake_seconds": round(seconds, 3), "rays": totals["rays"],
+                         "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
+                         "held_out_rotate_y": float(env.rotate_y + HELD_OUT_DEGREES),
+                         "compression_error": (float(np.sqrt(totals["error2"] / totals["norm2"]))
+                                               if totals["norm2"] > 0 else 0.0),
+                         "entries": writer.entries, "entries_full": side2 * bw * bh},
+        }
+        order = np.argsort(np.concatenate([b[0] for b in background])) if background else np.zeros(0, np.int64)
+        arrays = {"albedo": albedo, "environment": env.pixels.astype(np.float32),
+                  "background_pixel": (np.concatenate([b[0] for b in background])[order] if background
+                                       else np.zeros(0, np.uint32)),
+                  "background_mask": (np.concatenate([b[1] for b in background])[order] if background
+                                      else np.zeros(0, np.uint64)),
+                  "background_dir": (np.concatenate([b[2] for b in background])[order] if background
+                                     else np.zeros((0, spp, 3), np.float32)),
+                  "rms": np.sqrt(sum_sq / max(width * height, 1)).astype(np.float32)}
+        owns = output is None
+        if owns:
+            fd, output = tempfile.mkstemp(prefix=".wavlight-bake-", suffix=".wlt")
+            os.close(fd)
+        header = writer.finish(os.fspath(output), header, arrays)
+    finally:
+        writer.close()
+    return Transfer(os.fspath(output), header, store.open_sections(os.fspath(output), header, verify=False), owns)

@@ -1,0 +1,115 @@
+"""The varying factor T2 = L of a relit frame (Chen & Gao sec. 2.2, eq. 6-8): the environment
+projected onto the transfer's texels, its Haar coefficients, and the K of them a frame keeps
+(Ng et al. 2003's nonlinear approximation).
+
+Texels. The transfer lives on the world-frame lat-long square of side N = 2^n: texel (row r,
+column c) holds the directions with u = atan2(d.x, -d.z) / 2 pi in [c, c + 1) / N and
+v = acos(d.y) / pi in [r, r + 1) / N (the scene format's convention with rotate_y = 0), of
+solid angle Omega_r = (cos(pi r / N) - cos(pi (r + 1) / N)) 2 pi / N. The lighting of a frame
+is the map turned by ``rotate_y`` (world = R_y map: u_map = u_world + rotate_y / 360) and
+scaled; its texel value is the exact mean radiance over the texel's solid angle,
+integral(L d omega) / Omega, as the light tree's leaves are exact integrals: the map is
+piecewise constant, so rows integrate in cos(theta) and columns in phi, the latter through
+the cumulative integral along phi, periodic, so that any rotation is exact (a rotation by
+whole texels is a cyclic shift of the columns).
+
+Coefficients. :func:`wavlight.haar.forward` of each channel (the unit square's orthonormal
+Haar basis); for two texel arrays A, B, sum_t A_t B_t = N^2 sum_i A^_i B^_i (Parseval), which
+:mod:`wavlight.relight.frame` uses.
+
+Terms. A frame keeps the K coefficients of largest priority, one index set for the three
+channels (ranked by the luminance's coefficients): ``"magnitude"`` |L^_i|, ``"area"`` |L^_i|
+times the area of the wavelet's support, 4^-l (Ng et al. 2003's area-weighted selection), or
+``"transfer"`` |L^_i| times the transfer's root-mean-square coefficient i over the image
+(recorded by the bake): the expected contribution of term i to the frame. The default is
+chosen by measurement (benchmarks/relight_error.py; docs/decisions/relight-terms.md).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..envmap import LUMINANCE, Environment, _band_overlaps
+from ..errors import ArgumentError, check_int, check_number
+from ..haar import forward
+from ..haar.transform import coeff_basis
+
+PRIORITIES = ("transfer", "area", "magnitude")
+
+
+def texel_solid_angles(n_levels: int) -> np.ndarray:
+    """(N,) solid angle of one texel of each row of the 2^n x 2^n lat-long square."""
+    side = 1 << n_levels
+    z = np.cos(np.arange(side + 1) * np.pi / side)
+    return (z[:-1] - z[1:]) * (2 * np.pi / side)
+
+
+def texel_directions(n_levels: int) -> np.ndarray:
+    """(N, N, 3) world direction of each texel's centre in (u, v)."""
+    side = 1 << n_levels
+    u = (np.arange(side) + 0.5) / side
+    v = (np.arange(side) + 0.5) / side
+    phi, theta = np.meshgrid(2 * np.pi * u, np.pi * v)
+    st = np.sin(theta)
+    return np.stack([np.sin(phi) * st, np.cos(theta), -np.cos(phi) * st], -1)
+
+
+def project(environment: Environment, n_levels: int, rotate_y: float | None = None, scale: float = 1.0) -> np.ndarray:
+    """(N, N, 3) float64: the mean radiance over each world texel's solid angle of the map turned
+    by ``rotate_y`` degrees (default: the environment's own) and multiplied by ``scale``; exact
+    for the piecewise-constant map (module docstring)."""
+    where = "relight.project"
+    n = check_int(where, "n_levels", n_levels, 1, 11)
+    rot = environment.rotate_y if rotate_y is None else check_number(where, "rotate_y", rotate_y)
+    scale = check_number(where, "scale", scale, 0.0)
+    side = 1 << n
+    h, w = environment.height, environment.width
+    pixels = environment.pixels.astype(np.float64)
+    # rows: the solid-angle measure in cos(theta) of texel row r's overlap with map row j
+    ri, rw = _band_overlaps(np.arange(side + 1) / side * np.pi, np.arange(h + 1) / h * np.pi, lambda x: -np.cos(x))
+    by_rows = sum(rw[:, b, None, None] * np.take(pixels, ri[:, b], axis=0) for b in range(ri.shape[1]))  # (N, W, 3)
+    # columns: the cumulative integral along phi at the map's column edges, periodic
+    step = 2 * np.pi / w
+    cum = np.concatenate([np.zeros((side, 1, 3)), np.cumsum(by_rows * step, axis=1)], axis=1)   # (N, W + 1, 3)
+    total = cum[:, -1]
+    phi = (np.arange(side + 1) / side * 2 * np.pi + np.radians(rot))        # map-frame phi of the texel edges
+    turns = np.floor(phi / (2 * np.pi))
+    x = (phi - turns * 2 * np.pi) / step                                    # in map columns, [0, W)
+    col = np.minimum(x.astype(np.int64), w - 1)
+    frac = x - col
+    at = (np.take(cum, col, axis=1) + frac[None, :, None] * np.take(by_rows * step, col, axis=1)
+          + turns[None, :, None] * total[:, None, :])                       # (N, N + 1, 3)
+    integrals = at[:, 1:] - at[:, :-1]
+    return integrals * (scale / texel_solid_angles(n))[:, None, None]
+
+
+def coefficients(texels: np.ndarray) -> np.ndarray:
+    """(3, N, N) Haar coefficients of (N, N, 3) texel values, channel by channel."""
+    return forward(np.moveaxis(np.asarray(texels, np.float64), -1, 0))
+
+
+def priority(coeffs: np.ndarray, kind: str = "transfer", transfer_rms: np.ndarray | None = None) -> np.ndarray:
+    """(N^2,) the importance of each coefficient of (3, N, N) lighting coefficients (module
+    docstring); ``transfer_rms`` (N, N) for ``"transfer"``."""
+    if kind not in PRIORITIES:
+        raise ArgumentError(f"relight.priority: kind must be one of {' | '.join(PRIORITIES)}, got {kind!r}")
+    lum = np.abs(np.tensordot(LUMINANCE.astype(np.float64), coeffs, axes=1)).ravel()
+    if kind == "magnitude":
+        return lum
+    if kind == "area":
+        n = int(np.log2(coeffs.shape[-1]))
+        level, _, _, m = coeff_basis(np.arange(lum.size), n)
+        return lum * np.where(m == 0, 1.0, 4.0 ** -level.astype(np.float64))
+    if transfer_rms is None:
+        raise ArgumentError("relight.priority: 'transfer' needs the transfer's rms coefficients")
+    return lum * np.asarray(transfer_rms, np.float64).ravel()
+
+
+def select_terms(coeffs: np.ndarray, terms: int, kind: str = "transfer", transfer_rms=None) -> np.ndarray:
+    """The flat indices (K,) int64 of the ``terms`` coefficients of highest priority, sorted
+    by index (ties: the lower index first); coefficients of zero priority are never kept."""
+    p = priority(coeffs, kind, transfer_rms)
+    k = min(int(terms), int(np.count_nonzero(p)))
+    if k <= 0:
+        return np.zeros(0, np.int64)
+    order = np.lexsort((np.arange(p.size), -p))[:k]
+    return np.sort(order).astype(np.int64)

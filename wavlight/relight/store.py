@@ -1,0 +1,253 @@
+"""The bake file: a header and the transfer's Haar coefficients by column in blocks of pixels,
+compressed and quantized (Ng et al. 2003's layout), memory-mapped so that a frame reads only
+the columns of the lighting terms it keeps.
+
+Layout (little-endian)::
+
+    MAGIC (16 bytes)  header length (uint64)  header (UTF-8 JSON)  padding to 64 bytes
+    sections, each 64-byte aligned, in the order and at the offsets the header lists:
+      environment   float32 (h, w, 3)   the scene's map, scaled (frames default to it)
+      albedo        float32 (H, W, 3)   the pixel's albedo a_p
+      background_pixel  uint32 (M,)     the pixels some of whose S camera samples miss
+      background_mask   uint64 (M,)     bit s set where sample s misses
+      background_dir    float32 (M, S, 3)  the samples' directions
+      rms           float32 (4^n,)      root-mean-square of each coefficient over the image
+      column_start  int64 (4^n + 1,)    entries of coefficient c: column_start[c] .. [c + 1] - 1
+      entry_block   uint32 (E,)         the block of each entry (blocks row-major, BLOCK x BLOCK pixels)
+      entry_scale   float32 (E,)        its scale: value = scale x q
+      entry_data    int8 | int16 (E, BLOCK^2)  the quantized coefficients q of the block's pixels
+
+The header records the format and its version, wavlight's version, the scene (file, content
+hash), camera, image size, camera samples, texel levels n, block size, bits, what was chosen
+and measured (compression, terms, errors), and per section its offset, dtype, shape and CRC-32.
+Loading checks the magic, the version, the sizes against the file's length (truncation), the
+CRC-32 of every section (corruption) and the entries' ranges, before any frame reads them.
+
+Compression, per block: coefficient columns in decreasing energy (sum over the block's pixels
+of c^2), the scaling coefficient first; the fewest whose frame under a held-out lighting is
+within the tolerance of the whole transfer's, relative to that frame's norm over the block
+(:func:`compress_block`). Quantization: a scale per (column, block), max |c| / (2^(bits-1) - 1),
+and stochastic rounding (dithering; unbiased), at 8 or 16 bits.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zlib
+
+import numpy as np
+
+from ..errors import WavlightError
+
+MAGIC = b"WAVLIGHT-XFER\x00\x01\n"   # 16 bytes
+FORMAT_VERSION = 1
+ALIGN = 64
+PIXEL_SECTIONS = ("environment", "albedo", "background_pixel", "background_mask", "background_dir", "rms")
+SECTIONS = PIXEL_SECTIONS + ("column_start", "entry_block", "entry_scale", "entry_data")
+#: the entries of this many megabytes are reordered from block order into column order at once
+REORDER_CHUNK_BYTES = 64 << 20
+
+
+def quantize(values: np.ndarray, bits: int, rng: np.random.Generator):
+    """(scales (C,), q (C, P) int8 | int16) for rows of values (C, P): scale = max |v| / qmax,
+    q = floor(v / scale + uniform) (stochastic rounding: E[q scale] = v)."""
+    qmax = (1 << (bits - 1)) - 1
+    peak = np.abs(values).max(axis=1)
+    scale = np.where(peak > 0, peak / qmax, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = np.where(scale[:, None] > 0, values / np.where(scale > 0, scale, 1.0)[:, None], 0.0)
+    q = np.clip(np.floor(x + rng.random(values.shape)), -qmax, qmax)
+    return scale.astype(np.float32), q.astype(np.int8 if bits == 8 else np.int16)
+
+
+def compress_block(coeffs: np.ndarray, held_out: np.ndarray, tolerance: float, bits: int, rng):
+    """Compress one block: coeffs (P, 4^n) float32 (the block's pixels' Haar coefficients) and
+    held_out (4^n, 3) the held-out lighting's coefficients (times N^2, :mod:`.frame`).
+
+    Returns (columns (E,) int64, scales (E,) float32, data (E, P) int8 | int16, error2, norm2):
+    the kept columns, their quantized values, and the squared held-out frame error of the
+    block and the squared norm of its exact held-out frame (to sum over blocks)."""
+    c = np.asarray(coeffs, np.float64)
+    energy = np.einsum("pc,pc->c", c, c)
+    order = np.argsort(-energy, kind="stable")
+    order = order[energy[order] > 0]
+    if order.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros((0, c.shape[0]), np.int8 if bits == 8 else np.int16), 0.0, 0.0
+    if order[0] != 0 and energy[0] > 0:          # the scaling coefficient first: the block's mean
+        order = np.concatenate([[0], order[order != 0]])
+    lum = held_out @ np.array([0.2126, 0.7152, 0.0722])
+    contrib = c[:, order] * lum[order][None, :]      # (P, E) each column's share of the frame
+    exact = contrib.sum(1)
+    norm2 = float(exact @ exact)
+    # the frame's error after keeping the first k columns: the sum of the rest
+    rest = exact[:, None] - np.cumsum(contrib, axis=1)
+    err2 = np.einsum("pk,pk->k", rest, rest)
+    ok = np.flatnonzero(err2 <= (tolerance ** 2) * norm2)
+    keep = int(ok[0]) + 1 if ok.size else len(order)
+    cols = np.sort(order[:keep])
+    scales, q = quantize(c[:, cols].T, bits, rng)
+    approx = (q.astype(np.float64) * scales[:, None].astype(np.float64)).T @ lum[cols]
+    diff = approx - exact
+    return cols, scales, q, float(diff @ diff), norm2
+
+
+class TransferWriter:
+    """Collects blocks (in any order) into a temporary file, then writes the bake file in column
+    order (:meth:`finish`), atomically: a temporary file beside the output, renamed at the end."""
+
+    def __init__(self, n_levels: int, block: int, bits: int):
+        self.n_levels, self.block, self.bits = n_levels, block, bits
+        self.dtype = np.dtype(np.int8 if bits == 8 else np.int16)
+        fd, self._tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=".entries")
+        self._fh = os.fdopen(fd, "wb")
+        self._columns, self._blocks, self._scales = [], [], []
+        self.entries = 0
+
+    def add(self, block_id: int, columns, scales, data):
+        data = np.ascontiguousarray(data, self.dtype)
+        if data.shape != (len(columns), self.block ** 2):
+            raise ValueError(f"block data must be ({len(columns)}, {self.block ** 2}), got {data.shape}")
+        self._fh.write(data.tobytes())
+        self._columns.append(np.asarray(columns, np.int64))
+        self._blocks.append(np.full(len(columns), block_id, np.uint32))
+        self._scales.append(np.asarray(scales, np.float32))
+        self.entries += len(columns)
+
+    def close(self):
+        if not self._fh.closed:
+            self._fh.close()
+        if os.path.exists(self._tmp):
+            os.unlink(self._tmp)
+
+    def finish(self, path: str, header: dict, arrays: dict):
+        """Write the file: ``header`` (JSON-able) completed with the sections, ``arrays`` the
+        PIXEL_SECTIONS."""
+        self._fh.flush()
+        self._fh.close()
+        side2 = 1 << (2 * self.n_levels)
+        columns = np.concatenate(self._columns) if self._columns else np.zeros(0, np.int64)
+        blocks = np.concatenate(self._blocks) if self._blocks else np.zeros(0, np.uint32)
+        scales = np.concatenate(self._scales) if self._scales else np.zeros(0, np.float32)
+        order = np.lexsort((blocks, columns))                 # by column, then block
+        column_start = np.zeros(side2 + 1, np.int64)
+        np.cumsum(np.bincount(columns, minlength=side2), out=column_start[1:])
+        row = self.block ** 2 * self.dtype.itemsize
+        sections = {**{k: np.ascontiguousarray(arrays[k]) for k in PIXEL_SECTIONS},
+                    "column_start": column_start, "entry_block": blocks[order], "entry_scale": scales[order]}
+        meta, offset = {}, 0
+        for name in SECTIONS:
+            if name == "entry_data":
+                nbytes, dtype, shape = len(order) * row, self.dtype.str, [len(order), self.block ** 2]
+            else:
+                a = sections[name]
+                nbytes, dtype, shape = a.nbytes, a.dtype.str, list(a.shape)
+            meta[name] = {"offset": offset, "dtype": dtype, "shape": shape, "bytes": nbytes}
+            offset += -(-nbytes // ALIGN) * ALIGN
+        folder = os.path.dirname(os.path.abspath(path))
+        fd, tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=".tmp", dir=folder)
+        try:
+            with os.fdopen(fd, "wb") as out:
+                # the header goes last into its reserved space: the CRCs are known only then
+                header = dict(header, sections=meta)
+                sizer = json.dumps({**header, "sections": {k: {**v, "crc32": 0} for k, v in meta.items()}})
+                head_room = -(-(len(MAGIC) + 8 + len(sizer) + 256) // ALIGN) * ALIGN
+                out.write(b"\0" * head_room)
+                source = np.memmap(self._tmp, self.dtype, "r", shape=(self.entries, self.block ** 2)) \
+                    if self.entries else np.zeros((0, self.block ** 2), self.dtype)
+                for name in SECTIONS:
+                    crc = 0
+                    if name == "entry_data":
+                        step = max(1, REORDER_CHUNK_BYTES // row)
+                        for i in range(0, len(order), step):   # chunks, not entries
+                            chunk = np.ascontiguousarray(source[order[i:i + step]]).tobytes()
+                            crc = zlib.crc32(chunk, crc)
+                            out.write(chunk)
+                    else:
+                        chunk = sections[name].tobytes()
+                        crc = zlib.crc32(chunk)
+                        out.write(chunk)
+                    meta[name]["crc32"] = crc
+                    out.write(b"\0" * (-meta[name]["bytes"] % ALIGN))
+                del source
+                header["sections"] = meta
+                header["data_offset"] = head_room
+                header["file_bytes"] = head_room + offset
+                text = json.dumps(header).encode()
+                if len(MAGIC) + 8 + len(text) > head_room:
+                    raise WavlightError("relight: the bake file's header outgrew its space")
+                out.seek(0)
+                out.write(MAGIC + np.uint64(len(text)).tobytes() + text)
+                out.flush()
+                os.fsync(out.fileno())
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        finally:
+            self.close()
+        return header
+
+
+def read_header(path: str) -> dict:
+    """The header of a bake file, after checking its magic, version and length; a one-line
+    WavlightError naming the file otherwise."""
+    try:
+        size = os.path.getsize(path)
+        with open(path, "rb") as fh:
+            start = fh.read(len(MAGIC) + 8)
+            if len(start) < len(MAGIC) + 8 or start[:len(MAGIC)] != MAGIC:
+                raise WavlightError(f"{path}: not a wavlight bake file")
+            length = int(np.frombuffer(start[len(MAGIC):], np.uint64)[0])
+            if length > min(size, 1 << 24):
+                raise WavlightError(f"{path}: the bake file's header is damaged")
+            header = json.loads(fh.read(length).decode("utf-8"))
+    except OSError as e:
+        raise WavlightError(f"{path}: cannot read ({e.strerror or e})") from None
+    except (UnicodeDecodeError, json.JSONDecodeError, ValueError):
+        raise WavlightError(f"{path}: the bake file's header is damaged") from None
+    if not isinstance(header, dict) or header.get("format") != "wavlight-transfer":
+        raise WavlightError(f"{path}: not a wavlight bake file")
+    if header.get("version") != FORMAT_VERSION:
+        raise WavlightError(f"{path}: bake file format version {header.get('version')!r}; this wavlight reads "
+                            f"version {FORMAT_VERSION} (bake the scene again)")
+    if header.get("file_bytes") != size:
+        raise WavlightError(f"{path}: the bake file is truncated or extended ({size} bytes, its header says "
+                            f"{header.get('file_bytes')})")
+    return header
+
+
+def open_sections(path: str, header: dict, verify: bool = True) -> dict:
+    """The sections of a bake file as read-only memory maps, checked (CRC-32 with ``verify``,
+    shapes, entry ranges)."""
+    base = header["data_offset"]
+    out = {}
+    for name in SECTIONS:
+        m = header["sections"].get(name)
+        try:
+            dtype, shape, offset = np.dtype(m["dtype"]), tuple(int(x) for x in m["shape"]), int(m["offset"])
+        except (TypeError, KeyError, ValueError):
+            raise WavlightError(f"{path}: the bake file's header is damaged (section {name})") from None
+        count = int(np.prod(shape))
+        if count * dtype.itemsize != m.get("bytes") or base + offset + m["bytes"] > header["file_bytes"]:
+            raise WavlightError(f"{path}: the bake file's header is damaged (section {name})")
+        a = np.memmap(path, dtype, "r", offset=base + offset, shape=shape) if count else np.zeros(shape, dtype)
+        if verify:
+            crc = 0
+            flat = a.reshape(-1).view(np.uint8) if count else np.zeros(0, np.uint8)
+            for i in range(0, flat.size, 1 << 26):
+                crc = zlib.crc32(flat[i:i + (1 << 26)], crc)
+            if crc != m.get("crc32"):
+                raise WavlightError(f"{path}: the bake file is damaged (section {name} fails its checksum)")
+        out[name] = a
+    side2 = 1 << (2 * int(header["n_levels"]))
+    cs, blocks = out["column_start"], out["entry_block"]
+    n_blocks = int(header["blocks"][0]) * int(header["blocks"][1])
+    if (cs.shape != (side2 + 1,) or cs[0] != 0 or cs[-1] != len(blocks) or np.any(np.diff(cs) < 0)
+            or (len(blocks) and int(blocks.max()) >= n_blocks) or not np.all(np.isfinite(out["entry_scale"]))):
+        raise WavlightError(f"{path}: the bake file's index is damaged")
+    return out

@@ -1,0 +1,205 @@
+"""A baked transfer (:func:`wavlight.relight.bake`) and its frames under new lighting.
+
+    transfer = wavlight.bake(scene, output="bunny.wlt")        # or Transfer.load("bunny.wlt")
+    image = transfer.frame(rotate_y=120, terms=256)           # float32 (H, W, 3)
+
+A frame (Chen & Gao eq. 6-8): the lighting projected onto the transfer's texels
+(:func:`.lighting.project`: another map, turned about +Y, scaled), its Haar coefficients, the
+K of largest priority (:func:`.lighting.select_terms`), and per pixel a_p N^2 sum_i T^_p,i L^_i
+(:mod:`.frame`), plus the map itself where the pixel's camera samples missed. Approximate by
+design: the texels' resolution, the K terms and the transfer's compression each leave an error,
+which the bake measures on a held-out rotation and records (``measured``).
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import time
+
+import numpy as np
+
+from ..envmap import Environment, read_image
+from ..errors import ArgumentError, WavlightError, check_int, check_number, shown
+from . import lighting, store
+from .. import cl
+from .frame import DeviceEntries, background_cl, background_reference, gather, product_reference
+
+MAX_TERMS = 1 << 22
+
+
+class Transfer:
+    """The transfer of one scene's camera and objects, memory-mapped from its bake file.
+
+    width, height, n_levels (texels 2^n x 2^n), block, bits, spp (camera samples per pixel),
+    terms (the default K), priority, scene ({path, content_hash}), camera, environment (the
+    scene's own map: pixels, rotate_y), measured (the bake's errors and choices)."""
+
+    def __init__(self, path: str, header: dict, sections: dict, owns_file: bool = False):
+        self.path, self.header, self._s = path, header, sections
+        self._owns = owns_file
+        self._device = self._bg = self._env = None
+        h = header
+        self.width, self.height = int(h["width"]), int(h["height"])
+        self.n_levels, self.block, self.bits = int(h["n_levels"]), int(h["block"]), int(h["bits"])
+        self.blocks = (int(h["blocks"][0]), int(h["blocks"][1]))   # (columns, rows) of blocks
+        self.spp = int(h["spp"])
+        self.terms, self.priority = int(h["terms"]), str(h["priority"])
+        self.scene, self.camera, self.measured = h["scene"], h["camera"], h.get("measured", {})
+
+    # -- files
+    @classmethod
+    def load(cls, path, verify: bool = True) -> "Transfer":
+        """A bake file, checked (magic, version, length, checksums, index): a one-line
+        WavlightError for a file that is not one, truncated, damaged or of another version."""
+        path = os.fspath(path)
+        if not os.path.isfile(path):
+            raise WavlightError(f"{path}: no such bake file")
+        header = store.read_header(path)
+        return cls(path, header, store.open_sections(path, header, verify))
+
+    def save(self, path) -> None:
+        """Write the bake file to ``path`` (atomically: a temporary file renamed into place)."""
+        path = os.fspath(path)
+        if os.path.abspath(path) == os.path.abspath(self.path):
+            return
+        folder = os.path.dirname(os.path.abspath(path))
+        tmp = os.path.join(folder, f".wavlight-{os.getpid()}-{time.monotonic_ns()}.tmp")
+        try:
+            shutil.copyfile(self.path, tmp)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    def close(self):
+        """Release the memory maps (and the temporary file of a bake made without an output)."""
+        self._device = self._bg = self._env = None
+        self._s = {}
+        if self._owns and os.path.exists(self.path):
+            os.unlink(self.path)
+            self._owns = False
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:   # interpreter shutdown
+            pass
+
+    @property
+    def scene_rotate_y(self) -> float:
+        """The rotation of the map in the baked scene: a frame's default."""
+        return float(self.header["environment_rotate_y"])
+
+    def summary(self) -> dict:
+        """What the bake chose, its sizes and what it measured (``wavlight bake --json``)."""
+        side = 1 << self.n_levels
+        m = self.measured
+        return {"width": self.width, "height": self.height, "spp": self.spp, "texels": f"{side}x{side}",
+                "n_levels": self.n_levels, "block": self.block, "bits": self.bits, "terms": self.terms,
+                "priority": self.priority, "tolerance": self.header.get("tolerance"), "file": self.path,
+                "file_bytes": self.file_bytes, "entries": self.entries, "entries_full": m.get("entries_full"),
+                "bake_seconds": m.get("bake_seconds"), "rays": m.get("rays"),
+                "rays_per_second": m.get("rays_per_second"), "measured": m,
+                "scene": self.scene}
+
+    @property
+    def file_bytes(self) -> int:
+        return int(self.header["file_bytes"])
+
+    @property
+    def entries(self) -> int:
+        return int(self._s["entry_block"].shape[0])
+
+    # -- lighting
+    def environment(self, env=None, scale: float = 1.0) -> Environment:
+        """The lighting of a frame: ``env`` (an Environment, a map file, or None: the scene's own
+        map as baked), without its rotation (a frame's ``rotate_y`` sets it), times ``scale``."""
+        if env is None:
+            return Environment(np.asarray(self._s["environment"]), scale, 0.0, "the baked environment")
+        if isinstance(env, Environment):
+            return Environment(env.pixels, scale, 0.0, env.name)
+        if isinstance(env, (str, os.PathLike)):
+            name = os.fspath(env)
+            return Environment(read_image(name), scale, 0.0, name)
+        raise ArgumentError(f"Transfer.frame: env must be an Environment, a map file or None, got {shown(env)}")
+
+    def lighting(self, env=None, rotate_y=None, scale: float = 1.0):
+        """(3, N, N) Haar coefficients of the frame's lighting on the transfer's texels."""
+        rot = self.scene_rotate_y if rotate_y is None else rotate_y
+        environment = env if isinstance(env, Environment) and env.rotate_y == 0 else self.environment(env, scale)
+        return lighting.coefficients(lighting.project(environment, self.n_levels, rot, 1.0))
+
+    # -- frames
+    def frame(self, env=None, rotate_y=None, scale: float = 1.0, terms=None, priority=None,
+              backend: str = "opencl") -> np.ndarray:
+        """(H, W, 3) float32: the frame under ``env`` (default: the scene's map) turned to
+        ``rotate_y`` degrees about +Y (absolute, as the scene's rotate_y; default the scene's),
+        times ``scale``, from ``terms`` lighting coefficients (default: the bake's choice)."""
+        return self.frame_timed(env, rotate_y, scale, terms, priority, backend)[0]
+
+    def frame_timed(self, env=None, rotate_y=None, scale: float = 1.0, terms=None, priority=None,
+                    backend: str = "opencl"):
+        """The frame and its timings (seconds of projection, selection, product, assembly)."""
+        where = "Transfer.frame"
+        if rotate_y is not None:
+            rotate_y = check_number(where, "rotate_y", rotate_y)
+        scale = check_number(where, "scale", scale, 0.0, 1e30)
+        terms = self.terms if terms is None else check_int(where, "terms", terms, 1, MAX_TERMS)
+        priority = self.priority if priority is None else priority
+        if priority not in lighting.PRIORITIES:
+            raise ArgumentError(f"{where}: priority must be one of {' | '.join(lighting.PRIORITIES)}, "
+                                f"got {shown(priority)}")
+        if backend not in ("opencl", "numpy"):
+            raise ArgumentError(f"{where}: backend must be opencl or numpy, got {shown(backend)}")
+        t0 = time.perf_counter()
+        environment = self.environment(env, scale)
+        rot = self.scene_rotate_y if rotate_y is None else rotate_y
+        coeffs = lighting.coefficients(lighting.project(environment, self.n_levels, rot, 1.0))
+        t1 = time.perf_counter()
+        columns = lighting.select_terms(coeffs, terms, priority, self._s["rms"])
+        side = 1 << self.n_levels
+        values = coeffs.reshape(3, -1)[:, columns].T * float(side * side)
+        n_blocks = self.blocks[0] * self.blocks[1]
+        ids, weights, block_start = gather(self._s["column_start"], self._s["entry_block"], self._s["entry_scale"],
+                                           columns, values, n_blocks)
+        t2 = time.perf_counter()
+        if backend == "numpy":
+            blocks = product_reference(self._s["entry_data"], ids, weights, block_start)
+        else:
+            if self._device is None:
+                self._device = DeviceEntries(self._s["entry_data"])
+            blocks = self._device.product(ids, weights, block_start)
+        t3 = time.perf_counter()
+        image = self._assemble(blocks, environment, rot, backend)
+        t4 = time.perf_counter()
+        return image, {"lighting_seconds": t1 - t0, "terms_seconds": t2 - t1, "product_seconds": t3 - t2,
+                       "assembly_seconds": t4 - t3, "frame_seconds": t4 - t0, "terms": int(len(columns)),
+                       "entries_read": int(len(ids))}
+
+    def _assemble(self, blocks: np.ndarray, environment: Environment, rotate_y: float, backend: str) -> np.ndarray:
+        """(H, W, 3): the blocks' sums times the albedo, plus the environment where samples missed."""
+        b, (bw, bh) = self.block, self.blocks
+        img = blocks.reshape(bh, bw, b, b, 3).transpose(0, 2, 1, 3, 4).reshape(bh * b, bw * b, 3)
+        img = np.ascontiguousarray(img[:self.height, :self.width] * self._s["albedo"], np.float32)
+        pixels, mask, dirs = (self._s[k] for k in ("background_pixel", "background_mask", "background_dir"))
+        if len(pixels):
+            if backend == "numpy":
+                seen = background_reference(environment, rotate_y, mask, dirs)
+            else:
+                seen = background_cl(self._env_buffer(environment), environment.pixels.shape, rotate_y,
+                                     *self._background_buffers(), len(pixels), self.spp)
+            img.reshape(-1, 3)[np.asarray(pixels, np.int64)] += seen.astype(np.float32)
+        return img
+
+    def _background_buffers(self):
+        if self._bg is None:
+            self._bg = (cl.to_device(np.ascontiguousarray(self._s["background_mask"])),
+                        cl.to_device(np.ascontiguousarray(self._s["background_dir"], np.float32)))
+        return self._bg
+
+    def _env_buffer(self, environment: Environment):
+        """The map on the device, uploaded once per Environment."""
+        if self._env is None or self._env[0] is not environment:
+            self._env = (environment, cl.to_device(environment.pixels))
+        return self._env[1]
