@@ -17,12 +17,8 @@ import click
 
 from wavlight.strategies import APPLIES, OPTIONS, STRATEGIES
 
+from .common import check_output, fail, one_line, refuse_inputs
 from .progress import ProgressBar
-
-
-def _one_line(text) -> str:
-    """Messages from libraries (OpenImageIO) may span lines: joined with '; '."""
-    return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
 
 
 #: set when a SanitisedInputWarning was shown during this invocation (the exit code becomes 3)
@@ -35,17 +31,13 @@ def _warn_line(message, category, filename, lineno, file=None, line=None):
 
     if issubclass(category, SanitisedInputWarning):
         _sanitised = True
-    click.echo(f"warning: {_one_line(message)}", err=True)
-
-
-def _fail(message) -> None:
-    raise click.ClickException(_one_line(message))
+    click.echo(f"warning: {one_line(message)}", err=True)
 
 
 def _show_usage_error(self, file=None):
     """Bad options and arguments in one line too, instead of click's usage block."""
     hint = f" (see '{self.ctx.command_path} --help')" if self.ctx is not None else ""
-    click.echo(f"Error: {_one_line(self.format_message())}{hint}", file=file, err=True)
+    click.echo(f"Error: {one_line(self.format_message())}{hint}", file=file, err=True)
 
 
 click.ClickException.exit_code = 2
@@ -78,23 +70,6 @@ def _exit_code(*args, **kwargs):
 
     if _sanitised:
         sys.exit(SANITISED_EXIT_CODE)
-
-
-def _check_output(path, formats):
-    """Before rendering: a known extension, a folder that exists and can be written."""
-    if os.path.isdir(path):
-        _fail(f"{path}: is a folder, not an image file")
-    if os.path.splitext(path)[1].lower() not in formats:
-        _fail(f"{path}: unsupported output format (use {', '.join(formats)})")
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        _fail(f"{path}: no folder {folder}")
-    if not os.access(folder, os.W_OK):
-        _fail(f"{path}: cannot write into {folder}")
-    # the file is replaced by a rename, which a read-only file would not stop: refuse a file that
-    # the caller cannot write or that has no write permission at all (also for root)
-    if os.path.isfile(path) and (not os.access(path, os.W_OK) or not os.stat(path).st_mode & 0o222):
-        _fail(f"{path}: the file exists and is read-only")
 
 
 def _strategy_options(command):
@@ -150,37 +125,40 @@ def render(scene_file, output, spp, strategy, width, height, seed, stderr_out, a
     t0 = time.perf_counter()
     if output is None:
         output = os.path.splitext(os.path.basename(scene_file))[0] + ".png"
-    _check_output(output, FORMATS)
+    check_output(output, FORMATS)
     if stderr_out is not None:
-        _check_output(stderr_out, LINEAR)
+        check_output(stderr_out, LINEAR)
         if os.path.abspath(stderr_out) == os.path.abspath(output):
-            _fail(f"{stderr_out}: --stderr-out must differ from the output image")
+            fail(f"{stderr_out}: --stderr-out must differ from the output image")
     from wavlight.scene import MAX_SIDE, MAX_SPP
     for name, value, lo, hi in (("--spp", spp, 1, MAX_SPP), ("--width", width, 1, MAX_SIDE),
                                 ("--height", height, 1, MAX_SIDE), ("--seed", seed, 0, 2 ** 63 - 1)):
         if value is not None and not lo <= value <= hi:
-            _fail(f"{name} must be between {lo} and {hi}, got {value}")
+            fail(f"{name} must be between {lo} and {hi}, got {value}")
     try:
         scene = wavlight.load_scene(scene_file)
+        for name in (output, stderr_out):   # an output must not overwrite the scene or a file it reads
+            if name is not None:
+                refuse_inputs(name, [scene_file, *scene.files])
         if scene.environment.is_black:
-            _fail(f"{scene_file}: [environment]: the environment is black everywhere; "
+            fail(f"{scene_file}: [environment]: the environment is black everywhere; "
                   "the image would be black")
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr)
         if stderr_out is not None and (scene.spp if spp is None else spp) < 2:
-            _fail(f"{stderr_out}: a standard error needs spp >= 2")
+            fail(f"{stderr_out}: a standard error needs spp >= 2")
         result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
                                       seed=seed, progress=bar, **options)
         if bar:
             bar.close()
         bad = int((~np.isfinite(result.image)).any(axis=-1).sum())
         if bad:   # (the inputs are finite and bounded: an estimate overflowed float32)
-            _fail(f"{output}: {bad} pixel(s) came out NaN or Inf (an estimate radiance x BRDF / pdf overflowed "
+            fail(f"{output}: {bad} pixel(s) came out NaN or Inf (an estimate radiance x BRDF / pdf overflowed "
                   "float32; try another strategy or a dimmer map); nothing written")
         # the image and its standard errors appear together or not at all
         wavlight.imageio.save_images([(output, result.image)]
                                      + ([] if stderr_out is None else [(stderr_out, result.stderr)]))
     except wavlight.WavlightError as e:
-        _fail(e)
+        fail(e)
     stats = dict(result.stats)
     stats["load_seconds"] = round(time.perf_counter() - t0 - stats["setup_seconds"] - stats["render_seconds"], 4)
     stats["output"] = output
@@ -215,7 +193,7 @@ def info():
         click.echo("OpenCL builtins: " + ("inlined (kernels/simd.h)" if cl.builtins_inlined()
                                           else "the device's library"))
     except wavlight.WavlightError as e:
-        _fail(e)
+        fail(e)
     click.echo(f"(set {cl.DEVICE_ENV}=P:D or a name fragment to choose another)")
 
 

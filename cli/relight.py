@@ -14,25 +14,8 @@ import sys
 
 import click
 
+from .common import check_output, fail, refuse_inputs
 from .progress import ProgressBar
-
-
-def _fail(message):
-    from .main import _fail as fail
-    fail(message)
-
-
-def _check_output(path, formats):
-    from .main import _check_output as check
-    check(path, formats)
-
-
-def _refuse_inputs(output, inputs):
-    """An output that names one of the run's inputs would destroy it: refused before any work."""
-    out = os.path.realpath(output)
-    for name in inputs:
-        if name and os.path.exists(name) and os.path.realpath(name) == out:
-            _fail(f"{output}: is an input of this run ({name}); choose another output")
 
 
 @click.command()
@@ -58,22 +41,22 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, bits, terms,
     import wavlight
 
     if os.path.isdir(output):
-        _fail(f"{output}: is a folder, not a file")
+        fail(f"{output}: is a folder, not a file")
     folder = os.path.dirname(os.path.abspath(output))
     if not os.path.isdir(folder):
-        _fail(f"{output}: no folder {folder}")
+        fail(f"{output}: no folder {folder}")
     try:
         scene = wavlight.load_scene(scene_file)
-        _refuse_inputs(output, [scene_file, *scene.files])
+        refuse_inputs(output, [scene_file, *scene.files])
         if scene.environment.is_black:
-            _fail(f"{scene_file}: [environment]: the environment is black everywhere; nothing to relight")
+            fail(f"{scene_file}: [environment]: the environment is black everywhere; nothing to relight")
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
         transfer = wavlight.bake(scene, output, width=width, height=height, spp=spp, levels=levels,
                                  tolerance=tolerance, bits=int(bits), terms=terms, seed=seed, progress=bar)
         if bar:
             bar.close()
     except wavlight.WavlightError as e:
-        _fail(e)
+        fail(e)
     stats = transfer.summary()
     if as_json:
         click.echo(json.dumps(stats))
@@ -110,22 +93,22 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
     from wavlight.imageio import FORMATS
 
     if rotate_y is not None and not math.isfinite(rotate_y):
-        _fail(f"--rotate-y must be a finite number of degrees, got {rotate_y}")
+        fail(f"--rotate-y must be a finite number of degrees, got {rotate_y}")
     try:
         transfer = wavlight.Transfer.load(bake_file)
         env = None
         if env_file is not None:
             env = transfer.environment(env_file, scale)
             if env.is_black:
-                _fail(f"{env_file}: the environment is black everywhere; the frame would be black")
+                fail(f"{env_file}: the environment is black everywhere; the frame would be black")
             scale_used = 1.0
         else:
             scale_used = scale
         if turntable is None:
             if output is None:
                 output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
-            _check_output(output, FORMATS)
-            _refuse_inputs(output, [bake_file, env_file])
+            check_output(output, FORMATS)
+            refuse_inputs(output, [bake_file, env_file])
             times = []
             for _ in range(repeat):
                 image, st = transfer.frame_timed(env, rotate_y, scale_used, terms, priority)
@@ -134,7 +117,7 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
             outputs = [output]
         else:
             if output is None:
-                _fail("--turntable writes a folder of frames: give it with -o DIR")
+                fail("--turntable writes a folder of frames: give it with -o DIR")
             os.makedirs(output, exist_ok=True)
             base = transfer.scene_rotate_y if rotate_y is None else rotate_y
             times, outputs, frames = [], [], []
@@ -149,7 +132,7 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
             if gif:
                 outputs.append(gif)
     except wavlight.WavlightError as e:
-        _fail(e)
+        fail(e)
     median = statistics.median(times)
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
              "terms": st["terms"], "entries_read": st["entries_read"], "width": transfer.width,

@@ -725,7 +725,7 @@ def test_bad_option_is_one_line(tmp_path, args, name):
 
 
 def test_library_messages_spanning_lines_print_as_one():
-    from wavlight.cli.main import _one_line
+    from wavlight.cli.common import one_line as _one_line
 
     assert _one_line("file.pfm: bad header\n  size 0 x 0\n") == "file.pfm: bad header; size 0 x 0"
 
