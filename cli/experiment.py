@@ -1,7 +1,7 @@
-"""`wavlight experiment SPEC -o DIR`: a thin layer over :func:`wavlight.experiment.run_experiment`.
+"""`wavlight experiment SPEC -o DIR`: a thin layer over :func:`wavlight.evaluation.experiment.run_experiment`.
 
 `wavlight experiment --suite stability -o DIR` runs a built-in suite instead of a spec file
-(:func:`wavlight.experiment.run_suite`; the stability suite is :mod:`wavlight.stability`) and
+(:func:`wavlight.evaluation.experiment.run_suite`; the stability suite is :mod:`wavlight.evaluation.stability`) and
 prints its table.
 
 ``--workers N`` renders the runs in N spawned local processes, ``--dask tcp://HOST:PORT``

@@ -25,7 +25,8 @@ import warnings
 import numpy as np
 
 from . import warp
-from .errors import SanitisedInputWarning, WavlightError, file_problem
+from .errors import (ArgumentError, SanitisedInputWarning, WavlightError, check_int, check_number, check_real,
+                     file_problem, shown)
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
 ONE_BELOW = float(np.nextafter(1.0, 0.0))
@@ -118,6 +119,13 @@ def sanitize(pixels: np.ndarray, name: str) -> np.ndarray:
     return pixels
 
 
+def _colour(where, name, value):
+    c = check_real(where, name, value, finite=True)
+    if c.shape != (3,) or np.any(c < 0):
+        raise ArgumentError(f"{where}: {name} must be 3 numbers >= 0, got {shown(value)}")
+    return tuple(float(x) for x in c)
+
+
 def procedural_sky(sun_elevation=35.0, sun_azimuth=30.0, sun_radius=0.75, sun_radiance=2.0e4,
                    zenith=(0.25, 0.45, 0.95), horizon=(0.9, 0.95, 1.0), ground=(0.3, 0.27, 0.24),
                    width=512, height=256) -> np.ndarray:
@@ -129,6 +137,17 @@ def procedural_sky(sun_elevation=35.0, sun_azimuth=30.0, sun_radius=0.75, sun_ra
     cos r), exactly. A sun smaller than a texel (at 512 x 256 a texel is 0.7 degrees; the real
     sun's radius is 0.27) thus lights its texel(s) dimmer than sun_radiance, with its power.
     """
+    where = "envmap.procedural_sky"
+    sun_elevation = check_number(where, "sun_elevation", sun_elevation, -90.0, 90.0)
+    sun_azimuth = check_number(where, "sun_azimuth", sun_azimuth)
+    sun_radius = check_number(where, "sun_radius", sun_radius, 0.0, 90.0)
+    if sun_radius == 0:
+        raise ArgumentError(f"{where}: sun_radius must be in (0, 90] degrees, got 0")
+    sun_radiance = check_number(where, "sun_radiance", sun_radiance, 0.0)
+    zenith, horizon, ground = (_colour(where, k, v) for k, v in (("zenith", zenith), ("horizon", horizon),
+                                                                  ("ground", ground)))
+    width = check_int(where, "width", width, 1, 1 << 14)
+    height = check_int(where, "height", height, 1, 1 << 13)
     v = (np.arange(height) + 0.5) / height
     u = (np.arange(width) + 0.5) / width
     theta = v * np.pi
@@ -211,9 +230,16 @@ class Environment:
     """
 
     def __init__(self, pixels: np.ndarray, scale: float = 1.0, rotate_y: float = 0.0, name="environment"):
-        pixels = sanitize(np.asarray(pixels, np.float32), name)
+        name = name if isinstance(name, str) else shown(name)
+        scale = check_number(f"Environment {name}", "scale", scale, 0.0)
+        rotate_y = check_number(f"Environment {name}", "rotate_y", rotate_y)
+        pixels = check_real(f"Environment {name}", "pixels", pixels)
         if pixels.ndim != 3 or pixels.shape[2] != 3 or pixels.shape[0] < 1 or pixels.shape[1] < 1:
             raise WavlightError(f"{name}: expected an (H, W, 3) image, got shape {pixels.shape}")
+        if pixels.shape[0] * pixels.shape[1] > MAX_TEXELS:
+            raise WavlightError(f"{name}: a map of {pixels.shape[1]}x{pixels.shape[0]} texels is too large "
+                                f"(at most {MAX_TEXELS})")
+        pixels = sanitize(np.asarray(pixels, np.float32), name)
         self.name = name
         self.pixels = np.ascontiguousarray(pixels * np.float32(scale))
         peak = float(self.pixels.max(initial=0.0))

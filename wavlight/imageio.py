@@ -35,6 +35,10 @@ LINEAR = (".exr", ".hdr", ".pfm")
 DISPLAY = (".png",)
 FORMATS = LINEAR + DISPLAY
 
+#: The largest image save_image writes: renders are at most 16384 a side (wavlight.scene.MAX_SIDE);
+#: a larger array (np.broadcast_to makes one of 10^10 pixels in no memory) would fill the disk.
+MAX_WRITE_SIDE = 65536
+MAX_WRITE_PIXELS = 1 << 30
 #: Pixels converted and written per call (rows of at most this many bytes of float32 RGB).
 STRIP_BYTES = 1 << 22
 #: Bytes per pixel of a render: render_full's film (the image and its standard error, float32
@@ -169,9 +173,12 @@ def save_images(outputs) -> None:
     file first, and the temporaries are renamed over the targets only once all are written
     (an error in any leaves none of them written)."""
     try:
-        outputs = [(_path(path), image) for path, image in outputs]
-    except (TypeError, ValueError):
+        pairs = list(outputs)
+        if not all(isinstance(p, (tuple, list)) and len(p) == 2 for p in pairs):
+            raise TypeError
+    except TypeError:
         raise ArgumentError(f"save_images: outputs must be (path, image) pairs, got {shown(outputs)}") from None
+    outputs = [(_path(path), image) for path, image in pairs]
     for n, (path, _) in enumerate(outputs):
         if any(same_file(path, other) for other, _ in outputs[:n]):
             raise ArgumentError(f"{path}: named twice among the outputs")
@@ -197,12 +204,11 @@ def save_images(outputs) -> None:
 
 
 def _path(path) -> str:
-    if not isinstance(path, (str, os.PathLike)):
-        raise TypeError
-    path = os.fspath(path)
-    if not isinstance(path, str) or not path or "\0" in path:
-        raise ValueError
-    return path
+    """An output path as a str, or a one-line ArgumentError (None, a number, bytes, "", a NUL)."""
+    p = os.fspath(path) if isinstance(path, (str, os.PathLike)) else None
+    if not isinstance(p, str) or not p or "\0" in p:
+        raise ArgumentError(f"save_image: the path must be a file name (str or os.PathLike), got {shown(path)}")
+    return p
 
 
 class _Terminated(SystemExit):
@@ -315,8 +321,10 @@ def _check_pixels(path: str, image) -> np.ndarray:
         raise WavlightError(f"{path}: expected an (H, W, 3) image, got shape {a.shape}")
     if a.shape[0] < 1 or a.shape[1] < 1:
         raise WavlightError(f"{path}: expected an (H, W, 3) image, got an empty one of shape {a.shape}")
-    if a.shape[0] > 1 << 20 or a.shape[1] > 1 << 20:
-        raise WavlightError(f"{path}: an image of {a.shape[1]}x{a.shape[0]} pixels is too large to write")
+    if a.shape[0] > MAX_WRITE_SIDE or a.shape[1] > MAX_WRITE_SIDE or a.shape[0] * a.shape[1] > MAX_WRITE_PIXELS:
+        raise WavlightError(f"{path}: an image of {a.shape[1]}x{a.shape[0]} pixels is too large to write (at most "
+                            f"{MAX_WRITE_SIDE} a side and {MAX_WRITE_PIXELS} pixels, "
+                            f"{MAX_WRITE_PIXELS * 12 >> 30} GiB as float RGB)")
     return a
 
 
@@ -354,8 +362,9 @@ def _write_temporary(path: str, image) -> str:
         part = image[y0:y1]
         if part.dtype.kind == "f" and not np.isfinite(part).all():
             raise WavlightError(f"{path}: refusing to write an image with NaN or Inf pixels")
-        if part.dtype.kind != "f" and np.abs(part).max() > np.finfo(np.float32).max:
-            raise WavlightError(f"{path}: refusing to write an image with values beyond float32")
+        if part.dtype != np.float32 and part.size and np.abs(part).max() > np.finfo(np.float32).max:
+            raise WavlightError(f"{path}: refusing to write an image with values beyond float32's range "
+                                "(they would become Inf)")
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise WavlightError(f"{path}: folder {folder} does not exist")

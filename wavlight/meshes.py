@@ -18,8 +18,18 @@ import os
 
 import numpy as np
 
+from .errors import WavlightError, check_int, check_number, file_problem
+
+
+class MeshError(WavlightError, ValueError):
+    """A mesh file that cannot be read as given (a ValueError too, as before): the message says
+    why, naming the face or line; load_scene prefixes the file and the key."""
+
+
 #: Mesh files are read whole into memory: larger ones are refused before reading.
 MAX_MESH_BYTES = 2 << 30
+#: icosphere's limit (scene files allow 8: 1.3 M triangles; 10 is 21 M, about 2 GB of geometry).
+MAX_SUBDIVISIONS = 10
 
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
           "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
@@ -31,7 +41,7 @@ def _header(data: bytes):
     or ("list", count type, index type, name)."""
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0:
-        raise ValueError("not a PLY file (no 'ply' magic or 'end_header')")
+        raise MeshError("not a PLY file (no 'ply' magic or 'end_header')")
     nl = data.find(b"\n", end)
     body = len(data) if nl < 0 else nl + 1
     fmt, elements = None, []
@@ -46,14 +56,21 @@ def _header(data: bytes):
         elif w[0] == "property" and elements and len(w) >= 3:
             elements[-1][2].append(("list", w[2], w[3], w[4]) if w[1] == "list" and len(w) == 5 else (w[2], w[1]))
         else:
-            raise ValueError(f"malformed PLY header line {line.strip()!r}")
+            raise MeshError(f"malformed PLY header line {line.strip()!r}")
     return fmt, elements, body
 
 
 def _read_bytes(path: str) -> bytes:
+    """The file's bytes; ValueError (with the reason) for a path that is not a readable regular
+    file (an int would open a file descriptor; a FIFO would block) or a file beyond MAX_MESH_BYTES."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise MeshError(f"expected a mesh file's path, got {type(path).__name__}")
+    problem = file_problem(path)
+    if problem is not None:
+        raise MeshError(problem)
     size = os.stat(path).st_size
     if size > MAX_MESH_BYTES:
-        raise ValueError(f"the file is {size / 1e9:.1f} GB; meshes of up to {MAX_MESH_BYTES >> 30} GiB are read")
+        raise MeshError(f"the file is {size / 1e9:.1f} GB; meshes of up to {MAX_MESH_BYTES >> 30} GiB are read")
     with open(path, "rb") as fh:
         return fh.read()
 
@@ -66,12 +83,12 @@ def _check_indices(idx, nv: int, what: str = "face"):
         if frac.any():
             i = int(np.argmax(frac.any(axis=1)))
             bad = idx[i][frac[i]][0]
-            raise ValueError(f"{what} {i}: vertex index {bad:g} is not an integer")
+            raise MeshError(f"{what} {i}: vertex index {bad:g} is not an integer")
     out = np.asarray(idx, np.int64) if idx.dtype.kind != "f" else np.round(idx).astype(np.int64)
     bad = (out < 0) | (out >= nv)
     if bad.any():
         i = int(np.argmax(bad.any(axis=1)))
-        raise ValueError(f"{what} {i}: vertex index {int(out[i][bad[i]][0])} is outside 0..{nv - 1} "
+        raise MeshError(f"{what} {i}: vertex index {int(out[i][bad[i]][0])} is outside 0..{nv - 1} "
                          f"(the file holds {nv} vertices)")
     return out
 
@@ -92,7 +109,7 @@ def read_ply(path: str):
             or any(p[0] == "list" for p in fprops[1:])):
         return None
     if _TYPES[fprops[0][2]][0] == "f" or _TYPES[fprops[0][1]][0] == "f":
-        raise ValueError(f"the face list '{' '.join(fprops[0])}' has a floating-point type; "
+        raise MeshError(f"the face list '{' '.join(fprops[0])}' has a floating-point type; "
                          "counts and vertex indices must be integer types")
     xyz = [names.index(c) for c in "xyz"]
     width = 4 + len(fprops) - 1                     # count, three indices, the other face properties
@@ -102,7 +119,7 @@ def read_ply(path: str):
         except ValueError:
             return None
         if len(tokens) < nv * len(vprops) + nf * width:
-            raise ValueError(f"truncated: the header declares {nv} vertices and {nf} faces, the file "
+            raise MeshError(f"truncated: the header declares {nv} vertices and {nf} faces, the file "
                              f"holds fewer values")
         if len(tokens) != nv * len(vprops) + nf * width:
             return None                             # polygons other than triangles, or trailing data
@@ -118,7 +135,7 @@ def read_ply(path: str):
         fdt = np.dtype([("n", e + _TYPES[fprops[0][1]]), ("i", e + _TYPES[fprops[0][2]], (3,))]
                        + [(f"q{k}", e + _TYPES[t]) for k, (_, t) in enumerate(fprops[1:])])
         if len(data) - start < nv * vdt.itemsize + nf * fdt.itemsize:
-            raise ValueError(f"truncated: the header declares {nv} vertices and {nf} faces, the file "
+            raise MeshError(f"truncated: the header declares {nv} vertices and {nf} faces, the file "
                              f"is {nv * vdt.itemsize + nf * fdt.itemsize - (len(data) - start)} bytes short")
         if len(data) - start != nv * vdt.itemsize + nf * fdt.itemsize:
             return None
@@ -153,26 +170,26 @@ def read_obj(path: str):
         key = w[0]
         if key == "v":
             if len(w) < 4:
-                raise ValueError(f"line {number}: a vertex needs three numbers, got {line.strip()[:60]!r}")
+                raise MeshError(f"line {number}: a vertex needs three numbers, got {line.strip()[:60]!r}")
             coords += w[1:4]
             vlines.append(number)
             nv += 1
         elif key == "f":
             if len(w) < 4:
-                raise ValueError(f"line {number}: a face needs at least three vertices, got {line.strip()[:60]!r}")
+                raise MeshError(f"line {number}: a face needs at least three vertices, got {line.strip()[:60]!r}")
             refs = []
             for ref in w[1:]:
                 head = ref.split("/", 1)[0]
                 try:
                     i = int(head)
                 except ValueError:
-                    raise ValueError(f"line {number}: face index {head[:30]!r} is not an integer") from None
+                    raise MeshError(f"line {number}: face index {head[:30]!r} is not an integer") from None
                 if i == 0:
-                    raise ValueError(f"line {number}: face index 0 (OBJ indices start at 1; negative ones count "
+                    raise MeshError(f"line {number}: face index 0 (OBJ indices start at 1; negative ones count "
                                      "back from the last vertex)")
                 if i < 0:
                     if -i > nv:
-                        raise ValueError(f"line {number}: face index {i} reaches before the first vertex "
+                        raise MeshError(f"line {number}: face index {i} reaches before the first vertex "
                                          f"({nv} read so far)")
                     i = nv + i
                 else:
@@ -192,18 +209,21 @@ def read_obj(path: str):
             try:
                 float(c)
             except ValueError:
-                raise ValueError(f"line {vlines[k // 3]}: vertex coordinate {c[:30]!r} is not a number") from None
+                raise MeshError(f"line {vlines[k // 3]}: vertex coordinate {c[:30]!r} is not a number") from None
         raise
     faces = np.array(tris, np.int64).reshape(-1, 3)
     if faces.size and faces.max() >= nv:
         k = int(np.argmax(faces.max(axis=1) >= nv))
-        raise ValueError(f"line {tlines[k]}: face index {int(faces[k].max()) + 1} but the file holds {nv} vertices")
+        raise MeshError(f"line {tlines[k]}: face index {int(faces[k].max()) + 1} but the file holds {nv} vertices")
     return verts, faces
 
 
 def icosphere(subdivisions: int, radius: float = 1.0):
     """(vertices (V, 3), faces (F, 3)) of a sphere about the origin: an icosahedron subdivided
-    `subdivisions` times (20 4^s faces), counter-clockwise seen from outside."""
+    `subdivisions` times (20 4^s faces; at most MAX_SUBDIVISIONS), counter-clockwise seen from
+    outside."""
+    subdivisions = check_int("meshes.icosphere", "subdivisions", subdivisions, 0, MAX_SUBDIVISIONS)
+    radius = check_number("meshes.icosphere", "radius", radius, 0.0)
     t = (1.0 + 5.0 ** 0.5) / 2.0
     v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
                   [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], np.float64)

@@ -1,6 +1,6 @@
 """How much of what the camera sees lies in partial shadow: a pilot of shadow rays at setup.
 
-The wavelet strategy's resampling estimator (README, "Resampling") spends its work on two
+The wavelet strategy's resampling estimator (docs/strategies.md) spends its work on two
 things: candidates (walks, no rays) and slots (directions that get a shadow ray). With its
 control variate an unshadowed point's estimate is the candidates' own unshadowed estimate,
 exact in the slots, so there only candidates reduce the variance; where a point's lighting is

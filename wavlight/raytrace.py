@@ -14,7 +14,37 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from .errors import ArgumentError, check_int, check_integers, check_real
+
 _CHUNK = 1 << 15
+#: embree takes int32 indices and a float32 soup: at most this many vertices and faces.
+MAX_ELEMENTS = (1 << 31) - 1
+
+
+def _geometry(vertices, faces):
+    """(vertices (V, 3) finite, faces (F, 3) integers in [0, V)) or a one-line ArgumentError."""
+    v = check_real("RayTracer", "vertices", vertices, finite=True)
+    f = check_integers("RayTracer", "faces", faces)
+    if v.ndim != 2 or v.shape[1] != 3 or (f.size and (f.ndim != 2 or f.shape[1] != 3)):
+        raise ArgumentError(f"RayTracer: vertices (V, 3) and faces (F, 3) expected, got shapes {v.shape} and {f.shape}")
+    f = f.reshape(-1, 3)
+    if len(v) > MAX_ELEMENTS or len(f) > MAX_ELEMENTS:
+        raise ArgumentError(f"RayTracer: at most {MAX_ELEMENTS} vertices and faces (embree's int32 indices), got "
+                            f"{len(v)} and {len(f)}")
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
+        raise ArgumentError(f"RayTracer: faces must index the {len(v)} vertices, got "
+                            f"{int(f.min()) if f.min() < 0 else int(f.max())}")
+    if v.size and np.abs(v).max() > 1.8e18:
+        raise ArgumentError("RayTracer: vertex coordinates beyond embree's range (|x| <= 1.8e18)")
+    return v, f
+
+
+def _rays(where, origins, dirs):
+    o = check_real(where, "origins", origins)
+    d = check_real(where, "dirs", dirs)
+    if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
+        raise ArgumentError(f"{where}: origins and dirs must both be (N, 3), got shapes {o.shape} and {d.shape}")
+    return o, d
 
 # Shadow rays start at the hit point moved along the face normal by
 #     max(OFFSET_RELATIVE |p|, OFFSET_FLOOR max(|v| of the face's vertices), OFFSET_FLOOR |eye|)
@@ -33,8 +63,9 @@ class RayTracer:
         import embreex.mesh_construction as mc
         import embreex.rtcore_scene as rtcs
 
+        vertices, faces = _geometry(vertices, faces)
         self.n_faces = len(faces)
-        self.threads = max(1, threads)
+        self.threads = check_int("RayTracer", "threads", threads, 1, 4096)
         self._scene = None
         if self.n_faces:
             self._scene = rtcs.EmbreeScene(robust=False)
@@ -47,7 +78,10 @@ class RayTracer:
         f = np.asarray(faces, np.int64)
         if self.n_faces:
             n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-            self.face_normals = (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
+            length = np.linalg.norm(n, axis=1, keepdims=True)
+            # a zero-area face (a Scene built in Python; load_scene removes them) gets a zero normal,
+            # not NaN: embree never reports a hit on it, and nothing divides by 0 with a warning
+            self.face_normals = np.divide(n, length, out=np.zeros_like(n), where=length > 0).astype(np.float32)
             extent = float(np.ptp(v, axis=0).max())
             self.scale = max(extent, float(np.abs(v).max()), 1e-6)
             self.face_offset_floor = (OFFSET_FLOOR * np.abs(v[f]).max(axis=(1, 2))).astype(np.float32)
@@ -89,6 +123,7 @@ class RayTracer:
 
     def intersect(self, origins: np.ndarray, dirs: np.ndarray):
         """Closest hits: (prim (N,) int32, -1 for a miss; t (N,) float32)."""
+        origins, dirs = _rays("RayTracer.intersect", origins, dirs)
         if self._scene is None or len(origins) == 0:
             return np.full(len(origins), -1, np.int32), np.full(len(origins), np.inf, np.float32)
 
@@ -101,6 +136,7 @@ class RayTracer:
 
     def occluded(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
         """(N,) bool: True where the ray from origin along dir hits any triangle."""
+        origins, dirs = _rays("RayTracer.occluded", origins, dirs)
         if self._scene is None or len(origins) == 0:
             return np.zeros(len(origins), bool)
 

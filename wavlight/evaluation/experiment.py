@@ -1,6 +1,6 @@
 """Batch experiments: scenes x strategies x budgets x repetitions, measured against a reference.
 
-    results = wavlight.experiment.run_experiment("experiments/example.toml", "out/example")
+    results = wavlight.evaluation.experiment.run_experiment("experiments/example.toml", "out/example")
 
 or ``wavlight experiment experiments/example.toml -o out/example``.
 
@@ -79,7 +79,7 @@ Decisions:
   cannot be read (truncated, corrupt), has another size or NaN / Inf pixels is rendered
   again, with a one-line warning. Both files are written atomically, the record last.
 - **Mitsuba peers.** ``id = "mitsuba:<mis|mis_comp|light|bsdf>"`` renders with
-  :func:`wavlight.peers.render_mitsuba` (same scene, size, spp, seed; its setup includes
+  :func:`wavlight.evaluation.peers.render_mitsuba` (same scene, size, spp, seed; its setup includes
   scene conversion and a JIT warm-up; ``threads`` does not apply). The default label is
   the id with ``-`` for ``:`` (``mitsuba-mis``); wavlight options are rejected. Without
   Mitsuba 3 (llvm_ad_rgb) the spec is rejected (``[[strategies]][i].id: 'mitsuba:mis'
@@ -97,14 +97,14 @@ Decisions:
   contend for the cores (set ``threads`` to cores / N), and time budgets' spp come from
   pilots measured alone. Each worker process warms up each (scene, strategy) untimed
   before its first run. ``results.json`` records ``executor``.
-- **Metrics** (:mod:`wavlight.metrics`) are computed after the runs, from the saved
+- **Metrics** (:mod:`wavlight.evaluation.metrics`) are computed after the runs, from the saved
   images and the reference, so they always match the current reference: per run mse,
   relmse (both corrected by the reference's variance when its stderr is known),
   max_error, max_rel_error; per (scene, strategy, budget) the mean, sd, min and max of
   those over the repetitions, the mean per-pixel variance over the repetitions
   (``variance``, ``rel_variance``), ``bias`` with ``bias_se``, and relMSE x time
   (``relmse_x_seconds``, lower is better at any budget). ``bias`` and ``bias_se`` are
-  :func:`wavlight.metrics.bias` of the per-pixel channel mean (:func:`_bias`): the channels
+  :func:`wavlight.evaluation.metrics.bias` of the per-pixel channel mean (:func:`_bias`): the channels
   share a pixel's samples and their noise correlates (about 0.95), so pooling them as
   independent values would understate the SE (by up to sqrt(3)); the reference's SE of
   a channel mean is the mean of its channels' SEs (exact for perfect correlation, an
@@ -118,7 +118,7 @@ Decisions:
   standard deviation: with 2-3 repetitions that is the honest spread); non-positive
   values (possible after the reference correction) are not drawn. ``error-maps``: per
   scene the reference and, per strategy, the false-colour map of
-  :func:`wavlight.metrics.error_map` of repetition 0 at equal time, on a fixed scale
+  :func:`wavlight.evaluation.metrics.error_map` of repetition 0 at equal time, on a fixed scale
   0..1 (values above 1 saturate). Equal time means the largest ``seconds`` budget when
   there is one; otherwise T = the largest mean total time that every strategy reaches,
   and each strategy shows its budget closest to T (in log time).
@@ -504,7 +504,7 @@ def run_task(task: dict) -> dict:
 _DASK_ADDRESS = re.compile(r"^(tcp|tls|ucx|ws|wss)://[^/\s]+:\d+/?$")
 
 
-def _dask_client(address, timeout: float = DASK_TIMEOUT):
+def _dask_client(address, timeout: float | None = None):
     """A dask.distributed client of the scheduler at ``address`` (tcp://HOST:PORT) with at least
     one worker, or a one-line WavlightError naming the address within ``timeout`` seconds: not
     installed, not an address, nothing listening, a service that is not a Dask scheduler (it
@@ -517,7 +517,7 @@ def _dask_client(address, timeout: float = DASK_TIMEOUT):
     and the client is then made on a thread that is given the time left."""
     if not isinstance(address, str) or not _DASK_ADDRESS.match(address):
         raise WavlightError(f"dask {shown(address)}: expected a scheduler address tcp://HOST:PORT")
-    timeout = float(timeout)
+    timeout = float(DASK_TIMEOUT if timeout is None else timeout)
     try:
         from distributed import Client
     except ImportError:
@@ -632,7 +632,7 @@ def _greeting(address, deadline, timeout):
     except socket.timeout:
         raise WavlightError(f"dask {address}: no answer from a Dask scheduler within {timeout:g} s "
                             "(the connection was accepted, nothing came back)") from None
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, OverflowError) as e:   # (OverflowError: a port beyond 65535)
         raise WavlightError(f"dask {address}: cannot connect to the scheduler "
                             f"({getattr(e, 'strerror', None) or _one_line(e)})") from None
     try:
@@ -729,7 +729,7 @@ def _stat(values):
 
 
 def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, dask_address=None,
-                   dask_timeout=DASK_TIMEOUT) -> dict:
+                   dask_timeout=None) -> dict:
     """Run (or resume) an experiment; write results, charts and error maps to out_dir.
 
     ``progress(done, total, what)`` is called after each reference, pilot and run
@@ -739,7 +739,7 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, da
     ``rendered`` and ``reused`` (run counts of this call).
 
     ``workers`` (1 .. MAX_WORKERS) local processes, or ``dask_address``, whose scheduler must
-    answer, with a worker, within ``dask_timeout`` seconds (DASK_TIMEOUT). Temporaries that a
+    answer, with a worker, within ``dask_timeout`` seconds (default DASK_TIMEOUT). Temporaries that a
     killed experiment left in ``out_dir`` are removed first (:func:`records.remove_stale`).
     """
     t_start = time.perf_counter()
@@ -752,6 +752,7 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, da
         raise WavlightError(f"progress must be a callable or None, got {shown(progress)}")
     if not isinstance(resume, bool):
         raise WavlightError(f"resume must be True or False, got {shown(resume)}")
+    dask_timeout = DASK_TIMEOUT if dask_timeout is None else dask_timeout
     if (isinstance(dask_timeout, bool) or not isinstance(dask_timeout, (int, float))
             or not 0 < dask_timeout <= 3600):
         raise WavlightError(f"dask_timeout must be a number of seconds in (0, 3600], got {shown(dask_timeout)}")
@@ -794,11 +795,16 @@ SUITES = ("stability",)
 def run_suite(name, out_dir, progress=None, **options) -> tuple[dict, str]:
     """Run a built-in suite instead of an experiment file: (results dict, text table).
 
-    ``stability``: :func:`wavlight.stability.run_stability` (``options`` go to it).
+    ``stability``: :func:`wavlight.evaluation.stability.run_stability` (``options`` go to it).
     """
     if name not in SUITES:
-        raise WavlightError(f"unknown suite {name!r} ({' | '.join(SUITES)})")
+        raise WavlightError(f"unknown suite {shown(name)} ({' | '.join(SUITES)})")
     from . import stability
+    import inspect
+    known = set(inspect.signature(stability.run_stability).parameters) - {"out_dir", "progress"}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise WavlightError(f"suite {name}: unknown option {unknown[0]!r} ({' | '.join(sorted(known))})")
     results = stability.run_stability(out_dir, progress=progress, **options)
     return results, stability.format_table(results)
 
@@ -976,7 +982,7 @@ def format_summary(results: dict) -> str:
                          for m in (run.get("stats") or {}).get("approximated_materials") or []})
         for strategy, material in approx:   # a peer's error then holds a bias that spp never removes
             lines.append(f"  note: {strategy} renders material {material!r} with an approximation "
-                         "(wavlight.peers): its error includes that difference")
+                         "(wavlight.evaluation.peers): its error includes that difference")
     return "\n".join(lines)
 
 

@@ -1,6 +1,6 @@
 """The stability suite: adversarial cases x every strategy, tested for bias, variance, fireflies and failures.
 
-    results = wavlight.stability.run_stability("out/stability")
+    results = wavlight.evaluation.stability.run_stability("out/stability")
 
 or ``wavlight experiment --suite stability -o out/stability`` (about 2-2.5 minutes on 2 cores). The
 strategies are every id of ``wavlight.scene.STRATEGIES`` at call time, so new ones join without
@@ -64,7 +64,7 @@ standard error (0 when analytic), per pixel and channel:
   and its standard error sqrt(sum (se^2 + s_r^2)) / N (pixels are independent estimates: each
   draws its own samples); ``z_mean`` is the d_c / se_c of largest magnitude (channels are tested
   separately: they share samples, so pooling them as independent values, as
-  :func:`wavlight.metrics.bias` does, would understate the standard error);
+  :func:`wavlight.evaluation.metrics.bias` does, would understate the standard error);
 - float32 rounding: |d| is first reduced by 1e-5 |r| + 1e-6 (the zero-variance estimators, e.g.
   cosine sampling of a lambert floor under a constant map, are exact only up to it); a zero
   standard error with a difference left is |z| = ``Z_CAP`` (1e9; z is capped there in all outputs).
@@ -112,9 +112,9 @@ every repetition (the variances then agree); its cell reads "biased?". The full 
 are chosen so that the tiny suns are hit many times per cell; the image-mean test, on all R spp N
 samples of a cell, is by far the more robust of the two.
 
-**Other measures per cell.** ``variance`` and ``rel_variance``: :func:`wavlight.metrics.mean_variance`
-and :func:`~wavlight.metrics.relative_variance` over the R repetitions (variance of one render's
-pixel); ``relmse``: mean over repetitions of :func:`~wavlight.metrics.relmse` (reference-variance
+**Other measures per cell.** ``variance`` and ``rel_variance``: :func:`wavlight.evaluation.metrics.mean_variance`
+and :func:`~wavlight.evaluation.metrics.relative_variance` over the R repetitions (variance of one render's
+pixel); ``relmse``: mean over repetitions of :func:`~wavlight.evaluation.metrics.relmse` (reference-variance
 corrected); ``firefly``: the largest |x_k - r| over repetitions, pixels and channels divided by
 the mean of r over the tested pixels (the largest error itself when that mean is 0); ``seconds``:
 setup + sampling of the R renders (the first render of a strategy in a process includes its
@@ -611,11 +611,22 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
                  ("alpha", alpha)):
         if v is not None:
             cfg[k] = v
-    width, height = (int(x) for x in cfg["size"])
-    if cfg["spp"] < 2 or cfg["repetitions"] < 2 or cfg["reference_spp"] < 2:
-        raise WavlightError("stability: spp, repetitions and reference_spp must be at least 2")
+    from ..errors import check_int, check_number, shown
+    from ..scene import MAX_SIDE, MAX_SPP
+
+    size = cfg["size"]
+    if isinstance(size, (str, bytes)) or not hasattr(size, "__len__") or len(size) != 2:
+        raise WavlightError(f"stability: size must be (width, height), got {shown(size)}")
+    width, height = (check_int("stability", name, x, 1, MAX_SIDE) for name, x in zip(("width", "height"), size))
+    for name in ("spp", "repetitions", "reference_spp"):   # (repetitions: each a render of every cell)
+        cfg[name] = check_int("stability", name, cfg[name], 2, MAX_SPP if name != "repetitions" else 1000)
+    cfg["alpha"] = check_number("stability", "alpha", cfg["alpha"], 0.0, 1.0)
     if not 0 < cfg["alpha"] < 1:
         raise WavlightError(f"stability: alpha must be in (0, 1), got {cfg['alpha']}")
+    if progress is not None and not callable(progress):
+        raise WavlightError(f"stability: progress must be a callable or None, got {shown(progress)}")
+    if isinstance(cases, str) or isinstance(strategies, str):
+        raise WavlightError("stability: cases and strategies must be lists of names, not one string")
     names = list(CASES) if cases is None else list(cases)
     for n in names:
         if n not in CASES:

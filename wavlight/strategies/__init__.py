@@ -15,10 +15,10 @@ contribution is 0, never NaN.
 | mis       | one light and one bsdf sample, power heuristic | both, weighted (Veach 1997)           |
 | mis_comp  | as mis, the light tree of max(L - mean, 0)     | both, power heuristic (Karlik 2019)   |
 | wavelet   | M candidates from the product walk (top-down   | RIS weights over both pdfs            |
-|           | warp, :mod:`wavlight.product`) and the BSDF,   | (ris_shade_reference); M = 0: both,   |
+|           | warp, :mod:`.product`) and the BSDF,           | (ris_shade_reference); M = 0: both,   |
 |           | two resampled by f cos L; M = 0: one of each   | balance heuristic                     |
-| sir       | M light candidates, N resampled by f cos L     | RIS weights (:mod:`wavlight.sir`)     |
-| structured| strata of the map (k-center), one per stratum  | per stratum (:mod:`wavlight.structured`) |
+| sir       | M light candidates, N resampled by f cos L     | RIS weights (:mod:`.sir`)             |
+| structured| strata of the map (k-center), one per stratum  | per stratum (:mod:`.structured`)      |
 
 The ``mis`` estimator is Mitsuba 3's ``direct`` integrator with one emitter and one
 BSDF sample: each sample's contribution f L cos V / p is weighted by

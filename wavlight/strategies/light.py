@@ -104,7 +104,7 @@ class MisCompensatedStrategy(MisStrategy):
     where the light pdf is 0). A map without texels above its mean falls back to
     uniform in solid angle. Same shade kernel as ``mis``, another light tree.
 
-    Weak spot (README, stability suite): where visibility blocks a glossy lobe's core,
+    Weak spot (docs/strategies.md, the stability suite): where visibility blocks a glossy lobe's core,
     the light that arrives comes through the lobe's tail from texels dimmer than the
     mean, which only the rare BSDF samples there find: same mean, far more variance
     (2 500x at a pixel of a near-mirror sphere on a floor). Hence not the default."""

@@ -1,6 +1,6 @@
 """Wavelet product importance sampling: light x BRDF x cosine, top-down (numpy twin of kernels/product.h).
 
-Design (decided by measurement, see README "wavelet strategy"): no per-point tree
+Design (decided by measurement: docs/decisions/top-down-walk.md): no per-point tree
 and no precomputed BRDF tables. The sampling tree of the product is walked
 top-down, evaluating only the four children of each visited node (Clarberg et
 al. 2005 evaluate the product top-down too). A node's importance is its product

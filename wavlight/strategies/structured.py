@@ -42,7 +42,7 @@ solid angle within t; with p_s(w) = (Phi_t / Phi_s) / dOmega_t = lum(L_t) / Phi_
 estimate is the sum over the strata of albedo f cos L V / p_s (K shadow rays), unbiased
 because the strata partition the lit texels (Agarwal et al.'s stratified estimator).
 The uniforms come from a numpy Generator seeded from the bytes of u (as
-:mod:`wavlight.sir` does), so renders stay a deterministic function of the seed.
+:mod:`wavlight.strategies.sir` does), so renders stay a deterministic function of the seed.
 
 ``samples = 1``: one direction per shading sample, a stratum with probability Phi_s / Phi
 (u.x), a texel of it by power (u.y), a point in the texel (u.z, u.w):

@@ -21,18 +21,18 @@ from .simple import BsdfStrategy
 
 #: the wavelet strategy's directions (shadow rays) per shading sample with candidates: 2 (as
 #: mis's pair) unless chosen from the scene (AUTO_BUDGET); 4 halves the visibility's share of
-#: the variance for two more rays (README, "Four slots")
+#: the variance for two more rays (docs/decisions/four-slots.md)
 DEFAULT_SLOTS = 2
 SLOT_COUNTS = (2, 4)
 #: the wavelet strategy's resampling candidates per shading sample (ris_shade_reference) unless
-#: chosen from the scene (AUTO_BUDGET): 8 by measurement (README, "The wavelet strategy"); 0 is
+#: chosen from the scene (AUTO_BUDGET): 8 by measurement (docs/decisions/resampling-candidates.md); 0 is
 #: the MIS pair of one product and one BSDF sample
 DEFAULT_CANDIDATES = 8
 #: (candidates, slots) that a render gives the wavelet strategy where neither option nor scene
 #: sets them, by the scene's visibility variance (wavlight.occlusion.visibility_variance):
 #: below SHADOWED_VARIANCE (a relative variance of visibility: 0 for lone objects, 0.085 for the
 #: bunny's own shadows, 0.22-0.30 for objects on floors) the candidates carry the variance; from
-#: it on, the slots' visibility does (README, "Budget from the scene's shadows")
+#: it on, the slots' visibility does (docs/decisions/budget-from-shadows.md)
 SHADOWED_VARIANCE = 0.05
 AUTO_BUDGET = {"unshadowed": (16, 2), "shadowed": (8, 4)}
 MAX_CANDIDATES = 64
@@ -60,7 +60,7 @@ SLOTS_NEED_CANDIDATES = Constraint(("wavelet_slots", "wavelet_candidates"), lamb
 
 class WaveletStrategy(Strategy):
     """Product (light x BRDF x cosine) samples by a top-down hierarchical warp
-    (:mod:`wavlight.product`), combined with BSDF samples: by default as the candidates of
+    (:mod:`wavlight.strategies.product`), combined with BSDF samples: by default as the candidates of
     a resampling estimator (``candidates``, below, and :func:`ris_shade_reference`), with
     ``candidates=0`` by the balance heuristic in a pair.
 
@@ -82,7 +82,7 @@ class WaveletStrategy(Strategy):
     product more than half of the samples (one-sample MIS, product with probability 0.6
     / 0.75 / 0.9: 0.53 / 0.70 / 1.10 for phong 200 under rooitou) is worse with this approximate product; with the exact product at
     leaf resolution (a per-point table, far too slow to render with) 0.9 gave 0.030
-    (point_variance.py exact_product:mix0.9; results point-variance-*-session7-*.json).
+    (benchmarks/point_variance.py exact_product:mix0.9).
 
     Lambert materials walk the MIS-compensated light tree (max(L - mean, 0), as
     ``mis_comp``; ``compensated_kinds``): the product sample then leaves the texels
@@ -281,7 +281,7 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     instead of 0 (zero only on average over the picks), so a sample (rarely a pixel at low
     spp) can be negative. Where the offset or a slot's value is not finite (an overflow) the
     whole sample is 0, as in the kernel. Measured on images (96², 16 spp, 4 seeds, relMSE
-    with / without, README): the glossy and lambert spheres 0.44-0.98, the bunny scenes
+    with / without, docs/decisions/control-variate.md): the glossy and lambert spheres 0.44-0.98, the bunny scenes
     0.88-1.02.
     With ``strategy.slots`` = 4 four directions are resampled, at u.z, u.z + 1/2, u.z + 1/4
     and u.z + 3/4, each valued sum(w) / 4 instead of / 2 (the same estimator with twice the
