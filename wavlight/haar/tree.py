@@ -257,6 +257,28 @@ class HaarTree:
                 np.uint64(self.stride), np.int32(level))
         self.integral = self.device_nodes()[:, 0].copy()
 
+    @classmethod
+    def from_pyramids(cls, pyramids: np.ndarray) -> "HaarTree":
+        """Trees from whole pyramids (T, tree_size(n)) float32 of non-negative masses in the host's
+        row-major level order, parent = sum of its children (as :class:`wavlight.haar.ProductPyramids`
+        gives them): uploaded in the device's layout, without building them again."""
+        where = "haar.tree.HaarTree.from_pyramids"
+        nodes = np.asarray(check_real(where, "pyramids", pyramids), np.float32)
+        if nodes.ndim != 2 or nodes.shape[0] < 1:
+            raise ArgumentError(f"{where}: pyramids must be (T, tree_size(n)) with T >= 1, got shape {nodes.shape}")
+        n = next((k for k in range(32) if tree_size(k) >= nodes.shape[1]), None)
+        if n is None or tree_size(n) != nodes.shape[1]:
+            raise ArgumentError(f"{where}: a pyramid has tree_size(n) nodes, got {nodes.shape[1]}")
+        if not np.all(np.isfinite(nodes)) or nodes.min(initial=0.0) < 0:
+            raise ArgumentError(f"{where}: pyramids must be finite and non-negative")
+        self = cls.__new__(cls)
+        self.n_levels, self.n_trees, self.stride = n, nodes.shape[0], tree_stride(n)
+        padded = np.zeros((self.n_trees, self.stride), np.float32)
+        padded[:, TREE_ORIGIN:TREE_ORIGIN + tree_size(n)] = device_order(nodes, n)
+        self.buffer = cl.to_device(padded)
+        self.integral = nodes[:, 0].copy()
+        return self
+
     def device_nodes(self) -> np.ndarray:
         """(T, tree_size(n)) float32: the trees as the device holds them (Morton order), copied."""
         raw = cl.read(self.buffer, (self.n_trees, self.stride), np.float32)

@@ -1,0 +1,309 @@
+"""The unbiased counterpart of a relit frame: directions importance-sampled from the product
+T1 x L of the bake's transfer and the frame's lighting, evaluated with the true BRDF, radiance
+and a shadow ray (Chen & Gao sec. 3.2 and 4.3-4.4).
+
+Per block of pixels, the pixels' transfer coefficients (every entry the bake kept, dequantized)
+and the lighting's luminance on the same texels give each pixel's product pyramid by eq. 25
+(:class:`wavlight.haar.ProductPyramids`, batched over the block's pixels, negative leaves of the
+compressed transfer clamped to 0), and the hierarchical warp samples it
+(:class:`wavlight.haar.HaarTree`, kernels/warp.h): a direction lands in texel t with probability
+proportional to T_p,t L_t; inside the texel, as the lighting's luminance at the map's own
+resolution (the world-frame square of 2^m x 2^m leaves, m = the map's depth, a light tree's
+leaves, :func:`.lighting.project`): a sun smaller than a texel is found inside it. The pdf per
+solid angle = p_t 4^n (mass of the leaf / mass of the texel) 4^(m - n) / (2 pi^2 sin theta). Visibility is inside that product (T1 holds V), which is
+what the ``wavelet`` strategy's product lacks on shadowed scenes: where T1 is accurate, the
+estimate's noise is the visibility's variance inside a texel and the pixel.
+
+Each camera sample (jittered in its pixel) takes one product direction and one BSDF direction,
+both traced, weighted by the balance heuristic p_s / (p_product + p_bsdf) (Veach 1997): the
+BSDF covers every direction its lobe reaches, so the pdf is non-zero wherever the integrand is
+(the compressed product may be 0 there: dropped coefficients, a surface the pixel's samples did
+not see in the bake, a pixel whose product is 0 altogether). Samples that miss see the
+environment. The estimate is unbiased for any transfer: a converged frame equals ``mis`` of the
+same scene and lighting within their standard errors (tests/test_relight_converge.py).
+"""
+from __future__ import annotations
+
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from .. import bsdfs, rng
+from ..camera import camera_rays
+from ..envmap import Environment, luminance
+from ..errors import WavlightError, check_int
+from ..haar import ProductPyramids, forward
+from ..haar.tree import HaarTree
+from ..integrator import RenderResult
+from ..raytrace import RayTracer
+from ..scene import check_scene, load_scene
+from ..warp import frame as tangent_frame
+from . import lighting
+from .bake import BLOCK, camera_jitter
+
+#: Philox stream of the converged frame's direction uniforms (product pair, BSDF pair)
+DIRECTION_STREAM = 10
+MAX_SPP = 1 << 16
+
+
+def check_scene_matches(transfer, scene):
+    """The scene a bake was made from, as loaded now: a WavlightError if its content or camera
+    differs from the bake's (the transfer would be of another scene)."""
+    if scene.content_hash != transfer.scene.get("content_hash"):
+        raise WavlightError(f"{scene.path}: the scene has changed since {transfer.path} was baked (its content "
+                            "hash differs): bake it again")
+    cam = transfer.camera
+    same = all(np.allclose(getattr(scene.camera, k), cam[k], rtol=0, atol=1e-9) for k in ("eye", "target", "up"))
+    if not same or abs(float(scene.camera.fov_y) - float(cam["fov_y"])) > 1e-9:
+        raise WavlightError(f"{scene.path}: its camera differs from the one {transfer.path} was baked for")
+
+
+def _scene_of(transfer, scene):
+    if scene is None:
+        path = transfer.scene.get("path")
+        if not path:
+            raise WavlightError(f"{transfer.path}: baked from a scene given as a dict: pass its scene")
+        if not os.path.isfile(path):
+            raise WavlightError(f"{transfer.path}: its scene {path} is not there: pass the scene (--scene FILE)")
+        scene = load_scene(path)
+    elif isinstance(scene, (str, os.PathLike)):
+        scene = load_scene(scene)
+    check_scene(scene)
+    check_scene_matches(transfer, scene)
+    return scene
+
+
+def square_to_world(uv: np.ndarray) -> np.ndarray:
+    """World directions (N, 3) of points of the world-frame lat-long square (rotate_y = 0)."""
+    phi, theta = 2 * np.pi * uv[:, 0], np.pi * uv[:, 1]
+    st = np.sin(theta)
+    return np.stack([np.sin(phi) * st, np.cos(theta), -np.cos(phi) * st], 1)
+
+
+def world_to_square(d: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`square_to_world` (points in [0, 1)^2)."""
+    u = np.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi)
+    u = u - np.floor(u)
+    v = np.arccos(np.clip(d[:, 1], -1.0, 1.0)) / np.pi
+    one_below = np.nextafter(1.0, 0.0)
+    return np.stack([np.minimum(u, one_below), np.minimum(v, one_below)], 1)
+
+
+def solid_angle_jacobian(d: np.ndarray) -> np.ndarray:
+    """du dv / d omega = 1 / (2 pi^2 sin theta) at world directions (0 at the poles)."""
+    s = np.hypot(d[:, 0], d[:, 2])
+    with np.errstate(divide="ignore"):
+        return np.where(s > 0, 1.0 / (2 * np.pi ** 2 * np.where(s > 0, s, 1.0)), 0.0)
+
+
+class _Block:
+    """Each block's stored entries (ids into the bake file's entries) and their columns."""
+
+    def __init__(self, transfer):
+        s = transfer._s
+        blocks = np.asarray(s["entry_block"], np.int64)
+        self.order = np.argsort(blocks, kind="stable")
+        n_blocks = transfer.blocks[0] * transfer.blocks[1]
+        self.start = np.zeros(n_blocks + 1, np.int64)
+        np.cumsum(np.bincount(blocks, minlength=n_blocks), out=self.start[1:])
+        column_start = np.asarray(s["column_start"], np.int64)
+        self.column = (np.searchsorted(column_start, np.arange(len(blocks)), side="right") - 1).astype(np.int64)
+
+    def coefficients(self, transfer, block: int) -> np.ndarray:
+        """(BLOCK^2, 4^n) float32: the block's pixels' dequantized transfer coefficients."""
+        ids = self.order[self.start[block]:self.start[block + 1]]
+        side2 = 4 ** transfer.n_levels
+        out = np.zeros((BLOCK * BLOCK, side2), np.float32)
+        if len(ids):
+            q = np.asarray(transfer._s["entry_data"][ids], np.float32)
+            scale = np.asarray(transfer._s["entry_scale"][ids], np.float32)
+            out[:, self.column[ids]] = (q * scale[:, None]).T
+        return out
+
+
+def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, spp: int = 16, seed: int = 0,
+             threads=None, progress=None, slots: int = 2, defensive: float = 0.1) -> RenderResult:
+    """The unbiased frame of ``transfer`` under ``env`` (default: the baked map) turned to
+    ``rotate_y`` (default: the scene's) and scaled, with ``spp`` camera samples per pixel (each
+    with a product and a BSDF direction; module docstring). ``scene``: the scene the transfer
+    was baked from (default: reloaded from the path the bake recorded; refused if it changed).
+    Returns a RenderResult: image, per-pixel standard error, stats."""
+    where = "relight.converge"
+    spp = check_int(where, "spp", spp, 1, MAX_SPP)
+    seed = check_int(where, "seed", seed, 0, 2 ** 63 - 1)
+    scene = _scene_of(transfer, scene)
+    rot = transfer.scene_rotate_y if rotate_y is None else float(rotate_y)
+    base = transfer.environment(env, scale)                     # unrotated, scaled
+    turned = Environment(base.pixels, 1.0, rot, base.name)      # for radiance lookups
+    n = transfer.n_levels
+    inside = _TexelLight(base, n, rot)
+    pyramids = ProductPyramids(forward(inside.texel_luminance), n, nonnegative=True)
+    tracer = RayTracer(scene.vertices, scene.faces, threads=1)
+    blocks = _Block(transfer)
+    width, height = transfer.width, transfer.height
+    bw, bh = transfer.blocks
+    sums = np.zeros((height, width, 3))
+    squares = np.zeros((height, width, 3))
+    totals = {"rays": 0, "done": 0}
+    lock = threading.Lock()
+    t0 = time.perf_counter()
+    kind_of, param_of, albedo_of = scene.material_kind, scene.material_param, scene.material_albedo
+
+    def one(block):
+        by, bx = divmod(block, bw)
+        x0, y0 = bx * BLOCK, by * BLOCK
+        w, h = min(BLOCK, width - x0), min(BLOCK, height - y0)
+        coeffs = blocks.coefficients(transfer, block).reshape(BLOCK, BLOCK, -1)[:h, :w].reshape(w * h, 1 << n, 1 << n)
+        trees = HaarTree.from_pyramids(pyramids(coeffs))
+        mass = trees.integral                                   # (P,) 0: no product sample for the pixel
+        P = w * h
+        pix = np.arange(P)
+        px, py = np.repeat(x0 + pix % w, spp), np.repeat(y0 + pix // w, spp)
+        eye, d = camera_rays(scene, px, py, camera_jitter(seed, block, P, spp), width, height)
+        prim, t = tracer.intersect(eye, d)
+        hit = np.flatnonzero(prim >= 0)
+        value = np.zeros((P * spp, 3))
+        miss = np.flatnonzero(prim < 0)
+        value[miss] = turned.eval(d[miss].astype(np.float64))
+        rays = P * spp
+        if len(hit):
+            nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+            nrm = nrm.astype(np.float64)
+            s_ax, t_ax = tangent_frame(nrm)
+            wo_w = -d[hit].astype(np.float64)
+            wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, nrm)], 1)
+            mat = scene.face_material[prim[hit]]
+            kind, param, albedo = kind_of[mat], param_of[mat], albedo_of[mat].astype(np.float64)
+            has_p = mass[hit // spp] > 0
+            alpha = np.where(has_p, defensive, 1.0)       # pixels without a product: the BSDF alone
+            total = np.zeros((len(hit), 3))
+            for slot in range(slots):   # directions per camera sample, not samples
+                u_all = rng.uniforms(seed, block, DIRECTION_STREAM + slot, 0, P * spp)
+                u = u_all[hit].astype(np.float64)
+                # the product candidate: the tree of the sample's pixel (its samples share it)
+                uv_tree, _ = trees.sample(np.ascontiguousarray(u_all[:, :2]), spp)
+                uv_p, _ = inside.sample(uv_tree[hit].astype(np.float64))
+                d_p = square_to_world(uv_p)
+                # the BSDF candidate, from u.w and u.z rescaled past the choice u.z < alpha
+                use_b = u[:, 2] < alpha
+                ub = np.stack([np.where(use_b, u[:, 2] / alpha, (u[:, 2] - alpha) / (1 - alpha + 1e-300)), u[:, 3]], 1)
+                ub = np.clip(ub, 0.0, np.nextafter(1.0, 0.0))
+                wl_b = np.zeros((len(hit), 3))
+                for kd in np.unique(kind):   # material kinds, not samples
+                    sel = kind == kd
+                    wl_b[sel] = bsdfs.sample(int(kd), param[sel], ub[sel], wo[sel])[0]
+                d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
+                direction = np.where(use_b[:, None], d_b, d_p)
+                # the mixture's pdf at the chosen direction, from both techniques
+                uv = world_to_square(direction)
+                p_tree = trees.pdf(np.ascontiguousarray(_spread(uv, hit, P * spp), np.float32), spp)[hit]
+                p_prod = np.where(has_p, p_tree.astype(np.float64) * inside.factor(uv), 0.0) \
+                    * solid_angle_jacobian(direction)
+                wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, nrm)], 1)
+                fcos = np.zeros(len(hit))
+                p_bsdf = np.zeros(len(hit))
+                for kd in np.unique(kind):   # material kinds, not samples
+                    sel = kind == kd
+                    fcos[sel] = bsdfs.eval_cos(int(kd), param[sel], wl[sel], wo[sel])
+                    p_bsdf[sel] = bsdfs.pdf(int(kd), param[sel], wl[sel], wo[sel])
+                pdf = (1 - alpha) * p_prod + alpha * p_bsdf
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0) / slots
+                weight = np.where(np.isfinite(weight), weight, 0.0)
+                live = np.flatnonzero(weight > 0)
+                blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
+                rays += len(live)
+                total[live] += (weight[live] * ~blocked)[:, None] * turned.eval(direction[live])
+            value[hit] = albedo * total
+        v = value.reshape(h, w, spp, 3)
+        with lock:
+            sums[y0:y0 + h, x0:x0 + w] += v.sum(2)
+            squares[y0:y0 + h, x0:x0 + w] += (v * v).sum(2)
+            totals["rays"] += rays
+            totals["done"] += 1
+            if progress:
+                progress(totals["done"], bw * bh, totals["rays"], time.perf_counter() - t0)
+
+    with ThreadPoolExecutor(threads or 2 * (os.cpu_count() or 1)) as pool:
+        list(pool.map(one, range(bw * bh)))
+    seconds = time.perf_counter() - t0
+    mean = sums / spp
+    if spp > 1:
+        err = np.sqrt(np.maximum(squares - spp * mean ** 2, 0.0) / (spp - 1) / spp)
+    else:
+        err = np.full_like(mean, np.inf)
+    stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
+             "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
+             "rotate_y": rot, "estimator": "product T1 x L (eq. 25) + BSDF, balance heuristic"}
+    return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
+
+
+class _TexelLight:
+    """The lighting inside the transfer's texels at the map's resolution: leaf masses (exact
+    integrals of luminance, world frame, turned) grouped by texel, for sampling a point inside a
+    texel in proportion to them and for the density factor of that choice."""
+
+    def __init__(self, environment, n_levels: int, rotate_y: float):
+        top = max(environment.square_levels(), n_levels)
+        rgb = lighting.project(environment, top, rotate_y)
+        masses = luminance(rgb) * lighting.texel_solid_angles(top)[:, None]          # (M, M)
+        self.n, self.top, self.k = n_levels, top, 1 << (top - n_levels)
+        side, k = 1 << n_levels, self.k
+        blocks = masses.reshape(side, k, side, k).transpose(0, 2, 1, 3).reshape(side * side, k * k)
+        self.texel_mass = blocks.sum(1)
+        self.texel_luminance = (self.texel_mass.reshape(side, side)
+                                / lighting.texel_solid_angles(n_levels)[:, None])
+        self.cdf = np.cumsum(blocks, axis=1)
+        self.blocks = blocks
+
+    def _texel(self, uv):
+        side = 1 << self.n
+        cell = np.minimum((uv * side).astype(np.int64), side - 1)
+        return cell[:, 1] * side + cell[:, 0], uv * side - cell
+
+    def sample(self, uv):
+        """Points of the product tree's texels (uniform inside them) moved to a leaf chosen by the
+        luminance inside the texel (the point's position in its texel reused as the uniforms):
+        (uv (N, 2), density factor (N,) = (leaf mass / texel mass) k^2)."""
+        t, frac = self._texel(uv)
+        k, side = self.k, 1 << self.n
+        if k == 1:
+            return uv, np.ones(len(uv))
+        total = self.texel_mass[t]
+        target = frac[:, 0] * total
+        leaf = np.minimum((self.cdf[t] <= target[:, None]).sum(1), k * k - 1)
+        below = np.where(leaf > 0, self.cdf[t, np.maximum(leaf - 1, 0)], 0.0)
+        mass = self.blocks[t, leaf]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(mass > 0, (target - below) / np.where(mass > 0, mass, 1.0), frac[:, 0])
+        s = np.clip(s, 0.0, np.nextafter(1.0, 0.0))
+        row, col = t // side, t % side
+        sub_r, sub_c = leaf // k, leaf % k
+        out = np.stack([(col * k + sub_c + s) / (side * k), (row * k + sub_r + frac[:, 1]) / (side * k)], 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            factor = np.where(total > 0, mass / np.where(total > 0, total, 1.0) * k * k, 0.0)
+        return out, factor
+
+    def factor(self, uv):
+        """The density factor at points uv (N, 2): (leaf mass / texel mass) k^2 (0 where the
+        texel holds no light)."""
+        t, frac = self._texel(uv)
+        k = self.k
+        if k == 1:
+            return np.ones(len(uv))
+        leaf = np.minimum((frac[:, 1] * k).astype(np.int64), k - 1) * k + np.minimum((frac[:, 0] * k).astype(np.int64),
+                                                                                    k - 1)
+        total = self.texel_mass[t]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(total > 0, self.blocks[t, leaf] / np.where(total > 0, total, 1.0) * k * k, 0.0)
+
+
+def _spread(values: np.ndarray, at: np.ndarray, count: int) -> np.ndarray:
+    """(count, 2): ``values`` at rows ``at``, the point (0.5, 0.5) elsewhere (the tree pdf kernel
+    takes one point per sample of every pixel)."""
+    out = np.full((count, 2), 0.5)
+    out[at] = values
+    return out
