@@ -25,18 +25,26 @@ from .progress import ProgressBar
 @click.option("--height", type=int, default=None, help="Image height (default: the scene's).")
 @click.option("--spp", type=click.IntRange(1, 64), default=16, show_default=True,
               help="Camera samples per pixel, stratified over the pixel (they share each texel's shadow ray).")
-@click.option("--levels", type=click.IntRange(2, 8), default=6, show_default=True,
-              help="Texels: 2^n x 2^n on the lat-long square.")
-@click.option("--tolerance", type=click.FloatRange(0.0, 1.0), default=0.01, show_default=True,
-              help="Compression: each block's frame under a held-out rotation within this relative error.")
+@click.option("--levels", type=click.IntRange(2, 8), default=None,
+              help="Texels: 2^n x 2^n on the lat-long square. Default: the fewest that meet the tolerance, "
+                   "from a pilot bake.")
+@click.option("--tolerance", type=click.FloatRange(1e-6, 1.0), default=0.02, show_default=True,
+              help="Relative error of frames against the unapproximated transfer, measured on a held-out "
+                   "rotation: shared by the texels' resolution, the terms and the compression.")
 @click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
               help="Quantization of the stored coefficients.")
-@click.option("--terms", type=click.IntRange(1, 1 << 22), default=256, show_default=True,
-              help="The lighting terms K a frame keeps by default.")
-@click.option("--seed", type=click.IntRange(0, 2 ** 63 - 1), default=0, show_default=True, help="Random seed.")
+@click.option("--terms", type=click.IntRange(1, 1 << 22), default=None,
+              help="The lighting terms K a frame keeps by default. Default: the fewest that meet the tolerance.")
+@click.option("--priority", type=click.Choice(["transfer", "area", "magnitude"]), default=None,
+              help="How frames rank the lighting's terms. Default: the better of transfer and area on the pilot.")
+@click.option("--seed", type=click.IntRange(0, 2 ** 62), default=0, show_default=True, help="Random seed.")
+@click.option("--dask", "dask_address", metavar="tcp://HOST:PORT", default=None,
+              help="Bake the blocks on this dask.distributed scheduler (its workers read the scene file at the "
+                   "same path); the file is identical to a local bake's.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the choices, sizes and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def bake(scene_file, output, width, height, spp, levels, tolerance, bits, terms, seed, as_json, quiet):
+def bake(scene_file, output, width, height, spp, levels, tolerance, bits, terms, priority, seed, dask_address,
+         as_json, quiet):
     """Bake the transfer of SCENE (its camera, objects and materials) into PATH, for relighting."""
     import wavlight
 
@@ -52,7 +60,8 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, bits, terms,
             fail(f"{scene_file}: [environment]: the environment is black everywhere; nothing to relight")
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
         transfer = wavlight.bake(scene, output, width=width, height=height, spp=spp, levels=levels,
-                                 tolerance=tolerance, bits=int(bits), terms=terms, seed=seed, progress=bar)
+                                 tolerance=tolerance, bits=int(bits), terms=terms, priority=priority, seed=seed,
+                                 progress=bar, dask_address=dask_address)
         if bar:
             bar.close()
     except wavlight.WavlightError as e:
@@ -82,9 +91,16 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, bits, terms,
               help="N frames of a full turn about +Y into the folder -o DIR (PNG; and an animated GIF).")
 @click.option("--repeat", type=click.IntRange(1, 1000), default=5, show_default=True,
               help="Frames computed to time one (the median is reported).")
+@click.option("--spp", type=click.IntRange(1, 1 << 16), default=None,
+              help="The unbiased frame instead: N camera samples per pixel, directions from the product of "
+                   "transfer and lighting and from the BSDF, true shadow rays (reloads the baked scene).")
+@click.option("--seed", type=click.IntRange(0, 2 ** 62), default=0, show_default=True, help="Random seed (--spp).")
+@click.option("--scene", "scene_file", default=None, metavar="FILE",
+              help="The scene the bake was made from, where it is not at the path the bake recorded (--spp).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with timings and choices.")
 @click.option("--quiet", "-q", is_flag=True, help="No closing message.")
-def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntable, repeat, as_json, quiet):
+def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntable, repeat, spp, seed, scene_file,
+          as_json, quiet):
     """Relight the bake file PATH: one frame under new lighting (or a turntable of frames)."""
     import math
 
@@ -110,9 +126,20 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
             check_output(output, FORMATS)
             refuse_inputs(output, [bake_file, env_file])
             times = []
-            for _ in range(repeat):
-                image, st = transfer.frame_timed(env, rotate_y, scale_used, terms, priority)
+            if spp is not None:
+                from wavlight.relight.converge import converge
+
+                bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
+                result = converge(transfer, scene_file, env, rotate_y, scale_used, spp=spp, seed=seed, progress=bar)
+                if bar:
+                    bar.close()
+                image, st = result.image, {"frame_seconds": result.stats["render_seconds"], "terms": None,
+                                           "entries_read": 0}
                 times.append(st["frame_seconds"])
+            else:
+                for _ in range(repeat):
+                    image, st = transfer.frame_timed(env, rotate_y, scale_used, terms, priority)
+                    times.append(st["frame_seconds"])
             wavlight.save_image(output, image)
             outputs = [output]
         else:
@@ -134,6 +161,14 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
     except wavlight.WavlightError as e:
         fail(e)
     median = statistics.median(times)
+    if spp is not None:
+        stats = {"spp": spp, "seed": seed, "frame_seconds": round(median, 4), **result.stats, "output": outputs[0]}
+        if as_json:
+            click.echo(json.dumps(stats))
+        elif not quiet:
+            click.echo(f"wrote {outputs[0]}: {transfer.width}x{transfer.height}, {spp} spp (unbiased), "
+                       f"{median:.2f} s", err=True)
+        return
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
              "terms": st["terms"], "entries_read": st["entries_read"], "width": transfer.width,
              "height": transfer.height, "texels": f"{1 << transfer.n_levels}x{1 << transfer.n_levels}",

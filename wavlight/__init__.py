@@ -16,7 +16,8 @@ from .imageio import save_image
 from .integrator import RenderResult, render, render_full
 from .scene import Scene, load_dict, load_scene
 from .strategies import STRATEGIES
-from .relight import Transfer, bake
+from .relight.bake import bake
+from .relight.transfer import Transfer
 from .version import __version__
 
 __all__ = ["load_scene", "load_dict", "render", "bake", "Transfer", "render_full", "save_image", "Scene", "RenderResult",

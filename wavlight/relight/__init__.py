@@ -6,11 +6,10 @@ format); a frame (:mod:`.transfer`) projects the new lighting T2 = L on the same
 (:mod:`.frame`, kernels/relight.cl).
 
     import wavlight
-    transfer = wavlight.bake("scenes/bunny_ggx.toml", output="bunny.wlt")
+    transfer = wavlight.bake("scenes/bunny_ggx.toml", output="bunny.wlt")   # wavlight.relight.bake.bake
     image = transfer.frame(rotate_y=120, terms=256)
     again = wavlight.relight.Transfer.load("bunny.wlt")
 """
-from .bake import bake
 from .transfer import Transfer
 
-__all__ = ["bake", "Transfer"]
+__all__ = ["Transfer"]   # the bake itself: wavlight.bake (wavlight.relight.bake.bake)

@@ -269,14 +269,148 @@ def _padded(values: np.ndarray, w: int, h: int):
     return out.reshape((BLOCK * BLOCK,) + values.shape[1:])
 
 
-def bake(scene, output=None, width=None, height=None, spp: int = 4, levels: int = 6, tolerance: float = 0.01,
-         bits: int = 8, terms: int = 256, priority: str = "transfer", seed: int = 0, threads=None,
-         progress=None, backend: str = "opencl"):
+@dataclass
+class Settings:
+    """What a bake is made with: size, camera samples, texel levels, compression, the held-out
+    lighting (4^n, 3) coefficients times N^2 (:mod:`.frame`), seed, backend."""
+
+    width: int
+    height: int
+    spp: int
+    n_levels: int
+    tolerance: float
+    bits: int
+    held_out: np.ndarray
+    seed: int
+    backend: str = "opencl"
+
+
+class _Worker:
+    """A scene's ray tracer and material mask, made once per process (or thread pool)."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        self.tracer = RayTracer(scene.vertices, scene.faces, threads=1)
+        self.kinds = int(np.bitwise_or.reduce(1 << np.unique(scene.material_kind))) if len(scene.materials) else 1
+
+
+def bake_block(worker: _Worker, settings: Settings, tile) -> dict:
+    """One block of the bake: its texels' transfer, Haar coefficients, compressed and quantized
+    (a pure function of the scene, the settings and the tile: any process computes the same)."""
+    block_id, x0, y0, w, h = tile
+    s = settings
+    ps = camera_samples(worker.scene, worker.tracer, s.width, s.height, x0, y0, w, h, s.spp, s.seed, block_id)
+    texels, rays = tile_transfer(ps, worker.tracer, s.n_levels, s.seed, block_id, s.backend, worker.kinds)
+    coeffs = haar.forward_cl(texels)[0] if s.backend == "opencl" else haar.forward(texels)
+    side2 = 4 ** s.n_levels
+    coeffs = _padded(np.asarray(coeffs, np.float32).reshape(w * h, side2), w, h)
+    cols, scales, q, e2, n2 = store.compress_block(coeffs, s.held_out, s.tolerance, s.bits,
+                                                   np.random.default_rng([s.seed, block_id]))
+    some = np.flatnonzero(ps.miss)
+    c64 = coeffs.astype(np.float64)
+    return {"tile": tile, "columns": cols, "scales": scales, "data": q, "error2": e2, "norm2": n2,
+            "albedo": ps.albedo.reshape(h, w, 3), "rays": rays, "sum_sq": np.einsum("pc,pc->c", c64, c64),
+            "background": ((y0 + some // w) * s.width + x0 + some % w, ps.miss[some],
+                           ps.dirs.reshape(-1, s.spp, 3)[some])}
+
+
+_WORKERS = {}   # per process: (scene path, content hash) -> _Worker
+
+
+def bake_block_task(task: dict) -> dict:
+    """:func:`bake_block` for a worker process (dask.distributed): the scene by path, checked by
+    its content hash, loaded once per process."""
+    key = (task["scene_path"], task["content_hash"])
+    worker = _WORKERS.get(key)
+    if worker is None:
+        scene = load_scene(task["scene_path"])
+        if scene.content_hash != task["content_hash"]:
+            raise ArgumentError(f"{task['scene_path']}: this worker sees another scene than the bake read")
+        worker = _WORKERS[key] = _Worker(scene)
+    return bake_block(worker, task["settings"], task["tile"])
+
+
+#: the pilot bake that chooses texel levels, terms and priority: this many pixels on its longer
+#: side, at most PILOT_LEVELS texel levels
+PILOT_SIDE = 32
+PILOT_LEVELS = 7
+TERM_CHOICES = (32, 64, 128, 256, 512, 1024, 2048, 4096)
+
+
+def choose_model(scene, tolerance: float, spp: int, seed: int, levels=None, terms=None, priority=None,
+                 backend: str = "opencl") -> dict:
+    """The texel levels n, the terms K and their priority a scene needs for ``tolerance``, from
+    a pilot bake of PILOT_SIDE pixels at 2^PILOT_LEVELS texels, measured on the held-out
+    rotation: n, the smallest whose frame is within tolerance / sqrt(3) of the finest (texels
+    summed 2 x 2 are exact coarser texels); K, the fewest (of TERM_CHOICES) within tolerance /
+    sqrt(3) of all terms, by the priority with the lower error at K = 256. Given values are
+    kept. Returns the choices and the errors measured."""
+    if levels is not None and terms is not None and priority is not None:   # nothing left to choose
+        return {"n_levels": int(levels), "terms": int(terms), "priority": priority, "pilot": None}
+    share = tolerance / np.sqrt(3.0)
+    env = scene.environment
+    aspect = scene.width / scene.height
+    pw, ph = (PILOT_SIDE, max(1, round(PILOT_SIDE / aspect))) if aspect >= 1 else (max(1, round(PILOT_SIDE * aspect)), PILOT_SIDE)
+    top = PILOT_LEVELS if levels is None else levels
+    worker = _Worker(scene)
+    tiles, _ = _tiles(pw, ph)
+    rot = env.rotate_y + HELD_OUT_DEGREES
+    texels = []
+    for tile in tiles:   # a few blocks, not pixels
+        _, x0, y0, w, h = tile
+        ps = camera_samples(scene, worker.tracer, pw, ph, x0, y0, w, h, spp, seed + 1, tile[0])
+        texels.append(tile_transfer(ps, worker.tracer, top, seed + 1, tile[0], backend, worker.kinds)[0])
+    T = np.concatenate(texels).astype(np.float64)                     # (P, 2^top, 2^top)
+    lum = LUMINANCE.astype(np.float64)
+    frames, level_error = {}, {}
+    for n in range(top, 3, -1):   # levels, not pixels
+        k = 1 << (top - n)
+        Tn = T.reshape(len(T), 1 << n, k, 1 << n, k).sum(axis=(2, 4))
+        Ln = lighting.project(env, n, rot) @ lum
+        frames[n] = np.einsum("pij,ij->p", Tn, Ln)
+    ref = frames[top]
+    norm = np.linalg.norm(ref)
+    for n, f in frames.items():
+        level_error[n] = float(np.linalg.norm(f - ref) / norm) if norm > 0 else 0.0
+    n = levels if levels is not None else min(k for k, e in level_error.items() if e <= share)
+    k = 1 << (top - n)
+    Tn = T.reshape(len(T), 1 << n, k, 1 << n, k).sum(axis=(2, 4))
+    coeffs_t = haar.forward(Tn).reshape(len(T), -1)                      # (P, 4^n)
+    rms = np.sqrt((coeffs_t ** 2).mean(0))
+    L = lighting.coefficients(lighting.project(env, n, rot))              # (3, N, N)
+    full = coeffs_t @ (np.tensordot(lum, L, axes=1).ravel() * 4.0 ** n)
+    fnorm = np.linalg.norm(full)
+
+    def error(kk, pr):
+        cols = lighting.select_terms(L, kk, pr, rms)
+        part = coeffs_t[:, cols] @ (np.tensordot(lum, L, axes=1).ravel()[cols] * 4.0 ** n)
+        return float(np.linalg.norm(part - full) / fnorm) if fnorm > 0 else 0.0
+
+    if priority is None:
+        priority = min(("transfer", "area"), key=lambda pr: (error(256, pr), pr != "transfer"))
+    term_error = {kk: error(kk, priority) for kk in TERM_CHOICES if kk <= 4 ** n}
+    if terms is None:
+        fits = [kk for kk, e in term_error.items() if e <= share]
+        terms = fits[0] if fits else max(term_error)
+    return {"n_levels": int(n), "terms": int(terms), "priority": priority,
+            "pilot": {"size": [pw, ph], "levels": top, "held_out_rotate_y": rot,
+                      "level_error": {str(k): round(v, 5) for k, v in level_error.items()},
+                      "term_error": {str(k): round(v, 5) for k, v in term_error.items()}}}
+
+
+def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None, tolerance: float = 0.02,
+         bits: int = 8, terms=None, priority=None, seed: int = 0, threads=None, progress=None,
+         backend: str = "opencl", dask_address=None):
     """Bake the transfer of ``scene`` (a Scene or a scene file) for its camera at width x height
-    (default: the scene's) with ``spp`` camera samples per pixel, on 2^levels x 2^levels texels;
-    compress each block to ``tolerance`` (relative, on the held-out lighting) and quantize to
-    ``bits``; write it to ``output`` (default: a temporary file the Transfer owns). Returns the
-    :class:`wavlight.relight.Transfer`. ``progress(done, total, rays, seconds)`` after each block."""
+    (default: the scene's) with ``spp`` camera samples per pixel; write it to ``output``
+    (default: a temporary file the Transfer owns) and return the :class:`Transfer`.
+
+    The texel levels (2^n x 2^n), the default terms K and their priority are chosen from the
+    scene for ``tolerance`` by a pilot bake (:func:`choose_model`) unless given; each block is
+    compressed to ``tolerance`` / sqrt(3) on the held-out lighting and quantized to ``bits``.
+    ``progress(done, total, rays, seconds)`` after each block. ``dask_address``: bake the
+    blocks on that dask.distributed scheduler (the workers read the scene file at the same
+    path); the file is identical to a local bake's."""
     where = "relight.bake"
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
@@ -284,53 +418,61 @@ def bake(scene, output=None, width=None, height=None, spp: int = 4, levels: int 
     width = check_int(where, "width", scene.width if width is None else width, 1, MAX_SIDE)
     height = check_int(where, "height", scene.height if height is None else height, 1, MAX_SIDE)
     spp = check_int(where, "spp", spp, 1, MAX_SAMPLES)
-    n = check_int(where, "levels", levels, 2, 8)
-    tolerance = check_number(where, "tolerance", tolerance, 0.0, 1.0)
+    if levels is not None:
+        levels = check_int(where, "levels", levels, 2, 8)
+    if terms is not None:
+        terms = check_int(where, "terms", terms, 1, 1 << 22)
+    if priority is not None and priority not in lighting.PRIORITIES:
+        raise ArgumentError(f"{where}: priority must be one of {' | '.join(lighting.PRIORITIES)}, got {priority!r}")
+    tolerance = check_number(where, "tolerance", tolerance, 1e-6, 1.0)
     if bits not in BITS:
         raise ArgumentError(f"{where}: bits must be 8 or 16, got {bits!r}")
-    seed = check_int(where, "seed", seed, 0, 2 ** 63 - 1)
+    seed = check_int(where, "seed", seed, 0, 2 ** 62)
+    if scene.environment.is_black:
+        raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
+    if dask_address is not None and scene.path == "<dict>":
+        raise ArgumentError(f"{where}: a bake on a Dask cluster needs the scene as a file (its workers load it)")
+    t0 = time.perf_counter()
+    model = choose_model(scene, tolerance, min(spp, 4), seed, levels, terms, priority, backend)
+    n = model["n_levels"]
     env = scene.environment
     held = lighting.coefficients(lighting.project(env, n, env.rotate_y + HELD_OUT_DEGREES)).reshape(3, -1).T
-    held = held * float(4 ** n)
+    settings = Settings(width, height, spp, n, tolerance / np.sqrt(3.0), bits, held * float(4 ** n), seed, backend)
     tiles, (bw, bh) = _tiles(width, height)
     side2 = 4 ** n
-    tracer = RayTracer(scene.vertices, scene.faces, threads=1)
-    kinds = int(np.bitwise_or.reduce(1 << np.unique(scene.material_kind))) if len(scene.materials) else 1
     writer = store.TransferWriter(n, BLOCK, bits)
     albedo = np.zeros((height, width, 3), np.float32)
-    background = []   # (pixels, masks, directions) of the tiles' pixels with samples that miss
+    background = []
     sum_sq = np.zeros(side2)
     totals = {"rays": 0, "error2": 0.0, "norm2": 0.0, "done": 0}
     lock = threading.Lock()
-    t0 = time.perf_counter()
+    t_pilot = time.perf_counter() - t0
 
-    def one(tile):
-        block_id, x0, y0, w, h = tile
-        ps = camera_samples(scene, tracer, width, height, x0, y0, w, h, spp, seed, block_id)
-        texels, rays = tile_transfer(ps, tracer, n, seed, block_id, backend, kinds)
-        coeffs = haar.forward_cl(texels)[0] if backend == "opencl" else haar.forward(texels)
-        coeffs = _padded(np.asarray(coeffs, np.float32).reshape(w * h, side2), w, h)
-        rng = np.random.default_rng([seed, block_id])
-        cols, scales, q, e2, n2 = store.compress_block(coeffs, held, tolerance, bits, rng)
+    def collect(result):
+        block_id, x0, y0, w, h = result["tile"]
         with lock:
-            writer.add(block_id, cols, scales, q)
-            albedo[y0:y0 + h, x0:x0 + w] = ps.albedo.reshape(h, w, 3)
-            some = np.flatnonzero(ps.miss)
-            if len(some):
-                pixel = (y0 + some // w) * width + x0 + some % w
-                background.append((pixel.astype(np.uint32), ps.miss[some], ps.dirs.reshape(-1, spp, 3)[some]))
-            sum_sq[:] += np.einsum("pc,pc->c", coeffs.astype(np.float64), coeffs.astype(np.float64))
-            totals["rays"] += rays
-            totals["error2"] += e2
-            totals["norm2"] += n2
+            writer.add(block_id, result["columns"], result["scales"], result["data"])
+            albedo[y0:y0 + h, x0:x0 + w] = result["albedo"]
+            pixel, mask, dirs = result["background"]
+            if len(pixel):
+                background.append((np.asarray(pixel, np.uint32), mask, dirs))
+            sum_sq[:] += result["sum_sq"]
+            totals["rays"] += result["rays"]
+            totals["error2"] += result["error2"]
+            totals["norm2"] += result["norm2"]
             totals["done"] += 1
             if progress:
                 progress(totals["done"], len(tiles), totals["rays"], time.perf_counter() - t0)
 
-    threads = threads or 2 * (os.cpu_count() or 1)
     try:
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(one, tiles))
+        if dask_address is not None:
+            from .dask import bake_on_cluster
+            bake_on_cluster(dask_address, scene, settings, tiles, collect)
+        else:
+            worker = _Worker(scene)
+            with ThreadPoolExecutor(threads or 2 * (os.cpu_count() or 1)) as pool:
+                for result in pool.map(lambda tile: bake_block(worker, settings, tile), tiles):
+                    collect(result)
         seconds = time.perf_counter() - t0
         header = {
             "format": "wavlight-transfer", "version": store.FORMAT_VERSION, "wavlight": __version__,
@@ -339,14 +481,18 @@ def bake(scene, output=None, width=None, height=None, spp: int = 4, levels: int 
             "camera": {"eye": scene.camera.eye.tolist(), "target": scene.camera.target.tolist(),
                        "up": scene.camera.up.tolist(), "fov_y": float(scene.camera.fov_y)},
             "width": width, "height": height, "spp": spp, "seed": seed, "n_levels": n, "block": BLOCK,
-            "blocks": [bw, bh], "bits": bits, "tolerance": tolerance, "terms": int(terms), "priority": priority,
-            "environment_rotate_y": float(env.rotate_y), "environment_name": env.name,
-            "measured": {"bake_seconds": round(seconds, 3), "rays": totals["rays"],
-                         "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
+            "blocks": [bw, bh], "bits": bits, "tolerance": tolerance, "terms": model["terms"],
+            "priority": model["priority"], "environment_rotate_y": float(env.rotate_y),
+            "environment_name": env.name,
+            "measured": {"bake_seconds": round(seconds, 3), "pilot_seconds": round(t_pilot, 3),
+                         "rays": totals["rays"],
+                         "rays_per_second": round(totals["rays"] / (seconds - t_pilot), 1) if seconds > t_pilot else None,
                          "held_out_rotate_y": float(env.rotate_y + HELD_OUT_DEGREES),
                          "compression_error": (float(np.sqrt(totals["error2"] / totals["norm2"]))
                                                if totals["norm2"] > 0 else 0.0),
-                         "entries": writer.entries, "entries_full": side2 * bw * bh},
+                         "level_error": (model["pilot"] or {}).get("level_error", {}).get(str(n)),
+                         "term_error": (model["pilot"] or {}).get("term_error", {}).get(str(model["terms"])),
+                         "entries": writer.entries, "entries_full": side2 * bw * bh, "pilot": model["pilot"]},
         }
         order = np.argsort(np.concatenate([b[0] for b in background])) if background else np.zeros(0, np.int64)
         arrays = {"albedo": albedo, "environment": env.pixels.astype(np.float32),

@@ -1,0 +1,242 @@
+"""Relighting from precomputed transfer (wavlight.relight): the kernels against their numpy
+twins, the sparse product against a dense dot product, the furnace, rotations by whole texels,
+the bake file's checks, and the unbiased frame against mis."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+import wavlight
+from scenes_util import write_raw_image
+from wavlight import haar
+from wavlight.envmap import Environment
+from wavlight.errors import WavlightError
+from wavlight.raytrace import RayTracer
+from wavlight.relight import bake as bake_mod
+from wavlight.relight import frame as frame_mod
+from wavlight.relight import lighting, store
+from wavlight.relight.converge import converge
+
+
+def sphere_on_floor(env, material=None, width=16, height=16, floor=True):
+    """A sphere over a lambert floor (or alone) under ``env`` (an [environment] table)."""
+    objects = [{"shape": "sphere", "center": [0.0, 0.6, 0.0], "radius": 0.6, "subdivisions": 3, "material": "ball"}]
+    if floor:
+        objects.append({"shape": "quad", "center": [0.0, 0.0, 0.0], "size": 6.0, "material": "floor"})
+    return {"render": {"width": width, "height": height},
+            "camera": {"eye": [0.0, 1.5, 3.5], "target": [0.0, 0.5, 0.0], "fov_y": 40.0},
+            "environment": env, "objects": objects,
+            "materials": {"ball": material or {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
+                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+
+
+@pytest.fixture(scope="module")
+def maps(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("maps")
+    rng = np.random.default_rng(3)
+    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * np.ones((32, 64, 3))
+           * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
+    sky[6, 40] = 400.0                                    # a small bright light
+    write_raw_image(folder / "sky.exr", sky)
+    write_raw_image(folder / "white.exr", np.ones((16, 32, 3), np.float32))
+    write_raw_image(folder / "black.exr", np.zeros((16, 32, 3), np.float32))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def shadowed(maps, device):
+    """A glossy sphere on a floor under the sky map, its bake (n = 4, all terms) and scene."""
+    scene = wavlight.load_dict(sphere_on_floor({"file": "sky.exr", "rotate_y": 20.0}), base_dir=maps)
+    transfer = wavlight.bake(scene, spp=4, levels=4, terms=256, priority="area", tolerance=1e-4, bits=16)
+    return scene, transfer
+
+
+# ----------------------------------------------------------------------------- kernels and twins
+def test_texel_rays_kernel_equals_its_twin(shadowed):
+    scene, _ = shadowed
+    tracer = RayTracer(scene.vertices, scene.faces)
+    ps = bake_mod.camera_samples(scene, tracer, 16, 16, 0, 0, 16, 8, 4, 5, 3)
+    assert (ps.count >= 1).any() and ps.miss.any()       # hits, groups and misses in the tile
+    d, w, pick = bake_mod.texel_rays(ps, 4, 5, 3)
+    d2, w2, pick2 = bake_mod.texel_rays_reference(ps, 4, 5, 3)
+    np.testing.assert_allclose(w, w2, rtol=2e-3, atol=1e-7 * w2.max())
+    live = w2 > 0
+    agree = (pick == pick2) & (np.abs(d - d2).max(1) < 1e-4)
+    assert agree[live].mean() > 0.995                     # a pick differs only at a rounding tie
+
+
+def test_frame_kernels_equal_their_twins(shadowed):
+    _, tr = shadowed
+    coeffs = tr.lighting(rotate_y=50.0)
+    cols = lighting.select_terms(coeffs, 64, "area")
+    values = coeffs.reshape(3, -1)[:, cols].T * 256.0
+    n_blocks = tr.blocks[0] * tr.blocks[1]
+    ids, weights, start = frame_mod.gather(tr._s["column_start"], tr._s["entry_block"], tr._s["entry_scale"], cols,
+                                           values, n_blocks)
+    assert len(ids) > 0
+    kernel = frame_mod.DeviceEntries(tr._s["entry_data"]).product(ids, weights, start)
+    twin = frame_mod.product_reference(tr._s["entry_data"], ids, weights, start)
+    np.testing.assert_allclose(kernel, twin, rtol=1e-5, atol=1e-6 * np.abs(twin).max())
+    env = tr.environment()
+    a = tr.frame(rotate_y=50.0, terms=64, priority="area")
+    b = tr.frame(rotate_y=50.0, terms=64, priority="area", backend="numpy")
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5 * b.max())
+    mask, dirs = tr._s["background_mask"], tr._s["background_dir"]
+    twin_bg = frame_mod.background_reference(env, 50.0, mask, dirs)
+    kern_bg = frame_mod.background_cl(*(lambda e: (e, env.pixels.shape))(tr._env_buffer(env)), 50.0,
+                                      *tr._background_buffers(), len(mask), tr.spp)
+    same = np.isclose(kern_bg, twin_bg, rtol=1e-5, atol=1e-6).all(1)
+    assert same.mean() > 0.995                            # a float32 lookup may fall in the next texel
+
+
+def test_sparse_product_equals_the_dense_dot_product(maps, device):
+    """With every term and no compression, a frame is a_p sum_t T_p,t L_t of the bake's texel
+    transfer, which the twin of the bake computes densely."""
+    scene = wavlight.load_dict(sphere_on_floor({"file": "sky.exr"}, width=16, height=16), base_dir=maps)
+    tr = wavlight.bake(scene, spp=2, levels=4, terms=256, priority="magnitude", tolerance=1e-6, bits=16, seed=4)
+    tracer = RayTracer(scene.vertices, scene.faces)
+    env = scene.environment
+    L = lighting.project(env, 4, 75.0)
+    image = np.zeros((16, 16, 3))
+    for tile in bake_mod._tiles(16, 16)[0]:   # the blocks of the image
+        block, x0, y0, w, h = tile
+        ps = bake_mod.camera_samples(scene, tracer, 16, 16, x0, y0, w, h, 2, 4, block)
+        T, _ = bake_mod.tile_transfer(ps, tracer, 4, 4, block)
+        image[y0:y0 + h, x0:x0 + w] = (np.einsum("pij,ijc->pc", T, L) * ps.albedo).reshape(h, w, 3)
+    hits = np.asarray(tr._s["albedo"]).sum(-1) > 0
+    got = tr.frame(rotate_y=75.0)
+    background = np.zeros_like(got)
+    bp = np.asarray(tr._s["background_pixel"], np.int64)
+    background.reshape(-1, 3)[bp] = frame_mod.background_reference(
+        Environment(env.pixels, 1.0, 0.0), 75.0, tr._s["background_mask"], tr._s["background_dir"])
+    np.testing.assert_allclose((got - background)[hits], image[hits], rtol=2e-3, atol=1e-4 * image.max())
+
+
+def test_white_furnace(maps, device):
+    """A lambert sphere alone under a constant map: every frame is its albedo times the radiance,
+    and the unbiased frame too (within its standard error)."""
+    d = sphere_on_floor({"file": "white.exr", "scale": 2.0}, {"type": "lambert", "albedo": [0.5, 0.7, 0.9]},
+                        floor=False)
+    scene = wavlight.load_dict(d, base_dir=maps)
+    tr = wavlight.bake(scene, spp=4, levels=5, terms=1024, priority="area", tolerance=1e-4, bits=16)
+    hits = np.asarray(tr._s["albedo"]).sum(-1) > 0
+    full = hits & (np.bincount(np.asarray(tr._s["background_pixel"], np.int64), minlength=256)
+                   .reshape(16, 16) == 0)
+    expect = np.array([0.5, 0.7, 0.9]) * 2.0
+    for rot in (0.0, 33.0):
+        img = tr.frame(rotate_y=rot)
+        # four points per texel: the texels the horizon cuts leave a quadrature error of a few 1e-3
+        np.testing.assert_allclose(img[full], np.broadcast_to(expect, img[full].shape), rtol=6e-3)
+    r = converge(tr, scene, spp=16, seed=2)
+    z = (r.image[full] - expect) / np.maximum(r.stderr[full], 1e-6)
+    assert np.abs(z).max() < 5 and abs(z.mean()) < 0.5
+
+
+def test_rotation_by_whole_texels_is_a_rotated_bake(maps, device):
+    """Turning the lighting by k texels is a cyclic shift of its texels, and a frame turned so
+    equals the frame of the same scene baked with its map turned so (the transfer does not
+    depend on the lighting)."""
+    env = wavlight.load_dict(sphere_on_floor({"file": "sky.exr"}), base_dir=maps).environment
+    for k in (1, 5, 16):
+        np.testing.assert_allclose(lighting.project(env, 5, 360.0 * k / 32), np.roll(lighting.project(env, 5, 0.0), -k,
+                                   axis=1), rtol=1e-12, atol=0)
+    rot = 360.0 * 3 / 16
+    kw = dict(spp=2, levels=4, terms=256, priority="area", tolerance=1e-6, bits=16, seed=9)
+    a = wavlight.bake(wavlight.load_dict(sphere_on_floor({"file": "sky.exr"}), base_dir=maps), **kw)
+    b = wavlight.bake(wavlight.load_dict(sphere_on_floor({"file": "sky.exr", "rotate_y": rot}), base_dir=maps), **kw)
+    fa, fb = a.frame(rotate_y=rot), b.frame()
+    np.testing.assert_allclose(fa, fb, rtol=1e-3, atol=1e-4 * fb.max())
+
+
+def test_unbiased_frame_equals_mis(shadowed):
+    """Against mis of the same scene under the turned map (shadows, a small bright light): equal
+    within the standard errors of both."""
+    scene, tr = shadowed
+    rot = 80.0
+    r = converge(tr, scene, rotate_y=rot, spp=64, seed=3)
+    turned = wavlight.load_dict(sphere_on_floor({"file": "sky.exr", "rotate_y": rot}),
+                                base_dir=os.path.dirname(scene.environment.name))
+    ref = wavlight.render_full(turned, spp=512, strategy="mis", seed=11)
+    var = r.stderr ** 2 + ref.stderr ** 2
+    # 4 x 4 blocks of pixels (sums of independent pixel estimates: near Gaussian where single
+    # pixels under a small bright light are not), per channel: 48 z values, Sidak-corrected 1%
+    diff = (r.image - ref.image).reshape(4, 4, 4, 4, 3).sum(axis=(1, 3))
+    z = diff / np.sqrt(var.reshape(4, 4, 4, 4, 3).sum(axis=(1, 3)))
+    assert np.abs(z).max() < 3.9, z
+    total = (r.image - ref.image).sum() / np.sqrt(var.sum())
+    assert abs(total) < 3.3
+
+
+# ----------------------------------------------------------------------------- the bake file
+def test_save_load_and_checks(shadowed, tmp_path):
+    _, tr = shadowed
+    path = tmp_path / "t.wlt"
+    tr.save(path)
+    again = wavlight.Transfer.load(path)
+    np.testing.assert_array_equal(again.frame(rotate_y=10.0), tr.frame(rotate_y=10.0))
+    raw = path.read_bytes()
+    (tmp_path / "short.wlt").write_bytes(raw[:-100])
+    with pytest.raises(WavlightError, match="truncated"):
+        wavlight.Transfer.load(tmp_path / "short.wlt")
+    header = store.read_header(str(path))
+    offset = header["data_offset"] + header["sections"]["entry_data"]["offset"] + 5
+    damaged = bytearray(raw)
+    damaged[offset] ^= 0x55
+    (tmp_path / "bad.wlt").write_bytes(bytes(damaged))
+    with pytest.raises(WavlightError, match="damaged.*entry_data"):
+        wavlight.Transfer.load(tmp_path / "bad.wlt")
+    (tmp_path / "junk.wlt").write_bytes(b"not a bake file at all" * 10)
+    with pytest.raises(WavlightError, match="not a wavlight bake file"):
+        wavlight.Transfer.load(tmp_path / "junk.wlt")
+    future = raw.replace(b'"version": 1', b'"version": 9', 1)
+    (tmp_path / "future.wlt").write_bytes(future)
+    with pytest.raises(WavlightError, match="version 9"):
+        wavlight.Transfer.load(tmp_path / "future.wlt")
+    with pytest.raises(WavlightError, match="no such bake file"):
+        wavlight.Transfer.load(tmp_path / "missing.wlt")
+
+
+def test_frame_arguments(shadowed):
+    _, tr = shadowed
+    for kw, message in ((dict(terms=0), "terms"), (dict(rotate_y=float("nan")), "rotate_y"),
+                        (dict(scale=-1.0), "scale"), (dict(priority="loud"), "priority"),
+                        (dict(env=3), "env must be")):
+        with pytest.raises(WavlightError, match=message):
+            tr.frame(**kw)
+
+
+def test_an_interrupted_bake_leaves_no_file(maps, tmp_path, device):
+    scene = wavlight.load_dict(sphere_on_floor({"file": "sky.exr"}), base_dir=maps)
+
+    def stop(done, total, rays, seconds):
+        if done == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        wavlight.bake(scene, tmp_path / "out.wlt", spp=1, levels=3, terms=16, priority="area", progress=stop,
+                      threads=1)
+    assert os.listdir(tmp_path) == []
+
+
+def test_a_changed_scene_is_refused_for_the_unbiased_frame(maps, tmp_path, device):
+    d = sphere_on_floor({"file": "sky.exr"})
+    scene = wavlight.load_dict(d, base_dir=maps)
+    tr = wavlight.bake(scene, spp=1, levels=3, terms=16, priority="area")
+    d["materials"]["ball"]["roughness"] = 0.5
+    with pytest.raises(WavlightError, match="changed since"):
+        converge(tr, wavlight.load_dict(d, base_dir=maps), spp=1)
+    with pytest.raises(WavlightError, match="given as a dict"):
+        converge(tr, None, spp=1)
+
+
+def test_lighting_priorities_and_terms():
+    rng = np.random.default_rng(1)
+    c = haar.forward(rng.random((3, 8, 8)))
+    for kind in ("magnitude", "area"):
+        cols = lighting.select_terms(c, 10, kind)
+        assert len(cols) == 10 and np.all(np.diff(cols) > 0)
+    with pytest.raises(WavlightError):
+        lighting.select_terms(c, 10, "transfer")          # needs the transfer's rms
+    assert len(lighting.select_terms(np.zeros((3, 8, 8)), 10, "area")) == 0
