@@ -106,77 +106,107 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
     }
 }
 
-/* The sparse product of a frame (wavlight/relight/frame.py): block b's entries
- * block_start[b] .. block_start[b + 1] - 1, entry j the row data[ids[j]] of QBITS-bit quantized
- * coefficients of the block's `pixels` pixels and its weight w_j (RGB, a pad); eight pixels
- * per work-item (pixels / 8 work-items per block) sum q w_j over the block's entries. The
- * output is three planes (channel, block, pixel). */
+/* The sparse product of a frame (wavlight/relight/frame.py): for the K kept lighting
+ * coefficients c_k with weights L_k (RGB times N^2, a pad), block b's pixels sum
+ * q_o scale_o L_k over the k whose entry o = offsets[c_k, b] exists (>= 0); entry o is the row
+ * data[o] of QBITS-bit coefficients of the block's PIXELS pixels. One work-item takes
+ * TILE_BLOCKS consecutive blocks and keeps their sums in private memory while it walks the K
+ * coefficients (one row of the offset table each), eight pixels to a vector. The output is
+ * three planes (channel, block, pixel). */
 #ifndef QBITS
 #define QBITS 8
 #endif
+#ifndef PIXELS
+#define PIXELS 256
+#endif
+#ifndef TILE_BLOCKS
+#define TILE_BLOCKS 4
+#endif
 #if QBITS == 8
 #define QTYPE char
-#define QLOAD(j, p) convert_float8(vload8(0, (p)))
+#define QTYPE8 char8
 #else
 #define QTYPE short
-#define QLOAD(j, p) convert_float8(vload8(0, (p)))
+#define QTYPE8 short8
 #endif
+#if INLINE_BUILTINS
+/* a vector load and conversion without the library's out-of-line calls (kernels/simd.h); entry
+ * rows and the eight-pixel offsets inside them keep the vector's alignment */
+#define QLOAD8(p) __builtin_convertvector(*(__global const QTYPE8 *)(p), float8)
+#else
+#define QLOAD8(p) convert_float8(vload8(0, (p)))
+#endif
+#define VECTORS (PIXELS / 8)
 
-__kernel void frame_product(const uint n_blocks, const uint pixels, __global const uint *block_start,
-                            __global const uint *ids, __global const float *weight,
-                            __global const QTYPE *data, __global float *out)
+__kernel void frame_product(const uint n_terms, const uint n_blocks, __global const int *columns,
+                            __global const float4 *light, __global const int *offsets,
+                            __global const float *scale, __global const QTYPE *data, __global float *out)
 {
-    const uint per = pixels / 8u;
-    const uint gid = get_global_id(0);
-    const uint b = gid / per;
-    if (b >= n_blocks) return;
-    const uint first = (gid - b * per) * 8u;
-    float8 r = 0.0f, g = 0.0f, bl = 0.0f;
-    const uint end = block_start[b + 1];
-    for (uint j = block_start[b]; j < end; ++j) {
-        const float8 q = QLOAD(j, data + (size_t)ids[j] * pixels + first);
-        const float4 w = vload4(j, weight);
-        r = fma(q, (float8)w.x, r);
-        g = fma(q, (float8)w.y, g);
-        bl = fma(q, (float8)w.z, bl);
+    const uint b0 = get_global_id(0) * TILE_BLOCKS;
+    if (b0 >= n_blocks) return;
+    const uint tiles = min((uint)TILE_BLOCKS, n_blocks - b0);
+    float8 acc[TILE_BLOCKS * 3 * VECTORS];
+    for (uint j = 0; j < TILE_BLOCKS * 3 * VECTORS; ++j) acc[j] = (float8)0.0f;
+    for (uint k = 0; k < n_terms; ++k) {
+        __global const int *row = offsets + (size_t)columns[k] * n_blocks + b0;
+        const float4 L = light[k];
+        for (uint j = 0; j < tiles; ++j) {
+            const int o = row[j];
+            if (o < 0) continue;
+            const float s = scale[o];
+            const float lr = L.x * s, lg = L.y * s, lb = L.z * s;
+            __global const QTYPE *q = data + (size_t)o * PIXELS;
+            float8 *a = acc + j * 3 * VECTORS;
+            for (uint v = 0; v < VECTORS; ++v) {
+                const float8 x = QLOAD8(q + 8 * v);
+                a[v] += x * lr;
+                a[VECTORS + v] += x * lg;
+                a[2 * VECTORS + v] += x * lb;
+            }
+        }
     }
-    const size_t plane = (size_t)n_blocks * pixels, at = (size_t)b * pixels + first;
-    vstore8(r, 0, out + at);
-    vstore8(g, 0, out + plane + at);
-    vstore8(bl, 0, out + 2 * plane + at);
+    const size_t plane = (size_t)n_blocks * PIXELS;
+    for (uint j = 0; j < tiles; ++j)
+        for (uint c = 0; c < 3; ++c)
+            for (uint v = 0; v < VECTORS; ++v)
+                vstore8(acc[(j * 3 + c) * VECTORS + v], 0, out + c * plane + (size_t)(b0 + j) * PIXELS + 8 * v);
 }
 
 /* The environment seen where a frame's pixels' camera samples miss: background pixel i's
  * samples s with bit s of mask[i] set, directions dirs[i, s] (world), turned into the map's
  * frame by m = map_from_world (row-major) and looked up at the nearest texel of the
- * env_w x env_h map (the scene format's u, v); out[i] = (1 / samples) sum of those radiances.
- * numpy twin: wavlight/relight/frame.py background_reference. */
+ * env_w x env_h map (the scene format's u, v, as env_world_to_square); out[i] = (1 / samples)
+ * times the sum of those radiances. Eight pixels per work-item. numpy twin:
+ * wavlight/relight/frame.py background_reference. */
 __kernel void frame_background(const uint count, const uint samples, const int env_w, const int env_h,
                                __global const float *m, __global const ulong *mask, __global const float *dirs,
                                __global const float *env, __global float *out)
 {
-    const uint i = get_global_id(0);
-    if (i >= count) return;
-    const ulong bits = mask[i];
-    float r = 0.0f, g = 0.0f, b = 0.0f;
+    const uint base = LANE_BASE();
+    if (base >= count) return;
+    const uintv i = LANE_INDEX(count);
+    uintv lo = 0u, hi = 0u;
+    for (uint l = 0; l < LANES; ++l) {
+        const ulong bits = mask[i[l]];
+        lo[l] = (uint)bits;
+        hi[l] = (uint)(bits >> 32);
+    }
+    realv r = 0.0f, g = 0.0f, b = 0.0f;
     for (uint s = 0; s < samples; ++s) {
-        if (!((bits >> s) & 1ul)) continue;
-        __global const float *d = dirs + 3 * ((size_t)i * samples + s);
-        const float x = m[0] * d[0] + m[1] * d[1] + m[2] * d[2];
-        const float y = m[3] * d[0] + m[4] * d[1] + m[5] * d[2];
-        const float z = m[6] * d[0] + m[7] * d[1] + m[8] * d[2];
-        float u = atan2(x, -z) * INV_2PI_F;   /* in (-1/2, 1/2]: wrapped to [0, 1) */
-        if (u < 0.0f) u += 1.0f;
-        const float v = acos(clamp(y, -1.0f, 1.0f)) * INV_PI_F;
-        const int col = min((int)(u * (float)env_w), env_w - 1);
-        const int row = min((int)(v * (float)env_h), env_h - 1);
-        __global const float *px = env + 3 * ((size_t)row * env_w + col);
-        r += px[0];
-        g += px[1];
-        b += px[2];
+        const uintv bit = (s < 32u ? (lo >> s) : (hi >> (s - 32u))) & 1u;
+        const uintv at = 3u * (i * samples + s);
+        realv u, v;
+        env_world_to_square(m, GATHER(dirs, at), GATHER(dirs, at + 1u), GATHER(dirs, at + 2u), &u, &v);
+        const uintv tex = 3u * env_texel(env_w, env_h, u, v);
+        const intv use = as_intv(bit) != 0;
+        r += select((realv)0.0f, GATHER(env, tex), use);
+        g += select((realv)0.0f, GATHER(env, tex + 1u), use);
+        b += select((realv)0.0f, GATHER(env, tex + 2u), use);
     }
     const float inv = 1.0f / (float)samples;
-    out[3 * i] = r * inv;
-    out[3 * i + 1] = g * inv;
-    out[3 * i + 2] = b * inv;
+    for (uint l = 0; l < LANES && base + l < count; ++l) {
+        out[3 * (base + l)] = r[l] * inv;
+        out[3 * (base + l) + 1] = g[l] * inv;
+        out[3 * (base + l) + 2] = b[l] * inv;
+    }
 }

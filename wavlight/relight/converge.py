@@ -100,27 +100,20 @@ def solid_angle_jacobian(d: np.ndarray) -> np.ndarray:
 
 
 class _Block:
-    """Each block's stored entries (ids into the bake file's entries) and their columns."""
+    """A block's stored coefficients, from the bake file's offset table."""
 
     def __init__(self, transfer):
-        s = transfer._s
-        blocks = np.asarray(s["entry_block"], np.int64)
-        self.order = np.argsort(blocks, kind="stable")
-        n_blocks = transfer.blocks[0] * transfer.blocks[1]
-        self.start = np.zeros(n_blocks + 1, np.int64)
-        np.cumsum(np.bincount(blocks, minlength=n_blocks), out=self.start[1:])
-        column_start = np.asarray(s["column_start"], np.int64)
-        self.column = (np.searchsorted(column_start, np.arange(len(blocks)), side="right") - 1).astype(np.int64)
+        self.offsets = transfer._s["offsets"]
 
     def coefficients(self, transfer, block: int) -> np.ndarray:
         """(BLOCK^2, 4^n) float32: the block's pixels' dequantized transfer coefficients."""
-        ids = self.order[self.start[block]:self.start[block + 1]]
-        side2 = 4 ** transfer.n_levels
-        out = np.zeros((BLOCK * BLOCK, side2), np.float32)
-        if len(ids):
-            q = np.asarray(transfer._s["entry_data"][ids], np.float32)
-            scale = np.asarray(transfer._s["entry_scale"][ids], np.float32)
-            out[:, self.column[ids]] = (q * scale[:, None]).T
+        ids = np.asarray(self.offsets[:, block], np.int64)
+        cols = np.flatnonzero(ids >= 0)
+        out = np.zeros((BLOCK * BLOCK, len(ids)), np.float32)
+        if len(cols):
+            q = np.asarray(transfer._s["entry_data"][ids[cols]], np.float32)
+            scale = np.asarray(transfer._s["entry_scale"][ids[cols]], np.float32)
+            out[:, cols] = (q * scale[:, None]).T
         return out
 
 

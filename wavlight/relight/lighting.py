@@ -53,33 +53,51 @@ def texel_directions(n_levels: int) -> np.ndarray:
     return np.stack([np.sin(phi) * st, np.cos(theta), -np.cos(phi) * st], -1)
 
 
+class Projector:
+    """The lighting of one map on the 2^n x 2^n world texels at any rotation: the integration over
+    rows (in cos theta) and the cumulative integral along phi are made once per map, so that a
+    rotation costs one interpolation per texel edge (exact for the piecewise-constant map)."""
+
+    def __init__(self, environment: Environment, n_levels: int):
+        where = "relight.Projector"
+        n = check_int(where, "n_levels", n_levels, 1, 11)
+        self.environment, self.n_levels = environment, n
+        side = 1 << n
+        h, w = environment.height, environment.width
+        pixels = environment.pixels.astype(np.float64)
+        # rows: the solid-angle measure in cos(theta) of texel row r's overlap with map row j
+        ri, rw = _band_overlaps(np.arange(side + 1) / side * np.pi, np.arange(h + 1) / h * np.pi, lambda x: -np.cos(x))
+        by_rows = sum(rw[:, b, None, None] * np.take(pixels, ri[:, b], axis=0) for b in range(ri.shape[1]))
+        # columns: the cumulative integral along phi at the map's column edges, periodic
+        self.step = 2 * np.pi / w
+        self.by_rows = by_rows * self.step                                           # (N, W, 3)
+        self.cum = np.concatenate([np.zeros((side, 1, 3)), np.cumsum(self.by_rows, axis=1)], axis=1)
+        self.total = self.cum[:, -1]
+        self.inv_omega = 1.0 / texel_solid_angles(n)
+
+    def __call__(self, rotate_y: float | None = None, scale: float = 1.0) -> np.ndarray:
+        """(N, N, 3) float64: the mean radiance over each world texel's solid angle of the map
+        turned by ``rotate_y`` degrees (default: the environment's own), times ``scale``."""
+        where = "relight.project"
+        rot = self.environment.rotate_y if rotate_y is None else check_number(where, "rotate_y", rotate_y)
+        scale = check_number(where, "scale", scale, 0.0)
+        side = 1 << self.n_levels
+        w = self.environment.width
+        phi = np.arange(side + 1) / side * 2 * np.pi + np.radians(rot)             # map-frame phi of the edges
+        turns = np.floor(phi / (2 * np.pi))
+        x = (phi - turns * 2 * np.pi) / self.step                                   # in map columns, [0, W)
+        col = np.minimum(x.astype(np.int64), w - 1)
+        frac = x - col
+        at = (np.take(self.cum, col, axis=1) + frac[None, :, None] * np.take(self.by_rows, col, axis=1)
+              + turns[None, :, None] * self.total[:, None, :])                     # (N, N + 1, 3)
+        return (at[:, 1:] - at[:, :-1]) * (scale * self.inv_omega)[:, None, None]
+
+
 def project(environment: Environment, n_levels: int, rotate_y: float | None = None, scale: float = 1.0) -> np.ndarray:
     """(N, N, 3) float64: the mean radiance over each world texel's solid angle of the map turned
     by ``rotate_y`` degrees (default: the environment's own) and multiplied by ``scale``; exact
-    for the piecewise-constant map (module docstring)."""
-    where = "relight.project"
-    n = check_int(where, "n_levels", n_levels, 1, 11)
-    rot = environment.rotate_y if rotate_y is None else check_number(where, "rotate_y", rotate_y)
-    scale = check_number(where, "scale", scale, 0.0)
-    side = 1 << n
-    h, w = environment.height, environment.width
-    pixels = environment.pixels.astype(np.float64)
-    # rows: the solid-angle measure in cos(theta) of texel row r's overlap with map row j
-    ri, rw = _band_overlaps(np.arange(side + 1) / side * np.pi, np.arange(h + 1) / h * np.pi, lambda x: -np.cos(x))
-    by_rows = sum(rw[:, b, None, None] * np.take(pixels, ri[:, b], axis=0) for b in range(ri.shape[1]))  # (N, W, 3)
-    # columns: the cumulative integral along phi at the map's column edges, periodic
-    step = 2 * np.pi / w
-    cum = np.concatenate([np.zeros((side, 1, 3)), np.cumsum(by_rows * step, axis=1)], axis=1)   # (N, W + 1, 3)
-    total = cum[:, -1]
-    phi = (np.arange(side + 1) / side * 2 * np.pi + np.radians(rot))        # map-frame phi of the texel edges
-    turns = np.floor(phi / (2 * np.pi))
-    x = (phi - turns * 2 * np.pi) / step                                    # in map columns, [0, W)
-    col = np.minimum(x.astype(np.int64), w - 1)
-    frac = x - col
-    at = (np.take(cum, col, axis=1) + frac[None, :, None] * np.take(by_rows * step, col, axis=1)
-          + turns[None, :, None] * total[:, None, :])                       # (N, N + 1, 3)
-    integrals = at[:, 1:] - at[:, :-1]
-    return integrals * (scale / texel_solid_angles(n))[:, None, None]
+    for the piecewise-constant map (module docstring; :class:`Projector` for many rotations)."""
+    return Projector(environment, n_levels)(rotate_y, scale)
 
 
 def coefficients(texels: np.ndarray) -> np.ndarray:

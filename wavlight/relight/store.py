@@ -12,9 +12,11 @@ Layout (little-endian)::
       background_mask   uint64 (M,)     bit s set where sample s misses
       background_dir    float32 (M, S, 3)  the samples' directions
       rms           float32 (4^n,)      root-mean-square of each coefficient over the image
-      column_start  int64 (4^n + 1,)    entries of coefficient c: column_start[c] .. [c + 1] - 1
-      entry_block   uint32 (E,)         the block of each entry (blocks row-major, BLOCK x BLOCK pixels)
-      entry_scale   float32 (E,)        its scale: value = scale x q
+      offsets       int32 (4^n, B)      the entry of coefficient c in block b, or -1 where the block
+                                        keeps none (blocks row-major, BLOCK x BLOCK pixels each); a
+                                        frame reads the rows of its K coefficients
+      entry_scale   float32 (E,)        each entry's scale: value = scale x q (entries by coefficient,
+                                        then block: a coefficient's entries lie together)
       entry_data    int8 | int16 (E, BLOCK^2)  the quantized coefficients q of the block's pixels
 
 The header records the format and its version, wavlight's version, the scene (file, content
@@ -44,7 +46,7 @@ MAGIC = b"WAVLIGHT-XFER\x00\x01\n"   # 16 bytes
 FORMAT_VERSION = 1
 ALIGN = 64
 PIXEL_SECTIONS = ("environment", "albedo", "background_pixel", "background_mask", "background_dir", "rms")
-SECTIONS = PIXEL_SECTIONS + ("column_start", "entry_block", "entry_scale", "entry_data")
+SECTIONS = PIXEL_SECTIONS + ("offsets", "entry_scale", "entry_data")
 #: the entries of this many megabytes are reordered from block order into column order at once
 REORDER_CHUNK_BYTES = 64 << 20
 
@@ -130,11 +132,12 @@ class TransferWriter:
         blocks = np.concatenate(self._blocks) if self._blocks else np.zeros(0, np.uint32)
         scales = np.concatenate(self._scales) if self._scales else np.zeros(0, np.float32)
         order = np.lexsort((blocks, columns))                 # by column, then block
-        column_start = np.zeros(side2 + 1, np.int64)
-        np.cumsum(np.bincount(columns, minlength=side2), out=column_start[1:])
+        n_blocks = int(header["blocks"][0]) * int(header["blocks"][1])
+        offsets = np.full((side2, n_blocks), -1, np.int32)
+        offsets[columns[order], blocks[order]] = np.arange(len(order), dtype=np.int32)
         row = self.block ** 2 * self.dtype.itemsize
         sections = {**{k: np.ascontiguousarray(arrays[k]) for k in PIXEL_SECTIONS},
-                    "column_start": column_start, "entry_block": blocks[order], "entry_scale": scales[order]}
+                    "offsets": offsets, "entry_scale": scales[order]}
         meta, offset = {}, 0
         for name in SECTIONS:
             if name == "entry_data":
@@ -245,9 +248,10 @@ def open_sections(path: str, header: dict, verify: bool = True) -> dict:
                 raise WavlightError(f"{path}: the bake file is damaged (section {name} fails its checksum)")
         out[name] = a
     side2 = 1 << (2 * int(header["n_levels"]))
-    cs, blocks = out["column_start"], out["entry_block"]
     n_blocks = int(header["blocks"][0]) * int(header["blocks"][1])
-    if (cs.shape != (side2 + 1,) or cs[0] != 0 or cs[-1] != len(blocks) or np.any(np.diff(cs) < 0)
-            or (len(blocks) and int(blocks.max()) >= n_blocks) or not np.all(np.isfinite(out["entry_scale"]))):
+    offsets, entries = out["offsets"], len(out["entry_scale"])
+    if (offsets.shape != (side2, n_blocks) or out["entry_data"].shape[0] != entries
+            or (offsets.size and (int(offsets.min()) < -1 or int(offsets.max()) >= entries))
+            or not np.all(np.isfinite(out["entry_scale"]))):
         raise WavlightError(f"{path}: the bake file's index is damaged")
     return out

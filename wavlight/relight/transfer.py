@@ -22,7 +22,7 @@ from ..envmap import Environment, read_image
 from ..errors import ArgumentError, WavlightError, check_int, check_number, shown
 from . import lighting, store
 from .. import cl
-from .frame import DeviceEntries, background_cl, background_reference, gather, product_reference
+from .frame import DeviceEntries, background_cl, background_reference, product_reference
 
 MAX_TERMS = 1 << 22
 
@@ -37,7 +37,7 @@ class Transfer:
     def __init__(self, path: str, header: dict, sections: dict, owns_file: bool = False):
         self.path, self.header, self._s = path, header, sections
         self._owns = owns_file
-        self._device = self._bg = self._env = None
+        self._device = self._bg = self._env = self._lit = None
         h = header
         self.width, self.height = int(h["width"]), int(h["height"])
         self.n_levels, self.block, self.bits = int(h["n_levels"]), int(h["block"]), int(h["bits"])
@@ -74,7 +74,7 @@ class Transfer:
 
     def close(self):
         """Release the memory maps (and the temporary file of a bake made without an output)."""
-        self._device = self._bg = self._env = None
+        self._device = self._bg = self._env = self._lit = None
         self._s = {}
         if self._owns and os.path.exists(self.path):
             os.unlink(self.path)
@@ -109,12 +109,25 @@ class Transfer:
 
     @property
     def entries(self) -> int:
-        return int(self._s["entry_block"].shape[0])
+        return int(self._s["entry_scale"].shape[0])
 
     # -- lighting
     def environment(self, env=None, scale: float = 1.0) -> Environment:
         """The lighting of a frame: ``env`` (an Environment, a map file, or None: the scene's own
-        map as baked), without its rotation (a frame's ``rotate_y`` sets it), times ``scale``."""
+        map as baked), without its rotation (a frame's ``rotate_y`` sets it), times ``scale``
+        (the last one asked for is kept: frames of one map do not read it again)."""
+        key = (id(env) if isinstance(env, Environment) else env, float(scale))
+        if self._lit is not None and self._lit[0] == key:
+            return self._lit[1]
+        environment = self._environment(env, scale)
+        self._lit = (key, environment, lighting.Projector(environment, self.n_levels))
+        return environment
+
+    def _projector(self, environment):
+        return self._lit[2] if self._lit is not None and self._lit[1] is environment else \
+            lighting.Projector(environment, self.n_levels)
+
+    def _environment(self, env, scale):
         if env is None:
             return Environment(np.asarray(self._s["environment"]), scale, 0.0, "the baked environment")
         if isinstance(env, Environment):
@@ -127,8 +140,8 @@ class Transfer:
     def lighting(self, env=None, rotate_y=None, scale: float = 1.0):
         """(3, N, N) Haar coefficients of the frame's lighting on the transfer's texels."""
         rot = self.scene_rotate_y if rotate_y is None else rotate_y
-        environment = env if isinstance(env, Environment) and env.rotate_y == 0 else self.environment(env, scale)
-        return lighting.coefficients(lighting.project(environment, self.n_levels, rot, 1.0))
+        environment = self.environment(env, scale)
+        return lighting.coefficients(self._projector(environment)(rot))
 
     # -- frames
     def frame(self, env=None, rotate_y=None, scale: float = 1.0, terms=None, priority=None,
@@ -155,27 +168,26 @@ class Transfer:
         t0 = time.perf_counter()
         environment = self.environment(env, scale)
         rot = self.scene_rotate_y if rotate_y is None else rotate_y
-        coeffs = lighting.coefficients(lighting.project(environment, self.n_levels, rot, 1.0))
+        coeffs = lighting.coefficients(self._projector(environment)(rot))
         t1 = time.perf_counter()
         columns = lighting.select_terms(coeffs, terms, priority, self._s["rms"])
         side = 1 << self.n_levels
         values = coeffs.reshape(3, -1)[:, columns].T * float(side * side)
-        n_blocks = self.blocks[0] * self.blocks[1]
-        ids, weights, block_start = gather(self._s["column_start"], self._s["entry_block"], self._s["entry_scale"],
-                                           columns, values, n_blocks)
         t2 = time.perf_counter()
         if backend == "numpy":
-            blocks = product_reference(self._s["entry_data"], ids, weights, block_start)
+            blocks = product_reference(self._s["offsets"], self._s["entry_scale"], self._s["entry_data"], columns,
+                                       values)
         else:
             if self._device is None:
-                self._device = DeviceEntries(self._s["entry_data"])
-            blocks = self._device.product(ids, weights, block_start)
+                self._device = DeviceEntries(self._s["offsets"], self._s["entry_scale"], self._s["entry_data"])
+            blocks = self._device.product(columns, values)
         t3 = time.perf_counter()
         image = self._assemble(blocks, environment, rot, backend)
         t4 = time.perf_counter()
+        entries = int(np.count_nonzero(np.asarray(self._s["offsets"][columns]) >= 0)) if len(columns) else 0
         return image, {"lighting_seconds": t1 - t0, "terms_seconds": t2 - t1, "product_seconds": t3 - t2,
                        "assembly_seconds": t4 - t3, "frame_seconds": t4 - t0, "terms": int(len(columns)),
-                       "entries_read": int(len(ids))}
+                       "entries_read": entries}
 
     def _assemble(self, blocks: np.ndarray, environment: Environment, rotate_y: float, backend: str) -> np.ndarray:
         """(H, W, 3): the blocks' sums times the albedo, plus the environment where samples missed."""
