@@ -13,15 +13,18 @@
  * material; wavlight/relight/bake.py): group j of pixel p at p S + j, of count[p] groups,
  * with its normal, mean view direction wo, material, weight c_j = (sum of its samples' albedo
  * ratios) / S and its members (sample indices members[first_j .. first_j + size_j - 1]).
- * The texel gets Q = 4 points, 2 x 2 strata uniform in solid angle (u from col, cos theta
- * from row) at one jitter (u0, u1) of Philox stream RNG_TEXEL at pair index first + g of tile
+ * The texel gets Q = TEXEL_POINTS points, 2 x 2 strata (or one point) uniform in solid angle
+ * (u from col, cos theta from row) at one jitter (u0, u1) of Philox stream RNG_TEXEL at pair index first + g of tile
  * `tile`; f_jq = c_j f cos(point q; group j). One (j, q) is picked with probability
  * f_jq / sum f by one uniform u2 (reservoir sampling, u2 rescaled at each step), and the
  * shadow ray goes from a member of group j chosen by u3 towards point q, with
  * weight = Omega_t sum f / Q: weight x V is an unbiased estimate of the pixel's mean over
  * its samples of the texel's Q-point quadrature of f cos V, exact where V is the same over
  * the texel and the pixel. A texel the BRDF does not reach gets weight 0 (no ray). */
-#define TEXEL_POINTS 4
+#ifndef TEXEL_POINTS
+#define TEXEL_POINTS 4   /* 4: 2 x 2 strata; 1: one point over the whole texel */
+#endif
+#define TEXEL_GRID (TEXEL_POINTS == 4 ? 2 : 1)
 __kernel void bake_texel_rays(const uint count, const uint first, const uint n_levels, const uint samples,
                               const uint tile, const uint k0, const uint k1, __global const uint *group_count,
                               __global const float *normal, __global const float *wo,
@@ -45,8 +48,8 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
     fast_sincos(PI_F * convert_realv(row + 1u) * inv, &st1, &z1);
     realv dx[TEXEL_POINTS], dy[TEXEL_POINTS], dz[TEXEL_POINTS];
     for (int q = 0; q < TEXEL_POINTS; ++q) {
-        const realv uu = (convert_realv(col) + ((float)(q & 1) + u0) * 0.5f) * inv;
-        const realv zz = z0 + ((float)(q >> 1) + u1) * 0.5f * (z1 - z0);
+        const realv uu = (convert_realv(col) + ((float)(q % TEXEL_GRID) + u0) * (1.0f / TEXEL_GRID)) * inv;
+        const realv zz = z0 + ((float)(q / TEXEL_GRID) + u1) * (1.0f / TEXEL_GRID) * (z1 - z0);
         const realv sn = sqrt(fmax(1.0f - zz * zz, 0.0f));
         realv sp, cp;
         fast_sincos(2.0f * PI_F * uu, &sp, &cp);
@@ -65,13 +68,30 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
         make_frame((realv)nx, (realv)ny, (realv)nz, &sx, &sy, &sz, &tx, &ty, &tz);
         const realv ox = wx * sx + wy * sy + wz * sz, oy = wx * tx + wy * ty + wz * tz;
         const realv oz = (realv)(wx * nx + wy * ny + wz * nz);
-        const intv kd = (intv)kind[gj];
+        const int kd = kind[gj];
         const realv pa = (realv)param[gj];
         const float c = weight[gj];
+        realv ix[TEXEL_POINTS], iy[TEXEL_POINTS], iz[TEXEL_POINTS];
+        intv above = (intv)0;
         for (int q = 0; q < TEXEL_POINTS; ++q) {
-            realv fv, unused;
-            bsdf_eval_pdf(kd, pa, dx[q] * sx + dy[q] * sy + dz[q] * sz, dx[q] * tx + dy[q] * ty + dz[q] * tz,
-                          dx[q] * nx + dy[q] * ny + dz[q] * nz, ox, oy, oz, &fv, &unused);
+            ix[q] = dx[q] * sx + dy[q] * sy + dz[q] * sz;
+            iy[q] = dx[q] * tx + dy[q] * ty + dz[q] * tz;
+            iz[q] = dx[q] * nx + dy[q] * ny + dz[q] * nz;
+            above |= iz[q] > 0.0f;
+        }
+        if (!any(above)) continue;   /* the texel lies below this group's horizon: f = 0 */
+        for (int q = 0; q < TEXEL_POINTS; ++q) {
+            realv fv = 0.0f, unused;
+            /* the group's one material kind, as a constant: each branch keeps that BRDF alone */
+#if HAS_KIND(BSDF_LAMBERT)
+            if (kd == BSDF_LAMBERT) bsdf_eval_pdf((intv)BSDF_LAMBERT, pa, ix[q], iy[q], iz[q], ox, oy, oz, &fv, &unused);
+#endif
+#if HAS_KIND(BSDF_PHONG)
+            if (kd == BSDF_PHONG) bsdf_eval_pdf((intv)BSDF_PHONG, pa, ix[q], iy[q], iz[q], ox, oy, oz, &fv, &unused);
+#endif
+#if HAS_KIND(BSDF_GGX)
+            if (kd == BSDF_GGX) bsdf_eval_pdf((intv)BSDF_GGX, pa, ix[q], iy[q], iz[q], ox, oy, oz, &fv, &unused);
+#endif
             fv = select(fv * c, (realv)0.0f, !(fv > 0.0f));
             /* reservoir step: take (j, q) with probability fv / (total + fv), reusing u */
             const realv grown = total + fv;

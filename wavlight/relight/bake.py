@@ -155,11 +155,33 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
                         origin, albedo, mask, d)
 
 
-TEXEL_POINTS = 4   # kernels/relight.cl
+#: points per texel where f cos is evaluated (kernels/relight.cl TEXEL_POINTS): 4 (2 x 2 strata) or 1
+POINT_CHOICES = (1, 4)
+#: a BRDF lobe narrower than this many texels (in theta) gets four points per texel
+NARROW_LOBE_TEXELS = 3.0
+
+
+def lobe_width(kind: int, param: float) -> float:
+    """A BRDF lobe's angular width, radians: lambert's hemisphere pi / 2, phong's 1 / sqrt(n + 1)
+    (its cos^n falls to 1/e there), ggx's 2 alpha (the reflected lobe is about twice the
+    microfacet distribution's width)."""
+    if kind == bsdfs.PHONG:
+        return 1.0 / np.sqrt(param + 1.0)
+    if kind == bsdfs.GGX:
+        return 2.0 * param
+    return np.pi / 2
+
+
+def texel_points(scene, n_levels: int) -> int:
+    """Points per texel a scene needs: four where a lobe is narrower than NARROW_LOBE_TEXELS
+    texels (f cos then varies inside one), one otherwise."""
+    texel = np.pi / (1 << n_levels)
+    narrow = [lobe_width(m.kind, m.param) < NARROW_LOBE_TEXELS * texel for m in scene.materials]
+    return 4 if any(narrow) else 1
 
 
 def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, first: int = 0,
-                         count: int | None = None):
+                         count: int | None = None, points: int = 4):
     """numpy twin of ``bake_texel_rays``: directions (C, 3), weights (C,) and the picked samples
     (C,) of pairs first .. first + C - 1 (float64; the kernel's float32 agrees to rounding and
     picks the same point unless a reservoir step lies within rounding of its threshold)."""
@@ -171,9 +193,10 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
     u = rng.uniforms(seed, tile, TEXEL_STREAM, first, count).astype(np.float64)
     z0, z1 = np.cos(np.pi * row / side), np.cos(np.pi * (row + 1) / side)
     points = []
-    for q in range(TEXEL_POINTS):   # the texel's strata, not pairs
-        uu = (col + ((q & 1) + u[:, 0]) * 0.5) / side
-        zz = z0 + ((q >> 1) + u[:, 1]) * 0.5 * (z1 - z0)
+    grid = 2 if points == 4 else 1
+    for q in range(points):   # the texel's strata, not pairs
+        uu = (col + ((q % grid) + u[:, 0]) / grid) / side
+        zz = z0 + ((q // grid) + u[:, 1]) / grid * (z1 - z0)
         sn = np.sqrt(np.maximum(1.0 - zz * zz, 0.0))
         points.append(np.stack([np.sin(2 * np.pi * uu) * sn, zz, -np.cos(2 * np.pi * uu) * sn], 1))
     total = np.zeros(count)
@@ -209,18 +232,21 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
     k = np.minimum((u[:, 3].astype(np.float32) * size.astype(np.float32)).astype(np.int64), size - 1)
     sample = ps.members[p * S + ps.first[picked].astype(np.int64) + k]
     omega = (z0 - z1) * 2 * np.pi / side
-    weight = np.where(total > 0, omega * total / TEXEL_POINTS, 0.0)
+    weight = np.where(total > 0, omega * total / points, 0.0)
     return pick_dir, weight, sample.astype(np.int64)
 
 
-def texel_rays(ps: PixelSamples, n_levels: int, seed: int, tile: int, bsdf_kinds: int = 7, queue=None):
+def texel_rays(ps: PixelSamples, n_levels: int, seed: int, tile: int, bsdf_kinds: int = 7, queue=None,
+               points: int = 4):
     """The kernel ``bake_texel_rays`` over all of a tile's (pixel, texel) pairs: directions
     (P 4^n, 3), weights (P 4^n,) float32 and the picked samples (P 4^n,) uint32. ``bsdf_kinds``:
     the bit mask of the material kinds the scene has (the kernel evaluates only those)."""
     count = len(ps) << (2 * n_levels)
     queue = queue or cl.thread_queue()
-    prog = cl.program("relight.cl", BSDF_KINDS=int(bsdf_kinds))
-    dirs, weights, picks = cl.empty(12 * count), cl.empty(4 * count), cl.empty(4 * count)
+    prog = cl.program("relight.cl", BSDF_KINDS=int(bsdf_kinds), TEXEL_POINTS=int(points))
+    # the thread's reusable buffers: a fresh 20 MB a tile cost PoCL allocations and page faults
+    dirs, weights, picks = (cl.scratch(f"bake_{name}", size * count) for name, size in
+                            (("dirs", 12), ("weights", 4), ("picks", 4)))
     k0, k1 = rng.key(seed)
     cl.kernel(prog, "bake_texel_rays")(
         queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(0),
@@ -232,13 +258,13 @@ def texel_rays(ps: PixelSamples, n_levels: int, seed: int, tile: int, bsdf_kinds
 
 
 def tile_transfer(ps: PixelSamples, tracer, n_levels: int, seed: int, tile: int, backend: str = "opencl",
-                  bsdf_kinds: int = 7):
+                  bsdf_kinds: int = 7, points: int = 4):
     """(P, N, N) float32 texel transfer of a tile's pixels (module docstring) and the number of
     shadow rays it traced."""
     if backend == "opencl":
-        dirs, weight, pick = texel_rays(ps, n_levels, seed, tile, bsdf_kinds)
+        dirs, weight, pick = texel_rays(ps, n_levels, seed, tile, bsdf_kinds, points=points)
     else:
-        dirs, weight, pick = texel_rays_reference(ps, n_levels, seed, tile)
+        dirs, weight, pick = texel_rays_reference(ps, n_levels, seed, tile, points=points)
     live = np.flatnonzero(weight > 0)
     blocked = tracer.occluded(np.take(ps.origin, pick[live].astype(np.int64), axis=0), np.take(dirs, live, axis=0))
     out = np.zeros(len(weight), np.float32)
@@ -283,6 +309,7 @@ class Settings:
     held_out: np.ndarray
     seed: int
     backend: str = "opencl"
+    points: int = 4
 
 
 class _Worker:
@@ -300,8 +327,8 @@ def bake_block(worker: _Worker, settings: Settings, tile) -> dict:
     block_id, x0, y0, w, h = tile
     s = settings
     ps = camera_samples(worker.scene, worker.tracer, s.width, s.height, x0, y0, w, h, s.spp, s.seed, block_id)
-    texels, rays = tile_transfer(ps, worker.tracer, s.n_levels, s.seed, block_id, s.backend, worker.kinds)
-    coeffs = haar.forward_cl(texels)[0] if s.backend == "opencl" else haar.forward(texels)
+    texels, rays = tile_transfer(ps, worker.tracer, s.n_levels, s.seed, block_id, s.backend, worker.kinds, s.points)
+    coeffs = haar.forward(texels)   # numpy's is the faster here: one tile, no transfers to the device
     side2 = 4 ** s.n_levels
     coeffs = _padded(np.asarray(coeffs, np.float32).reshape(w * h, side2), w, h)
     cols, scales, q, e2, n2 = store.compress_block(coeffs, s.held_out, s.tolerance, s.bits,
@@ -359,7 +386,8 @@ def choose_model(scene, tolerance: float, spp: int, seed: int, levels=None, term
     for tile in tiles:   # a few blocks, not pixels
         _, x0, y0, w, h = tile
         ps = camera_samples(scene, worker.tracer, pw, ph, x0, y0, w, h, spp, seed + 1, tile[0])
-        texels.append(tile_transfer(ps, worker.tracer, top, seed + 1, tile[0], backend, worker.kinds)[0])
+        texels.append(tile_transfer(ps, worker.tracer, top, seed + 1, tile[0], backend, worker.kinds,
+                                    texel_points(scene, top))[0])
     T = np.concatenate(texels).astype(np.float64)                     # (P, 2^top, 2^top)
     lum = LUMINANCE.astype(np.float64)
     frames, level_error = {}, {}
@@ -400,7 +428,7 @@ def choose_model(scene, tolerance: float, spp: int, seed: int, levels=None, term
 
 def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None, tolerance: float = 0.02,
          bits: int = 8, terms=None, priority=None, seed: int = 0, threads=None, progress=None,
-         backend: str = "opencl", dask_address=None):
+         backend: str = "opencl", dask_address=None, points=None):
     """Bake the transfer of ``scene`` (a Scene or a scene file) for its camera at width x height
     (default: the scene's) with ``spp`` camera samples per pixel; write it to ``output``
     (default: a temporary file the Transfer owns) and return the :class:`Transfer`.
@@ -408,6 +436,7 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     The texel levels (2^n x 2^n), the default terms K and their priority are chosen from the
     scene for ``tolerance`` by a pilot bake (:func:`choose_model`) unless given; each block is
     compressed to ``tolerance`` / sqrt(3) on the held-out lighting and quantized to ``bits``.
+    ``points`` per texel (1 or 4) default to :func:`texel_points`.
     ``progress(done, total, rays, seconds)`` after each block. ``dask_address``: bake the
     blocks on that dask.distributed scheduler (the workers read the scene file at the same
     path); the file is identical to a local bake's."""
@@ -428,6 +457,8 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     if bits not in BITS:
         raise ArgumentError(f"{where}: bits must be 8 or 16, got {bits!r}")
     seed = check_int(where, "seed", seed, 0, 2 ** 62)
+    if points is not None and points not in POINT_CHOICES:
+        raise ArgumentError(f"{where}: points must be 1 or 4, got {points!r}")
     if scene.environment.is_black:
         raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
     if dask_address is not None and scene.path == "<dict>":
@@ -437,7 +468,9 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     n = model["n_levels"]
     env = scene.environment
     held = lighting.coefficients(lighting.project(env, n, env.rotate_y + HELD_OUT_DEGREES)).reshape(3, -1).T
-    settings = Settings(width, height, spp, n, tolerance / np.sqrt(3.0), bits, held * float(4 ** n), seed, backend)
+    points = texel_points(scene, n) if points is None else points
+    settings = Settings(width, height, spp, n, tolerance / np.sqrt(3.0), bits, held * float(4 ** n), seed, backend,
+                        points)
     tiles, (bw, bh) = _tiles(width, height)
     side2 = 4 ** n
     writer = store.TransferWriter(n, BLOCK, bits)
@@ -481,6 +514,7 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
             "camera": {"eye": scene.camera.eye.tolist(), "target": scene.camera.target.tolist(),
                        "up": scene.camera.up.tolist(), "fov_y": float(scene.camera.fov_y)},
             "width": width, "height": height, "spp": spp, "seed": seed, "n_levels": n, "block": BLOCK,
+            "texel_points": points,
             "blocks": [bw, bh], "bits": bits, "tolerance": tolerance, "terms": model["terms"],
             "priority": model["priority"], "environment_rotate_y": float(env.rotate_y),
             "environment_name": env.name,

@@ -26,9 +26,9 @@ Loading checks the magic, the version, the sizes against the file's length (trun
 CRC-32 of every section (corruption) and the entries' ranges, before any frame reads them.
 
 Compression, per block: coefficient columns in decreasing energy (sum over the block's pixels
-of c^2), the scaling coefficient first; the fewest whose frame under a held-out lighting is
-within the tolerance of the whole transfer's, relative to that frame's norm over the block
-(:func:`compress_block`). Quantization: a scale per (column, block), max |c| / (2^(bits-1) - 1),
+of c^2), the scaling coefficient first, until the energy left out is at most tolerance^2 of the
+block's (:func:`compress_block`); the frame's error under a held-out lighting is measured and
+recorded. Quantization: a scale per (column, block), max |c| / (2^(bits-1) - 1),
 and stochastic rounding (dithering; unbiased), at 8 or 16 bits.
 """
 from __future__ import annotations
@@ -59,7 +59,7 @@ def quantize(values: np.ndarray, bits: int, rng: np.random.Generator):
     scale = np.where(peak > 0, peak / qmax, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         x = np.where(scale[:, None] > 0, values / np.where(scale > 0, scale, 1.0)[:, None], 0.0)
-    q = np.clip(np.floor(x + rng.random(values.shape)), -qmax, qmax)
+    q = np.clip(np.floor(x + rng.random(values.shape, dtype=np.float32)), -qmax, qmax)
     return scale.astype(np.float32), q.astype(np.int8 if bits == 8 else np.int16)
 
 
@@ -67,31 +67,31 @@ def compress_block(coeffs: np.ndarray, held_out: np.ndarray, tolerance: float, b
     """Compress one block: coeffs (P, 4^n) float32 (the block's pixels' Haar coefficients) and
     held_out (4^n, 3) the held-out lighting's coefficients (times N^2, :mod:`.frame`).
 
+    Columns are kept in decreasing energy (sum over the block's pixels of c^2), the scaling
+    coefficient first, until the energy left out is at most tolerance^2 of the block's (in an
+    orthonormal basis, the transfer's relative L2 error over the block); the frame under the
+    held-out lighting measures what that costs a frame.
     Returns (columns (E,) int64, scales (E,) float32, data (E, P) int8 | int16, error2, norm2):
-    the kept columns, their quantized values, and the squared held-out frame error of the
-    block and the squared norm of its exact held-out frame (to sum over blocks)."""
-    c = np.asarray(coeffs, np.float64)
-    energy = np.einsum("pc,pc->c", c, c)
+    the kept columns, their quantized values, the squared held-out frame error of the block and
+    the squared norm of its exact held-out frame (to sum over blocks)."""
+    c = np.asarray(coeffs, np.float32)
+    energy = np.einsum("pc,pc->c", c, c, dtype=np.float64)
+    total = float(energy.sum())
+    dtype = np.int8 if bits == 8 else np.int16
+    if total <= 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros((0, c.shape[0]), dtype), 0.0, 0.0
     order = np.argsort(-energy, kind="stable")
-    order = order[energy[order] > 0]
-    if order.size == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros((0, c.shape[0]), np.int8 if bits == 8 else np.int16), 0.0, 0.0
-    if order[0] != 0 and energy[0] > 0:          # the scaling coefficient first: the block's mean
-        order = np.concatenate([[0], order[order != 0]])
-    lum = held_out @ np.array([0.2126, 0.7152, 0.0722])
-    contrib = c[:, order] * lum[order][None, :]      # (P, E) each column's share of the frame
-    exact = contrib.sum(1)
-    norm2 = float(exact @ exact)
-    # the frame's error after keeping the first k columns: the sum of the rest
-    rest = exact[:, None] - np.cumsum(contrib, axis=1)
-    err2 = np.einsum("pk,pk->k", rest, rest)
-    ok = np.flatnonzero(err2 <= (tolerance ** 2) * norm2)
-    keep = int(ok[0]) + 1 if ok.size else len(order)
+    order = np.concatenate([[0], order[order != 0]]) if energy[0] > 0 else order   # the block's mean first
+    left = total - np.cumsum(energy[order])          # energy left out after keeping the first k + 1
+    keep = int(np.searchsorted(-left, -(tolerance ** 2) * total, side="left")) + 1
+    keep = min(max(keep, 1), int(np.count_nonzero(energy)))
     cols = np.sort(order[:keep])
     scales, q = quantize(c[:, cols].T, bits, rng)
+    lum = held_out.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+    exact = c.astype(np.float64) @ lum
     approx = (q.astype(np.float64) * scales[:, None].astype(np.float64)).T @ lum[cols]
     diff = approx - exact
-    return cols, scales, q, float(diff @ diff), norm2
+    return cols, scales, q, float(diff @ diff), float(exact @ exact)
 
 
 class TransferWriter:

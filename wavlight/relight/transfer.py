@@ -96,7 +96,8 @@ class Transfer:
         side = 1 << self.n_levels
         m = self.measured
         return {"width": self.width, "height": self.height, "spp": self.spp, "texels": f"{side}x{side}",
-                "n_levels": self.n_levels, "block": self.block, "bits": self.bits, "terms": self.terms,
+                "n_levels": self.n_levels, "texel_points": self.header.get("texel_points"), "block": self.block,
+                "bits": self.bits, "terms": self.terms,
                 "priority": self.priority, "tolerance": self.header.get("tolerance"), "file": self.path,
                 "file_bytes": self.file_bytes, "entries": self.entries, "entries_full": m.get("entries_full"),
                 "bake_seconds": m.get("bake_seconds"), "rays": m.get("rays"),
