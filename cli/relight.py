@@ -31,6 +31,9 @@ from .progress import ProgressBar
 @click.option("--tolerance", type=click.FloatRange(1e-6, 1.0), default=0.02, show_default=True,
               help="Relative error of frames against the unapproximated transfer, measured on a held-out "
                    "rotation: shared by the texels' resolution, the terms and the compression.")
+@click.option("--points", type=click.Choice(["1", "4"]), default=None,
+              help="Points per texel where the BRDF is evaluated (1, or 2 x 2 strata). Default: 4 where a lobe "
+                   "is narrower than three texels, else 1.")
 @click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
               help="Quantization of the stored coefficients.")
 @click.option("--terms", type=click.IntRange(1, 1 << 22), default=None,
@@ -43,7 +46,7 @@ from .progress import ProgressBar
                    "same path); the file is identical to a local bake's.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the choices, sizes and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def bake(scene_file, output, width, height, spp, levels, tolerance, bits, terms, priority, seed, dask_address,
+def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits, terms, priority, seed, dask_address,
          as_json, quiet):
     """Bake the transfer of SCENE (its camera, objects and materials) into PATH, for relighting."""
     import wavlight
@@ -61,7 +64,8 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, bits, terms,
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
         transfer = wavlight.bake(scene, output, width=width, height=height, spp=spp, levels=levels,
                                  tolerance=tolerance, bits=int(bits), terms=terms, priority=priority, seed=seed,
-                                 progress=bar, dask_address=dask_address)
+                                 progress=bar, dask_address=dask_address,
+                                 points=None if points is None else int(points))
         if bar:
             bar.close()
     except wavlight.WavlightError as e:

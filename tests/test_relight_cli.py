@@ -1,0 +1,144 @@
+"""`wavlight bake` and `wavlight frame`: outputs, --json, turntables, the unbiased frame, bad input
+(one line, exit 2, nothing written) and a bake on a Dask cluster identical to a local one."""
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from scenes_util import toml_text, write_raw_image
+from wavlight.cli.main import main
+from wavlight.relight import store
+
+SCENE = {"render": {"width": 16, "height": 12},
+         "camera": {"eye": [0.0, 1.2, 3.0], "target": [0.0, 0.4, 0.0], "fov_y": 40.0},
+         "environment": {"file": "sky.exr", "rotate_y": 30.0},
+         "objects": [{"shape": "sphere", "center": [0.0, 0.5, 0.0], "radius": 0.5, "subdivisions": 2,
+                      "material": "m"},
+                     {"shape": "quad", "size": 4.0}],
+         "materials": {"m": {"type": "ggx", "albedo": [0.9, 0.8, 0.7], "roughness": 0.3}}}
+FAST = ["--spp", "2", "--levels", "3", "--terms", "32", "--priority", "area"]
+
+
+def run(*args):
+    r = CliRunner().invoke(main, [str(a) for a in args])
+    return r
+
+
+def one_error_line(r, *words):
+    assert r.exit_code == 2, r.output
+    lines = [line for line in r.stderr.splitlines() if line.strip() and not line.startswith("warning:")]
+    assert len(lines) == 1 and lines[0].startswith("Error: "), r.stderr
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+    assert "Traceback" not in r.output
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory, device):
+    folder = tmp_path_factory.mktemp("relight_cli")
+    rng = np.random.default_rng(0)
+    write_raw_image(folder / "sky.exr", rng.uniform(0.2, 2.0, (16, 32, 3)).astype(np.float32))
+    write_raw_image(folder / "black.exr", np.zeros((8, 16, 3), np.float32))
+    (folder / "scene.toml").write_text(toml_text(SCENE))
+    out = folder / "scene.wlt"
+    r = run("bake", folder / "scene.toml", "-o", out, *FAST, "--json")
+    assert r.exit_code == 0, r.output
+    return folder, out, json.loads(r.stdout)
+
+
+def test_bake_json(baked):
+    _, out, stats = baked
+    assert os.path.getsize(out) == stats["file_bytes"] > 0
+    for key in ("bake_seconds", "rays_per_second", "texels", "terms", "priority", "spp", "measured",
+                "file_bytes", "entries"):
+        assert key in stats, key
+    assert stats["texels"] == "8x8" and stats["terms"] == 32 and stats["rays"] > 0
+    assert [f for f in os.listdir(out.parent) if f.startswith(".wavlight-")] == []
+
+
+def test_frame_json_turntable_and_spp(baked, tmp_path):
+    folder, out, _ = baked
+    r = run("frame", out, "-o", tmp_path / "f.png", "--rotate-y", "90", "--terms", "16", "--json")
+    assert r.exit_code == 0, r.output
+    stats = json.loads(r.stdout)
+    assert stats["frame_seconds"] > 0 and stats["frames_per_second"] > 0 and stats["terms"] == 16
+    assert (tmp_path / "f.png").stat().st_size > 0
+    r = run("frame", out, "--turntable", 3, "-o", tmp_path / "turn", "--quiet")
+    assert r.exit_code == 0, r.output
+    assert sorted(os.listdir(tmp_path / "turn")) == ["frame-0000.png", "frame-0001.png", "frame-0002.png",
+                                                     "turntable.gif"]
+    r = run("frame", out, "--spp", 2, "-o", tmp_path / "c.exr", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["spp"] == 2 and (tmp_path / "c.exr").exists()
+
+
+@pytest.mark.parametrize("args, words", [
+    (("--terms", 0), ("--terms",)),
+    (("--rotate-y", "nan"), ("--rotate-y", "finite")),
+    (("--rotate-y", "inf"), ("--rotate-y",)),
+    (("--scale", "-1"), ("--scale",)),
+    (("--env", "black.exr"), ("black.exr", "black everywhere")),
+    (("--env", "missing.exr"), ("missing.exr",)),
+    (("-o", "x.tiff"), ("x.tiff", "unsupported output format")),
+])
+def test_frame_bad_input(baked, tmp_path, args, words):
+    folder, out, _ = baked
+    args = [os.path.join(folder, a) if str(a).endswith(".exr") and a != "x.tiff" else a for a in args]
+    if "-o" not in args:
+        args += ["-o", tmp_path / "f.png"]
+    one_error_line(run("frame", out, *args), *words)
+    assert not (tmp_path / "f.png").exists()
+
+
+def test_damaged_bake_files(baked, tmp_path):
+    _, out, _ = baked
+    raw = out.read_bytes()
+    cases = {"short.wlt": raw[:-64], "junk.wlt": b"#?RADIANCE\n" * 20}
+    header = store.read_header(str(out))
+    at = header["data_offset"] + header["sections"]["entry_scale"]["offset"]
+    damaged = bytearray(raw)
+    damaged[at] ^= 0xFF
+    cases["bad.wlt"] = bytes(damaged)
+    words = {"short.wlt": "truncated", "junk.wlt": "not a wavlight bake file", "bad.wlt": "damaged"}
+    for name, data in cases.items():
+        (tmp_path / name).write_bytes(data)
+        one_error_line(run("frame", tmp_path / name, "-o", tmp_path / "f.png"), name, words[name])
+    one_error_line(run("frame", tmp_path / "none.wlt", "-o", tmp_path / "f.png"), "none.wlt")
+    assert not (tmp_path / "f.png").exists()
+
+
+def test_outputs_that_name_inputs_are_refused(baked, tmp_path):
+    folder, out, _ = baked
+    before = out.read_bytes()
+    one_error_line(run("bake", folder / "scene.toml", "-o", folder / "sky.exr", *FAST), "input of this run")
+    one_error_line(run("bake", folder / "scene.toml", "-o", folder / "scene.toml", *FAST), "input of this run")
+    env = folder / "sky.exr"
+    one_error_line(run("frame", out, "--env", env, "-o", env), "input of this run")
+    assert out.read_bytes() == before
+
+
+def test_bake_bad_input(baked, tmp_path):
+    folder, _, _ = baked
+    one_error_line(run("bake", folder / "nope.toml", "-o", tmp_path / "x.wlt"), "nope.toml")
+    (tmp_path / "black.toml").write_text(toml_text({**SCENE, "environment": {"file": str(folder / "black.exr")}}))
+    one_error_line(run("bake", tmp_path / "black.toml", "-o", tmp_path / "x.wlt", *FAST), "black everywhere")
+    one_error_line(run("bake", folder / "scene.toml", "-o", tmp_path / "nowhere" / "x.wlt"), "no folder")
+    r = run("bake", folder / "scene.toml", "-o", tmp_path / "x.wlt", "--spp", 0)
+    assert r.exit_code == 2
+    assert not (tmp_path / "x.wlt").exists()
+
+
+def test_dask_bake_equals_local(baked, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    folder, out, _ = baked
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+        r = run("bake", folder / "scene.toml", "-o", tmp_path / "d.wlt", *FAST, "--dask", c.scheduler_address)
+        assert r.exit_code == 0, r.output
+    a, b = store.read_header(str(out)), store.read_header(str(tmp_path / "d.wlt"))
+    assert {k: v["crc32"] for k, v in a["sections"].items()} == {k: v["crc32"] for k, v in b["sections"].items()}
+    assert not math.isnan(b["measured"]["compression_error"])
