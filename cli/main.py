@@ -199,8 +199,9 @@ def info():
 
 from .experiment import experiment  # noqa: E402
 from .relight import bake, frame  # noqa: E402
+from .view import view  # noqa: E402
 
-for _command in (experiment, bake, frame):
+for _command in (experiment, bake, frame, view):
     main.add_command(_command)
 
 if __name__ == "__main__":

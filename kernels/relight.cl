@@ -193,13 +193,13 @@ __kernel void frame_product(const uint n_terms, const uint n_blocks, __global co
 }
 
 /* The environment seen where a frame's pixels' camera samples miss: background pixel i's
- * samples s with bit s of mask[i] set, directions dirs[i, s] (world), turned into the map's
- * frame by m = map_from_world (row-major) and looked up at the nearest texel of the
- * env_w x env_h map (the scene format's u, v, as env_world_to_square); out[i] = (1 / samples)
- * times the sum of those radiances. Eight pixels per work-item. numpy twin:
- * wavlight/relight/frame.py background_reference. */
-__kernel void frame_background(const uint count, const uint samples, const int env_w, const int env_h,
-                               __global const float *m, __global const ulong *mask, __global const float *dirs,
+ * samples s with bit s of mask[i] set, each at its direction's u0 (u at rotate_y = 0) and map
+ * row (v does not turn about +Y), float32 as the host computed them; the map turned by
+ * rotate_y has the sample at u = frac(u0 + shift), shift = rotate_y / 360, column floor(u W)
+ * (nearest texel, as Environment.eval); out[i] = (1 / samples) times the sum of those texels.
+ * Eight pixels per work-item. numpy twin: wavlight/relight/frame.py background_reference. */
+__kernel void frame_background(const uint count, const uint samples, const int env_w, const float shift,
+                               __global const ulong *mask, __global const float *u0, __global const int *row,
                                __global const float *env, __global float *out)
 {
     const uint base = LANE_BASE();
@@ -214,10 +214,11 @@ __kernel void frame_background(const uint count, const uint samples, const int e
     realv r = 0.0f, g = 0.0f, b = 0.0f;
     for (uint s = 0; s < samples; ++s) {
         const uintv bit = (s < 32u ? (lo >> s) : (hi >> (s - 32u))) & 1u;
-        const uintv at = 3u * (i * samples + s);
-        realv u, v;
-        env_world_to_square(m, GATHER(dirs, at), GATHER(dirs, at + 1u), GATHER(dirs, at + 2u), &u, &v);
-        const uintv tex = 3u * env_texel(env_w, env_h, u, v);
+        const uintv at = i * samples + s;
+        realv u = GATHER(u0, at) + shift;
+        u = u - floor(u);
+        const intv col = min(convert_intv(u * (float)env_w), env_w - 1);
+        const uintv tex = 3u * as_uintv(GATHER_T(intv, row, at) * env_w + col);
         const intv use = as_intv(bit) != 0;
         r += select((realv)0.0f, GATHER(env, tex), use);
         g += select((realv)0.0f, GATHER(env, tex + 1u), use);

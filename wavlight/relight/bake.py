@@ -47,6 +47,7 @@ from ..scene import MAX_SIDE, check_scene, load_scene
 from ..version import __version__
 from ..warp import frame as tangent_frame
 from . import lighting, store
+from .dask import bake_on_cluster
 from .transfer import Transfer
 
 #: Philox stream of the bake's texel uniforms (kernels/relight.cl RNG_TEXEL)
@@ -192,16 +193,16 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
     row, col = t >> n_levels, t & (side - 1)
     u = rng.uniforms(seed, tile, TEXEL_STREAM, first, count).astype(np.float64)
     z0, z1 = np.cos(np.pi * row / side), np.cos(np.pi * (row + 1) / side)
-    points = []
+    directions = []
     grid = 2 if points == 4 else 1
     for q in range(points):   # the texel's strata, not pairs
         uu = (col + ((q % grid) + u[:, 0]) / grid) / side
         zz = z0 + ((q // grid) + u[:, 1]) / grid * (z1 - z0)
         sn = np.sqrt(np.maximum(1.0 - zz * zz, 0.0))
-        points.append(np.stack([np.sin(2 * np.pi * uu) * sn, zz, -np.cos(2 * np.pi * uu) * sn], 1))
+        directions.append(np.stack([np.sin(2 * np.pi * uu) * sn, zz, -np.cos(2 * np.pi * uu) * sn], 1))
     total = np.zeros(count)
     r = u[:, 2].copy()
-    pick_dir = points[0].copy()
+    pick_dir = directions[0].copy()
     picked = p * S
     groups = ps.count[p]
     for j in range(int(ps.count.max(initial=0))):   # groups, not pairs
@@ -212,7 +213,7 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
         wo_w = ps.wo[gj].astype(np.float64)
         wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (sx, tx, n)], 1)
         kind, param, c = ps.kind[gj], ps.param[gj].astype(np.float64), ps.weight[gj].astype(np.float64)
-        for q, d in enumerate(points):   # the texel's points, not pairs
+        for d in directions:   # the texel's points, not pairs
             wi = np.stack([np.einsum("ij,ij->i", d, a) for a in (sx, tx, n)], 1)
             f = np.zeros(count)
             for kd in np.unique(kind[on]):   # material kinds, not pairs
@@ -499,8 +500,7 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
 
     try:
         if dask_address is not None:
-            from .dask import bake_on_cluster
-            bake_on_cluster(dask_address, scene, settings, tiles, collect)
+            bake_on_cluster(dask_address, scene, settings, tiles, bake_block_task, collect)
         else:
             worker = _Worker(scene)
             with ThreadPoolExecutor(threads or 2 * (os.cpu_count() or 1)) as pool:

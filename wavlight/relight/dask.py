@@ -7,19 +7,19 @@ from __future__ import annotations
 from ..errors import WavlightError
 
 
-def bake_on_cluster(address: str, scene, settings, tiles, collect) -> None:
-    """Submit every tile to the scheduler at ``address`` and hand each result to ``collect``."""
+def bake_on_cluster(address: str, scene, settings, tiles, task, collect) -> None:
+    """Submit ``task`` (a module-level function of one dict, :func:`wavlight.relight.bake.bake_block_task`)
+    for every tile to the scheduler at ``address`` and hand each result to ``collect``."""
     import os
 
     from ..evaluation.experiment import _dask_client
-    from .bake import bake_block_task
 
     client = _dask_client(address)
     try:
         from distributed import as_completed
 
         path = os.path.abspath(scene.path)
-        futures = [client.submit(bake_block_task, {"scene_path": path, "content_hash": scene.content_hash,
+        futures = [client.submit(task, {"scene_path": path, "content_hash": scene.content_hash,
                                                    "settings": settings, "tile": tile}, pure=False)
                    for tile in tiles]
         for future in as_completed(futures):

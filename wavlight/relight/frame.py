@@ -80,30 +80,42 @@ class DeviceEntries:
         return np.zeros((self.n_blocks, self.pixels, 3), np.float32)
 
 
-def background_reference(environment, rotate_y: float, mask: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """numpy twin of ``frame_background``: (M, 3) float64, (1 / S) sum over the missing samples of
-    the map turned to ``rotate_y`` (nearest texel) in their directions."""
-    from ..envmap import rotation_y
+def background_lookup(dirs: np.ndarray, env_height: int):
+    """Each background sample's u at rotate_y = 0 (float32) and map row (int32), from its world
+    direction (M, S, 3): a rotation about +Y only shifts u (u_map = u + rotate_y / 360)."""
+    d = np.asarray(dirs, np.float64).reshape(-1, 3)
+    u = np.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi)
+    u = (u - np.floor(u)).astype(np.float32)
+    v = np.arccos(np.clip(d[:, 1], -1.0, 1.0)) / np.pi
+    row = np.minimum((v * env_height).astype(np.int64), env_height - 1).astype(np.int32)
+    return u.reshape(dirs.shape[:2]), row.reshape(dirs.shape[:2])
 
-    m, samples = len(mask), dirs.shape[1]
-    turned = np.asarray(dirs, np.float64).reshape(-1, 3) @ rotation_y(rotate_y)   # d_map = R^T d
-    radiance = environment.eval(turned).reshape(m, samples, 3).astype(np.float64)
+
+def background_reference(pixels: np.ndarray, rotate_y: float, mask: np.ndarray, u0: np.ndarray,
+                         row: np.ndarray) -> np.ndarray:
+    """numpy twin of ``frame_background``: (M, 3) float32, (1 / S) sum over the missing samples of
+    the map (H, W, 3) turned to ``rotate_y`` at their nearest texels (the kernel's float32 steps)."""
+    m, samples = u0.shape
+    h, w = pixels.shape[:2]
+    u = u0 + np.float32(rotate_y / 360.0)
+    u = u - np.floor(u)
+    col = np.minimum((u * np.float32(w)).astype(np.int32), w - 1)
+    radiance = np.asarray(pixels, np.float32).reshape(-1, 3)[(row.astype(np.int64) * w + col).reshape(-1)]
     missing = ((np.asarray(mask, np.uint64)[:, None] >> np.arange(samples, dtype=np.uint64)) & np.uint64(1)) > 0
-    return (radiance * missing[..., None]).sum(1) / samples
+    total = (radiance.reshape(m, samples, 3) * missing[..., None]).sum(1, dtype=np.float32)
+    return total * np.float32(1.0 / samples)
 
 
-def background_cl(env_buffer, env_shape, rotate_y: float, mask_buffer, dirs_buffer, count: int, samples: int,
-                  queue=None) -> np.ndarray:
+def background_cl(env_buffer, env_width: int, rotate_y: float, mask_buffer, u0_buffer, row_buffer, count: int,
+                  samples: int, queue=None) -> np.ndarray:
     """The kernel ``frame_background`` on device buffers: (M, 3) float32."""
-    from ..envmap import rotation_y
-
     queue = queue or cl.thread_queue()
-    out = cl.empty(12 * max(count, 1))
+    out = cl.scratch("frame_background", 12 * max(count, 1))
     if count:
         prog = cl.program("relight.cl")
-        m = cl.to_device(np.ascontiguousarray(rotation_y(rotate_y).T, np.float32))   # map_from_world
         cl.kernel(prog, "frame_background")(queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count),
-                                            np.uint32(samples), np.int32(env_shape[1]), np.int32(env_shape[0]),
-                                            m, mask_buffer, dirs_buffer, env_buffer, out)
+                                            np.uint32(samples), np.int32(env_width),
+                                            np.float32(rotate_y / 360.0), mask_buffer, u0_buffer, row_buffer,
+                                            env_buffer, out)
         return cl.read(out, (count, 3), np.float32, queue)
     return np.zeros((0, 3), np.float32)

@@ -22,9 +22,11 @@ from ..envmap import Environment, read_image
 from ..errors import ArgumentError, WavlightError, check_int, check_number, shown
 from . import lighting, store
 from .. import cl
-from .frame import DeviceEntries, background_cl, background_reference, product_reference
+from .frame import DeviceEntries, background_cl, background_lookup, background_reference, product_reference
 
 MAX_TERMS = 1 << 22
+#: the maps whose lighting projectors a Transfer keeps (the viewer offers a few)
+MAPS_KEPT = 4
 
 
 class Transfer:
@@ -37,7 +39,8 @@ class Transfer:
     def __init__(self, path: str, header: dict, sections: dict, owns_file: bool = False):
         self.path, self.header, self._s = path, header, sections
         self._owns = owns_file
-        self._device = self._bg = self._env = self._lit = None
+        self._device = self._bg = self._env = self._lit = self._bg_lookup = None
+        self._maps = {}   # projectors of the maps frames asked for, by map (a few)
         h = header
         self.width, self.height = int(h["width"]), int(h["height"])
         self.n_levels, self.block, self.bits = int(h["n_levels"]), int(h["block"]), int(h["bits"])
@@ -74,7 +77,8 @@ class Transfer:
 
     def close(self):
         """Release the memory maps (and the temporary file of a bake made without an output)."""
-        self._device = self._bg = self._env = self._lit = None
+        self._device = self._bg = self._env = self._lit = self._bg_lookup = None
+        self._maps = {}
         self._s = {}
         if self._owns and os.path.exists(self.path):
             os.unlink(self.path)
@@ -118,15 +122,20 @@ class Transfer:
         map as baked), without its rotation (a frame's ``rotate_y`` sets it), times ``scale``
         (the last one asked for is kept: frames of one map do not read it again)."""
         key = (id(env) if isinstance(env, Environment) else env, float(scale))
-        if self._lit is not None and self._lit[0] == key:
-            return self._lit[1]
+        found = self._maps.get(key)
+        if found is not None and (not isinstance(env, Environment) or found[2] is env):
+            return found[0]
         environment = self._environment(env, scale)
-        self._lit = (key, environment, lighting.Projector(environment, self.n_levels))
+        if len(self._maps) >= MAPS_KEPT:
+            self._maps.pop(next(iter(self._maps)))
+        self._maps[key] = (environment, lighting.Projector(environment, self.n_levels), env)
         return environment
 
     def _projector(self, environment):
-        return self._lit[2] if self._lit is not None and self._lit[1] is environment else \
-            lighting.Projector(environment, self.n_levels)
+        for kept, projector, _ in self._maps.values():
+            if kept is environment:
+                return projector
+        return lighting.Projector(environment, self.n_levels)
 
     def _environment(self, env, scale):
         if env is None:
@@ -195,21 +204,30 @@ class Transfer:
         b, (bw, bh) = self.block, self.blocks
         img = blocks.reshape(bh, bw, b, b, 3).transpose(0, 2, 1, 3, 4).reshape(bh * b, bw * b, 3)
         img = np.ascontiguousarray(img[:self.height, :self.width] * self._s["albedo"], np.float32)
-        pixels, mask, dirs = (self._s[k] for k in ("background_pixel", "background_mask", "background_dir"))
+        pixels = self._s["background_pixel"]
         if len(pixels):
+            u0, row = self._background_lookup(environment.height)
             if backend == "numpy":
-                seen = background_reference(environment, rotate_y, mask, dirs)
+                seen = background_reference(environment.pixels, rotate_y, self._s["background_mask"], u0, row)
             else:
-                seen = background_cl(self._env_buffer(environment), environment.pixels.shape, rotate_y,
-                                     *self._background_buffers(), len(pixels), self.spp)
-            img.reshape(-1, 3)[np.asarray(pixels, np.int64)] += seen.astype(np.float32)
+                mask_buf, u0_buf, row_buf = self._background_buffers(environment.height)
+                seen = background_cl(self._env_buffer(environment), environment.width, rotate_y, mask_buf, u0_buf,
+                                     row_buf, len(pixels), self.spp)
+            img.reshape(-1, 3)[np.asarray(pixels, np.int64)] += seen
         return img
 
-    def _background_buffers(self):
-        if self._bg is None:
-            self._bg = (cl.to_device(np.ascontiguousarray(self._s["background_mask"])),
-                        cl.to_device(np.ascontiguousarray(self._s["background_dir"], np.float32)))
-        return self._bg
+    def _background_lookup(self, env_height: int):
+        """The background samples' u at rotation 0 and map rows, per map height (kept)."""
+        if self._bg_lookup is None or self._bg_lookup[0] != env_height:
+            self._bg_lookup = (env_height, *background_lookup(self._s["background_dir"], env_height))
+        return self._bg_lookup[1:]
+
+    def _background_buffers(self, env_height: int):
+        if self._bg is None or self._bg[0] != env_height:
+            u0, row = self._background_lookup(env_height)
+            self._bg = (env_height, cl.to_device(np.ascontiguousarray(self._s["background_mask"])),
+                        cl.to_device(np.ascontiguousarray(u0)), cl.to_device(np.ascontiguousarray(row)))
+        return self._bg[1:]
 
     def _env_buffer(self, environment: Environment):
         """The map on the device, uploaded once per Environment."""

@@ -1,0 +1,50 @@
+"""`wavlight view`: the interactive viewer of a bake file, a thin layer over
+:class:`wavlight.relight.viewer.Viewer`.
+
+``view PATH [--env FILE ...] [--port P] [--no-browser]`` serves a page on 127.0.0.1 (no other
+address) with sliders for the rotation, the exposure and the terms K, the maps to choose from
+(index 0 is the baked one, then each ``--env`` in order), the frame rate and the converge
+control; it prints the page's URL on one line and opens it in the system browser unless
+``--no-browser``. The state is in the URL (``/?rotate_y=120&exposure=0.5&terms=256&env=1``).
+Ctrl-C (or SIGTERM) stops it. Errors are one line and exit 2, as for the other commands.
+"""
+from __future__ import annotations
+
+import click
+
+from .common import fail
+
+
+@click.command()
+@click.argument("bake_file", metavar="PATH", type=click.Path(dir_okay=False))
+@click.option("--env", "env_files", multiple=True, metavar="FILE",
+              help="A map to choose from in the page (repeatable; the baked map is always the first).")
+@click.option("--port", type=click.IntRange(0, 65535), default=0, show_default=True,
+              help="The port on 127.0.0.1 (0: a free one).")
+@click.option("--no-browser", is_flag=True, help="Print the URL only; do not open the system browser.")
+def view(bake_file, env_files, port, no_browser):
+    """Serve an interactive viewer of the bake file PATH on 127.0.0.1 and print its URL."""
+    import threading
+    import webbrowser
+
+    from wavlight.errors import WavlightError
+
+    try:
+        from wavlight.relight.viewer import Viewer
+    except ImportError as e:
+        fail(f"wavlight view needs aiohttp ({e}): pip install 'wavlight[viewer]'")
+    from wavlight.relight import Transfer
+
+    def ready(url):
+        click.echo(url)
+        if not no_browser:   # (a thread: a text-mode browser would hold the server's loop)
+            threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
+
+    try:
+        transfer = Transfer.load(bake_file)
+        viewer = Viewer(transfer, maps=env_files)
+        viewer.serve(port, ready=ready)
+    except WavlightError as e:
+        fail(e)
+    except KeyboardInterrupt:   # a second Ctrl-C while stopping
+        pass

@@ -1,0 +1,546 @@
+"""The interactive viewer (wavlight view): the state from the URL sanitised, frames over
+the websocket, the page in a real browser (Debian's chromium driven headless by playwright:
+moving a slider changes the picture, the page reports its frame rate), two pages at once, a
+page closed while frames stream, the converge control, and the command line.
+
+The server runs on 127.0.0.1 (a free port) in a thread of its own, started by a fixture and
+always stopped. The browser tests are skipped only where playwright or chromium is missing.
+"""
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import itertools
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("aiohttp")
+
+import aiohttp  # noqa: E402
+from click.testing import CliRunner  # noqa: E402
+
+import wavlight  # noqa: E402
+from wavlight.cli.main import main  # noqa: E402
+from wavlight.imageio import srgb_encode  # noqa: E402
+from wavlight.relight import viewer as viewer_module  # noqa: E402
+from wavlight.relight.viewer import EXPOSURE_RANGE, Limits, Viewer, sanitise, tone_map  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+#: `wavlight view ...` in a fresh interpreter
+WAVLIGHT = [sys.executable, "-m", "wavlight.cli.main"]
+SCENE = ROOT / "scenes" / "bunny_ggx.toml"
+LEVELS = 5                      # 32 x 32 texels: K up to 1024
+TIMEOUT_MS = 15000
+
+
+# ----------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def bake_file(tmp_path_factory, device):
+    """A tiny bake (32 x 32 pixels) of the bunny, and a second map (a gradient, 32 x 16)."""
+    folder = tmp_path_factory.mktemp("viewer")
+    path = folder / "bunny.wlt"
+    wavlight.bake(str(SCENE), output=str(path), width=32, height=32, spp=2, levels=LEVELS, terms=256,
+                  priority="transfer").close()
+    sky = np.zeros((16, 32, 3), np.float32)
+    sky[..., 0] = np.linspace(0.2, 2.0, 32)[None, :]
+    sky[..., 1] = np.linspace(1.5, 0.1, 16)[:, None]
+    sky[..., 2] = 0.7
+    wavlight.save_image(str(folder / "gradient.exr"), sky)
+    return path, folder / "gradient.exr"
+
+
+@pytest.fixture(scope="module")
+def transfer(bake_file):
+    t = wavlight.Transfer.load(bake_file[0])
+    yield t
+    t.close()
+
+
+class FakeConverge:
+    """A stand-in estimator with the converge signature: the K-term frame plus seeded noise of
+    standard error 5% / sqrt(spp); records its calls."""
+
+    def __init__(self, delay=0.0):
+        self.calls, self.delay = [], delay
+
+    def __call__(self, transfer, scene=None, env=None, rotate_y=None, scale=1.0, spp=4, seed=0, progress=None):
+        self.calls.append({"rotate_y": rotate_y, "spp": spp, "seed": seed})
+        if self.delay:
+            time.sleep(self.delay)
+        image = transfer.frame(env, rotate_y, scale)
+        err = np.full(image.shape, 0.05 * float(image.mean()) / np.sqrt(spp), np.float32)
+        noise = np.random.default_rng(seed).standard_normal(image.shape).astype(np.float32)
+        return np.maximum(image + noise * err, 0.0), err
+
+
+@pytest.fixture
+def serve(transfer, bake_file):
+    """serve(**viewer options) -> a running Viewer (its URL: viewer.url), stopped after the test."""
+    started = []
+
+    def start(**options):
+        options.setdefault("maps", [str(bake_file[1])])
+        options.setdefault("converge", FakeConverge())
+        v = Viewer(transfer, **options)
+        v.start_background(0)
+        started.append(v)
+        return v
+
+    yield start
+    for v in started:
+        v.stop_background()
+        assert v.clients == 0 and v.running_tasks == 0
+
+
+def _chromium():
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        found = shutil.which(name)
+        if found:
+            return found
+    return None
+
+
+@pytest.fixture(scope="module")
+def browser():
+    sync_api = pytest.importorskip("playwright.sync_api")
+    path = _chromium()
+    if path is None:
+        pytest.skip("no chromium installed")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=path, headless=True, args=["--no-sandbox"])
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def page(browser):
+    """A fresh page (a context of its own: another browser), closed after the test."""
+    pages = []
+
+    def new():
+        context = browser.new_context()
+        pg = context.new_page()
+        pg.set_default_timeout(TIMEOUT_MS)
+        pages.append(context)
+        return pg
+
+    yield new
+    for context in pages:
+        context.close()
+
+
+def _pixel_sum(pg) -> float:
+    return pg.evaluate("""() => { const c = document.getElementById('frame');
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let s = 0; for (let i = 0; i < d.length; i += 4) s += d[i] + d[i + 1] + d[i + 2]; return s; }""")
+
+
+def _set(pg, control, value):
+    """Set a control and dispatch what a user's change dispatches (input, then change)."""
+    pg.evaluate("""([id, v]) => { const e = document.getElementById(id); e.value = v;
+        e.dispatchEvent(new Event('input', {bubbles: true})); e.dispatchEvent(new Event('change', {bubbles: true})); }""",
+                [control, value])
+
+
+def _frames(pg, at_least):
+    pg.wait_for_function(f"() => window.viewer && window.viewer.frames >= {at_least}")
+
+
+def _wait(predicate, seconds=10.0):
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return predicate()
+
+
+# ----------------------------------------------------------------------------- no browser
+LIMITS = Limits(maps=2, max_terms=1024, rotate_y=0.0, terms=256)
+
+
+def test_sanitise_replaces_and_clamps_with_one_line_notes():
+    state, notes = sanitise({"rotate_y": "abc", "terms": "-5", "env": "99", "exposure": "inf"}, LIMITS)
+    assert state == {"rotate_y": 0.0, "exposure": 0.0, "terms": 1, "env": 0, "encoding": "jpeg",
+                     "preview": False, "converge": False}
+    assert len(notes) == 4 and all("\n" not in n for n in notes)
+    assert any("rotate_y='abc' is not a number" in n for n in notes)
+    assert any("exposure='inf' is not finite" in n for n in notes)
+    state, notes = sanitise({"rotate_y": "-30", "terms": "1e9", "exposure": "100", "env": "1",
+                             "encoding": "gif", "converge": "1", "other": "x"}, LIMITS)
+    assert (state["rotate_y"], state["terms"], state["exposure"], state["env"]) == (330.0, 1024, EXPOSURE_RANGE[1], 1)
+    assert state["encoding"] == "jpeg" and state["converge"] is False   # no estimator in these limits
+    assert len(notes) == 3
+    state, notes = sanitise({"rotate_y": 400, "terms": 64.4, "env": 1.5, "exposure": "nan"}, LIMITS)
+    assert (state["rotate_y"], state["terms"], state["env"], state["exposure"]) == (40.0, 64, 0, 0.0)
+    state, _ = sanitise({"rotate_y": [1, 2], "terms": True, "exposure": "9" * 500, "env": None}, LIMITS)
+    assert (state["rotate_y"], state["terms"], state["exposure"], state["env"]) == (0.0, 256, 0.0, 0)
+    state, notes = sanitise({}, LIMITS)
+    assert notes == [] and state["terms"] == 256
+    on, _ = sanitise({"converge": True, "preview": True}, Limits(2, 1024, 0.0, 256, converge=True))
+    assert on["converge"] is True and on["preview"] is True
+
+
+def test_tone_map_is_srgb_of_exposure_times_linear():
+    rng = np.random.default_rng(1)
+    image = rng.exponential(0.3, (17, 23, 3)).astype(np.float32)
+    image[0, 0] = [np.nan, np.inf, -1.0]
+    for exposure in (-1.5, 0.0, 0.7):
+        want = np.round(srgb_encode(np.nan_to_num(image * 2.0 ** exposure, nan=0.0, posinf=1.0)) * 255)
+        got = tone_map(image, exposure)
+        assert got.dtype == np.uint8 and got.shape == image.shape
+        assert np.abs(got.astype(int) - want).max() <= 1
+    assert list(tone_map(image, 0.0)[0, 0]) == [0, 255, 0]
+    rgba = tone_map(image, 0.0, alpha=True)
+    assert rgba.shape == (17, 23, 4) and (rgba[..., 3] == 255).all()
+    assert (rgba[..., :3] == tone_map(image, 0.0)).all()
+
+
+def _config(html: str) -> dict:
+    return json.loads(re.search(r'<script id="config" type="application/json">(.*?)</script>', html,
+                                re.DOTALL).group(1))
+
+
+def _get(url, headers=None):
+    req = urllib.request.Request(url, headers=headers or {})
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status, r.read().decode()
+    except urllib.error.HTTPError as e:
+        return e.code, e.read().decode()
+
+
+def _split(data: bytes):
+    n = struct.unpack("<I", data[:4])[0]
+    return json.loads(data[4:4 + n]), data[4 + n:]
+
+
+async def _next_frame(ws, timeout=10.0, ack=True):
+    """The next frame message (header, payload); text messages before it are returned in a list too."""
+    texts = []
+    while True:
+        msg = await asyncio.wait_for(ws.receive(), timeout)
+        if msg.type == aiohttp.WSMsgType.TEXT:
+            texts.append(json.loads(msg.data))
+            continue
+        assert msg.type == aiohttp.WSMsgType.BINARY, msg
+        header, payload = _split(msg.data)
+        if ack:
+            await ws.send_json({"type": "drawn", "seq": header["seq"]})
+        return header, payload, texts
+
+
+def test_page_and_socket_sanitise_bad_input(serve, transfer):
+    v = serve()
+    status, html = _get(v.url + "?rotate_y=abc&terms=-5&env=99&exposure=inf&encoding=gif")
+    assert status == 200
+    config = _config(html)
+    assert {k: config["state"][k] for k in ("rotate_y", "terms", "env", "exposure", "encoding")} == \
+        {"rotate_y": transfer.scene_rotate_y % 360, "terms": 1, "env": 0, "exposure": 0.0, "encoding": "jpeg"}
+    assert len(config["notes"]) == 5
+    assert config["maps"] == ["the baked map", "gradient.exr"] and config["max_terms"] == 4 ** LEVELS
+    assert not re.search(r'<(script|link)[^>]+(src|href)="(https?:)?//', html)
+    assert _get(v.url + "nothing-here")[0] == 404
+    status, text = _get(v.url, {"Host": "example.com"})
+    assert status == 403 and text.count("\n") == 1
+
+    async def talk():
+        async with aiohttp.ClientSession() as session:
+            with pytest.raises(aiohttp.WSServerHandshakeError):
+                await session.ws_connect(v.url + "ws", headers={"Origin": "http://example.com"})
+            async with session.ws_connect(v.url + "ws") as ws:
+                for bad in ("not json", "[1, 2]", json.dumps({"type": "launch"})):
+                    await ws.send_str(bad)
+                    reply = json.loads((await ws.receive(timeout=10)).data)
+                    assert reply["type"] == "error" and "\n" not in reply["message"]
+                await ws.send_bytes(b"\x00\x01")
+                assert json.loads((await ws.receive(timeout=10)).data)["type"] == "error"
+                await ws.send_json({"type": "state", "rotate_y": "abc", "terms": -5, "env": 99, "exposure": 1e999})
+                header, payload, texts = await _next_frame(ws)
+                assert texts and texts[0]["type"] == "state" and len(texts[0]["notes"]) == 4
+                assert header["state"] == {"rotate_y": transfer.scene_rotate_y % 360, "exposure": 0.0, "terms": 1,
+                                           "env": 0}
+                assert payload[:2] == b"\xff\xd8" and header["encoding"] == "jpeg"   # a JPEG
+                await ws.send_json({"type": "state", "rotate_y": 90, "terms": 64, "env": 1, "encoding": "raw"})
+                header, payload, _ = await _next_frame(ws)
+                assert header["encoding"] == "raw" and len(payload) == transfer.width * transfer.height * 4
+                assert header["state"]["env"] == 1 and header["terms_used"] <= 64
+                await ws.send_json({"type": "state", "rotate_y": 90, "terms": 64, "env": 1, "encoding": "raw",
+                                    "exposure": 2})   # exposure alone: the same frame, tone mapped again
+                header2, payload2, _ = await _next_frame(ws)
+                assert header2["state"]["exposure"] == 2 and payload2 != payload
+                await ws.send_str("x" * (viewer_module.MAX_MESSAGE_BYTES + 10))   # too large: closed
+                msg = await ws.receive(timeout=10)
+                assert msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.CLOSING)
+
+    asyncio.run(talk())
+    assert _wait(lambda: v.clients == 0 and v.running_tasks == 0)
+
+
+def _drop_mid_frame(port, state):
+    """A websocket opened by hand, sent one state, then its TCP connection reset without a
+    closing handshake while the frame is computed."""
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.sendall(f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                  "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
+        assert s.recv(4096).startswith(b"HTTP/1.1 101")
+        body, mask = json.dumps(state).encode(), b"\x01\x02\x03\x04"
+        s.sendall(bytes([0x81, 0x80 | len(body)]) + mask + bytes(c ^ mask[i % 4] for i, c in enumerate(body)))
+        time.sleep(0.1)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))   # close: a reset
+
+
+def test_sockets_closed_mid_frame_leave_the_server_serving(serve, capfd):
+    v = serve()
+    plain = v.frame
+    v.frame = lambda state, terms: (time.sleep(0.3), plain(state, terms))[1]   # a slow frame
+
+    async def talk():
+        async with aiohttp.ClientSession() as session:
+            for i in range(3):   # closed while its frame is computed
+                ws = await session.ws_connect(v.url + "ws")
+                await ws.send_json({"type": "state", "rotate_y": 10 * i})
+                await asyncio.sleep(0.1)
+                await ws.close()
+            _drop_mid_frame(v.port, {"type": "state", "rotate_y": 77})
+            async with session.ws_connect(v.url + "ws") as ws:
+                await ws.send_json({"type": "state", "rotate_y": 5})
+                header, _, _ = await _next_frame(ws)
+                assert header["state"]["rotate_y"] == 5
+
+    asyncio.run(talk())
+    assert _wait(lambda: v.clients == 0 and v.running_tasks == 0)
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "Error handling request" not in err
+
+
+def _doubling(spps):
+    """Calls start at 2 spp and double (while they are short) or stay."""
+    assert spps[0] == 2 and all(b in (a, 2 * a) for a, b in itertools.pairwise(spps)), spps
+
+
+def test_converge_streams_the_spp_weighted_mean_and_stops_when_the_lighting_changes(serve, transfer):
+    values = {}
+
+    def constant(transfer, scene=None, env=None, rotate_y=None, scale=1.0, spp=4, seed=0):
+        values[seed] = (spp, 0.01 * (seed + 1), rotate_y)
+        shape = (transfer.height, transfer.width, 3)
+        return np.full(shape, 0.01 * (seed + 1), np.float32), np.full(shape, 0.002, np.float32)
+
+    v = serve(converge=constant)
+
+    async def talk():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(v.url + "ws") as ws:
+                await ws.send_json({"type": "state", "rotate_y": 45, "converge": True, "encoding": "raw"})
+                headers = []
+                while len(headers) < 4:
+                    header, payload, _ = await _next_frame(ws)
+                    headers.append((header, payload))
+                await ws.send_json({"type": "state", "rotate_y": 50, "converge": False, "encoding": "raw"})
+                while True:
+                    header, _, _ = await _next_frame(ws)
+                    if header["converge"] is None:
+                        break
+                return headers, header
+
+    headers, after = asyncio.run(talk())
+    for header, payload in headers:
+        c = header["converge"]
+        seeds = range(c["rounds"])
+        spp = np.array([values[s][0] for s in seeds], float)
+        mean = float(np.sum(spp * [values[s][1] for s in seeds]) / spp.sum())
+        assert c["spp"] == spp.sum()
+        assert c["relative_stderr"] == pytest.approx(np.sqrt(np.sum((spp * 0.002) ** 2)) / spp.sum() / mean, rel=1e-4)
+        want = round(float(srgb_encode(np.float32(mean))) * 255)
+        got = np.frombuffer(payload, np.uint8).reshape(transfer.height, transfer.width, 4)[..., :3]
+        assert np.abs(got.astype(int) - want).max() <= 1
+    _doubling([values[s][0] for s in sorted(values)])
+    assert all(values[s][2] == 45 for s in values)
+    assert after["state"]["rotate_y"] == 50
+    n = len(values)
+    time.sleep(0.3)
+    assert len(values) == n          # no call after the lighting changed
+
+
+# ----------------------------------------------------------------------------- in the browser
+def test_browser_shows_url_state_and_a_slider_changes_the_picture(serve, page):
+    v = serve()
+    pg = page()
+    pg.goto(v.url + "?rotate_y=30&terms=64")
+    _frames(pg, 1)
+    assert pg.text_content("#rotate_y_value") == "30°" and pg.input_value("#rotate_y") == "30"
+    assert pg.text_content("#terms_value") == "64"
+    assert pg.input_value("#env") == "0"
+    assert "rotate_y=30" in pg.url and "terms=64" in pg.url
+    first = _pixel_sum(pg)
+    assert first > 0
+    _set(pg, "rotate_y", "150")
+    pg.wait_for_function("() => viewer.last && viewer.last.state.rotate_y === 150")
+    assert _pixel_sum(pg) != first
+    assert "rotate_y=150" in pg.url
+    pg.wait_for_function("() => parseFloat(document.getElementById('fps').textContent) > 0")
+    assert float(pg.text_content("#fps")) > 0
+    # the exposure slider is in stops, the map a choice; both reach the frame and the URL
+    _set(pg, "exposure", "1.5")
+    pg.wait_for_function("() => viewer.last.state.exposure === 1.5")
+    assert "+1.5 EV" in pg.text_content("#exposure_value") and "exposure=1.5" in pg.url
+    _set(pg, "env", "1")
+    pg.wait_for_function("() => viewer.last.state.env === 1")
+    assert "env=1" in pg.url
+    assert pg.evaluate("viewer.errors") == 0
+
+
+def test_browser_drag_previews_fewer_terms_and_sharpens_on_release(serve, page):
+    v = serve()
+    pg = page()
+    pg.goto(v.url + "?terms=256")
+    _frames(pg, 1)
+    box = pg.locator("#rotate_y").bounding_box()
+    y = box["y"] + box["height"] / 2
+    pg.mouse.move(box["x"] + 5, y)
+    pg.mouse.down()
+    for i in range(1, 15):
+        pg.mouse.move(box["x"] + 5 + i * (box["width"] - 10) / 15, y)
+        time.sleep(0.02)
+    pg.wait_for_function("() => viewer.last.preview === true")
+    assert pg.evaluate("viewer.last.terms_used") <= 64
+    pg.mouse.up()
+    pg.wait_for_function("() => viewer.last.preview === false && viewer.last.state.rotate_y === viewer.state.rotate_y")
+    assert pg.evaluate("viewer.last.terms_used") > 64
+
+
+def test_browser_bad_url_parameters_show_the_values_used(serve, page, transfer):
+    v = serve()
+    pg = page()
+    pg.goto(v.url + "?rotate_y=abc&terms=-5&env=99&exposure=inf")
+    _frames(pg, 1)
+    rot = transfer.scene_rotate_y % 360
+    assert pg.text_content("#rotate_y_value") == f"{rot:g}°"
+    assert pg.text_content("#terms_value") == "1"
+    assert pg.input_value("#env") == "0"
+    assert pg.text_content("#exposure_value").startswith("0 EV")
+    assert pg.evaluate("location.search") == f"?rotate_y={rot:g}&exposure=0&terms=1&env=0"
+    notes = pg.text_content("#notes").splitlines()
+    assert len(notes) == 4 and any("rotate_y='abc'" in n for n in notes)
+    assert pg.evaluate("viewer.errors") == 0 and pg.text_content("#status") == ""
+
+
+def test_browser_two_pages_at_once_both_get_frames(serve, page):
+    v = serve()
+    a, b = page(), page()
+    a.goto(v.url + "?rotate_y=10")
+    b.goto(v.url + "?rotate_y=200&env=1")
+    _frames(a, 1)
+    _frames(b, 1)
+    assert _wait(lambda: v.clients == 2)
+    for i in range(3):
+        _set(a, "rotate_y", str(20 + 10 * i))
+        _set(b, "rotate_y", str(220 + 10 * i))
+    a.wait_for_function("() => viewer.last.state.rotate_y === 40")
+    b.wait_for_function("() => viewer.last.state.rotate_y === 240 && viewer.last.state.env === 1")
+
+
+def test_browser_page_closed_mid_stream_leaves_the_server_serving(serve, page, capfd):
+    v = serve()
+    a = page()
+    a.goto(v.url)
+    _frames(a, 1)
+    # the page changes the rotation on a timer: frames stream until it closes
+    a.evaluate("""() => { let r = 0; setInterval(() => { const e = document.getElementById('rotate_y');
+        r = (r + 7) % 360; e.value = r; e.dispatchEvent(new Event('input')); }, 5); }""")
+    _frames(a, 5)
+    a.close()
+    assert _wait(lambda: v.clients == 0 and v.running_tasks == 0)
+    b = page()
+    b.goto(v.url + "?rotate_y=33")
+    _frames(b, 1)
+    assert b.evaluate("viewer.last.state.rotate_y") == 33
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "Error handling request" not in err
+
+
+def test_browser_converge_refines_and_stops_when_a_slider_moves(serve, page):
+    fake = FakeConverge()
+    v = serve(converge=fake)
+    pg = page()
+    pg.goto(v.url + "?rotate_y=60")
+    _frames(pg, 1)
+    assert not pg.is_disabled("#converge")
+    pg.click("#converge")
+    pg.wait_for_function("() => viewer.last.converge && viewer.last.converge.rounds >= 3")
+    assert "spp" in pg.text_content("#converge_info")
+    _doubling([c["spp"] for c in fake.calls])
+    assert len({c["seed"] for c in fake.calls}) == len(fake.calls)
+    _set(pg, "rotate_y", "90")
+    pg.wait_for_function("() => viewer.last.converge === null && viewer.last.state.rotate_y === 90")
+    assert pg.get_attribute("#converge", "aria-pressed") == "false"
+    n = len(fake.calls)
+    time.sleep(0.3)
+    assert len(fake.calls) == n and all(c["rotate_y"] == 60 for c in fake.calls)
+
+
+def test_browser_converge_disabled_without_the_estimator(serve, page):
+    v = serve(converge=None)
+    pg = page()
+    pg.goto(v.url + "?converge=1")
+    _frames(pg, 1)
+    assert pg.is_disabled("#converge")
+    assert "converge" in pg.get_attribute("#converge", "title")
+    assert pg.evaluate("viewer.last.converge") is None
+
+
+# ----------------------------------------------------------------------------- the command
+def test_view_command_prints_the_url_serves_and_stops_on_sigint(bake_file):
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(WAVLIGHT + ["view", str(bake_file[0]), "--no-browser", "--env", str(bake_file[1])],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env, cwd=ROOT)
+    try:
+        line = proc.stdout.readline()
+        assert re.fullmatch(r"http://127\.0\.0\.1:\d+/\n", line), line
+        status, html = _get(line.strip() + "?env=1")
+        assert status == 200 and _config(html)["state"]["env"] == 1
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err and out == ""
+
+
+def test_view_command_errors_are_one_line(bake_file, tmp_path):
+    runner = CliRunner()
+    for args in ([str(tmp_path / "missing.wlt"), "--no-browser"],
+                 [str(bake_file[0]), "--no-browser", "--env", str(tmp_path / "missing.hdr")],
+                 [str(bake_file[0]), "--no-browser", "--port", "70000"]):
+        result = runner.invoke(main, ["view", *args])
+        assert result.exit_code == 2, result.output
+        assert result.output.count("\n") <= 2 and "Traceback" not in result.output
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        # (in a thread of its own: the browser tests' playwright keeps an event loop in this one)
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            result = pool.submit(runner.invoke, main, ["view", str(bake_file[0]), "--no-browser", "--port",
+                                                       str(port)]).result(60)
+    assert result.exit_code == 2 and "cannot listen" in result.output and result.output.count("\n") == 1

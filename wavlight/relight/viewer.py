@@ -1,0 +1,734 @@
+"""The interactive viewer of a bake file (``wavlight view PATH``): a page served on
+127.0.0.1 with sliders for the rotation of the map, the exposure (logarithmic, in stops) and
+the lighting terms K, a choice among the maps given, the frame rate the page draws, and a
+"converge" control that refines the current lighting with the unbiased estimator.
+
+    viewer = Viewer(wavlight.Transfer.load("bunny.wlt"), maps=["grace.hdr"])
+    viewer.serve(port=0, ready=print)            # blocks; or start_background() / stop_background()
+
+One aiohttp ``web.Application``: ``GET /`` is the page (viewer.html, everything inline, with
+the state read from its URL, ``/?rotate_y=120&exposure=0.5&terms=256&env=1``, sanitised and
+written into it), ``GET /ws`` a websocket. The page sends the state as JSON; the server
+answers with frames, one binary message each: a 4-byte little-endian length, a JSON header
+(the state used, the terms kept, timings) and the picture, JPEG (Pillow) or raw RGBA
+(``encoding=`` in the URL). A frame is the transfer's frame (:meth:`Transfer.frame_timed`)
+times 2^exposure, tone mapped to 8-bit sRGB in numpy (a lookup table of the sRGB curve).
+
+Bad input: a URL or message value that is not a number, not finite or out
+of range is replaced by its default or clamped (:func:`sanitise`) and the page shows the value
+used and a one-line note; a message that is not JSON gets a one-line error; a socket closed in
+the middle of a frame ends its tasks without a traceback; a request whose Host or Origin is not
+this server (another site in the same browser) is refused.
+
+Frames. Each socket has its own task; the transfer's frames (not thread-safe) run in one worker
+thread shared by all sockets, so that two browsers both get frames, in turn; a frame is tone
+mapped, encoded and sent (another thread) while the next is computed. Only the newest state is
+drawn: states that arrive while a frame is computed replace each other, and at most
+:data:`WINDOW` frames are in flight before the page acknowledges one (a slow page is not sent a
+backlog). While a slider is dragged the page may ask for a preview (``preview``: fewer terms,
+:func:`preview_terms`), and for the full frame when it is released.
+
+Converge. :func:`wavlight.relight.converge.converge` (where that module exists; else the button
+is disabled) estimates the frame's true image without the K-term and texel approximations. The
+control calls it repeatedly at the current lighting with seeds 0, 1, 2, ..., from 2 spp (a
+standard error needs two samples) doubling while a call stays short, and streams the average
+weighted by spp after each call (each call is unbiased and independent, so the average is, and
+its standard error is sqrt(sum w_k^2 e_k^2) with w_k = spp_k / sum spp); a new exposure shows
+the same average again. It stops as soon as the lighting (rotation, map) changes or the control
+is released: the page releases it when the rotation, the map or K moves, and a call under way
+ends at its next progress report (the calls run in the frame thread).
+"""
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import inspect
+import io
+import json
+import logging
+import math
+import os
+import signal
+import struct
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from importlib import resources
+
+import numpy as np
+from aiohttp import WSCloseCode, WSMsgType, web
+
+from ..errors import WavlightError, shown
+from ..imageio import srgb_encode
+from ..scene import load_scene
+
+try:   # the unbiased estimator of a relit frame, where this version has it
+    from .converge import converge as _converge_function
+except ImportError:
+    _converge_function = None
+
+#: the only address the viewer listens on
+HOST = "127.0.0.1"
+#: frame encodings a page may ask for (``encoding=`` in the URL); the first is the default
+#: (benchmarks/viewer_fps.py measures both)
+ENCODINGS = ("jpeg", "raw")
+JPEG_QUALITY = 90
+#: exposure slider, stops: the frame is multiplied by 2^exposure
+EXPOSURE_RANGE = (-12.0, 12.0)
+#: frames sent to a page and not yet acknowledged, at most
+WINDOW = 2
+#: how long a socket waits for an acknowledgement before it sends the next frame anyway
+ACK_SECONDS = 1.0
+#: a state message is small: larger ones are refused by the websocket
+MAX_MESSAGE_BYTES = 1 << 16
+#: converge: the first call's spp (2: a standard error needs two samples), doubling while a call
+#: takes less than half of CONVERGE_ROUND_SECONDS, up to CONVERGE_MAX_CALL_SPP; refinement ends at
+#: CONVERGE_MAX_SPP samples in all
+CONVERGE_FIRST_SPP = 2
+CONVERGE_ROUND_SECONDS = 0.5
+CONVERGE_MAX_CALL_SPP = 64
+CONVERGE_MAX_SPP = 1 << 16
+#: sRGB lookup table: 8-bit values of the curve at LUT_SIZE evenly spaced linear values in [0, 1]
+LUT_SIZE = 1 << 14
+_LUT = (srgb_encode(np.linspace(0.0, 1.0, LUT_SIZE)) * 255.0 + 0.5).astype(np.uint8)
+_UNSET = object()
+_log = logging.getLogger("wavlight.viewer")
+
+
+# ----------------------------------------------------------------------------- pictures
+def tone_map(image: np.ndarray, exposure: float = 0.0, alpha: bool = False) -> np.ndarray:
+    """(H, W, 3) (or (H, W, 4) with ``alpha``: opaque) uint8 sRGB of the linear (H, W, 3) image
+    times 2^exposure, clamped to [0, 1]; NaN shows black and +Inf white. The sRGB curve through
+    :data:`_LUT` (within one 8-bit level of :func:`wavlight.imageio.srgb_encode`)."""
+    top = np.float32(LUT_SIZE - 1)
+    h, w = image.shape[:2]
+    x = np.empty((h, w, 4 if alpha else 3), np.float32)
+    if alpha:
+        x[..., 3] = top                    # the top of the table: 255
+    np.multiply(image, np.float32(2.0 ** exposure) * top, out=x[..., :3])
+    np.fmax(x, np.float32(0.0), out=x)     # fmax / fmin: NaN -> 0, +Inf -> the top
+    np.fmin(x, top, out=x)
+    x += np.float32(0.5)
+    return np.take(_LUT, x.astype(np.uint16))
+
+
+def encode(image: np.ndarray, exposure: float, encoding: str) -> bytes:
+    """The frame's picture as the page decodes it: JPEG (quality :data:`JPEG_QUALITY`) or raw
+    RGBA rows (W x H x 4 bytes)."""
+    if encoding == "raw":
+        return tone_map(image, exposure, alpha=True).tobytes()
+    from PIL import Image
+
+    out = io.BytesIO()
+    Image.fromarray(tone_map(image, exposure)).save(out, "JPEG", quality=JPEG_QUALITY)
+    return out.getvalue()
+
+
+def message(header: dict, payload: bytes = b"") -> bytes:
+    """One binary frame message: uint32 LE length of the JSON header, the header, the payload."""
+    text = json.dumps(header, separators=(",", ":")).encode()
+    return struct.pack("<I", len(text)) + text + payload
+
+
+def preview_terms(terms: int) -> int:
+    """The terms of a frame drawn while a slider is dragged: a quarter of K, at least 16 (never
+    more than K)."""
+    return min(terms, max(16, terms // 4))
+
+
+# ----------------------------------------------------------------------------- the state
+@dataclass(frozen=True)
+class Limits:
+    """What a state may hold: the maps (index 0 the baked one), the largest K (every
+    coefficient of the texels), the defaults."""
+
+    maps: int
+    max_terms: int
+    rotate_y: float
+    terms: int
+    converge: bool = False
+
+
+def _number(key, raw, default, notes):
+    """raw as a finite float, or ``default`` with a note."""
+    if isinstance(raw, bool) or raw is None:
+        value = None
+    elif isinstance(raw, (int, float)):
+        value = float(raw)
+    elif isinstance(raw, str) and len(raw) <= 64:
+        try:
+            value = float(raw.strip())
+        except ValueError:
+            value = None
+    else:
+        value = None
+    if value is None:
+        notes.append(f"{key}={shown(raw, 40)} is not a number: using {default:g}")
+        return float(default)
+    if not math.isfinite(value):
+        notes.append(f"{key}={shown(raw, 40)} is not finite: using {default:g}")
+        return float(default)
+    return value
+
+
+def _clamped(key, value, lo, hi, notes):
+    if value < lo or value > hi:
+        used = min(max(value, lo), hi)
+        notes.append(f"{key}={value:g} is outside [{lo:g}, {hi:g}]: using {used:g}")
+        return used
+    return value
+
+
+def sanitise(params, limits: Limits):
+    """(state, notes): the viewer's state from URL parameters or a page's message (a mapping of
+    strings or JSON values; other keys are ignored), every value usable, and one line per value
+    that was replaced.
+
+    rotate_y: degrees, wrapped into [0, 360), default the scene's; exposure: stops in
+    EXPOSURE_RANGE (clamped), default 0; terms: an integer in [1, max_terms] (clamped; a
+    fraction is rounded), default the bake's; env: an index of the maps, else 0 (the baked
+    map); encoding: one of ENCODINGS, else the first; preview and converge: booleans (true only
+    as JSON true or "1"/"true"; converge only where the estimator exists). A value that is not a
+    finite number becomes the default."""
+    notes: list[str] = []
+    get = params.get
+    rot = _number("rotate_y", get("rotate_y"), limits.rotate_y, notes) if "rotate_y" in params else limits.rotate_y
+    rot = round(rot % 360.0, 3) % 360.0
+    exposure = _number("exposure", get("exposure"), 0.0, notes) if "exposure" in params else 0.0
+    exposure = round(_clamped("exposure", exposure, *EXPOSURE_RANGE, notes), 3)
+    if "terms" in params:
+        k = _number("terms", get("terms"), limits.terms, notes)
+        if k != round(k):
+            notes.append(f"terms={k:g} is not a whole number: using {round(k)}")
+        terms = int(_clamped("terms", float(round(k)), 1, limits.max_terms, notes))
+    else:
+        terms = limits.terms
+    env = 0
+    if "env" in params:
+        e = _number("env", get("env"), 0, notes)
+        if e != round(e) or not 0 <= e < limits.maps:
+            notes.append(f"env={shown(get('env'), 40)} is not one of the maps 0..{limits.maps - 1}: using 0")
+        else:
+            env = int(e)
+    encoding = ENCODINGS[0]
+    if "encoding" in params:
+        if get("encoding") in ENCODINGS:
+            encoding = get("encoding")
+        else:
+            notes.append(f"encoding={shown(get('encoding'), 40)} is not one of {', '.join(ENCODINGS)}: "
+                         f"using {encoding}")
+
+    def flag(key):
+        raw = get(key, False)
+        return raw is True or raw in ("1", "true")
+
+    converge = flag("converge") and limits.converge
+    return ({"rotate_y": rot, "exposure": exposure, "terms": terms, "env": env, "encoding": encoding,
+             "preview": flag("preview"), "converge": converge}, notes)
+
+
+class _Stopped(Exception):
+    """A converge call ended early: the lighting changed."""
+
+
+def _one_line(error: BaseException) -> str:
+    text = "; ".join(p.strip() for p in str(error).splitlines() if p.strip())
+    return text if isinstance(error, WavlightError) else f"{type(error).__name__}: {text}"
+
+
+class _OneLine(logging.Handler):
+    """aiohttp's and asyncio's log records as one line each on stderr, without tracebacks."""
+
+    def emit(self, record):
+        try:
+            text = record.getMessage()
+            if record.exc_info and record.exc_info[1] is not None:
+                text += f": {_one_line(record.exc_info[1])}"
+            sys.stderr.write(f"wavlight view: {' '.join(text.split())}\n")
+        except Exception:   # a closed stderr
+            pass
+
+
+def _one_line_logs(*names):
+    for name in names:
+        logger = logging.getLogger(name)
+        if not any(isinstance(h, _OneLine) for h in logger.handlers):
+            logger.addHandler(_OneLine(logging.WARNING))
+        logger.propagate = False
+
+
+# ----------------------------------------------------------------------------- the server
+class Viewer:
+    """The viewer of one transfer under its baked map and the ``maps`` given (map files or
+    Environments; index 0 is always the baked map). ``converge``: the unbiased estimator
+    (default :func:`wavlight.relight.converge.converge` where it exists; None disables the
+    control), called as converge(transfer, scene=, env=, rotate_y=, scale=, spp=, seed=) and
+    returning (image, stderr) or a RenderResult; ``scene``: the baked scene for it (default:
+    loaded once from the file the bake names)."""
+
+    def __init__(self, transfer, maps=(), converge=_UNSET, scene=None):
+        self.transfer = transfer
+        self._maps = [("the baked map", None)]
+        for m in maps:
+            env = transfer.environment(m, 1.0)   # a one-line WavlightError for a bad file
+            self._maps.append((os.path.basename(os.fspath(m)) if isinstance(m, (str, os.PathLike)) else env.name,
+                               env))
+        self.converge = _converge_function if converge is _UNSET else converge
+        try:
+            self._converge_progress = self.converge is not None and \
+                "progress" in inspect.signature(self.converge).parameters
+        except (TypeError, ValueError):
+            self._converge_progress = False
+        self._scene = scene
+        side = 1 << transfer.n_levels
+        self.limits = Limits(maps=len(self._maps), max_terms=side * side, rotate_y=transfer.scene_rotate_y % 360.0,
+                             terms=min(transfer.terms, side * side), converge=self.converge is not None)
+        self._page = resources.files(__package__).joinpath("viewer.html").read_text(encoding="utf-8")
+        self._pool = None       # the one thread that computes frames
+        self._sockets: set = set()
+        self._tasks: set = set()
+        self._runner = self._thread = self._loop = self._stopping = None
+        self.port = None
+
+    # -- the application
+    def application(self) -> web.Application:
+        """The aiohttp application: ``/`` the page, ``/ws`` the websocket."""
+        app = web.Application(middlewares=[self._only_here], client_max_size=1 << 16)
+        app.router.add_get("/", self._page_handler)
+        app.router.add_get("/ws", self._socket_handler)
+        app.on_shutdown.append(self._close_sockets)
+        return app
+
+    @property
+    def url(self) -> str:
+        return f"http://{HOST}:{self.port}/"
+
+    @property
+    def clients(self) -> int:
+        """Open websockets."""
+        return len(self._sockets)
+
+    @property
+    def running_tasks(self) -> int:
+        """Tasks of open websockets still running (0 once every page has gone)."""
+        return sum(not t.done() for t in self._tasks)
+
+    def _hosts(self):
+        return {f"{HOST}:{self.port}", f"localhost:{self.port}"}
+
+    @web.middleware
+    async def _only_here(self, request, handler):
+        """Requests for this server only: a page of another site (DNS rebinding, a websocket
+        opened from elsewhere) is refused with one line."""
+        if request.host not in self._hosts():
+            return web.Response(status=403, text=f"refused: Host {shown(request.host, 60)} is not this viewer\n")
+        origin = request.headers.get("Origin")
+        if origin is not None and origin not in {f"http://{h}" for h in self._hosts()}:
+            return web.Response(status=403, text=f"refused: Origin {shown(origin, 60)} is not this viewer\n")
+        return await handler(request)
+
+    def _config(self, state, notes) -> dict:
+        t = self.transfer
+        return {"state": state, "notes": notes, "maps": [name for name, _ in self._maps],
+                "max_terms": self.limits.max_terms, "default_terms": self.limits.terms,
+                "exposure_range": list(EXPOSURE_RANGE), "encodings": list(ENCODINGS),
+                "width": t.width, "height": t.height, "texels": f"{1 << t.n_levels}x{1 << t.n_levels}",
+                "converge": self.converge is not None,
+                "converge_note": None if self.converge is not None else
+                "needs wavlight.relight.converge (the unbiased estimator), which this version does not have",
+                "window": WINDOW, "preview_terms": preview_terms(self.limits.terms)}
+
+    async def _page_handler(self, request):
+        state, notes = sanitise(request.query, self.limits)
+        config = json.dumps(self._config(state, notes))
+        for a, b in (("<", "\\u003c"), (">", "\\u003e"), ("&", "\\u0026")):   # inert inside <script>
+            config = config.replace(a, b)
+        host = request.host
+        csp = (f"default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'; "
+               f"img-src 'self' blob: data:; connect-src 'self' ws://{host}")
+        return web.Response(text=self._page.replace("__CONFIG__", config), content_type="text/html",
+                            headers={"Cache-Control": "no-store", "Content-Security-Policy": csp})
+
+    async def _socket_handler(self, request):
+        ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=MAX_MESSAGE_BYTES, compress=False)
+        await ws.prepare(request)
+        client = _Client(self, ws)
+        self._sockets.add(ws)
+        task = asyncio.ensure_future(client.frames())
+        self._tasks.add(task)
+        try:
+            async for msg in ws:
+                if msg.type == WSMsgType.TEXT:
+                    await client.receive(msg.data)
+                elif msg.type == WSMsgType.BINARY:
+                    await client.error("the viewer's messages are JSON text")
+                else:   # ERROR: a message too large, a broken connection
+                    break
+        except ConnectionError:
+            pass
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+            self._tasks.discard(task)
+            self._sockets.discard(ws)
+            if not ws.closed:
+                try:
+                    await ws.close()
+                except (ConnectionError, RuntimeError):
+                    pass
+        return ws
+
+    async def _close_sockets(self, app):
+        for ws in list(self._sockets):
+            try:
+                await ws.close(code=WSCloseCode.GOING_AWAY, message=b"the viewer stopped")
+            except (ConnectionError, RuntimeError):
+                pass
+
+    # -- the work (one thread: the transfer is not thread-safe)
+    async def run(self, fn, *args, **kwargs):
+        """fn(*args, **kwargs) in the frame thread."""
+        loop = asyncio.get_running_loop()
+        future = loop.run_in_executor(self._pool, lambda: fn(*args, **kwargs))
+        # a result nobody waits for any more (its socket closed) must not be logged as lost
+        future.add_done_callback(lambda f: f.cancelled() or f.exception())
+        return await future
+
+    def _env(self, index):
+        return self._maps[index][1]
+
+    def frame(self, state, terms):
+        """(linear image, stats) of the state at ``terms`` (in the frame thread)."""
+        return self.transfer.frame_timed(self._env(state["env"]), state["rotate_y"], 1.0, terms)
+
+    def converge_call(self, state, spp, seed, stop=None):
+        """(image, stderr) of one call of the estimator at the state's lighting (in the frame
+        thread); ``stop`` (a threading.Event) set ends the call early where the estimator
+        reports its progress (then :class:`_Stopped`)."""
+        kwargs = {}
+        if stop is not None and self._converge_progress:
+            def progress(*args):
+                if stop.is_set():
+                    raise _Stopped()
+            kwargs["progress"] = progress
+        result = self.converge(self.transfer, scene=self._scene_for_converge(), env=self._env(state["env"]),
+                               rotate_y=state["rotate_y"], scale=1.0, spp=spp, seed=seed, **kwargs)
+        if hasattr(result, "image"):   # a RenderResult
+            return result.image, result.stderr
+        return result
+
+    def _scene_for_converge(self):
+        """The scene of the bake, loaded once (the estimator checks that it is the one baked);
+        None where the bake names no scene file that exists (the estimator then says why)."""
+        if self._scene is None:
+            path = (self.transfer.scene or {}).get("path")
+            if path and os.path.isfile(path):
+                self._scene = load_scene(path)
+        return self._scene
+
+    # -- serving
+    async def start(self, port: int = 0) -> str:
+        """Listen on 127.0.0.1:port (0: a free port); the URL. A port in use: a one-line
+        WavlightError."""
+        _one_line_logs("aiohttp.server", "aiohttp.web", "aiohttp.access", "aiohttp.websocket", "wavlight.viewer")
+        self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="wavlight-frame")
+        self._runner = web.AppRunner(self.application(), access_log=None, handle_signals=False, shutdown_timeout=2.0)
+        await self._runner.setup()
+        site = web.TCPSite(self._runner, HOST, port)
+        try:
+            await site.start()
+        except OSError as e:
+            await self._runner.cleanup()
+            self._pool.shutdown(wait=False)
+            why = os.strerror(e.errno).lower() if e.errno else _one_line(e)
+            raise WavlightError(f"{HOST}:{port}: cannot listen ({why})") from None
+        self.port = self._runner.addresses[0][1]
+        return self.url
+
+    async def stop(self):
+        """Close the pages' sockets, stop listening, end the frame thread."""
+        if self._runner is not None:
+            await self._runner.cleanup()
+            self._runner = None
+        if self._pool is not None:
+            pool, self._pool = self._pool, None
+            await asyncio.get_running_loop().run_in_executor(None, lambda: pool.shutdown(wait=True,
+                                                                                          cancel_futures=True))
+
+    def serve(self, port: int = 0, ready=None) -> None:
+        """Serve until SIGINT or SIGTERM; ``ready(url)`` once listening."""
+        async def main():
+            stop = asyncio.Event()
+            loop = asyncio.get_running_loop()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                try:
+                    loop.add_signal_handler(sig, stop.set)
+                except (NotImplementedError, RuntimeError, ValueError):
+                    pass
+            _one_line_logs("asyncio")
+            url = await self.start(port)
+            try:
+                if ready is not None:
+                    ready(url)
+                await stop.wait()
+            finally:
+                await self.stop()
+
+        asyncio.run(main())
+
+    def start_background(self, port: int = 0, timeout: float = 30.0) -> str:
+        """Serve from a thread of its own (tests, benchmarks); the URL. Stop with
+        :meth:`stop_background`."""
+        started = concurrent.futures.Future()
+
+        def main():
+            async def body():
+                self._stopping = asyncio.Event()
+                try:
+                    url = await self.start(port)
+                except BaseException as e:
+                    started.set_exception(e)
+                    return
+                started.set_result(url)
+                try:
+                    await self._stopping.wait()
+                finally:
+                    await self.stop()
+
+            self._loop = asyncio.new_event_loop()
+            try:
+                self._loop.run_until_complete(body())
+            finally:
+                self._loop.close()
+
+        self._thread = threading.Thread(target=main, name="wavlight-viewer", daemon=True)
+        self._thread.start()
+        return started.result(timeout)
+
+    def stop_background(self, timeout: float = 30.0) -> None:
+        """Stop the server of :meth:`start_background` and wait for its thread."""
+        if self._thread is None:
+            return
+        if self._loop is not None and not self._loop.is_closed() and self._stopping is not None:
+            try:
+                self._loop.call_soon_threadsafe(self._stopping.set)
+            except RuntimeError:   # the loop already closed
+                pass
+        self._thread.join(timeout)
+        self._thread = None
+
+
+class _Client:
+    """One websocket: the newest state it asked for, and the task that answers it with frames."""
+
+    def __init__(self, viewer: Viewer, ws):
+        self.viewer, self.ws = viewer, ws
+        self.state = None
+        self.wake = asyncio.Event()
+        self.acked = asyncio.Event()
+        self.sent = self.drawn = 0
+        self.shown = None           # (key, exposure, encoding) of the last frame sent
+        self.sending = None         # the task encoding and sending the last frame
+        self.linear = self.stats = None
+
+    # -- from the page
+    async def receive(self, text: str):
+        try:
+            data = json.loads(text)
+        except ValueError as e:
+            return await self.error(f"a message that is not JSON ({_one_line(e)})")
+        if not isinstance(data, dict):
+            return await self.error(f"a message must be a JSON object, got {shown(data, 40)}")
+        kind = data.get("type", "state")
+        if kind == "drawn":
+            seq = data.get("seq")
+            if isinstance(seq, int) and not isinstance(seq, bool) and self.drawn < seq <= self.sent:
+                self.drawn = seq
+                self.acked.set()
+            return None
+        if kind != "state":
+            return await self.error(f"unknown message type {shown(kind, 40)} (state or drawn)")
+        state, notes = sanitise(data, self.viewer.limits)
+        if notes:   # before the frame: the page shows the values used
+            await self.send_text({"type": "state", "state": state, "notes": notes})
+        self.state = state
+        self.wake.set()
+        return None
+
+    async def error(self, text: str):
+        await self.send_text({"type": "error", "message": text})
+
+    async def send_text(self, data: dict):
+        try:
+            await self.ws.send_str(json.dumps(data))
+        except (ConnectionError, RuntimeError):
+            pass
+
+    # -- to the page
+    async def _window(self):
+        """Wait while WINDOW frames are unacknowledged (at most ACK_SECONDS)."""
+        deadline = time.monotonic() + ACK_SECONDS
+        while self.sent - self.drawn >= WINDOW:
+            self.acked.clear()
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            try:
+                await asyncio.wait_for(self.acked.wait(), left)
+            except TimeoutError:
+                return
+
+    async def send_frame(self, image, state, stats, converge=None, seq=None):
+        """Tone map, encode (a worker thread of the loop's default pool) and send; False when
+        the socket has closed. ``seq``: the number already given to the frame (else the next)."""
+        if seq is None:
+            self.sent += 1
+            seq = self.sent
+        loop = asyncio.get_running_loop()
+        t0 = time.perf_counter()
+        payload = await loop.run_in_executor(None, encode, image, state["exposure"], state["encoding"])
+        h, w = image.shape[:2]
+        header = {"type": "frame", "seq": seq, "width": w, "height": h, "encoding": state["encoding"],
+                  "state": {k: state[k] for k in ("rotate_y", "exposure", "terms", "env")},
+                  "terms_used": stats.get("terms"), "preview": bool(stats.get("preview")),
+                  "frame_ms": round(1e3 * stats.get("frame_seconds", 0.0), 2),
+                  "encode_ms": round(1e3 * (time.perf_counter() - t0), 2), "bytes": len(payload),
+                  "converge": converge}
+        try:
+            await self.ws.send_bytes(message(header, payload))
+        except (ConnectionError, RuntimeError):
+            return False
+        return not self.ws.closed
+
+    async def _flush(self) -> bool:
+        """Wait for the frame being encoded and sent; False when the socket has closed."""
+        task, self.sending = self.sending, None
+        return True if task is None else await task
+
+    async def frames(self):
+        """Answer the newest state with a frame, until the socket closes (then cancelled). A
+        frame that fails is one line to the page (and to stderr if it is not a WavlightError)."""
+        try:
+            while not self.ws.closed:
+                await self.wake.wait()
+                self.wake.clear()
+                await self._window()
+                if self.state is None:
+                    continue
+                try:
+                    if not await self._answer(self.state):
+                        return
+                except WavlightError as e:
+                    await self.error(_one_line(e))
+                except Exception as e:   # never a traceback
+                    _log.error("frame failed: %s", _one_line(e))
+                    await self.error(f"frame failed: {_one_line(e)}")
+        except asyncio.CancelledError:
+            pass
+        finally:
+            if self.sending is not None and not self.sending.done():
+                self.sending.cancel()
+
+    async def _answer(self, state) -> bool:
+        """The frame of one state (or the converge rounds); False once the socket has closed."""
+        if state["converge"] and self.viewer.converge is not None:
+            self.shown = None
+            return await self._flush() and await self._converge(state)
+        terms = preview_terms(state["terms"]) if state["preview"] else state["terms"]
+        key = (state["rotate_y"], state["env"], terms)
+        if self.shown == (key, state["exposure"], state["encoding"]):
+            return True
+        if self.shown is None or self.shown[0] != key:
+            self.shown = None
+            linear, stats = await self.viewer.run(self.viewer.frame, state, terms)
+            self.linear, self.stats = linear, dict(stats, preview=state["preview"])
+        # the frame is encoded and sent while the next one is computed (in order: one at a time)
+        if not await self._flush():
+            return False
+        self.sent += 1
+        self.sending = asyncio.ensure_future(self.send_frame(self.linear, state, self.stats, seq=self.sent))
+        self.shown = (key, state["exposure"], state["encoding"])
+        return True
+
+    async def _converge(self, state):
+        """Refine the state's lighting with repeated calls of the estimator, streaming the spp-
+        weighted average after each; return when the lighting or the control changes (True), or
+        the socket closed (False)."""
+        lighting = (state["rotate_y"], state["env"])
+        total, rounds, spp = 0, 0, CONVERGE_FIRST_SPP
+        acc = var = report = None
+        job = waiter = None
+        stop = threading.Event()
+
+        def same(s):
+            return s["converge"] and (s["rotate_y"], s["env"]) == lighting
+
+        try:
+            while True:
+                job = None
+                if total < CONVERGE_MAX_SPP:
+                    t0 = time.perf_counter()
+                    job = asyncio.ensure_future(self.viewer.run(self.viewer.converge_call, state, spp, rounds, stop))
+                while job is None or not job.done():   # (no job: converged; answer exposure changes)
+                    waiter = asyncio.ensure_future(self.wake.wait())
+                    await asyncio.wait({waiter} if job is None else {job, waiter},
+                                       return_when=asyncio.FIRST_COMPLETED)
+                    if not waiter.done():
+                        waiter.cancel()
+                        continue
+                    self.wake.clear()
+                    if not same(self.state):          # the lighting changed: the call's result is dropped
+                        self.wake.set()
+                        return True
+                    state = self.state                   # the exposure (or encoding) changed: the mean again
+                    if acc is not None:
+                        await self._window()
+                        if not await self.send_frame((acc / total).astype(np.float32), state,
+                                                     {"frame_seconds": 0.0, "terms": None}, report):
+                            return False
+                try:
+                    image, stderr = job.result()
+                except Exception as e:   # the estimator failed: one line, and the control is released
+                    if not isinstance(e, WavlightError):
+                        _log.error("converge failed: %s", _one_line(e))
+                    await self.send_text({"type": "converge", "stopped": True, "message": _one_line(e)})
+                    await self._wait_for_change(lighting)
+                    return True
+                seconds = time.perf_counter() - t0
+                image = np.asarray(image, np.float64)
+                stderr = np.asarray(stderr, np.float64)
+                if acc is None:
+                    acc, var = image * spp, (stderr * spp) ** 2
+                else:
+                    acc += image * spp
+                    var += (stderr * spp) ** 2
+                total += spp
+                rounds += 1
+                mean = acc / total
+                level = float(np.mean(mean))
+                report = {"spp": total, "rounds": rounds, "call_spp": spp, "call_seconds": round(seconds, 3),
+                          "relative_stderr": round(float(np.sqrt(var).mean() / total / level), 6)
+                          if level > 0 else None, "done": total >= CONVERGE_MAX_SPP}
+                await self._window()
+                if not await self.send_frame(mean.astype(np.float32), state,
+                                             {"frame_seconds": seconds, "terms": None}, report):
+                    return False
+                if seconds < CONVERGE_ROUND_SECONDS / 2 and spp < CONVERGE_MAX_CALL_SPP:
+                    spp *= 2
+        finally:
+            stop.set()            # a call still running ends at its next progress report
+            for t in (job, waiter):
+                if t is not None and not t.done():
+                    t.cancel()
+                elif t is not None and not t.cancelled():
+                    t.exception()     # a result dropped: not "never retrieved"
+
+    async def _wait_for_change(self, lighting):
+        while True:
+            await self.wake.wait()
+            self.wake.clear()
+            s = self.state
+            if not s["converge"] or (s["rotate_y"], s["env"]) != lighting:
+                self.wake.set()
+                return
