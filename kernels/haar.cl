@@ -1,5 +1,5 @@
 /* Haar wavelet kernels (Chen & Gao sec. 4.1, 4.4, eq. 13, 17, 25); numpy twins in
- * wavlight/haar.py, whose module notes fix the conventions.
+ * wavlight/haar/, whose module notes fix the conventions.
  *
  * Coefficients use the dense in-place layout of a 2^n x 2^n array: [0][0] the
  * scaling coefficient, level l (s = 2^l) wavelets at [y][s+x] (m = 1, left - right),
@@ -78,14 +78,14 @@ __kernel void haar_inverse_level(__global const float *coeffs, __global const fl
  * holds 4^P floats, row-major. */
 __kernel void haar_product_tree(__global const float *g_leaf, __global const float *h_coeffs,
                                 const int m, const int P, const int L,
-                                __global float *out, const ulong tree_stride, const int nonnegative,
-                                __local float *buf_a, __local float *buf_b)
+                                __global float *out, const ulong tree_stride, const ulong tree_origin,
+                                const int nonnegative, __local float *buf_a, __local float *buf_b)
 {
     const uint lid = get_local_id(0), wg = get_local_size(0);
     const ulong t = get_global_id(1);
     const uint hside = 1u << m;
     __global const float *h = h_coeffs + t * hside * hside;
-    __global float *tree = out + t * tree_stride;
+    __global float *tree = out + tree_origin + t * tree_stride;   /* node 0 of tree t */
     __local float *cur = buf_a, *nxt = buf_b, *tmp;
 
     /* 1. H^0_l for l = 0..m */

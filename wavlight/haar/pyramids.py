@@ -203,17 +203,37 @@ class ProductPyramids:
         self._g = cl.to_device(leaf.astype(np.float32))
         self._prog = cl.program("haar.cl")
 
-    def enqueue(self, queue, h_buf, n_trees: int, out_buf):
-        """Launch on device buffers: h_buf (T, 2^m, 2^m) float32 -> out_buf (T, stride) float32,
-        the trees in the device's Morton order, the walks' level order (haar/tree.py layout;
-        node 0 at each tree's start, not at HaarTree's TREE_ORIGIN)."""
+    def enqueue(self, queue, h_buf, n_trees: int, out_buf, stride: int | None = None, origin: int = 0):
+        """Launch on device buffers: h_buf (T, 2^m, 2^m) float32 -> out_buf, tree t's node 0 at
+        float ``origin + t stride`` (default stride: tree_size(L), origin 0), the trees in the
+        device's Morton order, the walks' level order (haar/tree.py layout; with
+        ``stride = tree_stride(L)`` and ``origin = TREE_ORIGIN`` a HaarTree's buffer)."""
         import pyopencl  # deferred like in cl.py
         nbytes = 4 * 4 ** self.leaf_level
         knl = cl.kernel(self._prog, "haar_product_tree")
         return knl(queue, (self.work_group, n_trees), (self.work_group, 1), self._g, h_buf,
                    np.int32(self.h_levels), np.int32(self.leaf_level), np.int32(self.levels),
-                   out_buf, np.uint64(self.stride), np.int32(self.nonnegative),
-                   pyopencl.LocalMemory(nbytes), pyopencl.LocalMemory(nbytes))
+                   out_buf, np.uint64(self.stride if stride is None else stride), np.uint64(origin),
+                   np.int32(self.nonnegative), pyopencl.LocalMemory(nbytes), pyopencl.LocalMemory(nbytes))
+
+    def trees(self, H, queue=None):
+        """The pyramids of H (T, 2^m, 2^m) as a :class:`wavlight.haar.HaarTree` that stays on the
+        device (no copy to the host and back; its ``integral`` read from the roots alone)."""
+        from .tree import TREE_ORIGIN, HaarTree, tree_stride
+
+        h = np.ascontiguousarray(_float(H, "haar.ProductPyramids.trees", "H"), np.float32)
+        side = 1 << self.h_levels
+        if h.ndim != 3 or h.shape[1:] != (side, side) or len(h) == 0:
+            raise ArgumentError(f"haar.ProductPyramids.trees: H must be (T, {side}, {side}) with T >= 1, "
+                                f"got shape {h.shape}")
+        queue = queue or cl.thread_queue()
+        stride = tree_stride(self.levels)
+        out = cl.empty(4 * len(h) * stride)
+        self.enqueue(queue, cl.to_device(h), len(h), out, stride, TREE_ORIGIN)
+        roots = np.empty(len(h), np.float32)
+        cl._cl().enqueue_copy(queue, roots, out, buffer_origin=(4 * TREE_ORIGIN, 0), host_origin=(0, 0),
+                              region=(4, len(h)), buffer_pitches=(4 * stride,), host_pitches=(4,))
+        return HaarTree.on_device(out, self.levels, len(h), roots)
 
     def __call__(self, H, queue=None) -> np.ndarray:
         """Pyramids (T, stride) float32 for H (T, 2^m, 2^m) or (2^m, 2^m) dense coefficients,

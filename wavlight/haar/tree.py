@@ -279,6 +279,16 @@ class HaarTree:
         self.integral = nodes[:, 0].copy()
         return self
 
+    @classmethod
+    def on_device(cls, buffer, n_levels: int, n_trees: int, integral: np.ndarray) -> "HaarTree":
+        """Trees already in a device buffer in this class's layout (tree_stride(n) floats apart,
+        node 0 at TREE_ORIGIN, Morton levels), as :meth:`wavlight.haar.ProductPyramids.trees`
+        makes them; ``integral`` (T,) their roots."""
+        self = cls.__new__(cls)
+        self.n_levels, self.n_trees, self.stride = int(n_levels), int(n_trees), tree_stride(int(n_levels))
+        self.buffer, self.integral = buffer, np.asarray(integral, np.float32)
+        return self
+
     def device_nodes(self) -> np.ndarray:
         """(T, tree_size(n)) float32: the trees as the device holds them (Morton order), copied."""
         raw = cl.read(self.buffer, (self.n_trees, self.stride), np.float32)

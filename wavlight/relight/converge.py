@@ -36,7 +36,6 @@ from ..camera import camera_rays
 from ..envmap import Environment, luminance
 from ..errors import WavlightError, check_int
 from ..haar import ProductPyramids, forward
-from ..haar.tree import HaarTree
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import check_scene, load_scene
@@ -150,7 +149,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         x0, y0 = bx * BLOCK, by * BLOCK
         w, h = min(BLOCK, width - x0), min(BLOCK, height - y0)
         coeffs = blocks.coefficients(transfer, block).reshape(BLOCK, BLOCK, -1)[:h, :w].reshape(w * h, 1 << n, 1 << n)
-        trees = HaarTree.from_pyramids(pyramids(coeffs))
+        trees = pyramids.trees(coeffs)
         mass = trees.integral                                   # (P,) 0: no product sample for the pixel
         P = w * h
         pix = np.arange(P)
