@@ -1,5 +1,5 @@
-"""The product walk at the edges of its input and on stratified input (paper sec. 4.3; issue 3,
-section 3), for the renderer's walk (kernels/product.cl ``product_sample_points``) and its
+"""The product walk at the edges of its input and on stratified input (paper sec. 4.3), for the
+renderer's walk (kernels/product.cl ``product_sample_points``) and its
 numpy twin (``wavlight.strategies.product.sample_reference``); the light walk's own tests of the same
 properties are in test_kernels.py.
 
