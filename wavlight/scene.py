@@ -27,7 +27,7 @@ import math
 import os
 import tomllib
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -65,6 +65,24 @@ class Material:
 
 
 @dataclass
+class SceneObject:
+    """One [[objects]] table as loaded: its ``name`` (or None), ``index`` in the file, vertices
+    after ``scale`` but before ``rotate`` and ``translate`` (``local``, float64), faces (local
+    indices), the transform, its material index, and its ranges in the scene's merged faces and
+    vertices."""
+
+    name: str | None
+    index: int
+    local: np.ndarray
+    faces: np.ndarray
+    rotate: list | None
+    translate: np.ndarray
+    material: int
+    faces_range: tuple
+    vertices_range: tuple
+
+
+@dataclass
 class Scene:
     """A loaded scene: settings, camera, environment, and one merged triangle soup.
 
@@ -90,6 +108,47 @@ class Scene:
     content_hash: str = ""
     #: the files the scene reads (environment map, meshes), as found
     files: list = field(default_factory=list)
+    #: the [[objects]] as loaded (SceneObject): names, local geometry, transforms, face ranges
+    objects: list = field(default_factory=list)
+
+    def find_object(self, key) -> "SceneObject":
+        """The object named ``key``, or at index ``key`` (an int or a string of digits); a
+        WavlightError listing the objects otherwise."""
+        if isinstance(key, str) and not key.isdigit():
+            for ob in self.objects:
+                if ob.name == key:
+                    return ob
+        else:
+            try:
+                i = int(key)
+            except (TypeError, ValueError):
+                i = -1
+            if 0 <= i < len(self.objects):
+                return self.objects[i]
+        known = ", ".join(f"{ob.index} ({ob.name})" if ob.name else str(ob.index) for ob in self.objects)
+        raise WavlightError(f"{self.path}: no object {shown(key)} (objects: {known or 'none'})")
+
+    def without(self, ob: "SceneObject") -> "Scene":
+        """The same scene without object ``ob`` (its faces removed; vertices kept)."""
+        keep = np.ones(len(self.faces), bool)
+        keep[ob.faces_range[0]:ob.faces_range[1]] = False
+        return replace(self, faces=self.faces[keep], face_material=self.face_material[keep],
+                       objects=[o for o in self.objects if o is not ob],
+                       content_hash=hashlib.sha256(f"{self.content_hash} without {ob.index}".encode()).hexdigest())
+
+    def moved(self, ob: "SceneObject", translate=None, rotate=None) -> "Scene":
+        """The same scene with object ``ob`` at a new place: ``translate`` (3,) and ``rotate``
+        [axis x, y, z, degrees] replace its own keys where given (absolute, as in the file)."""
+        translate = ob.translate if translate is None else np.asarray(translate, np.float64).reshape(3)
+        rotate = ob.rotate if rotate is None else [float(x) for x in rotate]
+        vertices = self.vertices.copy()
+        start, stop = ob.vertices_range
+        vertices[start:stop] = (ob.local @ rotation(rotate).T + translate).astype(np.float32)
+        moved = replace(ob, translate=translate, rotate=rotate)
+        return replace(self, vertices=vertices, objects=[moved if o is ob else o for o in self.objects],
+                       content_hash=hashlib.sha256(f"{self.content_hash} moved {ob.index} {list(translate)} "
+                                                   f"{rotate}".encode()).hexdigest())
+
 
     @property
     def material_kind(self):
@@ -326,22 +385,31 @@ def _shape(t: _Table, base_dir, files: list):
     t.fail("shape", f"unknown shape {kind!r} (sphere | quad)")
 
 
+def rotation(rotate) -> np.ndarray:
+    """The 3 x 3 matrix of a ``rotate`` value [axis x, y, z, degrees] (identity for None)."""
+    if rotate is None:
+        return np.eye(3)
+    return _axis_angle(np.asarray(rotate[:3], np.float64), float(rotate[3]))
+
+
 def _transform(t: _Table, v):
+    """(scaled local vertices, rotate [ax, ay, az, deg] or None, translate (3,)): an object's
+    transform in the order scale, rotate, translate."""
     scale = t.num_or_vec("scale", 3, 1.0)
     if np.any(scale == 0):
         t.fail("scale", "must not be zero")
     v = v * scale
+    rotate = None
     if t.has("rotate"):
         r = t.data["rotate"]
         t.used.add("rotate")
         if (not isinstance(r, list) or len(r) != 4
                 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in r)):
             t.fail("rotate", f"must be [axis x, y, z, degrees] of finite numbers, got {shown(r)}")
-        axis = np.array(r[:3], np.float64)
-        if np.linalg.norm(axis) == 0:
+        if np.linalg.norm(np.array(r[:3], np.float64)) == 0:
             t.fail("rotate", "axis must not be zero")
-        v = v @ _axis_angle(axis, r[3]).T
-    return v + t.get("translate", "vec3", np.zeros(3))
+        rotate = [float(x) for x in r]
+    return v, rotate, t.get("translate", "vec3", np.zeros(3))
 
 
 def _clean_triangles(path, key, v, f):
@@ -500,12 +568,17 @@ def _parse(doc, path: str, base: str) -> Scene:
     objs = doc.get("objects", [])
     if not isinstance(objs, list):
         raise SceneError(path, "objects", "must be an array of tables ([[objects]])")
-    verts, faces, fmat = [], [], []
-    offset = 0
+    verts, faces, fmat, objects = [], [], [], []
+    offset = face_offset = 0
     for i, o in enumerate(objs):
         t = _Table(path, f"[[objects]][{i}]", o)
+        object_name = t.get("name", "str")
+        if object_name is not None:
+            if not object_name or any(ob.name == object_name for ob in objects):
+                t.fail("name", f"must be a non-empty name no other object has, got {shown(object_name)}")
         v, f = _shape(t, base, files)
-        v = _transform(t, v)
+        local, rotate, translate = _transform(t, v)
+        v = local @ rotation(rotate).T + translate
         name = t.get("material", "str")
         if name is None:
             if "__default__" not in index:
@@ -516,10 +589,13 @@ def _parse(doc, path: str, base: str) -> Scene:
             t.fail("material", f"unknown material {name!r}")
         t.done()
         f = _clean_triangles(path, t.name, v, f)
+        objects.append(SceneObject(object_name, i, local, f.astype(np.int32), rotate, translate, index[name],
+                                   (face_offset, face_offset + len(f)), (offset, offset + len(v))))
         verts.append(v)
         faces.append(f + offset)
         fmat.append(np.full(len(f), index[name], np.int32))
         offset += len(v)
+        face_offset += len(f)
     if not materials:
         materials.append(Material("__default__", bsdfs.LAMBERT, np.full(3, 0.5, np.float32), 0.0))
     vertices = np.concatenate(verts).astype(np.float32) if verts else np.zeros((0, 3), np.float32)
@@ -529,7 +605,7 @@ def _parse(doc, path: str, base: str) -> Scene:
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
                  np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, options, digest.hexdigest(),
-                 files)
+                 files, objects)
 
 
 def _check_depth(doc, path):
