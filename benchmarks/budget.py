@@ -5,12 +5,21 @@ For each of relmse.py's glossy scenes (the sphere alone and the bunny on its flo
 configuration MxS at --size, 16 spp, seeds 0..--seeds-1 in turn (one seed of every
 configuration before the next seed, so that a slow stretch of this VM slows all alike), and
 gives each configuration's relMSE against a mis reference at 1024 spp, its median time
-(setup included) and its ratios to mis at equal spp and at equal time (relMSE x time). These
-figures chose strategies.AUTO_BUDGET (README, "Budget from the scene's shadows"). Each
-scene's visibility variance (wavlight.occlusion) is reported beside them.
+(setup included) and its ratios to mis at equal spp and at equal time (relMSE x time): the
+measurement behind strategies.AUTO_BUDGET (README, "Budget from the scene's shadows"). Each
+scene's visibility variance (wavlight.occlusion) is reported beside them. Prints one JSON
+object and writes it, with the run's provenance (benchmarks/provenance.py: commit, CPU,
+OpenCL platform, command), to benchmarks/results/budget.json, or budget-no-floor.json with
+--no-floor, unless -o names another ("-": none).
 
     python benchmarks/budget.py [--size 256] [--seeds 4] [--configs 8x2,16x2,32x2,8x4,16x4]
-                                [--only ggx0.2,phong200] [--no-floor] [--out FILE]
+                                [--only ggx0.2,phong200] [--no-floor] [-o FILE]
+
+The default command (all 18 glossy scenes, five configurations) takes about 40 minutes on
+two shared cores; the figures in benchmarks/results/budget.json come from its two ggx 0.2
+scenes under st_fagans (the sphere alone and the bunny on its floor) and three configurations:
+
+    python benchmarks/budget.py --configs 8x2,16x2,8x4 --only ggx0.2/st_fagans_interior_1k
 """
 from __future__ import annotations
 
@@ -23,7 +32,7 @@ import tempfile
 import numpy as np
 
 import wavlight
-from wavlight.metrics import relmse
+from wavlight.evaluation.metrics import relmse
 from wavlight.raytrace import RayTracer
 from wavlight import occlusion
 
@@ -45,8 +54,15 @@ def main():
     ap.add_argument("--configs", default="8x2,16x2,32x2,8x4,16x4", help="candidates x slots, comma-separated")
     ap.add_argument("--only", default="", help="comma-separated substrings of scene names")
     ap.add_argument("--no-floor", action="store_true", help="the bunny without its floor (spheres left out)")
-    ap.add_argument("--out", default="")
+    from provenance import provenance, result_path, write_result
+
+    ap.add_argument("-o", "--output", "--out", dest="output", default=None, metavar="FILE",
+                    help="result file (default benchmarks/results/budget.json, budget-no-floor.json "
+                         "with --no-floor; '-': none, stdout only)")
     args = ap.parse_args()
+    if args.output is None:
+        args.output = result_path("budget-no-floor" if args.no_floor else "budget")
+    prov = provenance()
     if not os.path.isdir(relmse_bench.DATA):
         sys.exit(f"budget.py: needs the shared data folder at {relmse_bench.DATA}")
     configs = [tuple(int(x) for x in c.split("x")) for c in args.configs.split(",")]
@@ -86,11 +102,8 @@ def main():
         results["scenes"][name] = row
         print(f"{name}: " + " ".join(f"{lb} {row[lb]['equal_spp']:.3f}/{row[lb]['equal_time']:.3f}"
                                      for lb, _ in runs[1:]), file=sys.stderr, flush=True)
-    text = json.dumps(results, indent=1)
-    print(text)
-    if args.out:
-        with open(args.out, "w") as fh:
-            fh.write(text + "\n")
+    print(json.dumps(results, indent=1))
+    write_result(args.output, results, prov)
 
 
 if __name__ == "__main__":

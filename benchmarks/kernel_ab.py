@@ -1,19 +1,30 @@
-"""Interleaved A/B of the sample-generation kernels against an earlier commit.
+"""Interleaved A/B of the sample-generation kernels of this checkout against another revision.
 
-Builds `warp.cl` (light walk) and `product.cl` (product walk) from the kernel sources
-of --against (read with `git show`, so run it in a checkout) and from this checkout,
-and times both on the same 2^21 random shading points and light tree, alternating
-launch by launch and keeping each kernel's best time: on a shared VM whose speed
-drifts by 20-40% between runs, sequential before/after runs cannot resolve a 15%
-change, alternating launches can. The angle table of the earlier build comes from
-that commit's `wavlight/product.py` (its `node_angles`; kernels after it build the node
-centres without a table). A build from before the Morton tree layout (kernels/common.h)
-walks a row-major copy of the same tree, one from before the trees' cache-line origin
-(TREE_ORIGIN) a copy with node 0 at the buffer's start. Needs kernels with the same arguments otherwise
-(true from 3291f7c on). "identical" says whether both builds returned the same points
-and densities bit for bit. Prints one JSON object.
+Builds `warp.cl` (light walk) and `product.cl` (product walk) from the kernel sources of the
+revision --against names (read with `git show`, so run it in a checkout) and from this
+checkout, and times both on the same 2^21 random shading points and light tree, alternating
+launch by launch and keeping each kernel's best time: on a shared VM whose speed drifts by
+20-40% between runs, two runs one after the other cannot resolve a 15% change, alternating
+launches can. In the output "before" is the --against build, "now" this checkout's.
+Each build gets the tree layout, arguments and work-groups its own sources expect: a
+`product.cl` that reads a table of node angles (`*angles`) gets the table from that
+revision's `node_angles` (wavlight/product.py); a kernels/common.h without the Morton tree
+layout walks a row-major copy of the same tree, one without the trees' cache-line origin
+(TREE_ORIGIN) a copy with node 0 at the buffer's start; the walks run in work-groups of the
+revision's `cl.WALK_WORK_GROUP` (64 where its wavlight/cl.py has none). The kernels' other
+arguments must be this checkout's (as they are from 3291f7c on). "identical" says whether
+both builds returned the same points and densities bit for bit. Prints one JSON object and
+writes it, with the run's provenance (benchmarks/provenance.py), to
+benchmarks/results/kernel_ab.json (-o FILE another, "-" none).
 
-    python benchmarks/kernel_ab.py --against 3291f7c [--levels 10] [--repeat 12]
+    python benchmarks/kernel_ab.py --against REVISION [--levels 10] [--repeat 12] [-o FILE]
+
+The figures in benchmarks/results/kernel_ab.json come from
+
+    python benchmarks/kernel_ab.py --against c515c20 --levels 11
+
+(c515c20: the stand-alone walks with level barriers from 512^2 nodes, BARRIER_LEVEL 9, in
+work-groups of 64; this checkout's from 256^2 nodes in groups of 32, kernels/warp.h).
 """
 from __future__ import annotations
 
@@ -43,15 +54,20 @@ def main():
     ap.add_argument("--repeat", type=int, default=12)
     ap.add_argument("--env", default=os.path.join(HERE, "..", "..", "shared", "data", "envmaps",
                                                   "rooitou_park_1k.hdr"))
+    from provenance import add_output_argument, provenance, write_result
+
+    add_output_argument(ap, "kernel_ab")
     args = ap.parse_args()
+    prov = provenance()
 
     import pyopencl as pcl
 
-    from wavlight import cl, product
-    from wavlight.distributions import HaarTree
+    from wavlight import cl
+    from wavlight.strategies import product
+    from wavlight.haar.tree import HaarTree
     from wavlight.envmap import Environment, read_image
 
-    old_angles = None   # the angle table of a build that reads one (before the angle recurrence)
+    old_angles = None   # the angle table of a build whose product walk reads one
     if "*angles" in git_show(args.against, "kernels/product.cl"):
         old_py = git_show(args.against, "wavlight/product.py")
         ns = {"np": np}
@@ -65,7 +81,7 @@ def main():
             seen.add(fname)
             return re.sub(r'^\s*#include\s+"([^"]+)"\s*$', lambda m: load(m.group(1), seen),
                           git_show(args.against, f"kernels/{fname}"), flags=re.M)
-        # as cl.program builds them (a revision before the flag ignores it)
+        # as cl.program builds them (a revision without the flag ignores it)
         defines.setdefault("INLINE_BUILTINS", int(cl.inline_builtins(cl.runtime().device)))
         opts = [f"-D{k}={v}" for k, v in sorted(defines.items())] + [f"-DLANES={cl.LANES}"]
         return pcl.Program(cl.runtime().context, load(name, set())).build(options=opts)
@@ -83,10 +99,10 @@ def main():
     trees = {"now": tree.buffer,   # the device layout of this checkout, and of --against:
              "before": tree.buffer if "TREE_ORIGIN" in old_common
              else cl.to_device(tree.device_nodes()) if "Morton" in old_common   # node 0 first
-             else cl.to_device(tree.nodes())}   # row-major before the Morton layout
+             else cl.to_device(tree.nodes())}   # row-major: sources without the Morton layout
     materials = benchmark_materials()
-    # each version's work-groups as it launched its walks: cl.WALK_WORK_GROUP since the
-    # fourteenth session, cl.WORK_GROUP (64) before
+    # each version's work-groups as it launches its walks: its cl.WALK_WORK_GROUP, or
+    # cl.WORK_GROUP (64) where it has none
     found = re.search(r"^WALK_WORK_GROUP = (\d+)", git_show(args.against, "wavlight/cl.py"), re.M)
     groups = {"before": int(found.group(1)) if found else 64, "now": cl.WALK_WORK_GROUP}
     runs, outputs = {}, {}
@@ -128,6 +144,7 @@ def main():
                                                             zip(outputs[(name, "before")], outputs[(name, "now")]))}
                                     for name in ["light", *materials]}}
     print(json.dumps(out, indent=1))
+    write_result(args.output, out, prov)
 
 
 if __name__ == "__main__":

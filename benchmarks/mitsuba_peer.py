@@ -3,12 +3,18 @@
 
 A peer reference for wavlight benchmarks: it reads the scene file itself (``tomllib``, no wavlight
 import), builds the equivalent Mitsuba scene with ``mi.load_dict`` on the ``llvm_ad_rgb`` variant
-(CPU), renders it and prints one JSON object on stdout.
+(CPU), renders it and prints one JSON object on stdout. The same object, with the run's
+provenance (benchmarks/provenance.py; the OpenCL platform is asked of a separate process, so
+that PoCL's LLVM is not loaded beside Dr.Jit's), goes to the result file
+benchmarks/results/mitsuba_peer.json unless -o names another ("-": none, as
+benchmarks/render_bench.py --mitsuba runs it).
 
 Usage:
     python benchmarks/mitsuba_peer.py SCENE.toml [--spp N] [--width W] [--height H]
-                                      [--strategy mis|light|bsdf] [--out IMAGE.exr]
+                                      [--strategy mis|light|bsdf] [--out IMAGE.exr] [-o FILE]
 Command-line values override ``[render]``; ``seed`` comes from ``[render]`` (default 0).
+The figures in benchmarks/results/mitsuba_peer.json come from
+    python benchmarks/mitsuba_peer.py scenes/bunny_ggx.toml --spp 16 --width 512 --height 512 --strategy mis
 
 Setup (Debian 12, Python 3.11):
     apt-get install -y libllvm19 && pip install mitsuba     # mitsuba 3.9.1, drjit 1.5.0
@@ -193,7 +199,12 @@ def main():
     ap.add_argument("--height", type=int)
     ap.add_argument("--strategy", choices=sorted(STRATEGIES))
     ap.add_argument("--out", help="write the image (e.g. .exr) with mi.util.write_bitmap")
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from provenance import add_output_argument, provenance, write_result
+
+    add_output_argument(ap, "mitsuba_peer")
     args = ap.parse_args()
+    prov = provenance(opencl="subprocess") if args.output != "-" else None
 
     with open(args.scene, "rb") as f:
         cfg = tomllib.load(f)
@@ -217,7 +228,9 @@ def main():
     if "file" not in env and env.get("procedural"):
         reason = f"procedural environment {env['procedural']!r} is not supported"
         print(f"mitsuba_peer: skipping {args.scene}: {reason}", file=sys.stderr)
-        print(json.dumps({**result, "skipped": True, "reason": reason}), file=json_out)
+        result.update(skipped=True, reason=reason)
+        print(json.dumps(result), file=json_out)
+        write_result(args.output, result, prov)
         return
 
     mi.set_variant(VARIANT)
@@ -250,6 +263,8 @@ def main():
         mi.util.write_bitmap(args.out, img)
         result["out"] = args.out
     print(json.dumps(result), file=json_out)
+    json_out.flush()
+    write_result(args.output, result, prov)
 
 
 if __name__ == "__main__":

@@ -9,12 +9,12 @@ means; printed as the mean over the points of each strategy's relative variance 
 `mis`'s. This is the quantity the product sampler's model decides (the image relMSE
 of benchmarks/relmse.py adds the pixel-footprint variance that no direction sampler
 removes), and it is how the product model's parameters were chosen.
-`wavelet` is the library's default (since 2026-12-02 the resampling estimator with 8
+`wavelet` is the library's default (the resampling estimator with DEFAULT_CANDIDATES = 8
 candidates; `wavelet:candidates=0` the MIS pair, which the variants below modify), and
 `wavelet:risP+B` that estimator with P product and B BSDF candidates
 (wavlight.strategies.ris_shade_reference), `wavelet:control_variate=0` without its control
 variate (with it, an unshadowed point's estimate is the candidates' U, no pick).
---strategies may also name earlier designs of `wavelet` (VARIANTS): wavelet_power (the
+--strategies may also name other designs of `wavelet` (VARIANTS): wavelet_power (the
 power heuristic), wavelet_plain (the plain light tree for lambert too),
 wavelet_all_compensated (the compensated tree for every material); and per-point product
 tables, the ideals the walk approximates (_table_product): exact_product (the product at
@@ -22,19 +22,30 @@ the light tree's leaf resolution, exactly), depth_table (at the walk's product d
 the light tree below), depth_table_fine (at P + 1), depth_table_footprint (at P, only
 where BRDF x cosine >= 1% of its peak) and depth_table[_fine]_offsetA (the table built
 for the point's frame tilted by A degrees: a table per pixel serving the pixel's other
-points). Where the walk loses to the tables (2026-12-02, session 10): coarseC (a table of
+points). Where the walk loses to the tables: coarseC (a table of
 the walk's own lobe model, summed exactly, for the first C levels), exact_fineF[_plus1]
 (the true BRDF at node centres from level F on, [one level deeper]), centroidS[_geoG]
 [_nolook] (the lobe evaluated at each node's light centroid, widened by S x the light's
 spread [+ G x the node-size blur]), wavelet_nolook and wavelet_lookK (K look-ahead levels). Strategy options follow the name
 (wavelet:levels=9). A name with ":mixS" (wavelet:mix0.9, exact_product:mix0.9) gives
 the product the share S of the samples by one-sample MIS instead of the pair. --phong-blur sets
-the phong lobe widening of the numpy twin (wavlight.product PHONG_BLUR, in units of pi;
+the phong lobe widening of the numpy twin (wavlight.strategies.product PHONG_BLUR, in units of pi;
 the kernel's PHONG_BLUR_F must then be set to match before rendering).
+
+Prints one JSON object and writes it, with the run's provenance (benchmarks/provenance.py:
+commit, CPU, OpenCL platform, command), to benchmarks/results/point_variance.json unless -o
+names another ("-": none).
 
     python benchmarks/point_variance.py [--maps rooitou_park_1k,...] [--materials phong200,ggx0.05]
                                         [--strategies wavelet,mis_comp,wavelet_power]
-                                        [--points 128] [--samples 512] [--phong-blur 0.2,0.35]
+                                        [--points 128] [--samples 512] [--phong-blur 0.2,0.35] [-o FILE]
+
+The figures in benchmarks/results/ come from
+
+    python benchmarks/point_variance.py                     # point_variance.json
+    python benchmarks/point_variance.py --points 48 --samples 256 \
+        --strategies wavelet:candidates=0,wavelet:candidates=0:mix0.9,depth_table,depth_table:mix0.9,depth_table_fine:mix0.9,depth_table_footprint:mix0.9,exact_product \
+        -o benchmarks/results/point_variance-tables.json   # the walk against per-point tables
 """
 from __future__ import annotations
 
@@ -78,7 +89,7 @@ def _table_product(extra_levels=None, footprint=0.0, offset_degrees=0.0):
     the normal by about 1.3 degrees and the mirror direction by 2.6; a sample lies 0.38 pixel
     from the centre on average, about 1 degree of mirror direction)."""
     from wavlight import bsdfs, strategies
-    from wavlight.distributions import level_offset
+    from wavlight.haar.tree import level_offset
 
     class TableProduct(strategies.WaveletStrategy):
         def prepare(self, environment, materials=()):
@@ -178,8 +189,9 @@ def _coarse_table(coarse, extra=0):
     (light mass x the walk's lobe model at the node centre) below them, so the coarse
     choices see the product as the full table does; below level `coarse` the walk goes on
     with its own importances. What a per-pixel table of 4^coarse entries would buy."""
-    from wavlight import product, strategies
-    from wavlight.distributions import choose_child_reference, level_offset
+    from wavlight import strategies
+    from wavlight.strategies import product
+    from wavlight.haar.tree import choose_child_reference, level_offset
 
     class CoarseTable(strategies.WaveletStrategy):
         def prepare(self, environment, materials=()):
@@ -307,9 +319,10 @@ def _exact_importance(mass, d, axis, n, kappa, shape):
 
 
 def _patched(patches, prepare=None):
-    """A `wavelet` strategy (the MIS pair) whose sample and pdf run with names of wavlight.product replaced:
+    """A `wavelet` strategy (the MIS pair) whose sample and pdf run with names of wavlight.strategies.product replaced:
     patches(strategy) -> {name: value}; prepare(strategy) runs after its own prepare."""
-    from wavlight import product, strategies
+    from wavlight import strategies
+    from wavlight.strategies import product
 
     class Patched(strategies.WaveletStrategy):
         def prepare(self, environment, materials=()):
@@ -340,7 +353,7 @@ def _patched(patches, prepare=None):
 def _exact_fine(first_level, plus=0):
     """`wavelet` whose node importances on levels >= first_level use the true BRDF x cosine at
     the node centre (no lobe model, no widening); plus > 0 deepens the product by that many levels."""
-    from wavlight import product
+    from wavlight.strategies import product
 
     model = product.node_importance
 
@@ -363,8 +376,8 @@ def _centroid(spread=1.0, lookahead=True, horizon="node", geometric=0.0):
     1/kappa_L ~ 1 - rho: the product of two such lobes widens as 1/kappa + 1/kappa_L),
     times `spread` (plus `geometric` times the node-size blur). lookahead False: no
     look-ahead levels."""
-    from wavlight import product
-    from wavlight.distributions import level_offset
+    from wavlight.strategies import product
+    from wavlight.haar.tree import level_offset
 
     def vectors(s):
         """Per level, the mass-weighted sums of the leaf directions below each node, of the first
@@ -418,9 +431,9 @@ def _lookahead(levels=0):
     return _patched(lambda s: {"LOOKAHEAD_LEVELS": levels})
 
 
-# earlier designs of `wavelet`, for comparison: the power heuristic (before session 7), the
-# plain light tree for lambert too, the compensated tree for every material; and the exact
-# product (the yardstick above)
+# other designs of `wavelet`, for comparison: the power heuristic (as `mis` weighs), the
+# plain light tree for lambert too, the compensated tree for every material; and the
+# per-point tables and refinements of the walk (the yardsticks above)
 VARIANTS = {"wavelet_power": lambda: _variant(heuristic="power", compensated="none"),
             "wavelet_plain": lambda: _variant(compensated="none"),
             "wavelet_all_compensated": lambda: _variant(compensated="all"),
@@ -450,6 +463,7 @@ def mixture_estimates(strategy, env, sp, u, share):
     with u.x, rescaled), and weighs f L cos / (share p_product + (1 - share) p_bsdf); the two
     slots are averaged. Returns (N, 2, 3) like shade_reference, summing to the estimate."""
     from wavlight import strategies
+    from wavlight.strategies.base import _unoccluded
 
     out = np.zeros((len(sp), 2, 3))
     for slot in range(2):
@@ -465,7 +479,7 @@ def mixture_estimates(strategy, env, sp, u, share):
         p_bsdf = np.where(pick, strategy.bsdf.pdf(sp, ds.wi_local, ds.wi_world), b.pdf)
         with np.errstate(divide="ignore", invalid="ignore"):
             w = np.where(ds.pdf > 0, ds.pdf / (share * p_prod + (1 - share) * p_bsdf), 0.0)
-        out[:, slot] = 0.5 * strategies._unoccluded(sp, env, ds, w)
+        out[:, slot] = 0.5 * _unoccluded(sp, env, ds, w)
     return out
 
 
@@ -497,13 +511,19 @@ def main():
     ap.add_argument("--phong-blur", default="", help="comma-separated phong lobe widenings (units of pi)")
     ap.add_argument("--points", type=int, default=128)
     ap.add_argument("--samples", type=int, default=512)
+    sys.path.insert(0, HERE)
+    from provenance import add_output_argument, provenance, write_result
+
+    add_output_argument(ap, "point_variance")
     args = ap.parse_args()
+    prov = provenance()
     if not os.path.isdir(DATA):
         sys.exit(f"point_variance: {DATA} not found (../shared/data beside the checkout)")
 
     import tempfile
 
-    from wavlight import product, strategies
+    from wavlight import strategies
+    from wavlight.strategies import product
     from wavlight.scene import load_scene
 
     blurs = [float(b) for b in args.phong_blur.split(",")] if args.phong_blur else [product.PHONG_BLUR / np.pi]
@@ -576,6 +596,7 @@ def main():
             out["cases"][f"sphere/{mat_name}/{env_name}"] = row
             print(f"sphere/{mat_name}/{env_name}: {row}", file=sys.stderr, flush=True)
     print(json.dumps(out, indent=1))
+    write_result(args.output, out, prov)
 
 
 if __name__ == "__main__":

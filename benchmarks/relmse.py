@@ -11,7 +11,7 @@ pbrt-v4 renders by default) and mis_comp over mis, each at equal spp and at equa
 time (the time of the denominator's strategy).
 
 relMSE = mean over pixels and channels of ((x - ref)^2 - se_ref^2) / (ref^2 + 0.01)
-(wavlight.metrics.relmse): the reference's own variance (its squared standard error,
+(wavlight.evaluation.metrics.relmse): the reference's own variance (its squared standard error,
 from the same render) is subtracted, so the figure estimates the error against the
 true image. Equal
 time: relMSE scales as 1/spp for these unbiased estimators, so the relMSE a
@@ -27,11 +27,22 @@ shadows (strategies.AUTO_BUDGET: the lone spheres 16 and 2, the bunny on its flo
 pixel sample is shaded exactly (no direction noise), from an image whose pixel
 samples average D mis estimates each: floor = (D relMSE_D - relMSE_mis) / (D - 1).
 No direction sampler can go below it at that spp, so floor / relMSE_mis bounds the
-wavelet / mis ratio from below. Prints one JSON object (and writes it to
---out if given).
+wavelet / mis ratio from below. Prints one JSON object and writes it, with the run's
+provenance (benchmarks/provenance.py: commit, CPU, OpenCL platform, command), to the result
+file: benchmarks/results/relmse.json, or relmse-floor.json with --floor, unless -o names
+another ("-": none; give other configurations their own -o).
 
     python benchmarks/relmse.py [--spp 4,16,64] [--seeds 3] [--size 128] [--ref-spp 1024]
                                 [--sampler independent|stratified] [--floor D] [--candidates M] [--slots S]
+                                [--only NAME] [-o FILE]
+
+The figures in benchmarks/results/ come from
+
+    python benchmarks/relmse.py --size 96 --seeds 4                        # relmse.json
+    python benchmarks/relmse.py --size 96 --seeds 4 --spp 16 --floor 32    # relmse-floor.json
+
+(the floor at 4, 16 and 64 spp, --floor 32 without --spp, takes about four times as long:
+some 40 minutes on two shared cores).
 """
 from __future__ import annotations
 
@@ -43,7 +54,7 @@ import tempfile
 
 import numpy as np
 
-from wavlight.metrics import relmse
+from wavlight.evaluation.metrics import relmse
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data"))
@@ -137,11 +148,19 @@ def main():
                     help="the wavelet strategy's resampling candidates (default: chosen from the scene)")
     ap.add_argument("--slots", type=int, default=None, choices=(2, 4),
                     help="the wavelet strategy's directions per sample (default: chosen from the scene)")
-    ap.add_argument("--out", default="")
+    sys.path.insert(0, HERE)
+    from provenance import provenance, result_path, write_result
+
+    ap.add_argument("-o", "--output", "--out", dest="output", default=None, metavar="FILE",
+                    help="result file (default benchmarks/results/relmse.json, relmse-floor.json "
+                         "with --floor; '-': none, stdout only)")
     args = ap.parse_args()
+    if args.output is None:
+        args.output = result_path("relmse-floor" if args.floor > 1 else "relmse")
     if not os.path.isdir(DATA):
         sys.exit(f"relmse: {DATA} not found (../shared/data beside the checkout)")
 
+    prov = provenance()
     import wavlight
 
     spps = [int(s) for s in args.spp.split(",")]
@@ -216,11 +235,8 @@ def main():
               + " | over mis_comp " + " ".join(f"{k}={v['equal_spp']:.3f}/{v['equal_time']:.3f}"
                                                for k, v in row["wavelet_over_mis_comp"].items()),
               file=sys.stderr, flush=True)
-    text = json.dumps(results, indent=1)
-    if args.out:
-        with open(args.out, "w") as fh:
-            fh.write(text)
-    print(text)
+    print(json.dumps(results, indent=1))
+    write_result(args.output, results, prov)
 
 
 if __name__ == "__main__":

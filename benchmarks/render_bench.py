@@ -1,15 +1,22 @@
 """Renderer throughput: the bunny on a floor under a real 1k map, 512x512, 16 spp.
 
-Prints one JSON object: per strategy (mis, light, bsdf) the load, setup and render
+Prints one JSON object: per strategy (default mis, light, bsdf) the load, setup and render
 seconds, rays/s and samples/s, best of --repeat runs (setup includes the light
 tree and kernel compilation on a fresh process only for the first run; later
 runs reuse the per-process program cache, which is what a batch user sees).
 "embree_alone": embreex by itself on the same camera rays plus one shadow ray per hit,
 the floor under the render time for that many rays. With --mitsuba, also runs
 benchmarks/mitsuba_peer.py (Mitsuba 3, `direct` integrator, same scene, spp and
-resolution) and reports the ratio.
+resolution) and reports the ratio. The same object, with the run's provenance
+(benchmarks/provenance.py: commit, CPU, OpenCL platform, command), goes to the result
+file, benchmarks/results/render_bench.json unless -o names another ("-": none).
 
-    python benchmarks/render_bench.py [--scene scenes/bunny_ggx.toml] [--spp 16] [--mitsuba]
+    python benchmarks/render_bench.py [--scene scenes/bunny_ggx.toml] [--spp 16] [--repeat 2]
+                                      [--strategies mis,light,bsdf] [--mitsuba] [-o FILE]
+
+The figures in benchmarks/results/render_bench.json come from
+
+    python benchmarks/render_bench.py --strategies mis,light,bsdf,wavelet,mis_comp --repeat 3 --mitsuba
 """
 from __future__ import annotations
 
@@ -67,7 +74,11 @@ def main():
     ap.add_argument("--strategies", default="mis,light,bsdf")
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--mitsuba", action="store_true")
+    from provenance import add_output_argument, provenance, write_result
+
+    add_output_argument(ap, "render_bench")
     args = ap.parse_args()
+    prov = provenance()
 
     import wavlight
     from wavlight import cl
@@ -100,7 +111,8 @@ def main():
             if strategy not in ("mis", "light", "bsdf"):  # Mitsuba's direct integrator has these three
                 continue
             cmd = [sys.executable, os.path.join(HERE, "mitsuba_peer.py"), args.scene, "--spp", str(args.spp),
-                   "--width", str(args.width), "--height", str(args.height), "--strategy", strategy]
+                   "--width", str(args.width), "--height", str(args.height), "--strategy", strategy,
+                   "-o", "-"]
             res = subprocess.run(cmd, capture_output=True, text=True)
             if res.returncode != 0:
                 out["mitsuba"][strategy] = {"error": res.stderr.strip().splitlines()[-1:]}
@@ -114,6 +126,7 @@ def main():
                 (w["render_seconds"] + w["setup_seconds"] + load)
                 / (m["render_seconds"] + m.get("setup_seconds", 0) + m.get("jit_seconds", 0)), 3)
     print(json.dumps(out, indent=1))
+    write_result(args.output, out, prov)
 
 
 if __name__ == "__main__":

@@ -16,9 +16,12 @@ pixel's samples do in the renderer (its eight-lane vectors then walk one lobe). 
 one JSON object. Timings are kernel time after a warm-up, the best of 3 rounds in which
 every figure is timed once in turn (a slow stretch of this shared VM then costs one round
 of many figures, not every repeat of a few), including host<->device copies of inputs
-and outputs ("with_copies") and without.
+and outputs ("with_copies") and without. The same object, with the run's provenance
+(benchmarks/provenance.py: commit, CPU, OpenCL platform, command), goes to the result file,
+benchmarks/results/sample_bench.json unless -o names another ("-": none). The figures there
+come from the default command:
 
-    python benchmarks/sample_bench.py [--env ../shared/data/envmaps/rooitou_park_1k.hdr]
+    python benchmarks/sample_bench.py [--env ../shared/data/envmaps/rooitou_park_1k.hdr] [-o FILE]
 """
 from __future__ import annotations
 
@@ -102,10 +105,15 @@ def main():
     ap.add_argument("--env", default=os.path.join(HERE, "..", "..", "shared", "data", "envmaps",
                                                   "rooitou_park_1k.hdr"))
     ap.add_argument("--count", type=int, default=1 << 21)
-    args = ap.parse_args()
+    from provenance import add_output_argument, provenance, write_result
 
-    from wavlight import cl, product
-    from wavlight.distributions import HaarTree
+    add_output_argument(ap, "sample_bench")
+    args = ap.parse_args()
+    prov = provenance()
+
+    from wavlight import cl
+    from wavlight.strategies import product
+    from wavlight.haar.tree import HaarTree
     from wavlight.envmap import Environment, read_image
 
     env = Environment(read_image(args.env), name=args.env)
@@ -200,7 +208,9 @@ def main():
         out["eq25_dense_product_pyramids"] = pyr
     except Exception as e:  # report, do not hide
         out["eq25_dense_product_pyramids"] = {"error": f"{type(e).__name__}: {e}"}
-    print(json.dumps(rounds.fill(out), indent=1))
+    out = rounds.fill(out)
+    print(json.dumps(out, indent=1))
+    write_result(args.output, out, prov)
 
 
 if __name__ == "__main__":

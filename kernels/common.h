@@ -12,11 +12,11 @@
  * one 16-byte load, from one cache line three times in four (LEVEL_OFFSET(l) is 5 mod
  * 16 floats from level 2 on; row-major levels put the two pairs a row apart, always two
  * lines), and carries its node's index down as 4k + child, with no bit interleaving
- * per step. Measured against the row-major walks (benchmarks/kernel_ab.py, interleaved,
- * bit-identical samples; results/kernel-ab-2026-12-02-session9-morton-*.json): light
+ * per step. Measured against row-major walks (benchmarks/kernel_ab.py --against a revision
+ * whose trees are row-major, interleaved, bit-identical samples): light
  * walk +9 / +37 / +32% at 256^2 / 1024^2 / 2048^2, product walks +5 to +21% / +11 to
  * +47% / +10 to +45%. The host keeps trees row-major (y 2^l + x):
- * wavlight.distributions.device_order / host_order convert, tree_load_leaves (tree.cl)
+ * wavlight.haar.tree.device_order / host_order convert, tree_load_leaves (tree.cl)
  * places the leaves.
  *
  * A light tree's node 0 sits TREE_ORIGIN = 11 floats into its place in the buffer, and
@@ -25,12 +25,12 @@
  * on then starts on a 64-byte cache line, and a node's four children (one walk step) and
  * its sixteen grandchildren (the product walk's look-ahead) each lie in one line instead
  * of straddling two. Kernels that take a light tree add TREE_ORIGIN to its pointer on
- * entry. Measured (13th session, the product kernel on copies of one tree made alike,
- * four alternated runs, bit-identical samples): 2048^2 trees +18 to +25% (phong 200
+ * entry. Measured with the product kernel on copies of one tree made alike but for the
+ * origin (four alternated runs, bit-identical samples): 2048^2 trees +18 to +25% (phong 200
  * 14.7-15.8 -> 18.3-18.7 M/s, ggx 0.05 16.0-18.9 -> 18.4-23.1), 1024^2 ggx 0.05 +10%
  * (21.2-23.3 -> 25.3-25.7), phong 200 within noise; 256^2 no change. (An origin of 3,
- * which keeps the groups of four in one line but not the sixteen, measured close to 11;
- * in the ninth session, before the look-ahead, it measured no better than none.)
+ * which keeps the groups of four in one line but not the sixteen, measures close to 11;
+ * for a walk without the look-ahead it measures no better than none.)
  */
 #ifndef WAVLIGHT_COMMON_H
 #define WAVLIGHT_COMMON_H

@@ -1,5 +1,5 @@
 /* Wavelet product importance sampling, top-down (Chen & Gao sec. 4.3-4.4; Clarberg
- * et al. 2005). numpy twin: wavlight/product.py.
+ * et al. 2005). numpy twin: wavlight/strategies/product.py.
  *
  * The importance of a node s at level l is its product scaling coefficient
  * approximated by the first term of eq. 25, F^0_s ~ 2^l G^0_s H^0_s: the

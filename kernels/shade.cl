@@ -3,7 +3,7 @@
  * unoccluded estimator value  albedo f cos L / pdf  (times the MIS weight: the
  * power heuristic, or the balance heuristic with -DMIS_BALANCE=1) with its
  * direction; the host traces shadow rays for the non-zero values. numpy twin:
- * wavlight/strategies.py (shade_reference).
+ * wavlight/strategies/reference.py (shade_reference).
  *
  * STRATEGY: 0 uniform, 1 cosine, 2 bsdf, 3 light, 4 mis, 5 wavelet. Single
  * strategies use u.xy and write slot 0 (slot 1 is zero); MIS draws the light
@@ -12,10 +12,10 @@
  * light and product samples walk their trees here (warp.h tree_walk, product.h
  * product_walk): the program is built per light-tree depth (-DN_LEVELS) and, for
  * wavelet, per largest product depth and set of lobe shapes (-DPRODUCT_LEVELS,
- * -DLOBE_SHAPES). One launch per batch: as a separate kernel the light walk took
- * 2.9 ms per 52 k points waited on alone against 1.7 ms back to back, and the render
- * was 15-30% slower (light 1.42 -> 1.02-1.19 s, mis 1.75 -> 1.54 s, with the other
- * changes of that commit).
+ * -DLOBE_SHAPES). One launch per batch: as a separate kernel the light walk takes
+ * 2.9 ms per 52 k points waited on alone against 1.7 ms back to back, and renders with
+ * it measured 15-30% slower (benchmarks/render_bench.py, other changes to this kernel
+ * included: light 1.42 s against 1.02-1.19 s, mis 1.75 s against 1.54 s).
  *
  * Two kernels share shade_lanes: shade_rays (the renderer's: camera rays straight
  * from the ray tracer, misses included, hit set-up done here) and shade (shading

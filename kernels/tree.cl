@@ -4,7 +4,7 @@
  * scaling coefficients this is F^0_{l,t} = (1/2) sum of the four F^0_{l+1,t'}
  * (the relation behind eq. 22). One launch per level, coarsest last, batched
  * over trees: global size (4^level, n_trees), after tree_load_leaves has put the leaves
- * in the device's Morton order (common.h; wavlight.distributions.HaarTree).
+ * in the device's Morton order (common.h; wavlight.haar.tree.HaarTree).
  */
 #include "common.h"
 

@@ -54,7 +54,7 @@ INLINE realv tree_pdf(__global const float *tree, const uintv tree_base, const i
  * the column, rescaling (ux, uy); (x, y) becomes the child. Returns the child's
  * conditional probability m_child / (m00 + m10 + m01 + m11) (eq. 21-22). Branch-free:
  * u < top / (top + bottom) is compared as u (top + bottom) < top, without a division;
- * no fused multiply-add (the numpy twin, distributions.choose_child_reference, rounds
+ * no fused multiply-add (the numpy twin, haar.tree.choose_child_reference, rounds
  * u * sum and the subtraction apart, and tests compare the two bit for bit). A side or
  * child of zero mass is never picked (u * sum rounding up to a denormal mass could
  * otherwise pick it: right is compared by its bits, right >= +0). u past 1 - eps (or
@@ -87,7 +87,7 @@ INLINE realv clamp_unit(const realv u)
 /* The points of the unit square at offsets (ux, uy) inside leaves (x, y) of a 2^n grid.
  * The offsets are first clamped to 1 - 2^(n - 23): then x + u rounds below x + 1 for
  * every x < 2^n, so each point stays inside its leaf. (x compares the bits, y the
- * floats, as numpy's twin distributions.leaf_point does.) */
+ * floats, as numpy's twin haar.tree.leaf_point does.) */
 INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *ux, realv *uy)
 {
     const float inv = 1.0f / (float)(1u << n_levels);
@@ -103,13 +103,14 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
  * stand-alone sample kernel (warp.cl, product.cl, which define WALK_BARRIERS 1; their
  * walking kernels have no early return) a work-group barrier before each step into
  * such a level makes PoCL run that step for all work-items of the group before the
- * next, so the loads of 64
- * work-items are in flight together. Measured: 0 to +45% at 1024^2 and 2048^2 in
- * interleaved runs (light and product walks; this VM's noise is +-20%; one
- * sample_bench run: -11 to +35%), while barriers at the cached levels cost up to 20%
- * (the live values go through memory at each barrier), hence BARRIER_LEVEL 9 at first.
+ * next, so the loads of the group's
+ * work-items are in flight together. Measured in groups of 64 (benchmarks/kernel_ab.py):
+ * 0 to +45% at 1024^2 and 2048^2 in interleaved runs (light and product walks; this VM's
+ * noise is +-20%; benchmarks/sample_bench.py: -11 to +35%), while barriers at the cached
+ * levels cost up to 20% (the live values go through memory at each barrier), so that in
+ * groups of 64 the barriers pay from level 9 (512^2 nodes) on.
  * With work-groups of 32 (wavlight.cl.WALK_WORK_GROUP, whose live values then stay in
- * the cache) level 8 measured better (14th session, eight alternated runs each): against
+ * the cache) level 8 measures better (benchmarks/kernel_ab.py, eight alternated runs each): against
  * level 9 with groups of 64, light walk 2048^2 55.2 -> 59.4 M/s, 1024^2 69.9 -> 74.6; product
  * walks at 2048^2 lambert 31.1 -> 34.9, phong 200 18.5 -> 21.1, ggx 0.2 20.1 -> 22.3,
  * ggx 0.05 22.1 -> 22.8, at 1024^2 +5 to +14%, at 256^2 and 64^2 within 2%
@@ -166,11 +167,11 @@ INLINE void leaf_point(const uintv x, const uintv y, const int n_levels, realv *
  * PAIRED_FIRST(l, f): level l starts a pair; PAIRED_SECOND(l, f): level l was taken by the
  * pair before it. Compile-time. Only in walks without level barriers, the renderer's: the
  * barriers and prefetches of the stand-alone kernels hide these loads better. Measured
- * (13th session, three alternated runs of the kernels without barriers, 2^21 random
- * points, M samples/s): 2048^2 trees light walk 34.6-36.4 -> 39.6-41.8, phong 200
+ * against the same walks without pairs (three alternated runs of the kernels without
+ * barriers, 2^21 random points, M samples/s): 2048^2 trees light walk 34.6-36.4 -> 39.6-41.8, phong 200
  * 14.5-15.1 -> 16.6-16.8, ggx 0.2 14.9-15.2 -> 18.7-19.0, ggx 0.05 15.7-16.3 -> 18.5-18.7;
  * 1024^2 (one pair, levels 8-9) light 60.9-61.6 -> 57.7-61.0, the product walks +4 to +7%;
- * with barriers they measured 5-35% slower, and -8 to +6% once the prefetch (PREFETCH_STEP)
+ * with barriers they measure 5-35% slower, and -8 to +6% with the prefetch (PREFETCH_STEP)
  * aimed at the pairs' lines. */
 #ifndef PAIR_LEVEL
 #if defined(WALK_BARRIERS) && WALK_BARRIERS
