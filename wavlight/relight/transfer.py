@@ -18,10 +18,10 @@ import time
 
 import numpy as np
 
+from .. import cl
 from ..envmap import Environment, read_image
 from ..errors import ArgumentError, WavlightError, check_int, check_number, shown
 from . import lighting, store
-from .. import cl
 from .frame import DeviceEntries, background_cl, background_lookup, background_reference, product_reference
 
 MAX_TERMS = 1 << 22
@@ -58,7 +58,10 @@ class Transfer:
         if not os.path.isfile(path):
             raise WavlightError(f"{path}: no such bake file")
         header = store.read_header(path)
-        return cls(path, header, store.open_sections(path, header, verify))
+        try:
+            return cls(path, header, store.open_sections(path, header, verify))
+        except (KeyError, TypeError, ValueError, IndexError):   # a header whose fields are not the format's
+            raise WavlightError(f"{path}: the bake file's header is damaged") from None
 
     def save(self, path) -> None:
         """Write the bake file to ``path`` (atomically: a temporary file renamed into place)."""
