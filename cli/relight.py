@@ -41,13 +41,19 @@ from .progress import ProgressBar
 @click.option("--priority", type=click.Choice(["transfer", "area", "magnitude"]), default=None,
               help="How frames rank the lighting's terms. Default: the better of transfer and area on the pilot.")
 @click.option("--seed", type=click.IntRange(0, 2 ** 62), default=0, show_default=True, help="Random seed.")
+@click.option("--vary", type=click.Choice(["lighting", "object"]), default="lighting", show_default=True,
+              help="The factor frames vary: the lighting (map, rotation, scale), or one object's place.")
+@click.option("--object", "moving", default=None, metavar="NAME",
+              help="--vary object: the object that moves (its name, or its index among [[objects]]).")
+@click.option("--static-spp", type=click.IntRange(2, 1 << 20), default=256, show_default=True,
+              help="--vary object: samples per pixel of the scene without the object, converged at the bake.")
 @click.option("--dask", "dask_address", metavar="tcp://HOST:PORT", default=None,
               help="Bake the blocks on this dask.distributed scheduler (its workers read the scene file at the "
                    "same path); the file is identical to a local bake's.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the choices, sizes and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits, terms, priority, seed, dask_address,
-         as_json, quiet):
+def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits, terms, priority, seed, vary, moving,
+         static_spp, dask_address, as_json, quiet):
     """Bake the transfer of SCENE (its camera, objects and materials) into PATH, for relighting."""
     import wavlight
 
@@ -59,13 +65,18 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
     try:
         scene = wavlight.load_scene(scene_file)
         refuse_inputs(output, [scene_file, *scene.files])
+        if vary == "object" and moving is None:
+            fail("--vary object needs --object NAME (the object that moves)")
+        if moving is not None and vary != "object":
+            fail("--object names the object that moves: give it with --vary object")
         if scene.environment.is_black:
             fail(f"{scene_file}: [environment]: the environment is black everywhere; nothing to relight")
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
         transfer = wavlight.bake(scene, output, width=width, height=height, spp=spp, levels=levels,
                                  tolerance=tolerance, bits=int(bits), terms=terms, priority=priority, seed=seed,
                                  progress=bar, dask_address=dask_address,
-                                 points=None if points is None else int(points))
+                                 points=None if points is None else int(points), vary=vary, object=moving,
+                                 static_spp=static_spp)
         if bar:
             bar.close()
     except wavlight.WavlightError as e:
@@ -99,12 +110,16 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
               help="The unbiased frame instead: N camera samples per pixel, directions from the product of "
                    "transfer and lighting and from the BSDF, true shadow rays (reloads the baked scene).")
 @click.option("--seed", type=click.IntRange(0, 2 ** 62), default=0, show_default=True, help="Random seed (--spp).")
+@click.option("--translate", type=float, nargs=3, default=None, metavar="X Y Z",
+              help="A bake with --vary object: the object's translation (absolute, replacing its own).")
+@click.option("--rotate", type=float, nargs=4, default=None, metavar="AX AY AZ DEG",
+              help="A bake with --vary object: the object's rotation, axis and degrees (absolute).")
 @click.option("--scene", "scene_file", default=None, metavar="FILE",
               help="The scene the bake was made from, where it is not at the path the bake recorded (--spp).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with timings and choices.")
 @click.option("--quiet", "-q", is_flag=True, help="No closing message.")
-def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntable, repeat, spp, seed, scene_file,
-          as_json, quiet):
+def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntable, repeat, spp, seed, translate,
+          rotate, scene_file, as_json, quiet):
     """Relight the bake file PATH: one frame under new lighting (or a turntable of frames)."""
     import math
 
@@ -116,6 +131,14 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
         fail(f"--rotate-y must be a finite number of degrees, got {rotate_y}")
     try:
         transfer = wavlight.Transfer.load(bake_file)
+        varies = transfer.header.get("vary", "lighting")
+        if varies == "object":
+            return _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, scene_file, as_json, quiet,
+                                 {"--env": env_file, "--rotate-y": rotate_y, "--scale": scale if scale != 1.0 else None,
+                                  "--terms": terms, "--priority": priority, "--turntable": turntable})
+        for flag, value in (("--translate", translate), ("--rotate", rotate)):
+            if value is not None:
+                fail(f"{bake_file}: this bake varies the lighting; {flag} moves an object (bake with --vary object)")
         env = None
         if env_file is not None:
             env = transfer.environment(env_file, scale)
@@ -199,3 +222,29 @@ def _animated_gif(frames, path):
     images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=40, loop=0)
     os.replace(tmp, path)
     return path
+
+
+def _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, scene_file, as_json, quiet, held):
+    """A frame of a bake that varies one object: the object at --translate / --rotate."""
+    import wavlight
+    from wavlight.imageio import FORMATS
+    from wavlight.relight.moving import MovingObject
+
+    for flag, value in held.items():
+        if value is not None:
+            fail(f"{bake_file}: this bake varies an object (its lighting is fixed); {flag} does not apply")
+    if output is None:
+        output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
+    check_output(output, FORMATS)
+    refuse_inputs(output, [bake_file, scene_file])
+    mover = MovingObject(transfer, scene_file)
+    refuse_inputs(output, [mover.scene.path, *mover.scene.files])
+    result = mover.frame(translate, rotate, spp=4 if spp is None else spp, seed=seed)
+    wavlight.save_image(output, result.image)
+    stats = {"frame_seconds": result.stats["render_seconds"],
+             "frames_per_second": round(1.0 / result.stats["render_seconds"], 3), **result.stats, "output": output}
+    if as_json:
+        click.echo(json.dumps(stats))
+    elif not quiet:
+        click.echo(f"wrote {output}: {transfer.width}x{transfer.height}, {stats['spp']} spp, object at "
+                   f"{stats['translate']}, {stats['frame_seconds']:.2f} s", err=True)

@@ -41,12 +41,13 @@ MAX_WRITE_SIDE = 65536
 MAX_WRITE_PIXELS = 1 << 30
 #: Pixels converted and written per call (rows of at most this many bytes of float32 RGB).
 STRIP_BYTES = 1 << 22
-#: Bytes per pixel of a render: render_full's film (the image and its standard error, float32
-#: RGB each: 24) and the CLI's check for NaN / Inf pixels (a bool per channel and one per
-#: pixel: 4). Writing adds about STRIP_BYTES x 5 whatever the size.
-RENDER_BYTES_PER_PIXEL = 28
-#: What a process needs besides the film: Python, numpy, OpenCL, the scene (measured: about
-#: 300 MB for the default scene; benchmarks/probe_memory.py).
+#: Bytes per pixel of `wavlight render`, measured (benchmarks/probe_memory.py: 34.4 at 16384 x
+#: 16384 for PNG and EXR alike): render_full's film (the image and its standard error, float32
+#: RGB each: 24), the CLI's check for NaN / Inf pixels (np.isfinite, its negation and .any: 7)
+#: and the tiles in flight. Writing adds a few MiB whatever the size (strips).
+RENDER_BYTES_PER_PIXEL = 36
+#: What a process needs besides the film: Python, numpy, OpenCL, the scene (measured: 140 MB
+#: for the sky alone, ~300 MB with the default scene's geometry).
 RENDER_BASE_BYTES = 400 << 20
 
 

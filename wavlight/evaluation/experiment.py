@@ -77,7 +77,18 @@ Decisions:
   image reads as a finite image of the right size is not rendered again (``resume=False``
   renders everything again, references and pilots included); an image that is missing,
   cannot be read (truncated, corrupt), has another size or NaN / Inf pixels is rendered
-  again, with a one-line warning. Both files are written atomically, the record last.
+  again, with a one-line warning; so is a record that is damaged (not JSON, not an object, a
+  field missing or of the wrong kind, or not this run's: :data:`RUN_FIELDS`), and likewise
+  a reference's or a pilot's record, or a reference image that cannot be read. Both files
+  are written atomically, the record last; temporaries that a killed experiment left
+  (``.wavlight-<pid>...``) are removed at the start of the next run.
+- **Limits**, checked before anything is rendered: at most :data:`MAX_RUNS` runs, pilot_spp at
+  most MAX_SPP / 4, threads at most 4096, the largest size's render memory
+  (:func:`wavlight.imageio.check_memory`, per worker) within the memory available; every
+  reference file read and checked (size, NaN, all black) up front; no input (the spec, a
+  scene, its map or meshes, a reference) where the experiment writes (its files in DIR and
+  the folders runs/, reference/, pilot/, charts/). A time budget whose spp would pass MAX_SPP
+  is capped there with a warning.
 - **Mitsuba peers.** ``id = "mitsuba:<mis|mis_comp|light|bsdf>"`` renders with
   :func:`wavlight.evaluation.peers.render_mitsuba` (same scene, size, spp, seed; its setup includes
   scene conversion and a JIT warm-up; ``threads`` does not apply). The default label is
@@ -96,7 +107,13 @@ Decisions:
   runs (renders are deterministic for a seed); timings are not: concurrent renders
   contend for the cores (set ``threads`` to cores / N), and time budgets' spp come from
   pilots measured alone. Each worker process warms up each (scene, strategy) untimed
-  before its first run. ``results.json`` records ``executor``.
+  before its first run. ``results.json`` records ``executor``. ``workers`` is at most
+  :data:`MAX_WORKERS` (64), and never more processes than runs are started. A Dask scheduler
+  must answer, with a worker, within :data:`DASK_TIMEOUT` (20 s; ``dask_timeout``): its
+  greeting is read first with a deadline and a size limit, so that a service that never
+  answers or speaks another protocol is one line naming the address; while runs are pending
+  and none finishes for that long, the scheduler must answer again within it and have a
+  worker (:func:`_dask_completed`).
 - **Metrics** (:mod:`wavlight.evaluation.metrics`) are computed after the runs, from the saved
   images and the reference, so they always match the current reference: per run mse,
   relmse (both corrected by the reference's variance when its stderr is known),
@@ -230,7 +247,10 @@ class _Runner:
         a reference file) that lies where this experiment writes: its files in out_dir and the
         folders runs/, reference/, pilot/ and charts/ there."""
         spec, out = self.spec, os.path.abspath(self.out)
-        inputs = [spec.path] + [f for s in spec.scenes for f in scene_files(s.path)]
+        inputs = [spec.path]
+        for s in spec.scenes:   # the scene file and what it reads (Scene.files: its map and meshes)
+            files = getattr(self.scenes.get(s.name), "files", None)
+            inputs += [s.path, *files] if files is not None else scene_files(s.path)
         inputs += [f for s in spec.scenes for f in (s.reference, s.reference_stderr) if f is not None]
         mine = [os.path.join(out, n) for n in ("spec.toml", "results.json", "results.csv", "runs.csv")]
         check_not_input(mine, inputs)

@@ -619,7 +619,8 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
         raise WavlightError(f"stability: size must be (width, height), got {shown(size)}")
     width, height = (check_int("stability", name, x, 1, MAX_SIDE) for name, x in zip(("width", "height"), size))
     for name in ("spp", "repetitions", "reference_spp"):   # (repetitions: each a render of every cell)
-        cfg[name] = check_int("stability", name, cfg[name], 2, MAX_SPP if name != "repetitions" else 1000)
+        cfg[name] = check_int("stability", name, cfg[name], 2)
+        check_int("stability", name, cfg[name], hi=MAX_SPP if name != "repetitions" else 1000)
     cfg["alpha"] = check_number("stability", "alpha", cfg["alpha"], 0.0, 1.0)
     if not 0 < cfg["alpha"] < 1:
         raise WavlightError(f"stability: alpha must be in (0, 1), got {cfg['alpha']}")
@@ -641,6 +642,9 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise WavlightError(f"{out_dir}: exists and is not a folder")
     os.makedirs(out_dir, exist_ok=True)
+    from ..imageio import remove_stale_temporaries
+    for folder in (out_dir, os.path.join(out_dir, "charts")):   # what a killed run's writers left
+        remove_stale_temporaries(folder)
 
     total = len(names) * len(strats) + len(names)
     done = 0

@@ -41,7 +41,8 @@ import numpy as np
 from .. import bsdfs, cl, haar, rng
 from ..camera import camera_rays
 from ..envmap import LUMINANCE
-from ..errors import ArgumentError, check_int, check_number
+from ..errors import ArgumentError, check_int, check_number, shown
+from ..integrator import render_full
 from ..raytrace import RayTracer
 from ..scene import MAX_SIDE, check_scene, load_scene
 from ..version import __version__
@@ -311,6 +312,10 @@ class Settings:
     seed: int
     backend: str = "opencl"
     points: int = 4
+    #: a bake that varies one object: the levels of each pixel's product T1 x L (coarse texels)
+    #: and the fixed lighting's mean luminance on them, (2^m, 2^m)
+    product_levels: int | None = None
+    product_luminance: np.ndarray | None = None
 
 
 class _Worker:
@@ -336,10 +341,15 @@ def bake_block(worker: _Worker, settings: Settings, tile) -> dict:
                                                    np.random.default_rng([s.seed, block_id]))
     some = np.flatnonzero(ps.miss)
     c64 = coeffs.astype(np.float64)
-    return {"tile": tile, "columns": cols, "scales": scales, "data": q, "error2": e2, "norm2": n2,
-            "albedo": ps.albedo.reshape(h, w, 3), "rays": rays, "sum_sq": np.einsum("pc,pc->c", c64, c64),
-            "background": ((y0 + some // w) * s.width + x0 + some % w, ps.miss[some],
-                           ps.dirs.reshape(-1, s.spp, 3)[some])}
+    result = {"tile": tile, "columns": cols, "scales": scales, "data": q, "error2": e2, "norm2": n2,
+              "albedo": ps.albedo.reshape(h, w, 3), "rays": rays, "sum_sq": np.einsum("pc,pc->c", c64, c64),
+              "background": ((y0 + some // w) * s.width + x0 + some % w, ps.miss[some],
+                             ps.dirs.reshape(-1, s.spp, 3)[some])}
+    if s.product_levels is not None:   # T1 x L on coarse texels (exact: texels add up)
+        m, k = s.product_levels, 1 << (s.n_levels - s.product_levels)
+        coarse = texels.reshape(w * h, 1 << m, k, 1 << m, k).sum(axis=(2, 4))
+        result["product"] = (coarse * s.product_luminance).reshape(w * h, -1).astype(np.float16)
+    return result
 
 
 _WORKERS = {}   # per process: (scene path, content hash) -> _Worker
@@ -348,12 +358,14 @@ _WORKERS = {}   # per process: (scene path, content hash) -> _Worker
 def bake_block_task(task: dict) -> dict:
     """:func:`bake_block` for a worker process (dask.distributed): the scene by path, checked by
     its content hash, loaded once per process."""
-    key = (task["scene_path"], task["content_hash"])
+    key = (task["scene_path"], task["content_hash"], task.get("without"))
     worker = _WORKERS.get(key)
     if worker is None:
         scene = load_scene(task["scene_path"])
         if scene.content_hash != task["content_hash"]:
             raise ArgumentError(f"{task['scene_path']}: this worker sees another scene than the bake read")
+        if task.get("without") is not None:
+            scene = scene.without(scene.find_object(task["without"]))
         worker = _WORKERS[key] = _Worker(scene)
     return bake_block(worker, task["settings"], task["tile"])
 
@@ -427,9 +439,17 @@ def choose_model(scene, tolerance: float, spp: int, seed: int, levels=None, term
                       "term_error": {str(k): round(v, 5) for k, v in term_error.items()}}}
 
 
+VARY = ("lighting", "object")
+#: a bake that varies one object: each pixel's product T1 x L on 2^OBJECT_PRODUCT_LEVELS texels,
+#: and the scene without the object converged with this many samples per pixel
+OBJECT_PRODUCT_LEVELS = 4
+STATIC_SPP = 256
+
+
 def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None, tolerance: float = 0.02,
          bits: int = 8, terms=None, priority=None, seed: int = 0, threads=None, progress=None,
-         backend: str = "opencl", dask_address=None, points=None):
+         backend: str = "opencl", dask_address=None, points=None, vary: str = "lighting", object=None,
+         static_spp: int = STATIC_SPP):
     """Bake the transfer of ``scene`` (a Scene or a scene file) for its camera at width x height
     (default: the scene's) with ``spp`` camera samples per pixel; write it to ``output``
     (default: a temporary file the Transfer owns) and return the :class:`Transfer`.
@@ -438,6 +458,12 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     scene for ``tolerance`` by a pilot bake (:func:`choose_model`) unless given; each block is
     compressed to ``tolerance`` / sqrt(3) on the held-out lighting and quantized to ``bits``.
     ``points`` per texel (1 or 4) default to :func:`texel_points`.
+
+    ``vary="object"`` with ``object`` (a name or an index) bakes for frames in which that object
+    moves (:mod:`wavlight.relight.moving`): the transfer of the scene without it (camera rays and
+    shadows alike), each pixel's product T1 x L of that transfer and the scene's fixed lighting on
+    2^OBJECT_PRODUCT_LEVELS texels, and the scene without it converged with ``static_spp``
+    samples per pixel (the ``wavelet`` strategy; unbiased).
     ``progress(done, total, rays, seconds)`` after each block. ``dask_address``: bake the
     blocks on that dask.distributed scheduler (the workers read the scene file at the same
     path); the file is identical to a local bake's."""
@@ -460,8 +486,19 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     seed = check_int(where, "seed", seed, 0, 2 ** 62)
     if points is not None and points not in POINT_CHOICES:
         raise ArgumentError(f"{where}: points must be 1 or 4, got {points!r}")
+    if vary not in VARY:
+        raise ArgumentError(f"{where}: vary must be one of {' | '.join(VARY)}, got {shown(vary)}")
     if scene.environment.is_black:
         raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
+    full, moving = scene, None
+    if vary == "object":
+        if object is None:
+            raise ArgumentError(f"{where}: vary='object' needs the object that moves (a name or an index)")
+        moving = scene.find_object(object)
+        scene = scene.without(moving)
+        static_spp = check_int(where, "static_spp", static_spp, 2, 1 << 20)
+    elif object is not None:
+        raise ArgumentError(f"{where}: an object is given only with vary='object'")
     if dask_address is not None and scene.path == "<dict>":
         raise ArgumentError(f"{where}: a bake on a Dask cluster needs the scene as a file (its workers load it)")
     t0 = time.perf_counter()
@@ -472,6 +509,10 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     points = texel_points(scene, n) if points is None else points
     settings = Settings(width, height, spp, n, tolerance / np.sqrt(3.0), bits, held * float(4 ** n), seed, backend,
                         points)
+    if moving is not None:
+        settings.product_levels = min(OBJECT_PRODUCT_LEVELS, n)
+        settings.product_luminance = (lighting.project(env, settings.product_levels) @ LUMINANCE.astype(np.float64))
+        product = np.zeros((height * width, 4 ** settings.product_levels), np.float16)
     tiles, (bw, bh) = _tiles(width, height)
     side2 = 4 ** n
     writer = store.TransferWriter(n, BLOCK, bits)
@@ -491,6 +532,9 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
             if len(pixel):
                 background.append((np.asarray(pixel, np.uint32), mask, dirs))
             sum_sq[:] += result["sum_sq"]
+            if moving is not None:
+                rows = (y0 + np.arange(h))[:, None] * width + x0 + np.arange(w)[None, :]
+                product[rows.reshape(-1)] = result["product"]
             totals["rays"] += result["rays"]
             totals["error2"] += result["error2"]
             totals["norm2"] += result["norm2"]
@@ -500,7 +544,8 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
 
     try:
         if dask_address is not None:
-            bake_on_cluster(dask_address, scene, settings, tiles, bake_block_task, collect)
+            bake_on_cluster(dask_address, full, settings, tiles, bake_block_task, collect,
+                            None if moving is None else moving.index)
         else:
             worker = _Worker(scene)
             with ThreadPoolExecutor(threads or 2 * (os.cpu_count() or 1)) as pool:
@@ -517,7 +562,7 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
             "texel_points": points,
             "blocks": [bw, bh], "bits": bits, "tolerance": tolerance, "terms": model["terms"],
             "priority": model["priority"], "environment_rotate_y": float(env.rotate_y),
-            "environment_name": env.name,
+            "environment_name": env.name, "vary": vary,
             "measured": {"bake_seconds": round(seconds, 3), "pilot_seconds": round(t_pilot, 3),
                          "rays": totals["rays"],
                          "rays_per_second": round(totals["rays"] / (seconds - t_pilot), 1) if seconds > t_pilot else None,
@@ -537,6 +582,20 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
                   "background_dir": (np.concatenate([b[2] for b in background])[order] if background
                                      else np.zeros((0, spp, 3), np.float32)),
                   "rms": np.sqrt(sum_sq / max(width * height, 1)).astype(np.float32)}
+        if moving is not None:
+            static = render_full(scene, spp=static_spp, strategy="wavelet", width=width, height=height,
+                                 seed=seed + 1)
+            arrays.update(static=static.image, static_stderr=static.stderr, product_leaves=product)
+            lo, hi = moving.local.min(0), moving.local.max(0)
+            center = (lo + hi) / 2
+            header["object"] = {"index": moving.index, "name": moving.name, "rotate": moving.rotate,
+                                "translate": np.asarray(moving.translate, float).tolist(),
+                                "center": center.tolist(),
+                                "radius": float(np.linalg.norm(moving.local - center, axis=1).max())}
+            header["product_levels"] = settings.product_levels
+            header["static"] = {"spp": static_spp, "strategy": "wavelet",
+                                "seconds": static.stats["setup_seconds"] + static.stats["render_seconds"]}
+            header["scene"]["content_hash"] = full.content_hash
         owns = output is None
         if owns:
             fd, output = tempfile.mkstemp(prefix=".wavlight-bake-", suffix=".wlt")

@@ -7,7 +7,7 @@ from __future__ import annotations
 from ..errors import WavlightError
 
 
-def bake_on_cluster(address: str, scene, settings, tiles, task, collect) -> None:
+def bake_on_cluster(address: str, scene, settings, tiles, task, collect, without=None) -> None:
     """Submit ``task`` (a module-level function of one dict, :func:`wavlight.relight.bake.bake_block_task`)
     for every tile to the scheduler at ``address`` and hand each result to ``collect``."""
     import os
@@ -20,7 +20,7 @@ def bake_on_cluster(address: str, scene, settings, tiles, task, collect) -> None
 
         path = os.path.abspath(scene.path)
         futures = [client.submit(task, {"scene_path": path, "content_hash": scene.content_hash,
-                                                   "settings": settings, "tile": tile}, pure=False)
+                                        "settings": settings, "tile": tile, "without": without}, pure=False)
                    for tile in tiles]
         for future in as_completed(futures):
             try:

@@ -18,6 +18,10 @@ Layout (little-endian)::
       entry_scale   float32 (E,)        each entry's scale: value = scale x q (entries by coefficient,
                                         then block: a coefficient's entries lie together)
       entry_data    int8 | int16 (E, BLOCK^2)  the quantized coefficients q of the block's pixels
+    and, for a bake that varies one object:
+      static        float32 (H, W, 3)   the scene without the object, converged (unbiased)
+      static_stderr float32 (H, W, 3)   its standard error
+      product_leaves float16 (H W, 4^m) each pixel's T1 x L (luminance) on 2^m x 2^m texels
 
 The header records the format and its version, wavlight's version, the scene (file, content
 hash), camera, image size, camera samples, texel levels n, block size, bits, what was chosen
@@ -47,6 +51,9 @@ FORMAT_VERSION = 1
 ALIGN = 64
 PIXEL_SECTIONS = ("environment", "albedo", "background_pixel", "background_mask", "background_dir", "rms")
 SECTIONS = PIXEL_SECTIONS + ("offsets", "entry_scale", "entry_data")
+#: the sections of a bake that varies one object (``vary = "object"``): the scene without it,
+#: converged (``static``, its standard error), and each pixel's product T1 x L on coarse texels
+OBJECT_SECTIONS = ("static", "static_stderr", "product_leaves")
 #: the entries of this many megabytes are reordered from block order into column order at once
 REORDER_CHUNK_BYTES = 64 << 20
 
@@ -136,10 +143,12 @@ class TransferWriter:
         offsets = np.full((side2, n_blocks), -1, np.int32)
         offsets[columns[order], blocks[order]] = np.arange(len(order), dtype=np.int32)
         row = self.block ** 2 * self.dtype.itemsize
-        sections = {**{k: np.ascontiguousarray(arrays[k]) for k in PIXEL_SECTIONS},
+        extra = tuple(k for k in OBJECT_SECTIONS if k in arrays)
+        sections = {**{k: np.ascontiguousarray(arrays[k]) for k in PIXEL_SECTIONS + extra},
                     "offsets": offsets, "entry_scale": scales[order]}
         meta, offset = {}, 0
-        for name in SECTIONS:
+        names = SECTIONS + extra
+        for name in names:
             if name == "entry_data":
                 nbytes, dtype, shape = len(order) * row, self.dtype.str, [len(order), self.block ** 2]
             else:
@@ -158,7 +167,7 @@ class TransferWriter:
                 out.write(b"\0" * head_room)
                 source = np.memmap(self._tmp, self.dtype, "r", shape=(self.entries, self.block ** 2)) \
                     if self.entries else np.zeros((0, self.block ** 2), self.dtype)
-                for name in SECTIONS:
+                for name in names:
                     crc = 0
                     if name == "entry_data":
                         step = max(1, REORDER_CHUNK_BYTES // row)
@@ -229,7 +238,7 @@ def open_sections(path: str, header: dict, verify: bool = True) -> dict:
     shapes, entry ranges)."""
     base = header["data_offset"]
     out = {}
-    for name in SECTIONS:
+    for name in SECTIONS + tuple(k for k in OBJECT_SECTIONS if k in header["sections"]):
         m = header["sections"].get(name)
         try:
             dtype, shape, offset = np.dtype(m["dtype"]), tuple(int(x) for x in m["shape"]), int(m["offset"])

@@ -1,0 +1,90 @@
+"""Frames in which one object moves (wavlight.relight.moving): unbiased against mis of the moved
+scene, through the command line, and the one-line errors of edits the bake holds fixed."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import wavlight
+from scenes_util import toml_text, write_raw_image
+from wavlight.cli.main import main
+from wavlight.relight.moving import MovingObject
+
+
+def scene_dict(translate=(0.0, 0.5, 0.0)):
+    return {"render": {"width": 32, "height": 24},
+            "camera": {"eye": [0.0, 2.0, 4.0], "target": [0.0, 0.3, 0.0], "fov_y": 40.0},
+            "environment": {"file": "sky.exr", "rotate_y": 15.0},
+            "objects": [{"shape": "sphere", "name": "ball", "translate": list(translate), "radius": 0.5,
+                         "subdivisions": 3, "material": "m"},
+                        {"shape": "quad", "size": 6.0, "material": "floor"}],
+            "materials": {"m": {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
+                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+
+
+@pytest.fixture(scope="module")
+def moving(tmp_path_factory, device):
+    folder = tmp_path_factory.mktemp("moving")
+    sky = (np.linspace(1.5, 0.3, 32)[:, None, None] * np.ones((32, 64, 3))).astype(np.float32)
+    sky[8, 20] = 3000.0                                    # a small sun: hard shadows
+    write_raw_image(folder / "sky.exr", sky)
+    (folder / "scene.toml").write_text(toml_text(scene_dict()))
+    scene = wavlight.load_scene(folder / "scene.toml")
+    tr = wavlight.bake(scene, folder / "ball.wlt", spp=4, levels=5, terms=256, priority="area", vary="object",
+                       object="ball", static_spp=256)
+    return folder, scene, tr
+
+
+@pytest.mark.parametrize("translate", [(0.0, 0.5, 0.0), (0.9, 0.5, -0.5)])
+def test_frames_are_unbiased_against_mis_of_the_moved_scene(moving, translate):
+    folder, scene, tr = moving
+    r = MovingObject(tr, scene).frame(translate=translate, spp=32, seed=4)
+    moved = wavlight.load_dict(scene_dict(translate), base_dir=folder)
+    ref = wavlight.render_full(moved, spp=1024, strategy="mis", seed=9)
+    var = r.stderr ** 2 + ref.stderr ** 2
+    z_total = (r.image - ref.image).sum() / np.sqrt(var.sum())
+    blocks = lambda a: a.reshape(4, 6, 4, 8, 3).sum(axis=(1, 3))   # noqa: E731  (48 sums of 48 pixels)
+    z = blocks(r.image - ref.image) / np.sqrt(blocks(var))
+    assert abs(z_total) < 3.3 and np.abs(z).max() < 3.9, (z_total, np.abs(z).max())
+    assert r.stats["object_pixels"] > 0
+
+
+def test_the_pixels_shaded_in_full_hold_every_view_of_the_object(moving):
+    """The conservative cone test marks every pixel whose camera rays can hit the object."""
+    folder, scene, tr = moving
+    mover = MovingObject(tr, scene)
+    R, T = mover.placement([0.9, 0.5, -0.5])
+    marked = mover._object_pixels(R, T, 32, 24).reshape(-1)
+    moved = wavlight.load_dict(scene_dict((0.9, 0.5, -0.5)), base_dir=folder)
+    for corner in ((0.0, 0.0), (1.0, 1.0), (0.0, 1.0), (1.0, 0.0), (0.5, 0.5)):
+        py, px = np.mgrid[0:24, 0:32]
+        eye, d = wavlight.camera.camera_rays(moved, px.ravel(), py.ravel(), np.tile(corner, (768, 1)), 32, 24)
+        prim, _ = wavlight.raytrace.RayTracer(moved.vertices, moved.faces).intersect(eye, d)
+        ball = slice(*moved.objects[0].faces_range)
+        on_ball = (prim >= ball.start) & (prim < ball.stop)
+        assert np.all(marked[on_ball])
+
+
+def test_command_line_and_the_factors_the_bake_holds_fixed(moving, tmp_path):
+    folder, _, _ = moving
+    run = lambda *a: CliRunner().invoke(main, [str(x) for x in a])   # noqa: E731
+    out = tmp_path / "m.wlt"
+    r = run("bake", folder / "scene.toml", "-o", out, "--spp", 2, "--levels", 4, "--terms", 64, "--priority", "area",
+            "--vary", "object", "--object", "ball", "--static-spp", 16, "--json")
+    assert r.exit_code == 0, r.output
+    r = run("frame", out, "--translate", 0.5, 0.5, 0.2, "--spp", 2, "-o", tmp_path / "f.exr", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["frames_per_second"] > 0 and (tmp_path / "f.exr").exists()
+    for args, words in ((("--rotate-y", 30), "varies an object"), (("--env", folder / "sky.exr"), "varies an object")):
+        r = run("frame", out, *args, "-o", tmp_path / "g.png")
+        assert r.exit_code == 2 and words in r.stderr and not (tmp_path / "g.png").exists(), r.output
+    r = run("bake", folder / "scene.toml", "-o", tmp_path / "x.wlt", "--vary", "object", "--object", "cube")
+    assert r.exit_code == 2 and "no object 'cube' (objects: 0 (ball), 1)" in r.stderr, r.output
+    lit = tmp_path / "lit.wlt"
+    assert run("bake", folder / "scene.toml", "-o", lit, "--spp", 1, "--levels", 3, "--terms", 16,
+               "--priority", "area").exit_code == 0
+    r = run("frame", lit, "--translate", 0, 0, 0, "-o", tmp_path / "h.png")
+    assert r.exit_code == 2 and "varies the lighting" in r.stderr, r.output
