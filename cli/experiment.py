@@ -69,7 +69,11 @@ def experiment(spec_file, out_dir, suite, quiet, no_resume, workers, dask_addres
     With --suite stability, runs the stability suite instead (docs/experiments.md)."""
     import wavlight
     from wavlight.evaluation import format_summary, run_experiment, run_suite
+    from wavlight.evaluation.experiment import MAX_WORKERS
 
+    if workers > MAX_WORKERS:
+        raise click.BadParameter(f"{workers} is more than {MAX_WORKERS} local processes; for more, "
+                                 "give a Dask scheduler with --dask", param_hint="'--workers'")
     if (spec_file is None) == (suite is None):
         raise _InputError("give either SPEC or --suite NAME")
     if dask_address is not None and workers != 1:

@@ -128,7 +128,9 @@ def test_a_damaged_resume_record_is_redone(done, tmp_path, no_charts, record, ho
     res, warned = rerun(spec, out)
     if how != "null":   # (null was always taken as "no record")
         assert any(RECORDS[record].split("/")[-1] in w for w in warned), warned
-    assert res["rendered"] == (1 if record == "run" else 0) and len(res["runs"]) == 2
+    # (a pilot measured again may give the time budget another spp, hence a new run)
+    assert res["rendered"] in ((1,) if record == "run" else (0,) if record == "reference" else (0, 1))
+    assert len(res["runs"]) == 2
     json.loads((out / RECORDS[record]).read_text())["hash"]   # rewritten whole
 
 
@@ -141,7 +143,7 @@ def test_a_run_record_naming_another_image_is_redone(done, tmp_path, no_charts):
     rec["image"] = "../../elsewhere.exr"
     path.write_text(json.dumps(rec))
     res, warned = rerun(spec, out)
-    assert res["rendered"] == 1 and any("0.json" in w for w in warned), warned
+    assert res["rendered"] == 1 and any("spp1/0" in w and "not this run's" in w for w in warned), warned
 
 
 def test_a_damaged_reference_image_is_rendered_again(done, tmp_path, no_charts):
@@ -223,7 +225,7 @@ def test_experiment_keys_out_of_range_name_file_and_key(tmp_path, monkeypatch, k
 
 def test_1e8_repetitions_are_refused_before_memory_grows(tmp_path):
     """Promise (issue item 4): 10^8 repetitions are refused in one line naming [budgets].repetitions,
-    quickly and in little memory (a child limited to 1.5 GB of address space beyond its start;
+    quickly and in little memory (a child limited to 4 GB of address space;
     today the run list grew past 2 GB before anything was refused)."""
     spec = write_spec(tmp_path, spec_text(budgets="spp = [1]\nrepetitions = 100000000\n",
                                           reference="spp = 4\nseed = 1000000000\n"))
@@ -263,12 +265,12 @@ def test_cli_workers_beyond_the_cap_are_refused(tmp_path):
 
 def test_a_size_that_cannot_fit_in_memory_is_refused(tmp_path, monkeypatch):
     """Promise (issue item 5): an experiment whose runs need more memory than the machine has
-    (here: 28 bytes per pixel x 16384^2 against 1 GB available) is refused before rendering,
+    (here: 36 bytes per pixel x 16384^2 against 1 GB available) is refused before rendering,
     saying how much it needs."""
     spec = write_spec(tmp_path, spec_text(experiment_keys="size = [16384, 16384]\nthreads = 1\n"))
     monkeypatch.setattr(wavlight.imageio, "available_bytes", lambda: 1 << 30)
     _never_render(monkeypatch)
-    with pytest.raises(WavlightError, match=r"16384x16384 render needs about 7\.9 GB"):
+    with pytest.raises(WavlightError, match=r"16384x16384 render needs about 10\.1 GB"):
         experiment.run_experiment(spec, tmp_path / "out")
 
 

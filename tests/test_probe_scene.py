@@ -136,13 +136,14 @@ def test_a_bad_key_on_the_last_of_many_objects_is_found_before_any_geometry(tmp_
 
 
 def test_triangles_beyond_any_memory_are_refused_before_building(tmp_path):
-    """Promise (issues items 4 and 6): 100 spheres of subdivisions 8 (131 M triangles, ~13 GB of
-    geometry) are refused in one line before they are built, from the faces each shape will
-    have (20 x 4^s per sphere). Run in a child limited to 3 GB of address space, so that today's
-    code (which builds them) fails fast instead of filling the machine. The lead's fix:
-    scene.load_scene sums the triangle counts first (spheres 20 x 4^s, quads 2, meshes from their
-    headers) and refuses above MAX_TRIANGLES (2^26, ~7 GB at the ~100 bytes per triangle of
-    geometry, light and BVH) naming [[objects]]."""
+    """Promise (issues items 4 and 6): 100 spheres of subdivisions 8 (131 M triangles: ~50 GB at
+    the ~390 bytes per triangle measured for load, BVH and shading tables: 16 spheres of
+    subdivisions 7, 5.2 M triangles, took 2.1 GB and 21 s) are refused in one line before they
+    are built, from the faces each shape will have (20 x 4^s per sphere). Run in a child limited
+    to 3 GB of address space, so that today's code (which builds them) fails instead of filling
+    the machine. The lead's fix: scene.load_scene sums the built-in shapes' triangle counts
+    first (spheres 20 x 4^s, quads 2; meshes as they load) and refuses above MAX_TRIANGLES
+    (2^24 = 16.8 M, ~6.5 GB) naming [[objects]]."""
     objs = '[[objects]]\nshape = "sphere"\nsubdivisions = 8\n' * 100
     scene = write_scene(tmp_path, scene_text(objects=objs))
     code = ("import resource, sys\nresource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))\n"

@@ -19,7 +19,6 @@ gradient plus a small, very bright sun disk, made at 512 x 256 texels; see
 """
 from __future__ import annotations
 
-import os
 import warnings
 
 import numpy as np

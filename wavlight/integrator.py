@@ -39,6 +39,7 @@ from .camera import camera_rays  # noqa: F401  (also the integrator's public nam
 from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
 from .errors import WavlightError, shown
+from .imageio import check_memory
 from .sampler import SAMPLER
 from .scene import MAX_SIDE, MAX_SPP, Scene, check_scene, load_scene
 from .strategies import STRATEGIES
@@ -243,6 +244,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     values = strategies.check_options({**scene_options, **given}, "render_full")
     sampler_name = values.get("sampler", SAMPLER.default)
     options = strategies.constructor_options(strategy, values)
+    check_memory("render_full", width, height)   # the film, before any of it is allocated
     r = _Renderer(scene, strategy, spp, width, height, seed, threads, backend, options, sampler_name)
     image = np.zeros((height, width, 3), np.float32)
     stderr = np.zeros((height, width, 3), np.float32)

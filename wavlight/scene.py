@@ -21,7 +21,6 @@ key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import math
 import os
@@ -33,7 +32,7 @@ import numpy as np
 
 from . import bsdfs, meshes
 from .envmap import MAX_RADIANCE, Environment, procedural_sky, read_image
-from .errors import SanitisedInputWarning, SceneError, WavlightError, shown
+from .errors import SanitisedInputWarning, SceneError, WavlightError, file_problem, shown
 from .strategies import CONSTRAINTS, OPTIONS, STRATEGIES
 
 ROUGHNESS_RANGE = (1e-4, 1.0)   # ggx alpha
@@ -321,26 +320,26 @@ def quad_axes(normal):
 
 
 def _load_mesh(t: _Table, path: str):
-    """(vertices, faces) of a mesh file: PLY triangle meshes by :func:`meshes.read_ply`,
-    everything else (OBJ, other PLY) by trimesh, imported only then. OBJ text is decoded here
-    (bytes that are not UTF-8, say in a comment, become U+FFFD) and loaded without trimesh's
-    processing, which would drop faces with NaN vertices silently (:func:`_clean_triangles`
-    then refuses them with an error, as for PLY)."""
+    """(vertices, faces) of a mesh file: PLY triangle meshes by :func:`meshes.read_ply`, OBJ by
+    :func:`meshes.read_obj` (an index 0, past the end or fractional is named with its line, not
+    taken for a degenerate triangle), everything else by trimesh, imported only then."""
     try:
         if path.lower().endswith(".ply"):
             mesh = meshes.read_ply(path)
             if mesh is not None:
                 return mesh
+        if path.lower().endswith(".obj"):
+            v, f = meshes.read_obj(path)
+            if len(f) == 0:
+                t.fail("mesh", f"{path} holds no triangles")
+            return v, f
         import trimesh
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            if path.lower().endswith(".obj"):
-                with open(path, "rb") as fh:
-                    text = fh.read().decode("utf-8", errors="replace")
-                mesh = trimesh.load(io.StringIO(text), file_type="obj", force="mesh", process=False)
-            else:
-                mesh = trimesh.load(path, force="mesh")
+            mesh = trimesh.load(path, force="mesh")
+    except SceneError:
+        raise
     except Exception as e:  # trimesh raises many types for bad files
         t.fail("mesh", f"cannot load {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
     if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
@@ -355,8 +354,9 @@ def _shape(t: _Table, base_dir, files: list):
     if t.has("mesh"):
         rel = t.get("mesh", "str")
         path = os.path.join(base_dir, rel)
-        if not os.path.isfile(path):
-            t.fail("mesh", f"no such file: {path}")
+        problem = file_problem(path)
+        if problem:
+            t.fail("mesh", f"{path}: {problem}")
         v, f = _load_mesh(t, path)
         files.append(path)
         if len(f) == 0:
@@ -434,6 +434,14 @@ def _clean_triangles(path, key, v, f):
 
 
 # ----------------------------------------------------------------------------- loading
+#: the largest scene file read (geometry belongs in mesh files: a 10 MB value took seconds to parse)
+MAX_SCENE_BYTES = 16 << 20
+#: the most triangles a scene may have (about 390 bytes each while it is built and traced:
+#: 2^24 of them is about 6.5 GB); counted from the shapes before they are made
+MAX_TRIANGLES = 1 << 24
+OBJECT_KEYS = {"mesh", "shape", "center", "radius", "subdivisions", "normal", "size", "translate", "rotate",
+               "scale", "material", "name"}
+
 #: how deep a scene's values may nest (a table in a list in a table is 3): deeper input is refused
 #: before any of it is read, rather than recursing without bound
 MAX_NESTING = 16
@@ -444,8 +452,12 @@ def load_scene(path) -> Scene:
     merged geometry. Relative paths in it resolve against the file's folder. Errors name the
     file and the key (:class:`wavlight.errors.SceneError`)."""
     path = str(path)
-    if not os.path.isfile(path):
-        raise SceneError(path, "", "no such file")
+    problem = file_problem(path)
+    if problem:
+        raise SceneError(path, "", problem)
+    if os.path.getsize(path) > MAX_SCENE_BYTES:
+        raise SceneError(path, "", f"a scene file of {os.path.getsize(path) >> 20} MiB; at most "
+                                   f"{MAX_SCENE_BYTES >> 20} MiB (meshes belong in mesh files)")
     try:
         with open(path, "rb") as fh:
             doc = tomllib.load(fh)
@@ -562,14 +574,20 @@ def _parse(doc, path: str, base: str) -> Scene:
         exponent = _positive(t, "exponent", t.get("exponent", "float", 100.0), *EXPONENT_RANGE)
         param = {"ggx": roughness, "phong": exponent}.get(kind, 0.0)
         t.done()
+        for key, users in (("roughness", "ggx"), ("exponent", "phong")):   # a key of another type: said
+            if t.has(key) and kind != users:
+                warnings.warn(f"{path}: [materials.{name}].{key}: ignored: only {users} materials use it",
+                              stacklevel=2)
         index[name] = len(materials)
         materials.append(Material(name, bsdfs.TYPES[kind], albedo.astype(np.float32), float(param)))
 
     objs = doc.get("objects", [])
     if not isinstance(objs, list):
         raise SceneError(path, "objects", "must be an array of tables ([[objects]])")
+    _check_objects(path, objs, index)
     verts, faces, fmat, objects = [], [], [], []
     offset = face_offset = 0
+    triangles = 0
     for i, o in enumerate(objs):
         t = _Table(path, f"[[objects]][{i}]", o)
         object_name = t.get("name", "str")
@@ -577,6 +595,10 @@ def _parse(doc, path: str, base: str) -> Scene:
             if not object_name or any(ob.name == object_name for ob in objects):
                 t.fail("name", f"must be a non-empty name no other object has, got {shown(object_name)}")
         v, f = _shape(t, base, files)
+        triangles += len(f)
+        if triangles > MAX_TRIANGLES:
+            raise SceneError(path, t.name, f"the objects up to this one make more than {MAX_TRIANGLES} triangles; "
+                                           f"at most {MAX_TRIANGLES} are supported (about 390 bytes each)")
         local, rotate, translate = _transform(t, v)
         v = local @ rotation(rotate).T + translate
         name = t.get("material", "str")
@@ -606,6 +628,37 @@ def _parse(doc, path: str, base: str) -> Scene:
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
                  np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, options, digest.hexdigest(),
                  files, objects)
+
+
+def _check_objects(path, objs, materials: dict) -> None:
+    """Every [[objects]] table's keys, material and name, and the triangles its built-in shape
+    would make, checked before any geometry is built or any mesh read (a bad key on the last of
+    many objects is found at once; spheres beyond any memory are refused before they exist)."""
+    names, triangles = set(), 0
+    for i, o in enumerate(objs):
+        key = f"[[objects]][{i}]"
+        if not isinstance(o, dict):
+            raise SceneError(path, key, f"must be a table, got {type(o).__name__}")
+        extra = sorted(set(o) - OBJECT_KEYS)
+        if extra:
+            raise SceneError(path, f"{key}.{extra[0]}", "unknown key")
+        material = o.get("material")
+        if material is not None and (not isinstance(material, str) or material not in materials):
+            raise SceneError(path, f"{key}.material", f"unknown material {shown(material)}")
+        name = o.get("name")
+        if name is not None:
+            if not isinstance(name, str) or not name or name in names:
+                raise SceneError(path, f"{key}.name", f"must be a non-empty name no other object has, got {shown(name)}")
+            names.add(name)
+        if o.get("shape") == "sphere":
+            s = o.get("subdivisions", 5)
+            # a value outside 0..8 is left to the object's own check, which names it
+            triangles += 20 * 4 ** s if isinstance(s, int) and not isinstance(s, bool) and 0 <= s <= 8 else 0
+        elif o.get("shape") == "quad":
+            triangles += 2
+        if triangles > MAX_TRIANGLES:
+            raise SceneError(path, key, f"the objects up to this one make more than {MAX_TRIANGLES} triangles; "
+                                        f"at most {MAX_TRIANGLES} are supported (about 390 bytes each)")
 
 
 def _check_depth(doc, path):

@@ -40,6 +40,8 @@ import math
 
 import numpy as np
 
+from ..errors import ArgumentError
+
 EPS = 1e-2
 
 
@@ -47,7 +49,7 @@ def _pair(x, ref):
     x = np.asarray(x, np.float64)
     ref = np.asarray(ref, np.float64)
     if x.shape != ref.shape:
-        raise ValueError(f"image shape {x.shape} differs from reference shape {ref.shape}")
+        raise ArgumentError(f"image shape {x.shape} differs from reference shape {ref.shape}")
     return x, ref
 
 
@@ -56,16 +58,16 @@ def _se2(ref_stderr, shape):
         return 0.0
     s = np.asarray(ref_stderr, np.float64)
     if s.shape != shape:
-        raise ValueError(f"reference stderr shape {s.shape} differs from reference shape {shape}")
+        raise ArgumentError(f"reference stderr shape {s.shape} differs from reference shape {shape}")
     if not np.all(np.isfinite(s)):
-        raise ValueError("reference stderr is not finite (a 1-spp reference has none)")
+        raise ArgumentError("reference stderr is not finite (a 1-spp reference has none)")
     return s * s
 
 
 def _stack(images):
     x = np.asarray(images, np.float64)
     if x.ndim < 2 or x.shape[0] < 1:
-        raise ValueError("expected a stack of repetitions (R, H, W, 3) with R >= 1")
+        raise ArgumentError("expected a stack of repetitions (R, H, W, 3) with R >= 1")
     return x
 
 
@@ -85,7 +87,7 @@ def pixel_variance(images) -> np.ndarray:
     """Per-pixel sample variance over repetitions (R, H, W, 3) -> (H, W, 3); needs R >= 2."""
     x = _stack(images)
     if x.shape[0] < 2:
-        raise ValueError("the variance over repetitions needs at least 2 repetitions")
+        raise ArgumentError("the variance over repetitions needs at least 2 repetitions")
     return x.var(axis=0, ddof=1)
 
 
@@ -99,7 +101,7 @@ def relative_variance(images, ref, eps=EPS) -> float:
     var = pixel_variance(images)
     ref = np.asarray(ref, np.float64)
     if var.shape != ref.shape:
-        raise ValueError(f"image shape {var.shape} differs from reference shape {ref.shape}")
+        raise ArgumentError(f"image shape {var.shape} differs from reference shape {ref.shape}")
     return float(np.mean(var / (ref * ref + eps)))
 
 
@@ -108,7 +110,7 @@ def bias(images, ref, ref_stderr=None) -> tuple[float, float | None]:
     x = _stack(images)
     ref = np.asarray(ref, np.float64)
     if x.shape[1:] != ref.shape:
-        raise ValueError(f"image shape {x.shape[1:]} differs from reference shape {ref.shape}")
+        raise ArgumentError(f"image shape {x.shape[1:]} differs from reference shape {ref.shape}")
     n = ref.size
     value = float(np.mean(x.mean(axis=0) - ref))
     if x.shape[0] < 2:

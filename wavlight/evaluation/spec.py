@@ -7,7 +7,7 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 
-from ..errors import WavlightError
+from ..errors import WavlightError, file_problem, shown
 from ..scene import MAX_SIDE, MAX_SPP
 from ..strategies import APPLIES, STRATEGIES
 from ..scene import _Table as SceneTable
@@ -75,50 +75,53 @@ class SpecTable(SceneTable):
         is_num = lambda x: (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
         if kind == "int":
             if not is_int(v) or (lo is not None and v < lo):
-                self.fail(key, f"must be an integer{f' >= {lo}' if lo is not None else ''}, got {v!r}")
+                self.fail(key, f"must be an integer{f' >= {lo}' if lo is not None else ''}, got {shown(v)}")
         elif kind == "float":
             if not is_num(v) or (lo is not None and v <= lo):
-                self.fail(key, f"must be a number{f' > {lo}' if lo is not None else ''}, got {v!r}")
+                self.fail(key, f"must be a number{f' > {lo}' if lo is not None else ''}, got {shown(v)}")
             v = float(v)
         elif kind == "str":
             if not isinstance(v, str) or not v:
-                self.fail(key, f"must be a non-empty string, got {v!r}")
+                self.fail(key, f"must be a non-empty string, got {shown(v)}")
         elif kind == "ints":
             if not isinstance(v, list) or not v or not all(is_int(x) and x >= lo for x in v):
-                self.fail(key, f"must be a non-empty list of integers >= {lo}, got {v!r}")
+                self.fail(key, f"must be a non-empty list of integers >= {lo}, got {shown(v)}")
             if len(set(v)) != len(v):
-                self.fail(key, f"has repeated values: {v!r}")
+                self.fail(key, f"has repeated values: {shown(v)}")
         elif kind == "floats":
             if not isinstance(v, list) or not v or not all(is_num(x) and x > lo for x in v):
-                self.fail(key, f"must be a non-empty list of numbers > {lo}, got {v!r}")
+                self.fail(key, f"must be a non-empty list of numbers > {lo}, got {shown(v)}")
             v = [float(x) for x in v]
             if len(set(v)) != len(v):
-                self.fail(key, f"has repeated values: {v!r}")
+                self.fail(key, f"has repeated values: {shown(v)}")
         elif kind == "size":
             if (not isinstance(v, list) or len(v) != 2
                     or not all(is_int(x) and 1 <= x <= MAX_SIDE for x in v)):
-                self.fail(key, f"must be [width, height], integers 1..{MAX_SIDE}, got {v!r}")
+                self.fail(key, f"must be [width, height], integers 1..{MAX_SIDE}, got {shown(v)}")
             v = (int(v[0]), int(v[1]))
         return v
 
     def name_key(self, key, default):
         v = self.get(key, "str", default)
         if not _NAME.match(v):
-            self.fail(key, f"must be letters, digits, '_', '.', '+', '-' (it names folders), got {v!r}")
+            self.fail(key, f"must be letters, digits, '_', '.', '+', '-' (it names folders), got {shown(v)}")
         return v
 
 
 def load_spec(path) -> Spec:
     """Read and validate an experiment file (see the module docstring for its format)."""
     path = str(path)
-    if not os.path.isfile(path):
-        raise WavlightError(f"{path}: no such file")
+    problem = file_problem(path)
+    if problem:
+        raise WavlightError(f"{path}: {problem}")
     try:
         with open(path, "rb") as fh:
             text = fh.read()
         doc = tomllib.loads(text.decode("utf-8"))
     except tomllib.TOMLDecodeError as e:
         raise WavlightError(f"{path}: malformed TOML: {e}") from None
+    except RecursionError:
+        raise WavlightError(f"{path}: values nested too deeply for an experiment file") from None
     except (OSError, UnicodeDecodeError) as e:
         raise WavlightError(f"{path}: cannot read: {e}") from None
     base = os.path.dirname(os.path.abspath(path))
@@ -153,8 +156,8 @@ def load_spec(path) -> Spec:
         t = SpecTable(path, f"[[scenes]][{i}]", s)
         p = t.get("path", "str", required=True)
         full = rel(p)
-        if not os.path.isfile(full):
-            t.fail("path", f"no such file {full}")
+        if file_problem(full):
+            t.fail("path", f"{file_problem(full)} ({full})")
         sname = t.name_key("name", os.path.splitext(os.path.basename(p))[0])
         if any(x.name == sname for x in scenes):
             t.fail("name", f"scene name {sname!r} is used twice (give each a distinct name)")
@@ -162,15 +165,15 @@ def load_spec(path) -> Spec:
         ref, ref_se = t.get("reference", "str"), t.get("reference_stderr", "str")
         if ref is not None:
             ref = rel(ref)
-            if not os.path.isfile(ref):
-                t.fail("reference", f"no such file {ref}")
+            if file_problem(ref):
+                t.fail("reference", f"{file_problem(ref)} ({ref})")
             check_image(t, "reference", ref)
         if ref_se is not None:
             if ref is None:
                 t.fail("reference_stderr", "needs reference")
             ref_se = rel(ref_se)
-            if not os.path.isfile(ref_se):
-                t.fail("reference_stderr", f"no such file {ref_se}")
+            if file_problem(ref_se):
+                t.fail("reference_stderr", f"{file_problem(ref_se)} ({ref_se})")
             check_image(t, "reference_stderr", ref_se)
         t.done()
         scenes.append(SceneSpec(sname, full, ssize, ref, ref_se))
