@@ -1,28 +1,30 @@
-"""Slow probes of issue 23: peak memory against image size (PNG and EXR), and the time bad input
-takes to be refused.
+"""Slow probes of hostile input: peak memory against image size (PNG and EXR), and the time bad
+input takes to be refused.
 
 **Memory.** Each row is one `wavlight render` of a map-only scene (the procedural sky, no
 objects: the film and the writer dominate) at W x W pixels and 1 spp in a fresh child process;
 ``peak_mb`` is the child's peak resident set (``os.wait4``'s ru_maxrss) and ``bytes_per_pixel``
 its excess over a 64 x 64 render's (the ``base`` row: Python, numpy, OpenCL) per pixel. ``write`` rows are a
 child that allocates a random float32 (W, W, 3) image and saves it: ``write_bytes_per_pixel``
-is its peak minus the peak before the write, per pixel (the writer's own cost: about 50 bytes
-per pixel for PNG before the strip writer, a few MiB in all after). ``--tree DIR`` runs the
-children with PYTHONPATH=DIR, to measure another copy of the package (the code before the fixes).
+is its peak minus the peak before the write, per pixel (the writer's own cost: the strip
+writer keeps it to a few MiB in all, where writing a PNG whole costs about 50 bytes per pixel).
+``--tree DIR`` runs the children with PYTHONPATH=DIR, to measure another copy of the package.
 
 **Time to refuse.** Each row is a child given bad input; ``seconds`` is its wall time to a
-one-line refusal (exit 2) and ``peak_mb`` its memory. The children that would grow without the
-fixes run with a 6 GB address-space limit and a 120 s timeout.
+one-line refusal (exit 2) and ``peak_mb`` its memory. Every child runs with a 6 GB
+address-space limit and a 120 s timeout, so that input that is not refused early ends in a
+bounded failure instead of filling the machine.
 
     python benchmarks/probe_memory.py [--sizes 1024,2048,4096,8192] [--formats png,exr]
                                       [--refusals | --no-refusals] [--tree DIR] [--compare FILE] [-o FILE]
 
-The committed figures: the code before the fixes (wavlight/ with imageio, meshes, envmap,
-errors, raytrace and evaluation/{experiment,records,charts,stability}.py as they were), then
-this checkout with that run kept beside it:
+The committed figures hold this checkout's rows and, under ``compared``, those of a baseline
+copy of the package given with --tree (wavlight/ with imageio, meshes, envmap, errors, raytrace
+and evaluation/{experiment,records,charts,stability}.py that write images whole and check
+input only where it is used):
 
-    python benchmarks/probe_memory.py --tree /tmp/wl-before -o /tmp/probe-before.json
-    python benchmarks/probe_memory.py --compare /tmp/probe-before.json
+    python benchmarks/probe_memory.py --tree /tmp/wl-baseline -o /tmp/probe-baseline.json
+    python benchmarks/probe_memory.py --compare /tmp/probe-baseline.json
 
 Writes benchmarks/results/probe-memory.json (``-o -``: stdout only).
 """
@@ -236,7 +238,7 @@ def main():
     ap.add_argument("--refusals", action=argparse.BooleanOptionalAction, default=True)
     ap.add_argument("--tree", default=None, help="run the children with PYTHONPATH=TREE (another copy of wavlight/)")
     ap.add_argument("--compare", default=None, metavar="FILE",
-                    help="a result file of another run (say --tree with the code before the fixes), kept under "
+                    help="a result file of another run (say one with --tree at a baseline copy), kept under "
                          "'compared' in this one")
     from provenance import add_output_argument, provenance, write_result
 

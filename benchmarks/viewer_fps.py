@@ -1,5 +1,5 @@
-"""End-to-end frames per second of `wavlight view` (issue 24's target: >= 20 frames/s at
-512 x 512, K = 256, colour), in headless chromium (Debian's, driven by playwright).
+"""End-to-end frames per second of `wavlight view` (the target: >= 20 frames/s at 512 x 512,
+K = 256, colour), in headless chromium (Debian's, driven by playwright).
 
 The bunny scene is baked once at WIDTH x HEIGHT (64 x 64 texels, K = 256) and cached in
 /tmp/wavlight-viewer-bench (baked again when the file no longer loads, or was made from another

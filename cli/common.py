@@ -5,10 +5,8 @@ import os
 
 import click
 
-
-def one_line(text) -> str:
-    """Messages from libraries (OpenImageIO) may span lines: joined with '; '."""
-    return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
+from wavlight.errors import WavlightError, one_line
+from wavlight.imageio import check_not_input
 
 
 def fail(message) -> None:
@@ -33,9 +31,9 @@ def check_output(path, formats):
 
 
 def refuse_inputs(output, inputs):
-    """An output that names one of the run's inputs (scene, map, mesh, bake file) would destroy
-    it: refused before any work."""
-    out = os.path.realpath(output)
-    for name in inputs:
-        if name and os.path.exists(name) and os.path.realpath(name) == out:
-            fail(f"{output}: is an input of this run ({name}); choose another output")
+    """An output that names one of the run's inputs (scene, map, mesh, bake file; also through a
+    link) would destroy it: refused before any work (:func:`wavlight.imageio.check_not_input`)."""
+    try:
+        check_not_input([output], inputs)
+    except WavlightError as e:
+        fail(e)

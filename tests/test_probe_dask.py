@@ -1,11 +1,12 @@
-"""Probe (issue 23): `--dask` at network services that misbehave.
+"""`--dask` at network services that misbehave.
 
-The promise: whatever listens (or does not) at the --dask address, the experiment fails within
-the stated time (DASK_TIMEOUT, 20 s, or ``dask_timeout``) with one line naming the address:
-nothing listening, a service that accepts and never answers (today: a hang far past the
-client's timeout), a service that answers another protocol (today: distributed tries to
-allocate 3 EiB), a greeting cut short, a scheduler without workers, a scheduler that stops
-answering in the middle of the runs (today: a hang without end) or loses its workers.
+Whatever listens (or does not) at the --dask address, the experiment fails within the stated
+time (DASK_TIMEOUT, 20 s, or ``dask_timeout``) with one line naming the address: nothing
+listening, a service that accepts and never answers (distributed's own connect would wait far
+past the client's timeout), a service that answers another protocol (distributed alone would
+try to allocate 3 EiB for it), a greeting cut short, a scheduler without workers, a scheduler
+that stops answering in the middle of the runs (distributed alone would wait without end) or
+one that loses its workers.
 
 The servers here listen on 127.0.0.1 only, on a port the system picks, and stop by themselves
 (a deadline of 30 s, and at the end of each test). The timeouts are set to 2 s.
@@ -20,6 +21,7 @@ import time
 import pytest
 from click.testing import CliRunner
 
+from wavlight import cluster
 from wavlight.cli.main import main
 from wavlight.errors import WavlightError
 from wavlight.evaluation import experiment
@@ -115,8 +117,8 @@ def server(request):
 
 @pytest.mark.parametrize("case", list(SERVERS))
 def test_a_misbehaving_service_fails_in_time_naming_the_address(server, case, tmp_path):
-    """Promise: one WavlightError naming the address within the timeout (+1 s), whatever the
-    service does; nothing is written to the output folder."""
+    """Whatever the service does, one WavlightError naming the address comes within the
+    timeout (+1.5 s), and nothing is written to the output folder."""
     behave, words = SERVERS[case]
     s = server(behave)
     spec = write_spec(tmp_path)
@@ -138,7 +140,8 @@ def test_a_misbehaving_service_fails_in_time_naming_the_address(server, case, tm
     ("x" * 10_000, "expected a scheduler address"),                # shown short
 ])
 def test_addresses_that_lead_nowhere(tmp_path, address, words):
-    """Promise: one short line naming the address (cut to ~80 characters when it is huge)."""
+    """An address that leads nowhere is one short line naming the address (cut to ~80
+    characters when it is huge), within the timeout."""
     spec = write_spec(tmp_path)
     t = time.perf_counter()
     with pytest.raises(WavlightError, match=words) as e:
@@ -147,7 +150,7 @@ def test_addresses_that_lead_nowhere(tmp_path, address, words):
 
 
 def test_the_cli_fails_in_the_stated_time(server, tmp_path, monkeypatch):
-    """Promise: `wavlight experiment SPEC --dask ADDRESS` at a silent service: exit 2, one line
+    """`wavlight experiment SPEC --dask ADDRESS` at a silent service exits 2 with one line
     naming the address and the time waited (DASK_TIMEOUT, 2 s here)."""
     monkeypatch.setattr(experiment, "DASK_TIMEOUT", T)
     s = server(silent)
@@ -160,8 +163,8 @@ def test_the_cli_fails_in_the_stated_time(server, tmp_path, monkeypatch):
 
 
 def test_a_scheduler_without_workers_fails_in_time(tmp_path):
-    """Promise: a real scheduler with no worker is one line within the timeout, not a wait for a
-    worker that never comes."""
+    """A real scheduler with no worker is one line within the timeout, not a wait for a worker
+    that never comes."""
     distributed = pytest.importorskip("distributed")
     spec = write_spec(tmp_path)
     with distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp://", host="127.0.0.1",
@@ -184,27 +187,27 @@ class _FakeClient:
 
 
 def test_a_scheduler_that_stops_answering_mid_run_is_an_error(monkeypatch):
-    """Promise: while runs are pending and none finishes for the timeout, the scheduler must answer
-    who it is within the timeout; silence (a frozen scheduler whose connection stays open) is one
-    line naming the address (today: as_completed waits without end)."""
+    """While runs are pending and none finishes for the timeout, the scheduler must answer who
+    it is within the timeout; silence (a frozen scheduler whose connection stays open) is one
+    line naming the address, where distributed's as_completed alone would wait without end."""
     distributed = pytest.importorskip("distributed")
 
     def never(pending, timeout=None, return_when=None):
         raise TimeoutError
     monkeypatch.setattr(distributed, "wait", never)
-    it = experiment._dask_completed(_FakeClient(TimeoutError("no reply")), [object()], "tcp://h:1", T)
+    it = cluster.finished(_FakeClient(TimeoutError("no reply")), [object()], "tcp://h:1", T)
     with pytest.raises(WavlightError, match=r"tcp://h:1: the scheduler stopped answering"):
         next(it)
 
 
 def test_a_scheduler_that_lost_its_workers_mid_run_is_an_error(monkeypatch):
-    """Promise: a scheduler that answers but has had no worker for two timeouts is one line (today:
-    the pending runs wait for a worker without end)."""
+    """A scheduler that answers but has had no worker for two timeouts is one line, so that the
+    pending runs do not wait for a worker without end."""
     distributed = pytest.importorskip("distributed")
 
     def never(pending, timeout=None, return_when=None):
         raise TimeoutError
     monkeypatch.setattr(distributed, "wait", never)
-    it = experiment._dask_completed(_FakeClient({"workers": {}}), [object()], "tcp://h:1", T)
+    it = cluster.finished(_FakeClient({"workers": {}}), [object()], "tcp://h:1", T)
     with pytest.raises(WavlightError, match=r"tcp://h:1: the scheduler has had no workers for 4 s"):
         next(it)

@@ -1,7 +1,6 @@
-"""Probe (issue 23): experiment files, resume records and experiment folders, as a hostile user
-would give them.
+"""Experiment files, resume records and experiment folders, as a hostile user would give them.
 
-The promise: a bad experiment key is one line naming the file and the key, found before anything
+A bad experiment key is one line naming the file and the key, found before anything
 is rendered or allocated (10^8 repetitions must not grow memory before the refusal); resume
 records that hold valid JSON of the wrong type, or the right hash with wrong fields, are
 treated like a damaged image: one warning naming the file, and that run (reference, pilot) is
@@ -95,7 +94,7 @@ def copy(done, tmp_path):
     return spec, tmp_path / "out"
 
 
-# ============================================================================= resume records (issue item 2)
+# ============================================================================= resume records
 RECORDS = {"run": "runs/sc/mis/spp1/0.json", "reference": "reference/sc.json", "pilot": "pilot/sc/mis.json"}
 DAMAGE = {   # what the record file holds instead
     "a list": "[1, 2, 3]",
@@ -119,14 +118,14 @@ def _damage(path, how):
 @pytest.mark.parametrize("how", list(DAMAGE))
 @pytest.mark.parametrize("record", list(RECORDS))
 def test_a_damaged_resume_record_is_redone(done, tmp_path, no_charts, record, how):
-    """Promise: a resume record that is not a usable JSON object (a list, a number, a string, JSON
-    too deep to parse, or its own hash with fields of the wrong kind) warns once, naming the
-    file, and the run / reference / pilot is made again; the experiment completes (today: an
-    AttributeError or a KeyError traceback)."""
+    """A resume record that is not a usable JSON object (a list, a number, a string, JSON too
+    deep to parse, or its own hash with fields of the wrong kind) warns once, naming the file,
+    and the run / reference / pilot is made again; the experiment completes, with no
+    AttributeError or KeyError traceback."""
     spec, out = copy(done, tmp_path)
     _damage(out / RECORDS[record], how)
     res, warned = rerun(spec, out)
-    if how != "null":   # (null was always taken as "no record")
+    if how != "null":   # (null is read as "no record": nothing to warn about)
         assert any(RECORDS[record].split("/")[-1] in w for w in warned), warned
     # (a pilot measured again may give the time budget another spp, hence a new run)
     assert res["rendered"] in ((1,) if record == "run" else (0,) if record == "reference" else (0, 1))
@@ -135,8 +134,8 @@ def test_a_damaged_resume_record_is_redone(done, tmp_path, no_charts, record, ho
 
 
 def test_a_run_record_naming_another_image_is_redone(done, tmp_path, no_charts):
-    """Promise: a run record with the right hash whose image field points elsewhere (../../x.exr)
-    is not trusted: warned about and rendered again; the metrics read the run's own image."""
+    """A run record with the right hash whose image field points elsewhere (../../x.exr) is not
+    trusted: it is warned about and rendered again, and the metrics read the run's own image."""
     spec, out = copy(done, tmp_path)
     path = out / RECORDS["run"]
     rec = json.loads(path.read_text())
@@ -147,8 +146,9 @@ def test_a_run_record_naming_another_image_is_redone(done, tmp_path, no_charts):
 
 
 def test_a_damaged_reference_image_is_rendered_again(done, tmp_path, no_charts):
-    """Promise: a reference image that is truncated (its record intact) is treated like a damaged
-    run image: one warning, rendered again (today: the experiment stops on "cannot read pixels")."""
+    """A reference image that is truncated (its record intact) is treated like a damaged run
+    image: one warning, and it is rendered again; the experiment does not stop on "cannot read
+    pixels"."""
     spec, out = copy(done, tmp_path)
     ref = out / "reference" / "sc.exr"
     ref.write_bytes(ref.read_bytes()[:200])
@@ -158,8 +158,8 @@ def test_a_damaged_reference_image_is_rendered_again(done, tmp_path, no_charts):
 
 
 def test_a_pilot_with_an_impossible_fit_is_measured_again(done, tmp_path, no_charts):
-    """Promise: a pilot record (right hash) whose fit says 0 s per spp would give an infinite spp
-    (a ZeroDivisionError today): warned about and measured again."""
+    """A pilot record (right hash) whose fit says 0 s per spp would give an infinite spp (a
+    division by zero): it is warned about and measured again."""
     spec, out = copy(done, tmp_path)
     path = out / RECORDS["pilot"]
     rec = json.loads(path.read_text())
@@ -169,9 +169,9 @@ def test_a_pilot_with_an_impossible_fit_is_measured_again(done, tmp_path, no_cha
     assert any("mis.json" in w for w in warned), warned
 
 
-# ============================================================================= temporaries (issue item 7)
+# ============================================================================= temporaries
 def test_temporaries_of_a_killed_experiment_are_removed(done, tmp_path, no_charts):
-    """Promise: `.wavlight-*` temporaries that a killed experiment left (in charts/, runs/..., the
+    """`.wavlight-*` temporaries that a killed experiment left (in charts/, runs/..., the
     folder itself) are removed by the next run; a live process's are kept."""
     spec, out = copy(done, tmp_path)
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
@@ -187,7 +187,7 @@ def test_temporaries_of_a_killed_experiment_are_removed(done, tmp_path, no_chart
     assert not [p for p in stale if p.exists()] and live.exists()
 
 
-# ============================================================================= refused before any work (item 4)
+# ============================================================================= refused before any work
 def _never_render(monkeypatch):
     def fail(*a, **k):
         raise AssertionError("rendered before the bad key was found")
@@ -195,9 +195,10 @@ def _never_render(monkeypatch):
 
 
 def test_a_bad_reference_of_a_later_scene_is_found_before_any_render(tmp_path, monkeypatch):
-    """Promise: a second scene's reference file of the wrong size is refused before the first
-    scene's reference, pilots and runs are rendered (today: after all of them, and with 10^8
-    repetitions after 2 GB of run records)."""
+    """A second scene's reference file of the wrong size is refused before the first scene's
+    reference, pilots and runs are rendered: the spec is checked whole before any work, so a
+    bad late value never costs the renders before it (nor, with 10^8 repetitions, 2 GB of run
+    records)."""
     spec = write_spec(tmp_path)
     write_raw_image(tmp_path / "ref.exr", np.ones((7, 8, 3), np.float32))
     text = spec_text(scenes='[[scenes]]\npath = "sc.toml"\n[[scenes]]\npath = "sc.toml"\nname = "two"\n'
@@ -213,9 +214,9 @@ def test_a_bad_reference_of_a_later_scene_is_found_before_any_render(tmp_path, m
     ("size = [8, 6]\nthreads = 1000000\n", ("e.toml", "[experiment].threads")),
 ])
 def test_experiment_keys_out_of_range_name_file_and_key(tmp_path, monkeypatch, keys, names):
-    """Promise (issue item 6): [experiment] keys that render_full would refuse late (pilot_spp whose
-    4 x exceeds the spp cap, threads beyond 4096) are refused first, naming the file and the key
-    (today: "spp must be between 1 and 1000000, got 4000000" after the reference's render)."""
+    """[experiment] keys that render_full would refuse late (pilot_spp whose 4 x exceeds the spp
+    cap, threads beyond 4096) are refused first, naming the file and the key, not with render_full's
+    "spp must be between 1 and 1000000, got 4000000" after the reference's render."""
     spec = write_spec(tmp_path, spec_text(experiment_keys=keys))
     _never_render(monkeypatch)
     with pytest.raises(WavlightError) as e:
@@ -224,9 +225,9 @@ def test_experiment_keys_out_of_range_name_file_and_key(tmp_path, monkeypatch, k
 
 
 def test_1e8_repetitions_are_refused_before_memory_grows(tmp_path):
-    """Promise (issue item 4): 10^8 repetitions are refused in one line naming [budgets].repetitions,
-    quickly and in little memory (a child limited to 4 GB of address space;
-    today the run list grew past 2 GB before anything was refused)."""
+    """10^8 repetitions are refused in one line naming [budgets].repetitions, quickly and in
+    little memory: the child is limited to 4 GB of address space, and a run list of 10^8 entries
+    would pass 2 GB before anything was refused."""
     spec = write_spec(tmp_path, spec_text(budgets="spp = [1]\nrepetitions = 100000000\n",
                                           reference="spp = 4\nseed = 1000000000\n"))
     code = ("import resource, sys, wavlight.evaluation as ev\n"
@@ -245,7 +246,7 @@ def test_1e8_repetitions_are_refused_before_memory_grows(tmp_path):
 
 @pytest.mark.parametrize("workers", [0, 65, 10 ** 6, 2.5, True])
 def test_workers_beyond_the_cap_are_refused(tmp_path, workers):
-    """Promise (issue item 4): workers has an upper bound (MAX_WORKERS = 64 local processes, each a
+    """workers has an upper bound (MAX_WORKERS = 64 local processes, each a
     Python with OpenCL of ~0.3-0.4 GB); outside 1..64 (or not an integer) a one-line error."""
     spec = write_spec(tmp_path)
     with pytest.raises(WavlightError, match="workers must be an integer in 1..64"):
@@ -253,9 +254,8 @@ def test_workers_beyond_the_cap_are_refused(tmp_path, workers):
 
 
 def test_cli_workers_beyond_the_cap_are_refused(tmp_path):
-    """Promise (issue item 4): `--workers 1000000` is one line naming --workers and the cap (today
-    click.IntRange(min=1) lets it through to the pool). The lead's fix: cli/experiment.py
-    --workers type=click.IntRange(1, wavlight.evaluation.experiment.MAX_WORKERS)."""
+    """`--workers 1000000` is one line naming --workers and the cap
+    (wavlight.evaluation.experiment.MAX_WORKERS), exit 2, and no output folder is made."""
     spec = write_spec(tmp_path)
     r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "out"), "-q", "--workers", "1000000"])
     lines = [line for line in r.stderr.splitlines() if line.strip()]
@@ -264,7 +264,7 @@ def test_cli_workers_beyond_the_cap_are_refused(tmp_path):
 
 
 def test_a_size_that_cannot_fit_in_memory_is_refused(tmp_path, monkeypatch):
-    """Promise (issue item 5): an experiment whose runs need more memory than the machine has
+    """An experiment whose runs need more memory than the machine has
     (here: 36 bytes per pixel x 16384^2 against 1 GB available) is refused before rendering,
     saying how much it needs."""
     spec = write_spec(tmp_path, spec_text(experiment_keys="size = [16384, 16384]\nthreads = 1\n"))
@@ -274,10 +274,10 @@ def test_a_size_that_cannot_fit_in_memory_is_refused(tmp_path, monkeypatch):
         experiment.run_experiment(spec, tmp_path / "out")
 
 
-# ============================================================================= silent oddities (item 7)
+# ============================================================================= silent oddities
 def test_a_black_reference_file_is_refused(tmp_path, monkeypatch):
-    """Promise: an all-black reference file is refused as an all-black map is (relative errors
-    against it are undefined), before anything is rendered (today: accepted)."""
+    """An all-black reference file is refused as an all-black map is (relative errors against it
+    are undefined), before anything is rendered."""
     spec = write_spec(tmp_path)
     write_raw_image(tmp_path / "black.exr", np.zeros((6, 8, 3), np.float32))
     spec.write_text(spec_text(scenes='[[scenes]]\npath = "sc.toml"\nreference = "black.exr"\n'))
@@ -287,8 +287,8 @@ def test_a_black_reference_file_is_refused(tmp_path, monkeypatch):
 
 
 def test_a_time_budget_past_the_spp_cap_says_so(tmp_path, no_charts, monkeypatch):
-    """Promise: a time budget whose pilot fit needs more than the spp cap is capped with a warning
-    naming the budget (today: capped without a word). The pilot is faked: 1e-9 s per spp."""
+    """A time budget whose pilot fit needs more than the spp cap is capped with a warning naming
+    the budget, never silently. The pilot is faked: 1e-9 s per spp."""
     spec = write_spec(tmp_path, spec_text(budgets="seconds = [10.0]\nrepetitions = 1\n"))
     monkeypatch.setattr(experiment._Runner, "pilot", lambda self, s, st: {
         "setup_seconds": 0.0, "render_a": 0.0, "render_b": 1e-9})
@@ -305,9 +305,9 @@ def test_a_time_budget_past_the_spp_cap_says_so(tmp_path, no_charts, monkeypatch
     assert any("[budgets].seconds" in m and "capped" in m and "1000000" in m for m in msgs), msgs
 
 
-# ============================================================================= outputs that are inputs (item 1)
+# ============================================================================= outputs that are inputs
 def test_out_dir_holding_the_spec_as_spec_toml_is_refused(tmp_path):
-    """Promise: `-o DIR` where DIR/spec.toml is the experiment file itself is refused (the run
+    """`-o DIR` where DIR/spec.toml is the experiment file itself is refused (the run
     writes DIR/spec.toml)."""
     folder = tmp_path / "d"
     spec = write_spec(folder, name="spec.toml")
@@ -316,7 +316,7 @@ def test_out_dir_holding_the_spec_as_spec_toml_is_refused(tmp_path):
 
 
 def test_a_reference_inside_the_folders_the_run_writes_is_refused(tmp_path):
-    """Promise: a reference file under DIR/reference/ (or a scene's map under DIR/runs/) is refused:
+    """A reference file under DIR/reference/ (or a scene's map under DIR/runs/) is refused:
     those folders are the experiment's own."""
     spec = write_spec(tmp_path)
     (tmp_path / "out" / "reference").mkdir(parents=True)
@@ -332,7 +332,7 @@ def test_a_reference_inside_the_folders_the_run_writes_is_refused(tmp_path):
         experiment.run_experiment(spec, tmp_path / "out")
 
 
-# ============================================================================= spec values (lead's spec.py)
+# ============================================================================= spec values
 SPECS = {   # case: (spec text, names the error must hold)
     "nested 1000 deep": (spec_text() + "x = " + "[" * 1000 + "]" * 1000 + "\n", ("e.toml",)),
     "name with a slash": (spec_text(experiment_keys='name = "../up"\n'), ("e.toml", "[experiment].name")),
@@ -357,9 +357,9 @@ SPECS = {   # case: (spec text, names the error must hold)
 
 @pytest.mark.parametrize("case", list(SPECS))
 def test_bad_spec_value_is_one_line(tmp_path, case):
-    """Promise: exit 2 and one line naming the file and the key, not longer than ~300 characters,
-    no output folder (nesting: RecursionError today, the lead's fix in spec.load_spec; the 1 MB
-    list: echoed whole today, errors.shown in SpecTable.get)."""
+    """A bad spec value is exit 2 and one line naming the file and the key, under 400
+    characters, and no output folder: a value nested 1000 deep is caught by spec.load_spec
+    (no RecursionError), and a 1 MB list is shown cut short (errors.shown), not echoed whole."""
     text, names = SPECS[case]
     spec = write_spec(tmp_path, text)
     r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "out"), "-q"])
@@ -372,9 +372,9 @@ def test_bad_spec_value_is_one_line(tmp_path, case):
 
 @pytest.mark.parametrize("kind", ["fifo", "symlink loop"])
 def test_spec_or_reference_of_another_kind(tmp_path, kind):
-    """Promise: a spec path, or a reference file, that is a FIFO or a link loop is one line saying
-    so, at once (spec.load_spec and check_image use os.path.isfile: "no such file"; the lead's
-    fix: wavlight.errors.file_problem)."""
+    """A spec path, or a reference file, that is a FIFO or a link loop is one line saying so, at
+    once (wavlight.errors.file_problem names the kind; opening a FIFO would wait for a writer, and
+    os.path.isfile alone would call either "no such file")."""
     from test_probe_files import KINDS
 
     make, words = KINDS[kind]

@@ -1,6 +1,6 @@
-"""Probe (issue 23): file kinds and sizes, as a hostile user would give them.
+"""File kinds and sizes, as a hostile user would give them.
 
-The promise: bad input (a malformed or missing file, a FIFO, a folder, a symbolic link loop,
+Bad input (a malformed or missing file, a FIFO, a folder, a symbolic link loop,
 a device, a truncated or absurdly large file, a mesh with bad indices) gets one clear line
 naming the file, and saying what is wrong with it (never "no such file" for a file that
 exists, never "degenerate triangle" for a bad index), exit code 2, no traceback, no hang and
@@ -8,7 +8,7 @@ no output or temporary left behind; an output path that names an input of the ru
 before rendering, so that no input is ever overwritten; images are written in strips (memory
 a few MiB beyond the image), identical to a whole-image write.
 
-Each case says its promise. Fast cases only: the in-process CLI (click's CliRunner) on
+Each case says what holds. Fast cases only: the in-process CLI (click's CliRunner) on
 8 x 6 images; the slow ones (memory at large sizes, time to refuse) are in
 benchmarks/probe_memory.py.
 """
@@ -88,7 +88,7 @@ KINDS = {   # kind: (make it at path p, words the message must hold)
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_file_problem_names_the_kind(tmp_path, kind):
-    """Promise: a path that exists but is not a regular file is named for what it is."""
+    """A path that exists but is not a regular file is named for what it is."""
     make, words = KINDS[kind]
     p = tmp_path / "x.exr"
     make(p)
@@ -97,7 +97,7 @@ def test_file_problem_names_the_kind(tmp_path, kind):
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_environment_map_of_another_kind(tmp_path, kind):
-    """Promise: [environment].file naming a FIFO, folder, link loop, broken link or device is one
+    """[environment].file naming a FIFO, folder, link loop, broken link or device is one
     line naming the key and the kind, at once (a FIFO must not block the reader)."""
     make, words = KINDS[kind]
     make(tmp_path / "map.exr")
@@ -109,9 +109,9 @@ def test_environment_map_of_another_kind(tmp_path, kind):
 
 @pytest.mark.parametrize("kind", list(KINDS))
 def test_mesh_of_another_kind(tmp_path, kind):
-    """Promise: [[objects]].mesh naming a FIFO, folder, link loop, broken link or device is one line
-    naming the key and the kind (today scene.py's os.path.isfile says "no such file" for all:
-    the lead's fix, wavlight.errors.file_problem in scene._shape)."""
+    """[[objects]].mesh naming a FIFO, folder, link loop, broken link or device is one line
+    naming the key and the kind (wavlight.errors.file_problem), never "no such file" for a path
+    that exists."""
     make, words = KINDS[kind]
     make(tmp_path / "m.ply")
     scene = write_scene(tmp_path, scene_text(objects='[[objects]]\nmesh = "m.ply"\n'))
@@ -122,8 +122,8 @@ def test_mesh_of_another_kind(tmp_path, kind):
 
 @pytest.mark.parametrize("kind", ["fifo", "symlink loop", "device"])
 def test_scene_file_of_another_kind(tmp_path, kind):
-    """Promise: the scene path itself naming a FIFO, a link loop or a device is one line saying so
-    (scene.load_scene's os.path.isfile: the lead's fix, as above)."""
+    """The scene path itself naming a FIFO, a link loop or a device is one line saying so
+    (scene.load_scene asks wavlight.errors.file_problem, as above)."""
     make, words = KINDS[kind]
     make(tmp_path / "s.toml")
     o = _within(20, run_inproc, "render", tmp_path / "s.toml", "-o", tmp_path / "o.png")
@@ -178,7 +178,7 @@ MAPS = {   # case: (make the map beside p, returns its path; words of the messag
 
 @pytest.mark.parametrize("case", list(MAPS))
 def test_damaged_or_absurd_map(tmp_path, case):
-    """Promise: a truncated, empty, non-image or absurdly large map is one line naming the map and
+    """A truncated, empty, non-image or absurdly large map is one line naming the map and
     the problem, refused before its pixels are read (no 4.8 GB allocation for a 20000 x 20000 header)."""
     make, words = MAPS[case]
     path = make(tmp_path / "map")
@@ -189,7 +189,7 @@ def test_damaged_or_absurd_map(tmp_path, case):
 
 
 def test_map_of_many_channels_reads_three(tmp_path):
-    """Promise: a map of 5 channels is read as its first three (no 5-channel allocation), as before."""
+    """A map of 5 channels is read as its first three (no 5-channel allocation)."""
     import OpenImageIO as oiio
 
     px = np.random.default_rng(0).random((4, 8, 5)).astype(np.float32)
@@ -222,7 +222,7 @@ PLYS = {   # case: (kwargs of _ply, words)
 
 @pytest.mark.parametrize("case", list(PLYS))
 def test_ply_bad_indices_name_the_face(tmp_path, case):
-    """Promise: a bad PLY index is an error naming the face and the index (not a silently truncated
+    """A bad PLY index is an error naming the face and the index (not a silently truncated
     index, not "degenerate triangle(s) removed", not "face indices out of range")."""
     kw, words = PLYS[case]
     _ply(tmp_path / "m.ply", **kw)
@@ -247,7 +247,7 @@ OBJS = {   # case: (file text, words)
 
 @pytest.mark.parametrize("case", list(OBJS))
 def test_obj_reader_names_the_line(tmp_path, case):
-    """Promise: meshes.read_obj refuses a bad OBJ index or vertex naming the line."""
+    """meshes.read_obj refuses a bad OBJ index or vertex naming the line."""
     text, words = OBJS[case]
     (tmp_path / "m.obj").write_text(text)
     with pytest.raises(ValueError, match=words):
@@ -256,9 +256,9 @@ def test_obj_reader_names_the_line(tmp_path, case):
 
 @pytest.mark.parametrize("case", ["index 0", "index past the vertices", "fractional index"])
 def test_obj_bad_index_through_the_cli(tmp_path, case):
-    """Promise: an OBJ face index 0 (or past the vertices, or fractional) is one line naming the
-    line, not "degenerate triangle(s) removed" (trimesh reads 0 as vertex 0): the lead's fix,
-    scene._load_mesh reading .obj with wavlight.meshes.read_obj."""
+    """An OBJ face index 0 (or past the vertices, or fractional) is one line naming the line, not
+    "degenerate triangle(s) removed" (trimesh would read 0 as vertex 0): scenes read .obj files
+    with wavlight.meshes.read_obj."""
     text, words = OBJS[case]
     (tmp_path / "m.obj").write_text(text)
     scene = write_scene(tmp_path, scene_text(objects='[[objects]]\nmesh = "m.obj"\n'))
@@ -268,7 +268,7 @@ def test_obj_bad_index_through_the_cli(tmp_path, case):
 
 
 def test_obj_reader_matches_trimesh_on_real_meshes():
-    """Promise: read_obj gives the triangles trimesh gives (same set, same orientation) for the
+    """read_obj gives the triangles trimesh gives (same set, same orientation) for the
     shared OBJ meshes, quads and all."""
     import io
     import warnings
@@ -294,7 +294,7 @@ def test_obj_reader_matches_trimesh_on_real_meshes():
 
 
 def test_mesh_file_too_large_is_refused_before_reading(tmp_path):
-    """Promise: a mesh file beyond MAX_MESH_BYTES (a sparse 3 GB PLY) is refused from its size, at
+    """A mesh file beyond MAX_MESH_BYTES (a sparse 3 GB PLY) is refused from its size, at
     once, without reading it into memory."""
     p = tmp_path / "huge.ply"
     with open(p, "wb") as fh:
@@ -310,7 +310,7 @@ def _sky_scene(tmp_path, out_name="map.exr"):
 
 
 def test_same_file_sees_links(tmp_path):
-    """Promise: imageio.same_file sees a path, a symbolic link to it and a hard link to it as one file."""
+    """imageio.same_file sees a path, a symbolic link to it and a hard link to it as one file."""
     a = tmp_path / "a.exr"
     a.write_bytes(b"x")
     os.symlink(a, tmp_path / "s.exr")
@@ -322,7 +322,7 @@ def test_same_file_sees_links(tmp_path):
 
 
 def test_check_not_input_refuses_an_input(tmp_path):
-    """Promise: imageio.check_not_input names the output and the input it would replace."""
+    """imageio.check_not_input names the output and the input it would replace."""
     scene = _sky_scene(tmp_path)
     inputs = imageio.scene_files(scene)
     assert str(tmp_path / "map.exr") in inputs and str(scene) in inputs
@@ -333,11 +333,10 @@ def test_check_not_input_refuses_an_input(tmp_path):
 
 @pytest.mark.parametrize("how", ["the map", "a symlink to the map", "--stderr-out is the map"])
 def test_render_output_that_is_an_input_is_refused(tmp_path, how):
-    """Promise (issue item 1): `wavlight render scene.toml -o map.exr`, where map.exr is the scene's
-    own map (or a link to it, or --stderr-out naming it), is refused before rendering and the map
-    is left as it was (today: overwritten, exit 0). The lead's fix: cli/main.py render calls
-    wavlight.imageio.check_not_input([output, stderr_out], wavlight.imageio.scene_files(scene_file))
-    after load_scene and before render_full."""
+    """`wavlight render scene.toml -o map.exr`, where map.exr is the scene's own map (or a link
+    to it, or --stderr-out naming it), is refused before rendering, and the map is left as it was:
+    the outputs are checked against the scene's files after the scene is loaded and before it is
+    rendered."""
     scene = _sky_scene(tmp_path)
     before = (tmp_path / "map.exr").read_bytes()
     if how == "the map":
@@ -356,7 +355,7 @@ def test_render_output_that_is_an_input_is_refused(tmp_path, how):
 # ============================================================================= the strip writer
 @pytest.mark.parametrize("ext", imageio.FORMATS)
 def test_strips_write_what_a_whole_image_write_does(tmp_path, ext, monkeypatch):
-    """Promise: an image written in strips (here 1 row each, OpenImageIO's scanlines) is the same
+    """An image written in strips (here 1 row each, OpenImageIO's scanlines) is the same
     file content as one written whole, in every format (PFM's bottom-up rows included)."""
     import OpenImageIO as oiio
 
@@ -375,7 +374,7 @@ def test_strips_write_what_a_whole_image_write_does(tmp_path, ext, monkeypatch):
 
 
 def test_srgb_strip_encoding_matches_srgb_encode():
-    """Promise: the in-place float32 sRGB conversion gives the 8-bit values of srgb_encode."""
+    """The in-place float32 sRGB conversion gives the 8-bit values of srgb_encode."""
     x = np.concatenate([np.linspace(-1, 2, 3999, dtype=np.float32),
                         np.float32([0.0031308, 0.0031307, 0.04045, 1.0, 0.5, 0.0])]).reshape(-1, 1, 3)
     old = (imageio.srgb_encode(x) * 255.0 + 0.5).astype(np.uint8)
@@ -383,8 +382,8 @@ def test_srgb_strip_encoding_matches_srgb_encode():
 
 
 def test_unaligned_and_strided_images_are_written(tmp_path):
-    """Promise: an image whose buffer is not aligned (numpy gives one when unpickling from a byte
-    offset: a dask worker's image arrived so and OpenImageIO refused it, "buffer is wrong size")
+    """An image whose buffer is not aligned (numpy gives one when unpickling from a byte offset,
+    as a dask worker's image arrives; OpenImageIO refuses such a buffer, "buffer is wrong size")
     or not contiguous (a transposed view) is written correctly."""
     img = np.random.default_rng(2).random((24, 32, 3)).astype(np.float32)
     buf = bytearray(img.nbytes + 1)
@@ -399,7 +398,7 @@ def test_unaligned_and_strided_images_are_written(tmp_path):
 
 
 def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
-    """Promise (issue item 7): a `.wavlight-*` temporary that a killed process left beside an output
+    """A `.wavlight-*` temporary that a killed process left beside an output
     is removed by the next successful write into that folder; a live process's is kept."""
     import subprocess
     import sys
@@ -419,7 +418,7 @@ def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
 
 # ============================================================================= messages that flood
 def test_shown_never_floods():
-    """Promise (issue item 6): a value shown in a message is at most ~80 characters plus its size,
+    """A value shown in a message is at most ~80 characters plus its size,
     whatever its length or depth, and showing it does not build its whole repr."""
     import time
 
@@ -434,8 +433,8 @@ def test_shown_never_floods():
 
 
 def test_a_1_mb_value_in_a_scene_is_not_echoed(tmp_path):
-    """Promise (issue item 6): a scene value that is a 1 MB array (10 MB in the issue) gives a short error line (today
-    scene._Table.get echoes {v!r}: the lead's fix, errors.shown(v) in every such message)."""
+    """A scene value that is a 1 MB array gives a short error line: every message shows a value
+    through errors.shown, never its whole repr (benchmarks/probe_memory.py times a 10 MB one)."""
     big = "[" + ", ".join(["1.0"] * 200_000) + "]"   # 1 MB: the message must not grow with it
     scene = write_scene(tmp_path, scene_text(camera=f"eye = {big}\n"))
     o = run_inproc("render", scene, "-o", tmp_path / "o.png")

@@ -1,6 +1,6 @@
-"""Probe (issue 23): the library API misused, as a hostile caller would.
+"""The library API misused, as a hostile caller would.
 
-The promise: a library call with an argument of the wrong type, shape or range raises a one-line
+A library call with an argument of the wrong type, shape or range raises a one-line
 :class:`wavlight.WavlightError` (ArgumentError: also a ValueError) that names the function or
 the file and the argument, never a bare TypeError, ValueError or MemoryError from deep inside,
 never a NaN image, never an attempt to allocate or write an absurd amount (np.broadcast_to
@@ -107,8 +107,8 @@ CASES = {   # case: (call(tmp_path), words of the message)
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_misuse_is_a_one_line_wavlight_error(tmp_path, case):
-    """Promise: a WavlightError of one line (< 300 characters) holding the words, nothing else;
-    no file left in tmp_path but what the case made."""
+    """Each misuse raises a WavlightError of one line (< 300 characters) holding the words, and
+    leaves no `.wavlight-*` temporary in tmp_path."""
     call, words = CASES[case]
     before = set(tmp_path.iterdir())
     with warnings.catch_warnings():
@@ -143,10 +143,10 @@ for name, call in calls.items():
 
 
 def test_absurd_sizes_are_refused_before_allocating(tmp_path):
-    """Promise: icosphere(10^9), a 10^6 x 10^6 procedural sky, an Environment or a save_image of a
+    """icosphere(10^9), a 10^6 x 10^6 procedural sky, an Environment or a save_image of a
     10^10-pixel array (np.broadcast_to: no memory) are refused from their sizes, at once, in a
-    child limited to 3 GB of address space (before: icosphere subdivided until memory ran out,
-    20 GB; save_image would write a 120 GB file)."""
+    child limited to 3 GB of address space; unchecked, icosphere would subdivide until memory ran
+    out (20 GB and more) and save_image would write a 120 GB file."""
     import subprocess
     import sys
     import time
@@ -163,8 +163,9 @@ def test_absurd_sizes_are_refused_before_allocating(tmp_path):
 
 
 def test_a_degenerate_face_in_a_python_built_scene_renders_finite(tmp_path):
-    """Promise: a Scene edited in Python to hold a zero-area face (load_scene removes them) renders a
-    finite image without numpy's divide warnings (the ray tracer gave it a NaN normal)."""
+    """A Scene edited in Python to hold a zero-area face (load_scene removes them) renders a
+    finite image without numpy's divide warnings: the ray tracer gives such a face a zero
+    normal, not a NaN one."""
     scene = _scene(tmp_path)
     scene.faces = np.concatenate([scene.faces, [[0, 0, 1]]]).astype(np.int32)
     scene.face_material = np.concatenate([scene.face_material, [0]]).astype(np.int32)
@@ -175,7 +176,7 @@ def test_a_degenerate_face_in_a_python_built_scene_renders_finite(tmp_path):
 
 
 def test_memory_a_render_needs_is_stated(monkeypatch):
-    """Promise (issue item 5): imageio.render_bytes states the memory a size needs (36 bytes per
+    """imageio.render_bytes states the memory a size needs (36 bytes per
     pixel, measured, plus the process), and check_memory refuses what will not fit, in one line."""
     assert imageio.render_bytes(16384, 16384) == 16384 * 16384 * 36 + imageio.RENDER_BASE_BYTES
     monkeypatch.setattr(imageio, "available_bytes", lambda: 1 << 30)

@@ -1,16 +1,15 @@
-"""Probe (issue 23): scene values and types, as a hostile user would write them.
+"""Scene values and types, as a hostile user would write them.
 
-The promise: a scene value of the wrong type, out of range, absurd in size or nested without
-end is one line naming the file and the key (exit 2, no traceback, no output), found before
-any geometry is built or pixel rendered; a key that does nothing (roughness on lambert) is
-never silent. Fixes in wavlight/scene.py are the lead's; each case below says what it needs.
+A scene value of the wrong type, out of range, absurd in size or nested without end is one line
+naming the file and the key (exit 2, no traceback, no output), found before any geometry is
+built or pixel rendered; a key that does nothing (roughness on lambert) is never silent. The
+checks live in wavlight/scene.py; each case below says what holds.
 
-Rule chosen for keys of another material type (issue item 7: "pick one rule"): every key is
-checked (its type and range) and then either used or reported. A key no material type knows
-is an error; a key that another type uses (roughness on lambert or phong, exponent on lambert
-or ggx) is a warning naming the types that use it, exit code 0: refusing it would refuse the
-scene format's own example (a ggx material with "exponent = 100.0  # phong only", which
-tests/test_scene.py loads verbatim).
+The rule for keys of another material type: every key is checked (its type and range) and then
+either used or reported. A key no material type knows is an error; a key that another type uses
+(roughness on lambert or phong, exponent on lambert or ggx) is a warning naming the types that
+use it, exit code 0: refusing it would refuse the scene format's own example (a ggx material
+with "exponent = 100.0  # phong only", which tests/test_scene.py loads verbatim).
 """
 from __future__ import annotations
 
@@ -30,7 +29,7 @@ def _objects(text):
 
 
 BAD = {   # case: (scene text, names the one error line must hold)
-    # ---- nesting and size (issue item 2)
+    # ---- nesting and size
     "arrays nested 1000 deep": (scene_text(render="width = " + "[" * 1000 + "]" * 1000 + "\n"), ("scene.toml",)),
     "inline tables nested 1000 deep": ("x = " + "{a = " * 1000 + "1" + "}" * 1000 + "\n", ("scene.toml",)),
     "tables nested 1000 deep": ("[" + ".".join(["a"] * 1000) + "]\nx = 1\n", ("scene.toml",)),
@@ -91,9 +90,9 @@ BAD = {   # case: (scene text, names the one error line must hold)
 
 @pytest.mark.parametrize("case", list(BAD))
 def test_bad_scene_value_is_one_line(tmp_path, case):
-    """Promise: exit 2, one 'Error:' line naming the file and key, no traceback, no output
-    (arrays, inline tables or tables nested 1000 deep ended in RecursionError: issue item 2, the
-    lead's fix in scene.load_scene)."""
+    """A bad scene value is exit 2, one 'Error:' line naming the file and key, no traceback, no
+    output (arrays, inline tables or tables nested 1000 deep are caught by scene.load_scene, not
+    left to end in a RecursionError)."""
     text, names = BAD[case]
     scene = write_scene(tmp_path, text)
     o = run_inproc("render", scene, "-o", tmp_path / "o.png")
@@ -105,11 +104,9 @@ def test_bad_scene_value_is_one_line(tmp_path, case):
                                               ("lambert", "exponent = 50.0", "phong"),
                                               ("phong", "roughness = 0.3", "ggx")])
 def test_a_key_of_another_material_type_is_never_silent(tmp_path, kind, key, users):
-    """Promise (issue item 7): roughness on a lambert material (or any key another type uses) is
-    reported in one warning naming the key and the types that use it, exit 0 (the rule above;
-    today it is ignored without a word: the lead's fix in scene.py's material loop, after
-    t.done(): for each of roughness / exponent given but not used by this type,
-    warnings.warn(f"{path}: [materials.{name}].{key}: ignored: only {users} materials use it"))."""
+    """Roughness on a lambert material (or any key another type uses) is reported in one warning
+    naming the key and the types that use it ("[materials.m].roughness: ignored: only ggx
+    materials use it"), exit 0: the rule above, never ignored without a word."""
     text = _objects(SPHERE + 'material = "m"\n') + f'[materials.m]\ntype = "{kind}"\n{key}\n'
     scene = write_scene(tmp_path, text)
     o = run_inproc("render", scene, "-o", tmp_path / "o.png", "--spp", 1)
@@ -119,10 +116,10 @@ def test_a_key_of_another_material_type_is_never_silent(tmp_path, kind, key, use
 
 
 def test_a_bad_key_on_the_last_of_many_objects_is_found_before_any_geometry(tmp_path, monkeypatch):
-    """Promise (issue item 6): an unknown key on the last of 2 000 objects is refused before any
-    object's geometry is built (today each sphere is built, then the next table's keys read: a
-    bad key on object 100 001 took 15 s). The lead's fix: scene.load_scene checks every table's
-    keys and types in one pass (the _Table checks without building), then builds geometry."""
+    """An unknown key on the last of 2 000 objects is refused before any object's geometry is
+    built: scene.load_scene checks every table's keys and types in one pass, then builds the
+    geometry, so a bad key on object 100 001 is found without building the 100 000 spheres
+    before it (about 15 s of work)."""
     from wavlight import meshes
 
     built = []
@@ -136,14 +133,13 @@ def test_a_bad_key_on_the_last_of_many_objects_is_found_before_any_geometry(tmp_
 
 
 def test_triangles_beyond_any_memory_are_refused_before_building(tmp_path):
-    """Promise (issues items 4 and 6): 100 spheres of subdivisions 8 (131 M triangles: ~50 GB at
-    the ~390 bytes per triangle measured for load, BVH and shading tables: 16 spheres of
-    subdivisions 7, 5.2 M triangles, took 2.1 GB and 21 s) are refused in one line before they
-    are built, from the faces each shape will have (20 x 4^s per sphere). Run in a child limited
-    to 3 GB of address space, so that today's code (which builds them) fails instead of filling
-    the machine. The lead's fix: scene.load_scene sums the built-in shapes' triangle counts
-    first (spheres 20 x 4^s, quads 2; meshes as they load) and refuses above MAX_TRIANGLES
-    (2^24 = 16.8 M, ~6.5 GB) naming [[objects]]."""
+    """100 spheres of subdivisions 8 (131 M triangles: ~50 GB at the ~390 bytes per triangle
+    measured for load, BVH and shading tables; 16 spheres of subdivisions 7, 5.2 M triangles,
+    take 2.1 GB and 21 s) are refused in one line before they are built, from the faces each
+    shape will have: scene.load_scene sums the triangle counts (spheres 20 x 4^s, quads 2;
+    meshes as they load) and refuses above MAX_TRIANGLES (2^24 = 16.8 M, ~6.5 GB), naming
+    [[objects]]. Run in a child limited to 3 GB of address space, so that code which built them
+    would fail instead of filling the machine."""
     objs = '[[objects]]\nshape = "sphere"\nsubdivisions = 8\n' * 100
     scene = write_scene(tmp_path, scene_text(objects=objs))
     code = ("import resource, sys\nresource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))\n"

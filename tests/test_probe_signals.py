@@ -1,6 +1,6 @@
-"""Probe (issue 23): signals at every stage, a full disk and concurrent writers.
+"""Signals at every stage, a full disk and concurrent writers.
 
-The promise: whenever `wavlight render` is interrupted (SIGINT, SIGTERM, SIGKILL) while it loads,
+Whenever `wavlight render` is interrupted (SIGINT, SIGTERM, SIGKILL) while it loads,
 renders or writes, the output is either the previous file, untouched, or absent, never a
 half-written image; SIGINT and SIGTERM leave no temporary behind, and the temporary a SIGKILL
 must leave is removed by the next successful write into that folder; a full disk is one line
@@ -97,10 +97,11 @@ def _interrupted(tmp_path, stage, sig):
 
 @pytest.mark.parametrize("stage, sig", STAGES, ids=[f"{s}-{g.name}" for s, g in STAGES])
 def test_an_interrupted_render_leaves_the_previous_output(tmp_path, stage, sig):
-    """Promise: interrupted at any stage, the previous o.png is untouched (never half written);
-    after SIGINT or SIGTERM no `.wavlight-*` temporary is left (a SIGTERM while writing is turned
-    into an orderly exit, code 143, that removes it: today the process died and left it); after
-    SIGKILL the one temporary left is removed by the next successful render into the folder."""
+    """Interrupted at any stage, the previous o.png is untouched (never half written); after
+    SIGINT or SIGTERM no `.wavlight-*` temporary is left (a SIGTERM while writing is turned into
+    an orderly exit, code 143, that removes it, where the default action would kill the process
+    and leave it); after SIGKILL the one temporary left is removed by the next successful render
+    into the folder."""
     code, err, previous = _interrupted(tmp_path, stage, sig)
     out = tmp_path / "o.png"
     assert out.read_bytes() == previous
@@ -120,7 +121,7 @@ def test_an_interrupted_render_leaves_the_previous_output(tmp_path, stage, sig):
 
 
 def test_a_killed_experiment_resumes_to_the_same_results(tmp_path):
-    """Promise: an experiment killed (SIGKILL) after its first run resumes to the results of an
+    """An experiment killed (SIGKILL) after its first run resumes to the results of an
     uninterrupted run, and leaves no temporary after the resume."""
     from test_probe_experiment import write_spec, spec_text
 
@@ -164,7 +165,7 @@ def full_disk(tmp_path):
 
 @pytest.mark.parametrize("ext", [".exr", ".png", ".pfm", ".hdr"])
 def test_a_full_disk_is_one_line_and_leaves_the_previous_file(full_disk, ext):
-    """Promise: a write that does not fit (a 512 x 512 noisy image on a 256 KiB disk) fails in one
+    """A write that does not fit (a 512 x 512 noisy image on a 256 KiB disk) fails in one
     line naming the file, keeps the previous file and leaves no temporary."""
     out = full_disk / f"o{ext}"
     wavlight.save_image(str(out), np.full((4, 4, 3), 0.5, np.float32))
@@ -177,7 +178,7 @@ def test_a_full_disk_is_one_line_and_leaves_the_previous_file(full_disk, ext):
 
 
 def test_an_experiment_on_a_full_disk_is_one_line(full_disk, tmp_path):
-    """Promise: an experiment whose folder fills up fails in one line (exit 2 in the CLI) and leaves
+    """An experiment whose folder fills up fails in one line (exit 2 in the CLI) and leaves
     no temporary; what was written before stays readable."""
     from click.testing import CliRunner
 
@@ -194,7 +195,7 @@ def test_an_experiment_on_a_full_disk_is_one_line(full_disk, tmp_path):
 
 # ============================================================================= concurrent writers
 def test_threads_racing_on_one_output_leave_one_complete_image(tmp_path):
-    """Promise: two threads writing different images to one path 15 times each leave a complete
+    """Two threads writing different images to one path 15 times each leave a complete
     image equal to one of the two, and no temporary."""
     a, b = np.full((64, 96, 3), 0.25, np.float32), np.full((64, 96, 3), 2.0, np.float32)
     out = tmp_path / "o.exr"
@@ -218,7 +219,7 @@ def test_threads_racing_on_one_output_leave_one_complete_image(tmp_path):
 
 
 def test_processes_racing_on_one_folder_keep_each_others_temporaries(tmp_path):
-    """Promise: two processes writing into one folder at once (30 images each, to one shared name
+    """Two processes writing into one folder at once (30 images each, to one shared name
     and to their own) never remove each other's live temporaries (each write's clean-up removes
     only dead processes' files): every write succeeds, every file is complete."""
     code = ("import sys, numpy as np, wavlight\n"

@@ -238,7 +238,7 @@ def test_exceptions_and_nan_are_recorded_not_raised(tmp_path):
     res = stability.run_stability(tmp_path, cases=["tiny_2x1"], strategies=["light", "cosine", "mis"], render=fake,
                                   **QUICK)
     v = {c["strategy"]: c for c in res["cells"]}
-    assert v["light"]["verdict"] == "failed" and v["light"]["failure"] == "RuntimeError: kernel exploded"
+    assert v["light"]["verdict"] == "failed" and v["light"]["failure"] == "RuntimeError: kernel exploded; second line"
     assert v["cosine"]["verdict"] == "failed" and v["cosine"]["nan_values"] == QUICK["repetitions"]
     assert "NaN" in v["cosine"]["failure"]
     assert v["mis"]["verdict"] == "ok"

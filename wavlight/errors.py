@@ -37,6 +37,21 @@ class ArgumentError(WavlightError, ValueError):
     existing ``except ValueError`` callers keep working."""
 
 
+def one_line(message, limit: int | None = None) -> str:
+    """A message (or an exception's) as one line: its lines joined with '; ' (libraries such as
+    OpenImageIO answer on several), an empty one named by its type, cut to ``limit`` characters."""
+    text = "; ".join(part.strip() for part in str(message).splitlines() if part.strip())
+    if not text and isinstance(message, BaseException):
+        text = type(message).__name__
+    return text if limit is None or len(text) <= limit else text[:limit - 3] + "..."
+
+
+def described(error: BaseException) -> str:
+    """An exception as one line for a user: a WavlightError's message as it is, any other
+    prefixed with its type (``OSError: ...``), so that a fault is told from bad input."""
+    return one_line(error) if isinstance(error, WavlightError) else f"{type(error).__name__}: {one_line(error)}"
+
+
 # ----------------------------------------------------------------------------- argument checks
 #: The longest value a message shows (longer ones are cut, with their length).
 SHOWN_CHARS = 80

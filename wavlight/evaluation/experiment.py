@@ -145,10 +145,6 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-import re
-import socket
-import struct
-import threading
 import time
 import warnings
 
@@ -159,7 +155,8 @@ from .charts import error_charts, error_maps
 from .records import (INTEGER, NUMBER, ROWS, TABLE, TEXT, content_hash, csv_text, image_problem, read_image,
                       read_json, record_problem, remove_stale, save_run_image, write_json, write_text)
 from .spec import PEER_PREFIX, Budget, SceneSpec, Spec, StrategySpec, load_spec
-from ..errors import SanitisedInputWarning, WavlightError, shown
+from ..cluster import DASK_TIMEOUT, connect, finished
+from ..errors import SanitisedInputWarning, WavlightError, one_line, shown
 from ..imageio import check_memory, check_not_input, remove_stale_temporaries, same_file, scene_files
 from ..integrator import render_full
 from ..scene import MAX_SPP, load_scene
@@ -175,14 +172,6 @@ MAX_RUNS = 100_000
 #: Most local worker processes (``workers``): each is a Python with OpenCL (about 0.3-0.4 GB)
 #: rendering one run at a time; more processes than runs are never started.
 MAX_WORKERS = 64
-#: Seconds that ``dask_address`` gets to answer as a Dask scheduler with at least one worker
-#: (connecting, its greeting, the client's registration, a worker): past it, a one-line error
-#: naming the address. A service there that is not Dask is refused as soon as it answers.
-DASK_TIMEOUT = 20.0
-#: A Dask scheduler's greeting (its handshake message) is about 100 bytes; a length beyond this
-#: in the first 8 bytes means another protocol (an HTTP server's "HTTP/1.1" read as a length
-#: asked distributed for 3 EiB).
-_DASK_GREETING_MAX = 1 << 16
 
 #: What the records of a resume must hold to be used (records.record_problem); anything else is
 #: a damaged record: a one-line warning, and the run, reference or pilot is made again.
@@ -521,151 +510,6 @@ def run_task(task: dict) -> dict:
     return {"image": np.asarray(r.image, np.float32), "stats": r.stats}
 
 
-_DASK_ADDRESS = re.compile(r"^(tcp|tls|ucx|ws|wss)://[^/\s]+:\d+/?$")
-
-
-def _dask_client(address, timeout: float | None = None):
-    """A dask.distributed client of the scheduler at ``address`` (tcp://HOST:PORT) with at least
-    one worker, or a one-line WavlightError naming the address within ``timeout`` seconds: not
-    installed, not an address, nothing listening, a service that is not a Dask scheduler (it
-    answers something else, or nothing at all), or a scheduler without workers.
-
-    distributed's own Client(timeout=...) bounds only the TCP connection: a service that accepts
-    and never answers kept it waiting for the scheduler's greeting without end, and one that
-    answers another protocol made it allocate what the first 8 bytes said (3 EiB for "HTTP/1.1").
-    So the greeting is first read here, with a deadline and a size limit (:func:`_greeting`),
-    and the client is then made on a thread that is given the time left."""
-    if not isinstance(address, str) or not _DASK_ADDRESS.match(address):
-        raise WavlightError(f"dask {shown(address)}: expected a scheduler address tcp://HOST:PORT")
-    timeout = float(DASK_TIMEOUT if timeout is None else timeout)
-    try:
-        from distributed import Client
-    except ImportError:
-        raise WavlightError(f"dask {address}: dask.distributed is not installed "
-                            "(pip install 'wavlight[dask]')") from None
-    deadline = time.monotonic() + timeout
-    if address.startswith("tcp://"):
-        _greeting(address, deadline, timeout)
-    box = {}
-
-    def connect():
-        try:
-            box["client"] = Client(address, timeout=max(deadline - time.monotonic(), 0.1))
-        except BaseException as e:   # noqa: BLE001 (handed to the caller below)
-            box["error"] = e
-
-    thread = threading.Thread(target=connect, name=f"wavlight dask connect {address}", daemon=True)
-    thread.start()
-    thread.join(max(deadline - time.monotonic(), 0.1))
-    if thread.is_alive():
-        raise WavlightError(f"dask {address}: no answer from a Dask scheduler within {timeout:g} s")
-    if "error" in box:
-        e = box["error"]
-        if isinstance(e, MemoryError):
-            raise WavlightError(f"dask {address}: the service there does not speak Dask's protocol") from None
-        if not isinstance(e, Exception):   # KeyboardInterrupt, SystemExit
-            raise e
-        if isinstance(e, (OSError, TimeoutError)):
-            raise WavlightError(f"dask {address}: cannot connect to the scheduler ({_one_line(e)})") from None
-        # anything else came from the other end (a worker's or a nanny's address answers the
-        # client's registration with a TypeError, an incompatible version with another error)
-        raise WavlightError(f"dask {address}: not a usable Dask scheduler ({type(e).__name__}: "
-                            f"{_one_line(e)})") from None
-    client = box["client"]
-    try:
-        client.wait_for_workers(1, timeout=max(deadline - time.monotonic(), 0.1))
-    except BaseException as e:
-        client.close(timeout=2)
-        if isinstance(e, (TimeoutError, OSError)) or type(e).__module__.startswith(("distributed", "asyncio")):
-            raise WavlightError(f"dask {address}: the scheduler has no workers (waited {timeout:g} s): start "
-                                "one with 'dask worker " + address + "'") from None
-        raise
-    return client
-
-
-def _dask_completed(client, futures, address, timeout):
-    """The futures as they finish. While none finishes for ``timeout`` seconds the scheduler is
-    asked who it is, which it must answer within ``timeout`` seconds: a scheduler that stopped
-    answering (a frozen process, a dead host whose TCP connection stays open), or one left
-    without workers for two such rounds, is a one-line WavlightError instead of a wait without
-    end (a run may take long; a silent scheduler may not)."""
-    from distributed import wait
-
-    pending = set(futures)
-    idle = 0
-    while pending:
-        try:
-            done, pending = wait(pending, timeout=timeout, return_when="FIRST_COMPLETED")
-        except TimeoutError:
-            try:
-                info = client.sync(client.scheduler.identity, callback_timeout=timeout)
-            except Exception:   # noqa: BLE001 (TimeoutError, a closed comm)
-                raise WavlightError(f"dask {address}: the scheduler stopped answering (no reply within "
-                                    f"{timeout:g} s); the runs finished before are kept: run the experiment "
-                                    "again to resume") from None
-            idle = 0 if (info or {}).get("workers") else idle + 1
-            if idle >= 2:   # (one round for a worker that a nanny restarts)
-                raise WavlightError(f"dask {address}: the scheduler has had no workers for {2 * timeout:g} s; the "
-                                    "runs finished before are kept: start a worker and run the experiment again "
-                                    "to resume")
-            continue
-        idle = 0
-        yield from done
-
-
-def _one_line(e: BaseException) -> str:
-    text = " ".join(str(e).split()) or type(e).__name__
-    return text if len(text) <= 160 else text[:157] + "..."
-
-
-def _greeting(address, deadline, timeout):
-    """Read a Dask comm's greeting (its handshake: the listener speaks first) from ``address``
-    with a raw socket by ``deadline``; a one-line WavlightError when nothing listens, nothing
-    comes in time, or what comes is not a Dask handshake. The connection is then closed (the
-    scheduler logs nothing worse than a closed comm)."""
-    host, port = address[len("tcp://"):].rstrip("/").rsplit(":", 1)
-    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
-
-    def left():
-        t = deadline - time.monotonic()
-        if t <= 0:
-            raise socket.timeout
-        return t
-
-    try:
-        with socket.create_connection((host, int(port)), timeout=left()) as sock:
-            def read(n):
-                buf = b""
-                while len(buf) < n:
-                    sock.settimeout(left())
-                    chunk = sock.recv(n - len(buf))
-                    if not chunk:
-                        raise ConnectionResetError("the connection was closed")
-                    buf += chunk
-                return buf
-
-            (size,) = struct.unpack("<Q", read(8))
-            if not 0 < size <= _DASK_GREETING_MAX:
-                raise WavlightError(f"dask {address}: the service there does not speak Dask's protocol (its first "
-                                    "bytes are not a Dask greeting)")
-            body = read(size)
-    except socket.timeout:
-        raise WavlightError(f"dask {address}: no answer from a Dask scheduler within {timeout:g} s "
-                            "(the connection was accepted, nothing came back)") from None
-    except (OSError, ValueError, OverflowError) as e:   # (OverflowError: a port beyond 65535)
-        raise WavlightError(f"dask {address}: cannot connect to the scheduler "
-                            f"({getattr(e, 'strerror', None) or _one_line(e)})") from None
-    try:
-        from distributed.protocol import loads
-        from distributed.protocol.utils import unpack_frames
-        info = loads(unpack_frames(body))
-    except Exception:   # noqa: BLE001 (any garbage: msgpack, struct, ... errors)
-        info = None
-    if not isinstance(info, dict) or "compression" not in info or "python" not in info:
-        raise WavlightError(f"dask {address}: the service there does not speak Dask's protocol (its greeting "
-                            "is not a Dask handshake)")
-
-
 def _execute(runner: _Runner, jobs, workers: int, dask_address):
     """Render ``jobs`` [(index, job)] -> {index: record}: in this process, in a spawn-context
     process pool, or on a dask.distributed scheduler. Records are written as runs finish."""
@@ -680,7 +524,7 @@ def _execute(runner: _Runner, jobs, workers: int, dask_address):
     if dask_address is not None:
         import logging
 
-        client = _dask_client(dask_address, getattr(runner, "dask_timeout", DASK_TIMEOUT))
+        client = connect(dask_address, getattr(runner, "dask_timeout", DASK_TIMEOUT))
         # distributed logs a lost scheduler as tracebacks (its reconnection attempts) on stderr:
         # while this experiment uses the cluster, only its critical messages; the error raised
         # below names the address and what failed, in one line
@@ -693,7 +537,7 @@ def _execute(runner: _Runner, jobs, workers: int, dask_address):
             futures = client.map(run_task, tasks, pure=False)
             where = {f.key: n for n, f in enumerate(futures)}
             try:
-                for f in _dask_completed(client, futures, dask_address, getattr(runner, "dask_timeout", DASK_TIMEOUT)):
+                for f in finished(client, futures, dask_address, getattr(runner, "dask_timeout", DASK_TIMEOUT)):
                     n = where[f.key]
                     try:
                         result = f.result()
@@ -701,7 +545,7 @@ def _execute(runner: _Runner, jobs, workers: int, dask_address):
                         raise
                     except Exception as e:   # noqa: BLE001 (the cluster's: lost scheduler, killed worker)
                         raise WavlightError(f"dask {dask_address}: {jobs[n][1]['what']} failed on the cluster "
-                                            f"({type(e).__name__}: {_one_line(e)}); the runs finished before are "
+                                            f"({type(e).__name__}: {one_line(e, 160)}); the runs finished before are "
                                             "kept: run the experiment again to resume") from None
                     out[jobs[n][0]] = runner.finish(jobs[n][1], result)
             except BaseException:
@@ -780,7 +624,7 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, da
         raise WavlightError("give workers or a dask scheduler address, not both")
     spec = load_spec(spec_path)
     if dask_address is not None:   # fail before rendering references and pilots
-        _dask_client(dask_address, dask_timeout).close()
+        connect(dask_address, dask_timeout).close()
     out_dir = os.fspath(out_dir)
     if not isinstance(out_dir, str):
         out_dir = os.fsdecode(out_dir)

@@ -151,7 +151,7 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics
-from ..errors import WavlightError
+from ..errors import WavlightError, described
 from ..version import __version__
 
 REFERENCE_SEED = 1_000_003
@@ -568,11 +568,6 @@ def judge(stats: dict, t_mean: float, t_pixel: float) -> dict:
 
 
 # ----------------------------------------------------------------------------- running
-def _one_line(e: BaseException) -> str:
-    msg = str(e).strip().splitlines()
-    return f"{type(e).__name__}: {msg[0] if msg else ''}".rstrip(": ")
-
-
 def _finite_or_none(x):
     if isinstance(x, float) and not math.isfinite(x):
         return None
@@ -702,7 +697,7 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
                 info["pixels_tested"] = int(mask.sum())
                 info["reference_mean"] = float(ref[mask].mean()) if mask.any() else 0.0
             except Exception as e:  # a failing case must not stop the suite
-                info.update(status="failed", note=f"scene or reference failed: {_one_line(e)}")
+                info.update(status="failed", note=f"scene or reference failed: {described(e)}")
                 for s in strats:
                     cells.append(_cell(name, s, cfg, verdict="failed", failure=info["note"]))
                     raw.append(None)
@@ -784,7 +779,7 @@ def _run_cell(render, sc, case_name, strategy, cfg, width, height, ref, ref_se, 
                 seconds += float(st.get("setup_seconds", 0.0)) + float(st.get("render_seconds", 0.0))
         cell["warnings"] = sorted({str(w.message) for w in caught})
     except Exception as e:
-        cell.update(verdict="failed", failure=_one_line(e), seconds=round(time.perf_counter() - t0, 3))
+        cell.update(verdict="failed", failure=described(e), seconds=round(time.perf_counter() - t0, 3))
         return cell, None
     cell["seconds"] = round(seconds or time.perf_counter() - t0, 3)
     x, s = np.stack(images), np.stack(stderrs)

@@ -4,6 +4,7 @@ the settings and the tile, so a cluster's bake is identical to a local one; this
 writes the file as the blocks arrive."""
 from __future__ import annotations
 
+from ..cluster import connect
 from ..errors import WavlightError
 
 
@@ -12,9 +13,7 @@ def bake_on_cluster(address: str, scene, settings, tiles, task, collect, without
     for every tile to the scheduler at ``address`` and hand each result to ``collect``."""
     import os
 
-    from ..evaluation.experiment import _dask_client
-
-    client = _dask_client(address)
+    client = connect(address)
     try:
         from distributed import as_completed
 

@@ -59,7 +59,7 @@ from importlib import resources
 import numpy as np
 from aiohttp import WSCloseCode, WSMsgType, web
 
-from ..errors import WavlightError, shown
+from ..errors import WavlightError, described, shown
 from ..imageio import srgb_encode
 from ..scene import load_scene
 
@@ -232,11 +232,6 @@ class _Stopped(Exception):
     """A converge call ended early: the lighting changed."""
 
 
-def _one_line(error: BaseException) -> str:
-    text = "; ".join(p.strip() for p in str(error).splitlines() if p.strip())
-    return text if isinstance(error, WavlightError) else f"{type(error).__name__}: {text}"
-
-
 class _OneLine(logging.Handler):
     """aiohttp's and asyncio's log records as one line each on stderr, without tracebacks."""
 
@@ -244,7 +239,7 @@ class _OneLine(logging.Handler):
         try:
             text = record.getMessage()
             if record.exc_info and record.exc_info[1] is not None:
-                text += f": {_one_line(record.exc_info[1])}"
+                text += f": {described(record.exc_info[1])}"
             sys.stderr.write(f"wavlight view: {' '.join(text.split())}\n")
         except Exception:   # a closed stderr
             pass
@@ -441,7 +436,7 @@ class Viewer:
         except OSError as e:
             await self._runner.cleanup()
             self._pool.shutdown(wait=False)
-            why = os.strerror(e.errno).lower() if e.errno else _one_line(e)
+            why = os.strerror(e.errno).lower() if e.errno else described(e)
             raise WavlightError(f"{HOST}:{port}: cannot listen ({why})") from None
         self.port = self._runner.addresses[0][1]
         return self.url
@@ -537,7 +532,7 @@ class _Client:
         try:
             data = json.loads(text)
         except ValueError as e:
-            return await self.error(f"a message that is not JSON ({_one_line(e)})")
+            return await self.error(f"a message that is not JSON ({described(e)})")
         if not isinstance(data, dict):
             return await self.error(f"a message must be a JSON object, got {shown(data, 40)}")
         kind = data.get("type", "state")
@@ -620,10 +615,10 @@ class _Client:
                     if not await self._answer(self.state):
                         return
                 except WavlightError as e:
-                    await self.error(_one_line(e))
+                    await self.error(described(e))
                 except Exception as e:   # never a traceback
-                    _log.error("frame failed: %s", _one_line(e))
-                    await self.error(f"frame failed: {_one_line(e)}")
+                    _log.error("frame failed: %s", described(e))
+                    await self.error(f"frame failed: {described(e)}")
         except asyncio.CancelledError:
             pass
         finally:
@@ -691,8 +686,8 @@ class _Client:
                     image, stderr = job.result()
                 except Exception as e:   # the estimator failed: one line, and the control is released
                     if not isinstance(e, WavlightError):
-                        _log.error("converge failed: %s", _one_line(e))
-                    await self.send_text({"type": "converge", "stopped": True, "message": _one_line(e)})
+                        _log.error("converge failed: %s", described(e))
+                    await self.send_text({"type": "converge", "stopped": True, "message": described(e)})
                     await self._wait_for_change(lighting)
                     return True
                 seconds = time.perf_counter() - t0
