@@ -28,7 +28,8 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
 
     [[strategies]]
     id = "wavelet"            # uniform | cosine | bsdf | light | mis | wavelet | ...,
-                              # or a Mitsuba peer: mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf
+                              # or a Mitsuba peer: mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf,
+                              # or relight (below: bake_spp, levels, frames)
     label = "wavelet-p5"      # default: the id; names the output folders and chart lines
     wavelet_levels = 5        # optional: any strategy option by its scene key, as in a scene's
     light_levels = 9          # [render] table (wavlight.strategies.OPTIONS, docs/cli.md); an option
@@ -87,7 +88,7 @@ Decisions:
   (:func:`wavlight.imageio.check_memory`, per worker) within the memory available; every
   reference file read and checked (size, NaN, all black) up front; no input (the spec, a
   scene, its map or meshes, a reference) where the experiment writes (its files in DIR and
-  the folders runs/, reference/, pilot/, charts/). A time budget whose spp would pass MAX_SPP
+  the folders runs/, reference/, pilot/, charts/, bakes/). A time budget whose spp would pass MAX_SPP
   is capped there with a warning.
 - **Mitsuba peers.** ``id = "mitsuba:<mis|mis_comp|light|bsdf>"`` renders with
   :func:`wavlight.evaluation.peers.render_mitsuba` (same scene, size, spp, seed; its setup includes
@@ -96,6 +97,13 @@ Decisions:
   Mitsuba 3 (llvm_ad_rgb) the spec is rejected (``[[strategies]][i].id: 'mitsuba:mis'
   needs Mitsuba 3 ...``), not skipped. Warm-up, pilots, time budgets, resume and metrics
   are as for wavlight strategies; run hashes also cover Mitsuba's version.
+- **Relit frames.** ``id = "relight"`` bakes each scene once at the run size
+  (:func:`wavlight.relight.bake.bake` with ``bake_spp`` camera samples per pixel, default 16, and
+  ``levels`` texel levels, default chosen from the scene) into ``DIR/bakes/<scene>/<label>.wlt``
+  with its record (hash of the scene, size and settings; reused on resume), and renders each
+  run with the bake's unbiased estimator (:func:`wavlight.relight.converge.converge`, the
+  scene's own lighting). Each run's ``setup_seconds`` is the bake's seconds divided by
+  ``frames`` (default 100): the frames one bake serves while only the lighting changes.
 - **Parallel runs.** ``workers=N`` (N > 1) renders the runs in a process pool of the
   ``spawn`` context (OpenCL contexts must not be forked); ``dask_address="tcp://H:P"``
   submits them to an existing dask.distributed scheduler. References, pilots and resume
@@ -154,7 +162,7 @@ from . import metrics
 from .charts import error_charts, error_maps
 from .records import (INTEGER, NUMBER, ROWS, TABLE, TEXT, content_hash, csv_text, image_problem, read_image,
                       read_json, record_problem, remove_stale, save_run_image, write_json, write_text)
-from .spec import PEER_PREFIX, Budget, SceneSpec, Spec, StrategySpec, load_spec
+from .spec import PEER_PREFIX, RELIGHT, Budget, SceneSpec, Spec, StrategySpec, load_spec
 from ..cluster import DASK_TIMEOUT, connect, finished
 from ..errors import SanitisedInputWarning, WavlightError, one_line, shown
 from ..imageio import check_memory, check_not_input, remove_stale_temporaries, same_file, scene_files
@@ -181,6 +189,7 @@ RUN_FIELDS = {"hash": TEXT, "scene": TEXT, "strategy": TEXT, "strategy_id": TEXT
               "image": TEXT, "stats": (TABLE, None)}
 REFERENCE_FIELDS = {"hash": TEXT, "strategy": TEXT, "spp": INTEGER, "seed": INTEGER}
 PILOT_FIELDS = {"hash": TEXT, "points": ROWS, "setup_seconds": NUMBER, "render_a": NUMBER, "render_b": NUMBER}
+BAKE_FIELDS = {"hash": TEXT, "file": TEXT, "bake_seconds": NUMBER}
 
 
 # ----------------------------------------------------------------------------- the experiment file
@@ -225,16 +234,18 @@ class _Runner:
         check_memory(f"{spec.path}: {'[experiment].size' if spec.size else 'a scene size'}", w, h,
                      copies=max(1, min(workers, runs)))
         self.warm = set()
+        self.bakes = {}   # (scene name, strategy label) -> the run options of a relight strategy
         self.done = 0
         self.rendered = self.reused = 0
         n_ref = sum(1 for s in spec.scenes if s.reference is None)
         n_pilot = len(spec.scenes) * len(spec.strategies) if any(b.kind == "seconds" for b in spec.budgets) else 0
-        self.total = n_ref + n_pilot + len(spec.scenes) * len(spec.strategies) * len(spec.budgets) * spec.repetitions
+        n_bake = len(spec.scenes) * sum(1 for st in spec.strategies if st.id == RELIGHT)
+        self.total = n_ref + n_pilot + n_bake + len(spec.scenes) * len(spec.strategies) * len(spec.budgets) * spec.repetitions
 
     def _check_outputs(self):
         """Refuse, before anything is written, an input (the spec, a scene file, its map or a mesh,
         a reference file) that lies where this experiment writes: its files in out_dir and the
-        folders runs/, reference/, pilot/ and charts/ there."""
+        folders runs/, reference/, pilot/, charts/ and bakes/ there."""
         spec, out = self.spec, os.path.abspath(self.out)
         inputs = [spec.path]
         for s in spec.scenes:   # the scene file and what it reads (Scene.files: its map and meshes)
@@ -243,7 +254,7 @@ class _Runner:
         inputs += [f for s in spec.scenes for f in (s.reference, s.reference_stderr) if f is not None]
         mine = [os.path.join(out, n) for n in ("spec.toml", "results.json", "results.csv", "runs.csv")]
         check_not_input(mine, inputs)
-        for folder in ("runs", "reference", "pilot", "charts"):
+        for folder in ("runs", "reference", "pilot", "charts", "bakes"):
             root = os.path.join(out, folder)
             for inp in inputs:
                 real = os.path.realpath(inp)
@@ -280,6 +291,48 @@ class _Runner:
         self.done += 1
         if self.progress:
             self.progress(self.done, self.total, what)
+
+    def run_options(self, s: SceneSpec, st: StrategySpec) -> dict:
+        """What a render of ``st`` needs besides spp and seed: its options, and for relight the
+        bake file and its seconds (:meth:`bake`)."""
+        return self.bake(s, st) if st.id == RELIGHT else st.options
+
+    def bake(self, s: SceneSpec, st: StrategySpec) -> dict:
+        """The relight strategy's bake of this scene at the run size, made once (reused on
+        resume while the scene, size and bake settings are the same): DIR/bakes/<scene>/<label>.wlt
+        and its record. Returns the runs' options: the settings, the file and ``bake_seconds``."""
+        if (s.name, st.label) in self.bakes:
+            return self.bakes[s.name, st.label]
+        from ..relight.bake import bake
+        from ..relight.transfer import Transfer
+
+        folder = os.path.join(self.out, "bakes", s.name)
+        path, rec_path = os.path.join(folder, f"{st.label}.wlt"), os.path.join(folder, f"{st.label}.json")
+        key = content_hash({**self.base_key(s.name), **self.strategy_key(st), "bake": "lighting"})
+        what = f"{s.name}/{st.label}: bake"
+        rec = self._record(rec_path, BAKE_FIELDS, f"the {what}")
+        usable = rec is not None and rec["hash"] == key and rec["bake_seconds"] >= 0
+        if usable:
+            try:
+                Transfer.load(path).close()
+            except WavlightError as e:
+                warnings.warn(f"{path}: {e}: baking {s.name}/{st.label} again", stacklevel=4)
+                usable = False
+        if usable:
+            self.step(what + " (done before)")
+        else:
+            w, h = self.size[s.name]
+            os.makedirs(folder, exist_ok=True)
+            t0 = time.perf_counter()
+            bake(self.scenes[s.name], output=path, width=w, height=h, spp=st.options.get("bake_spp", 16),
+                 levels=st.options.get("levels"), threads=self.spec.threads).close()
+            rec = {"hash": key, "file": os.path.relpath(path, self.out),
+                   "bake_seconds": round(time.perf_counter() - t0, 4)}
+            write_json(rec_path, rec)
+            self.step(what)
+        options = {**st.options, "transfer": os.path.abspath(path), "bake_seconds": rec["bake_seconds"]}
+        self.bakes[s.name, st.label] = options
+        return options
 
     def render(self, scene_name, strategy_id, options, spp, seed):
         w, h = self.size[scene_name]
@@ -356,11 +409,11 @@ class _Runner:
                 return rec
             warnings.warn(f"{path}: the pilot's fit is not usable (a cost per spp of {rec['render_b']!r} s): "
                           f"measuring the {s.name}/{st.label} pilot again", stacklevel=4)
-        self.warm_up(s.name, st.id, st.options)
+        self.warm_up(s.name, st.id, self.run_options(s, st))
         points = []
 
         def measure(spp):
-            r = self.render(s.name, st.id, st.options, spp, PILOT_SEED)
+            r = self.render(s.name, st.id, self.run_options(s, st), spp, PILOT_SEED)
             points.append({"spp": spp, "setup_seconds": r.stats["setup_seconds"],
                            "render_seconds": r.stats["render_seconds"]})
 
@@ -439,13 +492,13 @@ class _Runner:
         """The job as the plain arguments of :func:`run_task` (picklable, no paths to write)."""
         s, st = job["s"], job["st"]
         return {"scene_path": s.path, "scene_hash": self.scene_hash[s.name], "size": tuple(self.size[s.name]),
-                "strategy": st.id, "options": dict(st.options), "spp": job["spp"], "seed": job["seed"],
+                "strategy": st.id, "options": dict(self.run_options(s, st)), "spp": job["spp"], "seed": job["seed"],
                 "threads": self.spec.threads}
 
     def render_local(self, job):
         s, st = job["s"], job["st"]
-        self.warm_up(s.name, st.id, st.options)
-        r = self.render(s.name, st.id, st.options, job["spp"], job["seed"])
+        self.warm_up(s.name, st.id, self.run_options(s, st))
+        r = self.render(s.name, st.id, self.run_options(s, st), job["spp"], job["seed"])
         return {"image": r.image, "stats": r.stats}
 
     def finish(self, job, result):
@@ -471,8 +524,25 @@ class _Runner:
         return rec if job is None else self.finish(job, self.render_local(job))
 
 
+_TRANSFERS = {}   # per process: bake file -> Transfer (memory-mapped, opened once)
+
+
 def _render(scene, strategy_id, options, spp, width, height, seed, threads):
-    """One render by wavlight (``wavlight.render_full``) or by a peer (``mitsuba:<strategy>``)."""
+    """One render by wavlight (``wavlight.render_full``), by a peer (``mitsuba:<strategy>``) or
+    the relit frame's unbiased estimator of a bake (``relight``; the size is the bake's)."""
+    if strategy_id == RELIGHT:
+        from ..relight.converge import converge
+        from ..relight.transfer import Transfer
+
+        path = options["transfer"]
+        if path not in _TRANSFERS:
+            _TRANSFERS[path] = Transfer.load(path)
+        t0 = time.perf_counter()
+        r = converge(_TRANSFERS[path], scene, spp=spp, seed=seed, threads=threads)
+        # the bake amortized over the frames it serves (``frames``), as the setup of each
+        r.stats.update(setup_seconds=round(options["bake_seconds"] / options.get("frames", 100), 4),
+                       render_seconds=round(time.perf_counter() - t0, 4), strategy=RELIGHT)
+        return r
     if strategy_id.startswith(PEER_PREFIX):
         from . import peers
         return peers.render_mitsuba(scene, strategy_id[len(PEER_PREFIX):], spp=spp, width=width, height=height,
@@ -681,6 +751,10 @@ def _run(runner: _Runner, t_start, workers=1, dask_address=None):
     # them fails before any run), then the runs
     for s in spec.scenes:
         references[s.name] = runner.reference(s)
+    for s in spec.scenes:   # relight's bakes, once per scene, before its pilots and runs
+        for st in spec.strategies:
+            if st.id == RELIGHT:
+                runner.bake(s, st)
     if any(b.kind == "seconds" for b in spec.budgets):
         for s in spec.scenes:
             for st in spec.strategies:

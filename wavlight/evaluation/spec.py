@@ -14,6 +14,12 @@ from ..scene import _Table as SceneTable
 
 
 PEER_PREFIX = "mitsuba:"
+#: The relit frames' unbiased estimator (:func:`wavlight.relight.converge.converge`) as an
+#: experiment strategy: each scene baked once (:func:`wavlight.relight.bake.bake`), its time
+#: amortized over ``frames`` frames in every run's setup seconds.
+RELIGHT = "relight"
+#: relight's keys in a [[strategies]] table: (kind, default, lowest, highest)
+RELIGHT_KEYS = {"bake_spp": ("int", 16, 1, 4096), "levels": ("int", None, 2, 8), "frames": ("int", 100, 1, 10 ** 9)}
 
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
@@ -193,8 +199,8 @@ def load_spec(path) -> Spec:
             if not peers.available():
                 t.fail("id", f"{sid!r} needs Mitsuba 3 with its llvm_ad_rgb variant, which is not available "
                              "(pip install 'wavlight[peers]'; Debian: libllvm19)")
-        elif sid not in STRATEGIES:
-            t.fail("id", f"unknown strategy {sid!r} ({' | '.join(STRATEGIES)} | "
+        elif sid not in STRATEGIES and sid != RELIGHT:
+            t.fail("id", f"unknown strategy {sid!r} ({' | '.join(STRATEGIES)} | {RELIGHT} | "
                          f"mitsuba:mis | mitsuba:mis_comp | mitsuba:light | mitsuba:bsdf)")
         label = t.name_key("label", sid.replace(":", "-"))
         if any(x.label == label for x in strats):
@@ -202,8 +208,17 @@ def load_spec(path) -> Spec:
         options = t.options()   # the strategies' settings, as in a scene's [render] table
         if options and sid.startswith(PEER_PREFIX):
             t.fail(sorted(options)[0], f"is a wavlight option; {sid!r} takes none")
+        if sid == RELIGHT:
+            if options:
+                t.fail(sorted(options)[0], f"is a render option; {RELIGHT!r} takes {', '.join(RELIGHT_KEYS)}")
+            for key, (kind, default, lo, hi) in RELIGHT_KEYS.items():
+                v = t.get(key, kind, default, lo=lo)
+                if v is not None and v > hi:
+                    t.fail(key, f"must be at most {hi}, got {v}")
+                if v is not None:
+                    options[key] = v
         for opt in options:
-            if sid not in APPLIES[opt]:
+            if sid != RELIGHT and sid not in APPLIES[opt]:
                 t.fail(opt, f"does not apply to {sid!r} (only to {' | '.join(APPLIES[opt])})")
         t.done()
         strats.append(StrategySpec(label, sid, options))
