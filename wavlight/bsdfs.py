@@ -150,3 +150,25 @@ def pdf(kind, param, wi, wo):
     if kind == PHONG:
         return phong_pdf(wi, wo, param)
     return ggx_pdf(wi, wo, param)
+
+
+# ----------------------------------------------------------------------------- mixed kinds
+def sample_each(kind, param, u, wo):
+    """:func:`sample` of samples of several materials at once (``kind`` and ``param`` per
+    sample): the directions wi (N, 3), one call per material kind present."""
+    wi = np.zeros((len(kind), 3))
+    for kd in np.unique(kind):   # material kinds, not samples
+        sel = kind == kd
+        wi[sel] = sample(int(kd), param[sel], u[sel], wo[sel])[0]
+    return wi
+
+
+def eval_pdf_each(kind, param, wi, wo):
+    """(f * cos_i, pdf) of samples of several materials at once (``kind`` and ``param`` per
+    sample), one call per material kind present."""
+    fcos, p = np.zeros(len(kind)), np.zeros(len(kind))
+    for kd in np.unique(kind):   # material kinds, not samples
+        sel = kind == kd
+        fcos[sel] = eval_cos(int(kd), param[sel], wi[sel], wo[sel])
+        p[sel] = pdf(int(kd), param[sel], wi[sel], wo[sel])
+    return fcos, p

@@ -183,10 +183,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
                 use_b = u[:, 2] < alpha
                 ub = np.stack([np.where(use_b, u[:, 2] / alpha, (u[:, 2] - alpha) / (1 - alpha + 1e-300)), u[:, 3]], 1)
                 ub = np.clip(ub, 0.0, np.nextafter(1.0, 0.0))
-                wl_b = np.zeros((len(hit), 3))
-                for kd in np.unique(kind):   # material kinds, not samples
-                    sel = kind == kd
-                    wl_b[sel] = bsdfs.sample(int(kd), param[sel], ub[sel], wo[sel])[0]
+                wl_b = bsdfs.sample_each(kind, param, ub, wo)
                 d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
                 direction = np.where(use_b[:, None], d_b, d_p)
                 # the mixture's pdf at the chosen direction, from both techniques
@@ -195,12 +192,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
                 p_prod = np.where(has_p, p_tree.astype(np.float64) * inside.factor(uv), 0.0) \
                     * solid_angle_jacobian(direction)
                 wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, nrm)], 1)
-                fcos = np.zeros(len(hit))
-                p_bsdf = np.zeros(len(hit))
-                for kd in np.unique(kind):   # material kinds, not samples
-                    sel = kind == kd
-                    fcos[sel] = bsdfs.eval_cos(int(kd), param[sel], wl[sel], wo[sel])
-                    p_bsdf[sel] = bsdfs.pdf(int(kd), param[sel], wl[sel], wo[sel])
+                fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
                 pdf = (1 - alpha) * p_prod + alpha * p_bsdf
                 with np.errstate(divide="ignore", invalid="ignore"):
                     weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0) / slots

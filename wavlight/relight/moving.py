@@ -211,10 +211,7 @@ class MovingObject:
         alpha = np.where(mass > 0, DEFENSIVE, 1.0)
         use_b = uu[:, 2] < alpha
         ub = np.clip(np.stack([np.where(use_b, uu[:, 2] / alpha, 0.0), uu[:, 3]], 1), 0.0, np.nextafter(1.0, 0.0))
-        wl_b = np.zeros((len(live), 3))
-        for kd in np.unique(kind):   # material kinds, not samples
-            sel = kind == kd
-            wl_b[sel] = bsdfs.sample(int(kd), param[sel], ub[sel], wo[sel])[0]
+        wl_b = bsdfs.sample_each(kind, param, ub, wo)
         d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * n
         direction = _unit(np.where(use_b[:, None], d_b, d_p))
         # the mixture's pdf
@@ -224,11 +221,7 @@ class MovingObject:
         p_tree = trees.pdf(np.ascontiguousarray(spread, np.float32), spp)[rest[live]].astype(np.float64)
         p_prod = np.where(mass > 0, p_tree * self.inside.factor(uv), 0.0) * solid_angle_jacobian(direction)
         wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, n)], 1)
-        fcos, p_bsdf = np.zeros(len(live)), np.zeros(len(live))
-        for kd in np.unique(kind):   # material kinds, not samples
-            sel = kind == kd
-            fcos[sel] = bsdfs.eval_cos(int(kd), param[sel], wl[sel], wo[sel])
-            p_bsdf[sel] = bsdfs.pdf(int(kd), param[sel], wl[sel], wo[sel])
+        fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
         pdf = (1 - alpha) * p_prod + alpha * p_bsdf
         with np.errstate(divide="ignore", invalid="ignore"):
             weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0)
