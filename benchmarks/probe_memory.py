@@ -43,16 +43,9 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
-SKY = """[render]
-width = 64
-height = 64
-spp = 1
-[camera]
-eye = [0.0, 1.0, 3.0]
-target = [0.0, 0.4, 0.0]
-[environment]
-procedural = "sky"
-"""
+SKY = ('render = { width = 64, height = 64, spp = 1 }\n'
+       'camera = { eye = [0.0, 1.0, 3.0], target = [0.0, 0.4, 0.0] }\n'
+       'environment = { procedural = "sky" }\n')
 
 WRITE = r"""
 import resource, sys, numpy as np, wavlight

@@ -16,6 +16,29 @@ from scipy import stats
 import wavlight
 
 
+# ----------------------------------------------------------------------------- children
+
+def run_limited(code: str, *args, gigabytes: int, timeout: float, what: str):
+    """Run ``code`` in a Python child whose address space is limited to ``gigabytes`` GB (so that
+    code which allocated what it should refuse fails instead of filling the machine), with
+    ``args`` as sys.argv[1:]; the test fails, naming ``what``, if the child outlives ``timeout``
+    seconds. Returns (the finished process, its wall seconds)."""
+    import subprocess
+    import sys
+    import time
+
+    import pytest
+
+    limit = (f"import resource\nresource.setrlimit(resource.RLIMIT_AS, ({gigabytes} << 30, {gigabytes} << 30))\n")
+    t = time.perf_counter()
+    try:
+        p = subprocess.run([sys.executable, "-c", limit + code, *map(str, args)], capture_output=True, text=True,
+                           timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{what} after {timeout:g} s")
+    return p, time.perf_counter() - t
+
+
 # ----------------------------------------------------------------------------- scenes
 def scene_dict(*, render: dict, camera: dict, environment: dict, objects=(), materials=None) -> dict:
     """A scene as the dict that wavlight.load_dict takes (the TOML file's structure)."""

@@ -12,30 +12,15 @@ from wavlight.errors import WavlightError
 from wavlight.evaluation import experiment, run_experiment
 from wavlight.evaluation.spec import load_spec
 
-SCENE = """[render]
-width = 16
-height = 12
-spp = 1
-[camera]
-eye = [0.0, 1.0, 3.0]
-target = [0.0, 0.4, 0.0]
-fov_y = 40.0
-[environment]
-procedural = "sky"
-[materials.glossy]
-type = "ggx"
-albedo = [0.8, 0.7, 0.6]
-roughness = 0.3
-[[objects]]
-shape = "sphere"
-subdivisions = 2
-radius = 0.5
-center = [0.0, 0.5, 0.0]
-material = "glossy"
-[[objects]]
-shape = "quad"
-size = 4.0
-"""
+from scenes_util import scene_dict, toml_text
+
+SCENE = scene_dict(
+    render={"width": 16, "height": 12, "spp": 1},
+    camera={"eye": [0.0, 1.0, 3.0], "target": [0.0, 0.4, 0.0], "fov_y": 40.0},
+    environment={"procedural": "sky"},
+    materials={"glossy": {"type": "ggx", "albedo": [0.8, 0.7, 0.6], "roughness": 0.3}},
+    objects=[{"shape": "sphere", "subdivisions": 2, "radius": 0.5, "center": [0.0, 0.5, 0.0], "material": "glossy"},
+             {"shape": "quad", "size": 4.0}])
 
 
 def spec_text(relight='bake_spp = 4\nlevels = 4\nframes = 10\n', budgets="spp = [2, 8]\nrepetitions = 2\n"):
@@ -45,7 +30,7 @@ def spec_text(relight='bake_spp = 4\nlevels = 4\nframes = 10\n', budgets="spp = 
 
 
 def write(folder, text):
-    (folder / "sc.toml").write_text(SCENE)
+    (folder / "sc.toml").write_text(toml_text(SCENE))
     (folder / "e.toml").write_text(text)
     return folder / "e.toml"
 
@@ -120,6 +105,6 @@ def test_the_bakes_folder_is_the_experiments_own(tmp_path):
     (tmp_path / "out" / "bakes").mkdir(parents=True)
     spec = write(tmp_path, spec_text())
     (tmp_path / "e.toml").write_text(spec_text().replace('path = "sc.toml"', 'path = "out/bakes/sc.toml"'))
-    (tmp_path / "out" / "bakes" / "sc.toml").write_text(SCENE)
+    (tmp_path / "out" / "bakes" / "sc.toml").write_text(toml_text(SCENE))
     with pytest.raises(WavlightError, match="bakes/ is written by the experiment"):
         experiment.run_experiment(spec, tmp_path / "out")

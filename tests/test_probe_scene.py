@@ -13,12 +13,10 @@ with "exponent = 100.0  # phong only", which tests/test_scene.py loads verbatim)
 """
 from __future__ import annotations
 
-import subprocess
-import sys
-import time
 
 import pytest
 
+from scenes_util import run_limited
 from test_cli import assert_clean_failure, run_inproc, scene_text, stderr_lines, write_scene
 
 SPHERE = '[[objects]]\nshape = "sphere"\nsubdivisions = 1\n'
@@ -142,16 +140,10 @@ def test_triangles_beyond_any_memory_are_refused_before_building(tmp_path):
     would fail instead of filling the machine."""
     objs = '[[objects]]\nshape = "sphere"\nsubdivisions = 8\n' * 100
     scene = write_scene(tmp_path, scene_text(objects=objs))
-    code = ("import resource, sys\nresource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))\n"
-            "from wavlight.cli.main import main\nsys.argv = ['wavlight', 'render', sys.argv[1], '-o', sys.argv[2]]\n"
-            "main()\n")
-    t = time.perf_counter()
-    try:
-        p = subprocess.run([sys.executable, "-c", code, str(scene), str(tmp_path / "o.png")], capture_output=True,
-                           text=True, timeout=20)
-    except subprocess.TimeoutExpired:
-        pytest.fail("still building geometry after 20 s")
-    seconds = time.perf_counter() - t
+    code = ("import sys\nfrom wavlight.cli.main import main\n"
+            "sys.argv = ['wavlight', 'render', sys.argv[1], '-o', sys.argv[2]]\nmain()\n")
+    p, seconds = run_limited(code, scene, tmp_path / "o.png", gigabytes=3, timeout=20,
+                             what="still building geometry")
     lines = [line for line in p.stderr.splitlines() if line.strip()]
     assert p.returncode == 2 and len(lines) == 1 and lines[0].startswith("Error:"), (p.returncode, p.stderr[-2000:])
     assert "[[objects]]" in lines[0] and "Traceback" not in p.stderr
