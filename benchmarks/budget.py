@@ -27,7 +27,6 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 
 import numpy as np
 
@@ -40,9 +39,9 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import relmse as relmse_bench  # noqa: E402  (its scenes)
 
 
-def _without_floor(text: str) -> str:
-    start = text.index('[[objects]]\nshape = "quad"')
-    return text[:start] + text[text.index("[materials.floor]"):]
+def _without_floor(d: dict) -> dict:
+    """The scene dict without its floor (the objects of relmse.FLOOR's shape left out)."""
+    return {**d, "objects": [o for o in d["objects"] if o.get("shape") != "quad"]}
 
 
 def main():
@@ -66,21 +65,17 @@ def main():
     if not os.path.isdir(relmse_bench.DATA):
         sys.exit(f"budget.py: needs the shared data folder at {relmse_bench.DATA}")
     configs = [tuple(int(x) for x in c.split("x")) for c in args.configs.split(",")]
-    texts = {k: v for k, v in relmse_bench.scenes() if "lambert" not in k}
+    dicts = {k: d for k, d in relmse_bench.scenes() if "lambert" not in k}
     if args.no_floor:
-        texts = {k.replace("bunny", "bunny-alone"): _without_floor(v) for k, v in texts.items()
+        dicts = {k.replace("bunny", "bunny-alone"): _without_floor(v) for k, v in dicts.items()
                  if k.startswith("bunny")}
     if args.only:
-        texts = {k: v for k, v in texts.items() if any(o in k for o in args.only.split(","))}
+        dicts = {k: v for k, v in dicts.items() if any(o in k for o in args.only.split(","))}
     runs = [("mis", {})] + [(f"{m}x{s}", dict(wavelet_candidates=m, wavelet_slots=s)) for m, s in configs]
     results = {"size": args.size, "spp": args.spp, "seeds": args.seeds, "ref_spp": args.ref_spp,
                "configs": [r[0] for r in runs[1:]], "scenes": {}}
-    tmp = tempfile.mkdtemp(prefix="wavlight-budget-")
-    for name, text in texts.items():
-        path = os.path.join(tmp, name.replace("/", "_") + ".toml")
-        with open(path, "w") as fh:
-            fh.write(text)
-        scene = wavlight.load_scene(path)
+    for name, d in dicts.items():
+        scene = wavlight.load_dict(d)
         for label, kw in runs:   # compile each configuration's kernels before timing
             wavlight.render_full(scene, spp=1, width=8, height=8, strategy="wavelet" if kw else "mis", **kw)
         ref = wavlight.render_full(scene, spp=args.ref_spp, strategy="mis", seed=10_000,

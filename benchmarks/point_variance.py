@@ -520,27 +520,22 @@ def main():
     if not os.path.isdir(DATA):
         sys.exit(f"point_variance: {DATA} not found (../shared/data beside the checkout)")
 
-    import tempfile
-
+    import wavlight
     from wavlight import strategies
     from wavlight.strategies import product
-    from wavlight.scene import load_scene
 
     blurs = [float(b) for b in args.phong_blur.split(",")] if args.phong_blur else [product.PHONG_BLUR / np.pi]
     out = {"points": args.points, "samples": args.samples, "phong_blur_pi": blurs, "cases": {}}
-    tmp = tempfile.mkdtemp(prefix="wavlight-points-")
     for env_name in args.maps.split(","):
         for mat_name in args.materials.split(","):
             kind, param = MATERIALS[mat_name]
             key = {"phong": "exponent", "ggx": "roughness"}.get(kind)
-            mat = f'type = "{kind}"\n' + (f"{key} = {param}\n" if key else "") + "albedo = [0.9, 0.9, 0.9]\n"
-            path = os.path.join(tmp, f"{env_name}-{mat_name}.toml")
-            with open(path, "w") as fh:
-                fh.write(f'[environment]\nfile = "{DATA}/envmaps/{env_name}.hdr"\n'
-                         '[camera]\neye = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n'
-                         'fov_y = 32.0\n[[objects]]\nshape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\n'
-                         f'material = "m"\n[materials.m]\n{mat}')
-            scene = load_scene(path)
+            mat = {"type": kind, "albedo": [0.9, 0.9, 0.9], **({key: param} if key else {})}
+            scene = wavlight.load_dict({
+                "environment": {"file": f"{DATA}/envmaps/{env_name}.hdr"},
+                "camera": {"eye": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0], "fov_y": 32.0},
+                "objects": [{"shape": "sphere", "center": [0.0, 0.0, 0.0], "radius": 1.0, "material": "m"}],
+                "materials": {"m": mat}})
             env = scene.environment
             count, points = sphere_points(scene, args.points, np.random.default_rng(7))
             idx = np.repeat(np.arange(count), args.samples)

@@ -47,10 +47,10 @@ some 40 minutes on two shared cores).
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import sys
-import tempfile
 
 import numpy as np
 
@@ -59,53 +59,30 @@ from wavlight.evaluation.metrics import relmse
 HERE = os.path.dirname(os.path.abspath(__file__))
 DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data"))
 MAPS = ["rooitou_park_1k", "st_fagans_interior_1k", "potsdamer_platz_1k"]
-MATERIALS = {"ggx0.05": 'type = "ggx"\nroughness = 0.05', "ggx0.2": 'type = "ggx"\nroughness = 0.2',
-             "phong200": 'type = "phong"\nexponent = 200.0', "lambert": 'type = "lambert"'}
+MATERIALS = {"ggx0.05": {"type": "ggx", "roughness": 0.05}, "ggx0.2": {"type": "ggx", "roughness": 0.2},
+             "phong200": {"type": "phong", "exponent": 200.0}, "lambert": {"type": "lambert"}}
 STRATEGIES = ["wavelet", "mis", "mis_comp", "light", "bsdf"]
 
-SPHERE = """
-[camera]
-eye = [0.0, 0.0, 4.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov_y = 32.0
-[[objects]]
-shape = "sphere"
-center = [0.0, 0.0, 0.0]
-radius = 1.0
-material = "m"
-"""
-BUNNY = """
-[camera]
-eye = [0.0, 1.4, 4.2]
-target = [-0.15, 1.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov_y = 30.0
-[[objects]]
-mesh = "{data}/meshes/bunny.ply"
-scale = 10.0
-material = "m"
-[[objects]]
-shape = "quad"
-center = [0.0, 0.33, 0.0]
-normal = [0.0, 1.0, 0.0]
-size = 6.0
-material = "floor"
-[materials.floor]
-type = "lambert"
-albedo = [0.5, 0.5, 0.5]
-"""
+SPHERE = {"camera": {"eye": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0], "fov_y": 32.0},
+          "objects": [{"shape": "sphere", "center": [0.0, 0.0, 0.0], "radius": 1.0, "material": "m"}]}
+FLOOR = {"shape": "quad", "center": [0.0, 0.33, 0.0], "normal": [0.0, 1.0, 0.0], "size": 6.0, "material": "floor"}
+BUNNY = {"camera": {"eye": [0.0, 1.4, 4.2], "target": [-0.15, 1.0, 0.0], "up": [0.0, 1.0, 0.0], "fov_y": 30.0},
+         "objects": [{"mesh": f"{DATA}/meshes/bunny.ply", "scale": 10.0, "material": "m"}, FLOOR],
+         "materials": {"floor": {"type": "lambert", "albedo": [0.5, 0.5, 0.5]}}}
 
 
 def scenes():
+    """(name, scene dict for wavlight.load_dict): the sphere alone under each map in each
+    material, the bunny on its floor in each glossy one."""
     for geometry, body in (("sphere", SPHERE), ("bunny", BUNNY)):
         for mat, mat_body in MATERIALS.items():
             if geometry == "bunny" and mat == "lambert":
                 continue
             for env in MAPS:
-                text = (f'[environment]\nfile = "{DATA}/envmaps/{env}.hdr"\n' + body.format(data=DATA)
-                        + f"[materials.m]\n{mat_body}\nalbedo = [0.9, 0.9, 0.9]\n")
-                yield f"{geometry}/{mat}/{env}", text
+                d = copy.deepcopy(body)
+                d["environment"] = {"file": f"{DATA}/envmaps/{env}.hdr"}
+                d.setdefault("materials", {})["m"] = {**mat_body, "albedo": [0.9, 0.9, 0.9]}
+                yield f"{geometry}/{mat}/{env}", d
 
 
 def floor_image(scene, spp, size, seed, directions, sampler):
@@ -173,14 +150,10 @@ def main():
     results = {"size": args.size, "ref_spp": args.ref_spp, "seeds": args.seeds, "spp": spps,
                "sampler": args.sampler, "floor_directions": args.floor,
                "wavelet_candidates": args.candidates, "wavelet_slots": args.slots, "scenes": {}}
-    tmp = tempfile.mkdtemp(prefix="wavlight-relmse-")
-    for name, text in scenes():
+    for name, d in scenes():
         if args.only and args.only not in name:
             continue
-        path = os.path.join(tmp, name.replace("/", "_") + ".toml")
-        with open(path, "w") as fh:
-            fh.write(text)
-        scene = wavlight.load_scene(path)
+        scene = wavlight.load_dict(d)
         kw = dict(width=args.size, height=args.size)
         # the walk kernels are built per tree depth, product depth and lobe shapes: compile
         # this scene's variants before timing (once per process and configuration)
