@@ -230,13 +230,19 @@ class _Table:
     def has(self, key):
         return key in self.data
 
-    def get(self, key, kind, default=None, required=False):
+    def lookup(self, key, required=False):
+        """(present, value) of ``key``, marked as used; a required key that is absent fails."""
         self.used.add(key)
         if key not in self.data:
             if required:
                 self.fail(key, "is required")
+            return False, None
+        return True, self.data[key]
+
+    def get(self, key, kind, default=None, required=False):
+        present, v = self.lookup(key, required)
+        if not present:
             return default
-        v = self.data[key]
         if kind == "int":
             if isinstance(v, bool) or not isinstance(v, int):
                 self.fail(key, f"must be an integer, got {shown(v)}")

@@ -71,12 +71,9 @@ class SpecTable(SceneTable):
     and the key, unknown keys rejected) with the experiment's own value kinds."""
 
     def get(self, key, kind, default=None, required=False, lo=None):
-        self.used.add(key)
-        if key not in self.data:
-            if required:
-                self.fail(key, "is required")
+        present, v = self.lookup(key, required)
+        if not present:
             return default
-        v = self.data[key]
         is_int = lambda x: isinstance(x, int) and not isinstance(x, bool)
         is_num = lambda x: (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
         if kind == "int":
@@ -154,12 +151,24 @@ def load_spec(path) -> Spec:
     def rel(p):
         return os.path.normpath(os.path.join(base, p))
 
-    scenes_doc = doc.get("scenes")
-    if not isinstance(scenes_doc, list) or not scenes_doc:
-        raise WavlightError(f"{path}: [[scenes]]: at least one [[scenes]] table with a path is required")
+    def tables(key, needs):
+        """The [[key]] tables in turn; none at all is an error naming what each needs."""
+        items = doc.get(key)
+        if not isinstance(items, list) or not items:
+            raise WavlightError(f"{path}: [[{key}]]: at least one [[{key}]] table with {needs} is required")
+        for i, item in enumerate(items):
+            yield SpecTable(path, f"[[{key}]][{i}]", item)
+
+    def image_file(t, key):
+        """The image that ``key`` names, relative to the spec's folder, checked as a reference."""
+        full = rel(t.get(key, "str"))
+        if file_problem(full):
+            t.fail(key, f"{file_problem(full)} ({full})")
+        check_image(t, key, full)
+        return full
+
     scenes = []
-    for i, s in enumerate(scenes_doc):
-        t = SpecTable(path, f"[[scenes]][{i}]", s)
+    for t in tables("scenes", "a path"):
         p = t.get("path", "str", required=True)
         full = rel(p)
         if file_problem(full):
@@ -168,28 +177,17 @@ def load_spec(path) -> Spec:
         if any(x.name == sname for x in scenes):
             t.fail("name", f"scene name {sname!r} is used twice (give each a distinct name)")
         ssize = t.get("size", "size")
-        ref, ref_se = t.get("reference", "str"), t.get("reference_stderr", "str")
-        if ref is not None:
-            ref = rel(ref)
-            if file_problem(ref):
-                t.fail("reference", f"{file_problem(ref)} ({ref})")
-            check_image(t, "reference", ref)
-        if ref_se is not None:
+        ref = image_file(t, "reference") if t.has("reference") else None
+        ref_se = None
+        if t.has("reference_stderr"):
             if ref is None:
                 t.fail("reference_stderr", "needs reference")
-            ref_se = rel(ref_se)
-            if file_problem(ref_se):
-                t.fail("reference_stderr", f"{file_problem(ref_se)} ({ref_se})")
-            check_image(t, "reference_stderr", ref_se)
+            ref_se = image_file(t, "reference_stderr")
         t.done()
         scenes.append(SceneSpec(sname, full, ssize, ref, ref_se))
 
-    strat_doc = doc.get("strategies")
-    if not isinstance(strat_doc, list) or not strat_doc:
-        raise WavlightError(f"{path}: [[strategies]]: at least one [[strategies]] table with an id is required")
     strats = []
-    for i, s in enumerate(strat_doc):
-        t = SpecTable(path, f"[[strategies]][{i}]", s)
+    for t in tables("strategies", "an id"):
         sid = t.get("id", "str", required=True)
         if sid.startswith(PEER_PREFIX):
             from . import peers
