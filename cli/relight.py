@@ -41,8 +41,11 @@ from .progress import ProgressBar
 @click.option("--priority", type=click.Choice(["transfer", "area", "magnitude"]), default=None,
               help="How frames rank the lighting's terms. Default: the better of transfer and area on the pilot.")
 @click.option("--seed", type=click.IntRange(0, 2 ** 62), default=0, show_default=True, help="Random seed.")
-@click.option("--vary", type=click.Choice(["lighting", "object"]), default="lighting", show_default=True,
-              help="The factor frames vary: the lighting (map, rotation, scale), or one object's place.")
+@click.option("--vary", type=click.Choice(["lighting", "object", "view"]), default="lighting", show_default=True,
+              help="The factor frames vary: the lighting (map, rotation, scale), one object's place, or the camera "
+                   "(view: T1 = L V cos on a surface cache; --width, --height and --spp do not apply).")
+@click.option("--density", type=click.FloatRange(1e-9, 1e18, min_open=True), default=None,
+              help="--vary view: surface cache points per unit area (default: 65536 over the scene's area).")
 @click.option("--object", "moving", default=None, metavar="NAME",
               help="--vary object: the object that moves (its name, or its index among [[objects]]).")
 @click.option("--static-spp", type=click.IntRange(2, 1 << 20), default=256, show_default=True,
@@ -52,8 +55,8 @@ from .progress import ProgressBar
                    "same path); the file is identical to a local bake's.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the choices, sizes and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits, terms, priority, seed, vary, moving,
-         static_spp, dask_address, as_json, quiet):
+def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits, terms, priority, seed, vary, density,
+         moving, static_spp, dask_address, as_json, quiet):
     """Bake the transfer of SCENE (its camera, objects and materials) into PATH, for relighting."""
     import wavlight
 
@@ -69,6 +72,8 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
             fail("--vary object needs --object NAME (the object that moves)")
         if moving is not None and vary != "object":
             fail("--object names the object that moves: give it with --vary object")
+        if density is not None and vary != "view":
+            fail("--density sets the surface cache of a view bake: give it with --vary view")
         if scene.environment.is_black:
             fail(f"{scene_file}: [environment]: the environment is black everywhere; nothing to relight")
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
@@ -76,7 +81,7 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
                                  tolerance=tolerance, bits=int(bits), terms=terms, priority=priority, seed=seed,
                                  progress=bar, dask_address=dask_address,
                                  points=None if points is None else int(points), vary=vary, object=moving,
-                                 static_spp=static_spp)
+                                 static_spp=static_spp, density=density)
         if bar:
             bar.close()
     except wavlight.WavlightError as e:
@@ -116,10 +121,26 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
               help="A bake with --vary object: the object's rotation, axis and degrees (absolute).")
 @click.option("--scene", "scene_file", default=None, metavar="FILE",
               help="The scene the bake was made from, where it is not at the path the bake recorded (--spp).")
+@click.option("--eye", type=float, nargs=3, default=None, metavar="X Y Z",
+              help="A bake with --vary view: the camera's position (default: the scene's).")
+@click.option("--target", type=float, nargs=3, default=None, metavar="X Y Z",
+              help="A bake with --vary view: the point the camera looks at (default: the scene's).")
+@click.option("--fov", type=float, default=None, metavar="DEG",
+              help="A bake with --vary view: the vertical field of view, degrees (default: the scene's).")
+@click.option("--width", type=click.IntRange(1, 16384), default=None,
+              help="A bake with --vary view: image width (default: the scene's).")
+@click.option("--height", type=click.IntRange(1, 16384), default=None,
+              help="A bake with --vary view: image height (default: the scene's).")
+@click.option("--orbit", type=click.IntRange(1, 3600), default=None, metavar="N",
+              help="A bake with --vary view: N frames of an orbit of the eye about the target (about +Y) into "
+                   "the folder -o DIR (PNG; and an animated GIF).")
+@click.option("--refine", type=click.FloatRange(1e-4, 100.0), default=None,
+              help="A bake with --vary view: a BRDF node's angular radius at most REFINE times its distance from "
+                   "the lobe plus the lobe's width (smaller: more nodes, closer to the texels' sum). Default 0.15.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with timings and choices.")
 @click.option("--quiet", "-q", is_flag=True, help="No closing message.")
 def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntable, repeat, spp, seed, translate,
-          rotate, scene_file, as_json, quiet):
+          rotate, scene_file, eye, target, fov, width, height, orbit, refine, as_json, quiet):
     """Relight the bake file PATH: one frame under new lighting (or a turntable of frames)."""
     import math
 
@@ -132,6 +153,18 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
     try:
         transfer = wavlight.Transfer.load(bake_file)
         varies = transfer.header.get("vary", "lighting")
+        camera = {"--eye": eye, "--target": target, "--fov": fov, "--width": width, "--height": height,
+                  "--orbit": orbit, "--refine": refine}
+        if varies == "view":
+            return _view_frame(transfer, bake_file, output, eye, target, fov, width, height, orbit, refine, spp, seed,
+                               repeat, scene_file, as_json, quiet,
+                               {"--env": env_file, "--rotate-y": rotate_y, "--scale": scale if scale != 1.0 else None,
+                                "--terms": terms, "--priority": priority, "--turntable": turntable,
+                                "--translate": translate, "--rotate": rotate})
+        for flag, value in camera.items():
+            if value is not None:
+                fail(f"{bake_file}: this bake varies the {'lighting' if varies == 'lighting' else 'object'} (its camera "
+                     f"is fixed); {flag} moves the camera (bake with --vary view)")
         if varies == "object":
             return _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, scene_file, as_json, quiet,
                                  {"--env": env_file, "--rotate-y": rotate_y, "--scale": scale if scale != 1.0 else None,
@@ -248,3 +281,87 @@ def _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, sce
     elif not quiet:
         click.echo(f"wrote {output}: {transfer.width}x{transfer.height}, {stats['spp']} spp, object at "
                    f"{stats['translate']}, {stats['frame_seconds']:.2f} s", err=True)
+
+
+def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, orbit, refine, spp, seed, repeat,
+                scene_file, as_json, quiet, held):
+    """A frame of a bake that varies the view: the camera at --eye looking at --target (or an
+    --orbit of frames, or with --spp the unbiased frame)."""
+    import math
+
+    import wavlight
+    from wavlight.imageio import FORMATS
+    from wavlight.relight.view import REFINE, ViewFrames, orbit_eyes
+
+    for flag, value in held.items():
+        if value is not None:
+            fail(f"{bake_file}: this bake varies the view (its lighting and objects are fixed); {flag} does not apply")
+    for flag, value in (("--eye", eye), ("--target", target)):
+        if value is not None and not all(math.isfinite(x) for x in value):
+            fail(f"{flag} must be three finite numbers, got {' '.join(str(x) for x in value)}")
+    if fov is not None and not (math.isfinite(fov) and 0.0 < fov < 180.0):
+        fail(f"--fov must be a number of degrees in (0, 180), got {fov}")
+    if orbit is not None and spp is not None:
+        fail("--orbit renders approximate frames; --spp renders one unbiased frame: give one of them")
+    if orbit is None:
+        if output is None:
+            output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
+        check_output(output, FORMATS)
+        refuse_inputs(output, [bake_file, scene_file])
+    else:
+        if output is None:
+            fail("--orbit writes a folder of frames: give it with -o DIR")
+        if os.path.exists(output) and not os.path.isdir(output):
+            fail(f"{output}: is a file, not a folder (--orbit writes a folder of frames)")
+        if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
+            fail(f"{output}: no folder {os.path.dirname(os.path.abspath(output))}")
+    frames = ViewFrames(transfer, scene_file)
+    if orbit is None:
+        refuse_inputs(output, [frames.scene.path, *frames.scene.files])
+    cam = frames.camera(eye, target, fov)          # checked before anything is written
+    size = frames._size(width, height)
+    refine = REFINE if refine is None else refine
+    view = {"width": size[0], "height": size[1], "eye": cam.eye.tolist(), "target": cam.target.tolist(),
+            "fov": cam.fov_y}
+    if spp is not None:
+        bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
+        result = frames.converge(cam.eye, cam.target, cam.fov_y, *size, spp=spp, seed=seed, progress=bar)
+        if bar:
+            bar.close()
+        wavlight.save_image(output, result.image)
+        stats = {"frame_seconds": result.stats["render_seconds"], **result.stats, "output": output}
+        if as_json:
+            click.echo(json.dumps(stats))
+        elif not quiet:
+            click.echo(f"wrote {output}: {size[0]}x{size[1]}, {spp} spp (unbiased), "
+                       f"{stats['frame_seconds']:.2f} s", err=True)
+        return
+    times, outputs = [], []
+    if orbit is None:
+        for _ in range(repeat):
+            image, st = frames.frame(cam.eye, cam.target, cam.fov_y, *size, refine=refine)
+            times.append(st["frame_seconds"])
+        wavlight.save_image(output, image)
+        outputs.append(output)
+    else:
+        os.makedirs(output, exist_ok=True)
+        names = []
+        for i, e in enumerate(orbit_eyes(cam.eye, cam.target, orbit)):
+            image, st = frames.frame(e, cam.target, cam.fov_y, *size, refine=refine)
+            times.append(st["frame_seconds"])
+            name = os.path.join(output, f"frame-{i:04d}.png")
+            wavlight.save_image(name, image)
+            names.append(name)
+        outputs = names + [g for g in [_animated_gif(names, os.path.join(output, "orbit.gif"))] if g]
+    median = statistics.median(times)
+    stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
+             "frames": len(times), **view, "refine": refine,
+             "texels": f"{1 << transfer.n_levels}x{1 << transfer.n_levels}",
+             "timings": {k: round(v, 6) for k, v in st.items() if k.endswith("_seconds")},
+             "cache_points_shaded": st["cache_points_shaded"], "nodes_per_point": st["nodes_per_point"],
+             "model": transfer.header.get("model"), "output": outputs if orbit else outputs[0]}
+    if as_json:
+        click.echo(json.dumps(stats))
+    elif not quiet:
+        click.echo(f"wrote {output}: {size[0]}x{size[1]}, frame {median * 1e3:.1f} ms "
+                   f"({stats['frames_per_second']} frames/s)", err=True)

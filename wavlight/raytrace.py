@@ -134,6 +134,20 @@ class RayTracer:
 
         return self._map(run, origins, dirs)
 
+    def intersect_uv(self, origins: np.ndarray, dirs: np.ndarray):
+        """Closest hits with embree's barycentric (u, v) of each (p = (1 - u - v) v0 + u v1 + v v2):
+        prim (N,) int32 (-1: a miss), t, u, v (N,) float32."""
+        origins, dirs = _rays("RayTracer.intersect_uv", origins, dirs)
+        n = len(origins)
+        if self._scene is None or n == 0:
+            return np.full(n, -1, np.int32), np.full(n, np.inf, np.float32), np.zeros(n, np.float32), np.zeros(n, np.float32)
+
+        def run(o, d):
+            r = self._scene.run(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32), output=1)
+            return r["primID"].astype(np.int32), r["tfar"], r["u"].astype(np.float32), r["v"].astype(np.float32)
+
+        return self._map(run, origins, dirs)
+
     def occluded(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
         """(N,) bool: True where the ray from origin along dir hits any triangle."""
         origins, dirs = _rays("RayTracer.occluded", origins, dirs)

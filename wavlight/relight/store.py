@@ -22,6 +22,15 @@ Layout (little-endian)::
       static        float32 (H, W, 3)   the scene without the object, converged (unbiased)
       static_stderr float32 (H, W, 3)   its standard error
       product_leaves float16 (H W, 4^m) each pixel's T1 x L (luminance) on 2^m x 2^m texels
+    and, for a bake that varies the view (``vary = "view"``, :mod:`.view`; its entries hold the
+    three channels of a block's BLOCK^2 surface points, channel-major, and ``albedo`` is (P, 3)
+    per point):
+      view_position float32 (P, 3)    the surface cache's points, in blocks of BLOCK^2
+      view_normal   float32 (P, 3)    their normals
+      view_material int32 (P,)        their material
+      view_face_k   int32 (F,)        the lattice subdivisions of each scene face
+      view_face_base int64 (F,)       each face's first lattice entry
+      view_lattice  int32 (E,)        the cache point at each lattice entry
 
 The header records the format and its version, wavlight's version, the scene (file, content
 hash), camera, image size, camera samples, texel levels n, block size, bits, what was chosen
@@ -54,6 +63,9 @@ SECTIONS = PIXEL_SECTIONS + ("offsets", "entry_scale", "entry_data")
 #: the sections of a bake that varies one object (``vary = "object"``): the scene without it,
 #: converged (``static``, its standard error), and each pixel's product T1 x L on coarse texels
 OBJECT_SECTIONS = ("static", "static_stderr", "product_leaves")
+#: the sections of a bake that varies the view (``vary = "view"``): the surface cache and the
+#: lattice that finds a hit's cache points (:mod:`wavlight.relight.view`)
+VIEW_SECTIONS = ("view_position", "view_normal", "view_material", "view_face_k", "view_face_base", "view_lattice")
 #: the entries of this many megabytes are reordered from block order into column order at once
 REORDER_CHUNK_BYTES = 64 << 20
 
@@ -103,10 +115,13 @@ def compress_block(coeffs: np.ndarray, held_out: np.ndarray, tolerance: float, b
 
 class TransferWriter:
     """Collects blocks (in any order) into a temporary file, then writes the bake file in column
-    order (:meth:`finish`), atomically: a temporary file beside the output, renamed at the end."""
+    order (:meth:`finish`), atomically: a temporary file beside the output, renamed at the end.
+    ``row``: the values of one entry (default BLOCK^2, one per pixel; a view bake's entries hold
+    three channels of BLOCK^2 points)."""
 
-    def __init__(self, n_levels: int, block: int, bits: int):
+    def __init__(self, n_levels: int, block: int, bits: int, row: int | None = None):
         self.n_levels, self.block, self.bits = n_levels, block, bits
+        self.row = int(block ** 2 if row is None else row)
         self.dtype = np.dtype(np.int8 if bits == 8 else np.int16)
         fd, self._tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=".entries")
         self._fh = os.fdopen(fd, "wb")
@@ -115,8 +130,8 @@ class TransferWriter:
 
     def add(self, block_id: int, columns, scales, data):
         data = np.ascontiguousarray(data, self.dtype)
-        if data.shape != (len(columns), self.block ** 2):
-            raise ValueError(f"block data must be ({len(columns)}, {self.block ** 2}), got {data.shape}")
+        if data.shape != (len(columns), self.row):
+            raise ValueError(f"block data must be ({len(columns)}, {self.row}), got {data.shape}")
         self._fh.write(data.tobytes())
         self._columns.append(np.asarray(columns, np.int64))
         self._blocks.append(np.full(len(columns), block_id, np.uint32))
@@ -142,15 +157,15 @@ class TransferWriter:
         n_blocks = int(header["blocks"][0]) * int(header["blocks"][1])
         offsets = np.full((side2, n_blocks), -1, np.int32)
         offsets[columns[order], blocks[order]] = np.arange(len(order), dtype=np.int32)
-        row = self.block ** 2 * self.dtype.itemsize
-        extra = tuple(k for k in OBJECT_SECTIONS if k in arrays)
+        row = self.row * self.dtype.itemsize
+        extra = tuple(k for k in OBJECT_SECTIONS + VIEW_SECTIONS if k in arrays)
         sections = {**{k: np.ascontiguousarray(arrays[k]) for k in PIXEL_SECTIONS + extra},
                     "offsets": offsets, "entry_scale": scales[order]}
         meta, offset = {}, 0
         names = SECTIONS + extra
         for name in names:
             if name == "entry_data":
-                nbytes, dtype, shape = len(order) * row, self.dtype.str, [len(order), self.block ** 2]
+                nbytes, dtype, shape = len(order) * row, self.dtype.str, [len(order), self.row]
             else:
                 a = sections[name]
                 nbytes, dtype, shape = a.nbytes, a.dtype.str, list(a.shape)
@@ -165,8 +180,8 @@ class TransferWriter:
                 sizer = json.dumps({**header, "sections": {k: {**v, "crc32": 0} for k, v in meta.items()}})
                 head_room = -(-(len(MAGIC) + 8 + len(sizer) + 256) // ALIGN) * ALIGN
                 out.write(b"\0" * head_room)
-                source = np.memmap(self._tmp, self.dtype, "r", shape=(self.entries, self.block ** 2)) \
-                    if self.entries else np.zeros((0, self.block ** 2), self.dtype)
+                source = np.memmap(self._tmp, self.dtype, "r", shape=(self.entries, self.row)) \
+                    if self.entries else np.zeros((0, self.row), self.dtype)
                 for name in names:
                     crc = 0
                     if name == "entry_data":
@@ -238,7 +253,7 @@ def open_sections(path: str, header: dict, verify: bool = True) -> dict:
     shapes, entry ranges)."""
     base = header["data_offset"]
     out = {}
-    for name in SECTIONS + tuple(k for k in OBJECT_SECTIONS if k in header["sections"]):
+    for name in SECTIONS + tuple(k for k in OBJECT_SECTIONS + VIEW_SECTIONS if k in header["sections"]):
         m = header["sections"].get(name)
         try:
             dtype, shape, offset = np.dtype(m["dtype"]), tuple(int(x) for x in m["shape"]), int(m["offset"])

@@ -109,7 +109,9 @@ class Transfer:
                 "file_bytes": self.file_bytes, "entries": self.entries, "entries_full": m.get("entries_full"),
                 "bake_seconds": m.get("bake_seconds"), "rays": m.get("rays"),
                 "rays_per_second": m.get("rays_per_second"), "measured": m,
-                "scene": self.scene}
+                "scene": self.scene,
+                **({"vary": "view", "model": self.header.get("model"), "cache": self.header.get("cache")}
+                   if self.header.get("vary") == "view" else {})}
 
     @property
     def file_bytes(self) -> int:
@@ -168,6 +170,9 @@ class Transfer:
                     backend: str = "opencl"):
         """The frame and its timings (seconds of projection, selection, product, assembly)."""
         where = "Transfer.frame"
+        if self.header.get("vary") == "view":
+            raise WavlightError(f"{self.path}: this bake varies the view (its lighting is fixed): its frames come "
+                                "from wavlight.relight.view.ViewFrames")
         if rotate_y is not None:
             rotate_y = check_number(where, "rotate_y", rotate_y)
         scale = check_number(where, "scale", scale, 0.0, 1e30)

@@ -1,0 +1,248 @@
+"""Frames from a moving camera (wavlight.relight.view): the product kernel against its numpy twin
+and against the dense sum over texels, the BRDF factor against wavlight.bsdfs, the surface
+cache's lattice, the bake's texels as integrals, the unbiased frame against mis from another
+camera, the command line and its one-line errors."""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import wavlight
+from scenes_util import check_estimates, toml_text, write_raw_image
+from wavlight import bsdfs, haar
+from wavlight.cli.main import main
+from wavlight.relight import lighting, view
+
+EYE, TARGET = [2.0, 2.0, 3.0], [0.0, 0.5, 0.0]
+
+
+def scene_dict(camera=None, material=None):
+    return {"render": {"width": 24, "height": 24},
+            "camera": camera or {"eye": [0.0, 1.5, 3.5], "target": [0.0, 0.5, 0.0], "fov_y": 40.0},
+            "environment": {"file": "sky.exr", "rotate_y": 20.0},
+            "objects": [{"shape": "sphere", "center": [0.0, 0.6, 0.0], "radius": 0.6, "subdivisions": 3,
+                         "material": "ball"},
+                        {"shape": "quad", "center": [0.0, 0.0, 0.0], "size": 6.0, "material": "floor"}],
+            "materials": {"ball": material or {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
+                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+
+
+@pytest.fixture(scope="module")
+def baked(tmp_path_factory, device):
+    """A glossy sphere on a floor under a sky with a small bright light, its view bake (16 x 16
+    texels, 16 bits, nearly lossless) and scene file."""
+    folder = tmp_path_factory.mktemp("relight_view")
+    rng = np.random.default_rng(3)
+    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * np.ones((32, 64, 3))
+           * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
+    sky[6, 40] = 400.0
+    write_raw_image(folder / "sky.exr", sky)
+    (folder / "scene.toml").write_text(toml_text(scene_dict()))
+    scene = wavlight.load_scene(folder / "scene.toml")
+    tr = wavlight.bake(scene, folder / "ball.wlt", vary="view", levels=4, density=400, tolerance=1e-3, bits=16)
+    return folder, scene, tr
+
+
+def test_brdf_factor_is_f_cos_over_cos():
+    rng = np.random.default_rng(0)
+    wi, wo = rng.normal(size=(2, 4000, 3))
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wi[:, 2], wo[:, 2] = np.abs(wi[:, 2]) + 1e-3, np.abs(wo[:, 2]) + 1e-3
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    for kind, param in ((bsdfs.LAMBERT, 0.0), (bsdfs.PHONG, 20.0), (bsdfs.GGX, 0.2), (bsdfs.GGX, 0.6)):
+        got = view.brdf_reference(np.full(len(wi), kind), np.full(len(wi), param), wi, wo) * wi[:, 2]
+        np.testing.assert_allclose(got, bsdfs.eval_cos(kind, np.full(len(wi), param), wi, wo), rtol=1e-9, atol=1e-12)
+
+
+def test_product_kernel_equals_its_twin(baked):
+    _, scene, tr = baked
+    frames = view.ViewFrames(tr, scene)
+    points = np.arange(0, len(frames.position), 5)
+    kinds = frames.kind_of[frames.material[points]]
+    assert (kinds == bsdfs.GGX).sum() > 100 and (kinds == bsdfs.LAMBERT).sum() > 100
+    for eye, refine in ((EYE, 0.25), ([-1.0, 0.8, 2.0], 0.1)):
+        a, na = frames.products(points, eye, refine)
+        b, nb = frames.products(points, eye, refine, backend="numpy")
+        assert np.abs(b).max() > 0
+        close = np.isclose(a, b, rtol=1e-4, atol=1e-6 * np.abs(b).max()).all(1)
+        assert close.mean() > 0.995 and (na == nb).mean() > 0.99   # but a threshold within rounding
+        np.testing.assert_allclose(a, b, rtol=2e-2, atol=1e-4 * np.abs(b).max())
+    # and both frames
+    fa, _ = frames.frame(EYE, TARGET)
+    fb, _ = frames.frame(EYE, TARGET, backend="numpy")
+    np.testing.assert_allclose(fa, fb, rtol=2e-2, atol=1e-4 * fb.max())
+
+
+def test_walk_to_the_texels_is_the_dense_sum(baked):
+    """With refine -> 0 every node is refined down to the texels: B = sum_t T1_t f_r(w_t), the
+    stored coefficients inverted to texels and summed densely."""
+    _, scene, tr = baked
+    frames = view.ViewFrames(tr, scene)
+    points = np.arange(3, len(frames.position), 97)
+    side = 1 << tr.n_levels
+    s = tr._s
+    coeffs = view._coefficients(s["offsets"], s["entry_scale"], s["entry_data"], points, np.arange(side * side))
+    T = haar.inverse(coeffs.reshape(len(points), 3, side, side))                        # (I, 3, N, N) texels
+    wo = np.asarray(EYE) - frames.position[points]
+    wo = view.lifted_view(frames.normal[points], wo / np.linalg.norm(wo, axis=1, keepdims=True))
+    mat = frames.material[points]
+    dirs = lighting.texel_directions(tr.n_levels).reshape(-1, 3)
+    n = frames.normal[points]
+    s_ax, t_ax = wavlight.warp.frame(n)
+    wl = np.stack([dirs @ a.T for a in (s_ax, t_ax, n)], -1).transpose(1, 0, 2)          # (I, N^2, 3)
+    wol = np.stack([np.einsum("ij,ij->i", wo, a) for a in (s_ax, t_ax, n)], 1)
+    f = view.brdf_reference(np.repeat(frames.kind_of[mat], side * side), np.repeat(frames.param_of[mat], side * side),
+                            wl.reshape(-1, 3), np.repeat(wol, side * side, axis=0)).reshape(len(points), -1)
+    dense = np.einsum("icn,in->ic", T.reshape(len(points), 3, -1), f)
+    got, nodes = frames.products(points, EYE, refine=1e-4)
+    assert nodes.max() > side * side / 2                                                  # the texels were reached
+    np.testing.assert_allclose(got, dense, rtol=2e-3, atol=1e-5 * np.abs(dense).max())
+    # the default walk is close to it, with far fewer nodes
+    approx, few = frames.products(points, EYE)
+    glossy = frames.kind_of[mat] == bsdfs.GGX
+    err = np.linalg.norm(approx[glossy] - dense[glossy]) / np.linalg.norm(dense[glossy])
+    assert err < 0.03 and few[glossy].mean() < nodes[glossy].mean() * 0.8, (err, few[glossy].mean())
+
+
+def test_lattice_finds_the_hit_and_its_points(baked):
+    """A hit's three cache points and weights reproduce the hit point (flat faces), all of its
+    own object, and the cache covers every face."""
+    _, scene, tr = baked
+    frames = view.ViewFrames(tr, scene)
+    rng = np.random.default_rng(1)
+    face = rng.integers(0, len(scene.faces), 5000)
+    face[:200] = len(scene.faces) - 1                                                      # the floor, finely divided
+    u, v = rng.random((2, 5000))
+    flip = u + v > 1
+    u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
+    tri = scene.vertices[scene.faces[face]].astype(np.float64)
+    p = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
+    uu, vv = view.barycentric(scene.vertices, scene.faces, face, p)
+    np.testing.assert_allclose(np.stack([uu, vv], 1), np.stack([u, v], 1), atol=1e-5)
+    ids, w = view.lattice_points(frames.face_k, frames.face_base, frames.lattice, face, uu, vv)
+    np.testing.assert_allclose(w.sum(1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("ij,ijk->ik", w, frames.position[ids]), p, atol=1e-5)
+    assert np.all(frames.material[ids] == scene.face_material[face][:, None])
+    # about the density asked for, on the floor
+    floor = frames.material == scene.face_material[-1]
+    assert 0.8 < floor.sum() / (36.0 * 400) < 1.5
+
+
+def test_bake_texels_are_integrals_of_L_V_cos(baked):
+    """On open floor far from the sphere, G = T1 / L is the texel's integral of max(cos, 0) over
+    its solid angle (not a point value): the texels of the upper hemisphere sum to pi."""
+    _, scene, tr = baked
+    cache = view.build_cache(scene, 400)
+    far = np.flatnonzero((np.abs(cache.position[:, 0]) > 2.5) & (np.abs(cache.position[:, 2]) > 2.5))[:256]
+    sub = view.SurfaceCache(cache.position[far], cache.normal[far], cache.material[far], cache.face[far],
+                            cache.face_k, cache.face_base, cache.lattice, cache.spacing, cache.density)
+    n = 4
+    light = lighting.project(scene.environment, n)
+    s = view._Settings(n, 1e-3, 16, 0, "opencl", 4, light)
+    tracer = wavlight.raytrace.RayTracer(scene.vertices, scene.faces)
+    T1, rays = view.point_transfer(sub, tracer, s, 0)
+    G = T1[:, 0] / light[None, :, :, 0]
+    side = 1 << n
+    z = np.cos(np.pi * np.arange(side + 1) / side)
+    exact = np.pi / side * (np.maximum(z[:-1], 0) ** 2 - np.maximum(z[1:], 0) ** 2)   # dphi / 2 (sin^2 theta)
+    np.testing.assert_allclose(G.sum((1, 2)), np.pi, rtol=4e-2)           # one jittered ray per texel
+    assert abs(G.sum((1, 2)).mean() / np.pi - 1) < 1e-2
+    np.testing.assert_allclose(G.mean(0).sum(1) / side, exact, rtol=2e-2, atol=1e-3)
+    assert rays <= 256 * side * side // 2 + 256 * side                                      # no rays below the horizon
+
+
+def test_unbiased_frame_equals_mis_from_another_camera(baked):
+    folder, scene, tr = baked
+    frames = view.ViewFrames(tr, scene)
+    spp = 64
+    r = frames.converge(EYE, TARGET, spp=spp, seed=3)
+    moved = wavlight.load_dict(scene_dict({"eye": EYE, "target": TARGET, "fov_y": 40.0}), base_dir=folder)
+    ref = wavlight.render_full(moved, spp=512, strategy="mis", seed=11)
+    se = np.sqrt(r.stderr.astype(np.float64) ** 2 + ref.stderr.astype(np.float64) ** 2)
+    check_estimates(r.image, se, ref.image, np.ones((24, 24), bool), spp, label="view converge vs mis")
+    hits = ref.stderr.max(-1) > 0
+    # the product makes the estimate better than the BSDF alone would: per sample below mis's
+    assert np.median(r.stderr[hits] * np.sqrt(spp)) < np.median(ref.stderr[hits] * np.sqrt(512))
+    # and the approximate frame is near it
+    image, _ = frames.frame(EYE, TARGET)
+    assert np.linalg.norm(image - ref.image) / np.linalg.norm(ref.image) < 0.12
+
+
+# ----------------------------------------------------------------------------- the command line
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def one_error_line(r, *words):
+    assert r.exit_code == 2, r.output
+    lines = [line for line in r.stderr.splitlines() if line.strip() and not line.startswith("warning:")]
+    assert len(lines) == 1 and lines[0].startswith("Error: "), r.stderr
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+
+
+def test_command_line(baked, tmp_path):
+    folder, _, _ = baked
+    out = tmp_path / "v.wlt"
+    r = run("bake", folder / "scene.toml", "-o", out, "--vary", "view", "--levels", 3, "--density", 100, "--json")
+    assert r.exit_code == 0, r.output
+    stats = json.loads(r.stdout)
+    assert stats["file_bytes"] == os.path.getsize(out) and stats["bake_seconds"] > 0 and stats["rays_per_second"] > 0
+    assert stats["model"]["vary"] == "view" and stats["model"]["n_levels"] == 3 and stats["cache"]["points"] > 0
+    r = run("frame", out, "--eye", *EYE, "--target", *TARGET, "--width", 20, "--height", 16, "-o", tmp_path / "f.png",
+            "--json")
+    assert r.exit_code == 0, r.output
+    st = json.loads(r.stdout)
+    assert st["frame_seconds"] > 0 and st["frames_per_second"] > 0 and (st["width"], st["height"]) == (20, 16)
+    r = run("frame", out, "--orbit", 3, "-o", tmp_path / "orbit", "--quiet")
+    assert r.exit_code == 0, r.output
+    assert sorted(os.listdir(tmp_path / "orbit")) == ["frame-0000.png", "frame-0001.png", "frame-0002.png",
+                                                      "orbit.gif"]
+    r = run("frame", out, "--eye", *EYE, "--spp", 2, "-o", tmp_path / "c.exr", "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["spp"] == 2 and (tmp_path / "c.exr").exists(), r.output
+
+
+@pytest.mark.parametrize("args, words", [
+    (("--rotate-y", 30), ("varies the view", "--rotate-y")),
+    (("--env", "sky.exr"), ("varies the view", "--env")),
+    (("--translate", 0, 0, 0), ("varies the view", "--translate")),
+    (("--eye", "nan", 0, 0), ("--eye", "finite")),
+    (("--eye", 1, "inf", 0), ("--eye", "finite")),
+    (("--eye", 0, 0.5, 0, "--target", 0, 0.5, 0), ("same point",)),
+    (("--fov", 0), ("--fov",)),
+])
+def test_view_bake_bad_input(baked, tmp_path, args, words):
+    folder, _, tr = baked
+    args = tuple(folder / a if a == "sky.exr" else a for a in args)
+    r = run("frame", tr.path, *args, "-o", tmp_path / "g.png")
+    one_error_line(r, *words)
+    assert not (tmp_path / "g.png").exists()
+
+
+def test_camera_flags_on_other_bakes(baked, tmp_path):
+    folder, _, _ = baked
+    lit = tmp_path / "lit.wlt"
+    assert run("bake", folder / "scene.toml", "-o", lit, "--spp", 1, "--levels", 3, "--terms", 16,
+               "--priority", "area", "-q").exit_code == 0
+    for args in (("--eye", 1, 1, 1), ("--orbit", 4)):
+        r = run("frame", lit, *args, "-o", tmp_path / "g.png")
+        one_error_line(r, "varies the lighting", args[0])
+        assert not (tmp_path / "g.png").exists()
+    d = scene_dict()
+    d["objects"][0]["name"] = "ball"
+    (folder / "named.toml").write_text(toml_text(d))
+    ob = tmp_path / "ob.wlt"
+    assert run("bake", folder / "named.toml", "-o", ob, "--spp", 1, "--levels", 3, "--terms", 16, "--priority", "area",
+               "--vary", "object", "--object", "ball", "--static-spp", 2, "-q").exit_code == 0
+    r = run("frame", ob, "--eye", 1, 1, 1, "-o", tmp_path / "g.png")
+    one_error_line(r, "varies the object", "--eye")
+    r = run("bake", folder / "scene.toml", "-o", tmp_path / "x.wlt", "--density", 10)
+    one_error_line(r, "--density", "--vary view")
+    with pytest.raises(wavlight.WavlightError, match="varies the view"):
+        wavlight.Transfer.load(baked[2].path).frame()

@@ -1,0 +1,947 @@
+"""Frames from a moving camera from precomputed transfer (Chen & Gao sec. 2.2, eq. 6-8, with the
+view as the varying factor): the lighting and the objects stay fixed, the camera moves.
+
+    B(x, wo) = integral of L(w) V(x, w) max(cos theta, 0) f_r(x, w, wo) dw = <T1(x), T2>,
+    T1(x, w) = L(w) V(x, w) max(cos theta, 0)  (per surface point, baked),
+    T2 = f_r(x, ., wo)  (per frame; the albedo factored out: f_r = albedo x shape).
+
+The surface cache. T1 depends on the surface point, not on the camera, so it is baked on points
+spread over every object's surface: each scene face of area A carries a triangular lattice of
+(k + 1)(k + 2) / 2 points, k = ceil(sqrt(2 A D)) (about D points per unit area; and at least
+longest edge / 2 h, h = sqrt(2 / (sqrt(3) D)) the spacing of an equilateral lattice of density
+D), D the density in points per unit area (default: DEFAULT_POINTS over the scene's area); lattice points that coincide (shared vertices and edges of one object)
+are one cache point, whose normal is the area-weighted mean of its faces' normals. A camera ray's
+hit on face F at barycentric (u, v) lies in one lattice triangle of F: its three points and
+their barycentric weights are the hit's cache points (points of the same object; a point whose
+normal is more than CREASE_DEGREES from the face's is left out, the others renormalized).
+Surfaces are cached on the side their faces' normals point to (outwards on closed meshes, as
+the file gives a quad's normal); a hit on a face's other side has no cache (black in the
+approximate frame; the unbiased frame is exact there too).
+
+The bake. For cache point x and texel t of the world-frame lat-long square (2^n x 2^n texels,
+the convention of :mod:`.lighting`), T1_t(x) = L_t G_t(x), G_t(x) = integral over t of V(x, w)
+max(cos, 0) dw (solid angle, sin theta included) and L_t the fixed lighting's exact mean radiance
+over the texel (:func:`.lighting.project`): <T1, f_r> with these texels is the integral up to the
+covariance of L, V cos and f_r inside a texel (a sun smaller than a texel keeps its energy but
+its shadows blur to the texel's size). G_t is estimated by the bake's texel kernel
+(``bake_texel_rays``, :func:`wavlight.relight.bake.texel_rays`, a lambert "pixel" per cache
+point): cos evaluated at TEXEL_POINTS stratified points of the texel, one shadow ray towards one
+of them picked in proportion to cos: Omega_t mean(cos) V, unbiased for the texel's integral, and
+no ray where L_t = 0 or the texel is below the horizon. The texels of each channel go through the
+Haar transform; blocks of BLOCK^2 points (sorted by object and Morton order of position, so that
+a block is a patch of surface) are compressed together (coefficient columns by decreasing energy
+until what is left out is within the tolerance, :func:`wavlight.relight.store.compress_block`)
+and quantized (a scale per coefficient and block, shared by the three channels).
+
+The approximate frame (kernel ``view_product`` in kernels/relight_view.cl, numpy twin
+:func:`product_reference`). Camera rays through the pixel centres are traced; each hit's three
+cache points are marked; for every marked point k, B_k = <T1(x_k), f_r(x_k, ., wo_k)> with the
+point's own normal and wo_k the direction to the eye, evaluated top-down over T1's quadtree: a
+node's average from its parent's and its three wavelet coefficients (eq. 13), refined until f_r
+is nearly constant over it (its angular radius r <= refine (delta + w), delta the angle from the
+lobe's axis, the mirror direction, w the lobe's width), then its average times f_r at its
+centre (the midpoint rule); nodes below the point's horizon are skipped (T1 is 0 there). lambert
+points need only the scaling coefficient: B = T^_0 N^2 / pi. A pixel is then its albedo times
+the barycentric blend of its three points' B_k (the product is linear in T1, so this is
+<T1 blended, f_r> up to the variation of f_r's normal and view direction between the points);
+pixels whose ray misses see the environment. Approximate by design: the texels, the cache's
+spacing (shadows and highlights are interpolated between points), the compression and the
+midpoint rule each leave an error (benchmarks/relight_view.py measures them against ``mis``).
+
+The unbiased frame (:meth:`ViewFrames.converge`). Each pixel's camera samples draw their
+directions from a defensive mixture: with probability 1 - DEFENSIVE from the product T1 x f_r
+(visibility inside it: T1 holds V) of the cache at the hit of the pixel's centre ray, on
+2^m x 2^m texels (m = min(n, PRODUCT_LEVELS); the top-left 2^m x 2^m block of T1's coefficients
+is the transform of its coarser texels, eq. 13), times f_r at the texels' centres for that hit's
+normal and view, walked by the hierarchical warp (:class:`wavlight.haar.HaarTree`, eq. 17-22),
+then inside the texel by the lighting's own luminance at the map's resolution
+(:class:`wavlight.relight.converge._TexelLight`); with probability DEFENSIVE (or 1 where the
+pixel has no product) from the BSDF. Every direction is evaluated with the true f_r cos, the
+radiance and a shadow ray, and weighted by the mixture's pdf (both techniques' pdfs, exact):
+unbiased whatever the cache's approximations (tests/test_relight_view.py checks it against
+``mis``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import tempfile
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import bsdfs, cl, haar, rng
+from ..camera import camera_rays
+from ..envmap import LUMINANCE, Environment
+from ..errors import ArgumentError, WavlightError, check_int, check_number, check_real
+from ..haar.tree import HaarTree
+from ..integrator import RenderResult
+from ..raytrace import RayTracer
+from ..scene import Camera, check_scene, load_scene
+from ..version import __version__
+from ..warp import frame as tangent_frame
+from . import lighting, store
+from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choose_model, texel_rays, \
+    texel_rays_reference
+from .converge import _scene_of, _spread, _TexelLight, solid_angle_jacobian, square_to_world, world_to_square
+from .frame import DeviceEntries
+from .transfer import Transfer
+
+#: cache points per block of the bake file (one entry row holds their three channels)
+POINTS = BLOCK * BLOCK
+#: the default cache: this many points over the scene's surface area
+DEFAULT_POINTS = 1 << 16
+#: at most this many lattice entries (bounded memory)
+MAX_LATTICE = 1 << 25
+#: a cache point whose normal is further than this from the hit face's is not interpolated
+CREASE_DEGREES = 60.0
+#: the approximate frame refines a node until its angular radius is at most REFINE (delta + w)
+REFINE = 0.15
+#: the unbiased frame: the product's texel levels, the BSDF's share, directions per sample
+PRODUCT_LEVELS = 5
+DEFENSIVE = 0.1
+SLOTS = 2
+#: Philox streams of the unbiased frame: camera jitter, direction uniforms
+JITTER_TILE = 1 << 20
+DIRECTION_STREAM = 14
+#: pixels per chunk of a frame (bounded memory)
+CHUNK_PIXELS = 1 << 16
+CONVERGE_CHUNK = 1 << 10
+#: a view direction this close to the tangent plane is lifted to it (silhouette points)
+MIN_COS_VIEW = 1e-3
+
+
+# ----------------------------------------------------------------------------- the surface cache
+@dataclass
+class SurfaceCache:
+    """Points on the scene's surfaces (module docstring): position, normal (P, 3) float64, the
+    material and a face of each point (P,); per scene face its lattice subdivisions k and first
+    lattice entry; the cache point of every lattice entry."""
+
+    position: np.ndarray
+    normal: np.ndarray
+    material: np.ndarray
+    face: np.ndarray
+    face_k: np.ndarray
+    face_base: np.ndarray
+    lattice: np.ndarray
+    spacing: float
+    density: float
+
+    def __len__(self):
+        return len(self.position)
+
+
+def lattice_size(k):
+    """Points of a triangle's lattice of k subdivisions: (k + 1)(k + 2) / 2."""
+    k = np.asarray(k, np.int64)
+    return (k + 1) * (k + 2) // 2
+
+
+def lattice_local(i, j, k):
+    """The index inside its face's lattice of point (i, j) (i + j <= k): rows of constant j."""
+    return j * (k + 1) - j * (j - 1) // 2 + i
+
+
+def _morton3(q: np.ndarray) -> np.ndarray:
+    """Morton codes of (N, 3) integers in [0, 1024)."""
+    out = np.zeros(len(q), np.int64)
+    for bit in range(10):   # bits, not points
+        for axis in range(3):
+            out |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
+    return out
+
+
+def face_objects(scene) -> np.ndarray:
+    """(F,) the object index of each face (0 for all where the scene lists no objects)."""
+    obj = np.zeros(len(scene.faces), np.int64)
+    for ob in scene.objects:   # objects, not faces
+        obj[ob.faces_range[0]:ob.faces_range[1]] = ob.index
+    return obj
+
+
+def build_cache(scene, density=None, points: int = DEFAULT_POINTS) -> SurfaceCache:
+    """The surface cache of ``scene`` at ``density`` points per unit area (default: ``points``
+    over the scene's area): lattices on every face, coincident points of one object merged,
+    sorted by object and Morton order (module docstring)."""
+    where = "relight.view"
+    v = scene.vertices.astype(np.float64)
+    f = scene.faces.astype(np.int64)
+    if not len(f):
+        raise ArgumentError(f"{where}: the scene has no surfaces to cache")
+    e0, e1 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    cross = np.cross(e0, e1)
+    area = 0.5 * float(np.linalg.norm(cross, axis=1).sum())
+    if not area > 0:
+        raise ArgumentError(f"{where}: the scene's surfaces have no area")
+    density = points / area if density is None else check_number(where, "density", density, 1e-12, 1e18)
+    spacing = float(np.sqrt(2.0 / (np.sqrt(3.0) * density)))
+    longest = np.maximum(np.maximum(np.linalg.norm(e0, axis=1), np.linalg.norm(e1, axis=1)),
+                         np.linalg.norm(v[f[:, 2]] - v[f[:, 1]], axis=1))
+    k = np.maximum(np.ceil(np.sqrt(np.linalg.norm(cross, axis=1) * density) - 1e-9),   # (k^2 / 2) / area = D
+                   np.ceil(longest / (2.0 * spacing) - 1e-9))                          # no sliver of spacing > 2 h
+    k = np.maximum(1, k).astype(np.int64)
+    sizes = lattice_size(k)
+    total = int(sizes.sum())
+    if total > MAX_LATTICE:
+        raise ArgumentError(f"{where}: a density of {density:g} points per unit area needs {total} lattice points "
+                            f"(at most {MAX_LATTICE}): lower it")
+    base = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    pos = np.zeros((total, 3))
+    entry_face = np.repeat(np.arange(len(f)), sizes)
+    for kk in np.unique(k):   # distinct subdivisions, not faces
+        faces = np.flatnonzero(k == kk)
+        j, i = np.nonzero(np.arange(kk + 1)[:, None] + np.arange(kk + 1)[None, :] <= kk)
+        local = lattice_local(i, j, kk)
+        at = base[faces][:, None] + local[None, :]
+        pos[at] = (v[f[faces, 0]][:, None] + (i / kk)[None, :, None] * e0[faces][:, None]
+                   + (j / kk)[None, :, None] * e1[faces][:, None])
+    obj = face_objects(scene)[entry_face]
+    extent = max(float(np.abs(v).max()), 1e-30)
+    quant = np.round(pos / (extent * 2.0 ** -40)).astype(np.int64)
+    keys = np.concatenate([obj[:, None], quant], 1)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    count = len(first)
+    normal = np.stack([np.bincount(inverse, cross[entry_face, a], count) for a in range(3)], 1)
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    fallback = cross[entry_face[first]]
+    normal = np.where(length > 0, normal / np.where(length > 0, length, 1.0),
+                      fallback / np.maximum(np.linalg.norm(fallback, axis=1, keepdims=True), 1e-300))
+    position = pos[first]
+    point_obj = obj[first]
+    # blocks are patches: by object, then Morton order inside the object's box
+    lo = np.zeros((point_obj.max() + 1, 3))
+    hi = np.ones((point_obj.max() + 1, 3))
+    for o in np.unique(point_obj):   # objects, not points
+        sel = point_obj == o
+        lo[o], hi[o] = position[sel].min(0), position[sel].max(0)
+    q = ((position - lo[point_obj]) / np.maximum(hi[point_obj] - lo[point_obj], 1e-30) * 1023.999).astype(np.int64)
+    order = np.lexsort((_morton3(np.clip(q, 0, 1023)), point_obj))
+    rank = np.empty(count, np.int64)
+    rank[order] = np.arange(count)
+    face = entry_face[first][order]
+    material = (scene.face_material[face] if len(scene.face_material) else np.zeros(count)).astype(np.int32)
+    return SurfaceCache(position[order], normal[order], material, face, k.astype(np.int32), base.astype(np.int64),
+                        rank[inverse].astype(np.int32), spacing, float(density))
+
+
+def barycentric(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, p: np.ndarray):
+    """(u, v) with p = v0 + u (v1 - v0) + v (v2 - v0) on ``face`` (N,) for points p (N, 3)."""
+    tri = faces[face].astype(np.int64)
+    v0 = vertices[tri[:, 0]].astype(np.float64)
+    e0, e1 = vertices[tri[:, 1]] - v0, vertices[tri[:, 2]] - v0
+    d = np.asarray(p, np.float64) - v0
+    d00, d01, d11 = (np.einsum("ij,ij->i", a, b) for a, b in ((e0, e0), (e0, e1), (e1, e1)))
+    d20, d21 = np.einsum("ij,ij->i", d, e0), np.einsum("ij,ij->i", d, e1)
+    den = d00 * d11 - d01 * d01
+    den = np.where(den != 0, den, 1.0)
+    u = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    return np.clip(u, 0.0, 1.0), np.clip(w, 0.0, 1.0)
+
+
+def lattice_points(face_k: np.ndarray, face_base: np.ndarray, lattice: np.ndarray, face: np.ndarray, u, v):
+    """The three cache points (N, 3) and barycentric weights (N, 3) of hits at (u, v) of faces
+    (N,): the lattice triangle holding the hit (module docstring)."""
+    k = face_k[face].astype(np.int64)
+    fu, fv = np.asarray(u, np.float64) * k, np.asarray(v, np.float64) * k
+    i = np.clip(fu.astype(np.int64), 0, k - 1)
+    j = np.clip(fv.astype(np.int64), 0, k - 1 - i)
+    a, b = np.clip(fu - i, 0.0, 1.0), np.clip(fv - j, 0.0, 1.0)
+    upper = (a + b > 1.0) & (i + j <= k - 2)
+    lo_w = np.stack([1.0 - a - b, a, b], 1)
+    up_w = np.stack([a + b - 1.0, 1.0 - b, 1.0 - a], 1)
+    weights = np.clip(np.where(upper[:, None], up_w, lo_w), 0.0, 1.0)
+    ii = np.where(upper[:, None], np.stack([i + 1, i + 1, i], 1), np.stack([i, i + 1, i], 1))
+    jj = np.where(upper[:, None], np.stack([j + 1, j, j + 1], 1), np.stack([j, j, j + 1], 1))
+    local = lattice_local(ii, jj, k[:, None])
+    return lattice[face_base[face][:, None] + local].astype(np.int64), weights
+
+
+# ----------------------------------------------------------------------------- the BRDF factor
+def brdf_reference(kind: np.ndarray, param: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """f_r(wi, wo) without albedo and without cos theta_i, local frames (N, 3) (the kernel's
+    ``view_brdf``; for cos_i > 0 it is :func:`wavlight.bsdfs.eval_cos` / cos_i)."""
+    kind = np.broadcast_to(kind, len(wi))
+    param = np.broadcast_to(np.asarray(param, np.float64), len(wi))
+    out = np.full(len(wi), 1.0 / np.pi)
+    ix, iy, iz = wi[:, 0], wi[:, 1], wi[:, 2]
+    ox, oy, oz = wo[:, 0], wo[:, 1], wo[:, 2]
+    ph = kind == bsdfs.PHONG
+    if ph.any():
+        ca = np.maximum(iz * oz - ix * ox - iy * oy, 0.0)[ph]
+        with np.errstate(divide="ignore"):
+            out[ph] = np.where(ca > 0, (param[ph] + 2) / (2 * np.pi) * ca ** param[ph], 0.0)
+    gg = kind == bsdfs.GGX
+    if gg.any():
+        a2 = param[gg] ** 2
+        h = wi[gg] + wo[gg]
+        hh = np.einsum("ij,ij->i", h, h)
+        ok = hh > 0
+        nhz = np.where(ok, h[:, 2] / np.sqrt(np.where(ok, hh, 1.0)), 0.0)
+        ih = np.einsum("ij,ij->i", wi[gg], h)
+        d = nhz * nhz * (a2 - 1) + 1
+        D = a2 / (np.pi * d * d)
+        c2 = np.maximum(oz[gg] ** 2, 1e-30)
+        g1o = np.where(oz[gg] > 0, 2 / (1 + np.sqrt(1 + a2 * np.maximum(1 - c2, 0) / c2)), 0.0)
+        z = np.maximum(iz[gg], 0.0)
+        gi = 2 / (z + np.sqrt(a2 + (1 - a2) * z * z))
+        good = ok & (nhz > 0) & (ih > 0) & (oz[gg] > 0)
+        out[gg] = np.where(good, D * g1o / (4 * np.maximum(oz[gg], 1e-30)) * gi, 0.0)
+    return out
+
+
+def lobe(kind: np.ndarray, param: np.ndarray, normal: np.ndarray, wo: np.ndarray):
+    """Each item's lobe axis (the mirror direction; the normal for lambert) and width (as
+    :func:`wavlight.relight.bake.lobe_width`: ggx 2 alpha, phong 1 / sqrt(e + 1), lambert pi / 2),
+    world frame."""
+    axis = 2.0 * np.einsum("ij,ij->i", wo, normal)[:, None] * normal - wo
+    axis = np.where((kind == bsdfs.LAMBERT)[:, None], normal, axis)
+    width = np.full(len(kind), np.pi / 2)
+    width = np.where(kind == bsdfs.GGX, 2.0 * param, width)
+    width = np.where(kind == bsdfs.PHONG, 1.0 / np.sqrt(np.asarray(param, np.float64) + 1.0), width)
+    return axis, width
+
+
+def lifted_view(normal: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """View directions (N, 3) at least MIN_COS_VIEW above the tangent plane (a silhouette point's
+    mean normal may face slightly away from the eye)."""
+    c = np.einsum("ij,ij->i", wo, normal)
+    w = np.where((c < MIN_COS_VIEW)[:, None], wo + (MIN_COS_VIEW - c)[:, None] * normal, wo)
+    return w / np.linalg.norm(w, axis=1, keepdims=True)
+
+
+@dataclass
+class NodeTables:
+    """Per quadtree node (level order, node (l, x, y) at (4^l - 1) / 3 + y 2^l + x) its centre's
+    world direction (float4, w = 0), and per node row (l, y) at 2^l - 1 + y: r / refine,
+    cos and sin of it, and sin r (2 where r >= pi / 2: never wholly below a horizon), r the
+    largest angle from the centre to the node's border (its region's farthest point)."""
+
+    centres: np.ndarray
+    rows: np.ndarray
+    radius: np.ndarray
+
+
+_TABLES = {}
+
+
+def node_tables(n_levels: int, refine: float) -> NodeTables:
+    """The tables of a quadtree of n levels for ``refine`` (kept per pair)."""
+    key = (int(n_levels), float(refine))
+    found = _TABLES.get(key)
+    if found is not None:
+        return found
+    centres, radius = [], []
+    edge = np.linspace(0.0, 1.0, 65)
+    for l in range(n_levels + 1):   # levels, not nodes
+        s = 1 << l
+        y, x = np.mgrid[0:s, 0:s]
+        uv = np.stack([(x.ravel() + 0.5) / s, (y.ravel() + 0.5) / s], 1)
+        centres.append(square_to_world(uv))
+        # the border of node (0, y) of each row: rows are congruent under turns about +Y
+        rows_y = np.arange(s)[:, None]
+        border = np.concatenate([np.stack([edge + 0 * rows_y, 0 * edge + rows_y], -1),
+                                 np.stack([edge + 0 * rows_y, 0 * edge + rows_y + 1], -1),
+                                 np.stack([0 * edge + 0 * rows_y, edge + rows_y], -1),
+                                 np.stack([0 * edge + 1 + 0 * rows_y, edge + rows_y], -1)], 1) / s
+        b = square_to_world(np.clip(border.reshape(-1, 2), 0.0, 1.0)).reshape(s, -1, 3)
+        c = square_to_world(np.stack([np.full(s, 0.5 / s), (np.arange(s) + 0.5) / s], 1))
+        ang = np.arccos(np.clip(np.einsum("rkj,rj->rk", b, c), -1.0, 1.0)).max(1)
+        radius.append(np.minimum(ang * (1 + 1e-3) + 1e-6, np.pi))
+    r = np.concatenate(radius)
+    q = r / refine
+    rows = np.stack([q, np.cos(np.minimum(q, np.pi)), np.sin(np.minimum(q, np.pi)),
+                     np.where(r < np.pi / 2, np.sin(r), 2.0)], 1).astype(np.float32)
+    cen = np.zeros((sum(4 ** l for l in range(n_levels + 1)), 4), np.float32)
+    cen[:, :3] = np.concatenate(centres)
+    tables = _TABLES[key] = NodeTables(cen, rows, r)
+    return tables
+
+
+def _items(kind, param, normal, wo):
+    """(I, 12) float32 per item: normal, view direction, lobe axis, width, cos and sin of it."""
+    axis, width = lobe(kind, param, normal, wo)
+    return np.concatenate([normal, wo, axis, width[:, None], np.cos(width)[:, None], np.sin(width)[:, None]],
+                          1).astype(np.float32)
+
+
+def _coefficients(offsets, scale, data, points: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """(len(points), 3, len(columns)) float64: the stored coefficients ``columns`` of the points
+    (0 where a block keeps none)."""
+    b, j = points // POINTS, points % POINTS
+    o = np.asarray(offsets[np.asarray(columns, np.int64)[None, :], b[:, None]], np.int64)   # (I, C)
+    keep = o >= 0
+    oc = np.where(keep, o, 0)
+    sc = np.where(keep, np.asarray(scale)[oc], 0.0)
+    out = np.empty((len(points), 3, len(columns)))
+    for c in range(3):   # channels
+        out[:, c] = np.asarray(data)[oc, (c * POINTS + j)[:, None]] * sc
+    return out
+
+
+def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, kind, param, normal, wo,
+                      refine: float = REFINE):
+    """numpy twin of ``view_product``: (B (I, 3) float64, nodes visited (I,)) for items (cache
+    points ``points`` with their normal, view direction wo (world, unit), material kind and
+    parameter), level by level over the frontier of all items' nodes (float64; the kernel's
+    float32 takes the same nodes but where a test lies within rounding of its threshold)."""
+    points = np.asarray(points, np.int64)
+    kind = np.asarray(kind, np.int64)
+    param = np.asarray(param, np.float64)
+    normal, wo = np.asarray(normal, np.float64), np.asarray(wo, np.float64)
+    side = 1 << n_levels
+    n2 = float(side * side)
+    tables = node_tables(n_levels, refine)
+    axis, width = lobe(kind, param, normal, wo)
+    s_ax, t_ax = tangent_frame(normal)
+    wo_l = np.stack([np.einsum("ij,ij->i", wo, a) for a in (s_ax, t_ax, normal)], 1)
+    root = _coefficients(offsets, scale, data, points, np.array([0]))[:, :, 0]
+    out = np.zeros((len(points), 3))
+    visited = np.ones(len(points), np.int64)
+    lam = kind == bsdfs.LAMBERT
+    out[lam] = root[lam] * n2 / np.pi
+    item = np.flatnonzero(~lam)
+    x = np.zeros(len(item), np.int64)
+    y = np.zeros(len(item), np.int64)
+    avg = root[item]
+    visited[item] = 0
+    for level in range(n_levels + 1):   # levels of the tree, not nodes
+        if not len(item):
+            break
+        s = 1 << level
+        np.add.at(visited, item, 1)
+        row = tables.rows[s - 1 + y].astype(np.float64)
+        r_eps = tables.radius[s - 1 + y] / refine
+        c = tables.centres[(s * s - 1) // 3 + y * s + x, :3].astype(np.float64)
+        horizon = np.where(tables.radius[s - 1 + y] < np.pi / 2, np.sin(tables.radius[s - 1 + y]), 2.0)
+        live = np.einsum("ij,ij->i", c, normal[item]) >= -horizon
+        need = r_eps - width[item]
+        cos_need = row[:, 1] * np.cos(width[item]) + row[:, 2] * np.sin(width[item])
+        leaf = (level == n_levels) | (need <= 0) | ((need < np.pi) & (np.einsum("ij,ij->i", c, axis[item]) <= cos_need))
+        at = live & leaf
+        if at.any():
+            ii = item[at]
+            wl = np.stack([np.einsum("ij,ij->i", c[at], a[ii]) for a in (s_ax, t_ax, normal)], 1)
+            f = brdf_reference(kind[ii], param[ii], wl, wo_l[ii])
+            np.add.at(out, ii, avg[at] * (n2 / (s * s) * f)[:, None])
+        go = live & ~leaf
+        if not go.any():
+            break
+        item, x, y, avg = item[go], x[go], y[go], avg[go]
+        cols = np.stack([y * side + s + x, (s + y) * side + x, (s + y) * side + s + x], 1)   # (M, 3)
+        b, j = points[item] // POINTS, points[item] % POINTS
+        o = np.asarray(offsets[cols, b[:, None]], np.int64)
+        keep = o >= 0
+        oc = np.where(keep, o, 0)
+        sc = np.where(keep, np.asarray(scale)[oc], 0.0)
+        cm = np.stack([np.asarray(data)[oc, (c_ * POINTS + j)[:, None]] * sc for c_ in range(3)], 2)   # (M, 3 m, 3 ch)
+        c1, c2, c3 = cm[:, 0], cm[:, 1], cm[:, 2]
+        kids = []
+        for dy in (0, 1):   # the four children
+            for dx in (0, 1):
+                s1, s2 = (1 if dx == 0 else -1), (1 if dy == 0 else -1)
+                kids.append((2 * x + dx, 2 * y + dy, avg + s * (s1 * c1 + s2 * c2 + s1 * s2 * c3)))
+        item = np.concatenate([item] * 4)
+        x = np.concatenate([k[0] for k in kids])
+        y = np.concatenate([k[1] for k in kids])
+        avg = np.concatenate([k[2] for k in kids])
+    return out, visited
+
+
+class ViewDevice:
+    """The bake file's entries as device buffers (:class:`wavlight.relight.frame.DeviceEntries`)
+    and the kernel ``view_product`` over them."""
+
+    def __init__(self, transfer):
+        s = transfer._s
+        self.entries = DeviceEntries(s["offsets"], s["entry_scale"], s["entry_data"])
+        self.n_levels, self.n_blocks = transfer.n_levels, int(s["offsets"].shape[1])
+        self._tables = {}
+
+    def products(self, points, kind, param, normal, wo, refine: float = REFINE, queue=None):
+        """(B (I, 3) float32, nodes visited (I,) uint32) of the items (see :func:`product_reference`)."""
+        queue = queue or cl.thread_queue()
+        count = len(points)
+        if not count:
+            return np.zeros((0, 3), np.float32), np.zeros(0, np.uint32)
+        tables = self._tables.get(refine)
+        if tables is None:
+            t = node_tables(self.n_levels, refine)
+            tables = self._tables[refine] = (cl.to_device(t.centres), cl.to_device(t.rows))
+        prog = cl.program("relight_view.cl", QBITS=self.entries.bits, POINTS=POINTS)
+        geom = _items(np.asarray(kind), np.asarray(param, np.float64), np.asarray(normal, np.float64),
+                      np.asarray(wo, np.float64))
+        out = cl.empty(12 * count)
+        visited = cl.empty(4 * count)
+        cl.kernel(prog, "view_product")(
+            queue, (-(-count // cl.WORK_GROUP) * cl.WORK_GROUP,), (cl.WORK_GROUP,), np.uint32(count),
+            np.uint32(self.n_levels), np.uint32(self.n_blocks), cl.to_device(np.asarray(points, np.uint32)),
+            cl.to_device(geom), cl.to_device(np.asarray(kind, np.int32)), cl.to_device(np.asarray(param, np.float32)),
+            tables[0], tables[1], self.entries.offsets[0], self.entries.scale[0], self.entries.data[0], out, visited)
+        return cl.read(out, (count, 3), np.float32, queue), cl.read(visited, (count,), np.uint32, queue)
+
+
+# ----------------------------------------------------------------------------- the bake
+@dataclass
+class _Settings:
+    n_levels: int
+    tolerance: float
+    bits: int
+    seed: int
+    backend: str
+    points: int
+    light: np.ndarray        # (N, N, 3) the lighting's mean radiance per texel
+
+
+def _point_samples(cache: SurfaceCache, tracer, lo: int, hi: int) -> PixelSamples:
+    """The cache points lo .. hi - 1 as the texel kernel's pixels: one sample, one lambert group
+    each, the shadow rays from the point moved off the surface along its normal."""
+    P = hi - lo
+    normal = cache.normal[lo:hi]
+    p = cache.position[lo:hi].astype(np.float32)
+    offset = tracer.shadow_offsets(p, cache.face[lo:hi], np.zeros(3))
+    origin = (p + normal.astype(np.float32) * offset[:, None]).astype(np.float32)
+    ones = np.ones(P, np.uint32)
+    return PixelSamples(1, ones, normal.astype(np.float32), normal.astype(np.float32),
+                        np.full(P, bsdfs.LAMBERT, np.int32), np.zeros(P, np.float32), np.ones(P, np.float32),
+                        np.zeros(P, np.uint32), ones, np.arange(P, dtype=np.uint32), origin,
+                        np.ones((P, 3), np.float32), np.zeros(P, np.uint64), normal.astype(np.float32))
+
+
+def point_transfer(cache: SurfaceCache, tracer, s: _Settings, block: int):
+    """(P, 3, N, N) float32 T1 = L_t G_t of a block's cache points (module docstring) and the
+    shadow rays traced."""
+    lo, hi = block * POINTS, min((block + 1) * POINTS, len(cache))
+    ps = _point_samples(cache, tracer, lo, hi)
+    n = s.n_levels
+    if s.backend == "opencl":
+        dirs, weight, pick = texel_rays(ps, n, s.seed, block, 1 << bsdfs.LAMBERT, points=s.points)
+    else:
+        dirs, weight, pick = texel_rays_reference(ps, n, s.seed, block, points=s.points)
+    lit = (s.light.max(axis=2) > 0).reshape(-1)
+    texel = np.arange(len(weight)) & ((1 << (2 * n)) - 1)
+    live = np.flatnonzero((weight > 0) & lit[texel])
+    blocked = tracer.occluded(np.take(ps.origin, pick[live].astype(np.int64), axis=0), np.take(dirs, live, axis=0))
+    g = np.zeros(len(weight), np.float32)
+    g[live] = np.where(blocked, 0.0, weight[live] * np.float32(np.pi))   # lambert's f cos = cos / pi
+    side = 1 << n
+    g = g.reshape(-1, 1, side, side)
+    return g * np.moveaxis(s.light, -1, 0)[None].astype(np.float32), len(live)
+
+
+def _bake_block(cache, tracer, s: _Settings, block: int) -> dict:
+    T1, rays = point_transfer(cache, tracer, s, block)
+    P = len(T1)
+    side2 = 4 ** s.n_levels
+    coeffs = np.asarray(haar.forward(T1), np.float32).reshape(P, 3, side2)
+    rows = np.zeros((3, POINTS, side2), np.float32)
+    rows[:, :P] = np.moveaxis(coeffs, 1, 0)
+    rows = rows.reshape(3 * POINTS, side2)
+    held = np.zeros((side2, 3))
+    held[0] = 1.0                           # the scaling coefficient: a lambert point's frame
+    cols, scales, q, _, _ = store.compress_block(rows, held, s.tolerance, s.bits,
+                                                 np.random.default_rng([s.seed, block]))
+    approx = np.zeros_like(rows)
+    approx[:, cols] = (q.astype(np.float32) * scales[:, None]).T
+    diff = rows.astype(np.float64) - approx
+    lum = np.tensordot(LUMINANCE.astype(np.float64), coeffs.astype(np.float64), axes=([0], [1]))   # (P, 4^n)
+    return {"block": block, "columns": cols, "scales": scales, "data": q, "rays": rays,
+            "error2": float(np.einsum("ij,ij->", diff, diff)), "norm2": float(np.einsum("ij,ij->", rows, rows, dtype=np.float64)),
+            "sum_sq": np.einsum("pc,pc->c", lum, lum)}
+
+
+def bake_view(scene, output=None, levels=None, tolerance: float = 0.02, bits: int = 8, seed: int = 0, threads=None,
+              progress=None, backend: str = "opencl", points=None, density=None, cache_points: int = DEFAULT_POINTS):
+    """Bake T1 = L V max(cos, 0) of ``scene`` on its surface cache (module docstring) into
+    ``output`` (default: a temporary file the Transfer owns); returns the
+    :class:`wavlight.relight.Transfer` (header ``vary = "view"``).
+
+    ``levels``: texels 2^n x 2^n (default: the fewest within ``tolerance`` / sqrt(3), chosen by
+    the lighting bake's pilot at the scene's camera, :func:`wavlight.relight.bake.choose_model`);
+    ``density``: cache points per unit area (default: ``cache_points`` over the scene's area);
+    ``points``: texel points (1 or 4, default 4); each block is compressed to ``tolerance`` /
+    sqrt(3) (relative L2 of T1) and quantized to ``bits``."""
+    where = "relight.bake"
+    if isinstance(scene, (str, os.PathLike)):
+        scene = load_scene(scene)
+    check_scene(scene)
+    if levels is not None:
+        levels = check_int(where, "levels", levels, 2, 8)
+    tolerance = check_number(where, "tolerance", tolerance, 1e-6, 1.0)
+    if bits not in BITS:
+        raise ArgumentError(f"{where}: bits must be 8 or 16, got {bits!r}")
+    seed = check_int(where, "seed", seed, 0, 2 ** 62)
+    points = 4 if points is None else points
+    if points not in POINT_CHOICES:
+        raise ArgumentError(f"{where}: points must be 1 or 4, got {points!r}")
+    cache_points = check_int(where, "cache_points", cache_points, 1, MAX_LATTICE)
+    if scene.environment.is_black:
+        raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
+    t0 = time.perf_counter()
+    pilot = None
+    if levels is None:
+        model = choose_model(scene, tolerance, 4, seed, None, 256, "area", backend)
+        levels, pilot = model["n_levels"], model["pilot"]
+    n = levels
+    cache = build_cache(scene, density, cache_points)
+    env = scene.environment
+    s = _Settings(n, tolerance / np.sqrt(3.0), bits, seed, backend, points, lighting.project(env, n))
+    tracer = RayTracer(scene.vertices, scene.faces, threads=1)
+    n_blocks = -(-len(cache) // POINTS)
+    writer = store.TransferWriter(n, BLOCK, bits, row=3 * POINTS)
+    sum_sq = np.zeros(4 ** n)
+    totals = {"rays": 0, "error2": 0.0, "norm2": 0.0, "done": 0}
+    lock = threading.Lock()
+    t_setup = time.perf_counter() - t0
+
+    def collect(r):
+        with lock:
+            writer.add(r["block"], r["columns"], r["scales"], r["data"])
+            sum_sq[:] += r["sum_sq"]
+            for key in ("rays", "error2", "norm2"):
+                totals[key] += r[key]
+            totals["done"] += 1
+            if progress:
+                progress(totals["done"], n_blocks, totals["rays"], time.perf_counter() - t0)
+
+    try:
+        with ThreadPoolExecutor(threads or 2 * (os.cpu_count() or 1)) as pool:
+            for r in pool.map(lambda b: _bake_block(cache, tracer, s, b), range(n_blocks)):
+                collect(r)
+        seconds = time.perf_counter() - t0
+        side = 1 << n
+        model = {"vary": "view", "n_levels": n, "texels": f"{side}x{side}", "levels_from": "pilot" if pilot else "given",
+                 "cache_points": len(cache), "density": cache.density, "spacing": cache.spacing,
+                 "texel_points": points, "tolerance": tolerance, "bits": bits,
+                 "compression_tolerance": tolerance / np.sqrt(3.0)}
+        header = {
+            "format": "wavlight-transfer", "version": store.FORMAT_VERSION, "wavlight": __version__,
+            "scene": {"path": None if scene.path == "<dict>" else os.path.abspath(scene.path),
+                      "content_hash": scene.content_hash},
+            "camera": {"eye": scene.camera.eye.tolist(), "target": scene.camera.target.tolist(),
+                       "up": scene.camera.up.tolist(), "fov_y": float(scene.camera.fov_y)},
+            "width": scene.width, "height": scene.height, "spp": 1, "seed": seed, "n_levels": n, "block": BLOCK,
+            "texel_points": points, "blocks": [n_blocks, 1], "bits": bits, "tolerance": tolerance, "terms": 4 ** n,
+            "priority": "transfer", "environment_rotate_y": float(env.rotate_y), "environment_name": env.name,
+            "vary": "view", "model": model,
+            "cache": {"points": len(cache), "density": cache.density, "spacing": cache.spacing,
+                      "faces": int(len(cache.face_k)), "lattice": int(len(cache.lattice)), "row": 3 * POINTS},
+            "measured": {"bake_seconds": round(seconds, 3), "pilot_seconds": round(t_setup, 3), "rays": totals["rays"],
+                         "rays_per_second": (round(totals["rays"] / (seconds - t_setup), 1) if seconds > t_setup
+                                             else None),
+                         "compression_error": (float(np.sqrt(totals["error2"] / totals["norm2"]))
+                                               if totals["norm2"] > 0 else 0.0),
+                         "entries": writer.entries, "entries_full": 4 ** n * n_blocks, "pilot": pilot},
+        }
+        arrays = {"environment": env.pixels.astype(np.float32),
+                  "albedo": scene.material_albedo[cache.material].astype(np.float32).reshape(-1, 3),
+                  "background_pixel": np.zeros(0, np.uint32), "background_mask": np.zeros(0, np.uint64),
+                  "background_dir": np.zeros((0, 1, 3), np.float32),
+                  "rms": np.sqrt(sum_sq / max(len(cache), 1)).astype(np.float32),
+                  "view_position": cache.position.astype(np.float32), "view_normal": cache.normal.astype(np.float32),
+                  "view_material": cache.material.astype(np.int32), "view_face_k": cache.face_k.astype(np.int32),
+                  "view_face_base": cache.face_base.astype(np.int64), "view_lattice": cache.lattice.astype(np.int32)}
+        owns = output is None
+        if owns:
+            fd, output = tempfile.mkstemp(prefix=".wavlight-bake-", suffix=".wlt")
+            os.close(fd)
+        header = writer.finish(os.fspath(output), header, arrays)
+    finally:
+        writer.close()
+    return Transfer(os.fspath(output), header, store.open_sections(os.fspath(output), header, verify=False), owns)
+
+
+# ----------------------------------------------------------------------------- frames
+def check_camera(where: str, eye, target, up, fov) -> Camera:
+    """A frame's camera: finite eye and target, apart, the view not along ``up``, 0 < fov < 180."""
+    eye = check_real(where, "eye", eye, finite=True).reshape(-1).astype(np.float64)
+    target = check_real(where, "target", target, finite=True).reshape(-1).astype(np.float64)
+    if eye.shape != (3,) or target.shape != (3,):
+        raise ArgumentError(f"{where}: eye and target must be three numbers each")
+    fov = check_number(where, "fov", fov, 1e-3, 179.0)
+    fwd = target - eye
+    if not np.linalg.norm(fwd) > 1e-9 * max(1.0, float(np.abs(eye).max())):
+        raise ArgumentError(f"{where}: the eye {eye.tolist()} and the target are the same point")
+    up = np.asarray(up, np.float64)
+    if np.linalg.norm(np.cross(fwd / np.linalg.norm(fwd), up / np.linalg.norm(up))) < 1e-6:
+        raise ArgumentError(f"{where}: the view from {eye.tolist()} to {target.tolist()} is along the camera's up")
+    return Camera(eye, target, up, float(fov))
+
+
+def orbit_eyes(eye, target, frames: int) -> np.ndarray:
+    """(frames, 3): the eye turned about the vertical axis through the target by 360 i / frames."""
+    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
+    a = 2 * np.pi * np.arange(frames) / frames
+    rel = eye - target
+    c, s = np.cos(a), np.sin(a)
+    return target + np.stack([c * rel[0] + s * rel[2], np.full(frames, rel[1]), -s * rel[0] + c * rel[2]], 1)
+
+
+class ViewFrames:
+    """The frames of a view bake: its scene (reloaded and checked against the bake), tracer,
+    cache and device entries."""
+
+    def __init__(self, transfer, scene=None):
+        varies = transfer.header.get("vary", "lighting")
+        if varies != "view":
+            raise WavlightError(f"{transfer.path}: this bake varies the {'lighting' if varies == 'lighting' else 'object'}"
+                                f", not the view")
+        self.transfer = transfer
+        self.scene = _scene_of(transfer, scene)
+        self.tracer = RayTracer(self.scene.vertices, self.scene.faces, threads=2)
+        s = transfer._s
+        self.position = np.asarray(s["view_position"], np.float64)
+        self.normal = np.asarray(s["view_normal"], np.float64)
+        self.material = np.asarray(s["view_material"], np.int64)
+        self.face_k, self.face_base = np.asarray(s["view_face_k"]), np.asarray(s["view_face_base"])
+        self.lattice = np.asarray(s["view_lattice"])
+        if len(self.face_k) != len(self.scene.faces):
+            raise WavlightError(f"{transfer.path}: its cache holds {len(self.face_k)} faces, the scene "
+                                f"{len(self.scene.faces)}")
+        self.n = transfer.n_levels
+        self.kind_of = self.scene.material_kind
+        self.param_of = self.scene.material_param
+        self.albedo_of = self.scene.material_albedo.astype(np.float64)
+        fn = np.asarray(self.tracer.face_normals, np.float64)
+        self.face_normal = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+        self.face_normal32 = self.face_normal.astype(np.float32)
+        self.normal32 = self.normal.astype(np.float32)
+        self.environment = self.scene.environment
+        self._device = None
+        self._inside = None
+
+    # -- cameras
+    def camera(self, eye=None, target=None, fov=None):
+        cam = self.scene.camera
+        return check_camera("relight.view", cam.eye if eye is None else eye, cam.target if target is None else target,
+                            cam.up, cam.fov_y if fov is None else fov)
+
+    def _size(self, width, height):
+        w = check_int("relight.view", "width", self.transfer.width if width is None else width, 1, 16384)
+        h = check_int("relight.view", "height", self.transfer.height if height is None else height, 1, 16384)
+        return w, h
+
+    # -- the cache at hits
+    def hit_points(self, eye, d, prim, t, uv=None):
+        """The cache points (M, 3) and normalized weights (M, 3) of hits (prim >= 0) (at barycentric
+        ``uv`` if given, else from the hit points), with 0 where a point is not usable (another
+        side of the face, a crease); and the face normals."""
+        if uv is None:
+            p = np.asarray(eye, np.float64) + d.astype(np.float64) * t.astype(np.float64)[:, None]
+            uv = barycentric(self.scene.vertices, self.scene.faces, prim, p)
+        ids, w = lattice_points(self.face_k, self.face_base, self.lattice, prim, *uv)
+        fn = self.face_normal32[prim]
+        front = np.einsum("ij,ij->i", fn, d) < 0
+        compat = np.einsum("ijk,ik->ij", self.normal32[ids], fn) >= np.float32(np.cos(np.radians(CREASE_DEGREES)))
+        w = w * (compat & front[:, None])
+        total = w.sum(1, keepdims=True)
+        return ids, np.where(total > 0, w / np.where(total > 0, total, 1.0), 0.0), fn
+
+    def products(self, points, eye, refine=REFINE, backend="opencl"):
+        """B_k (K, 3) (albedo factored out) and nodes visited of cache points seen from ``eye``."""
+        wo = np.asarray(eye, np.float64) - self.position[points]
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+        nrm = self.normal[points]
+        wo = lifted_view(nrm, wo)
+        mat = self.material[points]
+        kind, param = self.kind_of[mat], self.param_of[mat]
+        if backend == "numpy":
+            s = self.transfer._s
+            return product_reference(s["offsets"], s["entry_scale"], s["entry_data"], self.n, points, kind, param,
+                                     nrm, wo, refine)
+        if self._device is None:
+            self._device = ViewDevice(self.transfer)
+        return self._device.products(points, kind, param, nrm, wo, refine)
+
+    def frame(self, eye=None, target=None, fov=None, width=None, height=None, refine: float = REFINE,
+              backend: str = "opencl"):
+        """The approximate frame (H, W, 3) float32 seen from ``eye`` towards ``target`` (defaults:
+        the scene's camera) and its timings (module docstring)."""
+        refine = check_number("relight.view", "refine", refine, 1e-4, 100.0)
+        if backend not in ("opencl", "numpy"):
+            raise ArgumentError(f"relight.view: backend must be opencl or numpy, got {backend!r}")
+        cam = self.camera(eye, target, fov)
+        width, height = self._size(width, height)
+        t0 = time.perf_counter()
+        scene = dataclasses.replace(self.scene, camera=cam)
+        count = width * height
+        image = np.zeros((count, 3), np.float32)
+        timing = {"rays_seconds": 0.0, "lookup_seconds": 0.0, "product_seconds": 0.0, "assembly_seconds": 0.0}
+        products, visited = 0, 0
+        for first in range(0, count, CHUNK_PIXELS * 4):   # chunks of pixels (bounded memory)
+            ta = time.perf_counter()
+            pix = np.arange(first, min(first + CHUNK_PIXELS * 4, count))
+            eye_a, d = camera_rays(scene, pix % width, pix // width, np.full((len(pix), 2), 0.5, np.float32),
+                                   width, height)
+            prim, t, u, v = self.tracer.intersect_uv(eye_a, d)
+            tb = time.perf_counter()
+            hit = np.flatnonzero(prim >= 0)
+            ids, w, _ = self.hit_points(cam.eye, d[hit], prim[hit], t[hit], (u[hit], v[hit]))
+            used = np.zeros(len(self.position), bool)
+            used[ids[w > 0]] = True
+            points = np.flatnonzero(used)
+            tc = time.perf_counter()
+            B, nodes = self.products(points, cam.eye, refine, backend)
+            td = time.perf_counter()
+            at = np.zeros(len(self.position), np.int64)
+            at[points] = np.arange(len(points))
+            blend = np.einsum("ij,ijc->ic", w.astype(np.float32), np.asarray(B, np.float32)[at[ids]])
+            mat = self.scene.face_material[prim[hit]]
+            image[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
+            miss = np.flatnonzero(prim < 0)
+            image[pix[miss]] = self.environment.eval(d[miss].astype(np.float64))
+            te = time.perf_counter()
+            products += len(points)
+            visited += int(np.sum(nodes, dtype=np.int64))
+            for key, dt in (("rays_seconds", tb - ta), ("lookup_seconds", tc - tb), ("product_seconds", td - tc),
+                            ("assembly_seconds", te - td)):
+                timing[key] += dt
+        seconds = time.perf_counter() - t0
+        stats = {"frame_seconds": seconds, **timing, "width": width, "height": height, "eye": cam.eye.tolist(),
+                 "target": cam.target.tolist(), "fov": cam.fov_y, "cache_points_shaded": products,
+                 "nodes_per_point": round(visited / max(products, 1), 2), "refine": refine}
+        return image.reshape(height, width, 3), stats
+
+    # -- the unbiased frame
+    def _texel_light(self):
+        if self._inside is None:
+            env = self.environment
+            m = min(self.n, PRODUCT_LEVELS)
+            self._inside = _TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), m, env.rotate_y)
+        return self._inside
+
+    def product_leaves(self, ids, w, normal, wo_world, mat):
+        """(P, 2^m, 2^m) float32: per pixel the luminance of its cache's T1 on 2^m x 2^m texels
+        (the coarse block of its coefficients, inverted) times f_r at the texels' centres for the
+        pixel's normal, view direction and material (clamped at 0: a sampling density)."""
+        m = min(self.n, PRODUCT_LEVELS)
+        side, small = 1 << self.n, 1 << m
+        rr, cc = np.mgrid[0:small, 0:small]
+        cols = (rr * side + cc).ravel()
+        uniq, inv = np.unique(ids.reshape(-1), return_inverse=True)
+        s = self.transfer._s
+        coeffs = _coefficients(s["offsets"], s["entry_scale"], s["entry_data"], uniq, cols)       # (U, 3, M^2)
+        lum = np.tensordot(coeffs, LUMINANCE.astype(np.float64), axes=([1], [0])).reshape(-1, small, small)
+        coarse = haar.inverse(lum) * float(4 ** (self.n - m))                                     # texel sums
+        T = np.einsum("pj,pjab->pab", w, coarse[inv.reshape(ids.shape)])
+        dirs = lighting.texel_directions(m).reshape(-1, 3)
+        s_ax, t_ax = tangent_frame(normal)
+        wo = np.stack([np.einsum("ij,ij->i", wo_world, a) for a in (s_ax, t_ax, normal)], 1)
+        wl = np.stack([dirs @ a.T for a in (s_ax, t_ax, normal)], -1).transpose(1, 0, 2)        # (P, M^2, 3)
+        P = len(normal)
+        f = brdf_reference(np.repeat(self.kind_of[mat], small * small), np.repeat(self.param_of[mat], small * small),
+                           wl.reshape(-1, 3), np.repeat(wo, small * small, axis=0)).reshape(P, small, small)
+        return np.maximum(T * f, 0.0).astype(np.float32)
+
+    def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = 16, seed: int = 0,
+                 slots: int = SLOTS, defensive: float = DEFENSIVE, threads=None, progress=None) -> RenderResult:
+        """The unbiased frame from ``eye`` (module docstring): image, per-pixel standard error, stats."""
+        where = "relight.view"
+        spp = check_int(where, "spp", spp, 1, 1 << 16)
+        seed = check_int(where, "seed", seed, 0, 2 ** 62)
+        cam = self.camera(eye, target, fov)
+        width, height = self._size(width, height)
+        scene = dataclasses.replace(self.scene, camera=cam)
+        inside = self._texel_light()
+        env = self.environment
+        count = width * height
+        sums = np.zeros((count, 3))
+        squares = np.zeros((count, 3))
+        totals = {"rays": 0, "done": 0}
+        lock = threading.Lock()
+        chunks = range(0, count, CONVERGE_CHUNK)
+        t0 = time.perf_counter()
+        tracer = self.tracer
+
+        def one(first):
+            pix = np.arange(first, min(first + CONVERGE_CHUNK, count))
+            P = len(pix)
+            chunk = first // CONVERGE_CHUNK
+            # each pixel's product from its centre ray's hit
+            eye_c, d_c = camera_rays(scene, pix % width, pix // width, np.full((P, 2), 0.5, np.float32), width, height)
+            prim_c, t_c = tracer.intersect(eye_c, d_c)
+            leaves = np.zeros((P, 1 << min(self.n, PRODUCT_LEVELS), 1 << min(self.n, PRODUCT_LEVELS)), np.float32)
+            hc = np.flatnonzero(prim_c >= 0)
+            if len(hc):
+                ids, w, fn = self.hit_points(cam.eye, d_c[hc], prim_c[hc], t_c[hc])
+                ok = w.sum(1) > 0
+                if ok.any():
+                    nrm = fn[ok] * np.where(np.einsum("ij,ij->i", fn[ok], d_c[hc][ok]) > 0, -1.0, 1.0)[:, None]
+                    leaves[hc[ok]] = self.product_leaves(ids[ok], w[ok], nrm, -d_c[hc][ok].astype(np.float64),
+                                                         self.scene.face_material[prim_c[hc][ok]])
+            trees = HaarTree(leaves)
+            mass = trees.integral
+            px, py = np.repeat(pix % width, spp), np.repeat(pix // width, spp)
+            eye_s, d = camera_rays(scene, px, py, camera_jitter(seed, JITTER_TILE + chunk, P, spp), width, height)
+            prim, t = tracer.intersect(eye_s, d)
+            rays = P * (spp + 1)
+            value = np.zeros((P * spp, 3))
+            miss = np.flatnonzero(prim < 0)
+            value[miss] = env.eval(d[miss].astype(np.float64))
+            hit = np.flatnonzero(prim >= 0)
+            if len(hit):
+                nrm, _, origin = tracer.surface(cam.eye, d[hit], t[hit], prim[hit])
+                nrm = nrm.astype(np.float64)
+                s_ax, t_ax = tangent_frame(nrm)
+                wo_w = -d[hit].astype(np.float64)
+                wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, nrm)], 1)
+                mat = self.scene.face_material[prim[hit]]
+                kind, param, albedo = self.kind_of[mat], self.param_of[mat], self.albedo_of[mat]
+                has_p = mass[hit // spp] > 0
+                alpha = np.where(has_p, defensive, 1.0)
+                total = np.zeros((len(hit), 3))
+                for slot in range(slots):   # directions per camera sample, not samples
+                    u_all = rng.uniforms(seed, JITTER_TILE + chunk, DIRECTION_STREAM + slot, 0, P * spp)
+                    u = u_all[hit].astype(np.float64)
+                    uv_tree, _ = trees.sample(np.ascontiguousarray(u_all[:, :2]), spp)
+                    uv_p, _ = inside.sample(uv_tree[hit].astype(np.float64))
+                    d_p = square_to_world(uv_p)
+                    use_b = u[:, 2] < alpha
+                    ub = np.stack([np.where(use_b, u[:, 2] / alpha, 0.0), u[:, 3]], 1)
+                    ub = np.clip(ub, 0.0, np.nextafter(1.0, 0.0))
+                    wl_b = bsdfs.sample_each(kind, param, ub, wo)
+                    d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
+                    direction = np.where(use_b[:, None], d_b, d_p)
+                    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+                    uv = world_to_square(direction)
+                    p_tree = trees.pdf(np.ascontiguousarray(_spread(uv, hit, P * spp), np.float32), spp)[hit]
+                    p_prod = np.where(has_p, p_tree.astype(np.float64) * inside.factor(uv), 0.0) \
+                        * solid_angle_jacobian(direction)
+                    wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, nrm)], 1)
+                    fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
+                    pdf = (1 - alpha) * p_prod + alpha * p_bsdf
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0) / slots
+                    weight = np.where(np.isfinite(weight), weight, 0.0)
+                    live = np.flatnonzero(weight > 0)
+                    blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
+                    rays += len(live)
+                    total[live] += (weight[live] * ~blocked)[:, None] * env.eval(direction[live])
+                value[hit] = albedo * total
+            v = value.reshape(P, spp, 3)
+            with lock:
+                sums[pix] += v.sum(1)
+                squares[pix] += (v * v).sum(1)
+                totals["rays"] += rays
+                totals["done"] += 1
+                if progress:
+                    progress(totals["done"], len(chunks), totals["rays"], time.perf_counter() - t0)
+
+        with ThreadPoolExecutor(threads or 2) as pool:
+            list(pool.map(one, chunks))
+        seconds = time.perf_counter() - t0
+        mean = sums / spp
+        if spp > 1:
+            err = np.sqrt(np.maximum(squares - spp * mean ** 2, 0.0) / (spp - 1) / spp)
+        else:
+            err = np.full_like(mean, np.inf)
+        stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
+                 "rays": totals["rays"], "eye": cam.eye.tolist(), "target": cam.target.tolist(), "fov": cam.fov_y,
+                 "estimator": "product T1 x f_r of the surface cache + BSDF, one-sample mixture"}
+        return RenderResult(mean.reshape(height, width, 3).astype(np.float32),
+                            err.reshape(height, width, 3).astype(np.float32), stats)
