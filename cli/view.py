@@ -6,6 +6,10 @@ address) with sliders for the rotation, the exposure and the terms K, the maps t
 (index 0 is the baked one, then each ``--env`` in order), the frame rate and the converge
 control; it prints the page's URL on one line and opens it in the system browser unless
 ``--no-browser``. The state is in the URL (``/?rotate_y=120&exposure=0.5&terms=256&env=1``).
+A bake made with ``--vary object`` shows that factor's controls instead: the object's translation
+and its rotation about +Y (``/?translate=0.3,0,0.2&rotate_y=45&exposure=0.5``), its frames and
+converge by the moving-object estimator; ``--env`` does not apply to it, and ``--scene FILE``
+gives the scene it was baked from where that is not at the path the bake recorded.
 Ctrl-C (or SIGTERM) stops it. Errors are one line and exit 2, as for the other commands.
 """
 from __future__ import annotations
@@ -21,8 +25,11 @@ from .common import fail
               help="A map to choose from in the page (repeatable; the baked map is always the first).")
 @click.option("--port", type=click.IntRange(0, 65535), default=0, show_default=True,
               help="The port on 127.0.0.1 (0: a free one).")
+@click.option("--scene", "scene_file", default=None, metavar="FILE",
+              help="The scene the bake was made from, where it is not at the path the bake recorded (converge; "
+                   "a bake with --vary object needs it for every frame).")
 @click.option("--no-browser", is_flag=True, help="Print the URL only; do not open the system browser.")
-def view(bake_file, env_files, port, no_browser):
+def view(bake_file, env_files, port, scene_file, no_browser):
     """Serve an interactive viewer of the bake file PATH on 127.0.0.1 and print its URL."""
     import threading
     import webbrowser
@@ -42,7 +49,9 @@ def view(bake_file, env_files, port, no_browser):
 
     try:
         transfer = Transfer.load(bake_file)
-        viewer = Viewer(transfer, maps=env_files)
+        if transfer.header.get("vary") == "object" and env_files:
+            fail(f"{bake_file}: this bake varies an object (its lighting is fixed); --env does not apply")
+        viewer = Viewer(transfer, maps=env_files, scene=scene_file)
         viewer.serve(port, ready=ready)
     except WavlightError as e:
         fail(e)

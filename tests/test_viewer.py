@@ -1,7 +1,10 @@
 """The interactive viewer (wavlight view): the state from the URL sanitised, frames over
 the websocket, the page in a real browser (Debian's chromium driven headless by playwright:
 moving a slider changes the picture, the page reports its frame rate), two pages at once, a
-page closed while frames stream, the converge control, and the command line.
+page closed while frames stream, the converge control, and the command line; and the same for a
+bake that varies one object (a tilted card over a floor under a small sun): its translation and
+rotation sliders, its state in the URL, its frames and converge by the moving-object estimator,
+and its bad parameters.
 
 The server runs on 127.0.0.1 (a free port) in a thread of its own, started by a fixture and
 always stopped. The browser tests are skipped only where playwright or chromium is missing.
@@ -32,12 +35,14 @@ pytest.importorskip("aiohttp")
 
 import aiohttp  # noqa: E402
 from click.testing import CliRunner  # noqa: E402
+from scenes_util import toml_text, write_raw_image  # noqa: E402
 
 import wavlight  # noqa: E402
 from wavlight.cli.main import main  # noqa: E402
 from wavlight.imageio import srgb_encode  # noqa: E402
 from wavlight.relight import viewer as viewer_module  # noqa: E402
-from wavlight.relight.viewer import EXPOSURE_RANGE, Limits, Viewer, sanitise, tone_map  # noqa: E402
+from wavlight.relight.viewer import EXPOSURE_RANGE, Limits, ObjectLimits, Viewer, sanitise, tone_map  # noqa: E402
+from wavlight.scene import rotation  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: `wavlight view ...` in a fresh interpreter
@@ -544,3 +549,284 @@ def test_view_command_errors_are_one_line(bake_file, tmp_path):
             result = pool.submit(runner.invoke, main, ["view", str(bake_file[0]), "--no-browser", "--port",
                                                        str(port)]).result(60)
     assert result.exit_code == 2 and "cannot listen" in result.output and result.output.count("\n") == 1
+
+
+# ----------------------------------------------------------------------------- a bake that varies an object
+#: the card's own rotation (about +X), which the viewer's rotation about +Y is composed with
+CARD_ROTATE = [1.0, 0.0, 0.0, 60.0]
+
+
+def card_scene():
+    """A ggx card (1.2 x 0.6, tilted 60 degrees about +X) over a lambert floor, 48 x 32 pixels."""
+    return {"render": {"width": 48, "height": 32},
+            "camera": {"eye": [0.0, 2.0, 4.0], "target": [0.0, 0.4, 0.0], "fov_y": 40.0},
+            "environment": {"file": "sky.exr", "rotate_y": 15.0},
+            "objects": [{"shape": "quad", "name": "card", "size": [1.2, 0.6], "rotate": CARD_ROTATE,
+                         "translate": [0.0, 0.6, 0.0], "material": "m"},
+                        {"shape": "quad", "size": 6.0, "material": "floor"}],
+            "materials": {"m": {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
+                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+
+
+@pytest.fixture(scope="module")
+def object_bake(tmp_path_factory, device):
+    """A tiny bake (48 x 32 pixels) with vary="object" of the card, from a scene file on disk."""
+    folder = tmp_path_factory.mktemp("viewer-object")
+    sky = (np.linspace(1.5, 0.3, 32)[:, None, None] * np.ones((32, 64, 3))).astype(np.float32)
+    sky[8, 20] = 3000.0                                    # a small sun: hard shadows
+    write_raw_image(folder / "sky.exr", sky)
+    (folder / "scene.toml").write_text(toml_text(card_scene()))
+    path = folder / "card.wlt"
+    wavlight.bake(str(folder / "scene.toml"), output=str(path), spp=2, levels=4, terms=64, priority="area",
+                  vary="object", object="card", static_spp=32).close()
+    return path, folder / "scene.toml"
+
+
+@pytest.fixture(scope="module")
+def object_transfer(object_bake):
+    t = wavlight.Transfer.load(object_bake[0])
+    yield t
+    t.close()
+
+
+@pytest.fixture
+def serve_object(object_transfer):
+    """serve_object(**viewer options) -> a running Viewer of the object bake, stopped after the test."""
+    started = []
+
+    def start(**options):
+        v = Viewer(object_transfer, **options)
+        v.start_background(0)
+        started.append(v)
+        return v
+
+    yield start
+    for v in started:
+        v.stop_background()
+        assert v.clients == 0 and v.running_tasks == 0
+
+
+def _object_limits(v):
+    lim = v.limits
+    assert isinstance(lim, ObjectLimits)
+    return lim
+
+
+def test_object_sanitise_and_the_factors_each_bake_holds_fixed():
+    lim = ObjectLimits(translate=(0.0, 0.6, 0.0), lo=(-3.7, -0.1, -3.7), hi=(3.7, 1.3, 3.7), step=0.01,
+                       rotate_y=0.0, converge=True)
+    state, notes = sanitise({"translate": "0.3,0,0.2", "rotate_y": "405", "exposure": "0.5"}, lim)
+    assert state == {"translate": [0.3, 0.0, 0.2], "rotate_y": 45.0, "exposure": 0.5, "encoding": "jpeg",
+                     "preview": False, "converge": False} and notes == []
+    for bad, why in (("1,nan,2", "finite"), ("1,inf,2", "finite"), ("1,2", "three numbers"), ("1,2,3,4", "three"),
+                     ("a,b,c", "numbers"), ([1, 2], "three"), ([1, True, 2], "numbers"), (5, "three"),
+                     ("9" * 300, "three")):
+        state, notes = sanitise({"translate": bad}, lim)
+        assert state["translate"] == [0.0, 0.6, 0.0], bad
+        assert len(notes) == 1 and why in notes[0] and "\n" not in notes[0], (bad, notes)
+    state, notes = sanitise({"translate": [100, -100, 0.25]}, lim)
+    assert state["translate"] == [3.7, -0.1, 0.25] and len(notes) == 2
+    assert any("translate x=100 is outside [-3.7, 3.7]" in n for n in notes)
+    state, notes = sanitise({"env": "1", "terms": "64", "rotate_y": "abc", "converge": "1"}, lim)
+    assert "env" not in state and "terms" not in state and state["rotate_y"] == 0.0 and state["converge"] is True
+    assert len(notes) == 3 and sum("does not apply: this bake varies an object" in n for n in notes) == 2
+    # the factor a lighting bake holds fixed: the same rule
+    state, notes = sanitise({"translate": "0.3,0,0.2", "rotate_y": "10"}, LIMITS)
+    assert "translate" not in state and state["rotate_y"] == 10.0
+    assert len(notes) == 1 and "does not apply: this bake varies the lighting" in notes[0]
+
+
+def test_object_limits_and_placement_come_from_the_scene(serve_object, object_transfer):
+    v = serve_object()
+    lim = _object_limits(v)
+    assert lim.translate == (0.0, 0.6, 0.0) and lim.rotate_y == 0.0
+    scene = v.mover.scene
+    used = scene.vertices[np.unique(scene.faces)]
+    lo, hi = np.array(lim.lo), np.array(lim.hi)
+    # every translation that keeps the card's bounding sphere's centre in the scene's bounds is in range
+    center, radius = v.mover.center, v.mover.radius
+    assert np.all(lo <= used.min(0) - center - radius + 1e-9) and np.all(hi >= used.max(0) - center + radius - 1e-9)
+    assert np.all(lo <= lim.translate) and np.all(np.array(lim.translate) <= hi)
+    assert np.all(hi - lo <= (used.max(0) - used.min(0)) + 2 * radius + 2 * lim.step + 1e-9)
+    # the slider's rotation about +Y after the card's own rotation about +X
+    for degrees in (0.0, 45.0, 180.0, 300.0):
+        t, r = v.placement({"translate": [0.1, 0.6, -0.2], "rotate_y": degrees})
+        assert t == [0.1, 0.6, -0.2]
+        want = rotation([0.0, 1.0, 0.0, degrees]) @ rotation(CARD_ROTATE)
+        assert np.allclose(rotation(r), want, atol=1e-9), degrees
+
+
+def test_object_page_and_socket_frames_are_the_moving_estimators(serve_object, object_transfer):
+    v = serve_object()
+    lim = _object_limits(v)
+    status, html = _get(v.url + "?translate=0.3,0,0.2&rotate_y=45&exposure=0.5")
+    config = _config(html)
+    assert status == 200 and config["vary"] == "object" and config["object"] == "card"
+    assert config["state"]["translate"] == [0.3, 0.0, 0.2] and config["state"]["rotate_y"] == 45.0
+    assert config["notes"] == [] and "maps" not in config and "max_terms" not in config
+    assert config["translate_min"] == list(lim.lo) and config["translate_max"] == list(lim.hi)
+    status, html = _get(v.url + "?translate=1,nan,2&rotate_y=inf&env=1&terms=5")
+    config = _config(html)
+    assert config["state"]["translate"] == list(lim.translate) and config["state"]["rotate_y"] == lim.rotate_y
+    assert len(config["notes"]) == 4 and all("\n" not in n for n in config["notes"])
+    mover = MovingObjectOf(object_transfer, v)
+
+    def expected(translate, rotate_y, spp, exposure=0.0):
+        t, r = v.placement({"translate": translate, "rotate_y": rotate_y})
+        return tone_map(mover.frame(t, r, spp=spp, seed=0).image, exposure, alpha=True)
+
+    def picture(payload):
+        return np.frombuffer(payload, np.uint8).reshape(object_transfer.height, object_transfer.width, 4)
+
+    async def talk():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(v.url + "ws") as ws:
+                await ws.send_json({"type": "state", "translate": [0.3, 0.6, 0.2], "rotate_y": 45, "exposure": 0.5,
+                                    "encoding": "raw"})
+                header, payload, texts = await _next_frame(ws)
+                assert texts == []
+                assert header["state"] == {"translate": [0.3, 0.6, 0.2], "rotate_y": 45.0, "exposure": 0.5}
+                assert header["spp"] == viewer_module.OBJECT_FRAME_SPP and header["preview"] is False
+                want = expected([0.3, 0.6, 0.2], 45.0, viewer_module.OBJECT_FRAME_SPP, 0.5)
+                assert np.abs(picture(payload).astype(int) - want).max() <= 1
+                first = picture(payload).copy()
+                # the same place while a slider is dragged: the preview's samples
+                await ws.send_json({"type": "state", "translate": [0.3, 0.6, 0.2], "rotate_y": 45, "exposure": 0.5,
+                                    "encoding": "raw", "preview": True})
+                header, payload, _ = await _next_frame(ws)
+                assert header["preview"] is True and header["spp"] == viewer_module.OBJECT_PREVIEW_SPP
+                # another place, another picture; a rotation alone turns the card
+                await ws.send_json({"type": "state", "translate": [-1.0, 0.6, 0.2], "rotate_y": 45,
+                                    "exposure": 0.5, "encoding": "raw"})
+                header, payload, _ = await _next_frame(ws)
+                moved = picture(payload)
+                assert header["state"]["translate"] == [-1.0, 0.6, 0.2] and np.any(moved != first)
+                await ws.send_json({"type": "state", "translate": [0.3, 0.6, 0.2], "rotate_y": 135,
+                                    "exposure": 0.5, "encoding": "raw"})
+                header, payload, _ = await _next_frame(ws)
+                assert header["state"]["rotate_y"] == 135.0 and np.any(picture(payload) != first)
+                # the lighting's parameters and bad values: notes, then the frame of the values used
+                await ws.send_json({"type": "state", "translate": [0.3, "x", 0.2], "rotate_y": 45, "env": 1,
+                                    "terms": 4, "exposure": 0.5, "encoding": "raw"})
+                header, payload, texts = await _next_frame(ws)
+                assert texts and texts[0]["type"] == "state" and len(texts[0]["notes"]) == 3
+                assert header["state"]["translate"] == list(lim.translate)
+                # converge: the moving estimator at this place, seeds 0, 1, ..., weighted by spp
+                await ws.send_json({"type": "state", "translate": [0.3, 0.6, 0.2], "rotate_y": 45, "exposure": 0.5,
+                                    "encoding": "raw", "converge": True})
+                reports = []
+                while len(reports) < 3:
+                    header, payload, _ = await _next_frame(ws)
+                    if header["converge"] is not None:
+                        reports.append((header["converge"], picture(payload).copy()))
+                c, pic = reports[0]
+                assert c["spp"] == c["call_spp"] == 2 and c["rounds"] == 1
+                assert np.abs(pic.astype(int) - expected([0.3, 0.6, 0.2], 45.0, 2, 0.5)).max() <= 1
+                _doubling([r[0]["call_spp"] for r in reports])
+                assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["call_spp"] for r in reports]))
+                await ws.send_json({"type": "state", "translate": [0.5, 0.6, 0.2], "rotate_y": 45, "exposure": 0.5,
+                                    "encoding": "raw", "converge": False})
+                while True:
+                    header, _, _ = await _next_frame(ws)
+                    if header["converge"] is None:
+                        break
+                assert header["state"]["translate"] == [0.5, 0.6, 0.2]
+
+    _in_a_thread(talk)
+    assert _wait(lambda: v.clients == 0 and v.running_tasks == 0)
+
+
+def _in_a_thread(coroutine_function, seconds=120):
+    """asyncio.run(coroutine_function()) in a thread of its own (the browser tests' playwright
+    keeps an event loop in this one)."""
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, coroutine_function()).result(seconds)
+
+
+def MovingObjectOf(transfer, v):
+    """A moving object of its own for the same bake and scene as the viewer's (expected frames)."""
+    from wavlight.relight.moving import MovingObject
+
+    return MovingObject(transfer, v.mover.scene)
+
+
+def test_object_viewer_refuses_maps_and_the_command_line_errors_are_one_line(object_transfer, object_bake, tmp_path):
+    with pytest.raises(wavlight.WavlightError, match="varies an object"):
+        Viewer(object_transfer, maps=[str(object_bake[1].parent / "sky.exr")])
+    runner = CliRunner()
+    for args, words in (([str(object_bake[0]), "--no-browser", "--env", str(object_bake[1].parent / "sky.exr")],
+                         "--env does not apply"),
+                        ([str(object_bake[0]), "--no-browser", "--scene", str(tmp_path / "missing.toml")],
+                         "missing.toml")):
+        result = runner.invoke(main, ["view", *args])
+        assert result.exit_code == 2 and words in result.output, result.output
+        assert result.output.count("\n") == 1 and "Traceback" not in result.output
+
+
+def test_browser_object_sliders_url_and_frame_rate(serve_object, page):
+    v = serve_object()
+    pg = page()
+    pg.goto(v.url + "?translate=0.3,0,0.2&rotate_y=45&exposure=0.5")
+    _frames(pg, 1)
+    assert pg.is_hidden("#terms") and pg.is_hidden("#env") and pg.is_visible("#translate_x")
+    assert [pg.input_value(f"#translate_{a}") for a in "xyz"] == ["0.3", "0", "0.2"]
+    assert pg.text_content("#rotate_y_value") == "45°" and pg.input_value("#rotate_y") == "45"
+    assert "object rotation" in pg.text_content("label[for=rotate_y]")
+    assert pg.evaluate("location.search") == "?translate=0.3,0,0.2&rotate_y=45&exposure=0.5"
+    assert pg.evaluate("viewer.last.state") == {"translate": [0.3, 0, 0.2], "rotate_y": 45, "exposure": 0.5}
+    first = _pixel_sum(pg)
+    assert first > 0
+    _set(pg, "translate_x", "-1")
+    pg.wait_for_function("() => viewer.last.state.translate[0] === -1")
+    moved = _pixel_sum(pg)
+    assert moved != first
+    assert "translate=-1,0,0.2" in pg.url and pg.text_content("#translate_x_value") == "-1"
+    _set(pg, "rotate_y", "120")
+    pg.wait_for_function("() => viewer.last.state.rotate_y === 120 && !viewer.last.preview")
+    assert _pixel_sum(pg) != moved
+    pg.wait_for_function("() => parseFloat(document.getElementById('fps').textContent) > 0")
+    assert float(pg.text_content("#fps")) > 0
+    assert "spp" in pg.text_content("#info")
+    # the URL restores the state it carries
+    shared = pg.url
+    assert "translate=-1,0,0.2" in shared and "rotate_y=120" in shared and "exposure=0.5" in shared
+    other = page()
+    other.goto(shared)
+    _frames(other, 1)
+    assert other.evaluate("viewer.last.state") == pg.evaluate("viewer.last.state")
+    assert [other.input_value(f"#translate_{a}") for a in "xyz"] == ["-1", "0", "0.2"]
+    assert other.input_value("#rotate_y") == "120"
+    assert _pixel_sum(other) == _pixel_sum(pg)     # the same frame (seed 0) at the same place
+    assert pg.evaluate("viewer.errors") == 0 and other.evaluate("viewer.errors") == 0
+
+
+def test_browser_object_bad_parameters_show_the_values_used(serve_object, page):
+    v = serve_object()
+    lim = _object_limits(v)
+    pg = page()
+    pg.goto(v.url + "?translate=1,nan&rotate_y=abc&exposure=inf&env=1&terms=5")
+    _frames(pg, 1)
+    default = ",".join(f"{x:g}" for x in lim.translate)
+    assert pg.evaluate("location.search") == f"?translate={default}&rotate_y={lim.rotate_y:g}&exposure=0"
+    notes = pg.text_content("#notes").splitlines()
+    assert len(notes) == 5 and any("translate='1,nan'" in n for n in notes)
+    assert sum("does not apply" in n for n in notes) == 2
+    pg.goto(v.url + "?translate=99,0.6,-99")
+    _frames(pg, 1)
+    assert pg.evaluate("viewer.last.state.translate") == [lim.hi[0], 0.6, lim.lo[2]]
+    assert len(pg.text_content("#notes").splitlines()) == 2
+    assert pg.evaluate("viewer.errors") == 0 and pg.text_content("#status") == ""
+
+
+def test_browser_object_converge_refines_and_stops_when_the_object_moves(serve_object, page):
+    v = serve_object()
+    pg = page()
+    pg.goto(v.url + "?translate=0.3,0.6,0.2")
+    _frames(pg, 1)
+    assert not pg.is_disabled("#converge")
+    pg.click("#converge")
+    pg.wait_for_function("() => viewer.last.converge && viewer.last.converge.rounds >= 2")
+    assert "spp" in pg.text_content("#converge_info")
+    _set(pg, "translate_z", "-0.5")
+    pg.wait_for_function("() => viewer.last.converge === null && viewer.last.state.translate[2] === -0.5")
+    assert pg.get_attribute("#converge", "aria-pressed") == "false"

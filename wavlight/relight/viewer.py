@@ -37,6 +37,21 @@ its standard error is sqrt(sum w_k^2 e_k^2) with w_k = spp_k / sum spp); a new e
 the same average again. It stops as soon as the lighting (rotation, map) changes or the control
 is released: the page releases it when the rotation, the map or K moves, and a call under way
 ends at its next progress report (the calls run in the frame thread).
+
+A bake that varies one object (``vary = "object"``, :mod:`wavlight.relight.moving`). The page
+offers that factor's controls instead of the lighting's: the object's translation (x, y, z
+sliders over :func:`translate_range`, the scene's bounds widened by the object's bounding radius)
+and its rotation about +Y in degrees (``rotate_y``: composed with the object's own rotation, whose
+angle about +Y it starts from), with the exposure and the frame rate; the state is in the URL as
+``/?translate=0.3,0,0.2&rotate_y=45&exposure=0.5``. A frame is the moving-object estimator
+(:meth:`MovingObject.frame`, unbiased, seed 0) at :data:`OBJECT_FRAME_SPP` samples per pixel, or
+:data:`OBJECT_PREVIEW_SPP` while a slider is dragged; converge calls the same estimator with seeds
+0, 1, 2, ... and accumulates as above, and stops when the placement changes (a call under way
+runs to its end: the estimator reports no progress). The parameters of
+the factor a bake holds fixed (``env`` and ``terms`` on an object bake, ``translate`` on a lighting
+bake) follow the rule of any bad value: they are replaced by the bake's own (ignored) with a
+one-line note; a translation that is not three finite numbers becomes the object's own, a
+component outside its range is clamped.
 """
 from __future__ import annotations
 
@@ -61,7 +76,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 
 from ..errors import WavlightError, described, shown
 from ..imageio import srgb_encode
-from ..scene import load_scene
+from ..scene import load_scene, rotation
 
 try:   # the unbiased estimator of a relit frame, where this version has it
     from .converge import converge as _converge_function
@@ -89,6 +104,12 @@ CONVERGE_FIRST_SPP = 2
 CONVERGE_ROUND_SECONDS = 0.5
 CONVERGE_MAX_CALL_SPP = 64
 CONVERGE_MAX_SPP = 1 << 16
+#: a bake that varies an object: samples per pixel of its frame, and of the frame drawn while a
+#: slider is dragged
+OBJECT_FRAME_SPP = 4
+OBJECT_PREVIEW_SPP = 1
+#: the URL parameters of the factor each kind of bake holds fixed (its page has no control for them)
+HELD_FIXED = {"lighting": ("translate",), "object": ("env", "terms")}
 #: sRGB lookup table: 8-bit values of the curve at LUT_SIZE evenly spaced linear values in [0, 1]
 LUT_SIZE = 1 << 14
 _LUT = (srgb_encode(np.linspace(0.0, 1.0, LUT_SIZE)) * 255.0 + 0.5).astype(np.uint8)
@@ -150,6 +171,38 @@ class Limits:
     converge: bool = False
 
 
+@dataclass(frozen=True)
+class ObjectLimits:
+    """What the state of a bake that varies one object may hold: the object's own translation
+    (the default), the range of each component (lo, hi: (3,) tuples), the sliders' step, the
+    default rotation about +Y (degrees) and whether converge exists."""
+
+    translate: tuple
+    lo: tuple
+    hi: tuple
+    step: float
+    rotate_y: float
+    converge: bool = False
+
+
+def translate_range(scene, obj, center, radius, default):
+    """(lo (3,), hi (3,), step) of the translation sliders of ``obj`` in ``scene``: the translations
+    T for which c + T (c = ``center``, the centre of its bounding sphere in its own frame, before
+    any rotation) lies inside the bounds of the scene's geometry (the object at its own place)
+    widened by the sphere's ``radius`` on every side, rounded outwards to a grid of ``step`` (a
+    power of ten, about 1/200 of the widest span), and always holding the ``default`` translation."""
+    used = scene.vertices[np.unique(scene.faces)].astype(np.float64)
+    lo = used.min(0) - radius - np.asarray(center, np.float64)
+    hi = used.max(0) + radius - np.asarray(center, np.float64)
+    default = np.asarray(default, np.float64)
+    lo, hi = np.minimum(lo, default), np.maximum(hi, default)
+    span = float((hi - lo).max())
+    step = 10.0 ** math.floor(math.log10(span / 200.0)) if span > 0 else 0.01
+    lo, hi = np.floor(lo / step) * step, np.ceil(hi / step) * step
+    digits = max(0, -math.floor(math.log10(step)))
+    return tuple(round(float(x), digits) for x in lo), tuple(round(float(x), digits) for x in hi), step
+
+
 def _number(key, raw, default, notes):
     """raw as a finite float, or ``default`` with a note."""
     if isinstance(raw, bool) or raw is None:
@@ -180,7 +233,78 @@ def _clamped(key, value, lo, hi, notes):
     return value
 
 
-def sanitise(params, limits: Limits):
+def _held_fixed(params, kind, notes):
+    """A note for each parameter of the factor a bake of ``kind`` holds fixed (it is ignored)."""
+    why = {"lighting": "this bake varies the lighting (the objects stay where they are)",
+           "object": "this bake varies an object (its lighting is fixed)"}[kind]
+    for key in HELD_FIXED[kind]:
+        if key in params:
+            notes.append(f"{key}={shown(params.get(key), 40)} does not apply: {why}")
+
+
+def _encoding_and_flags(params, converge_exists, notes):
+    get = params.get
+    encoding = ENCODINGS[0]
+    if "encoding" in params:
+        if get("encoding") in ENCODINGS:
+            encoding = get("encoding")
+        else:
+            notes.append(f"encoding={shown(get('encoding'), 40)} is not one of {', '.join(ENCODINGS)}: "
+                         f"using {encoding}")
+
+    def flag(key):
+        raw = get(key, False)
+        return raw is True or raw in ("1", "true")
+
+    return encoding, flag("preview"), flag("converge") and converge_exists
+
+
+def _translation(raw, limits: ObjectLimits, notes):
+    """A translation from "x,y,z" or a list of three numbers, each component clamped to its range;
+    the object's own where it is not three finite numbers."""
+    default = list(limits.translate)
+
+    def text(v):
+        return ",".join(f"{x:g}" for x in v)
+    if isinstance(raw, str) and len(raw) <= 200:
+        parts = raw.split(",")
+    elif isinstance(raw, (list, tuple)):
+        parts = list(raw)
+    else:
+        parts = None
+    if parts is None or len(parts) != 3:
+        notes.append(f"translate={shown(raw, 40)} is not three numbers x,y,z: using {text(default)}")
+        return default
+    values = []
+    for part in parts:
+        quiet: list[str] = []
+        values.append(_number("translate", part, 0.0, quiet))
+        if quiet:
+            why = "finite numbers" if "not finite" in quiet[0] else "numbers"
+            notes.append(f"translate={shown(raw, 40)} is not three {why} x,y,z: using {text(default)}")
+            return default
+    used = [round(min(max(v, lo), hi), 4) for v, lo, hi in zip(values, limits.lo, limits.hi)]
+    for axis, v, u, lo, hi in zip("xyz", values, used, limits.lo, limits.hi):
+        if v < lo or v > hi:
+            notes.append(f"translate {axis}={v:g} is outside [{lo:g}, {hi:g}]: using {u:g}")
+    return used
+
+
+def _sanitise_object(params, limits: ObjectLimits):
+    notes: list[str] = []
+    get = params.get
+    translate = _translation(get("translate"), limits, notes) if "translate" in params else list(limits.translate)
+    rot = _number("rotate_y", get("rotate_y"), limits.rotate_y, notes) if "rotate_y" in params else limits.rotate_y
+    rot = round(rot % 360.0, 3) % 360.0
+    exposure = _number("exposure", get("exposure"), 0.0, notes) if "exposure" in params else 0.0
+    exposure = round(_clamped("exposure", exposure, *EXPOSURE_RANGE, notes), 3)
+    _held_fixed(params, "object", notes)
+    encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
+    return ({"translate": translate, "rotate_y": rot, "exposure": exposure, "encoding": encoding,
+             "preview": preview, "converge": converge}, notes)
+
+
+def sanitise(params, limits):
     """(state, notes): the viewer's state from URL parameters or a page's message (a mapping of
     strings or JSON values; other keys are ignored), every value usable, and one line per value
     that was replaced.
@@ -190,7 +314,15 @@ def sanitise(params, limits: Limits):
     fraction is rounded), default the bake's; env: an index of the maps, else 0 (the baked
     map); encoding: one of ENCODINGS, else the first; preview and converge: booleans (true only
     as JSON true or "1"/"true"; converge only where the estimator exists). A value that is not a
-    finite number becomes the default."""
+    finite number becomes the default; ``translate`` (an object's place) does not apply and gets a
+    note.
+
+    With :class:`ObjectLimits` (a bake that varies one object): translate: "x,y,z" (or a list of
+    three numbers), each clamped to its range, the object's own where it is not three finite
+    numbers; rotate_y: the object's rotation about +Y, degrees, wrapped into [0, 360); exposure,
+    encoding, preview and converge as above; ``env`` and ``terms`` do not apply and get a note."""
+    if isinstance(limits, ObjectLimits):
+        return _sanitise_object(params, limits)
     notes: list[str] = []
     get = params.get
     rot = _number("rotate_y", get("rotate_y"), limits.rotate_y, notes) if "rotate_y" in params else limits.rotate_y
@@ -211,21 +343,10 @@ def sanitise(params, limits: Limits):
             notes.append(f"env={shown(get('env'), 40)} is not one of the maps 0..{limits.maps - 1}: using 0")
         else:
             env = int(e)
-    encoding = ENCODINGS[0]
-    if "encoding" in params:
-        if get("encoding") in ENCODINGS:
-            encoding = get("encoding")
-        else:
-            notes.append(f"encoding={shown(get('encoding'), 40)} is not one of {', '.join(ENCODINGS)}: "
-                         f"using {encoding}")
-
-    def flag(key):
-        raw = get(key, False)
-        return raw is True or raw in ("1", "true")
-
-    converge = flag("converge") and limits.converge
+    encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
+    _held_fixed(params, "lighting", notes)
     return ({"rotate_y": rot, "exposure": exposure, "terms": terms, "env": env, "encoding": encoding,
-             "preview": flag("preview"), "converge": converge}, notes)
+             "preview": preview, "converge": converge}, notes)
 
 
 class _Stopped(Exception):
@@ -254,22 +375,57 @@ def _one_line_logs(*names):
 
 
 # ----------------------------------------------------------------------------- the server
+def _axis_angle(matrix) -> list:
+    """[axis x, y, z, degrees] of a 3 x 3 rotation matrix (the inverse of
+    :func:`wavlight.scene.rotation`)."""
+    m = np.asarray(matrix, np.float64)
+    angle = math.acos(min(max((np.trace(m) - 1.0) / 2.0, -1.0), 1.0))
+    if angle < 1e-12:
+        return [0.0, 1.0, 0.0, 0.0]
+    if math.pi - angle < 1e-6:   # a half turn: the axis from the symmetric part
+        sym = (m + np.eye(3)) / 2.0
+        i = int(np.argmax(np.diag(sym)))
+        axis = sym[:, i] / math.sqrt(sym[i, i])
+    else:
+        axis = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]]) / (2.0 * math.sin(angle))
+    return [*(float(x) for x in axis), math.degrees(angle)]
+
+
 class Viewer:
     """The viewer of one transfer under its baked map and the ``maps`` given (map files or
     Environments; index 0 is always the baked map). ``converge``: the unbiased estimator
     (default :func:`wavlight.relight.converge.converge` where it exists; None disables the
     control), called as converge(transfer, scene=, env=, rotate_y=, scale=, spp=, seed=) and
     returning (image, stderr) or a RenderResult; ``scene``: the baked scene for it (default:
-    loaded once from the file the bake names)."""
+    loaded once from the file the bake names).
+
+    A bake that varies one object (``vary = "object"``) is shown through a
+    :class:`wavlight.relight.moving.MovingObject` of the transfer and ``scene`` (a Scene or a scene
+    file; default the file the bake names), made here (a scene that is not the baked one is a
+    one-line WavlightError); ``maps`` must be empty (its lighting is fixed), and ``converge``
+    (default the moving object's unbiased frame) is called as converge(translate=, rotate=, spp=,
+    seed=)."""
 
     def __init__(self, transfer, maps=(), converge=_UNSET, scene=None):
         self.transfer = transfer
+        self.varies = transfer.header.get("vary", "lighting")
+        self.mover = None
         self._maps = [("the baked map", None)]
+        if self.varies == "object" and len(maps):
+            raise WavlightError(f"{transfer.path}: this bake varies an object (its lighting is fixed): "
+                                "no other map applies")
         for m in maps:
             env = transfer.environment(m, 1.0)   # a one-line WavlightError for a bad file
             self._maps.append((os.path.basename(os.fspath(m)) if isinstance(m, (str, os.PathLike)) else env.name,
                                env))
-        self.converge = _converge_function if converge is _UNSET else converge
+        if self.varies == "object":
+            from .moving import MovingObject
+
+            self.mover = MovingObject(transfer, scene)
+            default_converge = self.mover.frame
+        else:
+            default_converge = _converge_function
+        self.converge = default_converge if converge is _UNSET else converge
         try:
             self._converge_progress = self.converge is not None and \
                 "progress" in inspect.signature(self.converge).parameters
@@ -277,14 +433,48 @@ class Viewer:
             self._converge_progress = False
         self._scene = scene
         side = 1 << transfer.n_levels
-        self.limits = Limits(maps=len(self._maps), max_terms=side * side, rotate_y=transfer.scene_rotate_y % 360.0,
-                             terms=min(transfer.terms, side * side), converge=self.converge is not None)
+        if self.mover is None:
+            self.limits = Limits(maps=len(self._maps), max_terms=side * side,
+                                 rotate_y=transfer.scene_rotate_y % 360.0,
+                                 terms=min(transfer.terms, side * side), converge=self.converge is not None)
+            self.state_keys = ("rotate_y", "exposure", "terms", "env")
+        else:
+            self.limits = self._object_limits()
+            self.state_keys = ("translate", "rotate_y", "exposure")
         self._page = resources.files(__package__).joinpath("viewer.html").read_text(encoding="utf-8")
         self._pool = None       # the one thread that computes frames
         self._sockets: set = set()
         self._tasks: set = set()
         self._runner = self._thread = self._loop = self._stopping = None
         self.port = None
+
+    def _object_limits(self) -> ObjectLimits:
+        """The translation's range (:func:`translate_range`) and the default rotation about +Y:
+        the object's own angle where it turns about the Y axis (or not at all), else 0 (the
+        slider's rotation is composed with its own)."""
+        mover = self.mover
+        obj = mover.object
+        own = obj.rotate
+        self._own_rotation = None
+        if own is None:
+            rot = 0.0
+        elif abs(own[0]) < 1e-12 and abs(own[2]) < 1e-12:
+            rot = float(own[3]) * (1.0 if own[1] > 0 else -1.0)
+        else:
+            rot, self._own_rotation = 0.0, rotation(list(own))
+        default = [round(float(x), 4) for x in np.asarray(obj.translate, np.float64)]
+        lo, hi, step = translate_range(mover.scene, obj, mover.center, mover.radius, default)
+        return ObjectLimits(translate=tuple(default), lo=lo, hi=hi, step=step, rotate_y=round(rot % 360.0, 3) % 360.0,
+                            converge=self.converge is not None)
+
+    def placement(self, state):
+        """(translate (3,), rotate [axis, degrees]) of the object in a state of an object bake:
+        the slider's rotation about +Y, after the object's own rotation where that is about
+        another axis."""
+        turn = [0.0, 1.0, 0.0, float(state["rotate_y"])]
+        if self._own_rotation is not None:
+            turn = _axis_angle(rotation(turn) @ self._own_rotation)
+        return list(state["translate"]), turn
 
     # -- the application
     def application(self) -> web.Application:
@@ -325,7 +515,18 @@ class Viewer:
 
     def _config(self, state, notes) -> dict:
         t = self.transfer
-        return {"state": state, "notes": notes, "maps": [name for name, _ in self._maps],
+        if self.mover is not None:
+            lim = self.limits
+            obj = self.mover.object
+            return {"vary": "object", "state": state, "notes": notes,
+                    "object": obj.name if obj.name else f"object {obj.index}",
+                    "translate_min": list(lim.lo), "translate_max": list(lim.hi), "translate_step": lim.step,
+                    "default_translate": list(lim.translate), "default_rotate_y": lim.rotate_y,
+                    "exposure_range": list(EXPOSURE_RANGE), "encodings": list(ENCODINGS),
+                    "width": t.width, "height": t.height, "converge": self.converge is not None,
+                    "converge_note": None if self.converge is not None else "no estimator given to this viewer",
+                    "window": WINDOW, "frame_spp": OBJECT_FRAME_SPP, "preview_spp": OBJECT_PREVIEW_SPP}
+        return {"vary": "lighting", "state": state, "notes": notes, "maps": [name for name, _ in self._maps],
                 "max_terms": self.limits.max_terms, "default_terms": self.limits.terms,
                 "exposure_range": list(EXPOSURE_RANGE), "encodings": list(ENCODINGS),
                 "width": t.width, "height": t.height, "texels": f"{1 << t.n_levels}x{1 << t.n_levels}",
@@ -393,22 +594,50 @@ class Viewer:
     def _env(self, index):
         return self._maps[index][1]
 
-    def frame(self, state, terms):
-        """(linear image, stats) of the state at ``terms`` (in the frame thread)."""
-        return self.transfer.frame_timed(self._env(state["env"]), state["rotate_y"], 1.0, terms)
+    def detail(self, state):
+        """What a frame of the state is computed at: the terms (fewer for a preview) of a lighting
+        bake, the samples per pixel of an object bake."""
+        if self.mover is not None:
+            return OBJECT_PREVIEW_SPP if state["preview"] else OBJECT_FRAME_SPP
+        return preview_terms(state["terms"]) if state["preview"] else state["terms"]
+
+    def frame_key(self, state, detail):
+        """What a frame depends on besides the exposure and encoding."""
+        if self.mover is not None:
+            return (tuple(state["translate"]), state["rotate_y"], detail)
+        return (state["rotate_y"], state["env"], detail)
+
+    def converge_key(self, state):
+        """The factor the converged image is of: the lighting (rotation, map), or the object's place."""
+        if self.mover is not None:
+            return (tuple(state["translate"]), state["rotate_y"])
+        return (state["rotate_y"], state["env"])
+
+    def frame(self, state, detail):
+        """(linear image, stats) of the state at ``detail`` (:meth:`detail`; in the frame thread)."""
+        if self.mover is not None:
+            translate, rotate = self.placement(state)
+            result = self.mover.frame(translate, rotate, spp=detail, seed=0)
+            return result.image, {"frame_seconds": result.stats["render_seconds"], "terms": None, "spp": detail,
+                                  "object_pixels": result.stats.get("object_pixels")}
+        return self.transfer.frame_timed(self._env(state["env"]), state["rotate_y"], 1.0, detail)
 
     def converge_call(self, state, spp, seed, stop=None):
-        """(image, stderr) of one call of the estimator at the state's lighting (in the frame
-        thread); ``stop`` (a threading.Event) set ends the call early where the estimator
-        reports its progress (then :class:`_Stopped`)."""
+        """(image, stderr) of one call of the estimator at the state's lighting (or the object's
+        place; in the frame thread); ``stop`` (a threading.Event) set ends the call early where the
+        estimator reports its progress (then :class:`_Stopped`)."""
         kwargs = {}
         if stop is not None and self._converge_progress:
             def progress(*args):
                 if stop.is_set():
                     raise _Stopped()
             kwargs["progress"] = progress
-        result = self.converge(self.transfer, scene=self._scene_for_converge(), env=self._env(state["env"]),
-                               rotate_y=state["rotate_y"], scale=1.0, spp=spp, seed=seed, **kwargs)
+        if self.mover is not None:
+            translate, rotate = self.placement(state)
+            result = self.converge(translate=translate, rotate=rotate, spp=spp, seed=seed, **kwargs)
+        else:
+            result = self.converge(self.transfer, scene=self._scene_for_converge(), env=self._env(state["env"]),
+                                   rotate_y=state["rotate_y"], scale=1.0, spp=spp, seed=seed, **kwargs)
         if hasattr(result, "image"):   # a RenderResult
             return result.image, result.stderr
         return result
@@ -585,8 +814,8 @@ class _Client:
         payload = await loop.run_in_executor(None, encode, image, state["exposure"], state["encoding"])
         h, w = image.shape[:2]
         header = {"type": "frame", "seq": seq, "width": w, "height": h, "encoding": state["encoding"],
-                  "state": {k: state[k] for k in ("rotate_y", "exposure", "terms", "env")},
-                  "terms_used": stats.get("terms"), "preview": bool(stats.get("preview")),
+                  "state": {k: state[k] for k in self.viewer.state_keys},
+                  "terms_used": stats.get("terms"), "spp": stats.get("spp"), "preview": bool(stats.get("preview")),
                   "frame_ms": round(1e3 * stats.get("frame_seconds", 0.0), 2),
                   "encode_ms": round(1e3 * (time.perf_counter() - t0), 2), "bytes": len(payload),
                   "converge": converge}
@@ -630,13 +859,13 @@ class _Client:
         if state["converge"] and self.viewer.converge is not None:
             self.shown = None
             return await self._flush() and await self._converge(state)
-        terms = preview_terms(state["terms"]) if state["preview"] else state["terms"]
-        key = (state["rotate_y"], state["env"], terms)
+        detail = self.viewer.detail(state)
+        key = self.viewer.frame_key(state, detail)
         if self.shown == (key, state["exposure"], state["encoding"]):
             return True
         if self.shown is None or self.shown[0] != key:
             self.shown = None
-            linear, stats = await self.viewer.run(self.viewer.frame, state, terms)
+            linear, stats = await self.viewer.run(self.viewer.frame, state, detail)
             self.linear, self.stats = linear, dict(stats, preview=state["preview"])
         # the frame is encoded and sent while the next one is computed (in order: one at a time)
         if not await self._flush():
@@ -647,17 +876,17 @@ class _Client:
         return True
 
     async def _converge(self, state):
-        """Refine the state's lighting with repeated calls of the estimator, streaming the spp-
-        weighted average after each; return when the lighting or the control changes (True), or
-        the socket closed (False)."""
-        lighting = (state["rotate_y"], state["env"])
+        """Refine the state's lighting (or the object's place) with repeated calls of the
+        estimator, streaming the spp-weighted average after each; return when that factor or the
+        control changes (True), or the socket closed (False)."""
+        lighting = self.viewer.converge_key(state)
         total, rounds, spp = 0, 0, CONVERGE_FIRST_SPP
         acc = var = report = None
         job = waiter = None
         stop = threading.Event()
 
         def same(s):
-            return s["converge"] and (s["rotate_y"], s["env"]) == lighting
+            return s["converge"] and self.viewer.converge_key(s) == lighting
 
         try:
             while True:
@@ -724,6 +953,6 @@ class _Client:
             await self.wake.wait()
             self.wake.clear()
             s = self.state
-            if not s["converge"] or (s["rotate_y"], s["env"]) != lighting:
+            if not s["converge"] or self.viewer.converge_key(s) != lighting:
                 self.wake.set()
                 return

@@ -1,0 +1,473 @@
+"""Frames in which one object moves (wavlight.relight.moving, a bake with --vary object): the
+Stanford bunny of scenes/bunny_ggx.toml (ggx 0.2 gold) moved and turned over its lambert floor
+under rooitou_park_1k (a small, very bright sun: hard shadows), at SIZE x SIZE (default 256).
+
+Measured:
+
+- the bake: wall seconds (the transfer of the scene without the bunny, its product with the
+  fixed lighting on 16 x 16 texels, and the scene without the bunny converged by `wavelet` at
+  --static-spp) and the file's size. The frames read only the product and the converged image,
+  so the transfer is baked at --levels 4 (16 x 16 texels, the product's own resolution; the
+  automatic choice would take 128 x 128 texels for the sun, which these frames never read);
+- the preview frame (the moving estimator at --preview-spp samples per pixel, what the viewer
+  draws while a slider is dragged) at --placements places: the median frame time over --frames
+  frames per place and the frames per second, beside the viewer's tone map and JPEG encoding of
+  it (benchmarks/viewer_fps.py measures the page's side for lighting bakes); the target is
+  >= 10 frames/s;
+- where a preview frame's time goes: every stage of MovingObject.frame wrapped by a timer (the
+  time of a stage excludes the stages it calls), the median over the frames of each place;
+- the error: relMSE = mean(((x - r)^2 - s_r^2) / (r^2 + 0.01)) (wavlight.evaluation.metrics.relmse,
+  the reference's variance subtracted) against `mis` at --ref-spp of the moved scene, for the
+  moving estimator at --spp, `wavelet` and `mis` at the same spp, and `wavelet` and `mis` at
+  equal time (their spp chosen from a pilot render so that setup + render takes the moving
+  frame's seconds; each place is a scene of its own for them, so their setup counts). The floor
+  the bake leaves: the relMSE the converged image without the bunny adds where the frame uses
+  it, mean(s_static^2 / (r^2 + 0.01)) over the pixels not rendered in full.
+
+Nothing is cached in the repository: the bake file and the references (keyed by the scene, the
+settings and a hash of wavlight/ and kernels/) go to --cache (default /tmp/relight-moving/).
+
+    python benchmarks/relight_moving.py            # -> benchmarks/results/relight_moving.json
+    python benchmarks/relight_moving.py --quick    # a small, fast run (96 x 96, fewer samples)
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import glob
+import hashlib
+import json
+import os
+import statistics
+import sys
+import time
+import tomllib
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from provenance import add_output_argument, provenance, write_result  # noqa: E402
+
+ROOT = os.path.dirname(HERE)
+DATA = os.path.normpath(os.path.join(ROOT, "..", "shared", "data"))
+SCENE = os.path.join(ROOT, "scenes", "bunny_ggx.toml")
+ENVMAP = os.path.join(DATA, "envmaps", "rooitou_park_1k.hdr")
+TARGET_FPS = 10.0
+#: places of the bunny over its floor: translation (x, 0, z) and degrees about +Y
+PLACES = [((0.0, 0.0, 0.0), 0.0), ((0.6, 0.0, 0.4), 45.0), ((-0.7, 0.0, -0.5), 120.0), ((0.3, 0.0, -1.0), 250.0)]
+
+
+# ----------------------------------------------------------------------------- the scene
+def bunny_dict(translate=None, rotate_y=None) -> dict:
+    """scenes/bunny_ggx.toml as a dict under rooitou_park_1k, the bunny named "bunny" (and moved)."""
+    with open(SCENE, "rb") as fh:
+        d = tomllib.load(fh)
+    d["environment"]["file"] = ENVMAP
+    d["environment"]["rotate_y"] = 0.0
+    bunny = d["objects"][0]
+    bunny["mesh"] = os.path.join(DATA, "meshes", os.path.basename(bunny["mesh"]))
+    bunny["name"] = "bunny"
+    if translate is not None:
+        bunny["translate"] = [float(x) for x in translate]
+    if rotate_y is not None:
+        bunny["rotate"] = [0.0, 1.0, 0.0, float(rotate_y)]
+    return d
+
+
+def load(d):
+    import wavlight
+
+    return wavlight.load_dict(d, base_dir=os.path.join(ROOT, "scenes"))
+
+
+def source_hash() -> str:
+    h = hashlib.sha256()
+    for path in sorted(glob.glob(os.path.join(ROOT, "wavlight", "**", "*.py"), recursive=True)
+                       + glob.glob(os.path.join(ROOT, "kernels", "*"))):
+        h.update(os.path.relpath(path, ROOT).encode())
+        with open(path, "rb") as fh:
+            h.update(fh.read())
+    return h.hexdigest()[:16]
+
+
+def reference(cache, d, size, spp, seed, reuse):
+    """(image, stderr, info) of `mis` at ``spp`` of the dict ``d``; kept in ``cache``."""
+    import wavlight
+
+    key = hashlib.sha256(json.dumps(["mis", d, size, spp, seed, source_hash()], sort_keys=True)
+                         .encode()).hexdigest()[:20]
+    path = os.path.join(cache, f"reference-{key}.npz")
+    if reuse and os.path.exists(path):
+        z = np.load(path)
+        return z["image"], z["stderr"], dict(json.loads(str(z["info"])), cached=True)
+    t0 = time.perf_counter()
+    r = wavlight.render_full(load(d), spp=spp, strategy="mis", width=size, height=size, seed=seed)
+    info = {"spp": spp, "seed": seed, "wall_seconds": round(time.perf_counter() - t0, 2)}
+    tmp = path + f".{os.getpid()}.tmp.npz"
+    np.savez(tmp, image=r.image, stderr=r.stderr, info=json.dumps(info))
+    os.replace(tmp, path)
+    return r.image, r.stderr, dict(info, cached=False)
+
+
+# ----------------------------------------------------------------------------- stage timer
+class Stages:
+    """Exclusive wall time per stage: a stage's time leaves out the stages it calls."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+        self._stack: list[list] = []
+        self.points: list[int] = []      # points the texel light sampled, per call
+
+    def wrap(self, label, fn):
+        def timed(*args, **kwargs):
+            frame = [label, time.perf_counter(), 0.0]     # label, start, time of the stages called
+            self._stack.append(frame)
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self._stack.pop()
+                total = time.perf_counter() - frame[1]
+                self.seconds[label] = self.seconds.get(label, 0.0) + total - frame[2]
+                if self._stack:
+                    self._stack[-1][2] += total
+        return timed
+
+    def take(self) -> dict:
+        out, self.seconds = self.seconds, {}
+        return out
+
+
+@contextlib.contextmanager
+def staged(mover, stages: Stages):
+    """MovingObject ``mover`` with every stage of its frame timed (restored on exit)."""
+    from wavlight import bsdfs, strategies
+    from wavlight.relight import moving
+
+    patched = []
+
+    def patch(owner, name, label):
+        patched.append((owner, name, getattr(owner, name), name in getattr(owner, "__dict__", {})))
+        setattr(owner, name, stages.wrap(label, getattr(owner, name)))
+
+    class TimedTree(moving.HaarTree):
+        def __init__(self, *a, **k):
+            stages.wrap("product trees: build (per frame, from the baked leaves)", super().__init__)(*a, **k)
+
+        def sample(self, *a, **k):
+            return stages.wrap("product trees: sample", super().sample)(*a, **k)
+
+        def pdf(self, *a, **k):
+            return stages.wrap("product trees: pdf", super().pdf)(*a, **k)
+
+    patch(mover, "frame", "frame: chunks, mean and variance (numpy)")
+    patch(mover, "_chunk", "chunk: masks, static image (numpy)")
+    patch(mover, "_object_pixels", "object pixels: cone test (numpy)")
+    patch(mover, "_full", "mis pixels: shading points (numpy)")
+    patch(mover, "_occlusion", "occlusion D: mixture, pdfs, weights (numpy)")
+    patch(mover, "_trace_object", "object rays: to its frame (numpy)")
+    patch(mover.rest_tracer, "intersect", "trace: camera rays vs the rest (OpenCL)")
+    patch(mover.rest_tracer, "surface", "trace: surface points (OpenCL)")
+    patch(mover.rest_tracer, "occluded", "trace: shadow rays vs the rest (OpenCL)")
+    patch(mover.object_tracer, "intersect", "trace: rays vs the object (OpenCL)")
+    patch(mover.object_tracer, "occluded", "trace: rays vs the object (OpenCL)")
+    patch(mover.inside, "sample", "texel light: sample inside the texel")
+    timed_sample = mover.inside.sample
+
+    def counted(uv, *a, **k):
+        stages.points.append(len(uv))
+        return timed_sample(uv, *a, **k)
+
+    mover.inside.sample = counted
+    patch(mover.inside, "factor", "texel light: pdf factor")
+    patch(mover.environment, "eval", "environment lookups")
+    patch(moving, "camera_rays", "camera rays")
+    patch(moving, "camera_jitter", "camera jitter")
+    patch(moving, "tangent_frame", "tangent frames")
+    patch(moving.rng, "uniforms", "random numbers")
+    patch(bsdfs, "sample_each", "bsdf: sample")
+    patch(bsdfs, "eval_pdf_each", "bsdf: eval and pdf")
+    patch(strategies, "shade_reference", "mis pixels: mis sampling (shade_reference)")
+    tree = moving.HaarTree
+    moving.HaarTree = TimedTree
+    try:
+        yield
+    finally:
+        moving.HaarTree = tree
+        for owner, name, value, own in reversed(patched):
+            if own or isinstance(owner, type(moving)):
+                setattr(owner, name, value)
+            else:
+                delattr(owner, name)
+
+
+# ----------------------------------------------------------------------------- what bounds the frame
+def texel_sample_by_bisection(inside, uv):
+    """The same as _TexelLight.sample (wavlight/relight/converge.py) with the leaf inside the
+    texel found by a vectorised bisection of the texel's cdf (log2 k^2 + 1 gathers per point)
+    instead of a comparison with every one of its k^2 entries: what the stage would cost."""
+    t, frac = inside._texel(uv)
+    k, side = inside.k, 1 << inside.n
+    if k == 1:
+        return uv, np.ones(len(uv))
+    total = inside.texel_mass[t]
+    target = frac[:, 0] * total
+    count = k * k
+    lo, hi = np.zeros(len(t), np.int64), np.full(len(t), count, np.int64)
+    for _ in range(int(np.ceil(np.log2(count + 1)))):      # the bisection's steps, not points
+        mid = (lo + hi) // 2
+        open_ = lo < hi
+        below_or_at = inside.cdf[t, np.minimum(mid, count - 1)] <= target
+        lo = np.where(open_ & below_or_at, mid + 1, lo)
+        hi = np.where(open_ & ~below_or_at, mid, hi)
+    leaf = np.minimum(lo, count - 1)
+    below = np.where(leaf > 0, inside.cdf[t, np.maximum(leaf - 1, 0)], 0.0)
+    mass = inside.blocks[t, leaf]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(mass > 0, (target - below) / np.where(mass > 0, mass, 1.0), frac[:, 0])
+    s = np.clip(s, 0.0, np.nextafter(1.0, 0.0))
+    row, col = t // side, t % side
+    sub_r, sub_c = leaf // k, leaf % k
+    out = np.stack([(col * k + sub_c + s) / (side * k), (row * k + sub_r + frac[:, 1]) / (side * k)], 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        factor = np.where(total > 0, mass / np.where(total > 0, total, 1.0) * k * k, 0.0)
+    return out, factor
+
+
+def texel_sample_what_if(mover, n, repeats=3):
+    """Seconds of the texel light's sampling of ``n`` points as it is and by bisection, and whether
+    the two agree exactly."""
+    uv = np.random.default_rng(5).random((n, 2))
+    times = {"linear_scan": [], "bisection": []}
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        a = mover.inside.sample(uv)
+        times["linear_scan"].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        b = texel_sample_by_bisection(mover.inside, uv)
+        times["bisection"].append(time.perf_counter() - t0)
+    same = bool(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]))
+    return {"points": n, "leaves_per_texel": mover.inside.k ** 2,
+            "linear_scan_ms": round(statistics.median(times["linear_scan"]) * 1e3, 2),
+            "bisection_ms": round(statistics.median(times["bisection"]) * 1e3, 2), "identical": same,
+            "gathered_bytes_linear_scan": int(n * mover.inside.k ** 2 * 8)}
+
+
+def wait_for_quiet(limit, minutes):
+    """Wait (polling every 30 s, at most ``minutes``) until the 1-minute load average is below
+    ``limit``; what happened."""
+    t0 = time.monotonic()
+    while True:
+        la = os.getloadavg()[0]
+        if la < limit or time.monotonic() - t0 + 30 > minutes * 60:
+            return {"quiet": la < limit, "limit": limit, "load": round(la, 2), "waited_seconds": round(time.monotonic() - t0)}
+        print(f"relight_moving: load {la:.2f} >= {limit}; waiting 30 s", file=sys.stderr, flush=True)
+        time.sleep(30)
+
+
+def max_rss_mb() -> float:
+    import resource
+
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+
+
+def load_average():
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+# ----------------------------------------------------------------------------- the run
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+    ap.add_argument("--size", type=int, default=256, help="image width and height (default 256)")
+    ap.add_argument("--bake-spp", type=int, default=4, help="camera samples per pixel of the bake (default 4)")
+    ap.add_argument("--levels", type=int, default=4, help="texel levels of the bake (default 4: 16 x 16)")
+    ap.add_argument("--static-spp", type=int, default=256,
+                    help="samples per pixel of the converged image without the bunny (default 256)")
+    ap.add_argument("--preview-spp", type=int, default=1, help="samples per pixel of the preview frame (default 1)")
+    ap.add_argument("--placements", type=int, default=4, help=f"places timed, at most {len(PLACES)} (default 4)")
+    ap.add_argument("--frames", type=int, default=5, help="preview frames timed per place (default 5)")
+    ap.add_argument("--spp", type=int, default=16, help="samples per pixel of the error comparison (default 16)")
+    ap.add_argument("--error-placements", type=int, default=2,
+                    help="places of the error comparison, from the second (default 2)")
+    ap.add_argument("--ref-spp", type=int, default=4096, help="samples per pixel of the mis reference (default 4096)")
+    ap.add_argument("--seed", type=int, default=1, help="seed of the frames compared (default 1)")
+    ap.add_argument("--cache", default="/tmp/relight-moving", help="bake file and references (default /tmp/relight-moving)")
+    ap.add_argument("--no-reuse", action="store_true", help="render the references again")
+    ap.add_argument("--quick", action="store_true",
+                    help="a small run: 96 x 96, static 64 spp, 2 places of 3 frames, 1 error place, reference 512 spp")
+    ap.add_argument("--wait-load", type=float, default=1.5, metavar="L",
+                    help="before timing, wait until the 1-minute load average is below L (default 1.5)")
+    ap.add_argument("--wait-minutes", type=float, default=0.0, metavar="M",
+                    help="wait at most M minutes for that (default 0: no wait; the load is recorded either way)")
+    add_output_argument(ap, "relight_moving")
+    args = ap.parse_args()
+    if args.quick:
+        args.size, args.static_spp, args.placements, args.frames = 96, 64, 2, 3
+        args.error_placements, args.ref_spp = 1, 512
+    for name in ("size", "bake_spp", "static_spp", "preview_spp", "placements", "frames", "spp", "ref_spp"):
+        if getattr(args, name) < 1:
+            ap.error(f"--{name.replace('_', '-')} must be at least 1")
+    if not os.path.isfile(ENVMAP):
+        sys.exit(f"relight_moving: {ENVMAP}: not there (the shared data beside the checkout)")
+    args.placements = min(args.placements, len(PLACES))
+    args.error_placements = min(max(args.error_placements, 0), len(PLACES) - 1)
+    waited = wait_for_quiet(args.wait_load, args.wait_minutes) if args.wait_minutes > 0 else None
+    prov = provenance()
+
+    import wavlight
+    from wavlight.evaluation.metrics import EPS, relmse
+    from wavlight.relight.moving import MovingObject
+    from wavlight.relight.viewer import encode
+
+    os.makedirs(args.cache, exist_ok=True)
+    t_run = time.perf_counter()
+    size = args.size
+    scene = load(bunny_dict())
+    bake_path = os.path.join(args.cache, f"bunny-{size}-n{args.levels}-s{args.static_spp}.wlt")
+    print(f"baking {bake_path} ...", file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    transfer = wavlight.bake(scene, bake_path, width=size, height=size, spp=args.bake_spp, levels=args.levels,
+                             terms=64, priority="area", vary="object", object="bunny", static_spp=args.static_spp)
+    bake_wall = time.perf_counter() - t0
+    result = {"scene": "scenes/bunny_ggx.toml, bunny moved over its floor", "environment": os.path.basename(ENVMAP),
+              "width": size, "height": size, "target_fps": TARGET_FPS, "quick": args.quick, "waited": waited,
+              "bake": {"wall_seconds": round(bake_wall, 2), "file_bytes": transfer.file_bytes,
+                       "file_megabytes": round(transfer.file_bytes / 1e6, 2), "spp": args.bake_spp,
+                       "texels": f"{1 << transfer.n_levels}x{1 << transfer.n_levels}",
+                       "product_texels": f"{1 << transfer.header['product_levels']}x"
+                                         f"{1 << transfer.header['product_levels']}",
+                       "static": transfer.header["static"], "transfer_seconds": transfer.measured["bake_seconds"],
+                       "path": bake_path}}
+    print(f"bake: {bake_wall:.1f} s, {transfer.file_bytes / 1e6:.1f} MB", file=sys.stderr, flush=True)
+
+    t0 = time.perf_counter()
+    mover = MovingObject(transfer, scene)
+    result["bake"]["viewer_setup_seconds"] = round(time.perf_counter() - t0, 3)
+
+    def placement(i):
+        translate, degrees = PLACES[i]
+        return list(translate), [0.0, 1.0, 0.0, degrees]
+
+    # -- the preview frame's rate, and where its time goes
+    mover.frame(*placement(0), spp=args.preview_spp, seed=0)      # warm-up: the kernels compiled
+    stages = Stages()
+    places, all_times, per_stage, frame_points = [], [], {}, []
+    for i in range(args.placements):
+        times = []
+        for k in range(args.frames):
+            t0 = time.perf_counter()
+            r = mover.frame(*placement(i), spp=args.preview_spp, seed=k)
+            times.append(time.perf_counter() - t0)
+        staged_times = []
+        with staged(mover, stages):
+            for k in range(max(2, args.frames // 2)):
+                t0 = time.perf_counter()
+                mover.frame(*placement(i), spp=args.preview_spp, seed=100 + k)
+                staged_times.append(time.perf_counter() - t0)
+                for label, s in stages.take().items():
+                    per_stage.setdefault(label, []).append(s)
+                frame_points.append(sum(stages.points))
+                stages.points.clear()
+        t0 = time.perf_counter()
+        jpeg = encode(r.image, 0.0, "jpeg")
+        encode_s = time.perf_counter() - t0
+        median = statistics.median(times)
+        all_times += times
+        places.append({"translate": PLACES[i][0], "rotate_y": PLACES[i][1], "frame_ms_median": round(median * 1e3, 1),
+                       "fps": round(1.0 / median, 2), "frame_ms": [round(t * 1e3, 1) for t in times],
+                       "timed_frame_ms_median": round(statistics.median(staged_times) * 1e3, 1),
+                       "object_pixels": r.stats["object_pixels"],
+                       "object_pixel_share": round(r.stats["object_pixels"] / (size * size), 3),
+                       "rays_per_frame": r.stats["rays"], "jpeg_encode_ms": round(encode_s * 1e3, 2),
+                       "jpeg_bytes": len(jpeg)})
+        print(f"place {i}: {PLACES[i]}: preview frame {median * 1e3:.0f} ms ({1 / median:.2f} frames/s), "
+              f"{r.stats['object_pixels']} pixels in full", file=sys.stderr, flush=True)
+    median_all = statistics.median(all_times)
+    stage_ms = {label: round(statistics.median(v) * 1e3, 2) for label, v in per_stage.items()}
+    stage_ms = dict(sorted(stage_ms.items(), key=lambda kv: -kv[1]))
+    stage_total = sum(stage_ms.values())
+    encode_ms = statistics.median(p["jpeg_encode_ms"] for p in places)
+    per_frame_points = int(np.median(frame_points)) if frame_points else size * size
+    what_if = texel_sample_what_if(mover, per_frame_points)
+    tree_ms = stage_ms.get("product trees: build (per frame, from the baked leaves)", 0.0)
+    scan_ms = stage_ms.get("texel light: sample inside the texel", 0.0)
+    estimate = median_all * 1e3 - scan_ms * (1 - what_if["bisection_ms"] / max(what_if["linear_scan_ms"], 1e-9)) \
+        - tree_ms
+    result["preview"] = {"spp": args.preview_spp, "frames_per_place": args.frames, "places": places,
+                         "load_average": load_average(), "max_rss_mb": max_rss_mb(),
+                         "texel_sample_what_if": what_if,
+                         "estimate_without_scan_and_tree_build": {
+                             "frame_ms": round(estimate, 1), "fps": round(1e3 / estimate, 2) if estimate > 0 else None,
+                             "how": "the median frame less the texel stage's share the bisection saves (measured on "
+                                    "as many points as the frame's samples) and less the product trees' build "
+                                    "(the trees do not depend on the place: built once, they cost nothing per frame)"},
+                         "frame_ms_median": round(median_all * 1e3, 1), "fps": round(1.0 / median_all, 2),
+                         "viewer_fps_bound": round(1e3 / (median_all * 1e3 + encode_ms), 2),
+                         "meets_target": 1.0 / median_all >= TARGET_FPS,
+                         "stages_ms_median": stage_ms, "stages_ms_sum": round(stage_total, 1),
+                         "stages_share": {k: round(v / stage_total, 3) for k, v in stage_ms.items()}
+                         if stage_total > 0 else {}}
+
+    # -- the error against mis of the moved scene
+    rows = []
+    for i in range(1, 1 + args.error_placements):
+        translate, degrees = PLACES[i]
+        d = bunny_dict(translate, degrees)
+        print(f"reference: mis {args.ref_spp} spp of place {i} ...", file=sys.stderr, flush=True)
+        ref, ref_se, ref_info = reference(args.cache, d, size, args.ref_spp, 10_000 + i, not args.no_reuse)
+        moved = load(d)
+
+        def render(strategy, spp):
+            t0 = time.perf_counter()
+            out = wavlight.render_full(moved, spp=spp, strategy=strategy, width=size, height=size, seed=args.seed)
+            return out, time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        m = mover.frame(*placement(i), spp=args.spp, seed=args.seed)
+        t_moving = time.perf_counter() - t0
+        touched = mover._object_pixels(*mover.placement(*placement(i)), size, size)
+        s2 = np.asarray(transfer._s["static_stderr"], np.float64) ** 2
+        floor = s2 / (np.asarray(ref, np.float64) ** 2 + EPS)
+        methods = {"moving": {"spp": args.spp, "seconds": round(t_moving, 3),
+                              "relmse": relmse(m.image, ref, ref_se)}}
+        for strategy in ("wavelet", "mis"):
+            out, secs = render(strategy, args.spp)
+            methods[f"{strategy}"] = {"spp": args.spp, "seconds": round(secs, 3), "relmse": relmse(out.image, ref, ref_se)}
+            pilot, t_pilot = render(strategy, 4)
+            setup = pilot.stats.get("setup_seconds", 0.0)
+            per_spp = max(t_pilot - setup, 1e-6) / 4
+            spp_eq = int(max(1, round((t_moving - setup) / per_spp)))
+            out, secs = render(strategy, spp_eq)
+            methods[f"{strategy}_equal_time"] = {"spp": spp_eq, "seconds": round(secs, 3),
+                                                 "relmse": relmse(out.image, ref, ref_se)}
+        for v in methods.values():
+            v["relmse"] = round(float(v["relmse"]), 6)
+        rows.append({"place": i, "translate": translate, "rotate_y": degrees, "reference": ref_info,
+                     "reference_noise_relmse": round(float(np.mean(np.asarray(ref_se, np.float64) ** 2 /
+                                                                   (np.asarray(ref, np.float64) ** 2 + EPS))), 6),
+                     "static_floor_relmse": round(float(np.mean(np.where(touched[..., None], 0.0, floor))), 6),
+                     "object_pixel_share": round(float(touched.mean()), 3), "methods": methods})
+        line = ", ".join(f"{k} {v['relmse']:.4g} ({v['spp']} spp, {v['seconds']:.2f} s)" for k, v in methods.items())
+        print(f"place {i}: relMSE {line}", file=sys.stderr, flush=True)
+        rows[-1]["load_average"] = load_average()
+    result["error"] = {"spp": args.spp, "ref_spp": args.ref_spp, "eps": EPS, "places": rows,
+                       "load_average": load_average(), "max_rss_mb": max_rss_mb()}
+    result["run_seconds"] = round(time.perf_counter() - t_run, 1)
+
+    print(f"\npreview frame ({args.preview_spp} spp, {size} x {size}): median {median_all * 1e3:.0f} ms, "
+          f"{1 / median_all:.2f} frames/s (target {TARGET_FPS:g}); with JPEG encoding "
+          f"{result['preview']['viewer_fps_bound']} frames/s", file=sys.stderr)
+    print("where a preview frame's time goes (median ms, exclusive):", file=sys.stderr)
+    for label, ms in stage_ms.items():
+        print(f"  {ms:8.1f}  {label}", file=sys.stderr)
+    print(f"texel light sampling of {what_if['points']} points: {what_if['linear_scan_ms']} ms as it is, "
+          f"{what_if['bisection_ms']} ms by bisection (identical: {what_if['identical']}); a frame without the "
+          f"scan's cost and the trees' build: about {estimate:.0f} ms", file=sys.stderr)
+    write_result(args.output, result, prov)
+    transfer.close()
+
+
+if __name__ == "__main__":
+    main()
