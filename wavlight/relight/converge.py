@@ -258,7 +258,7 @@ class _TexelLight:
             return uv, np.ones(len(uv))
         total = self.texel_mass[t]
         target = frac[:, 0] * total
-        leaf = np.minimum((self.cdf[t] <= target[:, None]).sum(1), k * k - 1)
+        leaf = np.minimum(_entries_at_most(self.cdf, t, target), k * k - 1)
         below = np.where(leaf > 0, self.cdf[t, np.maximum(leaf - 1, 0)], 0.0)
         mass = self.blocks[t, leaf]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -283,6 +283,22 @@ class _TexelLight:
         total = self.texel_mass[t]
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.where(total > 0, self.blocks[t, leaf] / np.where(total > 0, total, 1.0) * k * k, 0.0)
+
+
+def _entries_at_most(cdf: np.ndarray, rows: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Per sample i, how many entries of the non-decreasing row ``cdf[rows[i]]`` are <= target[i]
+    (``np.searchsorted(..., side="right")`` row by row), by a bisection over all samples at once:
+    log2 of the row's length gathers of one value per sample, never a copy of the rows."""
+    lo = np.zeros(len(rows), np.int64)
+    hi = np.full(len(rows), cdf.shape[1], np.int64)
+    active = lo < hi
+    while active.any():
+        mid = (lo + hi) // 2
+        below = cdf[rows, np.minimum(mid, cdf.shape[1] - 1)] <= target
+        lo = np.where(active & below, mid + 1, lo)
+        hi = np.where(active & ~below, mid, hi)
+        active = lo < hi
+    return lo
 
 
 def _spread(values: np.ndarray, at: np.ndarray, count: int) -> np.ndarray:
