@@ -88,3 +88,34 @@ def test_command_line_and_the_factors_the_bake_holds_fixed(moving, tmp_path):
                "--priority", "area").exit_code == 0
     r = run("frame", lit, "--translate", 0, 0, 0, "-o", tmp_path / "h.png")
     assert r.exit_code == 2 and "varies the lighting" in r.stderr, r.output
+
+
+def test_projection_is_the_inverse_of_the_camera_rays(moving):
+    """camera.project puts a point on a sample's ray inside that sample's pixel, at its jitter."""
+    _, scene, _ = moving
+    rng = np.random.default_rng(3)
+    px, py, jitter = rng.integers(0, 32, 500), rng.integers(0, 24, 500), rng.random((500, 2))
+    eye, d = wavlight.camera.camera_rays(scene, px, py, jitter, 32, 24)
+    xy, depth = wavlight.camera.project(scene.camera, eye + d * rng.uniform(0.5, 8.0, (500, 1)), 32, 24)
+    assert np.all(depth > 0)
+    np.testing.assert_allclose(xy, np.stack([px + jitter[:, 0], py + jitter[:, 1]], 1), atol=1e-3)
+
+
+def test_the_pixels_shaded_in_full_are_fewer_than_the_cone_gives(moving):
+    """The boxes of the projected triangles leave out pixels the bounding cone holds, and the
+    mask holds every pixel a jittered sample of which hits the object (16 samples per pixel)."""
+    folder, scene, tr = moving
+    mover = MovingObject(tr, scene)
+    R, T = mover.placement([0.9, 0.5, -0.5], [0.0, 1.0, 0.0, 30.0])
+    marked = mover._object_pixels(R, T, 32, 24).reshape(-1)
+    assert marked.sum() <= mover._sphere_pixels(R, T, 32, 24).sum()
+    d = scene_dict((0.9, 0.5, -0.5))
+    d["objects"][0]["rotate"] = [0.0, 1.0, 0.0, 30.0]
+    moved = wavlight.load_dict(d, base_dir=folder)
+    py, px = np.mgrid[0:24, 0:32]
+    px, py = np.repeat(px.ravel(), 16), np.repeat(py.ravel(), 16)
+    eye, d = wavlight.camera.camera_rays(moved, px, py, np.random.default_rng(5).random((len(px), 2)), 32, 24)
+    prim, _ = wavlight.raytrace.RayTracer(moved.vertices, moved.faces).intersect(eye, d)
+    ball = slice(*moved.objects[0].faces_range)
+    on_ball = (prim >= ball.start) & (prim < ball.stop)
+    assert on_ball.any() and np.all(marked[(py * 32 + px)[on_ball]])

@@ -49,6 +49,18 @@ def camera_rays(scene, px: np.ndarray, py: np.ndarray, jitter: np.ndarray, width
     return np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape), d
 
 
+def project(cam, points: np.ndarray, width, height):
+    """Image-plane coordinates of world points, the inverse of :func:`camera_rays`: (N, 2) float64
+    (column, row; a point seen by a sample of pixel (i, j) lies in [i, i + 1) x [j, j + 1)) and
+    each point's depth along the view direction (N,) (<= 0: behind the eye)."""
+    fwd, right, up, (sx, sy, ox, oy) = (np.asarray(a, np.float64) for a in _basis(cam, width, height))
+    q = np.asarray(points, np.float64) - np.asarray(cam.eye, np.float64)
+    z = q @ fwd
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x, y = (q @ right) / z, (q @ up) / z
+    return np.stack([(x + ox) / sx, (oy - y) / sy], 1), z
+
+
 def pass_rays(scene, width, height, seed, tile, x0, y0, w, h, k, first, kernel=True,
               stratified=False) -> np.ndarray:
     """(w h k, 3) float32 directions of one pass: k samples of each pixel of the w x h tile at

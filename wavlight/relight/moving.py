@@ -32,7 +32,7 @@ import time
 import numpy as np
 
 from .. import bsdfs, rng, strategies
-from ..camera import camera_rays
+from ..camera import camera_rays, project
 from ..envmap import Environment
 from ..errors import ArgumentError, WavlightError, check_int, check_real
 from ..haar.tree import HaarTree
@@ -97,6 +97,30 @@ class MovingObject:
         return rotation(None if r is None else list(r)), np.asarray(t, np.float64)
 
     def _object_pixels(self, R, T, width, height):
+        """(H, W) bool: the pixels a camera sample of which may see the object: those whose
+        footprint's cone meets the object's bounding sphere and lies in the bounding box of one of
+        its triangles' projections (grown by a pixel), a test of the place alone, conservative
+        (every pixel one of whose samples could hit the object is in it)."""
+        near = self._sphere_pixels(R, T, width, height)
+        xy, depth = project(self.scene.camera, self.object.local @ R.T + T, width, height)
+        if not near.any() or not np.all(depth > 0):   # a vertex behind the eye: the cone test alone
+            return near
+        tri = xy[self.object.faces]                                     # (F, 3, 2)
+        lo = np.floor(tri.min(1)).astype(np.int64) - 1
+        hi = np.floor(tri.max(1)).astype(np.int64) + 1
+        keep = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < width) & (lo[:, 1] < height)
+        lo = np.maximum(lo[keep], 0)
+        hi = np.minimum(hi[keep], [width - 1, height - 1])
+        # the union of the boxes: +1 at each box's first corner, -1 past its edges, summed up
+        marks = np.zeros((height + 1, width + 1), np.int64)
+        np.add.at(marks, (lo[:, 1], lo[:, 0]), 1)
+        np.add.at(marks, (lo[:, 1], hi[:, 0] + 1), -1)
+        np.add.at(marks, (hi[:, 1] + 1, lo[:, 0]), -1)
+        np.add.at(marks, (hi[:, 1] + 1, hi[:, 0] + 1), 1)
+        boxes = marks.cumsum(0).cumsum(1)[:height, :width] > 0
+        return near & boxes
+
+    def _sphere_pixels(self, R, T, width, height):
         """(H, W) bool: the pixels whose footprint's cone meets the object's bounding sphere."""
         cam = self.scene.camera
         c = R @ self.center + T
