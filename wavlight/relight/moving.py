@@ -47,6 +47,9 @@ from .converge import _scene_of, _TexelLight, solid_angle_jacobian, square_to_wo
 FRAME_STREAM, DIRECTION_STREAM, MIS_STREAM = 11, 12, 13
 #: pixels per chunk (memory stays bounded at any size)
 CHUNK_PIXELS = 1 << 14
+#: the per-pixel product trees kept from frame to frame (device memory, about 1.4 kB a pixel
+#: at 16 x 16 texels: a 256 x 256 image's whole)
+TREE_CACHE_BYTES = 256 << 20
 DEFENSIVE = 0.1
 
 
@@ -80,6 +83,7 @@ class MovingObject:
         self.static = np.asarray(transfer._s["static"], np.float64)
         self.static_se = np.asarray(transfer._s["static_stderr"], np.float64)
         self.leaves = transfer._s["product_leaves"]
+        self._trees, self._tree_bytes = {}, 0
 
     # -- the object's place
     def placement(self, translate=None, rotate=None):
@@ -200,6 +204,20 @@ class MovingObject:
         mean_var[~touched] = self.static_se.reshape(-1, 3)[pixels][~touched] ** 2
         return value.reshape(P, spp, 3), mean_var, rays
 
+    def _product_trees(self, chunk, pixels):
+        """The HaarTree of the chunk's pixels' products T1 x L and each pixel's total: they do not
+        depend on the object's place, so they are kept for the next frames while they fit in
+        TREE_CACHE_BYTES (larger images rebuild the chunks beyond)."""
+        if chunk in self._trees:
+            return self._trees[chunk]
+        leaves = np.asarray(self.leaves[pixels], np.float32).reshape(len(pixels), 1 << self.m, 1 << self.m)
+        made = HaarTree(np.maximum(leaves, 0.0)), leaves.reshape(len(pixels), -1).sum(1)
+        size = 4 * made[0].n_trees * made[0].stride
+        if self._tree_bytes + size <= TREE_CACHE_BYTES:
+            self._trees[chunk] = made
+            self._tree_bytes += size
+        return made
+
     def _occlusion(self, R, T, eye, d, prim, t, rest, pixels, spp, seed, chunk):
         """D (len(rest), 3) at the samples ``rest`` (which hit the rest of the scene)."""
         sc = self.rest
@@ -223,9 +241,8 @@ class MovingObject:
         kind, param, albedo = sc.material_kind[mat], sc.material_param[mat], sc.material_albedo[mat]
         # each sample's pixel's product tree (chunk-local trees, one per pixel)
         local_pixel = (rest[live] // spp)
-        leaves = np.asarray(self.leaves[pixels], np.float32).reshape(len(pixels), 1 << self.m, 1 << self.m)
-        mass = leaves.reshape(len(pixels), -1).sum(1)[local_pixel]
-        trees = HaarTree(np.maximum(leaves, 0.0))
+        trees, pixel_mass = self._product_trees(chunk, pixels)
+        mass = pixel_mass[local_pixel]
         u = rng.uniforms(seed, FRAME_STREAM * 65536 + chunk, DIRECTION_STREAM, 0, len(pixels) * spp)
         # the product candidate for every sample slot (the kernel takes them all, in pixel order)
         uv_tree, _ = trees.sample(np.ascontiguousarray(u[:, :2]), spp)
