@@ -9,7 +9,11 @@ control; it prints the page's URL on one line and opens it in the system browser
 A bake made with ``--vary object`` shows that factor's controls instead: the object's translation
 and its rotation about +Y (``/?translate=0.3,0,0.2&rotate_y=45&exposure=0.5``), its frames and
 converge by the moving-object estimator; ``--env`` does not apply to it, and ``--scene FILE``
-gives the scene it was baked from where that is not at the path the bake recorded.
+gives the scene it was baked from where that is not at the path the bake recorded. A bake made
+with ``--vary view`` orbits the camera instead: a drag on the picture turns it about its target,
+the wheel or a slider sets its distance (``/?azimuth=30&elevation=15&distance=4.2&exposure=0.5``),
+its frames by the view bake's approximate frame and converge by its unbiased one; ``--env`` does
+not apply to it either, and ``--scene`` is as for an object bake.
 Ctrl-C (or SIGTERM) stops it. Errors are one line and exit 2, as for the other commands.
 """
 from __future__ import annotations
@@ -27,7 +31,7 @@ from .common import fail
               help="The port on 127.0.0.1 (0: a free one).")
 @click.option("--scene", "scene_file", default=None, metavar="FILE",
               help="The scene the bake was made from, where it is not at the path the bake recorded (converge; "
-                   "a bake with --vary object needs it for every frame).")
+                   "a bake with --vary object or --vary view needs it for every frame).")
 @click.option("--no-browser", is_flag=True, help="Print the URL only; do not open the system browser.")
 def view(bake_file, env_files, port, scene_file, no_browser):
     """Serve an interactive viewer of the bake file PATH on 127.0.0.1 and print its URL."""
@@ -49,8 +53,10 @@ def view(bake_file, env_files, port, scene_file, no_browser):
 
     try:
         transfer = Transfer.load(bake_file)
-        if transfer.header.get("vary") == "object" and env_files:
-            fail(f"{bake_file}: this bake varies an object (its lighting is fixed); --env does not apply")
+        varies = transfer.header.get("vary")
+        if varies in ("object", "view") and env_files:
+            what = "an object" if varies == "object" else "the view"
+            fail(f"{bake_file}: this bake varies {what} (its lighting is fixed); --env does not apply")
         viewer = Viewer(transfer, maps=env_files, scene=scene_file)
         viewer.serve(port, ready=ready)
     except WavlightError as e:

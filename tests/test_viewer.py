@@ -4,7 +4,10 @@ moving a slider changes the picture, the page reports its frame rate), two pages
 page closed while frames stream, the converge control, and the command line; and the same for a
 bake that varies one object (a tilted card over a floor under a small sun): its translation and
 rotation sliders, its state in the URL, its frames and converge by the moving-object estimator,
-and its bad parameters.
+and its bad parameters; and for a bake that varies the view (a ball on a floor): the orbit of the
+camera by a drag on the picture, the wheel and the sliders (smaller frames while dragging), its
+state in the URL, its frames against ViewFrames.frame, converge by ViewFrames.converge, its bad
+parameters and the command line.
 
 The server runs on 127.0.0.1 (a free port) in a thread of its own, started by a fixture and
 always stopped. The browser tests are skipped only where playwright or chromium is missing.
@@ -25,6 +28,7 @@ import subprocess
 import sys
 import time
 import urllib.error
+import urllib.parse
 import urllib.request
 from pathlib import Path
 
@@ -41,7 +45,8 @@ import wavlight  # noqa: E402
 from wavlight.cli.main import main  # noqa: E402
 from wavlight.imageio import srgb_encode  # noqa: E402
 from wavlight.relight import viewer as viewer_module  # noqa: E402
-from wavlight.relight.viewer import EXPOSURE_RANGE, Limits, ObjectLimits, Viewer, sanitise, tone_map  # noqa: E402
+from wavlight.relight.viewer import (EXPOSURE_RANGE, Limits, ObjectLimits, Viewer, ViewLimits, sanitise,  # noqa: E402
+                                     tone_map)
 from wavlight.scene import rotation  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -830,3 +835,345 @@ def test_browser_object_converge_refines_and_stops_when_the_object_moves(serve_o
     _set(pg, "translate_z", "-0.5")
     pg.wait_for_function("() => viewer.last.converge === null && viewer.last.state.translate[2] === -0.5")
     assert pg.get_attribute("#converge", "aria-pressed") == "false"
+
+
+# ----------------------------------------------------------------------------- a bake that varies the view
+#: the view scene's camera: azimuth 0 (on +Z of the target), elevation atan(1 / 3.5), distance sqrt(13.25)
+VIEW_EYE, VIEW_TARGET = [0.0, 1.5, 3.5], [0.0, 0.5, 0.0]
+VIEW_SIZE = (96, 64)
+#: the most pixels of a view bake's frame while dragging, in these tests: 48 x 32
+VIEW_PREVIEW_PIXELS = 48 * 32
+
+
+def view_scene():
+    """A ggx ball on a lambert floor under a sky with a small sun, 96 x 64 pixels."""
+    return {"render": {"width": VIEW_SIZE[0], "height": VIEW_SIZE[1]},
+            "camera": {"eye": VIEW_EYE, "target": VIEW_TARGET, "fov_y": 40.0},
+            "environment": {"file": "sky.exr", "rotate_y": 20.0},
+            "objects": [{"shape": "sphere", "center": [0.0, 0.6, 0.0], "radius": 0.6, "subdivisions": 2,
+                         "material": "ball"},
+                        {"shape": "quad", "center": [0.0, 0.0, 0.0], "size": 6.0, "material": "floor"}],
+            "materials": {"ball": {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
+                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+
+
+@pytest.fixture(scope="module")
+def view_bake(tmp_path_factory, device):
+    """A tiny bake with vary="view" (8 x 8 texels, about 1300 cache points) of the ball, from a scene
+    made with load_dict (so the bake names no scene file); the same scene as a file beside it."""
+    folder = tmp_path_factory.mktemp("viewer-view")
+    sky = (np.linspace(1.5, 0.3, 32)[:, None, None] * np.ones((32, 64, 3))).astype(np.float32)
+    sky[8, 20] = 3000.0
+    write_raw_image(folder / "sky.exr", sky)
+    (folder / "scene.toml").write_text(toml_text(view_scene()))
+    scene = wavlight.load_dict(view_scene(), base_dir=str(folder))
+    path = folder / "ball.wlt"
+    wavlight.bake(scene, output=str(path), vary="view", levels=3, density=30).close()
+    return path, scene, folder / "scene.toml"
+
+
+@pytest.fixture(scope="module")
+def view_transfer(view_bake):
+    t = wavlight.Transfer.load(view_bake[0])
+    yield t
+    t.close()
+
+
+@pytest.fixture
+def serve_view(view_transfer, view_bake):
+    """serve_view(**viewer options) -> a running Viewer of the view bake, stopped after the test."""
+    started = []
+
+    def start(**options):
+        options.setdefault("scene", view_bake[1])
+        options.setdefault("preview_pixels", VIEW_PREVIEW_PIXELS)
+        v = Viewer(view_transfer, **options)
+        v.start_background(0)
+        started.append(v)
+        return v
+
+    yield start
+    for v in started:
+        v.stop_background()
+        assert v.clients == 0 and v.running_tasks == 0
+
+
+def _orbit(azimuth, elevation, distance, target=VIEW_TARGET):
+    """The eye of an orbit about +Y (azimuth 0 on +Z, 90 on +X), from the definition."""
+    a, e = np.radians(azimuth), np.radians(elevation)
+    return np.asarray(target) + distance * np.array([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)])
+
+
+VIEW_LIMITS = ViewLimits(azimuth=0.0, elevation=15.945, distance=3.64, distance_lo=0.182, distance_hi=72.8,
+                         converge=True)
+
+
+def test_view_sanitise_orbit_and_the_factors_a_view_bake_holds_fixed():
+    lim = VIEW_LIMITS
+    state, notes = sanitise({"azimuth": "30", "elevation": "15", "distance": "4.2", "exposure": "0.5"}, lim)
+    assert state == {"azimuth": 30.0, "elevation": 15.0, "distance": 4.2, "exposure": 0.5, "encoding": "jpeg",
+                     "preview": False, "converge": False} and notes == []
+    state, notes = sanitise({}, lim)
+    assert (state["azimuth"], state["elevation"], state["distance"]) == (0.0, 15.945, 3.64) and notes == []
+    state, notes = sanitise({"azimuth": "-30", "elevation": "95", "distance": "0"}, lim)
+    assert (state["azimuth"], state["elevation"], state["distance"]) == (330.0, 89.0, 0.182)
+    assert len(notes) == 2 and all("\n" not in n for n in notes)
+    assert any("elevation=95 is outside [-89, 89]: using 89" in n for n in notes)
+    assert any("distance=0 is outside [0.182, 72.8]: using 0.182" in n for n in notes)
+    state, notes = sanitise({"azimuth": "inf", "elevation": "nan", "distance": "-1e999", "exposure": "x"}, lim)
+    assert (state["azimuth"], state["elevation"], state["distance"], state["exposure"]) == (0.0, 15.945, 3.64, 0.0)
+    assert len(notes) == 4 and sum("not finite" in n for n in notes) == 3
+    state, notes = sanitise({"elevation": -89.5, "distance": 1e6, "azimuth": 725.25}, lim)
+    assert (state["azimuth"], state["elevation"], state["distance"]) == (5.25, -89.0, 72.8) and len(notes) == 2
+    state, _ = sanitise({"distance": 4.123456}, lim)
+    assert state["distance"] == 4.123                                  # 4 significant digits, as the page
+    # the factors a view bake holds fixed: noted and ignored
+    state, notes = sanitise({"rotate_y": "10", "env": "1", "terms": "64", "translate": "0,0,0", "azimuth": 10}, lim)
+    assert set(state) == {"azimuth", "elevation", "distance", "exposure", "encoding", "preview", "converge"}
+    assert len(notes) == 4 and all("does not apply: this bake varies the view" in n for n in notes)
+    # and the camera on the other bakes
+    _, notes = sanitise({"azimuth": "10", "distance": "2"}, LIMITS)
+    assert len(notes) == 2 and all("does not apply: this bake varies the lighting" in n for n in notes)
+    # the orbit: its eye from the definition (up +Y), and back
+    for az, el, d in ((0.0, 0.0, 1.0), (30.0, 15.0, 4.2), (250.0, -60.0, 0.5), (359.0, 89.0, 10.0)):
+        eye = viewer_module.orbit_eye(VIEW_TARGET, [0, 1, 0], az, el, d)
+        assert np.allclose(eye, _orbit(az, el, d), atol=1e-12)
+        assert np.allclose(viewer_module.orbit_angles(eye, VIEW_TARGET, [0, 1, 0]), (az, el, d), atol=1e-9)
+    # another up: the elevation is measured from the plane normal to it
+    eye = viewer_module.orbit_eye([0, 0, 0], [0, 0, 1], 40.0, 89.0, 2.0)
+    assert eye[2] == pytest.approx(2.0 * np.sin(np.radians(89.0)))
+    assert viewer_module.preview_size(512, 512) == (181, 181)
+    assert viewer_module.preview_size(96, 64, VIEW_PREVIEW_PIXELS) == (48, 32)
+    assert viewer_module.preview_size(32, 24) == (32, 24)
+
+
+def test_view_limits_are_the_scene_cameras(serve_view, view_transfer):
+    v = serve_view()
+    lim = v.limits
+    assert isinstance(lim, ViewLimits) and lim == VIEW_LIMITS
+    state, _ = sanitise({}, lim)
+    eye, target, fov = v.camera(state)
+    assert np.allclose(eye, VIEW_EYE, atol=1e-3) and np.allclose(target, VIEW_TARGET) and fov == 40.0
+    status, html = _get(v.url)
+    config = _config(html)
+    assert status == 200 and config["vary"] == "view" and config["notes"] == []
+    assert {k: config["state"][k] for k in ("azimuth", "elevation", "distance", "exposure")} == \
+        {"azimuth": 0.0, "elevation": 15.945, "distance": 3.64, "exposure": 0.0}
+    assert (config["width"], config["height"], config["preview_width"], config["preview_height"]) == (96, 64, 48, 32)
+    assert "maps" not in config and "max_terms" not in config and "translate_min" not in config
+
+
+def _view_frames(transfer, scene):
+    from wavlight.relight.view import ViewFrames
+
+    return ViewFrames(transfer, scene)
+
+
+def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_view, view_transfer, view_bake):
+    v = serve_view()
+    # the page's state from the URL: bad values replaced, the fixed factors noted
+    status, html = _get(v.url + "?azimuth=abc&elevation=100&distance=-2&exposure=inf&rotate_y=5&env=1&terms=3"
+                                "&translate=1,2,3")
+    config = _config(html)
+    assert {k: config["state"][k] for k in ("azimuth", "elevation", "distance", "exposure")} == \
+        {"azimuth": 0.0, "elevation": 89.0, "distance": 0.182, "exposure": 0.0}
+    assert len(config["notes"]) == 8 and all("\n" not in n for n in config["notes"])
+    assert sum("does not apply" in n for n in config["notes"]) == 4
+    cameras = [(30.0, 15.0, 4.2, 0.5), (200.0, 40.0, 3.0, 0.0), (75.5, -5.0, 6.0, -1.0)]
+    got = {}
+
+    def picture(header, payload):
+        return np.frombuffer(payload, np.uint8).reshape(header["height"], header["width"], 4).copy()
+
+    async def talk():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(v.url + "ws") as ws:
+                for az, el, d, ev in cameras:
+                    await ws.send_json({"type": "state", "azimuth": az, "elevation": el, "distance": d,
+                                        "exposure": ev, "encoding": "raw"})
+                    header, payload, texts = await _next_frame(ws)
+                    assert texts == [] and header["preview"] is False
+                    assert header["state"] == {"azimuth": az, "elevation": el, "distance": d, "exposure": ev}
+                    got[az, el, d, ev] = picture(header, payload)
+                # while dragging: a smaller frame of the same camera
+                await ws.send_json({"type": "state", "azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
+                                    "encoding": "raw", "preview": True})
+                header, payload, _ = await _next_frame(ws)
+                assert header["preview"] is True and (header["width"], header["height"]) == (48, 32)
+                got["preview"] = picture(header, payload)
+                # bad values and the fixed factors: notes first, then the frame of the values used
+                await ws.send_json({"type": "state", "azimuth": "x", "elevation": -1e999, "distance": 1e9,
+                                    "rotate_y": 3, "terms": 4, "exposure": 0.5, "encoding": "raw"})
+                header, payload, texts = await _next_frame(ws)
+                assert texts and texts[0]["type"] == "state" and len(texts[0]["notes"]) == 5
+                assert header["state"] == {"azimuth": 0.0, "elevation": 15.945, "distance": 72.8, "exposure": 0.5}
+                # converge: ViewFrames.converge at this camera, seeds 0, 1, ..., until the camera moves
+                await ws.send_json({"type": "state", "azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
+                                    "encoding": "raw", "converge": True})
+                reports = []
+                while len(reports) < 3:
+                    header, payload, _ = await _next_frame(ws)
+                    if header["converge"] is not None:
+                        reports.append((header["converge"], picture(header, payload)))
+                await ws.send_json({"type": "state", "azimuth": 31, "elevation": 15, "distance": 4.2, "exposure": 0.5,
+                                    "encoding": "raw", "converge": False})
+                while True:
+                    header, _, _ = await _next_frame(ws)
+                    if header["converge"] is None:
+                        break
+                assert header["state"]["azimuth"] == 31.0
+                return reports
+
+    reports = _in_a_thread(talk)
+    assert _wait(lambda: v.clients == 0 and v.running_tasks == 0)
+    frames = _view_frames(view_transfer, view_bake[1])
+    for (az, el, d, ev), pic in ((k, p) for k, p in got.items() if k != "preview"):
+        image, _ = frames.frame(eye=_orbit(az, el, d), target=VIEW_TARGET, fov=40.0, width=96, height=64)
+        assert np.abs(pic.astype(int) - tone_map(image, ev, alpha=True)).max() <= 1, (az, el, d)
+    image, _ = frames.frame(eye=_orbit(30, 15, 4.2), target=VIEW_TARGET, fov=40.0, width=48, height=32)
+    assert np.abs(got["preview"].astype(int) - tone_map(image, 0.5, alpha=True)).max() <= 1
+    assert len({p.tobytes() for p in got.values()}) == len(got)          # each camera its own picture
+    c, pic = reports[0]
+    assert c["spp"] == c["call_spp"] == 2 and c["rounds"] == 1
+    result = frames.converge(eye=_orbit(30, 15, 4.2), target=VIEW_TARGET, fov=40.0, width=96, height=64, spp=2, seed=0)
+    assert np.abs(pic.astype(int) - tone_map(result.image, 0.5, alpha=True)).max() <= 1
+    _doubling([r[0]["call_spp"] for r in reports])
+    assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["call_spp"] for r in reports]))
+
+
+def test_view_viewer_refuses_maps_and_the_command_line(view_transfer, view_bake, tmp_path):
+    sky = str(view_bake[2].parent / "sky.exr")
+    with pytest.raises(wavlight.WavlightError, match="varies the view"):
+        Viewer(view_transfer, maps=[sky], scene=view_bake[1])
+    runner = CliRunner()
+    for args, words in (([str(view_bake[0]), "--no-browser", "--env", sky], "--env does not apply"),
+                        ([str(view_bake[0]), "--no-browser"], "pass its scene"),
+                        ([str(view_bake[0]), "--no-browser", "--scene", str(tmp_path / "missing.toml")],
+                         "missing.toml")):
+        result = runner.invoke(main, ["view", *args])
+        assert result.exit_code == 2 and words in result.output, result.output
+        assert result.output.count("\n") == 1 and "Traceback" not in result.output
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(WAVLIGHT + ["view", str(view_bake[0]), "--no-browser", "--scene", str(view_bake[2])],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    try:
+        line = proc.stdout.readline()
+        assert re.fullmatch(r"http://127\.0\.0\.1:\d+/\n", line), line
+        status, html = _get(line.strip() + "?azimuth=30&elevation=15&distance=4.2&exposure=0.5")
+        config = _config(html)
+        assert status == 200 and config["vary"] == "view" and config["notes"] == []
+        assert config["state"]["azimuth"] == 30.0 and config["state"]["distance"] == 4.2
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err and out == ""
+
+
+def _drag(pg, selector, dx, dy, steps=12, pause=0.03):
+    """Press on the middle of an element, move by (dx, dy) in steps, and keep holding."""
+    box = pg.locator(selector).bounding_box()
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    pg.mouse.move(x, y)
+    pg.mouse.down()
+    for i in range(1, steps + 1):
+        pg.mouse.move(x + dx * i / steps, y + dy * i / steps)
+        time.sleep(pause)
+
+
+def _query(pg) -> dict:
+    return dict(urllib.parse.parse_qsl(pg.evaluate("location.search")[1:]))
+
+
+def test_browser_view_drag_orbits_the_camera_and_the_url_restores_it(serve_view, page):
+    v = serve_view()
+    pg = page()
+    pg.goto(v.url + "?azimuth=30&elevation=15&distance=4.2&exposure=0.5")
+    _frames(pg, 1)
+    assert pg.is_visible("#azimuth") and pg.is_hidden("#rotate_y") and pg.is_hidden("#terms")
+    assert pg.evaluate("location.search") == "?azimuth=30&elevation=15&distance=4.2&exposure=0.5"
+    assert pg.evaluate("viewer.last.state") == {"azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5}
+    assert (pg.input_value("#azimuth"), pg.input_value("#elevation")) == ("30", "15")
+    assert pg.text_content("#distance_value") == "4.2" and pg.text_content("#azimuth_value") == "30°"
+    assert pg.evaluate("[viewer.last.width, viewer.last.height]") == [96, 64]
+    first = _pixel_sum(pg)
+    assert first > 0
+    # a drag on the picture: smaller frames while it is held, the full frame on release
+    _drag(pg, "#frame", -60, 40)
+    pg.wait_for_function("() => viewer.last.preview === true")
+    assert pg.evaluate("[viewer.last.width, viewer.last.height]") == [48, 32]
+    pg.mouse.up()
+    pg.wait_for_function("() => viewer.last.preview === false && viewer.last.state.azimuth === viewer.state.azimuth"
+                         " && viewer.last.state.elevation === viewer.state.elevation")
+    state = pg.evaluate("viewer.last.state")
+    assert state["azimuth"] > 30 and state["elevation"] > 15 and state["distance"] == 4.2
+    assert pg.evaluate("[viewer.last.width, viewer.last.height]") == [96, 64]
+    turned = _pixel_sum(pg)
+    assert turned != first
+    pg.wait_for_function(f"() => location.search.includes('azimuth={state['azimuth']:g}&')")
+    q = _query(pg)
+    assert float(q["azimuth"]) == state["azimuth"] and float(q["elevation"]) == state["elevation"]
+    assert pg.input_value("#azimuth") == f"{state['azimuth']:g}"
+    # the wheel: the distance (and its slider, the URL)
+    box = pg.locator("#frame").bounding_box()
+    pg.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    pg.mouse.wheel(0, 350)
+    pg.wait_for_function("() => viewer.last.state.distance > 4.2 && viewer.last.preview === false")
+    distance = pg.evaluate("viewer.last.state.distance")
+    assert distance == pytest.approx(4.2 * 2 ** 0.5, rel=2e-3)
+    pg.wait_for_function(f"() => location.search.includes('distance={distance:g}')")
+    assert pg.text_content("#distance_value") == f"{distance:g}"
+    # a slider, the same state
+    _set(pg, "elevation", "40")
+    pg.wait_for_function("() => viewer.last.state.elevation === 40")
+    assert "elevation=40" in pg.url and pg.text_content("#elevation_value") == "40°"
+    pg.wait_for_function("() => parseFloat(document.getElementById('fps').textContent) > 0")
+    assert float(pg.text_content("#fps")) > 0
+    assert "moving camera" in pg.text_content("#info")
+    # the URL restores the view
+    other = page()
+    other.goto(pg.url)
+    _frames(other, 1)
+    assert other.evaluate("viewer.last.state") == pg.evaluate("viewer.last.state")
+    assert other.input_value("#elevation") == "40" and other.input_value("#azimuth") == pg.input_value("#azimuth")
+    assert _pixel_sum(other) == _pixel_sum(pg)
+    assert pg.evaluate("viewer.errors") == 0 and other.evaluate("viewer.errors") == 0
+
+
+def test_browser_view_bad_parameters_show_the_values_used(serve_view, page):
+    v = serve_view()
+    pg = page()
+    pg.goto(v.url + "?azimuth=-90&elevation=120&distance=nan&exposure=99&rotate_y=4&env=2")
+    _frames(pg, 1)
+    assert pg.evaluate("location.search") == "?azimuth=270&elevation=89&distance=3.64&exposure=12"
+    assert pg.text_content("#elevation_value") == "89°" and pg.input_value("#elevation") == "89"
+    notes = pg.text_content("#notes").splitlines()
+    assert len(notes) == 5 and sum("does not apply" in n for n in notes) == 2
+    assert any("distance='nan' is not finite" in n for n in notes)
+    # a drag upwards never takes the elevation past the limit
+    _drag(pg, "#frame", 0, 400, steps=8)
+    pg.mouse.up()
+    pg.wait_for_function("() => viewer.last.preview === false && viewer.frames >= 2")
+    assert pg.evaluate("viewer.last.state.elevation") == 89
+    assert pg.evaluate("viewer.errors") == 0 and pg.text_content("#status") == ""
+
+
+def test_browser_view_converge_refines_and_stops_when_the_camera_moves(serve_view, page):
+    v = serve_view()
+    pg = page()
+    pg.goto(v.url + "?azimuth=30&elevation=15&distance=4.2")
+    _frames(pg, 1)
+    assert not pg.is_disabled("#converge")
+    pg.click("#converge")
+    pg.wait_for_function("() => viewer.last.converge && viewer.last.converge.rounds >= 2")
+    assert "spp" in pg.text_content("#converge_info")
+    assert pg.evaluate("[viewer.last.width, viewer.last.height]") == [96, 64]
+    _drag(pg, "#frame", 30, 0, steps=4)
+    pg.mouse.up()
+    pg.wait_for_function("() => viewer.last.converge === null && viewer.last.preview === false"
+                         " && viewer.last.state.azimuth === viewer.state.azimuth")
+    assert pg.get_attribute("#converge", "aria-pressed") == "false"
+    assert pg.evaluate("viewer.last.state.azimuth") < 30

@@ -52,6 +52,21 @@ the factor a bake holds fixed (``env`` and ``terms`` on an object bake, ``transl
 bake) follow the rule of any bad value: they are replaced by the bake's own (ignored) with a
 one-line note; a translation that is not three finite numbers becomes the object's own, a
 component outside its range is clamped.
+
+A bake that varies the view (``vary = "view"``, :mod:`wavlight.relight.view`). The page orbits
+the camera about the scene camera's target: dragging on the picture turns it (azimuth about the
+camera's up, elevation above the plane normal to it), the wheel or a slider sets the distance;
+the state is in the URL as ``/?azimuth=30&elevation=15&distance=4.2&exposure=0.5`` and starts
+from the scene's camera (:func:`orbit_angles` of its eye and target). The camera's eye is
+:func:`orbit_eye` of the state, its target, up and field of view the scene's. The elevation is
+kept within [-ELEVATION_LIMIT, ELEVATION_LIMIT] degrees (the view never along the up) and the
+distance within the scene's distance times :data:`DISTANCE_FACTORS` (always > 0), both clamped
+with a note. A frame is the approximate frame (:meth:`ViewFrames.frame`) at the bake's size, or
+at :func:`preview_size` (at most :data:`VIEW_PREVIEW_PIXELS` pixels, its aspect kept) while the
+camera is dragged; converge calls :meth:`ViewFrames.converge` (unbiased) at the bake's size with
+seeds 0, 1, 2, ... and accumulates as above, and stops when the camera moves (a call under way
+ends at its next progress report). ``rotate_y``, ``env``, ``terms`` and ``translate`` do not
+apply to it and get a note, as do ``azimuth``, ``elevation`` and ``distance`` on the other bakes.
 """
 from __future__ import annotations
 
@@ -108,8 +123,20 @@ CONVERGE_MAX_SPP = 1 << 16
 #: slider is dragged
 OBJECT_FRAME_SPP = 4
 OBJECT_PREVIEW_SPP = 1
+#: a bake that varies the view: the camera's elevation stays within this many degrees of the
+#: plane normal to its up; the distance within the scene camera's distance times these factors
+ELEVATION_LIMIT = 89.0
+DISTANCE_FACTORS = (1.0 / 20.0, 20.0)
+#: a frame of a view bake drawn while the camera is dragged has at most this many pixels (the bake's
+#: size scaled down, its aspect kept): on two cores, a ball on a floor (84k cache points, 32 x 32
+#: texels) takes 0.04-0.1 s for the approximate frame at 181 x 181 (about 14 frames/s in the page)
+#: against 0.2 s at 512 x 512 (about 5 frames/s)
+VIEW_PREVIEW_PIXELS = 1 << 15
+#: the URL parameters of a view bake's camera
+CAMERA_KEYS = ("azimuth", "elevation", "distance")
 #: the URL parameters of the factor each kind of bake holds fixed (its page has no control for them)
-HELD_FIXED = {"lighting": ("translate",), "object": ("env", "terms")}
+HELD_FIXED = {"lighting": ("translate", *CAMERA_KEYS), "object": ("env", "terms", *CAMERA_KEYS),
+              "view": ("rotate_y", "env", "terms", "translate")}
 #: sRGB lookup table: 8-bit values of the curve at LUT_SIZE evenly spaced linear values in [0, 1]
 LUT_SIZE = 1 << 14
 _LUT = (srgb_encode(np.linspace(0.0, 1.0, LUT_SIZE)) * 255.0 + 0.5).astype(np.uint8)
@@ -185,6 +212,68 @@ class ObjectLimits:
     converge: bool = False
 
 
+@dataclass(frozen=True)
+class ViewLimits:
+    """What the state of a bake that varies the view may hold: the scene camera's azimuth,
+    elevation (degrees) and distance (the defaults), the distance's range (lo > 0, hi) and whether
+    converge exists."""
+
+    azimuth: float
+    elevation: float
+    distance: float
+    distance_lo: float
+    distance_hi: float
+    converge: bool = False
+
+
+def orbit_basis(up):
+    """(a, u, b) unit, orthonormal and right-handed (a = u x b): u the camera's ``up``, b the
+    direction of +Z (or +X where +Z is along u) made normal to u; for u = +Y they are +X, +Y, +Z."""
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    for ref in ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0)):
+        b = np.asarray(ref) - np.dot(ref, u) * u
+        if np.linalg.norm(b) > 1e-6:
+            break
+    b = b / np.linalg.norm(b)
+    return np.cross(u, b), u, b
+
+
+def orbit_eye(target, up, azimuth, elevation, distance) -> np.ndarray:
+    """The eye at ``distance`` from ``target`` in the direction of azimuth and elevation (degrees)
+    in :func:`orbit_basis`: target + distance (cos e sin a A + sin e U + cos e cos a B); for up = +Y,
+    azimuth 0 is on +Z and 90 on +X."""
+    a_ax, u_ax, b_ax = orbit_basis(up)
+    az, el = math.radians(azimuth), math.radians(elevation)
+    d = math.cos(el) * math.sin(az) * a_ax + math.sin(el) * u_ax + math.cos(el) * math.cos(az) * b_ax
+    return np.asarray(target, np.float64) + float(distance) * d
+
+
+def orbit_angles(eye, target, up):
+    """(azimuth in [0, 360), elevation in [-90, 90], distance) of ``eye`` about ``target``: the
+    inverse of :func:`orbit_eye`."""
+    a_ax, u_ax, b_ax = orbit_basis(up)
+    rel = np.asarray(eye, np.float64) - np.asarray(target, np.float64)
+    distance = float(np.linalg.norm(rel))
+    if distance == 0.0:
+        return 0.0, 0.0, 0.0
+    azimuth = math.degrees(math.atan2(float(rel @ a_ax), float(rel @ b_ax))) % 360.0
+    elevation = math.degrees(math.asin(min(max(float(rel @ u_ax) / distance, -1.0), 1.0)))
+    return azimuth, elevation, distance
+
+
+def significant(x: float, digits: int = 4) -> float:
+    """x rounded to ``digits`` significant digits (the page's Number(x.toPrecision(digits)))."""
+    return float(f"{x:.{digits}g}")
+
+
+def preview_size(width: int, height: int, pixels: int = VIEW_PREVIEW_PIXELS):
+    """(w, h) of a view bake's frame drawn while the camera is dragged: width x height scaled by
+    min(1, sqrt(pixels / (width height))), each side rounded and at least 1."""
+    scale = min(1.0, math.sqrt(pixels / float(width * height)))
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
 def translate_range(scene, obj, center, radius, default):
     """(lo (3,), hi (3,), step) of the translation sliders of ``obj`` in ``scene``: the translations
     T for which c + T (c = ``center``, the centre of its bounding sphere in its own frame, before
@@ -235,8 +324,9 @@ def _clamped(key, value, lo, hi, notes):
 
 def _held_fixed(params, kind, notes):
     """A note for each parameter of the factor a bake of ``kind`` holds fixed (it is ignored)."""
-    why = {"lighting": "this bake varies the lighting (the objects stay where they are)",
-           "object": "this bake varies an object (its lighting is fixed)"}[kind]
+    why = {"lighting": "this bake varies the lighting (the objects and the camera stay where they are)",
+           "object": "this bake varies an object (its lighting and the camera are fixed)",
+           "view": "this bake varies the view (its lighting and objects are fixed)"}[kind]
     for key in HELD_FIXED[kind]:
         if key in params:
             notes.append(f"{key}={shown(params.get(key), 40)} does not apply: {why}")
@@ -304,6 +394,25 @@ def _sanitise_object(params, limits: ObjectLimits):
              "preview": preview, "converge": converge}, notes)
 
 
+def _sanitise_view(params, limits: ViewLimits):
+    notes: list[str] = []
+    get = params.get
+    az = _number("azimuth", get("azimuth"), limits.azimuth, notes) if "azimuth" in params else limits.azimuth
+    az = round(az % 360.0, 3) % 360.0
+    el = _number("elevation", get("elevation"), limits.elevation, notes) if "elevation" in params \
+        else limits.elevation
+    el = round(_clamped("elevation", el, -ELEVATION_LIMIT, ELEVATION_LIMIT, notes), 3)
+    dist = _number("distance", get("distance"), limits.distance, notes) if "distance" in params \
+        else limits.distance
+    dist = significant(_clamped("distance", dist, limits.distance_lo, limits.distance_hi, notes))
+    exposure = _number("exposure", get("exposure"), 0.0, notes) if "exposure" in params else 0.0
+    exposure = round(_clamped("exposure", exposure, *EXPOSURE_RANGE, notes), 3)
+    _held_fixed(params, "view", notes)
+    encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
+    return ({"azimuth": az, "elevation": el, "distance": dist, "exposure": exposure, "encoding": encoding,
+             "preview": preview, "converge": converge}, notes)
+
+
 def sanitise(params, limits):
     """(state, notes): the viewer's state from URL parameters or a page's message (a mapping of
     strings or JSON values; other keys are ignored), every value usable, and one line per value
@@ -314,15 +423,24 @@ def sanitise(params, limits):
     fraction is rounded), default the bake's; env: an index of the maps, else 0 (the baked
     map); encoding: one of ENCODINGS, else the first; preview and converge: booleans (true only
     as JSON true or "1"/"true"; converge only where the estimator exists). A value that is not a
-    finite number becomes the default; ``translate`` (an object's place) does not apply and gets a
-    note.
+    finite number becomes the default; ``translate`` (an object's place) and the camera's
+    ``azimuth``, ``elevation`` and ``distance`` do not apply and get a note.
 
     With :class:`ObjectLimits` (a bake that varies one object): translate: "x,y,z" (or a list of
     three numbers), each clamped to its range, the object's own where it is not three finite
     numbers; rotate_y: the object's rotation about +Y, degrees, wrapped into [0, 360); exposure,
-    encoding, preview and converge as above; ``env`` and ``terms`` do not apply and get a note."""
+    encoding, preview and converge as above; ``env`` and ``terms`` do not apply and get a note.
+
+    With :class:`ViewLimits` (a bake that varies the view): azimuth: degrees, wrapped into
+    [0, 360); elevation: degrees, clamped to [-ELEVATION_LIMIT, ELEVATION_LIMIT]; distance:
+    clamped to [distance_lo, distance_hi] (> 0), 4 significant digits; each default the scene
+    camera's; exposure, encoding, preview and converge as above; ``rotate_y``, ``env``, ``terms``
+    and ``translate`` do not apply and get a note (as ``azimuth``, ``elevation`` and ``distance``
+    do on the other bakes)."""
     if isinstance(limits, ObjectLimits):
         return _sanitise_object(params, limits)
+    if isinstance(limits, ViewLimits):
+        return _sanitise_view(params, limits)
     notes: list[str] = []
     get = params.get
     rot = _number("rotate_y", get("rotate_y"), limits.rotate_y, notes) if "rotate_y" in params else limits.rotate_y
@@ -404,15 +522,24 @@ class Viewer:
     file; default the file the bake names), made here (a scene that is not the baked one is a
     one-line WavlightError); ``maps`` must be empty (its lighting is fixed), and ``converge``
     (default the moving object's unbiased frame) is called as converge(translate=, rotate=, spp=,
-    seed=)."""
+    seed=).
 
-    def __init__(self, transfer, maps=(), converge=_UNSET, scene=None):
+    A bake that varies the view (``vary = "view"``) is shown through a
+    :class:`wavlight.relight.view.ViewFrames` of the transfer and ``scene`` (the same rules);
+    ``maps`` must be empty, and ``converge`` (default :meth:`ViewFrames.converge`) is called as
+    converge(eye=, target=, fov=, width=, height=, spp=, seed=) and returns a RenderResult or
+    (image, stderr). ``preview_pixels``: the most pixels of its frames while the camera is
+    dragged (:func:`preview_size`)."""
+
+    def __init__(self, transfer, maps=(), converge=_UNSET, scene=None, preview_pixels: int = VIEW_PREVIEW_PIXELS):
         self.transfer = transfer
         self.varies = transfer.header.get("vary", "lighting")
-        self.mover = None
+        self.mover = self.views = None
+        self.preview_pixels = int(preview_pixels)
         self._maps = [("the baked map", None)]
-        if self.varies == "object" and len(maps):
-            raise WavlightError(f"{transfer.path}: this bake varies an object (its lighting is fixed): "
+        if self.varies in ("object", "view") and len(maps):
+            what = "an object" if self.varies == "object" else "the view"
+            raise WavlightError(f"{transfer.path}: this bake varies {what} (its lighting is fixed): "
                                 "no other map applies")
         for m in maps:
             env = transfer.environment(m, 1.0)   # a one-line WavlightError for a bad file
@@ -423,6 +550,11 @@ class Viewer:
 
             self.mover = MovingObject(transfer, scene)
             default_converge = self.mover.frame
+        elif self.varies == "view":
+            from .view import ViewFrames
+
+            self.views = ViewFrames(transfer, scene)
+            default_converge = self.views.converge
         else:
             default_converge = _converge_function
         self.converge = default_converge if converge is _UNSET else converge
@@ -433,7 +565,10 @@ class Viewer:
             self._converge_progress = False
         self._scene = scene
         side = 1 << transfer.n_levels
-        if self.mover is None:
+        if self.views is not None:
+            self.limits = self._view_limits()
+            self.state_keys = ("azimuth", "elevation", "distance", "exposure")
+        elif self.mover is None:
             self.limits = Limits(maps=len(self._maps), max_terms=side * side,
                                  rotate_y=transfer.scene_rotate_y % 360.0,
                                  terms=min(transfer.terms, side * side), converge=self.converge is not None)
@@ -466,6 +601,24 @@ class Viewer:
         lo, hi, step = translate_range(mover.scene, obj, mover.center, mover.radius, default)
         return ObjectLimits(translate=tuple(default), lo=lo, hi=hi, step=step, rotate_y=round(rot % 360.0, 3) % 360.0,
                             converge=self.converge is not None)
+
+    def _view_limits(self) -> ViewLimits:
+        """The scene camera's orbit about its target (:func:`orbit_angles`; the elevation clamped to
+        the limit) and the distance's range, :data:`DISTANCE_FACTORS` times its distance."""
+        cam = self.views.scene.camera
+        az, el, dist = orbit_angles(cam.eye, cam.target, cam.up)
+        dist = significant(dist)
+        lo, hi = (significant(dist * f) for f in DISTANCE_FACTORS)
+        return ViewLimits(azimuth=round(az, 3) % 360.0,
+                          elevation=round(min(max(el, -ELEVATION_LIMIT), ELEVATION_LIMIT), 3),
+                          distance=dist, distance_lo=lo, distance_hi=hi, converge=self.converge is not None)
+
+    def camera(self, state):
+        """(eye (3,), target (3,), fov in degrees) of a state of a view bake: :func:`orbit_eye` of
+        its azimuth, elevation and distance about the scene camera's target, with its up."""
+        cam = self.views.scene.camera
+        eye = orbit_eye(cam.target, cam.up, state["azimuth"], state["elevation"], state["distance"])
+        return eye, np.asarray(cam.target, np.float64), float(cam.fov_y)
 
     def placement(self, state):
         """(translate (3,), rotate [axis, degrees]) of the object in a state of an object bake:
@@ -515,6 +668,18 @@ class Viewer:
 
     def _config(self, state, notes) -> dict:
         t = self.transfer
+        if self.views is not None:
+            lim = self.limits
+            pw, ph = preview_size(t.width, t.height, self.preview_pixels)
+            return {"vary": "view", "state": state, "notes": notes,
+                    "default_azimuth": lim.azimuth, "default_elevation": lim.elevation,
+                    "default_distance": lim.distance, "distance_min": lim.distance_lo,
+                    "distance_max": lim.distance_hi, "elevation_limit": ELEVATION_LIMIT,
+                    "exposure_range": list(EXPOSURE_RANGE), "encodings": list(ENCODINGS),
+                    "width": t.width, "height": t.height, "preview_width": pw, "preview_height": ph,
+                    "converge": self.converge is not None,
+                    "converge_note": None if self.converge is not None else "no estimator given to this viewer",
+                    "window": WINDOW}
         if self.mover is not None:
             lim = self.limits
             obj = self.mover.object
@@ -596,25 +761,41 @@ class Viewer:
 
     def detail(self, state):
         """What a frame of the state is computed at: the terms (fewer for a preview) of a lighting
-        bake, the samples per pixel of an object bake."""
+        bake, the samples per pixel of an object bake, the (width, height) of a view bake."""
+        if self.views is not None:
+            full = (self.transfer.width, self.transfer.height)
+            return preview_size(*full, self.preview_pixels) if state["preview"] else full
         if self.mover is not None:
             return OBJECT_PREVIEW_SPP if state["preview"] else OBJECT_FRAME_SPP
         return preview_terms(state["terms"]) if state["preview"] else state["terms"]
 
     def frame_key(self, state, detail):
         """What a frame depends on besides the exposure and encoding."""
+        if self.views is not None:
+            return (state["azimuth"], state["elevation"], state["distance"], detail)
         if self.mover is not None:
             return (tuple(state["translate"]), state["rotate_y"], detail)
         return (state["rotate_y"], state["env"], detail)
 
     def converge_key(self, state):
-        """The factor the converged image is of: the lighting (rotation, map), or the object's place."""
+        """The factor the converged image is of: the lighting (rotation, map), the object's place or
+        the camera."""
+        if self.views is not None:
+            return (state["azimuth"], state["elevation"], state["distance"])
         if self.mover is not None:
             return (tuple(state["translate"]), state["rotate_y"])
         return (state["rotate_y"], state["env"])
 
     def frame(self, state, detail):
         """(linear image, stats) of the state at ``detail`` (:meth:`detail`; in the frame thread)."""
+        if self.views is not None:
+            eye, target, fov = self.camera(state)
+            width, height = detail
+            t0 = time.perf_counter()
+            result = self.views.frame(eye=eye, target=target, fov=fov, width=width, height=height)
+            seconds = time.perf_counter() - t0
+            image, stats = (result.image, result.stats) if hasattr(result, "image") else result
+            return image, {"frame_seconds": (stats or {}).get("frame_seconds", seconds), "terms": None, "spp": None}
         if self.mover is not None:
             translate, rotate = self.placement(state)
             result = self.mover.frame(translate, rotate, spp=detail, seed=0)
@@ -624,15 +805,20 @@ class Viewer:
 
     def converge_call(self, state, spp, seed, stop=None):
         """(image, stderr) of one call of the estimator at the state's lighting (or the object's
-        place; in the frame thread); ``stop`` (a threading.Event) set ends the call early where the
-        estimator reports its progress (then :class:`_Stopped`)."""
+        place, or the camera at the bake's size; in the frame thread); ``stop`` (a
+        threading.Event) set ends the call early where the estimator reports its progress (then
+        :class:`_Stopped`)."""
         kwargs = {}
         if stop is not None and self._converge_progress:
             def progress(*args):
                 if stop.is_set():
                     raise _Stopped()
             kwargs["progress"] = progress
-        if self.mover is not None:
+        if self.views is not None:
+            eye, target, fov = self.camera(state)
+            result = self.converge(eye=eye, target=target, fov=fov, width=self.transfer.width,
+                                   height=self.transfer.height, spp=spp, seed=seed, **kwargs)
+        elif self.mover is not None:
             translate, rotate = self.placement(state)
             result = self.converge(translate=translate, rotate=rotate, spp=spp, seed=seed, **kwargs)
         else:
