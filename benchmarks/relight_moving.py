@@ -152,7 +152,7 @@ def staged(mover, stages: Stages):
 
     class TimedTree(moving.HaarTree):
         def __init__(self, *a, **k):
-            stages.wrap("product trees: build (per frame, from the baked leaves)", super().__init__)(*a, **k)
+            stages.wrap("product trees: build (once per chunk, kept while they fit)", super().__init__)(*a, **k)
 
         def sample(self, *a, **k):
             return stages.wrap("product trees: sample", super().sample)(*a, **k)
@@ -199,58 +199,6 @@ def staged(mover, stages: Stages):
                 setattr(owner, name, value)
             else:
                 delattr(owner, name)
-
-
-# ----------------------------------------------------------------------------- what bounds the frame
-def texel_sample_by_bisection(inside, uv):
-    """The same as _TexelLight.sample (wavlight/relight/converge.py) with the leaf inside the
-    texel found by a vectorised bisection of the texel's cdf (log2 k^2 + 1 gathers per point)
-    instead of a comparison with every one of its k^2 entries: what the stage would cost."""
-    t, frac = inside._texel(uv)
-    k, side = inside.k, 1 << inside.n
-    if k == 1:
-        return uv, np.ones(len(uv))
-    total = inside.texel_mass[t]
-    target = frac[:, 0] * total
-    count = k * k
-    lo, hi = np.zeros(len(t), np.int64), np.full(len(t), count, np.int64)
-    for _ in range(int(np.ceil(np.log2(count + 1)))):      # the bisection's steps, not points
-        mid = (lo + hi) // 2
-        open_ = lo < hi
-        below_or_at = inside.cdf[t, np.minimum(mid, count - 1)] <= target
-        lo = np.where(open_ & below_or_at, mid + 1, lo)
-        hi = np.where(open_ & ~below_or_at, mid, hi)
-    leaf = np.minimum(lo, count - 1)
-    below = np.where(leaf > 0, inside.cdf[t, np.maximum(leaf - 1, 0)], 0.0)
-    mass = inside.blocks[t, leaf]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(mass > 0, (target - below) / np.where(mass > 0, mass, 1.0), frac[:, 0])
-    s = np.clip(s, 0.0, np.nextafter(1.0, 0.0))
-    row, col = t // side, t % side
-    sub_r, sub_c = leaf // k, leaf % k
-    out = np.stack([(col * k + sub_c + s) / (side * k), (row * k + sub_r + frac[:, 1]) / (side * k)], 1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        factor = np.where(total > 0, mass / np.where(total > 0, total, 1.0) * k * k, 0.0)
-    return out, factor
-
-
-def texel_sample_what_if(mover, n, repeats=3):
-    """Seconds of the texel light's sampling of ``n`` points as it is and by bisection, and whether
-    the two agree exactly."""
-    uv = np.random.default_rng(5).random((n, 2))
-    times = {"linear_scan": [], "bisection": []}
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        a = mover.inside.sample(uv)
-        times["linear_scan"].append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        b = texel_sample_by_bisection(mover.inside, uv)
-        times["bisection"].append(time.perf_counter() - t0)
-    same = bool(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]))
-    return {"points": n, "leaves_per_texel": mover.inside.k ** 2,
-            "linear_scan_ms": round(statistics.median(times["linear_scan"]) * 1e3, 2),
-            "bisection_ms": round(statistics.median(times["bisection"]) * 1e3, 2), "identical": same,
-            "gathered_bytes_linear_scan": int(n * mover.inside.k ** 2 * 8)}
 
 
 def wait_for_quiet(limit, minutes):
@@ -389,20 +337,8 @@ def main():
     stage_ms = dict(sorted(stage_ms.items(), key=lambda kv: -kv[1]))
     stage_total = sum(stage_ms.values())
     encode_ms = statistics.median(p["jpeg_encode_ms"] for p in places)
-    per_frame_points = int(np.median(frame_points)) if frame_points else size * size
-    what_if = texel_sample_what_if(mover, per_frame_points)
-    tree_ms = stage_ms.get("product trees: build (per frame, from the baked leaves)", 0.0)
-    scan_ms = stage_ms.get("texel light: sample inside the texel", 0.0)
-    estimate = median_all * 1e3 - scan_ms * (1 - what_if["bisection_ms"] / max(what_if["linear_scan_ms"], 1e-9)) \
-        - tree_ms
     result["preview"] = {"spp": args.preview_spp, "frames_per_place": args.frames, "places": places,
                          "load_average": load_average(), "max_rss_mb": max_rss_mb(),
-                         "texel_sample_what_if": what_if,
-                         "estimate_without_scan_and_tree_build": {
-                             "frame_ms": round(estimate, 1), "fps": round(1e3 / estimate, 2) if estimate > 0 else None,
-                             "how": "the median frame less the texel stage's share the bisection saves (measured on "
-                                    "as many points as the frame's samples) and less the product trees' build "
-                                    "(the trees do not depend on the place: built once, they cost nothing per frame)"},
                          "frame_ms_median": round(median_all * 1e3, 1), "fps": round(1.0 / median_all, 2),
                          "viewer_fps_bound": round(1e3 / (median_all * 1e3 + encode_ms), 2),
                          "meets_target": 1.0 / median_all >= TARGET_FPS,
@@ -462,9 +398,6 @@ def main():
     print("where a preview frame's time goes (median ms, exclusive):", file=sys.stderr)
     for label, ms in stage_ms.items():
         print(f"  {ms:8.1f}  {label}", file=sys.stderr)
-    print(f"texel light sampling of {what_if['points']} points: {what_if['linear_scan_ms']} ms as it is, "
-          f"{what_if['bisection_ms']} ms by bisection (identical: {what_if['identical']}); a frame without the "
-          f"scan's cost and the trees' build: about {estimate:.0f} ms", file=sys.stderr)
     write_result(args.output, result, prov)
     transfer.close()
 

@@ -87,6 +87,28 @@ def write_env(folder: Path, name: str, pixels) -> str:
     return name
 
 
+def write_sun_sky(folder: Path, name: str = "sky.exr") -> Path:
+    """A 64 x 32 sky, 1.5 at the zenith to 0.3 at the nadir, with a one-texel sun of 3000 (hard
+    shadows), written to folder/name."""
+    sky = (np.linspace(1.5, 0.3, 32)[:, None, None] * np.ones((32, 64, 3))).astype(np.float32)
+    sky[8, 20] = 3000.0
+    write_raw_image(folder / name, sky)
+    return folder / name
+
+
+def over_floor(obj: dict, *, width: int, height: int, target=(0.0, 0.4, 0.0), rotate_y: float = 15.0,
+               material: str = "m") -> dict:
+    """A scene dict: ``obj`` (an [[objects]] table; its material ``material``, ggx 0.3) over a lambert
+    floor 6 wide, seen from (0, 2, 4) towards ``target``, under write_sun_sky's sky.exr turned by
+    ``rotate_y``."""
+    return {"render": {"width": width, "height": height},
+            "camera": {"eye": [0.0, 2.0, 4.0], "target": list(target), "fov_y": 40.0},
+            "environment": {"file": "sky.exr", "rotate_y": rotate_y},
+            "objects": [{**obj, "material": material}, {"shape": "quad", "size": 6.0, "material": "floor"}],
+            "materials": {material: {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
+                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+
+
 def write_raw_image(path, pixels):
     """Float RGB through OpenImageIO directly (wavlight.save_image refuses NaN / Inf on purpose)."""
     import OpenImageIO as oiio

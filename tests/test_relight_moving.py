@@ -9,28 +9,20 @@ import pytest
 from click.testing import CliRunner
 
 import wavlight
-from scenes_util import toml_text, write_raw_image
+from scenes_util import over_floor, toml_text, write_sun_sky
 from wavlight.cli.main import main
 from wavlight.relight.moving import MovingObject
 
 
 def scene_dict(translate=(0.0, 0.5, 0.0)):
-    return {"render": {"width": 32, "height": 24},
-            "camera": {"eye": [0.0, 2.0, 4.0], "target": [0.0, 0.3, 0.0], "fov_y": 40.0},
-            "environment": {"file": "sky.exr", "rotate_y": 15.0},
-            "objects": [{"shape": "sphere", "name": "ball", "translate": list(translate), "radius": 0.5,
-                         "subdivisions": 3, "material": "m"},
-                        {"shape": "quad", "size": 6.0, "material": "floor"}],
-            "materials": {"m": {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
-                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+    return over_floor({"shape": "sphere", "name": "ball", "translate": list(translate), "radius": 0.5,
+                       "subdivisions": 3}, width=32, height=24, target=(0.0, 0.3, 0.0))
 
 
 @pytest.fixture(scope="module")
 def moving(tmp_path_factory, device):
     folder = tmp_path_factory.mktemp("moving")
-    sky = (np.linspace(1.5, 0.3, 32)[:, None, None] * np.ones((32, 64, 3))).astype(np.float32)
-    sky[8, 20] = 3000.0                                    # a small sun: hard shadows
-    write_raw_image(folder / "sky.exr", sky)
+    write_sun_sky(folder)                                  # a small sun: hard shadows
     (folder / "scene.toml").write_text(toml_text(scene_dict()))
     scene = wavlight.load_scene(folder / "scene.toml")
     tr = wavlight.bake(scene, folder / "ball.wlt", spp=4, levels=5, terms=256, priority="area", vary="object",

@@ -39,7 +39,7 @@ pytest.importorskip("aiohttp")
 
 import aiohttp  # noqa: E402
 from click.testing import CliRunner  # noqa: E402
-from scenes_util import toml_text, write_raw_image  # noqa: E402
+from scenes_util import over_floor, toml_text, write_sun_sky  # noqa: E402
 
 import wavlight  # noqa: E402
 from wavlight.cli.main import main  # noqa: E402
@@ -563,23 +563,15 @@ CARD_ROTATE = [1.0, 0.0, 0.0, 60.0]
 
 def card_scene():
     """A ggx card (1.2 x 0.6, tilted 60 degrees about +X) over a lambert floor, 48 x 32 pixels."""
-    return {"render": {"width": 48, "height": 32},
-            "camera": {"eye": [0.0, 2.0, 4.0], "target": [0.0, 0.4, 0.0], "fov_y": 40.0},
-            "environment": {"file": "sky.exr", "rotate_y": 15.0},
-            "objects": [{"shape": "quad", "name": "card", "size": [1.2, 0.6], "rotate": CARD_ROTATE,
-                         "translate": [0.0, 0.6, 0.0], "material": "m"},
-                        {"shape": "quad", "size": 6.0, "material": "floor"}],
-            "materials": {"m": {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
-                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+    return over_floor({"shape": "quad", "name": "card", "size": [1.2, 0.6], "rotate": CARD_ROTATE,
+                       "translate": [0.0, 0.6, 0.0]}, width=48, height=32)
 
 
 @pytest.fixture(scope="module")
 def object_bake(tmp_path_factory, device):
     """A tiny bake (48 x 32 pixels) with vary="object" of the card, from a scene file on disk."""
     folder = tmp_path_factory.mktemp("viewer-object")
-    sky = (np.linspace(1.5, 0.3, 32)[:, None, None] * np.ones((32, 64, 3))).astype(np.float32)
-    sky[8, 20] = 3000.0                                    # a small sun: hard shadows
-    write_raw_image(folder / "sky.exr", sky)
+    write_sun_sky(folder)                                  # a small sun: hard shadows
     (folder / "scene.toml").write_text(toml_text(card_scene()))
     path = folder / "card.wlt"
     wavlight.bake(str(folder / "scene.toml"), output=str(path), spp=2, levels=4, terms=64, priority="area",
@@ -847,14 +839,10 @@ VIEW_PREVIEW_PIXELS = 48 * 32
 
 def view_scene():
     """A ggx ball on a lambert floor under a sky with a small sun, 96 x 64 pixels."""
-    return {"render": {"width": VIEW_SIZE[0], "height": VIEW_SIZE[1]},
-            "camera": {"eye": VIEW_EYE, "target": VIEW_TARGET, "fov_y": 40.0},
-            "environment": {"file": "sky.exr", "rotate_y": 20.0},
-            "objects": [{"shape": "sphere", "center": [0.0, 0.6, 0.0], "radius": 0.6, "subdivisions": 2,
-                         "material": "ball"},
-                        {"shape": "quad", "center": [0.0, 0.0, 0.0], "size": 6.0, "material": "floor"}],
-            "materials": {"ball": {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
-                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+    d = over_floor({"shape": "sphere", "center": [0.0, 0.6, 0.0], "radius": 0.6, "subdivisions": 2},
+                   width=VIEW_SIZE[0], height=VIEW_SIZE[1], target=VIEW_TARGET, rotate_y=20.0, material="ball")
+    d["camera"]["eye"] = list(VIEW_EYE)
+    return d
 
 
 @pytest.fixture(scope="module")
@@ -862,9 +850,7 @@ def view_bake(tmp_path_factory, device):
     """A tiny bake with vary="view" (8 x 8 texels, about 1300 cache points) of the ball, from a scene
     made with load_dict (so the bake names no scene file); the same scene as a file beside it."""
     folder = tmp_path_factory.mktemp("viewer-view")
-    sky = (np.linspace(1.5, 0.3, 32)[:, None, None] * np.ones((32, 64, 3))).astype(np.float32)
-    sky[8, 20] = 3000.0
-    write_raw_image(folder / "sky.exr", sky)
+    write_sun_sky(folder)
     (folder / "scene.toml").write_text(toml_text(view_scene()))
     scene = wavlight.load_dict(view_scene(), base_dir=str(folder))
     path = folder / "ball.wlt"
