@@ -73,11 +73,16 @@ def bake_file(tmp_path_factory, device):
     return path, folder / "gradient.exr"
 
 
-@pytest.fixture(scope="module")
-def transfer(bake_file):
-    t = wavlight.Transfer.load(bake_file[0])
+def _loaded(path):
+    """A fixture's body: the bake file at ``path`` loaded, closed after its tests."""
+    t = wavlight.Transfer.load(path)
     yield t
     t.close()
+
+
+@pytest.fixture(scope="module")
+def transfer(bake_file):
+    yield from _loaded(bake_file[0])
 
 
 class FakeConverge:
@@ -97,15 +102,14 @@ class FakeConverge:
         return np.maximum(image + noise * err, 0.0), err
 
 
-@pytest.fixture
-def serve(transfer, bake_file):
-    """serve(**viewer options) -> a running Viewer (its URL: viewer.url), stopped after the test."""
+def _serving(transfer, defaults=dict):
+    """A fixture's body: start(**viewer options) -> a running Viewer of ``transfer`` (its URL:
+    viewer.url; ``defaults()`` gives the options not passed), all stopped after the test, each
+    with no client and no task left."""
     started = []
 
     def start(**options):
-        options.setdefault("maps", [str(bake_file[1])])
-        options.setdefault("converge", FakeConverge())
-        v = Viewer(transfer, **options)
+        v = Viewer(transfer, **{**defaults(), **options})
         v.start_background(0)
         started.append(v)
         return v
@@ -114,6 +118,12 @@ def serve(transfer, bake_file):
     for v in started:
         v.stop_background()
         assert v.clients == 0 and v.running_tasks == 0
+
+
+@pytest.fixture
+def serve(transfer, bake_file):
+    """serve(**viewer options) -> a running Viewer, stopped after the test."""
+    yield from _serving(transfer, lambda: {"maps": [str(bake_file[1])], "converge": FakeConverge()})
 
 
 def _chromium():
@@ -170,6 +180,24 @@ def _set(pg, control, value):
 
 def _frames(pg, at_least):
     pg.wait_for_function(f"() => window.viewer && window.viewer.frames >= {at_least}")
+
+
+def _opened(serve, page, query="", **options):
+    """A viewer started by ``serve`` (with ``options``) and a page at its URL + ``query``, after
+    the page's first frame."""
+    v = serve(**options)
+    pg = page()
+    pg.goto(v.url + query)
+    _frames(pg, 1)
+    return v, pg
+
+
+def _start_converge(pg, rounds=2):
+    """Press converge and wait for ``rounds`` rounds of refinement."""
+    assert not pg.is_disabled("#converge")
+    pg.click("#converge")
+    pg.wait_for_function(f"() => viewer.last.converge && viewer.last.converge.rounds >= {rounds}")
+    assert "spp" in pg.text_content("#converge_info")
 
 
 def _wait(predicate, seconds=10.0):
@@ -391,10 +419,7 @@ def test_converge_streams_the_spp_weighted_mean_and_stops_when_the_lighting_chan
 
 # ----------------------------------------------------------------------------- in the browser
 def test_browser_shows_url_state_and_a_slider_changes_the_picture(serve, page):
-    v = serve()
-    pg = page()
-    pg.goto(v.url + "?rotate_y=30&terms=64")
-    _frames(pg, 1)
+    v, pg = _opened(serve, page, "?rotate_y=30&terms=64")
     assert pg.text_content("#rotate_y_value") == "30°" and pg.input_value("#rotate_y") == "30"
     assert pg.text_content("#terms_value") == "64"
     assert pg.input_value("#env") == "0"
@@ -418,10 +443,7 @@ def test_browser_shows_url_state_and_a_slider_changes_the_picture(serve, page):
 
 
 def test_browser_drag_previews_fewer_terms_and_sharpens_on_release(serve, page):
-    v = serve()
-    pg = page()
-    pg.goto(v.url + "?terms=256")
-    _frames(pg, 1)
+    v, pg = _opened(serve, page, "?terms=256")
     box = pg.locator("#rotate_y").bounding_box()
     y = box["y"] + box["height"] / 2
     pg.mouse.move(box["x"] + 5, y)
@@ -437,10 +459,7 @@ def test_browser_drag_previews_fewer_terms_and_sharpens_on_release(serve, page):
 
 
 def test_browser_bad_url_parameters_show_the_values_used(serve, page, transfer):
-    v = serve()
-    pg = page()
-    pg.goto(v.url + "?rotate_y=abc&terms=-5&env=99&exposure=inf")
-    _frames(pg, 1)
+    v, pg = _opened(serve, page, "?rotate_y=abc&terms=-5&env=99&exposure=inf")
     rot = transfer.scene_rotate_y % 360
     assert pg.text_content("#rotate_y_value") == f"{rot:g}°"
     assert pg.text_content("#terms_value") == "1"
@@ -488,14 +507,8 @@ def test_browser_page_closed_mid_stream_leaves_the_server_serving(serve, page, c
 
 def test_browser_converge_refines_and_stops_when_a_slider_moves(serve, page):
     fake = FakeConverge()
-    v = serve(converge=fake)
-    pg = page()
-    pg.goto(v.url + "?rotate_y=60")
-    _frames(pg, 1)
-    assert not pg.is_disabled("#converge")
-    pg.click("#converge")
-    pg.wait_for_function("() => viewer.last.converge && viewer.last.converge.rounds >= 3")
-    assert "spp" in pg.text_content("#converge_info")
+    v, pg = _opened(serve, page, "?rotate_y=60", converge=fake)
+    _start_converge(pg, 3)
     _doubling([c["spp"] for c in fake.calls])
     assert len({c["seed"] for c in fake.calls}) == len(fake.calls)
     _set(pg, "rotate_y", "90")
@@ -507,26 +520,25 @@ def test_browser_converge_refines_and_stops_when_a_slider_moves(serve, page):
 
 
 def test_browser_converge_disabled_without_the_estimator(serve, page):
-    v = serve(converge=None)
-    pg = page()
-    pg.goto(v.url + "?converge=1")
-    _frames(pg, 1)
+    v, pg = _opened(serve, page, "?converge=1", converge=None)
     assert pg.is_disabled("#converge")
     assert "converge" in pg.get_attribute("#converge", "title")
     assert pg.evaluate("viewer.last.converge") is None
 
 
 # ----------------------------------------------------------------------------- the command
-def test_view_command_prints_the_url_serves_and_stops_on_sigint(bake_file):
+def _run_view_command(args, query):
+    """``wavlight view ARGS --no-browser`` in a child process: its URL is the one line it prints;
+    the page at URL + ``query`` is fetched, then SIGINT stops it, which must end it with exit 0,
+    nothing more on stdout and no traceback. Returns the page's config."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(WAVLIGHT + ["view", str(bake_file[0]), "--no-browser", "--env", str(bake_file[1])],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env, cwd=ROOT)
+    proc = subprocess.Popen(WAVLIGHT + ["view", *map(str, args), "--no-browser"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
     try:
         line = proc.stdout.readline()
         assert re.fullmatch(r"http://127\.0\.0\.1:\d+/\n", line), line
-        status, html = _get(line.strip() + "?env=1")
-        assert status == 200 and _config(html)["state"]["env"] == 1
+        status, html = _get(line.strip() + query)
+        assert status == 200
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=20)
     finally:
@@ -535,6 +547,12 @@ def test_view_command_prints_the_url_serves_and_stops_on_sigint(bake_file):
             proc.communicate()
     assert proc.returncode == 0, err
     assert "Traceback" not in err and out == ""
+    return _config(html)
+
+
+def test_view_command_prints_the_url_serves_and_stops_on_sigint(bake_file):
+    config = _run_view_command([bake_file[0], "--env", bake_file[1]], "?env=1")
+    assert config["state"]["env"] == 1
 
 
 def test_view_command_errors_are_one_line(bake_file, tmp_path):
@@ -581,26 +599,13 @@ def object_bake(tmp_path_factory, device):
 
 @pytest.fixture(scope="module")
 def object_transfer(object_bake):
-    t = wavlight.Transfer.load(object_bake[0])
-    yield t
-    t.close()
+    yield from _loaded(object_bake[0])
 
 
 @pytest.fixture
 def serve_object(object_transfer):
     """serve_object(**viewer options) -> a running Viewer of the object bake, stopped after the test."""
-    started = []
-
-    def start(**options):
-        v = Viewer(object_transfer, **options)
-        v.start_background(0)
-        started.append(v)
-        return v
-
-    yield start
-    for v in started:
-        v.stop_background()
-        assert v.clients == 0 and v.running_tasks == 0
+    yield from _serving(object_transfer)
 
 
 def _object_limits(v):
@@ -761,10 +766,7 @@ def test_object_viewer_refuses_maps_and_the_command_line_errors_are_one_line(obj
 
 
 def test_browser_object_sliders_url_and_frame_rate(serve_object, page):
-    v = serve_object()
-    pg = page()
-    pg.goto(v.url + "?translate=0.3,0,0.2&rotate_y=45&exposure=0.5")
-    _frames(pg, 1)
+    v, pg = _opened(serve_object, page, "?translate=0.3,0,0.2&rotate_y=45&exposure=0.5")
     assert pg.is_hidden("#terms") and pg.is_hidden("#env") and pg.is_visible("#translate_x")
     assert [pg.input_value(f"#translate_{a}") for a in "xyz"] == ["0.3", "0", "0.2"]
     assert pg.text_content("#rotate_y_value") == "45°" and pg.input_value("#rotate_y") == "45"
@@ -816,14 +818,8 @@ def test_browser_object_bad_parameters_show_the_values_used(serve_object, page):
 
 
 def test_browser_object_converge_refines_and_stops_when_the_object_moves(serve_object, page):
-    v = serve_object()
-    pg = page()
-    pg.goto(v.url + "?translate=0.3,0.6,0.2")
-    _frames(pg, 1)
-    assert not pg.is_disabled("#converge")
-    pg.click("#converge")
-    pg.wait_for_function("() => viewer.last.converge && viewer.last.converge.rounds >= 2")
-    assert "spp" in pg.text_content("#converge_info")
+    v, pg = _opened(serve_object, page, "?translate=0.3,0.6,0.2")
+    _start_converge(pg)
     _set(pg, "translate_z", "-0.5")
     pg.wait_for_function("() => viewer.last.converge === null && viewer.last.state.translate[2] === -0.5")
     assert pg.get_attribute("#converge", "aria-pressed") == "false"
@@ -860,28 +856,13 @@ def view_bake(tmp_path_factory, device):
 
 @pytest.fixture(scope="module")
 def view_transfer(view_bake):
-    t = wavlight.Transfer.load(view_bake[0])
-    yield t
-    t.close()
+    yield from _loaded(view_bake[0])
 
 
 @pytest.fixture
 def serve_view(view_transfer, view_bake):
     """serve_view(**viewer options) -> a running Viewer of the view bake, stopped after the test."""
-    started = []
-
-    def start(**options):
-        options.setdefault("scene", view_bake[1])
-        options.setdefault("preview_pixels", VIEW_PREVIEW_PIXELS)
-        v = Viewer(view_transfer, **options)
-        v.start_background(0)
-        started.append(v)
-        return v
-
-    yield start
-    for v in started:
-        v.stop_background()
-        assert v.clients == 0 and v.running_tasks == 0
+    yield from _serving(view_transfer, lambda: {"scene": view_bake[1], "preview_pixels": VIEW_PREVIEW_PIXELS})
 
 
 def _orbit(azimuth, elevation, distance, target=VIEW_TARGET):
@@ -1039,24 +1020,10 @@ def test_view_viewer_refuses_maps_and_the_command_line(view_transfer, view_bake,
         result = runner.invoke(main, ["view", *args])
         assert result.exit_code == 2 and words in result.output, result.output
         assert result.output.count("\n") == 1 and "Traceback" not in result.output
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(WAVLIGHT + ["view", str(view_bake[0]), "--no-browser", "--scene", str(view_bake[2])],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
-    try:
-        line = proc.stdout.readline()
-        assert re.fullmatch(r"http://127\.0\.0\.1:\d+/\n", line), line
-        status, html = _get(line.strip() + "?azimuth=30&elevation=15&distance=4.2&exposure=0.5")
-        config = _config(html)
-        assert status == 200 and config["vary"] == "view" and config["notes"] == []
-        assert config["state"]["azimuth"] == 30.0 and config["state"]["distance"] == 4.2
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    assert proc.returncode == 0, err
-    assert "Traceback" not in err and out == ""
+    config = _run_view_command([view_bake[0], "--scene", view_bake[2]],
+                               "?azimuth=30&elevation=15&distance=4.2&exposure=0.5")
+    assert config["vary"] == "view" and config["notes"] == []
+    assert config["state"]["azimuth"] == 30.0 and config["state"]["distance"] == 4.2
 
 
 def _drag(pg, selector, dx, dy, steps=12, pause=0.03):
@@ -1075,10 +1042,7 @@ def _query(pg) -> dict:
 
 
 def test_browser_view_drag_orbits_the_camera_and_the_url_restores_it(serve_view, page):
-    v = serve_view()
-    pg = page()
-    pg.goto(v.url + "?azimuth=30&elevation=15&distance=4.2&exposure=0.5")
-    _frames(pg, 1)
+    v, pg = _opened(serve_view, page, "?azimuth=30&elevation=15&distance=4.2&exposure=0.5")
     assert pg.is_visible("#azimuth") and pg.is_hidden("#rotate_y") and pg.is_hidden("#terms")
     assert pg.evaluate("location.search") == "?azimuth=30&elevation=15&distance=4.2&exposure=0.5"
     assert pg.evaluate("viewer.last.state") == {"azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5}
@@ -1130,10 +1094,7 @@ def test_browser_view_drag_orbits_the_camera_and_the_url_restores_it(serve_view,
 
 
 def test_browser_view_bad_parameters_show_the_values_used(serve_view, page):
-    v = serve_view()
-    pg = page()
-    pg.goto(v.url + "?azimuth=-90&elevation=120&distance=nan&exposure=99&rotate_y=4&env=2")
-    _frames(pg, 1)
+    v, pg = _opened(serve_view, page, "?azimuth=-90&elevation=120&distance=nan&exposure=99&rotate_y=4&env=2")
     assert pg.evaluate("location.search") == "?azimuth=270&elevation=89&distance=3.64&exposure=12"
     assert pg.text_content("#elevation_value") == "89°" and pg.input_value("#elevation") == "89"
     notes = pg.text_content("#notes").splitlines()
@@ -1148,14 +1109,8 @@ def test_browser_view_bad_parameters_show_the_values_used(serve_view, page):
 
 
 def test_browser_view_converge_refines_and_stops_when_the_camera_moves(serve_view, page):
-    v = serve_view()
-    pg = page()
-    pg.goto(v.url + "?azimuth=30&elevation=15&distance=4.2")
-    _frames(pg, 1)
-    assert not pg.is_disabled("#converge")
-    pg.click("#converge")
-    pg.wait_for_function("() => viewer.last.converge && viewer.last.converge.rounds >= 2")
-    assert "spp" in pg.text_content("#converge_info")
+    v, pg = _opened(serve_view, page, "?azimuth=30&elevation=15&distance=4.2")
+    _start_converge(pg)
     assert pg.evaluate("[viewer.last.width, viewer.last.height]") == [96, 64]
     _drag(pg, "#frame", 30, 0, steps=4)
     pg.mouse.up()
