@@ -84,6 +84,7 @@ class MovingObject:
         self.static_se = np.asarray(transfer._s["static_stderr"], np.float64)
         self.leaves = transfer._s["product_leaves"]
         self._trees, self._tree_bytes = {}, 0
+        self._centre_rays = (None, None)
 
     # -- the object's place
     def placement(self, translate=None, rotate=None):
@@ -109,27 +110,32 @@ class MovingObject:
         xy, depth = project(self.scene.camera, self.object.local @ R.T + T, width, height)
         if not near.any() or not np.all(depth > 0):   # a vertex behind the eye: the cone test alone
             return near
-        tri = xy[self.object.faces]                                     # (F, 3, 2)
-        lo = np.floor(tri.min(1)).astype(np.int64) - 1
-        hi = np.floor(tri.max(1)).astype(np.int64) + 1
+        # each vertex's pixel (clipped just outside the image: the boxes' overlaps stay the same)
+        cell = np.floor(np.clip(xy, -2.0, [width + 2.0, height + 2.0])).astype(np.int64)
+        f = self.object.faces
+        a, b, c = cell[f[:, 0]], cell[f[:, 1]], cell[f[:, 2]]
+        lo = np.minimum(np.minimum(a, b), c) - 1
+        hi = np.maximum(np.maximum(a, b), c) + 1
         keep = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < width) & (lo[:, 1] < height)
         lo = np.maximum(lo[keep], 0)
         hi = np.minimum(hi[keep], [width - 1, height - 1])
         # the union of the boxes: +1 at each box's first corner, -1 past its edges, summed up
-        marks = np.zeros((height + 1, width + 1), np.int64)
-        np.add.at(marks, (lo[:, 1], lo[:, 0]), 1)
-        np.add.at(marks, (lo[:, 1], hi[:, 0] + 1), -1)
-        np.add.at(marks, (hi[:, 1] + 1, lo[:, 0]), -1)
-        np.add.at(marks, (hi[:, 1] + 1, hi[:, 0] + 1), 1)
-        boxes = marks.cumsum(0).cumsum(1)[:height, :width] > 0
+        row, col = np.concatenate([lo[:, 1], lo[:, 1], hi[:, 1] + 1, hi[:, 1] + 1]), \
+            np.concatenate([lo[:, 0], hi[:, 0] + 1, lo[:, 0], hi[:, 0] + 1])
+        sign = np.repeat([1.0, -1.0, -1.0, 1.0], len(lo))
+        marks = np.bincount(row * (width + 1) + col, sign, (height + 1) * (width + 1)).reshape(height + 1, width + 1)
+        boxes = marks.cumsum(0).cumsum(1)[:height, :width] > 0.5
         return near & boxes
 
     def _sphere_pixels(self, R, T, width, height):
         """(H, W) bool: the pixels whose footprint's cone meets the object's bounding sphere."""
         cam = self.scene.camera
         c = R @ self.center + T
-        py, px = np.mgrid[0:height, 0:width]
-        _, d = camera_rays(self.scene, px.ravel(), py.ravel(), np.full((width * height, 2), 0.5), width, height)
+        if self._centre_rays[0] != (width, height):   # the pixels' centre rays, kept for the next frames
+            py, px = np.mgrid[0:height, 0:width]
+            d = camera_rays(self.scene, px.ravel(), py.ravel(), np.full((width * height, 2), 0.5), width, height)[1]
+            self._centre_rays = ((width, height), d.astype(np.float64))
+        d = self._centre_rays[1]
         to = c - np.asarray(cam.eye, np.float64)
         dist = np.linalg.norm(to)
         if dist <= self.radius:
@@ -137,7 +143,7 @@ class MovingObject:
         half = np.arcsin(min(self.radius / dist, 1.0))
         # the pixel's own half-diagonal angle, from the vertical field of view
         pixel = np.radians(cam.fov_y) / height * 0.75
-        angle = np.arccos(np.clip(d.astype(np.float64) @ (to / dist), -1.0, 1.0))
+        angle = np.arccos(np.clip(d @ (to / dist), -1.0, 1.0))
         return (angle <= half + pixel).reshape(height, width)
 
     def _trace_object(self, R, T, origins, dirs, closest=False):
