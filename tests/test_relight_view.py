@@ -4,6 +4,7 @@ cache's lattice, the bake's texels as integrals, the unbiased frame against mis 
 camera, the command line and its one-line errors."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -77,6 +78,59 @@ def test_product_kernel_equals_its_twin(baked):
     fa, _ = frames.frame(EYE, TARGET)
     fb, _ = frames.frame(EYE, TARGET, backend="numpy")
     np.testing.assert_allclose(fa, fb, rtol=2e-2, atol=1e-4 * fb.max())
+
+
+def pixel_items(frames, eye, target, size=24):
+    """The pixel mode's items of a size x size frame: cache points, weights, face normals, ray
+    directions and materials of the hits."""
+    scene = frames.scene
+    cam = frames.camera(eye, target)
+    pix = np.arange(size * size)
+    o, d = wavlight.camera.camera_rays(dataclasses.replace(scene, camera=cam), pix % size,
+                                       pix // size, np.full((len(pix), 2), 0.5, np.float32), size, size)
+    prim, t, u, v = frames.tracer.intersect_uv(o, d)
+    hit = prim >= 0
+    ids, w, fn = frames.hit_points(cam.eye, d[hit], prim[hit], t[hit], (u[hit], v[hit]))
+    ok = w.sum(1) > 0
+    return ids[ok], w[ok], fn[ok], d[hit][ok], scene.face_material[prim[hit][ok]]
+
+
+@pytest.mark.parametrize("tau", [0.0, view.TAU])
+def test_pixel_kernel_equals_its_twin(baked, tau):
+    """Per pixel: the blend of three points' T1 with the face normal and the pixel's view, the
+    kernel (K = 3) against product_reference, with and without the cosine's correction."""
+    _, scene, tr = baked
+    frames = view.ViewFrames(tr, scene)
+    ids, w, fn, d, mat = pixel_items(frames, EYE, TARGET)
+    kinds = frames.kind_of[mat]
+    assert (kinds == bsdfs.GGX).sum() > 50 and (kinds == bsdfs.LAMBERT).sum() > 50
+    a, na = frames.pixel_products(ids, w, fn, d, mat, tau=tau)
+    b, nb = frames.pixel_products(ids, w, fn, d, mat, tau=tau, backend="numpy")
+    assert np.abs(b).max() > 0
+    close = np.isclose(a, b, rtol=1e-4, atol=1e-6 * np.abs(b).max()).all(1)
+    assert close.mean() > 0.99 and (na == nb).mean() > 0.98
+    np.testing.assert_allclose(a, b, rtol=2e-2, atol=1e-3 * np.abs(b).max())
+    fa, _ = frames.frame(EYE, TARGET, mode="pixel", tau=tau)
+    fb, _ = frames.frame(EYE, TARGET, mode="pixel", tau=tau, backend="numpy")
+    np.testing.assert_allclose(fa, fb, rtol=2e-2, atol=1e-3 * fb.max())
+
+
+def test_pixel_walk_of_one_point_is_the_point_walk(baked):
+    """An item of one cache point (weights 1, 0, 0) shaded with the point's normal and view is
+    the point mode's product, the correction on or off (rho = 1 where n = m)."""
+    _, scene, tr = baked
+    frames = view.ViewFrames(tr, scene)
+    points = np.arange(1, len(frames.position), 7)
+    wo = np.asarray(EYE) - frames.position[points]
+    wo = view.lifted_view(frames.normal[points], wo / np.linalg.norm(wo, axis=1, keepdims=True))
+    ids = np.stack([points, points[::-1], points], 1)
+    w = np.tile([1.0, 0.0, 0.0], (len(points), 1))
+    want, nw = frames.products(points, EYE, backend="numpy")
+    for tau in (0.0, view.TAU):
+        got, ng = frames.pixel_products(ids, w, frames.normal[points], -wo, frames.material[points], tau=tau,
+                                        backend="numpy")
+        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-9 * np.abs(want).max())
+        assert np.array_equal(ng, nw)
 
 
 def test_walk_to_the_texels_is_the_dense_sum(baked):
@@ -170,8 +224,9 @@ def test_unbiased_frame_equals_mis_from_another_camera(baked):
     # the product makes the estimate better than the BSDF alone would: per sample below mis's
     assert np.median(r.stderr[hits] * np.sqrt(spp)) < np.median(ref.stderr[hits] * np.sqrt(512))
     # and the approximate frame is near it
-    image, _ = frames.frame(EYE, TARGET)
-    assert np.linalg.norm(image - ref.image) / np.linalg.norm(ref.image) < 0.12
+    for mode in view.MODES:
+        image, _ = frames.frame(EYE, TARGET, mode=mode)
+        assert np.linalg.norm(image - ref.image) / np.linalg.norm(ref.image) < 0.12, mode
 
 
 # ----------------------------------------------------------------------------- the command line
@@ -200,6 +255,11 @@ def test_command_line(baked, tmp_path):
     assert r.exit_code == 0, r.output
     st = json.loads(r.stdout)
     assert st["frame_seconds"] > 0 and st["frames_per_second"] > 0 and (st["width"], st["height"]) == (20, 16)
+    r = run("frame", out, "--eye", *EYE, "--target", *TARGET, "--width", 20, "--height", 16, "--mode", "pixel",
+            "--tau", 0.2, "-o", tmp_path / "p.png", "--json")
+    assert r.exit_code == 0, r.output
+    st = json.loads(r.stdout)
+    assert (st["mode"], st["tau"]) == ("pixel", 0.2) and (tmp_path / "p.png").exists()
     r = run("frame", out, "--orbit", 3, "-o", tmp_path / "orbit", "--quiet")
     assert r.exit_code == 0, r.output
     assert sorted(os.listdir(tmp_path / "orbit")) == ["frame-0000.png", "frame-0001.png", "frame-0002.png",
@@ -216,6 +276,8 @@ def test_command_line(baked, tmp_path):
     (("--eye", 1, "inf", 0), ("--eye", "finite")),
     (("--eye", 0, 0.5, 0, "--target", 0, 0.5, 0), ("same point",)),
     (("--fov", 0), ("--fov",)),
+    (("--tau", 0.1), ("--tau", "--mode pixel")),
+    (("--mode", "pixel", "--spp", 2), ("--mode", "--spp")),
 ])
 def test_view_bake_bad_input(baked, tmp_path, args, words):
     folder, _, tr = baked

@@ -34,19 +34,33 @@ until what is left out is within the tolerance, :func:`wavlight.relight.store.co
 and quantized (a scale per coefficient and block, shared by the three channels).
 
 The approximate frame (kernel ``view_product`` in kernels/relight_view.cl, numpy twin
-:func:`product_reference`). Camera rays through the pixel centres are traced; each hit's three
-cache points are marked; for every marked point k, B_k = <T1(x_k), f_r(x_k, ., wo_k)> with the
-point's own normal and wo_k the direction to the eye, evaluated top-down over T1's quadtree: a
-node's average from its parent's and its three wavelet coefficients (eq. 13), refined until f_r
-is nearly constant over it (its angular radius r <= refine (delta + w), delta the angle from the
-lobe's axis, the mirror direction, w the lobe's width), then its average times f_r at its
-centre (the midpoint rule); nodes below the point's horizon are skipped (T1 is 0 there). lambert
-points need only the scaling coefficient: B = T^_0 N^2 / pi. A pixel is then its albedo times
-the barycentric blend of its three points' B_k (the product is linear in T1, so this is
-<T1 blended, f_r> up to the variation of f_r's normal and view direction between the points);
-pixels whose ray misses see the environment. Approximate by design: the texels, the cache's
+:func:`product_reference`). Camera rays through the pixel centres are traced; each hit has its
+three cache points and weights. The product <T1, f_r> is evaluated top-down over T1's quadtree:
+a node's average from its parent's and its three wavelet coefficients (eq. 13), refined until
+f_r is nearly constant over it (its angular radius r <= refine (delta + w), delta the angle from
+the lobe's axis, the mirror direction, w the lobe's width), then its average times f_r at its
+centre (the midpoint rule); nodes below the shading normal's horizon are skipped. Two modes:
+
+- ``point``: for every cache point k the hits use, B_k = <T1(x_k), f_r(x_k, ., wo_k)> with the
+  point's own (area-averaged) normal and wo_k the direction to the eye; a pixel is its albedo
+  times the barycentric blend of its three points' B_k. lambert points need only the scaling
+  coefficient: B = T^_0 N^2 / pi. One product per point: the fastest.
+- ``pixel``: per pixel, B = <sum_k w_k T1(x_k), f_r(., wo) rho> (the product is linear in T1: the
+  walk reads the three points' coefficients and blends them) with the hit face's normal n (as
+  ``mis`` shades) and the pixel's own view direction, so that f_r is the pixel's. T1 holds
+  max(cos, 0) at the points' normals, whose blend m = sum_k w_k n_k makes sum_k w_k T1_k =
+  L V (m . w) above the points' horizons; with ``tau`` > 0 a leaf's factor rho (at most RHO_MAX)
+  turns that cosine into the face's, max(n . w, 0) / (m . w) smoothed over the node
+  (:func:`ramp`), and a node is also refined while |n - m| sin r > tau max(m . c, sin r,
+  RHO_FLOOR) (T1 is small near m's horizon);
+  ``tau`` = 0 keeps the baked cosine (rho = 1). lambert pixels take the scaling coefficient
+  where rho is constant (tau = 0, or n along m), and walk otherwise.
+
+Pixels whose ray misses see the environment. Approximate by design: the texels, the cache's
 spacing (shadows and highlights are interpolated between points), the compression and the
-midpoint rule each leave an error (benchmarks/relight_view.py measures them against ``mis``).
+midpoint rule each leave an error; and one ray per pixel samples facets smaller than a pixel
+where ``mis`` integrates over the pixel (benchmarks/relight_view.py measures both modes against
+``mis``, with one and with 4 x 4 rays per pixel).
 
 The unbiased frame (:meth:`ViewFrames.converge`). Each pixel's camera samples draw their
 directions from a defensive mixture: with probability 1 - DEFENSIVE from the product T1 x f_r
@@ -112,6 +126,11 @@ CHUNK_PIXELS = 1 << 16
 CONVERGE_CHUNK = 1 << 10
 #: a view direction this close to the tangent plane is lifted to it (silhouette points)
 MIN_COS_VIEW = 1e-3
+#: the approximate frame's modes: a product per cache point or per pixel, and the default
+MODES = ("point", "pixel")
+MODE = "point"
+#: the pixel mode's cosine correction: a node is refined while the factor rho varies more than this
+TAU = 0.1
 
 
 # ----------------------------------------------------------------------------- the surface cache
@@ -363,11 +382,13 @@ def node_tables(n_levels: int, refine: float) -> NodeTables:
     return tables
 
 
-def _items(kind, param, normal, wo):
-    """(I, 12) float32 per item: normal, view direction, lobe axis, width, cos and sin of it."""
+def _items(kind, param, normal, wo, t1_normal, tau):
+    """(I, 16) float32 per item: shading normal, view direction, lobe axis, width, cos and sin of
+    it, T1's normal, the cosine's correction tolerance."""
     axis, width = lobe(kind, param, normal, wo)
-    return np.concatenate([normal, wo, axis, width[:, None], np.cos(width)[:, None], np.sin(width)[:, None]],
-                          1).astype(np.float32)
+    tau = np.broadcast_to(np.asarray(tau, np.float64), len(kind))
+    return np.concatenate([normal, wo, axis, width[:, None], np.cos(width)[:, None], np.sin(width)[:, None],
+                           t1_normal, tau[:, None]], 1).astype(np.float32)
 
 
 def _coefficients(offsets, scale, data, points: np.ndarray, columns: np.ndarray) -> np.ndarray:
@@ -384,27 +405,67 @@ def _coefficients(offsets, scale, data, points: np.ndarray, columns: np.ndarray)
     return out
 
 
+def _blended(offsets, scale, data, points: np.ndarray, weights: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """(I, C, 3) float64: sum_k weights[:, k] x coefficient columns[:, c] of points[:, k], per item
+    its own columns (I, C)."""
+    out = np.zeros(columns.shape + (3,))
+    data = np.asarray(data)
+    for k in range(points.shape[1]):   # the item's points (1 or 3)
+        b, j = points[:, k] // POINTS, points[:, k] % POINTS
+        o = np.asarray(offsets[columns, b[:, None]], np.int64)
+        keep = o >= 0
+        oc = np.where(keep, o, 0)
+        sc = np.where(keep, np.asarray(scale)[oc], 0.0) * weights[:, k:k + 1]
+        for c in range(3):   # channels
+            out[:, :, c] += data[oc, (c * POINTS + j)[:, None]] * sc
+    return out
+
+
+def ramp(x, s):
+    """The mean of max(x', 0) over x' uniform in [x - s, x + s] (the kernel's ``view_ramp``)."""
+    x, s = np.asarray(x, np.float64), np.asarray(s, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mid = (x + s) ** 2 / (4.0 * s)
+    return np.where(x >= s, x, np.where(x <= -s, 0.0, mid))
+
+
+#: the cosine's correction factor rho is at most RHO_MAX (a node near T1's horizon); its
+#: refinement bounds |n - m| sin r by tau max(m . c, sin r, RHO_FLOOR) (the kernel's constants)
+RHO_MAX = 4.0
+RHO_FLOOR = 0.5
+
+
 def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, kind, param, normal, wo,
-                      refine: float = REFINE):
+                      refine: float = REFINE, weights=None, t1_normal=None, tau: float = 0.0):
     """numpy twin of ``view_product``: (B (I, 3) float64, nodes visited (I,)) for items (cache
-    points ``points`` with their normal, view direction wo (world, unit), material kind and
-    parameter), level by level over the frontier of all items' nodes (float64; the kernel's
-    float32 takes the same nodes but where a test lies within rounding of its threshold)."""
+    points ``points`` (I,) or (I, K) blended with ``weights`` (I, K), shaded with ``normal`` and
+    view direction wo (world, unit), material kind and parameter; ``t1_normal`` the blend of the
+    points' normals (default ``normal``) and ``tau`` the cosine's correction tolerance, 0 for
+    none: kernels/relight_view.cl), level by level over the frontier of all items' nodes
+    (float64; the kernel's float32 takes the same nodes but where a test lies within rounding
+    of its threshold)."""
     points = np.asarray(points, np.int64)
+    if points.ndim == 1:
+        points = points[:, None]
+    weights = np.ones(points.shape) if weights is None else np.asarray(weights, np.float64).reshape(points.shape)
     kind = np.asarray(kind, np.int64)
     param = np.asarray(param, np.float64)
     normal, wo = np.asarray(normal, np.float64), np.asarray(wo, np.float64)
+    m_all = normal if t1_normal is None else np.asarray(t1_normal, np.float64)
+    tau = float(tau)
     side = 1 << n_levels
     n2 = float(side * side)
     tables = node_tables(n_levels, refine)
     axis, width = lobe(kind, param, normal, wo)
     s_ax, t_ax = tangent_frame(normal)
     wo_l = np.stack([np.einsum("ij,ij->i", wo, a) for a in (s_ax, t_ax, normal)], 1)
-    root = _coefficients(offsets, scale, data, points, np.array([0]))[:, :, 0]
+    ml = np.linalg.norm(m_all, axis=1)
+    dn = np.linalg.norm(normal - m_all, axis=1)
+    root = _blended(offsets, scale, data, points, weights, np.zeros((len(points), 1), np.int64))[:, 0]
     out = np.zeros((len(points), 3))
     visited = np.ones(len(points), np.int64)
-    lam = kind == bsdfs.LAMBERT
-    out[lam] = root[lam] * n2 / np.pi
+    lam = (kind == bsdfs.LAMBERT) & ((tau <= 0) | (np.einsum("ij,ij->i", normal, m_all) >= ml * (1 - 1e-6)))
+    out[lam] = root[lam] * (n2 / np.pi / (np.maximum(ml[lam], 1e-6) if tau > 0 else np.ones(lam.sum())))[:, None]
     item = np.flatnonzero(~lam)
     x = np.zeros(len(item), np.int64)
     y = np.zeros(len(item), np.int64)
@@ -418,28 +479,33 @@ def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, k
         row = tables.rows[s - 1 + y].astype(np.float64)
         r_eps = tables.radius[s - 1 + y] / refine
         c = tables.centres[(s * s - 1) // 3 + y * s + x, :3].astype(np.float64)
-        horizon = np.where(tables.radius[s - 1 + y] < np.pi / 2, np.sin(tables.radius[s - 1 + y]), 2.0)
-        live = np.einsum("ij,ij->i", c, normal[item]) >= -horizon
+        sin_r = np.where(tables.radius[s - 1 + y] < np.pi / 2, np.sin(tables.radius[s - 1 + y]), 1.0)
+        nc = np.einsum("ij,ij->i", c, normal[item])
+        live = nc >= -np.where(tables.radius[s - 1 + y] < np.pi / 2, sin_r, 2.0)
         need = r_eps - width[item]
         cos_need = row[:, 1] * np.cos(width[item]) + row[:, 2] * np.sin(width[item])
-        leaf = (level == n_levels) | (need <= 0) | ((need < np.pi) & (np.einsum("ij,ij->i", c, axis[item]) <= cos_need))
+        leaf = (need <= 0) | ((need < np.pi) & (np.einsum("ij,ij->i", c, axis[item]) <= cos_need))
+        mc = np.einsum("ij,ij->i", c, m_all[item])
+        if tau > 0:
+            leaf &= sin_r * dn[item] <= tau * np.maximum(mc, np.maximum(sin_r, RHO_FLOOR))
+        leaf |= level == n_levels
         at = live & leaf
         if at.any():
             ii = item[at]
             wl = np.stack([np.einsum("ij,ij->i", c[at], a[ii]) for a in (s_ax, t_ax, normal)], 1)
             f = brdf_reference(kind[ii], param[ii], wl, wo_l[ii])
+            if tau > 0:
+                den = ramp(mc[at], sin_r[at] * ml[ii])
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    rho = np.where(den > 0, np.minimum(ramp(nc[at], sin_r[at]) / den, RHO_MAX), 0.0)
+                f = f * rho
             np.add.at(out, ii, avg[at] * (n2 / (s * s) * f)[:, None])
         go = live & ~leaf
         if not go.any():
             break
         item, x, y, avg = item[go], x[go], y[go], avg[go]
         cols = np.stack([y * side + s + x, (s + y) * side + x, (s + y) * side + s + x], 1)   # (M, 3)
-        b, j = points[item] // POINTS, points[item] % POINTS
-        o = np.asarray(offsets[cols, b[:, None]], np.int64)
-        keep = o >= 0
-        oc = np.where(keep, o, 0)
-        sc = np.where(keep, np.asarray(scale)[oc], 0.0)
-        cm = np.stack([np.asarray(data)[oc, (c_ * POINTS + j)[:, None]] * sc for c_ in range(3)], 2)   # (M, 3 m, 3 ch)
+        cm = _blended(offsets, scale, data, points[item], weights[item], cols)              # (M, 3 m, 3 ch)
         c1, c2, c3 = cm[:, 0], cm[:, 1], cm[:, 2]
         kids = []
         for dy in (0, 1):   # the four children
@@ -463,25 +529,31 @@ class ViewDevice:
         self.n_levels, self.n_blocks = transfer.n_levels, int(s["offsets"].shape[1])
         self._tables = {}
 
-    def products(self, points, kind, param, normal, wo, refine: float = REFINE, queue=None):
+    def products(self, points, kind, param, normal, wo, refine: float = REFINE, weights=None, t1_normal=None,
+                 tau: float = 0.0, queue=None):
         """(B (I, 3) float32, nodes visited (I,) uint32) of the items (see :func:`product_reference`)."""
         queue = queue or cl.thread_queue()
+        points = np.asarray(points)
         count = len(points)
         if not count:
             return np.zeros((0, 3), np.float32), np.zeros(0, np.uint32)
+        per = 1 if points.ndim == 1 else points.shape[1]
+        weights = np.ones(count * per, np.float32) if weights is None else np.asarray(weights, np.float32)
         tables = self._tables.get(refine)
         if tables is None:
             t = node_tables(self.n_levels, refine)
             tables = self._tables[refine] = (cl.to_device(t.centres), cl.to_device(t.rows))
-        prog = cl.program("relight_view.cl", QBITS=self.entries.bits, POINTS=POINTS)
-        geom = _items(np.asarray(kind), np.asarray(param, np.float64), np.asarray(normal, np.float64),
-                      np.asarray(wo, np.float64))
+        prog = cl.program("relight_view.cl", QBITS=self.entries.bits, POINTS=POINTS, K=per)
+        normal = np.asarray(normal, np.float64)
+        geom = _items(np.asarray(kind), np.asarray(param, np.float64), normal, np.asarray(wo, np.float64),
+                      normal if t1_normal is None else np.asarray(t1_normal, np.float64), tau)
         out = cl.empty(12 * count)
         visited = cl.empty(4 * count)
         cl.kernel(prog, "view_product")(
             queue, (-(-count // cl.WORK_GROUP) * cl.WORK_GROUP,), (cl.WORK_GROUP,), np.uint32(count),
-            np.uint32(self.n_levels), np.uint32(self.n_blocks), cl.to_device(np.asarray(points, np.uint32)),
-            cl.to_device(geom), cl.to_device(np.asarray(kind, np.int32)), cl.to_device(np.asarray(param, np.float32)),
+            np.uint32(self.n_levels), np.uint32(self.n_blocks), cl.to_device(np.ascontiguousarray(points, np.uint32)),
+            cl.to_device(np.ascontiguousarray(weights, np.float32)), cl.to_device(geom),
+            cl.to_device(np.asarray(kind, np.int32)), cl.to_device(np.asarray(param, np.float32)),
             tables[0], tables[1], self.entries.offsets[0], self.entries.scale[0], self.entries.data[0], out, visited)
         return cl.read(out, (count, 3), np.float32, queue), cl.read(visited, (count,), np.uint32, queue)
 
@@ -758,13 +830,34 @@ class ViewFrames:
             self._device = ViewDevice(self.transfer)
         return self._device.products(points, kind, param, nrm, wo, refine)
 
+    def pixel_products(self, ids, w, face_normal, d, mat, refine=REFINE, tau: float = TAU, backend="opencl"):
+        """B (M, 3) (albedo factored out) and nodes visited of pixels: the blend of their cache
+        points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the face normal, the view
+        direction -d, material ``mat`` and the cosine's correction ``tau`` (module docstring)."""
+        n = np.asarray(face_normal, np.float64)
+        wo = lifted_view(n, -np.asarray(d, np.float64))
+        m = np.einsum("ij,ijk->ik", np.asarray(w, np.float64), self.normal[ids])
+        kind, param = self.kind_of[mat], self.param_of[mat]
+        if backend == "numpy":
+            s = self.transfer._s
+            return product_reference(s["offsets"], s["entry_scale"], s["entry_data"], self.n, ids, kind, param, n, wo,
+                                     refine, w, m, tau)
+        if self._device is None:
+            self._device = ViewDevice(self.transfer)
+        return self._device.products(ids, kind, param, n, wo, refine, w, m, tau)
+
     def frame(self, eye=None, target=None, fov=None, width=None, height=None, refine: float = REFINE,
-              backend: str = "opencl"):
+              backend: str = "opencl", mode: str = MODE, tau: float = TAU):
         """The approximate frame (H, W, 3) float32 seen from ``eye`` towards ``target`` (defaults:
-        the scene's camera) and its timings (module docstring)."""
+        the scene's camera) and its timings (module docstring): ``mode`` "point" (a product per
+        cache point, blended per pixel) or "pixel" (a product per pixel, of its points' blended T1
+        with its face normal, view direction and the cosine corrected within ``tau``)."""
         refine = check_number("relight.view", "refine", refine, 1e-4, 100.0)
         if backend not in ("opencl", "numpy"):
             raise ArgumentError(f"relight.view: backend must be opencl or numpy, got {backend!r}")
+        if mode not in MODES:
+            raise ArgumentError(f"relight.view: mode must be one of {', '.join(MODES)}, got {mode!r}")
+        tau = check_number("relight.view", "tau", tau, 0.0, 100.0)
         cam = self.camera(eye, target, fov)
         width, height = self._size(width, height)
         t0 = time.perf_counter()
@@ -781,30 +874,41 @@ class ViewFrames:
             prim, t, u, v = self.tracer.intersect_uv(eye_a, d)
             tb = time.perf_counter()
             hit = np.flatnonzero(prim >= 0)
-            ids, w, _ = self.hit_points(cam.eye, d[hit], prim[hit], t[hit], (u[hit], v[hit]))
-            used = np.zeros(len(self.position), bool)
-            used[ids[w > 0]] = True
-            points = np.flatnonzero(used)
-            tc = time.perf_counter()
-            B, nodes = self.products(points, cam.eye, refine, backend)
-            td = time.perf_counter()
-            at = np.zeros(len(self.position), np.int64)
-            at[points] = np.arange(len(points))
-            blend = np.einsum("ij,ijc->ic", w.astype(np.float32), np.asarray(B, np.float32)[at[ids]])
+            ids, w, fn = self.hit_points(cam.eye, d[hit], prim[hit], t[hit], (u[hit], v[hit]))
             mat = self.scene.face_material[prim[hit]]
-            image[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
+            if mode == "point":
+                used = np.zeros(len(self.position), bool)
+                used[ids[w > 0]] = True
+                points = np.flatnonzero(used)
+                tc = time.perf_counter()
+                B, nodes = self.products(points, cam.eye, refine, backend)
+                td = time.perf_counter()
+                at = np.zeros(len(self.position), np.int64)
+                at[points] = np.arange(len(points))
+                blend = np.einsum("ij,ijc->ic", w.astype(np.float32), np.asarray(B, np.float32)[at[ids]])
+                image[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
+                shaded = len(points)
+            else:
+                ok = np.flatnonzero(w.sum(1) > 0)
+                tc = time.perf_counter()
+                B, nodes = self.pixel_products(ids[ok], w[ok], fn[ok], d[hit][ok], mat[ok], refine, tau, backend)
+                td = time.perf_counter()
+                image[pix[hit][ok]] = np.asarray(B, np.float32) * self.albedo_of[mat[ok]].astype(np.float32)
+                shaded = len(ok)
             miss = np.flatnonzero(prim < 0)
             image[pix[miss]] = self.environment.eval(d[miss].astype(np.float64))
             te = time.perf_counter()
-            products += len(points)
+            products += shaded
             visited += int(np.sum(nodes, dtype=np.int64))
             for key, dt in (("rays_seconds", tb - ta), ("lookup_seconds", tc - tb), ("product_seconds", td - tc),
                             ("assembly_seconds", te - td)):
                 timing[key] += dt
         seconds = time.perf_counter() - t0
         stats = {"frame_seconds": seconds, **timing, "width": width, "height": height, "eye": cam.eye.tolist(),
-                 "target": cam.target.tolist(), "fov": cam.fov_y, "cache_points_shaded": products,
-                 "nodes_per_point": round(visited / max(products, 1), 2), "refine": refine}
+                 "target": cam.target.tolist(), "fov": cam.fov_y, "mode": mode, "tau": tau,
+                 "items": "cache points" if mode == "point" else "pixels",
+                 "cache_points_shaded": products, "nodes_per_point": round(visited / max(products, 1), 2),
+                 "refine": refine}
         return image.reshape(height, width, 3), stats
 
     # -- the unbiased frame
