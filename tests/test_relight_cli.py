@@ -25,8 +25,7 @@ FAST = ["--spp", "2", "--levels", "3", "--terms", "32", "--priority", "area"]
 
 
 def run(*args):
-    r = CliRunner().invoke(main, [str(a) for a in args])
-    return r
+    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def one_error_line(r, *words):

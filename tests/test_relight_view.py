@@ -10,12 +10,11 @@ import os
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import wavlight
 from scenes_util import check_estimates, toml_text, write_raw_image
+from test_relight_cli import one_error_line, run
 from wavlight import bsdfs, haar
-from wavlight.cli.main import main
 from wavlight.relight import lighting, view
 
 EYE, TARGET = [2.0, 2.0, 3.0], [0.0, 0.5, 0.0]
@@ -229,19 +228,17 @@ def test_unbiased_frame_equals_mis_from_another_camera(baked):
         assert np.linalg.norm(image - ref.image) / np.linalg.norm(ref.image) < 0.12, mode
 
 
+def test_a_camera_that_sees_only_uncached_sides_gets_a_frame(baked):
+    """From below the floor every hit is a face's back, which has no cache: the frame is black
+    there and the environment where rays miss, in both modes (never an error)."""
+    _, scene, tr = baked
+    frames = view.ViewFrames(tr, scene)
+    for mode in view.MODES:
+        image, _ = frames.frame([0.0, -1.0, 3.5], [0.0, 0.5, 0.0], mode=mode)
+        assert np.all(np.isfinite(image)) and image.min() >= 0 and image.max() > 0, mode
+
+
 # ----------------------------------------------------------------------------- the command line
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
-def one_error_line(r, *words):
-    assert r.exit_code == 2, r.output
-    lines = [line for line in r.stderr.splitlines() if line.strip() and not line.startswith("warning:")]
-    assert len(lines) == 1 and lines[0].startswith("Error: "), r.stderr
-    for w in words:
-        assert w in lines[0], (w, lines[0])
-
-
 def test_command_line(baked, tmp_path):
     folder, _, _ = baked
     out = tmp_path / "v.wlt"

@@ -883,9 +883,11 @@ class ViewFrames:
                 tc = time.perf_counter()
                 B, nodes = self.products(points, cam.eye, refine, backend)
                 td = time.perf_counter()
-                at = np.zeros(len(self.position), np.int64)
+                # a point of weight 0 (or none shaded at all: only back faces seen) reads the zero row
+                at = np.full(len(self.position), len(points), np.int64)
                 at[points] = np.arange(len(points))
-                blend = np.einsum("ij,ijc->ic", w.astype(np.float32), np.asarray(B, np.float32)[at[ids]])
+                rows = np.concatenate([np.asarray(B, np.float32).reshape(-1, 3), np.zeros((1, 3), np.float32)])
+                blend = np.einsum("ij,ijc->ic", w.astype(np.float32), rows[at[ids]])
                 image[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
                 shaded = len(points)
             else:
