@@ -174,29 +174,9 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
             total = np.zeros((len(hit), 3))
             for slot in range(slots):   # directions per camera sample, not samples
                 u_all = rng.uniforms(seed, block, DIRECTION_STREAM + slot, 0, P * spp)
-                u = u_all[hit].astype(np.float64)
-                # the product candidate: the tree of the sample's pixel (its samples share it)
-                uv_tree, _ = trees.sample(np.ascontiguousarray(u_all[:, :2]), spp)
-                uv_p, _ = inside.sample(uv_tree[hit].astype(np.float64))
-                d_p = square_to_world(uv_p)
-                # the BSDF candidate, from u.w and u.z rescaled past the choice u.z < alpha
-                use_b = u[:, 2] < alpha
-                ub = np.stack([np.where(use_b, u[:, 2] / alpha, (u[:, 2] - alpha) / (1 - alpha + 1e-300)), u[:, 3]], 1)
-                ub = np.clip(ub, 0.0, np.nextafter(1.0, 0.0))
-                wl_b = bsdfs.sample_each(kind, param, ub, wo)
-                d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
-                direction = np.where(use_b[:, None], d_b, d_p)
-                # the mixture's pdf at the chosen direction, from both techniques
-                uv = world_to_square(direction)
-                p_tree = trees.pdf(np.ascontiguousarray(_spread(uv, hit, P * spp), np.float32), spp)[hit]
-                p_prod = np.where(has_p, p_tree.astype(np.float64) * inside.factor(uv), 0.0) \
-                    * solid_angle_jacobian(direction)
-                wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, nrm)], 1)
-                fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
-                pdf = (1 - alpha) * p_prod + alpha * p_bsdf
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0) / slots
-                weight = np.where(np.isfinite(weight), weight, 0.0)
+                direction, weight = mixture_directions(trees, inside, u_all, hit, spp, has_p, alpha, kind, param, wo,
+                                                       (s_ax, t_ax, nrm))
+                weight = weight / slots
                 live = np.flatnonzero(weight > 0)
                 blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
                 rays += len(live)
@@ -299,6 +279,36 @@ def _entries_at_most(cdf: np.ndarray, rows: np.ndarray, target: np.ndarray) -> n
         hi = np.where(active & ~below, mid, hi)
         active = lo < hi
     return lo
+
+
+def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes):
+    """Directions of the defensive mixture and their weights, for the samples ``hit`` of
+    ``len(u_all)`` (spp per pixel, each pixel's product tree in ``trees``): with probability
+    1 - alpha the product (its tree by the hierarchical warp, eq. 17-22, then inside the texel
+    by the lighting, ``inside``), with probability alpha (1 where the pixel has no product) the
+    BSDF; ``axes`` (s, t, n) the hits' tangent frames, ``wo`` the view in them. The pdf is the
+    mixture's, both techniques' at the chosen direction, so that f cos / pdf is unbiased.
+    Returns unit directions (N, 3) and f cos / pdf (N,) (0 where either is 0 or not finite)."""
+    s_ax, t_ax, nrm = axes
+    u = u_all[hit].astype(np.float64)
+    uv_tree, _ = trees.sample(np.ascontiguousarray(u_all[:, :2]), spp)   # every sample slot, in pixel order
+    uv_p, _ = inside.sample(uv_tree[hit].astype(np.float64))
+    d_p = square_to_world(uv_p)
+    use_b = u[:, 2] < alpha          # the BSDF's uniforms: u.z rescaled below alpha, and u.w
+    ub = np.clip(np.stack([np.where(use_b, u[:, 2] / alpha, 0.0), u[:, 3]], 1), 0.0, np.nextafter(1.0, 0.0))
+    wl_b = bsdfs.sample_each(kind, param, ub, wo)
+    d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
+    direction = np.where(use_b[:, None], d_b, d_p)
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    uv = world_to_square(direction)
+    p_tree = trees.pdf(np.ascontiguousarray(_spread(uv, hit, len(u_all)), np.float32), spp)[hit]
+    p_prod = np.where(has_product, p_tree.astype(np.float64) * inside.factor(uv), 0.0) * solid_angle_jacobian(direction)
+    wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, nrm)], 1)
+    fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
+    pdf = (1 - alpha) * p_prod + alpha * p_bsdf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0)
+    return direction, np.where(np.isfinite(weight), weight, 0.0)
 
 
 def _spread(values: np.ndarray, at: np.ndarray, count: int) -> np.ndarray:

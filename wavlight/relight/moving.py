@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from .. import bsdfs, rng, strategies
+from .. import rng, strategies
 from ..camera import camera_rays, project
 from ..envmap import Environment
 from ..errors import ArgumentError, WavlightError, check_int, check_real
@@ -41,7 +41,7 @@ from ..raytrace import RayTracer
 from ..scene import rotation
 from ..warp import frame as tangent_frame
 from .bake import camera_jitter
-from .converge import _scene_of, _TexelLight, solid_angle_jacobian, square_to_world, world_to_square
+from .converge import _scene_of, _TexelLight, mixture_directions
 
 #: Philox streams of a moving-object frame: camera jitter per chunk, direction uniforms, MIS
 FRAME_STREAM, DIRECTION_STREAM, MIS_STREAM = 11, 12, 13
@@ -250,29 +250,9 @@ class MovingObject:
         trees, pixel_mass = self._product_trees(chunk, pixels)
         mass = pixel_mass[local_pixel]
         u = rng.uniforms(seed, FRAME_STREAM * 65536 + chunk, DIRECTION_STREAM, 0, len(pixels) * spp)
-        # the product candidate for every sample slot (the kernel takes them all, in pixel order)
-        uv_tree, _ = trees.sample(np.ascontiguousarray(u[:, :2]), spp)
-        uv_p, _ = self.inside.sample(uv_tree[rest[live]].astype(np.float64))
-        d_p = square_to_world(uv_p)
-        uu = u[rest[live]].astype(np.float64)
         alpha = np.where(mass > 0, DEFENSIVE, 1.0)
-        use_b = uu[:, 2] < alpha
-        ub = np.clip(np.stack([np.where(use_b, uu[:, 2] / alpha, 0.0), uu[:, 3]], 1), 0.0, np.nextafter(1.0, 0.0))
-        wl_b = bsdfs.sample_each(kind, param, ub, wo)
-        d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * n
-        direction = _unit(np.where(use_b[:, None], d_b, d_p))
-        # the mixture's pdf
-        uv = world_to_square(direction)
-        spread = np.full((len(pixels) * spp, 2), 0.5)
-        spread[rest[live]] = uv
-        p_tree = trees.pdf(np.ascontiguousarray(spread, np.float32), spp)[rest[live]].astype(np.float64)
-        p_prod = np.where(mass > 0, p_tree * self.inside.factor(uv), 0.0) * solid_angle_jacobian(direction)
-        wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, n)], 1)
-        fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
-        pdf = (1 - alpha) * p_prod + alpha * p_bsdf
-        with np.errstate(divide="ignore", invalid="ignore"):
-            weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0)
-        weight = np.where(np.isfinite(weight), weight, 0.0)
+        direction, weight = mixture_directions(trees, self.inside, u, rest[live], spp, mass > 0, alpha, kind, param,
+                                               wo, (s_ax, t_ax, n))
         # only directions that meet the bounding sphere can meet the object
         tc = np.einsum("ij,ij->i", to[live], direction)
         miss_dist2 = dist[live] ** 2 - tc ** 2

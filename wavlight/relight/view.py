@@ -100,7 +100,7 @@ from ..warp import frame as tangent_frame
 from . import lighting, store
 from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choose_model, texel_rays, \
     texel_rays_reference
-from .converge import _scene_of, _spread, _TexelLight, solid_angle_jacobian, square_to_world, world_to_square
+from .converge import _scene_of, _TexelLight, mixture_directions, square_to_world
 from .frame import DeviceEntries
 from .transfer import Transfer
 
@@ -1003,27 +1003,9 @@ class ViewFrames:
                 total = np.zeros((len(hit), 3))
                 for slot in range(slots):   # directions per camera sample, not samples
                     u_all = rng.uniforms(seed, JITTER_TILE + chunk, DIRECTION_STREAM + slot, 0, P * spp)
-                    u = u_all[hit].astype(np.float64)
-                    uv_tree, _ = trees.sample(np.ascontiguousarray(u_all[:, :2]), spp)
-                    uv_p, _ = inside.sample(uv_tree[hit].astype(np.float64))
-                    d_p = square_to_world(uv_p)
-                    use_b = u[:, 2] < alpha
-                    ub = np.stack([np.where(use_b, u[:, 2] / alpha, 0.0), u[:, 3]], 1)
-                    ub = np.clip(ub, 0.0, np.nextafter(1.0, 0.0))
-                    wl_b = bsdfs.sample_each(kind, param, ub, wo)
-                    d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
-                    direction = np.where(use_b[:, None], d_b, d_p)
-                    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-                    uv = world_to_square(direction)
-                    p_tree = trees.pdf(np.ascontiguousarray(_spread(uv, hit, P * spp), np.float32), spp)[hit]
-                    p_prod = np.where(has_p, p_tree.astype(np.float64) * inside.factor(uv), 0.0) \
-                        * solid_angle_jacobian(direction)
-                    wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, nrm)], 1)
-                    fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
-                    pdf = (1 - alpha) * p_prod + alpha * p_bsdf
-                    with np.errstate(divide="ignore", invalid="ignore"):
-                        weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0) / slots
-                    weight = np.where(np.isfinite(weight), weight, 0.0)
+                    direction, weight = mixture_directions(trees, inside, u_all, hit, spp, has_p, alpha, kind,
+                                                           param, wo, (s_ax, t_ax, nrm))
+                    weight = weight / slots
                     live = np.flatnonzero(weight > 0)
                     blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
                     rays += len(live)
