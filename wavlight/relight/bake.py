@@ -30,7 +30,6 @@ pixels is compressed and quantized (:mod:`wavlight.relight.store`).
 from __future__ import annotations
 
 import os
-import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -49,7 +48,7 @@ from ..version import __version__
 from ..warp import frame as tangent_frame
 from . import lighting, store
 from .dask import bake_on_cluster
-from .transfer import Transfer
+from .transfer import finish_bake
 
 #: Philox stream of the bake's texel uniforms (kernels/relight.cl RNG_TEXEL)
 TEXEL_STREAM = 8
@@ -608,11 +607,6 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
             header["static"] = {"spp": static_spp, "strategy": "wavelet",
                                 "seconds": static.stats["setup_seconds"] + static.stats["render_seconds"]}
             header["scene"]["content_hash"] = full.content_hash
-        owns = output is None
-        if owns:
-            fd, output = tempfile.mkstemp(prefix=".wavlight-bake-", suffix=".wlt")
-            os.close(fd)
-        header = writer.finish(os.fspath(output), header, arrays)
+        return finish_bake(writer, output, header, arrays)
     finally:
         writer.close()
-    return Transfer(os.fspath(output), header, store.open_sections(os.fspath(output), header, verify=False), owns)

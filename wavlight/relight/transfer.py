@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 import time
 
 import numpy as np
@@ -242,3 +243,15 @@ class Transfer:
         if self._env is None or self._env[0] is not environment:
             self._env = (environment, cl.to_device(environment.pixels))
         return self._env[1]
+
+
+def finish_bake(writer, output, header: dict, arrays: dict) -> Transfer:
+    """Write a bake's file from ``writer`` (a store.TransferWriter holding its entries) with
+    ``header`` and the other sections ``arrays``, atomically, to ``output`` (None: a temporary
+    file that the returned Transfer owns and removes when closed)."""
+    owns = output is None
+    if owns:
+        fd, output = tempfile.mkstemp(prefix=".wavlight-bake-", suffix=".wlt")
+        os.close(fd)
+    header = writer.finish(os.fspath(output), header, arrays)
+    return Transfer(os.fspath(output), header, store.open_sections(os.fspath(output), header, verify=False), owns)

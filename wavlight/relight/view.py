@@ -79,7 +79,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -102,7 +101,7 @@ from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choos
     texel_rays_reference
 from .converge import _scene_of, _TexelLight, mixture_directions, square_to_world
 from .frame import DeviceEntries
-from .transfer import Transfer
+from .transfer import finish_bake
 
 #: cache points per block of the bake file (one entry row holds their three channels)
 POINTS = BLOCK * BLOCK
@@ -718,14 +717,9 @@ def bake_view(scene, output=None, levels=None, tolerance: float = 0.02, bits: in
                   "view_position": cache.position.astype(np.float32), "view_normal": cache.normal.astype(np.float32),
                   "view_material": cache.material.astype(np.int32), "view_face_k": cache.face_k.astype(np.int32),
                   "view_face_base": cache.face_base.astype(np.int64), "view_lattice": cache.lattice.astype(np.int32)}
-        owns = output is None
-        if owns:
-            fd, output = tempfile.mkstemp(prefix=".wavlight-bake-", suffix=".wlt")
-            os.close(fd)
-        header = writer.finish(os.fspath(output), header, arrays)
+        return finish_bake(writer, output, header, arrays)
     finally:
         writer.close()
-    return Transfer(os.fspath(output), header, store.open_sections(os.fspath(output), header, verify=False), owns)
 
 
 # ----------------------------------------------------------------------------- frames
