@@ -229,12 +229,8 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
         fail(e)
     median = statistics.median(times)
     if spp is not None:
-        stats = {"spp": spp, "seed": seed, "frame_seconds": round(median, 4), **result.stats, "output": outputs[0]}
-        if as_json:
-            click.echo(json.dumps(stats))
-        elif not quiet:
-            click.echo(f"wrote {outputs[0]}: {transfer.width}x{transfer.height}, {spp} spp (unbiased), "
-                       f"{median:.2f} s", err=True)
+        _report_unbiased({"spp": spp, "seed": seed, "frame_seconds": round(median, 4), **result.stats,
+                          "output": outputs[0]}, (transfer.width, transfer.height), as_json, quiet)
         return
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
              "terms": st["terms"], "entries_read": st["entries_read"], "width": transfer.width,
@@ -249,6 +245,15 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
         click.echo(f"wrote {stats['output'] if not turntable else output}: {transfer.width}x{transfer.height}, "
                    f"{stats['terms']} terms, frame {median * 1e3:.1f} ms ({stats['frames_per_second']} frames/s)",
                    err=True)
+
+
+def _report_unbiased(stats: dict, size, as_json: bool, quiet: bool):
+    """An unbiased frame's report: one JSON object, or a line on stderr naming the output."""
+    if as_json:
+        click.echo(json.dumps(stats))
+    elif not quiet:
+        click.echo(f"wrote {stats['output']}: {size[0]}x{size[1]}, {stats['spp']} spp (unbiased), "
+                   f"{stats['frame_seconds']:.2f} s", err=True)
 
 
 def _animated_gif(frames, path):
@@ -344,12 +349,8 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
         if bar:
             bar.close()
         wavlight.save_image(output, result.image)
-        stats = {"frame_seconds": result.stats["render_seconds"], **result.stats, "output": output}
-        if as_json:
-            click.echo(json.dumps(stats))
-        elif not quiet:
-            click.echo(f"wrote {output}: {size[0]}x{size[1]}, {spp} spp (unbiased), "
-                       f"{stats['frame_seconds']:.2f} s", err=True)
+        _report_unbiased({"frame_seconds": result.stats["render_seconds"], **result.stats, "output": output}, size,
+                         as_json, quiet)
         return
     times, outputs = [], []
     if orbit is None:
