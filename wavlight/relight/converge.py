@@ -142,7 +142,6 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     totals = {"rays": 0, "done": 0}
     lock = threading.Lock()
     t0 = time.perf_counter()
-    kind_of, param_of, albedo_of = scene.material_kind, scene.material_param, scene.material_albedo
 
     def one(block):
         by, bx = divmod(block, bw)
@@ -162,26 +161,9 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         value[miss] = turned.eval(d[miss].astype(np.float64))
         rays = P * spp
         if len(hit):
-            nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
-            nrm = nrm.astype(np.float64)
-            s_ax, t_ax = tangent_frame(nrm)
-            wo_w = -d[hit].astype(np.float64)
-            wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, nrm)], 1)
-            mat = scene.face_material[prim[hit]]
-            kind, param, albedo = kind_of[mat], param_of[mat], albedo_of[mat].astype(np.float64)
-            has_p = mass[hit // spp] > 0
-            alpha = np.where(has_p, defensive, 1.0)       # pixels without a product: the BSDF alone
-            total = np.zeros((len(hit), 3))
-            for slot in range(slots):   # directions per camera sample, not samples
-                u_all = rng.uniforms(seed, block, DIRECTION_STREAM + slot, 0, P * spp)
-                direction, weight = mixture_directions(trees, inside, u_all, hit, spp, has_p, alpha, kind, param, wo,
-                                                       (s_ax, t_ax, nrm))
-                weight = weight / slots
-                live = np.flatnonzero(weight > 0)
-                blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
-                rays += len(live)
-                total[live] += (weight[live] * ~blocked)[:, None] * turned.eval(direction[live])
-            value[hit] = albedo * total
+            value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp,
+                                                  (seed, block), turned, defensive, slots)
+            rays += traced
         v = value.reshape(h, w, spp, 3)
         with lock:
             sums[y0:y0 + h, x0:x0 + w] += v.sum(2)
@@ -194,11 +176,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     with ThreadPoolExecutor(threads or 2 * (os.cpu_count() or 1)) as pool:
         list(pool.map(one, range(bw * bh)))
     seconds = time.perf_counter() - t0
-    mean = sums / spp
-    if spp > 1:
-        err = np.sqrt(np.maximum(squares - spp * mean ** 2, 0.0) / (spp - 1) / spp)
-    else:
-        err = np.full_like(mean, np.inf)
+    mean, err = mean_and_error(sums, squares, spp)
     stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
              "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
              "rotate_y": rot, "estimator": "product T1 x L (eq. 25) + BSDF, balance heuristic"}
@@ -279,6 +257,46 @@ def _entries_at_most(cdf: np.ndarray, rows: np.ndarray, target: np.ndarray) -> n
         hi = np.where(active & ~below, mid, hi)
         active = lo < hi
     return lo
+
+
+def mean_and_error(sums: np.ndarray, squares: np.ndarray, spp: int):
+    """Per-pixel mean and its standard error from the sums and sums of squares of ``spp``
+    independent samples (inf with a single sample)."""
+    mean = sums / spp
+    if spp > 1:
+        return mean, np.sqrt(np.maximum(squares - spp * mean ** 2, 0.0) / (spp - 1) / spp)
+    return mean, np.full_like(mean, np.inf)
+
+
+def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: int, key, environment,
+                     defensive: float, slots: int):
+    """The radiance (len(hit), 3) of the camera samples ``hit`` (of spp per pixel, directions
+    ``d`` with hits ``prim`` at ``t``) from ``slots`` directions each of the defensive mixture
+    (:func:`mixture_directions`; the pixels' product trees ``trees`` of totals ``mass``) seen from
+    ``scene``'s camera, each
+    evaluated with the true f cos, ``environment``'s radiance and a shadow ray; the uniforms are
+    Philox stream (``key`` = (seed, tile), DIRECTION_STREAM + slot). Returns it and the rays traced."""
+    nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+    nrm = nrm.astype(np.float64)
+    s_ax, t_ax = tangent_frame(nrm)
+    wo_w = -d[hit].astype(np.float64)
+    wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, nrm)], 1)
+    mat = scene.face_material[prim[hit]]
+    kind, param = scene.material_kind[mat], scene.material_param[mat]
+    has_p = mass[hit // spp] > 0
+    alpha = np.where(has_p, defensive, 1.0)       # pixels without a product: the BSDF alone
+    total = np.zeros((len(hit), 3))
+    rays = 0
+    for slot in range(slots):   # directions per camera sample, not samples
+        u_all = rng.uniforms(*key, DIRECTION_STREAM + slot, 0, len(d))
+        direction, weight = mixture_directions(trees, inside, u_all, hit, spp, has_p, alpha, kind, param, wo,
+                                               (s_ax, t_ax, nrm))
+        weight = weight / slots
+        live = np.flatnonzero(weight > 0)
+        blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
+        rays += len(live)
+        total[live] += (weight[live] * ~blocked)[:, None] * environment.eval(direction[live])
+    return scene.material_albedo[mat].astype(np.float64) * total, rays
 
 
 def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes):

@@ -86,7 +86,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import bsdfs, cl, haar, rng
+from .. import bsdfs, cl, haar
 from ..camera import camera_rays
 from ..envmap import LUMINANCE, Environment
 from ..errors import ArgumentError, WavlightError, check_int, check_number, check_real
@@ -99,7 +99,7 @@ from ..warp import frame as tangent_frame
 from . import lighting, store
 from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choose_model, texel_rays, \
     texel_rays_reference
-from .converge import _scene_of, _TexelLight, mixture_directions, square_to_world
+from .converge import _scene_of, _TexelLight, mean_and_error, shade_by_mixture, square_to_world
 from .frame import DeviceEntries
 from .transfer import finish_bake
 
@@ -985,26 +985,9 @@ class ViewFrames:
             value[miss] = env.eval(d[miss].astype(np.float64))
             hit = np.flatnonzero(prim >= 0)
             if len(hit):
-                nrm, _, origin = tracer.surface(cam.eye, d[hit], t[hit], prim[hit])
-                nrm = nrm.astype(np.float64)
-                s_ax, t_ax = tangent_frame(nrm)
-                wo_w = -d[hit].astype(np.float64)
-                wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, nrm)], 1)
-                mat = self.scene.face_material[prim[hit]]
-                kind, param, albedo = self.kind_of[mat], self.param_of[mat], self.albedo_of[mat]
-                has_p = mass[hit // spp] > 0
-                alpha = np.where(has_p, defensive, 1.0)
-                total = np.zeros((len(hit), 3))
-                for slot in range(slots):   # directions per camera sample, not samples
-                    u_all = rng.uniforms(seed, JITTER_TILE + chunk, DIRECTION_STREAM + slot, 0, P * spp)
-                    direction, weight = mixture_directions(trees, inside, u_all, hit, spp, has_p, alpha, kind,
-                                                           param, wo, (s_ax, t_ax, nrm))
-                    weight = weight / slots
-                    live = np.flatnonzero(weight > 0)
-                    blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
-                    rays += len(live)
-                    total[live] += (weight[live] * ~blocked)[:, None] * env.eval(direction[live])
-                value[hit] = albedo * total
+                value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp,
+                                                      (seed, JITTER_TILE + chunk), env, defensive, slots)
+                rays += traced
             v = value.reshape(P, spp, 3)
             with lock:
                 sums[pix] += v.sum(1)
@@ -1017,11 +1000,7 @@ class ViewFrames:
         with ThreadPoolExecutor(threads or 2) as pool:
             list(pool.map(one, chunks))
         seconds = time.perf_counter() - t0
-        mean = sums / spp
-        if spp > 1:
-            err = np.sqrt(np.maximum(squares - spp * mean ** 2, 0.0) / (spp - 1) / spp)
-        else:
-            err = np.full_like(mean, np.inf)
+        mean, err = mean_and_error(sums, squares, spp)
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
                  "rays": totals["rays"], "eye": cam.eye.tolist(), "target": cam.target.tolist(), "fov": cam.fov_y,
                  "estimator": "product T1 x f_r of the surface cache + BSDF, one-sample mixture"}
