@@ -16,7 +16,7 @@ from .imageio import save_image
 from .integrator import RenderResult, render, render_full
 from .scene import Scene, load_dict, load_scene
 from .strategies import STRATEGIES
-from .relight.bake import bake
+from .relight.bakes import bake
 from .relight.transfer import Transfer
 from .version import __version__
 

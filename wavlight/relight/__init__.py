@@ -8,10 +8,10 @@ T1 = L V cos per point of a surface cache instead, and its frames (:class:`.view
 take the product with the BRDF for any camera (kernels/relight_view.cl).
 
     import wavlight
-    transfer = wavlight.bake("scenes/bunny_ggx.toml", output="bunny.wlt")   # wavlight.relight.bake.bake
+    transfer = wavlight.bake("scenes/bunny_ggx.toml", output="bunny.wlt")   # wavlight.relight.bakes.bake
     image = transfer.frame(rotate_y=120, terms=256)
     again = wavlight.relight.Transfer.load("bunny.wlt")
 """
 from .transfer import Transfer
 
-__all__ = ["Transfer"]   # the bake itself: wavlight.bake (wavlight.relight.bake.bake)
+__all__ = ["Transfer"]   # the bake itself: wavlight.bake (wavlight.relight.bakes.bake)

@@ -438,7 +438,8 @@ def choose_model(scene, tolerance: float, spp: int, seed: int, levels=None, term
                       "term_error": {str(k): round(v, 5) for k, v in term_error.items()}}}
 
 
-VARY = ("lighting", "object", "view")
+#: the factors a bake of per-pixel transfer varies (a bake that varies the view: relight/view.py)
+PIXEL_VARY = ("lighting", "object")
 #: a bake that varies one object: each pixel's product T1 x L on 2^OBJECT_PRODUCT_LEVELS texels,
 #: and the scene without the object converged with this many samples per pixel
 OBJECT_PRODUCT_LEVELS = 4
@@ -448,7 +449,7 @@ STATIC_SPP = 256
 def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None, tolerance: float = 0.02,
          bits: int = 8, terms=None, priority=None, seed: int = 0, threads=None, progress=None,
          backend: str = "opencl", dask_address=None, points=None, vary: str = "lighting", object=None,
-         static_spp: int = STATIC_SPP, density=None):
+         static_spp: int = STATIC_SPP):
     """Bake the transfer of ``scene`` (a Scene or a scene file) for its camera at width x height
     (default: the scene's) with ``spp`` camera samples per pixel; write it to ``output``
     (default: a temporary file the Transfer owns) and return the :class:`Transfer`.
@@ -463,9 +464,8 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     shadows alike), each pixel's product T1 x L of that transfer and the scene's fixed lighting on
     2^OBJECT_PRODUCT_LEVELS texels, and the scene without it converged with ``static_spp``
     samples per pixel (the ``wavelet`` strategy; unbiased).
-    ``vary="view"`` bakes for frames from any camera (:mod:`wavlight.relight.view`): T1 = L V cos
-    per point of a surface cache of ``density`` points per unit area (width, height and spp do
-    not apply; the pilot of :func:`choose_model` picks the texel levels unless given).
+    (A bake that varies the view is :func:`wavlight.relight.view.bake_view`; :func:`wavlight.bake`
+    takes all three.)
     ``progress(done, total, rays, seconds)`` after each block. ``dask_address``: bake the
     blocks on that dask.distributed scheduler (the workers read the scene file at the same
     path); the file is identical to a local bake's."""
@@ -488,19 +488,10 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     seed = check_int(where, "seed", seed, 0, 2 ** 62)
     if points is not None and points not in POINT_CHOICES:
         raise ArgumentError(f"{where}: points must be 1 or 4, got {points!r}")
-    if vary not in VARY:
-        raise ArgumentError(f"{where}: vary must be one of {' | '.join(VARY)}, got {shown(vary)}")
+    if vary not in PIXEL_VARY:
+        raise ArgumentError(f"{where}: vary must be one of {' | '.join(PIXEL_VARY)}, got {shown(vary)}")
     if scene.environment.is_black:
         raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
-    if vary == "view":
-        if object is not None:
-            raise ArgumentError(f"{where}: an object is given only with vary='object'")
-        if dask_address is not None:
-            raise ArgumentError(f"{where}: a view bake runs locally (no Dask cluster)")
-        from .view import bake_view
-
-        return bake_view(scene, output, levels=levels, tolerance=tolerance, bits=bits, seed=seed, threads=threads,
-                         progress=progress, backend=backend, points=points, density=density)
     full, moving = scene, None
     if vary == "object":
         if object is None:
