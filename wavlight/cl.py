@@ -191,11 +191,18 @@ def kernel_source(name: str) -> str:
 
 @functools.lru_cache(maxsize=None)
 def _build(ctx, name: str, defines: tuple):
+    """The program ``name`` built with ``defines``. It is built with exactly these options:
+    pyopencl's own build adds ``-I <its install path>``, which enters the driver's kernel
+    cache key (PoCL's), so that every new virtual environment compiled every kernel again."""
     cl = _cl()
-    opts = [f"-D{k}={v}" for k, v in defines] + [f"-DLANES={LANES}"]   # kernels/simd.h
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # pyopencl's "build succeeded with warnings" chatter
-        return cl.Program(ctx, kernel_source(name)).build(options=opts)
+    opts = " ".join([f"-D{k}={v}" for k, v in defines] + [f"-DLANES={LANES}"])   # kernels/simd.h
+    prg = cl._cl._Program(ctx, kernel_source(name))
+    try:
+        prg.build(opts.encode(), None)
+    except cl.Error as e:
+        log = "\n".join(prg.get_build_info(d, cl.program_build_info.LOG) for d in ctx.devices)
+        raise cl.RuntimeError(f"building kernels/{name} with {opts}: {e}\n{log}") from None
+    return cl.Program(prg)
 
 
 def inline_builtins(device) -> bool:
