@@ -299,10 +299,10 @@ def test_page_and_socket_sanitise_bad_input(serve, transfer):
     assert status == 403 and text.count("\n") == 1
 
     async def talk():
-        async with aiohttp.ClientSession() as session:
+        async with aiohttp.ClientSession() as client:
             with pytest.raises(aiohttp.WSServerHandshakeError):
-                await session.ws_connect(v.url + "ws", headers={"Origin": "http://example.com"})
-            async with session.ws_connect(v.url + "ws") as ws:
+                await client.ws_connect(v.url + "ws", headers={"Origin": "http://example.com"})
+            async with client.ws_connect(v.url + "ws") as ws:
                 for bad in ("not json", "[1, 2]", json.dumps({"type": "launch"})):
                     await ws.send_str(bad)
                     reply = json.loads((await ws.receive(timeout=10)).data)
@@ -350,14 +350,14 @@ def test_sockets_closed_mid_frame_leave_the_server_serving(serve, capfd):
     v.frame = lambda state, terms: (time.sleep(0.3), plain(state, terms))[1]   # a slow frame
 
     async def talk():
-        async with aiohttp.ClientSession() as session:
+        async with aiohttp.ClientSession() as client:
             for i in range(3):   # closed while its frame is computed
-                ws = await session.ws_connect(v.url + "ws")
+                ws = await client.ws_connect(v.url + "ws")
                 await ws.send_json({"type": "state", "rotate_y": 10 * i})
                 await asyncio.sleep(0.1)
                 await ws.close()
             _drop_mid_frame(v.port, {"type": "state", "rotate_y": 77})
-            async with session.ws_connect(v.url + "ws") as ws:
+            async with client.ws_connect(v.url + "ws") as ws:
                 await ws.send_json({"type": "state", "rotate_y": 5})
                 header, _, _ = await _next_frame(ws)
                 assert header["state"]["rotate_y"] == 5
@@ -384,8 +384,8 @@ def test_converge_streams_the_spp_weighted_mean_and_stops_when_the_lighting_chan
     v = serve(converge=constant)
 
     async def talk():
-        async with aiohttp.ClientSession() as session:
-            async with session.ws_connect(v.url + "ws") as ws:
+        async with aiohttp.ClientSession() as client:
+            async with client.ws_connect(v.url + "ws") as ws:
                 await ws.send_json({"type": "state", "rotate_y": 45, "converge": True, "encoding": "raw"})
                 headers = []
                 while len(headers) < 4:
@@ -681,8 +681,8 @@ def test_object_page_and_socket_frames_are_the_moving_estimators(serve_object, o
         return np.frombuffer(payload, np.uint8).reshape(object_transfer.height, object_transfer.width, 4)
 
     async def talk():
-        async with aiohttp.ClientSession() as session:
-            async with session.ws_connect(v.url + "ws") as ws:
+        async with aiohttp.ClientSession() as client:
+            async with client.ws_connect(v.url + "ws") as ws:
                 await ws.send_json({"type": "state", "translate": [0.3, 0.6, 0.2], "rotate_y": 45, "exposure": 0.5,
                                     "encoding": "raw"})
                 header, payload, texts = await _next_frame(ws)
@@ -953,8 +953,8 @@ def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_v
         return np.frombuffer(payload, np.uint8).reshape(header["height"], header["width"], 4).copy()
 
     async def talk():
-        async with aiohttp.ClientSession() as session:
-            async with session.ws_connect(v.url + "ws") as ws:
+        async with aiohttp.ClientSession() as client:
+            async with client.ws_connect(v.url + "ws") as ws:
                 for az, el, d, ev in cameras:
                     await ws.send_json({"type": "state", "azimuth": az, "elevation": el, "distance": d,
                                         "exposure": ev, "encoding": "raw"})

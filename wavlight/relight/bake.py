@@ -44,7 +44,6 @@ from ..errors import ArgumentError, check_int, check_number, shown
 from ..integrator import render_full
 from ..raytrace import RayTracer
 from ..scene import MAX_SIDE, check_scene, load_scene
-from ..version import __version__
 from ..warp import frame as tangent_frame
 from . import lighting, store
 from .dask import bake_on_cluster
@@ -555,11 +554,7 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
                     collect(result)
         seconds = time.perf_counter() - t0
         header = {
-            "format": "wavlight-transfer", "version": store.FORMAT_VERSION, "wavlight": __version__,
-            "scene": {"path": None if scene.path == "<dict>" else os.path.abspath(scene.path),
-                      "content_hash": scene.content_hash},
-            "camera": {"eye": scene.camera.eye.tolist(), "target": scene.camera.target.tolist(),
-                       "up": scene.camera.up.tolist(), "fov_y": float(scene.camera.fov_y)},
+            **store.header_of(scene),
             "width": width, "height": height, "spp": spp, "seed": seed, "n_levels": n, "block": BLOCK,
             "texel_points": points,
             "blocks": [bw, bh], "bits": bits, "tolerance": tolerance, "terms": model["terms"],

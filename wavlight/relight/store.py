@@ -54,6 +54,7 @@ import zlib
 import numpy as np
 
 from ..errors import WavlightError
+from ..version import __version__
 
 MAGIC = b"WAVLIGHT-XFER\x00\x01\n"   # 16 bytes
 FORMAT_VERSION = 1
@@ -111,6 +112,18 @@ def compress_block(coeffs: np.ndarray, held_out: np.ndarray, tolerance: float, b
     approx = (q.astype(np.float64) * scales[:, None].astype(np.float64)).T @ lum[cols]
     diff = approx - exact
     return cols, scales, q, float(diff @ diff), float(exact @ exact)
+
+
+def header_of(scene) -> dict:
+    """The header's opening that every bake writes: the format and its version, wavlight's
+    version, the scene (its file, None for a dict, and content hash) and its camera."""
+
+    cam = scene.camera
+    return {"format": "wavlight-transfer", "version": FORMAT_VERSION, "wavlight": __version__,
+            "scene": {"path": None if scene.path == "<dict>" else os.path.abspath(scene.path),
+                      "content_hash": scene.content_hash},
+            "camera": {"eye": cam.eye.tolist(), "target": cam.target.tolist(), "up": cam.up.tolist(),
+                       "fov_y": float(cam.fov_y)}}
 
 
 class TransferWriter:

@@ -94,7 +94,6 @@ from ..haar.tree import HaarTree
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import Camera, check_scene, load_scene
-from ..version import __version__
 from ..warp import frame as tangent_frame
 from . import lighting, store
 from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choose_model, texel_rays, \
@@ -691,11 +690,7 @@ def bake_view(scene, output=None, levels=None, tolerance: float = 0.02, bits: in
                  "texel_points": points, "tolerance": tolerance, "bits": bits,
                  "compression_tolerance": tolerance / np.sqrt(3.0)}
         header = {
-            "format": "wavlight-transfer", "version": store.FORMAT_VERSION, "wavlight": __version__,
-            "scene": {"path": None if scene.path == "<dict>" else os.path.abspath(scene.path),
-                      "content_hash": scene.content_hash},
-            "camera": {"eye": scene.camera.eye.tolist(), "target": scene.camera.target.tolist(),
-                       "up": scene.camera.up.tolist(), "fov_y": float(scene.camera.fov_y)},
+            **store.header_of(scene),
             "width": scene.width, "height": scene.height, "spp": 1, "seed": seed, "n_levels": n, "block": BLOCK,
             "texel_points": points, "blocks": [n_blocks, 1], "bits": bits, "tolerance": tolerance, "terms": 4 ** n,
             "priority": "transfer", "environment_rotate_y": float(env.rotate_y), "environment_name": env.name,
