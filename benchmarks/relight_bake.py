@@ -17,7 +17,7 @@ pilot bake runs), 16 camera samples.
    occlusion, Haar transform, compression with quantization): where the time that is not rays
    goes (the OpenCL kernels use every core even here; the Haar transform is numpy's, as in the
    bake's blocks).
-4. The pilot bake alone (choose_model with levels, terms and priority left to it), timed apart.
+4. The pilot bakes alone (choose_model with spp, levels, terms and priority left to it), timed apart.
 
 Timing: waits for the 1-minute load average to fall below --wait-load (default 1.0, polling
 every 60 s for --wait-minutes, default 40), then runs anyway; the load is in the provenance.
@@ -155,8 +155,9 @@ def main():
     pilot = None
     if not args.no_pilot:
         t0 = time.perf_counter()
-        model = B.choose_model(scene, 0.02, min(args.spp, 4), 0)
-        pilot = {"seconds": round(time.perf_counter() - t0, 3), "n_levels": model["n_levels"], "terms": model["terms"],
+        model = B.choose_model(scene, 0.02, None, 0, width=args.size, height=args.size)
+        pilot = {"seconds": round(time.perf_counter() - t0, 3), "spp": model["spp"], "n_levels": model["n_levels"],
+                 "terms": model["terms"],
                  "priority": model["priority"], "pilot": model["pilot"]}
     size_target = {"seconds": bake["seconds"], "target_seconds": 180, "met": bool(bake["seconds"] <= 180)}
     print(f"bake {args.size}x{args.size}, {1 << n}x{1 << n} texels, {args.spp} spp: {bake['seconds']:.1f} s "

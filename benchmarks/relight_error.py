@@ -4,7 +4,8 @@ Scenes (benchmarks/relight_common.py): the bunny of scenes/bunny_ggx.toml (ggx 0
 floor) under st_fagans_interior_1k and under potsdamer_platz_1k, and the same bunny in lambert
 (albedo 0.7) on its floor under rooitou_park_1k (a diffuse object with hard shadows from the
 sun). Each scene is baked at its map's own rotation (0) with texel levels n in --levels and the
-automatic choice (levels, terms and priority from the pilot bake), at camera samples --bake-spp;
+automatic choice (levels, terms and priority from the pilot bake), at camera samples --bake-spp
+(auto: the pilot's choice too);
 its frames are made under three lightings none of the bakes saw: the map turned to each of
 --rotations (not the bake's held-out 137 degrees) and another map (the swap: st_fagans ->
 empty_warehouse_01, potsdamer -> kiara_1_dawn, rooitou -> immenstadter_horn), for every K in
@@ -43,16 +44,16 @@ lightings) against frame time, a line per (scene, n) at --chart-spp camera sampl
 winning priority, points labelled by K, the automatic choice starred. --chart-only measures
 nothing: it prints the tables of the result file (-o) and draws its chart again.
 
-    python benchmarks/relight_error.py [--size 128] [--ref-spp 2048] [--levels 5,6,7] [--bake-spp 4,16]
+    python benchmarks/relight_error.py [--size 128] [--ref-spp 2048] [--levels 5,6,7] [--bake-spp auto,16]
         [--terms 32,64,128,256,512,1024,2048,4096] [--priorities transfer,area,magnitude]
-        [--rotations 60,200] [--repeat 5] [--chart-spp 16] [--only SUBSTR] [--no-auto] [--no-reuse]
+        [--rotations 60,200] [--repeat 5] [--chart-spp auto] [--only SUBSTR] [--no-auto] [--no-reuse]
         [--no-chart] [--no-seed-pair] [--figure docs/figures/relight-error] [--wait-load 1.0]
         [--wait-minutes 0] [-o FILE]
     python benchmarks/relight_error.py --chart-only [-o FILE] [--figure STEM]
 
 The figures in benchmarks/results/relight_error.json come from
 
-    python benchmarks/relight_error.py --ref-spp 16384 --bake-spp 4,16,64 --wait-minutes 40
+    python benchmarks/relight_error.py --ref-spp 16384 --bake-spp auto,16,64
 """
 from __future__ import annotations
 
@@ -76,15 +77,20 @@ FIGURE = os.path.join(rc.ROOT, "docs", "figures", "relight-error")
 #: the result's tables: the speed-against-accuracy summary and the bakes
 SUMMARY_COLUMNS = ("scene", "bake", "bake_spp", "n", "K", "terms_used", "priority", "rel_l2", "rel_l2_max", "relmse", "h1",
                    "frame_seconds")
-BAKE_COLUMNS = ("scene", "bake", "bake_spp", "n", "terms", "priority", "bake_seconds", "pilot_seconds", "rays",
+BAKE_COLUMNS = ("scene", "bake", "bake_spp", "spp", "n", "terms", "priority", "bake_seconds", "pilot_seconds", "rays",
                 "rays_per_second", "file_bytes", "entries", "entries_full", "compression_error", "level_error",
-                "term_error", "bake_load_average", "cached")
+                "term_error", "noise", "predicted_error", "bake_load_average", "cached")
 #: what the result keeps of a reference's cache record
 REFERENCE_KEYS = ("spp", "seed", "size", "render_seconds", "wall_seconds", "load_average", "cached")
 
 
 def ints(text):
     return [int(x) for x in text.split(",") if x]
+
+
+def spp_labels(text):
+    """--bake-spp: camera samples, or "auto" (the bake's pilot chooses them)."""
+    return [x if x == "auto" else int(x) for x in text.split(",") if x]
 
 
 def frames(transfer, env, rot, terms, priority, repeat):
@@ -270,7 +276,8 @@ def main():
     ap.add_argument("--size", type=int, default=128, help="image width and height")
     ap.add_argument("--ref-spp", type=int, default=2048, help="samples per pixel of the mis references")
     ap.add_argument("--levels", default="5,6,7", help="texel levels n of the fixed-level bakes")
-    ap.add_argument("--bake-spp", default="4,16", help="camera samples of the bakes, comma-separated")
+    ap.add_argument("--bake-spp", default="auto,16",
+                    help="camera samples of the bakes, comma-separated; auto: the pilot's choice")
     ap.add_argument("--terms", default=",".join(map(str, TERMS)), help="the K of the frames")
     ap.add_argument("--priorities", default="transfer,area,magnitude", help="the terms' priorities")
     ap.add_argument("--rotations", default="60,200", help="rotate_y of the turned lightings (degrees)")
@@ -281,7 +288,8 @@ def main():
     ap.add_argument("--no-chart", action="store_true", help="write no chart")
     ap.add_argument("--chart-only", action="store_true",
                     help="measure nothing: print the tables of the result file (-o) and draw its chart")
-    ap.add_argument("--chart-spp", type=int, default=16, help="the bakes' camera samples the chart shows")
+    ap.add_argument("--chart-spp", type=lambda x: x if x == "auto" else int(x), default="auto",
+                    help="the bakes' camera samples the chart shows (a number or auto)")
     ap.add_argument("--no-seed-pair", action="store_true",
                     help="leave out the second bake (seed 1) of the automatic choice that measures the bake's noise")
     ap.add_argument("--figure", default=FIGURE, help="chart path without extension")
@@ -295,7 +303,7 @@ def main():
         return
     started = rc.begin(args)
 
-    levels, bake_spps, terms = ints(args.levels), ints(args.bake_spp), ints(args.terms)
+    levels, bake_spps, terms = ints(args.levels), spp_labels(args.bake_spp), ints(args.terms)
     priorities = [p for p in args.priorities.split(",") if p]
     rotations = [float(x) for x in args.rotations.split(",") if x]
     reuse = not args.no_reuse
@@ -322,20 +330,23 @@ def main():
         for spp in bake_spps:
             for bake_name, n in configs:
                 auto = n is None
-                transfer, info = rc.cached_bake(base, args.size, spp, levels=n, terms=None if auto else 256,
+                transfer, info = rc.cached_bake(base, args.size, None if spp == "auto" else spp, levels=n,
+                                                terms=None if auto else 256,
                                                 priority=None if auto else "area", reuse=reuse)
                 m = transfer.measured
-                bake_row = {"scene": scene_name, "bake": bake_name, "bake_spp": spp, "n": transfer.n_levels,
+                bake_row = {"scene": scene_name, "bake": bake_name, "bake_spp": spp, "spp": transfer.spp,
+                            "n": transfer.n_levels,
                             "terms": transfer.terms, "priority": transfer.priority,
                             "bake_seconds": m.get("bake_seconds"), "pilot_seconds": m.get("pilot_seconds"),
                             "rays": m.get("rays"), "rays_per_second": m.get("rays_per_second"),
                             "file_bytes": transfer.file_bytes, "entries": transfer.entries,
                             "entries_full": m.get("entries_full"), "compression_error": m.get("compression_error"),
                             "level_error": m.get("level_error"), "term_error": m.get("term_error"),
+                            "noise": m.get("noise"), "predicted_error": m.get("predicted_error"),
                             "pilot": m.get("pilot"), "bake_load_average": info.get("load_average"),
                             "cached": info["cached"]}
                 bakes.append(bake_row)
-                print(f"{scene_name} bake {bake_name} spp {spp}: n={transfer.n_levels} K={transfer.terms} "
+                print(f"{scene_name} bake {bake_name} spp {spp} ({transfer.spp}): n={transfer.n_levels} K={transfer.terms} "
                       f"{transfer.priority}, {m.get('bake_seconds')} s, {transfer.file_bytes / 1e6:.1f} MB"
                       f"{' (cached)' if info['cached'] else ''}", file=sys.stderr, flush=True)
                 envs = {None: None}
@@ -360,7 +371,7 @@ def main():
                     # the bake's own noise: the same model baked with another seed; the frames' difference
                     # has twice the variance of one bake's random error (camera samples, shadow rays,
                     # dithering), what is left of the error beyond it is bias (texels, terms, compression)
-                    other, _ = rc.cached_bake(base, args.size, spp, levels=transfer.n_levels, terms=transfer.terms,
+                    other, _ = rc.cached_bake(base, args.size, transfer.spp, levels=transfer.n_levels, terms=transfer.terms,
                                               priority=transfer.priority, seed=1, reuse=reuse)
                     for light_name, rot, env in lightings:
                         ref = refs[light_name][0]

@@ -23,17 +23,18 @@ from .progress import ProgressBar
 @click.option("-o", "--output", required=True, metavar="PATH", help="The bake file to write (any name).")
 @click.option("--width", type=int, default=None, help="Image width (default: the scene's).")
 @click.option("--height", type=int, default=None, help="Image height (default: the scene's).")
-@click.option("--spp", type=click.IntRange(1, 64), default=16, show_default=True,
-              help="Camera samples per pixel, stratified over the pixel (they share each texel's shadow ray).")
+@click.option("--spp", type=click.IntRange(1, 64), default=None,
+              help="Camera samples per pixel, stratified over the pixel (they share each texel's shadow ray). "
+                   "Default: the fewest of 16, 32, 64 whose noise meets half the tolerance, from two pilot bakes.")
 @click.option("--levels", type=click.IntRange(2, 8), default=None,
               help="Texels: 2^n x 2^n on the lat-long square. Default: the fewest that meet the tolerance, "
                    "from a pilot bake.")
 @click.option("--tolerance", type=click.FloatRange(1e-6, 1.0), default=0.02, show_default=True,
-              help="Relative error of frames against the unapproximated transfer, measured on a held-out "
-                   "rotation: shared by the texels' resolution, the terms and the compression.")
-@click.option("--points", type=click.Choice(["1", "4"]), default=None,
-              help="Points per texel where the BRDF is evaluated (1, or 2 x 2 strata). Default: 4 where a lobe "
-                   "is narrower than three texels, else 1.")
+              help="Relative L2 error of frames, measured on held-out rotations: shared by the bake's noise, "
+                   "the texels' resolution, the terms and the compression.")
+@click.option("--points", type=click.Choice(["1", "4", "16"]), default=None,
+              help="Points per texel where the BRDF is evaluated (1, 2 x 2 or 4 x 4 strata). Default: the fewest "
+                   "that put 16 point spacings across the narrowest lobe.")
 @click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
               help="Quantization of the stored coefficients.")
 @click.option("--terms", type=click.IntRange(1, 1 << 22), default=None,

@@ -13,18 +13,18 @@
  * material; wavlight/relight/bake.py): group j of pixel p at p S + j, of count[p] groups,
  * with its normal, mean view direction wo, material, weight c_j = (sum of its samples' albedo
  * ratios) / S and its members (sample indices members[first_j .. first_j + size_j - 1]).
- * The texel gets Q = TEXEL_POINTS points, 2 x 2 strata (or one point) uniform in solid angle
+ * The texel gets Q = TEXEL_POINTS points, g x g strata (g = 1, 2 or 4) uniform in solid angle
  * (u from col, cos theta from row) at one jitter (u0, u1) of Philox stream RNG_TEXEL at pair index first + g of tile
  * `tile`; f_jq = c_j f cos(point q; group j). One (j, q) is picked with probability
- * f_jq / sum f by one uniform u2 (reservoir sampling, u2 rescaled at each step), and the
+ * f_jq / sum f (reservoir sampling, step k's uniform step_uniform(key, k), key u2's 24 bits), and the
  * shadow ray goes from a member of group j chosen by u3 towards point q, with
  * weight = Omega_t sum f / Q: weight x V is an unbiased estimate of the pixel's mean over
  * its samples of the texel's Q-point quadrature of f cos V, exact where V is the same over
  * the texel and the pixel. A texel the BRDF does not reach gets weight 0 (no ray). */
 #ifndef TEXEL_POINTS
-#define TEXEL_POINTS 4   /* 4: 2 x 2 strata; 1: one point over the whole texel */
+#define TEXEL_POINTS 4   /* 16: 4 x 4 strata; 4: 2 x 2; 1: one point over the whole texel */
 #endif
-#define TEXEL_GRID (TEXEL_POINTS == 4 ? 2 : 1)
+#define TEXEL_GRID (TEXEL_POINTS == 16 ? 4 : (TEXEL_POINTS == 4 ? 2 : 1))
 __kernel void bake_texel_rays(const uint count, const uint first, const uint n_levels, const uint samples,
                               const uint tile, const uint k0, const uint k1, __global const uint *group_count,
                               __global const float *normal, __global const float *wo,
@@ -57,7 +57,9 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
         dy[q] = zz;
         dz[q] = -cp * sn;
     }
-    realv total = 0.0f, u = u2, px = dx[0], py = dy[0], pz = dz[0];
+    realv total = 0.0f, px = dx[0], py = dy[0], pz = dz[0];
+    const uintv key = convert_uintv(u2 * 16777216.0f);
+    uint step = 0u;
     uintv picked = (uintv)(p * samples);
     const uint groups = group_count[p];
     for (uint j = 0; j < groups; ++j) {
@@ -79,7 +81,10 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
             iz[q] = dx[q] * nx + dy[q] * ny + dz[q] * nz;
             above |= iz[q] > 0.0f;
         }
-        if (!any(above)) continue;   /* the texel lies below this group's horizon: f = 0 */
+        if (!any(above)) {           /* the texel lies below this group's horizon: f = 0 */
+            step += TEXEL_POINTS;    /* step k stays item j Q + q, as in the twin */
+            continue;
+        }
         for (int q = 0; q < TEXEL_POINTS; ++q) {
             realv fv = 0.0f, unused;
             /* the group's one material kind, as a constant: each branch keeps that BRDF alone */
@@ -93,12 +98,9 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
             if (kd == BSDF_GGX) bsdf_eval_pdf((intv)BSDF_GGX, pa, ix[q], iy[q], iz[q], ox, oy, oz, &fv, &unused);
 #endif
             fv = select(fv * c, (realv)0.0f, !(fv > 0.0f));
-            /* reservoir step: take (j, q) with probability fv / (total + fv), reusing u */
+            /* reservoir step: take (j, q) with probability fv / (total + fv) */
             const realv grown = total + fv;
-            const realv x = u * grown;
-            const intv take = x < fv;
-            u = select(select(u, (x - fv) / total, total > 0.0f), x / fv, take);
-            u = fmin(fmax(u, 0.0f), 0.99999994f);
+            const intv take = step_uniform(key, step++) * grown < fv;
             px = select(px, dx[q], take);
             py = select(py, dy[q], take);
             pz = select(pz, dz[q], take);

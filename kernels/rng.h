@@ -48,6 +48,20 @@ inline void rng_uniforms(const uintv index, const uint tile, const uint stream, 
     *u3 = word_to_unit(r3);
 }
 
+/* A uniform in [0, 1) for step `step` of a per-lane key (lowbias32, a 32-bit integer hash):
+ * fresh numbers for the steps of a weighted reservoir, where rescaling one uniform at each of
+ * many steps would spend its 24 bits. numpy twin: wavlight.rng.step_uniforms. */
+inline realv step_uniform(const uintv key, const uint step)
+{
+    uintv x = key + (uintv)(step * 0x9E3779B9u);
+    x ^= x >> 16;
+    x *= 0x7feb352du;
+    x ^= x >> 15;
+    x *= 0x846ca68bu;
+    x ^= x >> 16;
+    return word_to_unit(x);
+}
+
 /* a / d and a % d for a < 2^22 (and d >= 1) through one float division: (a + 0.5) / d
  * lies at least 0.5 / d from an integer and its rounding error is below that, so the
  * quotient is exact (a vector integer division would run lane by lane). */

@@ -33,6 +33,7 @@ typedef SIMD_CAT(int, LANES) intv;
 typedef SIMD_CAT(uint, LANES) uintv;
 #define convert_realv SIMD_CAT(convert_float, LANES)
 #define convert_intv SIMD_CAT(convert_int, LANES)
+#define convert_uintv SIMD_CAT(convert_uint, LANES)
 #define as_uintv SIMD_CAT(as_uint, LANES)
 #define as_intv SIMD_CAT(as_int, LANES)
 #define as_realv SIMD_CAT(as_float, LANES)

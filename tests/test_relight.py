@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import wavlight
+from wavlight import bsdfs
 from scenes_util import write_raw_image
 from wavlight import haar
 from wavlight.envmap import Environment
@@ -54,13 +55,14 @@ def shadowed(maps, device):
 
 
 # ----------------------------------------------------------------------------- kernels and twins
-def test_texel_rays_kernel_equals_its_twin(shadowed):
+@pytest.mark.parametrize("points", bake_mod.POINT_CHOICES)
+def test_texel_rays_kernel_equals_its_twin(shadowed, points):
     scene, _ = shadowed
     tracer = RayTracer(scene.vertices, scene.faces)
     ps = bake_mod.camera_samples(scene, tracer, 16, 16, 0, 0, 16, 8, 4, 5, 3)
     assert (ps.count >= 1).any() and ps.miss.any()       # hits, groups and misses in the tile
-    d, w, pick = bake_mod.texel_rays(ps, 4, 5, 3)
-    d2, w2, pick2 = bake_mod.texel_rays_reference(ps, 4, 5, 3)
+    d, w, pick = bake_mod.texel_rays(ps, 4, 5, 3, points=points)
+    d2, w2, pick2 = bake_mod.texel_rays_reference(ps, 4, 5, 3, points=points)
     np.testing.assert_allclose(w, w2, rtol=2e-3, atol=1e-7 * w2.max())
     live = w2 > 0
     agree = (pick == pick2) & (np.abs(d - d2).max(1) < 1e-4)
@@ -248,3 +250,55 @@ def test_lighting_priorities_and_terms():
     with pytest.raises(WavlightError):
         lighting.select_terms(c, 10, "transfer")          # needs the transfer's rms
     assert len(lighting.select_terms(np.zeros((3, 8, 8)), 10, "area")) == 0
+
+
+# ----------------------------------------------------------------------------- the pilot's choices
+def test_texel_points_follow_the_lobe():
+    """Coarser texels and narrower lobes get at least as many points per texel; a lobe spanning
+    LOBE_SPACINGS point spacings or more at one point per texel keeps one."""
+    def scene_of(kind, roughness):   # what texel_points reads of a scene: its materials
+        from types import SimpleNamespace
+        code = {"lambert": bsdfs.LAMBERT, "ggx": bsdfs.GGX}[kind]
+        return SimpleNamespace(materials=[SimpleNamespace(kind=code, param=roughness or 0.0)])
+    for scene in (scene_of("lambert", None), scene_of("ggx", 0.3), scene_of("ggx", 0.05)):
+        pts = [bake_mod.texel_points(scene, n) for n in range(8, 1, -1)]
+        assert pts == sorted(pts) and set(pts) <= set(bake_mod.POINT_CHOICES)
+        lobe = min(bake_mod.lobe_width(m.kind, m.param) for m in scene.materials)
+        for n, q in zip(range(8, 1, -1), pts):
+            spacing = np.pi / (1 << n) / bake_mod.POINT_GRID[q]
+            assert spacing * bake_mod.LOBE_SPACINGS <= lobe or q == 16
+            if q > 1:   # one grid step fewer would not have been enough
+                assert 2 * spacing * bake_mod.LOBE_SPACINGS > lobe
+    narrow = [bake_mod.texel_points(scene_of("ggx", 0.05), n) for n in range(8, 1, -1)]
+    wide = [bake_mod.texel_points(scene_of("lambert", None), n) for n in range(8, 1, -1)]
+    assert all(a >= b for a, b in zip(narrow, wide))
+
+
+def test_the_pilot_meets_its_own_criteria(maps, device):
+    """The pilot's choices: n the fewest levels whose bias and noise fit half the tolerance
+    (else the least of them), S the fewest samples keeping them there, K the fewest terms within
+    the margin of the share; a looser tolerance never asks for more levels; given values are kept."""
+    scene = wavlight.load_dict(sphere_on_floor({"file": "sky.exr", "rotate_y": 20.0}), base_dir=maps)
+    chosen = []
+    for tol in (0.5, 0.05, 0.005):
+        m = bake_mod.choose_model(scene, tol, None, 0, width=16, height=16)
+        p = m["pilot"]
+        n, S, K = m["n_levels"], m["spp"], m["terms"]
+        bias = {int(k): v for k, v in p["level_error"].items()}
+        noise = {int(k): v for k, v in p["noise_at_pilot_spp"].items()}
+        assert p["spp"] == bake_mod.MAX_SAMPLES and S in bake_mod.SPP_CHOICES
+        both = {k: np.hypot(bias[k], bake_mod.NOISE_MARGIN * noise[k]) for k in noise}
+        fits = [k for k, e in both.items() if e <= tol / 2 + 1e-5]
+        assert n == (min(fits) if fits else min(both, key=both.get))
+        bound = lambda s: np.hypot(bias[n], bake_mod.NOISE_MARGIN * noise[n] * np.sqrt(64 / s))   # noqa: E731
+        ok = [s for s in bake_mod.SPP_CHOICES if bound(s) <= tol / 2 + 1e-5]
+        assert S == (ok[0] if ok else bake_mod.SPP_CHOICES[-1])
+        assert p["noise"] == pytest.approx(noise[n] * np.sqrt(64 / S), rel=1e-3, abs=1e-5)
+        terms = {int(k): v for k, v in p["term_error"].items()}
+        within = [k for k, e in terms.items() if e <= m["share"] * bake_mod.TERM_MARGIN + 1e-5]
+        assert K == (within[0] if within else max(terms))
+        chosen.append((S, n, K))
+    levels = [n for _, n, _ in chosen]
+    assert levels == sorted(levels)                          # a tighter tolerance never takes fewer levels
+    kept = bake_mod.choose_model(scene, 0.05, 8, 0, levels=4, width=16, height=16)
+    assert kept["spp"] == 8 and kept["n_levels"] == 4 and kept["pilot"]["spp"] == 8

@@ -61,6 +61,18 @@ def uniforms(seed: int, tile: int, stream: int, first: int, count: int) -> np.nd
     return (words(seed, tile, stream, first, count) >> np.uint32(8)).astype(np.float32) * np.float32(2.0 ** -24)
 
 
+def step_uniforms(key: np.ndarray, step: int) -> np.ndarray:
+    """numpy twin of kernels/rng.h step_uniform: float32 uniforms of step ``step`` for the
+    uint32 ``key`` of each lane (lowbias32 of key + step * 0x9E3779B9)."""
+    x = (key.astype(np.uint64) + np.uint64((step * 0x9E3779B9) & 0xFFFFFFFF)) & _MASK
+    x ^= x >> np.uint64(16)
+    x = (x * np.uint64(0x7FEB352D)) & _MASK
+    x ^= x >> np.uint64(15)
+    x = (x * np.uint64(0x846CA68B)) & _MASK
+    x ^= x >> np.uint64(16)
+    return (x >> np.uint64(8)).astype(np.float32) * np.float32(2.0 ** -24)
+
+
 class Stream(NamedTuple):
     """The sampler's numbers of one pass of a tile: samples first, first + 1, ... of tile
     ``tile`` of a render with seed ``seed``; with ``k`` > 0 (the ``stratified`` sampler) the

@@ -96,13 +96,19 @@ def camera_jitter(seed: int, tile: int, pixels: int, samples: int) -> np.ndarray
     return rng.Stream(seed, tile, 0, samples).uniforms(rng.JITTER, pixels * samples)[:, :2]
 
 
-def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, seed: int, tile: int) -> PixelSamples:
+def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, seed: int, tile: int,
+                   at=None) -> PixelSamples:
     """S jittered camera samples per pixel of the w x h tile at (x0, y0), traced to their hits
-    and grouped by pixel and triangle."""
+    and grouped by pixel and triangle. ``at`` = (columns, rows): the image column of each of
+    the tile's columns x0 + i and the image row of each row y0 + j (a sparse grid of the
+    width x height image's own pixels, as the pilot bake takes them); default the tile itself."""
     P, S = w * h, samples
     count = P * S
     pix = np.arange(P)
-    px, py = np.repeat(x0 + pix % w, S), np.repeat(y0 + pix // w, S)
+    px, py = x0 + pix % w, y0 + pix // w
+    if at is not None:
+        px, py = np.asarray(at[0])[px], np.asarray(at[1])[py]
+    px, py = np.repeat(px, S), np.repeat(py, S)
     eye, d = camera_rays(scene, px, py, camera_jitter(seed, tile, P, S), width, height)
     prim, t = tracer.intersect(eye, d)
     hit = prim >= 0
@@ -155,10 +161,11 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
                         origin, albedo, mask, d)
 
 
-#: points per texel where f cos is evaluated (kernels/relight.cl TEXEL_POINTS): 4 (2 x 2 strata) or 1
-POINT_CHOICES = (1, 4)
-#: a BRDF lobe narrower than this many texels (in theta) gets four points per texel
-NARROW_LOBE_TEXELS = 3.0
+#: points per texel where f cos is evaluated (kernels/relight.cl TEXEL_POINTS): g x g strata
+POINT_CHOICES = (1, 4, 16)
+POINT_GRID = {1: 1, 4: 2, 16: 4}
+#: the points of a texel put at least this many point spacings across the narrowest BRDF lobe
+LOBE_SPACINGS = 16
 
 
 def lobe_width(kind: int, param: float) -> float:
@@ -173,18 +180,24 @@ def lobe_width(kind: int, param: float) -> float:
 
 
 def texel_points(scene, n_levels: int) -> int:
-    """Points per texel a scene needs: four where a lobe is narrower than NARROW_LOBE_TEXELS
-    texels (f cos then varies inside one), one otherwise."""
+    """Points per texel a scene needs at 2^n x 2^n texels: g x g, the fewest (g = 1, 2, 4) whose
+    spacing puts LOBE_SPACINGS of them across the scene's narrowest lobe (at most 16). The
+    point's jitter is the texel integral's noise; a coarser texel gets more points, so that
+    the noise is about that of the finer texels it sums (the pilot measures those)."""
     texel = np.pi / (1 << n_levels)
-    narrow = [lobe_width(m.kind, m.param) < NARROW_LOBE_TEXELS * texel for m in scene.materials]
-    return 4 if any(narrow) else 1
+    lobe = min((lobe_width(m.kind, m.param) for m in scene.materials), default=np.pi / 2)
+    for grid in (1, 2, 4):   # three choices
+        if texel / grid * LOBE_SPACINGS <= lobe:
+            return grid * grid
+    return 16
 
 
 def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, first: int = 0,
                          count: int | None = None, points: int = 4):
     """numpy twin of ``bake_texel_rays``: directions (C, 3), weights (C,) and the picked samples
     (C,) of pairs first .. first + C - 1 (float64; the kernel's float32 agrees to rounding and
-    picks the same point unless a reservoir step lies within rounding of its threshold)."""
+    picks the same point unless a reservoir step lies within rounding of its threshold; each
+    step draws its own uniform, :func:`wavlight.rng.step_uniforms`)."""
     side, S = 1 << n_levels, ps.samples
     count = len(ps) * side * side - first if count is None else count
     g = np.arange(first, first + count, dtype=np.int64)
@@ -193,14 +206,15 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
     u = rng.uniforms(seed, tile, TEXEL_STREAM, first, count).astype(np.float64)
     z0, z1 = np.cos(np.pi * row / side), np.cos(np.pi * (row + 1) / side)
     directions = []
-    grid = 2 if points == 4 else 1
+    grid = POINT_GRID[points]
     for q in range(points):   # the texel's strata, not pairs
         uu = (col + ((q % grid) + u[:, 0]) / grid) / side
         zz = z0 + ((q // grid) + u[:, 1]) / grid * (z1 - z0)
         sn = np.sqrt(np.maximum(1.0 - zz * zz, 0.0))
         directions.append(np.stack([np.sin(2 * np.pi * uu) * sn, zz, -np.cos(2 * np.pi * uu) * sn], 1))
     total = np.zeros(count)
-    r = u[:, 2].copy()
+    key = (u[:, 2].astype(np.float64) * 2.0 ** 24).astype(np.uint32)
+    step = 0
     pick_dir = directions[0].copy()
     picked = p * S
     groups = ps.count[p]
@@ -220,11 +234,8 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
                 f[sel] = bsdfs.eval_cos(int(kd), param[sel], wi[sel], wo[sel])
             f = np.where(on & np.isfinite(f) & (f > 0), f * c, 0.0)
             grown = total + f
-            x = r * grown
-            take = x < f
-            with np.errstate(divide="ignore", invalid="ignore"):
-                r = np.where(take, x / np.where(f > 0, f, 1.0), np.where(total > 0, (x - f) / np.where(total > 0, total, 1.0), r))
-            r = np.clip(r, 0.0, 1.0 - 2.0 ** -24)
+            take = rng.step_uniforms(key, step).astype(np.float64) * grown < f
+            step += 1
             pick_dir = np.where(take[:, None], d, pick_dir)
             picked = np.where(take, gj, picked)
             total = grown
@@ -368,73 +379,157 @@ def bake_block_task(task: dict) -> dict:
     return bake_block(worker, task["settings"], task["tile"])
 
 
-#: the pilot bake that chooses texel levels, terms and priority: this many pixels on its longer
-#: side, at most PILOT_LEVELS texel levels
+#: the pilot bake that chooses camera samples, texel levels, terms and priority: this many of
+#: the image's pixels on its longer side (a regular grid of them), at most PILOT_LEVELS texel
+#: levels, two bakes with different seeds at the bake's camera samples (MAX_SAMPLES where the
+#: pilot chooses them) measure the noise
 PILOT_SIDE = 32
 PILOT_LEVELS = 7
 TERM_CHOICES = (32, 64, 128, 256, 512, 1024, 2048, 4096)
+#: camera samples per pixel a bake chooses among (the miss mask holds MAX_SAMPLES)
+SPP_CHOICES = (16, 32, 64)
+#: the held-out lightings the pilot measures terms on: the scene's map turned by these degrees
+HELD_OUT_TURNS = (HELD_OUT_DEGREES, HELD_OUT_DEGREES + 120.0, HELD_OUT_DEGREES + 240.0)
+#: the pilot's K keeps its term error within this part of its share, and its n and S count the
+#: noise at this many times its measure: another map needs more terms than turns of the baked
+#: one, and its bright spots raise the noise (docs/decisions/relight-model-choice.md)
+TERM_MARGIN = 0.5
+NOISE_MARGIN = float(np.sqrt(2.0))
 
 
-def choose_model(scene, tolerance: float, spp: int, seed: int, levels=None, terms=None, priority=None,
-                 backend: str = "opencl") -> dict:
-    """The texel levels n, the terms K and their priority a scene needs for ``tolerance``, from
-    a pilot bake of PILOT_SIDE pixels at 2^PILOT_LEVELS texels, measured on the held-out
-    rotation: n, the smallest whose frame is within tolerance / sqrt(3) of the finest (texels
-    summed 2 x 2 are exact coarser texels); K, the fewest (of TERM_CHOICES) within tolerance /
-    sqrt(3) of all terms, by the priority with the lower error at K = 256. Given values are
-    kept. Returns the choices and the errors measured."""
-    if levels is not None and terms is not None and priority is not None:   # nothing left to choose
-        return {"n_levels": int(levels), "terms": int(terms), "priority": priority, "pilot": None}
-    share = tolerance / np.sqrt(3.0)
-    env = scene.environment
-    aspect = scene.width / scene.height
-    pw, ph = (PILOT_SIDE, max(1, round(PILOT_SIDE / aspect))) if aspect >= 1 else (max(1, round(PILOT_SIDE * aspect)), PILOT_SIDE)
-    top = PILOT_LEVELS if levels is None else levels
-    worker = _Worker(scene)
-    tiles, _ = _tiles(pw, ph)
-    rot = env.rotate_y + HELD_OUT_DEGREES
+def pilot_grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(columns, rows): the image's pixels the pilot bakes, about PILOT_SIDE on the longer side,
+    spread evenly over the image (pixels of the bake's own size, so that their sub-pixel
+    variance is the bake's)."""
+    aspect = width / height
+    pw, ph = (PILOT_SIDE, max(1, round(PILOT_SIDE / aspect))) if aspect >= 1 else (max(1, round(PILOT_SIDE * aspect)),
+                                                                                 PILOT_SIDE)
+    pw, ph = min(pw, width), min(ph, height)
+    return (((np.arange(pw) + 0.5) * width / pw).astype(np.int64),
+            ((np.arange(ph) + 0.5) * height / ph).astype(np.int64))
+
+
+def _pilot_transfer(scene, worker, grid, width, height, spp, seed, top, backend) -> np.ndarray:
+    """(P, 2^top, 2^top) float64: the pilot pixels' texels, baked with ``seed``."""
+    tiles, _ = _tiles(len(grid[0]), len(grid[1]))
     texels = []
     for tile in tiles:   # a few blocks, not pixels
         _, x0, y0, w, h = tile
-        ps = camera_samples(scene, worker.tracer, pw, ph, x0, y0, w, h, spp, seed + 1, tile[0])
-        texels.append(tile_transfer(ps, worker.tracer, top, seed + 1, tile[0], backend, worker.kinds,
+        ps = camera_samples(scene, worker.tracer, width, height, x0, y0, w, h, spp, seed, tile[0], at=grid)
+        texels.append(tile_transfer(ps, worker.tracer, top, seed, tile[0], backend, worker.kinds,
                                     texel_points(scene, top))[0])
-    T = np.concatenate(texels).astype(np.float64)                     # (P, 2^top, 2^top)
+    return np.concatenate(texels).astype(np.float64)
+
+
+def _relative(a: np.ndarray, b: np.ndarray, norm: float) -> float:
+    return float(np.linalg.norm(a - b) / norm) if norm > 0 else 0.0
+
+
+def choose_model(scene, tolerance: float, spp, seed: int, levels=None, terms=None, priority=None,
+                 backend: str = "opencl", width=None, height=None) -> dict:
+    """The camera samples S, texel levels n, terms K and their priority a scene needs for
+    ``tolerance`` (a relative L2 error of frames), from pilot bakes of the image's own pixels
+    (:func:`pilot_grid`) at 2^PILOT_LEVELS texels and coarser, measured under held-out
+    lightings (the map turned by HELD_OUT_TURNS). The error has four parts that add in
+    quadrature:
+
+    - the texels' bias: ||f_n - f_top|| + ||f_(top-1) - f_top|| (texels summed 2 x 2 are exact
+      coarser texels; the second term bounds the finest pilot's own, as the differences halve
+      per level);
+    - the bake's noise at n: two pilots with different seeds at level n measure it, at ``spp``
+      or, where S is chosen, at MAX_SAMPLES; its variance is a / S + b (b: the texels' shadow
+      rays, one per pixel and texel whatever S), so at S <= MAX_SAMPLES it is at most
+      sqrt(MAX_SAMPLES / S) times that;
+    - the terms: the error of K terms against all, on the worst held-out lighting;
+    - the compression of the bake's blocks.
+
+    n is the fewest levels whose bias and noise (times NOISE_MARGIN) are within tolerance / 2
+    together (else the least of them), S the fewest of SPP_CHOICES that keeps them there (else
+    the most); the rest,
+    sqrt((tolerance^2 - bias^2 - noise^2) / 2) (at least tolerance / 4), is the share of the
+    compression and of the terms: K, the fewest of TERM_CHOICES within TERM_MARGIN of it, by
+    the priority with the lower error at K = 256. Given values are kept. Returns the choices, the share
+    and the errors measured."""
+    if spp is not None and levels is not None and terms is not None and priority is not None:
+        return {"spp": int(spp), "n_levels": int(levels), "terms": int(terms), "priority": priority,
+                "share": tolerance / np.sqrt(3.0), "pilot": None}
+    env = scene.environment
+    width = scene.width if width is None else width
+    height = scene.height if height is None else height
+    grid = pilot_grid(width, height)
+    top = PILOT_LEVELS if levels is None else levels
+    worker = _Worker(scene)
+    pilot_spp = MAX_SAMPLES if spp is None else int(spp)
     lum = LUMINANCE.astype(np.float64)
-    frames, level_error = {}, {}
+    rot = env.rotate_y + HELD_OUT_TURNS[0]
+    held = {m: lighting.project(env, m, rot) @ lum for m in range(top, 3, -1)}
+
+    def pair(m):
+        """The two pilots' frames at level m under the held-out lighting, their transfer's mean."""
+        a, b = (_pilot_transfer(scene, worker, grid, width, height, pilot_spp, seed + k, m, backend) for k in (1, 2))
+        return np.einsum("pij,ij->p", a, held[m]), np.einsum("pij,ij->p", b, held[m]), (a + b) / 2
+
+    def noise_of(f1, f2):   # one pilot's: the two differ by sqrt(2) of it
+        return _relative(f1, f2, np.linalg.norm((f1 + f2) / 2)) / np.sqrt(2.0)
+
+    f1, f2, T = pair(top)
+    noise_at = {top: noise_of(f1, f2)}
+    frames = {}
     for n in range(top, 3, -1):   # levels, not pixels
         k = 1 << (top - n)
-        Tn = T.reshape(len(T), 1 << n, k, 1 << n, k).sum(axis=(2, 4))
-        Ln = lighting.project(env, n, rot) @ lum
-        frames[n] = np.einsum("pij,ij->p", Tn, Ln)
-    ref = frames[top]
-    norm = np.linalg.norm(ref)
-    for n, f in frames.items():
-        level_error[n] = float(np.linalg.norm(f - ref) / norm) if norm > 0 else 0.0
-    n = levels if levels is not None else min(k for k, e in level_error.items() if e <= share)
+        frames[n] = np.einsum("pij,ij->p", T.reshape(len(T), 1 << n, k, 1 << n, k).sum(axis=(2, 4)), held[n])
+    norm = np.linalg.norm(frames[top])
+    raw = {n: _relative(f, frames[top], norm) for n, f in frames.items()}
+    bias = {n: e + raw.get(top - 1, 0.0) for n, e in raw.items()}
+    joint = tolerance / 2.0
+    if levels is not None:
+        n = levels
+    else:
+        for m in range(top - 1, 3, -1):   # coarser levels while their bias leaves room, a few
+            if bias[m] > joint:
+                break
+            g1, g2, _ = pair(m)
+            noise_at[m] = noise_of(g1, g2)
+        both = {m: float(np.hypot(bias[m], NOISE_MARGIN * noise_at[m])) for m in noise_at}
+        fits = [m for m, e in both.items() if e <= joint]
+        n = min(fits) if fits else min(both, key=both.get)
+    if spp is None:
+        fits = [s for s in SPP_CHOICES
+                if np.hypot(bias[n], NOISE_MARGIN * noise_at[n] * np.sqrt(pilot_spp / s)) <= joint]
+        spp = fits[0] if fits else SPP_CHOICES[-1]
+    noise = noise_at[n] * float(np.sqrt(pilot_spp / spp))
+    share = float(np.sqrt(max(tolerance ** 2 - bias[n] ** 2 - noise ** 2, tolerance ** 2 / 8) / 2.0))
     k = 1 << (top - n)
     Tn = T.reshape(len(T), 1 << n, k, 1 << n, k).sum(axis=(2, 4))
     coeffs_t = haar.forward(Tn).reshape(len(T), -1)                      # (P, 4^n)
     rms = np.sqrt((coeffs_t ** 2).mean(0))
-    L = lighting.coefficients(lighting.project(env, n, rot))              # (3, N, N)
-    full = coeffs_t @ (np.tensordot(lum, L, axes=1).ravel() * 4.0 ** n)
-    fnorm = np.linalg.norm(full)
+    lights = [lighting.coefficients(lighting.project(env, n, env.rotate_y + turn))
+              for turn in HELD_OUT_TURNS]                                 # (3, N, N) each
+    lums = [np.tensordot(lum, L, axes=1).ravel() * 4.0 ** n for L in lights]
+    fulls = [coeffs_t @ L for L in lums]
 
     def error(kk, pr):
-        cols = lighting.select_terms(L, kk, pr, rms)
-        part = coeffs_t[:, cols] @ (np.tensordot(lum, L, axes=1).ravel()[cols] * 4.0 ** n)
-        return float(np.linalg.norm(part - full) / fnorm) if fnorm > 0 else 0.0
+        worst = 0.0
+        for L, L_lum, full in zip(lights, lums, fulls):   # the held-out lightings, a few
+            cols = lighting.select_terms(L, kk, pr, rms)
+            worst = max(worst, _relative(coeffs_t[:, cols] @ L_lum[cols], full, np.linalg.norm(full)))
+        return worst
 
     if priority is None:
         priority = min(("transfer", "area"), key=lambda pr: (error(256, pr), pr != "transfer"))
     term_error = {kk: error(kk, priority) for kk in TERM_CHOICES if kk <= 4 ** n}
     if terms is None:
-        fits = [kk for kk, e in term_error.items() if e <= share]
+        fits = [kk for kk, e in term_error.items() if e <= share * TERM_MARGIN]
         terms = fits[0] if fits else max(term_error)
-    return {"n_levels": int(n), "terms": int(terms), "priority": priority,
-            "pilot": {"size": [pw, ph], "levels": top, "held_out_rotate_y": rot,
-                      "level_error": {str(k): round(v, 5) for k, v in level_error.items()},
-                      "term_error": {str(k): round(v, 5) for k, v in term_error.items()}}}
+    predicted = float(np.sqrt(noise ** 2 + bias[n] ** 2 + term_error.get(terms, 0.0) ** 2 + share ** 2))
+    return {"spp": int(spp), "n_levels": int(n), "terms": int(terms), "priority": priority, "share": share,
+            "pilot": {"size": [len(grid[0]), len(grid[1])], "levels": top, "spp": pilot_spp,
+                      "held_out_rotate_y": [float(env.rotate_y + t) for t in HELD_OUT_TURNS],
+                      "noise": round(noise, 5),
+                      "noise_at_pilot_spp": {str(m): round(float(v), 5) for m, v in noise_at.items()},
+                      "level_error": {str(m): round(v, 5) for m, v in bias.items()},
+                      "term_error": {str(m): round(v, 5) for m, v in term_error.items()},
+                      "predicted_error": round(predicted, 5)}}
 
 
 #: the factors a bake of per-pixel transfer varies (a bake that varies the view: relight/view.py)
@@ -445,7 +540,7 @@ OBJECT_PRODUCT_LEVELS = 4
 STATIC_SPP = 256
 
 
-def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None, tolerance: float = 0.02,
+def bake(scene, output=None, width=None, height=None, spp=None, levels=None, tolerance: float = 0.02,
          bits: int = 8, terms=None, priority=None, seed: int = 0, threads=None, progress=None,
          backend: str = "opencl", dask_address=None, points=None, vary: str = "lighting", object=None,
          static_spp: int = STATIC_SPP):
@@ -453,9 +548,10 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     (default: the scene's) with ``spp`` camera samples per pixel; write it to ``output``
     (default: a temporary file the Transfer owns) and return the :class:`Transfer`.
 
-    The texel levels (2^n x 2^n), the default terms K and their priority are chosen from the
-    scene for ``tolerance`` by a pilot bake (:func:`choose_model`) unless given; each block is
-    compressed to ``tolerance`` / sqrt(3) on the held-out lighting and quantized to ``bits``.
+    The camera samples, the texel levels (2^n x 2^n), the default terms K and their priority
+    are chosen from the scene for ``tolerance`` by pilot bakes (:func:`choose_model`) unless
+    given; each block is compressed to the share of the tolerance the pilot leaves it (on the
+    held-out lighting) and quantized to ``bits``.
     ``points`` per texel (1 or 4) default to :func:`texel_points`.
 
     ``vary="object"`` with ``object`` (a name or an index) bakes for frames in which that object
@@ -474,7 +570,8 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     check_scene(scene)
     width = check_int(where, "width", scene.width if width is None else width, 1, MAX_SIDE)
     height = check_int(where, "height", scene.height if height is None else height, 1, MAX_SIDE)
-    spp = check_int(where, "spp", spp, 1, MAX_SAMPLES)
+    if spp is not None:
+        spp = check_int(where, "spp", spp, 1, MAX_SAMPLES)
     if levels is not None:
         levels = check_int(where, "levels", levels, 2, 8)
     if terms is not None:
@@ -486,7 +583,7 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
         raise ArgumentError(f"{where}: bits must be 8 or 16, got {bits!r}")
     seed = check_int(where, "seed", seed, 0, 2 ** 62)
     if points is not None and points not in POINT_CHOICES:
-        raise ArgumentError(f"{where}: points must be 1 or 4, got {points!r}")
+        raise ArgumentError(f"{where}: points must be one of {', '.join(map(str, POINT_CHOICES))}, got {points!r}")
     if vary not in PIXEL_VARY:
         raise ArgumentError(f"{where}: vary must be one of {' | '.join(PIXEL_VARY)}, got {shown(vary)}")
     if scene.environment.is_black:
@@ -503,12 +600,12 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
     if dask_address is not None and scene.path == "<dict>":
         raise ArgumentError(f"{where}: a bake on a Dask cluster needs the scene as a file (its workers load it)")
     t0 = time.perf_counter()
-    model = choose_model(scene, tolerance, min(spp, 4), seed, levels, terms, priority, backend)
-    n = model["n_levels"]
+    model = choose_model(scene, tolerance, spp, seed, levels, terms, priority, backend, width, height)
+    n, spp = model["n_levels"], model["spp"]
     env = scene.environment
     held = lighting.coefficients(lighting.project(env, n, env.rotate_y + HELD_OUT_DEGREES)).reshape(3, -1).T
     points = texel_points(scene, n) if points is None else points
-    settings = Settings(width, height, spp, n, tolerance / np.sqrt(3.0), bits, held * float(4 ** n), seed, backend,
+    settings = Settings(width, height, spp, n, model["share"], bits, held * float(4 ** n), seed, backend,
                         points)
     if moving is not None:
         settings.product_levels = min(OBJECT_PRODUCT_LEVELS, n)
@@ -566,6 +663,8 @@ def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None
                          "held_out_rotate_y": float(env.rotate_y + HELD_OUT_DEGREES),
                          "compression_error": (float(np.sqrt(totals["error2"] / totals["norm2"]))
                                                if totals["norm2"] > 0 else 0.0),
+                         "noise": (model["pilot"] or {}).get("noise"),
+                         "predicted_error": (model["pilot"] or {}).get("predicted_error"),
                          "level_error": (model["pilot"] or {}).get("level_error", {}).get(str(n)),
                          "term_error": (model["pilot"] or {}).get("term_error", {}).get(str(model["terms"])),
                          "entries": writer.entries, "entries_full": side2 * bw * bh, "pilot": model["pilot"]},
