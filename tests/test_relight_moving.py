@@ -111,3 +111,74 @@ def test_the_pixels_shaded_in_full_are_fewer_than_the_cone_gives(moving):
     ball = slice(*moved.objects[0].faces_range)
     on_ball = (prim >= ball.start) & (prim < ball.stop)
     assert on_ball.any() and np.all(marked[(py * 32 + px)[on_ball]])
+
+
+@pytest.mark.parametrize("material", ["floor", "m"])
+def test_the_mixture_kernel_matches_its_numpy_twin(moving, material):
+    """kernels/relight_moving.cl moving_directions against mixture_samples_reference, on the same
+    camera rays and Philox numbers: the floor as it is (lambert) and made ggx (the ball's
+    material). float32 against float64 moves a direction across a leaf's or a texel's edge now
+    and then: such samples are few, and the means agree."""
+    import dataclasses
+
+    from wavlight import rng
+    from wavlight.relight import moving as mv
+
+    _, scene, tr = moving
+    mover = MovingObject(tr, scene)
+    rest = mover.rest
+    index = [m.name for m in scene.materials].index(material)
+    rest = dataclasses.replace(rest, face_material=np.full_like(rest.face_material, index))
+    kernel = mv._MixtureKernel(rest, mover.rest_tracer, mover.inside, mover._shader, mover.m)
+    spp, seed, tile = 4, 7, 321
+    cam = mover._camera(0, 0, tr.width * tr.height, spp, seed)
+    slots = np.flatnonzero(cam.prim >= 0)
+    trees, offset = mover._product_trees(0, tr.width * tr.height)
+    got = kernel(scene.camera.eye, cam.d[slots], cam.prim[slots], cam.t[slots], slots, trees, offset, spp, seed, tile)
+    u = rng.uniforms(seed, tile, mv.DIRECTION_STREAM, 0, tr.width * tr.height * spp)
+    want = mv.mixture_samples_reference(rest, mover.rest_tracer, mover.environment, mover.inside, trees,
+                                        cam.d[slots], cam.prim[slots], cam.t[slots], slots, spp, u)
+    np.testing.assert_allclose(got[:, :3], want[:, :3], rtol=0, atol=1e-5)        # shadow-ray origins
+    same_dir = np.abs(got[:, 3:6] - want[:, 3:6]).max(1) < 1e-3
+    close = np.abs(got[:, 6:] - want[:, 6:]).max(1) <= 2e-3 * np.abs(want[:, 6:]).max(1) + 1e-6
+    assert same_dir.mean() > 0.995 and (same_dir & close).mean() > 0.99, (same_dir.mean(), close.mean())
+    assert (want[:, 6:].max(1) > 0).mean() > 0.5
+    mean_got, mean_want = got[:, 6:].mean(0), want[:, 6:].mean(0)
+    se = want[:, 6:].std(0) / np.sqrt(len(want))
+    assert np.all(np.abs(mean_got - mean_want) < 0.5 * se + 1e-6), (mean_got, mean_want, se)
+
+
+@pytest.mark.parametrize("chunks", ["one", "rows", "rows, own trees"])
+def test_the_kernel_frame_matches_the_numpy_frame(moving, monkeypatch, chunks):
+    """The same frame (same random numbers) with the kernels and with their numpy twins (whose
+    trees are each chunk's own); also in chunks of 8 rows, the kernel reading the whole image's
+    trees, or each chunk's own (the path of images too large to keep every pixel's tree)."""
+    from wavlight.relight import moving as mv
+
+    folder, scene, tr = moving
+    if chunks != "one":
+        monkeypatch.setattr(mv, "CHUNK_SAMPLES", tr.width * 8 * 8)
+    if chunks == "rows, own trees":
+        monkeypatch.setattr(mv, "TREE_CACHE_BYTES", 0)
+    translate, rotate = (0.9, 0.5, -0.5), [0.0, 1.0, 0.0, 30.0]
+    a = MovingObject(tr, scene).frame(translate, rotate, spp=8, seed=5)
+    b = MovingObject(tr, scene, backend="numpy").frame(translate, rotate, spp=8, seed=5)
+    assert a.stats["object_pixels"] == b.stats["object_pixels"] > 0
+    diff = np.abs(a.image - b.image).max(2)
+    assert (diff > 1e-3 * (1 + np.abs(b.image).max(2))).mean() < 0.03, diff.max()
+    var = (b.stderr ** 2).sum()
+    assert abs((a.image - b.image).sum()) < 0.5 * np.sqrt(var)
+
+
+def test_frames_of_one_seed_share_their_samples(moving):
+    """A second frame of the seed and spp reuses the camera rays and mixture samples, and gives
+    what a fresh MovingObject gives at that place."""
+    _, scene, tr = moving
+    mover = MovingObject(tr, scene)
+    mover.frame((0.0, 0.5, 0.0), spp=4, seed=3)
+    kept = mover._chunks[0]
+    mover.frame((0.5, 0.5, 0.0), spp=1, seed=3)          # the viewer's other spp keeps them too
+    again = mover.frame((0.9, 0.5, -0.5), spp=4, seed=3)
+    assert mover._chunks[0] is kept
+    fresh = MovingObject(tr, scene).frame((0.9, 0.5, -0.5), spp=4, seed=3)
+    np.testing.assert_array_equal(again.image, fresh.image)

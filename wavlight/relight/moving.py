@@ -13,65 +13,180 @@ render (``static``, S_p). With the object placed anew, a pixel's radiance is
 x a camera sample in the pixel. D is what the object takes away; it is estimated per sample
 (eq. 12's bidirectional estimator, with the visibility of the rest inside the sampled product:
 its noise is O_j's): a direction from the pixel's product T1 x L (the coarse texel by the
-hierarchical warp, then inside it the lighting's own resolution) or, with probability 0.1, from
-the BSDF; where it meets the object (traced against the object alone, in its own frame, so
-nothing is rebuilt per frame) and not the rest, D gets f cos L / p. A sample whose tangent plane
-has the object's bounding sphere wholly below it has D = 0 exactly, and a direction that misses
-the sphere needs no ray.
+hierarchical warp, eq. 17-22, then inside it the lighting's own resolution) or, with
+probability 0.1, from the BSDF, with the mixture's density; where it meets the object (traced
+against the object alone, in its own frame, so nothing is rebuilt per frame) and not the rest,
+D gets f cos L / p. A direction that misses the object's bounding sphere needs no ray (D = 0
+there exactly). The directions and their contributions do not depend on the object's place:
+kernels/relight_moving.cl computes them (numpy twin :func:`mixture_samples_reference`), and
+they are kept, with the camera rays, for the next frames of the same seed and spp (the viewer
+draws every frame with seed 0), so that a frame of a new place traces only the object.
 
 Pixels whose footprint may see the object itself (the cone of the pixel meets the object's
-bounding sphere; decided from the object's place alone, not from random samples, so that the
-choice does not bias the estimate) are rendered in full with ``mis`` (the existing strategy,
-:func:`wavlight.strategies.shade_reference`) against the moved scene. Every frame is unbiased:
-tests/test_relight_moving.py checks it against ``mis`` of the moved scene.
+bounding sphere and the pixel lies in the box of a projected triangle; decided from the
+object's place alone, not from random samples, so that the choice does not bias the estimate)
+are rendered in full with ``mis`` (the existing strategy: its shade kernel,
+:class:`wavlight.shading.KernelShader`, twin :func:`wavlight.strategies.shade_reference`)
+against the moved scene. Every frame is unbiased: tests/test_relight_moving.py checks it
+against ``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator with the
+numpy twins (same random numbers).
 """
 from __future__ import annotations
 
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
+from types import SimpleNamespace
 
 import numpy as np
 
-from .. import rng, strategies
+from .. import camera, cl, raytrace, rng, strategies
 from ..camera import camera_rays, project
 from ..envmap import Environment
 from ..errors import ArgumentError, WavlightError, check_int, check_real
-from ..haar.tree import HaarTree
+from ..haar.tree import HaarTree, tree_stride
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import rotation
+from ..shading import KernelShader
 from ..warp import frame as tangent_frame
 from .bake import camera_jitter
 from .converge import _scene_of, _TexelLight, mixture_directions
 
 #: Philox streams of a moving-object frame: camera jitter per chunk, direction uniforms, MIS
 FRAME_STREAM, DIRECTION_STREAM, MIS_STREAM = 11, 12, 13
-#: pixels per chunk (memory stays bounded at any size)
-CHUNK_PIXELS = 1 << 14
+#: a chunk is whole rows of the image: at most this many pixels and camera samples (memory
+#: stays bounded at any size; a row of more samples is one chunk)
+CHUNK_PIXELS = 1 << 16
+CHUNK_SAMPLES = 1 << 18
 #: the per-pixel product trees kept from frame to frame (device memory, about 1.4 kB a pixel
 #: at 16 x 16 texels: a 256 x 256 image's whole)
 TREE_CACHE_BYTES = 256 << 20
 DEFENSIVE = 0.1
+BACKENDS = ("opencl", "numpy")
+#: the bounding-sphere test of a direction keeps those within this relative margin (float32
+#: rounding of the points and directions: the test must never drop a direction that meets it)
+SPHERE_MARGIN = 1e-4
+#: frames of this many (seed, spp) keep their camera rays and mixture samples for the next ones
+KEPT_SEEDS = 2
+_WARMED = set()
 
 
-def _unit(v):
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+def mixture_samples_reference(scene, tracer, environment, inside, trees, d, prim, t, slots, spp: int, u_all,
+                              defensive: float = DEFENSIVE) -> np.ndarray:
+    """numpy twin of the ``moving_directions`` kernel (kernels/relight_moving.cl): for camera
+    rays from ``scene``'s eye along d (N, 3) that hit ``tracer``'s triangles prim (N,) at t (N,),
+    samples ``slots`` (N,) of a chunk of spp per pixel (pixel slot // spp's product tree in
+    ``trees``, uniforms ``u_all[slot]``): rows (N, 9) of the shadow-ray origin, the direction of
+    the defensive mixture (:func:`wavlight.relight.converge.mixture_directions`; the BSDF alone
+    where the pixel's product is 0) and its unoccluded contribution albedo f cos L / p."""
+    eye = scene.camera.eye
+    nrm, _, origin = tracer.surface(eye, np.asarray(d, np.float32), np.asarray(t, np.float32), prim)
+    nrm = nrm.astype(np.float64)
+    s_ax, t_ax = tangent_frame(nrm)
+    wo_w = -np.asarray(d, np.float64)
+    wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, nrm)], 1)
+    mat = scene.face_material[prim]
+    kind, param = scene.material_kind[mat], scene.material_param[mat]
+    has = trees.integral[np.asarray(slots) // spp] > 0
+    alpha = np.where(has, defensive, 1.0)
+    direction, weight = mixture_directions(trees, inside, u_all, np.asarray(slots), spp, has, alpha, kind, param, wo,
+                                           (s_ax, t_ax, nrm))
+    value = scene.material_albedo[mat] * (weight[:, None] * environment.eval(direction))
+    return np.concatenate([origin.astype(np.float64), direction, value], 1)
+
+
+class _MixtureKernel:
+    """The ``moving_directions`` kernel with its tables: the rest's face normals (and shadow-ray
+    offset floors) and materials, the lighting inside the texels (running sums of each texel's
+    leaf masses, float32) and the environment's texels (shared with the mis shader)."""
+
+    def __init__(self, rest, tracer, inside, shader, n_levels):
+        rows = np.zeros((max(len(tracer.face_normals), 1), 4), np.float32)
+        rows[:len(tracer.face_normals), :3] = tracer.face_normals
+        rows[:len(tracer.face_normals), 3] = tracer.face_offset_floor
+        materials = rest.face_material if len(rest.face_material) else np.zeros(1, np.int32)
+        self.faces = cl.to_device(rows)
+        self.face_material = cl.to_device(np.asarray(materials, np.int32))
+        albedo = np.zeros((len(rest.materials), 4), np.float32)
+        albedo[:, :3] = rest.material_albedo
+        self.kind = cl.to_device(rest.material_kind.astype(np.int32))
+        self.param = cl.to_device(rest.material_param.astype(np.float32))
+        self.albedo = cl.to_device(albedo)
+        self.cdf = cl.to_device(np.ascontiguousarray(inside.cdf, np.float32))
+        self.k = np.uint32(inside.k)
+        self.shader = shader
+        kinds = int(np.bitwise_or.reduce(1 << np.asarray(rest.material_kind, np.int64), initial=0)) or 1
+        self.program = cl.program("relight_moving.cl", N_LEVELS=int(n_levels), BSDF_KINDS=kinds,
+                                  OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))))
+
+    def __call__(self, eye, d, prim, t, slots, trees, tree_offset: int, spp: int, seed: int, tile: int):
+        """(N, 9) float32 rows as :func:`mixture_samples_reference` returns them, the uniforms
+        drawn in the kernel (Philox stream DIRECTION_STREAM of ``tile``, index = slot), pixel
+        slot // spp's tree at ``tree_offset`` + that in ``trees``."""
+        count = len(d)
+        if count == 0:
+            return np.zeros((0, 9), np.float32)
+        q = cl.thread_queue()
+        out = cl.scratch("moving_out", 36 * count)
+        sh = self.shader
+        cl.kernel(self.program, "moving_directions")(
+            q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count),
+            cl.upload("moving_slot", np.asarray(slots, np.uint32), q), cl.upload("moving_dirs", np.asarray(d, np.float32), q),
+            cl.upload("moving_prim", np.asarray(prim, np.int32), q), cl.upload("moving_t", np.asarray(t, np.float32), q),
+            *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
+            self.kind, self.param, self.albedo, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
+            np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
+            np.uint32(tile), np.uint32(DIRECTION_STREAM), *(np.uint32(x) for x in rng.key(seed)), out)
+        return np.ascontiguousarray(cl.read(out, (9, count), np.float32, q).T)
+
+    def warm_up(self, eye, trees):
+        """A tiny and a large launch (PoCL compiles per work-group size and again for large grids;
+        shading.KernelShader.warm_up), once per process and program."""
+        if self.program in _WARMED:
+            return
+        for count in (1, 1 << 16):
+            d = np.tile(np.float32([0.0, 0.0, 1.0]), (count, 1))
+            self(eye, d, np.zeros(count, np.int32), np.ones(count, np.float32), np.zeros(count, np.uint32), trees,
+                 0, 1, 0, 0)
+        _WARMED.add(self.program)
+
+
+class _Chunk:
+    """What a chunk's frames of one seed and spp share: its camera rays and their hits on the
+    rest, and the mixture samples (rows of :func:`mixture_samples_reference`) of the camera
+    samples computed so far (``done``)."""
+
+    def __init__(self, d, prim, t):
+        self.d, self.prim, self.t = d, prim, t
+        self.samples = np.zeros((len(d), 9), np.float32)
+        self.done = np.zeros(len(d), bool)
 
 
 class MovingObject:
     """The moving object's frames for one bake: the scene (checked against the bake), the tracers
-    of the rest and of the object (in its own frame), the lighting, and the per-pixel products."""
+    of the rest and of the object (in its own frame), the lighting, the per-pixel products and,
+    with ``backend="opencl"``, the kernels (module docstring)."""
 
-    def __init__(self, transfer, scene=None):
+    def __init__(self, transfer, scene=None, backend: str = "opencl"):
         if transfer.header.get("vary") != "object":
             raise WavlightError(f"{transfer.path}: this bake varies the {transfer.header.get('vary', 'lighting')}, "
                                 "not an object")
-        self.transfer = transfer
+        if backend not in BACKENDS:
+            raise ArgumentError(f"relight.moving: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+        self.transfer, self.backend = transfer, backend
         self.scene = _scene_of(transfer, scene)
         info = transfer.header["object"]
         self.object = self.scene.find_object(info["index"])
         self.rest = self.scene.without(self.object)
         self.rest_tracer = RayTracer(self.rest.vertices, self.rest.faces, threads=2)
         self.object_tracer = RayTracer(self.object.local, self.object.faces, threads=2)
+        self._faces = tuple(np.ascontiguousarray(self.object.faces[:, j], np.int64) for j in range(3))
+        # the rest's face normals and materials (a row without faces: never read)
+        self._rest_normals = np.zeros((max(self.rest_tracer.n_faces, 1), 3), np.float32)
+        self._rest_normals[:self.rest_tracer.n_faces] = self.rest_tracer.face_normals
+        self._rest_material = np.zeros(max(self.rest_tracer.n_faces, 1), np.int64)
+        self._rest_material[:self.rest_tracer.n_faces] = self.rest.face_material
         self.center, self.radius = np.asarray(info["center"], np.float64), float(info["radius"])
         env = transfer.environment()
         rot = transfer.scene_rotate_y
@@ -80,11 +195,27 @@ class MovingObject:
         self.inside = _TexelLight(env, self.m, rot)
         self.mis = strategies.make("mis")
         self.mis.prepare(self.environment)
+        sc = self.scene
+        self._materials = SimpleNamespace(kind=sc.material_kind, param=sc.material_param,
+                                          albedo=sc.material_albedo.astype(np.float64))
         self.static = np.asarray(transfer._s["static"], np.float64)
         self.static_se = np.asarray(transfer._s["static_stderr"], np.float64)
+        self._static_rows = self.static.reshape(-1, 3)
+        self._static_var = self.static_se.reshape(-1, 3) ** 2
         self.leaves = transfer._s["product_leaves"]
-        self._trees, self._tree_bytes = {}, 0
+        self._trees, self._tree_bytes, self._all_trees = {}, 0, None
         self._centre_rays = (None, None)
+        self._mask_key, self._mask = None, None
+        self._kept, self._chunks = {}, {}   # (seed, spp) -> the chunks' shared samples; this frame's
+        self._shader = self._kernel = None
+        self._pool, self._lock = ThreadPoolExecutor(1), threading.Lock()
+        if backend == "opencl":
+            lit = SimpleNamespace(environment=self.environment, material_kind=sc.material_kind,
+                                  material_param=sc.material_param, material_albedo=sc.material_albedo,
+                                  materials=sc.materials, face_material=sc.face_material)
+            self._shader = KernelShader(lit, self.mis)
+            self._kernel = _MixtureKernel(self.rest, self.rest_tracer, self.inside, self._shader, self.m)
+            self._kernel.warm_up(sc.camera.eye, HaarTree(np.ones((1, 1 << self.m, 1 << self.m), np.float32)))
 
     # -- the object's place
     def placement(self, translate=None, rotate=None):
@@ -105,27 +236,37 @@ class MovingObject:
         """(H, W) bool: the pixels a camera sample of which may see the object: those whose
         footprint's cone meets the object's bounding sphere and lies in the bounding box of one of
         its triangles' projections (grown by a pixel), a test of the place alone, conservative
-        (every pixel one of whose samples could hit the object is in it)."""
+        (every pixel one of whose samples could hit the object is in it). Kept for the next
+        frame at the same place."""
+        key = (width, height, np.asarray(R, np.float64).tobytes(), np.asarray(T, np.float64).tobytes())
+        if key == self._mask_key:
+            return self._mask
         near = self._sphere_pixels(R, T, width, height)
         xy, depth = project(self.scene.camera, self.object.local @ R.T + T, width, height)
-        if not near.any() or not np.all(depth > 0):   # a vertex behind the eye: the cone test alone
-            return near
+        if near.any() and np.all(depth > 0):   # (a vertex behind the eye: the cone test alone)
+            near = near & self._boxes(xy, width, height)
+        self._mask_key, self._mask = key, near
+        return near
+
+    def _boxes(self, xy, width, height):
+        """(H, W) bool: the union of the boxes of the triangles whose vertices project to xy
+        (V, 2), each grown by a pixel."""
         # each vertex's pixel (clipped just outside the image: the boxes' overlaps stay the same)
-        cell = np.floor(np.clip(xy, -2.0, [width + 2.0, height + 2.0])).astype(np.int64)
-        f = self.object.faces
-        a, b, c = cell[f[:, 0]], cell[f[:, 1]], cell[f[:, 2]]
-        lo = np.minimum(np.minimum(a, b), c) - 1
-        hi = np.maximum(np.maximum(a, b), c) + 1
-        keep = (hi[:, 0] >= 0) & (hi[:, 1] >= 0) & (lo[:, 0] < width) & (lo[:, 1] < height)
-        lo = np.maximum(lo[keep], 0)
-        hi = np.minimum(hi[keep], [width - 1, height - 1])
+        cx = np.floor(np.clip(xy[:, 0], -2.0, width + 2.0)).astype(np.int32)
+        cy = np.floor(np.clip(xy[:, 1], -2.0, height + 2.0)).astype(np.int32)
+        f0, f1, f2 = self._faces
+        x0, x1, x2, y0, y1, y2 = cx[f0], cx[f1], cx[f2], cy[f0], cy[f1], cy[f2]
+        lo_x, hi_x = np.minimum(np.minimum(x0, x1), x2) - 1, np.maximum(np.maximum(x0, x1), x2) + 1
+        lo_y, hi_y = np.minimum(np.minimum(y0, y1), y2) - 1, np.maximum(np.maximum(y0, y1), y2) + 1
+        keep = (hi_x >= 0) & (hi_y >= 0) & (lo_x < width) & (lo_y < height)
+        lo_x, lo_y = np.maximum(lo_x[keep], 0), np.maximum(lo_y[keep], 0)
+        hi_x, hi_y = np.minimum(hi_x[keep], width - 1) + 1, np.minimum(hi_y[keep], height - 1) + 1
         # the union of the boxes: +1 at each box's first corner, -1 past its edges, summed up
-        row, col = np.concatenate([lo[:, 1], lo[:, 1], hi[:, 1] + 1, hi[:, 1] + 1]), \
-            np.concatenate([lo[:, 0], hi[:, 0] + 1, lo[:, 0], hi[:, 0] + 1])
-        sign = np.repeat([1.0, -1.0, -1.0, 1.0], len(lo))
-        marks = np.bincount(row * (width + 1) + col, sign, (height + 1) * (width + 1)).reshape(height + 1, width + 1)
-        boxes = marks.cumsum(0).cumsum(1)[:height, :width] > 0.5
-        return near & boxes
+        w1, size = width + 1, (height + 1) * (width + 1)
+        plus = np.bincount(np.concatenate([lo_y * w1 + lo_x, hi_y * w1 + hi_x]), minlength=size)
+        minus = np.bincount(np.concatenate([lo_y * w1 + hi_x, hi_y * w1 + lo_x]), minlength=size)
+        marks = (plus - minus).reshape(height + 1, w1)
+        return marks.cumsum(0).cumsum(1)[:height, :width] > 0
 
     def _sphere_pixels(self, R, T, width, height):
         """(H, W) bool: the pixels whose footprint's cone meets the object's bounding sphere."""
@@ -143,182 +284,236 @@ class MovingObject:
         half = np.arcsin(min(self.radius / dist, 1.0))
         # the pixel's own half-diagonal angle, from the vertical field of view
         pixel = np.radians(cam.fov_y) / height * 0.75
-        angle = np.arccos(np.clip(d @ (to / dist), -1.0, 1.0))
-        return (angle <= half + pixel).reshape(height, width)
+        return (d @ (to / dist) >= np.cos(min(half + pixel, np.pi))).reshape(height, width)
 
     def _trace_object(self, R, T, origins, dirs, closest=False):
-        """Rays against the object alone, in its own frame (rigid: distances are kept)."""
-        o = (np.asarray(origins, np.float64) - T) @ R
-        d = np.asarray(dirs, np.float64) @ R
+        """Rays against the object alone, in its own frame (rigid: distances are kept); origins
+        (N, 3), or (3,) for one origin of all rays."""
+        d = (np.asarray(dirs, np.float64) @ R).astype(np.float32)
+        o = ((np.asarray(origins, np.float64) - T) @ R).astype(np.float32)
+        o = np.broadcast_to(o, d.shape) if o.ndim == 1 else o
         if closest:
-            return self.object_tracer.intersect(o.astype(np.float32), d.astype(np.float32))
-        return self.object_tracer.occluded(o.astype(np.float32), d.astype(np.float32))
+            return self.object_tracer.intersect(o, d)
+        return self.object_tracer.occluded(o, d)
+
+    def _meets_sphere(self, R, T, origins, dirs):
+        """(N,) bool: the rays from origins along unit dirs (N, 3) that meet the object's bounding
+        sphere (grown by SPHERE_MARGIN), the only ones that can meet the object."""
+        c = R @ self.center + T
+        to = c - np.asarray(origins, np.float64)
+        tc = np.einsum("ij,ij->i", to, np.asarray(dirs, np.float64))
+        r = self.radius * (1.0 + SPHERE_MARGIN)
+        return (tc > -r) & (np.einsum("ij,ij->i", to, to) - tc * tc <= r * r + SPHERE_MARGIN * tc * tc)
 
     # -- a frame
     def frame(self, translate=None, rotate=None, spp: int = 4, seed: int = 0) -> RenderResult:
-        """The unbiased frame with the object at its new place (module docstring)."""
+        """The unbiased frame with the object at its new place (module docstring). One frame at a
+        time (the frames share what they keep)."""
         spp = check_int("relight.moving", "spp", spp, 1, 1 << 16)
         seed = check_int("relight.moving", "seed", seed, 0, 2 ** 62)
         R, T = self.placement(translate, rotate)
+        with self._lock:
+            return self._frame(R, T, spp, seed)
+
+    def _frame(self, R, T, spp, seed):
         t0 = time.perf_counter()
         tr = self.transfer
         width, height = tr.width, tr.height
         touched = self._object_pixels(R, T, width, height).reshape(-1)
+        # the camera rays and samples of the last KEPT_SEEDS (seed, spp) (the viewer's seed 0 at its
+        # two spp: while dragging and at rest)
+        self._chunks = self._kept.pop((seed, spp), None) or {}
+        self._kept[(seed, spp)] = self._chunks
+        while len(self._kept) > KEPT_SEEDS:
+            self._kept.pop(next(iter(self._kept)))
         image = np.zeros((width * height, 3))
         error = np.zeros((width * height, 3))
         rays = 0
-        for chunk, first in enumerate(range(0, width * height, CHUNK_PIXELS)):   # chunks of pixels
-            pixels = np.arange(first, min(first + CHUNK_PIXELS, width * height))
-            value, mean_var, n_rays = self._chunk(R, T, pixels, touched[pixels], spp, seed, chunk)
+        rows = max(1, min(CHUNK_PIXELS // width, CHUNK_SAMPLES // (width * spp)))
+        for chunk, y0 in enumerate(range(0, height, rows)):   # chunks of whole rows
+            first, last = y0 * width, min(y0 + rows, height) * width
+            value, n_rays = self._chunk(R, T, touched, first, last, spp, seed, chunk)
             rays += n_rays
-            mean = value.mean(1)
-            var = value.var(1, ddof=1) / spp if spp > 1 else np.full_like(mean, np.inf)
-            image[pixels], error[pixels] = mean, np.sqrt(var + mean_var)
+            v = value.reshape(last - first, spp, 3)
+            image[first:last] = v.mean(1)
+            if spp > 1:
+                var = v.var(1, ddof=1) / spp + np.where(touched[first:last, None], 0.0, self._static_var[first:last])
+                error[first:last] = np.sqrt(var)
+            else:
+                error[first:last] = np.inf
         seconds = time.perf_counter() - t0
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
-                 "rays": rays, "object_pixels": int(touched.sum()),
+                 "rays": rays, "object_pixels": int(touched.sum()), "backend": self.backend,
                  "translate": T.tolist(), "estimator": "static image minus the object's occlusion D"}
         return RenderResult(image.reshape(height, width, 3).astype(np.float32),
                             error.reshape(height, width, 3).astype(np.float32), stats)
 
-    def _chunk(self, R, T, pixels, touched, spp, seed, chunk):
-        """(values (P, S, 3) per sample, the variance each pixel's static part adds (P, 3), rays)."""
+    def _camera(self, chunk, first, last, spp, seed):
+        """The chunk's camera rays (whole rows first .. last - 1 of the image, spp jittered samples
+        per pixel, stratified: Philox stream JITTER of tile FRAME_STREAM 65536 + chunk) and their
+        hits on the rest, kept for the next frames of the seed and spp."""
+        kept = self._chunks.get(chunk)
+        if kept is not None:
+            return kept
         tr, scene = self.transfer, self.scene
         width, height = tr.width, tr.height
-        P = len(pixels)
-        px, py = np.repeat(pixels % width, spp), np.repeat(pixels // width, spp)
-        eye, d = camera_rays(scene, px, py, camera_jitter(seed, FRAME_STREAM * 65536 + chunk, P, spp), width, height)
-        d64 = d.astype(np.float64)
-        prim_r, t_r = self.rest_tracer.intersect(eye, d)
-        rays = len(d)
-        full = np.repeat(touched, spp)                       # samples of pixels rendered in full
-        value = np.zeros((P * spp, 3))
-        # pixels that may see the object: mis against the moved scene
-        if full.any():
-            idx = np.flatnonzero(full)
-            value[idx], r = self._full(R, T, eye[idx], d[idx], prim_r[idx], t_r[idx], seed, chunk)
-            rays += r
+        P = last - first
+        tile = FRAME_STREAM * 65536 + chunk
+        if self.backend == "opencl" and P * spp < camera.MAX_PASS_RAYS:
+            d = camera.pass_rays(scene, width, height, seed, tile, 0, first // width, width, P // width, spp, 0,
+                                 stratified=True)
+        else:   # the same jitters in numpy
+            pixels = np.arange(first, last)
+            d = camera_rays(scene, np.repeat(pixels % width, spp), np.repeat(pixels // width, spp),
+                            camera_jitter(seed, tile, P, spp), width, height)[1]
+        eye = np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape)
+        prim, t = self.rest_tracer.intersect(eye, d)
+        kept = self._chunks[chunk] = _Chunk(d, prim, t)
+        return kept
+
+    def _chunk(self, R, T, touched, first, last, spp, seed, chunk):
+        """(values (P S, 3) per sample of the chunk's pixels first .. last - 1, rays)."""
+        cam = self._camera(chunk, first, last, spp, seed)
+        P = last - first
+        touched = touched[first:last]
+        full = np.repeat(touched, spp) if spp > 1 else touched   # samples of pixels rendered in full
+        static = self._static_rows[first:last]
+        value = np.repeat(static, spp, axis=0) if spp > 1 else static.copy()
+        rays = P * spp
+        # pixels that may see the object: mis against the moved scene, on a second thread (numpy,
+        # embree and OpenCL release the GIL: one part's numpy overlaps the other's rays and
+        # kernels; measured 38 against 48 ms a preview frame at 256 x 256 on 2 cores)
+        idx = np.flatnonzero(full)
+        pending = None
+        if len(idx):
+            pending = self._pool.submit(self._full, R, T, cam.d[idx], cam.prim[idx], cam.t[idx], seed, chunk)
         # the others: S_p minus the object's occlusion D at each sample
-        rest = np.flatnonzero(~full & (prim_r >= 0))
-        mean_var = np.zeros((P, 3))
+        rest = np.flatnonzero(~full & (cam.prim >= 0))
         if len(rest):
-            D, r = self._occlusion(R, T, eye, d64, prim_r, t_r, rest, pixels, spp, seed, chunk)
+            D, r = self._occlusion(R, T, cam, rest, first, last, spp, seed, chunk)
             rays += r
-            value[rest] = -D
-        static = np.repeat(self.static.reshape(-1, 3)[pixels], spp, axis=0)
-        value[~full] += static[~full]
-        mean_var[~touched] = self.static_se.reshape(-1, 3)[pixels][~touched] ** 2
-        return value.reshape(P, spp, 3), mean_var, rays
+            value[rest] -= D
+        if pending is not None:
+            value[idx], r = pending.result()
+            rays += r
+        return value, rays
 
-    def _product_trees(self, chunk, pixels):
-        """The HaarTree of the chunk's pixels' products T1 x L and each pixel's total: they do not
-        depend on the object's place, so they are kept for the next frames while they fit in
-        TREE_CACHE_BYTES (larger images rebuild the chunks beyond)."""
-        if chunk in self._trees:
-            return self._trees[chunk]
-        leaves = np.asarray(self.leaves[pixels], np.float32).reshape(len(pixels), 1 << self.m, 1 << self.m)
-        made = HaarTree(np.maximum(leaves, 0.0)), leaves.reshape(len(pixels), -1).sum(1)
-        size = 4 * made[0].n_trees * made[0].stride
+    def _product_trees(self, first, last):
+        """(HaarTree of the products T1 x L, index of pixel ``first``'s tree in it): one tree per
+        pixel; they do not depend on the object's place, so they are kept for the next frames
+        (the whole image's in one HaarTree where it fits in TREE_CACHE_BYTES, else the chunks'
+        while they fit; larger images rebuild the chunks beyond)."""
+        side = 1 << self.m
+        n_pixels = self.transfer.width * self.transfer.height
+        whole = self.backend == "opencl" and 4 * n_pixels * tree_stride(self.m) <= TREE_CACHE_BYTES
+        if whole:
+            if self._all_trees is None:
+                leaves = np.asarray(self.leaves[:n_pixels], np.float32).reshape(n_pixels, side, side)
+                self._all_trees = HaarTree(np.maximum(leaves, 0.0))
+            return self._all_trees, first
+        key = (first, last)
+        if key in self._trees:
+            return self._trees[key], 0
+        leaves = np.asarray(self.leaves[first:last], np.float32).reshape(last - first, side, side)
+        made = HaarTree(np.maximum(leaves, 0.0))
+        size = 4 * made.n_trees * made.stride
         if self._tree_bytes + size <= TREE_CACHE_BYTES:
-            self._trees[chunk] = made
+            self._trees[key] = made
             self._tree_bytes += size
-        return made
+        return made, 0
 
-    def _occlusion(self, R, T, eye, d, prim, t, rest, pixels, spp, seed, chunk):
-        """D (len(rest), 3) at the samples ``rest`` (which hit the rest of the scene)."""
-        sc = self.rest
-        n_all, p_all, origin_all = self.rest_tracer.surface(sc.camera.eye, d[rest].astype(np.float32),
-                                                            t[rest], prim[rest])
-        nrm, x = n_all.astype(np.float64), p_all.astype(np.float64)
-        center = R @ self.center + T
-        to = center - x
-        dist = np.linalg.norm(to, axis=1)
-        # the object's bounding sphere wholly below the tangent plane: D = 0 exactly
-        live = np.flatnonzero(np.einsum("ij,ij->i", to, nrm) > -self.radius)
+    def _mixture_samples(self, cam, todo, first, last, spp, seed, chunk):
+        """Rows (len(todo), 9) of the mixture samples of the chunk's camera samples ``todo``
+        (origin, direction, albedo f cos L / p): the kernel, or its numpy twin."""
+        trees, offset = self._product_trees(first, last)
+        tile = FRAME_STREAM * 65536 + chunk
+        if self.backend == "opencl":
+            return self._kernel(self.scene.camera.eye, cam.d[todo], cam.prim[todo], cam.t[todo], todo, trees, offset,
+                                spp, seed, tile)
+        u = rng.uniforms(seed, tile, DIRECTION_STREAM, 0, (last - first) * spp)
+        return mixture_samples_reference(self.rest, self.rest_tracer, self.environment, self.inside, trees,
+                                         cam.d[todo], cam.prim[todo], cam.t[todo], todo, spp, u)
+
+    def _occlusion(self, R, T, cam, rest, first, last, spp, seed, chunk):
+        """D (len(rest), 3) at the chunk's samples ``rest`` (which hit the rest of the scene)."""
+        todo = rest[~cam.done[rest]]
+        if len(todo):   # samples not drawn in an earlier frame of this seed
+            cam.samples[todo] = self._mixture_samples(cam, todo, first, last, spp, seed, chunk)
+            cam.done[todo] = True
+        s = cam.samples[rest]
+        origin, direction, value = s[:, :3], s[:, 3:6], s[:, 6:]
         D = np.zeros((len(rest), 3))
+        cand = np.flatnonzero((value.max(1) > 0) & self._meets_sphere(R, T, origin, direction))
         rays = 0
-        if not len(live):
-            return D, rays
-        s_ax, t_ax = tangent_frame(nrm[live])
-        n = nrm[live]
-        wo_w = -d[rest][live]
-        wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, n)], 1)
-        mat = sc.face_material[prim[rest][live]]
-        kind, param, albedo = sc.material_kind[mat], sc.material_param[mat], sc.material_albedo[mat]
-        # each sample's pixel's product tree (chunk-local trees, one per pixel)
-        local_pixel = (rest[live] // spp)
-        trees, pixel_mass = self._product_trees(chunk, pixels)
-        mass = pixel_mass[local_pixel]
-        u = rng.uniforms(seed, FRAME_STREAM * 65536 + chunk, DIRECTION_STREAM, 0, len(pixels) * spp)
-        alpha = np.where(mass > 0, DEFENSIVE, 1.0)
-        direction, weight = mixture_directions(trees, self.inside, u, rest[live], spp, mass > 0, alpha, kind, param,
-                                               wo, (s_ax, t_ax, n))
-        # only directions that meet the bounding sphere can meet the object
-        tc = np.einsum("ij,ij->i", to[live], direction)
-        miss_dist2 = dist[live] ** 2 - tc ** 2
-        meets = (weight > 0) & (tc > -self.radius) & (miss_dist2 <= self.radius ** 2)
-        cand = np.flatnonzero(meets)
-        origin = origin_all[live]
         if len(cand):
             blocked = self._trace_object(R, T, origin[cand], direction[cand])
             rays += len(cand)
             hit = cand[blocked]
             if len(hit):
-                rest_blocked = self.rest_tracer.occluded(origin[hit], direction[hit].astype(np.float32))
+                rest_blocked = self.rest_tracer.occluded(origin[hit], direction[hit])
                 rays += len(hit)
                 hit = hit[~rest_blocked]
-                radiance = self.environment.eval(direction[hit])
-                D[live[hit]] = albedo[hit] * (weight[hit][:, None] * radiance)
+                D[hit] = value[hit]
         return D, rays
 
-    def _full(self, R, T, eye, d, prim_r, t_r, seed, chunk):
+    def _full(self, R, T, d, prim_r, t_r, seed, chunk):
         """mis against the moved scene for samples of pixels that may see the object."""
-        scene = self.scene
+        eye = self.scene.camera.eye.astype(np.float32)
         prim_o, t_o = self._trace_object(R, T, eye, d, closest=True)
         on_object = (prim_o >= 0) & ((prim_r < 0) | (t_o < t_r))
-        on_rest = (prim_r >= 0) & ~on_object
+        hit = on_object | (prim_r >= 0)
         value = np.zeros((len(d), 3))
-        miss = np.flatnonzero(~on_object & ~on_rest)
+        miss = np.flatnonzero(~hit)
         value[miss] = self.environment.eval(d[miss].astype(np.float64))
-        hits = np.flatnonzero(on_object | on_rest)
+        hits = np.flatnonzero(hit)
         if not len(hits):
             return value, 0
-        n = np.zeros((len(hits), 3))
-        p = np.asarray(eye, np.float64)[hits] + d[hits].astype(np.float64) * np.where(
-            on_object[hits], t_o[hits], t_r[hits])[:, None]
-        mats = np.zeros(len(hits), np.int64)
-        r_idx, o_idx = np.flatnonzero(on_rest[hits]), np.flatnonzero(on_object[hits])
-        if len(r_idx):
-            n[r_idx] = self.rest_tracer.face_normals[prim_r[hits][r_idx]]
-            mats[r_idx] = self.rest.face_material[prim_r[hits][r_idx]]
-        if len(o_idx):
-            n[o_idx] = self.object_tracer.face_normals[prim_o[hits][o_idx]] @ R.T
-            mats[o_idx] = self.object.material
-        dd = d[hits].astype(np.float64)
-        n = n * np.where(np.einsum("ij,ij->i", n, dd) > 0, -1.0, 1.0)[:, None]
-        s_ax, t_ax = tangent_frame(n)
-        wo = np.stack([np.einsum("ij,ij->i", -dd, a) for a in (s_ax, t_ax, n)], 1)
-        sp = strategies.ShadingPoints(p, n, s_ax, t_ax, wo, scene.material_kind[mats], scene.material_param[mats],
-                                      scene.material_albedo[mats].astype(np.float64), mats)
-        u = rng.uniforms(seed, FRAME_STREAM * 65536 + chunk, MIS_STREAM, 0, len(hits)).astype(np.float64)
-        wi, val = strategies.shade_reference(self.mis, self.environment, sp, u)
-        offset = np.maximum(1e-4 * np.abs(p).max(1), 1e-6 * self.rest_tracer.scale)
-        origin = (p + n * offset[:, None]).astype(np.float32)
-        total = np.zeros((len(hits), 3))
+        obj = np.flatnonzero(on_object[hits])
+        dd = d[hits]
+        t = t_r[hits]
+        t[obj] = t_o[hits[obj]]
+        n = self._rest_normals[np.maximum(prim_r[hits], 0)]
+        n[obj] = self.object_tracer.face_normals[prim_o[hits[obj]]] @ R.T.astype(np.float32)
+        n[np.einsum("ij,ij->i", n, dd) > 0] *= -1.0
+        mats = self._rest_material[np.maximum(prim_r[hits], 0)]
+        mats[obj] = self.object.material
+        p = eye + dd * t[:, None]
+        u = rng.uniforms(seed, FRAME_STREAM * 65536 + chunk, MIS_STREAM, 0, len(hits))
+        if self.backend == "opencl":
+            wi, val = self._shader(n, -dd, mats.astype(np.int32), u)
+        else:
+            mt = self._materials
+            n64, wo_w = n.astype(np.float64), -dd.astype(np.float64)
+            s_ax, t_ax = tangent_frame(n64)
+            wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, n64)], 1)
+            sp = strategies.ShadingPoints(p.astype(np.float64), n64, s_ax, t_ax, wo, mt.kind[mats], mt.param[mats],
+                                          mt.albedo[mats], mats)
+            wi, val = strategies.shade_reference(self.mis, self.environment, sp, u.astype(np.float64))
+        # planes (slot, component, point): the kernel's own layout
+        wi, val = np.asarray(wi).transpose(1, 2, 0), np.asarray(val).transpose(1, 2, 0)
+        offset = np.maximum(np.float32(1e-4) * np.abs(p).max(1), np.float32(1e-6 * self.rest_tracer.scale))
+        origin = p + n * offset[:, None]
+        total = np.zeros((3, len(hits)))
         rays = 0
-        for slot in range(wi.shape[1]):   # the MIS pair, not samples
-            live = np.flatnonzero(val[:, slot].max(1) > 0)
-            w = wi[live, slot].astype(np.float32)
-            blocked = self.rest_tracer.occluded(origin[live], w) | self._trace_object(R, T, origin[live], w)
-            rays += 2 * len(live)
-            total[live] += val[live, slot] * ~blocked[:, None]
-        value[hits] = total
+        for slot in range(wi.shape[0]):   # the MIS pair, not samples
+            v = val[slot]
+            live = np.flatnonzero(np.maximum(np.maximum(v[0], v[1]), v[2]) > 0)
+            w = np.take(wi[slot], live, axis=1).T
+            o = origin[live]
+            blocked = self.rest_tracer.occluded(o, w)
+            near = np.flatnonzero(~blocked & self._meets_sphere(R, T, o, w))
+            blocked[near] = self._trace_object(R, T, o[near], w[near])
+            rays += len(live) + len(near)
+            visible = np.zeros(len(hits), bool)
+            visible[live] = ~blocked
+            total += v * visible
+        value[hits] = total.T
         return value, rays
 
 
-def moving_frame(transfer, translate=None, rotate=None, spp: int = 4, seed: int = 0, scene=None) -> RenderResult:
+def moving_frame(transfer, translate=None, rotate=None, spp: int = 4, seed: int = 0, scene=None,
+                 backend: str = "opencl") -> RenderResult:
     """One unbiased frame of a bake with ``vary="object"`` with the object at ``translate`` and
     ``rotate`` (absolute; None keeps its own): :class:`MovingObject` (made once per call; keep
     one for many frames)."""
-    return MovingObject(transfer, scene).frame(translate, rotate, spp, seed)
-
+    return MovingObject(transfer, scene, backend).frame(translate, rotate, spp, seed)
