@@ -30,7 +30,7 @@ Timing: with --wait-minutes M > 0, waits for the 1-minute load average to fall b
 
     python benchmarks/relight_converge.py [--size 128] [--spp 1,4,16,64] [--seeds 3] [--ref-spp 16384]
         [--bake-spp 16] [--rotation 60] [--frames 100] [--floor 32] [--floor-spp 16] [--no-stratified]
-        [--only SUBSTR] [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
+        [--only SUBSTR] [--product-levels M] [--light BETA] [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
 
 The figures in benchmarks/results/relight_converge.json come from
 
@@ -64,8 +64,13 @@ def main():
     ap.add_argument("--floor-spp", type=int, default=16, help="spp of the floor and of the 1/3 target")
     ap.add_argument("--no-stratified", action="store_true", help="leave out mis and wavelet with stratified samples")
     ap.add_argument("--only", default="", help="substring filter on scene names")
+    ap.add_argument("--product-levels", type=int, default=None,
+                    help="converge's product-tree levels at most (default: wavlight.relight.converge.PRODUCT_LEVELS)")
+    ap.add_argument("--light", type=float, default=None,
+                    help="converge's share of the lighting alone in its mixture (default: LIGHT_SHARE)")
     args = rc.parse(ap, "relight_converge", 0)
     started = rc.begin(args)
+    knobs = {k: v for k, v in (("levels", args.product_levels), ("light", args.light)) if v is not None}
     import wavlight
     from wavlight.evaluation.metrics import relmse
     from wavlight.relight.converge import converge
@@ -94,12 +99,12 @@ def main():
         for strategy in ("mis", "wavelet"):
             for sampler in ("independent", "stratified"):
                 wavlight.render_full(turned, spp=1, strategy=strategy, width=8, height=8, sampler=sampler)
-        converge(transfer, scene, rotate_y=args.rotation, spp=1, seed=99)
+        converge(transfer, scene, rotate_y=args.rotation, spp=1, seed=99, **knobs)
 
         def run(method, spp, seed):
             t0 = time.perf_counter()
             if method.startswith("converge"):
-                r = converge(transfer, scene, rotate_y=args.rotation, spp=spp, seed=seed, slots=int(method[-1]))
+                r = converge(transfer, scene, rotate_y=args.rotation, spp=spp, seed=seed, slots=int(method[-1]), **knobs)
                 seconds = time.perf_counter() - t0
             else:
                 strategy, _, sampler = method.partition("_")

@@ -20,7 +20,7 @@ sources).
 
     python benchmarks/relight_view.py [--scenes bunny_ggx,bunny_ggx05,bunny_lambert]
         [--modes point,point:0:0.08,pixel:0,pixel,pixel:0.1:0.08] [--size 512] [--error-size 256] [--supersample 1,4]
-        [--mis-spp 1024] [--frames 5]
+        [--mis-spp 1024] [--frames 15]
         [--levels auto] [--refine 0.15] [--turn 40] [-o FILE]
 
 The figures in benchmarks/results/relight_view.json come from the defaults.
@@ -136,7 +136,7 @@ def main():
     ap.add_argument("--supersample", default="1,4",
                     help="the error's frames at S x S centre rays per pixel (box-filtered), per S: mis integrates "
                          "over the pixel, and the bunny's facets are smaller than a pixel")
-    ap.add_argument("--frames", type=int, default=5, help="timed frames per setting")
+    ap.add_argument("--frames", type=int, default=15, help="timed frames per setting")
     ap.add_argument("--levels", default="auto", help="texel levels n of the bakes, or auto (the pilot's)")
     ap.add_argument("--refine", type=float, default=None, help="the walk's refine (default view.REFINE)")
     ap.add_argument("--turn", type=float, default=40.0, help="degrees the eye turns about the target")

@@ -32,7 +32,10 @@
  * of coefficient i in a point's block b is offsets[i B + b] (-1: not kept), its value
  * scale[o] q[o ROW + c POINTS + j] for channel c of the block's point j.
  *
- * One work-item per item, a private stack of at most 3 n + 1 nodes. */
+ * One work-item per item, a private stack of the nodes to refine (at most 3 n + 1). A refined
+ * node's four children are tested and evaluated together, lane by lane of float4 (the CPU's
+ * vector unit across the children; one BRDF call per four leaves), and only the children to be
+ * refined are pushed; the nodes visited are the root and four per refined node. */
 #include "bsdf.h"
 
 #ifndef QBITS
@@ -60,11 +63,17 @@
 #define SQRT1(x) sqrt(x)
 #endif
 #define MAX1(a, b) ((a) > (b) ? (a) : (b))
+/* float3 products written out (the library's dot and length are calls on some PoCL builds) */
+#define DOT3(a, b) ((a).x * (b).x + (a).y * (b).y + (a).z * (b).z)
+#define LEN3(a) SQRT1(DOT3(a, a))
 
 /* f_r(wi, wo) without albedo and without cos theta_i (T1 holds the cosine), in the local frame
- * (normal +z): lambert 1 / pi, normalized phong (e + 2) / (2 pi) cos^e(alpha), ggx
+ * (normal +z): lambert 1 / pi, normalized phong (e + 2) / (2 pi) cos^e(alpha) (pa = e), ggx
  * D G1(wo) G1(wi) / (4 cos_i cos_o) with G1(wi) / cos_i = 2 / (z + sqrt(a2 + (1 - a2) z^2)) at
- * z = max(cos_i, 0) (finite at the horizon; below it T1 is 0). */
+ * z = max(cos_i, 0) (finite at the horizon; below it T1 is 0). For ggx pa = a2 = alpha^2 and
+ * g1o = a2 G1(wo) / (2 pi cos_o) (per item), and D = a2 / (pi (nhz^2 (a2 - 1) + 1)^2) with
+ * nhz^2 = hz^2 / |h|^2 (h = wi + wo unnormalized) is a2 |h|^4 / (pi q^2), q = hz^2 (a2 - 1) + |h|^2:
+ * f = g1o |h|^4 / (q^2 (z + sqrt(a2 + (1 - a2) z^2))), one square root and one division. */
 inline float view_brdf(const int kd, const float pa, const float ix, const float iy, const float iz,
                        const float ox, const float oy, const float oz, const float g1o)
 {
@@ -73,18 +82,12 @@ inline float view_brdf(const int kd, const float pa, const float ix, const float
         return ca > 0.0f ? (pa + 2.0f) * INV_2PI_F * exp2(pa * log2(ca)) : 0.0f;
     }
     if (kd == BSDF_GGX) {
-        const float a2 = pa * pa;
         const float hx = ix + ox, hy = iy + oy, hz = iz + oz;
+        if (!(hz > 0.0f) || !((ix * hx + iy * hy + iz * hz) > 0.0f)) return 0.0f;   /* nhz > 0, wi . h > 0 */
         const float hh = hx * hx + hy * hy + hz * hz;
-        if (!(hh > 0.0f)) return 0.0f;
-        const float il = 1.0f / SQRT1(hh);
-        const float nhz = hz * il;
-        if (!(nhz > 0.0f) || !((ix * hx + iy * hy + iz * hz) > 0.0f) || !(oz > 0.0f)) return 0.0f;
-        const float d = nhz * nhz * (a2 - 1.0f) + 1.0f;
-        const float D = a2 / (PI_F * d * d);
+        const float q = hz * hz * (pa - 1.0f) + hh;
         const float z = MAX1(iz, 0.0f);
-        const float gi = 2.0f / (z + SQRT1(a2 + (1.0f - a2) * z * z));
-        return D * g1o / (4.0f * oz) * gi;
+        return g1o * (hh * hh) / (q * q * (z + SQRT1(pa + (1.0f - pa) * z * z)));
     }
     return INV_PI_F;
 }
@@ -108,6 +111,39 @@ inline float3 view_coeff(const uint i, const uint n_blocks, const uint *b, const
 inline float view_ramp(const float x, const float s)
 {
     return x >= s ? x : (x <= -s ? 0.0f : (x + s) * (x + s) / (4.0f * s));
+}
+
+/* four lanes: sqrt lane by lane (simd.h's inline sqrt covers float and its LANES vectors) */
+#define SQRT4(q_) ((float4)(SQRT1((q_).x), SQRT1((q_).y), SQRT1((q_).z), SQRT1((q_).w)))
+inline int any4(const int4 m)
+{
+    return (m.x | m.y | m.z | m.w) != 0;
+}
+
+/* view_brdf on four directions (the same item) */
+inline float4 view_brdf4(const int kd, const float pa, const float4 ix, const float4 iy, const float4 iz,
+                         const float ox, const float oy, const float oz, const float g1o)
+{
+    if (kd == BSDF_PHONG) {
+        const float4 ca = iz * oz - ix * ox - iy * oy;
+        const float4 cp = ca > 0.0f ? ca : (float4)(1.0f);
+        return ca > 0.0f ? (pa + 2.0f) * INV_2PI_F * exp2(pa * log2(cp)) : (float4)(0.0f);
+    }
+    if (kd == BSDF_GGX) {
+        const float4 hx = ix + ox, hy = iy + oy, hz = iz + oz;
+        const float4 hh = hx * hx + hy * hy + hz * hz;
+        const float4 q = hz * hz * (pa - 1.0f) + hh;
+        const float4 z = iz > 0.0f ? iz : (float4)(0.0f);
+        const float4 f = g1o * (hh * hh) / (q * q * (z + SQRT4(pa + (1.0f - pa) * z * z)));
+        return ((hz > 0.0f) & (ix * hx + iy * hy + iz * hz > 0.0f)) ? f : (float4)(0.0f);
+    }
+    return (float4)(INV_PI_F);
+}
+
+/* view_ramp on four lanes */
+inline float4 view_ramp4(const float4 x, const float4 s)
+{
+    return x >= s ? x : (x <= -s ? (float4)(0.0f) : (x + s) * (x + s) / (4.0f * s));
 }
 
 __kernel void view_product(const uint count, const uint n_levels, const uint n_blocks,
@@ -136,10 +172,10 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
     const float3 n = (float3)(g[0], g[1], g[2]);
     const float3 m = (float3)(g[12], g[13], g[14]);
     const float tau = g[15];
-    const float ml = length(m);
-    const float dn = length(n - m);
+    const float ml = LEN3(m);
+    const float dn = LEN3(n - m);
     const int kd = kind[i];
-    if (kd == BSDF_LAMBERT && (tau <= 0.0f || dot(n, m) >= ml * (1.0f - 1e-6f))) {
+    if (kd == BSDF_LAMBERT && (tau <= 0.0f || DOT3(n, m) >= ml * (1.0f - 1e-6f))) {
         const float3 v = root * (n2 * INV_PI_F / (tau > 0.0f ? MAX1(ml, 1e-6f) : 1.0f));
         out[3 * i] = v.x;
         out[3 * i + 1] = v.y;
@@ -155,71 +191,283 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
     const float fb = n.x * n.y * fa;
     const float3 s = (float3)(1.0f + sign * n.x * n.x * fa, sign * fb, -sign * n.x);
     const float3 t = (float3)(fb, sign + n.y * n.y * fa, -n.y);
-    const float ox = dot(wo, s), oy = dot(wo, t), oz = dot(wo, n);
-    const float pa = param[i];
+    const float ox = DOT3(wo, s), oy = DOT3(wo, t), oz = DOT3(wo, n);
+    const float pa = kd == BSDF_GGX ? param[i] * param[i] : param[i];   /* ggx: alpha^2 */
     float g1o = 0.0f;
-    if (kd == BSDF_GGX) {
-        const float a2 = pa * pa;
+    if (kd == BSDF_GGX) {                                     /* a2 G1(wo) / (2 pi cos_o), 0 below */
         const float c2 = MAX1(oz * oz, 1e-30f);
         const float tan2 = MAX1(1.0f - c2, 0.0f) / c2;
-        g1o = oz > 0.0f ? 2.0f / (1.0f + SQRT1(1.0f + a2 * tan2)) : 0.0f;
+        g1o = oz > 0.0f ? 2.0f / (1.0f + SQRT1(1.0f + pa * tan2)) * pa * INV_2PI_F / oz : 0.0f;
     }
     uint node[STACK];
     float3 avg[STACK];
     int top = 0;
-    node[0] = 0u;
-    avg[0] = root;
-    top = 1;
     float3 acc = (float3)(0.0f);
-    uint nodes = 0u;
+    uint nodes = 1u;
+    {   /* the root: a leaf, or the first node to refine */
+        const float4 rr = rows[0];
+        const float3 c = centres[0].xyz;
+        const float nc = DOT3(c, n);
+        if (nc >= -rr.w) {
+            int leaf = n_levels == 0u;
+            if (!leaf) {
+                const float need = rr.x - w;
+                leaf = need <= 0.0f || (need < PI_F && DOT3(c, axis) <= rr.y * cw + rr.z * sw);
+                if (leaf && tau > 0.0f) {
+                    const float sr = rr.w > 1.0f ? 1.0f : rr.w;
+                    leaf = sr * dn <= tau * MAX1(DOT3(c, m), MAX1(sr, RHO_FLOOR));
+                }
+            }
+            if (leaf) {
+                float f = view_brdf(kd, pa, DOT3(c, s), DOT3(c, t), nc, ox, oy, oz, g1o);
+                if (tau > 0.0f) {
+                    const float sr = rr.w > 1.0f ? 1.0f : rr.w;
+                    const float den = view_ramp(DOT3(c, m), sr * ml);
+                    f *= den > 0.0f ? fmin(view_ramp(nc, sr) / den, RHO_MAX) : 0.0f;
+                }
+                acc = root * (n2 * f);
+            } else {
+                node[0] = 0u;
+                avg[0] = root;
+                top = 1;
+            }
+        }
+    }
     while (top > 0) {
+        /* a node to refine: its four children at once (lanes (dx, dy) = (0, 0), (1, 0), (0, 1), (1, 1)) */
         --top;
         const uint code = node[top];
         const float3 a = avg[top];
         const uint l = code >> 24, y = (code >> 12) & 0xFFFu, x = code & 0xFFFu;
         const uint s_l = 1u << l;
-        ++nodes;
-        const float4 rr = rows[s_l - 1u + y];                 /* r / REFINE, cos, sin of it, sin r */
-        const float3 c = centres[(s_l * s_l - 1u) / 3u + y * s_l + x].xyz;
-        const float nc = dot(c, n);
-        if (nc < -rr.w) continue;                             /* wholly below the horizon */
-        int leaf = l == n_levels;
-        if (!leaf) {
-            const float need = rr.x - w;                      /* r / REFINE - w: refine while delta < it */
-            leaf = need <= 0.0f || (need < PI_F && dot(c, axis) <= rr.y * cw + rr.z * sw);   /* cos(need) */
-            if (leaf && tau > 0.0f) {
-                const float sr = rr.w > 1.0f ? 1.0f : rr.w;
-                leaf = sr * dn <= tau * MAX1(dot(c, m), MAX1(sr, RHO_FLOOR));
-            }
-        }
-        if (leaf) {
-            float f = view_brdf(kd, pa, dot(c, s), dot(c, t), nc, ox, oy, oz, g1o);
-            if (tau > 0.0f) {
-                const float sr = rr.w > 1.0f ? 1.0f : rr.w;
-                const float den = view_ramp(dot(c, m), sr * ml);
-                f *= den > 0.0f ? fmin(view_ramp(nc, sr) / den, RHO_MAX) : 0.0f;
-            }
-            acc += a * (n2 / (float)(s_l * s_l) * f);
-            continue;
-        }
         const uint i1 = y * side + s_l + x, i2 = (s_l + y) * side + x, i3 = (s_l + y) * side + s_l + x;
         const float3 c1 = view_coeff(i1, n_blocks, b, j, wt, offsets, scale, data);
         const float3 c2 = view_coeff(i2, n_blocks, b, j, wt, offsets, scale, data);
         const float3 c3 = view_coeff(i3, n_blocks, b, j, wt, offsets, scale, data);
         const float k = (float)s_l;
-        const uint l1 = (l + 1u) << 24;
-        /* children: (dx, dy) = (0, 0) top-left, (1, 0), (0, 1), (1, 1) */
-        node[top] = l1 | ((2u * y) << 12) | (2u * x);
-        avg[top++] = a + k * (c1 + c2 + c3);
-        node[top] = l1 | ((2u * y) << 12) | (2u * x + 1u);
-        avg[top++] = a + k * (-c1 + c2 - c3);
-        node[top] = l1 | ((2u * y + 1u) << 12) | (2u * x);
-        avg[top++] = a + k * (c1 - c2 - c3);
-        node[top] = l1 | ((2u * y + 1u) << 12) | (2u * x + 1u);
-        avg[top++] = a + k * (-c1 - c2 + c3);
+        float3 ak[4];
+        ak[0] = a + k * (c1 + c2 + c3);
+        ak[1] = a + k * (-c1 + c2 - c3);
+        ak[2] = a + k * (c1 - c2 - c3);
+        ak[3] = a + k * (-c1 - c2 + c3);
+        const uint l1 = l + 1u, s1 = 2u * s_l;
+        nodes += 4u;
+        const float4 r0 = rows[s1 - 1u + 2u * y], r1 = rows[s1 - 1u + 2u * y + 1u];
+        const uint cb = (s1 * s1 - 1u) / 3u + 2u * y * s1 + 2u * x;
+        const float4 e0 = centres[cb], e1 = centres[cb + 1u], e2 = centres[cb + s1], e3 = centres[cb + s1 + 1u];
+        const float4 cx = (float4)(e0.x, e1.x, e2.x, e3.x), cy = (float4)(e0.y, e1.y, e2.y, e3.y),
+                     cz = (float4)(e0.z, e1.z, e2.z, e3.z);
+        const float4 rx = (float4)(r0.x, r0.x, r1.x, r1.x), ry = (float4)(r0.y, r0.y, r1.y, r1.y),
+                     rz = (float4)(r0.z, r0.z, r1.z, r1.z), rw = (float4)(r0.w, r0.w, r1.w, r1.w);
+        const float4 nc = cx * n.x + cy * n.y + cz * n.z;
+        const int4 live = nc >= -rw;                          /* not wholly below the horizon */
+        int4 leaf;
+        if (l1 == n_levels) {
+            leaf = (int4)(-1);
+        } else {
+            const float4 need = rx - w;                       /* r / REFINE - w: refine while delta < it */
+            leaf = (need <= 0.0f) | ((need < PI_F) & (cx * axis.x + cy * axis.y + cz * axis.z <= ry * cw + rz * sw));
+            if (tau > 0.0f) {
+                const float4 sr = rw > 1.0f ? (float4)(1.0f) : rw;
+                const float4 mc = cx * m.x + cy * m.y + cz * m.z;
+                const float4 hi = sr > RHO_FLOOR ? sr : (float4)(RHO_FLOOR);
+                leaf &= sr * dn <= tau * (mc > hi ? mc : hi);
+            }
+        }
+        const int4 add = live & leaf;
+        if (any4(add)) {
+            float4 f = view_brdf4(kd, pa, cx * s.x + cy * s.y + cz * s.z, cx * t.x + cy * t.y + cz * t.z, nc,
+                                  ox, oy, oz, g1o);
+            if (tau > 0.0f) {
+                const float4 sr = rw > 1.0f ? (float4)(1.0f) : rw;
+                const float4 den = view_ramp4(cx * m.x + cy * m.y + cz * m.z, sr * ml);
+                const float4 rho = view_ramp4(nc, sr) / den;
+                f *= den > 0.0f ? (rho < RHO_MAX ? rho : (float4)(RHO_MAX)) : (float4)(0.0f);
+            }
+            f = add ? f * (n2 / (float)(s1 * s1)) : (float4)(0.0f);
+            acc += ak[0] * f.x + ak[1] * f.y + ak[2] * f.z + ak[3] * f.w;
+        }
+        const int4 go = live & ~leaf;
+        const uint lc = (l1 << 24) | ((2u * y) << 12) | (2u * x);
+        /* pushed in reverse lane order: popped in lane order */
+        if (go.w) { node[top] = lc + (1u << 12) + 1u; avg[top++] = ak[3]; }
+        if (go.z) { node[top] = lc + (1u << 12); avg[top++] = ak[2]; }
+        if (go.y) { node[top] = lc + 1u; avg[top++] = ak[1]; }
+        if (go.x) { node[top] = lc; avg[top++] = ak[0]; }
     }
     out[3 * i] = acc.x;
     out[3 * i + 1] = acc.y;
     out[3 * i + 2] = acc.z;
     visited[i] = nodes;
+}
+
+/* ------------------------------------------------------------------ the frame around the walks
+ * numpy twins: wavlight/relight/view.py ViewFrames.hit_points (lattice_points) and the assembly
+ * of ViewFrames.frame's numpy backend. Lattice coordinates and the environment's direction
+ * angles in double precision where the device has it (as numpy computes them: the same lattice
+ * triangle and texel but within rounding of their borders), else in float. */
+#ifdef cl_khr_fp64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double wide;
+#else
+typedef float wide;
+#endif
+#define WCLAMP(x, lo, hi) ((x) < (lo) ? (lo) : ((x) > (hi) ? (hi) : (x)))
+
+/* The index inside its face's lattice of point (i, j) (i + j <= k): rows of constant j. */
+inline long view_local(const long i, const long j, const long k)
+{
+    return j * (k + 1) - j * (j - 1) / 2 + i;
+}
+
+/* Per camera ray: the three cache points and normalized barycentric weights of its hit on face
+ * prim (-1: a miss, weights 0) at embree's (u, v), the lattice triangle holding it (module
+ * docstring of view.py); a point is left out (weight 0) on the face's back (dir . n_face >= 0)
+ * or where its normal is further than the crease from the face's (n_point . n_face < cos_crease).
+ * used[p] = 1 for every point of weight > 0 (the points the frame's walks shade). */
+__kernel void view_lookup(const uint count, __global const int *prim, __global const float *hit_u,
+                          __global const float *hit_v, __global const float *dir, __global const int *face_k,
+                          __global const long *face_base, __global const int *lattice,
+                          __global const float *point_normal, __global const float *face_normal,
+                          const float cos_crease, __global uint *ids, __global float *weights,
+                          __global uchar *used)
+{
+    const uint p = get_global_id(0);
+    if (p >= count) return;
+    const int f = prim[p];
+    if (f < 0) {
+        for (int q = 0; q < 3; ++q) {
+            ids[3 * p + q] = 0u;
+            weights[3 * p + q] = 0.0f;
+        }
+        return;
+    }
+    const long k = face_k[f];
+    const wide fu = (wide)hit_u[p] * (wide)k, fv = (wide)hit_v[p] * (wide)k;
+    const long i = WCLAMP((long)fu, 0L, k - 1);
+    const long j = WCLAMP((long)fv, 0L, k - 1 - i);
+    const wide a = WCLAMP(fu - (wide)i, (wide)0, (wide)1), b = WCLAMP(fv - (wide)j, (wide)0, (wide)1);
+    const int upper = (a + b > (wide)1) && (i + j <= k - 2);
+    wide w[3];
+    long at[3];
+    if (upper) {
+        w[0] = a + b - (wide)1; w[1] = (wide)1 - b; w[2] = (wide)1 - a;
+        at[0] = view_local(i + 1, j + 1, k); at[1] = view_local(i + 1, j, k); at[2] = view_local(i, j + 1, k);
+    } else {
+        w[0] = (wide)1 - a - b; w[1] = a; w[2] = b;
+        at[0] = view_local(i, j, k); at[1] = view_local(i + 1, j, k); at[2] = view_local(i, j + 1, k);
+    }
+    const float nx = face_normal[3 * f], ny = face_normal[3 * f + 1], nz = face_normal[3 * f + 2];
+    const int front = nx * dir[3 * p] + ny * dir[3 * p + 1] + nz * dir[3 * p + 2] < 0.0f;
+    const long base = face_base[f];
+    uint id[3];
+    wide total = (wide)0;
+    for (int q = 0; q < 3; ++q) {
+        id[q] = (uint)lattice[base + at[q]];
+        const float c = point_normal[3 * id[q]] * nx + point_normal[3 * id[q] + 1] * ny
+                        + point_normal[3 * id[q] + 2] * nz;
+        w[q] = (front && c >= cos_crease) ? WCLAMP(w[q], (wide)0, (wide)1) : (wide)0;
+        total += w[q];
+    }
+    for (int q = 0; q < 3; ++q) {
+        const float wq = total > (wide)0 ? (float)(w[q] / total) : 0.0f;
+        ids[3 * p + q] = id[q];
+        weights[3 * p + q] = wq;
+        if (wq > 0.0f) used[id[q]] = (uchar)1;
+    }
+}
+
+/* atan2(y, x) in float within a few 1e-7 (Cephes' atanf polynomial on [0, tan(pi / 8)], the
+ * rest by atan(a) = pi / 4 + atan((a - 1) / (a + 1)) and the octants): the library's is a call. */
+inline float view_atan2(const float y, const float x)
+{
+    const float ax = x < 0.0f ? -x : x, ay = y < 0.0f ? -y : y;
+    const float hi = MAX1(ax, ay), lo = ax < ay ? ax : ay;
+    const float a = hi > 0.0f ? lo / hi : 0.0f;
+    const int mid = a > 0.41421356f;
+    const float t = mid ? (a - 1.0f) / (a + 1.0f) : a;
+    const float z = t * t;
+    float r = ((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z - 3.33329491539e-1f;
+    r = r * z * t + t;
+    r += mid ? 0.78539816f : 0.0f;
+    r = ay > ax ? 1.57079633f - r : r;
+    r = x < 0.0f ? 3.14159265f - r : r;
+    return y < 0.0f ? -r : r;
+}
+
+/* The environment's texel (col, row) of world direction d: phi = atan2(x, -z) and theta = acos(y)
+ * in the map's frame (map_from_world, row-major), u = phi / (2 pi) mod 1, v = theta / pi, each
+ * at most the double below 1, col = floor(u W) (at most W - 1), row = floor(v H). In float; in
+ * wide precision again where u W or v H lies within VIEW_TEXEL_EPS (W or H) of a texel border
+ * (the float angles' error is far below it), so that the texel is the one numpy's float64 finds. */
+#define VIEW_TEXEL_EPS 1e-5f
+inline void view_texel(const float dx, const float dy, const float dz, __global const wide *M, const uint width,
+                       const uint height, uint *col, uint *row)
+{
+    const float mx = dx * (float)M[0] + dy * (float)M[1] + dz * (float)M[2];
+    const float my = dx * (float)M[3] + dy * (float)M[4] + dz * (float)M[5];
+    const float mz = dx * (float)M[6] + dy * (float)M[7] + dz * (float)M[8];
+    float u = view_atan2(mx, -mz) * INV_2PI_F;
+    u = u < 0.0f ? u + 1.0f : u;
+    const float yc = WCLAMP(my, -1.0f, 1.0f);
+    const float v = view_atan2(SQRT1((1.0f - yc) * (1.0f + yc)), yc) * INV_PI_F;   /* acos */
+    const float su = u * (float)width, sv = v * (float)height;
+    const float fu = su - (float)(int)su, fv = sv - (float)(int)sv;
+    const float eu = VIEW_TEXEL_EPS * (float)width, ev = VIEW_TEXEL_EPS * (float)height;
+    if (fu > eu && fu < 1.0f - eu && fv > ev && fv < 1.0f - ev) {
+        *col = min((uint)su, width - 1u);
+        *row = min((uint)sv, height - 1u);
+        return;
+    }
+    const wide wx = dx, wy = dy, wz = dz;
+    const wide nx = wx * M[0] + wy * M[1] + wz * M[2];
+    const wide ny = wx * M[3] + wy * M[4] + wz * M[5];
+    const wide nz = wx * M[6] + wy * M[7] + wz * M[8];
+    wide wu = atan2(nx, -nz) * (wide)0.15915494309189535;     /* 1 / (2 pi) */
+    wu = wu < (wide)0 ? wu + (wide)1 : wu;                     /* u - floor(u), u in [-1/2, 1/2] */
+    const wide wv = acos(WCLAMP(ny, (wide)-1, (wide)1)) * (wide)0.3183098861837907;   /* 1 / pi */
+    const wide below = (wide)1 - (wide)1.1102230246251565e-16;                       /* the double below 1 */
+    *col = min((uint)((wu < below ? wu : below) * (wide)width), width - 1u);
+    *row = min((uint)((wv < below ? wv : below) * (wide)height), height - 1u);
+}
+
+/* Per camera ray: a hit's pixel albedo x sum_k w_k B_k (B the walks' products, row[p] the row
+ * of cache point p, -1: none), a miss's the environment's nearest texel in the ray's direction
+ * (phi = atan2(x, -z), theta = acos(y) in the map's frame, map_from_world the rotation:
+ * wavlight/envmap.py Environment.world_to_square). */
+__kernel void view_assemble(const uint count, __global const int *prim, __global const uint *ids,
+                            __global const float *weights, __global const int *row, __global const float *B,
+                            __global const int *face_material, __global const float *albedo,
+                            __global const float *dir, __global const float *env, const uint env_width,
+                            const uint env_height, __global const wide *map_from_world, __global float *out)
+{
+    const uint p = get_global_id(0);
+    if (p >= count) return;
+    const int f = prim[p];
+    float r = 0.0f, g = 0.0f, bl = 0.0f;
+    if (f >= 0) {
+        for (int q = 0; q < 3; ++q) {
+            const float wq = weights[3 * p + q];
+            const int at = row[ids[3 * p + q]];
+            if (wq > 0.0f && at >= 0) {
+                r += wq * B[3 * at];
+                g += wq * B[3 * at + 1];
+                bl += wq * B[3 * at + 2];
+            }
+        }
+        const int mt = face_material[f];
+        r *= albedo[3 * mt];
+        g *= albedo[3 * mt + 1];
+        bl *= albedo[3 * mt + 2];
+    } else {
+        uint col, rw;
+        view_texel(dir[3 * p], dir[3 * p + 1], dir[3 * p + 2], map_from_world, env_width, env_height, &col, &rw);
+        __global const float *e = env + 3 * ((size_t)rw * env_width + col);
+        r = e[0];
+        g = e[1];
+        bl = e[2];
+    }
+    out[3 * p] = r;
+    out[3 * p + 1] = g;
+    out[3 * p + 2] = bl;
 }

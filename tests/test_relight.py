@@ -18,6 +18,7 @@ from wavlight.raytrace import RayTracer
 from wavlight.relight import bake as bake_mod
 from wavlight.relight import frame as frame_mod
 from wavlight.relight import lighting, store
+from wavlight.relight import converge as converge_mod
 from wavlight.relight.converge import converge
 
 
@@ -160,15 +161,23 @@ def test_rotation_by_whole_texels_is_a_rotated_bake(maps, device):
     np.testing.assert_allclose(fa, fb, rtol=1e-3, atol=1e-4 * fb.max())
 
 
-def test_unbiased_frame_equals_mis(shadowed):
-    """Against mis of the same scene under the turned map (shadows, a small bright light): equal
-    within the standard errors of both."""
-    scene, tr = shadowed
-    rot = 80.0
-    r = converge(tr, scene, rotate_y=rot, spp=64, seed=3)
-    turned = wavlight.load_dict(sphere_on_floor({"file": "sky.exr", "rotate_y": rot}),
+@pytest.fixture(scope="module")
+def turned_mis(shadowed):
+    scene, _ = shadowed
+    turned = wavlight.load_dict(sphere_on_floor({"file": "sky.exr", "rotate_y": 80.0}),
                                 base_dir=os.path.dirname(scene.environment.name))
-    ref = wavlight.render_full(turned, spp=512, strategy="mis", seed=11)
+    return wavlight.render_full(turned, spp=512, strategy="mis", seed=11)
+
+
+@pytest.mark.parametrize("levels", [converge_mod.PRODUCT_LEVELS, 2])
+def test_unbiased_frame_equals_mis(shadowed, turned_mis, levels):
+    """Against mis of the same scene under the turned map (shadows, a small bright light): equal
+    within the standard errors of both; product trees on the bake's texels (n = 4) and on
+    coarser ones (their sums, the light placing directions inside them)."""
+    scene, tr = shadowed
+    r = converge(tr, scene, rotate_y=80.0, spp=64, seed=3, levels=levels)
+    assert r.stats["product_levels"] == min(levels, tr.n_levels)
+    ref = turned_mis
     var = r.stderr ** 2 + ref.stderr ** 2
     # 4 x 4 blocks of pixels (sums of independent pixel estimates: near Gaussian where single
     # pixels under a small bright light are not), per channel: 48 z values, Sidak-corrected 1%
@@ -302,3 +311,14 @@ def test_the_pilot_meets_its_own_criteria(maps, device):
     assert levels == sorted(levels)                          # a tighter tolerance never takes fewer levels
     kept = bake_mod.choose_model(scene, 0.05, 8, 0, levels=4, width=16, height=16)
     assert kept["spp"] == 8 and kept["n_levels"] == 4 and kept["pilot"]["spp"] == 8
+
+
+def test_coarser_texels_are_the_top_left_coefficients():
+    """The product trees of a bake finer than PRODUCT_LEVELS use the transform of its texels
+    summed 2^(n-m) x 2^(n-m): the top-left 2^m x 2^m coefficients times 4^(n - m)."""
+    texels = np.random.default_rng(5).random((3, 32, 32))
+    for m in (1, 3, 4):
+        k = 1 << (5 - m)
+        summed = texels.reshape(3, 1 << m, k, 1 << m, k).sum(axis=(2, 4))
+        np.testing.assert_allclose(haar.forward(summed), haar.forward(texels)[:, :1 << m, :1 << m] * 4.0 ** (5 - m),
+                                   rtol=1e-12, atol=1e-12)

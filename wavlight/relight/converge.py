@@ -14,13 +14,17 @@ solid angle = p_t 4^n (mass of the leaf / mass of the texel) 4^(m - n) / (2 pi^2
 what the ``wavelet`` strategy's product lacks on shadowed scenes: where T1 is accurate, the
 estimate's noise is the visibility's variance inside a texel and the pixel.
 
-Each camera sample (jittered in its pixel) takes one product direction and one BSDF direction,
-both traced, weighted by the balance heuristic p_s / (p_product + p_bsdf) (Veach 1997): the
-BSDF covers every direction its lobe reaches, so the pdf is non-zero wherever the integrand is
-(the compressed product may be 0 there: dropped coefficients, a surface the pixel's samples did
-not see in the bake, a pixel whose product is 0 altogether). Samples that miss see the
+Each camera sample (jittered in its pixel) takes ``slots`` directions of the defensive mixture
+(1 - alpha - beta) p_product + alpha p_bsdf + beta p_light (alpha = ``defensive``, beta =
+``light``; where the pixel has no product, alpha = 1 - beta), each traced and weighted by
+f cos / that pdf. The lighting alone finds a bright light where the bake's one shadow ray per
+texel hid it from a pixel's transfer; the BSDF covers every direction its lobe reaches,
+so the pdf is non-zero wherever the integrand is (the compressed product may be 0 there:
+dropped coefficients, a surface the pixel's samples did not see in the bake, a pixel whose
+product is 0 altogether). Bakes finer than PRODUCT_LEVELS are sampled on coarser texels (their
+sums), the lighting's own leaves placing the direction inside them. Samples that miss see the
 environment. The estimate is unbiased for any transfer: a converged frame equals ``mis`` of the
-same scene and lighting within their standard errors (tests/test_relight_converge.py).
+same scene and lighting within their standard errors (tests/test_relight.py).
 """
 from __future__ import annotations
 
@@ -46,6 +50,13 @@ from .bake import BLOCK, camera_jitter
 #: Philox stream of the converged frame's direction uniforms (product pair, BSDF pair)
 DIRECTION_STREAM = 10
 MAX_SPP = 1 << 16
+#: the product trees' levels at most (finer bakes are summed to them: 2^m x 2^m texels of the
+#: transfer are its coefficients' top-left 2^m x 2^m block times 4^(n - m)); inside a texel
+#: the lighting's own leaves place the direction (docs/decisions/relight-product-levels.md)
+PRODUCT_LEVELS = 6
+#: the mixture's shares: the BSDF (defensive) and the lighting alone; the product has the rest
+DEFENSIVE = 0.1
+LIGHT_SHARE = 0.1
 
 
 def check_scene_matches(transfer, scene):
@@ -105,7 +116,8 @@ class _Block:
         self.offsets = transfer._s["offsets"]
 
     def coefficients(self, transfer, block: int) -> np.ndarray:
-        """(BLOCK^2, 4^n) float32: the block's pixels' dequantized transfer coefficients."""
+        """(BLOCK^2, 4^n) float32: the block's pixels' dequantized transfer coefficients (every
+        coefficient column in the bake's order: flat dense Haar indices)."""
         ids = np.asarray(self.offsets[:, block], np.int64)
         cols = np.flatnonzero(ids >= 0)
         out = np.zeros((BLOCK * BLOCK, len(ids)), np.float32)
@@ -117,20 +129,24 @@ class _Block:
 
 
 def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, spp: int = 16, seed: int = 0,
-             threads=None, progress=None, slots: int = 2, defensive: float = 0.1) -> RenderResult:
+             threads=None, progress=None, slots: int = 2, defensive: float = DEFENSIVE,
+             levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE) -> RenderResult:
     """The unbiased frame of ``transfer`` under ``env`` (default: the baked map) turned to
     ``rotate_y`` (default: the scene's) and scaled, with ``spp`` camera samples per pixel (each
-    with a product and a BSDF direction; module docstring). ``scene``: the scene the transfer
-    was baked from (default: reloaded from the path the bake recorded; refused if it changed).
-    Returns a RenderResult: image, per-pixel standard error, stats."""
+    with ``slots`` directions of the defensive mixture; module docstring). ``scene``: the scene
+    the transfer was baked from (default: reloaded from the path the bake recorded; refused if
+    it changed). The product trees have min(n, ``levels``) levels. Returns a RenderResult:
+    image, per-pixel standard error, stats."""
     where = "relight.converge"
     spp = check_int(where, "spp", spp, 1, MAX_SPP)
     seed = check_int(where, "seed", seed, 0, 2 ** 63 - 1)
+    levels = check_int(where, "levels", levels, 1, 16)
     scene = _scene_of(transfer, scene)
     rot = transfer.scene_rotate_y if rotate_y is None else float(rotate_y)
     base = transfer.environment(env, scale)                     # unrotated, scaled
     turned = Environment(base.pixels, 1.0, rot, base.name)      # for radiance lookups
-    n = transfer.n_levels
+    n = min(transfer.n_levels, levels)
+    fine = transfer.n_levels
     inside = _TexelLight(base, n, rot)
     pyramids = ProductPyramids(forward(inside.texel_luminance), n, nonnegative=True)
     tracer = RayTracer(scene.vertices, scene.faces, threads=1)
@@ -147,7 +163,10 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         by, bx = divmod(block, bw)
         x0, y0 = bx * BLOCK, by * BLOCK
         w, h = min(BLOCK, width - x0), min(BLOCK, height - y0)
-        coeffs = blocks.coefficients(transfer, block).reshape(BLOCK, BLOCK, -1)[:h, :w].reshape(w * h, 1 << n, 1 << n)
+        coeffs = blocks.coefficients(transfer, block).reshape(BLOCK, BLOCK, -1)[:h, :w].reshape(w * h, 1 << fine,
+                                                                                              1 << fine)
+        if n < fine:   # the coarser texels' transform: summed texels, the top-left block
+            coeffs = coeffs[:, :1 << n, :1 << n] * np.float32(4.0 ** (fine - n))
         trees = pyramids.trees(coeffs)
         mass = trees.integral                                   # (P,) 0: no product sample for the pixel
         P = w * h
@@ -162,7 +181,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         rays = P * spp
         if len(hit):
             value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp,
-                                                  (seed, block), turned, defensive, slots)
+                                                  (seed, block), turned, defensive, slots, light)
             rays += traced
         v = value.reshape(h, w, spp, 3)
         with lock:
@@ -179,7 +198,8 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     mean, err = mean_and_error(sums, squares, spp)
     stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
              "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
-             "rotate_y": rot, "estimator": "product T1 x L (eq. 25) + BSDF, balance heuristic"}
+             "rotate_y": rot, "product_levels": n,
+             "estimator": "product T1 x L (eq. 25) + BSDF, defensive mixture"}
     return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
 
 
@@ -229,6 +249,35 @@ class _TexelLight:
             factor = np.where(total > 0, mass / np.where(total > 0, total, 1.0) * k * k, 0.0)
         return out, factor
 
+    def sample_light(self, a, b):
+        """Points of the square drawn from the lighting alone (a texel in proportion to its mass
+        by ``a``, a leaf inside it by :meth:`sample`, the residue of ``a`` and ``b`` its place):
+        the lighting's technique of the mixture, density :meth:`light_pdf` per unit square."""
+        cdf = self._texel_cdf()
+        target = a * cdf[-1]
+        t = np.minimum(np.searchsorted(cdf, target, side="right"), len(cdf) - 1)
+        below = np.where(t > 0, cdf[np.maximum(t - 1, 0)], 0.0)
+        mass = self.texel_mass[t]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.clip(np.where(mass > 0, (target - below) / np.where(mass > 0, mass, 1.0), 0.5), 0.0,
+                        np.nextafter(1.0, 0.0))
+        side = 1 << self.n
+        uv = np.stack([(t % side + r) / side, (t // side + np.clip(b, 0.0, np.nextafter(1.0, 0.0))) / side], 1)
+        return self.sample(uv)[0]
+
+    def light_pdf(self, uv):
+        """The density per unit square of :meth:`sample_light` at points uv (N, 2)."""
+        t, _ = self._texel(uv)
+        total = self._texel_cdf()[-1]
+        if total <= 0:
+            return np.zeros(len(uv))
+        return self.texel_mass[t] / total * float(4 ** self.n) * self.factor(uv)
+
+    def _texel_cdf(self):
+        if getattr(self, "_cdf", None) is None:
+            self._cdf = np.cumsum(self.texel_mass)
+        return self._cdf
+
     def factor(self, uv):
         """The density factor at points uv (N, 2): (leaf mass / texel mass) k^2 (0 where the
         texel holds no light)."""
@@ -269,10 +318,11 @@ def mean_and_error(sums: np.ndarray, squares: np.ndarray, spp: int):
 
 
 def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: int, key, environment,
-                     defensive: float, slots: int):
+                     defensive: float, slots: int, light: float = 0.0):
     """The radiance (len(hit), 3) of the camera samples ``hit`` (of spp per pixel, directions
     ``d`` with hits ``prim`` at ``t``) from ``slots`` directions each of the defensive mixture
-    (:func:`mixture_directions`; the pixels' product trees ``trees`` of totals ``mass``) seen from
+    (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
+    ``trees`` of totals ``mass``) seen from
     ``scene``'s camera, each
     evaluated with the true f cos, ``environment``'s radiance and a shadow ray; the uniforms are
     Philox stream (``key`` = (seed, tile), DIRECTION_STREAM + slot). Returns it and the rays traced."""
@@ -284,13 +334,13 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     mat = scene.face_material[prim[hit]]
     kind, param = scene.material_kind[mat], scene.material_param[mat]
     has_p = mass[hit // spp] > 0
-    alpha = np.where(has_p, defensive, 1.0)       # pixels without a product: the BSDF alone
+    alpha = np.where(has_p, defensive, 1.0 - light)   # pixels without a product: the BSDF and the lighting
     total = np.zeros((len(hit), 3))
     rays = 0
     for slot in range(slots):   # directions per camera sample, not samples
         u_all = rng.uniforms(*key, DIRECTION_STREAM + slot, 0, len(d))
         direction, weight = mixture_directions(trees, inside, u_all, hit, spp, has_p, alpha, kind, param, wo,
-                                               (s_ax, t_ax, nrm))
+                                               (s_ax, t_ax, nrm), light)
         weight = weight / slots
         live = np.flatnonzero(weight > 0)
         blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
@@ -299,14 +349,17 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     return scene.material_albedo[mat].astype(np.float64) * total, rays
 
 
-def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes):
+def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes,
+                       light: float = 0.0):
     """Directions of the defensive mixture and their weights, for the samples ``hit`` of
     ``len(u_all)`` (spp per pixel, each pixel's product tree in ``trees``): with probability
-    1 - alpha the product (its tree by the hierarchical warp, eq. 17-22, then inside the texel
-    by the lighting, ``inside``), with probability alpha (1 where the pixel has no product) the
-    BSDF; ``axes`` (s, t, n) the hits' tangent frames, ``wo`` the view in them. The pdf is the
-    mixture's, both techniques' at the chosen direction, so that f cos / pdf is unbiased.
-    Returns unit directions (N, 3) and f cos / pdf (N,) (0 where either is 0 or not finite)."""
+    1 - alpha - light the product (its tree by the hierarchical warp, eq. 17-22, then inside
+    the texel by the lighting, ``inside``), with probability alpha the BSDF, with probability
+    ``light`` the lighting alone (:meth:`_TexelLight.sample_light`: where a noisy transfer
+    hides a bright light, the lighting still finds it); ``axes`` (s, t, n) the hits' tangent
+    frames, ``wo`` the view in them. The pdf is the mixture's, every technique's at the chosen
+    direction, so that f cos / pdf is unbiased. Returns unit directions (N, 3) and f cos / pdf
+    (N,) (0 where either is 0 or not finite)."""
     s_ax, t_ax, nrm = axes
     u = u_all[hit].astype(np.float64)
     uv_tree, _ = trees.sample(np.ascontiguousarray(u_all[:, :2]), spp)   # every sample slot, in pixel order
@@ -317,13 +370,20 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
     wl_b = bsdfs.sample_each(kind, param, ub, wo)
     d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
     direction = np.where(use_b[:, None], d_b, d_p)
+    if light > 0:                    # the lighting's: u.z rescaled in [alpha, alpha + light), and u.w
+        use_l = ~use_b & (u[:, 2] < alpha + light)
+        if use_l.any():
+            a = np.clip((u[use_l, 2] - alpha[use_l]) / light, 0.0, np.nextafter(1.0, 0.0))
+            direction[use_l] = square_to_world(inside.sample_light(a, u[use_l, 3]))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     uv = world_to_square(direction)
     p_tree = trees.pdf(np.ascontiguousarray(_spread(uv, hit, len(u_all)), np.float32), spp)[hit]
     p_prod = np.where(has_product, p_tree.astype(np.float64) * inside.factor(uv), 0.0) * solid_angle_jacobian(direction)
     wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, nrm)], 1)
     fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
-    pdf = (1 - alpha) * p_prod + alpha * p_bsdf
+    pdf = (1 - alpha - light) * p_prod + alpha * p_bsdf
+    if light > 0:
+        pdf = pdf + light * inside.light_pdf(uv) * solid_angle_jacobian(direction)
     with np.errstate(divide="ignore", invalid="ignore"):
         weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0)
     return direction, np.where(np.isfinite(weight), weight, 0.0)

@@ -56,22 +56,34 @@ centre (the midpoint rule); nodes below the shading normal's horizon are skipped
   ``tau`` = 0 keeps the baked cosine (rho = 1). lambert pixels take the scaling coefficient
   where rho is constant (tau = 0, or n along m), and walk otherwise.
 
-Pixels whose ray misses see the environment. Approximate by design: the texels, the cache's
+Pixels whose ray misses see the environment (its nearest texel, :meth:`wavlight.envmap.Environment.eval`).
+
+On the device (backend ``opencl``) a frame after its camera rays is three kernels: ``view_lookup``
+(per ray its three cache points and weights, numpy twin :meth:`ViewFrames.hit_points`, and a
+flag per cache point used), ``view_product`` over the flagged points (``point`` mode) and
+``view_assemble`` (per ray the albedo times the blend of its points' B_k, or the environment's
+texel; the numpy frame is its twin); only the flags, the nodes visited and the image come back.
+``pixel`` mode reads the lookup's points and weights back and walks per pixel. The walk refines
+a node by testing its four children together (float4 lanes, kernels/relight_view.cl).
+
+Approximate by design: the texels, the cache's
 spacing (shadows and highlights are interpolated between points), the compression and the
 midpoint rule each leave an error; and one ray per pixel samples facets smaller than a pixel
 where ``mis`` integrates over the pixel (benchmarks/relight_view.py measures both modes against
 ``mis``, with one and with 4 x 4 rays per pixel).
 
 The unbiased frame (:meth:`ViewFrames.converge`). Each pixel's camera samples draw their
-directions from a defensive mixture: with probability 1 - DEFENSIVE from the product T1 x f_r
+directions from a defensive mixture: with probability 1 - DEFENSIVE - LIGHT_SHARE from the product T1 x f_r
 (visibility inside it: T1 holds V) of the cache at the hit of the pixel's centre ray, on
 2^m x 2^m texels (m = min(n, PRODUCT_LEVELS); the top-left 2^m x 2^m block of T1's coefficients
 is the transform of its coarser texels, eq. 13), times f_r at the texels' centres for that hit's
 normal and view, walked by the hierarchical warp (:class:`wavlight.haar.HaarTree`, eq. 17-22),
 then inside the texel by the lighting's own luminance at the map's resolution
-(:class:`wavlight.relight.converge._TexelLight`); with probability DEFENSIVE (or 1 where the
-pixel has no product) from the BSDF. Every direction is evaluated with the true f_r cos, the
-radiance and a shadow ray, and weighted by the mixture's pdf (both techniques' pdfs, exact):
+(:class:`wavlight.relight.converge._TexelLight`); with probability DEFENSIVE (or 1 - LIGHT_SHARE
+where the pixel has no product) from the BSDF; with probability LIGHT_SHARE from the lighting
+alone (a bright light that the bake's one shadow ray per texel hid from a cache point's T1 is
+still found). Every direction is evaluated with the true f_r cos, the radiance and a shadow
+ray, and weighted by the mixture's pdf (every technique's pdf, exact):
 unbiased whatever the cache's approximations (tests/test_relight_view.py checks it against
 ``mis``).
 """
@@ -98,7 +110,7 @@ from ..warp import frame as tangent_frame
 from . import lighting, store
 from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choose_model, texel_rays, \
     texel_rays_reference
-from .converge import _scene_of, _TexelLight, mean_and_error, shade_by_mixture, square_to_world
+from .converge import LIGHT_SHARE, _scene_of, _TexelLight, mean_and_error, shade_by_mixture, square_to_world
 from .frame import DeviceEntries
 from .transfer import finish_bake
 
@@ -527,14 +539,13 @@ class ViewDevice:
         self.n_levels, self.n_blocks = transfer.n_levels, int(s["offsets"].shape[1])
         self._tables = {}
 
-    def products(self, points, kind, param, normal, wo, refine: float = REFINE, weights=None, t1_normal=None,
-                 tau: float = 0.0, queue=None):
-        """(B (I, 3) float32, nodes visited (I,) uint32) of the items (see :func:`product_reference`)."""
+    def walk(self, points, kind, param, normal, wo, refine: float = REFINE, weights=None, t1_normal=None,
+             tau: float = 0.0, queue=None):
+        """Launch ``view_product`` on the items (see :func:`product_reference`): its output
+        buffers, B (I, 3) float32 and nodes visited (I,) uint32, left on the device."""
         queue = queue or cl.thread_queue()
         points = np.asarray(points)
         count = len(points)
-        if not count:
-            return np.zeros((0, 3), np.float32), np.zeros(0, np.uint32)
         per = 1 if points.ndim == 1 else points.shape[1]
         weights = np.ones(count * per, np.float32) if weights is None else np.asarray(weights, np.float32)
         tables = self._tables.get(refine)
@@ -545,15 +556,92 @@ class ViewDevice:
         normal = np.asarray(normal, np.float64)
         geom = _items(np.asarray(kind), np.asarray(param, np.float64), normal, np.asarray(wo, np.float64),
                       normal if t1_normal is None else np.asarray(t1_normal, np.float64), tau)
-        out = cl.empty(12 * count)
-        visited = cl.empty(4 * count)
+        out = cl.scratch("view_walk_out", 12 * count)
+        visited = cl.scratch("view_walk_visited", 4 * count)
         cl.kernel(prog, "view_product")(
             queue, (-(-count // cl.WORK_GROUP) * cl.WORK_GROUP,), (cl.WORK_GROUP,), np.uint32(count),
-            np.uint32(self.n_levels), np.uint32(self.n_blocks), cl.to_device(np.ascontiguousarray(points, np.uint32)),
-            cl.to_device(np.ascontiguousarray(weights, np.float32)), cl.to_device(geom),
-            cl.to_device(np.asarray(kind, np.int32)), cl.to_device(np.asarray(param, np.float32)),
+            np.uint32(self.n_levels), np.uint32(self.n_blocks),
+            cl.upload("view_walk_points", np.ascontiguousarray(points, np.uint32), queue),
+            cl.upload("view_walk_weights", np.ascontiguousarray(weights, np.float32), queue),
+            cl.upload("view_walk_geom", geom, queue),
+            cl.upload("view_walk_kind", np.asarray(kind, np.int32), queue),
+            cl.upload("view_walk_param", np.asarray(param, np.float32), queue),
             tables[0], tables[1], self.entries.offsets[0], self.entries.scale[0], self.entries.data[0], out, visited)
+        return out, visited
+
+    def products(self, points, kind, param, normal, wo, refine: float = REFINE, weights=None, t1_normal=None,
+                 tau: float = 0.0, queue=None):
+        """(B (I, 3) float32, nodes visited (I,) uint32) of the items (see :func:`product_reference`)."""
+        queue = queue or cl.thread_queue()
+        count = len(points)
+        if not count:
+            return np.zeros((0, 3), np.float32), np.zeros(0, np.uint32)
+        out, visited = self.walk(points, kind, param, normal, wo, refine, weights, t1_normal, tau, queue)
         return cl.read(out, (count, 3), np.float32, queue), cl.read(visited, (count,), np.uint32, queue)
+
+
+def device_has_doubles() -> bool:
+    """Whether the OpenCL device computes in double precision (kernels/relight_view.cl's ``wide``)."""
+    return "cl_khr_fp64" in cl.runtime().device.extensions.split()
+
+
+class FrameDevice:
+    """The frame's tables on the device, for the kernels ``view_lookup`` and ``view_assemble``
+    (kernels/relight_view.cl): per face its lattice k, first entry, normal and material, the
+    lattice's cache points, the points' normals, the materials' albedo, the environment's texels
+    and rotation."""
+
+    def __init__(self, frames, device: ViewDevice):
+        self.points = len(frames.position)
+        self.wide = np.float64 if device_has_doubles() else np.float32
+        env = frames.environment
+        self.face_k = cl.to_device(np.ascontiguousarray(frames.face_k, np.int32))
+        self.face_base = cl.to_device(np.ascontiguousarray(frames.face_base, np.int64))
+        self.lattice = cl.to_device(np.ascontiguousarray(frames.lattice, np.int32))
+        self.normal = cl.to_device(np.ascontiguousarray(frames.normal32, np.float32))
+        self.face_normal = cl.to_device(np.ascontiguousarray(frames.face_normal32, np.float32))
+        self.face_material = cl.to_device(np.ascontiguousarray(frames.scene.face_material, np.int32))
+        self.albedo = cl.to_device(np.ascontiguousarray(frames.albedo_of, np.float32).reshape(-1))
+        self.env = cl.to_device(np.ascontiguousarray(env.pixels, np.float32).reshape(-1))
+        self.env_size = (np.uint32(env.width), np.uint32(env.height))
+        self.map_from_world = cl.to_device(np.ascontiguousarray(env.map_from_world, self.wide).reshape(-1))
+        self.cos_crease = np.float32(np.cos(np.radians(CREASE_DEGREES)))
+        self._zeros = np.zeros(self.points, np.uint8)
+        self.program = cl.program("relight_view.cl", QBITS=device.entries.bits, POINTS=POINTS, K=1)
+
+    def lookup(self, prim, u, v, d, queue):
+        """Launch ``view_lookup`` on camera rays (prim (N,) int32, -1 a miss; embree's u, v; unit
+        directions d (N, 3) float32): the buffers of their cache points (N, 3) uint32 and weights
+        (N, 3) float32 (the device twin of :meth:`ViewFrames.hit_points`, all rays), the ray
+        buffers, and the cache points of weight > 0 (sorted)."""
+        count = len(prim)
+        prim_b = cl.upload("view_prim", np.ascontiguousarray(prim, np.int32), queue)
+        dir_b = cl.upload("view_dir", np.ascontiguousarray(d, np.float32), queue)
+        used = cl.upload("view_used", self._zeros, queue)
+        ids, w = cl.scratch("view_ids", 12 * count), cl.scratch("view_weights", 12 * count)
+        cl.kernel(self.program, "view_lookup")(
+            queue, (cl.items(count),), (cl.WORK_GROUP,), np.uint32(count), prim_b,
+            cl.upload("view_u", np.ascontiguousarray(u, np.float32), queue),
+            cl.upload("view_v", np.ascontiguousarray(v, np.float32), queue), dir_b, self.face_k, self.face_base,
+            self.lattice, self.normal, self.face_normal, self.cos_crease, ids, w, used)
+        points = np.flatnonzero(cl.read(used, (self.points,), np.uint8, queue))
+        return ids, w, prim_b, dir_b, points
+
+    def assemble(self, count, prim_b, ids, w, dir_b, points, B, queue, image=None) -> np.ndarray:
+        """Launch ``view_assemble``: (N, 3) float32 (into ``image`` if given), a hit's albedo x the
+        blend of its points' B (rows of ``B`` in the order of ``points``), a miss's environment
+        texel."""
+        row = np.full(self.points, -1, np.int32)
+        row[points] = np.arange(len(points), dtype=np.int32)
+        out = cl.scratch("view_image", 12 * count)
+        cl.kernel(self.program, "view_assemble")(
+            queue, (cl.items(count),), (cl.WORK_GROUP,), np.uint32(count), prim_b, ids, w,
+            cl.upload("view_row", row, queue), B, self.face_material, self.albedo, dir_b, self.env, *self.env_size,
+            self.map_from_world, out)
+        if image is None:
+            return cl.read(out, (count, 3), np.float32, queue)
+        cl._cl().enqueue_copy(queue, image, out)
+        return image
 
 
 # ----------------------------------------------------------------------------- the bake
@@ -774,6 +862,8 @@ class ViewFrames:
         self.normal32 = self.normal.astype(np.float32)
         self.environment = self.scene.environment
         self._device = None
+        self._frame_device = None
+        self._centres = {}
         self._inside = None
 
     # -- cameras
@@ -786,6 +876,16 @@ class ViewFrames:
         w = check_int("relight.view", "width", self.transfer.width if width is None else width, 1, 16384)
         h = check_int("relight.view", "height", self.transfer.height if height is None else height, 1, 16384)
         return w, h
+
+    def _pixel_centres(self, width, first, count):
+        """Columns, rows (float32) and the centre's offsets of pixels first .. first + count - 1
+        of a frame ``width`` wide (the last chunk's kept: the next frame's)."""
+        key = (width, first, count)
+        if key not in self._centres:
+            pix = np.arange(first, first + count)
+            self._centres = {key: ((pix % width).astype(np.float32), (pix // width).astype(np.float32),
+                                   np.full((count, 2), 0.5, np.float32))}
+        return self._centres[key]
 
     # -- the cache at hits
     def hit_points(self, eye, d, prim, t, uv=None):
@@ -803,14 +903,18 @@ class ViewFrames:
         total = w.sum(1, keepdims=True)
         return ids, np.where(total > 0, w / np.where(total > 0, total, 1.0), 0.0), fn
 
-    def products(self, points, eye, refine=REFINE, backend="opencl"):
-        """B_k (K, 3) (albedo factored out) and nodes visited of cache points seen from ``eye``."""
+    def _point_items(self, points, eye):
+        """The point mode's items: cache points, material kind and parameter, normals and view
+        directions towards ``eye`` (lifted above the tangent plane)."""
         wo = np.asarray(eye, np.float64) - self.position[points]
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         nrm = self.normal[points]
-        wo = lifted_view(nrm, wo)
         mat = self.material[points]
-        kind, param = self.kind_of[mat], self.param_of[mat]
+        return points, self.kind_of[mat], self.param_of[mat], nrm, lifted_view(nrm, wo)
+
+    def products(self, points, eye, refine=REFINE, backend="opencl"):
+        """B_k (K, 3) (albedo factored out) and nodes visited of cache points seen from ``eye``."""
+        points, kind, param, nrm, wo = self._point_items(points, eye)
         if backend == "numpy":
             s = self.transfer._s
             return product_reference(s["offsets"], s["entry_scale"], s["entry_data"], self.n, points, kind, param,
@@ -852,42 +956,72 @@ class ViewFrames:
         t0 = time.perf_counter()
         scene = dataclasses.replace(self.scene, camera=cam)
         count = width * height
-        image = np.zeros((count, 3), np.float32)
+        image = (np.empty if backend == "opencl" else np.zeros)((count, 3), np.float32)   # the device writes all
         timing = {"rays_seconds": 0.0, "lookup_seconds": 0.0, "product_seconds": 0.0, "assembly_seconds": 0.0}
         products, visited = 0, 0
+        on_device = backend == "opencl"
+        if on_device:
+            queue = cl.thread_queue()
+            if self._device is None:
+                self._device = ViewDevice(self.transfer)
+            if self._frame_device is None:
+                self._frame_device = FrameDevice(self, self._device)
         for first in range(0, count, CHUNK_PIXELS * 4):   # chunks of pixels (bounded memory)
             ta = time.perf_counter()
             pix = np.arange(first, min(first + CHUNK_PIXELS * 4, count))
-            eye_a, d = camera_rays(scene, pix % width, pix // width, np.full((len(pix), 2), 0.5, np.float32),
-                                   width, height)
+            eye_a, d = camera_rays(scene, *self._pixel_centres(width, first, len(pix)), width, height)
             prim, t, u, v = self.tracer.intersect_uv(eye_a, d)
             tb = time.perf_counter()
-            hit = np.flatnonzero(prim >= 0)
-            ids, w, fn = self.hit_points(cam.eye, d[hit], prim[hit], t[hit], (u[hit], v[hit]))
-            mat = self.scene.face_material[prim[hit]]
+            if on_device:
+                # the cache lookup on the device; in point mode the walks and the assembly too
+                fd = self._frame_device
+                ids_b, w_b, prim_b, dir_b, points = fd.lookup(prim, u, v, d, queue)
+            if mode == "pixel" or not on_device:
+                hit = np.flatnonzero(prim >= 0)
+                if on_device:
+                    ids = cl.read(ids_b, (len(pix), 3), np.uint32, queue)[hit].astype(np.int64)
+                    w = cl.read(w_b, (len(pix), 3), np.float32, queue)[hit].astype(np.float64)
+                    fn = self.face_normal32[prim[hit]]
+                else:
+                    ids, w, fn = self.hit_points(cam.eye, d[hit], prim[hit], t[hit], (u[hit], v[hit]))
+                mat = self.scene.face_material[prim[hit]]
             if mode == "point":
-                used = np.zeros(len(self.position), bool)
-                used[ids[w > 0]] = True
-                points = np.flatnonzero(used)
+                if not on_device:
+                    used = np.zeros(len(self.position), bool)
+                    used[ids[w > 0]] = True
+                    points = np.flatnonzero(used)
                 tc = time.perf_counter()
-                B, nodes = self.products(points, cam.eye, refine, backend)
-                td = time.perf_counter()
-                # a point of weight 0 (or none shaded at all: only back faces seen) reads the zero row
-                at = np.full(len(self.position), len(points), np.int64)
-                at[points] = np.arange(len(points))
-                rows = np.concatenate([np.asarray(B, np.float32).reshape(-1, 3), np.zeros((1, 3), np.float32)])
-                blend = np.einsum("ij,ijc->ic", w.astype(np.float32), rows[at[ids]])
-                image[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
+                if on_device:
+                    if len(points):
+                        B_b, visited_b = self._device.walk(*self._point_items(points, cam.eye), refine, queue=queue)
+                        nodes = cl.read(visited_b, (len(points),), np.uint32, queue)
+                    else:
+                        B_b, nodes = cl.scratch("view_walk_out", 12), np.zeros(0, np.uint32)
+                    td = time.perf_counter()
+                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, points, B_b, queue, image[first:first + len(pix)])
+                else:
+                    B, nodes = self.products(points, cam.eye, refine, backend)
+                    td = time.perf_counter()
+                    # a point of weight 0 (or none shaded at all: only back faces seen) reads the zero row
+                    at = np.full(len(self.position), len(points), np.int64)
+                    at[points] = np.arange(len(points))
+                    rows = np.concatenate([np.asarray(B, np.float32).reshape(-1, 3), np.zeros((1, 3), np.float32)])
+                    blend = np.einsum("ij,ijc->ic", w.astype(np.float32), rows[at[ids]])
+                    image[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
                 shaded = len(points)
             else:
                 ok = np.flatnonzero(w.sum(1) > 0)
                 tc = time.perf_counter()
                 B, nodes = self.pixel_products(ids[ok], w[ok], fn[ok], d[hit][ok], mat[ok], refine, tau, backend)
                 td = time.perf_counter()
+                if on_device:   # the environment where rays miss (no point's row: 0 on hits)
+                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, np.zeros(0, np.int64),
+                                cl.scratch("view_walk_out", 12), queue, image[first:first + len(pix)])
                 image[pix[hit][ok]] = np.asarray(B, np.float32) * self.albedo_of[mat[ok]].astype(np.float32)
                 shaded = len(ok)
-            miss = np.flatnonzero(prim < 0)
-            image[pix[miss]] = self.environment.eval(d[miss].astype(np.float64))
+            if not on_device:
+                miss = np.flatnonzero(prim < 0)
+                image[pix[miss]] = self.environment.eval(d[miss].astype(np.float64))
             te = time.perf_counter()
             products += shaded
             visited += int(np.sum(nodes, dtype=np.int64))
@@ -934,7 +1068,8 @@ class ViewFrames:
         return np.maximum(T * f, 0.0).astype(np.float32)
 
     def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = 16, seed: int = 0,
-                 slots: int = SLOTS, defensive: float = DEFENSIVE, threads=None, progress=None) -> RenderResult:
+                 slots: int = SLOTS, defensive: float = DEFENSIVE, threads=None, progress=None,
+                 light: float = LIGHT_SHARE) -> RenderResult:
         """The unbiased frame from ``eye`` (module docstring): image, per-pixel standard error, stats."""
         where = "relight.view"
         spp = check_int(where, "spp", spp, 1, 1 << 16)
@@ -981,7 +1116,7 @@ class ViewFrames:
             hit = np.flatnonzero(prim >= 0)
             if len(hit):
                 value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp,
-                                                      (seed, JITTER_TILE + chunk), env, defensive, slots)
+                                                      (seed, JITTER_TILE + chunk), env, defensive, slots, light)
                 rays += traced
             v = value.reshape(P, spp, 3)
             with lock:
@@ -998,6 +1133,6 @@ class ViewFrames:
         mean, err = mean_and_error(sums, squares, spp)
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
                  "rays": totals["rays"], "eye": cam.eye.tolist(), "target": cam.target.tolist(), "fov": cam.fov_y,
-                 "estimator": "product T1 x f_r of the surface cache + BSDF, one-sample mixture"}
+                 "estimator": "product T1 x f_r of the surface cache + BSDF + lighting, one-sample mixture"}
         return RenderResult(mean.reshape(height, width, 3).astype(np.float32),
                             err.reshape(height, width, 3).astype(np.float32), stats)
