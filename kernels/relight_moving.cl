@@ -26,9 +26,7 @@
 #include "warp.h"
 #include "bsdf.h"
 #include "rng.h"
-#ifndef OFFSET_RELATIVE
-#define OFFSET_RELATIVE 1e-4   /* shadow-ray offset per unit of |p|: the host passes wavlight.raytrace's */
-#endif
+#include "hit.h"
 #ifndef N_LEVELS
 #error "relight_moving.cl is built with -DN_LEVELS (the product trees' depth)"
 #endif
@@ -63,16 +61,9 @@ __kernel void moving_directions(const uint count, __global const uint *slot_in, 
     realv dx, dy, dz;
     GATHER3(dirs, 3 * i, &dx, &dy, &dz);
     const uintv f = as_uintv(max(GATHER_INT(prim, i), 0));
-    realv nx, ny, nz, offset_floor;
-    GATHER4(face_normal, 4 * f, &nx, &ny, &nz, &offset_floor);
-    const realv flip = select((realv)1.0f, (realv)-1.0f, nx * dx + ny * dy + nz * dz > 0.0f);
-    nx *= flip;
-    ny *= flip;
-    nz *= flip;
-    const realv t = GATHER(tfar, i);
-    const realv px = eye_x + dx * t, py = eye_y + dy * t, pz = eye_z + dz * t;
-    const realv size = fmax(fmax(fabs(px), fabs(py)), fabs(pz));
-    const realv eps = fmax(fmax((float)OFFSET_RELATIVE * size, offset_floor), eye_offset);
+    realv nx, ny, nz, px, py, pz, eps;
+    hit_point(dx, dy, dz, GATHER(tfar, i), f, face_normal, eye_x, eye_y, eye_z, eye_offset,
+              &nx, &ny, &nz, &px, &py, &pz, &eps);
     realv sx, sy, sz, tx, ty, tz;
     make_frame(nx, ny, nz, &sx, &sy, &sz, &tx, &ty, &tz);
     const realv ox = -(dx * sx + dy * sy + dz * sz), oy = -(dx * tx + dy * ty + dz * tz);

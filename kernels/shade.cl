@@ -28,9 +28,7 @@
 #include "bsdf.h"
 #include "product.h"
 #include "rng.h"
-#ifndef OFFSET_RELATIVE
-#define OFFSET_RELATIVE 1e-4   /* shadow-ray offset per unit of |p|: the host passes wavlight.raytrace's */
-#endif
+#include "hit.h"
 #if STRATEGY >= 3 && !defined(N_LEVELS)
 #error "shade.cl with the light or product sample is built with -DN_LEVELS (the light tree's depth)"
 #endif
@@ -506,16 +504,9 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
     Shaded s;
     if (any(hit)) {
         const uintv f = as_uintv(max(face, 0));
-        realv nx, ny, nz, offset_floor;
-        GATHER4(face_normal, 4 * f, &nx, &ny, &nz, &offset_floor);   /* rows: normal, offset floor */
-        const realv flip = select((realv)1.0f, (realv)-1.0f, nx * dx + ny * dy + nz * dz > 0.0f);
-        nx *= flip;
-        ny *= flip;
-        nz *= flip;
-        const realv t = GATHER(tfar, i);
-        const realv px = eye_x + dx * t, py = eye_y + dy * t, pz = eye_z + dz * t;
-        const realv size = fmax(fmax(fabs(px), fabs(py)), fabs(pz));
-        const realv eps = fmax(fmax((float)OFFSET_RELATIVE * size, offset_floor), eye_offset);
+        realv nx, ny, nz, px, py, pz, eps;
+        hit_point(dx, dy, dz, GATHER(tfar, i), f, face_normal, eye_x, eye_y, eye_z, eye_offset,
+                  &nx, &ny, &nz, &px, &py, &pz, &eps);
         store_rows3(px + nx * eps, py + ny * eps, pz + nz * eps, origin_out, 3, 0, base, count);
         realv u0, u1, u2, u3;
         if (draw_u) {
