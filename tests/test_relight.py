@@ -322,3 +322,22 @@ def test_coarser_texels_are_the_top_left_coefficients():
         summed = texels.reshape(3, 1 << m, k, 1 << m, k).sum(axis=(2, 4))
         np.testing.assert_allclose(haar.forward(summed), haar.forward(texels)[:, :1 << m, :1 << m] * 4.0 ** (5 - m),
                                    rtol=1e-12, atol=1e-12)
+
+
+def test_the_pilot_at_few_levels_and_given_points(maps, device):
+    """Levels below the pilot's coarsest (2, 3) and points given: the pilot measures at those
+    levels and with those points, and a bake made with them has every choice."""
+    scene = wavlight.load_dict(sphere_on_floor({"file": "sky.exr", "rotate_y": 20.0}), base_dir=maps)
+    for levels in (2, 3):
+        m = bake_mod.choose_model(scene, 0.05, None, 0, levels=levels, points=1, width=16, height=16)
+        assert m["n_levels"] == levels and m["spp"] in bake_mod.SPP_CHOICES
+        assert m["terms"] <= 4 ** levels and str(levels) in m["pilot"]["noise_at_pilot_spp"]
+    tr = wavlight.bake(scene, levels=3, points=1, terms=16, priority="area")
+    assert tr.n_levels == 3 and tr.spp in bake_mod.SPP_CHOICES and np.isfinite(tr.frame(rotate_y=10.0)).all()
+
+
+def test_mixture_shares_are_checked(shadowed):
+    scene, tr = shadowed
+    for defensive, light in ((0.6, 0.5), (0.0, 1.0), (-0.1, 0.1), (0.1, float("nan"))):
+        with pytest.raises(WavlightError):
+            converge(tr, scene, spp=1, defensive=defensive, light=light)

@@ -409,24 +409,29 @@ def pilot_grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
             ((np.arange(ph) + 0.5) * height / ph).astype(np.int64))
 
 
-def _pilot_transfer(scene, worker, grid, width, height, spp, seed, top, backend) -> np.ndarray:
-    """(P, 2^top, 2^top) float64: the pilot pixels' texels, baked with ``seed``."""
+def _pilot_transfer(scene, worker, grid, width, height, spp, seed, top, backend, points=None) -> np.ndarray:
+    """(P, 2^top, 2^top) float64: the pilot pixels' texels, baked with ``seed`` (``points`` per
+    texel, default :func:`texel_points`)."""
     tiles, _ = _tiles(len(grid[0]), len(grid[1]))
     texels = []
     for tile in tiles:   # a few blocks, not pixels
         _, x0, y0, w, h = tile
         ps = camera_samples(scene, worker.tracer, width, height, x0, y0, w, h, spp, seed, tile[0], at=grid)
         texels.append(tile_transfer(ps, worker.tracer, top, seed, tile[0], backend, worker.kinds,
-                                    texel_points(scene, top))[0])
+                                    texel_points(scene, top) if points is None else points)[0])
     return np.concatenate(texels).astype(np.float64)
 
 
 def _relative(a: np.ndarray, b: np.ndarray, norm: float) -> float:
-    return float(np.linalg.norm(a - b) / norm) if norm > 0 else 0.0
+    """||a - b|| / norm; 0 where norm is 0, inf where anything is not finite (nothing fits)."""
+    diff = float(np.linalg.norm(a - b))
+    if not (np.isfinite(diff) and np.isfinite(norm)):
+        return float("inf")
+    return diff / norm if norm > 0 else 0.0
 
 
 def choose_model(scene, tolerance: float, spp, seed: int, levels=None, terms=None, priority=None,
-                 backend: str = "opencl", width=None, height=None) -> dict:
+                 backend: str = "opencl", width=None, height=None, points=None) -> dict:
     """The camera samples S, texel levels n, terms K and their priority a scene needs for
     ``tolerance`` (a relative L2 error of frames), from pilot bakes of the image's own pixels
     (:func:`pilot_grid`) at 2^PILOT_LEVELS texels and coarser, measured under held-out
@@ -462,11 +467,13 @@ def choose_model(scene, tolerance: float, spp, seed: int, levels=None, terms=Non
     pilot_spp = MAX_SAMPLES if spp is None else int(spp)
     lum = LUMINANCE.astype(np.float64)
     rot = env.rotate_y + HELD_OUT_TURNS[0]
-    held = {m: lighting.project(env, m, rot) @ lum for m in range(top, 3, -1)}
+    lowest = min(top, 4)                  # the coarsest level measured (the pilot's own when it is below)
+    held = {m: lighting.project(env, m, rot) @ lum for m in range(top, lowest - 1, -1)}
 
     def pair(m):
         """The two pilots' frames at level m under the held-out lighting, their transfer's mean."""
-        a, b = (_pilot_transfer(scene, worker, grid, width, height, pilot_spp, seed + k, m, backend) for k in (1, 2))
+        a, b = (_pilot_transfer(scene, worker, grid, width, height, pilot_spp, seed + k, m, backend, points)
+                for k in (1, 2))
         return np.einsum("pij,ij->p", a, held[m]), np.einsum("pij,ij->p", b, held[m]), (a + b) / 2
 
     def noise_of(f1, f2):   # one pilot's: the two differ by sqrt(2) of it
@@ -475,7 +482,7 @@ def choose_model(scene, tolerance: float, spp, seed: int, levels=None, terms=Non
     f1, f2, T = pair(top)
     noise_at = {top: noise_of(f1, f2)}
     frames = {}
-    for n in range(top, 3, -1):   # levels, not pixels
+    for n in range(top, lowest - 1, -1):   # levels, not pixels
         k = 1 << (top - n)
         frames[n] = np.einsum("pij,ij->p", T.reshape(len(T), 1 << n, k, 1 << n, k).sum(axis=(2, 4)), held[n])
     norm = np.linalg.norm(frames[top])
@@ -517,7 +524,7 @@ def choose_model(scene, tolerance: float, spp, seed: int, levels=None, terms=Non
 
     if priority is None:
         priority = min(("transfer", "area"), key=lambda pr: (error(256, pr), pr != "transfer"))
-    term_error = {kk: error(kk, priority) for kk in TERM_CHOICES if kk <= 4 ** n}
+    term_error = {kk: error(kk, priority) for kk in [k for k in TERM_CHOICES if k <= 4 ** n] or [4 ** n]}
     if terms is None:
         fits = [kk for kk, e in term_error.items() if e <= share * TERM_MARGIN]
         terms = fits[0] if fits else max(term_error)
@@ -552,7 +559,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None, tol
     are chosen from the scene for ``tolerance`` by pilot bakes (:func:`choose_model`) unless
     given; each block is compressed to the share of the tolerance the pilot leaves it (on the
     held-out lighting) and quantized to ``bits``.
-    ``points`` per texel (1 or 4) default to :func:`texel_points`.
+    ``points`` per texel (1, 4 or 16) default to :func:`texel_points`.
 
     ``vary="object"`` with ``object`` (a name or an index) bakes for frames in which that object
     moves (:mod:`wavlight.relight.moving`): the transfer of the scene without it (camera rays and
@@ -600,7 +607,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None, tol
     if dask_address is not None and scene.path == "<dict>":
         raise ArgumentError(f"{where}: a bake on a Dask cluster needs the scene as a file (its workers load it)")
     t0 = time.perf_counter()
-    model = choose_model(scene, tolerance, spp, seed, levels, terms, priority, backend, width, height)
+    model = choose_model(scene, tolerance, spp, seed, levels, terms, priority, backend, width, height, points)
     n, spp = model["n_levels"], model["spp"]
     env = scene.environment
     held = lighting.coefficients(lighting.project(env, n, env.rotate_y + HELD_OUT_DEGREES)).reshape(3, -1).T

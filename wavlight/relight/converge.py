@@ -38,7 +38,7 @@ import numpy as np
 from .. import bsdfs, rng
 from ..camera import camera_rays
 from ..envmap import Environment, luminance
-from ..errors import WavlightError, check_int
+from ..errors import ArgumentError, WavlightError, check_int, check_number
 from ..haar import ProductPyramids, forward
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
@@ -69,6 +69,17 @@ def check_scene_matches(transfer, scene):
     same = all(np.allclose(getattr(scene.camera, k), cam[k], rtol=0, atol=1e-9) for k in ("eye", "target", "up"))
     if not same or abs(float(scene.camera.fov_y) - float(cam["fov_y"])) > 1e-9:
         raise WavlightError(f"{scene.path}: its camera differs from the one {transfer.path} was baked for")
+
+
+def check_shares(where: str, defensive, light):
+    """The mixture's shares: defensive (the BSDF's) and light (the lighting's) in [0, 1), with
+    defensive + light < 1 where a pixel has a product and the BSDF's share left to the others."""
+    defensive = check_number(where, "defensive", defensive, 0.0, 1.0)
+    light = check_number(where, "light", light, 0.0, 1.0)
+    if light >= 1.0 or defensive + light >= 1.0:
+        raise ArgumentError(f"{where}: defensive + light must be below 1 (the product's share), got "
+                            f"{defensive:g} + {light:g}")
+    return defensive, light
 
 
 def _scene_of(transfer, scene):
@@ -141,6 +152,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     spp = check_int(where, "spp", spp, 1, MAX_SPP)
     seed = check_int(where, "seed", seed, 0, 2 ** 63 - 1)
     levels = check_int(where, "levels", levels, 1, 16)
+    check_shares(where, defensive, light)
     scene = _scene_of(transfer, scene)
     rot = transfer.scene_rotate_y if rotate_y is None else float(rotate_y)
     base = transfer.environment(env, scale)                     # unrotated, scaled

@@ -110,7 +110,7 @@ from ..warp import frame as tangent_frame
 from . import lighting, store
 from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choose_model, texel_rays, \
     texel_rays_reference
-from .converge import LIGHT_SHARE, _scene_of, _TexelLight, mean_and_error, shade_by_mixture, square_to_world
+from .converge import LIGHT_SHARE, _scene_of, check_shares, _TexelLight, mean_and_error, shade_by_mixture, square_to_world
 from .frame import DeviceEntries
 from .transfer import finish_bake
 
@@ -1074,6 +1074,7 @@ class ViewFrames:
         where = "relight.view"
         spp = check_int(where, "spp", spp, 1, 1 << 16)
         seed = check_int(where, "seed", seed, 0, 2 ** 62)
+        check_shares(where, defensive, light)
         cam = self.camera(eye, target, fov)
         width, height = self._size(width, height)
         scene = dataclasses.replace(self.scene, camera=cam)
