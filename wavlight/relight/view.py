@@ -736,7 +736,7 @@ def bake_view(scene, output=None, levels=None, tolerance: float = 0.02, bits: in
     seed = check_int(where, "seed", seed, 0, 2 ** 62)
     points = 4 if points is None else points
     if points not in POINT_CHOICES:
-        raise ArgumentError(f"{where}: points must be 1 or 4, got {points!r}")
+        raise ArgumentError(f"{where}: points must be one of {', '.join(map(str, POINT_CHOICES))}, got {points!r}")
     cache_points = check_int(where, "cache_points", cache_points, 1, MAX_LATTICE)
     if scene.environment.is_black:
         raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
