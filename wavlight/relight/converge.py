@@ -261,20 +261,17 @@ class _TexelLight:
             factor = np.where(total > 0, mass / np.where(total > 0, total, 1.0) * k * k, 0.0)
         return out, factor
 
-    def sample_light(self, a, b):
-        """Points of the square drawn from the lighting alone (a texel in proportion to its mass
-        by ``a``, a leaf inside it by :meth:`sample`, the residue of ``a`` and ``b`` its place):
-        the lighting's technique of the mixture, density :meth:`light_pdf` per unit square."""
+    def sample_light(self, a, b, c):
+        """Points of the square drawn from the lighting alone: a texel in proportion to its mass
+        by ``a``, then the point (b, c) of the texel moved to a leaf by :meth:`sample` (three
+        uniforms, so that each choice has all of its bits): the lighting's technique of the
+        mixture, density :meth:`light_pdf` per unit square."""
         cdf = self._texel_cdf()
-        target = a * cdf[-1]
-        t = np.minimum(np.searchsorted(cdf, target, side="right"), len(cdf) - 1)
-        below = np.where(t > 0, cdf[np.maximum(t - 1, 0)], 0.0)
-        mass = self.texel_mass[t]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.clip(np.where(mass > 0, (target - below) / np.where(mass > 0, mass, 1.0), 0.5), 0.0,
-                        np.nextafter(1.0, 0.0))
+        t = np.minimum(np.searchsorted(cdf, a * cdf[-1], side="right"), len(cdf) - 1)
         side = 1 << self.n
-        uv = np.stack([(t % side + r) / side, (t // side + np.clip(b, 0.0, np.nextafter(1.0, 0.0))) / side], 1)
+        one_below = np.nextafter(1.0, 0.0)
+        uv = np.stack([(t % side + np.clip(b, 0.0, one_below)) / side, (t // side + np.clip(c, 0.0, one_below)) / side],
+                      1)
         return self.sample(uv)[0]
 
     def light_pdf(self, uv):
@@ -382,11 +379,10 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
     wl_b = bsdfs.sample_each(kind, param, ub, wo)
     d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
     direction = np.where(use_b[:, None], d_b, d_p)
-    if light > 0:                    # the lighting's: u.z rescaled in [alpha, alpha + light), and u.w
-        use_l = ~use_b & (u[:, 2] < alpha + light)
+    if light > 0:                    # the lighting's: u.z in [alpha, alpha + light) chooses it, and its
+        use_l = ~use_b & (u[:, 2] < alpha + light)   # direction takes the product's unused u.x, u.y and u.w
         if use_l.any():
-            a = np.clip((u[use_l, 2] - alpha[use_l]) / light, 0.0, np.nextafter(1.0, 0.0))
-            direction[use_l] = square_to_world(inside.sample_light(a, u[use_l, 3]))
+            direction[use_l] = square_to_world(inside.sample_light(u[use_l, 0], u[use_l, 1], u[use_l, 3]))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     uv = world_to_square(direction)
     p_tree = trees.pdf(np.ascontiguousarray(_spread(uv, hit, len(u_all)), np.float32), spp)[hit]
