@@ -88,6 +88,7 @@ def test_a_time_budget_fits_relight_from_its_pilot(tmp_path):
 
 @pytest.mark.parametrize("keys, named", [
     ("bake_spp = 0\n", "[[strategies]][1].bake_spp"),
+    ("bake_spp = 65\n", "[[strategies]][1].bake_spp"),
     ("levels = 9\n", "[[strategies]][1].levels"),
     ("frames = 1.5\n", "[[strategies]][1].frames"),
     ("wavelet_levels = 4\n", "[[strategies]][1].wavelet_levels"),

@@ -341,3 +341,8 @@ def test_mixture_shares_are_checked(shadowed):
     for defensive, light in ((0.6, 0.5), (0.0, 1.0), (-0.1, 0.1), (0.1, float("nan"))):
         with pytest.raises(WavlightError):
             converge(tr, scene, spp=1, defensive=defensive, light=light)
+
+
+def test_experiment_bake_samples_within_the_bakes_own_limit():
+    from wavlight.evaluation.spec import RELIGHT_KEYS
+    assert RELIGHT_KEYS["bake_spp"][3] == bake_mod.MAX_SAMPLES

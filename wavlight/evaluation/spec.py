@@ -19,7 +19,8 @@ PEER_PREFIX = "mitsuba:"
 #: amortized over ``frames`` frames in every run's setup seconds.
 RELIGHT = "relight"
 #: relight's keys in a [[strategies]] table: (kind, default, lowest, highest)
-RELIGHT_KEYS = {"bake_spp": ("int", 16, 1, 4096), "levels": ("int", None, 2, 8), "frames": ("int", 100, 1, 10 ** 9)}
+# bake_spp: at most the bake's camera samples, wavlight.relight.bake.MAX_SAMPLES
+RELIGHT_KEYS = {"bake_spp": ("int", 16, 1, 64), "levels": ("int", None, 2, 8), "frames": ("int", 100, 1, 10 ** 9)}
 
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
