@@ -25,7 +25,7 @@ from .progress import ProgressBar
 @click.option("--height", type=int, default=None, help="Image height (default: the scene's).")
 @click.option("--spp", type=click.IntRange(1, 64), default=None,
               help="Camera samples per pixel, stratified over the pixel (they share each texel's shadow ray). "
-                   "Default: the fewest of 16, 32, 64 whose noise meets half the tolerance, from two pilot bakes.")
+                   "Default: the fewest of 16, 32, 64 the tolerance needs, from two pilot bakes that measure the noise.")
 @click.option("--levels", type=click.IntRange(2, 8), default=None,
               help="Texels: 2^n x 2^n on the lat-long square. Default: the fewest that meet the tolerance, "
                    "from a pilot bake.")
