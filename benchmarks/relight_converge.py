@@ -9,7 +9,7 @@ automatic choice of texel levels, terms and priority, --bake-spp camera samples;
 neither this rotation nor, in its compression, anything but its held-out 137 degrees). The
 reference is `mis` at --ref-spp of the scene dict with environment.rotate_y = --rotation.
 
-For spp in --spp and seeds 0 .. --seeds - 1: converge with slots 2 and 4 (directions per camera
+For spp in --spp and seeds 0 .. --seeds - 1: converge with each of --slots (directions per camera
 sample; its camera samples are stratified over the pixel), `mis` and `wavelet` (the renderer's
 default independent pixel samples) and, unless --no-stratified, `mis` and `wavelet` with
 stratified pixel samples too. relMSE = mean(((x - r)^2 - s_r^2) / (r^2 + 0.01))
@@ -30,7 +30,7 @@ Timing: with --wait-minutes M > 0, waits for the 1-minute load average to fall b
 
     python benchmarks/relight_converge.py [--size 128] [--spp 1,4,16,64] [--seeds 3] [--ref-spp 16384]
         [--bake-spp 16] [--rotation 60] [--frames 100] [--floor 32] [--floor-spp 16] [--no-stratified]
-        [--only SUBSTR] [--product-levels M] [--light BETA] [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
+        [--only SUBSTR] [--slots 2,4] [--product-levels M] [--light BETA] [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
 
 The figures in benchmarks/results/relight_converge.json come from
 
@@ -64,6 +64,7 @@ def main():
     ap.add_argument("--floor-spp", type=int, default=16, help="spp of the floor and of the 1/3 target")
     ap.add_argument("--no-stratified", action="store_true", help="leave out mis and wavelet with stratified samples")
     ap.add_argument("--only", default="", help="substring filter on scene names")
+    ap.add_argument("--slots", default="2,4", help="converge's directions per camera sample, comma-separated")
     ap.add_argument("--product-levels", type=int, default=None,
                     help="converge's product-tree levels at most (default: wavlight.relight.converge.PRODUCT_LEVELS)")
     ap.add_argument("--light", type=float, default=None,
@@ -78,7 +79,9 @@ def main():
     import relmse as relmse_bench   # benchmarks/relmse.py: floor_image
 
     spps = [int(s) for s in args.spp.split(",") if s]
-    methods = ["converge_s2", "converge_s4", "mis", "wavelet"] + ([] if args.no_stratified else
+    slots = [int(k) for k in args.slots.split(",") if k]
+    conv = [f"converge_s{k}" for k in slots]
+    methods = conv + ["mis", "wavelet"] + ([] if args.no_stratified else
                                                                ["mis_stratified", "wavelet_stratified"])
     t_start = time.perf_counter()
     out = {}
@@ -104,7 +107,8 @@ def main():
         def run(method, spp, seed):
             t0 = time.perf_counter()
             if method.startswith("converge"):
-                r = converge(transfer, scene, rotate_y=args.rotation, spp=spp, seed=seed, slots=int(method[-1]), **knobs)
+                r = converge(transfer, scene, rotate_y=args.rotation, spp=spp, seed=seed,
+                             slots=int(method[len("converge_s"):]), **knobs)
                 seconds = time.perf_counter() - t0
             else:
                 strategy, _, sampler = method.partition("_")
@@ -174,11 +178,11 @@ def main():
             s = str(args.floor_spp)
             floor = row.get("footprint_floor", {})
             t = row["target"] = {
-                "spp": args.floor_spp, "converge_over_wavelet": row["methods"]["converge_s2"][s]["over_wavelet_equal_spp"],
-                "converge_s4_over_wavelet": row["methods"]["converge_s4"][s]["over_wavelet_equal_spp"], "target": 1 / 3,
+                "spp": args.floor_spp, "target": 1 / 3,
+                **{f"{k}_over_wavelet": row["methods"][k][s]["over_wavelet_equal_spp"] for k in conv},
                 "floor_stratified_over_wavelet": floor.get("stratified", {}).get("over_wavelet"),
                 "floor_independent_over_wavelet": floor.get("independent", {}).get("over_wavelet")}
-            t["met"] = bool(min(t["converge_over_wavelet"], t["converge_s4_over_wavelet"]) <= 1 / 3)
+            t["met"] = bool(min(t[f"{k}_over_wavelet"] for k in conv) <= 1 / 3)
         out[name] = row
         transfer.close()
 
@@ -190,12 +194,12 @@ def main():
             for method in methods:
                 c = row["methods"][method][str(spp)]
                 cells[method] = f"{c['relmse']:.3e}/{c['seconds']:.2f}s"
-            c2 = row["methods"]["converge_s2"][str(spp)]
+            c2 = row["methods"][conv[0]][str(spp)]
             cells["conv/wav spp"] = f"{c2['over_wavelet_equal_spp']:.3f}"
             cells["conv/wav time"] = f"{c2['over_wavelet_equal_time']:.3f}"
             cells[f"amortized/{args.frames}"] = f"{c2['over_wavelet_equal_time_amortized']:.3f}"
             lines.append(cells)
-    print("relMSE / seconds (median of seeds); converge (slots 2) over wavelet at equal spp, equal time, "
+    print(f"relMSE / seconds (median of seeds); {conv[0]} over wavelet at equal spp, equal time, "
           f"equal time with the bake amortized over {args.frames} frames")
     print(rc.table(lines, ["scene", "spp", *methods, "conv/wav spp", "conv/wav time", f"amortized/{args.frames}"]))
     print(f"\nfootprint floor at {args.floor_spp} spp (D = {args.floor}) and the 1/3 target")
@@ -203,8 +207,7 @@ def main():
     for name, row in out.items():
         f = row.get("footprint_floor", {})
         t = row.get("target", {})
-        frows.append({"scene": name, "converge/wavelet": t.get("converge_over_wavelet"),
-                      "converge_s4/wavelet": t.get("converge_s4_over_wavelet"),
+        frows.append({"scene": name, **{f"{k}/wavelet": t.get(f"{k}_over_wavelet") for k in conv},
                       "floor_indep/wavelet": f.get("independent", {}).get("over_wavelet"),
                       "floor_strat/wavelet": f.get("stratified", {}).get("over_wavelet"),
                       "floor_strat/wavelet_strat": f.get("stratified", {}).get("over_wavelet_same_sampler"),
