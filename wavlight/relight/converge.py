@@ -44,6 +44,7 @@ from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import check_scene, load_scene
 from ..warp import frame as tangent_frame
+from ..warp import to_local
 from . import lighting
 from .bake import BLOCK, camera_jitter
 
@@ -339,7 +340,7 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     nrm = nrm.astype(np.float64)
     s_ax, t_ax = tangent_frame(nrm)
     wo_w = -d[hit].astype(np.float64)
-    wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, nrm)], 1)
+    wo = to_local(wo_w, s_ax, t_ax, nrm)
     mat = scene.face_material[prim[hit]]
     kind, param = scene.material_kind[mat], scene.material_param[mat]
     has_p = mass[hit // spp] > 0
@@ -387,7 +388,7 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
     uv = world_to_square(direction)
     p_tree = trees.pdf(np.ascontiguousarray(_spread(uv, hit, len(u_all)), np.float32), spp)[hit]
     p_prod = np.where(has_product, p_tree.astype(np.float64) * inside.factor(uv), 0.0) * solid_angle_jacobian(direction)
-    wl = np.stack([np.einsum("ij,ij->i", direction, a) for a in (s_ax, t_ax, nrm)], 1)
+    wl = to_local(direction, s_ax, t_ax, nrm)
     fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
     pdf = (1 - alpha - light) * p_prod + alpha * p_bsdf
     if light > 0:

@@ -50,6 +50,7 @@ from ..raytrace import RayTracer
 from ..scene import rotation
 from ..shading import KernelShader
 from ..warp import frame as tangent_frame
+from ..warp import to_local
 from .bake import camera_jitter
 from .converge import _scene_of, _TexelLight, mixture_directions
 
@@ -85,7 +86,7 @@ def mixture_samples_reference(scene, tracer, environment, inside, trees, d, prim
     nrm = nrm.astype(np.float64)
     s_ax, t_ax = tangent_frame(nrm)
     wo_w = -np.asarray(d, np.float64)
-    wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, nrm)], 1)
+    wo = to_local(wo_w, s_ax, t_ax, nrm)
     mat = scene.face_material[prim]
     kind, param = scene.material_kind[mat], scene.material_param[mat]
     has = trees.integral[np.asarray(slots) // spp] > 0
@@ -485,13 +486,13 @@ class MovingObject:
             mt = self._materials
             n64, wo_w = n.astype(np.float64), -dd.astype(np.float64)
             s_ax, t_ax = tangent_frame(n64)
-            wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (s_ax, t_ax, n64)], 1)
+            wo = to_local(wo_w, s_ax, t_ax, n64)
             sp = strategies.ShadingPoints(p.astype(np.float64), n64, s_ax, t_ax, wo, mt.kind[mats], mt.param[mats],
                                           mt.albedo[mats], mats)
             wi, val = strategies.shade_reference(self.mis, self.environment, sp, u.astype(np.float64))
         # planes (slot, component, point): the kernel's own layout
         wi, val = np.asarray(wi).transpose(1, 2, 0), np.asarray(val).transpose(1, 2, 0)
-        offset = np.maximum(np.float32(1e-4) * np.abs(p).max(1), np.float32(1e-6 * self.rest_tracer.scale))
+        offset = np.maximum(np.float32(raytrace.OFFSET_RELATIVE) * np.abs(p).max(1), np.float32(1e-6 * self.rest_tracer.scale))
         origin = p + n * offset[:, None]
         total = np.zeros((3, len(hits)))
         rays = 0

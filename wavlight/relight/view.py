@@ -107,6 +107,7 @@ from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import Camera, check_scene, load_scene
 from ..warp import frame as tangent_frame
+from ..warp import to_local
 from . import lighting, store
 from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choose_model, texel_rays, \
     texel_rays_reference
@@ -468,7 +469,7 @@ def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, k
     tables = node_tables(n_levels, refine)
     axis, width = lobe(kind, param, normal, wo)
     s_ax, t_ax = tangent_frame(normal)
-    wo_l = np.stack([np.einsum("ij,ij->i", wo, a) for a in (s_ax, t_ax, normal)], 1)
+    wo_l = to_local(wo, s_ax, t_ax, normal)
     ml = np.linalg.norm(m_all, axis=1)
     dn = np.linalg.norm(normal - m_all, axis=1)
     root = _blended(offsets, scale, data, points, weights, np.zeros((len(points), 1), np.int64))[:, 0]
@@ -1060,7 +1061,7 @@ class ViewFrames:
         T = np.einsum("pj,pjab->pab", w, coarse[inv.reshape(ids.shape)])
         dirs = lighting.texel_directions(m).reshape(-1, 3)
         s_ax, t_ax = tangent_frame(normal)
-        wo = np.stack([np.einsum("ij,ij->i", wo_world, a) for a in (s_ax, t_ax, normal)], 1)
+        wo = to_local(wo_world, s_ax, t_ax, normal)
         wl = np.stack([dirs @ a.T for a in (s_ax, t_ax, normal)], -1).transpose(1, 0, 2)        # (P, M^2, 3)
         P = len(normal)
         f = brdf_reference(np.repeat(self.kind_of[mat], small * small), np.repeat(self.param_of[mat], small * small),
