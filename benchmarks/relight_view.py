@@ -19,9 +19,12 @@ are cached in /tmp/relight-bench/view-bakes (keyed by the scene, the settings an
 sources).
 
     python benchmarks/relight_view.py [--scenes bunny_ggx,bunny_ggx05,bunny_lambert]
-        [--modes point,point:0:0.08,pixel:0,pixel,pixel:0.1:0.08] [--size 512] [--error-size 256] [--supersample 1,4]
-        [--mis-spp 1024] [--frames 15]
-        [--levels auto] [--refine 0.15] [--turn 40] [-o FILE]
+        [--modes point,point:0:0.15:0,pixel,pixel:0.1:0.15:0] [--size 512] [--error-size 256] [--supersample 1,4]
+        [--mis-spp 1024] [--frames 15] [--still-frames 3]
+        [--levels auto] [--refine 0.2] [--turn 40] [-o FILE]
+
+Each scene's written frame (``wavlight frame``'s settings, view.STILL: ``pixel`` at 4 x 4 rays)
+is timed at --size too.
 
 The figures in benchmarks/results/relight_view.json come from the defaults.
 """
@@ -127,9 +130,11 @@ def region_errors(image, ref, stderr, masks: dict) -> dict:
 def main():
     ap = common.parser(__doc__)
     ap.add_argument("--scenes", default="bunny_ggx,bunny_ggx05,bunny_lambert")
-    ap.add_argument("--modes", default="point,point:0:0.08,pixel:0,pixel,pixel:0.1:0.08",
-                    help="the approximate frame's settings (ViewFrames.frame), MODE[:TAU[:REFINE]] (TAU: the pixel "
-                         "mode's cosine correction, 0 none, default view.TAU; REFINE default --refine)")
+    ap.add_argument("--modes", default="point,point:0:0.15:0,pixel,pixel:0.1:0.15:0",
+                    help="the approximate frame's settings (ViewFrames.frame), MODE[:TAU[:REFINE[:MASS]]] (TAU: the "
+                         "pixel mode's cosine correction, 0 none, default view.TAU; REFINE default --refine; MASS "
+                         "default view.MASS, 0 the walk by the lobe alone)")
+    ap.add_argument("--still-frames", type=int, default=3, help="timed written frames (view.STILL) per scene")
     ap.add_argument("--size", type=int, default=512, help="timed frames: width and height")
     ap.add_argument("--error-size", type=int, default=256, help="the error's frames and references: width, height")
     ap.add_argument("--mis-spp", type=int, default=1024, help="samples per pixel of the mis references")
@@ -163,8 +168,9 @@ def main():
                         "reference": {"spp": args.mis_spp, "size": args.error_size, "cached": rinfo["cached"],
                                       "wall_seconds": rinfo.get("wall_seconds")}}
         for spec in [m for m in args.modes.split(",") if m]:
-            mode, tau, ref_ = (spec.split(":") + ["", ""])[:3]
-            opts = {"refine": float(ref_) if ref_ else refine, "mode": mode, "tau": float(tau) if tau else view.TAU}
+            mode, tau, ref_, mass = (spec.split(":") + ["", "", ""])[:4]
+            opts = {"refine": float(ref_) if ref_ else refine, "mode": mode, "tau": float(tau) if tau else view.TAU,
+                    "mass": float(mass) if mass else view.MASS}
             err = {}
             for ss in sorted({1, *[int(x) for x in args.supersample.split(",") if x]}):
                 big = args.error_size * ss
@@ -176,7 +182,7 @@ def main():
                      for _ in range(args.frames)]
             med = {p: statistics.median(s[p] for s in stats) for p in PARTS}
             rows.append({"scene": name, "mode": mode, "tau": opts["tau"] if mode == "pixel" else None,
-                         "refine": opts["refine"], "errors": err, **med,
+                         "refine": opts["refine"], "mass": opts["mass"], "errors": err, **med,
                          "frames_per_second": 1.0 / med["frame_seconds"],
                          "items_shaded": stats[-1]["cache_points_shaded"],
                          "nodes_per_item": stats[-1]["nodes_per_point"]})
@@ -184,6 +190,12 @@ def main():
                 print(f"{name:14s} {spec:16s} {ss:4s} fps {rows[-1]['frames_per_second']:5.2f}  "
                       + "  ".join(f"{k} {v['raw']:.4f}/{v['corrected']:.4f} (noise {v['noise']:.4f})"
                                   for k, v in e.items()), flush=True)
+        frames.frame(cam.eye, cam.target, cam.fov_y, args.size, args.size, **view.STILL)   # untimed: the build
+        stats = [frames.frame(cam.eye, cam.target, cam.fov_y, args.size, args.size, **view.STILL)[1]
+                 for _ in range(args.still_frames)]
+        scenes[name]["still"] = dict(view.STILL, **{p: statistics.median(s[p] for s in stats) for p in PARTS})
+        print(f"{name:14s} written frame ({view.STILL['mode']}, {view.STILL['supersample']}^2 rays) at {args.size}^2: "
+              f"{scenes[name]['still']['frame_seconds']:.3f} s", flush=True)
         tr.close()
     data = {"size": args.size, "error_size": args.error_size, "supersample": args.supersample, "mis_spp": args.mis_spp, "turn": args.turn,
             "environment": ENV, "scenes": scenes, "rows": common.rounded(rows)}

@@ -137,18 +137,26 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
                    "the folder -o DIR (PNG; and an animated GIF).")
 @click.option("--refine", type=click.FloatRange(1e-4, 100.0), default=None,
               help="A bake with --vary view: a BRDF node's angular radius at most REFINE times its distance from "
-                   "the lobe plus the lobe's width (smaller: more nodes, closer to the texels' sum). Default 0.15.")
+                   "the lobe plus the lobe's width, divided by sqrt(share / MASS) where the node holds a share of "
+                   "the transfer above MASS (smaller: more nodes, closer to the texels' sum). Default 0.2.")
+@click.option("--mass", type=click.FloatRange(0.0, 1.0), default=None,
+              help="A bake with --vary view: a node holding more than this share of the transfer's mass (a sun) is "
+                   "refined further (0: by the lobe alone). Default 0.01.")
 @click.option("--mode", type=click.Choice(["point", "pixel"]), default=None,
-              help="A bake with --vary view: a product per cache point, blended per pixel (fast), or per pixel of "
-                   "its points' blended transfer with the pixel's face normal and view (closer to mis where facets "
-                   "are resolved; slower). Default point.")
+              help="A bake with --vary view: a product per cache point, blended per pixel (fast: the viewer's), or "
+                   "per pixel of its points' blended transfer with the pixel's face normal and view (closer to mis; "
+                   "slower). Default pixel.")
+@click.option("--supersample", type=click.IntRange(1, 16), default=None, metavar="S",
+              help="A bake with --vary view: S x S rays per pixel, averaged (the bunny's facets are smaller than a "
+                   "pixel). Default 4; 1 for the viewer's speed.")
 @click.option("--tau", type=click.FloatRange(0.0, 100.0), default=None,
               help="A bake with --vary view, --mode pixel: the tolerance of the correction of the baked cosine to "
                    "the face's (0: none). Default 0.1.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with timings and choices.")
 @click.option("--quiet", "-q", is_flag=True, help="No closing message.")
 def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntable, repeat, spp, seed, translate,
-          rotate, scene_file, eye, target, fov, width, height, orbit, refine, mode, tau, as_json, quiet):
+          rotate, scene_file, eye, target, fov, width, height, orbit, refine, mass, mode, supersample, tau, as_json,
+          quiet):
     """Relight the bake file PATH: one frame under new lighting (or a turntable of frames)."""
     import math
 
@@ -162,10 +170,12 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
         transfer = wavlight.Transfer.load(bake_file)
         varies = transfer.header.get("vary", "lighting")
         camera = {"--eye": eye, "--target": target, "--fov": fov, "--width": width, "--height": height,
-                  "--orbit": orbit, "--refine": refine, "--mode": mode, "--tau": tau}
+                  "--orbit": orbit, "--refine": refine, "--mass": mass, "--mode": mode, "--supersample": supersample,
+                  "--tau": tau}
         if varies == "view":
-            return _view_frame(transfer, bake_file, output, eye, target, fov, width, height, orbit, refine, spp, seed,
-                               repeat, scene_file, as_json, quiet, mode, tau,
+            approximate = {"refine": refine, "mass": mass, "mode": mode, "supersample": supersample, "tau": tau}
+            return _view_frame(transfer, bake_file, output, eye, target, fov, width, height, orbit, spp, seed,
+                               repeat, scene_file, as_json, quiet, approximate,
                                {"--env": env_file, "--rotate-y": rotate_y, "--scale": scale if scale != 1.0 else None,
                                 "--terms": terms, "--priority": priority, "--turntable": turntable,
                                 "--translate": translate, "--rotate": rotate})
@@ -296,15 +306,16 @@ def _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, sce
                    f"{stats['translate']}, {stats['frame_seconds']:.2f} s", err=True)
 
 
-def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, orbit, refine, spp, seed, repeat,
-                scene_file, as_json, quiet, mode, tau, held):
+def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, orbit, spp, seed, repeat,
+                scene_file, as_json, quiet, approximate, held):
     """A frame of a bake that varies the view: the camera at --eye looking at --target (or an
-    --orbit of frames, or with --spp the unbiased frame)."""
+    --orbit of frames, or with --spp the unbiased frame); ``approximate`` the approximate frame's
+    options as given (None: the written frame's defaults, view.STILL)."""
     import math
 
     import wavlight
     from wavlight.imageio import FORMATS
-    from wavlight.relight.view import MODE, REFINE, TAU, ViewFrames, orbit_eyes
+    from wavlight.relight.view import STILL, ViewFrames, orbit_eyes
 
     for flag, value in held.items():
         if value is not None:
@@ -315,10 +326,11 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
     if fov is not None and not (math.isfinite(fov) and 0.0 < fov < 180.0):
         fail(f"--fov must be a number of degrees in (0, 180), got {fov}")
     if spp is not None:
-        for flag, value in (("--mode", mode), ("--tau", tau)):
+        for key, value in approximate.items():
             if value is not None:
-                fail(f"{flag} sets the approximate frame; --spp renders the unbiased one: give one of them")
-    if tau is not None and mode != "pixel":
+                fail(f"--{key} sets the approximate frame; --spp renders the unbiased one: give one of them")
+    opts = {k: STILL[k] if v is None else v for k, v in approximate.items()}
+    if approximate["tau"] is not None and opts["mode"] != "pixel":
         fail("--tau corrects the cosine of --mode pixel: give it with --mode pixel")
     if orbit is not None and spp is not None:
         fail("--orbit renders approximate frames; --spp renders one unbiased frame: give one of them")
@@ -339,9 +351,6 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
         refuse_inputs(output, [frames.scene.path, *frames.scene.files])
     cam = frames.camera(eye, target, fov)          # checked before anything is written
     size = frames._size(width, height)
-    refine = REFINE if refine is None else refine
-    mode = MODE if mode is None else mode
-    tau = TAU if tau is None else tau
     view = {"width": size[0], "height": size[1], "eye": cam.eye.tolist(), "target": cam.target.tolist(),
             "fov": cam.fov_y}
     if spp is not None:
@@ -356,7 +365,7 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
     times, outputs = [], []
     if orbit is None:
         for _ in range(repeat):
-            image, st = frames.frame(cam.eye, cam.target, cam.fov_y, *size, refine=refine, mode=mode, tau=tau)
+            image, st = frames.frame(cam.eye, cam.target, cam.fov_y, *size, **opts)
             times.append(st["frame_seconds"])
         wavlight.save_image(output, image)
         outputs.append(output)
@@ -364,7 +373,7 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
         os.makedirs(output, exist_ok=True)
         names = []
         for i, e in enumerate(orbit_eyes(cam.eye, cam.target, orbit)):
-            image, st = frames.frame(e, cam.target, cam.fov_y, *size, refine=refine, mode=mode, tau=tau)
+            image, st = frames.frame(e, cam.target, cam.fov_y, *size, **opts)
             times.append(st["frame_seconds"])
             name = os.path.join(output, f"frame-{i:04d}.png")
             wavlight.save_image(name, image)
@@ -372,7 +381,7 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
         outputs = names + [g for g in [_animated_gif(names, os.path.join(output, "orbit.gif"))] if g]
     median = statistics.median(times)
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
-             "frames": len(times), **view, "refine": refine, "mode": mode, "tau": tau if mode == "pixel" else None,
+             "frames": len(times), **view, **opts, "tau": opts["tau"] if opts["mode"] == "pixel" else None,
              "texels": f"{1 << transfer.n_levels}x{1 << transfer.n_levels}",
              "timings": {k: round(v, 6) for k, v in st.items() if k.endswith("_seconds")},
              "cache_points_shaded": st["cache_points_shaded"], "nodes_per_point": st["nodes_per_point"],

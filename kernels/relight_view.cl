@@ -15,8 +15,10 @@
  * of wavlight/haar: c1 at [y, s + x], c2 at [s + y, x], c3 at [s + y, s + x], s = 2^l), s1 = +1
  * on the left half, s2 = +1 on the top half. A node is a leaf of the walk when f is nearly
  * constant over it: its angular radius r (of the node's row, tabulated) is at most
- * REFINE (delta + w), delta the angle between its centre and the lobe's axis (the mirror
- * direction), w the lobe's width; or at texel level. A leaf adds A (N^2 / 4^l) f(centre) rho
+ * REFINE (delta + w) / g, delta the angle between its centre and the lobe's axis (the mirror
+ * direction), w the lobe's width, g = max(1, sqrt(phi / mass)) for a node holding the share phi
+ * of T1's mass (the sum of its channels' |A| times its area over the root's; mass = 0: g = 1);
+ * or at texel level. A leaf adds A (N^2 / 4^l) f(centre) rho
  * (the midpoint rule over the node; exact for constant f). A node wholly below n's horizon is
  * skipped and not read (no light reaches the surface from there).
  *
@@ -146,11 +148,22 @@ inline float4 view_ramp4(const float4 x, const float4 s)
     return x >= s ? x : (x <= -s ? (float4)(0.0f) : (x + s) * (x + s) / (4.0f * s));
 }
 
+/* k = min(ceil(log2(share) / 2), MASS_STEPS) for share = phi / mass > 1, else 0: the walk's
+ * g = 2^k >= sqrt(share) (numpy twin: view.py mass_steps) */
+inline uint view_mass_steps(const float share)
+{
+    if (!(share > 1.0f)) return 0u;
+    const uint bits = as_uint(share);
+    const int c = (int)((bits >> 23) & 0xFFu) - 127 + ((bits & 0x7FFFFFu) != 0u ? 1 : 0);   /* ceil(log2) */
+    const uint k = (uint)(c + 1) >> 1;
+    return k < MASS_STEPS ? k : MASS_STEPS;
+}
+
 __kernel void view_product(const uint count, const uint n_levels, const uint n_blocks,
                            __global const uint *point, __global const float *weight, __global const float *geom,
                            __global const int *kind, __global const float *param, __global const float4 *centres,
-                           __global const float4 *rows, __global const int *offsets,
-                           __global const float *scale, __global const VQTYPE *data,
+                           __global const float4 *rows, __global const float2 *scaled, __global const int *offsets,
+                           __global const float *scale, __global const VQTYPE *data, const float mass,
                            __global float *out, __global uint *visited)
 {
     const uint i = get_global_id(0);
@@ -166,6 +179,9 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
     const uint side = 1u << n_levels;
     const float n2 = (float)(side * side);
     const float3 root = view_coeff(0u, n_blocks, b, j, wt, offsets, scale, data);
+    /* 1 / (the root's mass x mass): a node's phi / mass is its |average| sum x this / 4^l */
+    const float root_mass = fabs(root.x) + fabs(root.y) + fabs(root.z);
+    const float per_mass = mass > 0.0f && root_mass > 0.0f ? 1.0f / (root_mass * mass) : 0.0f;
     /* geom: shading normal n, view direction, lobe axis (world), the lobe width w, cos w, sin w,
      * T1's normal m, the correction tolerance tau */
     __global const float *g = geom + 16 * (size_t)i;
@@ -211,8 +227,11 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
         if (nc >= -rr.w) {
             int leaf = n_levels == 0u;
             if (!leaf) {
-                const float need = rr.x - w;
-                leaf = need <= 0.0f || (need < PI_F && DOT3(c, axis) <= rr.y * cw + rr.z * sw);
+                const uint k = view_mass_steps(root_mass * per_mass);
+                const float need = rr.x * (float)(1u << k) - w;
+                const float2 sc = k > 0u ? scaled[k - 1u] : (float2)(rr.y, rr.z);
+                const float cq = sc.x, sq = sc.y;
+                leaf = need <= 0.0f || (need < PI_F && DOT3(c, axis) <= cq * cw + sq * sw);
                 if (leaf && tau > 0.0f) {
                     const float sr = rr.w > 1.0f ? 1.0f : rr.w;
                     leaf = sr * dn <= tau * MAX1(DOT3(c, m), MAX1(sr, RHO_FLOOR));
@@ -265,8 +284,32 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
         if (l1 == n_levels) {
             leaf = (int4)(-1);
         } else {
-            const float4 need = rx - w;                       /* r / REFINE - w: refine while delta < it */
-            leaf = (need <= 0.0f) | ((need < PI_F) & (cx * axis.x + cy * axis.y + cz * axis.z <= ry * cw + rz * sw));
+            /* g = 2^k >= sqrt(phi / mass) per child: a node holding much of T1's mass refines further */
+            const float4 share = (float4)(fabs(ak[0].x) + fabs(ak[0].y) + fabs(ak[0].z),
+                                          fabs(ak[1].x) + fabs(ak[1].y) + fabs(ak[1].z),
+                                          fabs(ak[2].x) + fabs(ak[2].y) + fabs(ak[2].z),
+                                          fabs(ak[3].x) + fabs(ak[3].y) + fabs(ak[3].z)) * (per_mass / (float)(s1 * s1));
+            const int4 big = share > 1.0f;
+            float4 rxg = rx, cq = ry, sq = rz;
+            if (any4(big)) {                                  /* rare: lane by lane, cos and sin tabulated */
+                const float g4[4] = {share.x, share.y, share.z, share.w};
+                float r4[4] = {rx.x, rx.y, rx.z, rx.w}, c4[4] = {ry.x, ry.y, ry.z, ry.w},
+                      s4[4] = {rz.x, rz.y, rz.z, rz.w};
+                for (int q = 0; q < 4; ++q) {                 /* lanes */
+                    const uint k = view_mass_steps(g4[q]);
+                    if (k > 0u) {
+                        const float2 sc = scaled[(s1 - 1u + 2u * y + (uint)(q >> 1)) * MASS_STEPS + k - 1u];
+                        r4[q] *= (float)(1u << k);
+                        c4[q] = sc.x;
+                        s4[q] = sc.y;
+                    }
+                }
+                rxg = (float4)(r4[0], r4[1], r4[2], r4[3]);
+                cq = (float4)(c4[0], c4[1], c4[2], c4[3]);
+                sq = (float4)(s4[0], s4[1], s4[2], s4[3]);
+            }
+            const float4 need = rxg - w;                      /* g r / REFINE - w: refine while delta < it */
+            leaf = (need <= 0.0f) | ((need < PI_F) & (cx * axis.x + cy * axis.y + cz * axis.z <= cq * cw + sq * sw));
             if (tau > 0.0f) {
                 const float4 sr = rw > 1.0f ? (float4)(1.0f) : rw;
                 const float4 mc = cx * m.x + cy * m.y + cz * m.z;

@@ -66,9 +66,10 @@ def test_product_kernel_equals_its_twin(baked):
     points = np.arange(0, len(frames.position), 5)
     kinds = frames.kind_of[frames.material[points]]
     assert (kinds == bsdfs.GGX).sum() > 100 and (kinds == bsdfs.LAMBERT).sum() > 100
-    for eye, refine in ((EYE, 0.25), ([-1.0, 0.8, 2.0], 0.1)):
-        a, na = frames.products(points, eye, refine)
-        b, nb = frames.products(points, eye, refine, backend="numpy")
+    for eye, refine, mass in ((EYE, 0.25, view.MASS), ([-1.0, 0.8, 2.0], 0.1, view.MASS), (EYE, 0.25, 0.0),
+                              (EYE, 0.4, 1e-3)):
+        a, na = frames.products(points, eye, refine, mass=mass)
+        b, nb = frames.products(points, eye, refine, backend="numpy", mass=mass)
         assert np.abs(b).max() > 0
         close = np.isclose(a, b, rtol=1e-4, atol=1e-6 * np.abs(b).max()).all(1)
         assert close.mean() > 0.995 and (na == nb).mean() > 0.99   # but a threshold within rounding
@@ -136,6 +137,19 @@ def test_pixel_kernel_equals_its_twin(baked, tau):
     fa, _ = frames.frame(EYE, TARGET, mode="pixel", tau=tau)
     fb, _ = frames.frame(EYE, TARGET, mode="pixel", tau=tau, backend="numpy")
     np.testing.assert_allclose(fa, fb, rtol=2e-2, atol=1e-3 * fb.max())
+
+
+@pytest.mark.parametrize("mode", view.MODES)
+def test_supersampled_frame_is_the_finer_frame_box_filtered(baked, mode):
+    """S x S rays per pixel through its sub-pixels' centres: the frame at S times the size,
+    averaged over S x S blocks; on the device and in numpy."""
+    _, scene, tr = baked
+    frames = view.ViewFrames(tr, scene)
+    for backend in ("opencl", "numpy"):
+        fine, _ = frames.frame(EYE, TARGET, width=30, height=18, mode=mode, backend=backend)
+        got, st = frames.frame(EYE, TARGET, width=10, height=6, mode=mode, backend=backend, supersample=3)
+        assert st["supersample"] == 3
+        np.testing.assert_allclose(got, fine.reshape(6, 3, 10, 3, 3).mean((1, 3)), rtol=1e-5, atol=1e-6 * fine.max())
 
 
 def test_pixel_walk_of_one_point_is_the_point_walk(baked):
@@ -263,6 +277,12 @@ def test_walk_to_the_texels_is_the_dense_sum(baked):
     glossy = frames.kind_of[mat] == bsdfs.GGX
     err = np.linalg.norm(approx[glossy] - dense[glossy]) / np.linalg.norm(dense[glossy])
     assert err < 0.03 and few[glossy].mean() < nodes[glossy].mean() * 0.8, (err, few[glossy].mean())
+    # the bright light holds much of T1's mass in a few nodes: refining them (mass) is closer to
+    # the dense sum than the walk by the lobe alone at the same refine
+    plain, plain_nodes = frames.products(points, EYE, mass=0.0)
+    err_plain = np.linalg.norm(plain[glossy] - dense[glossy]) / np.linalg.norm(dense[glossy])
+    assert err < 0.5 * err_plain, (err, err_plain)
+    assert few[glossy].mean() < 2.0 * plain_nodes[glossy].mean(), (few[glossy].mean(), plain_nodes[glossy].mean())
 
 
 def test_lattice_finds_the_hit_and_its_points(baked):
@@ -361,11 +381,16 @@ def test_command_line(baked, tmp_path):
     assert r.exit_code == 0, r.output
     st = json.loads(r.stdout)
     assert st["frame_seconds"] > 0 and st["frames_per_second"] > 0 and (st["width"], st["height"]) == (20, 16)
-    r = run("frame", out, "--eye", *EYE, "--target", *TARGET, "--width", 20, "--height", 16, "--mode", "pixel",
-            "--tau", 0.2, "-o", tmp_path / "p.png", "--json")
+    assert all(st[k] == v for k, v in view.STILL.items())   # a written frame's defaults
+    r = run("frame", out, "--eye", *EYE, "--target", *TARGET, "--width", 20, "--height", 16, "--tau", 0.2,
+            "--supersample", 2, "--mass", 0, "-o", tmp_path / "p.png", "--json")
     assert r.exit_code == 0, r.output
     st = json.loads(r.stdout)
-    assert (st["mode"], st["tau"]) == ("pixel", 0.2) and (tmp_path / "p.png").exists()
+    assert (st["mode"], st["tau"], st["supersample"], st["mass"]) == ("pixel", 0.2, 2, 0.0)
+    assert (tmp_path / "p.png").exists()
+    r = run("frame", out, "--eye", *EYE, "--target", *TARGET, "--width", 20, "--height", 16, "--mode", "point",
+            "--supersample", 1, "-o", tmp_path / "q.png", "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["mode"] == "point", r.output
     r = run("frame", out, "--orbit", 3, "-o", tmp_path / "orbit", "--quiet")
     assert r.exit_code == 0, r.output
     assert sorted(os.listdir(tmp_path / "orbit")) == ["frame-0000.png", "frame-0001.png", "frame-0002.png",
@@ -382,8 +407,10 @@ def test_command_line(baked, tmp_path):
     (("--eye", 1, "inf", 0), ("--eye", "finite")),
     (("--eye", 0, 0.5, 0, "--target", 0, 0.5, 0), ("same point",)),
     (("--fov", 0), ("--fov",)),
-    (("--tau", 0.1), ("--tau", "--mode pixel")),
+    (("--mode", "point", "--tau", 0.1), ("--tau", "--mode pixel")),
     (("--mode", "pixel", "--spp", 2), ("--mode", "--spp")),
+    (("--supersample", 2, "--spp", 2), ("--supersample", "--spp")),
+    (("--supersample", 0), ("--supersample",)),
 ])
 def test_view_bake_bad_input(baked, tmp_path, args, words):
     folder, _, tr = baked

@@ -37,9 +37,13 @@ The approximate frame (kernel ``view_product`` in kernels/relight_view.cl, numpy
 :func:`product_reference`). Camera rays through the pixel centres are traced; each hit has its
 three cache points and weights. The product <T1, f_r> is evaluated top-down over T1's quadtree:
 a node's average from its parent's and its three wavelet coefficients (eq. 13), refined until
-f_r is nearly constant over it (its angular radius r <= refine (delta + w), delta the angle from
-the lobe's axis, the mirror direction, w the lobe's width), then its average times f_r at its
-centre (the midpoint rule); nodes below the shading normal's horizon are skipped. Two modes:
+f_r is nearly constant over it (its angular radius r <= refine (delta + w) / g, delta the angle
+from the lobe's axis, the mirror direction, w the lobe's width), then its average times f_r at its
+centre (the midpoint rule); nodes below the shading normal's horizon are skipped. The midpoint
+rule's first-order error is T1's mass inside the node times f_r's change across it, and a sun
+puts much of the mass in a few nodes away from their centres: a node holding a share phi of
+T1's mass (its channels' |average| times its area over the root's) is refined further, g =
+max(1, sqrt(phi / mass)) rounded up to a power of two (docs/decisions/view-walk-mass.md). Two modes:
 
 - ``point``: for every cache point k the hits use, B_k = <T1(x_k), f_r(x_k, ., wo_k)> with the
   point's own (area-averaged) normal and wo_k the direction to the eye; a pixel is its albedo
@@ -123,8 +127,12 @@ DEFAULT_POINTS = 1 << 16
 MAX_LATTICE = 1 << 25
 #: a cache point whose normal is further than this from the hit face's is not interpolated
 CREASE_DEGREES = 60.0
-#: the approximate frame refines a node until its angular radius is at most REFINE (delta + w)
-REFINE = 0.15
+#: the approximate frame refines a node until its angular radius is at most REFINE (delta + w) / g,
+#: g = max(1, sqrt(phi / MASS)) for a node holding the share phi of T1's mass (0: g = 1)
+REFINE = 0.2
+MASS = 0.01
+#: g is rounded up to a power of two 2^k, k <= MASS_STEPS (cos and sin of the scaled radius tabulated)
+MASS_STEPS = 8
 #: the unbiased frame: the product's texel levels, the BSDF's share, directions per sample
 PRODUCT_LEVELS = 5
 DEFENSIVE = 0.1
@@ -142,6 +150,12 @@ MODES = ("point", "pixel")
 MODE = "point"
 #: the pixel mode's cosine correction: a node is refined while the factor rho varies more than this
 TAU = 0.1
+#: rays per pixel of a frame: at most MAX_SUPERSAMPLE^2
+MAX_SUPERSAMPLE = 16
+#: a written frame's settings (``wavlight frame``): a product per pixel at 4 x 4 rays, within 3%
+#: of ``mis`` on the rough bunnies; the frame's defaults (``point``, one ray) are the viewer's
+#: (docs/decisions/view-point-mode.md)
+STILL = {"refine": REFINE, "mass": MASS, "mode": "pixel", "supersample": 4, "tau": TAU}
 
 
 # ----------------------------------------------------------------------------- the surface cache
@@ -348,13 +362,15 @@ def lifted_view(normal: np.ndarray, wo: np.ndarray) -> np.ndarray:
 @dataclass
 class NodeTables:
     """Per quadtree node (level order, node (l, x, y) at (4^l - 1) / 3 + y 2^l + x) its centre's
-    world direction (float4, w = 0), and per node row (l, y) at 2^l - 1 + y: r / refine,
+    world direction (float4, w = 0), and per node row (l, y) at 2^l - 1 + y: q = r / refine,
     cos and sin of it, and sin r (2 where r >= pi / 2: never wholly below a horizon), r the
-    largest angle from the centre to the node's border (its region's farthest point)."""
+    largest angle from the centre to the node's border (its region's farthest point); and per
+    row and k = 1 .. MASS_STEPS (row-major) cos and sin of min(2^k q, pi), for the walk's g = 2^k."""
 
     centres: np.ndarray
     rows: np.ndarray
     radius: np.ndarray
+    scaled: np.ndarray
 
 
 _TABLES = {}
@@ -387,9 +403,11 @@ def node_tables(n_levels: int, refine: float) -> NodeTables:
     q = r / refine
     rows = np.stack([q, np.cos(np.minimum(q, np.pi)), np.sin(np.minimum(q, np.pi)),
                      np.where(r < np.pi / 2, np.sin(r), 2.0)], 1).astype(np.float32)
+    qk = np.minimum(q[:, None] * 2.0 ** np.arange(1, MASS_STEPS + 1), np.pi)
+    scaled = np.stack([np.cos(qk), np.sin(qk)], -1).astype(np.float32)          # (rows, MASS_STEPS, 2)
     cen = np.zeros((sum(4 ** l for l in range(n_levels + 1)), 4), np.float32)
     cen[:, :3] = np.concatenate(centres)
-    tables = _TABLES[key] = NodeTables(cen, rows, r)
+    tables = _TABLES[key] = NodeTables(cen, rows, r, scaled)
     return tables
 
 
@@ -446,13 +464,24 @@ RHO_MAX = 4.0
 RHO_FLOOR = 0.5
 
 
+def mass_steps(share: np.ndarray) -> np.ndarray:
+    """k = min(ceil(log2(share) / 2), MASS_STEPS) where share = phi / mass > 1, else 0: g = 2^k >=
+    sqrt(share) (ceil(log2) from the float32 exponent and mantissa, as the kernel takes it)."""
+    share = np.asarray(share, np.float32)
+    m, e = np.frexp(share)                          # share = m 2^e, m in [0.5, 1)
+    c = np.where(m == 0.5, e - 1, e)                # ceil(log2(share))
+    return np.where(share > 1.0, np.minimum((c + 1) // 2, MASS_STEPS), 0).astype(np.int64)
+
+
 def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, kind, param, normal, wo,
-                      refine: float = REFINE, weights=None, t1_normal=None, tau: float = 0.0):
+                      refine: float = REFINE, weights=None, t1_normal=None, tau: float = 0.0,
+                      mass: float = MASS):
     """numpy twin of ``view_product``: (B (I, 3) float64, nodes visited (I,)) for items (cache
     points ``points`` (I,) or (I, K) blended with ``weights`` (I, K), shaded with ``normal`` and
     view direction wo (world, unit), material kind and parameter; ``t1_normal`` the blend of the
-    points' normals (default ``normal``) and ``tau`` the cosine's correction tolerance, 0 for
-    none: kernels/relight_view.cl), level by level over the frontier of all items' nodes
+    points' normals (default ``normal``), ``tau`` the cosine's correction tolerance, 0 for
+    none, and ``mass`` the share of T1's mass above which a node refines further, 0 for none:
+    kernels/relight_view.cl), level by level over the frontier of all items' nodes
     (float64; the kernel's float32 takes the same nodes but where a test lies within rounding
     of its threshold)."""
     points = np.asarray(points, np.int64)
@@ -473,6 +502,9 @@ def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, k
     ml = np.linalg.norm(m_all, axis=1)
     dn = np.linalg.norm(normal - m_all, axis=1)
     root = _blended(offsets, scale, data, points, weights, np.zeros((len(points), 1), np.int64))[:, 0]
+    root_mass = np.abs(root).sum(1)
+    per_mass = np.where(root_mass > 0, 1.0 / np.where(root_mass > 0, root_mass * max(float(mass), 1e-300), 1.0), 0.0) \
+        if mass > 0 else np.zeros(len(points))
     out = np.zeros((len(points), 3))
     visited = np.ones(len(points), np.int64)
     lam = (kind == bsdfs.LAMBERT) & ((tau <= 0) | (np.einsum("ij,ij->i", normal, m_all) >= ml * (1 - 1e-6)))
@@ -493,8 +525,13 @@ def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, k
         sin_r = np.where(tables.radius[s - 1 + y] < np.pi / 2, np.sin(tables.radius[s - 1 + y]), 1.0)
         nc = np.einsum("ij,ij->i", c, normal[item])
         live = nc >= -np.where(tables.radius[s - 1 + y] < np.pi / 2, sin_r, 2.0)
+        k = mass_steps(np.abs(avg).sum(1) * per_mass[item] / (s * s))   # of phi / mass
+        r_eps = r_eps * 2.0 ** k
         need = r_eps - width[item]
-        cos_need = row[:, 1] * np.cos(width[item]) + row[:, 2] * np.sin(width[item])
+        at = (s - 1 + y) * MASS_STEPS + np.maximum(k - 1, 0)
+        scaled = tables.scaled.reshape(-1, 2)[at].astype(np.float64)
+        cq, sq = np.where(k > 0, scaled[:, 0], row[:, 1]), np.where(k > 0, scaled[:, 1], row[:, 2])
+        cos_need = cq * np.cos(width[item]) + sq * np.sin(width[item])
         leaf = (need <= 0) | ((need < np.pi) & (np.einsum("ij,ij->i", c, axis[item]) <= cos_need))
         mc = np.einsum("ij,ij->i", c, m_all[item])
         if tau > 0:
@@ -541,7 +578,7 @@ class ViewDevice:
         self._tables = {}
 
     def walk(self, points, kind, param, normal, wo, refine: float = REFINE, weights=None, t1_normal=None,
-             tau: float = 0.0, queue=None):
+             tau: float = 0.0, queue=None, mass: float = MASS):
         """Launch ``view_product`` on the items (see :func:`product_reference`): its output
         buffers, B (I, 3) float32 and nodes visited (I,) uint32, left on the device."""
         queue = queue or cl.thread_queue()
@@ -552,8 +589,9 @@ class ViewDevice:
         tables = self._tables.get(refine)
         if tables is None:
             t = node_tables(self.n_levels, refine)
-            tables = self._tables[refine] = (cl.to_device(t.centres), cl.to_device(t.rows))
-        prog = cl.program("relight_view.cl", QBITS=self.entries.bits, POINTS=POINTS, K=per)
+            tables = self._tables[refine] = (cl.to_device(t.centres), cl.to_device(t.rows),
+                                             cl.to_device(t.scaled))
+        prog = cl.program("relight_view.cl", QBITS=self.entries.bits, POINTS=POINTS, K=per, MASS_STEPS=MASS_STEPS)
         normal = np.asarray(normal, np.float64)
         geom = _items(np.asarray(kind), np.asarray(param, np.float64), normal, np.asarray(wo, np.float64),
                       normal if t1_normal is None else np.asarray(t1_normal, np.float64), tau)
@@ -567,17 +605,18 @@ class ViewDevice:
             cl.upload("view_walk_geom", geom, queue),
             cl.upload("view_walk_kind", np.asarray(kind, np.int32), queue),
             cl.upload("view_walk_param", np.asarray(param, np.float32), queue),
-            tables[0], tables[1], self.entries.offsets[0], self.entries.scale[0], self.entries.data[0], out, visited)
+            tables[0], tables[1], tables[2], self.entries.offsets[0], self.entries.scale[0], self.entries.data[0],
+            np.float32(mass), out, visited)
         return out, visited
 
     def products(self, points, kind, param, normal, wo, refine: float = REFINE, weights=None, t1_normal=None,
-                 tau: float = 0.0, queue=None):
+                 tau: float = 0.0, queue=None, mass: float = MASS):
         """(B (I, 3) float32, nodes visited (I,) uint32) of the items (see :func:`product_reference`)."""
         queue = queue or cl.thread_queue()
         count = len(points)
         if not count:
             return np.zeros((0, 3), np.float32), np.zeros(0, np.uint32)
-        out, visited = self.walk(points, kind, param, normal, wo, refine, weights, t1_normal, tau, queue)
+        out, visited = self.walk(points, kind, param, normal, wo, refine, weights, t1_normal, tau, queue, mass)
         return cl.read(out, (count, 3), np.float32, queue), cl.read(visited, (count,), np.uint32, queue)
 
 
@@ -608,7 +647,8 @@ class FrameDevice:
         self.map_from_world = cl.to_device(np.ascontiguousarray(env.map_from_world, self.wide).reshape(-1))
         self.cos_crease = np.float32(np.cos(np.radians(CREASE_DEGREES)))
         self._zeros = np.zeros(self.points, np.uint8)
-        self.program = cl.program("relight_view.cl", QBITS=device.entries.bits, POINTS=POINTS, K=1)
+        self.program = cl.program("relight_view.cl", QBITS=device.entries.bits, POINTS=POINTS, K=1,
+                                  MASS_STEPS=MASS_STEPS)
 
     def lookup(self, prim, u, v, d, queue):
         """Launch ``view_lookup`` on camera rays (prim (N,) int32, -1 a miss; embree's u, v; unit
@@ -878,14 +918,18 @@ class ViewFrames:
         h = check_int("relight.view", "height", self.transfer.height if height is None else height, 1, 16384)
         return w, h
 
-    def _pixel_centres(self, width, first, count):
-        """Columns, rows (float32) and the centre's offsets of pixels first .. first + count - 1
-        of a frame ``width`` wide (the last chunk's kept: the next frame's)."""
-        key = (width, first, count)
+    def _pixel_centres(self, width, first, count, supersample: int = 1):
+        """Columns, rows (float32) and offsets of the rays of pixels first .. first + count - 1
+        of a frame ``width`` wide: the pixel's centre, or the centres of its S x S sub-pixels
+        (S = ``supersample``; a pixel's S^2 rays adjacent), the last chunk's kept: the next frame's."""
+        key = (width, first, count, supersample)
         if key not in self._centres:
-            pix = np.arange(first, first + count)
+            sub = supersample * supersample
+            pix = np.repeat(np.arange(first, first + count), sub)
+            k = np.tile(np.arange(sub), count)
+            offsets = np.stack([(k % supersample + 0.5) / supersample, (k // supersample + 0.5) / supersample], 1)
             self._centres = {key: ((pix % width).astype(np.float32), (pix // width).astype(np.float32),
-                                   np.full((count, 2), 0.5, np.float32))}
+                                   offsets.astype(np.float32))}
         return self._centres[key]
 
     # -- the cache at hits
@@ -913,18 +957,19 @@ class ViewFrames:
         mat = self.material[points]
         return points, self.kind_of[mat], self.param_of[mat], nrm, lifted_view(nrm, wo)
 
-    def products(self, points, eye, refine=REFINE, backend="opencl"):
+    def products(self, points, eye, refine=REFINE, backend="opencl", mass: float = MASS):
         """B_k (K, 3) (albedo factored out) and nodes visited of cache points seen from ``eye``."""
         points, kind, param, nrm, wo = self._point_items(points, eye)
         if backend == "numpy":
             s = self.transfer._s
             return product_reference(s["offsets"], s["entry_scale"], s["entry_data"], self.n, points, kind, param,
-                                     nrm, wo, refine)
+                                     nrm, wo, refine, mass=mass)
         if self._device is None:
             self._device = ViewDevice(self.transfer)
-        return self._device.products(points, kind, param, nrm, wo, refine)
+        return self._device.products(points, kind, param, nrm, wo, refine, mass=mass)
 
-    def pixel_products(self, ids, w, face_normal, d, mat, refine=REFINE, tau: float = TAU, backend="opencl"):
+    def pixel_products(self, ids, w, face_normal, d, mat, refine=REFINE, tau: float = TAU, backend="opencl",
+                       mass: float = MASS):
         """B (M, 3) (albedo factored out) and nodes visited of pixels: the blend of their cache
         points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the face normal, the view
         direction -d, material ``mat`` and the cosine's correction ``tau`` (module docstring)."""
@@ -935,25 +980,32 @@ class ViewFrames:
         if backend == "numpy":
             s = self.transfer._s
             return product_reference(s["offsets"], s["entry_scale"], s["entry_data"], self.n, ids, kind, param, n, wo,
-                                     refine, w, m, tau)
+                                     refine, w, m, tau, mass)
         if self._device is None:
             self._device = ViewDevice(self.transfer)
-        return self._device.products(ids, kind, param, n, wo, refine, w, m, tau)
+        return self._device.products(ids, kind, param, n, wo, refine, w, m, tau, mass=mass)
 
     def frame(self, eye=None, target=None, fov=None, width=None, height=None, refine: float = REFINE,
-              backend: str = "opencl", mode: str = MODE, tau: float = TAU):
+              backend: str = "opencl", mode: str = MODE, tau: float = TAU, mass: float = MASS,
+              supersample: int = 1):
         """The approximate frame (H, W, 3) float32 seen from ``eye`` towards ``target`` (defaults:
         the scene's camera) and its timings (module docstring): ``mode`` "point" (a product per
         cache point, blended per pixel) or "pixel" (a product per pixel, of its points' blended T1
-        with its face normal, view direction and the cosine corrected within ``tau``)."""
+        with its face normal, view direction and the cosine corrected within ``tau``); ``refine``
+        and ``mass`` set where the walk stops (module docstring); ``supersample`` S traces S x S rays
+        per pixel (its sub-pixels' centres) and takes their mean (``mis`` integrates over the
+        pixel, and a mesh's facets can be smaller than a pixel)."""
         refine = check_number("relight.view", "refine", refine, 1e-4, 100.0)
+        mass = check_number("relight.view", "mass", mass, 0.0, 1.0)
         if backend not in ("opencl", "numpy"):
             raise ArgumentError(f"relight.view: backend must be opencl or numpy, got {backend!r}")
         if mode not in MODES:
             raise ArgumentError(f"relight.view: mode must be one of {', '.join(MODES)}, got {mode!r}")
         tau = check_number("relight.view", "tau", tau, 0.0, 100.0)
+        supersample = check_int("relight.view", "supersample", supersample, 1, MAX_SUPERSAMPLE)
         cam = self.camera(eye, target, fov)
         width, height = self._size(width, height)
+        sub = supersample * supersample
         t0 = time.perf_counter()
         scene = dataclasses.replace(self.scene, camera=cam)
         count = width * height
@@ -967,10 +1019,14 @@ class ViewFrames:
                 self._device = ViewDevice(self.transfer)
             if self._frame_device is None:
                 self._frame_device = FrameDevice(self, self._device)
-        for first in range(0, count, CHUNK_PIXELS * 4):   # chunks of pixels (bounded memory)
+        step = max(1, CHUNK_PIXELS * 4 // sub)
+        for first in range(0, count, step):   # chunks of pixels (bounded memory)
             ta = time.perf_counter()
-            pix = np.arange(first, min(first + CHUNK_PIXELS * 4, count))
-            eye_a, d = camera_rays(scene, *self._pixel_centres(width, first, len(pix)), width, height)
+            chunk = min(step, count - first)
+            eye_a, d = camera_rays(scene, *self._pixel_centres(width, first, chunk, supersample), width, height)
+            pix = np.arange(chunk * sub)   # the chunk's rays
+            rays = image[first:first + chunk] if sub == 1 else \
+                (np.empty if on_device else np.zeros)((len(pix), 3), np.float32)
             prim, t, u, v = self.tracer.intersect_uv(eye_a, d)
             tb = time.perf_counter()
             if on_device:
@@ -994,35 +1050,39 @@ class ViewFrames:
                 tc = time.perf_counter()
                 if on_device:
                     if len(points):
-                        B_b, visited_b = self._device.walk(*self._point_items(points, cam.eye), refine, queue=queue)
+                        B_b, visited_b = self._device.walk(*self._point_items(points, cam.eye), refine, queue=queue,
+                                                               mass=mass)
                         nodes = cl.read(visited_b, (len(points),), np.uint32, queue)
                     else:
                         B_b, nodes = cl.scratch("view_walk_out", 12), np.zeros(0, np.uint32)
                     td = time.perf_counter()
-                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, points, B_b, queue, image[first:first + len(pix)])
+                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, points, B_b, queue, rays)
                 else:
-                    B, nodes = self.products(points, cam.eye, refine, backend)
+                    B, nodes = self.products(points, cam.eye, refine, backend, mass)
                     td = time.perf_counter()
                     # a point of weight 0 (or none shaded at all: only back faces seen) reads the zero row
                     at = np.full(len(self.position), len(points), np.int64)
                     at[points] = np.arange(len(points))
                     rows = np.concatenate([np.asarray(B, np.float32).reshape(-1, 3), np.zeros((1, 3), np.float32)])
                     blend = np.einsum("ij,ijc->ic", w.astype(np.float32), rows[at[ids]])
-                    image[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
+                    rays[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
                 shaded = len(points)
             else:
                 ok = np.flatnonzero(w.sum(1) > 0)
                 tc = time.perf_counter()
-                B, nodes = self.pixel_products(ids[ok], w[ok], fn[ok], d[hit][ok], mat[ok], refine, tau, backend)
+                B, nodes = self.pixel_products(ids[ok], w[ok], fn[ok], d[hit][ok], mat[ok], refine, tau, backend,
+                                               mass)
                 td = time.perf_counter()
                 if on_device:   # the environment where rays miss (no point's row: 0 on hits)
                     fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, np.zeros(0, np.int64),
-                                cl.scratch("view_walk_out", 12), queue, image[first:first + len(pix)])
-                image[pix[hit][ok]] = np.asarray(B, np.float32) * self.albedo_of[mat[ok]].astype(np.float32)
+                                cl.scratch("view_walk_out", 12), queue, rays)
+                rays[pix[hit][ok]] = np.asarray(B, np.float32) * self.albedo_of[mat[ok]].astype(np.float32)
                 shaded = len(ok)
             if not on_device:
                 miss = np.flatnonzero(prim < 0)
-                image[pix[miss]] = self.environment.eval(d[miss].astype(np.float64))
+                rays[pix[miss]] = self.environment.eval(d[miss].astype(np.float64))
+            if sub > 1:
+                image[first:first + chunk] = rays.reshape(chunk, sub, 3).mean(1)
             te = time.perf_counter()
             products += shaded
             visited += int(np.sum(nodes, dtype=np.int64))
@@ -1034,7 +1094,7 @@ class ViewFrames:
                  "target": cam.target.tolist(), "fov": cam.fov_y, "mode": mode, "tau": tau,
                  "items": "cache points" if mode == "point" else "pixels",
                  "cache_points_shaded": products, "nodes_per_point": round(visited / max(products, 1), 2),
-                 "refine": refine}
+                 "refine": refine, "mass": mass, "supersample": supersample}
         return image.reshape(height, width, 3), stats
 
     # -- the unbiased frame
