@@ -7,7 +7,8 @@ turned --turn degrees about the target. Per scene and cache of --points points o
 area (``wavlight.relight.view.bake_view``'s ``cache_points``; the default cache is
 view.DEFAULT_POINTS) at --levels texel levels, and per walk refine in --refines (the walk's
 terms: a node is refined where the BRDF varies over it by more than refine; smaller refines
-walk more nodes per point), the ``point`` frame at one ray per pixel: its relative L2 error
+walk more nodes per point) with the walk's --mass (view.MASS by default; 0: by the lobe alone),
+the ``point`` frame at one ray per pixel: its relative L2 error
 against ``mis`` at --mis-spp (the reference's noise taken out in quadrature; over the whole
 image and over the bunny) at --error-size, and its time at --size (median of --frames after one
 untimed frame), with the nodes walked per point.
@@ -16,7 +17,7 @@ Chart: docs/figures/relight-view-error.png and .svg, error against frame time, a
 cache, points labelled by refine. Bakes are cached in /tmp/relight-bench/view-bakes.
 
     python benchmarks/relight_view_density.py [--scenes bunny_ggx05,bunny_lambert]
-        [--points 4096,16384,65536] [--levels 6] [--refines 0.6,0.3,0.15,0.08] [--size 512]
+        [--points 4096,16384,65536] [--levels 6] [--refines 0.6,0.3,0.15,0.08] [--mass M] [--size 512]
         [--error-size 256] [--mis-spp 1024] [--frames 9] [--turn 40] [--figure STEM] [-o FILE]
 
 The figures in benchmarks/results/relight_view_density.json come from the defaults.
@@ -99,6 +100,8 @@ def main():
     ap.add_argument("--points", default="4096,16384,65536", help="cache points over the scene's area")
     ap.add_argument("--levels", type=int, default=6, help="texel levels n of the bakes")
     ap.add_argument("--refines", default="0.6,0.3,0.15,0.08", help="the walk's refine values")
+    ap.add_argument("--mass", type=float, default=None,
+                    help="the walk's mass (default view.MASS; 0: by the lobe alone)")
     ap.add_argument("--size", type=int, default=512, help="timed frames: width and height")
     ap.add_argument("--error-size", type=int, default=256, help="the error's frames and references")
     ap.add_argument("--mis-spp", type=int, default=1024, help="samples per pixel of the mis references")
@@ -108,6 +111,8 @@ def main():
     args = common.parse(ap, "relight_view_density", 0.0)
     started = common.begin(args)
     from wavlight.relight import view
+
+    mass = view.MASS if args.mass is None else args.mass
 
     rows, bakes = [], []
     for name in [s for s in args.scenes.split(",") if s]:
@@ -125,13 +130,15 @@ def main():
             masks = rv.regions(frames, d, args.error_size)
             for refine in [float(x) for x in args.refines.split(",") if x]:
                 image, _ = frames.frame(cam.eye, cam.target, cam.fov_y, args.error_size, args.error_size,
-                                        mode="point", refine=refine)
+                                        mode="point", refine=refine, mass=mass)
                 err = rv.region_errors(image, ref, stderr, masks)
-                frames.frame(cam.eye, cam.target, cam.fov_y, args.size, args.size, mode="point", refine=refine)
+                frames.frame(cam.eye, cam.target, cam.fov_y, args.size, args.size, mode="point", refine=refine,
+                             mass=mass)
                 stats = [frames.frame(cam.eye, cam.target, cam.fov_y, args.size, args.size, mode="point",
-                                      refine=refine)[1] for _ in range(args.frames)]
+                                      refine=refine, mass=mass)[1] for _ in range(args.frames)]
                 row = {"scene": name, "cache_points_asked": points, "cache_points": summary["cache"]["points"],
-                       "refine": refine, "error_all": err["all"]["corrected"], "error_bunny": err["bunny"]["corrected"],
+                       "refine": refine, "mass": mass, "error_all": err["all"]["corrected"],
+                       "error_bunny": err["bunny"]["corrected"],
                        "error_floor": err["floor"]["corrected"],
                        "frame_seconds": statistics.median(s["frame_seconds"] for s in stats),
                        "nodes_per_point": stats[-1]["nodes_per_point"]}

@@ -137,8 +137,9 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
                    "the folder -o DIR (PNG; and an animated GIF).")
 @click.option("--refine", type=click.FloatRange(1e-4, 100.0), default=None,
               help="A bake with --vary view: a BRDF node's angular radius at most REFINE times its distance from "
-                   "the lobe plus the lobe's width, divided by sqrt(share / MASS) where the node holds a share of "
-                   "the transfer above MASS (smaller: more nodes, closer to the texels' sum). Default 0.2.")
+                   "the lobe plus the lobe's width, divided by g >= sqrt(share / MASS) (a power of two) where the "
+                   "node holds more than MASS of the transfer (smaller: more nodes, closer to the texels' sum). "
+                   "Default 0.2.")
 @click.option("--mass", type=click.FloatRange(0.0, 1.0), default=None,
               help="A bake with --vary view: a node holding more than this share of the transfer's mass (a sun) is "
                    "refined further (0: by the lobe alone). Default 0.01.")
@@ -147,8 +148,8 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
                    "per pixel of its points' blended transfer with the pixel's face normal and view (closer to mis; "
                    "slower). Default pixel.")
 @click.option("--supersample", type=click.IntRange(1, 16), default=None, metavar="S",
-              help="A bake with --vary view: S x S rays per pixel, averaged (the bunny's facets are smaller than a "
-                   "pixel). Default 4; 1 for the viewer's speed.")
+              help="A bake with --vary view: S x S rays per pixel, averaged (a mesh's facets can be smaller than a "
+                   "pixel). Default 4 in --mode pixel, 1 in --mode point (the viewer's frame).")
 @click.option("--tau", type=click.FloatRange(0.0, 100.0), default=None,
               help="A bake with --vary view, --mode pixel: the tolerance of the correction of the baked cosine to "
                    "the face's (0: none). Default 0.1.")
@@ -181,8 +182,9 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
                                 "--translate": translate, "--rotate": rotate})
         for flag, value in camera.items():
             if value is not None:
-                fail(f"{bake_file}: this bake varies the {'lighting' if varies == 'lighting' else 'object'} (its camera "
-                     f"is fixed); {flag} moves the camera (bake with --vary view)")
+                factor = "lighting" if varies == "lighting" else "object"
+                fail(f"{bake_file}: this bake varies the {factor} (its camera is fixed); {flag} is for a moving camera "
+                     "(bake with --vary view)")
         if varies == "object":
             return _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, scene_file, as_json, quiet,
                                  {"--env": env_file, "--rotate-y": rotate_y, "--scale": scale if scale != 1.0 else None,
@@ -330,6 +332,8 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
             if value is not None:
                 fail(f"--{key} sets the approximate frame; --spp renders the unbiased one: give one of them")
     opts = {k: STILL[k] if v is None else v for k, v in approximate.items()}
+    if approximate["supersample"] is None and opts["mode"] == "point":
+        opts["supersample"] = 1   # more rays do not sharpen point mode's blend (docs/decisions/view-point-mode.md)
     if approximate["tau"] is not None and opts["mode"] != "pixel":
         fail("--tau corrects the cosine of --mode pixel: give it with --mode pixel")
     if orbit is not None and spp is not None:

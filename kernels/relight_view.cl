@@ -16,9 +16,10 @@
  * on the left half, s2 = +1 on the top half. A node is a leaf of the walk when f is nearly
  * constant over it: its angular radius r (of the node's row, tabulated) is at most
  * REFINE (delta + w) / g, delta the angle between its centre and the lobe's axis (the mirror
- * direction), w the lobe's width, g = max(1, sqrt(phi / mass)) for a node holding the share phi
- * of T1's mass (the sum of its channels' |A| times its area over the root's; mass = 0: g = 1);
- * or at texel level. A leaf adds A (N^2 / 4^l) f(centre) rho
+ * direction), w the lobe's width, g = max(1, sqrt(phi / mass)) rounded up to a power of two
+ * 2^k, k <= MASS_STEPS, for a node holding the share phi of T1's mass (the sum of its channels'
+ * |A| times its area over the root's; mass = 0: g = 1; cos and sin of the scaled radius from the
+ * table ``scaled``); or at texel level. A leaf adds A (N^2 / 4^l) f(centre) rho
  * (the midpoint rule over the node; exact for constant f). A node wholly below n's horizon is
  * skipped and not read (no light reaches the surface from there).
  *
@@ -54,6 +55,9 @@
 #define ROW (3 * POINTS)
 #ifndef K
 #define K 1
+#endif
+#ifndef MASS_STEPS
+#define MASS_STEPS 8      /* view.py MASS_STEPS */
 #endif
 #define RHO_MAX 4.0f      /* view.py RHO_MAX */
 #define RHO_FLOOR 0.5f    /* view.py RHO_FLOOR */
@@ -181,7 +185,7 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
     const float3 root = view_coeff(0u, n_blocks, b, j, wt, offsets, scale, data);
     /* 1 / (the root's mass x mass): a node's phi / mass is its |average| sum x this / 4^l */
     const float root_mass = fabs(root.x) + fabs(root.y) + fabs(root.z);
-    const float per_mass = mass > 0.0f && root_mass > 0.0f ? 1.0f / (root_mass * mass) : 0.0f;
+    const float per_mass = mass > 0.0f && root_mass > 0.0f ? (1.0f / root_mass) / mass : 0.0f;
     /* geom: shading normal n, view direction, lobe axis (world), the lobe width w, cos w, sin w,
      * T1's normal m, the correction tolerance tau */
     __global const float *g = geom + 16 * (size_t)i;
@@ -291,7 +295,7 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
                                           fabs(ak[3].x) + fabs(ak[3].y) + fabs(ak[3].z)) * (per_mass / (float)(s1 * s1));
             const int4 big = share > 1.0f;
             float4 rxg = rx, cq = ry, sq = rz;
-            if (any4(big)) {                                  /* rare: lane by lane, cos and sin tabulated */
+            if (any4(big)) {                                  /* lane by lane, cos and sin tabulated */
                 const float g4[4] = {share.x, share.y, share.z, share.w};
                 float r4[4] = {rx.x, rx.y, rx.z, rx.w}, c4[4] = {ry.x, ry.y, ry.z, ry.w},
                       s4[4] = {rz.x, rz.y, rz.z, rz.w};

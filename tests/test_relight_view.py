@@ -140,16 +140,33 @@ def test_pixel_kernel_equals_its_twin(baked, tau):
 
 
 @pytest.mark.parametrize("mode", view.MODES)
-def test_supersampled_frame_is_the_finer_frame_box_filtered(baked, mode):
+def test_supersampled_frame_is_the_finer_frame_box_filtered(baked, mode, monkeypatch):
     """S x S rays per pixel through its sub-pixels' centres: the frame at S times the size,
-    averaged over S x S blocks; on the device and in numpy."""
+    averaged over S x S blocks; on the device and in numpy, in chunks of rays that do not divide
+    the frame."""
     _, scene, tr = baked
     frames = view.ViewFrames(tr, scene)
+    monkeypatch.setattr(view, "CHUNK_PIXELS", 7)   # 28 rays: 3 pixels of 9 rays per chunk
     for backend in ("opencl", "numpy"):
         fine, _ = frames.frame(EYE, TARGET, width=30, height=18, mode=mode, backend=backend)
         got, st = frames.frame(EYE, TARGET, width=10, height=6, mode=mode, backend=backend, supersample=3)
         assert st["supersample"] == 3
         np.testing.assert_allclose(got, fine.reshape(6, 3, 10, 3, 3).mean((1, 3)), rtol=1e-5, atol=1e-6 * fine.max())
+
+
+def test_mass_steps_round_the_square_root_up_to_a_power_of_two():
+    """k with 2^k >= sqrt(share) > 2^(k - 1) (share > 1), capped at MASS_STEPS; 0 for shares up to
+    1 and NaN, MASS_STEPS for infinity (as the kernel's float32 bits give them)."""
+    share = np.array([0.0, 0.5, 1.0, np.nextafter(np.float32(1), np.float32(2)), 4.0, np.nextafter(np.float32(4), 8),
+                      16.0, 17.0, 1e30, np.inf, np.nan], np.float32)
+    want = [0, 0, 0, 1, 1, 2, 2, 3, view.MASS_STEPS, view.MASS_STEPS, 0]
+    assert view.mass_steps(share).tolist() == want
+    rng = np.random.default_rng(5)
+    x = np.exp(rng.uniform(0.0, 12.0, 1000)).astype(np.float32)
+    k = view.mass_steps(x)
+    g = 2.0 ** k
+    assert np.all((g >= np.sqrt(x.astype(np.float64)) * (1 - 1e-7)) | (k == view.MASS_STEPS))
+    assert np.all((g / 2 < np.sqrt(x.astype(np.float64))) | (k == 0))
 
 
 def test_pixel_walk_of_one_point_is_the_point_walk(baked):
@@ -389,8 +406,10 @@ def test_command_line(baked, tmp_path):
     assert (st["mode"], st["tau"], st["supersample"], st["mass"]) == ("pixel", 0.2, 2, 0.0)
     assert (tmp_path / "p.png").exists()
     r = run("frame", out, "--eye", *EYE, "--target", *TARGET, "--width", 20, "--height", 16, "--mode", "point",
-            "--supersample", 1, "-o", tmp_path / "q.png", "--json")
-    assert r.exit_code == 0 and json.loads(r.stdout)["mode"] == "point", r.output
+            "-o", tmp_path / "q.png", "--json")
+    assert r.exit_code == 0, r.output
+    st = json.loads(r.stdout)
+    assert (st["mode"], st["supersample"]) == ("point", 1)   # the viewer's frame
     r = run("frame", out, "--orbit", 3, "-o", tmp_path / "orbit", "--quiet")
     assert r.exit_code == 0, r.output
     assert sorted(os.listdir(tmp_path / "orbit")) == ["frame-0000.png", "frame-0001.png", "frame-0002.png",
@@ -410,6 +429,7 @@ def test_command_line(baked, tmp_path):
     (("--mode", "point", "--tau", 0.1), ("--tau", "--mode pixel")),
     (("--mode", "pixel", "--spp", 2), ("--mode", "--spp")),
     (("--supersample", 2, "--spp", 2), ("--supersample", "--spp")),
+    (("--mass", 0.1, "--spp", 2), ("--mass", "--spp")),
     (("--supersample", 0), ("--supersample",)),
 ])
 def test_view_bake_bad_input(baked, tmp_path, args, words):

@@ -34,7 +34,8 @@ until what is left out is within the tolerance, :func:`wavlight.relight.store.co
 and quantized (a scale per coefficient and block, shared by the three channels).
 
 The approximate frame (kernel ``view_product`` in kernels/relight_view.cl, numpy twin
-:func:`product_reference`). Camera rays through the pixel centres are traced; each hit has its
+:func:`product_reference`). Camera rays through the pixel centres (or the centres of S x S
+sub-pixels, ``supersample``, their mean the pixel's value) are traced; each hit has its
 three cache points and weights. The product <T1, f_r> is evaluated top-down over T1's quadtree:
 a node's average from its parent's and its three wavelet coefficients (eq. 13), refined until
 f_r is nearly constant over it (its angular radius r <= refine (delta + w) / g, delta the angle
@@ -49,7 +50,7 @@ max(1, sqrt(phi / mass)) rounded up to a power of two (docs/decisions/view-walk-
   point's own (area-averaged) normal and wo_k the direction to the eye; a pixel is its albedo
   times the barycentric blend of its three points' B_k. lambert points need only the scaling
   coefficient: B = T^_0 N^2 / pi. One product per point: the fastest.
-- ``pixel``: per pixel, B = <sum_k w_k T1(x_k), f_r(., wo) rho> (the product is linear in T1: the
+- ``pixel``: per ray, B = <sum_k w_k T1(x_k), f_r(., wo) rho> (the product is linear in T1: the
   walk reads the three points' coefficients and blends them) with the hit face's normal n (as
   ``mis`` shades) and the pixel's own view direction, so that f_r is the pixel's. T1 holds
   max(cos, 0) at the points' normals, whose blend m = sum_k w_k n_k makes sum_k w_k T1_k =
@@ -152,9 +153,9 @@ MODE = "point"
 TAU = 0.1
 #: rays per pixel of a frame: at most MAX_SUPERSAMPLE^2
 MAX_SUPERSAMPLE = 16
-#: a written frame's settings (``wavlight frame``): a product per pixel at 4 x 4 rays, within 3%
-#: of ``mis`` on the rough bunnies; the frame's defaults (``point``, one ray) are the viewer's
-#: (docs/decisions/view-point-mode.md)
+#: a written frame's settings (``wavlight frame``): a product per ray at 4 x 4 rays per pixel
+#: (2.7-2.8% from ``mis`` over the rough bunnies' frames, 3.2-3.3% on the bunny); the frame's
+#: defaults (``point``, one ray) are the viewer's (docs/decisions/view-point-mode.md)
 STILL = {"refine": REFINE, "mass": MASS, "mode": "pixel", "supersample": 4, "tau": TAU}
 
 
@@ -465,11 +466,12 @@ RHO_FLOOR = 0.5
 
 
 def mass_steps(share: np.ndarray) -> np.ndarray:
-    """k = min(ceil(log2(share) / 2), MASS_STEPS) where share = phi / mass > 1, else 0: g = 2^k >=
-    sqrt(share) (ceil(log2) from the float32 exponent and mantissa, as the kernel takes it)."""
-    share = np.asarray(share, np.float32)
-    m, e = np.frexp(share)                          # share = m 2^e, m in [0.5, 1)
-    c = np.where(m == 0.5, e - 1, e)                # ceil(log2(share))
+    """k = min(ceil(log2(share) / 2), MASS_STEPS) where share = phi / mass > 1, else 0 (NaN too):
+    g = 2^k >= sqrt(share), ceil(log2) from the float32's exponent and mantissa bits as the
+    kernel's ``view_mass_steps`` takes it (infinity: MASS_STEPS)."""
+    share = np.atleast_1d(np.asarray(share, np.float32))
+    bits = share.view(np.uint32).astype(np.int64)
+    c = ((bits >> 23) & 0xFF) - 127 + ((bits & 0x7FFFFF) != 0)   # ceil(log2(share)) for share >= 1
     return np.where(share > 1.0, np.minimum((c + 1) // 2, MASS_STEPS), 0).astype(np.int64)
 
 
@@ -503,8 +505,7 @@ def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, k
     dn = np.linalg.norm(normal - m_all, axis=1)
     root = _blended(offsets, scale, data, points, weights, np.zeros((len(points), 1), np.int64))[:, 0]
     root_mass = np.abs(root).sum(1)
-    per_mass = np.where(root_mass > 0, 1.0 / np.where(root_mass > 0, root_mass * max(float(mass), 1e-300), 1.0), 0.0) \
-        if mass > 0 else np.zeros(len(points))
+    per_mass = np.divide(1.0, root_mass * mass, out=np.zeros_like(root_mass), where=(root_mass > 0) & (mass > 0))
     out = np.zeros((len(points), 3))
     visited = np.ones(len(points), np.int64)
     lam = (kind == bsdfs.LAMBERT) & ((tau <= 0) | (np.einsum("ij,ij->i", normal, m_all) >= ml * (1 - 1e-6)))
@@ -925,11 +926,14 @@ class ViewFrames:
         key = (width, first, count, supersample)
         if key not in self._centres:
             sub = supersample * supersample
-            pix = np.repeat(np.arange(first, first + count), sub)
-            k = np.tile(np.arange(sub), count)
-            offsets = np.stack([(k % supersample + 0.5) / supersample, (k // supersample + 0.5) / supersample], 1)
-            self._centres = {key: ((pix % width).astype(np.float32), (pix // width).astype(np.float32),
-                                   offsets.astype(np.float32))}
+            kept = self._centres.get(("rays", count, supersample))
+            if kept is None:   # the chunk's pixels (from 0) and sub-pixel offsets, shared by its chunks
+                k = np.tile(np.arange(sub), count)
+                offsets = np.stack([(k % supersample + 0.5) / supersample, (k // supersample + 0.5) / supersample], 1)
+                kept = (np.repeat(np.arange(count), sub), offsets.astype(np.float32))
+            pix = kept[0] + first
+            self._centres = {key: ((pix % width).astype(np.float32), (pix // width).astype(np.float32), kept[1]),
+                             ("rays", count, supersample): kept}
         return self._centres[key]
 
     # -- the cache at hits
@@ -1092,7 +1096,7 @@ class ViewFrames:
         seconds = time.perf_counter() - t0
         stats = {"frame_seconds": seconds, **timing, "width": width, "height": height, "eye": cam.eye.tolist(),
                  "target": cam.target.tolist(), "fov": cam.fov_y, "mode": mode, "tau": tau,
-                 "items": "cache points" if mode == "point" else "pixels",
+                 "items": "cache points" if mode == "point" else "rays",
                  "cache_points_shaded": products, "nodes_per_point": round(visited / max(products, 1), 2),
                  "refine": refine, "mass": mass, "supersample": supersample}
         return image.reshape(height, width, 3), stats
