@@ -295,11 +295,14 @@ def test_walk_to_the_texels_is_the_dense_sum(baked):
     err = np.linalg.norm(approx[glossy] - dense[glossy]) / np.linalg.norm(dense[glossy])
     assert err < 0.03 and few[glossy].mean() < nodes[glossy].mean() * 0.8, (err, few[glossy].mean())
     # the bright light holds much of T1's mass in a few nodes: refining them (mass) is closer to
-    # the dense sum than the walk by the lobe alone at the same refine
-    plain, plain_nodes = frames.products(points, EYE, mass=0.0)
+    # the dense sum than the walk by the lobe alone with as many nodes or more
+    for refine in (view.REFINE, view.REFINE / 2, view.REFINE / 4):
+        plain, plain_nodes = frames.products(points, EYE, refine=refine, mass=0.0)
+        if plain_nodes[glossy].mean() >= few[glossy].mean():
+            break
+    assert plain_nodes[glossy].mean() >= few[glossy].mean(), (plain_nodes[glossy].mean(), few[glossy].mean())
     err_plain = np.linalg.norm(plain[glossy] - dense[glossy]) / np.linalg.norm(dense[glossy])
-    assert err < 0.5 * err_plain, (err, err_plain)
-    assert few[glossy].mean() < 2.0 * plain_nodes[glossy].mean(), (few[glossy].mean(), plain_nodes[glossy].mean())
+    assert err < err_plain, (err, err_plain)
 
 
 def test_lattice_finds_the_hit_and_its_points(baked):

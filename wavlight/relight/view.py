@@ -130,8 +130,8 @@ MAX_LATTICE = 1 << 25
 CREASE_DEGREES = 60.0
 #: the approximate frame refines a node until its angular radius is at most REFINE (delta + w) / g,
 #: g = max(1, sqrt(phi / MASS)) for a node holding the share phi of T1's mass (0: g = 1)
-REFINE = 0.2
-MASS = 0.01
+REFINE = 0.6
+MASS = 0.003
 #: g is rounded up to a power of two 2^k, k <= MASS_STEPS (cos and sin of the scaled radius tabulated)
 MASS_STEPS = 8
 #: the unbiased frame: the product's texel levels, the BSDF's share, directions per sample
