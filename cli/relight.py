@@ -139,10 +139,10 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
               help="A bake with --vary view: a BRDF node's angular radius at most REFINE times its distance from "
                    "the lobe plus the lobe's width, divided by g >= sqrt(share / MASS) (a power of two) where the "
                    "node holds more than MASS of the transfer (smaller: more nodes, closer to the texels' sum). "
-                   "Default 0.2.")
+                   "Default 0.6.")
 @click.option("--mass", type=click.FloatRange(0.0, 1.0), default=None,
               help="A bake with --vary view: a node holding more than this share of the transfer's mass (a sun) is "
-                   "refined further (0: by the lobe alone). Default 0.01.")
+                   "refined further (0: by the lobe alone). Default 0.003.")
 @click.option("--mode", type=click.Choice(["point", "pixel"]), default=None,
               help="A bake with --vary view: a product per cache point, blended per pixel (fast: the viewer's), or "
                    "per pixel of its points' blended transfer with the pixel's face normal and view (closer to mis; "

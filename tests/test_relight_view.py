@@ -421,6 +421,14 @@ def test_command_line(baked, tmp_path):
     assert r.exit_code == 0 and json.loads(r.stdout)["spp"] == 2 and (tmp_path / "c.exr").exists(), r.output
 
 
+def test_help_gives_the_walks_defaults():
+    """``wavlight frame --help`` states the walk's defaults as the library has them."""
+    r = run("frame", "--help")
+    text = " ".join(r.output.split())
+    assert r.exit_code == 0
+    assert f"Default {view.REFINE:g}." in text and f"Default {view.MASS:g}." in text, text
+
+
 @pytest.mark.parametrize("args, words", [
     (("--rotate-y", 30), ("varies the view", "--rotate-y")),
     (("--env", "sky.exr"), ("varies the view", "--env")),
