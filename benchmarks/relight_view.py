@@ -21,7 +21,7 @@ sources).
     python benchmarks/relight_view.py [--scenes bunny_ggx,bunny_ggx05,bunny_lambert]
         [--modes point,point:0:0.15:0,pixel,pixel:0.1:0.15:0] [--size 512] [--error-size 256] [--supersample 1,4]
         [--mis-spp 1024] [--frames 15] [--still-frames 3]
-        [--levels auto] [--refine 0.2] [--turn 40] [-o FILE]
+        [--levels auto] [--refine 0.6] [--turn 40] [-o FILE]
 
 Each scene's written frame (``wavlight frame``'s settings, view.STILL: ``pixel`` at 4 x 4 rays)
 is timed at --size too.

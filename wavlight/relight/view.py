@@ -154,7 +154,7 @@ TAU = 0.1
 #: rays per pixel of a frame: at most MAX_SUPERSAMPLE^2
 MAX_SUPERSAMPLE = 16
 #: a written frame's settings (``wavlight frame``): a product per ray at 4 x 4 rays per pixel
-#: (2.7-2.8% from ``mis`` over the rough bunnies' frames, 3.2-3.3% on the bunny); the frame's
+#: (2.8% from ``mis`` over the rough bunnies' frames, 3.3-3.4% on the bunny); the frame's
 #: defaults (``point``, one ray) are the viewer's (docs/decisions/view-point-mode.md)
 STILL = {"refine": REFINE, "mass": MASS, "mode": "pixel", "supersample": 4, "tau": TAU}
 
