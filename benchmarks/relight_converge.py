@@ -30,7 +30,8 @@ Timing: with --wait-minutes M > 0, waits for the 1-minute load average to fall b
 
     python benchmarks/relight_converge.py [--size 128] [--spp 1,4,16,64] [--seeds 3] [--ref-spp 16384]
         [--bake-spp 16] [--rotation 60] [--frames 100] [--floor 32] [--floor-spp 16] [--no-stratified]
-        [--only SUBSTR] [--slots 2,4] [--product-levels M] [--light BETA] [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
+        [--only SUBSTR] [--slots 2,4] [--product-levels M] [--light BETA] [--no-control]
+        [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
 
 The figures in benchmarks/results/relight_converge.json come from
 
@@ -69,9 +70,13 @@ def main():
                     help="converge's product-tree levels at most (default: wavlight.relight.converge.PRODUCT_LEVELS)")
     ap.add_argument("--light", type=float, default=None,
                     help="converge's share of the lighting alone in its mixture (default: LIGHT_SHARE)")
+    ap.add_argument("--no-control", action="store_true",
+                    help="converge without the relit frame as control variate")
     args = rc.parse(ap, "relight_converge", 0)
     started = rc.begin(args)
     knobs = {k: v for k, v in (("levels", args.product_levels), ("light", args.light)) if v is not None}
+    if args.no_control:
+        knobs["control"] = False
     import wavlight
     from wavlight.evaluation.metrics import relmse
     from wavlight.relight.converge import converge

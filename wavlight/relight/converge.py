@@ -10,9 +10,16 @@ compressed transfer clamped to 0), and the hierarchical warp samples it
 proportional to T_p,t L_t; inside the texel, as the lighting's luminance at the map's own
 resolution (the world-frame square of 2^m x 2^m leaves, m = the map's depth, a light tree's
 leaves, :func:`.lighting.project`): a sun smaller than a texel is found inside it. The pdf per
-solid angle = p_t 4^n (mass of the leaf / mass of the texel) 4^(m - n) / (2 pi^2 sin theta). Visibility is inside that product (T1 holds V), which is
-what the ``wavelet`` strategy's product lacks on shadowed scenes: where T1 is accurate, the
-estimate's noise is the visibility's variance inside a texel and the pixel.
+solid angle = p_t 4^n (mass of the leaf / mass of the texel) 4^(m - n) / (2 pi^2 sin theta).
+Visibility is inside that product (T1 holds V), which is what the ``wavelet`` strategy's product
+lacks on shadowed scenes: where T1 is accurate, the estimate's noise is the visibility's
+variance inside a texel and the pixel.
+
+The relit frame is the control variate (:func:`control_terms`): g(w) = T_t / Omega_t L(w), the
+pixel's transfer in the direction's texel times the lighting's leaf radiance, has the known
+integral G = sum_t T_t L_t (the pixel's approximate frame, eq. 8, with every term), and each
+sample adds G + (f cos V L - g) / pdf: unbiased, since the lighting's share of the mixture makes
+the pdf positive wherever g is. Without a lighting share there is no control variate.
 
 Each camera sample (jittered in its pixel) takes ``slots`` directions of the defensive mixture
 (1 - alpha - beta) p_product + alpha p_bsdf + beta p_light (alpha = ``defensive``, beta =
@@ -39,7 +46,7 @@ from .. import bsdfs, rng
 from ..camera import camera_rays
 from ..envmap import Environment, luminance
 from ..errors import ArgumentError, WavlightError, check_int, check_number
-from ..haar import ProductPyramids, forward
+from ..haar import ProductPyramids, forward, inverse
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import check_scene, load_scene
@@ -142,18 +149,21 @@ class _Block:
 
 def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, spp: int = 16, seed: int = 0,
              threads=None, progress=None, slots: int = 2, defensive: float = DEFENSIVE,
-             levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE) -> RenderResult:
+             levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE, control: bool = True) -> RenderResult:
     """The unbiased frame of ``transfer`` under ``env`` (default: the baked map) turned to
     ``rotate_y`` (default: the scene's) and scaled, with ``spp`` camera samples per pixel (each
     with ``slots`` directions of the defensive mixture; module docstring). ``scene``: the scene
     the transfer was baked from (default: reloaded from the path the bake recorded; refused if
-    it changed). The product trees have min(n, ``levels``) levels. Returns a RenderResult:
-    image, per-pixel standard error, stats."""
+    it changed). The product trees have min(n, ``levels``) levels. With ``control`` (and a
+    lighting share ``light`` > 0) the pixel's relit value G = sum_t T_t L_t is the control
+    variate's known integral (:func:`control_terms`). Returns a RenderResult: image, per-pixel
+    standard error, stats."""
     where = "relight.converge"
     spp = check_int(where, "spp", spp, 1, MAX_SPP)
     seed = check_int(where, "seed", seed, 0, 2 ** 63 - 1)
     levels = check_int(where, "levels", levels, 1, 16)
-    check_shares(where, defensive, light)
+    defensive, light = check_shares(where, defensive, light)
+    use_control = bool(control) and light > 0
     scene = _scene_of(transfer, scene)
     rot = transfer.scene_rotate_y if rotate_y is None else float(rotate_y)
     base = transfer.environment(env, scale)                     # unrotated, scaled
@@ -182,6 +192,10 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
             coeffs = coeffs[:, :1 << n, :1 << n] * np.float32(4.0 ** (fine - n))
         trees = pyramids.trees(coeffs)
         mass = trees.integral                                   # (P,) 0: no product sample for the pixel
+        cv = None
+        if use_control:   # the transfer's texels (clamped as the product's leaves) and their relit value
+            texels = np.maximum(inverse(coeffs.astype(np.float64)), 0.0).reshape(len(coeffs), -1)
+            cv = (texels, texels @ inside.texel_radiance)
         P = w * h
         pix = np.arange(P)
         px, py = np.repeat(x0 + pix % w, spp), np.repeat(y0 + pix // w, spp)
@@ -194,7 +208,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         rays = P * spp
         if len(hit):
             value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp,
-                                                  (seed, block), turned, defensive, slots, light)
+                                                  (seed, block), turned, defensive, slots, light, cv)
             rays += traced
         v = value.reshape(h, w, spp, 3)
         with lock:
@@ -212,7 +226,8 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
              "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
              "rotate_y": rot, "product_levels": n,
-             "estimator": "product T1 x L (eq. 25) + BSDF, defensive mixture"}
+             "estimator": "product T1 x L (eq. 25) + BSDF + lighting, defensive mixture"
+                          + (", the relit frame as control variate" if use_control else "")}
     return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
 
 
@@ -224,15 +239,28 @@ class _TexelLight:
     def __init__(self, environment, n_levels: int, rotate_y: float):
         top = max(environment.square_levels(), n_levels)
         rgb = lighting.project(environment, top, rotate_y)
-        masses = luminance(rgb) * lighting.texel_solid_angles(top)[:, None]          # (M, M)
+        leaf_angles = lighting.texel_solid_angles(top)[:, None]
+        masses = luminance(rgb) * leaf_angles                                          # (M, M)
         self.n, self.top, self.k = n_levels, top, 1 << (top - n_levels)
         side, k = 1 << n_levels, self.k
+        self.rgb = rgb
+        self.texel_angles = lighting.texel_solid_angles(n_levels)
+        # each texel's mean radiance: its leaves' integrals over its solid angle (exact, nested)
+        self.texel_radiance = ((rgb * leaf_angles[:, :, None]).reshape(side, k, side, k, 3).sum((1, 3))
+                               / self.texel_angles[:, None, None]).reshape(side * side, 3)
         blocks = masses.reshape(side, k, side, k).transpose(0, 2, 1, 3).reshape(side * side, k * k)
         self.texel_mass = blocks.sum(1)
         self.texel_luminance = (self.texel_mass.reshape(side, side)
                                 / lighting.texel_solid_angles(n_levels)[:, None])
         self.cdf = np.cumsum(blocks, axis=1)
         self.blocks = blocks
+
+    def radiance(self, uv):
+        """(N, 3): the lighting's leaf radiance (the projected map's piecewise-constant value) at
+        points uv of the square."""
+        side = 1 << self.top
+        cell = np.minimum((np.asarray(uv) * side).astype(np.int64), side - 1)
+        return self.rgb[cell[:, 1], cell[:, 0]]
 
     def _texel(self, uv):
         side = 1 << self.n
@@ -328,14 +356,17 @@ def mean_and_error(sums: np.ndarray, squares: np.ndarray, spp: int):
 
 
 def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: int, key, environment,
-                     defensive: float, slots: int, light: float = 0.0):
+                     defensive: float, slots: int, light: float = 0.0, control=None):
     """The radiance (len(hit), 3) of the camera samples ``hit`` (of spp per pixel, directions
     ``d`` with hits ``prim`` at ``t``) from ``slots`` directions each of the defensive mixture
     (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
     ``trees`` of totals ``mass``) seen from
     ``scene``'s camera, each
     evaluated with the true f cos, ``environment``'s radiance and a shadow ray; the uniforms are
-    Philox stream (``key`` = (seed, tile), DIRECTION_STREAM + slot). Returns it and the rays traced."""
+    Philox stream (``key`` = (seed, tile), DIRECTION_STREAM + slot). ``control`` = (T, G): the
+    pixels' transfer texels T (pixels, 4^n) (non-negative, the product's) and G (pixels, 3) =
+    sum_t T_t L_t, for the control variate g = T_t / Omega_t L_leaf (:func:`control_terms`).
+    Returns it and the rays traced."""
     nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
     nrm = nrm.astype(np.float64)
     s_ax, t_ax = tangent_frame(nrm)
@@ -349,18 +380,40 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     rays = 0
     for slot in range(slots):   # directions per camera sample, not samples
         u_all = rng.uniforms(*key, DIRECTION_STREAM + slot, 0, len(d))
-        direction, weight = mixture_directions(trees, inside, u_all, hit, spp, has_p, alpha, kind, param, wo,
-                                               (s_ax, t_ax, nrm), light)
+        direction, weight, pdf = mixture_directions(trees, inside, u_all, hit, spp, has_p, alpha, kind, param, wo,
+                                                    (s_ax, t_ax, nrm), light, with_pdf=True)
         weight = weight / slots
         live = np.flatnonzero(weight > 0)
         blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
         rays += len(live)
         total[live] += (weight[live] * ~blocked)[:, None] * environment.eval(direction[live])
+        if control is not None:
+            total -= control_terms(control[0], inside, hit // spp, direction, pdf) / slots
+    if control is not None:
+        total += control[1][hit // spp]
     return scene.material_albedo[mat].astype(np.float64) * total, rays
 
 
+def control_terms(texels, inside, pixel, direction, pdf):
+    """g(w) / pdf(w) (N, 3) of the control variate g(w) = T_t / Omega_t L_leaf(w): the pixel's
+    transfer in texel t (its integral of f cos V over the texel's solid angle Omega_t, clamped at
+    0 as the product is) times the lighting's leaf radiance at w. Its integral G = sum_t T_t L_t
+    (L_t the texel's mean radiance) is the relit frame's value of the pixel, known exactly, so
+    G + (f cos V L - g) / pdf is unbiased wherever pdf > 0 where g > 0: the lighting's technique
+    is positive wherever L is. Where T1 is close to the camera sample's f cos V (a lit diffuse
+    floor), the difference, not the integrand, carries the variance (``wavelet``'s candidates do
+    the same with their unshadowed estimate, docs/decisions/control-variate.md)."""
+    uv = world_to_square(direction)
+    t, _ = inside._texel(uv)
+    side = 1 << inside.n
+    g = (texels[pixel, t] / inside.texel_angles[t // side])[:, None] * inside.radiance(uv)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where((pdf > 0)[:, None], g / np.where(pdf > 0, pdf, 1.0)[:, None], 0.0)
+    return np.where(np.isfinite(out), out, 0.0)
+
+
 def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes,
-                       light: float = 0.0):
+                       light: float = 0.0, with_pdf: bool = False):
     """Directions of the defensive mixture and their weights, for the samples ``hit`` of
     ``len(u_all)`` (spp per pixel, each pixel's product tree in ``trees``): with probability
     1 - alpha - light the product (its tree by the hierarchical warp, eq. 17-22, then inside
@@ -369,7 +422,8 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
     hides a bright light, the lighting still finds it); ``axes`` (s, t, n) the hits' tangent
     frames, ``wo`` the view in them. The pdf is the mixture's, every technique's at the chosen
     direction, so that f cos / pdf is unbiased. Returns unit directions (N, 3) and f cos / pdf
-    (N,) (0 where either is 0 or not finite)."""
+    (N,) (0 where either is 0 or not finite); with ``with_pdf`` also the mixture's pdf (N,) per solid
+    angle."""
     s_ax, t_ax, nrm = axes
     u = u_all[hit].astype(np.float64)
     uv_tree, _ = trees.sample(np.ascontiguousarray(u_all[:, :2]), spp)   # every sample slot, in pixel order
@@ -395,7 +449,8 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
         pdf = pdf + light * inside.light_pdf(uv) * solid_angle_jacobian(direction)
     with np.errstate(divide="ignore", invalid="ignore"):
         weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0)
-    return direction, np.where(np.isfinite(weight), weight, 0.0)
+    weight = np.where(np.isfinite(weight), weight, 0.0)
+    return (direction, weight, np.where(np.isfinite(pdf), pdf, 0.0)) if with_pdf else (direction, weight)
 
 
 def _spread(values: np.ndarray, at: np.ndarray, count: int) -> np.ndarray:
