@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from wavlight import cl, haar
+from wavlight.errors import ArgumentError
 from wavlight.haar import sparse as haar_sparse
 from wavlight.haar.tree import HaarTree, build_reference, device_order, level_offset, tree_size
 
@@ -491,3 +492,15 @@ def test_product_kernel_rejects_bad_input(device):
         haar.ProductPyramids(G, 2, levels=4)
     with pytest.raises(ValueError):
         haar.ProductPyramids(G, 2)(np.zeros((3, 8, 8)))
+
+
+@pytest.mark.parametrize("n", [0, 1, 4, 6])
+def test_texel_values_are_the_inverse_at_those_texels(n):
+    """texel_values reads 3n + 1 coefficients per texel; it equals the whole inverse there."""
+    rng = np.random.default_rng(40 + n)
+    c = rng.normal(size=(4, 1 << n, 1 << n))
+    img = haar.inverse(c)
+    which, x, y = rng.integers(0, 4, 500), rng.integers(0, 1 << n, 500), rng.integers(0, 1 << n, 500)
+    np.testing.assert_allclose(haar.texel_values(c, which, x, y), img[which, y, x], rtol=1e-12, atol=1e-12)
+    with pytest.raises(ArgumentError):
+        haar.texel_values(c[0], [0], [0], [0])

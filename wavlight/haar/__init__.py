@@ -85,13 +85,14 @@ from .transform import (
     forward,
     forward_cl,
     inverse,
+    texel_values,
     inverse_cl,
     node_scale,
 )
 from .tree import HaarTree
 
 __all__ = [
-    "coeff_index", "coeff_basis", "node_scale", "forward", "inverse", "scaling_pyramid",
+    "coeff_index", "coeff_basis", "node_scale", "forward", "inverse", "texel_values", "scaling_pyramid",
     "SparseHaar", "compress_topk", "compress_energy", "tripling", "double_product_integral",
     "triple_product_integral", "product_scaling", "product_scaling_at", "forward_cl", "inverse_cl",
     "ProductPyramids", "HaarTree", "MAX_LEVELS",

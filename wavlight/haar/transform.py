@@ -144,6 +144,29 @@ def inverse(coeffs) -> np.ndarray:
 
 
 
+def texel_values(coeffs, which, x, y) -> np.ndarray:
+    """(N,) float64: ``inverse(coeffs)[which, y, x]`` for dense coefficient sets (T, 2^n, 2^n),
+    without the whole inverse: per texel its n + 1 scaling values top down (eq. 13's children
+    0.5 (F^0 +- d1 +- d2 +- d3)), 3n + 1 coefficients read; a loop over levels, not texels."""
+    c, n = _square(coeffs, "haar.texel_values", "coeffs")
+    if c.ndim != 3:
+        raise ArgumentError(f"haar.texel_values: coeffs must be (T, 2^n, 2^n), got shape {c.shape}")
+    which, x, y = (np.asarray(a, np.int64).reshape(-1) for a in (which, x, y))
+    side = 1 << n
+    flat = c.reshape(len(c), side * side)
+    s = flat[which, 0].astype(np.float64)
+    for l in range(n):   # levels, not texels
+        h = 1 << l
+        xl, yl = x >> (n - l), y >> (n - l)
+        s1 = 1 - 2 * ((x >> (n - l - 1)) & 1)
+        s2 = 1 - 2 * ((y >> (n - l - 1)) & 1)
+        d1 = flat[which, yl * side + h + xl]
+        d2 = flat[which, (h + yl) * side + xl]
+        d3 = flat[which, (h + yl) * side + h + xl]
+        s = 0.5 * (s + s1 * d1 + s2 * d2 + (s1 * s2) * d3)
+    return s * 2.0 ** n
+
+
 # ============================================================================= OpenCL (kernels/haar.cl)
 def forward_cl(images, queue=None):
     """Forward transform of (..., 2^n, 2^n) images on the device (any leading axes, e.g.

@@ -46,7 +46,7 @@ from .. import bsdfs, rng
 from ..camera import camera_rays
 from ..envmap import Environment, luminance
 from ..errors import ArgumentError, WavlightError, check_int, check_number
-from ..haar import ProductPyramids, forward, inverse
+from ..haar import ProductPyramids, forward, texel_values
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import check_scene, load_scene
@@ -171,6 +171,10 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     n = min(transfer.n_levels, levels)
     fine = transfer.n_levels
     inside = _TexelLight(base, n, rot)
+    # sum_t T_t L_t = 4^n sum_k T^_k L^_k (the transform is orthonormal over the unit square)
+    radiance_coefficients = lighting.coefficients(inside.texel_radiance.reshape(1 << n, 1 << n, 3)).reshape(3, -1).T \
+        * np.float32(4 ** n)
+    radiance_coefficients = radiance_coefficients.astype(np.float32)   # as the coefficients
     pyramids = ProductPyramids(forward(inside.texel_luminance), n, nonnegative=True)
     tracer = RayTracer(scene.vertices, scene.faces, threads=1)
     blocks = _Block(transfer)
@@ -193,9 +197,8 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         trees = pyramids.trees(coeffs)
         mass = trees.integral                                   # (P,) 0: no product sample for the pixel
         cv = None
-        if use_control:   # the transfer's texels (clamped as the product's leaves) and their relit value
-            texels = np.maximum(inverse(coeffs.astype(np.float64)), 0.0).reshape(len(coeffs), -1)
-            cv = (texels, texels @ inside.texel_radiance)
+        if use_control:   # the transfer's coefficients and its relit value G = sum_t T_t L_t (Parseval)
+            cv = (coeffs, (coeffs.reshape(len(coeffs), -1) @ radiance_coefficients).astype(np.float64))
         P = w * h
         pix = np.arange(P)
         px, py = np.repeat(x0 + pix % w, spp), np.repeat(y0 + pix // w, spp)
@@ -363,9 +366,9 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     ``trees`` of totals ``mass``) seen from
     ``scene``'s camera, each
     evaluated with the true f cos, ``environment``'s radiance and a shadow ray; the uniforms are
-    Philox stream (``key`` = (seed, tile), DIRECTION_STREAM + slot). ``control`` = (T, G): the
-    pixels' transfer texels T (pixels, 4^n) (non-negative, the product's) and G (pixels, 3) =
-    sum_t T_t L_t, for the control variate g = T_t / Omega_t L_leaf (:func:`control_terms`).
+    Philox stream (``key`` = (seed, tile), DIRECTION_STREAM + slot). ``control`` = (C, G): the
+    pixels' transfer coefficients C (pixels, 2^n, 2^n) and G (pixels, 3) = sum_t T_t L_t, for
+    the control variate g = T_t / Omega_t L_leaf (:func:`control_terms`).
     Returns it and the rays traced."""
     nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
     nrm = nrm.astype(np.float64)
@@ -394,19 +397,21 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     return scene.material_albedo[mat].astype(np.float64) * total, rays
 
 
-def control_terms(texels, inside, pixel, direction, pdf):
+def control_terms(coeffs, inside, pixel, direction, pdf):
     """g(w) / pdf(w) (N, 3) of the control variate g(w) = T_t / Omega_t L_leaf(w): the pixel's
-    transfer in texel t (its integral of f cos V over the texel's solid angle Omega_t, clamped at
-    0 as the product is) times the lighting's leaf radiance at w. Its integral G = sum_t T_t L_t
-    (L_t the texel's mean radiance) is the relit frame's value of the pixel, known exactly, so
-    G + (f cos V L - g) / pdf is unbiased wherever pdf > 0 where g > 0: the lighting's technique
-    is positive wherever L is. Where T1 is close to the camera sample's f cos V (a lit diffuse
+    transfer in texel t (its integral of f cos V over the texel's solid angle Omega_t, from its
+    coefficients ``coeffs`` (pixels, 2^n, 2^n) by :func:`wavlight.haar.texel_values`) times the
+    lighting's leaf radiance at w. Its integral G = sum_t T_t L_t (L_t the texel's mean
+    radiance) is the relit frame's value of the pixel (eq. 8 with every term), known exactly, so
+    G + (f cos V L - g) / pdf is unbiased wherever pdf > 0 where g != 0: the lighting's
+    technique is positive wherever L is. Where T1 is close to the camera sample's f cos V (a lit diffuse
     floor), the difference, not the integrand, carries the variance (``wavelet``'s candidates do
     the same with their unshadowed estimate, docs/decisions/control-variate.md)."""
     uv = world_to_square(direction)
     t, _ = inside._texel(uv)
     side = 1 << inside.n
-    g = (texels[pixel, t] / inside.texel_angles[t // side])[:, None] * inside.radiance(uv)
+    value = texel_values(coeffs, pixel, t % side, t // side)
+    g = (value / inside.texel_angles[t // side])[:, None] * inside.radiance(uv)
     with np.errstate(divide="ignore", invalid="ignore"):
         out = np.where((pdf > 0)[:, None], g / np.where(pdf > 0, pdf, 1.0)[:, None], 0.0)
     return np.where(np.isfinite(out), out, 0.0)
