@@ -214,6 +214,108 @@ def test_control_variate_lowers_the_variance(shadowed):
     assert "control" not in plain.stats["estimator"]
 
 
+@pytest.mark.parametrize("levels", [4, 2])
+def test_control_variate_integral_is_the_mean_of_its_samples(shadowed, levels):
+    """The control variate's g integrates to G, the value the frame adds back: leaf by leaf over
+    the sphere (so both use the same texels, measure, rotation and colour), and as E[g / pdf]
+    over the mixture's directions for pixels of the floor and of the sphere (one camera ray
+    each, 8 x 4096 directions). G itself equals the quadrature sum_t T_t L_t over the inverse
+    transform, in float64."""
+    scene, tr = shadowed
+    c = converge_mod
+    n, rot = min(levels, tr.n_levels), 80.0
+    inside = c._TexelLight(tr.environment(None, 1.0), n, rot)
+    coeffs = c._Block(tr).coefficients(tr, 0).reshape(-1, 1 << tr.n_levels, 1 << tr.n_levels)
+    coeffs = coeffs[:, :1 << n, :1 << n] * np.float32(4.0 ** (tr.n_levels - n))
+    G = c.relit_values(coeffs, inside)
+    quadrature = np.einsum("pij,ijc->pc", haar.inverse(coeffs.astype(np.float64)),
+                           inside.texel_radiance.reshape(1 << n, 1 << n, 3))
+    np.testing.assert_allclose(G, quadrature, rtol=1e-9, atol=1e-12 * np.abs(quadrature).max())
+    # g is constant on each piece of a leaf (the 2 x 2 map pixels a turned leaf overlaps): the
+    # pieces hold the leaf's exact projection, and g's integral, piece by piece, is G
+    count = 1 << inside.top
+    row, col = np.divmod(np.arange(count * count), count)
+    leaf_angles = lighting.texel_solid_angles(inside.top)[row]
+    held = np.zeros((len(row), 3))
+    integral = {p: np.zeros(3) for p in (8, 100, 200)}
+    for r in (0, 1):
+        for k in (0, 1):
+            wc = inside.col_share[col] if k == 0 else 1.0 - inside.col_share[col]
+            wr = inside.row_angle_share[row] if r == 0 else 1.0 - inside.row_angle_share[row]
+            fu = inside.col_share[col] / 2 if k == 0 else (1.0 + inside.col_share[col]) / 2
+            fv = inside.row_share[row] / 2 if r == 0 else (1.0 + inside.row_share[row]) / 2
+            uv = np.stack([(col + fu) / count, (row + fv) / count], 1)
+            angle = leaf_angles * wc * wr
+            held += inside.radiance(uv) * (wc * wr)[:, None]
+            for p in integral:
+                g = c.control_terms(coeffs, inside, np.full(len(uv), p), c.square_to_world(uv), np.ones(len(uv)))
+                integral[p] += (g * angle[:, None]).sum(0)
+    np.testing.assert_allclose(held, inside.rgb.reshape(-1, 3), rtol=1e-6, atol=1e-9 * inside.rgb.max())
+    for p in integral:
+        np.testing.assert_allclose(integral[p], G[p], rtol=1e-5)
+    w, h = tr.width, tr.height
+    every = np.arange(w * h)
+    o, d = wavlight.camera.camera_rays(scene, every % w, every // w, np.full((w * h, 2), 0.5, np.float32), w, h)
+    seen = np.flatnonzero(RayTracer(scene.vertices, scene.faces).intersect(o, d)[0] >= 0)
+    sel = seen[np.linspace(0, len(seen) - 1, 6).astype(int)]    # sphere and floor pixels
+    assert len(np.unique(scene.face_material[RayTracer(scene.vertices, scene.faces).intersect(o[sel], d[sel])[0]])) == 2
+    trees = haar.ProductPyramids(haar.forward(inside.texel_luminance), n, nonnegative=True).trees(coeffs[sel])
+    spp, rounds = 4096, 8
+    px, py = np.repeat(sel % w, spp), np.repeat(sel // w, spp)
+    eye, d = wavlight.camera.camera_rays(scene, px, py, np.full((len(px), 2), 0.5, np.float32), w, h)
+    tracer = RayTracer(scene.vertices, scene.faces, threads=1)
+    prim, t = tracer.intersect(eye, d)
+    hit = np.flatnonzero(prim >= 0)
+    nrm, _, _ = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+    nrm = nrm.astype(np.float64)
+    s_ax, t_ax = c.tangent_frame(nrm)
+    wo = c.to_local(-d[hit].astype(np.float64), s_ax, t_ax, nrm)
+    mat = scene.face_material[prim[hit]]
+    has_p = trees.integral[hit // spp] > 0
+    alpha = np.where(has_p, c.DEFENSIVE, 1.0 - c.LIGHT_SHARE)
+    terms = []
+    for k in range(rounds):
+        u = wavlight.rng.uniforms(17, k, c.DIRECTION_STREAM, 0, len(d))
+        direction, _, pdf = c.mixture_directions(trees, inside, u, hit, spp, has_p, alpha, scene.material_kind[mat],
+                                                 scene.material_param[mat], wo, (s_ax, t_ax, nrm), c.LIGHT_SHARE,
+                                                 with_pdf=True)
+        terms.append(c.control_terms(coeffs[sel], inside, hit // spp, direction, pdf))
+    terms = np.concatenate(terms)
+    pixel = np.tile(hit // spp, rounds)
+    assert len(np.unique(pixel)) == len(sel)
+    for i in range(len(sel)):
+        x = terms[pixel == i]
+        mean, se = x.mean(0), x.std(0) / np.sqrt(len(x))
+        z = (mean - G[sel[i]]) / np.maximum(se, 1e-12 * np.abs(G[sel[i]]).max())
+        assert np.abs(z).max() < 4.0, (sel[i], mean, G[sel[i]], z)
+
+
+@pytest.mark.parametrize("rotate_y", [0.0, 80.0, 3.0])
+def test_points_inside_a_texel_follow_the_map_pixels(rotate_y):
+    """A map black but for one pixel, turned by a fraction of a map column or by whole ones: the
+    points the lighting places in that pixel's texel all land on it (a leaf overlapping it and
+    a black pixel gives the black part nothing), the density factor is the sampler's, and
+    without ``map_pixels`` (uniform in the leaf) about half of them miss it."""
+    pixels = np.zeros((32, 64, 3), np.float32)
+    pixels[9, 21] = 50.0
+    env = Environment(pixels, 1.0, 0.0, "one pixel")
+    inside = converge_mod._TexelLight(env, 3, rotate_y)
+    u = np.random.default_rng(1).random((20000, 3))
+    uv = inside.sample_light(u[:, 0], u[:, 1], u[:, 2])
+    assert (inside.radiance(uv)[:, 0] == 50.0).all()
+    turned = Environment(pixels, 1.0, rotate_y, "one pixel")
+    assert (turned.eval(converge_mod.square_to_world(uv))[:, 0] == 50.0).mean() > 0.999
+    # the density is the sampler's: E[1 / pdf] is the area of its support, the pixel's 1 / (64 x 32)
+    inv = 1.0 / inside.light_pdf(uv)
+    assert abs(inv.mean() * 64 * 32 - 1.0) < 5 * inv.std() / np.sqrt(len(inv)) * 64 * 32 + 1e-12
+    plain = converge_mod._TexelLight(env, 3, rotate_y, map_pixels=False)
+    hits = (turned.eval(converge_mod.square_to_world(plain.sample_light(u[:, 0], u[:, 1], u[:, 2])))[:, 0] == 50.0)
+    if rotate_y % (360.0 / 64) == 0:
+        assert hits.all()
+    else:
+        assert 0.05 < hits.mean() < 0.95
+
+
 # ----------------------------------------------------------------------------- the bake file
 def test_save_load_and_checks(shadowed, tmp_path):
     _, tr = shadowed

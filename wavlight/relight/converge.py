@@ -9,17 +9,22 @@ compressed transfer clamped to 0), and the hierarchical warp samples it
 (:class:`wavlight.haar.HaarTree`, kernels/warp.h): a direction lands in texel t with probability
 proportional to T_p,t L_t; inside the texel, as the lighting's luminance at the map's own
 resolution (the world-frame square of 2^m x 2^m leaves, m = the map's depth, a light tree's
-leaves, :func:`.lighting.project`): a sun smaller than a texel is found inside it. The pdf per
-solid angle = p_t 4^n (mass of the leaf / mass of the texel) 4^(m - n) / (2 pi^2 sin theta).
+leaves, :func:`.lighting.project`), and inside the leaf as the map's pixels (a leaf of a map
+turned by a fraction of a column overlaps two of them: :class:`_TexelLight`): a sun smaller
+than a texel is found inside it, a sun one pixel wide in proportion to its own radiance. The
+pdf per solid angle = p_t 4^n (mass of the leaf / mass of the texel) 4^(m - n) (mass of the
+piece / mass of the leaf) / (its share of the leaf's area) / (2 pi^2 sin theta).
 Visibility is inside that product (T1 holds V), which is what the ``wavelet`` strategy's product
 lacks on shadowed scenes: where T1 is accurate, the estimate's noise is the visibility's
 variance inside a texel and the pixel.
 
-The relit frame is the control variate (:func:`control_terms`): g(w) = T_t / Omega_t L(w), the
-pixel's transfer in the direction's texel times the lighting's leaf radiance, has the known
-integral G = sum_t T_t L_t (the pixel's approximate frame, eq. 8, with every term), and each
-sample adds G + (f cos V L - g) / pdf: unbiased, since the lighting's share of the mixture makes
-the pdf positive wherever g is. Without a lighting share there is no control variate.
+The relit frame is the control variate (:func:`control_terms`): g(w) = c T_t / Omega_t L(w), the
+pixel's transfer in the direction's texel times the map's radiance there, has the known
+integral G = c sum_t T_t L_t (the pixel's approximate frame, eq. 8, with every term,
+:func:`relit_values`), and each sample adds G + (f cos V L - g) / pdf: unbiased, since the
+lighting's share of the mixture makes the pdf positive wherever g is. c = S / hits of the bake's
+camera samples (:func:`hit_scales`): the frame's sample that hits is compared with the transfer
+of the bake's samples that hit. Without a lighting share there is no control variate.
 
 Each camera sample (jittered in its pixel) takes ``slots`` directions of the defensive mixture
 (1 - alpha - beta) p_product + alpha p_bsdf + beta p_light (alpha = ``defensive``, beta =
@@ -171,10 +176,9 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     n = min(transfer.n_levels, levels)
     fine = transfer.n_levels
     inside = _TexelLight(base, n, rot)
-    # sum_t T_t L_t = 4^n sum_k T^_k L^_k (the transform is orthonormal over the unit square)
-    radiance_coefficients = lighting.coefficients(inside.texel_radiance.reshape(1 << n, 1 << n, 3)).reshape(3, -1).T \
-        * np.float32(4 ** n)
-    radiance_coefficients = radiance_coefficients.astype(np.float32)   # as the coefficients
+    hit_scale = hit_scales(transfer) if use_control else None
+    if use_control:
+        inside.radiance_coefficients()                          # once, before the threads
     pyramids = ProductPyramids(forward(inside.texel_luminance), n, nonnegative=True)
     tracer = RayTracer(scene.vertices, scene.faces, threads=1)
     blocks = _Block(transfer)
@@ -197,8 +201,10 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         trees = pyramids.trees(coeffs)
         mass = trees.integral                                   # (P,) 0: no product sample for the pixel
         cv = None
-        if use_control:   # the transfer's coefficients and its relit value G = sum_t T_t L_t (Parseval)
-            cv = (coeffs, (coeffs.reshape(len(coeffs), -1) @ radiance_coefficients).astype(np.float64))
+        if use_control:   # the transfer's coefficients and its relit value G = sum_t T_t L_t (Parseval), per
+            # camera sample that hits: the transfer counts the bake's misses as 0 (hit_scales)
+            c = hit_scale[y0:y0 + h, x0:x0 + w].reshape(-1)
+            cv = (coeffs * c.astype(np.float32)[:, None, None], relit_values(coeffs, inside) * c[:, None])
         P = w * h
         pix = np.arange(P)
         px, py = np.repeat(x0 + pix % w, spp), np.repeat(y0 + pix // w, spp)
@@ -234,12 +240,45 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
 
 
+def relit_values(coeffs: np.ndarray, inside) -> np.ndarray:
+    """(P, 3) float64 G = sum_t T_t L_t of pixels' transfer coefficients (P, 2^n, 2^n) and the
+    lighting's texel radiance (``inside``, a :class:`_TexelLight` of n levels): the relit frame's
+    value (eq. 8 with every term), by Parseval as 4^n sum_k T^_k L^_k (the transform is
+    orthonormal over the unit square). In float64: it is the control variate's exact integral,
+    which float32 would bias under a bright sun."""
+    return coeffs.reshape(len(coeffs), -1).astype(np.float64) @ inside.radiance_coefficients()
+
+
+def hit_scales(transfer) -> np.ndarray:
+    """(H, W) S / hits: the bake's camera samples over those of them that hit, per pixel (1 where
+    all miss). The transfer is a mean over all S samples, misses counted as 0; a camera sample of
+    the frame that hits is closer to the transfer of the hits alone, on a silhouette's pixels
+    too. A constant per pixel: the control variate (g and G alike) stays unbiased."""
+    hits = np.full(transfer.width * transfer.height, float(transfer.spp))
+    pixels = np.asarray(transfer._s["background_pixel"], np.int64)
+    if len(pixels):
+        mask = np.asarray(transfer._s["background_mask"], np.uint64)
+        misses = np.unpackbits(mask.view(np.uint8).reshape(-1, 8), axis=1).sum(1)
+        hits[pixels] -= misses
+    scale = np.where(hits > 0, transfer.spp / np.maximum(hits, 1.0), 1.0)
+    return scale.reshape(transfer.height, transfer.width)
+
+
 class _TexelLight:
     """The lighting inside the transfer's texels at the map's resolution: leaf masses (exact
     integrals of luminance, world frame, turned) grouped by texel, for sampling a point inside a
-    texel in proportion to them and for the density factor of that choice."""
+    texel in proportion to them and for the density factor of that choice.
 
-    def __init__(self, environment, n_levels: int, rotate_y: float):
+    The leaves are the world-frame square's 2^m x 2^m cells (m >= the map's square levels, so a
+    leaf is at most one map pixel wide and tall). Turned by an angle that is not a whole number
+    of map columns, a leaf overlaps up to 2 x 2 of the map's pixels; with ``map_pixels`` (the
+    default) the point is placed inside the leaf in proportion to those pieces (their luminance
+    times their share of the leaf's solid angle), so that a sun one map pixel wide is sampled in
+    proportion to its own radiance, not to its leaf's mean with a dark neighbour; and
+    :meth:`radiance` is the map pixel's. Without, the point is uniform in its leaf (what the
+    moving object's kernel does, kernels/relight_moving.cl)."""
+
+    def __init__(self, environment, n_levels: int, rotate_y: float, map_pixels: bool = True):
         top = max(environment.square_levels(), n_levels)
         rgb = lighting.project(environment, top, rotate_y)
         leaf_angles = lighting.texel_solid_angles(top)[:, None]
@@ -257,13 +296,95 @@ class _TexelLight:
                                 / lighting.texel_solid_angles(n_levels)[:, None])
         self.cdf = np.cumsum(blocks, axis=1)
         self.blocks = blocks
+        self.map_pixels = bool(map_pixels)
+        if self.map_pixels:
+            self._pieces(environment, rotate_y)
+
+    def _pieces(self, environment, rotate_y: float):
+        """Per leaf column: the map columns of its two pieces and the first's share of the leaf's
+        width; per leaf row: the map rows, the first's share of the height and of the solid angle
+        (the map turned by rotate_y: map u = world u + rotate_y / 360, as lighting.Projector)."""
+        count = 1 << self.top
+        h, w = environment.height, environment.width
+        self.map_rgb = environment.pixels.astype(np.float64)
+        self.map_lum = luminance(self.map_rgb)
+        x0 = ((np.arange(count) / count + float(rotate_y) / 360.0) % 1.0) * w   # a leaf's left edge, map columns
+        first = np.floor(x0)
+        self.col_share = np.clip((first + 1.0 - x0) * count / w, 0.0, 1.0)
+        self.cols = np.stack([first.astype(np.int64) % w, (first.astype(np.int64) + 1) % w])
+        y0 = np.arange(count) * h / count
+        first = np.floor(y0)
+        self.row_share = np.clip((first + 1.0 - y0) * count / h, 0.0, 1.0)
+        self.rows = np.stack([np.minimum(first.astype(np.int64), h - 1), np.minimum(first.astype(np.int64) + 1, h - 1)])
+        theta = np.pi * np.arange(count + 1) / count
+        split = np.pi * (np.arange(count) + self.row_share) / count
+        with np.errstate(divide="ignore", invalid="ignore"):
+            band = np.cos(theta[:-1]) - np.cos(theta[1:])
+            self.row_angle_share = np.clip((np.cos(theta[:-1]) - np.cos(split)) / band, 0.0, 1.0)
+
+    def _piece_masses(self, a, b):
+        """(4, N) the pieces' luminance times their share of leaf (column a, row b)'s solid angle,
+        in the order (row 0, col 0), (row 0, col 1), (row 1, col 0), (row 1, col 1)."""
+        wc, wr = self.col_share[a], self.row_angle_share[b]
+        out = []
+        for r, share_r in ((0, wr), (1, 1.0 - wr)):        # the 2 x 2 pieces, not samples
+            for c, share_c in ((0, wc), (1, 1.0 - wc)):
+                out.append(self.map_lum[self.rows[r, b], self.cols[c, a]] * share_c * share_r)
+        return np.stack(out)
+
+    def _place_in_leaf(self, a, b, su, sv):
+        """Points (fu, fv) inside leaves (column a, row b) from uniforms su, sv, in proportion to
+        the pieces' masses, and the density factor of that placement against uniform in the leaf."""
+        m = self._piece_masses(a, b)
+        total = m.sum(0)
+        top = m[0] + m[1]
+        one_below = np.nextafter(1.0, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lower = sv * total >= top                       # the second row piece
+            sv2 = np.where(lower, (sv * total - top) / (total - top), sv * total / top)
+            sv2 = np.where(np.isfinite(sv2), np.clip(sv2, 0.0, one_below), sv)
+            m0, m1 = np.where(lower, m[2], m[0]), np.where(lower, m[3], m[1])
+            right = su * (m0 + m1) >= m0
+            su2 = np.where(right, (su * (m0 + m1) - m0) / m1, su * (m0 + m1) / m0)
+            su2 = np.where(np.isfinite(su2), np.clip(su2, 0.0, one_below), su)
+        hc, hr = self.col_share[a], self.row_share[b]
+        fu = np.where(right, hc + su2 * (1.0 - hc), su2 * hc)
+        fv = np.where(lower, hr + sv2 * (1.0 - hr), sv2 * hr)
+        return fu, fv, self._leaf_factor(m, total, right, lower, a, b)
+
+    def _leaf_factor(self, m, total, right, lower, a, b):
+        piece = np.where(lower, np.where(right, m[3], m[2]), np.where(right, m[1], m[0]))
+        area = (np.where(right, 1.0 - self.col_share[a], self.col_share[a])
+                * np.where(lower, 1.0 - self.row_share[b], self.row_share[b]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where((total > 0) & (area > 0),
+                         piece / np.where(total > 0, total, 1.0) / np.where(area > 0, area, 1.0), 0.0)
+        return f
+
+    def _leaf_of(self, uv):
+        """Leaf column and row of points uv and the points' position inside the leaf."""
+        count = 1 << self.top
+        x = np.asarray(uv, np.float64) * count
+        cell = np.minimum(x.astype(np.int64), count - 1)
+        return cell[:, 0], cell[:, 1], np.clip(x[:, 0] - cell[:, 0], 0.0, 1.0), np.clip(x[:, 1] - cell[:, 1], 0.0, 1.0)
+
+    def radiance_coefficients(self) -> np.ndarray:
+        """(4^n, 3) float64: the texels' mean radiance Haar-transformed, times 4^n (kept)."""
+        if getattr(self, "_radiance_coefficients", None) is None:
+            side = 1 << self.n
+            self._radiance_coefficients = (lighting.coefficients(self.texel_radiance.reshape(side, side, 3))
+                                           .reshape(3, -1).T * float(4 ** self.n))
+        return self._radiance_coefficients
 
     def radiance(self, uv):
-        """(N, 3): the lighting's leaf radiance (the projected map's piecewise-constant value) at
-        points uv of the square."""
-        side = 1 << self.top
-        cell = np.minimum((np.asarray(uv) * side).astype(np.int64), side - 1)
-        return self.rgb[cell[:, 1], cell[:, 0]]
+        """(N, 3): the lighting's radiance at points uv of the square: the map pixel's under the
+        point (with ``map_pixels``; the piece of its leaf that holds it), else its leaf's mean."""
+        a, b, fu, fv = self._leaf_of(uv)
+        if not self.map_pixels:
+            return self.rgb[b, a]
+        col = np.where(fu >= self.col_share[a], self.cols[1, a], self.cols[0, a])
+        row = np.where(fv >= self.row_share[b], self.rows[1, b], self.rows[0, b])
+        return self.map_rgb[row, col]
 
     def _texel(self, uv):
         side = 1 << self.n
@@ -272,25 +393,35 @@ class _TexelLight:
 
     def sample(self, uv):
         """Points of the product tree's texels (uniform inside them) moved to a leaf chosen by the
-        luminance inside the texel (the point's position in its texel reused as the uniforms):
-        (uv (N, 2), density factor (N,) = (leaf mass / texel mass) k^2)."""
+        luminance inside the texel (the point's position in its texel reused as the uniforms),
+        then inside the leaf by the map's pixels (``map_pixels``): (uv (N, 2), density factor
+        (N,) against uniform in the texel)."""
         t, frac = self._texel(uv)
         k, side = self.k, 1 << self.n
+        one_below = np.nextafter(1.0, 0.0)
         if k == 1:
-            return uv, np.ones(len(uv))
-        total = self.texel_mass[t]
-        target = frac[:, 0] * total
-        leaf = np.minimum(_entries_at_most(self.cdf, t, target), k * k - 1)
-        below = np.where(leaf > 0, self.cdf[t, np.maximum(leaf - 1, 0)], 0.0)
-        mass = self.blocks[t, leaf]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(mass > 0, (target - below) / np.where(mass > 0, mass, 1.0), frac[:, 0])
-        s = np.clip(s, 0.0, np.nextafter(1.0, 0.0))
-        row, col = t // side, t % side
-        sub_r, sub_c = leaf // k, leaf % k
-        out = np.stack([(col * k + sub_c + s) / (side * k), (row * k + sub_r + frac[:, 1]) / (side * k)], 1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            factor = np.where(total > 0, mass / np.where(total > 0, total, 1.0) * k * k, 0.0)
+            leaf = np.zeros(len(uv), np.int64)
+            s, factor = np.clip(frac[:, 0], 0.0, one_below), np.where(self.texel_mass[t] > 0, 1.0, 0.0)
+        else:
+            total = self.texel_mass[t]
+            target = frac[:, 0] * total
+            leaf = np.minimum(_entries_at_most(self.cdf, t, target), k * k - 1)
+            below = np.where(leaf > 0, self.cdf[t, np.maximum(leaf - 1, 0)], 0.0)
+            mass = self.blocks[t, leaf]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = np.where(mass > 0, (target - below) / np.where(mass > 0, mass, 1.0), frac[:, 0])
+                factor = np.where(total > 0, mass / np.where(total > 0, total, 1.0) * k * k, 0.0)
+            s = np.clip(s, 0.0, one_below)
+        a = (t % side) * k + leaf % k
+        b = (t // side) * k + leaf // k
+        sv = np.clip(frac[:, 1], 0.0, one_below)
+        if self.map_pixels:
+            fu, fv, inner = self._place_in_leaf(a, b, s, sv)
+            factor = factor * inner
+        else:
+            fu, fv = s, sv
+        count = 1 << self.top
+        out = np.stack([np.minimum((a + fu) / count, one_below), np.minimum((b + fv) / count, one_below)], 1)
         return out, factor
 
     def sample_light(self, a, b, c):
@@ -320,17 +451,20 @@ class _TexelLight:
         return self._cdf
 
     def factor(self, uv):
-        """The density factor at points uv (N, 2): (leaf mass / texel mass) k^2 (0 where the
-        texel holds no light)."""
-        t, frac = self._texel(uv)
+        """The density factor of :meth:`sample` at points uv (N, 2) against uniform in the texel:
+        (leaf mass / texel mass) k^2, times the piece's inside the leaf (``map_pixels``); 0 where
+        the texel holds no light."""
+        t, _ = self._texel(uv)
         k = self.k
-        if k == 1:
-            return np.ones(len(uv))
-        leaf = np.minimum((frac[:, 1] * k).astype(np.int64), k - 1) * k + np.minimum((frac[:, 0] * k).astype(np.int64),
-                                                                                    k - 1)
+        a, b, fu, fv = self._leaf_of(uv)
         total = self.texel_mass[t]
+        leaf = (b % k) * k + a % k
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(total > 0, self.blocks[t, leaf] / np.where(total > 0, total, 1.0) * k * k, 0.0)
+            f = np.where(total > 0, self.blocks[t, leaf] / np.where(total > 0, total, 1.0) * k * k, 0.0)
+        if self.map_pixels:
+            m = self._piece_masses(a, b)
+            f = f * self._leaf_factor(m, m.sum(0), fu >= self.col_share[a], fv >= self.row_share[b], a, b)
+        return f
 
 
 def _entries_at_most(cdf: np.ndarray, rows: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -368,7 +502,7 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     evaluated with the true f cos, ``environment``'s radiance and a shadow ray; the uniforms are
     Philox stream (``key`` = (seed, tile), DIRECTION_STREAM + slot). ``control`` = (C, G): the
     pixels' transfer coefficients C (pixels, 2^n, 2^n) and G (pixels, 3) = sum_t T_t L_t, for
-    the control variate g = T_t / Omega_t L_leaf (:func:`control_terms`).
+    the control variate g = T_t / Omega_t L(w) (:func:`control_terms`).
     Returns it and the rays traced."""
     nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
     nrm = nrm.astype(np.float64)
@@ -398,11 +532,11 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
 
 
 def control_terms(coeffs, inside, pixel, direction, pdf):
-    """g(w) / pdf(w) (N, 3) of the control variate g(w) = T_t / Omega_t L_leaf(w): the pixel's
+    """g(w) / pdf(w) (N, 3) of the control variate g(w) = T_t / Omega_t L(w): the pixel's
     transfer in texel t (its integral of f cos V over the texel's solid angle Omega_t, from its
     coefficients ``coeffs`` (pixels, 2^n, 2^n) by :func:`wavlight.haar.texel_values`) times the
-    lighting's leaf radiance at w. Its integral G = sum_t T_t L_t (L_t the texel's mean
-    radiance) is the relit frame's value of the pixel (eq. 8 with every term), known exactly, so
+    lighting's radiance at w (:meth:`_TexelLight.radiance`). Its integral G = sum_t T_t L_t
+    (L_t the texel's mean radiance) is the relit frame's value of the pixel (eq. 8 with every term), known exactly, so
     G + (f cos V L - g) / pdf is unbiased wherever pdf > 0 where g != 0: the lighting's
     technique is positive wherever L is. Where T1 is close to the camera sample's f cos V (a lit diffuse
     floor), the difference, not the integrand, carries the variance (``wavelet``'s candidates do

@@ -193,7 +193,7 @@ class MovingObject:
         rot = transfer.scene_rotate_y
         self.environment = Environment(env.pixels, 1.0, rot, env.name)   # radiance lookups, turned
         self.m = int(transfer.header["product_levels"])
-        self.inside = _TexelLight(env, self.m, rot)
+        self.inside = _TexelLight(env, self.m, rot, map_pixels=False)   # as its kernel: uniform in a leaf
         self.mis = strategies.make("mis")
         self.mis.prepare(self.environment)
         sc = self.scene
