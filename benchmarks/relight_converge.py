@@ -13,7 +13,8 @@ For spp in --spp and seeds 0 .. --seeds - 1: converge with each of --slots (dire
 sample; its camera samples are stratified over the pixel), `mis` and `wavelet` (the renderer's
 default independent pixel samples) and, unless --no-stratified, `mis` and `wavelet` with
 stratified pixel samples too. relMSE = mean(((x - r)^2 - s_r^2) / (r^2 + 0.01))
-(wavlight.evaluation.metrics.relmse: the reference's variance subtracted). Seconds: the wall time
+(wavlight.evaluation.metrics.relmse: the reference's variance subtracted), and its parts over
+the pixels that see the object, the floor and the background (relmse_by_region). Seconds: the wall time
 of the call (converge: the product pyramids, the tracer and the frame; mis and wavelet: their
 setup_seconds + render_seconds), the median over seeds. Equal time: relMSE x seconds /
 seconds_wavelet (relMSE ~ 1/spp). Amortized: converge's seconds plus the bake's seconds / --frames.
@@ -30,7 +31,7 @@ Timing: with --wait-minutes M > 0, waits for the 1-minute load average to fall b
 
     python benchmarks/relight_converge.py [--size 128] [--spp 1,4,16,64] [--seeds 3] [--ref-spp 16384]
         [--bake-spp 16] [--rotation 60] [--frames 100] [--floor 32] [--floor-spp 16] [--no-stratified]
-        [--only SUBSTR] [--slots 2,4] [--product-levels M] [--light BETA] [--no-control]
+        [--only SUBSTR] [--slots 2,4] [--product-levels M] [--light BETA] [--defensive ALPHA] [--no-control]
         [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
 
 The figures in benchmarks/results/relight_converge.json come from
@@ -52,6 +53,21 @@ import relight_common as rc  # noqa: E402
 SCENES = ["bunny_ggx/rooitou_park_1k", "bunny_ggx/potsdamer_platz_1k", "sphere_ggx/rooitou_park_1k"]
 
 
+def regions(scene, size: int) -> dict:
+    """Masks (size, size) of the pixels whose centre ray sees the object, the floor (the
+    scene's last material: the lambert floor) or the background. relmse_by_region holds each
+    region's part of the image's relMSE: the parts sum to it."""
+    from wavlight.camera import camera_rays
+    from wavlight.raytrace import RayTracer
+
+    pix = np.arange(size * size)
+    o, d = camera_rays(scene, pix % size, pix // size, np.full((len(pix), 2), 0.5, np.float32), size, size)
+    prim, _ = RayTracer(scene.vertices, scene.faces).intersect(o, d)
+    mat = np.where(prim >= 0, scene.face_material[np.maximum(prim, 0)], -1).reshape(size, size)
+    floor = int(scene.face_material[-1])
+    return {"object": (mat >= 0) & (mat != floor), "floor": mat == floor, "background": mat < 0}
+
+
 def main():
     ap = rc.parser(__doc__)
     ap.add_argument("--size", type=int, default=128, help="image width and height")
@@ -70,11 +86,14 @@ def main():
                     help="converge's product-tree levels at most (default: wavlight.relight.converge.PRODUCT_LEVELS)")
     ap.add_argument("--light", type=float, default=None,
                     help="converge's share of the lighting alone in its mixture (default: LIGHT_SHARE)")
+    ap.add_argument("--defensive", type=float, default=None,
+                    help="converge's share of the BSDF in its mixture (default: DEFENSIVE)")
     ap.add_argument("--no-control", action="store_true",
                     help="converge without the relit frame as control variate")
     args = rc.parse(ap, "relight_converge", 0)
     started = rc.begin(args)
-    knobs = {k: v for k, v in (("levels", args.product_levels), ("light", args.light)) if v is not None}
+    knobs = {k: v for k, v in (("levels", args.product_levels), ("light", args.light), ("defensive", args.defensive))
+             if v is not None}
     if args.no_control:
         knobs["control"] = False
     import wavlight
@@ -109,6 +128,8 @@ def main():
                 wavlight.render_full(turned, spp=1, strategy=strategy, width=8, height=8, sampler=sampler)
         converge(transfer, scene, rotate_y=args.rotation, spp=1, seed=99, **knobs)
 
+        region = regions(turned, args.size)
+
         def run(method, spp, seed):
             t0 = time.perf_counter()
             if method.startswith("converge"):
@@ -122,6 +143,10 @@ def main():
                 seconds = r.stats["setup_seconds"] + r.stats["render_seconds"]
             return relmse(r.image, ref, ref_err), seconds, r
 
+        def by_region(image):
+            c = (((image - ref) ** 2 - ref_err ** 2) / (ref ** 2 + rc.EPS)).mean(2)
+            return {k: float(c[m].sum() / c.size) for k, m in region.items()}
+
         row = {"reference": {**ref_info, "noise_rel_l2": rc.reference_noise(ref, ref_err)},
                "bake": {"n_levels": transfer.n_levels, "terms": transfer.terms, "priority": transfer.priority,
                         "bake_seconds": m.get("bake_seconds"), "pilot_seconds": m.get("pilot_seconds"),
@@ -130,11 +155,13 @@ def main():
                "methods": {k: {} for k in methods}}
         for spp in spps:
             errs, secs, extra = {k: [] for k in methods}, {k: [] for k in methods}, {}
+            parts = {k: [] for k in methods}
             for seed in range(args.seeds):
                 for method in methods:   # interleaved seed by seed: a burst of load slows all alike
                     e, s, r = run(method, spp, seed)
                     errs[method].append(e)
                     secs[method].append(s)
+                    parts[method].append(by_region(r.image))
                     if method == "wavelet":
                         extra["wavelet_budget"] = {k: r.stats.get(k) for k in
                                                    ("wavelet_candidates", "wavelet_slots", "visibility_variance")}
@@ -144,6 +171,7 @@ def main():
                 e = errs[method]
                 row["methods"][method][str(spp)] = {
                     **rc.mean_sd(e), "relmse_seeds": [float(x) for x in e], "seconds": float(np.median(secs[method])),
+                    "relmse_by_region": {k: float(np.mean([p[k] for p in parts[method]])) for k in region},
                     **({"rays": int(np.mean(extra[f"{method}_rays"]))} if f"{method}_rays" in extra else {})}
             row.setdefault("wavelet_budget", {})[str(spp)] = extra.get("wavelet_budget")
             w = row["methods"]["wavelet"][str(spp)]
