@@ -204,7 +204,8 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         if use_control:   # the transfer's coefficients and its relit value G = sum_t T_t L_t (Parseval), per
             # camera sample that hits: the transfer counts the bake's misses as 0 (hit_scales)
             c = hit_scale[y0:y0 + h, x0:x0 + w].reshape(-1)
-            cv = (coeffs * c.astype(np.float32)[:, None, None], relit_values(coeffs, inside) * c[:, None])
+            scaled = coeffs * c.astype(np.float32)[:, None, None]
+            cv = (scaled, relit_values(scaled, inside))       # G of the very coefficients g reads
         P = w * h
         pix = np.arange(P)
         px, py = np.repeat(x0 + pix % w, spp), np.repeat(y0 + pix // w, spp)
