@@ -319,9 +319,8 @@ class _TexelLight:
         self.rows = np.stack([np.minimum(first.astype(np.int64), h - 1), np.minimum(first.astype(np.int64) + 1, h - 1)])
         theta = np.pi * np.arange(count + 1) / count
         split = np.pi * (np.arange(count) + self.row_share) / count
-        with np.errstate(divide="ignore", invalid="ignore"):
-            band = np.cos(theta[:-1]) - np.cos(theta[1:])
-            self.row_angle_share = np.clip((np.cos(theta[:-1]) - np.cos(split)) / band, 0.0, 1.0)
+        band = np.cos(theta[:-1]) - np.cos(theta[1:])                  # > 0: every row has solid angle
+        self.row_angle_share = np.clip((np.cos(theta[:-1]) - np.cos(split)) / band, 0.0, 1.0)
 
     def _piece_masses(self, a, b):
         """(4, N) the pieces' luminance times their share of leaf (column a, row b)'s solid angle,
@@ -351,9 +350,11 @@ class _TexelLight:
         hc, hr = self.col_share[a], self.row_share[b]
         fu = np.where(right, hc + su2 * (1.0 - hc), su2 * hc)
         fv = np.where(lower, hr + sv2 * (1.0 - hr), sv2 * hr)
-        return fu, fv, self._leaf_factor(m, total, right, lower, a, b)
+        return fu, fv, self._piece_factor(m, total, right, lower, a, b)
 
-    def _leaf_factor(self, m, total, right, lower, a, b):
+    def _piece_factor(self, m, total, right, lower, a, b):
+        """The density of a point in piece (lower, right) of leaves (a, b) against uniform in the
+        leaf: the piece's share of the leaf's mass over its share of the leaf's area."""
         piece = np.where(lower, np.where(right, m[3], m[2]), np.where(right, m[1], m[0]))
         area = (np.where(right, 1.0 - self.col_share[a], self.col_share[a])
                 * np.where(lower, 1.0 - self.row_share[b], self.row_share[b]))
@@ -363,11 +364,15 @@ class _TexelLight:
         return f
 
     def _leaf_of(self, uv):
-        """Leaf column and row of points uv and the points' position inside the leaf."""
+        """Leaf column a and row b of points uv, and whether each lies in its leaf's second
+        column piece (right) and second row piece (lower) of the map's pixels."""
         count = 1 << self.top
         x = np.asarray(uv, np.float64) * count
         cell = np.minimum(x.astype(np.int64), count - 1)
-        return cell[:, 0], cell[:, 1], np.clip(x[:, 0] - cell[:, 0], 0.0, 1.0), np.clip(x[:, 1] - cell[:, 1], 0.0, 1.0)
+        a, b = cell[:, 0], cell[:, 1]
+        if not self.map_pixels:
+            return a, b, None, None
+        return a, b, x[:, 0] - a >= self.col_share[a], x[:, 1] - b >= self.row_share[b]
 
     def radiance_coefficients(self) -> np.ndarray:
         """(4^n, 3) float64: the texels' mean radiance Haar-transformed, times 4^n (kept)."""
@@ -380,12 +385,11 @@ class _TexelLight:
     def radiance(self, uv):
         """(N, 3): the lighting's radiance at points uv of the square: the map pixel's under the
         point (with ``map_pixels``; the piece of its leaf that holds it), else its leaf's mean."""
-        a, b, fu, fv = self._leaf_of(uv)
+        a, b, right, lower = self._leaf_of(uv)
         if not self.map_pixels:
             return self.rgb[b, a]
-        col = np.where(fu >= self.col_share[a], self.cols[1, a], self.cols[0, a])
-        row = np.where(fv >= self.row_share[b], self.rows[1, b], self.rows[0, b])
-        return self.map_rgb[row, col]
+        row = np.where(lower, self.rows[1, b], self.rows[0, b])
+        return self.map_rgb[row, np.where(right, self.cols[1, a], self.cols[0, a])]
 
     def _texel(self, uv):
         side = 1 << self.n
@@ -457,14 +461,14 @@ class _TexelLight:
         the texel holds no light."""
         t, _ = self._texel(uv)
         k = self.k
-        a, b, fu, fv = self._leaf_of(uv)
+        a, b, right, lower = self._leaf_of(uv)
         total = self.texel_mass[t]
         leaf = (b % k) * k + a % k
         with np.errstate(divide="ignore", invalid="ignore"):
             f = np.where(total > 0, self.blocks[t, leaf] / np.where(total > 0, total, 1.0) * k * k, 0.0)
         if self.map_pixels:
             m = self._piece_masses(a, b)
-            f = f * self._leaf_factor(m, m.sum(0), fu >= self.col_share[a], fv >= self.row_share[b], a, b)
+            f = f * self._piece_factor(m, m.sum(0), right, lower, a, b)
         return f
 
 
