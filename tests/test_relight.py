@@ -169,16 +169,20 @@ def turned_mis(shadowed):
     return wavlight.render_full(turned, spp=512, strategy="mis", seed=11)
 
 
-@pytest.mark.parametrize("levels, control", [(converge_mod.PRODUCT_LEVELS, True), (2, True),
-                                             (converge_mod.PRODUCT_LEVELS, False)])
-def test_unbiased_frame_equals_mis(shadowed, turned_mis, levels, control):
+@pytest.mark.parametrize("levels, control, coherence", [(converge_mod.PRODUCT_LEVELS, True, converge_mod.COHERENCE),
+                                                        (2, True, converge_mod.COHERENCE),
+                                                        (converge_mod.PRODUCT_LEVELS, False, converge_mod.COHERENCE),
+                                                        (converge_mod.PRODUCT_LEVELS, True, 0.0)])
+def test_unbiased_frame_equals_mis(shadowed, turned_mis, levels, control, coherence):
     """Against mis of the same scene under the turned map (shadows, a small bright light): equal
     within the standard errors of both; product trees on the bake's texels (n = 4) and on
     coarser ones (their sums, the light placing directions inside them); with the relit frame as
-    control variate and without."""
+    control variate and without; with every camera sample's directions resampled (coherence 0)."""
     scene, tr = shadowed
-    r = converge(tr, scene, rotate_y=80.0, spp=64, seed=3, levels=levels, control=control)
+    r = converge(tr, scene, rotate_y=80.0, spp=64, seed=3, levels=levels, control=control, coherence=coherence)
     assert r.stats["product_levels"] == min(levels, tr.n_levels)
+    if coherence == 0.0:
+        assert r.stats["resampled_share"] > 0.99, r.stats
     ref = turned_mis
     var = r.stderr ** 2 + ref.stderr ** 2
     # 4 x 4 blocks of pixels (sums of independent pixel estimates: near Gaussian where single
@@ -288,6 +292,107 @@ def test_control_variate_integral_is_the_mean_of_its_samples(shadowed, levels):
         mean, se = x.mean(0), x.std(0) / np.sqrt(len(x))
         z = (mean - G[sel[i]]) / np.maximum(se, 1e-12 * np.abs(G[sel[i]]).max())
         assert np.abs(z).max() < 4.0, (sel[i], mean, G[sel[i]], z)
+
+
+@pytest.fixture(scope="module")
+def fixed_hits(shadowed):
+    """Pixels of the sphere and of the floor, each with 2048 camera samples through its centre
+    (one shading point per pixel: their estimates are of one integral), their hits, the
+    pixels' product trees and transfer coefficients, the lighting turned to 80 degrees."""
+    scene, tr = shadowed
+    c = converge_mod
+    n, rot = tr.n_levels, 80.0
+    base = tr.environment(None, 1.0)
+    inside = c._TexelLight(base, n, rot)
+    turned = wavlight.envmap.Environment(base.pixels, 1.0, rot, base.name)
+    w, h = tr.width, tr.height
+    every = np.arange(w * h)
+    o, d = wavlight.camera.camera_rays(scene, every % w, every // w, np.full((w * h, 2), 0.5, np.float32), w, h)
+    tracer = RayTracer(scene.vertices, scene.faces, threads=1)
+    prim = tracer.intersect(o, d)[0]
+    ball, floor = (np.flatnonzero(prim >= 0)[scene.face_material[prim[prim >= 0]] == k] for k in (0, 1))
+    sel = np.concatenate([ball[np.linspace(0, len(ball) - 1, 4).astype(int)], floor[[0, len(floor) // 2]]])
+    coeffs = np.concatenate([c._Block(tr).coefficients(tr, 0)]).reshape(-1, 1 << n, 1 << n)[sel]
+    trees = haar.ProductPyramids(haar.forward(inside.texel_luminance), n, nonnegative=True).trees(coeffs)
+    spp = 2048
+    px, py = np.repeat(sel % w, spp), np.repeat(sel // w, spp)
+    eye, d = wavlight.camera.camera_rays(scene, px, py, np.full((len(px), 2), 0.5, np.float32), w, h)
+    prim, t = tracer.intersect(eye, d)
+    hit = np.flatnonzero(prim >= 0)
+    assert len(hit) == len(d)
+    return scene, tracer, d, t, prim, hit, trees, inside, turned, coeffs, spp
+
+
+def test_resampled_directions_are_unbiased(fixed_hits):
+    """shade_by_resampling estimates the same integral as the plain mixture, camera sample by
+    camera sample: per pixel (the sphere's and the floor's), the mean of 2048 resampled
+    estimates equals the mean of 2048 mixture estimates within their standard errors, with one
+    pick and with four (systematic) picks among the candidates, and each mixture sample's
+    estimate is its direction's f cos L V / pdf (so a mis-weighted resampling, say by the
+    candidates' sum instead of their mean, is 16 times off)."""
+    scene, tracer, d, t, prim, hit, trees, inside, turned, coeffs, spp = fixed_hits
+    c = converge_mod
+    mass = trees.integral
+    pixel = hit // spp
+    runs = {}
+    for label, slots, chosen in (("mixture", 1, False), ("one pick", 1, True), ("four picks", 4, True)):
+        values = []
+        for k in range(4):
+            mask = np.full(len(hit), chosen)
+            v, _ = c.shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp, (23, k), turned,
+                                      c.DEFENSIVE, slots, c.LIGHT_SHARE, None, (coeffs, mask, c.CANDIDATES))
+            values.append(v)
+        runs[label] = np.concatenate(values)
+    pixels = np.tile(pixel, 4)
+    for i in range(len(coeffs)):
+        a = runs["mixture"][pixels == i]
+        for label in ("one pick", "four picks"):
+            b = runs[label][pixels == i]
+            se = np.sqrt(a.var(0) / len(a) + b.var(0) / len(b))
+            z = (b.mean(0) - a.mean(0)) / np.maximum(se, 1e-12 * np.abs(a.mean(0)).max())
+            assert np.abs(z).max() < 4.5, (i, label, a.mean(0), b.mean(0), z)
+    # on the sphere's glossy pixels resampling towards each sample's own lobe lowers the variance
+    ball = np.isin(pixels, np.arange(4))
+    assert runs["four picks"][ball].var(0).sum() < runs["mixture"][ball].var(0).sum()
+
+
+def test_resampling_target_is_positive_where_the_integrand_is():
+    """The target p = Y(L) [(f cos)^a T^(1 - a) + b f cos + c T] is positive wherever f cos L is
+    (T may be 0 where the bake's rays missed a direction), 0 where L or both f cos and T are."""
+    fcos = np.array([1.0, 1.0, 0.0, 0.0, 2.0])
+    radiance = np.array([[1.0, 1.0, 1.0], [0.5, 0.0, 0.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
+    transfer = np.array([0.0, 3.0, 2.0, 0.0, 5.0])
+    p = converge_mod.resampling_target(fcos, radiance, transfer)
+    assert p[0] > 0 and p[1] > 0 and p[2] > 0 and p[3] == 0 and p[4] == 0
+    c = converge_mod
+    expect = (1.0 ** c.LOBE_POWER * 3.0 ** (1 - c.LOBE_POWER) + c.TARGET_BSDF + 3.0 * c.TARGET_TRANSFER)
+    assert np.isclose(p[1], wavlight.envmap.luminance(radiance[1:2])[0] * expect)
+
+
+def test_footprint_spread(shadowed):
+    """The spread of a pixel's mirror directions: 0 where no ray of the pixel hits, about the
+    pixel's own angular size on the flat floor (the view turns across the pixel), and wide
+    where a pixel holds the sphere's rim and the floor."""
+    scene, tr = shadowed
+    c = converge_mod
+    w, h = tr.width, tr.height
+    tracer = RayTracer(scene.vertices, scene.faces, threads=1)
+    spread = c.footprint_spread(scene, tracer, 0, 0, w, h, w, h)
+    assert spread.shape == (w * h,) and np.isfinite(spread).all() and (spread >= 0).all()
+    g = c.FOOTPRINT_GRID
+    every = np.repeat(np.arange(w * h), g * g)
+    sub = np.tile((np.stack(np.meshgrid(np.arange(g), np.arange(g)), -1).reshape(-1, 2) + 0.5) / g, (w * h, 1))
+    o, d = wavlight.camera.camera_rays(scene, every % w, every // w, sub.astype(np.float32), w, h)
+    mat = np.where((prim := tracer.intersect(o, d)[0]) >= 0, scene.face_material[np.maximum(prim, 0)], -1)
+    mat = mat.reshape(w * h, g * g)
+    pixel_angle = np.radians(scene.camera.fov_y) / h
+    none = (mat < 0).sum(1) >= g * g - 1
+    flat = (mat == 1).all(1)
+    mixed = (mat == 0).any(1) & (mat == 1).any(1)
+    assert none.any() and flat.any() and mixed.any()
+    assert (spread[none] == 0).all()
+    assert (spread[flat] < 2 * pixel_angle).all() and (spread[flat] > 0.1 * pixel_angle).all()
+    assert np.median(spread[mixed]) > 4 * pixel_angle
 
 
 @pytest.mark.parametrize("rotate_y", [0.0, 80.0, 3.0])
@@ -400,7 +505,7 @@ def test_texel_points_follow_the_lobe():
     for scene in (scene_of("lambert", None), scene_of("ggx", 0.3), scene_of("ggx", 0.05)):
         pts = [bake_mod.texel_points(scene, n) for n in range(8, 1, -1)]
         assert pts == sorted(pts) and set(pts) <= set(bake_mod.POINT_CHOICES)
-        lobe = min(bake_mod.lobe_width(m.kind, m.param) for m in scene.materials)
+        lobe = min(bsdfs.lobe_width(m.kind, m.param) for m in scene.materials)
         for n, q in zip(range(8, 1, -1), pts):
             spacing = np.pi / (1 << n) / bake_mod.POINT_GRID[q]
             assert spacing * bake_mod.LOBE_SPACINGS <= lobe or q == 16
@@ -469,6 +574,12 @@ def test_mixture_shares_are_checked(shadowed):
     for defensive, light in ((0.6, 0.5), (0.0, 1.0), (-0.1, 0.1), (0.1, float("nan"))):
         with pytest.raises(WavlightError):
             converge(tr, scene, spp=1, defensive=defensive, light=light)
+    for bad in ({"candidates": -1}, {"candidates": converge_mod.MAX_CANDIDATES + 1}, {"coherence": -0.1},
+                {"coherence": float("inf")}, {"slots": 0}):
+        with pytest.raises(WavlightError):
+            converge(tr, scene, spp=1, **bad)
+    plain = converge(tr, scene, spp=1, candidates=0)
+    assert plain.stats["resampled_share"] == 0 and "resampled" not in plain.stats["estimator"]
 
 
 def test_experiment_bake_samples_within_the_bakes_own_limit():

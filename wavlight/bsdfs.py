@@ -153,6 +153,16 @@ def pdf(kind, param, wi, wo):
 
 
 # ----------------------------------------------------------------------------- mixed kinds
+def lobe_width(kind, param):
+    """A lobe's angular width, radians, per item (arrays or scalars): lambert's hemisphere
+    pi / 2, phong's 1 / sqrt(n + 1) (its cos^n falls to 1/e there), ggx's 2 alpha (the
+    reflected lobe is about twice the microfacet distribution's width)."""
+    kind, param = np.asarray(kind), np.asarray(param, np.float64)
+    width = np.where(kind == GGX, 2.0 * param, np.pi / 2)
+    return np.where(kind == PHONG, 1.0 / np.sqrt(np.maximum(param, 0.0) + 1.0), width)
+
+
+
 def sample_each(kind, param, u, wo):
     """:func:`sample` of samples of several materials at once (``kind`` and ``param`` per
     sample): the directions wi (N, 3), one call per material kind present."""

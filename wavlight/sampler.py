@@ -62,17 +62,22 @@ def permute(i: np.ndarray, length: int, key: np.ndarray) -> np.ndarray:
         w |= w >> s
     w = u32(w)
     out = i.copy()
-    todo = np.ones(i.shape, bool)
+    todo = np.arange(i.size)             # the entries still walking (flat), each round fewer
+    i, pk = i.reshape(-1).copy(), p.reshape(-1)
+    flat = out.reshape(-1)
     with np.errstate(over="ignore"):
-        while todo.any():   # cycle-walking rounds (about 2 expected), not samples; as the kernel
-            i ^= p; i *= u32(0xe170893d); i ^= p >> u32(16); i ^= (i & w) >> u32(4)
-            i ^= p >> u32(8); i *= u32(0x0929eb3f); i ^= p >> u32(23); i ^= (i & w) >> u32(1)
-            i *= u32(1) | p >> u32(27); i *= u32(0x6935fa69); i ^= (i & w) >> u32(11); i *= u32(0x74dcb303)
-            i ^= (i & w) >> u32(2); i *= u32(0x9e501cc3); i ^= (i & w) >> u32(2); i *= u32(0xc860a3df)
-            i &= w; i ^= i >> u32(5)
-            done = todo & (i < length)
-            out[done] = i[done]
-            todo &= ~done
+        while len(todo):   # cycle-walking rounds (about 2 expected), not samples; as the kernel
+            q = pk[todo]
+            x = i[todo]
+            x ^= q; x *= u32(0xe170893d); x ^= q >> u32(16); x ^= (x & w) >> u32(4)
+            x ^= q >> u32(8); x *= u32(0x0929eb3f); x ^= q >> u32(23); x ^= (x & w) >> u32(1)
+            x *= u32(1) | q >> u32(27); x *= u32(0x6935fa69); x ^= (x & w) >> u32(11); x *= u32(0x74dcb303)
+            x ^= (x & w) >> u32(2); x *= u32(0x9e501cc3); x ^= (x & w) >> u32(2); x *= u32(0xc860a3df)
+            x &= w; x ^= x >> u32(5)
+            done = x < length
+            flat[todo[done]] = x[done]
+            i[todo] = x
+            todo = todo[~done]
         return (out + (p >> u32(16)) % u32(length)) % u32(length)
 
 

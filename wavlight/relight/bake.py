@@ -168,24 +168,13 @@ POINT_GRID = {1: 1, 4: 2, 16: 4}
 LOBE_SPACINGS = 16
 
 
-def lobe_width(kind: int, param: float) -> float:
-    """A BRDF lobe's angular width, radians: lambert's hemisphere pi / 2, phong's 1 / sqrt(n + 1)
-    (its cos^n falls to 1/e there), ggx's 2 alpha (the reflected lobe is about twice the
-    microfacet distribution's width)."""
-    if kind == bsdfs.PHONG:
-        return 1.0 / np.sqrt(param + 1.0)
-    if kind == bsdfs.GGX:
-        return 2.0 * param
-    return np.pi / 2
-
-
 def texel_points(scene, n_levels: int) -> int:
     """Points per texel a scene needs at 2^n x 2^n texels: g x g, the fewest (g = 1, 2, 4) whose
     spacing puts LOBE_SPACINGS of them across the scene's narrowest lobe (at most 16). The
     point's jitter is the texel integral's noise; a coarser texel gets more points, so that
     the noise is about that of the finer texels it sums (the pilot measures those)."""
     texel = np.pi / (1 << n_levels)
-    lobe = min((lobe_width(m.kind, m.param) for m in scene.materials), default=np.pi / 2)
+    lobe = min((float(bsdfs.lobe_width(m.kind, m.param)) for m in scene.materials), default=np.pi / 2)
     for grid in (1, 2, 4):   # three choices
         if texel / grid * LOBE_SPACINGS <= lobe:
             return grid * grid

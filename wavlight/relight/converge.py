@@ -29,7 +29,12 @@ of the bake's samples that hit. Without a lighting share there is no control var
 Each camera sample (jittered in its pixel) takes ``slots`` directions of the defensive mixture
 (1 - alpha - beta) p_product + alpha p_bsdf + beta p_light (alpha = ``defensive``, beta =
 ``light``; where the pixel has no product, alpha = 1 - beta), each traced and weighted by
-f cos / that pdf. The lighting alone finds a bright light where the bake's one shadow ray per
+f cos / that pdf. T1 is the mean of the lobes of the pixel's camera samples; where their mirror
+directions spread wider than COHERENCE times the sample's own lobe (a glossy pixel over several
+facets, :func:`footprint_spread`), T1 is much wider than that lobe, and the sample instead
+resamples its slots among CANDIDATES mixture directions by a target of its own lobe and T1's
+visibility (:func:`shade_by_resampling`, Talbot et al. 2005), without the control variate
+(whose g, T1's mean lobe, is far from the sample's f cos V there). The lighting alone finds a bright light where the bake's one shadow ray per
 texel hid it from a pixel's transfer; the BSDF covers every direction its lobe reaches,
 so the pdf is non-zero wherever the integrand is (the compressed product may be 0 there:
 dropped coefficients, a surface the pixel's samples did not see in the bake, a pixel whose
@@ -44,6 +49,7 @@ import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
 
 import numpy as np
 
@@ -68,8 +74,25 @@ MAX_SPP = 1 << 16
 #: the lighting's own leaves place the direction (docs/decisions/relight-product-levels.md)
 PRODUCT_LEVELS = 6
 #: the mixture's shares: the BSDF (defensive) and the lighting alone; the product has the rest
-DEFENSIVE = 0.1
+DEFENSIVE = 0.3
 LIGHT_SHARE = 0.1
+#: resampled directions (docs/decisions/relight-resampling.md): a camera sample whose pixel's
+#: footprint reflects over more than COHERENCE times its lobe's width (:func:`footprint_spread`,
+#: :func:`wavlight.bsdfs.lobe_width`) picks its slots among CANDIDATES mixture directions
+CANDIDATES = 16
+COHERENCE = 0.25
+MAX_CANDIDATES = 256
+#: the resampling target (:func:`resampling_target`): the sample's lobe to this power, the
+#: transfer to the rest, and the shares of f cos and of T that keep it positive
+LOBE_POWER = 0.6
+TARGET_BSDF = 0.05
+TARGET_TRANSFER = 0.1
+#: directions per camera sample at most; the mixture's uniforms are streams DIRECTION_STREAM + slot
+MAX_SLOTS = 64
+#: Philox streams of the candidates and of the picks among them (beyond the mixture's)
+RESAMPLE_STREAM, PICK_STREAM = DIRECTION_STREAM + MAX_SLOTS, DIRECTION_STREAM + MAX_SLOTS + 1
+#: sub-pixel rays per side of the fixed grid that measures a pixel's footprint
+FOOTPRINT_GRID = 4
 
 
 def check_scene_matches(transfer, scene):
@@ -154,19 +177,25 @@ class _Block:
 
 def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, spp: int = 16, seed: int = 0,
              threads=None, progress=None, slots: int = 2, defensive: float = DEFENSIVE,
-             levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE, control: bool = True) -> RenderResult:
+             levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE, control: bool = True,
+             candidates: int = CANDIDATES, coherence: float = COHERENCE) -> RenderResult:
     """The unbiased frame of ``transfer`` under ``env`` (default: the baked map) turned to
     ``rotate_y`` (default: the scene's) and scaled, with ``spp`` camera samples per pixel (each
     with ``slots`` directions of the defensive mixture; module docstring). ``scene``: the scene
     the transfer was baked from (default: reloaded from the path the bake recorded; refused if
     it changed). The product trees have min(n, ``levels``) levels. With ``control`` (and a
     lighting share ``light`` > 0) the pixel's relit value G = sum_t T_t L_t is the control
-    variate's known integral (:func:`control_terms`). Returns a RenderResult: image, per-pixel
-    standard error, stats."""
+    variate's known integral (:func:`control_terms`). A camera sample whose pixel's footprint
+    reflects over more than ``coherence`` times its lobe's width resamples its slots from
+    ``candidates`` directions (:func:`shade_by_resampling`; 0: never). Returns a RenderResult:
+    image, per-pixel standard error, stats."""
     where = "relight.converge"
     spp = check_int(where, "spp", spp, 1, MAX_SPP)
     seed = check_int(where, "seed", seed, 0, 2 ** 63 - 1)
     levels = check_int(where, "levels", levels, 1, 16)
+    slots = check_int(where, "slots", slots, 1, MAX_SLOTS)
+    candidates = check_int(where, "candidates", candidates, 0, MAX_CANDIDATES)
+    coherence = check_number(where, "coherence", coherence, 0.0, None)
     defensive, light = check_shares(where, defensive, light)
     use_control = bool(control) and light > 0
     scene = _scene_of(transfer, scene)
@@ -176,7 +205,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     n = min(transfer.n_levels, levels)
     fine = transfer.n_levels
     inside = _TexelLight(base, n, rot)
-    hit_scale = hit_scales(transfer) if use_control else None
+    hit_scale = hit_scales(transfer) if use_control or candidates else None
     if use_control:
         inside.radiance_coefficients()                          # once, before the threads
     pyramids = ProductPyramids(forward(inside.texel_luminance), n, nonnegative=True)
@@ -186,7 +215,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     bw, bh = transfer.blocks
     sums = np.zeros((height, width, 3))
     squares = np.zeros((height, width, 3))
-    totals = {"rays": 0, "done": 0}
+    totals = {"rays": 0, "done": 0, "hits": 0, "resampled": 0}
     lock = threading.Lock()
     t0 = time.perf_counter()
 
@@ -200,12 +229,11 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
             coeffs = coeffs[:, :1 << n, :1 << n] * np.float32(4.0 ** (fine - n))
         trees = pyramids.trees(coeffs)
         mass = trees.integral                                   # (P,) 0: no product sample for the pixel
-        cv = None
-        if use_control:   # the transfer's coefficients and its relit value G = sum_t T_t L_t (Parseval), per
-            # camera sample that hits: the transfer counts the bake's misses as 0 (hit_scales)
-            c = hit_scale[y0:y0 + h, x0:x0 + w].reshape(-1)
+        scaled = None
+        if hit_scale is not None:   # the transfer per camera sample that hits: the transfer counts the bake's
+            c = hit_scale[y0:y0 + h, x0:x0 + w].reshape(-1)     # misses as 0 (hit_scales)
             scaled = coeffs * c.astype(np.float32)[:, None, None]
-            cv = (scaled, relit_values(scaled, inside))       # G of the very coefficients g reads
+        cv = (scaled, relit_values(scaled, inside)) if use_control else None   # G of the very coefficients g reads
         P = w * h
         pix = np.arange(P)
         px, py = np.repeat(x0 + pix % w, spp), np.repeat(y0 + pix // w, spp)
@@ -216,9 +244,18 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         miss = np.flatnonzero(prim < 0)
         value[miss] = turned.eval(d[miss].astype(np.float64))
         rays = P * spp
+        chosen = 0
         if len(hit):
+            resample = None
+            if candidates:
+                spread = footprint_spread(scene, tracer, x0, y0, w, h, width, height)
+                mat = scene.face_material[prim[hit]]
+                pick = spread[hit // spp] > coherence * bsdfs.lobe_width(scene.material_kind[mat],
+                                                                         scene.material_param[mat])
+                resample, chosen = (scaled, pick, candidates), int(pick.sum())
+                rays += P * FOOTPRINT_GRID ** 2
             value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp,
-                                                  (seed, block), turned, defensive, slots, light, cv)
+                                                  (seed, block), turned, defensive, slots, light, cv, resample)
             rays += traced
         v = value.reshape(h, w, spp, 3)
         with lock:
@@ -226,6 +263,8 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
             squares[y0:y0 + h, x0:x0 + w] += (v * v).sum(2)
             totals["rays"] += rays
             totals["done"] += 1
+            totals["hits"] += len(hit)
+            totals["resampled"] += chosen
             if progress:
                 progress(totals["done"], bw * bh, totals["rays"], time.perf_counter() - t0)
 
@@ -235,10 +274,36 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     mean, err = mean_and_error(sums, squares, spp)
     stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
              "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
-             "rotate_y": rot, "product_levels": n,
+             "rotate_y": rot, "product_levels": n, "slots": slots, "candidates": candidates,
+             "resampled_share": round(totals["resampled"] / totals["hits"], 4) if totals["hits"] else 0.0,
              "estimator": "product T1 x L (eq. 25) + BSDF + lighting, defensive mixture"
-                          + (", the relit frame as control variate" if use_control else "")}
+                          + (", the relit frame as control variate" if use_control else "")
+                          + (", resampled where the pixel's footprint is wider than the lobe" if candidates else "")}
     return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
+
+
+def footprint_spread(scene, tracer, x0: int, y0: int, w: int, h: int, width: int, height: int) -> np.ndarray:
+    """(h w,) the angular spread, radians, of the mirror directions over each pixel of the w x h
+    tile at (x0, y0): rays through a fixed FOOTPRINT_GRID x FOOTPRINT_GRID grid of the pixel
+    (deterministic: the choice it feeds does not depend on the frame's random numbers),
+    sqrt(2 (1 - |mean r|)) of the hits' unit mirror directions r (small angles: their angular
+    standard deviation; 0 where at most one ray hits). A pixel's transfer is the mean of its
+    camera samples' lobes: where their mirror directions spread wider than the lobe, the
+    transfer is wider than any one sample's lobe."""
+    g = FOOTPRINT_GRID
+    P = w * h
+    pix = np.repeat(np.arange(P), g * g)
+    sub = (np.stack(np.meshgrid(np.arange(g), np.arange(g)), -1).reshape(-1, 2) + 0.5) / g
+    eye, d = camera_rays(scene, x0 + pix % w, y0 + pix // w, np.tile(sub, (P, 1)).astype(np.float32), width, height)
+    prim, t = tracer.intersect(eye, d)
+    hit = np.flatnonzero(prim >= 0)
+    nrm, _, _ = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+    nrm, dh = nrm.astype(np.float64), d[hit].astype(np.float64)
+    mirror = dh - 2.0 * np.einsum("ij,ij->i", dh, nrm)[:, None] * nrm
+    sums = np.stack([np.bincount(pix[hit], mirror[:, k], P) for k in range(3)], 1)   # 3 axes, not pixels
+    count = np.bincount(pix[hit], minlength=P)
+    length = np.linalg.norm(sums, axis=1) / np.maximum(count, 1)
+    return np.where(count > 1, np.sqrt(np.maximum(2.0 * (1.0 - length), 0.0)), 0.0)
 
 
 def relit_values(coeffs: np.ndarray, inside) -> np.ndarray:
@@ -498,42 +563,140 @@ def mean_and_error(sums: np.ndarray, squares: np.ndarray, spp: int):
 
 
 def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: int, key, environment,
-                     defensive: float, slots: int, light: float = 0.0, control=None):
+                     defensive: float, slots: int, light: float = 0.0, control=None, resample=None):
     """The radiance (len(hit), 3) of the camera samples ``hit`` (of spp per pixel, directions
     ``d`` with hits ``prim`` at ``t``) from ``slots`` directions each of the defensive mixture
     (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
-    ``trees`` of totals ``mass``) seen from
-    ``scene``'s camera, each
-    evaluated with the true f cos, ``environment``'s radiance and a shadow ray; the uniforms are
-    Philox stream (``key`` = (seed, tile), DIRECTION_STREAM + slot). ``control`` = (C, G): the
-    pixels' transfer coefficients C (pixels, 2^n, 2^n) and G (pixels, 3) = sum_t T_t L_t, for
-    the control variate g = T_t / Omega_t L(w) (:func:`control_terms`).
-    Returns it and the rays traced."""
-    nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
-    nrm = nrm.astype(np.float64)
-    s_ax, t_ax = tangent_frame(nrm)
-    wo_w = -d[hit].astype(np.float64)
-    wo = to_local(wo_w, s_ax, t_ax, nrm)
-    mat = scene.face_material[prim[hit]]
-    kind, param = scene.material_kind[mat], scene.material_param[mat]
-    has_p = mass[hit // spp] > 0
+    ``trees`` of totals ``mass``) seen from ``scene``'s camera, each evaluated with the true
+    f cos, ``environment``'s radiance and a shadow ray; the uniforms are Philox stream
+    (``key`` = (seed, tile), DIRECTION_STREAM + slot). ``control`` = (C, G): the pixels' transfer coefficients C (pixels, 2^n, 2^n) and
+    G (pixels, 3) = sum_t T_t L_t, for the control variate g = T_t / Omega_t L(w)
+    (:func:`control_terms`). ``resample`` = (C, chosen, candidates): the samples ``chosen`` (a
+    mask over ``hit``) take their slots by resampling ``candidates`` mixture directions instead,
+    without the control variate (:func:`shade_by_resampling`). Returns it and the rays traced."""
+    hits = _Hits.of(scene, tracer, d, t, prim, hit, spp)
+    has_p = mass[hits.pixel] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)   # pixels without a product: the BSDF and the lighting
     total = np.zeros((len(hit), 3))
+    chosen = np.zeros(len(hit), bool) if resample is None else np.asarray(resample[1], bool)
     rays = 0
+    if chosen.any():
+        total[chosen], rays = shade_by_resampling(tracer, hits.subset(chosen), trees, inside, has_p[chosen], alpha[chosen],
+                                                  len(d), spp, key, environment, slots, light, resample[0],
+                                                  resample[2])
+    mix = hits.subset(~chosen)
+    if not len(mix.index):
+        return scene.material_albedo[hits.mat].astype(np.float64) * total, rays
+    part = np.zeros((len(mix.index), 3))
     for slot in range(slots):   # directions per camera sample, not samples
         u_all = rng.uniforms(*key, DIRECTION_STREAM + slot, 0, len(d))
-        direction, weight, pdf = mixture_directions(trees, inside, u_all, hit, spp, has_p, alpha, kind, param, wo,
-                                                    (s_ax, t_ax, nrm), light, with_pdf=True)
+        direction, weight, pdf = mixture_directions(trees, inside, u_all, mix.index, spp, has_p[~chosen],
+                                                    alpha[~chosen], mix.kind, mix.param, mix.wo, mix.axes, light,
+                                                    with_pdf=True)
         weight = weight / slots
         live = np.flatnonzero(weight > 0)
-        blocked = tracer.occluded(origin[live], direction[live].astype(np.float32))
+        blocked = tracer.occluded(mix.origin[live], direction[live].astype(np.float32))
         rays += len(live)
-        total[live] += (weight[live] * ~blocked)[:, None] * environment.eval(direction[live])
+        part[live] += (weight[live] * ~blocked)[:, None] * environment.eval(direction[live])
         if control is not None:
-            total -= control_terms(control[0], inside, hit // spp, direction, pdf) / slots
+            part -= control_terms(control[0], inside, mix.pixel, direction, pdf) / slots
     if control is not None:
-        total += control[1][hit // spp]
-    return scene.material_albedo[mat].astype(np.float64) * total, rays
+        part += control[1][mix.pixel]
+    total[~chosen] = part
+    return scene.material_albedo[hits.mat].astype(np.float64) * total, rays
+
+
+class _Hits(NamedTuple):
+    """Camera samples that hit: their index among the tile's samples, pixel, shading frame
+    (s, t, n: the face normal turned to the viewer), view in it, shadow-ray origin, material."""
+
+    index: np.ndarray
+    pixel: np.ndarray
+    axes: tuple
+    wo: np.ndarray
+    origin: np.ndarray
+    mat: np.ndarray
+    kind: np.ndarray
+    param: np.ndarray
+
+    @classmethod
+    def of(cls, scene, tracer, d, t, prim, hit, spp: int):
+        nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+        nrm = nrm.astype(np.float64)
+        s_ax, t_ax = tangent_frame(nrm)
+        wo = to_local(-d[hit].astype(np.float64), s_ax, t_ax, nrm)
+        mat = scene.face_material[prim[hit]]
+        return cls(np.asarray(hit), np.asarray(hit) // spp, (s_ax, t_ax, nrm), wo, origin, mat,
+                   scene.material_kind[mat], scene.material_param[mat])
+
+    def subset(self, sel):
+        return _Hits(self.index[sel], self.pixel[sel], tuple(a[sel] for a in self.axes), self.wo[sel],
+                     self.origin[sel], self.mat[sel], self.kind[sel], self.param[sel])
+
+    def repeat(self, m: int):
+        """Each sample m times in a row: the candidates of :func:`shade_by_resampling`."""
+        return _Hits(*(tuple(np.repeat(a, m, 0) for a in f) if isinstance(f, tuple) else np.repeat(f, m, 0)
+                       for f in self))
+
+
+def resampling_target(fcos, radiance, transfer):
+    """The target of the resampled directions (:func:`shade_by_resampling`) at directions of
+    the camera sample's f cos, the lighting's ``radiance`` (N, 3) and the pixel's transfer T
+    per solid angle: Y(L) [(f cos)^LOBE_POWER T^(1 - LOBE_POWER) + TARGET_BSDF f cos +
+    TARGET_TRANSFER T], Y the luminance. The first term is the sample's own lobe with the
+    visibility the transfer holds; the second keeps it positive wherever f cos L is, so that the
+    estimate is unbiased where the transfer missed a direction."""
+    fcos, transfer = np.maximum(fcos, 0.0), np.maximum(transfer, 0.0)
+    return luminance(radiance) * (fcos ** LOBE_POWER * transfer ** (1.0 - LOBE_POWER) + TARGET_BSDF * fcos
+                                  + TARGET_TRANSFER * transfer)
+
+
+def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, spp: int, key, environment, slots: int,
+                        light: float, coeffs, candidates: int):
+    """The radiance (len(hits.index), 3), without the albedo, of camera samples ``hits`` by
+    resampled importance sampling (Talbot et al. 2005): ``candidates`` directions x_m of the
+    defensive mixture q (:func:`mixture_directions`, no shadow ray), ``slots`` of them picked in
+    proportion to w_m = p(x_m) / q(x_m) (systematic: one uniform, the picks (u + k) / slots),
+    p = :func:`resampling_target`, each traced and weighted by f cos L V / p(y) x mean(w). On
+    average over the picks that is sum_m f cos L V (x_m) / q(x_m) / candidates, unbiased as p is
+    positive wherever f cos L is. Where the pixel's transfer, the mean of its camera samples'
+    f cos V, is much wider than this sample's own lobe (a glossy pixel whose footprint spans
+    several facets), the transfer's product spends most of its directions outside the lobe; the
+    target's own lobe takes them back. ``count``: the tile's camera samples (the uniforms'
+    layout: Philox stream RESAMPLE_STREAM of ``key``, each pair stratified over the pixel's
+    spp x candidates, and PICK_STREAM). Returns it and the rays traced."""
+    m = candidates
+    u = rng.Stream(*key, 0, spp * m).uniforms(RESAMPLE_STREAM, count * m)
+    cand = hits.repeat(m)
+    index = (hits.index[:, None] * m + np.arange(m)).reshape(-1)       # into u: sample-major, then candidate
+    direction, weight, pdf = mixture_directions(trees, inside, u, index, spp * m, np.repeat(has_p, m),
+                                                np.repeat(alpha, m), cand.kind, cand.param, cand.wo, cand.axes, light,
+                                                with_pdf=True)
+    fcos = weight * pdf
+    radiance = environment.eval(direction)
+    uv = world_to_square(direction)
+    texel, _ = inside._texel(uv)
+    side = 1 << inside.n
+    transfer = texel_values(coeffs, cand.pixel, texel % side, texel // side) / inside.texel_angles[texel // side]
+    target = resampling_target(fcos, radiance, transfer)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(pdf > 0, target / np.where(pdf > 0, pdf, 1.0), 0.0)
+    w = np.where(np.isfinite(w), w, 0.0).reshape(-1, m)
+    cdf = np.cumsum(w, 1)
+    n = len(hits.index)
+    u0 = rng.uniforms(*key, PICK_STREAM, 0, count)[hits.index, 0].astype(np.float64)
+    at = (u0[:, None] + np.arange(slots)) / slots * cdf[:, -1:]          # (n, slots) points on the sums
+    picks = np.minimum((at[:, :, None] >= cdf[:, None, :]).sum(2), m - 1)   # the first entry above each
+    flat = (np.arange(n)[:, None] * m + picks).reshape(-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(target[flat] > 0, np.repeat(cdf[:, -1], slots) / m / target[flat], 0.0) / slots
+    value = np.where(np.isfinite(scale), scale, 0.0) * fcos[flat]
+    live = np.flatnonzero(value > 0)
+    origin = np.repeat(hits.origin, slots, 0)
+    blocked = tracer.occluded(origin[live], direction[flat[live]].astype(np.float32))
+    total = np.zeros((n * slots, 3))
+    total[live] = (value[live] * ~blocked)[:, None] * radiance[flat[live]]
+    return total.reshape(n, slots, 3).sum(1), len(live)
 
 
 def control_terms(coeffs, inside, pixel, direction, pdf):

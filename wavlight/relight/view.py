@@ -342,14 +342,11 @@ def brdf_reference(kind: np.ndarray, param: np.ndarray, wi: np.ndarray, wo: np.n
 
 def lobe(kind: np.ndarray, param: np.ndarray, normal: np.ndarray, wo: np.ndarray):
     """Each item's lobe axis (the mirror direction; the normal for lambert) and width (as
-    :func:`wavlight.relight.bake.lobe_width`: ggx 2 alpha, phong 1 / sqrt(e + 1), lambert pi / 2),
+    :func:`wavlight.bsdfs.lobe_width`: ggx 2 alpha, phong 1 / sqrt(e + 1), lambert pi / 2),
     world frame."""
     axis = 2.0 * np.einsum("ij,ij->i", wo, normal)[:, None] * normal - wo
     axis = np.where((kind == bsdfs.LAMBERT)[:, None], normal, axis)
-    width = np.full(len(kind), np.pi / 2)
-    width = np.where(kind == bsdfs.GGX, 2.0 * param, width)
-    width = np.where(kind == bsdfs.PHONG, 1.0 / np.sqrt(np.asarray(param, np.float64) + 1.0), width)
-    return axis, width
+    return axis, bsdfs.lobe_width(kind, param)
 
 
 def lifted_view(normal: np.ndarray, wo: np.ndarray) -> np.ndarray:
