@@ -32,6 +32,7 @@ Timing: with --wait-minutes M > 0, waits for the 1-minute load average to fall b
     python benchmarks/relight_converge.py [--size 128] [--spp 1,4,16,64] [--seeds 3] [--ref-spp 16384]
         [--bake-spp 16] [--rotation 60] [--frames 100] [--floor 32] [--floor-spp 16] [--no-stratified]
         [--only SUBSTR] [--slots 2,4] [--product-levels M] [--light BETA] [--defensive ALPHA] [--no-control]
+        [--candidates M] [--coherence K]
         [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
 
 The figures in benchmarks/results/relight_converge.json come from
@@ -90,10 +91,15 @@ def main():
                     help="converge's share of the BSDF in its mixture (default: DEFENSIVE)")
     ap.add_argument("--no-control", action="store_true",
                     help="converge without the relit frame as control variate")
+    ap.add_argument("--candidates", type=int, default=None,
+                    help="converge's candidates per resampled camera sample, 0: none (default: CANDIDATES)")
+    ap.add_argument("--coherence", type=float, default=None,
+                    help="converge resamples where the footprint's spread exceeds this times the lobe's width "
+                         "(default: COHERENCE; 0: every camera sample)")
     args = rc.parse(ap, "relight_converge", 0)
     started = rc.begin(args)
-    knobs = {k: v for k, v in (("levels", args.product_levels), ("light", args.light), ("defensive", args.defensive))
-             if v is not None}
+    knobs = {k: v for k, v in (("levels", args.product_levels), ("light", args.light), ("defensive", args.defensive),
+                                ("candidates", args.candidates), ("coherence", args.coherence)) if v is not None}
     if args.no_control:
         knobs["control"] = False
     import wavlight
@@ -167,12 +173,14 @@ def main():
                                                    ("wavelet_candidates", "wavelet_slots", "visibility_variance")}
                     if method.startswith("converge"):
                         extra.setdefault(f"{method}_rays", []).append(r.stats["rays"])
+                        extra[f"{method}_resampled"] = r.stats["resampled_share"]
             for method in methods:
                 e = errs[method]
                 row["methods"][method][str(spp)] = {
                     **rc.mean_sd(e), "relmse_seeds": [float(x) for x in e], "seconds": float(np.median(secs[method])),
                     "relmse_by_region": {k: float(np.mean([p[k] for p in parts[method]])) for k in region},
-                    **({"rays": int(np.mean(extra[f"{method}_rays"]))} if f"{method}_rays" in extra else {})}
+                    **({"rays": int(np.mean(extra[f"{method}_rays"])), "resampled_share": extra[f"{method}_resampled"]}
+                       if f"{method}_rays" in extra else {})}
             row.setdefault("wavelet_budget", {})[str(spp)] = extra.get("wavelet_budget")
             w = row["methods"]["wavelet"][str(spp)]
             bake_s = m.get("bake_seconds") or 0.0
