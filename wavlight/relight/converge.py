@@ -29,12 +29,7 @@ of the bake's samples that hit. Without a lighting share there is no control var
 Each camera sample (jittered in its pixel) takes ``slots`` directions of the defensive mixture
 (1 - alpha - beta) p_product + alpha p_bsdf + beta p_light (alpha = ``defensive``, beta =
 ``light``; where the pixel has no product, alpha = 1 - beta), each traced and weighted by
-f cos / that pdf. T1 is the mean of the lobes of the pixel's camera samples; where their mirror
-directions spread wider than COHERENCE times the sample's own lobe (a glossy pixel over several
-facets, :func:`footprint_spread`), T1 is much wider than that lobe, and the sample instead
-resamples its slots among CANDIDATES mixture directions by a target of its own lobe and T1's
-visibility (:func:`shade_by_resampling`, Talbot et al. 2005), without the control variate
-(whose g, T1's mean lobe, is far from the sample's f cos V there). The lighting alone finds a bright light where the bake's one shadow ray per
+f cos / that pdf. The lighting alone finds a bright light where the bake's one shadow ray per
 texel hid it from a pixel's transfer; the BSDF covers every direction its lobe reaches,
 so the pdf is non-zero wherever the integrand is (the compressed product may be 0 there:
 dropped coefficients, a surface the pixel's samples did not see in the bake, a pixel whose
@@ -42,6 +37,13 @@ product is 0 altogether). Bakes finer than PRODUCT_LEVELS are sampled on coarser
 sums), the lighting's own leaves placing the direction inside them. Samples that miss see the
 environment. The estimate is unbiased for any transfer: a converged frame equals ``mis`` of the
 same scene and lighting within their standard errors (tests/test_relight.py).
+
+T1 is the mean of the lobes of the pixel's camera samples. Where their mirror directions spread
+wider than COHERENCE times a sample's own lobe (a glossy pixel over several facets,
+:func:`footprint_spread`), T1 is much wider than that lobe: the sample then resamples its slots
+among CANDIDATES mixture directions by a target of its own lobe and T1's visibility
+(:func:`shade_by_resampling`, Talbot et al. 2005), without the control variate, whose g (T1's
+mean lobe) is far from the sample's f cos V there.
 """
 from __future__ import annotations
 
@@ -569,11 +571,12 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
     ``trees`` of totals ``mass``) seen from ``scene``'s camera, each evaluated with the true
     f cos, ``environment``'s radiance and a shadow ray; the uniforms are Philox stream
-    (``key`` = (seed, tile), DIRECTION_STREAM + slot). ``control`` = (C, G): the pixels' transfer coefficients C (pixels, 2^n, 2^n) and
-    G (pixels, 3) = sum_t T_t L_t, for the control variate g = T_t / Omega_t L(w)
-    (:func:`control_terms`). ``resample`` = (C, chosen, candidates): the samples ``chosen`` (a
-    mask over ``hit``) take their slots by resampling ``candidates`` mixture directions instead,
-    without the control variate (:func:`shade_by_resampling`). Returns it and the rays traced."""
+    (``key`` = (seed, tile), DIRECTION_STREAM + slot). ``control`` = (C, G): the pixels'
+    transfer coefficients C (pixels, 2^n, 2^n) and G (pixels, 3) = sum_t T_t L_t, for the
+    control variate g = T_t / Omega_t L(w) (:func:`control_terms`). ``resample`` = (C, chosen,
+    candidates): the samples ``chosen`` (a mask over ``hit``) take their slots by resampling
+    ``candidates`` mixture directions instead, without the control variate
+    (:func:`shade_by_resampling`). Returns it and the rays traced."""
     hits = _Hits.of(scene, tracer, d, t, prim, hit, spp)
     has_p = mass[hits.pixel] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)   # pixels without a product: the BSDF and the lighting
@@ -581,9 +584,9 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     chosen = np.zeros(len(hit), bool) if resample is None else np.asarray(resample[1], bool)
     rays = 0
     if chosen.any():
-        total[chosen], rays = shade_by_resampling(tracer, hits.subset(chosen), trees, inside, has_p[chosen], alpha[chosen],
-                                                  len(d), spp, key, environment, slots, light, resample[0],
-                                                  resample[2])
+        total[chosen], rays = shade_by_resampling(tracer, hits.subset(chosen), trees, inside, has_p[chosen],
+                                                  alpha[chosen], len(d), spp, key, environment, slots, light,
+                                                  resample[0], resample[2])
     mix = hits.subset(~chosen)
     if not len(mix.index):
         return scene.material_albedo[hits.mat].astype(np.float64) * total, rays
@@ -674,11 +677,7 @@ def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, s
                                                 with_pdf=True)
     fcos = weight * pdf
     radiance = environment.eval(direction)
-    uv = world_to_square(direction)
-    texel, _ = inside._texel(uv)
-    side = 1 << inside.n
-    transfer = texel_values(coeffs, cand.pixel, texel % side, texel // side) / inside.texel_angles[texel // side]
-    target = resampling_target(fcos, radiance, transfer)
+    target = resampling_target(fcos, radiance, transfer_at(coeffs, inside, cand.pixel, world_to_square(direction)))
     with np.errstate(divide="ignore", invalid="ignore"):
         w = np.where(pdf > 0, target / np.where(pdf > 0, pdf, 1.0), 0.0)
     w = np.where(np.isfinite(w), w, 0.0).reshape(-1, m)
@@ -699,6 +698,16 @@ def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, s
     return total.reshape(n, slots, 3).sum(1), len(live)
 
 
+def transfer_at(coeffs, inside, pixel, uv) -> np.ndarray:
+    """(N,) T_t / Omega_t: the transfer of pixels ``pixel`` (their coefficients ``coeffs``
+    (pixels, 2^n, 2^n)) in the texel t that holds each point uv of the square, per unit solid
+    angle (its integral of f cos V over the texel over the texel's solid angle), from 3n + 1
+    coefficients (:func:`wavlight.haar.texel_values`)."""
+    t, _ = inside._texel(uv)
+    side = 1 << inside.n
+    return texel_values(coeffs, pixel, t % side, t // side) / inside.texel_angles[t // side]
+
+
 def control_terms(coeffs, inside, pixel, direction, pdf):
     """g(w) / pdf(w) (N, 3) of the control variate g(w) = T_t / Omega_t L(w): the pixel's
     transfer in texel t (its integral of f cos V over the texel's solid angle Omega_t, from its
@@ -710,10 +719,7 @@ def control_terms(coeffs, inside, pixel, direction, pdf):
     floor), the difference, not the integrand, carries the variance (``wavelet``'s candidates do
     the same with their unshadowed estimate, docs/decisions/control-variate.md)."""
     uv = world_to_square(direction)
-    t, _ = inside._texel(uv)
-    side = 1 << inside.n
-    value = texel_values(coeffs, pixel, t % side, t // side)
-    g = (value / inside.texel_angles[t // side])[:, None] * inside.radiance(uv)
+    g = transfer_at(coeffs, inside, pixel, uv)[:, None] * inside.radiance(uv)
     with np.errstate(divide="ignore", invalid="ignore"):
         out = np.where((pdf > 0)[:, None], g / np.where(pdf > 0, pdf, 1.0)[:, None], 0.0)
     return np.where(np.isfinite(out), out, 0.0)
