@@ -169,16 +169,19 @@ def turned_mis(shadowed):
     return wavlight.render_full(turned, spp=512, strategy="mis", seed=11)
 
 
-@pytest.mark.parametrize("levels, control, coherence", [(converge_mod.PRODUCT_LEVELS, True, converge_mod.COHERENCE),
-                                                        (2, True, converge_mod.COHERENCE),
-                                                        (converge_mod.PRODUCT_LEVELS, False, converge_mod.COHERENCE),
-                                                        (converge_mod.PRODUCT_LEVELS, True, 0.0)])
-def test_unbiased_frame_equals_mis(shadowed, turned_mis, levels, control, coherence):
+@pytest.mark.parametrize("levels, control, coherence, passes", [
+    (converge_mod.PRODUCT_LEVELS, True, converge_mod.COHERENCE, 1), (2, True, converge_mod.COHERENCE, 1),
+    (converge_mod.PRODUCT_LEVELS, False, converge_mod.COHERENCE, 1), (converge_mod.PRODUCT_LEVELS, True, 0.0, 1),
+    (converge_mod.PRODUCT_LEVELS, True, 0.0, 4)])
+def test_unbiased_frame_equals_mis(shadowed, turned_mis, levels, control, coherence, passes, monkeypatch):
     """Against mis of the same scene under the turned map (shadows, a small bright light): equal
     within the standard errors of both; product trees on the bake's texels (n = 4) and on
     coarser ones (their sums, the light placing directions inside them); with the relit frame as
-    control variate and without; with every camera sample's directions resampled (coherence 0)."""
+    control variate and without; with every camera sample's directions resampled (coherence 0);
+    with the samples taken in four passes (each its own camera samples, directions and
+    candidates)."""
     scene, tr = shadowed
+    monkeypatch.setattr(converge_mod, "PASS_SPP", 64 // passes)
     r = converge(tr, scene, rotate_y=80.0, spp=64, seed=3, levels=levels, control=control, coherence=coherence)
     assert r.stats["product_levels"] == min(levels, tr.n_levels)
     if coherence == 0.0:
@@ -312,7 +315,8 @@ def fixed_hits(shadowed):
     prim = tracer.intersect(o, d)[0]
     ball, floor = (np.flatnonzero(prim >= 0)[scene.face_material[prim[prim >= 0]] == k] for k in (0, 1))
     sel = np.concatenate([ball[np.linspace(0, len(ball) - 1, 4).astype(int)], floor[[0, len(floor) // 2]]])
-    coeffs = np.concatenate([c._Block(tr).coefficients(tr, 0)]).reshape(-1, 1 << n, 1 << n)[sel]
+    assert tr.blocks == (1, 1)                 # one block: its rows are the image's pixels
+    coeffs = c._Block(tr).coefficients(tr, 0).reshape(-1, 1 << n, 1 << n)[sel]
     trees = haar.ProductPyramids(haar.forward(inside.texel_luminance), n, nonnegative=True).trees(coeffs)
     spp = 2048
     px, py = np.repeat(sel % w, spp), np.repeat(sel // w, spp)
@@ -325,11 +329,10 @@ def fixed_hits(shadowed):
 
 def test_resampled_directions_are_unbiased(fixed_hits):
     """shade_by_resampling estimates the same integral as the plain mixture, camera sample by
-    camera sample: per pixel (the sphere's and the floor's), the mean of 2048 resampled
-    estimates equals the mean of 2048 mixture estimates within their standard errors, with one
-    pick and with four (systematic) picks among the candidates, and each mixture sample's
-    estimate is its direction's f cos L V / pdf (so a mis-weighted resampling, say by the
-    candidates' sum instead of their mean, is 16 times off)."""
+    camera sample: per pixel (the sphere's and the floor's), the mean of 4 x 2048 resampled
+    estimates equals the mean of 4 x 2048 mixture estimates within their standard errors, with
+    one pick and with four (systematic) picks among the candidates (a resampling weighted by the
+    candidates' sum over 15 instead of 16 is 7% off and fails)."""
     scene, tracer, d, t, prim, hit, trees, inside, turned, coeffs, spp = fixed_hits
     c = converge_mod
     mass = trees.integral
@@ -351,9 +354,6 @@ def test_resampled_directions_are_unbiased(fixed_hits):
             se = np.sqrt(a.var(0) / len(a) + b.var(0) / len(b))
             z = (b.mean(0) - a.mean(0)) / np.maximum(se, 1e-12 * np.abs(a.mean(0)).max())
             assert np.abs(z).max() < 4.5, (i, label, a.mean(0), b.mean(0), z)
-    # on the sphere's glossy pixels resampling towards each sample's own lobe lowers the variance
-    ball = np.isin(pixels, np.arange(4))
-    assert runs["four picks"][ball].var(0).sum() < runs["mixture"][ball].var(0).sum()
 
 
 def test_resampling_target_is_positive_where_the_integrand_is():

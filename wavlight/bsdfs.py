@@ -162,7 +162,6 @@ def lobe_width(kind, param):
     return np.where(kind == PHONG, 1.0 / np.sqrt(np.maximum(param, 0.0) + 1.0), width)
 
 
-
 def sample_each(kind, param, u, wo):
     """:func:`sample` of samples of several materials at once (``kind`` and ``param`` per
     sample): the directions wi (N, 3), one call per material kind present."""

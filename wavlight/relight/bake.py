@@ -90,10 +90,11 @@ class PixelSamples:
         return len(self.albedo)
 
 
-def camera_jitter(seed: int, tile: int, pixels: int, samples: int) -> np.ndarray:
-    """(P S, 2) float32: the jitters of a tile's camera samples (Philox stream JITTER, stratified
-    over each pixel's S samples as the stratified sampler does, :mod:`wavlight.sampler`)."""
-    return rng.Stream(seed, tile, 0, samples).uniforms(rng.JITTER, pixels * samples)[:, :2]
+def camera_jitter(seed: int, tile: int, pixels: int, samples: int, first: int = 0) -> np.ndarray:
+    """(P S, 2) float32: the jitters of a tile's camera samples first .. first + P S - 1 (Philox
+    stream JITTER, stratified over each pixel's S samples as the stratified sampler does,
+    :mod:`wavlight.sampler`)."""
+    return rng.Stream(seed, tile, first, samples).uniforms(rng.JITTER, pixels * samples)[:, :2]
 
 
 def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, seed: int, tile: int,

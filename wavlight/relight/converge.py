@@ -95,6 +95,9 @@ MAX_SLOTS = 64
 RESAMPLE_STREAM, PICK_STREAM = DIRECTION_STREAM + MAX_SLOTS, DIRECTION_STREAM + MAX_SLOTS + 1
 #: sub-pixel rays per side of the fixed grid that measures a pixel's footprint
 FOOTPRINT_GRID = 4
+#: camera samples per pixel of a block taken at once (a pass; more spp, more passes): the
+#: memory of a block's samples and their candidates stays bounded at any spp
+PASS_SPP = 64
 
 
 def check_scene_matches(transfer, scene):
@@ -238,34 +241,39 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
         cv = (scaled, relit_values(scaled, inside)) if use_control else None   # G of the very coefficients g reads
         P = w * h
         pix = np.arange(P)
-        px, py = np.repeat(x0 + pix % w, spp), np.repeat(y0 + pix // w, spp)
-        eye, d = camera_rays(scene, px, py, camera_jitter(seed, block, P, spp), width, height)
-        prim, t = tracer.intersect(eye, d)
-        hit = np.flatnonzero(prim >= 0)
-        value = np.zeros((P * spp, 3))
-        miss = np.flatnonzero(prim < 0)
-        value[miss] = turned.eval(d[miss].astype(np.float64))
-        rays = P * spp
-        chosen = 0
-        if len(hit):
-            resample = None
-            if candidates:
-                spread = footprint_spread(scene, tracer, x0, y0, w, h, width, height)
-                mat = scene.face_material[prim[hit]]
-                pick = spread[hit // spp] > coherence * bsdfs.lobe_width(scene.material_kind[mat],
-                                                                         scene.material_param[mat])
-                resample, chosen = (scaled, pick, candidates), int(pick.sum())
-                rays += P * FOOTPRINT_GRID ** 2
-            value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp,
-                                                  (seed, block), turned, defensive, slots, light, cv, resample)
-            rays += traced
-        v = value.reshape(h, w, spp, 3)
+        spread = footprint_spread(scene, tracer, x0, y0, w, h, width, height) if candidates else None
+        rays = P * FOOTPRINT_GRID ** 2 if candidates else 0
+        hits = chosen = 0
+        for first in range(0, spp, PASS_SPP):   # passes of samples per pixel, not samples: bounded memory
+            k = min(PASS_SPP, spp - first)
+            px, py = np.repeat(x0 + pix % w, k), np.repeat(y0 + pix // w, k)
+            eye, d = camera_rays(scene, px, py, camera_jitter(seed, block, P, k, first * P), width, height)
+            prim, t = tracer.intersect(eye, d)
+            hit = np.flatnonzero(prim >= 0)
+            value = np.zeros((P * k, 3))
+            miss = np.flatnonzero(prim < 0)
+            value[miss] = turned.eval(d[miss].astype(np.float64))
+            rays += P * k
+            if len(hit):
+                resample = None
+                if candidates:
+                    mat = scene.face_material[prim[hit]]
+                    pick = spread[hit // k] > coherence * bsdfs.lobe_width(scene.material_kind[mat],
+                                                                           scene.material_param[mat])
+                    resample, chosen = (scaled, pick, candidates), chosen + int(pick.sum())
+                value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, k,
+                                                      (seed, block), turned, defensive, slots, light, cv, resample,
+                                                      first * P)
+                rays += traced
+            hits += len(hit)
+            v = value.reshape(h, w, k, 3)
+            with lock:
+                sums[y0:y0 + h, x0:x0 + w] += v.sum(2)
+                squares[y0:y0 + h, x0:x0 + w] += (v * v).sum(2)
         with lock:
-            sums[y0:y0 + h, x0:x0 + w] += v.sum(2)
-            squares[y0:y0 + h, x0:x0 + w] += (v * v).sum(2)
             totals["rays"] += rays
             totals["done"] += 1
-            totals["hits"] += len(hit)
+            totals["hits"] += hits
             totals["resampled"] += chosen
             if progress:
                 progress(totals["done"], bw * bh, totals["rays"], time.perf_counter() - t0)
@@ -288,8 +296,9 @@ def footprint_spread(scene, tracer, x0: int, y0: int, w: int, h: int, width: int
     """(h w,) the angular spread, radians, of the mirror directions over each pixel of the w x h
     tile at (x0, y0): rays through a fixed FOOTPRINT_GRID x FOOTPRINT_GRID grid of the pixel
     (deterministic: the choice it feeds does not depend on the frame's random numbers),
-    sqrt(2 (1 - |mean r|)) of the hits' unit mirror directions r (small angles: their angular
-    standard deviation; 0 where at most one ray hits). A pixel's transfer is the mean of its
+    sqrt(2 (1 - |mean r|)) of the hits' unit mirror directions r (for small angles, about their
+    root-mean-square angle from their mean; 0 where at most one ray hits, so that such a pixel's
+    samples are never resampled). A pixel's transfer is the mean of its
     camera samples' lobes: where their mirror directions spread wider than the lobe, the
     transfer is wider than any one sample's lobe."""
     g = FOOTPRINT_GRID
@@ -565,18 +574,21 @@ def mean_and_error(sums: np.ndarray, squares: np.ndarray, spp: int):
 
 
 def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: int, key, environment,
-                     defensive: float, slots: int, light: float = 0.0, control=None, resample=None):
+                     defensive: float, slots: int, light: float = 0.0, control=None, resample=None, first: int = 0):
     """The radiance (len(hit), 3) of the camera samples ``hit`` (of spp per pixel, directions
     ``d`` with hits ``prim`` at ``t``) from ``slots`` directions each of the defensive mixture
     (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
     ``trees`` of totals ``mass``) seen from ``scene``'s camera, each evaluated with the true
     f cos, ``environment``'s radiance and a shadow ray; the uniforms are Philox stream
-    (``key`` = (seed, tile), DIRECTION_STREAM + slot). ``control`` = (C, G): the pixels'
+    (``key`` = (seed, tile), DIRECTION_STREAM + slot), from sample ``first`` of the tile on.
+    ``control`` = (C, G): the pixels'
     transfer coefficients C (pixels, 2^n, 2^n) and G (pixels, 3) = sum_t T_t L_t, for the
     control variate g = T_t / Omega_t L(w) (:func:`control_terms`). ``resample`` = (C, chosen,
     candidates): the samples ``chosen`` (a mask over ``hit``) take their slots by resampling
     ``candidates`` mixture directions instead, without the control variate
     (:func:`shade_by_resampling`). Returns it and the rays traced."""
+    if slots > MAX_SLOTS:   # the slots' streams end where the resampling's begin
+        raise ArgumentError(f"relight.shade_by_mixture: at most {MAX_SLOTS} slots, got {slots}")
     hits = _Hits.of(scene, tracer, d, t, prim, hit, spp)
     has_p = mass[hits.pixel] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)   # pixels without a product: the BSDF and the lighting
@@ -586,13 +598,13 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     if chosen.any():
         total[chosen], rays = shade_by_resampling(tracer, hits.subset(chosen), trees, inside, has_p[chosen],
                                                   alpha[chosen], len(d), spp, key, environment, slots, light,
-                                                  resample[0], resample[2])
+                                                  resample[0], resample[2], first)
     mix = hits.subset(~chosen)
     if not len(mix.index):
         return scene.material_albedo[hits.mat].astype(np.float64) * total, rays
     part = np.zeros((len(mix.index), 3))
     for slot in range(slots):   # directions per camera sample, not samples
-        u_all = rng.uniforms(*key, DIRECTION_STREAM + slot, 0, len(d))
+        u_all = rng.uniforms(*key, DIRECTION_STREAM + slot, first, len(d))
         direction, weight, pdf = mixture_directions(trees, inside, u_all, mix.index, spp, has_p[~chosen],
                                                     alpha[~chosen], mix.kind, mix.param, mix.wo, mix.axes, light,
                                                     with_pdf=True)
@@ -655,7 +667,7 @@ def resampling_target(fcos, radiance, transfer):
 
 
 def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, spp: int, key, environment, slots: int,
-                        light: float, coeffs, candidates: int):
+                        light: float, coeffs, candidates: int, first: int = 0):
     """The radiance (len(hits.index), 3), without the albedo, of camera samples ``hits`` by
     resampled importance sampling (Talbot et al. 2005): ``candidates`` directions x_m of the
     defensive mixture q (:func:`mixture_directions`, no shadow ray), ``slots`` of them picked in
@@ -665,11 +677,12 @@ def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, s
     positive wherever f cos L is. Where the pixel's transfer, the mean of its camera samples'
     f cos V, is much wider than this sample's own lobe (a glossy pixel whose footprint spans
     several facets), the transfer's product spends most of its directions outside the lobe; the
-    target's own lobe takes them back. ``count``: the tile's camera samples (the uniforms'
-    layout: Philox stream RESAMPLE_STREAM of ``key``, each pair stratified over the pixel's
-    spp x candidates, and PICK_STREAM). Returns it and the rays traced."""
+    target's own lobe takes them back. ``count``: the camera samples of the call, from sample
+    ``first`` of the tile on (the uniforms' layout: Philox stream RESAMPLE_STREAM of ``key``, each
+    pair stratified over the pixel's spp x candidates, and PICK_STREAM). Returns it and the rays
+    traced."""
     m = candidates
-    u = rng.Stream(*key, 0, spp * m).uniforms(RESAMPLE_STREAM, count * m)
+    u = rng.Stream(*key, first * m, spp * m).uniforms(RESAMPLE_STREAM, count * m)
     cand = hits.repeat(m)
     index = (hits.index[:, None] * m + np.arange(m)).reshape(-1)       # into u: sample-major, then candidate
     direction, weight, pdf = mixture_directions(trees, inside, u, index, spp * m, np.repeat(has_p, m),
@@ -683,10 +696,11 @@ def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, s
     w = np.where(np.isfinite(w), w, 0.0).reshape(-1, m)
     cdf = np.cumsum(w, 1)
     n = len(hits.index)
-    u0 = rng.uniforms(*key, PICK_STREAM, 0, count)[hits.index, 0].astype(np.float64)
+    u0 = rng.uniforms(*key, PICK_STREAM, first, count)[hits.index, 0].astype(np.float64)
     at = (u0[:, None] + np.arange(slots)) / slots * cdf[:, -1:]          # (n, slots) points on the sums
-    picks = np.minimum((at[:, :, None] >= cdf[:, None, :]).sum(2), m - 1)   # the first entry above each
-    flat = (np.arange(n)[:, None] * m + picks).reshape(-1)
+    rows = np.repeat(np.arange(n), slots)
+    picks = np.minimum(_entries_at_most(cdf, rows, at.reshape(-1)), m - 1)   # the first entry above each
+    flat = rows * m + picks
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(target[flat] > 0, np.repeat(cdf[:, -1], slots) / m / target[flat], 0.0) / slots
     value = np.where(np.isfinite(scale), scale, 0.0) * fcos[flat]
