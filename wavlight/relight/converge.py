@@ -600,10 +600,8 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
                                                   alpha[chosen], len(d), spp, key, environment, slots, light,
                                                   resample[0], resample[2], first)
     mix = hits.subset(~chosen)
-    if not len(mix.index):
-        return scene.material_albedo[hits.mat].astype(np.float64) * total, rays
     part = np.zeros((len(mix.index), 3))
-    for slot in range(slots):   # directions per camera sample, not samples
+    for slot in range(slots if len(mix.index) else 0):   # directions per camera sample, not samples
         u_all = rng.uniforms(*key, DIRECTION_STREAM + slot, first, len(d))
         direction, weight, pdf = mixture_directions(trees, inside, u_all, mix.index, spp, has_p[~chosen],
                                                     alpha[~chosen], mix.kind, mix.param, mix.wo, mix.axes, light,
@@ -615,7 +613,7 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
         part[live] += (weight[live] * ~blocked)[:, None] * environment.eval(direction[live])
         if control is not None:
             part -= control_terms(control[0], inside, mix.pixel, direction, pdf) / slots
-    if control is not None:
+    if control is not None and len(mix.index):
         part += control[1][mix.pixel]
     total[~chosen] = part
     return scene.material_albedo[hits.mat].astype(np.float64) * total, rays
@@ -648,10 +646,12 @@ class _Hits(NamedTuple):
         return _Hits(self.index[sel], self.pixel[sel], tuple(a[sel] for a in self.axes), self.wo[sel],
                      self.origin[sel], self.mat[sel], self.kind[sel], self.param[sel])
 
-    def repeat(self, m: int):
-        """Each sample m times in a row: the candidates of :func:`shade_by_resampling`."""
-        return _Hits(*(tuple(np.repeat(a, m, 0) for a in f) if isinstance(f, tuple) else np.repeat(f, m, 0)
-                       for f in self))
+    def candidates(self, m: int):
+        """Each sample m times in a row, the candidates of :func:`shade_by_resampling`: their
+        ``index`` is their row among the tile's samples' m candidates each (sample-major)."""
+        rows = (self.index[:, None] * m + np.arange(m)).reshape(-1)
+        return _Hits(rows, *(tuple(np.repeat(a, m, 0) for a in f) if isinstance(f, tuple) else np.repeat(f, m, 0)
+                             for f in self[1:]))
 
 
 def resampling_target(fcos, radiance, transfer):
@@ -683,9 +683,8 @@ def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, s
     traced."""
     m = candidates
     u = rng.Stream(*key, first * m, spp * m).uniforms(RESAMPLE_STREAM, count * m)
-    cand = hits.repeat(m)
-    index = (hits.index[:, None] * m + np.arange(m)).reshape(-1)       # into u: sample-major, then candidate
-    direction, weight, pdf = mixture_directions(trees, inside, u, index, spp * m, np.repeat(has_p, m),
+    cand = hits.candidates(m)
+    direction, weight, pdf = mixture_directions(trees, inside, u, cand.index, spp * m, np.repeat(has_p, m),
                                                 np.repeat(alpha, m), cand.kind, cand.param, cand.wo, cand.axes, light,
                                                 with_pdf=True)
     fcos = weight * pdf
