@@ -9,6 +9,7 @@ notice; other warnings (an LDR map, albedo above 1) leave the exit code 0.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import sys
 import warnings
@@ -32,6 +33,21 @@ def _warn_line(message, category, filename, lineno, file=None, line=None):
     if issubclass(category, SanitisedInputWarning):
         _sanitised = True
     click.echo(f"warning: {one_line(message)}", err=True)
+
+
+class _NoteLine(logging.Handler):
+    """The library's INFO log lines (``wavlight.cl``: "compiling OpenCL kernels ...") as one
+    ``note:`` line each on stderr."""
+
+    def emit(self, record):
+        click.echo(f"note: {one_line(record.getMessage())}", err=True)
+
+
+def _show_library_notes():
+    logger = logging.getLogger("wavlight.cl")
+    if not any(isinstance(h, _NoteLine) for h in logger.handlers):
+        logger.addHandler(_NoteLine(logging.INFO))
+        logger.setLevel(logging.INFO)
 
 
 def _show_usage_error(self, file=None):
@@ -58,6 +74,7 @@ def main():
 
     _sanitised = False
     warnings.showwarning = _warn_line
+    _show_library_notes()
     # shown once per invocation whatever the process saw before (a new filter also resets the
     # "once per location" registries) and whatever -W / PYTHONWARNINGS say: exit code 3 needs it
     warnings.filterwarnings("default", category=SanitisedInputWarning)
@@ -177,19 +194,25 @@ def render(scene_file, output, spp, strategy, width, height, seed, stderr_out, a
 
 @main.command()
 def info():
-    """Versions, and the OpenCL platform and device in use."""
+    """Versions, the OpenCL platforms and devices, the one in use and why."""
     import numpy
-    import pyopencl
 
     import wavlight
-    from wavlight import cl
+    from wavlight import cl, icd
 
     click.echo(f"wavlight {wavlight.__version__}")
+    devices = cl.list_devices()   # (registers the pip-installed drivers first)
+    import pyopencl
+
     click.echo(f"python {sys.version.split()[0]}, numpy {numpy.__version__}, pyopencl {pyopencl.VERSION_TEXT}")
-    for pi, di, p, d in cl.list_devices():
+    for driver in icd.register():
+        click.echo(f"pip-installed OpenCL driver: {driver.distribution} ({driver.library})")
+    for pi, di, p, d in devices:
         click.echo(f"  [{pi}:{di}] {p.name} {p.version.strip()} / {d.name}")
     try:
-        click.echo(f"device in use: {cl.runtime().description}")
+        rt = cl.runtime()
+        click.echo(f"device in use: {rt.description}")
+        click.echo(f"why: {rt.reason}")
         click.echo("OpenCL builtins: " + ("inlined (kernels/simd.h)" if cl.builtins_inlined()
                                           else "the device's library"))
     except wavlight.WavlightError as e:

@@ -111,3 +111,122 @@ def test_inline_builtins_env_var_overrides(monkeypatch):
         monkeypatch.setenv(cl.INLINE_ENV, bad)
         with pytest.raises(WavlightError, match=f"{cl.INLINE_ENV}='{bad}': must be 0 or 1"):
             cl.inline_builtins(dev)
+
+
+# ============================================================================= drivers installed by pip
+from pathlib import Path  # noqa: E402
+
+from wavlight import icd  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_vendor_folder_keeps_the_loaders_drivers_and_names_the_pip_ones(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    system = tmp_path / "vendors"
+    system.mkdir()
+    (system / "a.icd").write_text("/opt/a/libA.so\n")
+    (system / "notes.txt").write_text("not a driver")
+    lib = tmp_path / "lib" / "libintelocl.so"
+    driver = icd.PipDriver("intel-opencl-rt", lib)
+    folder = icd.vendor_folder([driver], system)
+    assert sorted(p.name for p in folder.glob("*.icd")) == ["a.icd", driver.icd_name]
+    assert (folder / "a.icd").read_text() == "/opt/a/libA.so\n"
+    assert (folder / driver.icd_name).read_text().strip() == str(lib)
+    assert (folder / icd.MARKER).is_file()
+    # the same content gives the same folder, also when the loader already reads that folder
+    assert icd.vendor_folder([driver], system) == folder
+    assert icd.vendor_folder([driver], folder) == folder
+    # one .icd file as the loader's source; no source at all
+    one = icd.vendor_folder([driver], system / "a.icd")
+    assert sorted(p.name for p in one.glob("*.icd")) == ["a.icd", driver.icd_name]
+    alone = icd.vendor_folder([driver], tmp_path / "missing")
+    assert [p.name for p in alone.glob("*.icd")] == [driver.icd_name]
+
+
+def test_loader_vendors_follows_the_loaders_own_rules(monkeypatch):
+    monkeypatch.delenv("OCL_ICD_VENDORS", raising=False)
+    monkeypatch.delenv("OPENCL_VENDOR_PATH", raising=False)
+    assert icd.loader_vendors() == icd.SYSTEM_VENDORS
+    monkeypatch.setenv("OPENCL_VENDOR_PATH", "/x/vendor-path")
+    assert icd.loader_vendors() == Path("/x/vendor-path")
+    monkeypatch.setenv("OCL_ICD_VENDORS", "/y/vendors")
+    assert icd.loader_vendors() == Path("/y/vendors")
+
+
+def test_pip_drivers_are_complete_installations():
+    for d in icd.pip_drivers():
+        assert d.library.is_file()
+        assert d.distribution in {known[0] for known in icd.KNOWN}
+
+
+def _without_system_drivers(tmp_path, **extra):
+    """The environment of a machine with no system OpenCL driver: the ICD loader reads an empty
+    folder instead of /etc/OpenCL/vendors, so only what pip installed is there."""
+    empty = tmp_path / "no-vendors"
+    empty.mkdir(exist_ok=True)
+    env = {k: v for k, v in os.environ.items() if k not in ("OCL_ICD_VENDORS", "OPENCL_VENDOR_PATH", cl.DEVICE_ENV)}
+    env.update(OCL_ICD_VENDORS=str(empty), **extra)
+    return env
+
+
+def _tiny_render(tmp_path, env, name):
+    out = tmp_path / name
+    r = subprocess.run([WAVLIGHT, "render", str(REPO / "scenes" / "default.toml"), "--spp", "1", "--width", "16",
+                        "--height", "12", "-o", str(out)], capture_output=True, text=True, env=env, timeout=600)
+    return r, out
+
+
+def test_a_machine_without_system_drivers_renders(tmp_path):
+    """Only what pip installed: `wavlight info` names the device in use and why, and a tiny
+    render of the built-in scene is written."""
+    env = _without_system_drivers(tmp_path)
+    r = subprocess.run([WAVLIGHT, "info"], capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    used = [ln for ln in r.stdout.splitlines() if ln.startswith("device in use: ")]
+    why = [ln for ln in r.stdout.splitlines() if ln.startswith("why: ")]
+    assert len(used) == 1 and len(why) == 1 and len(why[0]) > len("why: ")
+    r, out = _tiny_render(tmp_path, env, "a.exr")
+    assert r.returncode == 0, r.stderr
+    from wavlight.imageio import read_image
+    image = read_image(str(out))
+    assert image.shape == (12, 16, 3) and np.isfinite(image).all() and image.max() > 0
+
+
+def test_a_pocl_that_cannot_compile_gives_way(tmp_path):
+    """PoCL whose builds fail (here: refused by an option it does not take, as the PyPI PoCL's
+    LLVM 14 refuses a CPU newer than it): the next device that builds is used, and `wavlight
+    info` says why; with no such device, one line says what to install."""
+    env = _without_system_drivers(tmp_path, POCL_EXTRA_BUILD_FLAGS="-march=znver5")
+    r = subprocess.run([WAVLIGHT, "info"], capture_output=True, text=True, env=env, timeout=300)
+    assert "Traceback" not in r.stderr
+    if icd.pip_drivers():
+        assert r.returncode == 0, r.stderr
+        why = next(ln for ln in r.stdout.splitlines() if ln.startswith("why: "))
+        assert "PoCL" in why and "cannot compile for this CPU" in why and "using " in why
+        used = next(ln for ln in r.stdout.splitlines() if ln.startswith("device in use: "))
+        assert "Portable Computing Language" not in used
+        r, out = _tiny_render(tmp_path, env, "b.exr")
+        assert r.returncode == 0, r.stderr
+        assert out.is_file()
+    else:
+        assert r.returncode == 2
+        error = r.stderr.strip().splitlines()
+        assert len(error) == 1 and "no OpenCL device can build programs" in error[0] and "install" in error[0]
+
+
+def test_the_first_build_of_a_program_says_so_once(tmp_path):
+    """A build not done before on this machine logs one line before it starts ("compiling
+    OpenCL kernels"), and a second process with the same cache says nothing."""
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path / "cache"))
+    code = "from wavlight import cl; cl.program('warp.cl', N_LEVELS=3, BATCHED=0)"
+    cli = [sys.executable, "-c", "import logging, sys; logging.basicConfig(stream=sys.stderr, level=logging.INFO); "
+           + code]
+    first = subprocess.run(cli, capture_output=True, text=True, env=env, timeout=300)
+    assert first.returncode == 0, first.stderr
+    assert first.stderr.count("compiling OpenCL kernels") == 1
+    again = subprocess.run(cli, capture_output=True, text=True, env=env, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert "compiling OpenCL kernels" not in again.stderr
+    assert any((tmp_path / "cache" / "wavlight" / "kernels").iterdir())

@@ -3,10 +3,14 @@
 Device choice
 -------------
 By default wavlight uses the first PoCL CPU device that can actually build a
-program. The probe build matters: the PoCL bundled with the PyPI wheels links
-LLVM 14, which does not know CPUs newer than it (AMD Zen 5 reports "unknown
-target CPU 'generic'"); a system PoCL (Debian's ``pocl-opencl-icd``) next to it
-works, and the probe picks whichever does.
+program, else the first other device that can. The probe build matters: the PoCL
+bundled with the PyPI wheels links LLVM 14, which does not know CPUs newer than it
+(AMD Zen 5 reports "unknown target CPU 'generic'"). On Linux x86-64 pip also
+installs Intel's OpenCL CPU runtime, which :mod:`wavlight.icd` makes known to the
+ICD loader; it runs the same kernels where that PoCL cannot
+(docs/decisions/opencl-fallback.md). A system PoCL (Debian's ``pocl-opencl-icd``)
+or any other driver is picked up too. :attr:`Runtime.reason` says why the device
+in use was chosen (``wavlight info`` prints it).
 
 ``WAVLIGHT_CL_DEVICE`` overrides the choice: ``"P:D"`` (platform and device
 indices as ``wavlight info`` lists them) or any text that occurs in
@@ -20,7 +24,11 @@ Programs
 Kernel sources live in the ``kernels/`` folder, installed as the package
 ``wavlight.kernels``. Local ``#include "x.h"`` lines are spliced on the host
 (PoCL has failed on ``-I`` include paths). Each program is built once per
-(context, file, defines) and memoised for the life of the process. Kernels that
+(context, file, defines) and memoised for the life of the process; across
+processes the driver's own kernel cache (PoCL's) or wavlight's (the program
+binaries of drivers that keep none, in ``~/.cache/wavlight/kernels``) spares the
+rebuild, and the first build that is not cached logs one line ("compiling OpenCL
+kernels ...", which the command line shows). Kernels that
 walk trees are built per tree depth (``-DN_LEVELS``), so that their level loop
 unrolls. The per-sample kernels take eight points per work-item in OpenCL vector
 types (kernels/simd.h, :data:`LANES`, :func:`items`).
@@ -28,15 +36,19 @@ types (kernels/simd.h, :data:`LANES`, :func:`items`).
 from __future__ import annotations
 
 import functools
+import hashlib
+import logging
 import os
 import re
+import sys
 import threading
-import warnings
 from dataclasses import dataclass
 from importlib import resources
 
 import numpy as np
 
+from . import icd
+from .cache import cache_dir
 from .errors import WavlightError
 
 DEVICE_ENV = "WAVLIGHT_CL_DEVICE"
@@ -68,11 +80,12 @@ _PROBE_SRC = "__kernel void probe(__global float *a) { a[get_global_id(0)] *= 2.
 
 @dataclass(frozen=True)
 class Runtime:
-    """A context and an in-order queue on one device."""
+    """A context and an in-order queue on one device, and why that device was chosen."""
 
     context: object
     queue: object
     device: object
+    reason: str = ""
 
     @property
     def description(self) -> str:
@@ -81,8 +94,18 @@ class Runtime:
 
 
 def _cl():
+    """pyopencl, imported after the pip-installed OpenCL drivers are registered (wavlight.icd)."""
+    import sys
+
+    if "pyopencl" not in sys.modules:
+        icd.register()
+    import warnings
+
     import pyopencl  # deferred: importing it costs ~0.1 s
 
+    # a driver's informational build log ("Compilation started ...") is no warning to the user;
+    # a failed build raises with its log (_build)
+    warnings.filterwarnings("ignore", category=pyopencl.CompilerWarning)
     return pyopencl
 
 
@@ -104,24 +127,59 @@ def list_devices():
     return out
 
 
-def _builds(device) -> bool:
+def _is_pocl(device) -> bool:
+    return "portable" in device.platform.name.lower()
+
+
+def build_problem(device) -> str | None:
+    """None when `device` builds and runs a tiny program, else the driver's reason in one line."""
     cl = _cl()
     try:
         ctx = cl.Context([device])
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            cl.Program(ctx, _PROBE_SRC).build()
-        return True
-    except Exception:  # any build or driver failure disqualifies the device
-        return False
+        prg = cl._cl._Program(ctx, _PROBE_SRC)
+        prg.build(b"", None)
+        return None
+    except Exception as e:  # any build or driver failure disqualifies the device
+        text = str(e)
+        try:
+            text += "\n" + prg.get_build_info(device, cl.program_build_info.LOG)
+        except Exception:
+            pass
+        lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+        for ln in lines:   # the compiler's own words where it gave some ("unknown target CPU 'generic'")
+            if "error" in ln.lower() and "build_program_failure" not in ln.lower():
+                return ln[:200]
+        return (lines[0] if lines else type(e).__name__)[:200]
+
+
+def _label(device) -> str:
+    """A device's name for messages: "PoCL 3.0-rc2 (LLVM 14.0.6) / pthread-AMD EPYC"."""
+    version = device.platform.version
+    m = re.search(r"(PoCL \S+).*?(LLVM \S+)", version)
+    platform = f"{m[1]} ({m[2].rstrip(',')})" if m else device.platform.name.strip()
+    return f"{platform} / {device.name.strip()}"
+
+
+def no_device_advice() -> str:
+    """What to install when no OpenCL device can build programs, for this platform."""
+    import platform
+
+    machine = platform.machine().lower()
+    if sys.platform == "darwin":
+        return "macOS provides OpenCL itself; check that the system's OpenCL framework is present"
+    if sys.platform.startswith("linux") and machine in ("x86_64", "amd64"):
+        return ("reinstall wavlight with pip (it brings PoCL and Intel's OpenCL CPU runtime: "
+                "intel-opencl-rt, intel-cmplr-lib-rt), or install a system driver such as Debian's "
+                "pocl-opencl-icd")
+    return "install an OpenCL driver for this machine, e.g. Debian's pocl-opencl-icd"
 
 
 def _pick_device():
+    """(device, reason): WAVLIGHT_CL_DEVICE's choice, else the first PoCL CPU device that can
+    build a program, else the first other CPU device, else any device that builds."""
     devices = list_devices()
     if not devices:
-        raise WavlightError(
-            "no OpenCL platform found: install pocl-binary-distribution (pip) or a system "
-            "OpenCL driver such as Debian's pocl-opencl-icd")
+        raise WavlightError(f"no OpenCL platform found: {no_device_advice()}")
     want = os.environ.get(DEVICE_ENV, "").strip()
     if want:
         m = re.fullmatch(r"(\d+):(\d+)", want)
@@ -129,25 +187,33 @@ def _pick_device():
             hit = (m and (pi, di) == (int(m[1]), int(m[2]))) or (
                 not m and want.lower() in f"{p.name} {d.name}".lower())
             if hit:
-                if not _builds(d):
-                    raise WavlightError(f"{DEVICE_ENV}={want!r}: device {d.name!r} cannot build programs")
-                return d
+                problem = build_problem(d)
+                if problem:
+                    raise WavlightError(f"{DEVICE_ENV}={want!r}: device {d.name!r} cannot build programs "
+                                        f"({problem})")
+                return d, f"{DEVICE_ENV}={want!r} chose it"
         raise WavlightError(f"{DEVICE_ENV}={want!r} matches no OpenCL device (see `wavlight info`)")
     cl = _cl()
-    # PoCL CPU devices first, then other CPUs, then anything else.
-    def rank(t):
-        _, _, p, d = t
-        return (0 if "portable" in p.name.lower() else 1,
-                0 if d.type & cl.device_type.CPU else 1)
+
+    def rank(t):   # PoCL CPU devices first, then other CPUs, then anything else
+        _, _, _, d = t
+        return (0 if _is_pocl(d) else 1, 0 if d.type & cl.device_type.CPU else 1)
+
+    failed = []
     for _, _, _, d in sorted(devices, key=rank):
-        if _builds(d):
-            return d
-    raise WavlightError(
-        "no OpenCL device can build programs (PoCL's LLVM may not know this CPU: "
-        "install Debian's pocl-opencl-icd, or set WAVLIGHT_CL_DEVICE)")
+        problem = build_problem(d)
+        if problem is None:
+            if not failed:
+                return d, ("the first PoCL CPU device that builds programs" if _is_pocl(d)
+                           else "the first device that builds programs")
+            why = "; ".join(f"{label} cannot compile for this CPU ({p})" for label, p in failed)
+            return d, f"{why}; using {_label(d)}, the next device that builds programs"
+        failed.append((_label(d), problem))
+    why = "; ".join(f"{label}: {p}" for label, p in failed)
+    raise WavlightError(f"no OpenCL device can build programs ({why}): {no_device_advice()}")
 
 
-_lock = threading.Lock()
+_lock = threading.RLock()
 _runtime: Runtime | None = None
 
 
@@ -157,9 +223,9 @@ def runtime() -> Runtime:
     with _lock:
         if _runtime is None:
             cl = _cl()
-            dev = _pick_device()
+            dev, reason = _pick_device()
             ctx = cl.Context([dev])
-            _runtime = Runtime(ctx, cl.CommandQueue(ctx), dev)
+            _runtime = Runtime(ctx, cl.CommandQueue(ctx), dev, reason)
         return _runtime
 
 
@@ -189,19 +255,79 @@ def kernel_source(name: str) -> str:
     return load(name, set())
 
 
+_log = logging.getLogger("wavlight.cl")
+_noted_compiling = False
+
+
+def _note_compiling(device) -> None:
+    """One log line (the CLI shows it on stderr) before the first build this machine has not
+    done before: compiling the kernels takes seconds, once."""
+    global _noted_compiling
+    if not _noted_compiling:
+        _noted_compiling = True
+        _log.info("compiling OpenCL kernels for %s (once; later runs reuse them)", device.name.strip())
+
+
+def _cached_build_path(device, source: str, opts: str):
+    """Where the build of (source, opts) for `device` is remembered: ``<key>.bin``, the program's
+    binary, for drivers that keep no cache of their own; ``<key>.built``, a marker, for PoCL,
+    which caches compiled kernels itself (~/.cache/pocl). None when no cache folder can be made."""
+    ident = "\0".join([device.platform.name, device.platform.version, device.name, device.version,
+                        device.driver_version, opts, source])
+    key = hashlib.sha256(ident.encode()).hexdigest()[:32]
+    try:
+        folder = cache_dir("kernels")
+    except OSError:
+        return None
+    return folder / (key + (".built" if _is_pocl(device) else ".bin"))
+
+
+def _remember(path, content: bytes) -> None:
+    import tempfile
+
+    try:
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=".wavlight-", suffix=".tmp", delete=False) as f:
+            f.write(content)
+        os.replace(f.name, path)
+    except OSError:   # a cache that cannot be written only costs the next process a build
+        try:
+            os.unlink(f.name)
+        except (OSError, NameError):
+            pass
+
+
 @functools.lru_cache(maxsize=None)
 def _build(ctx, name: str, defines: tuple):
     """The program ``name`` built with ``defines``. It is built with exactly these options:
     pyopencl's own build adds ``-I <its install path>``, which enters the driver's kernel
-    cache key (PoCL's), so that every new virtual environment compiled every kernel again."""
+    cache key (PoCL's), so that every new virtual environment compiled every kernel again.
+
+    Drivers without a kernel cache of their own (Intel's CPU runtime: 17-20 s of builds per
+    process) get wavlight's: the program's binary, loaded in about 10 ms the next time."""
     cl = _cl()
     opts = " ".join([f"-D{k}={v}" for k, v in defines] + [f"-DLANES={LANES}"])   # kernels/simd.h
-    prg = cl._cl._Program(ctx, kernel_source(name))
+    source = kernel_source(name)
+    device = ctx.devices[0]
+    remembered = _cached_build_path(device, source, opts)
+    if remembered is not None and remembered.is_file():
+        if remembered.suffix == ".bin":
+            try:
+                prg = cl._cl._Program(ctx, [device], [remembered.read_bytes()])
+                prg.build(opts.encode(), None)
+                return cl.Program(prg)
+            except Exception:   # stale or damaged: build from the source and replace it
+                pass
+    else:
+        _note_compiling(device)
+    prg = cl._cl._Program(ctx, source)
     try:
         prg.build(opts.encode(), None)
     except cl.Error as e:
         log = "\n".join(prg.get_build_info(d, cl.program_build_info.LOG) for d in ctx.devices)
         raise cl.RuntimeError(f"building kernels/{name} with {opts}: {e}\n{log}") from None
+    if remembered is not None and not remembered.is_file():
+        _remember(remembered, b"" if remembered.suffix == ".built"
+                  else prg.get_info(cl.program_info.BINARIES)[0])
     return cl.Program(prg)
 
 
@@ -216,7 +342,7 @@ def inline_builtins(device) -> bool:
     if want:
         raise WavlightError(f"{INLINE_ENV}={want!r}: must be 0 or 1 (or unset: chosen per device)")
     cl = _cl()
-    return "portable" in device.platform.name.lower() and bool(device.type & cl.device_type.CPU)
+    return _is_pocl(device) and bool(device.type & cl.device_type.CPU)
 
 
 @functools.lru_cache(maxsize=None)

@@ -2,6 +2,9 @@
 
 Geometry is one triangle soup in float32 (embree's precision). Large batches are
 split over threads: embreex releases the GIL, so two threads use both cores.
+Where embreex has no wheel (Linux aarch64) the queries go through trimesh's own
+numpy intersector (:class:`TrimeshQueries`, with the ``rtree`` package): the same
+answers, far slower.
 
 The scene is built without Embree's robust flag (``robust=False``), as Mitsuba 3
 does by default (its ``embree_use_robust_intersections`` is off): robust traversal
@@ -56,24 +59,79 @@ OFFSET_RELATIVE = 1e-4
 OFFSET_FLOOR = 1e-6
 
 
-class RayTracer:
-    """Closest-hit and occlusion queries against vertices (V, 3) and faces (F, 3)."""
+class EmbreeQueries:
+    """Closest hits and occlusion of float32 rays against one triangle soup, by embree."""
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, threads: int = 1):
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
         import embreex.mesh_construction as mc
         import embreex.rtcore_scene as rtcs
 
+        self._scene = rtcs.EmbreeScene(robust=False)
+        mc.TriangleMesh(self._scene, np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(faces, np.int32))
+        # embree builds its acceleration structure at the first query: one query here, so
+        # that the build is part of every render's setup rather than of its first batch
+        self.occluded(np.zeros((1, 3), np.float32), np.float32([[0.0, 0.0, 1.0]]))
+
+    def closest(self, o, d):
+        """(prim (N,) int32, -1 a miss; t, u, v (N,) float32): embree's barycentric u, v."""
+        r = self._scene.run(o, d, output=1)
+        return r["primID"].astype(np.int32), r["tfar"], r["u"].astype(np.float32), r["v"].astype(np.float32)
+
+    def occluded(self, o, d):
+        return self._scene.run(o, d, query="OCCLUDED") >= 0
+
+
+class TrimeshQueries:
+    """The same queries by trimesh's numpy ray-triangle intersector (needs ``rtree``): the
+    fallback where embreex has no wheel. Written against trimesh, not by hand."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        import trimesh
+        from trimesh.ray.ray_triangle import RayMeshIntersector
+
+        self._mesh = trimesh.Trimesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), process=False)
+        self._rays = RayMeshIntersector(self._mesh)
+
+    def closest(self, o, d):
+        import trimesh
+
+        n = len(o)
+        prim = np.full(n, -1, np.int32)
+        t, u, v = np.full(n, np.inf, np.float32), np.zeros(n, np.float32), np.zeros(n, np.float32)
+        o64, d64 = np.asarray(o, np.float64), np.asarray(d, np.float64)
+        tri, ray, loc = self._rays.intersects_id(o64, d64, multiple_hits=False, return_locations=True)
+        if len(tri):
+            prim[ray] = tri
+            t[ray] = np.einsum("ij,ij->i", loc - o64[ray], d64[ray]) / np.einsum("ij,ij->i", d64[ray], d64[ray])
+            bary = trimesh.triangles.points_to_barycentric(self._mesh.triangles[tri], loc)
+            u[ray], v[ray] = bary[:, 1], bary[:, 2]
+        return prim, t, u, v
+
+    def occluded(self, o, d):
+        return np.asarray(self._rays.intersects_any(np.asarray(o, np.float64), np.asarray(d, np.float64)), bool)
+
+
+def default_queries():
+    """EmbreeQueries where embreex imports, else TrimeshQueries."""
+    try:
+        import embreex  # noqa: F401
+        return EmbreeQueries
+    except ImportError:
+        return TrimeshQueries
+
+
+class RayTracer:
+    """Closest-hit and occlusion queries against vertices (V, 3) and faces (F, 3).
+
+    ``queries``: the class that answers them (default :func:`default_queries`)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, threads: int = 1, queries=None):
         vertices, faces = _geometry(vertices, faces)
         self.n_faces = len(faces)
         self.threads = check_int("RayTracer", "threads", threads, 1, 4096)
-        self._scene = None
+        self._queries = None
         if self.n_faces:
-            self._scene = rtcs.EmbreeScene(robust=False)
-            mc.TriangleMesh(self._scene, np.ascontiguousarray(vertices, np.float32),
-                            np.ascontiguousarray(faces, np.int32))
-            # embree builds its acceleration structure at the first query: one query here, so
-            # that the build is part of every render's setup rather than of its first batch
-            self._scene.run(np.zeros((1, 3), np.float32), np.float32([[0.0, 0.0, 1.0]]), query="OCCLUDED")
+            self._queries = (queries or default_queries())(vertices, faces)
         v = np.asarray(vertices, np.float64)
         f = np.asarray(faces, np.int64)
         if self.n_faces:
@@ -124,13 +182,12 @@ class RayTracer:
     def intersect(self, origins: np.ndarray, dirs: np.ndarray):
         """Closest hits: (prim (N,) int32, -1 for a miss; t (N,) float32)."""
         origins, dirs = _rays("RayTracer.intersect", origins, dirs)
-        if self._scene is None or len(origins) == 0:
+        if self._queries is None or len(origins) == 0:
             return np.full(len(origins), -1, np.int32), np.full(len(origins), np.inf, np.float32)
 
         def run(o, d):
-            r = self._scene.run(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32),
-                                output=1)
-            return r["primID"].astype(np.int32), r["tfar"]
+            prim, t, _, _ = self._queries.closest(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32))
+            return prim, t
 
         return self._map(run, origins, dirs)
 
@@ -139,23 +196,21 @@ class RayTracer:
         prim (N,) int32 (-1: a miss), t, u, v (N,) float32."""
         origins, dirs = _rays("RayTracer.intersect_uv", origins, dirs)
         n = len(origins)
-        if self._scene is None or n == 0:
+        if self._queries is None or n == 0:
             return np.full(n, -1, np.int32), np.full(n, np.inf, np.float32), np.zeros(n, np.float32), np.zeros(n, np.float32)
 
         def run(o, d):
-            r = self._scene.run(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32), output=1)
-            return r["primID"].astype(np.int32), r["tfar"], r["u"].astype(np.float32), r["v"].astype(np.float32)
+            return self._queries.closest(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32))
 
         return self._map(run, origins, dirs)
 
     def occluded(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
         """(N,) bool: True where the ray from origin along dir hits any triangle."""
         origins, dirs = _rays("RayTracer.occluded", origins, dirs)
-        if self._scene is None or len(origins) == 0:
+        if self._queries is None or len(origins) == 0:
             return np.zeros(len(origins), bool)
 
         def run(o, d):
-            return self._scene.run(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32),
-                                   query="OCCLUDED") >= 0
+            return self._queries.occluded(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32))
 
         return self._map(run, origins, dirs)
