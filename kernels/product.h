@@ -463,7 +463,13 @@ INLINE realv product_walk_from(__global const float *tree, const Lobe *lb, const
         /* below the product levels, the light tree's levels from PAIR_LEVEL on two at a time */
         if (PAIRED_SECOND(l, PRODUCT_PAIR_FROM))
             continue;
-        LEVEL_BARRIER(l);
+        /* barriers (warp.h) only where the walk follows the light tree alone: with barriers
+         * inside the product levels, Intel's OpenCL CPU runtime returned other points than
+         * the same walk without barriers (tests/test_shading.py
+         * test_breadth_first_walks_match_depth_first); the product levels of the usual lobes
+         * are above BARRIER_LEVEL anyway (ggx 0.05: 7 levels) */
+        if (l >= PRODUCT_LEVELS)
+            LEVEL_BARRIER(l);
         if (PAIRED_FIRST(l, PRODUCT_PAIR_FROM)) {
             paired_step(tree, TREE_BASE(lb), l, &k, &x, &y, ux, uy);
             PREFETCH_STEP(tree, TREE_BASE(lb), l + 2, k, PRODUCT_PAIR_FROM);

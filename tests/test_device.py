@@ -189,7 +189,7 @@ def test_a_machine_without_system_drivers_renders(tmp_path):
     assert len(used) == 1 and len(why) == 1 and len(why[0]) > len("why: ")
     r, out = _tiny_render(tmp_path, env, "a.exr")
     assert r.returncode == 0, r.stderr
-    from wavlight.imageio import read_image
+    from wavlight.envmap import read_image
     image = read_image(str(out))
     assert image.shape == (12, 16, 3) and np.isfinite(image).all() and image.max() > 0
 

@@ -148,7 +148,8 @@ def test_breadth_first_walks_match_depth_first():
     """The stand-alone sample kernels wait at a work-group barrier before each step into a
     level of >= 256^2 nodes (kernels/warp.h BARRIER_LEVEL): the light walk (warp.cl) and the
     product walk (product.cl) through a 1024^2 tree give the same points and pdfs bit for bit
-    with those barriers, with a barrier at every level and without any (the build the numpy
+    with those barriers, with a barrier at every level (the product walk's below its product
+    levels, product.h) and without any (the build the numpy
     comparisons above check), for a count that leaves whole work-items past its end (3001
     points: 376 work-items of 384, in 12 groups of cl.WALK_WORK_GROUP = 32 as HaarTree.sample
     launches them, the build without barriers in 6 of 64 as the renderer; an early return

@@ -94,11 +94,9 @@ class Runtime:
 
 
 def _cl():
-    """pyopencl, imported after the pip-installed OpenCL drivers are registered (wavlight.icd)."""
-    import sys
-
-    if "pyopencl" not in sys.modules:
-        icd.register()
+    """pyopencl, with the pip-installed OpenCL drivers registered (wavlight.icd) before the ICD
+    loader's first use: pyopencl's import does not use it, the first platform query does."""
+    icd.register()
     import warnings
 
     import pyopencl  # deferred: importing it costs ~0.1 s
