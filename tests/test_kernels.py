@@ -5,7 +5,7 @@ wavlight.haar.tree.HaarTree, are compared with build_reference, sample_reference
 and pdf_reference, and checked for the properties the warp promises: samples never
 in zero-mass leaves, u in [0, 1] maps into [0, 1)^2, pdf 0 (not NaN) for an all-zero
 tree, stratification preserved, the pdf integrates to one, and the samples follow
-the pdf (chi-square, tests/chi2.py, Sidak-corrected over this file).
+the pdf (chi-square, tests/support/chi2.py, Sidak-corrected over this file).
 """
 from __future__ import annotations
 
@@ -168,6 +168,7 @@ def test_device_order_puts_a_nodes_children_together():
 
 
 # ============================================================================= paired steps
+@pytest.mark.slow
 @pytest.mark.parametrize("pair_level, barriers", [(3, 0), (6, 1)], ids=["from3-inline", "from6-barriers"])
 def test_paired_steps_are_bit_identical(pair_level, barriers):
     """kernels/warp.h paired_step (two levels per load, from level pair_level or the next of

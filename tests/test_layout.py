@@ -160,3 +160,19 @@ def test_every_option_reaches_scene_cli_experiment_and_render_full(tmp_path):
         assert os.path.basename(scene_path) == "s.toml"
     with pytest.raises(wavlight.WavlightError, match="unknown option 'no_such_option'"):
         wavlight.render_full(wavlight.load_dict({"environment": {"procedural": "sky"}}), no_such_option=1)
+
+
+def test_tests_mirror_the_packages():
+    """The tests of each package of wavlight live in the folder of its name (tests/haar/ for
+    wavlight.haar), the command line's in tests/cli/, hostile input in tests/hostile/, the tests
+    of top-level modules in tests/, and the helpers they share in tests/support/ (on pytest's
+    pythonpath)."""
+    tests = ROOT / "tests"
+    packages = {p.name for p in (ROOT / "wavlight").iterdir() if (p / "__init__.py").is_file()}
+    for name in packages:
+        assert any((tests / name).glob("test_*.py")), f"tests/{name}/ holds no tests of wavlight.{name}"
+    folders = {p.name for p in tests.iterdir() if p.is_dir() and not p.name.startswith((".", "__"))}
+    assert folders <= packages | {"cli", "hostile", "support"}, folders - packages
+    helpers = [p for p in tests.rglob("*.py") if not p.name.startswith("test_") and p.name != "conftest.py"]
+    assert all(p.parent == tests / "support" for p in helpers), helpers
+    assert not any((tests / "support").glob("test_*.py"))

@@ -128,6 +128,7 @@ def test_object_on_floor_is_shadowed(tmp_path):
     assert _variance(default) > strategies.SHADOWED_VARIANCE
 
 
+@pytest.mark.slow
 def test_render_chooses_the_budget_from_the_scene(tmp_path):
     """Unset candidates and slots come from AUTO_BUDGET by the scene's visibility variance,
     which --json reports; what is given wins, and a render that has nothing left to choose

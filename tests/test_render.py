@@ -73,6 +73,7 @@ def furnace(tmp_path_factory):
     return scene, np.array(albedo), inner, background
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ALL_STRATEGIES)
 def test_white_furnace_lambert_sphere(furnace, strategy):
     """L = albedo exactly under a constant environment of 1 (a convex object never shadows itself)."""
@@ -210,6 +211,7 @@ def quad_pixel_albedo(kind, param, view_deg, cam: Pinhole, normal):
     return np.polyval(coef, theta - view_deg).mean(-1), 2 * resid + 1e-7
 
 
+@pytest.mark.slow
 def test_reference_quadratures():
     """The expected values themselves: closed forms and a second, independent quadrature."""
     for e in (5, 50, 300):  # energy-normalised phong at normal incidence: exactly 1
@@ -263,6 +265,7 @@ def quad_scenes(tmp_path_factory):
     return get
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ["bsdf", "light", "mis", "wavelet"])
 @pytest.mark.parametrize("view_deg", [0.0, 45.0, 75.0])
 @pytest.mark.parametrize("kind,param", MATERIALS)
@@ -633,6 +636,7 @@ def busy_scene(tmp_path_factory):
                            "plastic": dict(type="phong", albedo=[0.5, 0.7, 0.9], exponent=40.0)})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ALL_STRATEGIES)
 def test_same_seed_same_image_any_thread_count(busy_scene, strategy):
     a = wavlight.render_full(busy_scene, strategy=strategy, threads=1)

@@ -27,6 +27,7 @@ def _scene(pixels, rotate_y=0.0, phong_exponent=80.0):
                  np.zeros((0, 3), np.int32), np.zeros(0, np.int32), mats)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet",
                                       "wavelet:levels=6"])
 @pytest.mark.parametrize("rotate_y", [0.0, 70.0])
@@ -100,6 +101,7 @@ def test_render_kernel_equals_numpy_backend(sampler):
         assert close.mean() > 0.998
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n_trees, shapes", [(1, 15), (2, 15), (1, 1), (2, 1)],
                          ids=["one_tree", "two_trees", "one_tree-lambert_only", "two_trees-lambert_only"])
 def test_product_sample_points_kernel_matches_numpy(n_trees, shapes):
@@ -144,6 +146,7 @@ def test_product_sample_points_kernel_matches_numpy(n_trees, shapes):
     np.testing.assert_allclose(pdf_k[same_leaf], pdf_r[same_leaf], rtol=2e-2)
 
 
+@pytest.mark.slow
 def test_breadth_first_walks_match_depth_first():
     """The stand-alone sample kernels wait at a work-group barrier before each step into a
     level of >= 256^2 nodes (kernels/warp.h BARRIER_LEVEL): the light walk (warp.cl) and the
@@ -196,6 +199,7 @@ def test_breadth_first_walks_match_depth_first():
             np.testing.assert_array_equal(got, want, err_msg=build)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet",
                                       "wavelet:no-control-variate", "wavelet:four-slots"])
 @pytest.mark.parametrize("drawn", [None, 0, 13], ids=["u-given", "u-drawn", "u-stratified"])

@@ -4,7 +4,7 @@
 
 or ``wavlight experiment --suite stability -o out/stability`` (about 2-2.5 minutes on 2 cores). The
 strategies are every id of ``wavlight.scene.STRATEGIES`` at call time, so new ones join without
-an edit. A small version runs in ``tests/test_stability.py``: ``QUICK_CASES`` (the cases with
+an edit. A small version runs in ``tests/evaluation/test_stability.py``: ``QUICK_CASES`` (the cases with
 analytic answers and light enough tails, and the all-black map) at 12 x 12 pixels, 3 x 32 spp.
 
 **Cases** (:data:`CASES`, from ``shared/docs/method.md``, "Failure modes to test"; each builds its

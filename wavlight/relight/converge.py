@@ -36,7 +36,7 @@ dropped coefficients, a surface the pixel's samples did not see in the bake, a p
 product is 0 altogether). Bakes finer than PRODUCT_LEVELS are sampled on coarser texels (their
 sums), the lighting's own leaves placing the direction inside them. Samples that miss see the
 environment. The estimate is unbiased for any transfer: a converged frame equals ``mis`` of the
-same scene and lighting within their standard errors (tests/test_relight.py).
+same scene and lighting within their standard errors (tests/relight/test_relight.py).
 
 T1 is the mean of the lobes of the pixel's camera samples. Where their mirror directions spread
 wider than COHERENCE times a sample's own lobe (a glossy pixel over several facets,

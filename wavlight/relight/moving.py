@@ -27,7 +27,7 @@ bounding sphere and the pixel lies in the box of a projected triangle; decided f
 object's place alone, not from random samples, so that the choice does not bias the estimate)
 are rendered in full with ``mis`` (the existing strategy: its shade kernel,
 :class:`wavlight.shading.KernelShader`, twin :func:`wavlight.strategies.shade_reference`)
-against the moved scene. Every frame is unbiased: tests/test_relight_moving.py checks it
+against the moved scene. Every frame is unbiased: tests/relight/test_relight_moving.py checks it
 against ``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator with the
 numpy twins (same random numbers).
 """

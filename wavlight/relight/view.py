@@ -89,7 +89,7 @@ where the pixel has no product) from the BSDF; with probability LIGHT_SHARE from
 alone (a bright light that the bake's one shadow ray per texel hid from a cache point's T1 is
 still found). Every direction is evaluated with the true f_r cos, the radiance and a shadow
 ray, and weighted by the mixture's pdf (every technique's pdf, exact):
-unbiased whatever the cache's approximations (tests/test_relight_view.py checks it against
+unbiased whatever the cache's approximations (tests/relight/test_relight_view.py checks it against
 ``mis``).
 """
 from __future__ import annotations

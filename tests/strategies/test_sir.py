@@ -33,7 +33,7 @@ from wavlight.strategies import sir
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky
 from wavlight.errors import SceneError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ROOITOU = REPO.parent / "shared" / "data" / "envmaps" / "rooitou_park_1k.hdr"
 Z = float(stats.norm.isf(ALPHA / 2))
 

@@ -275,7 +275,7 @@ def test_obj_reader_matches_trimesh_on_real_meshes():
 
     import trimesh
 
-    folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
+    folder = Path(__file__).resolve().parents[3] / "shared" / "data" / "meshes"
     names = [p for p in ("spot.obj", "suzanne.obj", "teapot.obj") if (folder / p).exists()]
     if not names:
         pytest.skip("no shared OBJ meshes")

@@ -40,6 +40,7 @@ def quick(tmp_path_factory):
 
 
 # ----------------------------------------------------------------------------- the quick suite
+@pytest.mark.slow
 def test_outputs_exist_and_hold_no_nan(quick):
     out, results, seen = quick
     for name in ("stability.csv", "stability.json", "charts/stability.png", "charts/stability.svg"):

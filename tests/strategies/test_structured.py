@@ -35,7 +35,7 @@ from wavlight.strategies import structured
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky
 from wavlight.errors import SceneError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 GRACE = REPO.parent / "shared" / "data" / "envmaps" / "debevec_grace_256x128.hdr"
 Z = float(stats.norm.isf(ALPHA / 2))
 LUM = LUMINANCE.astype(np.float64)

@@ -23,7 +23,7 @@ from wavlight.evaluation import metrics
 from wavlight.envmap import read_image
 from scenes_util import write_raw_image
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEFAULT_SCENE = (REPO / "scenes" / "default.toml").as_posix()
 
 TINY = f"""
@@ -565,6 +565,7 @@ def test_options_the_strategy_takes_are_kept(tmp_path, sid, lines, options):
     assert experiment.load_spec(strategy_spec(tmp_path, f"id = '{sid}'\n" + lines)).strategies[0].options == options
 
 
+@pytest.mark.slow
 def test_option_table_matches_the_renderer():
     """APPLIES (derived from the strategies' own option declarations) says which strategies an
     option reaches: exactly those whose render reports a light tree of that depth (light_levels),

@@ -49,7 +49,7 @@ from wavlight.relight.viewer import (EXPOSURE_RANGE, Limits, ObjectLimits, Viewe
                                      tone_map)
 from wavlight.scene import rotation  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: `wavlight view ...` in a fresh interpreter
 WAVLIGHT = [sys.executable, "-m", "wavlight.cli.main"]
 SCENE = ROOT / "scenes" / "bunny_ggx.toml"

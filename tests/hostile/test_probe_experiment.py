@@ -114,6 +114,7 @@ def _damage(path, how):
     path.write_text(json.dumps({k: (str(v) if k != "hash" else v) for k, v in rec.items()}))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", list(DAMAGE))
 @pytest.mark.parametrize("record", list(RECORDS))
 def test_a_damaged_resume_record_is_redone(done, tmp_path, no_charts, record, how):

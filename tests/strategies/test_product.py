@@ -1,6 +1,6 @@
 """The ``wavelet`` strategy: top-down product sampling (wavlight/strategies/product.py, kernels/product.h).
 
-What is checked, after tests/test_samplers.py (which does the same for the light strategy):
+What is checked, after tests/strategies/test_samplers.py (which does the same for the light strategy):
 
 1. The numpy product sampler, through ``WaveletStrategy.sample`` / ``.pdf`` on hand-built
    :class:`ShadingPoints`, for lambert, phong (n = 20, 200) and ggx (alpha 0.05, 0.3) at
@@ -67,7 +67,7 @@ from wavlight.scene import Camera, Material, Scene
 from wavlight.shading import KernelShader, NumpyShader
 from wavlight.strategies import LightStrategy, ShadingPoints, WaveletStrategy
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ENVMAPS = REPO.parent / "shared" / "data" / "envmaps"
 
 
@@ -257,6 +257,7 @@ def leaf_side(case: Case) -> int:
 
 
 # ============================================================================= 1. the numpy sampler
+@pytest.mark.slow
 def test_product_chi2_on_leaves(case):
     """(a) Product samples follow pdf() (chi-square on leaf-aligned cells of the lat-long square).
 
@@ -291,6 +292,7 @@ def test_product_uniform_inside_leaves(case):
     assert ok, msg
 
 
+@pytest.mark.slow
 def test_product_sample_pdf_equals_pdf(case):
     """(b) The pdf returned with a sample equals pdf() of its direction (rtol 1e-6).
 
@@ -312,6 +314,7 @@ def test_product_sample_pdf_equals_pdf(case):
                            f"{q[bad][:3].tolist()} at {d[bad][:3].tolist()}")
 
 
+@pytest.mark.slow
 def test_product_pdf_integrates_to_one(case):
     """(c) The pdf integrates to 1, two ways.
 
@@ -478,6 +481,7 @@ def _special_normals(env):
     return np.concatenate([axes, env.square_to_world(uv)])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("map_id", ["sky", "sky_rot90"])
 def test_kernel_matches_numpy_on_lobe_axes_and_grazing(map_id):
     """The shade kernel's wavelet estimates equal the numpy twin's, from the same uniforms, for
@@ -543,6 +547,7 @@ def test_kernel_matches_numpy_on_lobe_axes_and_grazing(map_id):
                                          f"{yk[i].mean(0)} vs {yr[i].mean(0)} (se {se[i]})" for i in k))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("candidates", [2, 8, 17])
 @pytest.mark.parametrize("map_id", ["sky", "sky_rot90", "map3x2"])
 def test_kernel_matches_numpy_with_candidates(map_id, candidates):
@@ -771,6 +776,7 @@ def _assert_point_estimate_equals_mis(case, name, tag, visible=None, family=1, *
         f"{name} {ma} vs mis {mb}: difference {ma - mb}, z = {np.abs(ma - mb) / np.maximum(se, 1e-300)} > {z:.2f}"
 
 
+@pytest.mark.slow
 def test_wavelet_estimate_equals_mis_at_a_point(case):
     """E[wavelet] = E[mis] = integral of f cos L at one shading point (kernel, no visibility):
     the default resampling estimator (strategies.DEFAULT_CANDIDATES) and the MIS pair."""
@@ -785,6 +791,7 @@ def _half_blocked(wi):
     return wi[:, 0] + 0.4 * wi[:, 2] <= 0.1
 
 
+@pytest.mark.slow
 def test_wavelet_control_variate_unbiased_under_occlusion(case):
     """With an occluder the control variate's offset (albedo U - value_a - value_b, no shadow
     ray) no longer cancels: E[offset + value_a V(y_a) + value_b V(y_b)] must still equal mis's
@@ -796,6 +803,7 @@ def test_wavelet_control_variate_unbiased_under_occlusion(case):
                                           control_variate=False)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("four_slot_case", CASES[:len(MATERIALS)], ids=CASE_IDS[:len(MATERIALS)])
 def test_wavelet_four_slots_unbiased_under_occlusion(four_slot_case):
     """Four directions per sample (slots=4, two more shadow rays): E[offset + the four values
@@ -805,6 +813,7 @@ def test_wavelet_four_slots_unbiased_under_occlusion(four_slot_case):
     _assert_point_estimate_equals_mis(c, "wavelet", "w4", _half_blocked, 2, levels=c.levels, slots=4)
 
 
+@pytest.mark.slow
 def test_wavelet_two_candidates_estimate_equals_mis_at_a_point(case):
     """The same with 2 candidates, one product and one BSDF (an odd split, 9 + 8, is compared
     with the numpy twin in test_kernel_matches_numpy_with_candidates)."""
@@ -880,6 +889,7 @@ def real_scenes(tmp_path_factory):
 _MIS_RENDERS = {}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ["wavelet", "wavelet-pair", "mis_comp"])
 @pytest.mark.parametrize("map_name", REAL_MAPS)
 def test_render_equals_mis_under_real_maps(real_scenes, map_name, strategy):
@@ -906,6 +916,7 @@ def test_render_equals_mis_under_real_maps(real_scenes, map_name, strategy):
     _assert_equals_mis(a, _mis_render(scene, map_name), strategy)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("map_name", REAL_MAPS)
 def test_render_equals_mis_with_shadows_under_real_maps(real_scenes, map_name):
     """The same three spheres standing on a lambert floor: shadows everywhere below them, so
@@ -977,6 +988,7 @@ def furnace_scene(tmp_path_factory):
     return scene, np.array(albedo), inner, background
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("levels, candidates", [(None, None), (0, None), (1, None), (4, None), (11, None),
                                                 (None, 0), (0, 0), (None, 2), (None, 32)])
 def test_wavelet_white_furnace_every_depth(furnace_scene, levels, candidates):

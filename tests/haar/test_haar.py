@@ -393,6 +393,7 @@ def test_sparse_lookups_by_table_and_by_search(monkeypatch, spread):
 
 
 # ============================================================================= OpenCL kernels
+@pytest.mark.slow
 @pytest.mark.parametrize("n,T", [(0, 3), (1, 2), (3, 5), (6, 4), (9, 1)])
 def test_forward_kernel(device, n, T):
     rng = np.random.default_rng(26 + n)
@@ -441,6 +442,7 @@ def test_inverse_kernel(device, n, T):
     np.testing.assert_array_equal(haar.inverse_cl(coeffs[0]), got[0])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n,m,L", [(5, 5, 5), (9, 5, 5), (9, 6, 6), (9, 8, 8), (6, 6, 3), (4, 6, 6),
                                    (7, 4, 6), (2, 3, 0)])
 def test_product_kernel_matches_eq25(device, n, m, L):

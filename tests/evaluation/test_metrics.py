@@ -18,7 +18,7 @@ import pytest
 
 from wavlight.evaluation import metrics
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def img(*pixels):

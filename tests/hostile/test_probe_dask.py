@@ -115,6 +115,7 @@ def server(request):
         s.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", list(SERVERS))
 def test_a_misbehaving_service_fails_in_time_naming_the_address(server, case, tmp_path):
     """Whatever the service does, one WavlightError naming the address comes within the

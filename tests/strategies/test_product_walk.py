@@ -99,6 +99,7 @@ def test_product_walk_u_at_and_near_one(map_kind):
                           f"pdf() there {again[~ok][:3].tolist()}, u = {u[~ok][:3].tolist()}")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("map_kind", ["band", "checker"])
 @pytest.mark.parametrize("mat", range(len(MATERIALS)), ids=["lambert", "phong200", "ggx0.05", "ggx0.2"])
 def test_product_walk_leaf_preimages_are_rectangles(map_kind, mat):

@@ -14,7 +14,7 @@ from wavlight.cli.main import main
 from wavlight.evaluation import experiment
 from wavlight.envmap import read_image
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEFAULT_SCENE = (REPO / "scenes" / "default.toml").as_posix()
 
 SPEC = f"""
@@ -64,6 +64,7 @@ def assert_same(a_out, a, b_out, b):
     assert json.loads((Path(b_out) / "results.json").read_text())["runs"] == b["runs"]
 
 
+@pytest.mark.slow
 def test_two_worker_processes_equal_local(local, tmp_path):
     spec, out, res = local
     r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "w2"), "-q", "--workers", "2"])
@@ -73,6 +74,7 @@ def test_two_worker_processes_equal_local(local, tmp_path):
     assert_same(out, res, tmp_path / "w2", par)
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_equals_local(local, tmp_path):
     distributed = pytest.importorskip("distributed")
     spec, out, res = local

@@ -29,7 +29,7 @@ import wavlight
 from scenes_util import write_raw_image
 from wavlight.cli.main import main
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEFAULT_SCENE = REPO / "scenes" / "default.toml"
 JSON_KEYS = ("strategy", "spp", "width", "height", "setup_seconds", "render_seconds", "samples_per_second")
 
@@ -773,6 +773,7 @@ def test_other_warnings_keep_exit_code_0(tmp_path):
     assert out.is_file()
 
 
+@pytest.mark.slow
 def test_wavelet_candidates_from_scene_and_flag(tmp_path):
     """[render] wavelet_candidates reaches the strategy; --wavelet-candidates overrides it (--json)."""
     scene = write_scene(tmp_path, scene_text(render="width = 8\nheight = 6\nspp = 2\nstrategy = \"wavelet\"\n"

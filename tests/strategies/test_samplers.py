@@ -2,7 +2,7 @@
 
 Every sampler is checked four ways (after Mitsuba's chi2 tests and pbrt's sampling tests):
   (a) its pdf integrates to one over the sphere (quadrature, convergence checked),
-  (b) a Pearson chi-square test of its samples against the pdf (tests/chi2.py),
+  (b) a Pearson chi-square test of its samples against the pdf (tests/support/chi2.py),
   (c) the pdf returned with a sample equals the pdf evaluated for that direction,
   (d) BRDF weights eval_cos / pdf are finite, non-negative and equal to their closed form.
 

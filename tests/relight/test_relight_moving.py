@@ -30,6 +30,7 @@ def moving(tmp_path_factory, device):
     return folder, scene, tr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("translate", [(0.0, 0.5, 0.0), (0.9, 0.5, -0.5)])
 def test_frames_are_unbiased_against_mis_of_the_moved_scene(moving, translate):
     folder, scene, tr = moving
