@@ -217,6 +217,11 @@ def info():
     except wavlight.WavlightError as e:
         fail(e)
     click.echo(f"(set {cl.DEVICE_ENV}=P:D or a name fragment to choose another)")
+    from wavlight import data
+    try:
+        click.echo(f"data folder: {data.data_dir()} (fetched assets; set {data.DATA_ENV} to choose another)")
+    except wavlight.WavlightError as e:
+        fail(e)
 
 
 from .experiment import experiment  # noqa: E402

@@ -111,7 +111,7 @@ def asset(name: str) -> Asset:
 def _close(name, kind=None) -> str:
     """'close names: a, b' for a misspelt name, else the list of every name (of ``kind``)."""
     known = names(kind)
-    close = difflib.get_close_matches(str(name), known, n=4, cutoff=0.5) if isinstance(name, str) else []
+    close = difflib.get_close_matches(str(name), known, n=4) if isinstance(name, str) else []
     close += [n for n in known if isinstance(name, str) and name and name in n and n not in close]
     return f"close names: {', '.join(close[:4])}" if close else f"known: {', '.join(known)}"
 
@@ -206,6 +206,9 @@ def fetch(a: Asset, *, folder=None, base_url: str | None = None, progress=True) 
     import pooch
     import requests
 
+    logger = pooch.get_logger()   # its "Downloading data from ..." line: the bar says enough
+    level = logger.level
+    logger.setLevel("WARNING")
     try:
         pooch.retrieve(url, known_hash=f"sha256:{a.sha256}", fname=target.name, path=str(target.parent),
                        progressbar=bar or False)
@@ -227,6 +230,7 @@ def fetch(a: Asset, *, folder=None, base_url: str | None = None, progress=True) 
         raise WavlightError(f"{PREFIX}{a.name}: cannot write {target} ({e.strerror or one_line(e)}); "
                             f"set {DATA_ENV} to a folder that can be written") from None
     finally:
+        logger.setLevel(level)
         if progress is True:
             bar.close()
     _verified[str(target)] = _stamp(target)

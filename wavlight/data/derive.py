@@ -49,7 +49,8 @@ def write_exr(file, pixels: np.ndarray) -> None:
     (the same pixels give the same bytes)."""
     import OpenImageIO as oiio
 
-    half = np.asarray(pixels).astype(np.float16)
+    with np.errstate(over="ignore"):
+        half = np.asarray(pixels).astype(np.float16)
     if not np.all(np.isfinite(half)):
         raise WavlightError(f"{file}: values above {HALF_MAX:g} do not fit a half float")
     spec = oiio.ImageSpec(half.shape[1], half.shape[0], half.shape[2], oiio.HALF)
