@@ -61,7 +61,8 @@ class Server:
             def log_message(self, *args):   # quiet
                 pass
 
-        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Handler, directory=str(folder)))
+        handler = functools.partial(Handler, directory=str(folder))
+        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
         self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}"
         self.thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
         self.thread.start()
@@ -363,7 +364,8 @@ def test_scene_names_shipped_assets(tmp_path):
                                      '[[objects]]\nmesh = "data:spot"\n')
     expected = [str(data.path("rooitou_park_512")), str(data.path("spot"))]
     from_toml = wavlight.load_scene(tmp_path / "s.toml")
-    from_dict = wavlight.load_dict({"environment": {"file": "data:rooitou_park_512"}, "objects": [{"mesh": "data:spot"}]})
+    from_dict = wavlight.load_dict({"environment": {"file": "data:rooitou_park_512"},
+                                    "objects": [{"mesh": "data:spot"}]})
     for scene in (from_toml, from_dict):
         assert scene.files == expected
         np.testing.assert_array_equal(scene.environment.pixels, read_image(expected[0]))
@@ -391,7 +393,8 @@ def test_content_hash_covers_the_assets_bytes(mirror, monkeypatch, tmp_path):
                                   r"\(close names: rooitou_park_1k, rooitou_park_512\)$"),
     ("file", "data:spot", r"\[environment\]\.file: data:spot: is a mesh \(meshes/spot.obj\), not an environment map$"),
     ("mesh", "data:teapott", r"\[\[objects\]\]\[0\]\.mesh: data:teapott: unknown asset \(close names: teapot\)$"),
-    ("mesh", "data:potsdamer_platz_512", r"\[\[objects\]\]\[0\]\.mesh: data:potsdamer_platz_512: is an environment map"),
+    ("mesh", "data:potsdamer_platz_512",
+     r"\[\[objects\]\]\[0\]\.mesh: data:potsdamer_platz_512: is an environment map"),
 ])
 def test_a_bad_data_name_is_one_scene_error_line(tmp_path, key, value, expected):
     doc = ({"environment": {"file": value}} if key == "file"
@@ -414,7 +417,8 @@ def test_scene_files_resolves_data_names_without_fetching(tmp_path, monkeypatch)
 
     monkeypatch.setenv(data.DATA_ENV, str(tmp_path / "empty"))
     monkeypatch.setenv(data.URL_ENV, f"http://127.0.0.1:{closed_port()}")
-    (tmp_path / "s.toml").write_text('[environment]\nfile = "data:rooitou_park_512"\n\n[[objects]]\nmesh = "data:bunny"\n')
+    (tmp_path / "s.toml").write_text('[environment]\nfile = "data:rooitou_park_512"\n\n'
+                                     '[[objects]]\nmesh = "data:bunny"\n')
     assert imageio.scene_files(tmp_path / "s.toml")[1:] == [str(data.path("rooitou_park_512")),
                                                             str(tmp_path / "empty" / "meshes" / "bunny.ply")]
 
