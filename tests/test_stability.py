@@ -18,6 +18,7 @@ import wavlight
 from wavlight.cli.main import main
 
 from scenes_util import toml_text
+from wavlight.data import DATA_ENV, URL_ENV
 from wavlight.evaluation import stability
 
 QUICK = dict(size=(12, 12), spp=32, repetitions=3)
@@ -256,8 +257,8 @@ def test_real_map_cases_run_offline_on_shipped_maps(tmp_path, monkeypatch):
     with socket.socket() as sock:   # a port that was free a moment ago: nothing listens there
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    monkeypatch.setenv("WAVLIGHT_DATA", str(tmp_path / "empty"))
-    monkeypatch.setenv("WAVLIGHT_DATA_URL", f"http://127.0.0.1:{port}")
+    monkeypatch.setenv(DATA_ENV, str(tmp_path / "empty"))
+    monkeypatch.setenv(URL_ENV, f"http://127.0.0.1:{port}")
     res = stability.run_stability(tmp_path / "out", cases=["sun_rooitou", "black_by_lamps"], strategies=["mis"],
                                   reference_spp=64, **QUICK)
     assert [ci["status"] for ci in res["cases"]] == ["ok", "ok"], [ci["note"] for ci in res["cases"]]
