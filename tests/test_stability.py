@@ -100,7 +100,7 @@ def test_all_black_map_gives_exactly_zero(quick, tmp_path):
     cells = [c for c in results["cells"] if c["case"] == "all_black"]
     assert len(cells) == len(wavlight.STRATEGIES) and all(c["exact_zero"] is True for c in cells)
     # and the command line refuses the same scene with one line and exit code 2
-    built = stability.CASES["all_black"].build(str(tmp_path), 8, 8, stability.DATA_DIR)
+    built = stability.CASES["all_black"].build(str(tmp_path), 8, 8)
     path = tmp_path / "scene.toml"
     path.write_text(toml_text(built.scene))
     r = CliRunner().invoke(main, ["render", str(path), "-o", str(tmp_path / "x.exr"), "--quiet"])
@@ -115,7 +115,7 @@ def test_room_slit_is_closed_but_for_its_slit(tmp_path):
     from wavlight.camera import camera_rays
     from wavlight.raytrace import RayTracer
 
-    built = stability.CASES["room_slit"].build(str(tmp_path), 16, 16, stability.DATA_DIR)
+    built = stability.CASES["room_slit"].build(str(tmp_path), 16, 16)
     scene = wavlight.load_dict(built.scene, base_dir=built.folder)
     tracer = RayTracer(scene.vertices, scene.faces)
     py, px = np.mgrid[0:16, 0:16]
