@@ -36,6 +36,7 @@ from wavlight.raytrace import RayTracer
 from wavlight import occlusion
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import needs  # noqa: E402
 import relmse as relmse_bench  # noqa: E402  (its scenes)
 
 
@@ -62,8 +63,7 @@ def main():
     if args.output is None:
         args.output = result_path("budget-no-floor" if args.no_floor else "budget")
     prov = provenance()
-    if not os.path.isdir(relmse_bench.DATA):
-        sys.exit(f"budget.py: needs the shared data folder at {relmse_bench.DATA}")
+    needs.fetch("budget.py", *relmse_bench.MAPS, "bunny")
     configs = [tuple(int(x) for x in c.split("x")) for c in args.configs.split(",")]
     dicts = {k: d for k, d in relmse_bench.scenes() if "lambert" not in k}
     if args.no_floor:

@@ -17,7 +17,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 SCENES = {"default": os.path.join(ROOT, "scenes", "default.toml"),
-          "bunny_ggx": os.path.join(ROOT, "scenes", "bunny_ggx.toml")}
+          "bunny_ggx": os.path.join(HERE, "scenes", "bunny_ggx.toml")}   # fetched data: wavlight.data
 STRATEGIES = ("uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet", "sir", "structured")
 VARIANTS = {"wavelet-m0": dict(strategy="wavelet", wavelet_candidates=0),
             "wavelet-16x2": dict(strategy="wavelet", wavelet_candidates=16, wavelet_slots=2),

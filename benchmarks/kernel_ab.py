@@ -52,8 +52,7 @@ def main():
     ap.add_argument("--against", required=True)
     ap.add_argument("--levels", type=int, default=10)
     ap.add_argument("--repeat", type=int, default=12)
-    ap.add_argument("--env", default=os.path.join(HERE, "..", "..", "shared", "data", "envmaps",
-                                                  "rooitou_park_1k.hdr"))
+    ap.add_argument("--env", default="data:rooitou_park_1k", help="a map file or data:NAME (wavlight.data)")
     from provenance import add_output_argument, provenance, write_result
 
     add_output_argument(ap, "kernel_ab")
@@ -86,7 +85,9 @@ def main():
         opts = [f"-D{k}={v}" for k, v in sorted(defines.items())] + [f"-DLANES={cl.LANES}"]
         return pcl.Program(cl.runtime().context, load(name, set())).build(options=opts)
 
-    env = Environment(read_image(args.env))
+    from wavlight.data import resolve
+
+    env = Environment(read_image(resolve(args.env, kind="environment map")))
     q = cl.thread_queue()
     n = 1 << 21
     items = cl.items(n, cl.LANES)

@@ -14,7 +14,7 @@ Usage:
                                       [--strategy mis|light|bsdf] [--out IMAGE.exr] [-o FILE]
 Command-line values override ``[render]``; ``seed`` comes from ``[render]`` (default 0).
 The figures in benchmarks/results/mitsuba_peer.json come from
-    python benchmarks/mitsuba_peer.py scenes/bunny_ggx.toml --spp 16 --width 512 --height 512 --strategy mis
+    python benchmarks/mitsuba_peer.py benchmarks/scenes/bunny_ggx.toml --spp 16 --width 512 --height 512 --strategy mis
 
 Setup (Debian 12, Python 3.11):
     apt-get install -y libllvm19 && pip install mitsuba     # mitsuba 3.9.1, drjit 1.5.0

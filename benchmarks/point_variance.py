@@ -57,7 +57,6 @@ import sys
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data"))
 MATERIALS = {"phong50": ("phong", 50.0), "phong200": ("phong", 200.0), "phong1000": ("phong", 1000.0),
              "ggx0.05": ("ggx", 0.05), "ggx0.2": ("ggx", 0.2), "lambert": ("lambert", None)}
 
@@ -512,13 +511,13 @@ def main():
     ap.add_argument("--points", type=int, default=128)
     ap.add_argument("--samples", type=int, default=512)
     sys.path.insert(0, HERE)
+    import needs
     from provenance import add_output_argument, provenance, write_result
 
     add_output_argument(ap, "point_variance")
     args = ap.parse_args()
     prov = provenance()
-    if not os.path.isdir(DATA):
-        sys.exit(f"point_variance: {DATA} not found (../shared/data beside the checkout)")
+    needs.fetch("point_variance", *args.maps.split(","))
 
     import wavlight
     from wavlight import strategies
@@ -532,7 +531,7 @@ def main():
             key = {"phong": "exponent", "ggx": "roughness"}.get(kind)
             mat = {"type": kind, "albedo": [0.9, 0.9, 0.9], **({key: param} if key else {})}
             scene = wavlight.load_dict({
-                "environment": {"file": f"{DATA}/envmaps/{env_name}.hdr"},
+                "environment": {"file": f"data:{env_name}"},
                 "camera": {"eye": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0], "fov_y": 32.0},
                 "objects": [{"shape": "sphere", "center": [0.0, 0.0, 0.0], "radius": 1.0, "material": "m"}],
                 "materials": {"m": mat}})

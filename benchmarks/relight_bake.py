@@ -1,4 +1,4 @@
-"""The bake's speed: is it bound by its shadow rays? The bunny of scenes/bunny_ggx.toml (under
+"""The bake's speed: is it bound by its shadow rays? The bunny of benchmarks/scenes/bunny_ggx.toml (under
 rooitou_park_1k) at 512 x 512, 64 x 64 texels (levels 6), K = 256, priority "area" (given, so no
 pilot bake runs), 16 camera samples.
 

@@ -5,12 +5,16 @@ each script's result (:func:`parser`, :func:`parse`, :func:`begin`, :func:`finis
 
 Scenes (dicts of the scene-file structure, :func:`wavlight.load_dict`):
 
-- ``bunny_ggx/<map>``: scenes/bunny_ggx.toml (ggx 0.2 gold bunny on a lambert 0.5 floor) under
+- ``bunny_ggx/<map>``: benchmarks/scenes/bunny_ggx.toml (ggx 0.2 gold bunny on a lambert 0.5 floor) under
   ``<map>`` (st_fagans_interior_1k, potsdamer_platz_1k, rooitou_park_1k);
 - ``bunny_lambert/rooitou_park_1k``: the same bunny in lambert, albedo 0.7, on its floor under
   the park's sun (a diffuse object with hard shadows);
 - ``sphere_ggx/rooitou_park_1k``: a ggx 0.2 gold sphere of radius 0.5 resting on the same floor,
   same camera, under the sun.
+
+Maps and the bunny are named as ``data:NAME`` (:mod:`wavlight.data`): fetched on first use, or
+found in the folder that ``WAVLIGHT_DATA`` names; :func:`begin` fetches every one of
+:data:`ASSETS` before anything is timed.
 
 A frame of a bake at rotation r (or under another map) is compared with ``mis`` of the same dict
 with ``environment.rotate_y = r`` (or ``environment.file`` swapped): :func:`lit`.
@@ -36,8 +40,11 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-DATA = os.path.normpath(os.path.join(ROOT, "..", "shared", "data"))
 CACHE = os.environ.get("RELIGHT_BENCH_CACHE", "/tmp/relight-bench")
+#: the wavlight.data assets the relight benchmarks read (their scenes' maps, relight_error.py's
+#: other maps, the bunny)
+ASSETS = ("bunny", "rooitou_park_1k", "st_fagans_interior_1k", "potsdamer_platz_1k", "empty_warehouse_01_1k",
+          "kiara_1_dawn_1k", "immenstadter_horn_1k")
 EPS = 1e-2   # wavlight.evaluation.metrics.EPS
 
 #: the sources a bake file depends on
@@ -82,17 +89,15 @@ def worktree_state() -> dict:
 
 # ----------------------------------------------------------------------------- scenes
 def envmap(name: str) -> str:
-    return os.path.join(DATA, "envmaps", name if name.endswith(".hdr") else f"{name}.hdr")
+    """The map ``name`` (a wavlight.data asset, e.g. ``rooitou_park_1k``) as a scene names it."""
+    return f"data:{name.removesuffix('.hdr')}"
 
 
 def bunny_ggx(env: str) -> dict:
-    with open(os.path.join(ROOT, "scenes", "bunny_ggx.toml"), "rb") as fh:
+    with open(os.path.join(HERE, "scenes", "bunny_ggx.toml"), "rb") as fh:
         d = tomllib.load(fh)
     d["environment"]["file"] = envmap(env)
     d["environment"]["rotate_y"] = 0.0
-    for obj in d["objects"]:
-        if "mesh" in obj:
-            obj["mesh"] = os.path.join(DATA, "meshes", os.path.basename(obj["mesh"]))
     return d
 
 
@@ -130,7 +135,7 @@ def lit(d: dict, rotate_y: float | None = None, env: str | None = None) -> dict:
 def load(d: dict):
     import wavlight
 
-    return wavlight.load_dict(d, base_dir=os.path.join(ROOT, "scenes"))
+    return wavlight.load_dict(d, base_dir=os.path.join(HERE, "scenes"))
 
 
 def _key(*parts) -> str:
@@ -310,10 +315,12 @@ def parse(ap, name: str, default_minutes: float):
 
 
 def begin(args) -> dict:
-    """The wait for a quiet machine (--wait-load, --wait-minutes), then the run's provenance and
-    the library's state: what :func:`finish` records."""
+    """The example data fetched (benchmarks/needs.py), the wait for a quiet machine (--wait-load,
+    --wait-minutes), then the run's provenance and the library's state: what :func:`finish` records."""
+    import needs
     from provenance import provenance
 
+    needs.fetch(os.path.basename(sys.argv[0]), *ASSETS)
     wait = wait_for_quiet(args.wait_load, 60, args.wait_minutes) if args.wait_minutes > 0 else None
     return {"provenance": provenance(), "wait": wait, "library": worktree_state()}
 

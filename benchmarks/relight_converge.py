@@ -1,7 +1,7 @@
 """The unbiased relit frame (wavlight.relight.converge) against `mis` and `wavelet` on the same
 frames: relMSE against spp and against time, and the pixel-footprint floor.
 
-Scenes (benchmarks/relight_common.py), all shadowed: the bunny of scenes/bunny_ggx.toml (ggx 0.2
+Scenes (benchmarks/relight_common.py), all shadowed: the bunny of benchmarks/scenes/bunny_ggx.toml (ggx 0.2
 on a lambert floor) under rooitou_park_1k (the sun) and under potsdamer_platz_1k, and a ggx 0.2
 sphere on the same floor under rooitou_park_1k. Each is baked once at its map's own rotation (the
 automatic choice of texel levels, terms and priority, --bake-spp camera samples; cached in

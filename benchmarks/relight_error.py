@@ -1,6 +1,6 @@
 """Relit frames: speed against accuracy, against converged `mis` renders of the same lighting.
 
-Scenes (benchmarks/relight_common.py): the bunny of scenes/bunny_ggx.toml (ggx 0.2 on a lambert
+Scenes (benchmarks/relight_common.py): the bunny of benchmarks/scenes/bunny_ggx.toml (ggx 0.2 on a lambert
 floor) under st_fagans_interior_1k and under potsdamer_platz_1k, and the same bunny in lambert
 (albedo 0.7) on its floor under rooitou_park_1k (a diffuse object with hard shadows from the
 sun). Each scene is baked at its map's own rotation (0) with texel levels n in --levels and the

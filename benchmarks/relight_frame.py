@@ -1,4 +1,4 @@
-"""A relit frame's time at 512 x 512: the bunny of scenes/bunny_ggx.toml baked at 64 x 64 texels
+"""A relit frame's time at 512 x 512: the bunny of benchmarks/scenes/bunny_ggx.toml baked at 64 x 64 texels
 (levels 6; the bake of benchmarks/relight_bake.py, from the cache in /tmp/relight-bench/, made
 here if it is not there), colour, for K in --terms: --warmup frames, then --frames frames at
 rotations 7.3 degrees apart (no two alike), median of each part of Transfer.frame_timed:

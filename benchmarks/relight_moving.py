@@ -1,6 +1,7 @@
 """Frames in which one object moves (wavlight.relight.moving, a bake with --vary object): the
-Stanford bunny of scenes/bunny_ggx.toml (ggx 0.2 gold) moved and turned over its lambert floor
-under rooitou_park_1k (a small, very bright sun: hard shadows), at SIZE x SIZE (default 256).
+Stanford bunny of benchmarks/scenes/bunny_ggx.toml (ggx 0.2 gold) moved and turned over its lambert
+floor under rooitou_park_1k (a small, very bright sun: hard shadows), at SIZE x SIZE (default 256).
+Both are fetched data (wavlight.data): downloaded on first use, or read from WAVLIGHT_DATA.
 
 Measured:
 
@@ -51,12 +52,12 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
+import needs  # noqa: E402
 from provenance import add_output_argument, provenance, write_result  # noqa: E402
 
 ROOT = os.path.dirname(HERE)
-DATA = os.path.normpath(os.path.join(ROOT, "..", "shared", "data"))
-SCENE = os.path.join(ROOT, "scenes", "bunny_ggx.toml")
-ENVMAP = os.path.join(DATA, "envmaps", "rooitou_park_1k.hdr")
+SCENE = os.path.join(HERE, "scenes", "bunny_ggx.toml")
+ENVMAP = "rooitou_park_1k"     # a wavlight.data asset
 TARGET_FPS = 10.0
 #: places of the bunny over its floor: translation (x, 0, z) and degrees about +Y
 PLACES = [((0.0, 0.0, 0.0), 0.0), ((0.6, 0.0, 0.4), 45.0), ((-0.7, 0.0, -0.5), 120.0), ((0.3, 0.0, -1.0), 250.0)]
@@ -64,13 +65,13 @@ PLACES = [((0.0, 0.0, 0.0), 0.0), ((0.6, 0.0, 0.4), 45.0), ((-0.7, 0.0, -0.5), 1
 
 # ----------------------------------------------------------------------------- the scene
 def bunny_dict(translate=None, rotate_y=None) -> dict:
-    """scenes/bunny_ggx.toml as a dict under rooitou_park_1k, the bunny named "bunny" (and moved)."""
+    """benchmarks/scenes/bunny_ggx.toml as a dict under rooitou_park_1k, the bunny named "bunny"
+    (and moved)."""
     with open(SCENE, "rb") as fh:
         d = tomllib.load(fh)
-    d["environment"]["file"] = ENVMAP
+    d["environment"]["file"] = f"data:{ENVMAP}"
     d["environment"]["rotate_y"] = 0.0
     bunny = d["objects"][0]
-    bunny["mesh"] = os.path.join(DATA, "meshes", os.path.basename(bunny["mesh"]))
     bunny["name"] = "bunny"
     if translate is not None:
         bunny["translate"] = [float(x) for x in translate]
@@ -250,8 +251,7 @@ def main():
     for name in ("size", "bake_spp", "static_spp", "preview_spp", "placements", "frames", "spp", "ref_spp"):
         if getattr(args, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be at least 1")
-    if not os.path.isfile(ENVMAP):
-        sys.exit(f"relight_moving: {ENVMAP}: not there (the shared data beside the checkout)")
+    needs.fetch("relight_moving", ENVMAP, "bunny")
     args.placements = min(args.placements, len(PLACES))
     args.error_placements = min(max(args.error_placements, 0), len(PLACES) - 1)
     waited = wait_for_quiet(args.wait_load, args.wait_minutes) if args.wait_minutes > 0 else None
@@ -272,7 +272,7 @@ def main():
     transfer = wavlight.bake(scene, bake_path, width=size, height=size, spp=args.bake_spp, levels=args.levels,
                              terms=64, priority="area", vary="object", object="bunny", static_spp=args.static_spp)
     bake_wall = time.perf_counter() - t0
-    result = {"scene": "scenes/bunny_ggx.toml, bunny moved over its floor", "environment": os.path.basename(ENVMAP),
+    result = {"scene": "benchmarks/scenes/bunny_ggx.toml, bunny moved over its floor", "environment": ENVMAP,
               "width": size, "height": size, "target_fps": TARGET_FPS, "quick": args.quick, "waited": waited,
               "bake": {"wall_seconds": round(bake_wall, 2), "file_bytes": transfer.file_bytes,
                        "file_megabytes": round(transfer.file_bytes / 1e6, 2), "spp": args.bake_spp,

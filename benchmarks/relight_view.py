@@ -1,4 +1,4 @@
-"""Frames from a moving camera (wavlight.relight.view) on the bunny of scenes/bunny_ggx.toml and
+"""Frames from a moving camera (wavlight.relight.view) on the bunny of benchmarks/scenes/bunny_ggx.toml and
 its rough variants: per scene, the view bake at the automatic choice (levels from the pilot, the
 default cache) and per frame mode its approximate frame's relative L2 error against a converged
 ``mis`` render from the same camera, split into bunny / floor / background, raw and with the

@@ -3,7 +3,8 @@
 Scenes: a sphere and the bunny (on a floor), each in ggx alpha 0.05, ggx alpha 0.2
 and phong n = 200, plus a lambert sphere (the case where product sampling has
 little to gain), under rooitou_park_1k (tiny sun), st_fagans_interior_1k (many
-small lights) and potsdamer_platz_1k (smooth overcast). For every scene and
+small lights) and potsdamer_platz_1k (smooth overcast): fetched data (wavlight.data,
+downloaded on first use, or read from WAVLIGHT_DATA). For every scene and
 strategy (wavelet, mis, mis_comp, light, bsdf) and spp in --spp, --seeds renders are
 made; the reference is `mis` at --ref-spp with its own seed. Ratios: wavelet over
 mis, wavelet over mis_comp (mis with MIS compensation, the stronger baseline, as
@@ -57,8 +58,7 @@ import numpy as np
 from wavlight.evaluation.metrics import relmse
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-DATA = os.path.normpath(os.path.join(HERE, "..", "..", "shared", "data"))
-MAPS = ["rooitou_park_1k", "st_fagans_interior_1k", "potsdamer_platz_1k"]
+MAPS = ["rooitou_park_1k", "st_fagans_interior_1k", "potsdamer_platz_1k"]   # wavlight.data assets
 MATERIALS = {"ggx0.05": {"type": "ggx", "roughness": 0.05}, "ggx0.2": {"type": "ggx", "roughness": 0.2},
              "phong200": {"type": "phong", "exponent": 200.0}, "lambert": {"type": "lambert"}}
 STRATEGIES = ["wavelet", "mis", "mis_comp", "light", "bsdf"]
@@ -67,7 +67,7 @@ SPHERE = {"camera": {"eye": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0], "up": [0
           "objects": [{"shape": "sphere", "center": [0.0, 0.0, 0.0], "radius": 1.0, "material": "m"}]}
 FLOOR = {"shape": "quad", "center": [0.0, 0.33, 0.0], "normal": [0.0, 1.0, 0.0], "size": 6.0, "material": "floor"}
 BUNNY = {"camera": {"eye": [0.0, 1.4, 4.2], "target": [-0.15, 1.0, 0.0], "up": [0.0, 1.0, 0.0], "fov_y": 30.0},
-         "objects": [{"mesh": f"{DATA}/meshes/bunny.ply", "scale": 10.0, "material": "m"}, FLOOR],
+         "objects": [{"mesh": "data:bunny", "scale": 10.0, "material": "m"}, FLOOR],
          "materials": {"floor": {"type": "lambert", "albedo": [0.5, 0.5, 0.5]}}}
 
 
@@ -80,7 +80,7 @@ def scenes():
                 continue
             for env in MAPS:
                 d = copy.deepcopy(body)
-                d["environment"] = {"file": f"{DATA}/envmaps/{env}.hdr"}
+                d["environment"] = {"file": f"data:{env}"}
                 d.setdefault("materials", {})["m"] = {**mat_body, "albedo": [0.9, 0.9, 0.9]}
                 yield f"{geometry}/{mat}/{env}", d
 
@@ -126,6 +126,7 @@ def main():
     ap.add_argument("--slots", type=int, default=None, choices=(2, 4),
                     help="the wavelet strategy's directions per sample (default: chosen from the scene)")
     sys.path.insert(0, HERE)
+    import needs
     from provenance import provenance, result_path, write_result
 
     ap.add_argument("-o", "--output", "--out", dest="output", default=None, metavar="FILE",
@@ -134,8 +135,7 @@ def main():
     args = ap.parse_args()
     if args.output is None:
         args.output = result_path("relmse-floor" if args.floor > 1 else "relmse")
-    if not os.path.isdir(DATA):
-        sys.exit(f"relmse: {DATA} not found (../shared/data beside the checkout)")
+    needs.fetch("relmse", *MAPS, "bunny")
 
     prov = provenance()
     import wavlight

@@ -11,7 +11,7 @@ resolution) and reports the ratio. The same object, with the run's provenance
 (benchmarks/provenance.py: commit, CPU, OpenCL platform, command), goes to the result
 file, benchmarks/results/render_bench.json unless -o names another ("-": none).
 
-    python benchmarks/render_bench.py [--scene scenes/bunny_ggx.toml] [--spp 16] [--repeat 2]
+    python benchmarks/render_bench.py [--scene benchmarks/scenes/bunny_ggx.toml] [--spp 16] [--repeat 2]
                                       [--strategies mis,light,bsdf] [--mitsuba] [-o FILE]
 
 The figures in benchmarks/results/render_bench.json come from
@@ -67,7 +67,7 @@ def embree_alone(scene, args):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--scene", default=os.path.join(HERE, "..", "scenes", "bunny_ggx.toml"))
+    ap.add_argument("--scene", default=os.path.join(HERE, "scenes", "bunny_ggx.toml"))
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--width", type=int, default=512)
     ap.add_argument("--height", type=int, default=512)

@@ -21,7 +21,7 @@ and outputs ("with_copies") and without. The same object, with the run's provena
 benchmarks/results/sample_bench.json unless -o names another ("-": none). The figures there
 come from the default command:
 
-    python benchmarks/sample_bench.py [--env ../shared/data/envmaps/rooitou_park_1k.hdr] [-o FILE]
+    python benchmarks/sample_bench.py [--env data:rooitou_park_1k] [-o FILE]
 """
 from __future__ import annotations
 
@@ -32,7 +32,6 @@ import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
 
 
 def random_shading_points(rng, n):
@@ -102,8 +101,7 @@ class Rounds:
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--env", default=os.path.join(HERE, "..", "..", "shared", "data", "envmaps",
-                                                  "rooitou_park_1k.hdr"))
+    ap.add_argument("--env", default="data:rooitou_park_1k", help="a map file or data:NAME (wavlight.data)")
     ap.add_argument("--count", type=int, default=1 << 21)
     from provenance import add_output_argument, provenance, write_result
 
@@ -116,7 +114,9 @@ def main():
     from wavlight.haar.tree import HaarTree
     from wavlight.envmap import Environment, read_image
 
-    env = Environment(read_image(args.env), name=args.env)
+    from wavlight.data import resolve
+
+    env = Environment(read_image(resolve(args.env, kind="environment map")), name=args.env)
     rt = cl.runtime()
     q = cl.thread_queue()
     n = args.count

@@ -52,7 +52,7 @@ sys.path.insert(0, HERE)
 from provenance import provenance, result_path, write_result  # noqa: E402
 
 ROOT = os.path.dirname(HERE)
-SCENE = os.path.join(ROOT, "scenes", "bunny_ggx.toml")
+SCENE = os.path.join(HERE, "scenes", "bunny_ggx.toml")
 CACHE = "/tmp/wavlight-viewer-bench"
 
 #: the measurement both scripts share: after ``warmup`` seconds, the frames drawn for ``seconds``,
@@ -279,12 +279,12 @@ def object_baked(width, height, levels):
     import wavlight
     from wavlight.errors import WavlightError
 
-    if not os.path.isfile(relight_moving.ENVMAP):
-        sys.exit(f"{relight_moving.ENVMAP}: not there (the shared data beside the checkout)")
+    relight_moving.needs.fetch("viewer_fps", relight_moving.ENVMAP, "bunny")
     scene = relight_moving.load(relight_moving.bunny_dict())
     os.makedirs(CACHE, exist_ok=True)
     path = os.path.join(CACHE, f"bunny-object-{width}x{height}-n{levels}-s{OBJECT_STATIC_SPP}.wlt")
-    info = {"scene": "scenes/bunny_ggx.toml's bunny under rooitou_park_1k (benchmarks/relight_moving.py), moved",
+    info = {"scene": "benchmarks/scenes/bunny_ggx.toml's bunny under rooitou_park_1k (benchmarks/relight_moving.py), "
+                     "moved",
             "static_spp": OBJECT_STATIC_SPP, "bake_spp": OBJECT_BAKE_SPP}
     if os.path.exists(path):
         try:

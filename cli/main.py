@@ -116,7 +116,9 @@ def _strategy_options(command):
 
 
 @main.command()
-@click.argument("scene_file", metavar="SCENE", type=click.Path(dir_okay=False))
+@click.argument("scene_file", metavar="[SCENE]", required=False, type=click.Path(dir_okay=False))
+@click.option("--demo", default=None, metavar="NAME",
+              help="Render the shipped scene NAME instead of a file (`wavlight scenes` lists them).")
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
               "Default: the scene's name with .png.")
 @click.option("--spp", type=int, default=None, help="Samples per pixel (overrides the scene).")
@@ -130,8 +132,8 @@ def _strategy_options(command):
               help="Also write each pixel's standard error of the mean (linear: .exr .hdr .pfm; needs spp >= 2).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def render(scene_file, output, spp, strategy, width, height, seed, stderr_out, as_json, quiet, **options):
-    """Render SCENE (a TOML scene file) to an image."""
+def render(scene_file, demo, output, spp, strategy, width, height, seed, stderr_out, as_json, quiet, **options):
+    """Render SCENE (a TOML scene file), or the shipped scene --demo NAME, to an image."""
     import time
 
     import numpy as np
@@ -140,6 +142,15 @@ def render(scene_file, output, spp, strategy, width, height, seed, stderr_out, a
     from wavlight.imageio import FORMATS, LINEAR
 
     t0 = time.perf_counter()
+    if (scene_file is None) == (demo is None):
+        fail("give a SCENE file or --demo NAME, not both" if demo is not None
+             else "give a SCENE file, or --demo NAME for a shipped scene (`wavlight scenes` lists them)")
+    if demo is not None:
+        from wavlight import demos
+        try:
+            scene_file = str(demos.path(demo))
+        except wavlight.WavlightError as e:
+            fail(e)
     if output is None:
         output = os.path.splitext(os.path.basename(scene_file))[0] + ".png"
     check_output(output, FORMATS)
@@ -193,6 +204,17 @@ def render(scene_file, output, spp, strategy, width, height, seed, stderr_out, a
 
 
 @main.command()
+def scenes():
+    """List the shipped scenes (wavlight render --demo NAME renders one)."""
+    from wavlight import demos
+
+    described = demos.describe()
+    width = max(map(len, described), default=0)
+    for name, text in described.items():
+        click.echo(f"{name:<{width}}  {text}")
+
+
+@main.command()
 def info():
     """Versions, the OpenCL platforms and devices, the one in use and why."""
     import numpy
@@ -218,6 +240,11 @@ def info():
     except wavlight.WavlightError as e:
         fail(e)
     click.echo(f"(set {cl.DEVICE_ENV}=P:D or a name fragment to choose another)")
+    from wavlight import data
+    try:
+        click.echo(f"data folder: {data.data_dir()} (fetched assets; set {data.DATA_ENV} to choose another)")
+    except wavlight.WavlightError as e:
+        fail(e)
 
 
 from .experiment import experiment  # noqa: E402

@@ -98,7 +98,8 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
 
 @click.command()
 @click.argument("bake_file", metavar="PATH", type=click.Path(dir_okay=False))
-@click.option("--env", "env_file", default=None, metavar="FILE", help="Another environment map (default: the baked one).")
+@click.option("--env", "env_file", default=None, metavar="FILE",
+              help="Another environment map: a file or data:NAME, a map of wavlight.data (default: the baked one).")
 @click.option("--rotate-y", type=float, default=None,
               help="Rotation of the map about +Y, degrees, absolute as the scene's rotate_y (default: the scene's).")
 @click.option("--scale", type=click.FloatRange(0.0, 1e30), default=1.0, show_default=True, help="Radiance scale.")
@@ -204,7 +205,8 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
             if output is None:
                 output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
             check_output(output, FORMATS)
-            refuse_inputs(output, [bake_file, env_file])
+            from wavlight.data import resolve
+            refuse_inputs(output, [bake_file, None if env_file is None else resolve(env_file, download=False)])
             times = []
             if spp is not None:
                 from wavlight.relight.converge import converge

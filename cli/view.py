@@ -26,7 +26,8 @@ from .common import fail
 @click.command()
 @click.argument("bake_file", metavar="PATH", type=click.Path(dir_okay=False))
 @click.option("--env", "env_files", multiple=True, metavar="FILE",
-              help="A map to choose from in the page (repeatable; the baked map is always the first).")
+              help="A map to choose from in the page: a file or data:NAME, a map of wavlight.data (repeatable; "
+                   "the baked map is always the first).")
 @click.option("--port", type=click.IntRange(0, 65535), default=0, show_default=True,
               help="The port on 127.0.0.1 (0: a free one).")
 @click.option("--scene", "scene_file", default=None, metavar="FILE",

@@ -101,14 +101,15 @@ def test_the_library_never_imports_the_wavlight_package_itself():
 
 
 def test_installed_top_level_names(tmp_path):
-    """pip puts only the ``wavlight`` package into site-packages: cli/ and kernels/ install inside it."""
+    """pip puts only the ``wavlight`` package into site-packages: cli/, kernels/ and scenes/ install
+    inside it."""
     with open(ROOT / "pyproject.toml", "rb") as fh:
         tool = tomllib.load(fh)["tool"]["setuptools"]
     assert all(p == "wavlight" or p.startswith("wavlight.") for p in tool["packages"])
-    assert set(tool["package-dir"]) == {"wavlight.cli", "wavlight.kernels"}
+    assert set(tool["package-dir"]) == {"wavlight.cli", "wavlight.kernels", "wavlight.scenes"}
     # outside the checkout (no current folder on sys.path): no `cli` of ours, but wavlight.cli
     probe = ("import importlib.util as u; s = u.find_spec('cli'); print(s.origin if s else None); "
-             "import wavlight.cli.main, wavlight.kernels; print(wavlight.cli.main.__name__)")
+             "import wavlight.cli.main, wavlight.kernels, wavlight.scenes; print(wavlight.cli.main.__name__)")
     out = subprocess.run([sys.executable, "-c", probe], cwd=tmp_path, capture_output=True, text=True, check=True)
     origin, name = out.stdout.split()
     assert origin == "None" or not origin.startswith(str(ROOT)), origin

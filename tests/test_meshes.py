@@ -1,25 +1,26 @@
 """wavlight/meshes.py: the PLY reader against trimesh, its fallback, and the icosphere."""
-from pathlib import Path
-
 import numpy as np
 import pytest
 import trimesh
 
-from wavlight import meshes
+from wavlight import data, meshes
 from wavlight.errors import SceneError
 from wavlight.scene import load_scene
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 
-
-@pytest.mark.parametrize("name", ["bunny.ply", "dragon_100k.ply"])   # ASCII and binary little-endian
-def test_read_ply_matches_trimesh_on_real_meshes(name):
-    path = DATA / name
-    if not path.exists():
-        pytest.skip(f"{path} not present")
+@pytest.mark.parametrize("encoding", ["ascii", "binary"])
+def test_read_ply_matches_trimesh_on_a_real_mesh(tmp_path, encoding):
+    """The shipped Spot (wavlight.data, 5856 triangles) written as a PLY by trimesh's own
+    exporter, ASCII and binary, with per-vertex normals: read_ply gives trimesh's vertices and
+    faces exactly."""
+    v, f = meshes.read_obj(str(data.path("spot")))
+    path = tmp_path / f"spot-{encoding}.ply"
+    mesh = trimesh.Trimesh(v, f, process=False)
+    mesh.vertex_normals   # computed, so that the file carries nx ny nz beside x y z
+    path.write_bytes(mesh.export(file_type="ply", encoding=encoding))
     got = meshes.read_ply(str(path))
     ref = trimesh.load(str(path), force="mesh", process=False)
-    assert got is not None
+    assert got is not None and len(got[1]) == 5856
     np.testing.assert_allclose(got[0], ref.vertices, rtol=0, atol=0)
     np.testing.assert_array_equal(got[1], ref.faces)
 

@@ -9,7 +9,9 @@ Core modules (scene, envmap, bsdfs, warp, camera, raytrace, integrator, shading,
 the families are packages: :mod:`wavlight.strategies` (direction sampling),
 :mod:`wavlight.haar` (transform, sparse sets, products, pyramids, sampling trees) and
 :mod:`wavlight.evaluation` (metrics, experiments, the stability suite, peer renderers) and
-:mod:`wavlight.relight` (dynamic lighting from precomputed transfer: bake, frames, viewer).
+:mod:`wavlight.relight` (dynamic lighting from precomputed transfer: bake, frames, viewer);
+:mod:`wavlight.data` names the example data (``data:NAME`` in scenes) and :mod:`wavlight.demos`
+the example scenes that ship with wavlight.
 """
 from .errors import ArgumentError, SanitisedInputWarning, SceneError, WavlightError
 from .imageio import save_image
@@ -25,7 +27,7 @@ __all__ = ["load_scene", "load_dict", "render", "bake", "Transfer", "render_full
 
 #: Subpackages and modules reachable as attributes (wavlight.evaluation.run_experiment, ...) without
 #: importing them here: the evaluation package pulls in matplotlib, which costs a second at start-up.
-_LAZY = ("bsdfs", "envmap", "evaluation", "haar", "sampler", "strategies", "warp")
+_LAZY = ("bsdfs", "data", "demos", "envmap", "evaluation", "haar", "sampler", "strategies", "warp")
 
 
 def __getattr__(name):

@@ -126,7 +126,7 @@ def same_file(a, b) -> bool:
 
 def scene_files(scene_path) -> list:
     """The files a scene file reads: itself, its environment map and its meshes (absolute paths,
-    relative ones resolved against the scene's folder as load_scene does). For a scene that
+    relative ones resolved against the scene's folder and ``data:`` names as load_scene does). For a scene that
     load_scene accepted; anything unreadable is skipped (a Scene built in Python: [])."""
     import tomllib
 
@@ -139,14 +139,19 @@ def scene_files(scene_path) -> list:
             doc = tomllib.load(fh)
     except (OSError, ValueError, RecursionError):
         return files
+    from .data import resolve
+
     base = os.path.dirname(scene_path)
     env = doc.get("environment")
-    if isinstance(env, dict) and isinstance(env.get("file"), str):
-        files.append(os.path.join(base, env["file"]))
+    named = [env.get("file")] if isinstance(env, dict) else []
     objects = doc.get("objects")
-    for o in objects if isinstance(objects, list) else []:
-        if isinstance(o, dict) and isinstance(o.get("mesh"), str):
-            files.append(os.path.join(base, o["mesh"]))
+    named += [o.get("mesh") for o in (objects if isinstance(objects, list) else []) if isinstance(o, dict)]
+    for name in named:
+        if isinstance(name, str):
+            try:   # a "data:NAME" asset where it is, or would be, without fetching it
+                files.append(resolve(name, base, download=False))
+            except WavlightError:
+                pass
     return files
 
 

@@ -6,6 +6,9 @@ Every key of the scene format is accepted as written there. wavlight adds:
   (:func:`wavlight.envmap.procedural_sky`) with optional ``sun_elevation``,
   ``sun_azimuth`` (degrees, elevation in [-90, 90]; azimuth from -Z towards +X), ``sun_radius`` (degrees, at most 90,
   default 0.75) and ``sun_radiance`` (default 2e4). ``scale`` and ``rotate_y`` apply.
+- ``[environment] file`` and ``[[objects]] mesh`` may name an asset of :mod:`wavlight.data` as
+  ``"data:NAME"`` (a shipped file, or one fetched on first use); the Scene's ``files`` and
+  ``content_hash`` then hold the asset's file as for any other.
 - ``[[objects]]`` without ``material`` get a grey lambert (albedo 0.5).
 - ``[render]`` takes every strategy option and the sampler by its key (``wavelet_candidates``,
   ``light_levels``, ``sampler``, ...): the table :data:`wavlight.strategies.OPTIONS` declares
@@ -30,7 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import bsdfs, meshes
+from . import bsdfs, data, meshes
 from .envmap import MAX_RADIANCE, Environment, procedural_sky, read_image
 from .errors import SanitisedInputWarning, SceneError, WavlightError, file_problem, shown
 from .strategies import CONSTRAINTS, OPTIONS, STRATEGIES
@@ -359,7 +362,10 @@ def _shape(t: _Table, base_dir, files: list):
         t.fail("shape", "give either mesh or shape, not both")
     if t.has("mesh"):
         rel = t.get("mesh", "str")
-        path = os.path.join(base_dir, rel)
+        try:
+            path = data.resolve(rel, base_dir, kind="mesh")
+        except WavlightError as e:
+            t.fail("mesh", str(e))
         problem = file_problem(path)
         if problem:
             t.fail("mesh", f"{path}: {problem}")
@@ -709,8 +715,8 @@ def _environment(t: _Table, base, files: list) -> Environment:
         pixels, name, source = procedural_sky(**kw), "procedural sky", "sun_radiance"
     else:
         rel = t.get("file", "str", required=True)
-        fname = os.path.join(base, rel)
         try:
+            fname = data.resolve(rel, base, kind="environment map")
             pixels = read_image(fname)
         except WavlightError as e:
             t.fail("file", str(e))

@@ -446,7 +446,7 @@ def test_cli_missing_spec_and_output_is_a_file(tmp_path):
 
 def test_example_experiment_is_valid():
     spec = experiment.load_spec(REPO / "experiments" / "example.toml")
-    assert [s.name for s in spec.scenes] == ["default", "bunny_ggx"]
+    assert [s.name for s in spec.scenes] == ["default", "spot_ggx"]
     assert [s.label for s in spec.strategies] == ["mis", "wavelet", "light", "bsdf"]
     assert spec.size == (64, 48) and spec.repetitions == 2
 

@@ -1,7 +1,7 @@
 """The stability suite (wavlight/evaluation/stability.py), small: the quick cases (analytic references and the
 all-black map) x every strategy at 12 x 12 pixels, 3 x 32 spp, run once per module; then its
-statistics on synthetic data, deliberately biased, NaN-producing and crashing renders, a case
-whose data is missing, and the command line.
+statistics on synthetic data, deliberately biased, NaN-producing and crashing renders, the
+real-map cases without a network, and the command line.
 """
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ import wavlight
 from wavlight.cli.main import main
 
 from scenes_util import toml_text
+from wavlight.data import DATA_ENV, URL_ENV
 from wavlight.evaluation import stability
 
 QUICK = dict(size=(12, 12), spp=32, repetitions=3)
@@ -47,7 +48,7 @@ def test_outputs_exist_and_hold_no_nan(quick):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     data = _no_nan((out / "stability.json").read_text())
     assert len(data["cells"]) == len(stability.QUICK_CASES) * len(wavlight.STRATEGIES)
-    assert data["cells_tested"] == sum(c["verdict"] not in ("failed", "skipped") for c in data["cells"])
+    assert data["cells_tested"] == sum(c["verdict"] != "failed" for c in data["cells"])
     with open(out / "stability.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == len(data["cells"])
@@ -100,7 +101,7 @@ def test_all_black_map_gives_exactly_zero(quick, tmp_path):
     cells = [c for c in results["cells"] if c["case"] == "all_black"]
     assert len(cells) == len(wavlight.STRATEGIES) and all(c["exact_zero"] is True for c in cells)
     # and the command line refuses the same scene with one line and exit code 2
-    built = stability.CASES["all_black"].build(str(tmp_path), 8, 8, stability.DATA_DIR)
+    built = stability.CASES["all_black"].build(str(tmp_path), 8, 8)
     path = tmp_path / "scene.toml"
     path.write_text(toml_text(built.scene))
     r = CliRunner().invoke(main, ["render", str(path), "-o", str(tmp_path / "x.exr"), "--quiet"])
@@ -115,7 +116,7 @@ def test_room_slit_is_closed_but_for_its_slit(tmp_path):
     from wavlight.camera import camera_rays
     from wavlight.raytrace import RayTracer
 
-    built = stability.CASES["room_slit"].build(str(tmp_path), 16, 16, stability.DATA_DIR)
+    built = stability.CASES["room_slit"].build(str(tmp_path), 16, 16)
     scene = wavlight.load_dict(built.scene, base_dir=built.folder)
     tracer = RayTracer(scene.vertices, scene.faces)
     py, px = np.mgrid[0:16, 0:16]
@@ -248,14 +249,37 @@ def test_exceptions_and_nan_are_recorded_not_raised(tmp_path):
     assert "kernel exploded" in stability.format_table(res)
 
 
-def test_missing_shared_data_skips_the_case(tmp_path):
-    res = stability.run_stability(tmp_path / "out", cases=["debevec_grace", "tiny_1x1"], strategies=["mis"],
-                                  data_dir=tmp_path / "nothing", **QUICK)
-    info = {ci["case"]: ci for ci in res["cases"]}
-    assert info["debevec_grace"]["status"] == "skipped" and "not found" in info["debevec_grace"]["note"]
-    cells = {c["case"]: c for c in res["cells"]}
-    assert cells["debevec_grace"]["verdict"] == "skipped" and cells["tiny_1x1"]["verdict"] == "ok"
-    assert res["cells_tested"] == 1
+def test_real_map_cases_run_offline_on_shipped_maps(tmp_path, monkeypatch):
+    """The cases under real maps (sun_rooitou, black_by_lamps) read only maps that ship with
+    wavlight: with an empty data folder and a mirror URL on a closed port (any download would
+    fail), both run and are tested."""
+    import socket
+
+    with socket.socket() as sock:   # a port that was free a moment ago: nothing listens there
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    monkeypatch.setenv(DATA_ENV, str(tmp_path / "empty"))
+    monkeypatch.setenv(URL_ENV, f"http://127.0.0.1:{port}")
+    res = stability.run_stability(tmp_path / "out", cases=["sun_rooitou", "black_by_lamps"], strategies=["mis"],
+                                  reference_spp=64, **QUICK)
+    assert [ci["status"] for ci in res["cases"]] == ["ok", "ok"], [ci["note"] for ci in res["cases"]]
+    assert res["cells_tested"] == 2 and not (tmp_path / "empty").exists()
+
+
+def test_black_around_lamps_blackens_the_lamps_neighbours_and_the_bottom_band():
+    """One lamp on the seam (column 0) of a 16 x 32 map of 1: its 8 neighbours, wrapping to the
+    last column, become 0 and it stays; the bottom band (1/16 of 16 rows: 1 row) becomes 0;
+    every other texel is unchanged."""
+    pix = np.ones((16, 32, 3), np.float32)
+    pix[5, 0] = 1e4
+    out = stability.black_around_lamps(pix)
+    expected = pix.copy()
+    for r in (4, 5, 6):
+        for c in (31, 0, 1):
+            if (r, c) != (5, 0):
+                expected[r, c] = 0.0
+    expected[15] = 0.0
+    np.testing.assert_array_equal(out, expected)
 
 
 def test_bad_arguments_raise_wavlight_errors(tmp_path):

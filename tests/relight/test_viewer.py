@@ -52,7 +52,7 @@ from wavlight.scene import rotation  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 #: `wavlight view ...` in a fresh interpreter
 WAVLIGHT = [sys.executable, "-m", "wavlight.cli.main"]
-SCENE = ROOT / "scenes" / "bunny_ggx.toml"
+SCENE = ROOT / "scenes" / "spot_ggx.toml"
 LEVELS = 5                      # 32 x 32 texels: K up to 1024
 TIMEOUT_MS = 15000
 
@@ -60,9 +60,9 @@ TIMEOUT_MS = 15000
 # ----------------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="module")
 def bake_file(tmp_path_factory, device):
-    """A tiny bake (32 x 32 pixels) of the bunny, and a second map (a gradient, 32 x 16)."""
+    """A tiny bake (32 x 32 pixels) of Spot, and a second map (a gradient, 32 x 16)."""
     folder = tmp_path_factory.mktemp("viewer")
-    path = folder / "bunny.wlt"
+    path = folder / "spot.wlt"
     wavlight.bake(str(SCENE), output=str(path), width=32, height=32, spp=2, levels=LEVELS, terms=256,
                   priority="transfer").close()
     sky = np.zeros((16, 32, 3), np.float32)

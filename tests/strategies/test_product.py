@@ -16,7 +16,7 @@ What is checked, after tests/strategies/test_samplers.py (which does the same fo
 3. :func:`product_levels` and :func:`lobe_kappa` against their documented definitions.
 4. Unbiasedness: the kernel's wavelet estimate at single points equals the mis estimate on
    the adversarial maps; rendered ``wavelet`` images equal ``mis`` images under real maps
-   from ../shared/data; a white furnace for every product depth.
+   that ship with wavlight; a white furnace for every product depth.
 5. ``--strategy wavelet --wavelet-levels`` through the command line.
 
 Why the chi-square runs on leaf-aligned cells of the square. The sampler walks the light
@@ -59,7 +59,7 @@ import wavlight
 from chi2 import SquareGrid, chi2_test, sidak_alpha
 from scenes_util import (camera_of, check_estimates, load, map3x2, one_texel_map, random_normals_views, ray_sphere,
                          write_env, z_threshold)
-from wavlight import bsdfs, strategies, warp
+from wavlight import bsdfs, data, strategies, warp
 from wavlight.strategies import product
 from wavlight.haar.tree import HaarTree
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky, read_image
@@ -68,7 +68,6 @@ from wavlight.shading import KernelShader, NumpyShader
 from wavlight.strategies import LightStrategy, ShadingPoints, WaveletStrategy
 
 REPO = Path(__file__).resolve().parents[2]
-ENVMAPS = REPO.parent / "shared" / "data" / "envmaps"
 
 
 def seed_of(name: str) -> int:
@@ -845,7 +844,10 @@ def test_wavelet_estimate_equals_mis_under_a_1e30_texel(mat_id):
     assert np.all(np.abs(ma - mb) <= z * se), f"wavelet {ma} vs mis {mb}, z = {np.abs(ma - mb) / se}"
 
 
-REAL_MAPS = ("rooitou_park_1k.hdr", "st_fagans_interior_1k.hdr", "debevec_grace_256x128.hdr")
+#: maps that ship with wavlight (wavlight.data); black_by_lamps is st_fagans_interior_512 with the
+#: black texels of the small Debevec probes (next to its lamps, a bottom band:
+#: wavlight.evaluation.stability.black_around_lamps)
+REAL_MAPS = ("rooitou_park_512", "st_fagans_interior_512", "black_by_lamps")
 # three spheres side by side, one per material, under the scene-format document's camera
 REAL_MATERIALS = {"ggx": dict(type="ggx", albedo=[0.95, 0.8, 0.6], roughness=0.1),
                   "phong": dict(type="phong", albedo=[0.8, 0.85, 0.9], exponent=100.0),
@@ -855,19 +857,20 @@ WAVELET_SPP, MIS_SPP = 1024, 4096
 
 @pytest.fixture(scope="module")
 def real_scenes(tmp_path_factory):
-    if not ENVMAPS.is_dir():
-        pytest.skip(f"{ENVMAPS} is missing")
+    from wavlight.evaluation.stability import black_around_lamps
+
     folder = tmp_path_factory.mktemp("real")
+    write_env(folder, "black_by_lamps.exr",
+              black_around_lamps(read_image(str(data.path("st_fagans_interior_512")))))
     loaded = {}
 
     def get(map_name, floor=False):
         """The three spheres under map_name; with ``floor``, standing on a lambert floor (their
         contact shadows, and the sky they hide from it and from each other)."""
-        if not (ENVMAPS / map_name).is_file():
-            pytest.skip(f"{ENVMAPS / map_name} is missing")
         if (map_name, floor) in loaded:
             return loaded[map_name, floor]
-        sub = folder / (Path(map_name).stem + ("-floor" if floor else ""))
+        env = str(folder / "black_by_lamps.exr") if map_name == "black_by_lamps" else f"data:{map_name}"
+        sub = folder / (map_name + ("-floor" if floor else ""))
         sub.mkdir()
         objects = [dict(shape="sphere", center=[x, 0.5, 0.0], radius=0.75, subdivisions=4, material=m)
                    for x, m in zip((-1.7, 0.0, 1.7), REAL_MATERIALS)]
@@ -880,7 +883,7 @@ def real_scenes(tmp_path_factory):
             sub, render=dict(width=36, height=12 if not floor else 18, spp=16, seed=1),
             camera=dict(eye=[0.0, 1.0, 4.0], target=[0.0, 0.5 if not floor else 0.2, 0.0], up=[0.0, 1.0, 0.0],
                         fov_y=35.0 if not floor else 45.0),
-            environment=dict(file=str(ENVMAPS / map_name)), objects=objects, materials=materials)
+            environment=dict(file=env), objects=objects, materials=materials)
         return loaded[map_name, floor]
 
     return get
@@ -898,7 +901,7 @@ def test_render_equals_mis_under_real_maps(real_scenes, map_name, strategy):
     mis_comp image, equals the mis image within their combined standard error (render_full's
     per-pixel stderr), pixel by pixel (two-sided, Student t, Bonferroni over the pixel
     channels at 1e-5, scenes_util.z_threshold) and on the image mean per channel (Bonferroni
-    over the 3 channels). Different seeds. debevec_grace has black texels next to its lamps.
+    over the 3 channels). Different seeds. black_by_lamps has black texels next to its lamps.
 
     Sample counts: mis is heavy-tailed on the spheres' rims (grazing views of the glossy lobes
     under small bright lamps: at one rim pixel of a phong sphere under st_fagans_interior

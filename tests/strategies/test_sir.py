@@ -8,7 +8,7 @@ Checked here:
   candidate sources;
 - the shadowed estimator under a synthetic occluder against quadrature of f cos L V;
 - M and N change the variance the expected way (Brown-Forsythe test, fixed seeds);
-- unbiasedness against ``mis`` on a glossy sphere on a floor under rooitou_park_1k (image mean
+- unbiasedness against ``mis`` on a glossy sphere on a floor under rooitou_park_512 (image mean
   and per pixel, Bonferroni, combined standard errors).
 
 Statistical checks use fixed seeds and a false-alarm probability of about 1e-5 each
@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,8 +32,6 @@ from wavlight.strategies import sir
 from wavlight.envmap import LUMINANCE, Environment, procedural_sky
 from wavlight.errors import SceneError
 
-REPO = Path(__file__).resolve().parents[2]
-ROOITOU = REPO.parent / "shared" / "data" / "envmaps" / "rooitou_park_1k.hdr"
 Z = float(stats.norm.isf(ALPHA / 2))
 
 
@@ -287,12 +284,10 @@ def test_white_furnace(furnace, m, n):
 
 @pytest.fixture(scope="module")
 def rooitou_scene(tmp_path_factory):
-    if not ROOITOU.is_file():
-        pytest.skip(f"{ROOITOU} missing")
     d = tmp_path_factory.mktemp("sir_rooitou")
     return load(d, render=dict(width=40, height=30, spp=16, seed=1),
                 camera=dict(eye=[0.0, 1.0, 3.2], target=[0.0, 0.45, 0.0], fov_y=38.0),
-                environment=dict(file=str(ROOITOU), rotate_y=150.0),
+                environment=dict(file="data:rooitou_park_512", rotate_y=150.0),
                 objects=[dict(shape="sphere", center=[0.0, 0.6, 0.0], radius=0.6, material="glossy"),
                          dict(shape="quad", center=[0.0, 0.0, 0.0], normal=[0.0, 1.0, 0.0], size=5.0,
                               material="floor")],
@@ -302,7 +297,7 @@ def rooitou_scene(tmp_path_factory):
 
 def test_unbiased_against_mis_under_rooitou(rooitou_scene):
     """sir (M = 16, N = 2, 64 spp) and mis (128 spp) agree on a glossy sphere on a floor under
-    rooitou_park_1k (tiny sun, shadows): the image mean and every pixel channel within their
+    rooitou_park_512 (tiny sun, shadows): the image mean and every pixel channel within their
     combined standard error (Bonferroni over the pixels, Student t with the smaller spp)."""
     scene = rooitou_scene
     a = wavlight.render_full(scene, strategy="sir", spp=64, seed=2, sir_candidates=16, sir_samples=2)

@@ -9,15 +9,15 @@ analytic answers and light enough tails, and the all-black map) at 12 x 12 pixel
 
 **Cases** (:data:`CASES`, from ``shared/docs/method.md``, "Failure modes to test"; each builds its
 scene in a temporary folder: a TOML file and its generated maps, written with
-:func:`wavlight.save_image`, .exr or .pfm; real maps come from ``../shared/data/envmaps`` beside
-the repository, and a case whose map is absent is skipped with a note):
+:func:`wavlight.save_image`, .exr or .pfm; the real maps are those that ship with wavlight
+(:mod:`wavlight.data`), so that the suite runs offline):
 
 ==================  ==========================================================  ===========
 case                what it probes                                              reference
 ==================  ==========================================================  ===========
 sun_synthetic       a 0.5 degree (diameter) sun of 1e5 over a dim sky,          analytic
                     1024 x 512, lambert floor
-sun_rooitou         rooitou_park_1k (66% of the energy in 52 texels),           mis
+sun_rooitou         rooitou_park_512 (66% of the energy in 13 texels),          mis
                     ggx 0.05 sphere on a lambert floor
 mirror_ggx          near-mirror ggx (alpha 0.005) sphere on a floor under the    mis
                     procedural sky (0.75 degree sun of 2e4)
@@ -30,8 +30,9 @@ room_slit           a closed room lit only through a slit under its front wall  
 one_texel           a 32 x 16 map black except one texel of 500                 analytic
 all_black           an all-black map (the CLI refuses it; the library renders   exactly 0
                     black): ggx sphere on a lambert floor
-debevec_grace       the small Debevec Grace probe (black texels next to its     mis
-                    lamps), ggx 0.1 sphere on a lambert floor
+black_by_lamps      st_fagans_interior_512 with the black texels of the small   mis
+                    Debevec probes: next to its lamps, and a bottom band
+                    (:func:`black_around_lamps`), ggx 0.1 sphere on a floor
 bad_texels          a sky with NaN, +Inf, -Inf and negative texels (a warning   analytic
                     is expected), lambert floor
 npot_map            a 37 x 19 map (non-power-of-two, odd height: the horizon    analytic
@@ -124,15 +125,14 @@ all-black case records ``exact_zero``; the bad-texel case records the warnings o
 scene (``warnings``) and fails when the expected one is missing.
 
 **Verdict** per cell: ``failed`` (exception, NaN/Inf, missing expected warning, or no
-reference), ``biased?``, ``heavy-tail?`` (see above) or ``ok``; ``skipped`` when the case's data
-is absent.
+reference), ``biased?``, ``heavy-tail?`` (see above) or ``ok``.
 
 **Outputs** in DIR: ``stability.csv`` (one row per cell), ``stability.json`` (settings, cases,
 cells, thresholds, seconds; no NaN: non-finite numbers are written as null), and
 ``charts/stability.png`` / ``.svg``: per case (rows) and strategy (columns) the bias evidence
 max(|z_mean| / t_mean, |z_pixel| / t_pixel) on a log colour scale (above 1 = the test rejects;
 "(mean only)" / "(tail)": the per-pixel test did not apply, see above), and log10 of the relative
-variance; failed cells are crossed out, skipped cells blank, and each cell is labelled with its
+variance; failed cells are crossed out, and each cell is labelled with its
 verdict. :func:`format_table` gives the text table the CLI prints (column ``tested``: mean+px,
 mean, or mean (tail) for heavy-tailed cells).
 """
@@ -146,7 +146,6 @@ import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -161,8 +160,6 @@ PIXEL_SKEW_LIMIT = 0.2
 PIXEL_SPREAD_LIMIT = 10.0
 DEFAULTS = dict(size=(24, 24), spp=128, repetitions=4, reference_spp=4096, alpha=0.01)
 QUICK_CASES = ("overcast_lambert", "one_texel", "all_black", "bad_texels", "npot_map", "tiny_2x1", "tiny_1x1")
-REPO = Path(__file__).resolve().parents[1]
-DATA_DIR = REPO.parent / "shared" / "data"
 
 
 # ----------------------------------------------------------------------------- scenes
@@ -251,17 +248,16 @@ class Built:
 class Case:
     name: str
     title: str
-    build: object                    # build(folder, width, height, data) -> Built; data: DATA_DIR
-    needs: tuple = ()                # files under DATA_DIR the case reads
+    build: object                    # build(folder, width, height) -> Built
     info: dict = field(default_factory=dict)
 
 
 CASES: dict[str, Case] = {}
 
 
-def case(name, title, needs=()):
+def case(name, title):
     def register(fn):
-        CASES[name] = Case(name, title, fn, tuple(needs))
+        CASES[name] = Case(name, title, fn)
         return fn
     return register
 
@@ -319,7 +315,7 @@ def sun_disk_coverage(width, height, elevation, azimuth, radius_deg, k=8) -> np.
 
 
 @case("sun_synthetic", "0.5 deg sun of 1e5 over a dim sky (1024x512), lambert floor")
-def _sun_synthetic(folder, width, height, data):
+def _sun_synthetic(folder, width, height):
     w, h = 1024, 512
     pix = _dim_sky(w, h)
     cov = sun_disk_coverage(w, h, 40.0, 30.0, 0.25)
@@ -334,21 +330,20 @@ def _sun_share(pix, cov):
     return float(floor_radiance(sun, [1, 1, 1]).mean() / floor_radiance(pix, [1, 1, 1]).mean())
 
 
-@case("sun_rooitou", "rooitou_park_1k tiny sun, ggx 0.05 sphere on a lambert floor",
-      needs=("envmaps/rooitou_park_1k.hdr",))
-def _sun_rooitou(folder, width, height, data):
-    env = {"file": str(data / "envmaps" / "rooitou_park_1k.hdr")}
+@case("sun_rooitou", "rooitou_park_512 tiny sun, ggx 0.05 sphere on a lambert floor")
+def _sun_rooitou(folder, width, height):
+    env = {"file": "data:rooitou_park_512"}
     return _sphere_floor(folder, width, height, env, {"type": "ggx", "albedo": [0.95, 0.8, 0.5], "roughness": 0.05})
 
 
 @case("mirror_ggx", "near-mirror ggx 0.005 sphere on a floor, procedural sky (0.75 deg sun of 2e4)")
-def _mirror_ggx(folder, width, height, data):
+def _mirror_ggx(folder, width, height):
     env = {"procedural": "sky", "sun_elevation": 30.0, "sun_azimuth": 160.0}
     return _sphere_floor(folder, width, height, env, {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.005})
 
 
 @case("overcast_lambert", "lambert floor under a smooth CIE overcast map (128x64 .pfm)")
-def _overcast(folder, width, height, data):
+def _overcast(folder, width, height):
     w, h = 128, 64
     theta = (np.arange(h) + 0.5) / h * np.pi
     sky = np.where(theta < np.pi / 2, (1 + 2 * np.cos(theta)) / 3, 0.15)
@@ -358,7 +353,7 @@ def _overcast(folder, width, height, data):
 
 
 @case("grazing", "ggx 0.2 and phong 50 quads seen 80-89 deg off their normal, procedural sky")
-def _grazing(folder, width, height, data):
+def _grazing(folder, width, height):
     scene = scene_dict(camera={"eye": [0.0, 0.35, 6.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0],
                                        "fov_y": 8.0},
                        environment={"procedural": "sky", "sun_elevation": 12.0, "sun_azimuth": 170.0},
@@ -374,7 +369,7 @@ def _grazing(folder, width, height, data):
 
 @case("room_slit", "a closed room lit through a slit under the front wall (procedural sky, low sun), "
                    "ggx 0.1 sphere on its lambert floor")
-def _room_slit(folder, width, height, data):
+def _room_slit(folder, width, height):
     # 4 x 3 x 4 room; the front wall (z = 2) stops 0.4 above the floor, and the sun, 8 deg up
     # in the +z direction, lights the floor through that slit; every strategy that samples the
     # map (light, mis, wavelet, sir, structured) sends most samples to blocked directions
@@ -397,7 +392,7 @@ def _room_slit(folder, width, height, data):
 
 
 @case("one_texel", "a 32x16 map black but one texel of 500, lambert floor")
-def _one_texel(folder, width, height, data):
+def _one_texel(folder, width, height):
     pix = np.zeros((16, 32, 3))
     pix[3, 9] = 500.0
     write_map(folder, "one.exr", pix)
@@ -405,7 +400,7 @@ def _one_texel(folder, width, height, data):
 
 
 @case("all_black", "all-black map (library: black image; CLI: refused), ggx sphere on a floor")
-def _all_black(folder, width, height, data):
+def _all_black(folder, width, height):
     write_map(folder, "black.exr", np.zeros((8, 16, 3)))
     b = _sphere_floor(folder, width, height, {"file": "black.exr"},
                       {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.1}, reference="zero")
@@ -413,16 +408,46 @@ def _all_black(folder, width, height, data):
     return b
 
 
-@case("debevec_grace", "Debevec Grace probe 256x128 (black texels next to lamps), ggx 0.1 sphere on a floor",
-      needs=("envmaps/debevec_grace_256x128.hdr",))
-def _grace(folder, width, height, data):
-    env = {"file": str(data / "envmaps" / "debevec_grace_256x128.hdr")}
+def black_around_lamps(pixels, lamp: float = 100.0, band: float = 1 / 16) -> np.ndarray:
+    """(H, W, 3) float32: a lat-long map with the black texels of the small Debevec probes made
+    in it: the texels next to a lamp (the 8 neighbours, wrapping around in u, of each texel whose
+    luminance exceeds ``lamp`` times the map's mean over solid angle; lamps themselves are kept),
+    where those probes' resampling filter left clamped negative lobes, and the bottom ``band`` of
+    the rows, where a probe has no data. A sampler whose pdf is 0 where the integrand is not is
+    biased under it; the probes themselves do not ship (their terms are unstated)."""
+    from ..envmap import luminance
+
+    p = np.array(pixels, np.float32)
+    h = p.shape[0]
+    lum = luminance(p.astype(np.float64))
+    theta = np.arange(h + 1) * np.pi / h
+    solid = (np.cos(theta[:-1]) - np.cos(theta[1:]))[:, None]
+    lamps = lum > lamp * (lum * solid).sum() / (solid.sum() * lum.shape[1])
+    near = np.zeros_like(lamps)
+    for dy in (-1, 0, 1):
+        rows = np.zeros_like(lamps)
+        rows[max(dy, 0):h + min(dy, 0)] = lamps[max(-dy, 0):h - max(dy, 0)]
+        for dx in (-1, 0, 1):
+            near |= np.roll(rows, dx, axis=1)
+    p[near & ~lamps] = 0.0
+    p[h - int(round(band * h)):] = 0.0
+    return p
+
+
+@case("black_by_lamps", "st_fagans_interior_512 with black texels next to its lamps and a black bottom band "
+                        "(as the small Debevec probes), ggx 0.1 sphere on a floor")
+def _black_by_lamps(folder, width, height):
+    from ..data import path
+    from ..envmap import read_image
+
+    write_map(folder, "lamps.exr", black_around_lamps(read_image(str(path("st_fagans_interior_512")))))
+    env = {"file": "lamps.exr"}
     return _sphere_floor(folder, width, height, env, {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.1},
                          eye=(0.0, 2.6, 3.6), target=(0.0, 0.6, 0.0))
 
 
 @case("bad_texels", "sky with NaN, +Inf, -Inf and negative texels (warning expected), lambert floor")
-def _bad_texels(folder, width, height, data):
+def _bad_texels(folder, width, height):
     rng = np.random.default_rng(7)
     pix = _dim_sky(64, 32, 1.0)
     pix[4, 10] = 40.0                                      # a lamp, so the map is not trivially smooth
@@ -438,7 +463,7 @@ def _bad_texels(folder, width, height, data):
 
 
 @case("npot_map", "37x19 map (non-power-of-two, odd height), floor seen at 84-89 deg")
-def _npot(folder, width, height, data):
+def _npot(folder, width, height):
     rng = np.random.default_rng(3)
     pix = _dim_sky(37, 19) + rng.gamma(2.0, 0.1, (19, 37, 3))
     pix[5, 30] = 80.0
@@ -448,14 +473,14 @@ def _npot(folder, width, height, data):
 
 
 @case("tiny_2x1", "a 2x1 map (two texels), lambert floor")
-def _tiny_2x1(folder, width, height, data):
+def _tiny_2x1(folder, width, height):
     pix = np.array([[[2.0, 1.0, 0.5], [0.25, 1.0, 3.0]]])
     write_map(folder, "tiny.pfm", pix)
     return _floor_case(folder, width, height, {"file": "tiny.pfm", "rotate_y": 10.0}, pix)
 
 
 @case("tiny_1x1", "a 1x1 map (the furnace: albedo x radiance), lambert floor")
-def _tiny_1x1(folder, width, height, data):
+def _tiny_1x1(folder, width, height):
     pix = np.array([[[1.5, 1.0, 0.5]]])
     write_map(folder, "one_px.exr", pix)
     return _floor_case(folder, width, height, {"file": "one_px.exr", "scale": 2.0}, pix)
@@ -586,16 +611,14 @@ def _clean(obj):
 
 
 def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, repetitions=None,
-                  reference_spp=None, alpha=None, threads=None, progress=None, render=None,
-                  data_dir=None) -> dict:
+                  reference_spp=None, alpha=None, threads=None, progress=None, render=None) -> dict:
     """Run the stability suite into ``out_dir``; returns the dict written to ``stability.json``.
 
     cases: names from :data:`CASES` (default all); strategies: ids (default every id of
     ``wavlight.scene.STRATEGIES`` at call time); size (w, h), spp (>= 2), repetitions (>= 2),
     reference_spp, alpha: see the module docstring (defaults in :data:`DEFAULTS`).
     ``progress(done, total, what)`` after each reference and cell. ``render`` replaces
-    :func:`wavlight.render_full` (tests inject failures with it). ``data_dir``: the shared data
-    folder (default ``../shared/data`` beside the repository).
+    :func:`wavlight.render_full` (tests inject failures with it).
     """
     from .. import scene as scene_mod
     from ..integrator import render_full
@@ -632,7 +655,6 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
         if s not in scene_mod.STRATEGIES:
             raise WavlightError(f"stability: unknown strategy {s!r} ({' | '.join(scene_mod.STRATEGIES)})")
     render = render or render_full
-    data = Path(data_dir) if data_dir is not None else DATA_DIR
     out_dir = str(out_dir)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise WavlightError(f"{out_dir}: exists and is not a folder")
@@ -656,20 +678,11 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
             c = CASES[name]
             info = {"case": name, "title": c.title, "status": "ok", "note": "", "warnings": [], "reference": None}
             case_info.append(info)
-            missing = [p for p in c.needs if not (data / p).is_file()]
-            if missing:
-                info.update(status="skipped", note=f"{data / missing[0]} not found: case skipped")
-                for s in strats:
-                    cells.append(_cell(name, s, cfg, verdict="skipped", failure=None, note=info["note"]))
-                    raw.append(None)
-                    step(f"{name}/{s}: skipped")
-                step(f"{name}: skipped")
-                continue
             folder = os.path.join(tmp, name)
             os.makedirs(folder)
             ref = ref_se = None
             try:
-                built = c.build(folder, width, height, data)
+                built = c.build(folder, width, height)
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     sc = scene_mod.load_dict(built.scene, base_dir=built.folder)
@@ -740,7 +753,7 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
     files += chart(results, out_dir)
     results["files"] = files
     results["counts"] = {v: sum(1 for c in cells if c["verdict"] == v)
-                         for v in ("ok", "biased?", "heavy-tail?", "failed", "skipped")}
+                         for v in ("ok", "biased?", "heavy-tail?", "failed")}
     results["seconds"] = round(time.perf_counter() - t_start, 2)
     results = _clean(results)
     json.dumps(results, allow_nan=False)  # never a NaN in the output
@@ -842,8 +855,6 @@ def format_table(results: dict) -> str:
                      (f" -- {ci['note']}" if ci.get("note") else ""))]
         if ci.get("warnings"):
             lines.append(f"  loading warned: {ci['warnings'][0][:110]}")
-        if ci["status"] == "skipped":
-            continue
         rows = [head]
         for c in results["cells"]:
             if c["case"] != ci["case"]:
@@ -882,13 +893,13 @@ def chart(results: dict, out_dir) -> list:
     for i, cn in enumerate(case_names):
         for j, s in enumerate(strats):
             c = by.get((cn, s))
-            if c and c["verdict"] not in ("failed", "skipped") and c.get("evidence") is not None:
+            if c and c["verdict"] != "failed" and c.get("evidence") is not None:
                 ev[i, j] = max(c["evidence"], 1e-3)
                 if c["rel_variance"] is not None and c["rel_variance"] > 0:
                     var[i, j] = math.log10(c["rel_variance"])
     fig = Figure(figsize=(4.0 + 1.5 * len(strats), 1.2 + 0.42 * len(case_names)), layout="constrained")
     axes = fig.subplots(1, 2)
-    short = {"ok": "ok", "biased?": "BIAS?", "heavy-tail?": "tail?", "failed": "FAIL", "skipped": "skip"}
+    short = {"ok": "ok", "biased?": "BIAS?", "heavy-tail?": "tail?", "failed": "FAIL"}
     panels = ((axes[0], ev, "bias evidence max(|z| / threshold) (> 1: rejects)\n(mean only): per-pixel "
                             "test not applicable, (tail): heavy tail",
                dict(cmap="RdYlGn_r", norm=colors.LogNorm(vmin=1e-2, vmax=1e2))),
@@ -909,9 +920,9 @@ def chart(results: dict, out_dir) -> list:
                     ax.plot([j - 0.45, j + 0.45], [i - 0.45, i + 0.45], color="k", lw=1.2)
                     ax.plot([j - 0.45, j + 0.45], [i + 0.45, i - 0.45], color="k", lw=1.2)
                 label = short.get(v, v)
-                if ax is axes[0] and v not in ("failed", "skipped") and c.get("pixel_test") != "applied":
+                if ax is axes[0] and v != "failed" and c.get("pixel_test") != "applied":
                     label += "\n(tail)" if c.get("heavy_tail") else "\n(mean only)"
-                if ax is axes[1] and v not in ("failed", "skipped"):
+                if ax is axes[1] and v != "failed":
                     if np.isfinite(data[i, j]):
                         label = f"{data[i, j]:.1f}"
                     elif c.get("rel_variance") == 0:

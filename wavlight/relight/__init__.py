@@ -8,9 +8,9 @@ T1 = L V cos per point of a surface cache instead, and its frames (:class:`.view
 take the product with the BRDF for any camera (kernels/relight_view.cl).
 
     import wavlight
-    transfer = wavlight.bake("scenes/bunny_ggx.toml", output="bunny.wlt")   # wavlight.relight.bakes.bake
+    transfer = wavlight.bake("scenes/spot_ggx.toml", output="spot.wlt")   # wavlight.relight.bakes.bake
     image = transfer.frame(rotate_y=120, terms=256)
-    again = wavlight.relight.Transfer.load("bunny.wlt")
+    again = wavlight.relight.Transfer.load("spot.wlt")
 """
 from .transfer import Transfer
 

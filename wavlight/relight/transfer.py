@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from .. import cl
+from .. import cl, data
 from ..envmap import Environment, read_image
 from ..errors import ArgumentError, WavlightError, check_int, check_number, shown
 from . import lighting, store
@@ -124,8 +124,8 @@ class Transfer:
 
     # -- lighting
     def environment(self, env=None, scale: float = 1.0) -> Environment:
-        """The lighting of a frame: ``env`` (an Environment, a map file, or None: the scene's own
-        map as baked), without its rotation (a frame's ``rotate_y`` sets it), times ``scale``
+        """The lighting of a frame: ``env`` (an Environment, a map file or ``"data:NAME"``, or
+        None: the scene's own map as baked), without its rotation (a frame's ``rotate_y`` sets it), times ``scale``
         (the last one asked for is kept: frames of one map do not read it again)."""
         key = (id(env) if isinstance(env, Environment) else env, float(scale))
         found = self._maps.get(key)
@@ -149,8 +149,8 @@ class Transfer:
         if isinstance(env, Environment):
             return Environment(env.pixels, scale, 0.0, env.name)
         if isinstance(env, (str, os.PathLike)):
-            name = os.fspath(env)
-            return Environment(read_image(name), scale, 0.0, name)
+            name = os.fspath(env)   # a file, or a "data:NAME" asset (wavlight.data)
+            return Environment(read_image(data.resolve(name, kind="environment map")), scale, 0.0, name)
         raise ArgumentError(f"Transfer.frame: env must be an Environment, a map file or None, got {shown(env)}")
 
     def lighting(self, env=None, rotate_y=None, scale: float = 1.0):
