@@ -15,6 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .errors import ArgumentError, check_int, check_integers, check_real
+from .threads import MAX_THREADS
 
 _CHUNK = 1 << 15
 #: embree takes int32 indices and a float32 soup: at most this many vertices and faces.
@@ -65,7 +66,7 @@ class RayTracer:
 
         vertices, faces = _geometry(vertices, faces)
         self.n_faces = len(faces)
-        self.threads = check_int("RayTracer", "threads", threads, 1, 4096)
+        self.threads = check_int("RayTracer", "threads", threads, 1, MAX_THREADS)
         self._scene = None
         if self.n_faces:
             self._scene = rtcs.EmbreeScene(robust=False)
