@@ -45,8 +45,8 @@ CONVERGE_RESAMPLE = 74
 CONVERGE_PICK = 75
 #: a moving-object frame (wavlight.relight.moving): the mixture's directions (kernels/relight_moving.cl
 #: gets it as its ``stream`` argument) and the mis shading of the pixels that may see the object
-MOVING_DIRECTIONS = 12
-MOVING_MIS = 13
+MOVING_DIRECTIONS = 76
+MOVING_MIS = 77
 
 #: every stream's ids by name: no two overlap
 STREAMS = {name: value if isinstance(value, range) else range(value, value + 1) for name, value in (
