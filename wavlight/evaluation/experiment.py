@@ -42,7 +42,7 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
     repetitions = 3           # seeds 0 .. repetitions-1 (default 3)
 
 At least one of ``spp`` and ``seconds`` is required. Errors name the file and the key
-(``exp.toml: [budgets].spp: must be a list of integers >= 1, got [0]``) and raise
+(``exp.toml: [budgets].spp: must be a non-empty list of integers >= 1, got [0]``) and raise
 :class:`wavlight.errors.WavlightError`.
 
 Decisions:
