@@ -50,7 +50,7 @@ def flag(option, default_text: str | None = None, checked: bool = True):
     if option.kind is bool:
         if option.negatable:
             return click.option(f"{option.flag}/{option.off_flag}", option.key, default=None, help=text)
-        return click.option(option.flag, option.key, is_flag=True, help=text)
+        return click.option(option.flag, option.key, is_flag=True, default=False, help=text)
     kw = {"default": () if option.repeatable else None, "help": text, "multiple": option.repeatable}
     if option.count > 1:
         kw["nargs"] = option.count

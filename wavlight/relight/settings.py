@@ -140,7 +140,9 @@ VIEWER = {o.key: o for o in (
 COMMANDS = {"bake": BAKE, "frame": FRAME, "view": VIEWER}
 
 
-def options_table(command: str, keywords: bool = False) -> str:
-    """The markdown table of a command's settings (docs/cli.md, docs/relight.md): flag, with
-    ``keywords`` the library's keyword, values, default, meaning."""
-    return markdown_table(COMMANDS[command].values(), scene_keys=keywords, key_head="keyword")
+def options_table(command: str, keywords: bool = False, keys=None) -> str:
+    """The markdown table of a command's settings (docs/cli.md, docs/relight.md), or of those
+    among ``keys``: flag, with ``keywords`` the library's keyword, values, default, meaning."""
+    records = COMMANDS[command]
+    chosen = records.values() if keys is None else [records[k] for k in keys]
+    return markdown_table(chosen, scene_keys=keywords, key_head="keyword")
