@@ -103,7 +103,8 @@ def frame(bake_file, output, as_json, quiet, **settings):
             return _object_frame(transfer, bake_file, output, s, as_json, quiet, held(LIGHTING_FLAGS))
         for flag_name, value in held(OBJECT_FLAGS).items():
             if value is not None:
-                fail(f"{bake_file}: this bake varies the lighting; {flag_name} moves an object (bake with --vary object)")
+                fail(f"{bake_file}: this bake varies the lighting; {flag_name} moves an object "
+                     "(bake with --vary object)")
         lit = given(s, "rotate_y", "scale", "terms", "priority")   # the frame's lighting, as given
         env = None
         if s["env"] is not None:

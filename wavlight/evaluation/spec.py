@@ -19,6 +19,9 @@ PEER_PREFIX = "mitsuba:"
 #: experiment strategy: each scene baked once (:func:`wavlight.relight.bake.bake`), its time
 #: amortized over ``frames`` frames in every run's setup seconds.
 RELIGHT = "relight"
+#: the reference's seed unless [reference].seed gives one: far from the repetitions' seeds 0..R-1
+#: (also the stability suite's references)
+REFERENCE_SEED = 1_000_003
 #: relight's keys in a [[strategies]] table: (kind, default, lowest, highest); the bake's ranges are
 #: its records' (wavlight.relight.settings.BAKE), its camera samples fixed by default (no pilot's choice)
 RELIGHT_KEYS = {"bake_spp": ("int", 16, BAKE["spp"].lo, BAKE["spp"].hi),
@@ -144,7 +147,7 @@ def load_spec(path) -> Spec:
 
     r = SpecTable(path, "[reference]", doc.get("reference", {}))
     reference = {"strategy": r.get("strategy", "str", "mis"), "spp": r.get("spp", "int", 1024, lo=2),
-                 "seed": r.get("seed", "int", 1_000_003, lo=0)}
+                 "seed": r.get("seed", "int", REFERENCE_SEED, lo=0)}
     if reference["strategy"] not in STRATEGIES:
         r.fail("strategy", f"unknown strategy {reference['strategy']!r} ({' | '.join(STRATEGIES)})")
     if reference["spp"] > MAX_SPP:

@@ -777,7 +777,7 @@ def bake_view(scene, output=None, levels=None, tolerance: float = BAKE["toleranc
     ``levels``: texels 2^n x 2^n (default: the fewest within ``tolerance`` / sqrt(3), chosen by
     the lighting bake's pilot at the scene's camera, :func:`wavlight.relight.bake.choose_model`);
     ``density``: cache points per unit area (default: ``cache_points`` over the scene's area);
-    ``points``: texel points (1 or 4, default 4); each block is compressed to ``tolerance`` /
+    ``points``: texel points (1, 4 or 16; default VIEW_TEXEL_POINTS); each block is compressed to ``tolerance`` /
     sqrt(3) (relative L2 of T1) and quantized to ``bits``."""
     where = "relight.bake"
     if isinstance(scene, (str, os.PathLike)):
