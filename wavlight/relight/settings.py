@@ -119,8 +119,8 @@ FRAME = {o.key: o for o in (
     Option("supersample", int, _VIEW + "S x S rays per pixel, averaged (a mesh's facets can be smaller than a "
            "pixel).", default_doc=f"{WRITTEN_SUPERSAMPLE} in --mode pixel, 1 in --mode point (the viewer's frame)",
            lo=1, hi=16, metavar="S"),
-    Option("tau", float, _VIEW + "--mode pixel: the tolerance of the correction of the baked cosine to the face's "
-           "(0: none).", default=0.1, lo=0.0, hi=100.0),
+    Option("tau", float, "A bake with --vary view, --mode pixel: the tolerance of the correction of the baked "
+           "cosine to the face's (0: none).", default=0.1, lo=0.0, hi=100.0),
 )}
 
 # ----------------------------------------------------------------------------- the viewer
