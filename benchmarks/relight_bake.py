@@ -62,10 +62,11 @@ def main():
     from wavlight.relight import bake as B
     from wavlight.relight import lighting, store
     from wavlight.raytrace import RayTracer
+    from wavlight.threads import default_threads
 
     d = rc.scene_dict(SCENE)
     scene = rc.load(d)
-    threads = 2 * (os.cpu_count() or 1)   # the bake's pool
+    threads = default_threads()   # the bake's pool
     # 1. the bake
     load_bake = rc.load_average()
     transfer, info = rc.cached_bake(d, args.size, args.spp, levels=args.levels, terms=args.terms,
@@ -116,7 +117,7 @@ def main():
         rays.append((o, dd))
     sample_rays = int(sum(len(o) for o, _ in rays))
     one = RayTracer(scene.vertices, scene.faces, threads=1)
-    many = RayTracer(scene.vertices, scene.faces, threads=os.cpu_count() or 1)
+    many = RayTracer(scene.vertices, scene.faces, threads=default_threads(per_core=1))
     allo = np.concatenate([o for o, _ in rays])
     alld = np.concatenate([x for _, x in rays])
     pool_s, single_s, bake_s = [], [], []

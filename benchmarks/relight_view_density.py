@@ -5,7 +5,7 @@ Scenes (benchmarks/relight_view.py): the rough bunnies, ``bunny_ggx05`` (ggx 0.5
 ``bunny_lambert``, on the lambert floor under the park with its sun, seen from the scene's eye
 turned --turn degrees about the target. Per scene and cache of --points points over the scene's
 area (``wavlight.relight.view.bake_view``'s ``cache_points``; the default cache is
-view.DEFAULT_POINTS) at --levels texel levels, and per walk refine in --refines (the walk's
+wavlight.relight.settings.CACHE_POINTS) at --levels texel levels, and per walk refine in --refines (the walk's
 terms: a node is refined where the BRDF varies over it by more than refine; smaller refines
 walk more nodes per point) with the walk's --mass (view.MASS by default; 0: by the lobe alone),
 the ``point`` frame at one ray per pixel: its relative L2 error

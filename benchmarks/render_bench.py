@@ -38,8 +38,9 @@ def embree_alone(scene, args):
 
     from wavlight.camera import camera_rays
     from wavlight.raytrace import RayTracer
+    from wavlight.threads import default_threads
 
-    tracer = RayTracer(scene.vertices, scene.faces, threads=os.cpu_count() or 1)
+    tracer = RayTracer(scene.vertices, scene.faces, threads=default_threads(per_core=1))
     rng = np.random.default_rng(0)
     n = args.width * args.height * args.spp
     pix = np.arange(args.width * args.height)

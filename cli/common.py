@@ -1,4 +1,5 @@
-"""What the commands share: one-line errors and the checks of an output path before any work."""
+"""What the commands share: one-line errors, the checks of an output path before any work, and the
+flags made from the settings' records (:class:`wavlight.options.Option`)."""
 from __future__ import annotations
 
 import os
@@ -37,3 +38,44 @@ def refuse_inputs(output, inputs):
         check_not_input([output], inputs)
     except WavlightError as e:
         fail(e)
+
+
+def flag(option, default_text: str | None = None, checked: bool = True):
+    """The click option of a setting's record: its flag, its range or choices (checked by click
+    where ``checked``, else by the command from the record), its metavar, and its help text with
+    the default (``default_text``, or the record's). A flag left out gives None (a switch False,
+    a repeatable flag ()), so that a command passes on only what was given and the library's
+    default, the same record's, applies."""
+    text = f"{option.help} Default: {option.default_text() if default_text is None else default_text}."
+    if option.kind is bool:
+        if option.negatable:
+            return click.option(f"{option.flag}/{option.off_flag}", option.key, default=None, help=text)
+        return click.option(option.flag, option.key, is_flag=True, default=False, help=text)
+    kw = {"default": () if option.repeatable else None, "help": text, "multiple": option.repeatable}
+    if option.count > 1:
+        kw["nargs"] = option.count
+    if option.values:
+        kw["type"] = click.Choice([str(v) for v in option.values])
+        if option.kind is int:
+            kw["callback"] = lambda ctx, param, value: None if value is None else int(value)
+    elif not checked or option.lo is None and option.hi is None:
+        kw["type"] = option.kind
+    else:
+        kw["type"] = (click.IntRange if option.kind is int else click.FloatRange)(option.lo, option.hi)
+    if option.metavar:
+        kw["metavar"] = option.metavar
+    return click.option(option.flag, option.key, **kw)
+
+
+def flags(options):
+    """A decorator adding :func:`flag` of each record, in order."""
+    def decorate(command):
+        for option in reversed(list(options)):
+            command = flag(option)(command)
+        return command
+    return decorate
+
+
+def given(values: dict, *keys) -> dict:
+    """The settings among ``keys`` (default all) that were given: those present and not None."""
+    return {k: values[k] for k in (keys or values) if values.get(k) is not None}

@@ -16,9 +16,10 @@ import warnings
 
 import click
 
+from wavlight.options import HEIGHT, SEED, SPP, WIDTH
 from wavlight.strategies import APPLIES, OPTIONS, STRATEGIES
 
-from .common import check_output, fail, one_line, refuse_inputs
+from .common import check_output, fail, flag, one_line, refuse_inputs
 from .progress import ProgressBar
 
 
@@ -115,18 +116,27 @@ def _strategy_options(command):
     return command
 
 
+def _scene_settings(*options):
+    """Flags that override the scene file's [render] keys (their records: wavlight.options), checked
+    by their records before the scene is read."""
+    def decorate(command):
+        for option in reversed(options):
+            command = flag(option, f"the scene's [render] {option.key}, {option.default_text()} where it has "
+                                   "none", checked=False)(command)
+        return command
+    return decorate
+
+
 @main.command()
 @click.argument("scene_file", metavar="[SCENE]", required=False, type=click.Path(dir_okay=False))
 @click.option("--demo", default=None, metavar="NAME",
               help="Render the shipped scene NAME instead of a file (`wavlight scenes` lists them).")
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
               "Default: the scene's name with .png.")
-@click.option("--spp", type=int, default=None, help="Samples per pixel (overrides the scene).")
+@_scene_settings(SPP)
 @click.option("--strategy", type=click.Choice(STRATEGIES),
               default=None, help="Sampling strategy (overrides the scene).")
-@click.option("--width", type=int, default=None, help="Image width in pixels.")
-@click.option("--height", type=int, default=None, help="Image height in pixels.")
-@click.option("--seed", type=int, default=None, help="Random seed.")
+@_scene_settings(WIDTH, HEIGHT, SEED)
 @_strategy_options
 @click.option("--stderr-out", "stderr_out", default=None, metavar="FILE",
               help="Also write each pixel's standard error of the mean (linear: .exr .hdr .pfm; needs spp >= 2).")
@@ -158,11 +168,10 @@ def render(scene_file, demo, output, spp, strategy, width, height, seed, stderr_
         check_output(stderr_out, LINEAR)
         if os.path.abspath(stderr_out) == os.path.abspath(output):
             fail(f"{stderr_out}: --stderr-out must differ from the output image")
-    from wavlight.scene import MAX_SIDE, MAX_SPP
-    for name, value, lo, hi in (("--spp", spp, 1, MAX_SPP), ("--width", width, 1, MAX_SIDE),
-                                ("--height", height, 1, MAX_SIDE), ("--seed", seed, 0, 2 ** 63 - 1)):
-        if value is not None and not lo <= value <= hi:
-            fail(f"{name} must be between {lo} and {hi}, got {value}")
+    for option, value in ((SPP, spp), (WIDTH, width), (HEIGHT, height), (SEED, seed)):
+        why = None if value is None else option.problem(value)
+        if why:
+            fail(f"{option.flag} {why}")
     try:
         scene = wavlight.load_scene(scene_file)
         for name in (output, stderr_out):   # an output must not overwrite the scene or a file it reads

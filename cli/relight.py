@@ -14,50 +14,19 @@ import sys
 
 import click
 
-from .common import check_output, fail, refuse_inputs
+from wavlight.relight.settings import BAKE, FRAME
+
+from .common import check_output, fail, flags, given, refuse_inputs
 from .progress import ProgressBar
 
 
 @click.command()
 @click.argument("scene_file", metavar="SCENE", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, metavar="PATH", help="The bake file to write (any name).")
-@click.option("--width", type=int, default=None, help="Image width (default: the scene's).")
-@click.option("--height", type=int, default=None, help="Image height (default: the scene's).")
-@click.option("--spp", type=click.IntRange(1, 64), default=None,
-              help="Camera samples per pixel, stratified over the pixel (they share each texel's shadow ray). "
-                   "Default: the fewest of 16, 32, 64 the tolerance needs, from two pilot bakes that measure the noise.")
-@click.option("--levels", type=click.IntRange(2, 8), default=None,
-              help="Texels: 2^n x 2^n on the lat-long square. Default: the fewest that meet the tolerance, "
-                   "from a pilot bake.")
-@click.option("--tolerance", type=click.FloatRange(1e-6, 1.0), default=0.02, show_default=True,
-              help="Relative L2 error of frames, measured on held-out rotations: shared by the bake's noise, "
-                   "the texels' resolution, the terms and the compression.")
-@click.option("--points", type=click.Choice(["1", "4", "16"]), default=None,
-              help="Points per texel where the BRDF is evaluated (1, 2 x 2 or 4 x 4 strata). Default: the fewest "
-                   "that put 16 point spacings across the narrowest lobe.")
-@click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True,
-              help="Quantization of the stored coefficients.")
-@click.option("--terms", type=click.IntRange(1, 1 << 22), default=None,
-              help="The lighting terms K a frame keeps by default. Default: the fewest that meet the tolerance.")
-@click.option("--priority", type=click.Choice(["transfer", "area", "magnitude"]), default=None,
-              help="How frames rank the lighting's terms. Default: the better of transfer and area on the pilot.")
-@click.option("--seed", type=click.IntRange(0, 2 ** 62), default=0, show_default=True, help="Random seed.")
-@click.option("--vary", type=click.Choice(["lighting", "object", "view"]), default="lighting", show_default=True,
-              help="The factor frames vary: the lighting (map, rotation, scale), one object's place, or the camera "
-                   "(view: T1 = L V cos on a surface cache; --width, --height and --spp do not apply).")
-@click.option("--density", type=click.FloatRange(1e-9, 1e18, min_open=True), default=None,
-              help="--vary view: surface cache points per unit area (default: 65536 over the scene's area).")
-@click.option("--object", "moving", default=None, metavar="NAME",
-              help="--vary object: the object that moves (its name, or its index among [[objects]]).")
-@click.option("--static-spp", type=click.IntRange(2, 1 << 20), default=256, show_default=True,
-              help="--vary object: samples per pixel of the scene without the object, converged at the bake.")
-@click.option("--dask", "dask_address", metavar="tcp://HOST:PORT", default=None,
-              help="Bake the blocks on this dask.distributed scheduler (its workers read the scene file at the "
-                   "same path); the file is identical to a local bake's.")
+@flags(BAKE.values())
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the choices, sizes and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits, terms, priority, seed, vary, density,
-         moving, static_spp, dask_address, as_json, quiet):
+def bake(scene_file, output, as_json, quiet, **settings):
     """Bake the transfer of SCENE (its camera, objects and materials) into PATH, for relighting."""
     import wavlight
 
@@ -66,23 +35,20 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
     folder = os.path.dirname(os.path.abspath(output))
     if not os.path.isdir(folder):
         fail(f"{output}: no folder {folder}")
+    vary = settings["vary"] or BAKE["vary"].default
     try:
         scene = wavlight.load_scene(scene_file)
         refuse_inputs(output, [scene_file, *scene.files])
-        if vary == "object" and moving is None:
+        if vary == "object" and settings["object"] is None:
             fail("--vary object needs --object NAME (the object that moves)")
-        if moving is not None and vary != "object":
+        if settings["object"] is not None and vary != "object":
             fail("--object names the object that moves: give it with --vary object")
-        if density is not None and vary != "view":
+        if settings["density"] is not None and vary != "view":
             fail("--density sets the surface cache of a view bake: give it with --vary view")
         if scene.environment.is_black:
             fail(f"{scene_file}: [environment]: the environment is black everywhere; nothing to relight")
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
-        transfer = wavlight.bake(scene, output, width=width, height=height, spp=spp, levels=levels,
-                                 tolerance=tolerance, bits=int(bits), terms=terms, priority=priority, seed=seed,
-                                 progress=bar, dask_address=dask_address,
-                                 points=None if points is None else int(points), vary=vary, object=moving,
-                                 static_spp=static_spp, density=density)
+        transfer = wavlight.bake(scene, output, progress=bar, **given(settings))
         if bar:
             bar.close()
     except wavlight.WavlightError as e:
@@ -96,123 +62,69 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
                    f"({stats['rays_per_second'] / 1e6:.2f} M rays/s)", err=True)
 
 
+#: the flags of a frame that set the lighting, a moved object, and the camera of a view bake
+LIGHTING_FLAGS = ("env", "rotate_y", "scale", "terms", "priority", "turntable")
+OBJECT_FLAGS = ("translate", "rotate")
+VIEW_FLAGS = ("eye", "target", "fov", "width", "height", "orbit", "refine", "mass", "mode", "supersample", "tau")
+
+
 @click.command()
 @click.argument("bake_file", metavar="PATH", type=click.Path(dir_okay=False))
-@click.option("--env", "env_file", default=None, metavar="FILE",
-              help="Another environment map: a file or data:NAME, a map of wavlight.data (default: the baked one).")
-@click.option("--rotate-y", type=float, default=None,
-              help="Rotation of the map about +Y, degrees, absolute as the scene's rotate_y (default: the scene's).")
-@click.option("--scale", type=click.FloatRange(0.0, 1e30), default=1.0, show_default=True, help="Radiance scale.")
-@click.option("--terms", type=click.IntRange(1, 1 << 22), default=None,
-              help="Lighting terms K kept (default: the bake's choice).")
-@click.option("--priority", type=click.Choice(["transfer", "area", "magnitude"]), default=None,
-              help="How the K terms are chosen (default: the bake's).")
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB), or with "
-              "--turntable a folder. Default: the bake file's name with .png.")
-@click.option("--turntable", type=click.IntRange(1, 3600), default=None, metavar="N",
-              help="N frames of a full turn about +Y into the folder -o DIR (PNG; and an animated GIF).")
-@click.option("--repeat", type=click.IntRange(1, 1000), default=5, show_default=True,
-              help="Frames computed to time one (the median is reported).")
-@click.option("--spp", type=click.IntRange(1, 1 << 16), default=None,
-              help="The unbiased frame instead: N camera samples per pixel, directions from the product of "
-                   "transfer and lighting and from the BSDF, true shadow rays (reloads the baked scene).")
-@click.option("--seed", type=click.IntRange(0, 2 ** 62), default=0, show_default=True, help="Random seed (--spp).")
-@click.option("--translate", type=float, nargs=3, default=None, metavar="X Y Z",
-              help="A bake with --vary object: the object's translation (absolute, replacing its own).")
-@click.option("--rotate", type=float, nargs=4, default=None, metavar="AX AY AZ DEG",
-              help="A bake with --vary object: the object's rotation, axis and degrees (absolute).")
-@click.option("--scene", "scene_file", default=None, metavar="FILE",
-              help="The scene the bake was made from, where it is not at the path the bake recorded (--spp).")
-@click.option("--eye", type=float, nargs=3, default=None, metavar="X Y Z",
-              help="A bake with --vary view: the camera's position (default: the scene's).")
-@click.option("--target", type=float, nargs=3, default=None, metavar="X Y Z",
-              help="A bake with --vary view: the point the camera looks at (default: the scene's).")
-@click.option("--fov", type=float, default=None, metavar="DEG",
-              help="A bake with --vary view: the vertical field of view, degrees (default: the scene's).")
-@click.option("--width", type=click.IntRange(1, 16384), default=None,
-              help="A bake with --vary view: image width (default: the scene's).")
-@click.option("--height", type=click.IntRange(1, 16384), default=None,
-              help="A bake with --vary view: image height (default: the scene's).")
-@click.option("--orbit", type=click.IntRange(1, 3600), default=None, metavar="N",
-              help="A bake with --vary view: N frames of an orbit of the eye about the target (about +Y) into "
-                   "the folder -o DIR (PNG; and an animated GIF).")
-@click.option("--refine", type=click.FloatRange(1e-4, 100.0), default=None,
-              help="A bake with --vary view: a BRDF node's angular radius at most REFINE times its distance from "
-                   "the lobe plus the lobe's width, divided by g >= sqrt(share / MASS) (a power of two) where the "
-                   "node holds more than MASS of the transfer (smaller: more nodes, closer to the texels' sum). "
-                   "Default 0.6.")
-@click.option("--mass", type=click.FloatRange(0.0, 1.0), default=None,
-              help="A bake with --vary view: a node holding more than this share of the transfer's mass (a sun) is "
-                   "refined further (0: by the lobe alone). Default 0.003.")
-@click.option("--mode", type=click.Choice(["point", "pixel"]), default=None,
-              help="A bake with --vary view: a product per cache point, blended per pixel (fast: the viewer's), or "
-                   "per pixel of its points' blended transfer with the pixel's face normal and view (closer to mis; "
-                   "slower). Default pixel.")
-@click.option("--supersample", type=click.IntRange(1, 16), default=None, metavar="S",
-              help="A bake with --vary view: S x S rays per pixel, averaged (a mesh's facets can be smaller than a "
-                   "pixel). Default 4 in --mode pixel, 1 in --mode point (the viewer's frame).")
-@click.option("--tau", type=click.FloatRange(0.0, 100.0), default=None,
-              help="A bake with --vary view, --mode pixel: the tolerance of the correction of the baked cosine to "
-                   "the face's (0: none). Default 0.1.")
+              "--turntable or --orbit a folder. Default: the bake file's name with .png.")
+@flags(FRAME.values())
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with timings and choices.")
 @click.option("--quiet", "-q", is_flag=True, help="No closing message.")
-def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntable, repeat, spp, seed, translate,
-          rotate, scene_file, eye, target, fov, width, height, orbit, refine, mass, mode, supersample, tau, as_json,
-          quiet):
+def frame(bake_file, output, as_json, quiet, **settings):
     """Relight the bake file PATH: one frame under new lighting (or a turntable of frames)."""
     import math
-
 
     import wavlight
     from wavlight.imageio import FORMATS
 
+    s = settings
+    rotate_y, spp, turntable = s["rotate_y"], s["spp"], s["turntable"]
+    repeat = FRAME["repeat"].default if s["repeat"] is None else s["repeat"]
     if rotate_y is not None and not math.isfinite(rotate_y):
         fail(f"--rotate-y must be a finite number of degrees, got {rotate_y}")
+    held = lambda keys: {FRAME[k].flag: s[k] for k in keys}   # noqa: E731  (flags of a fixed factor)
     try:
         transfer = wavlight.Transfer.load(bake_file)
         varies = transfer.header.get("vary", "lighting")
-        camera = {"--eye": eye, "--target": target, "--fov": fov, "--width": width, "--height": height,
-                  "--orbit": orbit, "--refine": refine, "--mass": mass, "--mode": mode, "--supersample": supersample,
-                  "--tau": tau}
         if varies == "view":
-            approximate = {"refine": refine, "mass": mass, "mode": mode, "supersample": supersample, "tau": tau}
-            return _view_frame(transfer, bake_file, output, eye, target, fov, width, height, orbit, spp, seed,
-                               repeat, scene_file, as_json, quiet, approximate,
-                               {"--env": env_file, "--rotate-y": rotate_y, "--scale": scale if scale != 1.0 else None,
-                                "--terms": terms, "--priority": priority, "--turntable": turntable,
-                                "--translate": translate, "--rotate": rotate})
-        for flag, value in camera.items():
+            return _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet,
+                               held(LIGHTING_FLAGS + OBJECT_FLAGS))
+        for flag_name, value in held(VIEW_FLAGS).items():
             if value is not None:
                 factor = "lighting" if varies == "lighting" else "object"
-                fail(f"{bake_file}: this bake varies the {factor} (its camera is fixed); {flag} is for a moving camera "
-                     "(bake with --vary view)")
+                fail(f"{bake_file}: this bake varies the {factor} (its camera is fixed); {flag_name} is for a moving "
+                     "camera (bake with --vary view)")
         if varies == "object":
-            return _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, scene_file, as_json, quiet,
-                                 {"--env": env_file, "--rotate-y": rotate_y, "--scale": scale if scale != 1.0 else None,
-                                  "--terms": terms, "--priority": priority, "--turntable": turntable})
-        for flag, value in (("--translate", translate), ("--rotate", rotate)):
+            return _object_frame(transfer, bake_file, output, s, as_json, quiet, held(LIGHTING_FLAGS))
+        for flag_name, value in held(OBJECT_FLAGS).items():
             if value is not None:
-                fail(f"{bake_file}: this bake varies the lighting; {flag} moves an object (bake with --vary object)")
+                fail(f"{bake_file}: this bake varies the lighting; {flag_name} moves an object "
+                     "(bake with --vary object)")
+        lit = given(s, "rotate_y", "scale", "terms", "priority")   # the frame's lighting, as given
         env = None
-        if env_file is not None:
-            env = transfer.environment(env_file, scale)
+        if s["env"] is not None:
+            env = transfer.environment(s["env"], **given(s, "scale"))
             if env.is_black:
-                fail(f"{env_file}: the environment is black everywhere; the frame would be black")
-            scale_used = 1.0
-        else:
-            scale_used = scale
+                fail(f"{s['env']}: the environment is black everywhere; the frame would be black")
+            lit.pop("scale", None)   # in env already
         if turntable is None:
             if output is None:
                 output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
             check_output(output, FORMATS)
             from wavlight.data import resolve
-            refuse_inputs(output, [bake_file, None if env_file is None else resolve(env_file, download=False)])
+            refuse_inputs(output, [bake_file, None if s["env"] is None else resolve(s["env"], download=False)])
             times = []
             if spp is not None:
                 from wavlight.relight.converge import converge
 
                 bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
-                result = converge(transfer, scene_file, env, rotate_y, scale_used, spp=spp, seed=seed, progress=bar)
+                result = converge(transfer, s["scene"], env, spp=spp, progress=bar,
+                                  **given(s, "rotate_y", "seed"), **given(lit, "scale"))
                 if bar:
                     bar.close()
                 image, st = result.image, {"frame_seconds": result.stats["render_seconds"], "terms": None,
@@ -220,7 +132,7 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
                 times.append(st["frame_seconds"])
             else:
                 for _ in range(repeat):
-                    image, st = transfer.frame_timed(env, rotate_y, scale_used, terms, priority)
+                    image, st = transfer.frame_timed(env, **lit)
                     times.append(st["frame_seconds"])
             wavlight.save_image(output, image)
             outputs = [output]
@@ -229,9 +141,10 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
                 fail("--turntable writes a folder of frames: give it with -o DIR")
             os.makedirs(output, exist_ok=True)
             base = transfer.scene_rotate_y if rotate_y is None else rotate_y
+            lit.pop("rotate_y", None)
             times, outputs, frames = [], [], []
             for i in range(turntable):
-                image, st = transfer.frame_timed(env, base + 360.0 * i / turntable, scale_used, terms, priority)
+                image, st = transfer.frame_timed(env, base + 360.0 * i / turntable, **lit)
                 times.append(st["frame_seconds"])
                 name = os.path.join(output, f"frame-{i:04d}.png")
                 wavlight.save_image(name, image)
@@ -244,13 +157,13 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
         fail(e)
     median = statistics.median(times)
     if spp is not None:
-        _report_unbiased({"spp": spp, "seed": seed, "frame_seconds": round(median, 4), **result.stats,
-                          "output": outputs[0]}, (transfer.width, transfer.height), as_json, quiet)
+        _report_unbiased({"spp": spp, "seed": result.stats["seed"], "frame_seconds": round(median, 4),
+                          **result.stats, "output": outputs[0]}, (transfer.width, transfer.height), as_json, quiet)
         return
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
              "terms": st["terms"], "entries_read": st["entries_read"], "width": transfer.width,
              "height": transfer.height, "texels": f"{1 << transfer.n_levels}x{1 << transfer.n_levels}",
-             "priority": priority or transfer.priority, "frames": len(times),
+             "priority": s["priority"] or transfer.priority, "frames": len(times),
              "rotate_y": transfer.scene_rotate_y if rotate_y is None else rotate_y,
              "memory_bytes_per_frame": int(st["entries_read"] * (transfer.block ** 2 * transfer.bits // 8 + 20)),
              "measured": transfer.measured, "output": outputs if turntable else outputs[0]}
@@ -284,22 +197,22 @@ def _animated_gif(frames, path):
     return path
 
 
-def _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, scene_file, as_json, quiet, held):
+def _object_frame(transfer, bake_file, output, s, as_json, quiet, held):
     """A frame of a bake that varies one object: the object at --translate / --rotate."""
     import wavlight
     from wavlight.imageio import FORMATS
     from wavlight.relight.moving import MovingObject
 
-    for flag, value in held.items():
+    for flag_name, value in held.items():
         if value is not None:
-            fail(f"{bake_file}: this bake varies an object (its lighting is fixed); {flag} does not apply")
+            fail(f"{bake_file}: this bake varies an object (its lighting is fixed); {flag_name} does not apply")
     if output is None:
         output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
     check_output(output, FORMATS)
-    refuse_inputs(output, [bake_file, scene_file])
-    mover = MovingObject(transfer, scene_file)
+    refuse_inputs(output, [bake_file, s["scene"]])
+    mover = MovingObject(transfer, s["scene"])
     refuse_inputs(output, [mover.scene.path, *mover.scene.files])
-    result = mover.frame(translate, rotate, spp=4 if spp is None else spp, seed=seed)
+    result = mover.frame(s["translate"], s["rotate"], **given(s, "spp", "seed"))
     wavlight.save_image(output, result.image)
     stats = {"frame_seconds": result.stats["render_seconds"],
              "frames_per_second": round(1.0 / result.stats["render_seconds"], 3), **result.stats, "output": output}
@@ -310,33 +223,37 @@ def _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, sce
                    f"{stats['translate']}, {stats['frame_seconds']:.2f} s", err=True)
 
 
-def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, orbit, spp, seed, repeat,
-                scene_file, as_json, quiet, approximate, held):
+#: the approximate frame's settings of a view bake (view.still_settings)
+APPROXIMATE = ("refine", "mass", "mode", "supersample", "tau")
+
+
+def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
     """A frame of a bake that varies the view: the camera at --eye looking at --target (or an
-    --orbit of frames, or with --spp the unbiased frame); ``approximate`` the approximate frame's
-    options as given (None: the written frame's defaults, view.STILL)."""
+    --orbit of frames, or with --spp the unbiased frame), the approximate frame's settings as
+    given, the others a written frame's (view.still_settings)."""
     import math
 
     import wavlight
     from wavlight.imageio import FORMATS
-    from wavlight.relight.view import STILL, ViewFrames, orbit_eyes
+    from wavlight.relight.view import ViewFrames, orbit_eyes, still_settings
 
-    for flag, value in held.items():
+    eye, target, fov, orbit, spp = s["eye"], s["target"], s["fov"], s["orbit"], s["spp"]
+    for flag_name, value in held.items():
         if value is not None:
-            fail(f"{bake_file}: this bake varies the view (its lighting and objects are fixed); {flag} does not apply")
-    for flag, value in (("--eye", eye), ("--target", target)):
-        if value is not None and not all(math.isfinite(x) for x in value):
-            fail(f"{flag} must be three finite numbers, got {' '.join(str(x) for x in value)}")
-    if fov is not None and not (math.isfinite(fov) and 0.0 < fov < 180.0):
-        fail(f"--fov must be a number of degrees in (0, 180), got {fov}")
-    if spp is not None:
-        for key, value in approximate.items():
-            if value is not None:
-                fail(f"--{key} sets the approximate frame; --spp renders the unbiased one: give one of them")
-    opts = {k: STILL[k] if v is None else v for k, v in approximate.items()}
-    if approximate["supersample"] is None and opts["mode"] == "point":
-        opts["supersample"] = 1   # more rays do not sharpen point mode's blend (docs/decisions/view-point-mode.md)
-    if approximate["tau"] is not None and opts["mode"] != "pixel":
+            fail(f"{bake_file}: this bake varies the view (its lighting and objects are fixed); {flag_name} does not "
+                 "apply")
+    for key in ("eye", "target"):
+        if s[key] is not None and not all(math.isfinite(x) for x in s[key]):
+            fail(f"{FRAME[key].flag} must be three finite numbers, got {' '.join(str(x) for x in s[key])}")
+    why = None if fov is None else FRAME["fov"].problem(fov)
+    if why:
+        fail(f"--fov {why}")
+    approximate = given(s, *APPROXIMATE)
+    if spp is not None and approximate:
+        fail(f"{FRAME[next(iter(approximate))].flag} sets the approximate frame; --spp renders the unbiased one: "
+             "give one of them")
+    opts = still_settings(**approximate)
+    if s["tau"] is not None and opts["mode"] != "pixel":
         fail("--tau corrects the cosine of --mode pixel: give it with --mode pixel")
     if orbit is not None and spp is not None:
         fail("--orbit renders approximate frames; --spp renders one unbiased frame: give one of them")
@@ -344,7 +261,7 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
         if output is None:
             output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
         check_output(output, FORMATS)
-        refuse_inputs(output, [bake_file, scene_file])
+        refuse_inputs(output, [bake_file, s["scene"]])
     else:
         if output is None:
             fail("--orbit writes a folder of frames: give it with -o DIR")
@@ -352,16 +269,16 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
             fail(f"{output}: is a file, not a folder (--orbit writes a folder of frames)")
         if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
             fail(f"{output}: no folder {os.path.dirname(os.path.abspath(output))}")
-    frames = ViewFrames(transfer, scene_file)
+    frames = ViewFrames(transfer, s["scene"])
     if orbit is None:
         refuse_inputs(output, [frames.scene.path, *frames.scene.files])
     cam = frames.camera(eye, target, fov)          # checked before anything is written
-    size = frames._size(width, height)
+    size = frames._size(s["width"], s["height"])
     view = {"width": size[0], "height": size[1], "eye": cam.eye.tolist(), "target": cam.target.tolist(),
             "fov": cam.fov_y}
     if spp is not None:
         bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
-        result = frames.converge(cam.eye, cam.target, cam.fov_y, *size, spp=spp, seed=seed, progress=bar)
+        result = frames.converge(cam.eye, cam.target, cam.fov_y, *size, spp=spp, progress=bar, **given(s, "seed"))
         if bar:
             bar.close()
         wavlight.save_image(output, result.image)

@@ -20,21 +20,15 @@ from __future__ import annotations
 
 import click
 
-from .common import fail
+from wavlight.relight.settings import VIEWER
+
+from .common import fail, flags, given
 
 
 @click.command()
 @click.argument("bake_file", metavar="PATH", type=click.Path(dir_okay=False))
-@click.option("--env", "env_files", multiple=True, metavar="FILE",
-              help="A map to choose from in the page: a file or data:NAME, a map of wavlight.data (repeatable; "
-                   "the baked map is always the first).")
-@click.option("--port", type=click.IntRange(0, 65535), default=0, show_default=True,
-              help="The port on 127.0.0.1 (0: a free one).")
-@click.option("--scene", "scene_file", default=None, metavar="FILE",
-              help="The scene the bake was made from, where it is not at the path the bake recorded (converge; "
-                   "a bake with --vary object or --vary view needs it for every frame).")
-@click.option("--no-browser", is_flag=True, help="Print the URL only; do not open the system browser.")
-def view(bake_file, env_files, port, scene_file, no_browser):
+@flags(VIEWER.values())
+def view(bake_file, maps, port, scene, no_browser):
     """Serve an interactive viewer of the bake file PATH on 127.0.0.1 and print its URL."""
     import threading
     import webbrowser
@@ -55,11 +49,11 @@ def view(bake_file, env_files, port, scene_file, no_browser):
     try:
         transfer = Transfer.load(bake_file)
         varies = transfer.header.get("vary")
-        if varies in ("object", "view") and env_files:
+        if varies in ("object", "view") and maps:
             what = "an object" if varies == "object" else "the view"
-            fail(f"{bake_file}: this bake varies {what} (its lighting is fixed); --env does not apply")
-        viewer = Viewer(transfer, maps=env_files, scene=scene_file)
-        viewer.serve(port, ready=ready)
+            fail(f"{bake_file}: this bake varies {what} (its lighting is fixed); {VIEWER['maps'].flag} does not apply")
+        viewer = Viewer(transfer, maps=maps, scene=scene)
+        viewer.serve(ready=ready, **given({"port": port}))
     except WavlightError as e:
         fail(e)
     except KeyboardInterrupt:   # a second Ctrl-C while stopping

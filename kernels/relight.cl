@@ -5,8 +5,6 @@
 #include "rng.h"
 #include "bsdf.h"
 
-#define RNG_TEXEL 8u
-
 /* Pair g = p 4^n + t of a tile (pixel p, texel t = row 2^n + col of the world-frame lat-long
  * square); eight pairs per work-item, all of one pixel (4^n is a multiple of eight). The
  * pixel's camera samples come as groups (the samples on one triangle: one normal and

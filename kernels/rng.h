@@ -7,9 +7,13 @@
 #define WAVLIGHT_RNG_H
 #include "simd.h"
 
+/* The stream ids the kernels name: wavlight/rng.py declares every stream (its STREAMS) and
+ * tests/test_rng_streams.py checks that these agree with it. (relight_moving.cl takes its
+ * stream, rng.MOVING_DIRECTIONS, as an argument.) */
 #define RNG_JITTER 0u
 #define RNG_SHADING 1u
 #define RNG_STRATA 2u   /* per pixel and pass: the cell orders of its three pairs */
+#define RNG_TEXEL 8u    /* the bake's texel uniforms (relight.cl) */
 
 inline void philox4x32_10(uintv c0, uintv c1, uintv c2, uintv c3, uint k0, uint k1,
                           uintv *r0, uintv *r1, uintv *r2, uintv *r3)

@@ -40,9 +40,11 @@ from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
 from .errors import WavlightError, shown
 from .imageio import check_memory
+from .options import HEIGHT, SEED, SPP, WIDTH
 from .sampler import SAMPLER
-from .scene import MAX_SIDE, MAX_SPP, Scene, check_scene, load_scene
+from .scene import Scene, check_scene, load_scene
 from .strategies import STRATEGIES
+from .threads import MAX_THREADS, default_threads
 
 TILE_SAMPLES = 1 << 16
 
@@ -62,7 +64,7 @@ class _Renderer:
                  backend="opencl", options=None, sampler_name="independent"):
         self.scene, self.spp, self.width, self.height, self.seed = scene, spp, width, height, seed
         self.sampler = sampler_name
-        self.threads = threads or 2 * (os.cpu_count() or 1)
+        self.threads = threads or default_threads()
         t0 = time.perf_counter()
         self.tracer = RayTracer(scene.vertices, scene.faces)
         self.strategy = strategies.make(strategy, **(options or {}))
@@ -222,21 +224,19 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
         scene = load_scene(scene)
     check_scene(scene)
 
-    def pick(name, value, fallback, lo, hi):
+    def pick(option, value, fallback):
         """The argument, else the scene's value; validated either way (a Scene may be edited)."""
-        return _integer(name, fallback if value is None else value, lo, hi)
+        return _integer(option.key, fallback if value is None else value, option.lo, option.hi)
 
-    spp = pick("spp", spp, scene.spp, 1, MAX_SPP)
-    width = pick("width", width, scene.width, 1, MAX_SIDE)
-    height = pick("height", height, scene.height, 1, MAX_SIDE)
-    seed = pick("seed", seed, scene.seed, 0, 2 ** 63 - 1)
+    spp, width, height, seed = (pick(o, v, getattr(scene, o.key)) for o, v in
+                                ((SPP, spp), (WIDTH, width), (HEIGHT, height), (SEED, seed)))
     strategy = scene.strategy if strategy is None else strategy
     if strategy not in STRATEGIES:
         raise WavlightError(f"unknown strategy {shown(strategy)} ({' | '.join(STRATEGIES)})")
     if backend not in BACKENDS:
         raise WavlightError(f"unknown backend {shown(backend)} ({' | '.join(BACKENDS)})")
     if threads is not None:
-        threads = _integer("threads", threads, 1, 4096)
+        threads = _integer("threads", threads, 1, MAX_THREADS)
     if progress is not None and not callable(progress):
         raise WavlightError(f"progress must be a callable or None, got {shown(progress)}")
     scene_options = scene.options if isinstance(scene.options, dict) else {}

@@ -18,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .errors import ArgumentError, check_int, check_integers, check_real
+from .threads import MAX_THREADS
 
 _CHUNK = 1 << 15
 #: embree takes int32 indices and a float32 soup: at most this many vertices and faces.
@@ -128,7 +129,7 @@ class RayTracer:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, threads: int = 1, queries=None):
         vertices, faces = _geometry(vertices, faces)
         self.n_faces = len(faces)
-        self.threads = check_int("RayTracer", "threads", threads, 1, 4096)
+        self.threads = check_int("RayTracer", "threads", threads, 1, MAX_THREADS)
         self._queries = None
         if self.n_faces:
             self._queries = (queries or default_queries())(vertices, faces)

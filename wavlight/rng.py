@@ -15,6 +15,11 @@ word w becomes the float32 (w >> 8) 2^-24 in [0, 1). The ``stratified`` sampler 
 each pair into a cell of its pixel's grid (:func:`sampler.stratify_pair`), keyed by
 words 0, 1, 2 (jitter, guide, BSDF pair) of stream ``STRATA`` at index (the pass's first
 index + pixel): one counter per pixel and pass.
+
+Every stream id of wavlight is declared here, once (:data:`STREAMS`): two uses with different
+streams never draw the same numbers, whatever their tiles and indices, so no two ranges overlap
+(tests/test_rng_streams.py checks it, and that ``kernels/rng.h`` defines the ids the kernels
+name with the same values). Changing an id changes the images of its use.
 """
 from __future__ import annotations
 
@@ -24,7 +29,31 @@ import numpy as np
 
 from .sampler import stratify_pair
 
-JITTER, SHADING, STRATA = 0, 1, 2
+# ----------------------------------------------------------------------------- the stream registry
+#: the pixel jitter: camera rays of renders, bakes and frames (kernels/rng.h RNG_JITTER)
+JITTER = 0
+#: the shade kernel's four uniforms: guide pair, BSDF pair (RNG_SHADING)
+SHADING = 1
+#: the stratified sampler's cell orders, one counter per pixel and pass (RNG_STRATA)
+STRATA = 2
+#: the bake's texel uniforms: point jitter, the reservoir's key, the sample (RNG_TEXEL, kernels/relight.cl)
+TEXEL = 8
+#: the unbiased frame's mixture directions (wavlight.relight.converge): stream start + slot, one per slot
+CONVERGE_DIRECTIONS = range(10, 10 + 64)
+#: the unbiased frame's resampling: the candidates' uniforms and the picks among them
+CONVERGE_RESAMPLE = 74
+CONVERGE_PICK = 75
+#: a moving-object frame (wavlight.relight.moving): the mixture's directions (kernels/relight_moving.cl
+#: gets it as its ``stream`` argument) and the mis shading of the pixels that may see the object
+MOVING_DIRECTIONS = 76
+MOVING_MIS = 77
+
+#: every stream's ids by name: no two overlap
+STREAMS = {name: value if isinstance(value, range) else range(value, value + 1) for name, value in (
+    ("JITTER", JITTER), ("SHADING", SHADING), ("STRATA", STRATA), ("TEXEL", TEXEL),
+    ("CONVERGE_DIRECTIONS", CONVERGE_DIRECTIONS), ("CONVERGE_RESAMPLE", CONVERGE_RESAMPLE),
+    ("CONVERGE_PICK", CONVERGE_PICK), ("MOVING_DIRECTIONS", MOVING_DIRECTIONS), ("MOVING_MIS", MOVING_MIS))}
+
 _M0, _M1 = np.uint64(0xD2511F53), np.uint64(0xCD9E8D57)
 _W0, _W1 = 0x9E3779B9, 0xBB67AE85
 _MASK = np.uint64(0xFFFFFFFF)

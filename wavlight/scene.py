@@ -17,7 +17,8 @@ Every key of the scene format is accepted as written there. wavlight adds:
 Scenes also come from Python dicts of the same structure (:func:`load_dict`). A Scene records
 its ``content_hash``: the settings as parsed and the bytes of every file it reads.
 
-Limits: width and height 1..16384, spp 1..1_000_000. Errors name the file and the
+Limits: width, height, spp and seed as :data:`wavlight.options.WIDTH`, ``HEIGHT``, ``SPP`` and
+``SEED`` declare them (docs/scene-format.md). Errors name the file and the
 key (``scene.toml: [render].spp: must be at least 1, got 0``) and raise
 :class:`wavlight.errors.SceneError`.
 """
@@ -36,12 +37,13 @@ import numpy as np
 from . import bsdfs, data, meshes
 from .envmap import MAX_RADIANCE, Environment, procedural_sky, read_image
 from .errors import SanitisedInputWarning, SceneError, WavlightError, file_problem, shown
+from .options import FOV, HEIGHT, SEED, SPP, WIDTH
 from .strategies import CONSTRAINTS, OPTIONS, STRATEGIES
 
 ROUGHNESS_RANGE = (1e-4, 1.0)   # ggx alpha
 EXPONENT_RANGE = (0.0, 1e6)     # phong n
-MAX_SIDE = 16384
-MAX_SPP = 1_000_000
+MAX_SIDE = WIDTH.hi
+MAX_SPP = SPP.hi
 #: Largest |coordinate| of a vertex or of the camera: embree ignores geometry beyond about
 #: +-1.8e18 (its documented range), which would vanish from the image without a word.
 MAX_COORDINATE = 1e18
@@ -537,13 +539,12 @@ def _parse(doc, path: str, base: str) -> Scene:
     files = []   # the files the scene reads, for its content hash
 
     r = _Table(path, "[render]", doc.get("render", {}))
-    width = _positive(r, "width", r.get("width", "int", 256), 1, MAX_SIDE)
-    height = _positive(r, "height", r.get("height", "int", 256), 1, MAX_SIDE)
-    spp = _positive(r, "spp", r.get("spp", "int", 16), 1, MAX_SPP)
+    width, height, spp = (_positive(r, o.key, r.get(o.key, "int", o.default), o.lo, o.hi)
+                          for o in (WIDTH, HEIGHT, SPP))
     strategy = r.get("strategy", "str", "mis")
     if strategy not in STRATEGIES:
         r.fail("strategy", f"unknown strategy {shown(strategy)} ({' | '.join(STRATEGIES)})")
-    seed = _positive(r, "seed", r.get("seed", "int", 0), 0, 2 ** 63 - 1)
+    seed = _positive(r, "seed", r.get("seed", "int", SEED.default), SEED.lo, SEED.hi)
     options = r.options()
     r.done()
 
@@ -551,7 +552,7 @@ def _parse(doc, path: str, base: str) -> Scene:
     camera = Camera(c.get("eye", "vec3", np.array([0.0, 1.0, 4.0])),
                     c.get("target", "vec3", np.array([0.0, 0.5, 0.0])),
                     c.get("up", "vec3", np.array([0.0, 1.0, 0.0])),
-                    _positive(c, "fov_y", c.get("fov_y", "float", 35.0), 1e-3, 179.0))
+                    _positive(c, FOV.key, c.get(FOV.key, "float", FOV.default), FOV.lo, FOV.hi))
     for key, point in (("eye", camera.eye), ("target", camera.target)):
         if np.abs(point).max() > MAX_COORDINATE:
             c.fail(key, f"must be within the ray tracer's range (|x| <= {MAX_COORDINATE:g}), got {point.tolist()}")

@@ -282,7 +282,7 @@ def test_control_variate_integral_is_the_mean_of_its_samples(shadowed, levels):
     alpha = np.where(has_p, c.DEFENSIVE, 1.0 - c.LIGHT_SHARE)
     terms = []
     for k in range(rounds):
-        u = wavlight.rng.uniforms(17, k, c.DIRECTION_STREAM, 0, len(d))
+        u = wavlight.rng.uniforms(17, k, wavlight.rng.CONVERGE_DIRECTIONS[0], 0, len(d))
         direction, _, pdf = c.mixture_directions(trees, inside, u, hit, spp, has_p, alpha, scene.material_kind[mat],
                                                  scene.material_param[mat], wo, (s_ax, t_ax, nrm), c.LIGHT_SHARE,
                                                  with_pdf=True)

@@ -136,7 +136,7 @@ def test_the_mixture_kernel_matches_its_numpy_twin(moving, material):
     slots = np.flatnonzero(cam.prim >= 0)
     trees, offset = mover._product_trees(0, tr.width * tr.height)
     got = kernel(scene.camera.eye, cam.d[slots], cam.prim[slots], cam.t[slots], slots, trees, offset, spp, seed, tile)
-    u = rng.uniforms(seed, tile, mv.DIRECTION_STREAM, 0, tr.width * tr.height * spp)
+    u = rng.uniforms(seed, tile, rng.MOVING_DIRECTIONS, 0, tr.width * tr.height * spp)
     want = mv.mixture_samples_reference(rest, mover.rest_tracer, mover.environment, mover.inside, trees,
                                         cam.d[slots], cam.prim[slots], cam.t[slots], slots, spp, u)
     np.testing.assert_allclose(got[:, :3], want[:, :3], rtol=0, atol=1e-5)        # shadow-ray origins

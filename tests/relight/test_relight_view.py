@@ -426,7 +426,7 @@ def test_help_gives_the_walks_defaults():
     r = run("frame", "--help")
     text = " ".join(r.output.split())
     assert r.exit_code == 0
-    assert f"Default {view.REFINE:g}." in text and f"Default {view.MASS:g}." in text, text
+    assert f"Default: {view.REFINE:g}." in text and f"Default: {view.MASS:g}." in text, text
 
 
 @pytest.mark.parametrize("args, words", [

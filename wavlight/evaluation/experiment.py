@@ -42,7 +42,7 @@ The experiment file (TOML; relative paths are relative to the experiment file)::
     repetitions = 3           # seeds 0 .. repetitions-1 (default 3)
 
 At least one of ``spp`` and ``seconds`` is required. Errors name the file and the key
-(``exp.toml: [budgets].spp: must be a list of integers >= 1, got [0]``) and raise
+(``exp.toml: [budgets].spp: must be a non-empty list of integers >= 1, got [0]``) and raise
 :class:`wavlight.errors.WavlightError`.
 
 Decisions:
@@ -84,7 +84,7 @@ Decisions:
   are written atomically, the record last; temporaries that a killed experiment left
   (``.wavlight-<pid>...``) are removed at the start of the next run.
 - **Limits**, checked before anything is rendered: at most :data:`MAX_RUNS` runs, pilot_spp at
-  most MAX_SPP / 4, threads at most 4096, the largest size's render memory
+  most MAX_SPP / 4, threads at most MAX_THREADS (4096), the largest size's render memory
   (:func:`wavlight.imageio.check_memory`, per worker) within the memory available; every
   reference file read and checked (size, NaN, all black) up front; no input (the spec, a
   scene, its map or meshes, a reference) where the experiment writes (its files in DIR and
@@ -168,6 +168,7 @@ from ..errors import SanitisedInputWarning, WavlightError, one_line, shown
 from ..imageio import check_memory, check_not_input, remove_stale_temporaries, same_file, scene_files
 from ..integrator import render_full
 from ..scene import MAX_SPP, load_scene
+from ..threads import MAX_THREADS
 from ..version import __version__
 
 
@@ -213,8 +214,8 @@ class _Runner:
         if any(b.kind == "seconds" for b in spec.budgets) and 4 * spec.pilot_spp > MAX_SPP:
             raise WavlightError(f"{spec.path}: [experiment].pilot_spp: the pilots render pilot_spp and 4 x pilot_spp; "
                                 f"must be at most {MAX_SPP // 4}, got {spec.pilot_spp}")
-        if spec.threads is not None and spec.threads > 4096:
-            raise WavlightError(f"{spec.path}: [experiment].threads: must be at most 4096, got {spec.threads}")
+        if spec.threads is not None and spec.threads > MAX_THREADS:
+            raise WavlightError(f"{spec.path}: [experiment].threads: must be at most {MAX_THREADS}, got {spec.threads}")
         for s in spec.scenes:
             scene = load_scene(s.path)
             if scene.environment.is_black:   # as `wavlight render`: every image and error would be 0
@@ -324,7 +325,7 @@ class _Runner:
             w, h = self.size[s.name]
             os.makedirs(folder, exist_ok=True)
             t0 = time.perf_counter()
-            bake(self.scenes[s.name], output=path, width=w, height=h, spp=st.options.get("bake_spp", 16),
+            bake(self.scenes[s.name], output=path, width=w, height=h, spp=st.options["bake_spp"],
                  levels=st.options.get("levels"), threads=self.spec.threads).close()
             rec = {"hash": key, "file": os.path.relpath(path, self.out),
                    "bake_seconds": round(time.perf_counter() - t0, 4)}

@@ -8,6 +8,7 @@ import tomllib
 from dataclasses import dataclass, field
 
 from ..errors import WavlightError, file_problem, shown
+from ..relight.settings import BAKE
 from ..scene import MAX_SIDE, MAX_SPP
 from ..strategies import APPLIES, STRATEGIES
 from ..scene import _Table as SceneTable
@@ -18,9 +19,13 @@ PEER_PREFIX = "mitsuba:"
 #: experiment strategy: each scene baked once (:func:`wavlight.relight.bake.bake`), its time
 #: amortized over ``frames`` frames in every run's setup seconds.
 RELIGHT = "relight"
-#: relight's keys in a [[strategies]] table: (kind, default, lowest, highest)
-# bake_spp: at most the bake's camera samples, wavlight.relight.bake.MAX_SAMPLES
-RELIGHT_KEYS = {"bake_spp": ("int", 16, 1, 64), "levels": ("int", None, 2, 8), "frames": ("int", 100, 1, 10 ** 9)}
+#: the reference's seed unless [reference].seed gives one: far from the repetitions' seeds 0..R-1
+#: (also the stability suite's references)
+REFERENCE_SEED = 1_000_003
+#: relight's keys in a [[strategies]] table: (kind, default, lowest, highest); the bake's ranges are
+#: its records' (wavlight.relight.settings.BAKE), its camera samples fixed by default (no pilot's choice)
+RELIGHT_KEYS = {"bake_spp": ("int", 16, BAKE["spp"].lo, BAKE["spp"].hi),
+                "levels": ("int", None, BAKE["levels"].lo, BAKE["levels"].hi), "frames": ("int", 100, 1, 10 ** 9)}
 
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
@@ -142,7 +147,7 @@ def load_spec(path) -> Spec:
 
     r = SpecTable(path, "[reference]", doc.get("reference", {}))
     reference = {"strategy": r.get("strategy", "str", "mis"), "spp": r.get("spp", "int", 1024, lo=2),
-                 "seed": r.get("seed", "int", 1_000_003, lo=0)}
+                 "seed": r.get("seed", "int", REFERENCE_SEED, lo=0)}
     if reference["strategy"] not in STRATEGIES:
         r.fail("strategy", f"unknown strategy {reference['strategy']!r} ({' | '.join(STRATEGIES)})")
     if reference["spp"] > MAX_SPP:

@@ -150,10 +150,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import metrics
+from .spec import REFERENCE_SEED
 from ..errors import WavlightError, described
 from ..version import __version__
 
-REFERENCE_SEED = 1_000_003
 Z_CAP = 1e9
 VOV_LIMIT = 0.1
 PIXEL_SKEW_LIMIT = 0.2

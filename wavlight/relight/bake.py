@@ -40,17 +40,17 @@ import numpy as np
 from .. import bsdfs, cl, haar, rng
 from ..camera import camera_rays
 from ..envmap import LUMINANCE
-from ..errors import ArgumentError, check_int, check_number, shown
+from ..errors import ArgumentError, shown
 from ..integrator import render_full
 from ..raytrace import RayTracer
-from ..scene import MAX_SIDE, check_scene, load_scene
+from ..scene import check_scene, load_scene
+from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from . import lighting, store
 from .dask import bake_on_cluster
+from .settings import BAKE, LOBE_SPACINGS, SPP_CHOICES
 from .transfer import finish_bake
 
-#: Philox stream of the bake's texel uniforms (kernels/relight.cl RNG_TEXEL)
-TEXEL_STREAM = 8
 #: a block is BLOCK x BLOCK pixels: one tile of the bake, one unit of storage
 BLOCK = 16
 
@@ -163,10 +163,8 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
 
 
 #: points per texel where f cos is evaluated (kernels/relight.cl TEXEL_POINTS): g x g strata
-POINT_CHOICES = (1, 4, 16)
+POINT_CHOICES = BAKE["points"].values
 POINT_GRID = {1: 1, 4: 2, 16: 4}
-#: the points of a texel put at least this many point spacings across the narrowest BRDF lobe
-LOBE_SPACINGS = 16
 
 
 def texel_points(scene, n_levels: int) -> int:
@@ -193,7 +191,7 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
     g = np.arange(first, first + count, dtype=np.int64)
     p, t = g >> (2 * n_levels), g & (side * side - 1)
     row, col = t >> n_levels, t & (side - 1)
-    u = rng.uniforms(seed, tile, TEXEL_STREAM, first, count).astype(np.float64)
+    u = rng.uniforms(seed, tile, rng.TEXEL, first, count).astype(np.float64)
     z0, z1 = np.cos(np.pi * row / side), np.cos(np.pi * (row + 1) / side)
     directions = []
     grid = POINT_GRID[points]
@@ -278,8 +276,9 @@ def tile_transfer(ps: PixelSamples, tracer, n_levels: int, seed: int, tile: int,
 #: the held-out lighting of a bake: the scene's map turned this far from its own rotation (no
 #: frame is likely to test exactly there), on which compression and terms are measured
 HELD_OUT_DEGREES = 137.0
-MAX_SAMPLES = 64
-BITS = (8, 16)
+#: camera samples per pixel at most (a pixel's miss mask is one 64-bit word)
+MAX_SAMPLES = BAKE["spp"].hi
+BITS = BAKE["bits"].values
 
 
 def _tiles(width: int, height: int):
@@ -376,8 +375,6 @@ def bake_block_task(task: dict) -> dict:
 PILOT_SIDE = 32
 PILOT_LEVELS = 7
 TERM_CHOICES = (32, 64, 128, 256, 512, 1024, 2048, 4096)
-#: camera samples per pixel a bake chooses among (the miss mask holds MAX_SAMPLES)
-SPP_CHOICES = (16, 32, 64)
 #: the held-out lightings the pilot measures terms on: the scene's map turned by these degrees
 HELD_OUT_TURNS = (HELD_OUT_DEGREES, HELD_OUT_DEGREES + 120.0, HELD_OUT_DEGREES + 240.0)
 #: the pilot's K keeps its term error within this part of its share, and its n and S count the
@@ -534,13 +531,13 @@ PIXEL_VARY = ("lighting", "object")
 #: a bake that varies one object: each pixel's product T1 x L on 2^OBJECT_PRODUCT_LEVELS texels,
 #: and the scene without the object converged with this many samples per pixel
 OBJECT_PRODUCT_LEVELS = 4
-STATIC_SPP = 256
+STATIC_SPP = BAKE["static_spp"].default
 
 
-def bake(scene, output=None, width=None, height=None, spp=None, levels=None, tolerance: float = 0.02,
-         bits: int = 8, terms=None, priority=None, seed: int = 0, threads=None, progress=None,
-         backend: str = "opencl", dask_address=None, points=None, vary: str = "lighting", object=None,
-         static_spp: int = STATIC_SPP):
+def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
+         tolerance: float = BAKE["tolerance"].default, bits: int = BAKE["bits"].default, terms=None, priority=None,
+         seed: int = BAKE["seed"].default, threads=None, progress=None, backend: str = "opencl", dask_address=None,
+         points=None, vary: str = BAKE["vary"].default, object=None, static_spp: int = STATIC_SPP):
     """Bake the transfer of ``scene`` (a Scene or a scene file) for its camera at width x height
     (default: the scene's) with ``spp`` camera samples per pixel; write it to ``output``
     (default: a temporary file the Transfer owns) and return the :class:`Transfer`.
@@ -565,22 +562,13 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None, tol
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
     check_scene(scene)
-    width = check_int(where, "width", scene.width if width is None else width, 1, MAX_SIDE)
-    height = check_int(where, "height", scene.height if height is None else height, 1, MAX_SIDE)
-    if spp is not None:
-        spp = check_int(where, "spp", spp, 1, MAX_SAMPLES)
-    if levels is not None:
-        levels = check_int(where, "levels", levels, 2, 8)
-    if terms is not None:
-        terms = check_int(where, "terms", terms, 1, 1 << 22)
-    if priority is not None and priority not in lighting.PRIORITIES:
-        raise ArgumentError(f"{where}: priority must be one of {' | '.join(lighting.PRIORITIES)}, got {priority!r}")
-    tolerance = check_number(where, "tolerance", tolerance, 1e-6, 1.0)
-    if bits not in BITS:
-        raise ArgumentError(f"{where}: bits must be 8 or 16, got {bits!r}")
-    seed = check_int(where, "seed", seed, 0, 2 ** 62)
-    if points is not None and points not in POINT_CHOICES:
-        raise ArgumentError(f"{where}: points must be one of {', '.join(map(str, POINT_CHOICES))}, got {points!r}")
+    width = BAKE["width"].check(scene.width if width is None else width, where)
+    height = BAKE["height"].check(scene.height if height is None else height, where)
+    spp, levels, terms, priority, points = (None if v is None else BAKE[k].check(v, where) for k, v in
+                                            (("spp", spp), ("levels", levels), ("terms", terms),
+                                             ("priority", priority), ("points", points)))
+    tolerance, bits, seed = (BAKE[k].check(v, where) for k, v in (("tolerance", tolerance), ("bits", bits),
+                                                                   ("seed", seed)))
     if vary not in PIXEL_VARY:
         raise ArgumentError(f"{where}: vary must be one of {' | '.join(PIXEL_VARY)}, got {shown(vary)}")
     if scene.environment.is_black:
@@ -591,7 +579,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None, tol
             raise ArgumentError(f"{where}: vary='object' needs the object that moves (a name or an index)")
         moving = scene.find_object(object)
         scene = scene.without(moving)
-        static_spp = check_int(where, "static_spp", static_spp, 2, 1 << 20)
+        static_spp = BAKE["static_spp"].check(static_spp, where)
     elif object is not None:
         raise ArgumentError(f"{where}: an object is given only with vary='object'")
     if dask_address is not None and scene.path == "<dict>":
@@ -643,7 +631,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None, tol
                             None if moving is None else moving.index)
         else:
             worker = _Worker(scene)
-            with ThreadPoolExecutor(threads or 2 * (os.cpu_count() or 1)) as pool:
+            with ThreadPoolExecutor(threads or default_threads()) as pool:
                 for result in pool.map(lambda tile: bake_block(worker, settings, tile), tiles):
                     collect(result)
         seconds = time.perf_counter() - t0

@@ -1,29 +1,33 @@
 """The bake for the one factor its frames vary (Chen & Gao sec. 2.2): the lighting or one object
 (per-pixel transfer, :func:`wavlight.relight.bake.bake`), or the view (a surface cache,
-:func:`wavlight.relight.view.bake_view`). This is ``wavlight.bake``."""
+:func:`wavlight.relight.view.bake_view`). This is ``wavlight.bake``, the call ``wavlight bake``
+makes: its keywords, their defaults and ranges are the records of
+:data:`wavlight.relight.settings.BAKE`."""
 from __future__ import annotations
 
 from ..errors import ArgumentError, shown
-from .bake import PIXEL_VARY, STATIC_SPP
 from .bake import bake as bake_pixels
+from .settings import BAKE
 from .view import bake_view
 
 #: the factors a bake may vary
-VARY = PIXEL_VARY + ("view",)
+VARY = BAKE["vary"].values
 
 
-def bake(scene, output=None, width=None, height=None, spp: int = 16, levels=None, tolerance: float = 0.02,
-         bits: int = 8, terms=None, priority=None, seed: int = 0, threads=None, progress=None,
-         backend: str = "opencl", dask_address=None, points=None, vary: str = "lighting", object=None,
-         static_spp: int = STATIC_SPP, density=None):
+def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
+         tolerance: float = BAKE["tolerance"].default, bits: int = BAKE["bits"].default, terms=None, priority=None,
+         seed: int = BAKE["seed"].default, threads=None, progress=None, backend: str = "opencl", dask_address=None,
+         points=None, vary: str = BAKE["vary"].default, object=None, static_spp: int = BAKE["static_spp"].default,
+         density=None):
     """Bake ``scene`` (a Scene or a scene file) for frames that vary ``vary`` and write it to
     ``output`` (default: a temporary file the Transfer owns); returns the
     :class:`wavlight.relight.Transfer`.
 
     ``vary="lighting"`` (default) and ``vary="object"`` (with ``object``, a name or an index) bake
     each pixel's transfer for the scene's camera: :func:`wavlight.relight.bake.bake` gives the
-    meaning of every other argument. ``vary="view"`` bakes T1 = L V cos per point of a surface
-    cache of ``density`` points per unit area for frames from any camera
+    meaning of every other argument (``spp``, ``levels``, ``terms``, ``priority`` and ``points``
+    left None are chosen from the scene by pilot bakes). ``vary="view"`` bakes T1 = L V cos per
+    point of a surface cache of ``density`` points per unit area for frames from any camera
     (:func:`wavlight.relight.view.bake_view`). There width, height, spp, terms and priority do
     not apply, and the bake runs locally."""
     where = "relight.bake"

@@ -63,14 +63,14 @@ from ..haar import ProductPyramids, forward, texel_values
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import check_scene, load_scene
+from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting
 from .bake import BLOCK, camera_jitter
+from .settings import FRAME, UNBIASED_SPP
 
-#: Philox stream of the converged frame's direction uniforms (product pair, BSDF pair)
-DIRECTION_STREAM = 10
-MAX_SPP = 1 << 16
+MAX_SPP = FRAME["spp"].hi
 #: the product trees' levels at most (finer bakes are summed to them: 2^m x 2^m texels of the
 #: transfer are its coefficients' top-left 2^m x 2^m block times 4^(n - m)); inside a texel
 #: the lighting's own leaves place the direction (docs/decisions/relight-product-levels.md)
@@ -89,10 +89,8 @@ MAX_CANDIDATES = 256
 LOBE_POWER = 0.6
 TARGET_BSDF = 0.05
 TARGET_TRANSFER = 0.1
-#: directions per camera sample at most; the mixture's uniforms are streams DIRECTION_STREAM + slot
-MAX_SLOTS = 64
-#: Philox streams of the candidates and of the picks among them (beyond the mixture's)
-RESAMPLE_STREAM, PICK_STREAM = DIRECTION_STREAM + MAX_SLOTS, DIRECTION_STREAM + MAX_SLOTS + 1
+#: directions per camera sample at most: one Philox stream each, rng.CONVERGE_DIRECTIONS
+MAX_SLOTS = len(rng.CONVERGE_DIRECTIONS)
 #: sub-pixel rays per side of the fixed grid that measures a pixel's footprint
 FOOTPRINT_GRID = 4
 #: camera samples per pixel of a block taken at once (a pass; more spp, more passes): the
@@ -180,8 +178,8 @@ class _Block:
         return out
 
 
-def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, spp: int = 16, seed: int = 0,
-             threads=None, progress=None, slots: int = 2, defensive: float = DEFENSIVE,
+def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME["scale"].default,
+             spp: int = UNBIASED_SPP, seed: int = FRAME["seed"].default, threads=None, progress=None, slots: int = 2, defensive: float = DEFENSIVE,
              levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE, control: bool = True,
              candidates: int = CANDIDATES, coherence: float = COHERENCE) -> RenderResult:
     """The unbiased frame of ``transfer`` under ``env`` (default: the baked map) turned to
@@ -195,8 +193,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
     ``candidates`` directions (:func:`shade_by_resampling`; 0: never). Returns a RenderResult:
     image, per-pixel standard error, stats."""
     where = "relight.converge"
-    spp = check_int(where, "spp", spp, 1, MAX_SPP)
-    seed = check_int(where, "seed", seed, 0, 2 ** 63 - 1)
+    spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)
     levels = check_int(where, "levels", levels, 1, 16)
     slots = check_int(where, "slots", slots, 1, MAX_SLOTS)
     candidates = check_int(where, "candidates", candidates, 0, MAX_CANDIDATES)
@@ -278,7 +275,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = 1.0, 
             if progress:
                 progress(totals["done"], bw * bh, totals["rays"], time.perf_counter() - t0)
 
-    with ThreadPoolExecutor(threads or 2 * (os.cpu_count() or 1)) as pool:
+    with ThreadPoolExecutor(threads or default_threads()) as pool:
         list(pool.map(one, range(bw * bh)))
     seconds = time.perf_counter() - t0
     mean, err = mean_and_error(sums, squares, spp)
@@ -580,14 +577,14 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
     ``trees`` of totals ``mass``) seen from ``scene``'s camera, each evaluated with the true
     f cos, ``environment``'s radiance and a shadow ray; the uniforms are Philox stream
-    (``key`` = (seed, tile), DIRECTION_STREAM + slot), from sample ``first`` of the tile on.
+    (``key`` = (seed, tile), rng.CONVERGE_DIRECTIONS[slot]), from sample ``first`` of the tile on.
     ``control`` = (C, G): the pixels'
     transfer coefficients C (pixels, 2^n, 2^n) and G (pixels, 3) = sum_t T_t L_t, for the
     control variate g = T_t / Omega_t L(w) (:func:`control_terms`). ``resample`` = (C, chosen,
     candidates): the samples ``chosen`` (a mask over ``hit``) take their slots by resampling
     ``candidates`` mixture directions instead, without the control variate
     (:func:`shade_by_resampling`). Returns it and the rays traced."""
-    if slots > MAX_SLOTS:   # the slots' streams end where the resampling's begin
+    if slots > MAX_SLOTS:   # one stream per slot
         raise ArgumentError(f"relight.shade_by_mixture: at most {MAX_SLOTS} slots, got {slots}")
     hits = _Hits.of(scene, tracer, d, t, prim, hit, spp)
     has_p = mass[hits.pixel] > 0
@@ -602,7 +599,7 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     mix = hits.subset(~chosen)
     part = np.zeros((len(mix.index), 3))
     for slot in range(slots if len(mix.index) else 0):   # directions per camera sample, not samples
-        u_all = rng.uniforms(*key, DIRECTION_STREAM + slot, first, len(d))
+        u_all = rng.uniforms(*key, rng.CONVERGE_DIRECTIONS[slot], first, len(d))
         direction, weight, pdf = mixture_directions(trees, inside, u_all, mix.index, spp, has_p[~chosen],
                                                     alpha[~chosen], mix.kind, mix.param, mix.wo, mix.axes, light,
                                                     with_pdf=True)
@@ -678,11 +675,11 @@ def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, s
     f cos V, is much wider than this sample's own lobe (a glossy pixel whose footprint spans
     several facets), the transfer's product spends most of its directions outside the lobe; the
     target's own lobe takes them back. ``count``: the camera samples of the call, from sample
-    ``first`` of the tile on (the uniforms' layout: Philox stream RESAMPLE_STREAM of ``key``, each
-    pair stratified over the pixel's spp x candidates, and PICK_STREAM). Returns it and the rays
+    ``first`` of the tile on (the uniforms' layout: Philox stream rng.CONVERGE_RESAMPLE of ``key``,
+    each pair stratified over the pixel's spp x candidates, and rng.CONVERGE_PICK). Returns it and the rays
     traced."""
     m = candidates
-    u = rng.Stream(*key, first * m, spp * m).uniforms(RESAMPLE_STREAM, count * m)
+    u = rng.Stream(*key, first * m, spp * m).uniforms(rng.CONVERGE_RESAMPLE, count * m)
     cand = hits.candidates(m)
     direction, weight, pdf = mixture_directions(trees, inside, u, cand.index, spp * m, np.repeat(has_p, m),
                                                 np.repeat(alpha, m), cand.kind, cand.param, cand.wo, cand.axes, light,
@@ -695,7 +692,7 @@ def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, s
     w = np.where(np.isfinite(w), w, 0.0).reshape(-1, m)
     cdf = np.cumsum(w, 1)
     n = len(hits.index)
-    u0 = rng.uniforms(*key, PICK_STREAM, first, count)[hits.index, 0].astype(np.float64)
+    u0 = rng.uniforms(*key, rng.CONVERGE_PICK, first, count)[hits.index, 0].astype(np.float64)
     at = (u0[:, None] + np.arange(slots)) / slots * cdf[:, -1:]          # (n, slots) points on the sums
     rows = np.repeat(np.arange(n), slots)
     picks = np.minimum(_entries_at_most(cdf, rows, at.reshape(-1)), m - 1)   # the first entry above each

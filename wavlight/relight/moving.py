@@ -43,7 +43,7 @@ import numpy as np
 from .. import camera, cl, raytrace, rng, strategies
 from ..camera import camera_rays, project
 from ..envmap import Environment
-from ..errors import ArgumentError, WavlightError, check_int, check_real
+from ..errors import ArgumentError, WavlightError, check_real
 from ..haar.tree import HaarTree, tree_stride
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
@@ -53,9 +53,11 @@ from ..warp import frame as tangent_frame
 from ..warp import to_local
 from .bake import camera_jitter
 from .converge import _scene_of, _TexelLight, mixture_directions
+from .settings import FRAME, OBJECT_FRAME_SPP
 
-#: Philox streams of a moving-object frame: camera jitter per chunk, direction uniforms, MIS
-FRAME_STREAM, DIRECTION_STREAM, MIS_STREAM = 11, 12, 13
+#: a frame's chunk c draws its Philox numbers as tile FRAME_TILES + c (streams rng.JITTER,
+#: rng.MOVING_DIRECTIONS, rng.MOVING_MIS)
+FRAME_TILES = 11 << 16
 #: a chunk is whole rows of the image: at most this many pixels and camera samples (memory
 #: stays bounded at any size; a row of more samples is one chunk)
 CHUNK_PIXELS = 1 << 16
@@ -123,7 +125,7 @@ class _MixtureKernel:
 
     def __call__(self, eye, d, prim, t, slots, trees, tree_offset: int, spp: int, seed: int, tile: int):
         """(N, 9) float32 rows as :func:`mixture_samples_reference` returns them, the uniforms
-        drawn in the kernel (Philox stream DIRECTION_STREAM of ``tile``, index = slot), pixel
+        drawn in the kernel (Philox stream rng.MOVING_DIRECTIONS of ``tile``, index = slot), pixel
         slot // spp's tree at ``tree_offset`` + that in ``trees``."""
         count = len(d)
         if count == 0:
@@ -138,7 +140,7 @@ class _MixtureKernel:
             *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
             self.kind, self.param, self.albedo, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
             np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
-            np.uint32(tile), np.uint32(DIRECTION_STREAM), *(np.uint32(x) for x in rng.key(seed)), out)
+            np.uint32(tile), np.uint32(rng.MOVING_DIRECTIONS), *(np.uint32(x) for x in rng.key(seed)), out)
         return np.ascontiguousarray(cl.read(out, (9, count), np.float32, q).T)
 
     def warm_up(self, eye, trees):
@@ -307,11 +309,12 @@ class MovingObject:
         return (tc > -r) & (np.einsum("ij,ij->i", to, to) - tc * tc <= r * r + SPHERE_MARGIN * tc * tc)
 
     # -- a frame
-    def frame(self, translate=None, rotate=None, spp: int = 4, seed: int = 0) -> RenderResult:
-        """The unbiased frame with the object at its new place (module docstring). One frame at a
-        time (the frames share what they keep)."""
-        spp = check_int("relight.moving", "spp", spp, 1, 1 << 16)
-        seed = check_int("relight.moving", "seed", seed, 0, 2 ** 62)
+    def frame(self, translate=None, rotate=None, spp=None, seed: int = FRAME["seed"].default) -> RenderResult:
+        """The unbiased frame with the object at its new place (module docstring), with ``spp``
+        camera samples per pixel (default OBJECT_FRAME_SPP). One frame at a time (the frames share
+        what they keep)."""
+        spp = FRAME["spp"].check(OBJECT_FRAME_SPP if spp is None else spp, "relight.moving")
+        seed = FRAME["seed"].check(seed, "relight.moving")
         R, T = self.placement(translate, rotate)
         with self._lock:
             return self._frame(R, T, spp, seed)
@@ -351,7 +354,7 @@ class MovingObject:
 
     def _camera(self, chunk, first, last, spp, seed):
         """The chunk's camera rays (whole rows first .. last - 1 of the image, spp jittered samples
-        per pixel, stratified: Philox stream JITTER of tile FRAME_STREAM 65536 + chunk) and their
+        per pixel, stratified: Philox stream JITTER of tile FRAME_TILES + chunk) and their
         hits on the rest, kept for the next frames of the seed and spp."""
         kept = self._chunks.get(chunk)
         if kept is not None:
@@ -359,7 +362,7 @@ class MovingObject:
         tr, scene = self.transfer, self.scene
         width, height = tr.width, tr.height
         P = last - first
-        tile = FRAME_STREAM * 65536 + chunk
+        tile = FRAME_TILES + chunk
         if self.backend == "opencl" and P * spp < camera.MAX_PASS_RAYS:
             d = camera.pass_rays(scene, width, height, seed, tile, 0, first // width, width, P // width, spp, 0,
                                  stratified=True)
@@ -427,11 +430,11 @@ class MovingObject:
         """Rows (len(todo), 9) of the mixture samples of the chunk's camera samples ``todo``
         (origin, direction, albedo f cos L / p): the kernel, or its numpy twin."""
         trees, offset = self._product_trees(first, last)
-        tile = FRAME_STREAM * 65536 + chunk
+        tile = FRAME_TILES + chunk
         if self.backend == "opencl":
             return self._kernel(self.scene.camera.eye, cam.d[todo], cam.prim[todo], cam.t[todo], todo, trees, offset,
                                 spp, seed, tile)
-        u = rng.uniforms(seed, tile, DIRECTION_STREAM, 0, (last - first) * spp)
+        u = rng.uniforms(seed, tile, rng.MOVING_DIRECTIONS, 0, (last - first) * spp)
         return mixture_samples_reference(self.rest, self.rest_tracer, self.environment, self.inside, trees,
                                          cam.d[todo], cam.prim[todo], cam.t[todo], todo, spp, u)
 
@@ -479,7 +482,7 @@ class MovingObject:
         mats = self._rest_material[np.maximum(prim_r[hits], 0)]
         mats[obj] = self.object.material
         p = eye + dd * t[:, None]
-        u = rng.uniforms(seed, FRAME_STREAM * 65536 + chunk, MIS_STREAM, 0, len(hits))
+        u = rng.uniforms(seed, FRAME_TILES + chunk, rng.MOVING_MIS, 0, len(hits))
         if self.backend == "opencl":
             wi, val = self._shader(n, -dd, mats.astype(np.int32), u)
         else:
@@ -512,7 +515,7 @@ class MovingObject:
         return value, rays
 
 
-def moving_frame(transfer, translate=None, rotate=None, spp: int = 4, seed: int = 0, scene=None,
+def moving_frame(transfer, translate=None, rotate=None, spp=None, seed: int = FRAME["seed"].default, scene=None,
                  backend: str = "opencl") -> RenderResult:
     """One unbiased frame of a bake with ``vary="object"`` with the object at ``translate`` and
     ``rotate`` (absolute; None keeps its own): :class:`MovingObject` (made once per call; keep

@@ -21,11 +21,12 @@ import numpy as np
 
 from .. import cl, data
 from ..envmap import Environment, read_image
-from ..errors import ArgumentError, WavlightError, check_int, check_number, shown
+from ..errors import ArgumentError, WavlightError, shown
 from . import lighting, store
 from .frame import DeviceEntries, background_cl, background_lookup, background_reference, product_reference
+from .settings import FRAME
 
-MAX_TERMS = 1 << 22
+MAX_TERMS = FRAME["terms"].hi
 #: the maps whose lighting projectors a Transfer keeps (the viewer offers a few)
 MAPS_KEPT = 4
 
@@ -123,7 +124,7 @@ class Transfer:
         return int(self._s["entry_scale"].shape[0])
 
     # -- lighting
-    def environment(self, env=None, scale: float = 1.0) -> Environment:
+    def environment(self, env=None, scale: float = FRAME["scale"].default) -> Environment:
         """The lighting of a frame: ``env`` (an Environment, a map file or ``"data:NAME"``, or
         None: the scene's own map as baked), without its rotation (a frame's ``rotate_y`` sets it), times ``scale``
         (the last one asked for is kept: frames of one map do not read it again)."""
@@ -153,21 +154,21 @@ class Transfer:
             return Environment(read_image(data.resolve(name, kind="environment map")), scale, 0.0, name)
         raise ArgumentError(f"Transfer.frame: env must be an Environment, a map file or None, got {shown(env)}")
 
-    def lighting(self, env=None, rotate_y=None, scale: float = 1.0):
+    def lighting(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default):
         """(3, N, N) Haar coefficients of the frame's lighting on the transfer's texels."""
         rot = self.scene_rotate_y if rotate_y is None else rotate_y
         environment = self.environment(env, scale)
         return lighting.coefficients(self._projector(environment)(rot))
 
     # -- frames
-    def frame(self, env=None, rotate_y=None, scale: float = 1.0, terms=None, priority=None,
+    def frame(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, terms=None, priority=None,
               backend: str = "opencl") -> np.ndarray:
         """(H, W, 3) float32: the frame under ``env`` (default: the scene's map) turned to
         ``rotate_y`` degrees about +Y (absolute, as the scene's rotate_y; default the scene's),
         times ``scale``, from ``terms`` lighting coefficients (default: the bake's choice)."""
         return self.frame_timed(env, rotate_y, scale, terms, priority, backend)[0]
 
-    def frame_timed(self, env=None, rotate_y=None, scale: float = 1.0, terms=None, priority=None,
+    def frame_timed(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, terms=None, priority=None,
                     backend: str = "opencl"):
         """The frame and its timings (seconds of projection, selection, product, assembly)."""
         where = "Transfer.frame"
@@ -175,13 +176,10 @@ class Transfer:
             raise WavlightError(f"{self.path}: this bake varies the view (its lighting is fixed): its frames come "
                                 "from wavlight.relight.view.ViewFrames")
         if rotate_y is not None:
-            rotate_y = check_number(where, "rotate_y", rotate_y)
-        scale = check_number(where, "scale", scale, 0.0, 1e30)
-        terms = self.terms if terms is None else check_int(where, "terms", terms, 1, MAX_TERMS)
-        priority = self.priority if priority is None else priority
-        if priority not in lighting.PRIORITIES:
-            raise ArgumentError(f"{where}: priority must be one of {' | '.join(lighting.PRIORITIES)}, "
-                                f"got {shown(priority)}")
+            rotate_y = FRAME["rotate_y"].check(rotate_y, where)
+        scale = FRAME["scale"].check(scale, where)
+        terms = self.terms if terms is None else FRAME["terms"].check(terms, where)
+        priority = self.priority if priority is None else FRAME["priority"].check(priority, where)
         if backend not in ("opencl", "numpy"):
             raise ArgumentError(f"{where}: backend must be opencl or numpy, got {shown(backend)}")
         t0 = time.perf_counter()

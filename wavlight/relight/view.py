@@ -9,7 +9,8 @@ The surface cache. T1 depends on the surface point, not on the camera, so it is 
 spread over every object's surface: each scene face of area A carries a triangular lattice of
 (k + 1)(k + 2) / 2 points, k = ceil(sqrt(2 A D)) (about D points per unit area; and at least
 longest edge / 2 h, h = sqrt(2 / (sqrt(3) D)) the spacing of an equilateral lattice of density
-D), D the density in points per unit area (default: DEFAULT_POINTS over the scene's area); lattice points that coincide (shared vertices and edges of one object)
+D), D the density in points per unit area (default: CACHE_POINTS over the scene's area,
+:mod:`wavlight.relight.settings`); lattice points that coincide (shared vertices and edges of one object)
 are one cache point, whose normal is the area-weighted mean of its faces' normals. A camera ray's
 hit on face F at barycentric (u, v) lies in one lattice triangle of F: its three points and
 their barycentric weights are the hit's cache points (points of the same object; a point whose
@@ -106,57 +107,71 @@ import numpy as np
 from .. import bsdfs, cl, haar
 from ..camera import camera_rays
 from ..envmap import LUMINANCE, Environment
-from ..errors import ArgumentError, WavlightError, check_int, check_number, check_real
+from ..errors import ArgumentError, WavlightError, check_int, check_real
 from ..haar.tree import HaarTree
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import Camera, check_scene, load_scene
+from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting, store
-from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choose_model, texel_rays, \
+from .bake import BLOCK, PixelSamples, camera_jitter, choose_model, texel_rays, \
     texel_rays_reference
 from .converge import LIGHT_SHARE, _scene_of, check_shares, _TexelLight, mean_and_error, shade_by_mixture, square_to_world
 from .frame import DeviceEntries
+from .settings import BAKE, CACHE_POINTS, FRAME, UNBIASED_SPP, VIEW_TEXEL_POINTS, WRITTEN_SUPERSAMPLE
 from .transfer import finish_bake
 
 #: cache points per block of the bake file (one entry row holds their three channels)
 POINTS = BLOCK * BLOCK
-#: the default cache: this many points over the scene's surface area
-DEFAULT_POINTS = 1 << 16
 #: at most this many lattice entries (bounded memory)
 MAX_LATTICE = 1 << 25
 #: a cache point whose normal is further than this from the hit face's is not interpolated
 CREASE_DEGREES = 60.0
 #: the approximate frame refines a node until its angular radius is at most REFINE (delta + w) / g,
 #: g = max(1, sqrt(phi / MASS)) for a node holding the share phi of T1's mass (0: g = 1)
-REFINE = 0.6
-MASS = 0.003
+REFINE = FRAME["refine"].default
+MASS = FRAME["mass"].default
 #: g is rounded up to a power of two 2^k, k <= MASS_STEPS (cos and sin of the scaled radius tabulated)
 MASS_STEPS = 8
 #: the unbiased frame: the product's texel levels, the BSDF's share, directions per sample
 PRODUCT_LEVELS = 5
 DEFENSIVE = 0.1
 SLOTS = 2
-#: Philox streams of the unbiased frame: camera jitter, direction uniforms
+#: the unbiased frame's chunk c draws its Philox numbers as tile JITTER_TILE + c (camera jitter:
+#: rng.JITTER; directions: rng.CONVERGE_DIRECTIONS, :func:`wavlight.relight.converge.shade_by_mixture`)
 JITTER_TILE = 1 << 20
-DIRECTION_STREAM = 14
 #: pixels per chunk of a frame (bounded memory)
 CHUNK_PIXELS = 1 << 16
 CONVERGE_CHUNK = 1 << 10
 #: a view direction this close to the tangent plane is lifted to it (silhouette points)
 MIN_COS_VIEW = 1e-3
-#: the approximate frame's modes: a product per cache point or per pixel, and the default
-MODES = ("point", "pixel")
+#: the approximate frame's modes: a product per cache point or per pixel; :meth:`ViewFrames.frame`'s
+#: default is the viewer's
+MODES = FRAME["mode"].values
 MODE = "point"
 #: the pixel mode's cosine correction: a node is refined while the factor rho varies more than this
-TAU = 0.1
+TAU = FRAME["tau"].default
 #: rays per pixel of a frame: at most MAX_SUPERSAMPLE^2
-MAX_SUPERSAMPLE = 16
-#: a written frame's settings (``wavlight frame``): a product per ray at 4 x 4 rays per pixel
-#: (2.8% from ``mis`` over the rough bunnies' frames, 3.3-3.4% on the bunny); the frame's
-#: defaults (``point``, one ray) are the viewer's (docs/decisions/view-point-mode.md)
-STILL = {"refine": REFINE, "mass": MASS, "mode": "pixel", "supersample": 4, "tau": TAU}
+MAX_SUPERSAMPLE = FRAME["supersample"].hi
+
+
+def still_settings(refine: float = REFINE, mass: float = MASS, mode: str = FRAME["mode"].default,
+                   supersample=None, tau: float = TAU) -> dict:
+    """A written frame's settings (``wavlight frame``; the defaults are its records',
+    :data:`wavlight.relight.settings.FRAME`): a product per ray at WRITTEN_SUPERSAMPLE^2 rays per
+    pixel (2.8% from ``mis`` over the rough bunnies' frames, 3.3-3.4% on the bunny), where
+    :meth:`ViewFrames.frame`'s defaults (``point``, one ray) are the viewer's
+    (docs/decisions/view-point-mode.md). ``supersample`` None: WRITTEN_SUPERSAMPLE in ``pixel``
+    mode, 1 in ``point`` mode (more rays do not sharpen its blend). Checked by :meth:`ViewFrames.frame`."""
+    if supersample is None:
+        supersample = WRITTEN_SUPERSAMPLE if mode == "pixel" else 1
+    return {"refine": refine, "mass": mass, "mode": mode, "supersample": supersample, "tau": tau}
+
+
+#: a written frame's settings where none are given
+STILL = still_settings()
 
 
 # ----------------------------------------------------------------------------- the surface cache
@@ -208,7 +223,7 @@ def face_objects(scene) -> np.ndarray:
     return obj
 
 
-def build_cache(scene, density=None, points: int = DEFAULT_POINTS) -> SurfaceCache:
+def build_cache(scene, density=None, points: int = CACHE_POINTS) -> SurfaceCache:
     """The surface cache of ``scene`` at ``density`` points per unit area (default: ``points``
     over the scene's area): lattices on every face, coincident points of one object merged,
     sorted by object and Morton order (module docstring)."""
@@ -222,7 +237,7 @@ def build_cache(scene, density=None, points: int = DEFAULT_POINTS) -> SurfaceCac
     area = 0.5 * float(np.linalg.norm(cross, axis=1).sum())
     if not area > 0:
         raise ArgumentError(f"{where}: the scene's surfaces have no area")
-    density = points / area if density is None else check_number(where, "density", density, 1e-12, 1e18)
+    density = points / area if density is None else BAKE["density"].check(density, where)
     spacing = float(np.sqrt(2.0 / (np.sqrt(3.0) * density)))
     longest = np.maximum(np.maximum(np.linalg.norm(e0, axis=1), np.linalg.norm(e1, axis=1)),
                          np.linalg.norm(v[f[:, 2]] - v[f[:, 1]], axis=1))
@@ -752,8 +767,9 @@ def _bake_block(cache, tracer, s: _Settings, block: int) -> dict:
             "sum_sq": np.einsum("pc,pc->c", lum, lum)}
 
 
-def bake_view(scene, output=None, levels=None, tolerance: float = 0.02, bits: int = 8, seed: int = 0, threads=None,
-              progress=None, backend: str = "opencl", points=None, density=None, cache_points: int = DEFAULT_POINTS):
+def bake_view(scene, output=None, levels=None, tolerance: float = BAKE["tolerance"].default,
+              bits: int = BAKE["bits"].default, seed: int = BAKE["seed"].default, threads=None, progress=None,
+              backend: str = "opencl", points=None, density=None, cache_points: int = CACHE_POINTS):
     """Bake T1 = L V max(cos, 0) of ``scene`` on its surface cache (module docstring) into
     ``output`` (default: a temporary file the Transfer owns); returns the
     :class:`wavlight.relight.Transfer` (header ``vary = "view"``).
@@ -761,21 +777,17 @@ def bake_view(scene, output=None, levels=None, tolerance: float = 0.02, bits: in
     ``levels``: texels 2^n x 2^n (default: the fewest within ``tolerance`` / sqrt(3), chosen by
     the lighting bake's pilot at the scene's camera, :func:`wavlight.relight.bake.choose_model`);
     ``density``: cache points per unit area (default: ``cache_points`` over the scene's area);
-    ``points``: texel points (1 or 4, default 4); each block is compressed to ``tolerance`` /
+    ``points``: texel points (1, 4 or 16; default VIEW_TEXEL_POINTS); each block is compressed to ``tolerance`` /
     sqrt(3) (relative L2 of T1) and quantized to ``bits``."""
     where = "relight.bake"
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
     check_scene(scene)
     if levels is not None:
-        levels = check_int(where, "levels", levels, 2, 8)
-    tolerance = check_number(where, "tolerance", tolerance, 1e-6, 1.0)
-    if bits not in BITS:
-        raise ArgumentError(f"{where}: bits must be 8 or 16, got {bits!r}")
-    seed = check_int(where, "seed", seed, 0, 2 ** 62)
-    points = 4 if points is None else points
-    if points not in POINT_CHOICES:
-        raise ArgumentError(f"{where}: points must be one of {', '.join(map(str, POINT_CHOICES))}, got {points!r}")
+        levels = BAKE["levels"].check(levels, where)
+    tolerance, bits, seed = (BAKE[k].check(v, where) for k, v in (("tolerance", tolerance), ("bits", bits),
+                                                                   ("seed", seed)))
+    points = BAKE["points"].check(VIEW_TEXEL_POINTS if points is None else points, where)
     cache_points = check_int(where, "cache_points", cache_points, 1, MAX_LATTICE)
     if scene.environment.is_black:
         raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
@@ -807,7 +819,7 @@ def bake_view(scene, output=None, levels=None, tolerance: float = 0.02, bits: in
                 progress(totals["done"], n_blocks, totals["rays"], time.perf_counter() - t0)
 
     try:
-        with ThreadPoolExecutor(threads or 2 * (os.cpu_count() or 1)) as pool:
+        with ThreadPoolExecutor(threads or default_threads()) as pool:
             for r in pool.map(lambda b: _bake_block(cache, tracer, s, b), range(n_blocks)):
                 collect(r)
         seconds = time.perf_counter() - t0
@@ -851,7 +863,7 @@ def check_camera(where: str, eye, target, up, fov) -> Camera:
     target = check_real(where, "target", target, finite=True).reshape(-1).astype(np.float64)
     if eye.shape != (3,) or target.shape != (3,):
         raise ArgumentError(f"{where}: eye and target must be three numbers each")
-    fov = check_number(where, "fov", fov, 1e-3, 179.0)
+    fov = FRAME["fov"].check(fov, where)
     fwd = target - eye
     if not np.linalg.norm(fwd) > 1e-9 * max(1.0, float(np.abs(eye).max())):
         raise ArgumentError(f"{where}: the eye {eye.tolist()} and the target are the same point")
@@ -912,8 +924,8 @@ class ViewFrames:
                             cam.up, cam.fov_y if fov is None else fov)
 
     def _size(self, width, height):
-        w = check_int("relight.view", "width", self.transfer.width if width is None else width, 1, 16384)
-        h = check_int("relight.view", "height", self.transfer.height if height is None else height, 1, 16384)
+        w = FRAME["width"].check(self.transfer.width if width is None else width, "relight.view")
+        h = FRAME["height"].check(self.transfer.height if height is None else height, "relight.view")
         return w, h
 
     def _pixel_centres(self, width, first, count, supersample: int = 1):
@@ -996,14 +1008,12 @@ class ViewFrames:
         and ``mass`` set where the walk stops (module docstring); ``supersample`` S traces S x S rays
         per pixel (its sub-pixels' centres) and takes their mean (``mis`` integrates over the
         pixel, and a mesh's facets can be smaller than a pixel)."""
-        refine = check_number("relight.view", "refine", refine, 1e-4, 100.0)
-        mass = check_number("relight.view", "mass", mass, 0.0, 1.0)
+        where = "relight.view"
+        refine, mass = FRAME["refine"].check(refine, where), FRAME["mass"].check(mass, where)
         if backend not in ("opencl", "numpy"):
             raise ArgumentError(f"relight.view: backend must be opencl or numpy, got {backend!r}")
-        if mode not in MODES:
-            raise ArgumentError(f"relight.view: mode must be one of {', '.join(MODES)}, got {mode!r}")
-        tau = check_number("relight.view", "tau", tau, 0.0, 100.0)
-        supersample = check_int("relight.view", "supersample", supersample, 1, MAX_SUPERSAMPLE)
+        mode, tau = FRAME["mode"].check(mode, where), FRAME["tau"].check(tau, where)
+        supersample = FRAME["supersample"].check(supersample, where)
         cam = self.camera(eye, target, fov)
         width, height = self._size(width, height)
         sub = supersample * supersample
@@ -1129,13 +1139,12 @@ class ViewFrames:
                            wl.reshape(-1, 3), np.repeat(wo, small * small, axis=0)).reshape(P, small, small)
         return np.maximum(T * f, 0.0).astype(np.float32)
 
-    def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = 16, seed: int = 0,
-                 slots: int = SLOTS, defensive: float = DEFENSIVE, threads=None, progress=None,
-                 light: float = LIGHT_SHARE) -> RenderResult:
+    def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = UNBIASED_SPP,
+                 seed: int = FRAME["seed"].default, slots: int = SLOTS, defensive: float = DEFENSIVE, threads=None,
+                 progress=None, light: float = LIGHT_SHARE) -> RenderResult:
         """The unbiased frame from ``eye`` (module docstring): image, per-pixel standard error, stats."""
         where = "relight.view"
-        spp = check_int(where, "spp", spp, 1, 1 << 16)
-        seed = check_int(where, "seed", seed, 0, 2 ** 62)
+        spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)
         check_shares(where, defensive, light)
         cam = self.camera(eye, target, fov)
         width, height = self._size(width, height)
@@ -1190,7 +1199,9 @@ class ViewFrames:
                 if progress:
                     progress(totals["done"], len(chunks), totals["rays"], time.perf_counter() - t0)
 
-        with ThreadPoolExecutor(threads or 2) as pool:
+        # one chunk per core: each chunk's rays are split again over the tracer's own two threads
+        # (self.tracer, shared with the approximate frame), which makes two threads per core
+        with ThreadPoolExecutor(threads or default_threads(per_core=1)) as pool:
             list(pool.map(one, chunks))
         seconds = time.perf_counter() - t0
         mean, err = mean_and_error(sums, squares, spp)

@@ -92,6 +92,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from ..errors import WavlightError, described, shown
 from ..imageio import srgb_encode
 from ..scene import load_scene, rotation
+from .settings import OBJECT_FRAME_SPP, VIEWER
 
 try:   # the unbiased estimator of a relit frame, where this version has it
     from .converge import converge as _converge_function
@@ -119,9 +120,8 @@ CONVERGE_FIRST_SPP = 2
 CONVERGE_ROUND_SECONDS = 0.5
 CONVERGE_MAX_CALL_SPP = 64
 CONVERGE_MAX_SPP = 1 << 16
-#: a bake that varies an object: samples per pixel of its frame, and of the frame drawn while a
-#: slider is dragged
-OBJECT_FRAME_SPP = 4
+#: a bake that varies an object: samples per pixel of its frame (OBJECT_FRAME_SPP, the frame's
+#: default, :mod:`wavlight.relight.settings`), and of the frame drawn while a slider is dragged
 OBJECT_PREVIEW_SPP = 1
 #: a bake that varies the view: the camera's elevation stays within this many degrees of the
 #: plane normal to its up; the distance within the scene camera's distance times these factors
@@ -531,7 +531,8 @@ class Viewer:
     (image, stderr). ``preview_pixels``: the most pixels of its frames while the camera is
     dragged (:func:`preview_size`)."""
 
-    def __init__(self, transfer, maps=(), converge=_UNSET, scene=None, preview_pixels: int = VIEW_PREVIEW_PIXELS):
+    def __init__(self, transfer, maps=VIEWER["maps"].default, converge=_UNSET, scene=None,
+                 preview_pixels: int = VIEW_PREVIEW_PIXELS):
         self.transfer = transfer
         self.varies = transfer.header.get("vary", "lighting")
         self.mover = self.views = None
@@ -838,7 +839,7 @@ class Viewer:
         return self._scene
 
     # -- serving
-    async def start(self, port: int = 0) -> str:
+    async def start(self, port: int = VIEWER["port"].default) -> str:
         """Listen on 127.0.0.1:port (0: a free port); the URL. A port in use: a one-line
         WavlightError."""
         _one_line_logs("aiohttp.server", "aiohttp.web", "aiohttp.access", "aiohttp.websocket", "wavlight.viewer")
@@ -866,7 +867,7 @@ class Viewer:
             await asyncio.get_running_loop().run_in_executor(None, lambda: pool.shutdown(wait=True,
                                                                                           cancel_futures=True))
 
-    def serve(self, port: int = 0, ready=None) -> None:
+    def serve(self, port: int = VIEWER["port"].default, ready=None) -> None:
         """Serve until SIGINT or SIGTERM; ``ready(url)`` once listening."""
         async def main():
             stop = asyncio.Event()
@@ -887,7 +888,7 @@ class Viewer:
 
         asyncio.run(main())
 
-    def start_background(self, port: int = 0, timeout: float = 30.0) -> str:
+    def start_background(self, port: int = VIEWER["port"].default, timeout: float = 30.0) -> str:
         """Serve from a thread of its own (tests, benchmarks); the URL. Stop with
         :meth:`stop_background`."""
         started = concurrent.futures.Future()
