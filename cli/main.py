@@ -18,7 +18,7 @@ import click
 from wavlight.strategies import APPLIES, OPTIONS, STRATEGIES
 
 from .common import check_output, fail, one_line, refuse_inputs
-from .progress import ProgressBar
+from .progress import progress_bar
 
 
 #: set when a SanitisedInputWarning was shown during this invocation (the exit code becomes 3)
@@ -143,13 +143,11 @@ def render(scene_file, output, spp, strategy, width, height, seed, stderr_out, a
         if scene.environment.is_black:
             fail(f"{scene_file}: [environment]: the environment is black everywhere; "
                   "the image would be black")
-        bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr)
         if stderr_out is not None and (scene.spp if spp is None else spp) < 2:
             fail(f"{stderr_out}: a standard error needs spp >= 2")
-        result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
-                                      seed=seed, progress=bar, **options)
-        if bar:
-            bar.close()
+        with progress_bar("parts", "samples", quiet) as bar:
+            result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
+                                          seed=seed, progress=bar, **options)
         bad = int((~np.isfinite(result.image)).any(axis=-1).sum())
         if bad:   # (the inputs are finite and bounded: an estimate overflowed float32)
             fail(f"{output}: {bad} pixel(s) came out NaN or Inf (an estimate radiance x BRDF / pdf overflowed "

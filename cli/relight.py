@@ -10,12 +10,11 @@ from __future__ import annotations
 import json
 import os
 import statistics
-import sys
 
 import click
 
 from .common import check_output, fail, refuse_inputs
-from .progress import ProgressBar
+from .progress import progress_bar
 
 
 @click.command()
@@ -61,11 +60,7 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
     """Bake the transfer of SCENE (its camera, objects and materials) into PATH, for relighting."""
     import wavlight
 
-    if os.path.isdir(output):
-        fail(f"{output}: is a folder, not a file")
-    folder = os.path.dirname(os.path.abspath(output))
-    if not os.path.isdir(folder):
-        fail(f"{output}: no folder {folder}")
+    check_output(output, what="a file")   # before any work; the library checks the room left
     try:
         scene = wavlight.load_scene(scene_file)
         refuse_inputs(output, [scene_file, *scene.files])
@@ -77,14 +72,12 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
             fail("--density sets the surface cache of a view bake: give it with --vary view")
         if scene.environment.is_black:
             fail(f"{scene_file}: [environment]: the environment is black everywhere; nothing to relight")
-        bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
-        transfer = wavlight.bake(scene, output, width=width, height=height, spp=spp, levels=levels,
-                                 tolerance=tolerance, bits=int(bits), terms=terms, priority=priority, seed=seed,
-                                 progress=bar, dask_address=dask_address,
-                                 points=None if points is None else int(points), vary=vary, object=moving,
-                                 static_spp=static_spp, density=density)
-        if bar:
-            bar.close()
+        with progress_bar("blocks", "rays", quiet) as bar:
+            transfer = wavlight.bake(scene, output, width=width, height=height, spp=spp, levels=levels,
+                                     tolerance=tolerance, bits=int(bits), terms=terms, priority=priority, seed=seed,
+                                     progress=bar, dask_address=dask_address,
+                                     points=None if points is None else int(points), vary=vary, object=moving,
+                                     static_spp=static_spp, density=density)
     except wavlight.WavlightError as e:
         fail(e)
     stats = transfer.summary()
@@ -154,7 +147,7 @@ def bake(scene_file, output, width, height, spp, levels, tolerance, points, bits
               help="A bake with --vary view, --mode pixel: the tolerance of the correction of the baked cosine to "
                    "the face's (0: none). Default 0.1.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with timings and choices.")
-@click.option("--quiet", "-q", is_flag=True, help="No closing message.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
 def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntable, repeat, spp, seed, translate,
           rotate, scene_file, eye, target, fov, width, height, orbit, refine, mass, mode, supersample, tau, as_json,
           quiet):
@@ -209,10 +202,9 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
             if spp is not None:
                 from wavlight.relight.converge import converge
 
-                bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
-                result = converge(transfer, scene_file, env, rotate_y, scale_used, spp=spp, seed=seed, progress=bar)
-                if bar:
-                    bar.close()
+                with progress_bar("parts", "rays", quiet) as bar:
+                    result = converge(transfer, scene_file, env, rotate_y, scale_used, spp=spp, seed=seed,
+                                      progress=bar)
                 image, st = result.image, {"frame_seconds": result.stats["render_seconds"], "terms": None,
                                            "entries_read": 0}
                 times.append(st["frame_seconds"])
@@ -225,19 +217,17 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
         else:
             if output is None:
                 fail("--turntable writes a folder of frames: give it with -o DIR")
-            os.makedirs(output, exist_ok=True)
+            frames, gif = _frame_folder(output, turntable, "turntable", [bake_file, env_file])
             base = transfer.scene_rotate_y if rotate_y is None else rotate_y
-            times, outputs, frames = [], [], []
-            for i in range(turntable):
-                image, st = transfer.frame_timed(env, base + 360.0 * i / turntable, scale_used, terms, priority)
-                times.append(st["frame_seconds"])
-                name = os.path.join(output, f"frame-{i:04d}.png")
-                wavlight.save_image(name, image)
-                outputs.append(name)
-                frames.append(name)
-            gif = _animated_gif(frames, os.path.join(output, "turntable.gif"))
-            if gif:
-                outputs.append(gif)
+            times = []
+            with progress_bar("frames", quiet=quiet) as bar:
+                for i, name in enumerate(frames):
+                    image, st = transfer.frame_timed(env, base + 360.0 * i / turntable, scale_used, terms, priority)
+                    times.append(st["frame_seconds"])
+                    wavlight.save_image(name, image)
+                    if bar:
+                        bar(i + 1, turntable)
+            outputs = frames + [_animated_gif(frames, gif)]
     except wavlight.WavlightError as e:
         fail(e)
     median = statistics.median(times)
@@ -269,16 +259,40 @@ def _report_unbiased(stats: dict, size, as_json: bool, quiet: bool):
                    f"{stats['frame_seconds']:.2f} s", err=True)
 
 
-def _animated_gif(frames, path):
-    """An animated GIF of the PNG frames where Pillow is installed (it is a dependency); None if not."""
+def _frame_folder(folder, count, gif_stem, inputs):
+    """The frames' names and the GIF's in ``folder`` (made if missing), checked before any work:
+    a folder (not a file) whose parent exists and that can be written, no frame or GIF that is
+    an input of the run or a read-only file."""
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        fail(f"{folder}: is a file, not a folder (frames are written into a folder)")
+    parent = os.path.dirname(os.path.abspath(folder))
+    if not os.path.isdir(parent):
+        fail(f"{folder}: no folder {parent}")
     try:
-        from PIL import Image
-    except ImportError:
-        return None
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        fail(f"{folder}: cannot make the folder ({e.strerror or e})")
+    frames = [os.path.join(folder, f"frame-{i:04d}.png") for i in range(count)]
+    gif = os.path.join(folder, f"{gif_stem}.gif")
+    for name in frames + [gif]:
+        check_output(name)
+        refuse_inputs(name, inputs)
+    return frames, gif
+
+
+def _animated_gif(frames, path):
+    """An animated GIF of the PNG frames (Pillow), written atomically and read back."""
+    from PIL import Image
+
+    from wavlight.atomic import atomic_write
+
+    def check(tmp):
+        with Image.open(tmp) as im:
+            return None if im.n_frames == len(frames) else f"{im.n_frames} of {len(frames)} frames read back"
+
     images = [Image.open(f).convert("RGB") for f in frames]
-    tmp = path + ".part"
-    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=40, loop=0)
-    os.replace(tmp, path)
+    with atomic_write(path, check=check) as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=40, loop=0)
     return path
 
 
@@ -346,22 +360,19 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
     else:
         if output is None:
             fail("--orbit writes a folder of frames: give it with -o DIR")
-        if os.path.exists(output) and not os.path.isdir(output):
-            fail(f"{output}: is a file, not a folder (--orbit writes a folder of frames)")
-        if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
-            fail(f"{output}: no folder {os.path.dirname(os.path.abspath(output))}")
     frames = ViewFrames(transfer, scene_file)
     if orbit is None:
         refuse_inputs(output, [frames.scene.path, *frames.scene.files])
+    else:
+        names, gif = _frame_folder(output, orbit, "orbit", [bake_file, scene_file, frames.scene.path,
+                                                             *frames.scene.files])
     cam = frames.camera(eye, target, fov)          # checked before anything is written
     size = frames._size(width, height)
     view = {"width": size[0], "height": size[1], "eye": cam.eye.tolist(), "target": cam.target.tolist(),
             "fov": cam.fov_y}
     if spp is not None:
-        bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
-        result = frames.converge(cam.eye, cam.target, cam.fov_y, *size, spp=spp, seed=seed, progress=bar)
-        if bar:
-            bar.close()
+        with progress_bar("parts", "rays", quiet) as bar:
+            result = frames.converge(cam.eye, cam.target, cam.fov_y, *size, spp=spp, seed=seed, progress=bar)
         wavlight.save_image(output, result.image)
         _report_unbiased({"frame_seconds": result.stats["render_seconds"], **result.stats, "output": output}, size,
                          as_json, quiet)
@@ -374,15 +385,14 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
         wavlight.save_image(output, image)
         outputs.append(output)
     else:
-        os.makedirs(output, exist_ok=True)
-        names = []
-        for i, e in enumerate(orbit_eyes(cam.eye, cam.target, orbit)):
-            image, st = frames.frame(e, cam.target, cam.fov_y, *size, **opts)
-            times.append(st["frame_seconds"])
-            name = os.path.join(output, f"frame-{i:04d}.png")
-            wavlight.save_image(name, image)
-            names.append(name)
-        outputs = names + [g for g in [_animated_gif(names, os.path.join(output, "orbit.gif"))] if g]
+        with progress_bar("frames", quiet=quiet) as bar:
+            for i, (e, name) in enumerate(zip(orbit_eyes(cam.eye, cam.target, orbit), names)):
+                image, st = frames.frame(e, cam.target, cam.fov_y, *size, **opts)
+                times.append(st["frame_seconds"])
+                wavlight.save_image(name, image)
+                if bar:
+                    bar(i + 1, orbit)
+        outputs = names + [_animated_gif(names, gif)]
     median = statistics.median(times)
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
              "frames": len(times), **view, **opts, "tau": opts["tau"] if opts["mode"] == "pixel" else None,

@@ -6,8 +6,8 @@ import os
 import numpy as np
 
 from . import metrics
-from ..imageio import temporary
-from .records import publish, read_image
+from ..atomic import atomic_write
+from .records import read_image
 from .spec import Spec
 
 
@@ -23,15 +23,8 @@ def save_figure(fig, out_dir, stem):
     names = []
     for ext in ("png", "svg"):
         path = os.path.join(folder, f"{stem}.{ext}")
-        fd, tmp = temporary(path)
-        os.close(fd)
-        try:
+        with atomic_write(path) as tmp:
             fig.savefig(tmp, format=ext, dpi=120, metadata={"Date": None} if ext == "svg" else None)
-            publish(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
         names.append(os.path.relpath(path, out_dir))
     return names
 

@@ -165,7 +165,8 @@ from .records import (INTEGER, NUMBER, ROWS, TABLE, TEXT, content_hash, csv_text
 from .spec import PEER_PREFIX, RELIGHT, Budget, SceneSpec, Spec, StrategySpec, load_spec
 from ..cluster import DASK_TIMEOUT, connect, finished
 from ..errors import SanitisedInputWarning, WavlightError, one_line, shown
-from ..imageio import check_memory, check_not_input, remove_stale_temporaries, same_file, scene_files
+from ..atomic import remove_stale_temporaries
+from ..imageio import check_memory, check_not_input, same_file, scene_files
 from ..integrator import render_full
 from ..scene import MAX_SPP, load_scene
 from ..version import __version__
