@@ -7,8 +7,23 @@ import numpy as np
 
 from . import metrics
 from ..atomic import atomic_write
+from ..errors import WavlightError
 from .records import read_image
 from .spec import Spec
+
+
+#: the extra that installs the charts' matplotlib (pyproject.toml)
+EXTRA = "experiments"
+
+
+def require_matplotlib() -> None:
+    """Before an experiment's work: a one-line WavlightError naming the extra when matplotlib,
+    which only the charts use, is not installed (docs/decisions/optional-matplotlib.md)."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise WavlightError(f"the experiment's charts need matplotlib, which wavlight's {EXTRA!r} extra "
+                            f"installs: pip install 'wavlight[{EXTRA}]'") from None
 
 
 def strategy_colours(spec):

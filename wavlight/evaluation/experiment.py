@@ -159,7 +159,7 @@ import warnings
 import numpy as np
 
 from . import metrics
-from .charts import error_charts, error_maps
+from .charts import error_charts, error_maps, require_matplotlib
 from .records import (INTEGER, NUMBER, ROWS, TABLE, TEXT, content_hash, csv_text, image_problem, read_image,
                       read_json, record_problem, remove_stale, save_run_image, write_json, write_text)
 from .spec import PEER_PREFIX, RELIGHT, Budget, SceneSpec, Spec, StrategySpec, load_spec
@@ -693,6 +693,7 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, da
         raise WavlightError(f"dask_timeout must be a number of seconds in (0, 3600], got {shown(dask_timeout)}")
     if dask_address is not None and workers != 1:
         raise WavlightError("give workers or a dask scheduler address, not both")
+    require_matplotlib()
     spec = load_spec(spec_path)
     if dask_address is not None:   # fail before rendering references and pilots
         connect(dask_address, dask_timeout).close()

@@ -632,6 +632,8 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
         if s not in scene_mod.STRATEGIES:
             raise WavlightError(f"stability: unknown strategy {s!r} ({' | '.join(scene_mod.STRATEGIES)})")
     render = render or render_full
+    from .charts import require_matplotlib
+    require_matplotlib()
     data = Path(data_dir) if data_dir is not None else DATA_DIR
     out_dir = str(out_dir)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
