@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import time
 
 from tqdm import tqdm
 
@@ -40,6 +41,18 @@ def is_terminal(stream) -> bool:
         return False
 
 
+class _Line(tqdm):
+    """tqdm redrawing its line with an erase to the line's end (ANSI EL) rather than with spaces
+    up to the previous line's length, which would wrap once the terminal is made narrower."""
+
+    @staticmethod
+    def status_printer(file):
+        def print_status(s):
+            file.write(f"\r{s}\x1b[K")
+            file.flush()
+        return print_status
+
+
 class ProgressBar:
     """One tqdm bar over ``counts`` (parts, blocks, runs, frames), fed by the library's progress
     reports. ``unit``: what the reports' amount counts (samples, rays) for the rate."""
@@ -47,6 +60,7 @@ class ProgressBar:
     def __init__(self, stream, counts: str = "parts", unit: str | None = None):
         self.stream, self.counts, self.unit = stream, counts, unit
         self._bar = None   # made at the first report, which tells the total
+        self.t0 = time.time()   # the work starts now (tqdm's clock: time.time)
 
     def __call__(self, done, total, *about):
         """A report: ``(done, total, amount, seconds)`` from a render, a bake or an unbiased frame
@@ -54,10 +68,13 @@ class ProgressBar:
         experiment (what was just finished), or ``(done, total)``."""
         columns = terminal_columns(self.stream) - 1   # the last column would wrap on some terminals
         if self._bar is None:
-            self._bar = tqdm(total=total, file=self.stream, ncols=columns, unit=self.counts, leave=True,
-                             smoothing=0, dynamic_ncols=False,
-                             bar_format="{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
-                                        "[{elapsed}<{remaining}{postfix}]")
+            # delay: no empty bar drawn at once; the clock (elapsed time, rate) runs from the start
+            # of the work, not from this first report
+            self._bar = _Line(total=total, file=self.stream, ncols=columns, unit=self.counts, leave=True,
+                              smoothing=0, dynamic_ncols=False, delay=1e-6,
+                              bar_format="{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
+                                         "[{elapsed}<{remaining}{postfix}]")
+            self._bar.start_t = self._bar.last_print_t = self.t0
         bar = self._bar
         bar.ncols = columns
         if bar.total != total:
