@@ -68,10 +68,10 @@ class ProgressBar:
         experiment (what was just finished), or ``(done, total)``."""
         columns = terminal_columns(self.stream) - 1   # the last column would wrap on some terminals
         if self._bar is None:
-            # delay: no empty bar drawn at once; the clock (elapsed time, rate) runs from the start
-            # of the work, not from this first report
+            # the clock (elapsed time, rate, time left) runs from the start of the work, not from
+            # this first report, which is drawn at once
             self._bar = _Line(total=total, file=self.stream, ncols=columns, unit=self.counts, leave=True,
-                              smoothing=0, dynamic_ncols=False, delay=1e-6,
+                              smoothing=0, dynamic_ncols=False,
                               bar_format="{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
                                          "[{elapsed}<{remaining}{postfix}]")
             self._bar.start_t = self._bar.last_print_t = self.t0
