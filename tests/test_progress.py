@@ -10,7 +10,6 @@ import pty
 import re
 import struct
 import subprocess
-import sys
 import termios
 import threading
 import time
@@ -181,4 +180,3 @@ def test_a_render_on_an_80_column_terminal_stays_within_it(tmp_path):
     assert any("parts" in line and "%|" in line for line in lines), lines
     assert max(disp_len(line) for line in lines if "%|" in line) <= 79, lines
     assert lines[-1].startswith("wrote "), lines
-    assert sys.stderr is not None
