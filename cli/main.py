@@ -49,8 +49,8 @@ click.UsageError.show = _show_usage_error
 def main():
     """wavlight: render direct environment lighting with Haar wavelet importance sampling.
 
-    Exit codes: 0 success; 2 bad input or options (one 'Error:' line; render writes no
-    image); 3 finished and written, but input was sanitised (NaN, Inf or negative texels set
+    Exit codes: 0 success; 2 bad input or options, or an output that could not be written
+    (one 'Error:' line; render writes no image); 3 finished and written, but input was sanitised (NaN, Inf or negative texels set
     to 0, degenerate triangles removed; a 'warning:' line says which).
     """
     global _sanitised
