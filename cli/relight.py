@@ -260,23 +260,27 @@ def _report_unbiased(stats: dict, size, as_json: bool, quiet: bool):
 
 
 def _frame_folder(folder, count, gif_stem, inputs):
-    """The frames' names and the GIF's in ``folder`` (made if missing), checked before any work:
-    a folder (not a file) whose parent exists and that can be written, no frame or GIF that is
-    an input of the run or a read-only file."""
+    """The frames' names and the GIF's in ``folder``, checked before any work: a folder (not a
+    file) whose parent exists, that can be written (made here once all else passed), no frame or
+    GIF that is an input of the run or a read-only file."""
     if os.path.exists(folder) and not os.path.isdir(folder):
         fail(f"{folder}: is a file, not a folder (frames are written into a folder)")
     parent = os.path.dirname(os.path.abspath(folder))
     if not os.path.isdir(parent):
         fail(f"{folder}: no folder {parent}")
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except OSError as e:
-        fail(f"{folder}: cannot make the folder ({e.strerror or e})")
     frames = [os.path.join(folder, f"frame-{i:04d}.png") for i in range(count)]
     gif = os.path.join(folder, f"{gif_stem}.gif")
     for name in frames + [gif]:
-        check_output(name)
         refuse_inputs(name, inputs)
+    if not os.path.isdir(folder):
+        if not os.access(parent, os.W_OK):
+            fail(f"{folder}: cannot make the folder in {parent}")
+        try:
+            os.mkdir(folder)
+        except OSError as e:
+            fail(f"{folder}: cannot make the folder ({e.strerror or e})")
+    for name in frames + [gif]:
+        check_output(name)
     return frames, gif
 
 
