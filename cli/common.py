@@ -6,6 +6,7 @@ import os
 
 import click
 
+from wavlight.atomic import check_target
 from wavlight.errors import WavlightError, one_line
 from wavlight.imageio import check_not_input
 
@@ -14,21 +15,15 @@ def fail(message) -> None:
     raise click.ClickException(one_line(message))
 
 
-def check_output(path, formats):
-    """Before rendering: a known extension, a folder that exists and can be written."""
-    if os.path.isdir(path):
-        fail(f"{path}: is a folder, not an image file")
-    if os.path.splitext(path)[1].lower() not in formats:
+def check_output(path, formats=None, what="an image file"):
+    """Before any work: a known extension (of ``formats``; None: any name), a folder that exists
+    and can be written, not a read-only file (:func:`wavlight.atomic.check_target`)."""
+    if formats is not None and not os.path.isdir(path) and os.path.splitext(path)[1].lower() not in formats:
         fail(f"{path}: unsupported output format (use {', '.join(formats)})")
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        fail(f"{path}: no folder {folder}")
-    if not os.access(folder, os.W_OK):
-        fail(f"{path}: cannot write into {folder}")
-    # the file is replaced by a rename, which a read-only file would not stop: refuse a file that
-    # the caller cannot write or that has no write permission at all (also for root)
-    if os.path.isfile(path) and (not os.access(path, os.W_OK) or not os.stat(path).st_mode & 0o222):
-        fail(f"{path}: the file exists and is read-only")
+    try:
+        check_target(path, what)
+    except WavlightError as e:
+        fail(e)
 
 
 def refuse_inputs(output, inputs):

@@ -17,32 +17,13 @@ warnings in its results and exits 0.
 """
 from __future__ import annotations
 
-import sys
-import time
-
 import click
+
+from .progress import progress_bar
 
 
 class _InputError(click.ClickException):
     exit_code = 2
-
-
-class RunBar:
-    """One terminal line: runs done of total, elapsed time, the run just finished."""
-
-    def __init__(self, stream, width=24):
-        self.stream, self.width, self.t0 = stream, width, time.perf_counter()
-
-    def __call__(self, done, total, what):
-        fill = int(done / max(total, 1) * self.width)
-        secs = int(time.perf_counter() - self.t0)
-        line = f"[{'#' * fill}{'.' * (self.width - fill)}] {done}/{total} runs  {secs // 60}:{secs % 60:02d}  {what}"
-        self.stream.write("\r" + line[:110].ljust(110))
-        self.stream.flush()
-
-    def close(self):
-        self.stream.write("\n")
-        self.stream.flush()
 
 
 @click.command()
@@ -80,20 +61,16 @@ def experiment(spec_file, out_dir, suite, quiet, no_resume, workers, dask_addres
         raise _InputError("give either --workers or --dask, not both")
     if suite is not None and (dask_address is not None or workers != 1):
         raise _InputError("--workers and --dask apply to SPEC runs, not to --suite")
-    bar = None if quiet or not sys.stderr.isatty() else RunBar(sys.stderr)
     try:
-        if suite is not None:
-            results, table = run_suite(suite, out_dir, progress=bar)
-        else:
-            results = run_experiment(spec_file, out_dir, progress=bar, resume=not no_resume, workers=workers,
-                                     dask_address=dask_address)
-            table = format_summary(results)
+        with progress_bar("runs", quiet=quiet) as bar:
+            if suite is not None:
+                results, table = run_suite(suite, out_dir, progress=bar)
+            else:
+                results = run_experiment(spec_file, out_dir, progress=bar, resume=not no_resume, workers=workers,
+                                         dask_address=dask_address)
+                table = format_summary(results)
     except wavlight.WavlightError as e:
-        if bar:
-            bar.close()
         raise _InputError(str(e)) from None
-    if bar:
-        bar.close()
     click.echo(table)
     if not quiet:
         what = "stability.csv, stability.json, charts/" if suite else "results.csv, results.json, charts/"

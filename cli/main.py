@@ -20,7 +20,7 @@ from wavlight.options import HEIGHT, SEED, SPP, WIDTH
 from wavlight.strategies import APPLIES, OPTIONS, STRATEGIES
 
 from .common import check_output, fail, flag, one_line, refuse_inputs
-from .progress import ProgressBar
+from .progress import progress_bar
 
 
 #: set when a SanitisedInputWarning was shown during this invocation (the exit code becomes 3)
@@ -66,8 +66,8 @@ click.UsageError.show = _show_usage_error
 def main():
     """wavlight: render direct environment lighting with Haar wavelet importance sampling.
 
-    Exit codes: 0 success; 2 bad input or options (one 'Error:' line; render writes no
-    image); 3 finished and written, but input was sanitised (NaN, Inf or negative texels set
+    Exit codes: 0 success; 2 bad input or options, or an output that could not be written
+    (one 'Error:' line; render writes no image); 3 finished and written, but input was sanitised (NaN, Inf or negative texels set
     to 0, degenerate triangles removed; a 'warning:' line says which).
     """
     global _sanitised
@@ -180,13 +180,11 @@ def render(scene_file, demo, output, spp, strategy, width, height, seed, stderr_
         if scene.environment.is_black:
             fail(f"{scene_file}: [environment]: the environment is black everywhere; "
                   "the image would be black")
-        bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr)
         if stderr_out is not None and (scene.spp if spp is None else spp) < 2:
             fail(f"{stderr_out}: a standard error needs spp >= 2")
-        result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
-                                      seed=seed, progress=bar, **options)
-        if bar:
-            bar.close()
+        with progress_bar("parts", "samples", quiet) as bar:
+            result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
+                                          seed=seed, progress=bar, **options)
         bad = int((~np.isfinite(result.image)).any(axis=-1).sum())
         if bad:   # (the inputs are finite and bounded: an estimate overflowed float32)
             fail(f"{output}: {bad} pixel(s) came out NaN or Inf (an estimate radiance x BRDF / pdf overflowed "

@@ -10,14 +10,13 @@ from __future__ import annotations
 import json
 import os
 import statistics
-import sys
 
 import click
 
 from wavlight.relight.settings import BAKE, FRAME
 
 from .common import check_output, fail, flags, given, refuse_inputs
-from .progress import ProgressBar
+from .progress import progress_bar
 
 
 @click.command()
@@ -30,11 +29,7 @@ def bake(scene_file, output, as_json, quiet, **settings):
     """Bake the transfer of SCENE (its camera, objects and materials) into PATH, for relighting."""
     import wavlight
 
-    if os.path.isdir(output):
-        fail(f"{output}: is a folder, not a file")
-    folder = os.path.dirname(os.path.abspath(output))
-    if not os.path.isdir(folder):
-        fail(f"{output}: no folder {folder}")
+    check_output(output, what="a file")   # before any work; the library checks the room left
     vary = settings["vary"] or BAKE["vary"].default
     try:
         scene = wavlight.load_scene(scene_file)
@@ -47,10 +42,8 @@ def bake(scene_file, output, as_json, quiet, **settings):
             fail("--density sets the surface cache of a view bake: give it with --vary view")
         if scene.environment.is_black:
             fail(f"{scene_file}: [environment]: the environment is black everywhere; nothing to relight")
-        bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
-        transfer = wavlight.bake(scene, output, progress=bar, **given(settings))
-        if bar:
-            bar.close()
+        with progress_bar("blocks", "rays", quiet) as bar:
+            transfer = wavlight.bake(scene, output, progress=bar, **given(settings))
     except wavlight.WavlightError as e:
         fail(e)
     stats = transfer.summary()
@@ -74,12 +67,13 @@ VIEW_FLAGS = ("eye", "target", "fov", "width", "height", "orbit", "refine", "mas
               "--turntable or --orbit a folder. Default: the bake file's name with .png.")
 @flags(FRAME.values())
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with timings and choices.")
-@click.option("--quiet", "-q", is_flag=True, help="No closing message.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
 def frame(bake_file, output, as_json, quiet, **settings):
     """Relight the bake file PATH: one frame under new lighting (or a turntable of frames)."""
     import math
 
     import wavlight
+    from wavlight import data
     from wavlight.imageio import FORMATS
 
     s = settings
@@ -106,6 +100,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
                 fail(f"{bake_file}: this bake varies the lighting; {flag_name} moves an object "
                      "(bake with --vary object)")
         lit = given(s, "rotate_y", "scale", "terms", "priority")   # the frame's lighting, as given
+        env_file = None if s["env"] is None else data.resolve(s["env"], download=False)
         env = None
         if s["env"] is not None:
             env = transfer.environment(s["env"], **given(s, "scale"))
@@ -116,17 +111,14 @@ def frame(bake_file, output, as_json, quiet, **settings):
             if output is None:
                 output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
             check_output(output, FORMATS)
-            from wavlight.data import resolve
-            refuse_inputs(output, [bake_file, None if s["env"] is None else resolve(s["env"], download=False)])
+            refuse_inputs(output, [bake_file, env_file])
             times = []
             if spp is not None:
                 from wavlight.relight.converge import converge
 
-                bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
-                result = converge(transfer, s["scene"], env, spp=spp, progress=bar,
-                                  **given(s, "rotate_y", "seed"), **given(lit, "scale"))
-                if bar:
-                    bar.close()
+                with progress_bar("parts", "rays", quiet) as bar:
+                    result = converge(transfer, s["scene"], env, spp=spp, progress=bar,
+                                      **given(s, "rotate_y", "seed"), **given(lit, "scale"))
                 image, st = result.image, {"frame_seconds": result.stats["render_seconds"], "terms": None,
                                            "entries_read": 0}
                 times.append(st["frame_seconds"])
@@ -139,20 +131,19 @@ def frame(bake_file, output, as_json, quiet, **settings):
         else:
             if output is None:
                 fail("--turntable writes a folder of frames: give it with -o DIR")
-            os.makedirs(output, exist_ok=True)
+            frames, gif = _frame_folder(output, turntable, "turntable",
+                                        [bake_file, env_file])
             base = transfer.scene_rotate_y if rotate_y is None else rotate_y
             lit.pop("rotate_y", None)
-            times, outputs, frames = [], [], []
-            for i in range(turntable):
-                image, st = transfer.frame_timed(env, base + 360.0 * i / turntable, **lit)
-                times.append(st["frame_seconds"])
-                name = os.path.join(output, f"frame-{i:04d}.png")
-                wavlight.save_image(name, image)
-                outputs.append(name)
-                frames.append(name)
-            gif = _animated_gif(frames, os.path.join(output, "turntable.gif"))
-            if gif:
-                outputs.append(gif)
+            times = []
+            with progress_bar("frames", quiet=quiet) as bar:
+                for i, name in enumerate(frames):
+                    image, st = transfer.frame_timed(env, base + 360.0 * i / turntable, **lit)
+                    times.append(st["frame_seconds"])
+                    wavlight.save_image(name, image)
+                    if bar:
+                        bar(i + 1, turntable)
+            outputs = frames + [_animated_gif(frames, gif)]
     except wavlight.WavlightError as e:
         fail(e)
     median = statistics.median(times)
@@ -184,16 +175,44 @@ def _report_unbiased(stats: dict, size, as_json: bool, quiet: bool):
                    f"{stats['frame_seconds']:.2f} s", err=True)
 
 
+def _frame_folder(folder, count, gif_stem, inputs):
+    """The frames' names and the GIF's in ``folder``, checked before any work: a folder (not a
+    file) whose parent exists, that can be written (made here once all else passed), no frame or
+    GIF that is an input of the run or a read-only file."""
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        fail(f"{folder}: is a file, not a folder (frames are written into a folder)")
+    parent = os.path.dirname(os.path.abspath(folder))
+    if not os.path.isdir(parent):
+        fail(f"{folder}: no folder {parent}")
+    frames = [os.path.join(folder, f"frame-{i:04d}.png") for i in range(count)]
+    gif = os.path.join(folder, f"{gif_stem}.gif")
+    for name in frames + [gif]:
+        refuse_inputs(name, inputs)
+    if not os.path.isdir(folder):
+        if not os.access(parent, os.W_OK):
+            fail(f"{folder}: cannot make the folder in {parent}")
+        try:
+            os.mkdir(folder)
+        except OSError as e:
+            fail(f"{folder}: cannot make the folder ({e.strerror or e})")
+    for name in frames + [gif]:
+        check_output(name)
+    return frames, gif
+
+
 def _animated_gif(frames, path):
-    """An animated GIF of the PNG frames where Pillow is installed (it is a dependency); None if not."""
-    try:
-        from PIL import Image
-    except ImportError:
-        return None
+    """An animated GIF of the PNG frames (Pillow), written atomically and read back."""
+    from PIL import Image
+
+    from wavlight.atomic import atomic_write
+
+    def check(tmp):
+        with Image.open(tmp) as im:
+            return None if im.n_frames == len(frames) else f"{im.n_frames} of {len(frames)} frames read back"
+
     images = [Image.open(f).convert("RGB") for f in frames]
-    tmp = path + ".part"
-    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=40, loop=0)
-    os.replace(tmp, path)
+    with atomic_write(path, check=check) as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=40, loop=0)
     return path
 
 
@@ -265,22 +284,19 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
     else:
         if output is None:
             fail("--orbit writes a folder of frames: give it with -o DIR")
-        if os.path.exists(output) and not os.path.isdir(output):
-            fail(f"{output}: is a file, not a folder (--orbit writes a folder of frames)")
-        if not os.path.isdir(os.path.dirname(os.path.abspath(output))):
-            fail(f"{output}: no folder {os.path.dirname(os.path.abspath(output))}")
     frames = ViewFrames(transfer, s["scene"])
     if orbit is None:
         refuse_inputs(output, [frames.scene.path, *frames.scene.files])
+    else:
+        names, gif = _frame_folder(output, orbit, "orbit", [bake_file, s["scene"], frames.scene.path,
+                                                             *frames.scene.files])
     cam = frames.camera(eye, target, fov)          # checked before anything is written
     size = frames._size(s["width"], s["height"])
     view = {"width": size[0], "height": size[1], "eye": cam.eye.tolist(), "target": cam.target.tolist(),
             "fov": cam.fov_y}
     if spp is not None:
-        bar = None if quiet or not sys.stderr.isatty() else ProgressBar(sys.stderr, unit="rays")
-        result = frames.converge(cam.eye, cam.target, cam.fov_y, *size, spp=spp, progress=bar, **given(s, "seed"))
-        if bar:
-            bar.close()
+        with progress_bar("parts", "rays", quiet) as bar:
+            result = frames.converge(cam.eye, cam.target, cam.fov_y, *size, spp=spp, progress=bar, **given(s, "seed"))
         wavlight.save_image(output, result.image)
         _report_unbiased({"frame_seconds": result.stats["render_seconds"], **result.stats, "output": output}, size,
                          as_json, quiet)
@@ -293,15 +309,14 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
         wavlight.save_image(output, image)
         outputs.append(output)
     else:
-        os.makedirs(output, exist_ok=True)
-        names = []
-        for i, e in enumerate(orbit_eyes(cam.eye, cam.target, orbit)):
-            image, st = frames.frame(e, cam.target, cam.fov_y, *size, **opts)
-            times.append(st["frame_seconds"])
-            name = os.path.join(output, f"frame-{i:04d}.png")
-            wavlight.save_image(name, image)
-            names.append(name)
-        outputs = names + [g for g in [_animated_gif(names, os.path.join(output, "orbit.gif"))] if g]
+        with progress_bar("frames", quiet=quiet) as bar:
+            for i, (e, name) in enumerate(zip(orbit_eyes(cam.eye, cam.target, orbit), names)):
+                image, st = frames.frame(e, cam.target, cam.fov_y, *size, **opts)
+                times.append(st["frame_seconds"])
+                wavlight.save_image(name, image)
+                if bar:
+                    bar(i + 1, orbit)
+        outputs = names + [_animated_gif(names, gif)]
     median = statistics.median(times)
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
              "frames": len(times), **view, **opts, "tau": opts["tau"] if opts["mode"] == "pixel" else None,

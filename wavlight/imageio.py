@@ -4,12 +4,9 @@ Negative pixels (an unbiased estimator's shadowed pixels at low spp can average 
 the wavelet strategy's control variate) are kept by .exr and .pfm, written as 0 to .hdr,
 whose RGBE encoding has no sign (it turned -0.5 into 1.5), and clamped to 0 in .png.
 
-The file appears complete or not at all: pixels go to a temporary file in the
-same folder (``.wavlight-<pid>-<target name>.<random><ext>``), which is renamed over the
-target only after a successful write. A temporary that a killed process (SIGKILL, a power
-cut) left behind is removed by the next successful write of the same target in that folder
-(its pid names no running process). SIGTERM during a write removes the temporary, as
-Ctrl-C (SIGINT) does.
+The file appears complete and readable or not at all (:mod:`wavlight.atomic`): pixels go to a
+temporary file in the same folder, which is read back (a full disk can leave an empty or cut
+file while the writer reports success) and renamed over the target only then.
 
 Memory: the pixels are checked, converted (sRGB, 8-bit; RGBE's clamp at 0) and written in
 strips of rows of about :data:`STRIP_BYTES` (OpenImageIO's scanline interface), so that
@@ -20,15 +17,11 @@ one that will not fit.
 """
 from __future__ import annotations
 
-import hashlib
 import os
-import re
-import signal
-import tempfile
-import threading
 
 import numpy as np
 
+from .atomic import atomic_files
 from .errors import ArgumentError, WavlightError, shown
 
 LINEAR = (".exr", ".hdr", ".pfm")
@@ -175,9 +168,10 @@ def save_image(path: str, image: np.ndarray) -> None:
 
 
 def save_images(outputs) -> None:
-    """Write several (path, image) pairs all or nothing: every image goes to its temporary
-    file first, and the temporaries are renamed over the targets only once all are written
-    (an error in any leaves none of them written)."""
+    """Write several (path, image) pairs all or nothing (:func:`wavlight.atomic.atomic_files`):
+    every image is checked, then written to its temporary file and read back, and the
+    temporaries are renamed over the targets only once all are written (an error in any leaves
+    none of them written)."""
     try:
         pairs = list(outputs)
         if not all(isinstance(p, (tuple, list)) and len(p) == 2 for p in pairs):
@@ -188,25 +182,11 @@ def save_images(outputs) -> None:
     for n, (path, _) in enumerate(outputs):
         if any(same_file(path, other) for other, _ in outputs[:n]):
             raise ArgumentError(f"{path}: named twice among the outputs")
-    temps = []
-    path = outputs[0][0] if outputs else ""
-    with _terminate_as_exit():
-        try:
-            for path, image in outputs:
-                temps.append((_write_temporary(path, image), path))
-            for tmp, path in temps:
-                os.replace(tmp, path)
-        except OSError as e:
-            _remove(t for t, _ in temps)
-            raise WavlightError(f"{path}: cannot write ({e.strerror or e})") from None
-        except MemoryError:
-            _remove(t for t, _ in temps)
-            raise WavlightError(f"{path}: not enough memory to write the image") from None
-        except BaseException:
-            _remove(t for t, _ in temps)
-            raise
-    for folder in {os.path.dirname(os.path.abspath(p)) for _, p in temps}:
-        remove_stale_temporaries(folder)
+    checked = [(path, _check_target(path, image)) for path, image in outputs]   # before any file exists
+    checks = [_readable(os.path.splitext(path)[1].lower(), *image.shape[:2]) for path, image in checked]
+    with atomic_files([path for path, _ in checked], checks) as temps:
+        for (path, image), tmp in zip(checked, temps):
+            _write_pixels(path, tmp, image)
 
 
 def _path(path) -> str:
@@ -215,101 +195,6 @@ def _path(path) -> str:
     if not isinstance(p, str) or not p or "\0" in p:
         raise ArgumentError(f"save_image: the path must be a file name (str or os.PathLike), got {shown(path)}")
     return p
-
-
-class _Terminated(SystemExit):
-    """SIGTERM during a write: the temporaries are removed on the way out (exit code 143)."""
-
-
-class _terminate_as_exit:
-    """While writing (on the main thread only, where signal handlers run, and only while SIGTERM
-    has its default action): SIGTERM raises SystemExit(128 + 15) instead of ending the process
-    at once, so that no temporary is left behind; the default is restored afterwards."""
-
-    def __enter__(self):
-        self.previous = None
-        # only where SIGTERM would end the process anyway (the default action): a handler the
-        # program installed, or SIG_IGN, is left alone
-        if (threading.current_thread() is threading.main_thread()
-                and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL):
-            try:
-                self.previous = signal.signal(signal.SIGTERM, self._handler)
-            except (ValueError, OSError):   # not the main interpreter
-                self.previous = None
-        return self
-
-    @staticmethod
-    def _handler(signum, frame):
-        raise _Terminated(128 + signum)
-
-    def __exit__(self, *exc):
-        if self.previous is not None:
-            signal.signal(signal.SIGTERM, self.previous)
-        return False
-
-
-def _remove(paths):
-    for tmp in paths:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-
-
-TEMPORARY_PREFIX = ".wavlight-"
-#: .wavlight-<pid>.<host>-<target's name>.<random><ext>: whose it is, for remove_stale_temporaries
-_TEMPORARY = re.compile(r"^\.wavlight-(\d+)\.([0-9a-f]{8})-(.*)\.[A-Za-z0-9_]{6,}(\.[A-Za-z0-9]+)?$")
-
-
-def _host() -> str:
-    """8 hex digits naming this machine (a folder may be shared with writers on others)."""
-    return hashlib.sha1(os.uname().nodename.encode()).hexdigest()[:8]
-
-
-def temporary(target: str, suffix: str | None = None) -> tuple[int, str]:
-    """(fd, name) of a new temporary file beside ``target`` for an atomic write, named
-    ``.wavlight-<pid>.<host>-<target's name>.<random><suffix>`` (suffix: the target's
-    extension), so that :func:`remove_stale_temporaries` can tell whose it is."""
-    folder = os.path.dirname(os.path.abspath(target))
-    base = os.path.basename(target)
-    ext = os.path.splitext(base)[1] if suffix is None else suffix
-    return tempfile.mkstemp(prefix=f"{TEMPORARY_PREFIX}{os.getpid()}.{_host()}-{base[:100]}.", suffix=ext,
-                            dir=folder)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError, ValueError):
-        return True   # another user's process (or not a pid we can ask about): keep its file
-    return True
-
-
-def remove_stale_temporaries(folder: str) -> list:
-    """Remove from ``folder`` the temporaries that killed writers left (SIGKILL, a power cut):
-    files named by :func:`temporary` on this machine whose pid is no running process. A live
-    writer's file, or another machine's, is never touched. Returns the names removed."""
-    removed = []
-    try:
-        names = os.listdir(folder)
-    except OSError:
-        return removed
-    host = _host()
-    for name in names:
-        m = _TEMPORARY.match(name)
-        if not m or m.group(2) != host:
-            continue
-        pid = int(m.group(1))
-        if pid == os.getpid() or _alive(pid):
-            continue
-        try:
-            os.unlink(os.path.join(folder, name))
-            removed.append(name)
-        except OSError:
-            pass
-    return removed
 
 
 def _check_pixels(path: str, image) -> np.ndarray:
@@ -352,19 +237,15 @@ def _strip(image: np.ndarray, y0: int, y1: int, ext: str) -> np.ndarray:
     return px
 
 
-def _write_temporary(path: str, image) -> str:
-    """Check the image and the target, write the pixels to a temporary file beside the target
-    and return its name (removed again if anything fails)."""
-    import OpenImageIO as oiio
-
+def _check_target(path: str, image) -> np.ndarray:
+    """Check the image and the target before any file exists: a known extension, (H, W, 3)
+    finite pixels within float32, an existing folder. Returns the pixels (not copied)."""
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise WavlightError(f"{path}: unsupported output format {ext or '(none)'!r} "
                             f"(use {', '.join(FORMATS)})")
     image = _check_pixels(path, image)
-    height, width = image.shape[:2]
-    strips = _rows(height, width)
-    for y0, y1 in strips:   # before any file exists; a strip at a time (no whole-image mask)
+    for y0, y1 in _rows(*image.shape[:2]):   # a strip at a time (no whole-image mask)
         part = image[y0:y1]
         if part.dtype.kind == "f" and not np.isfinite(part).all():
             raise WavlightError(f"{path}: refusing to write an image with NaN or Inf pixels")
@@ -376,43 +257,77 @@ def _write_temporary(path: str, image) -> str:
         raise WavlightError(f"{path}: folder {folder} does not exist")
     if os.path.isdir(path):
         raise WavlightError(f"{path}: is a folder")
-    try:
-        fd, tmp = temporary(path)
-    except OSError as e:
-        raise WavlightError(f"{path}: cannot write ({e.strerror})") from None
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    try:
-        out = oiio.ImageOutput.create(tmp)
-        if out is None:
-            raise WavlightError(f"{path}: cannot create writer ({oiio.geterror().strip()})")
-        spec = oiio.ImageSpec(width, height, 3, oiio.UINT8 if ext in DISPLAY else oiio.FLOAT)
-        ok = out.open(tmp, spec)
-        err = "" if ok else out.geterror()
-        if ok and len(strips) == 1:
-            ok = out.write_image(_strip(image, 0, height, ext))
-            # a writer may report a failed write (a full disk) only in its error text, while
-            # write_image and close return True (OpenImageIO's PNG writer does): both count
+    return image
+
+
+def _write_pixels(path: str, tmp: str, image: np.ndarray) -> None:
+    """Write the checked pixels of ``path`` into the file ``tmp`` (a WavlightError naming
+    ``path`` where the writer reports a failure)."""
+    import OpenImageIO as oiio
+
+    ext = os.path.splitext(path)[1].lower()
+    height, width = image.shape[:2]
+    strips = _rows(height, width)
+    out = oiio.ImageOutput.create(tmp)
+    if out is None:
+        raise WavlightError(f"{path}: cannot create writer ({oiio.geterror().strip()})")
+    spec = oiio.ImageSpec(width, height, 3, oiio.UINT8 if ext in DISPLAY else oiio.FLOAT)
+    ok = out.open(tmp, spec)
+    err = "" if ok else out.geterror()
+    if ok and len(strips) == 1:
+        ok = out.write_image(_strip(image, 0, height, ext))
+        # a writer may report a failed write (a full disk) only in its error text, while
+        # write_image and close return True (OpenImageIO's PNG writer does): both count
+        err = out.geterror()
+    elif ok:
+        for y0, y1 in strips:
+            ok = out.write_scanlines(y0, y1, 0, _strip(image, y0, y1, ext))
             err = out.geterror()
-        elif ok:
-            for y0, y1 in strips:
-                ok = out.write_scanlines(y0, y1, 0, _strip(image, y0, y1, ext))
-                err = out.geterror()
-                if not ok or err:
-                    break
-        ok = out.close() and ok
-        err = (err + " " + out.geterror()).strip()
-        if not ok or err:
-            raise WavlightError(f"{path}: write failed ({_first_line(err)})")
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes files private; outputs get the usual mode
-        return tmp
-    except OSError as e:
-        _remove([tmp])
-        raise WavlightError(f"{path}: cannot write ({e.strerror or e})") from None
-    except BaseException:
-        _remove([tmp])
-        raise
+            if not ok or err:
+                break
+    ok = out.close() and ok
+    err = (err + " " + out.geterror()).strip().replace(tmp, path)   # the target's name, not the temporary's
+    if not ok or err:
+        raise WavlightError(f"{path}: write failed ({_first_line(err)})")
+
+
+def _readable(ext: str, height: int, width: int):
+    """A check for :func:`wavlight.atomic.atomic_files`: the written file reads back as a
+    width x height image to its end. OpenImageIO's PNG and HDR writers can return success with
+    nothing or a part written (a full disk): PNG's chunks and checksums are read to its end
+    (Pillow, without decoding), a PFM's size is exact, HDR and EXR read their last row."""
+    def check(tmp):
+        if ext == ".png":
+            from PIL import Image
+
+            try:
+                with Image.open(tmp) as im:
+                    size = im.size
+                    im.verify()
+            except Exception as e:   # Pillow raises many kinds (SyntaxError for a bad chunk)
+                return f"it does not read back: {_first_line(str(e) or type(e).__name__)}"
+            return None if size == (width, height) else f"it reads back as {size[0]}x{size[1]}"
+        if ext == ".pfm":
+            with open(tmp, "rb") as fh:
+                head = [fh.readline() for _ in range(3)]
+            want = sum(len(line) for line in head) + width * height * 12
+            got = os.path.getsize(tmp)
+            return None if got == want else f"{got} bytes written of {want}"
+        import OpenImageIO as oiio
+
+        inp = oiio.ImageInput.open(tmp)
+        if inp is None:
+            return f"it does not read back: {_first_line(oiio.geterror())}"
+        try:
+            spec = inp.spec()
+            if (spec.width, spec.height) != (width, height):
+                return f"it reads back as {spec.width}x{spec.height}"
+            row = inp.read_scanline(height - 1, 0, oiio.FLOAT)
+            err = inp.geterror()
+            return f"it does not read back: {_first_line(err)}" if row is None or err else None
+        finally:
+            inp.close()
+    return check
 
 
 def _first_line(err: str) -> str:

@@ -176,7 +176,7 @@ def test_temporaries_of_a_killed_experiment_are_removed(done, tmp_path, no_chart
     spec, out = copy(done, tmp_path)
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()
-    host = wavlight.imageio._host()
+    host = wavlight.atomic.host_id()
     stale = [out / "charts" / f".wavlight-{dead}.{host}-sc-spp.png.a1b2c3d4.png",
              out / "runs" / "sc" / "mis" / "spp1" / f".wavlight-{dead}.{host}-0.exr.q1w2e3r4.exr",
              out / f".wavlight-{dead}.{host}-results.json.z9x8c7v6.tmp"]

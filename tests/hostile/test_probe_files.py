@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import wavlight
-from wavlight import imageio, meshes
+from wavlight import atomic, imageio, meshes
 from wavlight.envmap import read_image
 from wavlight.errors import WavlightError, file_problem, shown
 
@@ -408,7 +408,7 @@ def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
 
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()
-    host = imageio._host()
+    host = atomic.host_id()
     stale = tmp_path / f".wavlight-{dead}.{host}-o.png.abc123xy.png"
     live = tmp_path / f".wavlight-{os.getppid()}.{host}-o.png.zzz999qq.png"
     other_host = tmp_path / f".wavlight-{dead}.00000000-o.png.abc123xy.png"

@@ -6,9 +6,24 @@ import os
 import numpy as np
 
 from . import metrics
-from ..imageio import temporary
-from .records import publish, read_image
+from ..atomic import atomic_write
+from ..errors import WavlightError
+from .records import read_image
 from .spec import Spec
+
+
+#: the extra that installs the charts' matplotlib (pyproject.toml)
+EXTRA = "experiments"
+
+
+def require_matplotlib() -> None:
+    """Before an experiment's work: a one-line WavlightError naming the extra when matplotlib,
+    which only the charts use, is not installed (docs/decisions/optional-matplotlib.md)."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise WavlightError(f"the experiment's charts need matplotlib, which wavlight's {EXTRA!r} extra "
+                            f"installs: pip install 'wavlight[{EXTRA}]'") from None
 
 
 def strategy_colours(spec):
@@ -23,15 +38,8 @@ def save_figure(fig, out_dir, stem):
     names = []
     for ext in ("png", "svg"):
         path = os.path.join(folder, f"{stem}.{ext}")
-        fd, tmp = temporary(path)
-        os.close(fd)
-        try:
+        with atomic_write(path) as tmp:
             fig.savefig(tmp, format=ext, dpi=120, metadata={"Date": None} if ext == "svg" else None)
-            publish(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
         names.append(os.path.relpath(path, out_dir))
     return names
 

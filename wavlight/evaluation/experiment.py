@@ -159,13 +159,14 @@ import warnings
 import numpy as np
 
 from . import metrics
-from .charts import error_charts, error_maps
+from .charts import error_charts, error_maps, require_matplotlib
 from .records import (INTEGER, NUMBER, ROWS, TABLE, TEXT, content_hash, csv_text, image_problem, read_image,
                       read_json, record_problem, remove_stale, save_run_image, write_json, write_text)
 from .spec import PEER_PREFIX, RELIGHT, Budget, SceneSpec, Spec, StrategySpec, load_spec
 from ..cluster import DASK_TIMEOUT, connect, finished
 from ..errors import SanitisedInputWarning, WavlightError, one_line, shown
-from ..imageio import check_memory, check_not_input, remove_stale_temporaries, same_file, scene_files
+from ..atomic import remove_stale_temporaries
+from ..imageio import check_memory, check_not_input, same_file, scene_files
 from ..integrator import render_full
 from ..scene import MAX_SPP, load_scene
 from ..threads import MAX_THREADS
@@ -693,6 +694,7 @@ def run_experiment(spec_path, out_dir, progress=None, resume=True, workers=1, da
         raise WavlightError(f"dask_timeout must be a number of seconds in (0, 3600], got {shown(dask_timeout)}")
     if dask_address is not None and workers != 1:
         raise WavlightError("give workers or a dask scheduler address, not both")
+    require_matplotlib()
     spec = load_spec(spec_path)
     if dask_address is not None:   # fail before rendering references and pilots
         connect(dask_address, dask_timeout).close()

@@ -12,34 +12,21 @@ import os
 import numpy as np
 
 from ..errors import WavlightError
-from ..imageio import TEMPORARY_PREFIX, remove_stale_temporaries, temporary
+from ..atomic import TEMPORARY_PREFIX, atomic_write, remove_stale_temporaries, size_is
 
 
 def content_hash(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def publish(tmp, path):
-    """Give a finished temporary file the usual mode (mkstemp makes it private), rename it."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    os.replace(tmp, path)
-
-
 def write_text(path, text):
-    """Atomically: a temporary file in the same folder renamed over the target."""
-    folder = os.path.dirname(path)
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = temporary(path, ".tmp")
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            fh.write(text)
-        publish(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Atomically (:func:`wavlight.atomic.atomic_write`): a temporary file in the same folder,
+    checked for its size, renamed over the target."""
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    data = text.encode("utf-8")
+    with atomic_write(path, check=size_is(len(data)), suffix=".tmp") as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
 
 
 def json_safe(obj):
@@ -105,7 +92,7 @@ def record_problem(rec, fields: dict) -> str | None:
 
 def remove_stale(out_dir) -> list:
     """The temporaries that killed writers left anywhere in an experiment folder (records.
-    write_text's and imageio's, :func:`wavlight.imageio.remove_stale_temporaries`): removed at
+    write_text's and imageio's, :func:`wavlight.atomic.remove_stale_temporaries`): removed at
     the start of each run. Returns their paths."""
     removed = []
     for folder, _, names in os.walk(out_dir):

@@ -655,11 +655,13 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
         if s not in scene_mod.STRATEGIES:
             raise WavlightError(f"stability: unknown strategy {s!r} ({' | '.join(scene_mod.STRATEGIES)})")
     render = render or render_full
+    from .charts import require_matplotlib
+    require_matplotlib()
     out_dir = str(out_dir)
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         raise WavlightError(f"{out_dir}: exists and is not a folder")
     os.makedirs(out_dir, exist_ok=True)
-    from ..imageio import remove_stale_temporaries
+    from ..atomic import remove_stale_temporaries
     for folder in (out_dir, os.path.join(out_dir, "charts")):   # what a killed run's writers left
         remove_stale_temporaries(folder)
 

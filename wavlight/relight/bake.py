@@ -584,6 +584,9 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         raise ArgumentError(f"{where}: an object is given only with vary='object'")
     if dask_address is not None and scene.path == "<dict>":
         raise ArgumentError(f"{where}: a bake on a Dask cluster needs the scene as a file (its workers load it)")
+    if output is not None:   # the map, the albedo (and an object bake's static image) at least
+        store.check_output(output, scene.environment.pixels.size * 4 + width * height * 12
+                           * (3 if moving is not None else 1))
     t0 = time.perf_counter()
     model = choose_model(scene, tolerance, spp, seed, levels, terms, priority, backend, width, height, points)
     n, spp = model["n_levels"], model["spp"]
@@ -598,7 +601,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         product = np.zeros((height * width, 4 ** settings.product_levels), np.float16)
     tiles, (bw, bh) = _tiles(width, height)
     side2 = 4 ** n
-    writer = store.TransferWriter(n, BLOCK, bits)
+    writer = store.TransferWriter(n, BLOCK, bits, output=output)
     albedo = np.zeros((height, width, 3), np.float32)
     background = []
     sum_sq = np.zeros(side2)

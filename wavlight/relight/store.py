@@ -53,6 +53,7 @@ import zlib
 
 import numpy as np
 
+from ..atomic import TEMPORARY_PREFIX, atomic_write, check_room, check_target, size_is, temporary
 from ..errors import WavlightError
 from ..version import __version__
 
@@ -114,6 +115,14 @@ def compress_block(coeffs: np.ndarray, held_out: np.ndarray, tolerance: float, b
     return cols, scales, q, float(diff @ diff), float(exact @ exact)
 
 
+def check_output(path, known_bytes: int) -> None:
+    """Before a bake's work: a one-line WavlightError when ``path`` cannot be written
+    (:func:`wavlight.atomic.check_target`: a folder, no folder, a read-only file) or its folder
+    has less room than ``known_bytes``, the sections whose sizes are known before the bake."""
+    check_target(path, "a bake file")
+    check_room(path, known_bytes)
+
+
 def header_of(scene) -> dict:
     """The header's opening that every bake writes: the format and its version, wavlight's
     version, the scene (its file, None for a dict, and content hash) and its camera."""
@@ -127,16 +136,23 @@ def header_of(scene) -> dict:
 
 
 class TransferWriter:
-    """Collects blocks (in any order) into a temporary file, then writes the bake file in column
-    order (:meth:`finish`), atomically: a temporary file beside the output, renamed at the end.
+    """Collects blocks (in any order) into a scratch file, then writes the bake file in column
+    order (:meth:`finish`), atomically (:func:`wavlight.atomic.atomic_write`).
     ``row``: the values of one entry (default BLOCK^2, one per pixel; a view bake's entries hold
-    three channels of BLOCK^2 points)."""
+    three channels of BLOCK^2 points). ``output``: the bake file to be written, beside which the
+    scratch file is made (named as :func:`wavlight.atomic.temporary` names it, so that the next
+    write there removes the scratch a killed bake left); None: in the system's temporary folder."""
 
-    def __init__(self, n_levels: int, block: int, bits: int, row: int | None = None):
+    def __init__(self, n_levels: int, block: int, bits: int, row: int | None = None, output=None):
         self.n_levels, self.block, self.bits = n_levels, block, bits
         self.row = int(block ** 2 if row is None else row)
         self.dtype = np.dtype(np.int8 if bits == 8 else np.int16)
-        fd, self._tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=".entries")
+        self.output = None if output is None else os.fspath(output)
+        try:
+            fd, self._tmp = (temporary(self.output, ".entries") if self.output is not None
+                             else tempfile.mkstemp(prefix=TEMPORARY_PREFIX, suffix=".entries"))
+        except OSError as e:
+            raise WavlightError(f"{self.output or tempfile.gettempdir()}: cannot write ({e.strerror or e})") from None
         self._fh = os.fdopen(fd, "wb")
         self._columns, self._blocks, self._scales = [], [], []
         self.entries = 0
@@ -145,7 +161,10 @@ class TransferWriter:
         data = np.ascontiguousarray(data, self.dtype)
         if data.shape != (len(columns), self.row):
             raise ValueError(f"block data must be ({len(columns)}, {self.row}), got {data.shape}")
-        self._fh.write(data.tobytes())
+        try:
+            self._fh.write(data.tobytes())
+        except OSError as e:   # a full disk, while the bake is under way
+            raise WavlightError(f"{self.output or self._tmp}: cannot write ({e.strerror or e})") from None
         self._columns.append(np.asarray(columns, np.int64))
         self._blocks.append(np.full(len(columns), block_id, np.uint32))
         self._scales.append(np.asarray(scales, np.float32))
@@ -153,15 +172,21 @@ class TransferWriter:
 
     def close(self):
         if not self._fh.closed:
-            self._fh.close()
+            try:
+                self._fh.close()
+            except OSError:   # the buffered rest did not fit: the scratch goes anyway
+                pass
         if os.path.exists(self._tmp):
             os.unlink(self._tmp)
 
     def finish(self, path: str, header: dict, arrays: dict):
         """Write the file: ``header`` (JSON-able) completed with the sections, ``arrays`` the
         PIXEL_SECTIONS."""
-        self._fh.flush()
-        self._fh.close()
+        try:
+            self._fh.flush()
+            self._fh.close()
+        except OSError as e:
+            raise WavlightError(f"{self.output or path}: cannot write ({e.strerror or e})") from None
         side2 = 1 << (2 * self.n_levels)
         columns = np.concatenate(self._columns) if self._columns else np.zeros(0, np.int64)
         blocks = np.concatenate(self._blocks) if self._blocks else np.zeros(0, np.uint32)
@@ -184,14 +209,12 @@ class TransferWriter:
                 nbytes, dtype, shape = a.nbytes, a.dtype.str, list(a.shape)
             meta[name] = {"offset": offset, "dtype": dtype, "shape": shape, "bytes": nbytes}
             offset += -(-nbytes // ALIGN) * ALIGN
-        folder = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(prefix=".wavlight-", suffix=".tmp", dir=folder)
+        # the header goes last into its reserved space: the CRCs are known only then
+        header = dict(header, sections=meta)
+        sizer = json.dumps({**header, "sections": {k: {**v, "crc32": 0} for k, v in meta.items()}})
+        head_room = -(-(len(MAGIC) + 8 + len(sizer) + 256) // ALIGN) * ALIGN
         try:
-            with os.fdopen(fd, "wb") as out:
-                # the header goes last into its reserved space: the CRCs are known only then
-                header = dict(header, sections=meta)
-                sizer = json.dumps({**header, "sections": {k: {**v, "crc32": 0} for k, v in meta.items()}})
-                head_room = -(-(len(MAGIC) + 8 + len(sizer) + 256) // ALIGN) * ALIGN
+            with atomic_write(path, check=size_is(head_room + offset)) as tmp, open(tmp, "wb") as out:
                 out.write(b"\0" * head_room)
                 source = np.memmap(self._tmp, self.dtype, "r", shape=(self.entries, self.row)) \
                     if self.entries else np.zeros((0, self.row), self.dtype)
@@ -218,16 +241,6 @@ class TransferWriter:
                     raise WavlightError("relight: the bake file's header outgrew its space")
                 out.seek(0)
                 out.write(MAGIC + np.uint64(len(text)).tobytes() + text)
-                out.flush()
-                os.fsync(out.fileno())
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
         finally:
             self.close()
         return header

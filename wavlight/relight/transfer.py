@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from .. import cl, data
+from ..atomic import atomic_write, size_is
 from ..envmap import Environment, read_image
 from ..errors import ArgumentError, WavlightError, shown
 from . import lighting, store
@@ -66,19 +67,12 @@ class Transfer:
             raise WavlightError(f"{path}: the bake file's header is damaged") from None
 
     def save(self, path) -> None:
-        """Write the bake file to ``path`` (atomically: a temporary file renamed into place)."""
+        """Write the bake file to ``path`` (atomically: :func:`wavlight.atomic.atomic_write`)."""
         path = os.fspath(path)
         if os.path.abspath(path) == os.path.abspath(self.path):
             return
-        folder = os.path.dirname(os.path.abspath(path))
-        tmp = os.path.join(folder, f".wavlight-{os.getpid()}-{time.monotonic_ns()}.tmp")
-        try:
+        with atomic_write(path, check=size_is(self.file_bytes)) as tmp:
             shutil.copyfile(self.path, tmp)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
 
     def close(self):
         """Release the memory maps (and the temporary file of a bake made without an output)."""

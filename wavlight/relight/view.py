@@ -791,6 +791,8 @@ def bake_view(scene, output=None, levels=None, tolerance: float = BAKE["toleranc
     cache_points = check_int(where, "cache_points", cache_points, 1, MAX_LATTICE)
     if scene.environment.is_black:
         raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
+    if output is not None:   # the map at least
+        store.check_output(output, scene.environment.pixels.size * 4)
     t0 = time.perf_counter()
     pilot = None
     if levels is None:
@@ -802,7 +804,7 @@ def bake_view(scene, output=None, levels=None, tolerance: float = BAKE["toleranc
     s = _Settings(n, tolerance / np.sqrt(3.0), bits, seed, backend, points, lighting.project(env, n))
     tracer = RayTracer(scene.vertices, scene.faces, threads=1)
     n_blocks = -(-len(cache) // POINTS)
-    writer = store.TransferWriter(n, BLOCK, bits, row=3 * POINTS)
+    writer = store.TransferWriter(n, BLOCK, bits, row=3 * POINTS, output=output)
     sum_sq = np.zeros(4 ** n)
     totals = {"rays": 0, "error2": 0.0, "norm2": 0.0, "done": 0}
     lock = threading.Lock()
