@@ -45,8 +45,9 @@ class _NoteLine(logging.Handler):
 
 
 def _show_library_notes():
+    """On a terminal only, as the progress bar: scripts reading stderr see errors and warnings."""
     logger = logging.getLogger("wavlight.cl")
-    if not any(isinstance(h, _NoteLine) for h in logger.handlers):
+    if sys.stderr.isatty() and not any(isinstance(h, _NoteLine) for h in logger.handlers):
         logger.addHandler(_NoteLine(logging.INFO))
         logger.setLevel(logging.INFO)
 

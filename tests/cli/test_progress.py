@@ -180,3 +180,23 @@ def test_a_render_on_an_80_column_terminal_stays_within_it(tmp_path):
     assert any("parts" in line and "%|" in line for line in lines), lines
     assert max(disp_len(line) for line in lines if "%|" in line) <= 79, lines
     assert lines[-1].startswith("wrote "), lines
+
+
+def test_a_first_build_on_a_terminal_says_so_in_one_line(tmp_path):
+    """With an empty kernel cache (a fresh XDG_CACHE_HOME and POCL_CACHE_DIR) a render on a
+    terminal prints one `note:` line before it compiles; the same render again prints none."""
+    scene = write_scene(tmp_path, scene_text())
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache"), "POCL_CACHE_DIR": str(tmp_path / "pocl")}
+    notes = []
+    for run in range(2):
+        t = Terminal(100)
+        try:
+            p = subprocess.run(_command() + ["render", str(scene), "-o", str(tmp_path / f"o{run}.png")],
+                               stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=t.slave, timeout=600, env=env)
+            text = t.read(settle=0.5)
+        finally:
+            t.close()
+        assert p.returncode == 0, text
+        notes.append([line for line in drawn_lines(text) if line.startswith("note: ")])
+    assert len(notes[0]) == 1 and "compiling OpenCL kernels" in notes[0][0], notes
+    assert notes[1] == [], notes
