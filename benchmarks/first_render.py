@@ -78,7 +78,8 @@ def main():
     for i in range(args.runs):
         for name, extra in ROUTES.items():
             with tempfile.TemporaryDirectory() as tmp:
-                env = {k: v for k, v in os.environ.items() if k not in ("CL_CONFIG_USE_VECTORIZER", "WAVLIGHT_CL_DEVICE")}
+                env = {k: v for k, v in os.environ.items()
+                       if k not in ("CL_CONFIG_USE_VECTORIZER", "WAVLIGHT_CL_DEVICE")}
                 env.update(XDG_CACHE_HOME=os.path.join(tmp, "cache"), POCL_CACHE_DIR=os.path.join(tmp, "pocl"), **extra)
                 out = os.path.join(tmp, "first.png")
                 cold = render_once(args.scene, env, out)

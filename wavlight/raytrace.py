@@ -187,7 +187,8 @@ class RayTracer:
             return np.full(len(origins), -1, np.int32), np.full(len(origins), np.inf, np.float32)
 
         def run(o, d):
-            prim, t, _, _ = self._queries.closest(np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32))
+            prim, t, _, _ = self._queries.closest(np.ascontiguousarray(o, np.float32),
+                                                  np.ascontiguousarray(d, np.float32))
             return prim, t
 
         return self._map(run, origins, dirs)
