@@ -507,10 +507,7 @@ _NOT_BRACKETS = re.compile(r"[^\[\]{}]+")
 
 def nesting_depth(text: str) -> int:
     """The deepest nesting of arrays and objects in JSON ``text`` (brackets inside strings not
-    counted), in time linear in its length; at most the number of opening brackets."""
-    opening = text.count("[") + text.count("{")
-    if opening <= MAX_MESSAGE_DEPTH:
-        return opening
+    counted), in time linear in its length."""
     depth = most = 0
     for c in _NOT_BRACKETS.sub("", _JSON_STRINGS.sub("", text)):
         if c in "[{":
@@ -536,7 +533,7 @@ def read_message(text: str):
     size = len(text.encode("utf-8", "surrogatepass"))
     if size > MAX_MESSAGE_BYTES:
         return None, f"a message of {size} bytes (a state takes at most {MAX_MESSAGE_BYTES}): ignored"
-    depth = nesting_depth(text)
+    depth = 0 if text.count("[") + text.count("{") <= MAX_MESSAGE_DEPTH else nesting_depth(text)
     if depth > MAX_MESSAGE_DEPTH:
         return None, f"a message nested {depth} deep (a state at most {MAX_MESSAGE_DEPTH}): ignored"
     try:
@@ -778,7 +775,7 @@ class Viewer:
 
     async def _page_handler(self, request):
         state, notes = sanitise(request.query, self.limits)
-        config = json.dumps(self._config(state, notes))
+        config = json.dumps({**self._config(state, notes), "idle_close_code": serving.IDLE_CLOSE_CODE})
         for a, b in (("<", "\\u003c"), (">", "\\u003e"), ("&", "\\u0026")):   # inert inside <script>
             config = config.replace(a, b)
         host = request.host
@@ -797,24 +794,30 @@ class Viewer:
         client = _Client(self, ws, transport)
         self._sockets.add(ws)
         task = asyncio.ensure_future(client.frames())
-        idle = asyncio.ensure_future(client.close_when_idle())
-        self._tasks.update((task, idle))
+        self._tasks.add(task)
         try:
-            async for msg in ws:
+            while True:
+                left = client.last_heard + serving.WS_IDLE_SECONDS - time.monotonic()
+                if left <= 0:
+                    await client.close_idle()
+                    break
+                try:   # (not receive(timeout): the pongs of the heartbeat would restart it)
+                    msg = await asyncio.wait_for(ws.receive(), left)
+                except TimeoutError:
+                    continue
                 if msg.type == WSMsgType.TEXT:
                     await client.receive(msg.data)
                 elif msg.type == WSMsgType.BINARY:
                     client.heard()
                     await client.error("a binary message: the viewer's messages are JSON text (ignored)")
-                else:   # ERROR: a message too large, text that is not UTF-8 (closed with the protocol's code)
+                else:   # closed; ERROR: a message too large, text that is not UTF-8 (closed with the protocol's code)
                     break
         except ConnectionError:
             pass
         finally:
-            for t in (task, idle):
-                t.cancel()
-            await asyncio.gather(task, idle, return_exceptions=True)
-            self._tasks.difference_update((task, idle))
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+            self._tasks.discard(task)
             self._sockets.discard(ws)
             if not ws.closed:
                 try:
@@ -1119,29 +1122,23 @@ class _Client:
         self.wake.set()
         return None
 
-    async def close_when_idle(self):
-        """Close the socket once its page has sent no message for WS_IDLE_SECONDS (a one-line
-        note, then code IDLE_CLOSE_CODE); a peer that reads nothing is cut after WS_CLOSE_SECONDS."""
+    async def close_idle(self):
+        """Close the socket of a page that sent no message for WS_IDLE_SECONDS: a one-line note,
+        then code IDLE_CLOSE_CODE; a peer that does not complete the closing within
+        WS_CLOSE_SECONDS (one that reads nothing) is cut."""
+        note = (f"no message from this page for {serving.WS_IDLE_SECONDS:g} s: the viewer closed its socket "
+                "(moving a control connects again)")
+
+        async def close():
+            await self.error(note)
+            await self.ws.close(code=serving.IDLE_CLOSE_CODE, message=b"idle")
         try:
-            while not self.ws.closed:
-                left = self.last_heard + serving.WS_IDLE_SECONDS - time.monotonic()
-                if left > 0:
-                    await asyncio.sleep(left)
-                    continue
-                note = (f"no message from this page for {serving.WS_IDLE_SECONDS:g} s: the viewer closed its "
-                        "socket (moving a control connects again)")
-                try:
-                    await asyncio.wait_for(self._close(note), serving.WS_CLOSE_SECONDS)
-                except TimeoutError:
-                    if self.transport is not None:
-                        self.transport.abort()
-                return
+            await asyncio.wait_for(close(), serving.WS_CLOSE_SECONDS)
+        except TimeoutError:
+            if self.transport is not None:
+                self.transport.abort()
         except (ConnectionError, RuntimeError):
             pass
-
-    async def _close(self, note):
-        await self.error(note)
-        await self.ws.close(code=serving.IDLE_CLOSE_CODE, message=b"idle")
 
     async def error(self, text: str):
         await self.send_text({"type": "error", "message": text})
