@@ -39,8 +39,10 @@ import wavlight
 from wavlight.relight import viewer as viewer_module
 from wavlight.relight.viewer import EXPOSURE_RANGE, Limits, ObjectLimits, Viewer, ViewLimits, sanitise
 
-#: the fixtures of tests/test_viewer.py: its small bake, loaded, and a viewer of it (a fake estimator)
+#: the fixtures of tests/test_viewer.py: its small bake, loaded, a viewer of it (a fake estimator),
+#: headless chromium and its pages
 bake_file, transfer, serve = test_viewer.bake_file, test_viewer.transfer, test_viewer.serve
+browser, page = test_viewer.browser, test_viewer.page
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCENE = os.path.join(ROOT, "scenes", "bunny_ggx.toml")
@@ -318,6 +320,24 @@ def test_half_open_and_idle_websockets_are_closed(serve, short_timeouts, capfd):
     assert idle_after >= 0.8 * ws_idle
     assert wait_until(lambda: v.clients == 0 and v.running_tasks == 0)
     assert stderr_lines(capfd) == []
+
+
+def test_browser_page_closed_for_idleness_connects_again_when_a_control_moves(serve, short_timeouts, page):
+    v = serve()
+    pg = page()
+    pg.goto(v.url + "?rotate_y=30")
+    pg.wait_for_function("() => window.viewer && window.viewer.frames >= 1")
+    # nothing moves: the viewer closes the socket, the page says so and does not retry by itself
+    pg.wait_for_function("() => document.getElementById('status').textContent.startsWith('idle')",
+                         timeout=int(1000 * (10 * short_timeouts.WS_IDLE_SECONDS + 5)))
+    assert wait_until(lambda: v.clients == 0)
+    time.sleep(short_timeouts.WS_IDLE_SECONDS)
+    assert v.clients == 0
+    frames = pg.evaluate("viewer.frames")
+    pg.evaluate("""() => { const e = document.getElementById('rotate_y'); e.value = 120;
+        e.dispatchEvent(new Event('input', {bubbles: true})); e.dispatchEvent(new Event('change', {bubbles: true})); }""")
+    pg.wait_for_function(f"() => viewer.frames > {frames} && viewer.last.state.rotate_y === 120")
+    assert v.clients == 1 and pg.text_content("#status") == ""
 
 
 def test_bad_http_requests_are_answered_and_logged_at_most_once_per_interval(serve, capfd):
