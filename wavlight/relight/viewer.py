@@ -15,10 +15,24 @@ answers with frames, one binary message each: a 4-byte little-endian length, a J
 times 2^exposure, tone mapped to 8-bit sRGB in numpy (a lookup table of the sRGB curve).
 
 Bad input: a URL or message value that is not a number, not finite or out
-of range is replaced by its default or clamped (:func:`sanitise`) and the page shows the value
-used and a one-line note; a message that is not JSON gets a one-line error; a socket closed in
-the middle of a frame ends its tasks without a traceback; a request whose Host or Origin is not
-this server (another site in the same browser) is refused.
+of range is replaced by its default or clamped (:func:`sanitise`; an integer beyond the floats'
+range is clamped like any other) and the page shows the value used and a one-line note, as it
+does for the keys it does not know; a message larger than :data:`MAX_MESSAGE_BYTES`, nested
+deeper than :data:`MAX_MESSAGE_DEPTH` (both checked before it is parsed), not JSON, not an
+object, of an unknown type, or binary gets a one-line error, and the socket stays open (none of
+it is written to stderr). Only what the websocket protocol itself forbids closes the socket, with
+the protocol's code: a message over :data:`MESSAGE_CLOSE_BYTES` (1009), text that is not UTF-8
+(1007). A socket closed in the middle of a frame ends its tasks without a traceback; a request
+whose Host or Origin is not this server (another site in the same browser) is refused.
+
+Connections (:mod:`wavlight.relight.serving`). The viewer accepts connections itself: at the file
+descriptor limit a new one is answered 503 and closed at once, with one log line per interval,
+while the pages open keep their frames; idle, half-open and slowloris HTTP connections are cut
+after ``serving.HTTP_IDLE_SECONDS``; a websocket is pinged every ``serving.WS_HEARTBEAT_SECONDS``
+(closed without a pong) and closed (code ``serving.IDLE_CLOSE_CODE``, after a one-line note) when
+its page sent nothing for ``serving.WS_IDLE_SECONDS``: the page then connects again when a
+control moves. Log lines are one line each, each kind at most once per
+``serving.LOG_INTERVAL_SECONDS``.
 
 Frames. Each socket has its own task; the transfer's frames (not thread-safe) run in one worker
 thread shared by all sockets, so that two browsers both get frames, in turn; a frame is tone
@@ -36,7 +50,10 @@ weighted by spp after each call (each call is unbiased and independent, so the a
 its standard error is sqrt(sum w_k^2 e_k^2) with w_k = spp_k / sum spp); a new exposure shows
 the same average again. It stops as soon as the lighting (rotation, map) changes or the control
 is released: the page releases it when the rotation, the map or K moves, and a call under way
-ends at its next progress report (the calls run in the frame thread).
+ends at its next progress report. The calls of every page run in a converge thread of their own,
+with the bake loaded again for it (and, for the default estimator of an object or a view bake,
+its own moving object or view frames): a call takes seconds, and the other pages' frames do not
+wait for it (nor its own page's frames once its lighting moved).
 
 A bake that varies one object (``vary = "object"``, :mod:`wavlight.relight.moving`). The page
 offers that factor's controls instead of the lighting's: the object's translation (x, y, z
