@@ -7,9 +7,10 @@ connection may stay idle, and its log lines (one line each, rate-limited).
     await listener.close()
 
 Accepting. The loop is the viewer's own, not asyncio's server: at the file descriptor limit
-(``accept`` fails with EMFILE or ENFILE) asyncio's server logs the failure and retries a
-hundred accepts at a time, each retry scheduling more, thousands of lines a second while the
-descriptors stay in use, and the connections queue unanswered. Here a spare descriptor (a
+(``accept`` fails with EMFILE or ENFILE) asyncio's server (Python 3.11) logs the failure and
+goes on: a hundred attempts at a time, each scheduling another hundred a second later,
+thousands of lines a second while the descriptors stay in use, the connections queued
+unanswered. Here a spare descriptor (a
 handle on /dev/null, held while all is well) is given up to accept the waiting connection,
 answer it ``503`` (:data:`REFUSAL`) and close it, and taken again: each new connection is
 refused at once, the pages already open keep their sockets and frames, and one log line per
@@ -234,7 +235,10 @@ class Listener:
         if watch is None or watch.busy or watch.upgraded:
             return
         del self._watched[transport]
-        transport.abort()    # (close() would wait for a peer that reads nothing)
+        if transport.get_write_buffer_size():
+            transport.abort()    # (close() would wait for a peer that reads nothing)
+        else:
+            transport.close()
 
     def _forget_closed(self):
         """Drop the closed connections' entries (called now and then, from the accept loop)."""
