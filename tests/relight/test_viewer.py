@@ -323,9 +323,13 @@ def test_page_and_socket_sanitise_bad_input(serve, transfer):
                                     "exposure": 2})   # exposure alone: the same frame, tone mapped again
                 header2, payload2, _ = await _next_frame(ws)
                 assert header2["state"]["exposure"] == 2 and payload2 != payload
-                await ws.send_str("x" * (viewer_module.MAX_MESSAGE_BYTES + 10))   # too large: closed
+                await ws.send_str("x" * (viewer_module.MAX_MESSAGE_BYTES + 10))   # too large: a note
+                reply = json.loads((await ws.receive(timeout=10)).data)
+                assert reply["type"] == "error" and str(viewer_module.MAX_MESSAGE_BYTES) in reply["message"]
+                await ws.send_str("x" * (viewer_module.MESSAGE_CLOSE_BYTES + 10))   # too large to read: closed
                 msg = await ws.receive(timeout=10)
                 assert msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.CLOSING)
+                assert ws.close_code == aiohttp.WSCloseCode.MESSAGE_TOO_BIG
 
     asyncio.run(talk())
     assert _wait(lambda: v.clients == 0 and v.running_tasks == 0)

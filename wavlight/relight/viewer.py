@@ -15,10 +15,24 @@ answers with frames, one binary message each: a 4-byte little-endian length, a J
 times 2^exposure, tone mapped to 8-bit sRGB in numpy (a lookup table of the sRGB curve).
 
 Bad input: a URL or message value that is not a number, not finite or out
-of range is replaced by its default or clamped (:func:`sanitise`) and the page shows the value
-used and a one-line note; a message that is not JSON gets a one-line error; a socket closed in
-the middle of a frame ends its tasks without a traceback; a request whose Host or Origin is not
-this server (another site in the same browser) is refused.
+of range is replaced by its default or clamped (:func:`sanitise`; an integer beyond the floats'
+range is clamped like any other) and the page shows the value used and a one-line note, as it
+does for the keys it does not know; a message larger than :data:`MAX_MESSAGE_BYTES`, nested
+deeper than :data:`MAX_MESSAGE_DEPTH` (both checked before it is parsed), not JSON, not an
+object, of an unknown type, or binary gets a one-line error, and the socket stays open (none of
+it is written to stderr). Only what the websocket protocol itself forbids closes the socket, with
+the protocol's code: a message over :data:`MESSAGE_CLOSE_BYTES` (1009), text that is not UTF-8
+(1007). A socket closed in the middle of a frame ends its tasks without a traceback; a request
+whose Host or Origin is not this server (another site in the same browser) is refused.
+
+Connections (:mod:`wavlight.relight.serving`). The viewer accepts connections itself: at the file
+descriptor limit a new one is answered 503 and closed at once, with one log line per interval,
+while the pages open keep their frames; idle, half-open and slowloris HTTP connections are cut
+after ``serving.HTTP_IDLE_SECONDS``; a websocket is pinged every ``serving.WS_HEARTBEAT_SECONDS``
+(closed without a pong) and closed (code ``serving.IDLE_CLOSE_CODE``, after a one-line note) when
+its page sent nothing for ``serving.WS_IDLE_SECONDS``: the page then connects again when a
+control moves. Log lines are one line each, each kind at most once per
+``serving.LOG_INTERVAL_SECONDS``.
 
 Frames. Each socket has its own task; the transfer's frames (not thread-safe) run in one worker
 thread shared by all sockets, so that two browsers both get frames, in turn; a frame is tone
@@ -36,7 +50,11 @@ weighted by spp after each call (each call is unbiased and independent, so the a
 its standard error is sqrt(sum w_k^2 e_k^2) with w_k = spp_k / sum spp); a new exposure shows
 the same average again. It stops as soon as the lighting (rotation, map) changes or the control
 is released: the page releases it when the rotation, the map or K moves, and a call under way
-ends at its next progress report (the calls run in the frame thread).
+ends at its next progress report. The calls of every page run in a converge thread of their own,
+with the bake loaded again for it (and, for the default estimator of an object or a view bake,
+its own moving object or view frames): a call takes seconds, and the other pages' frames do not
+wait for it (nor its own page's frames once its lighting moved). A call runs on
+:data:`CONVERGE_THREADS` threads (every core but one, where the estimator takes ``threads``).
 
 A bake that varies one object (``vary = "object"``, :mod:`wavlight.relight.moving`). The page
 offers that factor's controls instead of the lighting's: the object's translation (x, y, z
@@ -78,9 +96,9 @@ import json
 import logging
 import math
 import os
+import re
 import signal
 import struct
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -92,6 +110,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from ..errors import WavlightError, described, shown
 from ..imageio import srgb_encode
 from ..scene import load_scene, rotation
+from . import serving
 from .settings import OBJECT_FRAME_SPP, VIEWER
 
 try:   # the unbiased estimator of a relit frame, where this version has it
@@ -111,8 +130,18 @@ EXPOSURE_RANGE = (-12.0, 12.0)
 WINDOW = 2
 #: how long a socket waits for an acknowledgement before it sends the next frame anyway
 ACK_SECONDS = 1.0
-#: a state message is small: larger ones are refused by the websocket
+#: a state message is small: a larger one is answered with a one-line note and ignored (the
+#: socket stays open)
 MAX_MESSAGE_BYTES = 1 << 16
+#: a message larger than this closes the socket (the websocket protocol's code 1009, before it is
+#: read whole): the most a page's socket buffers
+MESSAGE_CLOSE_BYTES = 1 << 20
+#: a message nested deeper than this (arrays and objects; a state is 2 deep) is answered with a note
+#: and ignored, before it is parsed
+MAX_MESSAGE_DEPTH = 16
+#: an integer in a message with more digits than this is answered with a note and the message
+#: ignored (fewer digits beyond the floats' range are clamped like any number out of range)
+MAX_INTEGER_DIGITS = 1000
 #: converge: the first call's spp (2: a standard error needs two samples), doubling while a call
 #: takes less than half of CONVERGE_ROUND_SECONDS, up to CONVERGE_MAX_CALL_SPP; refinement ends at
 #: CONVERGE_MAX_SPP samples in all
@@ -120,6 +149,10 @@ CONVERGE_FIRST_SPP = 2
 CONVERGE_ROUND_SECONDS = 0.5
 CONVERGE_MAX_CALL_SPP = 64
 CONVERGE_MAX_SPP = 1 << 16
+#: the threads of one converge call, where the estimator takes ``threads``: every core but one, which
+#: the frame thread keeps (on two cores, a 128 x 128 bake: frames 2.4 ms in the median beside a call
+#: on one thread, 5.1 ms beside the estimator's default of two per core, the call no slower)
+CONVERGE_THREADS = max(1, (os.cpu_count() or 2) - 1)
 #: a bake that varies an object: samples per pixel of its frame (OBJECT_FRAME_SPP, the frame's
 #: default, :mod:`wavlight.relight.settings`), and of the frame drawn while a slider is dragged
 OBJECT_PREVIEW_SPP = 1
@@ -292,12 +325,21 @@ def translate_range(scene, obj, center, radius, default):
     return tuple(round(float(x), digits) for x in lo), tuple(round(float(x), digits) for x in hi), step
 
 
-def _number(key, raw, default, notes):
-    """raw as a finite float, or ``default`` with a note."""
+def _number(key, raw, default, notes, period=None):
+    """raw as a float, or ``default`` with a note where it is not a finite number. An integer
+    beyond the floats' range (JSON has no limit) is +-inf, which the ranges clamp (the notes show
+    it as given); with ``period`` (an angle's 360) it is reduced modulo the period first, exactly."""
     if isinstance(raw, bool) or raw is None:
         value = None
-    elif isinstance(raw, (int, float)):
-        value = float(raw)
+    elif isinstance(raw, int):
+        if period is not None:
+            raw = raw % period
+        try:
+            value = float(raw)
+        except OverflowError:   # a finite number too large for a float: the end of every range
+            return math.inf if raw > 0 else -math.inf
+    elif isinstance(raw, float):
+        value = raw
     elif isinstance(raw, str) and len(raw) <= 64:
         try:
             value = float(raw.strip())
@@ -314,12 +356,30 @@ def _number(key, raw, default, notes):
     return value
 
 
-def _clamped(key, value, lo, hi, notes):
+def _clamped(key, value, lo, hi, notes, raw=None):
+    """value clamped to [lo, hi], with a note (showing ``raw``, as given, where value is infinite:
+    an integer beyond the floats' range)."""
     if value < lo or value > hi:
         used = min(max(value, lo), hi)
-        notes.append(f"{key}={value:g} is outside [{lo:g}, {hi:g}]: using {used:g}")
+        text = f"{value:g}" if math.isfinite(value) else shown(raw, 40)
+        notes.append(f"{key}={text} is outside [{lo:g}, {hi:g}]: using {used:g}")
         return used
     return value
+
+
+def _angle(key, params, default, notes):
+    """An angle in degrees wrapped into [0, 360) (3 decimals), ``default`` where absent."""
+    if key not in params:
+        return default
+    return round(_number(key, params.get(key), default, notes, period=360) % 360.0, 3) % 360.0
+
+
+def _exposure(params, notes):
+    """The exposure in stops, clamped to EXPOSURE_RANGE (3 decimals), 0 where absent."""
+    if "exposure" not in params:
+        return 0.0
+    raw = params.get("exposure")
+    return round(_clamped("exposure", _number("exposure", raw, 0.0, notes), *EXPOSURE_RANGE, notes, raw), 3)
 
 
 def _held_fixed(params, kind, notes):
@@ -374,9 +434,10 @@ def _translation(raw, limits: ObjectLimits, notes):
             notes.append(f"translate={shown(raw, 40)} is not three {why} x,y,z: using {text(default)}")
             return default
     used = [round(min(max(v, lo), hi), 4) for v, lo, hi in zip(values, limits.lo, limits.hi)]
-    for axis, v, u, lo, hi in zip("xyz", values, used, limits.lo, limits.hi):
+    for axis, v, part, u, lo, hi in zip("xyz", values, parts, used, limits.lo, limits.hi):
         if v < lo or v > hi:
-            notes.append(f"translate {axis}={v:g} is outside [{lo:g}, {hi:g}]: using {u:g}")
+            text = f"{v:g}" if math.isfinite(v) else shown(part, 40)
+            notes.append(f"translate {axis}={text} is outside [{lo:g}, {hi:g}]: using {u:g}")
     return used
 
 
@@ -384,10 +445,8 @@ def _sanitise_object(params, limits: ObjectLimits):
     notes: list[str] = []
     get = params.get
     translate = _translation(get("translate"), limits, notes) if "translate" in params else list(limits.translate)
-    rot = _number("rotate_y", get("rotate_y"), limits.rotate_y, notes) if "rotate_y" in params else limits.rotate_y
-    rot = round(rot % 360.0, 3) % 360.0
-    exposure = _number("exposure", get("exposure"), 0.0, notes) if "exposure" in params else 0.0
-    exposure = round(_clamped("exposure", exposure, *EXPOSURE_RANGE, notes), 3)
+    rot = _angle("rotate_y", params, limits.rotate_y, notes)
+    exposure = _exposure(params, notes)
     _held_fixed(params, "object", notes)
     encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
     return ({"translate": translate, "rotate_y": rot, "exposure": exposure, "encoding": encoding,
@@ -397,16 +456,14 @@ def _sanitise_object(params, limits: ObjectLimits):
 def _sanitise_view(params, limits: ViewLimits):
     notes: list[str] = []
     get = params.get
-    az = _number("azimuth", get("azimuth"), limits.azimuth, notes) if "azimuth" in params else limits.azimuth
-    az = round(az % 360.0, 3) % 360.0
+    az = _angle("azimuth", params, limits.azimuth, notes)
     el = _number("elevation", get("elevation"), limits.elevation, notes) if "elevation" in params \
         else limits.elevation
-    el = round(_clamped("elevation", el, -ELEVATION_LIMIT, ELEVATION_LIMIT, notes), 3)
+    el = round(_clamped("elevation", el, -ELEVATION_LIMIT, ELEVATION_LIMIT, notes, get("elevation")), 3)
     dist = _number("distance", get("distance"), limits.distance, notes) if "distance" in params \
         else limits.distance
-    dist = significant(_clamped("distance", dist, limits.distance_lo, limits.distance_hi, notes))
-    exposure = _number("exposure", get("exposure"), 0.0, notes) if "exposure" in params else 0.0
-    exposure = round(_clamped("exposure", exposure, *EXPOSURE_RANGE, notes), 3)
+    dist = significant(_clamped("distance", dist, limits.distance_lo, limits.distance_hi, notes, get("distance")))
+    exposure = _exposure(params, notes)
     _held_fixed(params, "view", notes)
     encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
     return ({"azimuth": az, "elevation": el, "distance": dist, "exposure": exposure, "encoding": encoding,
@@ -443,21 +500,20 @@ def sanitise(params, limits):
         return _sanitise_view(params, limits)
     notes: list[str] = []
     get = params.get
-    rot = _number("rotate_y", get("rotate_y"), limits.rotate_y, notes) if "rotate_y" in params else limits.rotate_y
-    rot = round(rot % 360.0, 3) % 360.0
-    exposure = _number("exposure", get("exposure"), 0.0, notes) if "exposure" in params else 0.0
-    exposure = round(_clamped("exposure", exposure, *EXPOSURE_RANGE, notes), 3)
+    rot = _angle("rotate_y", params, limits.rotate_y, notes)
+    exposure = _exposure(params, notes)
     if "terms" in params:
         k = _number("terms", get("terms"), limits.terms, notes)
-        if k != round(k):
+        if math.isfinite(k) and k != round(k):
             notes.append(f"terms={k:g} is not a whole number: using {round(k)}")
-        terms = int(_clamped("terms", float(round(k)), 1, limits.max_terms, notes))
+            k = float(round(k))
+        terms = int(_clamped("terms", k, 1, limits.max_terms, notes, get("terms")))
     else:
         terms = limits.terms
     env = 0
     if "env" in params:
         e = _number("env", get("env"), 0, notes)
-        if e != round(e) or not 0 <= e < limits.maps:
+        if not math.isfinite(e) or e != round(e) or not 0 <= e < limits.maps:
             notes.append(f"env={shown(get('env'), 40)} is not one of the maps 0..{limits.maps - 1}: using 0")
         else:
             env = int(e)
@@ -467,29 +523,52 @@ def sanitise(params, limits):
              "preview": preview, "converge": converge}, notes)
 
 
+_JSON_STRINGS = re.compile(r'"(?:[^"\\]|\\.)*"')
+_NOT_BRACKETS = re.compile(r"[^\[\]{}]+")
+
+
+def nesting_depth(text: str) -> int:
+    """The deepest nesting of arrays and objects in JSON ``text`` (brackets inside strings not
+    counted), in time linear in its length."""
+    depth = most = 0
+    for c in _NOT_BRACKETS.sub("", _JSON_STRINGS.sub("", text)):
+        if c in "[{":
+            depth += 1
+            most = max(most, depth)
+        else:
+            depth -= 1
+    return most
+
+
+def _json_integer(digits: str) -> int:
+    if len(digits) > MAX_INTEGER_DIGITS:
+        raise ValueError(f"an integer of {len(digits)} digits (at most {MAX_INTEGER_DIGITS})")
+    return int(digits)
+
+
+def read_message(text: str):
+    """(the message, None), or (None, a one-line note) for a page's text that is larger than
+    :data:`MAX_MESSAGE_BYTES`, nested deeper than :data:`MAX_MESSAGE_DEPTH`, not JSON (an integer
+    of more than :data:`MAX_INTEGER_DIGITS` digits included) or not a JSON object. The size and
+    depth are checked before the text is parsed; NaN and Infinity are read (the state's values
+    then get their note from :func:`sanitise`)."""
+    size = len(text.encode("utf-8", "surrogatepass"))
+    if size > MAX_MESSAGE_BYTES:
+        return None, f"a message of {size} bytes (a state takes at most {MAX_MESSAGE_BYTES}): ignored"
+    depth = 0 if text.count("[") + text.count("{") <= MAX_MESSAGE_DEPTH else nesting_depth(text)
+    if depth > MAX_MESSAGE_DEPTH:
+        return None, f"a message nested {depth} deep (a state at most {MAX_MESSAGE_DEPTH}): ignored"
+    try:
+        data = json.loads(text, parse_int=_json_integer)
+    except (ValueError, RecursionError) as e:
+        return None, f"a message that is not JSON ({described(e)}): ignored"
+    if not isinstance(data, dict):
+        return None, f"a message must be a JSON object, got {shown(data, 40)}: ignored"
+    return data, None
+
+
 class _Stopped(Exception):
     """A converge call ended early: the lighting changed."""
-
-
-class _OneLine(logging.Handler):
-    """aiohttp's and asyncio's log records as one line each on stderr, without tracebacks."""
-
-    def emit(self, record):
-        try:
-            text = record.getMessage()
-            if record.exc_info and record.exc_info[1] is not None:
-                text += f": {described(record.exc_info[1])}"
-            sys.stderr.write(f"wavlight view: {' '.join(text.split())}\n")
-        except Exception:   # a closed stderr
-            pass
-
-
-def _one_line_logs(*names):
-    for name in names:
-        logger = logging.getLogger(name)
-        if not any(isinstance(h, _OneLine) for h in logger.handlers):
-            logger.addHandler(_OneLine(logging.WARNING))
-        logger.propagate = False
 
 
 # ----------------------------------------------------------------------------- the server
@@ -559,11 +638,12 @@ class Viewer:
         else:
             default_converge = _converge_function
         self.converge = default_converge if converge is _UNSET else converge
+        self._default_converge = converge is _UNSET
         try:
-            self._converge_progress = self.converge is not None and \
-                "progress" in inspect.signature(self.converge).parameters
+            takes = inspect.signature(self.converge).parameters if self.converge is not None else {}
         except (TypeError, ValueError):
-            self._converge_progress = False
+            takes = {}
+        self._converge_progress, self._converge_threads = "progress" in takes, "threads" in takes
         self._scene = scene
         side = 1 << transfer.n_levels
         if self.views is not None:
@@ -579,6 +659,9 @@ class Viewer:
             self.state_keys = ("translate", "rotate_y", "exposure")
         self._page = resources.files(__package__).joinpath("viewer.html").read_text(encoding="utf-8")
         self._pool = None       # the one thread that computes frames
+        self._converge_pool = None   # the one thread that runs converge calls
+        self._converging = None      # that thread's own bake (and moving object or view frames)
+        self._listener = None
         self._sockets: set = set()
         self._tasks: set = set()
         self._runner = self._thread = self._loop = self._stopping = None
@@ -633,7 +716,7 @@ class Viewer:
     # -- the application
     def application(self) -> web.Application:
         """The aiohttp application: ``/`` the page, ``/ws`` the websocket."""
-        app = web.Application(middlewares=[self._only_here], client_max_size=1 << 16)
+        app = web.Application(middlewares=[self._watched, self._only_here], client_max_size=1 << 16)
         app.router.add_get("/", self._page_handler)
         app.router.add_get("/ws", self._socket_handler)
         app.on_shutdown.append(self._close_sockets)
@@ -655,6 +738,18 @@ class Viewer:
 
     def _hosts(self):
         return {f"{HOST}:{self.port}", f"localhost:{self.port}"}
+
+    @web.middleware
+    async def _watched(self, request, handler):
+        """A request under way: its connection is not idle (:class:`serving.Listener`)."""
+        listener, transport = self._listener, request.transport
+        if listener is not None:
+            listener.request_started(transport)
+        try:
+            return await handler(request)
+        finally:
+            if listener is not None:
+                listener.request_ended(transport)
 
     @web.middleware
     async def _only_here(self, request, handler):
@@ -703,7 +798,7 @@ class Viewer:
 
     async def _page_handler(self, request):
         state, notes = sanitise(request.query, self.limits)
-        config = json.dumps(self._config(state, notes))
+        config = json.dumps({**self._config(state, notes), "idle_close_code": serving.IDLE_CLOSE_CODE})
         for a, b in (("<", "\\u003c"), (">", "\\u003e"), ("&", "\\u0026")):   # inert inside <script>
             config = config.replace(a, b)
         host = request.host
@@ -713,19 +808,32 @@ class Viewer:
                             headers={"Cache-Control": "no-store", "Content-Security-Policy": csp})
 
     async def _socket_handler(self, request):
-        ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=MAX_MESSAGE_BYTES, compress=False)
+        ws = web.WebSocketResponse(heartbeat=serving.WS_HEARTBEAT_SECONDS, max_msg_size=MESSAGE_CLOSE_BYTES,
+                                   compress=False)
         await ws.prepare(request)
-        client = _Client(self, ws)
+        transport = request.transport
+        if self._listener is not None:
+            self._listener.upgraded(transport)
+        client = _Client(self, ws, transport)
         self._sockets.add(ws)
         task = asyncio.ensure_future(client.frames())
         self._tasks.add(task)
         try:
-            async for msg in ws:
+            while True:
+                left = client.last_heard + serving.WS_IDLE_SECONDS - time.monotonic()
+                if left <= 0:
+                    await client.close_idle()
+                    break
+                try:   # (not receive(timeout): the pongs of the heartbeat would restart it)
+                    msg = await asyncio.wait_for(ws.receive(), left)
+                except TimeoutError:
+                    continue
                 if msg.type == WSMsgType.TEXT:
                     await client.receive(msg.data)
                 elif msg.type == WSMsgType.BINARY:
-                    await client.error("the viewer's messages are JSON text")
-                else:   # ERROR: a message too large, a broken connection
+                    client.heard()
+                    await client.error("a binary message: the viewer's messages are JSON text (ignored)")
+                else:   # closed; ERROR: a message too large, text that is not UTF-8 (closed with the protocol's code)
                     break
         except ConnectionError:
             pass
@@ -736,9 +844,11 @@ class Viewer:
             self._sockets.discard(ws)
             if not ws.closed:
                 try:
-                    await ws.close()
-                except (ConnectionError, RuntimeError):
+                    await asyncio.wait_for(ws.close(), serving.WS_CLOSE_SECONDS)
+                except (TimeoutError, ConnectionError, RuntimeError):
                     pass
+            if self._listener is not None:   # a peer that reads nothing holds a closing socket: cut it
+                self._listener.cut_later(transport)
         return ws
 
     async def _close_sockets(self, app):
@@ -748,11 +858,19 @@ class Viewer:
             except (ConnectionError, RuntimeError):
                 pass
 
-    # -- the work (one thread: the transfer is not thread-safe)
+    # -- the work (a thread for frames, another for converge calls: each with objects of its own)
     async def run(self, fn, *args, **kwargs):
         """fn(*args, **kwargs) in the frame thread."""
+        return await self._in(self._pool, fn, *args, **kwargs)
+
+    async def run_converge(self, fn, *args, **kwargs):
+        """fn(*args, **kwargs) in the converge thread."""
+        return await self._in(self._converge_pool, fn, *args, **kwargs)
+
+    @staticmethod
+    async def _in(pool, fn, *args, **kwargs):
         loop = asyncio.get_running_loop()
-        future = loop.run_in_executor(self._pool, lambda: fn(*args, **kwargs))
+        future = loop.run_in_executor(pool, lambda: fn(*args, **kwargs))
         # a result nobody waits for any more (its socket closed) must not be logged as lost
         future.add_done_callback(lambda f: f.cancelled() or f.exception())
         return await future
@@ -806,28 +924,51 @@ class Viewer:
 
     def converge_call(self, state, spp, seed, stop=None):
         """(image, stderr) of one call of the estimator at the state's lighting (or the object's
-        place, or the camera at the bake's size; in the frame thread); ``stop`` (a
-        threading.Event) set ends the call early where the estimator reports its progress (then
-        :class:`_Stopped`)."""
-        kwargs = {}
+        place, or the camera at the bake's size; in the converge thread, with its own objects:
+        :meth:`_converge_side`); ``stop`` (a threading.Event) set ends the call early where the
+        estimator reports its progress (then :class:`_Stopped`)."""
+        kwargs = {"threads": CONVERGE_THREADS} if self._converge_threads else {}
         if stop is not None and self._converge_progress:
             def progress(*args):
                 if stop.is_set():
                     raise _Stopped()
             kwargs["progress"] = progress
+        side = self._converge_side()
         if self.views is not None:
             eye, target, fov = self.camera(state)
-            result = self.converge(eye=eye, target=target, fov=fov, width=self.transfer.width,
+            result = side.converge(eye=eye, target=target, fov=fov, width=self.transfer.width,
                                    height=self.transfer.height, spp=spp, seed=seed, **kwargs)
         elif self.mover is not None:
             translate, rotate = self.placement(state)
-            result = self.converge(translate=translate, rotate=rotate, spp=spp, seed=seed, **kwargs)
+            result = side.converge(translate=translate, rotate=rotate, spp=spp, seed=seed, **kwargs)
         else:
-            result = self.converge(self.transfer, scene=self._scene_for_converge(), env=self._env(state["env"]),
+            result = side.converge(side.transfer, scene=self._scene_for_converge(), env=self._env(state["env"]),
                                    rotate_y=state["rotate_y"], scale=1.0, spp=spp, seed=seed, **kwargs)
         if hasattr(result, "image"):   # a RenderResult
             return result.image, result.stderr
         return result
+
+    def _converge_side(self):
+        """The converge thread's objects, made on its first call: the bake loaded again (its own
+        maps' projectors), and for the default estimator of an object or a view bake its own
+        MovingObject or ViewFrames (their caches and kernels are the frame thread's otherwise):
+        the two threads share only read-only arrays, so a converge call never waits for a frame
+        nor a frame for it. (transfer, converge): the estimator to call."""
+        if self._converging is None:
+            from .transfer import Transfer
+
+            transfer = Transfer.load(self.transfer.path, verify=False)
+            converge = self.converge
+            if self._default_converge and self.mover is not None:
+                from .moving import MovingObject
+
+                converge = MovingObject(transfer, self.mover.scene).frame
+            elif self._default_converge and self.views is not None:
+                from .view import ViewFrames
+
+                converge = ViewFrames(transfer, self.views.scene).converge
+            self._converging = _ConvergeSide(transfer, converge)
+        return self._converging
 
     def _scene_for_converge(self):
         """The scene of the bake, loaded once (the estimator checks that it is the one baked);
@@ -842,30 +983,38 @@ class Viewer:
     async def start(self, port: int = VIEWER["port"].default) -> str:
         """Listen on 127.0.0.1:port (0: a free port); the URL. A port in use: a one-line
         WavlightError."""
-        _one_line_logs("aiohttp.server", "aiohttp.web", "aiohttp.access", "aiohttp.websocket", "wavlight.viewer")
+        serving.one_line_logs("aiohttp.server", "aiohttp.web", "aiohttp.access", "aiohttp.websocket",
+                              "wavlight.viewer")
         self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="wavlight-frame")
+        self._converge_pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="wavlight-converge")
         self._runner = web.AppRunner(self.application(), access_log=None, handle_signals=False, shutdown_timeout=2.0)
         await self._runner.setup()
-        site = web.TCPSite(self._runner, HOST, port)
+        self._listener = serving.Listener(self._runner.server)
         try:
-            await site.start()
+            self.port = await self._listener.start(HOST, port)
         except OSError as e:
-            await self._runner.cleanup()
-            self._pool.shutdown(wait=False)
+            self._listener = None
+            await self.stop()
             why = os.strerror(e.errno).lower() if e.errno else described(e)
             raise WavlightError(f"{HOST}:{port}: cannot listen ({why})") from None
-        self.port = self._runner.addresses[0][1]
         return self.url
 
     async def stop(self):
-        """Close the pages' sockets, stop listening, end the frame thread."""
+        """Stop listening, close the pages' sockets, end the frame and converge threads."""
+        if self._listener is not None:
+            listener, self._listener = self._listener, None
+            await listener.close()
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
-        if self._pool is not None:
-            pool, self._pool = self._pool, None
-            await asyncio.get_running_loop().run_in_executor(None, lambda: pool.shutdown(wait=True,
-                                                                                          cancel_futures=True))
+        pools = [p for p in (self._pool, self._converge_pool) if p is not None]
+        self._pool = self._converge_pool = None
+        for pool in pools:
+            await asyncio.get_running_loop().run_in_executor(None, lambda p=pool: p.shutdown(wait=True,
+                                                                                             cancel_futures=True))
+        if self._converging is not None:
+            side, self._converging = self._converging, None
+            side.transfer.close()
 
     def serve(self, port: int = VIEWER["port"].default, ready=None) -> None:
         """Serve until SIGINT or SIGTERM; ``ready(url)`` once listening."""
@@ -877,7 +1026,7 @@ class Viewer:
                     loop.add_signal_handler(sig, stop.set)
                 except (NotImplementedError, RuntimeError, ValueError):
                     pass
-            _one_line_logs("asyncio")
+            serving.one_line_logs("asyncio")
             url = await self.start(port)
             try:
                 if ready is not None:
@@ -930,11 +1079,19 @@ class Viewer:
         self._thread = None
 
 
+@dataclass
+class _ConvergeSide:
+    """The converge thread's own bake and estimator (:meth:`Viewer._converge_side`)."""
+
+    transfer: object
+    converge: object
+
+
 class _Client:
     """One websocket: the newest state it asked for, and the task that answers it with frames."""
 
-    def __init__(self, viewer: Viewer, ws):
-        self.viewer, self.ws = viewer, ws
+    def __init__(self, viewer: Viewer, ws, transport=None):
+        self.viewer, self.ws, self.transport = viewer, ws, transport
         self.state = None
         self.wake = asyncio.Event()
         self.acked = asyncio.Event()
@@ -942,30 +1099,69 @@ class _Client:
         self.shown = None           # (key, exposure, encoding) of the last frame sent
         self.sending = None         # the task encoding and sending the last frame
         self.linear = self.stats = None
+        self.last_heard = time.monotonic()
 
     # -- from the page
+    def heard(self):
+        """A message came from the page: not idle."""
+        self.last_heard = time.monotonic()
+
     async def receive(self, text: str):
+        """Answer a text message: a state (notes for the values replaced and the keys unknown),
+        an acknowledgement, or a one-line error for anything else; never raises."""
+        self.heard()
         try:
-            data = json.loads(text)
-        except ValueError as e:
-            return await self.error(f"a message that is not JSON ({described(e)})")
-        if not isinstance(data, dict):
-            return await self.error(f"a message must be a JSON object, got {shown(data, 40)}")
+            await self._receive(text)
+        except Exception as e:   # a fault here, not bad input: one (rate-limited) line, the socket kept
+            _log.error("a message failed: %s", described(e))
+            await self.error(f"a message failed: {described(e)}")
+
+    async def _receive(self, text: str):
+        data, why = read_message(text)
+        if why is not None:
+            return await self.error(why)
         kind = data.get("type", "state")
         if kind == "drawn":
             seq = data.get("seq")
-            if isinstance(seq, int) and not isinstance(seq, bool) and self.drawn < seq <= self.sent:
+            unknown = [k for k in data if k not in ("type", "seq")]
+            if not isinstance(seq, int) or isinstance(seq, bool):
+                return await self.error(f"an acknowledgement's seq={shown(seq, 40)} is not an integer: ignored")
+            if unknown:
+                await self.error(f"unknown keys of an acknowledgement ignored: {shown(unknown, 60)}")
+            if self.drawn < seq <= self.sent:   # (an older frame's, or one never sent: ignored)
                 self.drawn = seq
                 self.acked.set()
             return None
         if kind != "state":
-            return await self.error(f"unknown message type {shown(kind, 40)} (state or drawn)")
+            return await self.error(f"unknown message type {shown(kind, 40)} (state or drawn): ignored")
         state, notes = sanitise(data, self.viewer.limits)
+        known = {"type", *state, *HELD_FIXED[self.viewer.varies]}
+        unknown = [k for k in data if k not in known]
+        if unknown:
+            notes.append(f"unknown keys ignored: {shown(unknown, 60)}")
         if notes:   # before the frame: the page shows the values used
             await self.send_text({"type": "state", "state": state, "notes": notes})
         self.state = state
         self.wake.set()
         return None
+
+    async def close_idle(self):
+        """Close the socket of a page that sent no message for WS_IDLE_SECONDS: a one-line note,
+        then code IDLE_CLOSE_CODE; a peer that does not complete the closing within
+        WS_CLOSE_SECONDS (one that reads nothing) is cut."""
+        note = (f"no message from this page for {serving.WS_IDLE_SECONDS:g} s: the viewer closed its socket "
+                "(moving a control connects again)")
+
+        async def close():
+            await self.error(note)
+            await self.ws.close(code=serving.IDLE_CLOSE_CODE, message=b"idle")
+        try:
+            await asyncio.wait_for(close(), serving.WS_CLOSE_SECONDS)
+        except TimeoutError:
+            if self.transport is not None:
+                self.transport.abort()
+        except (ConnectionError, RuntimeError):
+            pass
 
     async def error(self, text: str):
         await self.send_text({"type": "error", "message": text})
@@ -1080,7 +1276,8 @@ class _Client:
                 job = None
                 if total < CONVERGE_MAX_SPP:
                     t0 = time.perf_counter()
-                    job = asyncio.ensure_future(self.viewer.run(self.viewer.converge_call, state, spp, rounds, stop))
+                    job = asyncio.ensure_future(self.viewer.run_converge(self.viewer.converge_call, state, spp, rounds,
+                                                                         stop))
                 while job is None or not job.done():   # (no job: converged; answer exposure changes)
                     waiter = asyncio.ensure_future(self.wake.wait())
                     await asyncio.wait({waiter} if job is None else {job, waiter},
