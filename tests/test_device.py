@@ -194,6 +194,7 @@ def test_a_machine_without_system_drivers_renders(tmp_path):
     assert image.shape == (12, 16, 3) and np.isfinite(image).all() and image.max() > 0
 
 
+@pytest.mark.slow
 def test_a_pocl_that_cannot_compile_gives_way(tmp_path):
     """PoCL whose builds fail (here: refused by an option it does not take, as the PyPI PoCL's
     LLVM 14 refuses a CPU newer than it): the next device that builds is used, and `wavlight
@@ -216,6 +217,7 @@ def test_a_pocl_that_cannot_compile_gives_way(tmp_path):
         assert len(error) == 1 and "no OpenCL device can build programs" in error[0] and "install" in error[0]
 
 
+@pytest.mark.slow
 def test_the_first_build_of_a_program_says_so_once(tmp_path):
     """A build not done before on this machine logs one line before it starts ("compiling
     OpenCL kernels"), and a second process with the same cache says nothing."""

@@ -70,6 +70,7 @@ def test_the_readme_has_its_commands():
     assert {c[1] for c in readme_commands("Experiments")} == {"experiment"}
 
 
+@pytest.mark.slow
 def test_setup_and_rendering_commands_run(tmp_path):
     """The set-up's render and every Rendering example write their images (no network, no
     data folder: the shipped scenes and maps)."""
@@ -80,6 +81,7 @@ def test_setup_and_rendering_commands_run(tmp_path):
             assert (tmp_path / out).is_file() and (tmp_path / out).stat().st_size > 0, (args, out)
 
 
+@pytest.mark.slow
 def test_relighting_commands_run(tmp_path):
     """bake, the frames (rotated, another map, a turntable, converged) and the viewer's page."""
     for args in readme_commands("Relighting"):

@@ -51,6 +51,7 @@ def test_phong_exponent_zero_kernel_matches_numpy(strategy):
     _compare_shaders(scene, strategies.make(strategy), rng)
 
 
+@pytest.mark.slow
 def test_shade_kernel_matches_numpy_four_slots():
     """The resampling estimator with four slots (two more directions per sample, at u.z + 1/4 and
     + 3/4): kernel and numpy twin, as above; the shapes carry four slots."""

@@ -182,6 +182,7 @@ def test_a_render_on_an_80_column_terminal_stays_within_it(tmp_path):
     assert lines[-1].startswith("wrote "), lines
 
 
+@pytest.mark.slow
 def test_a_first_build_on_a_terminal_says_so_in_one_line(tmp_path):
     """With an empty kernel cache (a fresh XDG_CACHE_HOME and POCL_CACHE_DIR) a render on a
     terminal prints one `note:` line before it compiles; the same render again prints none."""

@@ -87,6 +87,7 @@ def test_dask_local_cluster_equals_local(local, tmp_path):
         assert again["rendered"] == 0 and again["reused"] == 8
 
 
+@pytest.mark.slow
 def test_workers_and_dask_are_exclusive(local, tmp_path):
     spec = local[0]
     r = CliRunner().invoke(main, ["experiment", str(spec), "-o", str(tmp_path / "x"), "--workers", "2",

@@ -95,6 +95,7 @@ def copy_of(tiny, tmp_path):
 
 
 # ----------------------------------------------------------------------------- outputs
+@pytest.mark.slow
 def test_outputs_exist_and_are_not_empty(tiny):
     out = tiny["out"]
     for name in ("results.csv", "results.json", "runs.csv", "spec.toml", "reference/default.exr",
@@ -306,6 +307,7 @@ def test_a_new_budget_adds_only_its_runs(tiny, tmp_path):
     assert results["rendered"] == 4 and len(results["groups"]) == 8
 
 
+@pytest.mark.slow
 def test_no_resume_renders_everything_again(tmp_path):
     spec = tmp_path / "one.toml"
     spec.write_text(TINY.replace("spp = [1, 2]\nseconds = [0.05]\nrepetitions = 2", "spp = [1]\nrepetitions = 1")
@@ -376,6 +378,7 @@ def test_results_json_has_no_nan_tokens(tmp_path):
 
 
 # ----------------------------------------------------------------------------- the command line
+@pytest.mark.slow
 def test_cli_prints_the_summary(tiny, tmp_path):
     out = copy_of(tiny, tmp_path)
     r = CliRunner().invoke(main, ["experiment", str(tiny["spec"]), "-o", str(out)])

@@ -60,6 +60,7 @@ def test_outputs_exist_and_hold_no_nan(quick):
     assert "stability suite" in stability.format_table(results)
 
 
+@pytest.mark.slow
 def test_nothing_crashes_and_no_output_holds_nan(quick):
     _, results, _ = quick
     for c in results["cells"]:

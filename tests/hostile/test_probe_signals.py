@@ -95,6 +95,7 @@ def _interrupted(tmp_path, stage, sig):
     return p.returncode, err, previous
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("stage, sig", STAGES, ids=[f"{s}-{g.name}" for s, g in STAGES])
 def test_an_interrupted_render_leaves_the_previous_output(tmp_path, stage, sig):
     """Interrupted at any stage, the previous o.png is untouched (never half written); after
@@ -120,6 +121,7 @@ def test_an_interrupted_render_leaves_the_previous_output(tmp_path, stage, sig):
         assert code in (1, 130, -signal.SIGINT), (code, err)
 
 
+@pytest.mark.slow
 def test_a_killed_experiment_resumes_to_the_same_results(tmp_path):
     """An experiment killed (SIGKILL) after its first run resumes to the results of an
     uninterrupted run, and leaves no temporary after the resume."""

@@ -327,6 +327,7 @@ def fixed_hits(shadowed):
     return scene, tracer, d, t, prim, hit, trees, inside, turned, coeffs, spp
 
 
+@pytest.mark.slow
 def test_resampled_directions_are_unbiased(fixed_hits):
     """shade_by_resampling estimates the same integral as the plain mixture, camera sample by
     camera sample: per pixel (the sphere's and the floor's), the mean of 4 x 2048 resampled
@@ -516,6 +517,7 @@ def test_texel_points_follow_the_lobe():
     assert all(a >= b for a, b in zip(narrow, wide))
 
 
+@pytest.mark.slow
 def test_the_pilot_meets_its_own_criteria(maps, device):
     """The pilot's choices: n the fewest levels whose bias and noise fit half the tolerance
     (else the least of them), S the fewest samples keeping them there, K the fewest terms within

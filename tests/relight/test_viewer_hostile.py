@@ -280,6 +280,7 @@ def test_idle_half_open_and_slowloris_connections_are_cut(serve, short_timeouts,
     assert stderr_lines(capfd) == []
 
 
+@pytest.mark.slow
 def test_half_open_and_idle_websockets_are_closed(serve, short_timeouts, capfd):
     v = serve()
     ws_idle = short_timeouts.WS_IDLE_SECONDS
@@ -322,6 +323,7 @@ def test_half_open_and_idle_websockets_are_closed(serve, short_timeouts, capfd):
     assert stderr_lines(capfd) == []
 
 
+@pytest.mark.slow
 def test_browser_page_closed_for_idleness_connects_again_when_a_control_moves(serve, short_timeouts, page):
     v = serve()
     pg = page()

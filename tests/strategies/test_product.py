@@ -279,6 +279,7 @@ def test_product_chi2_on_leaves(case):
     assert ok, msg
 
 
+@pytest.mark.slow
 def test_product_uniform_inside_leaves(case):
     """(a') Given its leaf, a sample lands uniformly inside it: the samples' positions inside
     their leaves, pooled, are uniform on [0, 1)^2 (chi-square, 16 x 16 cells)."""
@@ -381,6 +382,7 @@ def horizon_margin(depth: int) -> float:
     return eps + 1e-6
 
 
+@pytest.mark.slow
 def test_product_pdf_positive_where_light_above_horizon(case):
     """(d) pdf > 0 wherever the map has radiance (for lambert, which walks the compensated light
     tree: radiance above the map's mean) and the direction is more than horizon_margin(P) above

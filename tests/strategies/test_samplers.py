@@ -143,6 +143,7 @@ def test_pdf_integrates_to_one(case):
     assert abs(fine - 1.0) < 1e-3, f"pdf integrates to {fine}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c.id)
 def test_chi2_samples_match_pdf(case):
     """(b) Samples follow the pdf (chi-square, Sidak-corrected over this file's family)."""
