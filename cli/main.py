@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import sys
 import warnings
 
@@ -61,8 +62,30 @@ def _show_usage_error(self, file=None):
 click.ClickException.exit_code = 2
 click.UsageError.show = _show_usage_error
 
+#: exit codes of a command stopped by a signal: 128 + its number, the shells' convention
+INTERRUPTED_EXIT_CODE = 128 + signal.SIGINT
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+
+class _Commands(click.Group):
+    """Every command under SIGINT and SIGTERM: the work stops, the files being written and the
+    scratch files are removed on the way out (wavlight.atomic), one line says so, and the exit
+    code is 130 (SIGINT) or 143 (SIGTERM). Files already written are complete."""
+
+    def invoke(self, ctx):
+        from wavlight.atomic import Terminated, terminate_as_exit
+
+        with terminate_as_exit():
+            try:
+                return super().invoke(ctx)
+            except KeyboardInterrupt:
+                click.echo("Error: interrupted (SIGINT)", err=True)
+                sys.exit(INTERRUPTED_EXIT_CODE)
+            except Terminated:
+                click.echo("Error: terminated (SIGTERM)", err=True)
+                raise
+
+
+@click.group(cls=_Commands, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="wavlight")
 def main():
     """wavlight: render direct environment lighting with Haar wavelet importance sampling.

@@ -133,14 +133,16 @@ def _size(n: int) -> str:
     return f"{n} bytes"
 
 
-class _Terminated(SystemExit):
-    """SIGTERM during a write: the temporaries are removed on the way out (exit code 143)."""
+class Terminated(SystemExit):
+    """SIGTERM while :class:`terminate_as_exit` holds: the temporaries and scratch files are
+    removed on the way out (exit code 143)."""
 
 
-class _terminate_as_exit:
-    """While writing (on the main thread only, where signal handlers run, and only while SIGTERM
-    has its default action): SIGTERM raises SystemExit(128 + 15) instead of ending the process
-    at once, so that no temporary is left behind; the default is restored afterwards."""
+class terminate_as_exit:
+    """While writing, or while a command runs (on the main thread only, where signal handlers run,
+    and only while SIGTERM has its default action): SIGTERM raises :class:`Terminated`
+    (SystemExit(128 + 15)) instead of ending the process at once, so that no temporary or scratch
+    file is left behind; the default is restored afterwards."""
 
     def __enter__(self):
         self.previous = None
@@ -156,7 +158,7 @@ class _terminate_as_exit:
 
     @staticmethod
     def _handler(signum, frame):
-        raise _Terminated(128 + signum)
+        raise Terminated(128 + signum)
 
     def __exit__(self, *exc):
         if self.previous is not None:
@@ -218,7 +220,7 @@ def atomic_files(targets, checks=None, suffixes=None):
     suffixes = list(suffixes) if suffixes is not None else [None] * len(targets)
     temps = []
     path = targets[0] if targets else ""
-    with _terminate_as_exit():
+    with terminate_as_exit():
         try:
             for path, suffix in zip(targets, suffixes):
                 fd, tmp = temporary(path, suffix)

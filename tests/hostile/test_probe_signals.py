@@ -28,7 +28,7 @@ import wavlight
 from wavlight.envmap import read_image
 from wavlight.errors import WavlightError
 
-from test_cli import no_temporaries, run_inproc, scene_text, write_scene
+from test_cli import _command, no_temporaries, run_inproc, scene_text, write_scene
 
 CHILD = r"""
 import sys, time
@@ -99,9 +99,9 @@ def _interrupted(tmp_path, stage, sig):
 @pytest.mark.parametrize("stage, sig", STAGES, ids=[f"{s}-{g.name}" for s, g in STAGES])
 def test_an_interrupted_render_leaves_the_previous_output(tmp_path, stage, sig):
     """Interrupted at any stage, the previous o.png is untouched (never half written); after
-    SIGINT or SIGTERM no `.wavlight-*` temporary is left (a SIGTERM while writing is turned into
-    an orderly exit, code 143, that removes it, where the default action would kill the process
-    and leave it); after SIGKILL the one temporary left is removed by the next successful render
+    SIGINT or SIGTERM no `.wavlight-*` temporary is left, the exit code is 130 or 143 and one line
+    says why (a SIGTERM is turned into an orderly exit that removes the temporaries, where the
+    default action would kill the process and leave them); after SIGKILL the one temporary left is removed by the next successful render
     into the folder."""
     code, err, previous = _interrupted(tmp_path, stage, sig)
     out = tmp_path / "o.png"
@@ -115,10 +115,10 @@ def test_an_interrupted_render_leaves_the_previous_output(tmp_path, stage, sig):
         assert no_temporaries(tmp_path) == []
         return
     assert no_temporaries(tmp_path) == [], no_temporaries(tmp_path)
-    if sig == signal.SIGTERM:
-        assert code in (-signal.SIGTERM, 128 + signal.SIGTERM), (code, err)
-    else:
-        assert code in (1, 130, -signal.SIGINT), (code, err)
+    # the shells' convention: 128 + the signal's number, and one line that says which
+    assert code == 128 + sig, (code, err)
+    assert err.strip().splitlines() == [f"Error: {'terminated' if sig == signal.SIGTERM else 'interrupted'} "
+                                        f"({sig.name})"], err
 
 
 @pytest.mark.slow
@@ -237,3 +237,30 @@ def test_processes_racing_on_one_folder_keep_each_others_temporaries(tmp_path):
     got = read_image(str(tmp_path / "shared.exr"))
     assert np.all(got == 0.5) or np.all(got == 3.0)
     assert no_temporaries(tmp_path) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_an_interrupted_bake_leaves_no_scratch(tmp_path, sig):
+    """SIGINT or SIGTERM while a bake collects its blocks: exit 130 or 143 with one line, and
+    neither the bake file nor its scratch (`.entries`, beside the output) nor a temporary left."""
+    scene = write_scene(tmp_path, scene_text(render="width = 128\nheight = 96\nspp = 2\n"))
+    out = tmp_path / "b.wlt"
+    p = subprocess.Popen(_command() + ["bake", str(scene), "-o", str(out), "--spp", "16", "--levels", "6",
+                                       "--terms", "64"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 120
+        while not any(n.endswith(".entries") for n in os.listdir(tmp_path)) and p.poll() is None:
+            assert time.time() < deadline, "the bake never started collecting blocks"
+            time.sleep(0.05)
+        assert p.poll() is None, p.communicate()
+        p.send_signal(sig)
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert p.returncode == 128 + sig, (p.returncode, err)
+    assert err.strip().splitlines()[-1] == f"Error: {'terminated' if sig == signal.SIGTERM else 'interrupted'} " \
+                                           f"({sig.name})", err
+    assert sorted(os.listdir(tmp_path)) == ["scene.toml"], os.listdir(tmp_path)
