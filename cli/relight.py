@@ -164,6 +164,7 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
 
     import wavlight
     from wavlight.imageio import FORMATS
+    from wavlight.relight.lighting import turntable as turntable_rotations
 
     if rotate_y is not None and not math.isfinite(rotate_y):
         fail(f"--rotate-y must be a finite number of degrees, got {rotate_y}")
@@ -195,11 +196,12 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
         env = None
         if env_file is not None:
             env = transfer.environment(env_file, scale)
-            if env.is_black:
-                fail(f"{env_file}: the environment is black everywhere; the frame would be black")
             scale_used = 1.0
         else:
             scale_used = scale
+        if (env if env is not None else transfer.environment(None, scale)).is_black:
+            scaled = f" times --scale {scale:g}" if scale != 1.0 else ""
+            fail(f"{env_file or bake_file}: the environment{scaled} is black everywhere; the frame would be black")
         if turntable is None:
             if output is None:
                 output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
@@ -220,16 +222,18 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
                 for _ in range(repeat):
                     image, st = transfer.frame_timed(env, rotate_y, scale_used, terms, priority)
                     times.append(st["frame_seconds"])
+                rotation = st["rotate_y"]
             wavlight.save_image(output, image)
             outputs = [output]
         else:
             if output is None:
                 fail("--turntable writes a folder of frames: give it with -o DIR")
             os.makedirs(output, exist_ok=True)
-            base = transfer.scene_rotate_y if rotate_y is None else rotate_y
+            turns = turntable_rotations(transfer.scene_rotate_y if rotate_y is None else rotate_y, turntable)
+            rotation = turns[0]
             times, outputs, frames = [], [], []
-            for i in range(turntable):
-                image, st = transfer.frame_timed(env, base + 360.0 * i / turntable, scale_used, terms, priority)
+            for i, turn in enumerate(turns):
+                image, st = transfer.frame_timed(env, turn, scale_used, terms, priority)
                 times.append(st["frame_seconds"])
                 name = os.path.join(output, f"frame-{i:04d}.png")
                 wavlight.save_image(name, image)
@@ -248,8 +252,7 @@ def frame(bake_file, env_file, rotate_y, scale, terms, priority, output, turntab
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
              "terms": st["terms"], "entries_read": st["entries_read"], "width": transfer.width,
              "height": transfer.height, "texels": f"{1 << transfer.n_levels}x{1 << transfer.n_levels}",
-             "priority": priority or transfer.priority, "frames": len(times),
-             "rotate_y": transfer.scene_rotate_y if rotate_y is None else rotate_y,
+             "priority": priority or transfer.priority, "frames": len(times), "rotate_y": rotation,
              "memory_bytes_per_frame": int(st["entries_read"] * (transfer.block ** 2 * transfer.bits // 8 + 20)),
              "measured": transfer.measured, "output": outputs if turntable else outputs[0]}
     if as_json:
@@ -284,13 +287,19 @@ def _animated_gif(frames, path):
 
 def _object_frame(transfer, bake_file, output, translate, rotate, spp, seed, scene_file, as_json, quiet, held):
     """A frame of a bake that varies one object: the object at --translate / --rotate."""
+    import math
+
     import wavlight
     from wavlight.imageio import FORMATS
     from wavlight.relight.moving import MovingObject
+    from wavlight.scene import MAX_COORDINATE
 
     for flag, value in held.items():
         if value is not None:
             fail(f"{bake_file}: this bake varies an object (its lighting is fixed); {flag} does not apply")
+    if translate is not None and not all(math.isfinite(x) and abs(x) <= MAX_COORDINATE for x in translate):
+        fail(f"--translate must be three finite numbers within the ray tracer's range (|x| <= {MAX_COORDINATE:g}), "
+             f"got {' '.join(str(x) for x in translate)}")
     if output is None:
         output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
     check_output(output, FORMATS)
@@ -318,13 +327,15 @@ def _view_frame(transfer, bake_file, output, eye, target, fov, width, height, or
     import wavlight
     from wavlight.imageio import FORMATS
     from wavlight.relight.view import STILL, ViewFrames, orbit_eyes
+    from wavlight.scene import MAX_COORDINATE
 
     for flag, value in held.items():
         if value is not None:
             fail(f"{bake_file}: this bake varies the view (its lighting and objects are fixed); {flag} does not apply")
     for flag, value in (("--eye", eye), ("--target", target)):
-        if value is not None and not all(math.isfinite(x) for x in value):
-            fail(f"{flag} must be three finite numbers, got {' '.join(str(x) for x in value)}")
+        if value is not None and not all(math.isfinite(x) and abs(x) <= MAX_COORDINATE for x in value):
+            fail(f"{flag} must be three finite numbers within the ray tracer's range (|x| <= {MAX_COORDINATE:g}), "
+                 f"got {' '.join(str(x) for x in value)}")
     if fov is not None and not (math.isfinite(fov) and 0.0 < fov < 180.0):
         fail(f"--fov must be a number of degrees in (0, 180), got {fov}")
     if spp is not None:

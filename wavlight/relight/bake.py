@@ -51,8 +51,8 @@ from .transfer import finish_bake
 
 #: Philox stream of the bake's texel uniforms (kernels/relight.cl RNG_TEXEL)
 TEXEL_STREAM = 8
-#: a block is BLOCK x BLOCK pixels: one tile of the bake, one unit of storage
-BLOCK = 16
+#: a block is BLOCK x BLOCK pixels: one tile of the bake, one unit of storage (the file format's)
+BLOCK = store.BLOCK
 
 
 @dataclass
@@ -278,7 +278,7 @@ def tile_transfer(ps: PixelSamples, tracer, n_levels: int, seed: int, tile: int,
 #: the held-out lighting of a bake: the scene's map turned this far from its own rotation (no
 #: frame is likely to test exactly there), on which compression and terms are measured
 HELD_OUT_DEGREES = 137.0
-MAX_SAMPLES = 64
+MAX_SAMPLES = store.MAX_SPP
 BITS = (8, 16)
 
 
@@ -537,6 +537,14 @@ OBJECT_PRODUCT_LEVELS = 4
 STATIC_SPP = 256
 
 
+def bounding_sphere(local: np.ndarray):
+    """(centre (3,), radius) of an object's vertices (N, 3) in its own frame: the centre of their
+    box and the distance to the farthest of them."""
+    lo, hi = local.min(0), local.max(0)
+    center = (lo + hi) / 2
+    return center, float(np.linalg.norm(local - center, axis=1).max())
+
+
 def bake(scene, output=None, width=None, height=None, spp=None, levels=None, tolerance: float = 0.02,
          bits: int = 8, terms=None, priority=None, seed: int = 0, threads=None, progress=None,
          backend: str = "opencl", dask_address=None, points=None, vary: str = "lighting", object=None,
@@ -679,12 +687,10 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None, tol
             static = render_full(scene, spp=static_spp, strategy="wavelet", width=width, height=height,
                                  seed=seed + 1)
             arrays.update(static=static.image, static_stderr=static.stderr, product_leaves=product)
-            lo, hi = moving.local.min(0), moving.local.max(0)
-            center = (lo + hi) / 2
+            center, radius = bounding_sphere(moving.local)
             header["object"] = {"index": moving.index, "name": moving.name, "rotate": moving.rotate,
                                 "translate": np.asarray(moving.translate, float).tolist(),
-                                "center": center.tolist(),
-                                "radius": float(np.linalg.norm(moving.local - center, axis=1).max())}
+                                "center": center.tolist(), "radius": radius}
             header["product_levels"] = settings.product_levels
             header["static"] = {"spp": static_spp, "strategy": "wavelet",
                                 "seconds": static.stats["setup_seconds"] + static.stats["render_seconds"]}

@@ -1,0 +1,289 @@
+"""Every bit of a bake file's header flipped, one at a time: one line or the unmodified file's
+frame, never a crash (tests/test_bake_hostile.py flips a sample of them).
+
+Small bakes of one scene (a ball over a floor under a sky with a sun, 16 x 12; the lighting
+bake at 8 x 8 texels, and with ``--kinds`` the object and view bakes) are made in a temporary
+folder. For each bit of the file's first bytes (the magic, the header's length and the header)
+two files are read:
+
+- ``raw``: the file with that bit flipped, read and relit with the file's own defaults;
+- ``signed``: the bit flipped in the header's text and the header's checksum signed anew (as a
+  forger would), where the text stays a JSON object of the same length, so that the checks of
+  the header against its sections stand alone; relit with explicit settings (rotation, terms,
+  priority; an object's place; a camera), so that a default no section describes does not
+  count.
+
+Each outcome is ``error`` (a one-line WavlightError naming the file), ``same`` (a frame equal
+to the unmodified file's), or what went wrong: ``another frame``, an exception's type, or
+``crash`` (the worker process died: a signal). Flips are read in worker processes, each going
+through a list of bits in order and reporting each; a worker that dies is recorded as a crash at
+its current bit and a new one goes on from the next. ``--cli N`` also runs N evenly spaced raw
+flips of the lighting bake through the ``wavlight frame`` command (exit codes and the one
+``Error:`` line).
+
+    python benchmarks/bake_fuzz.py [--kinds lighting,object,view] [--cli 64] [-o FILE]
+
+Writes benchmarks/results/bake_fuzz.json: per kind and mode the bits tried, the counts per
+outcome, the first few bits of each outcome other than error and same, the most frequent
+messages (their first words), and the seconds.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+
+from provenance import add_output_argument, provenance, write_result  # noqa: E402
+
+KINDS = ("lighting", "object", "view")
+SKY_ROWS, SKY_COLUMNS = 32, 64
+SCENE = """[render]
+width = 16
+height = 12
+[camera]
+eye = [0.0, 2.0, 4.0]
+target = [0.0, 0.3, 0.0]
+fov_y = 40.0
+[environment]
+file = "sky.exr"
+rotate_y = 15.0
+[[objects]]
+shape = "sphere"
+name = "ball"
+translate = [0.0, 0.5, 0.0]
+radius = 0.5
+subdivisions = 2
+material = "m"
+[[objects]]
+shape = "quad"
+size = 6.0
+material = "floor"
+[materials.m]
+type = "ggx"
+albedo = [0.9, 0.8, 0.6]
+roughness = 0.3
+[materials.floor]
+type = "lambert"
+albedo = [0.6, 0.6, 0.6]
+"""
+
+WORKER = r"""
+import json, sys, warnings
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import bake_fuzz
+warnings.simplefilter("ignore")
+folder, kind = sys.argv[2], sys.argv[3]
+bits = [tuple(x.split(":")) for x in sys.argv[4].split(",")]
+reader = bake_fuzz.Reader(folder, kind)
+for mode, bit in bits:
+    print(json.dumps([mode, int(bit), *reader.outcome(mode, int(bit))]), flush=True)
+"""
+
+
+def make_bakes(folder: str, kinds) -> None:
+    """The scene, its map and the bakes of ``kinds`` in ``folder``."""
+    import numpy as np
+
+    import wavlight
+
+    sky = (np.linspace(1.5, 0.3, SKY_ROWS)[:, None, None] * np.ones((SKY_ROWS, SKY_COLUMNS, 3))).astype(np.float32)
+    sky[8, 20] = 3000.0
+    wavlight.save_image(os.path.join(folder, "sky.exr"), sky)
+    with open(os.path.join(folder, "scene.toml"), "w") as fh:
+        fh.write(SCENE)
+    scene = wavlight.load_scene(os.path.join(folder, "scene.toml"))
+    settings = {"lighting": dict(spp=2, levels=3, terms=32, priority="area"),
+                "object": dict(spp=2, levels=3, terms=32, priority="area", vary="object", object="ball",
+                               static_spp=4),
+                "view": dict(vary="view", levels=3, density=30.0)}
+    for kind in kinds:
+        wavlight.bake(scene, os.path.join(folder, f"{kind}.wlt"), **settings[kind]).close()
+
+
+class Reader:
+    """A worker's frames of one bake kind: the unmodified file's frames and each flip's outcome."""
+
+    def __init__(self, folder: str, kind: str):
+        import numpy as np
+
+        from wavlight.relight import store
+
+        self.np, self.store = np, store
+        self.folder, self.kind = folder, kind
+        self.src = os.path.join(folder, f"{kind}.wlt")
+        with open(self.src, "rb") as fh:
+            self.raw = fh.read()
+        self.path = os.path.join(folder, f"flipped-{kind}-{os.getpid()}.wlt")
+        self.reference = {mode: self.frame(self.src, mode) for mode in ("raw", "signed")}
+
+    def frame(self, path, mode):
+        """The frame of the bake file ``path`` (the file's defaults for ``raw``, explicit settings
+        for ``signed``)."""
+        from wavlight.relight import Transfer
+        from wavlight.relight.moving import MovingObject
+        from wavlight.relight.view import ViewFrames
+
+        tr = Transfer.load(path)
+        try:
+            if self.kind == "lighting":
+                return tr.frame() if mode == "raw" else tr.frame(rotate_y=40.0, terms=32, priority="area")
+            if self.kind == "object":
+                return MovingObject(tr).frame((0.3, 0.5, 0.0), [0.0, 1.0, 0.0, 20.0], spp=1, seed=0).image
+            return ViewFrames(tr).frame(eye=[1.0, 2.0, 3.0], target=[0.0, 0.3, 0.0], fov=40.0, width=16,
+                                        height=12, mode="point")[0]
+        finally:
+            tr.close()
+
+    def flipped(self, mode, bit):
+        """The file's bytes with ``bit`` flipped (signed: in the header's text, the checksum signed
+        anew), or None where a signed flip leaves no header of the same length to sign."""
+        import json as _json
+
+        raw, n = self.raw, len(self.store.MAGIC) + 8
+        if mode == "raw":
+            b = bytearray(raw)
+            b[bit >> 3] ^= 1 << (bit & 7)
+            return bytes(b)
+        length = int.from_bytes(raw[len(self.store.MAGIC):n], "little")
+        text = bytearray(raw[n:n + length])
+        text[bit >> 3] ^= 1 << (bit & 7)
+        try:
+            header = _json.loads(bytes(text))
+        except (ValueError, RecursionError):
+            return None
+        if not isinstance(header, dict) or "header_crc32" not in header:
+            return None
+        header["header_crc32"] = self.store.header_checksum(header)
+        again = _json.dumps(header).encode()
+        return raw[:n] + again + raw[n + length:] if len(again) == length else None
+
+    def outcome(self, mode, bit):
+        """(outcome, message's first words or None)."""
+        from wavlight.errors import WavlightError
+
+        data = self.flipped(mode, bit)
+        if data is None:
+            return "not a header to sign", None
+        with open(self.path, "wb") as fh:
+            fh.write(data)
+        try:
+            image = self.frame(self.path, mode)
+        except WavlightError as e:
+            text = str(e)
+            if "\n" in text or self.path not in text:
+                return "error of another form", text[:200]
+            words = text[len(self.path) + 2:].split(":")[0]
+            return "error", " ".join(words.split()[:8])
+        except Exception as e:   # noqa: BLE001 (what the benchmark counts)
+            return type(e).__name__, str(e)[:200]
+        return ("same" if self.np.array_equal(image, self.reference[mode]) else "another frame"), None
+
+
+def header_bits(path: str) -> int:
+    from wavlight.relight import store
+
+    with open(path, "rb") as fh:
+        start = fh.read(len(store.MAGIC) + 8)
+    return 8 * (len(start) + int.from_bytes(start[len(store.MAGIC):], "little"))
+
+
+def run_kind(folder: str, kind: str, batch: int = 2000) -> dict:
+    """Every raw and signed flip of the bake of ``kind`` in worker processes: per mode the
+    counts of outcomes, examples and messages."""
+    from wavlight.relight import store
+
+    bits = header_bits(os.path.join(folder, f"{kind}.wlt"))
+    prefix = 8 * (len(store.MAGIC) + 8)
+    todo = [("raw", b) for b in range(bits)] + [("signed", b) for b in range(bits - prefix)]
+    results = {}
+    t0 = time.perf_counter()
+    while todo:
+        chunk, todo = todo[:batch], todo[batch:]
+        p = subprocess.Popen([sys.executable, "-c", WORKER, HERE, folder, kind,
+                              ",".join(f"{m}:{b}" for m, b in chunk)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+        out, err = p.communicate()
+        done = 0
+        for line in out.splitlines():
+            mode, bit, what, message = json.loads(line)
+            results[(mode, bit)] = (what, message)
+            done += 1
+        if done < len(chunk):   # the worker died at chunk[done]
+            mode, bit = chunk[done]
+            tail = err.strip().splitlines()[-1][:200] if err.strip() else ""
+            results[(mode, bit)] = (f"crash (exit {p.returncode})", tail)
+            todo = chunk[done + 1:] + todo
+        print(f"{kind}: {len(results)} flips, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    summary = {}
+    for mode in ("raw", "signed"):
+        rows = {bit: v for (m, bit), v in results.items() if m == mode}
+        counts = collections.Counter(what for what, _ in rows.values())
+        messages = collections.Counter(msg for what, msg in rows.values() if what == "error" and msg)
+        other = collections.defaultdict(list)
+        for bit, (what, msg) in sorted(rows.items()):
+            if what not in ("error", "same", "not a header to sign") and len(other[what]) < 8:
+                other[what].append({"bit": bit, "byte": bit >> 3, "message": msg})
+        summary[mode] = {"bits": len(rows), "outcomes": dict(counts.most_common()),
+                         "messages": dict(messages.most_common(12)), "failures": dict(other)}
+    summary["header_bits"] = bits
+    summary["seconds"] = round(time.perf_counter() - t0, 1)
+    return summary
+
+
+def run_cli(folder: str, count: int) -> dict:
+    """``count`` evenly spaced raw flips of the lighting bake through ``wavlight frame``: exit
+    codes, and whether each refusal is one ``Error:`` line."""
+    exe = os.path.join(os.path.dirname(sys.executable), "wavlight")
+    command = [exe] if os.path.isfile(exe) else [sys.executable, "-m", "wavlight.cli.main"]
+    src = os.path.join(folder, "lighting.wlt")
+    with open(src, "rb") as fh:
+        raw = fh.read()
+    bits = header_bits(src)
+    codes, shapes = collections.Counter(), collections.Counter()
+    path, out = os.path.join(folder, "cli.wlt"), os.path.join(folder, "cli.png")
+    for bit in [int(i * bits / count) for i in range(count)]:
+        b = bytearray(raw)
+        b[bit >> 3] ^= 1 << (bit & 7)
+        with open(path, "wb") as fh:
+            fh.write(b)
+        p = subprocess.run(command + ["frame", path, "-o", out], capture_output=True, text=True, timeout=600)
+        codes[p.returncode] += 1
+        lines = [ln for ln in p.stderr.splitlines() if ln.strip() and not ln.startswith(("note:", "warning:"))]
+        if p.returncode == 2:
+            shapes["one Error: line" if len(lines) == 1 and lines[0].startswith("Error: ") else "other"] += 1
+    return {"flips": count, "exit_codes": {str(k): v for k, v in codes.items()}, "refusals": dict(shapes)}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--kinds", default=",".join(KINDS), help="bake kinds (lighting, object, view)")
+    parser.add_argument("--cli", type=int, default=64, help="raw flips of the lighting bake through the CLI")
+    add_output_argument(parser, "bake_fuzz")
+    args = parser.parse_args()
+    kinds = [k for k in args.kinds.split(",") if k]
+    if not set(kinds) <= set(KINDS):
+        parser.error(f"--kinds: one or more of {', '.join(KINDS)}")
+    prov = provenance()
+    with tempfile.TemporaryDirectory(prefix="bake-fuzz-") as folder:
+        t0 = time.perf_counter()
+        make_bakes(folder, kinds)
+        data = {"bake_seconds": round(time.perf_counter() - t0, 1),
+                "kinds": {kind: run_kind(folder, kind) for kind in kinds}}
+        if args.cli and "lighting" in kinds:
+            data["cli"] = run_cli(folder, args.cli)
+    print(json.dumps({k: {m: v[m]["outcomes"] for m in ("raw", "signed")} for k, v in data["kinds"].items()},
+                     indent=1))
+    write_result(args.output, data, prov)
+
+
+if __name__ == "__main__":
+    main()
