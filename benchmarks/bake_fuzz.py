@@ -8,8 +8,8 @@ two files are read:
 
 - ``raw``: the file with that bit flipped, read and relit with the file's own defaults;
 - ``signed``: the bit flipped in the header's text and the header's checksum signed anew (as a
-  forger would), where the text stays a JSON object of the same length, so that the checks of
-  the header against its sections stand alone; relit with explicit settings (rotation, terms,
+  forger would: the text's length too), where the text stays a JSON object, so that the checks
+  of the header against its sections stand alone; relit with explicit settings (rotation, terms,
   priority; an object's place; a camera), so that a default no section describes does not
   count.
 
@@ -123,6 +123,7 @@ class Reader:
         with open(self.src, "rb") as fh:
             self.raw = fh.read()
         self.path = os.path.join(folder, f"flipped-{kind}-{os.getpid()}.wlt")
+        self.data_offset = store.read_header(self.src)["data_offset"]
         self.reference = {mode: self.frame(self.src, mode) for mode in ("raw", "signed")}
 
     def frame(self, path, mode):
@@ -145,7 +146,8 @@ class Reader:
 
     def flipped(self, mode, bit):
         """The file's bytes with ``bit`` flipped (signed: in the header's text, the checksum signed
-        anew), or None where a signed flip leaves no header of the same length to sign."""
+        anew, the text's length written anew), or None where a signed flip leaves no JSON object
+        with a checksum to sign (or one that outgrows the header's room)."""
         import json as _json
 
         raw, n = self.raw, len(self.store.MAGIC) + 8
@@ -164,7 +166,11 @@ class Reader:
             return None
         header["header_crc32"] = self.store.header_checksum(header)
         again = _json.dumps(header).encode()
-        return raw[:n] + again + raw[n + length:] if len(again) == length else None
+        room = self.data_offset - n   # the header's text and its padding
+        if len(again) > room:
+            return None
+        return (raw[:len(self.store.MAGIC)] + len(again).to_bytes(8, "little") + again
+                + bytes(room - len(again)) + raw[self.data_offset:])
 
     def outcome(self, mode, bit):
         """(outcome, message's first words or None)."""

@@ -197,7 +197,8 @@ SECTION_CASES = {
                                             ("background_pixel",)),
     "a NaN background direction": ("background_dir", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 4,
                                                                         np.float32("nan"), a), ("background_dir",)),
-    "an infinite background direction": ("background_dir", lambda a: a * np.float32(1e38) * np.float32(1e38),
+    "an infinite background direction": ("background_dir", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 5,
+                                                                              np.float32("inf"), a),
                                          ("background_dir",)),
     "a black environment": ("environment", lambda a: np.zeros_like(a), ("black everywhere",)),
     "a NaN albedo": ("albedo", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 7, np.float32("nan"), a),
@@ -227,6 +228,9 @@ OBJECT_CASES = {
     "infinite product leaves": (None, {"product_leaves": lambda a: np.full_like(a, np.inf)}, ("product_leaves",)),
     "a NaN static image": (None, {"static": lambda a: np.full_like(a, np.nan)}, ("static",)),
     "sections of a lighting bake": (setter("vary", value="lighting"), {}, ("static",)),
+    "the floor as the moving object": (setter("object", "index", value=1), {}, ("moving object",)),
+    "an object beyond the scene's": (setter("object", "index", value=5), {}, ("moving object",)),
+    "the map turned otherwise": (setter("environment_rotate_y", value=lambda v: v + 10.0), {}, ("turned",)),
 }
 
 #: case: (sections (name -> array -> array), words) on the view bake
@@ -314,10 +318,11 @@ def outcome(path, reference, **frame_args):
 
 
 def resigned(raw: bytes, bit: int) -> bytes | None:
-    """The file with ``bit`` of its header text flipped and the header's checksum signed anew
-    (None where the flip leaves no JSON object with a checksum to sign)."""
+    """The file with ``bit`` of its header text flipped and the header's checksum (and length)
+    written anew (None where the flip leaves no JSON object with a checksum to sign)."""
     n = len(store.MAGIC) + 8
     length = int(np.frombuffer(raw[len(store.MAGIC):n], np.uint64)[0])
+    base = json.loads(raw[n:n + length])["data_offset"]
     text = flipped(raw[n:n + length], bit)
     try:
         header = json.loads(text)
@@ -327,9 +332,9 @@ def resigned(raw: bytes, bit: int) -> bytes | None:
         return None
     header["header_crc32"] = store.header_checksum(header)
     again = json.dumps(header).encode()
-    if len(again) != length:
+    if n + len(again) > base:
         return None
-    return raw[:n] + again + raw[n + length:]
+    return raw[:len(store.MAGIC)] + np.uint64(len(again)).tobytes() + again + bytes(base - n - len(again)) + raw[base:]
 
 
 def test_fuzzed_header_bits_give_one_line_or_the_frame(bakes, tmp_path):

@@ -184,10 +184,10 @@ class MovingObject:
         self.transfer, self.backend = transfer, backend
         self.scene = _scene_of(transfer, scene)
         info = transfer.header["object"]
+        if info["index"] >= len(self.scene.objects) or info.get("name") != self.scene.objects[info["index"]].name:
+            raise WavlightError(f"{transfer.path}: its moving object, {info['index']} ({info.get('name')}), is not "
+                                f"one of the scene's")
         self.object = self.scene.find_object(info["index"])
-        if info.get("name") != self.object.name:
-            raise WavlightError(f"{transfer.path}: its object {info['index']} is {info.get('name')!r}, the scene's "
-                                f"{self.object.name!r}")
         self.rest = self.scene.without(self.object)
         self.rest_tracer = RayTracer(self.rest.vertices, self.rest.faces, threads=2)
         self.object_tracer = RayTracer(self.object.local, self.object.faces, threads=2)
@@ -200,6 +200,9 @@ class MovingObject:
         self.center, self.radius = bounding_sphere(self.object.local)   # the scene's object (its hash checked)
         env = transfer.environment()
         rot = transfer.scene_rotate_y
+        if rot != check_degrees(self.scene.path, "rotate_y", self.scene.environment.rotate_y):
+            raise WavlightError(f"{transfer.path}: its map is turned by {rot:g} degrees, the scene's by "
+                                f"{self.scene.environment.rotate_y:g}")
         self.environment = Environment(env.pixels, 1.0, rot, env.name)   # radiance lookups, turned
         self.m = int(transfer.header["product_levels"])
         self.inside = _TexelLight(env, self.m, rot, map_pixels=False)   # as its kernel: uniform in a leaf
