@@ -9,10 +9,13 @@ peak (``VmHWM``), and the seconds of the load and of a frame. A second child loa
 makes a frame, truncates a copy of the file under it and makes another frame: ``truncated``
 says whether it went on (``ok``) or how it ended (a signal: SIGBUS is -7).
 
-    python benchmarks/bake_memory.py BAKE.wlt [BAKE.wlt ...] [--frames 5] [--tree DIR] [-o FILE]
+    python benchmarks/bake_memory.py BAKE.wlt [BAKE.wlt ...] [--frames 5] [--tree DIR] [--compare FILE]
+                                     [-o FILE]
 
 ``--tree DIR`` runs the children with PYTHONPATH=DIR, to measure another copy of the package
-(one that maps the file, for instance). Writes benchmarks/results/bake_memory.json.
+(one that maps the file, for instance: a checkout's wavlight/ with kernels/ copied into it as
+wavlight/kernels and cli/ as wavlight/cli); ``--compare FILE`` keeps the rows of such a run
+under ``compared``. Writes benchmarks/results/bake_memory.json.
 """
 from __future__ import annotations
 
@@ -80,6 +83,7 @@ def main():
     parser.add_argument("bakes", nargs="+", help="bake files")
     parser.add_argument("--frames", type=int, default=5)
     parser.add_argument("--tree", default=None, help="run the children with PYTHONPATH=DIR")
+    parser.add_argument("--compare", default=None, help="a result file of another run, kept under 'compared'")
     add_output_argument(parser, "bake_memory")
     args = parser.parse_args()
     env = dict(os.environ, **({"PYTHONPATH": args.tree} if args.tree else {}))
@@ -96,7 +100,13 @@ def main():
         row["truncated"] = "ok" if code == 0 and out == "ok" else f"exit {code}"
         rows.append(row)
         print(json.dumps(row), flush=True)
-    write_result(args.output, {"tree": args.tree, "rows": rows}, prov)
+    data = {"tree": args.tree or "this checkout", "rows": rows}
+    if args.compare:
+        with open(args.compare) as fh:
+            other = json.load(fh)
+        data["compared"] = {"tree": other.get("tree"), "commit": other["provenance"].get("commit"),
+                            "rows": other["rows"]}
+    write_result(args.output, data, prov)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """The bake file: a header and the transfer's Haar coefficients by column in blocks of pixels,
-compressed and quantized (Ng et al. 2003's layout), memory-mapped so that a frame reads only
-the columns of the lighting terms it keeps.
+compressed and quantized (Ng et al. 2003's layout), so that a frame reads only the columns of
+the lighting terms it keeps.
 
 Layout (little-endian)::
 
@@ -453,7 +453,8 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
     width, height = integer("width", 1, MAX_SIDE), integer("height", 1, MAX_SIDE)
     spp = integer("spp", 1, MAX_SPP)
     n = integer("n_levels", 1, MAX_LEVELS)
-    integer("block", BLOCK, BLOCK)
+    if header.get("block") != BLOCK or not _integer(header.get("block")):
+        raise damaged(f"block must be {BLOCK} (pixels per side of a block), got {shown(header.get('block'))}")
     bits = header.get("bits")
     if not _integer(bits) or bits not in ENTRY_DTYPES:
         raise damaged(f"bits must be 8 or 16, got {shown(bits)}")
@@ -461,8 +462,8 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
     if header.get("priority") not in PRIORITIES:
         raise damaged(f"priority must be one of {', '.join(PRIORITIES)}, got {shown(header.get('priority'))}")
     if not _finite(header.get("environment_rotate_y")):
-        raise damaged(f"environment_rotate_y must be a finite number of degrees, got "
-                      f"{shown(header.get('environment_rotate_y', 'nothing'))}")
+        given = shown(header["environment_rotate_y"]) if "environment_rotate_y" in header else "none"
+        raise damaged(f"environment_rotate_y must be a finite number of degrees, got {given}")
     scene = header.get("scene")
     if (not isinstance(scene, dict) or not isinstance(scene.get("content_hash"), str)
             or not (scene.get("path") is None or isinstance(scene.get("path"), str))

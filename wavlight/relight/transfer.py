@@ -66,6 +66,8 @@ class Transfer:
         """Write the bake file as it was loaded to ``path`` (atomically: a temporary file renamed
         into place), whatever has happened to the file since."""
         path = os.fspath(path)
+        if self._file is None:
+            raise WavlightError(f"{self.path}: the Transfer is closed")
         if os.path.abspath(path) == os.path.abspath(self.path):
             return
         folder = os.path.dirname(os.path.abspath(path))
