@@ -13,15 +13,20 @@ two files are read:
   priority; an object's place; a camera), so that a default no section describes does not
   count.
 
+A third mode, ``section``, flips ``--section-flips`` bits (fixed seed) of each section's
+contents and signs the section's CRC-32 and the header anew: a section no bake writes must be
+refused, or give a frame that is finite (``finite``: another frame, as the contents changed).
+
 Each outcome is ``error`` (a one-line WavlightError naming the file), ``same`` (a frame equal
-to the unmodified file's), or what went wrong: ``another frame``, an exception's type, or
-``crash`` (the worker process died: a signal). Flips are read in worker processes, each going
+to the unmodified file's), ``finite`` (section mode), or what went wrong: ``another frame``,
+``a frame of NaN or Inf``, an exception's type, or ``crash`` (the worker process died: a
+signal). Flips are read in worker processes, each going
 through a list of bits in order and reporting each; a worker that dies is recorded as a crash at
 its current bit and a new one goes on from the next. ``--cli N`` also runs N evenly spaced raw
 flips of the lighting bake through the ``wavlight frame`` command (exit codes and the one
 ``Error:`` line).
 
-    python benchmarks/bake_fuzz.py [--kinds lighting,object,view] [--cli 64] [-o FILE]
+    python benchmarks/bake_fuzz.py [--kinds lighting,object,view] [--cli 64] [--section-flips 64] [-o FILE]
 
 Writes benchmarks/results/bake_fuzz.json: per kind and mode the bits tried, the counts per
 outcome, the first few bits of each outcome other than error and same, the most frequent
@@ -123,7 +128,8 @@ class Reader:
         with open(self.src, "rb") as fh:
             self.raw = fh.read()
         self.path = os.path.join(folder, f"flipped-{kind}-{os.getpid()}.wlt")
-        self.data_offset = store.read_header(self.src)["data_offset"]
+        self.header = store.read_header(self.src)
+        self.data_offset = self.header["data_offset"]
         self.reference = {mode: self.frame(self.src, mode) for mode in ("raw", "signed")}
 
     def frame(self, path, mode):
@@ -150,18 +156,30 @@ class Reader:
         with a checksum to sign (or one that outgrows the header's room)."""
         import json as _json
 
+        import zlib
+
         raw, n = self.raw, len(self.store.MAGIC) + 8
         if mode == "raw":
             b = bytearray(raw)
             b[bit >> 3] ^= 1 << (bit & 7)
             return bytes(b)
         length = int.from_bytes(raw[len(self.store.MAGIC):n], "little")
-        text = bytearray(raw[n:n + length])
-        text[bit >> 3] ^= 1 << (bit & 7)
-        try:
-            header = _json.loads(bytes(text))
-        except (ValueError, RecursionError):
-            return None
+        if mode == "section":   # a bit of the sections' bytes, that section's CRC-32 signed anew
+            data = bytearray(raw)
+            data[self.data_offset + (bit >> 3)] ^= 1 << (bit & 7)
+            header = _json.loads(raw[n:n + length])
+            for meta in header["sections"].values():   # sections, not bytes
+                if meta["offset"] <= bit >> 3 < meta["offset"] + meta["bytes"]:
+                    at = self.data_offset + meta["offset"]
+                    meta["crc32"] = zlib.crc32(bytes(data[at:at + meta["bytes"]]))
+            raw = bytes(data)
+        else:
+            text = bytearray(raw[n:n + length])
+            text[bit >> 3] ^= 1 << (bit & 7)
+            try:
+                header = _json.loads(bytes(text))
+            except (ValueError, RecursionError):
+                return None
         if not isinstance(header, dict) or "header_crc32" not in header:
             return None
         header["header_crc32"] = self.store.header_checksum(header)
@@ -191,7 +209,12 @@ class Reader:
             return "error", " ".join(words.split()[:8])
         except Exception as e:   # noqa: BLE001 (what the benchmark counts)
             return type(e).__name__, str(e)[:200]
-        return ("same" if self.np.array_equal(image, self.reference[mode]) else "another frame"), None
+        reference = self.reference["raw" if mode == "section" else mode]
+        if self.np.array_equal(image, reference):
+            return "same", None
+        if mode == "section":
+            return ("finite" if self.np.all(self.np.isfinite(image)) else "a frame of NaN or Inf"), None
+        return "another frame", None
 
 
 def header_bits(path: str) -> int:
@@ -202,14 +225,23 @@ def header_bits(path: str) -> int:
     return 8 * (len(start) + int.from_bytes(start[len(store.MAGIC):], "little"))
 
 
-def run_kind(folder: str, kind: str, batch: int = 2000) -> dict:
-    """Every raw and signed flip of the bake of ``kind`` in worker processes: per mode the
-    counts of outcomes, examples and messages."""
+def run_kind(folder: str, kind: str, section_flips: int, batch: int = 2000) -> dict:
+    """Every raw and signed flip of the header of the bake of ``kind``, and ``section_flips``
+    bits of each section, in worker processes: per mode the counts of outcomes, examples and
+    messages."""
+    import numpy as np
+
     from wavlight.relight import store
 
-    bits = header_bits(os.path.join(folder, f"{kind}.wlt"))
+    path = os.path.join(folder, f"{kind}.wlt")
+    bits = header_bits(path)
     prefix = 8 * (len(store.MAGIC) + 8)
     todo = [("raw", b) for b in range(bits)] + [("signed", b) for b in range(bits - prefix)]
+    rng = np.random.default_rng(7)
+    for meta in store.read_header(path)["sections"].values():   # sections, not bits
+        if meta["bytes"]:
+            todo += [("section", 8 * meta["offset"] + int(b))
+                     for b in rng.choice(8 * meta["bytes"], min(section_flips, 8 * meta["bytes"]), replace=False)]
     results = {}
     t0 = time.perf_counter()
     while todo:
@@ -230,13 +262,13 @@ def run_kind(folder: str, kind: str, batch: int = 2000) -> dict:
             todo = chunk[done + 1:] + todo
         print(f"{kind}: {len(results)} flips, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     summary = {}
-    for mode in ("raw", "signed"):
+    for mode in ("raw", "signed", "section"):
         rows = {bit: v for (m, bit), v in results.items() if m == mode}
         counts = collections.Counter(what for what, _ in rows.values())
         messages = collections.Counter(msg for what, msg in rows.values() if what == "error" and msg)
         other = collections.defaultdict(list)
         for bit, (what, msg) in sorted(rows.items()):
-            if what not in ("error", "same", "not a header to sign") and len(other[what]) < 8:
+            if what not in ("error", "same", "finite", "not a header to sign") and len(other[what]) < 8:
                 other[what].append({"bit": bit, "byte": bit >> 3, "message": msg})
         summary[mode] = {"bits": len(rows), "outcomes": dict(counts.most_common()),
                          "messages": dict(messages.most_common(12)), "failures": dict(other)}
@@ -273,6 +305,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--kinds", default=",".join(KINDS), help="bake kinds (lighting, object, view)")
     parser.add_argument("--cli", type=int, default=64, help="raw flips of the lighting bake through the CLI")
+    parser.add_argument("--section-flips", type=int, default=64, help="bits flipped in each section")
     add_output_argument(parser, "bake_fuzz")
     args = parser.parse_args()
     kinds = [k for k in args.kinds.split(",") if k]
@@ -283,10 +316,10 @@ def main():
         t0 = time.perf_counter()
         make_bakes(folder, kinds)
         data = {"bake_seconds": round(time.perf_counter() - t0, 1),
-                "kinds": {kind: run_kind(folder, kind) for kind in kinds}}
+                "kinds": {kind: run_kind(folder, kind, args.section_flips) for kind in kinds}}
         if args.cli and "lighting" in kinds:
             data["cli"] = run_cli(folder, args.cli)
-    print(json.dumps({k: {m: v[m]["outcomes"] for m in ("raw", "signed")} for k, v in data["kinds"].items()},
+    print(json.dumps({k: {m: v[m]["outcomes"] for m in ("raw", "signed", "section")} for k, v in data["kinds"].items()},
                      indent=1))
     write_result(args.output, data, prov)
 

@@ -204,6 +204,8 @@ SECTION_CASES = {
     "a NaN albedo": ("albedo", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 7, np.float32("nan"), a),
                      ("albedo",)),
     "a NaN rms": ("rms", lambda a: np.full_like(a, np.nan), ("rms",)),
+    "an albedo beyond any scene's": ("albedo", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 7,
+                                                                  np.float32(3e38), a), ("albedo",)),
 }
 
 
@@ -216,6 +218,18 @@ def test_section_contents_are_checked(bakes, tmp_path, case):
     for args in ([], ["--spp", "1"]):
         one_error_line(run("frame", path, "-o", tmp_path / "f.exr", *args), "edited.wlt", *words)
     assert not (tmp_path / "f.exr").exists()
+
+
+def test_a_frame_that_overflows_is_one_line(bakes, tmp_path):
+    """Entries whose scales are finite but whose product with the lighting overflows float32: the
+    library's frame is an error naming the file, not an image of Inf."""
+    scale = section(bakes / "light.wlt", "entry_scale")
+    path = forge(bakes / "light.wlt", tmp_path / "edited.wlt", sections={"entry_scale": np.full_like(scale, 1e37)})
+    tr = Transfer.load(path)
+    with pytest.raises(WavlightError, match="edited.wlt.*overflows"):
+        tr.frame()
+    tr.close()
+    one_error_line(run("frame", path, "-o", tmp_path / "f.exr"), "edited.wlt", "overflows")
 
 
 #: case: (edit of the header, sections (name -> array -> array), words) on the object bake

@@ -64,7 +64,7 @@ import numpy as np
 
 from ..envmap import MAX_RADIANCE, MAX_TEXELS
 from ..errors import WavlightError, file_problem, shown
-from ..scene import MAX_SIDE
+from ..scene import MAX_ALBEDO, MAX_SIDE
 from ..version import __version__
 from .lighting import MAX_LEVELS, MAX_TERMS, PRIORITIES
 
@@ -422,7 +422,8 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
       view_face_k and view_face_base (F,);
     - with ``verify``, each section's CRC-32;
     - the contents: the environment finite, >= 0, at most MAX_RADIANCE and not black everywhere
-      (its frames would be black); albedo, rms and entry_scale finite and >= 0; background pixels
+      (its frames would be black); albedo, rms and entry_scale finite and >= 0, the albedo at most
+      MAX_ALBEDO (the scene format's); background pixels
       increasing and below width x height, each mask non-zero and without bits at or past spp,
       the directions finite; offsets -1 or the entries in order, each entry once (so that every
       entry index is below E); static finite, static_stderr finite and >= 0, product_leaves
@@ -585,6 +586,8 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
         raise WavlightError(f"{path}: the bake file's environment map is black everywhere; its frames would be black")
     for name in ("albedo", "rms", "entry_scale"):   # sections, not elements
         finite(name, 0.0)
+    if s["albedo"].size and s["albedo"].max() > MAX_ALBEDO:
+        raise contents(f"albedo holds values above {MAX_ALBEDO:g} (a scene's albedo at most)")
     finite("background_dir")
     pixel, mask = s["background_pixel"].astype(np.int64), s["background_mask"]
     limit = width * height if vary != "view" else 0

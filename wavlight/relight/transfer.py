@@ -208,6 +208,9 @@ class Transfer:
             blocks = self._device.product(columns, values)
         t3 = time.perf_counter()
         image = self._assemble(blocks, environment, rot, backend)
+        if not np.all(np.isfinite(image)):
+            raise WavlightError(f"{self.path}: the frame overflows float32 (its transfer times the lighting; a "
+                                "smaller --scale or map)")
         t4 = time.perf_counter()
         entries = int(np.count_nonzero(np.asarray(self._s["offsets"][columns]) >= 0)) if len(columns) else 0
         return image, {"lighting_seconds": t1 - t0, "terms_seconds": t2 - t1, "product_seconds": t3 - t2,
