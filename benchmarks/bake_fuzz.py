@@ -155,7 +155,6 @@ class Reader:
         anew, the text's length written anew), or None where a signed flip leaves no JSON object
         with a checksum to sign (or one that outgrows the header's room)."""
         import json as _json
-
         import zlib
 
         raw, n = self.raw, len(self.store.MAGIC) + 8

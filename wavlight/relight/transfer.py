@@ -24,6 +24,7 @@ from ..errors import ArgumentError, WavlightError, check_degrees, check_int, che
 from . import lighting, store
 from .frame import DeviceEntries, background_cl, background_lookup, background_reference, product_reference
 from .lighting import MAX_TERMS
+
 #: the maps whose lighting projectors a Transfer keeps (the viewer offers a few)
 MAPS_KEPT = 4
 

@@ -114,12 +114,12 @@ from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting, store
-from .store import lattice_size
 from .bake import BITS, BLOCK, POINT_CHOICES, PixelSamples, camera_jitter, choose_model, texel_rays, \
     texel_rays_reference
 from .converge import LIGHT_SHARE, PASS_SPP, _scene_of, check_shares, _TexelLight, mean_and_error, shade_by_mixture, \
     square_to_world
 from .frame import DeviceEntries
+from .store import lattice_size
 from .transfer import finish_bake
 
 #: cache points per block of the bake file (one entry row holds their three channels)
