@@ -20,13 +20,18 @@ refused, or give a frame that is finite (``finite``: another frame, as the conte
 Each outcome is ``error`` (a one-line WavlightError naming the file), ``same`` (a frame equal
 to the unmodified file's), ``finite`` (section mode), or what went wrong: ``another frame``,
 ``a frame of NaN or Inf``, an exception's type, or ``crash`` (the worker process died: a
-signal). Flips are read in worker processes, each going
-through a list of bits in order and reporting each; a worker that dies is recorded as a crash at
-its current bit and a new one goes on from the next. ``--cli N`` also runs N evenly spaced raw
+signal). Flips are read in worker processes (in the bakes' folder: a checkout's folder first
+on sys.path would shadow a copy of the package given by PYTHONPATH), each going through a list
+of bits in order and reporting each; a worker that dies is recorded as a crash at its current
+bit and a new one goes on from the next. ``--cli N`` also runs N evenly spaced raw
 flips of the lighting bake through the ``wavlight frame`` command (exit codes and the one
 ``Error:`` line).
 
-    python benchmarks/bake_fuzz.py [--kinds lighting,object,view] [--cli 64] [--section-flips 64] [-o FILE]
+    python benchmarks/bake_fuzz.py [--kinds lighting,object,view] [--cli 64] [--section-flips 64] [--compare FILE]
+                                   [-o FILE]
+
+``--compare FILE`` keeps the outcome counts of another run under ``compared`` (say one with
+PYTHONPATH at a copy of the package of another commit).
 
 Writes benchmarks/results/bake_fuzz.json: per kind and mode the bits tried, the counts per
 outcome, the first few bits of each outcome other than error and same, the most frequent
@@ -247,7 +252,7 @@ def run_kind(folder: str, kind: str, section_flips: int, batch: int = 2000) -> d
         chunk, todo = todo[:batch], todo[batch:]
         p = subprocess.Popen([sys.executable, "-c", WORKER, HERE, folder, kind,
                               ",".join(f"{m}:{b}" for m, b in chunk)], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+                             stderr=subprocess.PIPE, text=True, cwd=folder)
         out, err = p.communicate()
         done = 0
         for line in out.splitlines():
@@ -292,7 +297,8 @@ def run_cli(folder: str, count: int) -> dict:
         b[bit >> 3] ^= 1 << (bit & 7)
         with open(path, "wb") as fh:
             fh.write(b)
-        p = subprocess.run(command + ["frame", path, "-o", out], capture_output=True, text=True, timeout=600)
+        p = subprocess.run(command + ["frame", path, "-o", out], capture_output=True, text=True, timeout=600,
+                           cwd=folder)
         codes[p.returncode] += 1
         lines = [ln for ln in p.stderr.splitlines() if ln.strip() and not ln.startswith(("note:", "warning:"))]
         if p.returncode == 2:
@@ -305,6 +311,7 @@ def main():
     parser.add_argument("--kinds", default=",".join(KINDS), help="bake kinds (lighting, object, view)")
     parser.add_argument("--cli", type=int, default=64, help="raw flips of the lighting bake through the CLI")
     parser.add_argument("--section-flips", type=int, default=64, help="bits flipped in each section")
+    parser.add_argument("--compare", default=None, help="a result file of another run, kept under 'compared'")
     add_output_argument(parser, "bake_fuzz")
     args = parser.parse_args()
     kinds = [k for k in args.kinds.split(",") if k]
@@ -320,6 +327,13 @@ def main():
             data["cli"] = run_cli(folder, args.cli)
     print(json.dumps({k: {m: v[m]["outcomes"] for m in ("raw", "signed", "section")} for k, v in data["kinds"].items()},
                      indent=1))
+    if args.compare:
+        with open(args.compare) as fh:
+            other = json.load(fh)
+        data["compared"] = {"wavlight": other["provenance"].get("wavlight"), "command": other["provenance"]["command"],
+                            "kinds": {k: {"header_bits": v["header_bits"],
+                                          **{m: v[m]["outcomes"] for m in ("raw", "signed", "section")}}
+                                      for k, v in other["kinds"].items()}}
     write_result(args.output, data, prov)
 
 
