@@ -75,6 +75,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
     import wavlight
     from wavlight import data
     from wavlight.imageio import FORMATS
+    from wavlight.relight.lighting import turntable as turntable_rotations
 
     s = settings
     rotate_y, spp, turntable = s["rotate_y"], s["spp"], s["turntable"]
@@ -104,9 +105,11 @@ def frame(bake_file, output, as_json, quiet, **settings):
         env = None
         if s["env"] is not None:
             env = transfer.environment(s["env"], **given(s, "scale"))
-            if env.is_black:
-                fail(f"{s['env']}: the environment is black everywhere; the frame would be black")
             lit.pop("scale", None)   # in env already
+        scale = FRAME["scale"].default if s["scale"] is None else s["scale"]
+        if (env if env is not None else transfer.environment(None, scale)).is_black:
+            scaled = f" times --scale {scale:g}" if scale != 1.0 else ""
+            fail(f"{s['env'] or bake_file}: the environment{scaled} is black everywhere; the frame would be black")
         if turntable is None:
             if output is None:
                 output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
@@ -126,19 +129,20 @@ def frame(bake_file, output, as_json, quiet, **settings):
                 for _ in range(repeat):
                     image, st = transfer.frame_timed(env, **lit)
                     times.append(st["frame_seconds"])
+                rotation = st["rotate_y"]
             wavlight.save_image(output, image)
             outputs = [output]
         else:
             if output is None:
                 fail("--turntable writes a folder of frames: give it with -o DIR")
-            frames, gif = _frame_folder(output, turntable, "turntable",
-                                        [bake_file, env_file])
-            base = transfer.scene_rotate_y if rotate_y is None else rotate_y
+            frames, gif = _frame_folder(output, turntable, "turntable", [bake_file, env_file])
+            turns = turntable_rotations(transfer.scene_rotate_y if rotate_y is None else rotate_y, turntable)
+            rotation = turns[0]
             lit.pop("rotate_y", None)
             times = []
             with progress_bar("frames", quiet=quiet) as bar:
-                for i, name in enumerate(frames):
-                    image, st = transfer.frame_timed(env, base + 360.0 * i / turntable, **lit)
+                for i, (turn, name) in enumerate(zip(turns, frames)):
+                    image, st = transfer.frame_timed(env, turn, **lit)
                     times.append(st["frame_seconds"])
                     wavlight.save_image(name, image)
                     if bar:
@@ -154,8 +158,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
              "terms": st["terms"], "entries_read": st["entries_read"], "width": transfer.width,
              "height": transfer.height, "texels": f"{1 << transfer.n_levels}x{1 << transfer.n_levels}",
-             "priority": s["priority"] or transfer.priority, "frames": len(times),
-             "rotate_y": transfer.scene_rotate_y if rotate_y is None else rotate_y,
+             "priority": s["priority"] or transfer.priority, "frames": len(times), "rotate_y": rotation,
              "memory_bytes_per_frame": int(st["entries_read"] * (transfer.block ** 2 * transfer.bits // 8 + 20)),
              "measured": transfer.measured, "output": outputs if turntable else outputs[0]}
     if as_json:
@@ -218,13 +221,20 @@ def _animated_gif(frames, path):
 
 def _object_frame(transfer, bake_file, output, s, as_json, quiet, held):
     """A frame of a bake that varies one object: the object at --translate / --rotate."""
+    import math
+
     import wavlight
     from wavlight.imageio import FORMATS
     from wavlight.relight.moving import MovingObject
+    from wavlight.scene import MAX_COORDINATE
 
     for flag_name, value in held.items():
         if value is not None:
             fail(f"{bake_file}: this bake varies an object (its lighting is fixed); {flag_name} does not apply")
+    translate = s["translate"]
+    if translate is not None and not all(math.isfinite(x) and abs(x) <= MAX_COORDINATE for x in translate):
+        fail(f"--translate must be three finite numbers within the ray tracer's range (|x| <= {MAX_COORDINATE:g}), "
+             f"got {' '.join(str(x) for x in translate)}")
     if output is None:
         output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
     check_output(output, FORMATS)
@@ -255,6 +265,7 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
     import wavlight
     from wavlight.imageio import FORMATS
     from wavlight.relight.view import ViewFrames, orbit_eyes, still_settings
+    from wavlight.scene import MAX_COORDINATE
 
     eye, target, fov, orbit, spp = s["eye"], s["target"], s["fov"], s["orbit"], s["spp"]
     for flag_name, value in held.items():
@@ -262,8 +273,9 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
             fail(f"{bake_file}: this bake varies the view (its lighting and objects are fixed); {flag_name} does not "
                  "apply")
     for key in ("eye", "target"):
-        if s[key] is not None and not all(math.isfinite(x) for x in s[key]):
-            fail(f"{FRAME[key].flag} must be three finite numbers, got {' '.join(str(x) for x in s[key])}")
+        if s[key] is not None and not all(math.isfinite(x) and abs(x) <= MAX_COORDINATE for x in s[key]):
+            fail(f"{FRAME[key].flag} must be three finite numbers within the ray tracer's range (|x| <= "
+                 f"{MAX_COORDINATE:g}), got {' '.join(str(x) for x in s[key])}")
     why = None if fov is None else FRAME["fov"].problem(fov)
     if why:
         fail(f"--fov {why}")

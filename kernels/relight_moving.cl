@@ -11,8 +11,9 @@
  * triangle prim at distance t) gives the hit point p, its face normal turned towards the viewer
  * and its material, and the shadow-ray origin p moved max(OFFSET_RELATIVE |p|, the face's offset
  * floor, the eye's) along the normal (wavlight/raytrace.py). Four uniforms: Philox stream
- * `stream` of tile `tile` at index slot (rng.h). The pixel's product tree (tree_offset +
- * slot / spp, N_LEVELS levels, eq. 17) is walked with (u0, u1) (warp.h tree_walk, eq. 19-22);
+ * `stream` of tile `tile` at index first + slot (rng.h; first: the pass's first sample). The
+ * pixel's product tree (tree_offset + slot / spp, N_LEVELS levels, eq. 17) is walked with
+ * (u0, u1) (warp.h tree_walk, eq. 19-22);
  * inside the texel it reached, the leaf of the lighting's own resolution is chosen in proportion
  * to its mass by the rest of u0 (the texel's k^2 leaves as a running sum, light_cdf, bisected),
  * the point inside the leaf by the rest of u0 and of u1. With probability alpha (u2 < alpha:
@@ -50,7 +51,8 @@ __kernel void moving_directions(const uint count, __global const uint *slot_in, 
                                 const uint spp, __global const float *light_cdf, const uint k,
                                 __global const float *texels, const int env_w, const int env_h,
                                 __global const float *rot, const float defensive,
-                                const uint tile, const uint stream, const uint k0, const uint k1,
+                                const uint tile, const uint stream, const uint first, const uint k0,
+                                const uint k1,
                                 __global float *out)
 {
     const uint base = LANE_BASE();
@@ -74,7 +76,7 @@ __kernel void moving_directions(const uint count, __global const uint *slot_in, 
     /* the uniforms, the pixel's tree */
     const uintv slot = as_uintv(GATHER_INT((__global const int *)slot_in, i));
     realv u0, u1, u2, u3;
-    rng_uniforms(slot, tile, stream, k0, k1, &u0, &u1, &u2, &u3);
+    rng_uniforms(slot + first, tile, stream, k0, k1, &u0, &u1, &u2, &u3);
     uintv unused;
     const uintv tree_base = (div_small(slot, spp, &unused) + tree_offset) * tree_stride;
     const intv has_product = GATHER(tree, tree_base) > 0.0f;

@@ -160,6 +160,13 @@ def check_number(where: str, name: str, value, lo=None, hi=None) -> float:
     return value
 
 
+def check_degrees(where: str, name: str, value) -> float:
+    """A finite angle in degrees, reduced exactly modulo 360 (math.fmod in float64: the sign of
+    ``value``, magnitude below 360), so that no later step (radians, a float32 cast, a turntable's
+    steps added to it) loses it; NaN, Inf and bools refused as by :func:`check_number`."""
+    return math.fmod(check_number(where, name, value), 360.0)
+
+
 def check_real(where: str, name: str, value, finite: bool = False) -> np.ndarray:
     """value as a numpy array of real numbers (bool, int or float dtype), optionally all finite."""
     try:

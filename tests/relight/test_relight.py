@@ -443,7 +443,7 @@ def test_save_load_and_checks(shadowed, tmp_path):
     (tmp_path / "junk.wlt").write_bytes(b"not a bake file at all" * 10)
     with pytest.raises(WavlightError, match="not a wavlight bake file"):
         wavlight.Transfer.load(tmp_path / "junk.wlt")
-    future = raw.replace(b'"version": 1', b'"version": 9', 1)
+    future = raw.replace(f'"version": {store.FORMAT_VERSION}'.encode(), b'"version": 9', 1)
     (tmp_path / "future.wlt").write_bytes(future)
     with pytest.raises(WavlightError, match="version 9"):
         wavlight.Transfer.load(tmp_path / "future.wlt")

@@ -526,7 +526,7 @@ class _Runner:
         return rec if job is None else self.finish(job, self.render_local(job))
 
 
-_TRANSFERS = {}   # per process: bake file -> Transfer (memory-mapped, opened once)
+_TRANSFERS = {}   # per process: bake file -> Transfer (read once)
 
 
 def _render(scene, strategy_id, options, spp, width, height, seed, threads):

@@ -51,8 +51,8 @@ from .dask import bake_on_cluster
 from .settings import BAKE, LOBE_SPACINGS, SPP_CHOICES
 from .transfer import finish_bake
 
-#: a block is BLOCK x BLOCK pixels: one tile of the bake, one unit of storage
-BLOCK = 16
+#: a block is BLOCK x BLOCK pixels: one tile of the bake, one unit of storage (the file format's)
+BLOCK = store.BLOCK
 
 
 @dataclass
@@ -534,6 +534,14 @@ OBJECT_PRODUCT_LEVELS = 4
 STATIC_SPP = BAKE["static_spp"].default
 
 
+def bounding_sphere(local: np.ndarray):
+    """(centre (3,), radius) of an object's vertices (N, 3) in its own frame: the centre of their
+    box and the distance to the farthest of them."""
+    lo, hi = local.min(0), local.max(0)
+    center = (lo + hi) / 2
+    return center, float(np.linalg.norm(local - center, axis=1).max())
+
+
 def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
          tolerance: float = BAKE["tolerance"].default, bits: int = BAKE["bits"].default, terms=None, priority=None,
          seed: int = BAKE["seed"].default, threads=None, progress=None, backend: str = "opencl", dask_address=None,
@@ -670,12 +678,10 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
             static = render_full(scene, spp=static_spp, strategy="wavelet", width=width, height=height,
                                  seed=seed + 1)
             arrays.update(static=static.image, static_stderr=static.stderr, product_leaves=product)
-            lo, hi = moving.local.min(0), moving.local.max(0)
-            center = (lo + hi) / 2
+            center, radius = bounding_sphere(moving.local)
             header["object"] = {"index": moving.index, "name": moving.name, "rotate": moving.rotate,
                                 "translate": np.asarray(moving.translate, float).tolist(),
-                                "center": center.tolist(),
-                                "radius": float(np.linalg.norm(moving.local - center, axis=1).max())}
+                                "center": center.tolist(), "radius": radius}
             header["product_levels"] = settings.product_levels
             header["static"] = {"spp": static_spp, "strategy": "wavelet",
                                 "seconds": static.stats["setup_seconds"] + static.stats["render_seconds"]}

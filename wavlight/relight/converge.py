@@ -58,7 +58,7 @@ import numpy as np
 from .. import bsdfs, rng
 from ..camera import camera_rays
 from ..envmap import Environment, luminance
-from ..errors import ArgumentError, WavlightError, check_int, check_number
+from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_number
 from ..haar import ProductPyramids, forward, texel_values
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
@@ -201,7 +201,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME
     defensive, light = check_shares(where, defensive, light)
     use_control = bool(control) and light > 0
     scene = _scene_of(transfer, scene)
-    rot = transfer.scene_rotate_y if rotate_y is None else float(rotate_y)
+    rot = transfer.scene_rotate_y if rotate_y is None else check_degrees(where, "rotate_y", rotate_y)
     base = transfer.environment(env, scale)                     # unrotated, scaled
     turned = Environment(base.pixels, 1.0, rot, base.name)      # for radiance lookups
     n = min(transfer.n_levels, levels)
@@ -282,6 +282,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME
     stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
              "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
              "rotate_y": rot, "product_levels": n, "slots": slots, "candidates": candidates,
+             "pass_spp": min(spp, PASS_SPP), "pass_samples": BLOCK * BLOCK * min(spp, PASS_SPP),
              "resampled_share": round(totals["resampled"] / totals["hits"], 4) if totals["hits"] else 0.0,
              "estimator": "product T1 x L (eq. 25) + BSDF + lighting, defensive mixture"
                           + (", the relit frame as control variate" if use_control else "")

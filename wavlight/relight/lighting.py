@@ -29,11 +29,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..envmap import LUMINANCE, Environment, _band_overlaps
-from ..errors import ArgumentError, check_int, check_number
+from ..errors import ArgumentError, check_degrees, check_int, check_number
 from ..haar import forward
 from ..haar.transform import coeff_basis
 
 PRIORITIES = ("transfer", "area", "magnitude")
+#: texel levels n at most (2^n x 2^n texels), and lighting terms K a frame keeps at most
+MAX_LEVELS = 11
+MAX_TERMS = 1 << 22
 
 
 def texel_solid_angles(n_levels: int) -> np.ndarray:
@@ -60,7 +63,7 @@ class Projector:
 
     def __init__(self, environment: Environment, n_levels: int):
         where = "relight.Projector"
-        n = check_int(where, "n_levels", n_levels, 1, 11)
+        n = check_int(where, "n_levels", n_levels, 1, MAX_LEVELS)
         self.environment, self.n_levels = environment, n
         side = 1 << n
         h, w = environment.height, environment.width
@@ -91,6 +94,15 @@ class Projector:
         at = (np.take(self.cum, col, axis=1) + frac[None, :, None] * np.take(self.by_rows, col, axis=1)
               + turns[None, :, None] * self.total[:, None, :])                     # (N, N + 1, 3)
         return (at[:, 1:] - at[:, :-1]) * (scale * self.inv_omega)[:, None, None]
+
+
+def turntable(start: float, frames: int) -> list[float]:
+    """The rotations, degrees, of ``frames`` frames of a full turn about +Y from ``start``:
+    start reduced modulo 360 first (:func:`wavlight.errors.check_degrees`; a step added to an
+    unreduced 1e17 would be lost), then 360 i / frames added."""
+    start = check_degrees("relight.turntable", "start", start)
+    frames = check_int("relight.turntable", "frames", frames, 1, None)
+    return [start + 360.0 * i / frames for i in range(frames)]
 
 
 def project(environment: Environment, n_levels: int, rotate_y: float | None = None, scale: float = 1.0) -> np.ndarray:

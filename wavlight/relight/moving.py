@@ -43,25 +43,29 @@ import numpy as np
 from .. import camera, cl, raytrace, rng, strategies
 from ..camera import camera_rays, project
 from ..envmap import Environment
-from ..errors import ArgumentError, WavlightError, check_real
+from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_real
 from ..haar.tree import HaarTree, tree_stride
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
-from ..scene import rotation
+from ..scene import MAX_COORDINATE, rotation
 from ..shading import KernelShader
 from ..warp import frame as tangent_frame
 from ..warp import to_local
-from .bake import camera_jitter
-from .converge import _scene_of, _TexelLight, mixture_directions
+from .bake import bounding_sphere, camera_jitter
+from .converge import PASS_SPP, _scene_of, _TexelLight, mean_and_error, mixture_directions
 from .settings import FRAME, OBJECT_FRAME_SPP
 
 #: a frame's chunk c draws its Philox numbers as tile FRAME_TILES + c (streams rng.JITTER,
 #: rng.MOVING_DIRECTIONS, rng.MOVING_MIS)
 FRAME_TILES = 11 << 16
 #: a chunk is whole rows of the image: at most this many pixels and camera samples (memory
-#: stays bounded at any size; a row of more samples is one chunk)
+#: stays bounded at any size; a row of more samples is one chunk); a frame of more samples per
+#: pixel takes them in passes of at most PASS_SPP (and CHUNK_SAMPLES / width) per pixel
 CHUNK_PIXELS = 1 << 16
 CHUNK_SAMPLES = 1 << 18
+#: a frame's camera rays and mixture samples are kept for the next frames of its seed and spp
+#: where it is one pass of at most this many samples (the viewer's frames: 4 and 1 spp)
+KEPT_SAMPLES = 1 << 22
 #: the per-pixel product trees kept from frame to frame (device memory, about 1.4 kB a pixel
 #: at 16 x 16 texels: a 256 x 256 image's whole)
 TREE_CACHE_BYTES = 256 << 20
@@ -123,10 +127,11 @@ class _MixtureKernel:
         self.program = cl.program("relight_moving.cl", N_LEVELS=int(n_levels), BSDF_KINDS=kinds,
                                   OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))))
 
-    def __call__(self, eye, d, prim, t, slots, trees, tree_offset: int, spp: int, seed: int, tile: int):
+    def __call__(self, eye, d, prim, t, slots, trees, tree_offset: int, spp: int, seed: int, tile: int,
+                 start: int = 0):
         """(N, 9) float32 rows as :func:`mixture_samples_reference` returns them, the uniforms
-        drawn in the kernel (Philox stream rng.MOVING_DIRECTIONS of ``tile``, index = slot), pixel
-        slot // spp's tree at ``tree_offset`` + that in ``trees``."""
+        drawn in the kernel (Philox stream rng.MOVING_DIRECTIONS of ``tile``, index = ``start`` + slot),
+        pixel slot // spp's tree at ``tree_offset`` + that in ``trees``."""
         count = len(d)
         if count == 0:
             return np.zeros((0, 9), np.float32)
@@ -140,7 +145,8 @@ class _MixtureKernel:
             *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
             self.kind, self.param, self.albedo, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
             np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
-            np.uint32(tile), np.uint32(rng.MOVING_DIRECTIONS), *(np.uint32(x) for x in rng.key(seed)), out)
+            np.uint32(tile), np.uint32(rng.MOVING_DIRECTIONS), np.uint32(start),
+            *(np.uint32(x) for x in rng.key(seed)), out)
         return np.ascontiguousarray(cl.read(out, (9, count), np.float32, q).T)
 
     def warm_up(self, eye, trees):
@@ -180,6 +186,9 @@ class MovingObject:
         self.transfer, self.backend = transfer, backend
         self.scene = _scene_of(transfer, scene)
         info = transfer.header["object"]
+        if info["index"] >= len(self.scene.objects) or info.get("name") != self.scene.objects[info["index"]].name:
+            raise WavlightError(f"{transfer.path}: its moving object, {info['index']} ({info.get('name')}), is not "
+                                f"one of the scene's")
         self.object = self.scene.find_object(info["index"])
         self.rest = self.scene.without(self.object)
         self.rest_tracer = RayTracer(self.rest.vertices, self.rest.faces, threads=2)
@@ -190,9 +199,12 @@ class MovingObject:
         self._rest_normals[:self.rest_tracer.n_faces] = self.rest_tracer.face_normals
         self._rest_material = np.zeros(max(self.rest_tracer.n_faces, 1), np.int64)
         self._rest_material[:self.rest_tracer.n_faces] = self.rest.face_material
-        self.center, self.radius = np.asarray(info["center"], np.float64), float(info["radius"])
+        self.center, self.radius = bounding_sphere(self.object.local)   # the scene's object (its hash checked)
         env = transfer.environment()
         rot = transfer.scene_rotate_y
+        if rot != check_degrees(self.scene.path, "rotate_y", self.scene.environment.rotate_y):
+            raise WavlightError(f"{transfer.path}: its map is turned by {rot:g} degrees, the scene's by "
+                                f"{self.scene.environment.rotate_y:g}")
         self.environment = Environment(env.pixels, 1.0, rot, env.name)   # radiance lookups, turned
         self.m = int(transfer.header["product_levels"])
         self.inside = _TexelLight(env, self.m, rot, map_pixels=False)   # as its kernel: uniform in a leaf
@@ -226,14 +238,18 @@ class MovingObject:
         (absolute, replacing its own keys; None keeps them)."""
         where = "relight.moving"
         ob = self.object
-        t = ob.translate if translate is None else check_real(where, "translate", translate, finite=True).reshape(3)
-        if rotate is None:
-            r = ob.rotate
-        else:
-            r = check_real(where, "rotate", rotate, finite=True).reshape(-1)
-            if r.shape != (4,) or np.linalg.norm(r[:3]) == 0:
+        t = ob.translate if translate is None else check_real(where, "translate", translate, finite=True).reshape(-1)
+        if np.shape(t) != (3,) or np.abs(t).max() > MAX_COORDINATE:
+            raise ArgumentError(f"{where}: translate must be three numbers within the ray tracer's range (|x| <= "
+                                f"{MAX_COORDINATE:g}), got {np.asarray(t).tolist()}")
+        r = ob.rotate if rotate is None else check_real(where, "rotate", rotate, finite=True).reshape(-1)
+        if r is not None:
+            r = np.asarray(r, np.float64)
+            if r.shape != (4,) or not np.abs(r[:3]).max() > 0:
                 raise ArgumentError(f"{where}: rotate must be [axis x, y, z, degrees] with a non-zero axis")
-        return rotation(None if r is None else list(r)), np.asarray(t, np.float64)
+            # the axis is a direction (scaled first: its length may overflow), the angle reduced
+            r = [*(r[:3] / np.abs(r[:3]).max()), check_degrees(where, "rotate's angle", r[3])]
+        return rotation(r), np.asarray(t, np.float64)
 
     def _object_pixels(self, R, T, width, height):
         """(H, W) bool: the pixels a camera sample of which may see the object: those whose
@@ -324,39 +340,56 @@ class MovingObject:
         tr = self.transfer
         width, height = tr.width, tr.height
         touched = self._object_pixels(R, T, width, height).reshape(-1)
+        # samples per pixel of one pass: a frame of more takes them in passes (bounded memory)
+        k = min(spp, PASS_SPP, max(1, CHUNK_SAMPLES // width))
         # the camera rays and samples of the last KEPT_SEEDS (seed, spp) (the viewer's seed 0 at its
-        # two spp: while dragging and at rest)
-        self._chunks = self._kept.pop((seed, spp), None) or {}
-        self._kept[(seed, spp)] = self._chunks
-        while len(self._kept) > KEPT_SEEDS:
-            self._kept.pop(next(iter(self._kept)))
+        # two spp: while dragging and at rest), for frames of one pass of at most KEPT_SAMPLES
+        keep = k == spp and width * height * spp <= KEPT_SAMPLES
+        self._chunks = (self._kept.pop((seed, spp), None) or {}) if keep else {}
+        if keep:
+            self._kept[(seed, spp)] = self._chunks
+            while len(self._kept) > KEPT_SEEDS:
+                self._kept.pop(next(iter(self._kept)))
         image = np.zeros((width * height, 3))
         error = np.zeros((width * height, 3))
         rays = 0
-        rows = max(1, min(CHUNK_PIXELS // width, CHUNK_SAMPLES // (width * spp)))
+        rows = max(1, min(CHUNK_PIXELS // width, CHUNK_SAMPLES // (width * k)))
         for chunk, y0 in enumerate(range(0, height, rows)):   # chunks of whole rows
             first, last = y0 * width, min(y0 + rows, height) * width
-            value, n_rays = self._chunk(R, T, touched, first, last, spp, seed, chunk)
-            rays += n_rays
-            v = value.reshape(last - first, spp, 3)
-            image[first:last] = v.mean(1)
+            P = last - first
+            sums, squares = np.zeros((P, 3)), np.zeros((P, 3))
+            for start in range(0, spp, k):   # passes of samples per pixel, not samples
+                kk = min(k, spp - start)
+                value, n_rays = self._chunk(R, T, touched, first, last, kk, seed, chunk, start * P, keep)
+                rays += n_rays
+                v = value.reshape(P, kk, 3)
+                if kk == spp:   # one pass
+                    image[first:last] = v.mean(1)
+                    var = v.var(1, ddof=1) / spp if spp > 1 else None
+                else:
+                    sums += v.sum(1)
+                    squares += (v * v).sum(1)
+            if k < spp:
+                image[first:last], err = mean_and_error(sums, squares, spp)
+                var = err * err
             if spp > 1:
-                var = v.var(1, ddof=1) / spp + np.where(touched[first:last, None], 0.0, self._static_var[first:last])
-                error[first:last] = np.sqrt(var)
+                error[first:last] = np.sqrt(var + np.where(touched[first:last, None], 0.0, self._static_var[first:last]))
             else:
                 error[first:last] = np.inf
         seconds = time.perf_counter() - t0
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
-                 "rays": rays, "object_pixels": int(touched.sum()), "backend": self.backend,
+                 "rays": rays, "object_pixels": int(touched.sum()), "backend": self.backend, "pass_spp": k,
+                 "pass_samples": min(height, rows) * width * k,
                  "translate": T.tolist(), "estimator": "static image minus the object's occlusion D"}
         return RenderResult(image.reshape(height, width, 3).astype(np.float32),
                             error.reshape(height, width, 3).astype(np.float32), stats)
 
-    def _camera(self, chunk, first, last, spp, seed):
+    def _camera(self, chunk, first, last, spp, seed, start: int = 0, keep: bool = True):
         """The chunk's camera rays (whole rows first .. last - 1 of the image, spp jittered samples
-        per pixel, stratified: Philox stream JITTER of tile FRAME_TILES + chunk) and their
-        hits on the rest, kept for the next frames of the seed and spp."""
-        kept = self._chunks.get(chunk)
+        per pixel, stratified: Philox stream JITTER of tile FRAME_TILES + chunk, from sample
+        ``start`` of the tile on) and their hits on the rest, with ``keep`` kept for the next
+        frames of the seed and spp."""
+        kept = self._chunks.get(chunk) if keep else None
         if kept is not None:
             return kept
         tr, scene = self.transfer, self.scene
@@ -364,20 +397,23 @@ class MovingObject:
         P = last - first
         tile = FRAME_TILES + chunk
         if self.backend == "opencl" and P * spp < camera.MAX_PASS_RAYS:
-            d = camera.pass_rays(scene, width, height, seed, tile, 0, first // width, width, P // width, spp, 0,
+            d = camera.pass_rays(scene, width, height, seed, tile, 0, first // width, width, P // width, spp, start,
                                  stratified=True)
         else:   # the same jitters in numpy
             pixels = np.arange(first, last)
             d = camera_rays(scene, np.repeat(pixels % width, spp), np.repeat(pixels // width, spp),
-                            camera_jitter(seed, tile, P, spp), width, height)[1]
+                            camera_jitter(seed, tile, P, spp, start), width, height)[1]
         eye = np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape)
         prim, t = self.rest_tracer.intersect(eye, d)
-        kept = self._chunks[chunk] = _Chunk(d, prim, t)
+        kept = _Chunk(d, prim, t)
+        if keep:
+            self._chunks[chunk] = kept
         return kept
 
-    def _chunk(self, R, T, touched, first, last, spp, seed, chunk):
-        """(values (P S, 3) per sample of the chunk's pixels first .. last - 1, rays)."""
-        cam = self._camera(chunk, first, last, spp, seed)
+    def _chunk(self, R, T, touched, first, last, spp, seed, chunk, start: int = 0, keep: bool = True):
+        """(values (P S, 3) per sample of the chunk's pixels first .. last - 1, rays): one pass of
+        spp samples per pixel, its random numbers from sample ``start`` of the chunk's tile on."""
+        cam = self._camera(chunk, first, last, spp, seed, start, keep)
         P = last - first
         touched = touched[first:last]
         full = np.repeat(touched, spp) if spp > 1 else touched   # samples of pixels rendered in full
@@ -390,11 +426,11 @@ class MovingObject:
         idx = np.flatnonzero(full)
         pending = None
         if len(idx):
-            pending = self._pool.submit(self._full, R, T, cam.d[idx], cam.prim[idx], cam.t[idx], seed, chunk)
+            pending = self._pool.submit(self._full, R, T, cam.d[idx], cam.prim[idx], cam.t[idx], seed, chunk, start)
         # the others: S_p minus the object's occlusion D at each sample
         rest = np.flatnonzero(~full & (cam.prim >= 0))
         if len(rest):
-            D, r = self._occlusion(R, T, cam, rest, first, last, spp, seed, chunk)
+            D, r = self._occlusion(R, T, cam, rest, first, last, spp, seed, chunk, start)
             rays += r
             value[rest] -= D
         if pending is not None:
@@ -426,23 +462,23 @@ class MovingObject:
             self._tree_bytes += size
         return made, 0
 
-    def _mixture_samples(self, cam, todo, first, last, spp, seed, chunk):
+    def _mixture_samples(self, cam, todo, first, last, spp, seed, chunk, start: int = 0):
         """Rows (len(todo), 9) of the mixture samples of the chunk's camera samples ``todo``
         (origin, direction, albedo f cos L / p): the kernel, or its numpy twin."""
         trees, offset = self._product_trees(first, last)
         tile = FRAME_TILES + chunk
         if self.backend == "opencl":
             return self._kernel(self.scene.camera.eye, cam.d[todo], cam.prim[todo], cam.t[todo], todo, trees, offset,
-                                spp, seed, tile)
-        u = rng.uniforms(seed, tile, rng.MOVING_DIRECTIONS, 0, (last - first) * spp)
+                                spp, seed, tile, start)
+        u = rng.uniforms(seed, tile, rng.MOVING_DIRECTIONS, start, (last - first) * spp)
         return mixture_samples_reference(self.rest, self.rest_tracer, self.environment, self.inside, trees,
                                          cam.d[todo], cam.prim[todo], cam.t[todo], todo, spp, u)
 
-    def _occlusion(self, R, T, cam, rest, first, last, spp, seed, chunk):
+    def _occlusion(self, R, T, cam, rest, first, last, spp, seed, chunk, start: int = 0):
         """D (len(rest), 3) at the chunk's samples ``rest`` (which hit the rest of the scene)."""
         todo = rest[~cam.done[rest]]
         if len(todo):   # samples not drawn in an earlier frame of this seed
-            cam.samples[todo] = self._mixture_samples(cam, todo, first, last, spp, seed, chunk)
+            cam.samples[todo] = self._mixture_samples(cam, todo, first, last, spp, seed, chunk, start)
             cam.done[todo] = True
         s = cam.samples[rest]
         origin, direction, value = s[:, :3], s[:, 3:6], s[:, 6:]
@@ -460,8 +496,9 @@ class MovingObject:
                 D[hit] = value[hit]
         return D, rays
 
-    def _full(self, R, T, d, prim_r, t_r, seed, chunk):
-        """mis against the moved scene for samples of pixels that may see the object."""
+    def _full(self, R, T, d, prim_r, t_r, seed, chunk, start: int = 0):
+        """mis against the moved scene for samples of pixels that may see the object (the uniforms
+        from sample ``start`` of the chunk's tile on)."""
         eye = self.scene.camera.eye.astype(np.float32)
         prim_o, t_o = self._trace_object(R, T, eye, d, closest=True)
         on_object = (prim_o >= 0) & ((prim_r < 0) | (t_o < t_r))
@@ -482,7 +519,7 @@ class MovingObject:
         mats = self._rest_material[np.maximum(prim_r[hits], 0)]
         mats[obj] = self.object.material
         p = eye + dd * t[:, None]
-        u = rng.uniforms(seed, FRAME_TILES + chunk, rng.MOVING_MIS, 0, len(hits))
+        u = rng.uniforms(seed, FRAME_TILES + chunk, rng.MOVING_MIS, start, len(hits))
         if self.backend == "opencl":
             wi, val = self._shader(n, -dd, mats.astype(np.int32), u)
         else:

@@ -18,7 +18,8 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ..options import FOV, HEIGHT, SEED, WIDTH, Option, markdown_table
-from .lighting import PRIORITIES
+from .lighting import MAX_LEVELS, MAX_TERMS, PRIORITIES
+from .store import ENTRY_DTYPES, MAX_SPP
 
 # ----------------------------------------------------------------------------- the bake
 #: camera samples per pixel a bake chooses among (its pilot: wavlight.relight.bake.choose_model)
@@ -38,7 +39,7 @@ BAKE = {o.key: o for o in (
     # at most 64: each pixel's mask of the camera samples that miss is one 64-bit word
     Option("spp", int, "Camera samples per pixel, stratified over the pixel (they share each texel's shadow ray).",
            default_doc=f"the fewest of {', '.join(map(str, SPP_CHOICES))} the tolerance needs, from two pilot bakes "
-                       "that measure the noise", lo=1, hi=64),
+                       "that measure the noise", lo=1, hi=MAX_SPP),
     Option("levels", int, "Texels: 2^n x 2^n on the lat-long square.",
            default_doc="the fewest that meet the tolerance, from a pilot bake", lo=2, hi=8),
     Option("tolerance", float, "Relative L2 error of frames, measured on held-out rotations: shared by the bake's "
@@ -46,9 +47,9 @@ BAKE = {o.key: o for o in (
     Option("points", int, "Points per texel where the BRDF is evaluated (1, 2 x 2 or 4 x 4 strata).",
            default_doc=f"the fewest that put {LOBE_SPACINGS} point spacings across the narrowest lobe "
                        f"({VIEW_TEXEL_POINTS} for --vary view)", values=(1, 4, 16)),
-    Option("bits", int, "Quantization of the stored coefficients.", default=8, values=(8, 16)),
+    Option("bits", int, "Quantization of the stored coefficients.", default=8, values=tuple(ENTRY_DTYPES)),
     Option("terms", int, "The lighting terms K a frame keeps by default.",
-           default_doc="the fewest that meet the tolerance", lo=1, hi=1 << 22),
+           default_doc="the fewest that meet the tolerance", lo=1, hi=MAX_TERMS),
     Option("priority", str, "How frames rank the lighting's terms.",
            default_doc="the better of transfer and area on the pilot", values=PRIORITIES),
     RELIGHT_SEED,

@@ -13,7 +13,6 @@ which the bake measures on a held-out rotation and records (``measured``).
 from __future__ import annotations
 
 import os
-import shutil
 import tempfile
 import time
 
@@ -22,7 +21,7 @@ import numpy as np
 from .. import cl, data
 from ..atomic import atomic_write, size_is
 from ..envmap import Environment, read_image
-from ..errors import ArgumentError, WavlightError, shown
+from ..errors import ArgumentError, WavlightError, check_degrees, shown
 from . import lighting, store
 from .frame import DeviceEntries, background_cl, background_lookup, background_reference, product_reference
 from .settings import FRAME
@@ -33,18 +32,20 @@ MAPS_KEPT = 4
 
 
 class Transfer:
-    """The transfer of one scene's camera and objects, memory-mapped from its bake file.
+    """The transfer of one scene's camera and objects, read from its bake file (whole, into
+    memory: :func:`wavlight.relight.store.read`).
 
     width, height, n_levels (texels 2^n x 2^n), block, bits, spp (camera samples per pixel),
     terms (the default K), priority, scene ({path, content_hash}), camera, environment (the
     scene's own map: pixels, rotate_y), measured (the bake's errors and choices)."""
 
-    def __init__(self, path: str, header: dict, sections: dict, owns_file: bool = False):
-        self.path, self.header, self._s = path, header, sections
+    def __init__(self, path: str, baked: store.BakeFile, owns_file: bool = False):
+        self.path, self.header, self._s = path, baked.header, baked.sections
+        self._file = baked
         self._owns = owns_file
         self._device = self._bg = self._env = self._lit = self._bg_lookup = None
         self._maps = {}   # projectors of the maps frames asked for, by map (a few)
-        h = header
+        h = baked.header
         self.width, self.height = int(h["width"]), int(h["height"])
         self.n_levels, self.block, self.bits = int(h["n_levels"]), int(h["block"]), int(h["bits"])
         self.blocks = (int(h["blocks"][0]), int(h["blocks"][1]))   # (columns, rows) of blocks
@@ -55,30 +56,33 @@ class Transfer:
     # -- files
     @classmethod
     def load(cls, path, verify: bool = True) -> "Transfer":
-        """A bake file, checked (magic, version, length, checksums, index): a one-line
-        WavlightError for a file that is not one, truncated, damaged or of another version."""
-        path = os.fspath(path)
-        if not os.path.isfile(path):
-            raise WavlightError(f"{path}: no such bake file")
-        header = store.read_header(path)
+        """A bake file, read whole and checked (:func:`wavlight.relight.store.read`: magic,
+        version, checksums, length, every field against the sections): a one-line WavlightError
+        for a file that is not one, truncated, damaged, inconsistent or of another version."""
         try:
-            return cls(path, header, store.open_sections(path, header, verify))
-        except (KeyError, TypeError, ValueError, IndexError):   # a header whose fields are not the format's
-            raise WavlightError(f"{path}: the bake file's header is damaged") from None
+            path = os.fspath(path)
+        except TypeError:
+            raise ArgumentError(f"Transfer.load: path must be a file name, got {shown(path)}") from None
+        return cls(path, store.read(path, verify))
 
     def save(self, path) -> None:
-        """Write the bake file to ``path`` (atomically: :func:`wavlight.atomic.atomic_write`)."""
+        """Write the bake file as it was loaded to ``path`` (atomically:
+        :func:`wavlight.atomic.atomic_write`), whatever has happened to the file since."""
         path = os.fspath(path)
+        if self._file is None:
+            raise WavlightError(f"{self.path}: the Transfer is closed")
         if os.path.abspath(path) == os.path.abspath(self.path):
             return
-        with atomic_write(path, check=size_is(self.file_bytes)) as tmp:
-            shutil.copyfile(self.path, tmp)
+        with atomic_write(path, check=size_is(self.file_bytes)) as tmp, open(tmp, "wb") as out:
+            out.write(self._file.head)
+            out.write(memoryview(self._file.data))
 
     def close(self):
-        """Release the memory maps (and the temporary file of a bake made without an output)."""
+        """Release the sections (and the temporary file of a bake made without an output)."""
         self._device = self._bg = self._env = self._lit = self._bg_lookup = None
         self._maps = {}
         self._s = {}
+        self._file = None
         if self._owns and os.path.exists(self.path):
             os.unlink(self.path)
             self._owns = False
@@ -91,8 +95,9 @@ class Transfer:
 
     @property
     def scene_rotate_y(self) -> float:
-        """The rotation of the map in the baked scene: a frame's default."""
-        return float(self.header["environment_rotate_y"])
+        """The rotation of the map in the baked scene, degrees reduced modulo 360: a frame's
+        default."""
+        return check_degrees(self.path, "environment_rotate_y", self.header["environment_rotate_y"])
 
     def summary(self) -> dict:
         """What the bake chose, its sizes and what it measured (``wavlight bake --json``)."""
@@ -150,7 +155,7 @@ class Transfer:
 
     def lighting(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default):
         """(3, N, N) Haar coefficients of the frame's lighting on the transfer's texels."""
-        rot = self.scene_rotate_y if rotate_y is None else rotate_y
+        rot = self.scene_rotate_y if rotate_y is None else check_degrees("Transfer.lighting", "rotate_y", rotate_y)
         environment = self.environment(env, scale)
         return lighting.coefficients(self._projector(environment)(rot))
 
@@ -164,13 +169,14 @@ class Transfer:
 
     def frame_timed(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, terms=None, priority=None,
                     backend: str = "opencl"):
-        """The frame and its timings (seconds of projection, selection, product, assembly)."""
+        """The frame and its timings (seconds of projection, selection, product, assembly), the
+        terms, the entries read and the rotation (degrees, reduced modulo 360)."""
         where = "Transfer.frame"
         if self.header.get("vary") == "view":
             raise WavlightError(f"{self.path}: this bake varies the view (its lighting is fixed): its frames come "
                                 "from wavlight.relight.view.ViewFrames")
         if rotate_y is not None:
-            rotate_y = FRAME["rotate_y"].check(rotate_y, where)
+            rotate_y = check_degrees(where, "rotate_y", rotate_y)
         scale = FRAME["scale"].check(scale, where)
         terms = self.terms if terms is None else FRAME["terms"].check(terms, where)
         priority = self.priority if priority is None else FRAME["priority"].check(priority, where)
@@ -194,11 +200,14 @@ class Transfer:
             blocks = self._device.product(columns, values)
         t3 = time.perf_counter()
         image = self._assemble(blocks, environment, rot, backend)
+        if not np.all(np.isfinite(image)):
+            raise WavlightError(f"{self.path}: the frame overflows float32 (its transfer times the lighting; a "
+                                "smaller --scale or map)")
         t4 = time.perf_counter()
         entries = int(np.count_nonzero(np.asarray(self._s["offsets"][columns]) >= 0)) if len(columns) else 0
         return image, {"lighting_seconds": t1 - t0, "terms_seconds": t2 - t1, "product_seconds": t3 - t2,
                        "assembly_seconds": t4 - t3, "frame_seconds": t4 - t0, "terms": int(len(columns)),
-                       "entries_read": entries}
+                       "entries_read": entries, "rotate_y": rot}
 
     def _assemble(self, blocks: np.ndarray, environment: Environment, rotate_y: float, backend: str) -> np.ndarray:
         """(H, W, 3): the blocks' sums times the albedo, plus the environment where samples missed."""
@@ -245,5 +254,5 @@ def finish_bake(writer, output, header: dict, arrays: dict) -> Transfer:
     if owns:
         fd, output = tempfile.mkstemp(prefix=".wavlight-bake-", suffix=".wlt")
         os.close(fd)
-    header = writer.finish(os.fspath(output), header, arrays)
-    return Transfer(os.fspath(output), header, store.open_sections(os.fspath(output), header, verify=False), owns)
+    writer.finish(os.fspath(output), header, arrays)
+    return Transfer(os.fspath(output), store.read(os.fspath(output), verify=False), owns)

@@ -111,16 +111,18 @@ from ..errors import ArgumentError, WavlightError, check_int, check_real
 from ..haar.tree import HaarTree
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
-from ..scene import Camera, check_scene, load_scene
+from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene
 from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting, store
 from .bake import BLOCK, PixelSamples, camera_jitter, choose_model, texel_rays, \
     texel_rays_reference
-from .converge import LIGHT_SHARE, _scene_of, check_shares, _TexelLight, mean_and_error, shade_by_mixture, square_to_world
+from .converge import LIGHT_SHARE, PASS_SPP, _scene_of, check_shares, _TexelLight, mean_and_error, shade_by_mixture, \
+    square_to_world
 from .frame import DeviceEntries
 from .settings import BAKE, CACHE_POINTS, FRAME, UNBIASED_SPP, VIEW_TEXEL_POINTS, WRITTEN_SUPERSAMPLE
+from .store import lattice_size
 from .transfer import finish_bake
 
 #: cache points per block of the bake file (one entry row holds their three channels)
@@ -193,12 +195,6 @@ class SurfaceCache:
 
     def __len__(self):
         return len(self.position)
-
-
-def lattice_size(k):
-    """Points of a triangle's lattice of k subdivisions: (k + 1)(k + 2) / 2."""
-    k = np.asarray(k, np.int64)
-    return (k + 1) * (k + 2) // 2
 
 
 def lattice_local(i, j, k):
@@ -860,11 +856,15 @@ def bake_view(scene, output=None, levels=None, tolerance: float = BAKE["toleranc
 
 # ----------------------------------------------------------------------------- frames
 def check_camera(where: str, eye, target, up, fov) -> Camera:
-    """A frame's camera: finite eye and target, apart, the view not along ``up``, 0 < fov < 180."""
+    """A frame's camera: finite eye and target within the ray tracer's range, apart, the view not
+    along ``up``, 0 < fov < 180."""
     eye = check_real(where, "eye", eye, finite=True).reshape(-1).astype(np.float64)
     target = check_real(where, "target", target, finite=True).reshape(-1).astype(np.float64)
     if eye.shape != (3,) or target.shape != (3,):
         raise ArgumentError(f"{where}: eye and target must be three numbers each")
+    if max(np.abs(eye).max(), np.abs(target).max()) > MAX_COORDINATE:
+        raise ArgumentError(f"{where}: eye and target must be within the ray tracer's range (|x| <= "
+                            f"{MAX_COORDINATE:g}), got {eye.tolist()} and {target.tolist()}")
     fov = FRAME["fov"].check(fov, where)
     fwd = target - eye
     if not np.linalg.norm(fwd) > 1e-9 * max(1.0, float(np.abs(eye).max())):
@@ -905,6 +905,9 @@ class ViewFrames:
         if len(self.face_k) != len(self.scene.faces):
             raise WavlightError(f"{transfer.path}: its cache holds {len(self.face_k)} faces, the scene "
                                 f"{len(self.scene.faces)}")
+        if len(self.material) and self.material.max() >= len(self.scene.materials):
+            raise WavlightError(f"{transfer.path}: its cache points' materials go up to {self.material.max()}, the "
+                                f"scene has {len(self.scene.materials)}")
         self.n = transfer.n_levels
         self.kind_of = self.scene.material_kind
         self.param_of = self.scene.material_param
@@ -1161,6 +1164,7 @@ class ViewFrames:
         chunks = range(0, count, CONVERGE_CHUNK)
         t0 = time.perf_counter()
         tracer = self.tracer
+        pass_spp = min(spp, PASS_SPP)
 
         def one(first):
             pix = np.arange(first, min(first + CONVERGE_CHUNK, count))
@@ -1180,22 +1184,28 @@ class ViewFrames:
                                                          self.scene.face_material[prim_c[hc][ok]])
             trees = HaarTree(leaves)
             mass = trees.integral
-            px, py = np.repeat(pix % width, spp), np.repeat(pix // width, spp)
-            eye_s, d = camera_rays(scene, px, py, camera_jitter(seed, JITTER_TILE + chunk, P, spp), width, height)
-            prim, t = tracer.intersect(eye_s, d)
-            rays = P * (spp + 1)
-            value = np.zeros((P * spp, 3))
-            miss = np.flatnonzero(prim < 0)
-            value[miss] = env.eval(d[miss].astype(np.float64))
-            hit = np.flatnonzero(prim >= 0)
-            if len(hit):
-                value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp,
-                                                      (seed, JITTER_TILE + chunk), env, defensive, slots, light)
-                rays += traced
-            v = value.reshape(P, spp, 3)
+            rays = P
+            for start in range(0, spp, pass_spp):   # passes of samples per pixel, not samples: bounded memory
+                k = min(pass_spp, spp - start)
+                px, py = np.repeat(pix % width, k), np.repeat(pix // width, k)
+                eye_s, d = camera_rays(scene, px, py, camera_jitter(seed, JITTER_TILE + chunk, P, k, start * P), width,
+                                       height)
+                prim, t = tracer.intersect(eye_s, d)
+                rays += P * k
+                value = np.zeros((P * k, 3))
+                miss = np.flatnonzero(prim < 0)
+                value[miss] = env.eval(d[miss].astype(np.float64))
+                hit = np.flatnonzero(prim >= 0)
+                if len(hit):
+                    value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, k,
+                                                          (seed, JITTER_TILE + chunk), env, defensive, slots, light,
+                                                          first=start * P)
+                    rays += traced
+                v = value.reshape(P, k, 3)
+                with lock:
+                    sums[pix] += v.sum(1)
+                    squares[pix] += (v * v).sum(1)
             with lock:
-                sums[pix] += v.sum(1)
-                squares[pix] += (v * v).sum(1)
                 totals["rays"] += rays
                 totals["done"] += 1
                 if progress:
@@ -1209,6 +1219,7 @@ class ViewFrames:
         mean, err = mean_and_error(sums, squares, spp)
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
                  "rays": totals["rays"], "eye": cam.eye.tolist(), "target": cam.target.tolist(), "fov": cam.fov_y,
+                 "pass_spp": pass_spp, "pass_samples": CONVERGE_CHUNK * pass_spp,
                  "estimator": "product T1 x f_r of the surface cache + BSDF + lighting, one-sample mixture"}
         return RenderResult(mean.reshape(height, width, 3).astype(np.float32),
                             err.reshape(height, width, 3).astype(np.float32), stats)
