@@ -587,3 +587,20 @@ def test_mixture_shares_are_checked(shadowed):
 def test_experiment_bake_samples_within_the_bakes_own_limit():
     from wavlight.evaluation.spec import RELIGHT_KEYS
     assert RELIGHT_KEYS["bake_spp"][3] == bake_mod.MAX_SAMPLES
+
+
+def test_a_bake_without_an_output_leaves_no_file(maps, device, monkeypatch, tmp_path):
+    """wavlight.bake(..., output=None) and its pilots write temporary files that are removed as
+    soon as they are read: the Transfer holds the file in memory (frames and save work), and the
+    temporary folder is as before, also while the Transfer lives."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    scene = wavlight.load_dict(sphere_on_floor({"file": "sky.exr"}, width=8, height=8), base_dir=maps)
+    tr = wavlight.bake(scene, spp=2, levels=3, terms=64, priority="area")
+    assert os.listdir(tmp_path) == []
+    image = tr.frame()
+    assert image.shape == (8, 8, 3) and np.isfinite(image).all()
+    tr.save(tmp_path / "kept.wlt")
+    assert os.listdir(tmp_path) == ["kept.wlt"]
+    assert np.array_equal(wavlight.Transfer.load(tmp_path / "kept.wlt").frame(), image)

@@ -39,10 +39,9 @@ class Transfer:
     terms (the default K), priority, scene ({path, content_hash}), camera, environment (the
     scene's own map: pixels, rotate_y), measured (the bake's errors and choices)."""
 
-    def __init__(self, path: str, baked: store.BakeFile, owns_file: bool = False):
+    def __init__(self, path: str, baked: store.BakeFile):
         self.path, self.header, self._s = path, baked.header, baked.sections
         self._file = baked
-        self._owns = owns_file
         self._device = self._bg = self._env = self._lit = self._bg_lookup = None
         self._maps = {}   # projectors of the maps frames asked for, by map (a few)
         h = baked.header
@@ -78,14 +77,11 @@ class Transfer:
             out.write(memoryview(self._file.data))
 
     def close(self):
-        """Release the sections (and the temporary file of a bake made without an output)."""
+        """Release the sections and the device's buffers."""
         self._device = self._bg = self._env = self._lit = self._bg_lookup = None
         self._maps = {}
         self._s = {}
         self._file = None
-        if self._owns and os.path.exists(self.path):
-            os.unlink(self.path)
-            self._owns = False
 
     def __del__(self):
         try:
@@ -249,10 +245,15 @@ class Transfer:
 def finish_bake(writer, output, header: dict, arrays: dict) -> Transfer:
     """Write a bake's file from ``writer`` (a store.TransferWriter holding its entries) with
     ``header`` and the other sections ``arrays``, atomically, to ``output`` (None: a temporary
-    file that the returned Transfer owns and removes when closed)."""
-    owns = output is None
-    if owns:
-        fd, output = tempfile.mkstemp(prefix=".wavlight-bake-", suffix=".wlt")
-        os.close(fd)
-    writer.finish(os.fspath(output), header, arrays)
-    return Transfer(os.fspath(output), store.read(os.fspath(output), verify=False), owns)
+    file, removed as soon as it is read: the Transfer holds the whole file in memory, and a
+    process killed later leaves nothing behind)."""
+    if output is not None:
+        writer.finish(os.fspath(output), header, arrays)
+        return Transfer(os.fspath(output), store.read(os.fspath(output), verify=False))
+    fd, output = tempfile.mkstemp(prefix=".wavlight-bake-", suffix=".wlt")
+    os.close(fd)
+    try:
+        writer.finish(output, header, arrays)
+        return Transfer(output, store.read(output, verify=False))
+    finally:
+        os.unlink(output)
