@@ -34,6 +34,7 @@ pytest.importorskip("aiohttp")
 
 import aiohttp
 import test_viewer
+from repo import REPO
 
 import wavlight
 from wavlight.relight import viewer as viewer_module
@@ -44,8 +45,8 @@ from wavlight.relight.viewer import EXPOSURE_RANGE, Limits, ObjectLimits, Viewer
 bake_file, transfer, serve = test_viewer.bake_file, test_viewer.transfer, test_viewer.serve
 browser, page = test_viewer.browser, test_viewer.page
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SCENE = os.path.join(ROOT, "scenes", "bunny_ggx.toml")
+#: a shipped scene (Spot on a floor under the rooitou sun): its unbiased frame is slow enough
+SCENE = str(REPO / "scenes" / "spot_ggx.toml")
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -465,7 +466,7 @@ def test_at_the_descriptor_limit_new_connections_are_refused_and_open_pages_kept
 def converge_bake(tmp_path_factory, device):
     """A bake (128 x 128 pixels) whose unbiased frame takes a while: a call of the estimator is
     much longer than a preview frame."""
-    path = tmp_path_factory.mktemp("viewer-load") / "bunny.wlt"
+    path = tmp_path_factory.mktemp("viewer-load") / "spot.wlt"
     wavlight.bake(SCENE, output=str(path), width=128, height=128, spp=2, levels=5, terms=256,
                   priority="transfer").close()
     t = wavlight.Transfer.load(path)
