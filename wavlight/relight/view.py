@@ -112,7 +112,7 @@ from ..haar.tree import HaarTree
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene
-from ..threads import default_threads
+from ..threads import default_threads, map_until_stopped
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting, store
@@ -1166,7 +1166,7 @@ class ViewFrames:
         tracer = self.tracer
         pass_spp = min(spp, PASS_SPP)
 
-        def one(first):
+        def one(first, stop):
             pix = np.arange(first, min(first + CONVERGE_CHUNK, count))
             P = len(pix)
             chunk = first // CONVERGE_CHUNK
@@ -1186,6 +1186,8 @@ class ViewFrames:
             mass = trees.integral
             rays = P
             for start in range(0, spp, pass_spp):   # passes of samples per pixel, not samples: bounded memory
+                if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
+                    return
                 k = min(pass_spp, spp - start)
                 px, py = np.repeat(pix % width, k), np.repeat(pix // width, k)
                 eye_s, d = camera_rays(scene, px, py, camera_jitter(seed, JITTER_TILE + chunk, P, k, start * P), width,
@@ -1213,8 +1215,7 @@ class ViewFrames:
 
         # one chunk per core: each chunk's rays are split again over the tracer's own two threads
         # (self.tracer, shared with the approximate frame), which makes two threads per core
-        with ThreadPoolExecutor(threads or default_threads(per_core=1)) as pool:
-            list(pool.map(one, chunks))
+        map_until_stopped(one, chunks, threads or default_threads(per_core=1))
         seconds = time.perf_counter() - t0
         mean, err = mean_and_error(sums, squares, spp)
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
