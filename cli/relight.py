@@ -303,7 +303,7 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
         names, gif = _frame_folder(output, orbit, "orbit", [bake_file, s["scene"], frames.scene.path,
                                                              *frames.scene.files])
     cam = frames.camera(eye, target, fov)          # checked before anything is written
-    size = frames._size(s["width"], s["height"])
+    size = frames.size(s["width"], s["height"])
     view = {"width": size[0], "height": size[1], "eye": cam.eye.tolist(), "target": cam.target.tolist(),
             "fov": cam.fov_y}
     if spp is not None:

@@ -486,3 +486,11 @@ def test_an_error_stops_the_unbiased_frame_at_the_next_pass(baked, monkeypatch):
     with pytest.raises(RuntimeError, match="stopped"):
         frames.converge(EYE, TARGET, width=48, height=32, spp=view.PASS_SPP * 12, threads=2)
     assert failing.after <= 2, failing.after   # 12 passes a chunk: up to 10 more without the stop
+
+
+def test_a_frames_size_is_the_given_one_else_the_bakes(baked):
+    _, scene, tr = baked
+    frames = view.ViewFrames(tr, scene)
+    assert frames.size() == (tr.width, tr.height) and frames.size(40, None) == (40, tr.height)
+    with pytest.raises(wavlight.WavlightError, match="width"):
+        frames.size(0, 8)

@@ -928,7 +928,8 @@ class ViewFrames:
         return check_camera("relight.view", cam.eye if eye is None else eye, cam.target if target is None else target,
                             cam.up, cam.fov_y if fov is None else fov)
 
-    def _size(self, width, height):
+    def size(self, width=None, height=None) -> tuple:
+        """(width, height) of a frame: those given, checked (FRAME's ranges), else the bake's."""
         w = FRAME["width"].check(self.transfer.width if width is None else width, "relight.view")
         h = FRAME["height"].check(self.transfer.height if height is None else height, "relight.view")
         return w, h
@@ -1020,7 +1021,7 @@ class ViewFrames:
         mode, tau = FRAME["mode"].check(mode, where), FRAME["tau"].check(tau, where)
         supersample = FRAME["supersample"].check(supersample, where)
         cam = self.camera(eye, target, fov)
-        width, height = self._size(width, height)
+        width, height = self.size(width, height)
         sub = supersample * supersample
         t0 = time.perf_counter()
         scene = dataclasses.replace(self.scene, camera=cam)
@@ -1152,7 +1153,7 @@ class ViewFrames:
         spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)
         check_shares(where, defensive, light)
         cam = self.camera(eye, target, fov)
-        width, height = self._size(width, height)
+        width, height = self.size(width, height)
         scene = dataclasses.replace(self.scene, camera=cam)
         inside = self._texel_light()
         env = self.environment
