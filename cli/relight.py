@@ -101,7 +101,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
                 fail(f"{bake_file}: this bake varies the lighting; {flag_name} moves an object "
                      "(bake with --vary object)")
         lit = given(s, "rotate_y", "scale", "terms", "priority")   # the frame's lighting, as given
-        env_file = None if s["env"] is None else data.resolve(s["env"], download=False)
+        env_file = None if s["env"] is None else data.resolve(s["env"], kind="environment map", download=False)
         env = None
         if s["env"] is not None:
             env = transfer.environment(s["env"], **given(s, "scale"))

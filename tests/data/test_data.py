@@ -612,3 +612,6 @@ def test_frame_env_takes_a_data_name(tmp_path, device):
     np.testing.assert_array_equal(read_image(str(tmp_path / "a.exr")), read_image(str(tmp_path / "b.exr")))
     r = run("frame", bake, "--env", "data:spot", "-o", tmp_path / "c.exr")
     assert r.exit_code == 2 and "data:spot: is a mesh" in r.stderr and not (tmp_path / "c.exr").exists()
+    r = run("frame", bake, "--env", "data:nope", "-o", tmp_path / "c.exr")   # the maps' names only
+    assert r.exit_code == 2 and "data:nope: unknown asset (known: " in r.stderr, r.stderr
+    assert not any(name in r.stderr for name in data.names("mesh")), r.stderr
