@@ -14,7 +14,7 @@ are package files under ``assets/``. The others (the 1k Poly Haven maps, the Deb
 Stanford meshes: too large to ship, or under terms that an MIT package cannot carry) are
 downloaded from their origin repository at a pinned commit,
 ``https://raw.githubusercontent.com/<repository>/<commit>/<source>``, by pooch (with a progress
-bar), checked against their sha256 and kept in :func:`data_dir`:
+bar on a terminal), checked against their size and sha256 and kept in :func:`data_dir`:
 
 - ``WAVLIGHT_DATA`` (:data:`DATA_ENV`): the data folder, laid out as the registry's ``file``
   (``envmaps/rooitou_park_1k.hdr``, ``meshes/bunny.ply``). A file found there with the right
