@@ -57,9 +57,19 @@ def flag(option, default_text: str | None = None, checked: bool = True):
         kw["type"] = option.kind
     else:
         kw["type"] = (click.IntRange if option.kind is int else click.FloatRange)(option.lo, option.hi)
+    if option.kind is float:   # click's FloatRange lets NaN through (no comparison is true of it)
+        kw["callback"] = _finite
     if option.metavar:
         kw["metavar"] = option.metavar
     return click.option(option.flag, option.key, **kw)
+
+
+def _finite(ctx, param, value):
+    """A float flag's value (or values) as given, NaN refused in click's words."""
+    values = value if isinstance(value, tuple) else (value,)
+    if any(v is not None and v != v for v in values):
+        raise click.BadParameter("must be a finite number, got nan")
+    return value
 
 
 def flags(options):

@@ -66,7 +66,8 @@ class ProgressBar:
         """A report: ``(done, total, amount, seconds)`` from a render, a bake or an unbiased frame
         (the rate shown is amount / seconds of ``unit``), ``(done, total, what)`` from an
         experiment (what was just finished), or ``(done, total)``."""
-        columns = terminal_columns(self.stream) - 1   # the last column would wrap on some terminals
+        # the last column would wrap on some terminals; at least 1 (tqdm takes 0 for no limit)
+        columns = max(1, terminal_columns(self.stream) - 1)
         if self._bar is None:
             # the clock (elapsed time, rate, time left) runs from the start of the work, not from
             # this first report, which is drawn at once
@@ -94,7 +95,7 @@ class ProgressBar:
 
     def close(self):
         if self._bar is not None:
-            self._bar.ncols = terminal_columns(self.stream) - 1
+            self._bar.ncols = max(1, terminal_columns(self.stream) - 1)
             self._bar.close()
             self._bar = None
 

@@ -101,7 +101,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
                 fail(f"{bake_file}: this bake varies the lighting; {flag_name} moves an object "
                      "(bake with --vary object)")
         lit = given(s, "rotate_y", "scale", "terms", "priority")   # the frame's lighting, as given
-        env_file = None if s["env"] is None else data.resolve(s["env"], download=False)
+        env_file = None if s["env"] is None else data.resolve(s["env"], kind="environment map", download=False)
         env = None
         if s["env"] is not None:
             env = transfer.environment(s["env"], **given(s, "scale"))
@@ -303,7 +303,7 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
         names, gif = _frame_folder(output, orbit, "orbit", [bake_file, s["scene"], frames.scene.path,
                                                              *frames.scene.files])
     cam = frames.camera(eye, target, fov)          # checked before anything is written
-    size = frames._size(s["width"], s["height"])
+    size = frames.size(s["width"], s["height"])
     view = {"width": size[0], "height": size[1], "eye": cam.eye.tolist(), "target": cam.target.tolist(),
             "fov": cam.fov_y}
     if spp is not None:

@@ -1,7 +1,9 @@
 """OpenCL device choice, kernel sources and the program cache (wavlight/cl.py)."""
 import os
+import stat
 import subprocess
 import sys
+import tempfile
 
 import numpy as np
 import pytest
@@ -142,6 +144,55 @@ def test_vendor_folder_keeps_the_loaders_drivers_and_names_the_pip_ones(tmp_path
     assert sorted(p.name for p in one.glob("*.icd")) == ["a.icd", driver.icd_name]
     alone = icd.vendor_folder([driver], tmp_path / "missing")
     assert [p.name for p in alone.glob("*.icd")] == [driver.icd_name]
+
+
+def test_vendor_folder_in_the_temporary_folder_is_this_users_alone(tmp_path, monkeypatch):
+    """Where the cache cannot be written the drivers' folder is made in the temporary folder: the
+    loader loads the library each .icd file there names, so a folder there that others may write
+    into, or that another user made, is refused, and register() leaves the loader its own list."""
+    def no_cache(kind):
+        raise OSError("read-only")
+
+    monkeypatch.setattr(icd, "cache_dir", no_cache)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    shared = tmp_path / f"wavlight-opencl-vendors-{os.getuid()}"
+    driver = icd.PipDriver("intel-opencl-rt", tmp_path / "lib" / "libintelocl.so")
+    folder = icd.vendor_folder([driver], None)
+    assert folder.parent == shared and stat.S_IMODE(shared.stat().st_mode) == 0o700
+    shared.chmod(0o777)
+    with pytest.raises(OSError, match="not a folder of this user's alone"):
+        icd.vendor_folder([driver], None)
+    if os.getuid() == 0:   # a folder that another user made first
+        shared.chmod(0o755)
+        os.chown(shared, 65534, 65534)
+        with pytest.raises(OSError, match="not a folder of this user's alone"):
+            icd.vendor_folder([driver], None)
+
+
+def test_a_damaged_cached_kernel_binary_is_built_again_and_replaced(tmp_path, monkeypatch):
+    """A cached program binary that the driver refuses (truncated, garbage): the program is built
+    from its source and the binary replaced, so that the next process loads it again."""
+    cached = tmp_path / "kernels" / "damaged.bin"
+    cached.parent.mkdir()
+    cached.write_bytes(b"not a program binary")
+    monkeypatch.setattr(cl, "_cached_build_path", lambda device, source, opts: cached)
+    prog = cl.program("warp.cl", N_LEVELS=3, BATCHED=0, WAVLIGHT_DAMAGED_CACHE_TEST=1)
+    assert cl.kernel(prog, "warp_sample") is not None
+    assert cached.stat().st_size > 0 and cached.read_bytes() != b"not a program binary"
+
+
+def test_a_user_cache_that_cannot_be_written_is_no_traceback(tmp_path):
+    """XDG_CACHE_HOME a file: wavlight's kernel cache, the drivers' folder and pyopencl's invoker
+    cache (pytools') cannot be made; `wavlight info` still answers (or says in one line that no
+    device builds programs)."""
+    (tmp_path / "file").write_text("x")
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path / "file"))
+    env.pop("PYOPENCL_NO_CACHE", None)
+    r = subprocess.run([WAVLIGHT, "info"], capture_output=True, text=True, env=env, timeout=600)
+    assert "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert r.returncode == 0 or (r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1), r.stderr
+    if r.returncode == 0:
+        assert "device in use: " in r.stdout and "OpenCL builtins: " in r.stdout
 
 
 def test_loader_vendors_follows_the_loaders_own_rules(monkeypatch):

@@ -132,3 +132,19 @@ def test_the_stability_suite_command_runs(tmp_path, monkeypatch):
     r = CliRunner().invoke(main, args[1:])
     assert r.exit_code == 0, r.output
     assert (tmp_path / args[args.index("-o") + 1] / "stability.json").is_file()
+
+
+def test_the_exit_code_tables_name_every_code_a_command_exits_with():
+    """0, 2, 3 and the signals' 130 and 143 (wavlight.cli.main), in the README's table and in
+    docs/cli.md's."""
+    import signal
+
+    from wavlight.cli.main import INTERRUPTED_EXIT_CODE
+    from wavlight.errors import SANITISED_EXIT_CODE
+
+    codes = {"0", "2", str(SANITISED_EXIT_CODE), str(INTERRUPTED_EXIT_CODE), str(128 + signal.SIGTERM)}
+    for doc in (REPO / "README.md", REPO / "docs" / "cli.md"):
+        rows = [line.split("|")[1] for line in doc.read_text().splitlines()
+                if line.startswith("| ") and line.split("|")[1].strip()[:1].isdigit()]
+        listed = {code.strip() for row in rows for code in row.split(",")}
+        assert codes <= listed, (doc.name, sorted(codes - listed))

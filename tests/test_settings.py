@@ -131,3 +131,11 @@ def test_docs_tables_are_generated_from_the_records():
         new, problems = module.updated(text, found, name)
         assert problems == [], problems
         assert new == text, f"docs/{name}: run python docs/update_tables.py"
+
+
+def test_the_factors_a_bake_varies_are_declared_once():
+    """--vary's choices are the bake file's own list of factors (the header's ``vary``,
+    checked when a file is read), not a second declaration beside it."""
+    from wavlight.relight import store
+
+    assert settings.BAKE["vary"].values is store.VARIES

@@ -93,10 +93,34 @@ class Runtime:
         return f"{p.name} ({p.version.strip()}) / {self.device.name}"
 
 
+@functools.cache
+def _invoker_cache() -> None:
+    """pyopencl keeps the code of its kernel invokers in pytools' cache folder (the user cache's
+    ``pytools``) and raises from its first kernel where that folder cannot be made (a read-only
+    home, an XDG_CACHE_HOME that is a file): there its cache is turned off (PYOPENCL_NO_CACHE,
+    read when pyopencl is imported; the invoker is then generated once per kernel object)."""
+    if "PYOPENCL_NO_CACHE" in os.environ:
+        return
+    import platformdirs
+
+    xdg = os.environ.get("XDG_CACHE_HOME")   # pytools' own rule: platformdirs, or XDG_CACHE_HOME on macOS
+    folder = (os.path.join(xdg, "pytools") if sys.platform == "darwin" and xdg is not None
+              else platformdirs.user_cache_dir("pytools", "pytools"))
+    try:
+        os.makedirs(folder, exist_ok=True)
+        writable = os.access(folder, os.W_OK)
+    except OSError:
+        writable = False
+    if not writable:
+        os.environ["PYOPENCL_NO_CACHE"] = "1"
+
+
 def _cl():
     """pyopencl, with the pip-installed OpenCL drivers registered (wavlight.icd) before the ICD
-    loader's first use: pyopencl's import does not use it, the first platform query does."""
+    loader's first use: pyopencl's import does not use it, the first platform query does; and
+    its invoker cache turned off where it cannot be written (:func:`_invoker_cache`)."""
     icd.register()
+    _invoker_cache()
     import warnings
 
     import pyopencl  # deferred: importing it costs ~0.1 s
@@ -307,6 +331,7 @@ def _build(ctx, name: str, defines: tuple):
     source = kernel_source(name)
     device = ctx.devices[0]
     remembered = _cached_build_path(device, source, opts)
+    damaged = False
     if remembered is not None and remembered.is_file():
         if remembered.suffix == ".bin":
             try:
@@ -314,7 +339,8 @@ def _build(ctx, name: str, defines: tuple):
                 prg.build(opts.encode(), None)
                 return cl.Program(prg)
             except Exception:   # stale or damaged: build from the source and replace it
-                pass
+                damaged = True
+                _note_compiling(device)
     else:
         _note_compiling(device)
     prg = cl._cl._Program(ctx, source)
@@ -323,7 +349,7 @@ def _build(ctx, name: str, defines: tuple):
     except cl.Error as e:
         log = "\n".join(prg.get_build_info(d, cl.program_build_info.LOG) for d in ctx.devices)
         raise cl.RuntimeError(f"building kernels/{name} with {opts}: {e}\n{log}") from None
-    if remembered is not None and not remembered.is_file():
+    if remembered is not None and (damaged or not remembered.is_file()):
         _remember(remembered, b"" if remembered.suffix == ".built"
                   else prg.get_info(cl.program_info.BINARIES)[0])
     return cl.Program(prg)

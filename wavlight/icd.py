@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import stat
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -104,8 +105,7 @@ def vendor_folder(drivers: list[PipDriver], source: Path | None) -> Path:
     try:
         root = cache_dir("opencl-vendors")
     except OSError:
-        root = Path(tempfile.gettempdir()) / f"wavlight-opencl-vendors-{os.getuid()}"
-        root.mkdir(exist_ok=True)
+        root = _private_folder(Path(tempfile.gettempdir()) / f"wavlight-opencl-vendors-{os.getuid()}")
     target = root / digest
     if (target / MARKER).is_file():
         return target
@@ -120,6 +120,20 @@ def vendor_folder(drivers: list[PipDriver], source: Path | None) -> Path:
             p.unlink()
         staging.rmdir()
     return target
+
+
+def _private_folder(folder: Path) -> Path:
+    """``folder`` (made if missing) where only this user can write: the loader loads the library
+    that each .icd file there names, so a folder of a shared temporary directory that another user
+    made first, or may write into, is refused (OSError)."""
+    try:
+        folder.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    st = folder.lstat()
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o022:
+        raise OSError(f"{folder}: not a folder of this user's alone")
+    return folder
 
 
 _registered: list[PipDriver] | None = None

@@ -101,6 +101,22 @@ def test_a_render_bar_fits_the_terminal_and_tells_parts_rate_and_time_left(colum
         assert "10.00 M samples/s" in middle and "<" in middle, middle
 
 
+@pytest.mark.parametrize("columns", [20, 2, 1])
+def test_a_narrow_terminal_gets_a_bar_within_it(columns):
+    """20 columns, and the narrowest: one column left after the last (which wraps) is still a
+    width (tqdm takes ncols=0 for no limit at all)."""
+    t = Terminal(columns)
+    try:
+        bar = ProgressBar(t.stream, "parts", "samples")
+        for done in range(1, 4):
+            bar(done, 3, done * 1_500_000, done * 0.15)
+        bar.close()
+        lines = drawn_lines(t.read())
+    finally:
+        t.close()
+    assert lines and max(disp_len(line) for line in lines) <= max(columns - 1, 1), lines
+
+
 def test_the_bar_follows_a_resized_terminal():
     t = Terminal(100)
     try:

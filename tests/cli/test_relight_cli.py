@@ -81,6 +81,7 @@ def test_frame_json_turntable_and_spp(baked, tmp_path):
     (("--rotate-y", "nan"), ("--rotate-y", "finite")),
     (("--rotate-y", "inf"), ("--rotate-y",)),
     (("--scale", "-1"), ("--scale",)),
+    (("--scale", "nan"), ("--scale", "finite")),   # click's range lets NaN through: the flag's own line
     (("--env", "black.exr"), ("black.exr", "black everywhere")),
     (("--env", "missing.exr"), ("missing.exr",)),
     (("-o", "x.tiff"), ("x.tiff", "unsupported output format")),

@@ -11,11 +11,13 @@ from __future__ import annotations
 import functools
 import hashlib
 import http.server
+import io
 import json
 import os
 import re
 import shutil
 import socket
+import sys
 import threading
 from dataclasses import replace
 from pathlib import Path
@@ -255,19 +257,133 @@ def test_fetch_downloads_checks_and_reports_progress(mirror):
     assert server.paths == ["/envmaps/test_map.exr"]
 
 
-def test_path_of_a_fetched_asset_downloads_with_a_progress_bar(mirror, monkeypatch, capsys):
+class Terminal(io.StringIO):
+    """A stderr that says it is a terminal of ``columns`` columns."""
+
+    def __init__(self, columns=80):
+        super().__init__()
+        self.columns = columns
+
+    def isatty(self):
+        return True
+
+    def fileno(self):
+        return 2
+
+
+def test_path_of_a_fetched_asset_downloads_with_a_progress_bar(mirror, monkeypatch):
     """data.path of a registry entry that is not shipped: downloaded from WAVLIGHT_DATA_URL into
-    WAVLIGHT_DATA, with a bar on stderr naming the asset; then a scene names it."""
+    WAVLIGHT_DATA, with a bar on stderr naming the asset where stderr is a terminal, no wider
+    than it; then a scene names it."""
     server, asset, cache = mirror
     monkeypatch.setitem(data.registry(), "test_map", asset)
     monkeypatch.setenv(data.URL_ENV, server.url)
+    terminal = Terminal(columns=20)
+    monkeypatch.setattr(sys, "stderr", terminal)
+    monkeypatch.setattr(os, "get_terminal_size", lambda fd=None: os.terminal_size((terminal.columns, 24)))
     got = data.path("test_map")
     assert got == cache / asset.file and sha256_of(got) == asset.sha256
-    err = capsys.readouterr().err
-    assert "data:test_map" in err and "100%" in err, err
+    err = terminal.getvalue()
+    assert "100%" in err, err
+    shown = [re.sub(r"\x1b\[[0-9;]*[A-Za-z]", "", part) for part in re.split(r"[\r\n]", err)]
+    assert max(map(len, shown)) < terminal.columns, shown
     scene = wavlight.load_dict({"environment": {"file": "data:test_map"}})
     assert scene.files == [str(got)]
     np.testing.assert_array_equal(scene.environment.pixels, read_image(str(data.path("potsdamer_platz_512"))))
+
+
+def test_a_download_draws_nothing_where_stderr_is_not_a_terminal(mirror, monkeypatch, capfd):
+    """A pipe or a file as stderr (a script's log): no bar, not even with progress=True."""
+    server, asset, cache = mirror
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    data.fetch(asset, base_url=server.url)
+    assert sys.stderr.getvalue() == "" and capfd.readouterr().err == ""
+    assert sha256_of(cache / asset.file) == asset.sha256
+
+
+class Oversized:
+    """A server on 127.0.0.1 answering every GET with ``body`` (with its Content-Length or,
+    ``length=False``, none: read until the connection closes)."""
+
+    def __init__(self, body: bytes, length: bool = True):
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_GET(self):
+                self.send_response(200)
+                if length:
+                    self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                try:
+                    self.wfile.write(body)
+                except OSError:   # the client stopped reading
+                    pass
+
+            def log_message(self, *args):
+                pass
+
+        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}"
+        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+
+    def stop(self):
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+@pytest.mark.parametrize("length", [True, False], ids=["content-length", "no-length"])
+def test_a_body_longer_than_the_registry_says_is_refused_as_it_arrives(mirror, length):
+    """A mirror serving more bytes than the registry's size (a huge file would fill the disk):
+    one line, nothing kept, and the download stops at the registry's size, not at the body's."""
+    _, asset, cache = mirror
+    server = Oversized(b"\0" * (asset.bytes * 40), length)
+    bar = Recorder()
+    try:
+        with pytest.raises(wavlight.WavlightError) as e:
+            data.fetch(asset, base_url=server.url, progress=bar)
+    finally:
+        server.stop()
+    msg = one_line(str(e.value))
+    assert msg.startswith("data:test_map: the file downloaded from 127.0.0.1:") and "refused" in msg, msg
+    assert f"more than its {asset.bytes} bytes" in msg
+    assert bar.done <= asset.bytes + data.CHUNK_BYTES
+    assert not any(p.is_file() for p in cache.rglob("*"))
+
+
+@pytest.mark.parametrize("url", ["http://[::1", "http://", "https:///envmaps"])
+def test_a_mirror_url_that_names_no_host_is_one_line(mirror, monkeypatch, url):
+    _, asset, cache = mirror
+    monkeypatch.setenv(data.URL_ENV, url)
+    with pytest.raises(wavlight.WavlightError) as e:
+        data.fetch(asset, progress=False)
+    assert one_line(str(e.value)) == f"data:test_map: WAVLIGHT_DATA_URL={url}: not an http:// or https:// URL"
+
+
+def test_a_data_folder_of_a_symbolic_link_loop_or_an_unknown_home_is_one_line(mirror, tmp_path, monkeypatch):
+    """WAVLIGHT_DATA a symbolic link to itself, or holding one as its envmaps/, or ~user of no
+    user: one line each, also through the command line."""
+    server, asset, _ = mirror
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    monkeypatch.setenv(data.DATA_ENV, str(loop))
+    with pytest.raises(wavlight.WavlightError) as e:
+        data.fetch(asset, base_url=server.url, progress=False)
+    assert one_line(str(e.value)) == (f"data:test_map: {loop / 'envmaps'} is a symbolic link loop; set WAVLIGHT_DATA "
+                                      "to a folder")
+    folder = tmp_path / "inner"
+    folder.mkdir()
+    (folder / "envmaps").symlink_to(folder / "envmaps")
+    with pytest.raises(wavlight.WavlightError, match="is a symbolic link loop"):
+        data.fetch(asset, folder=folder, base_url=server.url, progress=False)
+    monkeypatch.setenv(data.DATA_ENV, "~no-such-user-of-wavlight/data")
+    with pytest.raises(wavlight.WavlightError) as e:
+        data.data_dir()
+    assert one_line(str(e.value)) == "WAVLIGHT_DATA=~no-such-user-of-wavlight/data: no such home folder"
+    scene = tmp_path / "scene.toml"
+    scene.write_text('[environment]\nfile = "data:rooitou_park_1k"\n')
+    for value in (str(loop), "~no-such-user-of-wavlight/data"):
+        monkeypatch.setenv(data.DATA_ENV, value)
+        r = CliRunner().invoke(main, ["render", str(scene), "-o", str(tmp_path / "x.png")])
+        assert r.exit_code == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert r.stderr.startswith(f"Error: {scene}: [environment].file: ") and "Traceback" not in r.stderr
 
 
 def test_a_wrong_hash_is_refused_in_one_line(mirror):
@@ -496,3 +612,6 @@ def test_frame_env_takes_a_data_name(tmp_path, device):
     np.testing.assert_array_equal(read_image(str(tmp_path / "a.exr")), read_image(str(tmp_path / "b.exr")))
     r = run("frame", bake, "--env", "data:spot", "-o", tmp_path / "c.exr")
     assert r.exit_code == 2 and "data:spot: is a mesh" in r.stderr and not (tmp_path / "c.exr").exists()
+    r = run("frame", bake, "--env", "data:nope", "-o", tmp_path / "c.exr")   # the maps' names only
+    assert r.exit_code == 2 and "data:nope: unknown asset (known: " in r.stderr, r.stderr
+    assert not any(name in r.stderr for name in data.names("mesh")), r.stderr

@@ -150,6 +150,64 @@ def test_a_killed_experiment_resumes_to_the_same_results(tmp_path):
     assert not [p for p in out.rglob(".wavlight-*")]
 
 
+def _children(pid: int) -> set:
+    """The processes whose parent is ``pid`` (Linux: /proc)."""
+    found = set()
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    fields = fh.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.add(int(entry))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="finds the worker processes in /proc")
+def test_the_workers_of_a_killed_experiment_end_with_it(tmp_path):
+    """`experiment --workers 2` killed outright (SIGKILL: its pool cannot be shut down): its
+    worker processes end within seconds instead of waiting for tasks for ever."""
+    from test_probe_experiment import write_spec, spec_text
+
+    spec = write_spec(tmp_path, spec_text(experiment_keys="size = [48, 32]\nthreads = 1\npilot_spp = 1\n",
+                                          budgets="spp = [16, 64]\nrepetitions = 8\n"))
+    p = subprocess.Popen([*_command(), "experiment", str(spec), "-o", str(tmp_path / "out"), "--workers", "2", "-q"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    workers = set()
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(workers) < 2 and p.poll() is None:
+            workers = {c for c in _children(p.pid)
+                       if b"spawn_main" in open(f"/proc/{c}/cmdline", "rb").read()}
+            time.sleep(0.05)
+        assert len(workers) == 2, "the experiment started no workers"
+        p.send_signal(signal.SIGKILL)
+        p.wait(30)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and any(map(_alive, workers)):
+            time.sleep(0.1)
+        left = [w for w in workers if _alive(w)]
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+        for w in workers:
+            if _alive(w):
+                os.kill(w, signal.SIGKILL)
+    assert not left, f"worker processes {left} outlived the experiment"
+
+
 # ============================================================================= a full disk
 @pytest.fixture
 def full_disk(tmp_path):

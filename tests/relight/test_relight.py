@@ -4,6 +4,7 @@ the bake file's checks, and the unbiased frame against mis."""
 from __future__ import annotations
 
 import os
+import threading
 
 import numpy as np
 import pytest
@@ -604,3 +605,35 @@ def test_a_bake_without_an_output_leaves_no_file(maps, device, monkeypatch, tmp_
     tr.save(tmp_path / "kept.wlt")
     assert os.listdir(tmp_path) == ["kept.wlt"]
     assert np.array_equal(wavlight.Transfer.load(tmp_path / "kept.wlt").frame(), image)
+
+
+class Failing:
+    """A stand-in for a module's camera_rays whose ``fail_at``-th call raises (as a Ctrl-C stops
+    the caller's wait); ``after`` counts the calls begun after it, in any thread."""
+
+    def __init__(self, real, fail_at: int):
+        self.real, self.fail_at, self.calls, self.after = real, fail_at, 0, 0
+        self.lock = threading.Lock()
+
+    def __call__(self, *args, **kwargs):
+        with self.lock:
+            self.calls += 1
+            if self.calls > self.fail_at:
+                self.after += 1
+            elif self.calls == self.fail_at:
+                raise RuntimeError("stopped")
+        return self.real(*args, **kwargs)
+
+
+def test_an_error_stops_the_unbiased_frame_at_the_next_pass(maps, monkeypatch):
+    """A block of the unbiased frame that fails (as Ctrl-C stops the command's wait): the blocks
+    under way stop at their next pass instead of running their remaining spp (`frame --spp 20000`
+    went on for minutes after Ctrl-C)."""
+    scene = wavlight.load_dict(sphere_on_floor({"file": "sky.exr"}, width=32, height=16), base_dir=maps)
+    tr = wavlight.bake(scene, spp=4, levels=3)
+    assert tr.blocks == (2, 1)
+    failing = Failing(converge_mod.camera_rays, fail_at=3)
+    monkeypatch.setattr(converge_mod, "camera_rays", failing)
+    with pytest.raises(RuntimeError, match="stopped"):
+        converge(tr, scene, spp=converge_mod.PASS_SPP * 40, threads=2)
+    assert failing.after <= 2, failing.after   # 40 passes a block: up to 38 more without the stop

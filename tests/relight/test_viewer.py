@@ -372,6 +372,22 @@ def test_sockets_closed_mid_frame_leave_the_server_serving(serve, capfd):
     assert "Traceback" not in err and "Error handling request" not in err
 
 
+def test_converge_of_a_bake_made_without_an_output_file(bake_file, tmp_path):
+    """A Transfer baked without an output (its temporary file removed once read) and a bake
+    file written over after it was loaded: the converge thread works on the loaded bake,
+    not on what is at its path."""
+    baked = wavlight.bake(str(SCENE), width=16, height=16, spp=2, levels=3, terms=32)
+    assert not os.path.exists(baked.path)
+    image, _ = Viewer(baked).converge_call({"rotate_y": 30.0, "env": 0}, 2, 0)
+    assert image.shape == (16, 16, 3) and np.isfinite(image).all() and image.max() > 0
+    copy = tmp_path / "spot.wlt"
+    shutil.copyfile(bake_file[0], copy)
+    loaded = wavlight.Transfer.load(copy)
+    copy.write_bytes(b"written over")
+    image, _ = Viewer(loaded).converge_call({"rotate_y": 30.0, "env": 0}, 2, 0)
+    assert image.shape == (loaded.height, loaded.width, 3) and np.isfinite(image).all()
+
+
 def _doubling(spps):
     """Calls start at 2 spp and double (while they are short) or stay."""
     assert spps[0] == 2 and all(b in (a, 2 * a) for a, b in itertools.pairwise(spps)), spps

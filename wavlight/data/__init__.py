@@ -14,7 +14,7 @@ are package files under ``assets/``. The others (the 1k Poly Haven maps, the Deb
 Stanford meshes: too large to ship, or under terms that an MIT package cannot carry) are
 downloaded from their origin repository at a pinned commit,
 ``https://raw.githubusercontent.com/<repository>/<commit>/<source>``, by pooch (with a progress
-bar), checked against their sha256 and kept in :func:`data_dir`:
+bar on a terminal), checked against their size and sha256 and kept in :func:`data_dir`:
 
 - ``WAVLIGHT_DATA`` (:data:`DATA_ENV`): the data folder, laid out as the registry's ``file``
   (``envmaps/rooitou_park_1k.hdr``, ``meshes/bunny.ply``). A file found there with the right
@@ -122,7 +122,10 @@ def data_dir() -> Path:
     is not a folder is refused."""
     value = os.environ.get(DATA_ENV, "").strip()
     if value:
-        folder = Path(value).expanduser().absolute()
+        try:
+            folder = Path(value).expanduser().absolute()
+        except RuntimeError:   # ~user of no user, or no home
+            raise WavlightError(f"{DATA_ENV}={value}: no such home folder") from None
         if folder.exists() and not folder.is_dir():
             raise WavlightError(f"{DATA_ENV}={value}: not a folder")
         return folder
@@ -168,7 +171,11 @@ def source_url(a: Asset, base_url: str | None = None) -> str:
     with its ``file``, else its origin (:attr:`Asset.url`)."""
     base = base_url if base_url is not None else os.environ.get(URL_ENV, "").strip()
     if base:
-        if urllib.parse.urlsplit(base).scheme not in ("http", "https"):
+        try:
+            parts = urllib.parse.urlsplit(base)
+        except ValueError:   # a bracketed host left open: "http://[::1"
+            parts = None
+        if parts is None or parts.scheme not in ("http", "https") or not parts.netloc:
             raise WavlightError(f"{PREFIX}{a.name}: {URL_ENV if base_url is None else 'base_url'}={base}: "
                                 "not an http:// or https:// URL")
         return base.rstrip("/") + "/" + a.file
@@ -191,18 +198,24 @@ def file_sha256(file) -> str:
 def fetch(a: Asset, *, folder=None, base_url: str | None = None, progress=True) -> Path:
     """Asset ``a``'s file in ``folder`` (default :func:`data_dir`): used as it is when it is
     there with the registry's sha256, else downloaded from :func:`source_url` by pooch, which
-    checks the hash before the file takes its place. ``progress``: True draws a bar on stderr
+    checks the hash before the file takes its place; a body longer than the registry's size is
+    refused as it arrives. ``progress``: True draws a bar on stderr where it is a terminal
     (tqdm), False none, or an object with pooch's progress-bar interface (``total``,
     ``update``, ``reset``, ``close``). Every failure is one WavlightError line naming the asset."""
     folder = data_dir() if folder is None else Path(folder).absolute()
     target = folder / a.file
+    try:
+        target.parent.resolve(strict=False)   # what pooch does first: a symbolic link loop raises
+    except (OSError, RuntimeError):
+        raise WavlightError(f"{PREFIX}{a.name}: {target.parent} is a symbolic link loop; set {DATA_ENV} to a "
+                            "folder") from None
     if target.exists():
         _check(a, target)
         return target
     url = source_url(a, base_url)
     host = urllib.parse.urlsplit(url).netloc
     remedy = f"put the file in a folder and set {DATA_ENV} to it"
-    bar = _Bar(f"{PREFIX}{a.name}") if progress is True else progress
+    bar = (_Bar(f"{PREFIX}{a.name}") if _is_terminal(sys.stderr) else None) if progress is True else progress
     import pooch
     import requests
 
@@ -211,7 +224,7 @@ def fetch(a: Asset, *, folder=None, base_url: str | None = None, progress=True) 
     logger.setLevel("WARNING")
     try:
         pooch.retrieve(url, known_hash=f"sha256:{a.sha256}", fname=target.name, path=str(target.parent),
-                       progressbar=bar or False)
+                       downloader=pooch.HTTPDownloader(progressbar=_Cap(a, host, bar or None)))
     except requests.exceptions.HTTPError as e:
         status = getattr(e.response, "status_code", "?")
         raise WavlightError(f"{PREFIX}{a.name}: cannot download {a.file} from {host} (HTTP {status}); "
@@ -231,7 +244,7 @@ def fetch(a: Asset, *, folder=None, base_url: str | None = None, progress=True) 
                             f"set {DATA_ENV} to a folder that can be written") from None
     finally:
         logger.setLevel(level)
-        if progress is True:
+        if progress is True and bar is not None:
             bar.close()
     _verified[str(target)] = _stamp(target)
     return target
@@ -260,9 +273,71 @@ def _check(a: Asset, target: Path) -> None:
     _verified[str(target)] = stamp
 
 
+#: bytes pooch reads at a time (its HTTPDownloader's chunk_size): it counts them per chunk
+CHUNK_BYTES = 1024
+
+
+class _Cap:
+    """pooch's progress-bar interface, passing its reports on to ``bar`` (None: no bar), that
+    stops a download as soon as the server announces or sends more bytes than the registry's
+    size of asset ``a`` (a mirror serving something else must not fill the disk): a one-line
+    WavlightError, pooch's temporary file removed."""
+
+    def __init__(self, a: Asset, host: str, bar):
+        self.asset, self.host, self.bar, self.done = a, host, bar, 0
+
+    def _refuse(self, size: int):
+        raise WavlightError(f"{PREFIX}{self.asset.name}: the file downloaded from {self.host} is not "
+                            f"{self.asset.file} of the registry (more than its {self.asset.bytes} bytes: "
+                            f"{size}); refused")
+
+    @property
+    def total(self):
+        return None if self.bar is None else self.bar.total
+
+    @total.setter
+    def total(self, value):   # the Content-Length, 0 where the server gives none
+        if value and value > self.asset.bytes:
+            self._refuse(value)
+        if self.bar is not None:
+            self.bar.total = value
+
+    def update(self, n):
+        self.done += n
+        if self.done > self.asset.bytes + CHUNK_BYTES:   # pooch counts whole chunks
+            self._refuse(self.done)
+        if self.bar is not None:
+            self.bar.update(n)
+
+    def reset(self):
+        self.done = 0
+        if self.bar is not None:
+            self.bar.reset()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _is_terminal(stream) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):   # no isatty, or a closed stream
+        return False
+
+
+def _columns(stream) -> int:
+    """The width of the terminal ``stream`` writes to, 80 where it does not say."""
+    try:
+        return os.get_terminal_size(stream.fileno()).columns or 80
+    except (AttributeError, OSError, ValueError):
+        return 80
+
+
 class _Bar:
     """pooch's progress-bar interface over a tqdm bar that is made only when the server answers
-    (pooch sets ``total`` then): a failed connection draws nothing but its error line."""
+    (pooch sets ``total`` then): a failed connection draws nothing but its error line. Drawn
+    where stderr is a terminal, never wider than it."""
 
     def __init__(self, label: str):
         self.label, self.bar = label, None
@@ -277,7 +352,7 @@ class _Bar:
 
         if self.bar is None:
             self.bar = tqdm(desc=self.label, total=value or None, unit="B", unit_scale=True, unit_divisor=1024,
-                            leave=True, file=sys.stderr, ncols=79)
+                            leave=True, file=sys.stderr, ncols=max(1, min(79, _columns(sys.stderr) - 1)))
         else:
             self.bar.total = value
 

@@ -556,6 +556,24 @@ def _render(scene, strategy_id, options, spp, width, height, seed, threads):
 _WORKER = {"scenes": {}, "warm": set()}  # per process: loaded scenes, (scene, strategy) pairs warmed up
 
 
+#: how often a worker process looks whether the experiment's process is still there
+PARENT_POLL_SECONDS = 1.0
+
+
+def exit_with_parent(parent: int) -> None:
+    """A worker process's initializer: a daemon thread ends the worker once ``parent`` (the
+    experiment's process) is gone. A parent killed outright (SIGKILL, out of memory) cannot
+    shut its pool down, and its workers would otherwise wait for tasks for ever."""
+    import threading
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL_SECONDS)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="wavlight-parent-watch", daemon=True).start()
+
+
 def run_task(task: dict) -> dict:
     """One run, as a pure function for worker processes: ``task`` (from ``_Runner.task``: scene
     file and its hash, size, strategy id and options, spp, seed, threads) -> ``{"image", "stats"}``.
@@ -638,7 +656,8 @@ def _execute(runner: _Runner, jobs, workers: int, dask_address):
     import multiprocessing
     from concurrent.futures.process import BrokenProcessPool
     pool = cf.ProcessPoolExecutor(max_workers=min(workers, len(tasks)),
-                                  mp_context=multiprocessing.get_context("spawn"))
+                                  mp_context=multiprocessing.get_context("spawn"),
+                                  initializer=exit_with_parent, initargs=(os.getpid(),))
     try:
         futures = {pool.submit(run_task, t): n for n, t in enumerate(tasks)}
         for f in cf.as_completed(futures):

@@ -50,7 +50,6 @@ from __future__ import annotations
 import os
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
@@ -63,7 +62,7 @@ from ..haar import ProductPyramids, forward, texel_values
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import check_scene, load_scene
-from ..threads import default_threads
+from ..threads import default_threads, map_until_stopped
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting
@@ -221,7 +220,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME
     lock = threading.Lock()
     t0 = time.perf_counter()
 
-    def one(block):
+    def one(block, stop):
         by, bx = divmod(block, bw)
         x0, y0 = bx * BLOCK, by * BLOCK
         w, h = min(BLOCK, width - x0), min(BLOCK, height - y0)
@@ -242,6 +241,8 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME
         rays = P * FOOTPRINT_GRID ** 2 if candidates else 0
         hits = chosen = 0
         for first in range(0, spp, PASS_SPP):   # passes of samples per pixel, not samples: bounded memory
+            if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
+                return
             k = min(PASS_SPP, spp - first)
             px, py = np.repeat(x0 + pix % w, k), np.repeat(y0 + pix // w, k)
             eye, d = camera_rays(scene, px, py, camera_jitter(seed, block, P, k, first * P), width, height)
@@ -275,8 +276,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME
             if progress:
                 progress(totals["done"], bw * bh, totals["rays"], time.perf_counter() - t0)
 
-    with ThreadPoolExecutor(threads or default_threads()) as pool:
-        list(pool.map(one, range(bw * bh)))
+    map_until_stopped(one, range(bw * bh), threads or default_threads())
     seconds = time.perf_counter() - t0
     mean, err = mean_and_error(sums, squares, spp)
     stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),

@@ -19,7 +19,7 @@ from dataclasses import replace
 
 from ..options import FOV, HEIGHT, SEED, WIDTH, Option, markdown_table
 from .lighting import MAX_LEVELS, MAX_TERMS, PRIORITIES
-from .store import ENTRY_DTYPES, MAX_SPP
+from .store import ENTRY_DTYPES, MAX_SPP, VARIES
 
 # ----------------------------------------------------------------------------- the bake
 #: camera samples per pixel a bake chooses among (its pilot: wavlight.relight.bake.choose_model)
@@ -55,7 +55,7 @@ BAKE = {o.key: o for o in (
     RELIGHT_SEED,
     Option("vary", str, "The factor frames vary: the lighting (map, rotation, scale), one object's place, or the "
            "camera (view: T1 = L V cos on a surface cache; --width, --height and --spp do not apply).",
-           default="lighting", values=("lighting", "object", "view")),
+           default="lighting", values=VARIES),
     Option("density", float, "--vary view: surface cache points per unit area.",
            default_doc=f"{CACHE_POINTS} over the scene's area", lo=1e-12, hi=1e18),
     Option("object", str, "--vary object: the object that moves (its name, or its index among [[objects]]).",

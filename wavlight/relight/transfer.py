@@ -64,6 +64,14 @@ class Transfer:
             raise ArgumentError(f"Transfer.load: path must be a file name, got {shown(path)}") from None
         return cls(path, store.read(path, verify))
 
+    def copy(self) -> "Transfer":
+        """Another Transfer over the same sections (read-only arrays, not copied) with its own maps'
+        projectors and device buffers, for another thread (the viewer's converge); also where the
+        file is gone or was written over since (a bake made without an output)."""
+        if self._file is None:
+            raise WavlightError(f"{self.path}: the Transfer is closed")
+        return Transfer(self.path, self._file)
+
     def save(self, path) -> None:
         """Write the bake file as it was loaded to ``path`` (atomically:
         :func:`wavlight.atomic.atomic_write`), whatever has happened to the file since."""

@@ -112,7 +112,7 @@ from ..haar.tree import HaarTree
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene
-from ..threads import default_threads
+from ..threads import default_threads, map_until_stopped
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting, store
@@ -928,7 +928,8 @@ class ViewFrames:
         return check_camera("relight.view", cam.eye if eye is None else eye, cam.target if target is None else target,
                             cam.up, cam.fov_y if fov is None else fov)
 
-    def _size(self, width, height):
+    def size(self, width=None, height=None) -> tuple:
+        """(width, height) of a frame: those given, checked (FRAME's ranges), else the bake's."""
         w = FRAME["width"].check(self.transfer.width if width is None else width, "relight.view")
         h = FRAME["height"].check(self.transfer.height if height is None else height, "relight.view")
         return w, h
@@ -1020,7 +1021,7 @@ class ViewFrames:
         mode, tau = FRAME["mode"].check(mode, where), FRAME["tau"].check(tau, where)
         supersample = FRAME["supersample"].check(supersample, where)
         cam = self.camera(eye, target, fov)
-        width, height = self._size(width, height)
+        width, height = self.size(width, height)
         sub = supersample * supersample
         t0 = time.perf_counter()
         scene = dataclasses.replace(self.scene, camera=cam)
@@ -1152,7 +1153,7 @@ class ViewFrames:
         spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)
         check_shares(where, defensive, light)
         cam = self.camera(eye, target, fov)
-        width, height = self._size(width, height)
+        width, height = self.size(width, height)
         scene = dataclasses.replace(self.scene, camera=cam)
         inside = self._texel_light()
         env = self.environment
@@ -1166,7 +1167,7 @@ class ViewFrames:
         tracer = self.tracer
         pass_spp = min(spp, PASS_SPP)
 
-        def one(first):
+        def one(first, stop):
             pix = np.arange(first, min(first + CONVERGE_CHUNK, count))
             P = len(pix)
             chunk = first // CONVERGE_CHUNK
@@ -1186,6 +1187,8 @@ class ViewFrames:
             mass = trees.integral
             rays = P
             for start in range(0, spp, pass_spp):   # passes of samples per pixel, not samples: bounded memory
+                if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
+                    return
                 k = min(pass_spp, spp - start)
                 px, py = np.repeat(pix % width, k), np.repeat(pix // width, k)
                 eye_s, d = camera_rays(scene, px, py, camera_jitter(seed, JITTER_TILE + chunk, P, k, start * P), width,
@@ -1213,8 +1216,7 @@ class ViewFrames:
 
         # one chunk per core: each chunk's rays are split again over the tracer's own two threads
         # (self.tracer, shared with the approximate frame), which makes two threads per core
-        with ThreadPoolExecutor(threads or default_threads(per_core=1)) as pool:
-            list(pool.map(one, chunks))
+        map_until_stopped(one, chunks, threads or default_threads(per_core=1))
         seconds = time.perf_counter() - t0
         mean, err = mean_and_error(sums, squares, spp)
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),

@@ -949,15 +949,14 @@ class Viewer:
         return result
 
     def _converge_side(self):
-        """The converge thread's objects, made on its first call: the bake loaded again (its own
-        maps' projectors), and for the default estimator of an object or a view bake its own
-        MovingObject or ViewFrames (their caches and kernels are the frame thread's otherwise):
+        """The converge thread's objects, made on its first call: a copy of the bake (its own
+        maps' projectors; the sections shared, read-only: :meth:`Transfer.copy`), and for the
+        default estimator of an object or a view bake its own MovingObject or ViewFrames (their
+        caches and kernels are the frame thread's otherwise):
         the two threads share only read-only arrays, so a converge call never waits for a frame
         nor a frame for it. (transfer, converge): the estimator to call."""
         if self._converging is None:
-            from .transfer import Transfer
-
-            transfer = Transfer.load(self.transfer.path, verify=False)
+            transfer = self.transfer.copy()
             converge = self.converge
             if self._default_converge and self.mover is not None:
                 from .moving import MovingObject
