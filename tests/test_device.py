@@ -283,3 +283,36 @@ def test_the_first_build_of_a_program_says_so_once(tmp_path):
     assert again.returncode == 0, again.stderr
     assert "compiling OpenCL kernels" not in again.stderr
     assert any((tmp_path / "cache" / "wavlight" / "kernels").iterdir())
+
+
+def test_the_device_variable_matches_the_platform_version(monkeypatch):
+    """`WAVLIGHT_CL_DEVICE=PoCL`: "PoCL" is in the platform's version only, as `wavlight info` prints it."""
+    pocl = [(pi, di) for pi, di, p, d in cl.list_devices() if "pocl" in p.version.lower()]
+    env = dict(os.environ, WAVLIGHT_CL_DEVICE="pocl")
+    r = subprocess.run([WAVLIGHT, "info"], capture_output=True, text=True, env=env, timeout=300)
+    if pocl:
+        assert r.returncode == 0, r.stderr
+        assert "Portable Computing Language" in next(ln for ln in r.stdout.splitlines() if ln.startswith("device in"))
+    else:
+        assert r.returncode == 2 and "matches no OpenCL device" in r.stderr
+
+
+def test_a_cache_folder_that_cannot_be_written_keeps_pocl(tmp_path):
+    """XDG_CACHE_HOME naming a file (no folder can be made in it, whoever runs): PoCL, which gives
+    no device where its cache folder cannot be written, is given a private temporary one; the
+    device in use is the one chosen without it."""
+    base = subprocess.run([WAVLIGHT, "info"], capture_output=True, text=True, timeout=300)
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    env = {k: v for k, v in os.environ.items() if k != "POCL_CACHE_DIR"}
+    env["XDG_CACHE_HOME"] = str(blocked)
+    code = ("import os; from wavlight import icd; icd.pocl_cache(); d = os.environ['POCL_CACHE_DIR']; "
+            "print(d, os.path.isdir(d) and os.access(d, os.W_OK))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 0, r.stderr
+    folder, writable = r.stdout.split()
+    assert writable == "True" and not folder.startswith(str(blocked))
+    r = subprocess.run([WAVLIGHT, "info"], capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr
+    pick = [ln for ln in r.stdout.splitlines() if ln.startswith("device in use")]
+    assert pick == [ln for ln in base.stdout.splitlines() if ln.startswith("device in use")]

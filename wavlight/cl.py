@@ -14,7 +14,8 @@ in use was chosen (``wavlight info`` prints it).
 
 ``WAVLIGHT_CL_DEVICE`` overrides the choice: ``"P:D"`` (platform and device
 indices as ``wavlight info`` lists them) or any text that occurs in
-"platform name + device name" (case-insensitive), e.g. ``"NVIDIA"``.
+"platform name + platform version + device name" (case-insensitive), e.g. ``"NVIDIA"``,
+``"PoCL"``, ``"Intel"``.
 On PoCL CPU devices the kernels use kernels/simd.h's inline equivalents of the
 OpenCL builtins (:func:`inline_builtins`); ``WAVLIGHT_INLINE_BUILTINS=0`` or ``1``
 overrides that.
@@ -207,7 +208,7 @@ def _pick_device():
         m = re.fullmatch(r"(\d+):(\d+)", want)
         for pi, di, p, d in devices:
             hit = (m and (pi, di) == (int(m[1]), int(m[2]))) or (
-                not m and want.lower() in f"{p.name} {d.name}".lower())
+                not m and want.lower() in f"{p.name} {p.version} {d.name}".lower())
             if hit:
                 problem = build_problem(d)
                 if problem:

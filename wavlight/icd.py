@@ -136,6 +136,24 @@ def _private_folder(folder: Path) -> Path:
     return folder
 
 
+def pocl_cache() -> None:
+    """PoCL keeps its compiled kernels in ``$POCL_CACHE_DIR``, else ``$XDG_CACHE_HOME/pocl`` (else
+    ``~/.cache/pocl``), and gives no device at all where that cannot be written: then (and only
+    when the user has not set it) ``POCL_CACHE_DIR`` names a private temporary folder, so that
+    PoCL works, compiling in each process."""
+    if os.environ.get("POCL_CACHE_DIR", "").strip():
+        return
+    root = os.environ.get("XDG_CACHE_HOME", "").strip() or os.path.join(os.path.expanduser("~"), ".cache")
+    folder = os.path.join(root, "pocl")
+    try:
+        os.makedirs(folder, exist_ok=True)
+        if os.access(folder, os.W_OK | os.X_OK):
+            return
+    except OSError:
+        pass
+    os.environ["POCL_CACHE_DIR"] = tempfile.mkdtemp(prefix="wavlight-pocl-cache-")
+
+
 _registered: list[PipDriver] | None = None
 
 
@@ -146,6 +164,7 @@ def register() -> list[PipDriver]:
     global _registered
     if _registered is not None:
         return _registered
+    pocl_cache()
     drivers = pip_drivers()
     source = loader_vendors()
     if drivers and not (source is not None and (source / MARKER).is_file()):

@@ -615,3 +615,74 @@ def test_frame_env_takes_a_data_name(tmp_path, device):
     r = run("frame", bake, "--env", "data:nope", "-o", tmp_path / "c.exr")   # the maps' names only
     assert r.exit_code == 2 and "data:nope: unknown asset (known: " in r.stderr, r.stderr
     assert not any(name in r.stderr for name in data.names("mesh")), r.stderr
+
+
+class Trickle:
+    """A server on 127.0.0.1 that announces ``length`` bytes and sends one every ``pause`` s
+    (or, ``pause=None``, nothing at all after its headers)."""
+
+    def __init__(self, length: int, pause):
+        stop = self.stop_event = threading.Event()
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_GET(self):
+                self.send_response(200)
+                self.send_header("Content-Length", str(length))
+                self.end_headers()
+                try:
+                    for _ in range(length):
+                        if stop.wait(60 if pause is None else pause):
+                            return
+                        self.wfile.write(b"\0")
+                        self.wfile.flush()
+                except OSError:   # the client went away
+                    pass
+
+            def log_message(self, *args):
+                pass
+
+        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}"
+        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+
+    def stop(self):
+        self.stop_event.set()
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+def test_a_trickling_mirror_stops_at_the_deadline(mirror, monkeypatch):
+    """A mirror that sends a byte every 0.05 s meets every read's timeout; the download's deadline
+    (here 1 s) stops it: one line naming the asset and the variable, nothing kept."""
+    import time
+
+    _, asset, cache = mirror
+    monkeypatch.setattr(data, "DOWNLOAD_SECONDS", 1.0)
+    monkeypatch.setattr(data, "DOWNLOAD_RATE", 1e12)
+    server = Trickle(asset.bytes, 0.05)
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(wavlight.WavlightError) as e:
+            data.fetch(asset, base_url=server.url, progress=False)
+    finally:
+        server.stop()
+    assert time.monotonic() - t0 < 10
+    msg = one_line(str(e.value))
+    assert msg.startswith("data:test_map: the download from 127.0.0.1:") and "took more than 1 s" in msg, msg
+    assert data.DATA_ENV in msg
+    assert not any(p.is_file() for p in cache.rglob("*"))
+
+
+def test_a_silent_mirror_times_out_in_one_line(mirror, monkeypatch):
+    """Headers, then no byte at all: the read's timeout (here 0.5 s) gives one line."""
+    _, asset, cache = mirror
+    monkeypatch.setattr(data, "READ_SECONDS", 0.5)
+    server = Trickle(asset.bytes, None)
+    try:
+        with pytest.raises(wavlight.WavlightError) as e:
+            data.fetch(asset, base_url=server.url, progress=False)
+    finally:
+        server.stop()
+    msg = one_line(str(e.value))
+    assert msg.startswith("data:test_map: cannot download") and "timed out" in msg, msg
+    assert not any(p.is_file() for p in cache.rglob("*"))

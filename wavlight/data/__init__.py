@@ -224,7 +224,7 @@ def fetch(a: Asset, *, folder=None, base_url: str | None = None, progress=True) 
     logger.setLevel("WARNING")
     try:
         pooch.retrieve(url, known_hash=f"sha256:{a.sha256}", fname=target.name, path=str(target.parent),
-                       downloader=pooch.HTTPDownloader(progressbar=_Cap(a, host, bar or None)))
+                       downloader=_Download(_Cap(a, host, bar or None), deadline(a)))
     except requests.exceptions.HTTPError as e:
         status = getattr(e.response, "status_code", "?")
         raise WavlightError(f"{PREFIX}{a.name}: cannot download {a.file} from {host} (HTTP {status}); "
@@ -275,6 +275,61 @@ def _check(a: Asset, target: Path) -> None:
 
 #: bytes pooch reads at a time (its HTTPDownloader's chunk_size): it counts them per chunk
 CHUNK_BYTES = 1024
+
+
+#: a download's deadline: this many seconds, plus the asset's size at this many bytes a second
+#: (a mirror that sends a byte at a time meets every read's timeout and never the deadline)
+DOWNLOAD_SECONDS = 60.0
+DOWNLOAD_RATE = 20_000
+#: the seconds to connect, and to wait for any next byte
+CONNECT_SECONDS, READ_SECONDS = 10.0, 30.0
+
+
+def deadline(a: Asset) -> float:
+    """The seconds a download of asset ``a`` may take in all."""
+    return DOWNLOAD_SECONDS + a.bytes / DOWNLOAD_RATE
+
+
+class _Download:
+    """pooch's downloader interface (``(url, output_file, pooch)``): a streamed GET whose body is
+    read a receive at a time, so that both the registry's size (``cap``) and a deadline for the
+    whole download hold whatever pace the server keeps. pooch's HTTPDownloader reads whole chunks,
+    each of which a trickling server can stretch without limit."""
+
+    def __init__(self, cap, seconds: float):
+        self.cap, self.seconds = cap, seconds
+
+    def __call__(self, url, output_file, pooch_object):
+        import time
+
+        import requests
+        import urllib3
+
+        start = time.monotonic()
+        with requests.get(url, stream=True, timeout=(CONNECT_SECONDS, READ_SECONDS)) as r:
+            r.raise_for_status()
+            self.cap.total = int(r.headers.get("content-length") or 0)
+            out = open(output_file, "wb") if isinstance(output_file, (str, os.PathLike)) else output_file
+            try:
+                while True:
+                    try:
+                        chunk = r.raw.read1(1 << 16, decode_content=True)
+                    except urllib3.exceptions.ReadTimeoutError as e:   # as requests' own reads say it
+                        raise requests.exceptions.ReadTimeout(str(e)) from None
+                    except urllib3.exceptions.HTTPError as e:
+                        raise requests.exceptions.ConnectionError(str(e)) from None
+                    if not chunk:
+                        break
+                    out.write(chunk)
+                    self.cap.update(len(chunk))
+                    if time.monotonic() - start > self.seconds:
+                        raise WavlightError(f"{PREFIX}{self.cap.asset.name}: the download from {self.cap.host} took more "
+                                            f"than {self.seconds:.0f} s ({self.cap.done} of {self.cap.asset.bytes} "
+                                            f"bytes); put the file in a folder and set {DATA_ENV} to it")
+            finally:
+                if out is not output_file:
+                    out.close()
+                self.cap.close()
 
 
 class _Cap:
