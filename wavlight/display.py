@@ -38,10 +38,10 @@ CURVES = ("clamp", "aces")
 ACES_A, ACES_B, ACES_C, ACES_D, ACES_E = 2.51, 0.03, 2.43, 0.59, 0.14
 
 EXPOSURE = Option("exposure", float, "Exposure of a display output (PNG, animations), stops: the linear image is "
-                  "multiplied by 2^EV before the tone curve (linear outputs are never changed).",
+                  "multiplied by 2^EV before the tone curve (a linear output, .exr .hdr .pfm, takes none).",
                   default=0.0, lo=-24.0, hi=24.0, metavar="EV")
 TONEMAP = Option("tonemap", str, "Tone curve of a display output (PNG, animations): clamp to [0, 1], or aces, "
-                 "Narkowicz's fit of the ACES filmic curve (highlights roll off to white).",
+                 "Narkowicz's fit of the ACES filmic curve (highlights roll off to white; a linear output takes none).",
                  default=CURVES[0], values=CURVES)
 #: the display settings, in the order the commands list them
 DISPLAY = (EXPOSURE, TONEMAP)
