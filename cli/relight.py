@@ -102,11 +102,15 @@ def frame(bake_file, output, as_json, quiet, **settings):
     import math
 
     import wavlight
-    from wavlight import data
+    from wavlight import data, display
     from wavlight.imageio import FORMATS
     from wavlight.relight.lighting import turntable as turntable_rotations
 
     s = settings
+    try:   # the display transform's values (click checks their range, not NaN), before any work
+        display.check(**_look(s), where="wavlight frame")
+    except wavlight.WavlightError as e:
+        fail(e)
     rotate_y, spp, turntable = s["rotate_y"], s["spp"], s["turntable"]
     repeat = FRAME["repeat"].default if s["repeat"] is None else s["repeat"]
     if rotate_y is not None and not math.isfinite(rotate_y):

@@ -192,11 +192,13 @@ def save_images(outputs, exposure: float = display.EXPOSURE.default, tonemap: st
 
 def check_display(paths, exposure: float = display.EXPOSURE.default, tonemap: str = display.TONEMAP.default,
                   what: str = "--exposure and --tonemap") -> None:
-    """A one-line ArgumentError when a display transform other than the identity is asked for
-    outputs that are all linear (.exr .hdr .pfm): they hold the radiance itself, and the
+    """A one-line ArgumentError when the exposure or the tone curve is not allowed (their records),
+    or a display transform other than the identity is asked for outputs that are all linear
+    (.exr .hdr .pfm): they hold the radiance itself, and the
     transform would be silently dropped. Called before any work (the commands) and by
     :func:`save_images`."""
     paths = [os.fspath(p) for p in paths]
+    exposure, tonemap = display.check(exposure, tonemap, what)
     if display.is_identity(exposure, tonemap) or not paths:
         return
     if all(os.path.splitext(p)[1].lower() in LINEAR for p in paths):

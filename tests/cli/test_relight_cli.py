@@ -254,3 +254,12 @@ def test_odd_frames_make_an_even_mp4(tmp_path):
     with av.open(str(tmp_path / "a.mp4")) as c:
         frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
     assert len(frames) == 3 and frames[0].shape == (4, 6, 3)
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "30"])
+def test_a_bad_exposure_is_one_line_before_any_work(baked, tmp_path, value):
+    _, out, _ = baked
+    one_error_line(run("frame", out, "--turntable", 2, "-o", tmp_path / "tt", "--exposure", value), "exposure")
+    one_error_line(run("render", out.parent / "scene.toml", "-o", tmp_path / "r.png", "--exposure", value),
+                   "exposure")
+    assert list(tmp_path.iterdir()) == []
