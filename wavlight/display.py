@@ -53,7 +53,7 @@ def check(exposure=EXPOSURE.default, tonemap=TONEMAP.default, where: str = "disp
 
 
 def is_identity(exposure=EXPOSURE.default, tonemap=TONEMAP.default) -> bool:
-    """Whether the transform is the default one (exposure 0, clamp): today's PNG bytes."""
+    """Whether the transform is the default one (exposure 0, clamp): the bytes wavlight's PNGs always had."""
     return float(exposure) == 0.0 and tonemap == CURVES[0]
 
 
