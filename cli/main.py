@@ -17,10 +17,11 @@ import warnings
 
 import click
 
+from wavlight.display import DISPLAY
 from wavlight.options import HEIGHT, SEED, SPP, WIDTH
 from wavlight.strategies import APPLIES, OPTIONS, STRATEGIES
 
-from .common import check_output, fail, flag, one_line, refuse_inputs
+from .common import check_output, fail, flag, flags, given, one_line, refuse_inputs
 from .progress import progress_bar
 
 
@@ -164,16 +165,18 @@ def _scene_settings(*options):
 @_strategy_options
 @click.option("--stderr-out", "stderr_out", default=None, metavar="FILE",
               help="Also write each pixel's standard error of the mean (linear: .exr .hdr .pfm; needs spp >= 2).")
+@flags(DISPLAY)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def render(scene_file, demo, output, spp, strategy, width, height, seed, stderr_out, as_json, quiet, **options):
+def render(scene_file, demo, output, spp, strategy, width, height, seed, stderr_out, exposure, tonemap, as_json,
+           quiet, **options):
     """Render SCENE (a TOML scene file), or the shipped scene --demo NAME, to an image."""
     import time
 
     import numpy as np
 
     import wavlight
-    from wavlight.imageio import FORMATS, LINEAR
+    from wavlight.imageio import FORMATS, LINEAR, check_display, provenance
 
     t0 = time.perf_counter()
     if (scene_file is None) == (demo is None):
@@ -188,6 +191,11 @@ def render(scene_file, demo, output, spp, strategy, width, height, seed, stderr_
     if output is None:
         output = os.path.splitext(os.path.basename(scene_file))[0] + ".png"
     check_output(output, FORMATS)
+    look = given({"exposure": exposure, "tonemap": tonemap})
+    try:
+        check_display([output], **look)
+    except wavlight.WavlightError as e:
+        fail(e)
     if stderr_out is not None:
         check_output(stderr_out, LINEAR)
         if os.path.abspath(stderr_out) == os.path.abspath(output):
@@ -214,8 +222,10 @@ def render(scene_file, demo, output, spp, strategy, width, height, seed, stderr_
             fail(f"{output}: {bad} pixel(s) came out NaN or Inf (an estimate radiance x BRDF / pdf overflowed "
                   "float32; try another strategy or a dimmer map); nothing written")
         # the image and its standard errors appear together or not at all
+        st = result.stats
         wavlight.imageio.save_images([(output, result.image)]
-                                     + ([] if stderr_out is None else [(stderr_out, result.stderr)]))
+                                     + ([] if stderr_out is None else [(stderr_out, result.stderr)]), **look,
+                                     metadata=provenance(st["strategy"], st["spp"], st["seed"], scene.content_hash))
     except wavlight.WavlightError as e:
         fail(e)
     stats = dict(result.stats)

@@ -2,8 +2,11 @@
 
 ``bake SCENE -o PATH`` precomputes the transfer of the scene's camera and objects;
 ``frame PATH`` relights it: one frame under another map, rotation or scale, a turntable of
-frames (``--turntable N -o DIR``), or with ``--spp N`` the unbiased estimate that converges to
-the true image. Errors are one line and exit 2, as for ``render``.
+frames (``--turntable N -o DIR``, with its animations: :mod:`wavlight.animation`), or with
+``--spp N`` the unbiased estimate that converges to the true image. PNG outputs take the display
+transform of ``--exposure`` and ``--tonemap`` (:mod:`wavlight.display`), and PNG and EXR outputs
+the frame's metadata (:func:`wavlight.imageio.provenance`). Errors are one line and exit 2, as
+for ``render``.
 """
 from __future__ import annotations
 
@@ -55,6 +58,32 @@ def bake(scene_file, output, as_json, quiet, **settings):
                    f"({stats['rays_per_second'] / 1e6:.2f} M rays/s)", err=True)
 
 
+def _look(s) -> dict:
+    """The display transform given (``--exposure``, ``--tonemap``), for wavlight.save_image."""
+    return given(s, "exposure", "tonemap")
+
+
+def _check_look(output, s):
+    """Before any work: a display transform for a linear output is refused (one line)."""
+    from wavlight.errors import WavlightError
+    from wavlight.imageio import check_display
+
+    try:
+        check_display([output], **_look(s))
+    except WavlightError as e:
+        fail(e)
+
+
+def _metadata(transfer, strategy, spp=None, seed=None) -> dict:
+    """A frame's metadata: how it was estimated (``relit``: from the bake's transfer, the bake's
+    spp and seed; ``unbiased``: its own spp and seed) and the baked scene's content hash."""
+    from wavlight.imageio import provenance
+
+    return provenance(strategy, transfer.spp if spp is None else spp,
+                      transfer.header.get("seed") if seed is None else seed,
+                      (transfer.scene or {}).get("content_hash"))
+
+
 #: the flags of a frame that set the lighting, a moved object, and the camera of a view bake
 LIGHTING_FLAGS = ("env", "rotate_y", "scale", "terms", "priority", "turntable")
 OBJECT_FLAGS = ("translate", "rotate")
@@ -73,11 +102,15 @@ def frame(bake_file, output, as_json, quiet, **settings):
     import math
 
     import wavlight
-    from wavlight import data
+    from wavlight import data, display
     from wavlight.imageio import FORMATS
     from wavlight.relight.lighting import turntable as turntable_rotations
 
     s = settings
+    try:   # the display transform's values (click checks their range, not NaN), before any work
+        display.check(**_look(s), where="wavlight frame")
+    except wavlight.WavlightError as e:
+        fail(e)
     rotate_y, spp, turntable = s["rotate_y"], s["spp"], s["turntable"]
     repeat = FRAME["repeat"].default if s["repeat"] is None else s["repeat"]
     if rotate_y is not None and not math.isfinite(rotate_y):
@@ -114,6 +147,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
             if output is None:
                 output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
             check_output(output, FORMATS)
+            _check_look(output, s)
             refuse_inputs(output, [bake_file, env_file])
             times = []
             if spp is not None:
@@ -130,12 +164,14 @@ def frame(bake_file, output, as_json, quiet, **settings):
                     image, st = transfer.frame_timed(env, **lit)
                     times.append(st["frame_seconds"])
                 rotation = st["rotate_y"]
-            wavlight.save_image(output, image)
+            meta = (_metadata(transfer, "unbiased", spp, result.stats["seed"]) if spp is not None
+                    else _metadata(transfer, "relit"))
+            wavlight.save_image(output, image, **_look(s), metadata=meta)
             outputs = [output]
         else:
             if output is None:
                 fail("--turntable writes a folder of frames: give it with -o DIR")
-            frames, gif = _frame_folder(output, turntable, "turntable", [bake_file, env_file])
+            frames = _frame_folder(output, turntable, "turntable", [bake_file, env_file])
             turns = turntable_rotations(transfer.scene_rotate_y if rotate_y is None else rotate_y, turntable)
             rotation = turns[0]
             lit.pop("rotate_y", None)
@@ -144,10 +180,10 @@ def frame(bake_file, output, as_json, quiet, **settings):
                 for i, (turn, name) in enumerate(zip(turns, frames)):
                     image, st = transfer.frame_timed(env, turn, **lit)
                     times.append(st["frame_seconds"])
-                    wavlight.save_image(name, image)
+                    wavlight.save_image(name, image, **_look(s), metadata=_metadata(transfer, "relit"))
                     if bar:
                         bar(i + 1, turntable)
-            outputs = frames + [_animated_gif(frames, gif)]
+            outputs = frames + _animations(frames, output, "turntable", quiet)
     except wavlight.WavlightError as e:
         fail(e)
     median = statistics.median(times)
@@ -178,18 +214,21 @@ def _report_unbiased(stats: dict, size, as_json: bool, quiet: bool):
                    f"{stats['frame_seconds']:.2f} s", err=True)
 
 
-def _frame_folder(folder, count, gif_stem, inputs):
-    """The frames' names and the GIF's in ``folder``, checked before any work: a folder (not a
-    file) whose parent exists, that can be written (made here once all else passed), no frame or
-    GIF that is an input of the run or a read-only file."""
+def _frame_folder(folder, count, stem, inputs):
+    """The frames' names in ``folder``, checked before any work with the animations'
+    (:func:`wavlight.animation.paths`): a folder (not a file) whose parent exists, that can be
+    written (made here once all else passed), no frame or animation that is an input of the run
+    or a read-only file."""
+    from wavlight import animation
+
     if os.path.exists(folder) and not os.path.isdir(folder):
         fail(f"{folder}: is a file, not a folder (frames are written into a folder)")
     parent = os.path.dirname(os.path.abspath(folder))
     if not os.path.isdir(parent):
         fail(f"{folder}: no folder {parent}")
     frames = [os.path.join(folder, f"frame-{i:04d}.png") for i in range(count)]
-    gif = os.path.join(folder, f"{gif_stem}.gif")
-    for name in frames + [gif]:
+    moving = list(animation.paths(folder, stem).values())
+    for name in frames + moving:
         refuse_inputs(name, inputs)
     if not os.path.isdir(folder):
         if not os.access(parent, os.W_OK):
@@ -198,25 +237,20 @@ def _frame_folder(folder, count, gif_stem, inputs):
             os.mkdir(folder)
         except OSError as e:
             fail(f"{folder}: cannot make the folder ({e.strerror or e})")
-    for name in frames + [gif]:
+    for name in frames + moving:
         check_output(name)
-    return frames, gif
+    return frames
 
 
-def _animated_gif(frames, path):
-    """An animated GIF of the PNG frames (Pillow), written atomically and read back."""
-    from PIL import Image
+def _animations(frames, folder, stem, quiet) -> list:
+    """The animations of the frames (:func:`wavlight.animation.write`): the files written; the
+    note that names the extra for the MP4 (without PyAV) as one line on stderr."""
+    from wavlight import animation
 
-    from wavlight.atomic import atomic_write
-
-    def check(tmp):
-        with Image.open(tmp) as im:
-            return None if im.n_frames == len(frames) else f"{im.n_frames} of {len(frames)} frames read back"
-
-    images = [Image.open(f).convert("RGB") for f in frames]
-    with atomic_write(path, check=check) as tmp:
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=40, loop=0)
-    return path
+    written, note = animation.write(frames, folder, stem)
+    if note and not quiet:
+        click.echo(f"note: {note}", err=True)
+    return written
 
 
 def _object_frame(transfer, bake_file, output, s, as_json, quiet, held):
@@ -238,11 +272,13 @@ def _object_frame(transfer, bake_file, output, s, as_json, quiet, held):
     if output is None:
         output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
     check_output(output, FORMATS)
+    _check_look(output, s)
     refuse_inputs(output, [bake_file, s["scene"]])
     mover = MovingObject(transfer, s["scene"])
     refuse_inputs(output, [mover.scene.path, *mover.scene.files])
     result = mover.frame(s["translate"], s["rotate"], **given(s, "spp", "seed"))
-    wavlight.save_image(output, result.image)
+    wavlight.save_image(output, result.image, **_look(s),
+                        metadata=_metadata(transfer, "unbiased", result.stats.get("spp"), result.stats.get("seed")))
     stats = {"frame_seconds": result.stats["render_seconds"],
              "frames_per_second": round(1.0 / result.stats["render_seconds"], 3), **result.stats, "output": output}
     if as_json:
@@ -292,6 +328,7 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
         if output is None:
             output = os.path.splitext(os.path.basename(bake_file))[0] + ".png"
         check_output(output, FORMATS)
+        _check_look(output, s)
         refuse_inputs(output, [bake_file, s["scene"]])
     else:
         if output is None:
@@ -300,8 +337,7 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
     if orbit is None:
         refuse_inputs(output, [frames.scene.path, *frames.scene.files])
     else:
-        names, gif = _frame_folder(output, orbit, "orbit", [bake_file, s["scene"], frames.scene.path,
-                                                             *frames.scene.files])
+        names = _frame_folder(output, orbit, "orbit", [bake_file, s["scene"], frames.scene.path, *frames.scene.files])
     cam = frames.camera(eye, target, fov)          # checked before anything is written
     size = frames.size(s["width"], s["height"])
     view = {"width": size[0], "height": size[1], "eye": cam.eye.tolist(), "target": cam.target.tolist(),
@@ -309,7 +345,8 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
     if spp is not None:
         with progress_bar("parts", "rays", quiet) as bar:
             result = frames.converge(cam.eye, cam.target, cam.fov_y, *size, spp=spp, progress=bar, **given(s, "seed"))
-        wavlight.save_image(output, result.image)
+        wavlight.save_image(output, result.image, **_look(s),
+                            metadata=_metadata(transfer, "unbiased", spp, result.stats.get("seed")))
         _report_unbiased({"frame_seconds": result.stats["render_seconds"], **result.stats, "output": output}, size,
                          as_json, quiet)
         return
@@ -318,17 +355,17 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
         for _ in range(repeat):
             image, st = frames.frame(cam.eye, cam.target, cam.fov_y, *size, **opts)
             times.append(st["frame_seconds"])
-        wavlight.save_image(output, image)
+        wavlight.save_image(output, image, **_look(s), metadata=_metadata(transfer, "relit"))
         outputs.append(output)
     else:
         with progress_bar("frames", quiet=quiet) as bar:
             for i, (e, name) in enumerate(zip(orbit_eyes(cam.eye, cam.target, orbit), names)):
                 image, st = frames.frame(e, cam.target, cam.fov_y, *size, **opts)
                 times.append(st["frame_seconds"])
-                wavlight.save_image(name, image)
+                wavlight.save_image(name, image, **_look(s), metadata=_metadata(transfer, "relit"))
                 if bar:
                     bar(i + 1, orbit)
-        outputs = names + [_animated_gif(names, gif)]
+        outputs = names + _animations(names, output, "orbit", quiet)
     median = statistics.median(times)
     stats = {"frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 2) if median > 0 else None,
              "frames": len(times), **view, **opts, "tau": opts["tau"] if opts["mode"] == "pixel" else None,

@@ -4,7 +4,8 @@
 
 Each table sits between the lines ``<!-- NAME:begin -->`` and ``<!-- NAME:end -->`` of its file
 (:func:`tables` lists them): the strategies' options (wavlight.strategies.options_table), the
-render's own settings (wavlight.options), and the settings of ``wavlight bake``, ``frame`` and
+render's own settings (wavlight.options), the display transform of PNG outputs (wavlight.display),
+and the settings of ``wavlight bake``, ``frame`` and
 ``view`` (wavlight.relight.settings.options_table). tests/test_settings.py and
 tests/test_layout.py check that they are current.
 """
@@ -19,13 +20,15 @@ DOCS = Path(__file__).resolve().parent
 
 def tables() -> dict:
     """{file name: {marker name: table}} of every generated table."""
-    from wavlight import options, strategies
+    from wavlight import display, options, strategies
     from wavlight.relight import settings
 
     render = options.markdown_table([options.SPP, options.WIDTH, options.HEIGHT, options.SEED])
     approximate = ("refine", "mass", "mode", "supersample", "tau")
     return {
-        "cli.md": {"render": render, "options": strategies.options_table(True), "bake": settings.options_table("bake"),
+        "cli.md": {"render": render, "options": strategies.options_table(True),
+                   "display": options.markdown_table(display.DISPLAY, scene_keys=False),
+                   "bake": settings.options_table("bake"),
                    "frame": settings.options_table("frame"), "view": settings.options_table("view")},
         "scene-format.md": {"options": strategies.options_table(True)},
         "relight.md": {"bake": settings.options_table("bake", keywords=True),

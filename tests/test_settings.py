@@ -13,6 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 import wavlight
+from wavlight import imageio
 from wavlight.cli.main import main
 from wavlight.relight import converge, moving, settings, transfer, view, viewer
 
@@ -31,6 +32,7 @@ LIBRARY = {
         # (mode and supersample default to the viewer's frame here: still_settings holds the written one's)
         (view.ViewFrames.frame, ("eye", "target", "fov", "width", "height", "refine", "mass", "tau")),
         (view.ViewFrames.converge, ("eye", "target", "fov", "width", "height", "seed")),
+        (imageio.save_image, ("exposure", "tonemap")),
     ],
     "view": [(viewer.Viewer.__init__, ("maps", "scene")), (viewer.Viewer.serve, ("port",))],
 }

@@ -1,7 +1,7 @@
 """Atomic writes: a file appears complete and readable, or not at all.
 
-Every file wavlight writes (images, bake files, an experiment's records and charts, animated
-GIFs) goes through :func:`atomic_files` (or :func:`atomic_write` for one file):
+Every file wavlight writes (images, bake files, an experiment's records and charts, the
+animations of turntables and orbits) goes through :func:`atomic_files` (or :func:`atomic_write` for one file):
 
 1. a temporary file is made **in the destination folder** (a rename never crosses file
    systems), named ``.wavlight-<pid>.<host>-<target's name>.<random><ext>``
@@ -256,8 +256,8 @@ def atomic_files(targets, checks=None, suffixes=None):
 def atomic_write(target, check=None, suffix: str | None = None):
     """Write one file atomically (:func:`atomic_files`): yields the temporary's name.
 
-        with atomic_write("out.gif", check=frames_readable) as tmp:
-            first.save(tmp, format="GIF", ...)
+        with atomic_write("turntable.png", check=frames_readable) as tmp:
+            first.save(tmp, format="PNG", save_all=True, ...)
     """
     with atomic_files([target], [check], [suffix]) as temps:
         yield temps[0]

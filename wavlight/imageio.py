@@ -1,4 +1,14 @@
-"""Writing images: linear float (.exr, .hdr, .pfm) or clamped, sRGB-encoded 8-bit (.png), atomically.
+"""Writing images: linear float (.exr, .hdr, .pfm) or display 8-bit (.png), atomically, with metadata.
+
+A PNG holds the display transform of the pixels (:mod:`wavlight.display`: exposure, tone curve,
+sRGB), by default clamped to [0, 1] and sRGB-encoded; linear outputs hold the radiance itself,
+and a transform other than the identity for outputs that are all linear is refused
+(:func:`check_display`): it would be silently dropped.
+
+Metadata (:func:`provenance`: strategy, spp, seed, the scene's content hash, wavlight's version)
+goes into EXR headers as string attributes and into PNG files as tEXt chunks, each named
+``wavlight:KEY`` (OpenImageIO writes both; :func:`read_metadata` reads them back), with
+``Software`` = ``wavlight VERSION``. .hdr and .pfm hold none (their headers have no place for it).
 
 Negative pixels (an unbiased estimator's shadowed pixels at low spp can average below 0:
 the wavelet strategy's control variate) are kept by .exr and .pfm, written as 0 to .hdr,
@@ -21,7 +31,9 @@ import os
 
 import numpy as np
 
+from . import display
 from .atomic import atomic_files
+from .display import srgb_encode  # noqa: F401  (wavlight.imageio.srgb_encode, as before)
 from .errors import ArgumentError, WavlightError, shown
 
 LINEAR = (".exr", ".hdr", ".pfm")
@@ -42,27 +54,6 @@ RENDER_BYTES_PER_PIXEL = 36
 #: What a process needs besides the film: Python, numpy, OpenCL, the scene (measured: 140 MB
 #: for the sky alone, ~300 MB with the default scene's geometry).
 RENDER_BASE_BYTES = 400 << 20
-
-
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """Clamp to [0, 1] and apply the sRGB transfer curve."""
-    x = np.clip(np.nan_to_num(linear, nan=0.0, posinf=1.0), 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-
-
-def _srgb8(strip: np.ndarray) -> np.ndarray:
-    """Linear float32 rows -> sRGB-encoded uint8 (the same values as srgb_encode, in float32
-    and in place: 4 bytes per value of temporaries instead of 40)."""
-    x = np.clip(strip, 0.0, 1.0)                       # a copy (float32); NaN were refused before
-    low = x <= np.float32(0.0031308)
-    lin = x * np.float32(12.92)
-    np.power(x, np.float32(1 / 2.4), out=x)
-    x *= np.float32(1.055)
-    x -= np.float32(0.055)
-    np.copyto(x, lin, where=low)
-    x *= np.float32(255.0)
-    x += np.float32(0.5)
-    return x.astype(np.uint8)
 
 
 def render_bytes(width: int, height: int) -> int:
@@ -162,16 +153,22 @@ def check_not_input(outputs, inputs) -> None:
                                     "file: choose another output")
 
 
-def save_image(path: str, image: np.ndarray) -> None:
-    """Write an (H, W, 3) float image; the format follows the extension (.exr .hdr .pfm .png)."""
-    save_images([(path, image)])
+def save_image(path: str, image: np.ndarray, exposure: float = display.EXPOSURE.default,
+               tonemap: str = display.TONEMAP.default, metadata: dict | None = None) -> None:
+    """Write an (H, W, 3) float image; the format follows the extension (.exr .hdr .pfm .png).
+    ``exposure`` and ``tonemap``: a PNG's display transform (:mod:`wavlight.display`; refused
+    for a linear output unless the identity); ``metadata``: key -> value (text or numbers) written
+    as ``wavlight:KEY`` into an EXR's or a PNG's header (:func:`provenance` makes it)."""
+    save_images([(path, image)], exposure, tonemap, metadata)
 
 
-def save_images(outputs) -> None:
+def save_images(outputs, exposure: float = display.EXPOSURE.default, tonemap: str = display.TONEMAP.default,
+                metadata: dict | None = None) -> None:
     """Write several (path, image) pairs all or nothing (:func:`wavlight.atomic.atomic_files`):
     every image is checked, then written to its temporary file and read back, and the
     temporaries are renamed over the targets only once all are written (an error in any leaves
-    none of them written)."""
+    none of them written). The display transform applies to the PNG outputs among them (linear
+    ones are written linear); the metadata goes into every EXR and PNG."""
     try:
         pairs = list(outputs)
         if not all(isinstance(p, (tuple, list)) and len(p) == 2 for p in pairs):
@@ -179,6 +176,10 @@ def save_images(outputs) -> None:
     except TypeError:
         raise ArgumentError(f"save_images: outputs must be (path, image) pairs, got {shown(outputs)}") from None
     outputs = [(_path(path), image) for path, image in pairs]
+    exposure, tonemap = display.check(exposure, tonemap, "save_image")
+    if outputs:
+        check_display([path for path, _ in outputs], exposure, tonemap)
+    attributes = _attributes(metadata)
     for n, (path, _) in enumerate(outputs):
         if any(same_file(path, other) for other, _ in outputs[:n]):
             raise ArgumentError(f"{path}: named twice among the outputs")
@@ -186,7 +187,82 @@ def save_images(outputs) -> None:
     checks = [_readable(os.path.splitext(path)[1].lower(), *image.shape[:2]) for path, image in checked]
     with atomic_files([path for path, _ in checked], checks) as temps:
         for (path, image), tmp in zip(checked, temps):
-            _write_pixels(path, tmp, image)
+            _write_pixels(path, tmp, image, exposure, tonemap, attributes)
+
+
+def check_display(paths, exposure: float = display.EXPOSURE.default, tonemap: str = display.TONEMAP.default,
+                  what: str = "--exposure and --tonemap") -> None:
+    """A one-line ArgumentError when the exposure or the tone curve is not allowed (their records),
+    or a display transform other than the identity is asked for outputs that are all linear
+    (.exr .hdr .pfm): they hold the radiance itself, and the
+    transform would be silently dropped. Called before any work (the commands) and by
+    :func:`save_images`."""
+    paths = [os.fspath(p) for p in paths]
+    exposure, tonemap = display.check(exposure, tonemap, what)
+    if display.is_identity(exposure, tonemap) or not paths:
+        return
+    if all(os.path.splitext(p)[1].lower() in LINEAR for p in paths):
+        raise ArgumentError(f"{paths[0]}: {what} set how a display output (.png) shows the image; "
+                            f"{os.path.splitext(paths[0])[1] or 'this output'} is written linear, untouched "
+                            "(write a .png, or leave them out)")
+
+
+#: the metadata keys :func:`provenance` writes, in order
+PROVENANCE_KEYS = ("strategy", "spp", "seed", "scene_hash", "version")
+#: the prefix of wavlight's attributes in an EXR header and of its PNG tEXt keywords
+METADATA_PREFIX = "wavlight:"
+
+
+def provenance(strategy, spp, seed, scene_hash, **more) -> dict:
+    """The metadata of a rendered image (:data:`PROVENANCE_KEYS`): how it was made (strategy, spp,
+    seed: None where it does not apply), the scene's content hash
+    (:attr:`wavlight.scene.Scene.content_hash`) and wavlight's version; ``more`` adds keys."""
+    from .version import __version__
+
+    found = {"strategy": strategy, "spp": spp, "seed": seed, "scene_hash": scene_hash, "version": __version__,
+             **more}
+    return {k: v for k, v in found.items() if v is not None}
+
+
+def _attributes(metadata) -> list:
+    """[(name, text)] of a metadata dict, checked: keys of letters, digits and ``_`` (at most 60),
+    values text, integers, finite numbers or booleans (at most 2000 characters as text)."""
+    if metadata is None:
+        return []
+    if not isinstance(metadata, dict):
+        raise ArgumentError(f"save_image: metadata must be a dict of key -> value, got {shown(metadata)}")
+    found = []
+    for key, value in metadata.items():
+        if not (isinstance(key, str) and 0 < len(key) <= 60 and key.replace("_", "a").isascii()
+                and key.replace("_", "a").isalnum()):
+            raise ArgumentError(f"save_image: metadata keys must be names of letters, digits and _, got {shown(key)}")
+        if isinstance(value, (bool, np.bool_)):
+            text = "true" if value else "false"
+        elif isinstance(value, (int, np.integer, str)):
+            text = str(value)
+        elif isinstance(value, (float, np.floating)) and np.isfinite(value):
+            text = repr(float(value))
+        else:
+            raise ArgumentError(f"save_image: metadata {key} must be text or a finite number, got {shown(value)}")
+        if len(text) > 2000 or "\0" in text:
+            raise ArgumentError(f"save_image: metadata {key} must be at most 2000 characters of text")
+        found.append((METADATA_PREFIX + key, text))
+    return found
+
+
+def read_metadata(path) -> dict:
+    """The ``wavlight:`` metadata of an EXR or PNG file written by :func:`save_image` (key -> text;
+    {} for a file without any, or a format that holds none), read by OpenImageIO."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(os.fspath(path))
+    if inp is None:
+        raise WavlightError(f"{path}: cannot read image ({_first_line(oiio.geterror())})")
+    try:
+        return {a.name[len(METADATA_PREFIX):]: str(a.value) for a in inp.spec().extra_attribs
+                if a.name.startswith(METADATA_PREFIX)}
+    finally:
+        inp.close()
 
 
 def _path(path) -> str:
@@ -225,13 +301,14 @@ def _rows(height: int, width: int):
     return [(y, min(y + step, height)) for y in range(0, height, step)]
 
 
-def _strip(image: np.ndarray, y0: int, y1: int, ext: str) -> np.ndarray:
+def _strip(image: np.ndarray, y0: int, y1: int, ext: str, exposure: float = 0.0,
+           tonemap: str = "clamp") -> np.ndarray:
     """Rows y0..y1-1 as the pixels the format gets (contiguous)."""
     # contiguous and aligned: OpenImageIO refuses an unaligned buffer ("buffer is wrong size"), as
     # numpy gives for an array unpickled from a byte offset (a dask worker's image, at some sizes)
     px = np.require(image[y0:y1], np.float32, ["C_CONTIGUOUS", "ALIGNED"])
     if ext in DISPLAY:
-        return _srgb8(px)
+        return display.encode8(px, exposure, tonemap)
     if ext == ".hdr":   # RGBE has no sign
         return np.maximum(px, np.float32(0.0))
     return px
@@ -260,9 +337,11 @@ def _check_target(path: str, image) -> np.ndarray:
     return image
 
 
-def _write_pixels(path: str, tmp: str, image: np.ndarray) -> None:
-    """Write the checked pixels of ``path`` into the file ``tmp`` (a WavlightError naming
-    ``path`` where the writer reports a failure)."""
+def _write_pixels(path: str, tmp: str, image: np.ndarray, exposure: float = 0.0, tonemap: str = "clamp",
+                  attributes=()) -> None:
+    """Write the checked pixels of ``path`` into the file ``tmp``, with the attributes (name,
+    text) in an EXR's or PNG's header (a WavlightError naming ``path`` where the writer reports a
+    failure)."""
     import OpenImageIO as oiio
 
     ext = os.path.splitext(path)[1].lower()
@@ -272,16 +351,25 @@ def _write_pixels(path: str, tmp: str, image: np.ndarray) -> None:
     if out is None:
         raise WavlightError(f"{path}: cannot create writer ({oiio.geterror().strip()})")
     spec = oiio.ImageSpec(width, height, 3, oiio.UINT8 if ext in DISPLAY else oiio.FLOAT)
+    if attributes and ext in (".exr", ".png"):
+        from .version import __version__
+
+        spec.attribute("Software", f"wavlight {__version__}")
+        if ext in DISPLAY:   # how the PNG shows the radiance
+            attributes = [*attributes, (METADATA_PREFIX + "exposure", repr(float(exposure))),
+                          (METADATA_PREFIX + "tonemap", tonemap)]
+        for name, text in attributes:
+            spec.attribute(name, text)
     ok = out.open(tmp, spec)
     err = "" if ok else out.geterror()
     if ok and len(strips) == 1:
-        ok = out.write_image(_strip(image, 0, height, ext))
+        ok = out.write_image(_strip(image, 0, height, ext, exposure, tonemap))
         # a writer may report a failed write (a full disk) only in its error text, while
         # write_image and close return True (OpenImageIO's PNG writer does): both count
         err = out.geterror()
     elif ok:
         for y0, y1 in strips:
-            ok = out.write_scanlines(y0, y1, 0, _strip(image, y0, y1, ext))
+            ok = out.write_scanlines(y0, y1, 0, _strip(image, y0, y1, ext, exposure, tonemap))
             err = out.geterror()
             if not ok or err:
                 break

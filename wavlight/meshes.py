@@ -75,8 +75,9 @@ def _read_bytes(path: str) -> bytes:
         return fh.read()
 
 
-def _check_indices(idx, nv: int, what: str = "face"):
-    """idx (F, 3) float64 or integer -> int64, or a ValueError naming the first bad face."""
+def check_indices(idx, nv: int, what: str = "face", holder: str = "the file"):
+    """idx (F, 3) float64 or integer -> int64, or a MeshError (a ValueError) naming the first bad
+    face; ``holder`` names what holds the vertices in the message (a file, an array)."""
     idx = np.asarray(idx)
     if idx.dtype.kind == "f":
         frac = ~np.isfinite(idx) | (idx != np.round(idx))
@@ -89,7 +90,7 @@ def _check_indices(idx, nv: int, what: str = "face"):
     if bad.any():
         i = int(np.argmax(bad.any(axis=1)))
         raise MeshError(f"{what} {i}: vertex index {int(out[i][bad[i]][0])} is outside 0..{nv - 1} "
-                         f"(the file holds {nv} vertices)")
+                         f"({holder} holds {nv} vertices)")
     return out
 
 
@@ -147,7 +148,7 @@ def read_ply(path: str):
         return None
     if not np.all(counts == 3):
         return None
-    return verts, _check_indices(idx, nv)
+    return verts, check_indices(idx, nv)
 
 
 def read_obj(path: str):

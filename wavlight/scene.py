@@ -14,8 +14,12 @@ Every key of the scene format is accepted as written there. wavlight adds:
   ``light_levels``, ``sampler``, ...): the table :data:`wavlight.strategies.OPTIONS` declares
   each one's type, range and default (docs/scene-format.md lists them).
 
-Scenes also come from Python dicts of the same structure (:func:`load_dict`). A Scene records
-its ``content_hash``: the settings as parsed and the bytes of every file it reads.
+Scenes also come from Python dicts of the same structure (:func:`load_dict`), which may give
+arrays where a file names them: ``[environment] pixels`` (an (H, W, 3) array: the map), and
+``[[objects]] vertices`` and ``faces`` ((V, 3) and (F, 3) arrays) or ``mesh`` as a mesh object
+(a ``trimesh.Trimesh``: its vertices and faces). They are checked as the files are (the same
+limits, messages and warnings) and read no file. A Scene records its ``content_hash``: the
+settings as parsed, the bytes of every file it reads and of every array it was given.
 
 Limits: width, height, spp and seed as :data:`wavlight.options.WIDTH`, ``HEIGHT``, ``SPP`` and
 ``SEED`` declare them (docs/scene-format.md). Errors name the file and the
@@ -28,6 +32,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import tomllib
 import warnings
 from dataclasses import dataclass, field, replace
@@ -35,7 +40,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import bsdfs, data, meshes
-from .envmap import MAX_RADIANCE, Environment, procedural_sky, read_image
+from .envmap import MAX_RADIANCE, MAX_TEXELS, Environment, procedural_sky, read_image
 from .errors import SanitisedInputWarning, SceneError, WavlightError, file_problem, shown
 from .options import FOV, HEIGHT, SEED, SPP, WIDTH
 from .strategies import CONSTRAINTS, OPTIONS, STRATEGIES
@@ -330,6 +335,128 @@ def quad_axes(normal):
     return n, t1, np.cross(n, t1)
 
 
+# ----------------------------------------------------------------------------- arrays given to load_dict
+#: the keys at which load_dict takes arrays (a mesh object at ``mesh``) in place of files
+_GIVEN_KEY = re.compile(r"^(environment\.pixels|objects\[\d+\]\.(vertices|faces|mesh))$")
+
+
+class _Given:
+    """A value load_dict takes as it is where a file would be read (``_GIVEN_KEY``): an array, or
+    a mesh object. It is checked where its key is read; the arrays made of it there (``arrays``:
+    the pixels, or the vertices and faces, as the scene uses them) enter the content hash by
+    their bytes."""
+
+    def __init__(self, value):
+        self.value = value
+        self.arrays = ()
+
+    def hashed(self) -> dict:
+        """What the content hash takes of it: each array's dtype, shape and the sha256 of its bytes."""
+        digest = hashlib.sha256()
+        for a in self.arrays:
+            digest.update(f"{a.dtype.str}{a.shape}".encode())
+            digest.update(np.ascontiguousarray(a).data)
+        return {"arrays": [[a.dtype.str, list(a.shape)] for a in self.arrays], "sha256": digest.hexdigest()}
+
+
+def _hashed(value):
+    """json.dumps' default for the content hash: a given array's description and digest."""
+    if isinstance(value, _Given):
+        return value.hashed()
+    raise TypeError(f"{type(value).__name__} is not a scene value")
+
+
+def _given_array(t: _Table, key: str, value, what: str) -> np.ndarray:
+    """``value`` as an array of real numbers (not copied where it is one), or a one-line error."""
+    if isinstance(value, np.ndarray):
+        a = value
+    else:
+        try:
+            a = np.asarray(value)
+        except (TypeError, ValueError, MemoryError):
+            t.fail(key, f"must be {what}, got {shown(value)}")
+    if a.dtype.kind not in "iuf":
+        t.fail(key, f"must be {what}, got {shown(value)}")
+    return a
+
+
+def _given_pixels(t: _Table) -> np.ndarray:
+    """The map of ``[environment] pixels``: (H, W, 3) float32 (a copy), with the limits of a map file."""
+    present, given = t.lookup("pixels")
+    if not isinstance(given, _Given):
+        t.fail("pixels", "an array of pixels is given to wavlight.load_dict only; a scene file names its map with file")
+    a = _given_array(t, "pixels", given.value, "an (H, W, 3) array of numbers")
+    if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 1 or a.shape[1] < 1:
+        t.fail("pixels", f"must be an (H, W, 3) array of numbers, got shape {a.shape}")
+    if a.shape[0] * a.shape[1] > MAX_TEXELS:   # read_image's words, before any conversion
+        t.fail("pixels", f"image of {a.shape[1]}x{a.shape[0]} texels is too large "
+                         f"(at most {MAX_TEXELS} texels, {MAX_TEXELS * 12 >> 20} MiB as float RGB)")
+    with np.errstate(over="ignore", invalid="ignore"):   # beyond float32: Inf, then sanitised as a file's
+        pixels = np.array(a, np.float32)
+    given.arrays = (pixels,)
+    return pixels
+
+
+def _given_mesh(t: _Table):
+    """(vertices (V, 3) float64, faces (F, 3) int64) of ``vertices`` and ``faces`` arrays, or of a
+    ``mesh`` object with vertices and faces (a trimesh.Trimesh), with a mesh file's checks."""
+    if t.has("mesh"):
+        if t.has("vertices") or t.has("faces"):
+            t.fail("mesh", "give either mesh or vertices and faces, not both")
+        _, given = t.lookup("mesh")
+        obj = given.value
+        if not (hasattr(obj, "vertices") and hasattr(obj, "faces")):
+            t.fail("mesh", f"must be a mesh file, data:NAME or a mesh with vertices and faces (a trimesh.Trimesh), "
+                           f"got {type(obj).__name__}")
+        keys, values, owners = ("mesh", "mesh"), (obj.vertices, obj.faces), (given, given)
+    else:
+        if t.has("shape"):
+            t.fail("shape", "give either shape or vertices and faces, not both")
+        keys = ("vertices", "faces")
+        owners = tuple(t.lookup(k, required=True)[1] for k in keys)
+        for key, owner in zip(keys, owners):
+            if not isinstance(owner, _Given):
+                t.fail(key, "arrays are given to wavlight.load_dict only; a scene file names a mesh file")
+        values = tuple(o.value for o in owners)
+    v = _given_array(t, keys[0], values[0], "a (V, 3) array of vertex coordinates")
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) < 1:
+        t.fail(keys[0], f"vertices must be a (V, 3) array of numbers, got shape {v.shape}")
+    if len(v) > MAX_GIVEN_VERTICES:
+        t.fail(keys[0], f"{len(v)} vertices; at most {MAX_GIVEN_VERTICES} (three per triangle of the most a scene "
+                        "may have)")
+    f = _given_array(t, keys[1], values[1], "an (F, 3) array of vertex indices")
+    if f.ndim != 2 or f.shape[1] != 3:
+        t.fail(keys[1], f"faces must be an (F, 3) array of vertex indices, got shape {f.shape}")
+    if len(f) == 0:
+        t.fail(keys[1], "the mesh holds no triangles")
+    try:
+        f = meshes.check_indices(f, len(v), holder="the vertices array")
+    except meshes.MeshError as e:
+        t.fail(keys[1], str(e))
+    v = np.array(v, np.float64)
+    if owners[0] is owners[1]:
+        owners[0].arrays = (v, f)
+    else:
+        owners[0].arrays, owners[1].arrays = (v,), (f,)
+    return v, f
+
+
+def _given_triangles(o: dict) -> int:
+    """The triangles of an object's given faces or mesh object, from its shape alone (0 where it
+    has none or its shape is wrong: its own check names that)."""
+    given = o.get("faces") if isinstance(o.get("faces"), _Given) else o.get("mesh")
+    if not isinstance(given, _Given):
+        return 0
+    faces = getattr(given.value, "faces", None) if given is o.get("mesh") else given.value
+    shape = getattr(faces, "shape", None)
+    if shape is None:
+        try:
+            shape = (len(faces),)
+        except TypeError:
+            return 0
+    return int(shape[0]) if len(shape) else 0
+
+
 def _load_mesh(t: _Table, path: str):
     """(vertices, faces) of a mesh file: PLY triangle meshes by :func:`meshes.read_ply`, OBJ by
     :func:`meshes.read_obj` (an index 0, past the end or fractional is named with its line, not
@@ -362,6 +489,8 @@ def _shape(t: _Table, base_dir, files: list):
     """(vertices, faces) of one object before its transform."""
     if t.has("mesh") and t.has("shape"):
         t.fail("shape", "give either mesh or shape, not both")
+    if t.has("vertices") or t.has("faces") or isinstance(t.data.get("mesh"), _Given):
+        return _given_mesh(t)
     if t.has("mesh"):
         rel = t.get("mesh", "str")
         try:
@@ -454,7 +583,10 @@ MAX_SCENE_BYTES = 16 << 20
 #: 2^24 of them is about 6.5 GB); counted from the shapes before they are made
 MAX_TRIANGLES = 1 << 24
 OBJECT_KEYS = {"mesh", "shape", "center", "radius", "subdivisions", "normal", "size", "translate", "rotate",
-               "scale", "material", "name"}
+               "scale", "material", "name", "vertices", "faces"}
+#: the most vertices a mesh given as arrays may have: three per triangle of the most a scene may
+#: have (a mesh file's limit is its size, meshes.MAX_MESH_BYTES)
+MAX_GIVEN_VERTICES = 3 * MAX_TRIANGLES
 
 #: how deep a scene's values may nest (a table in a list in a table is 3): deeper input is refused
 #: before any of it is read, rather than recursing without bound
@@ -494,8 +626,12 @@ def load_dict(d: dict, base_dir=None) -> Scene:
                             "materials": {"gold": {"type": "ggx", "roughness": 0.1}}})
 
     Tuples and numpy arrays stand for TOML arrays, numpy scalars for numbers, ``pathlib``
-    paths for strings. Relative paths resolve against ``base_dir`` (default: the current
-    folder). Validation and errors are those of :func:`load_scene`, naming ``<dict>`` for the file."""
+    paths for strings. Arrays may stand for files: ``"environment": {"pixels": (H, W, 3)}`` for a
+    map, ``{"vertices": (V, 3), "faces": (F, 3)}`` or ``{"mesh": trimesh.Trimesh}`` for an
+    object's mesh, checked as files are (the same limits, messages and warnings, with
+    ``<dict>`` and the key in place of the file) and hashed by their bytes. Relative paths
+    resolve against ``base_dir`` (default: the current folder). Validation and errors are those
+    of :func:`load_scene`, naming ``<dict>`` for the file."""
     if base_dir is None:
         base_dir = os.getcwd()
     if not isinstance(base_dir, (str, os.PathLike)) or not os.path.isdir(base_dir):
@@ -507,6 +643,8 @@ def _plain(v, path, key, depth):
     """A dict scene's values as TOML's types (dict, list, str, int, float, bool)."""
     if depth > MAX_NESTING:
         raise SceneError(path, key, f"values nested too deeply (a scene nests at most {MAX_NESTING} levels)")
+    if _GIVEN_KEY.match(key) and not (key.endswith(".mesh") and isinstance(v, (str, os.PathLike))):
+        return _Given(v)   # an array (or a mesh object) in place of a file: checked where it is read
     if isinstance(v, dict):
         bad = [k for k in v if not isinstance(k, str)]
         if bad:
@@ -634,7 +772,7 @@ def _parse(doc, path: str, base: str) -> Scene:
     if not materials:
         materials.append(Material("__default__", bsdfs.LAMBERT, np.full(3, 0.5, np.float32), 0.0))
     vertices = np.concatenate(verts).astype(np.float32) if verts else np.zeros((0, 3), np.float32)
-    digest = hashlib.sha256(json.dumps(doc, sort_keys=True).encode())
+    digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=_hashed).encode())
     for name in files:
         digest.update(_file_digest(name))
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
@@ -669,6 +807,8 @@ def _check_objects(path, objs, materials: dict) -> None:
             triangles += 20 * 4 ** s if isinstance(s, int) and not isinstance(s, bool) and 0 <= s <= 8 else 0
         elif o.get("shape") == "quad":
             triangles += 2
+        else:
+            triangles += _given_triangles(o)
         if triangles > MAX_TRIANGLES:
             raise SceneError(path, key, f"the objects up to this one make more than {MAX_TRIANGLES} triangles; "
                                         f"at most {MAX_TRIANGLES} are supported (about 390 bytes each)")
@@ -701,7 +841,12 @@ def _environment(t: _Table, base, files: list) -> Environment:
     rotate_y = t.get("rotate_y", "float", 0.0)
     if t.has("file") and t.has("procedural"):
         t.fail("procedural", "give either file or procedural, not both")
-    if t.has("procedural"):
+    if t.has("pixels") and (t.has("file") or t.has("procedural")):
+        t.fail("pixels", f"give either pixels or {'file' if t.has('file') else 'procedural'}, not both")
+    if t.has("pixels"):
+        pixels = _given_pixels(t)
+        name, source = f"{t.path}: [environment].pixels", "pixels"
+    elif t.has("procedural"):
         kind = t.get("procedural", "str")
         if kind != "sky":
             t.fail("procedural", f"unknown procedural environment {kind!r} (sky)")

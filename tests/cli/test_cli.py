@@ -396,6 +396,40 @@ def test_output_format_follows_the_extension(tmp_path, ext):
     assert head.startswith(magic), head
 
 
+def test_png_takes_exposure_and_tone_curve_and_both_carry_metadata(tmp_path):
+    """The PNG is srgb(curve(x 2^EV)) of the same render's linear pixels (the formulas written
+    out: IEC 61966-2-1 and Narkowicz's ACES fit); both files hold the render's provenance."""
+    import wavlight
+    from wavlight.imageio import read_metadata
+
+    scene = write_scene(tmp_path, scene_text())
+    assert_success(run_inproc("render", scene, "-o", tmp_path / "a.exr", "--seed", 3, "-q"))
+    assert_success(run_inproc("render", scene, "-o", tmp_path / "a.png", "--seed", 3, "--exposure", "0.75",
+                              "--tonemap", "aces", "--stderr-out", tmp_path / "se.exr", "-q"))
+    linear = read_image(tmp_path / "a.exr")[0].astype(np.float64) * 2 ** 0.75
+    y = np.clip(linear * (2.51 * linear + 0.03) / (linear * (2.43 * linear + 0.59) + 0.14), 0.0, 1.0)
+    want = np.floor(np.where(y <= 0.0031308, 12.92 * y, 1.055 * y ** (1 / 2.4) - 0.055) * 255 + 0.5)
+    assert np.abs(read_image(tmp_path / "a.png")[0].astype(int) - want).max() <= 1
+    scene_hash = wavlight.load_scene(scene).content_hash
+    for name in ("a.exr", "a.png", "se.exr"):
+        meta = read_metadata(tmp_path / name)
+        assert {k: meta[k] for k in ("strategy", "spp", "seed", "scene_hash", "version")} == \
+            {"strategy": "mis", "spp": "2", "seed": "3", "scene_hash": scene_hash, "version": wavlight.__version__}
+    assert (read_metadata(tmp_path / "a.png")["tonemap"], read_metadata(tmp_path / "a.png")["exposure"]) == \
+        ("aces", "0.75")
+    # the standard error stays linear: its pixels are not the PNG's transform
+    assert read_image(tmp_path / "se.exr")[0].dtype == np.float32
+
+
+@pytest.mark.parametrize("ext", [".exr", ".hdr", ".pfm"])
+def test_linear_output_refuses_exposure_and_tone_curve(tmp_path, ext):
+    scene = write_scene(tmp_path, scene_text())
+    for args in (("--exposure", "1"), ("--tonemap", "aces")):
+        assert_clean_failure(run_inproc("render", scene, "-o", tmp_path / f"a{ext}", *args), f"a{ext}", "linear",
+                             output=tmp_path / f"a{ext}")
+    assert_success(run_inproc("render", scene, "-o", tmp_path / f"a{ext}", "--exposure", "0", "-q"))
+
+
 def _orientation_env(h=4, w=8):
     """Top half (+Y) bright, bottom half dim; column 0 (just right of -Z) green, column w-1 red."""
     base = np.full((w, 3), 0.5, np.float32)

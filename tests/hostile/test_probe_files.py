@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import wavlight
-from wavlight import atomic, imageio, meshes
+from wavlight import atomic, display, imageio, meshes
 from wavlight.envmap import read_image
 from wavlight.errors import WavlightError, file_problem, shown
 
@@ -381,7 +381,7 @@ def test_srgb_strip_encoding_matches_srgb_encode():
     x = np.concatenate([np.linspace(-1, 2, 3999, dtype=np.float32),
                         np.float32([0.0031308, 0.0031307, 0.04045, 1.0, 0.5, 0.0])]).reshape(-1, 1, 3)
     old = (imageio.srgb_encode(x) * 255.0 + 0.5).astype(np.uint8)
-    np.testing.assert_array_equal(imageio._srgb8(x), old)
+    np.testing.assert_array_equal(display.encode8(x), old)
 
 
 def test_unaligned_and_strided_images_are_written(tmp_path):

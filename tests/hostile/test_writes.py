@@ -242,22 +242,22 @@ def test_a_turntable_that_fills_the_disk_stops_at_the_first_frame_that_fails(bak
         assert read_image(str(tmp_path / "tt" / name)).shape == (12, 16, 3)
 
 
-def test_a_gif_that_does_not_fit_leaves_no_file(baked, tmp_path, monkeypatch):
-    """PIL's GIF writer raising ENOSPC half way (the GIF used to leave a .part file)."""
+def test_an_animation_that_does_not_fit_leaves_no_file(baked, tmp_path, monkeypatch):
+    """Pillow's APNG writer raising ENOSPC half way (the GIF before it used to leave a .part file)."""
     from PIL import Image
 
     real = Image.Image.save
 
     def save(self, fp, format=None, **params):
-        if format == "GIF":
+        if format == "PNG" and params.get("save_all"):
             with open(fp, "wb") as fh:
-                fh.write(b"GIF89a half")
+                fh.write(b"\x89PNG half")
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         return real(self, fp, format, **params)
     monkeypatch.setattr(Image.Image, "save", save)
     _, bake_file = baked
     r = run("frame", bake_file, "--turntable", 3, "-o", tmp_path / "tt")
-    one_error_line(r, "turntable.gif", "No space left on device")
+    one_error_line(r, "turntable.png", "No space left on device")
     assert sorted(os.listdir(tmp_path / "tt")) == ["frame-0000.png", "frame-0001.png", "frame-0002.png"]
     assert not [p for p in (tmp_path / "tt").iterdir() if p.suffix == ".part"]
 
@@ -343,11 +343,11 @@ def test_a_bake_whose_scratch_does_not_fit_is_one_line(baked, tmp_path, monkeypa
 
 # ============================================================================= turntables and orbits
 def test_turntable_frames_must_not_overwrite_inputs(baked, tmp_path):
-    """A bake named like a frame or the GIF in the output folder is refused before any work."""
+    """A bake named like a frame or an animation in the output folder is refused before any work."""
     folder, bake_file = baked
     out = tmp_path / "tt"
     out.mkdir()
-    for name in ("frame-0001.png", "turntable.gif"):
+    for name in ("frame-0001.png", "turntable.png", "turntable.mp4"):
         disguised = out / name
         disguised.write_bytes(bake_file.read_bytes())
         r = run("frame", disguised, "--turntable", 3, "-o", out)
@@ -391,10 +391,10 @@ def test_orbit_checks_its_folder_before_any_work(view_baked, tmp_path):
     one_error_line(run("frame", view_baked, "--orbit", 3, "-o", out), "orbit", "is a file, not a folder")
     out.unlink()
     out.mkdir()
-    disguised = out / "orbit.gif"
+    disguised = out / "orbit.png"
     disguised.write_bytes(view_baked.read_bytes())
-    one_error_line(run("frame", disguised, "--orbit", 3, "-o", out), "orbit.gif", "input of this run")
-    assert sorted(os.listdir(out)) == ["orbit.gif"]
+    one_error_line(run("frame", disguised, "--orbit", 3, "-o", out), "orbit.png", "input of this run")
+    assert sorted(os.listdir(out)) == ["orbit.png"]
 
 
 # ============================================================================= a real full disk (root)
@@ -419,7 +419,7 @@ def test_bake_into_a_nearly_full_tmpfs_is_one_line(baked, small_disk):
 @pytest.mark.slow
 def test_a_long_turntable_into_a_small_tmpfs_leaves_only_complete_frames(baked, small_disk):
     """`--turntable 3600` into 64 KiB: it stops with one line at the first frame that does not
-    fit; every frame left is complete and readable, no temporary, no GIF."""
+    fit; every frame left is complete and readable, no temporary, no animation."""
     _, bake_file = baked
     disk = small_disk(1 << 30)   # nothing filled: the frames fill it
     out = disk / "tt"
@@ -427,7 +427,7 @@ def test_a_long_turntable_into_a_small_tmpfs_leaves_only_complete_frames(baked, 
     one_error_line(r, "frame-")
     assert "write failed" in r.output or "No space left on device" in r.output, r.output
     names = sorted(os.listdir(out))
-    assert names and "turntable.gif" not in names and not [n for n in names if n.startswith(".wavlight-")]
+    assert names and "turntable.png" not in names and not [n for n in names if n.startswith(".wavlight-")]
     assert names == [f"frame-{i:04d}.png" for i in range(len(names))] and len(names) < 3600
     for name in names:
         assert os.path.getsize(out / name) > 0

@@ -215,7 +215,7 @@ LIMITS = Limits(maps=2, max_terms=1024, rotate_y=0.0, terms=256)
 
 def test_sanitise_replaces_and_clamps_with_one_line_notes():
     state, notes = sanitise({"rotate_y": "abc", "terms": "-5", "env": "99", "exposure": "inf"}, LIMITS)
-    assert state == {"rotate_y": 0.0, "exposure": 0.0, "terms": 1, "env": 0, "encoding": "jpeg",
+    assert state == {"rotate_y": 0.0, "exposure": 0.0, "tonemap": "clamp", "terms": 1, "env": 0, "encoding": "jpeg",
                      "preview": False, "converge": False}
     assert len(notes) == 4 and all("\n" not in n for n in notes)
     assert any("rotate_y='abc' is not a number" in n for n in notes)
@@ -248,6 +248,30 @@ def test_tone_map_is_srgb_of_exposure_times_linear():
     rgba = tone_map(image, 0.0, alpha=True)
     assert rgba.shape == (17, 23, 4) and (rgba[..., 3] == 255).all()
     assert (rgba[..., :3] == tone_map(image, 0.0)).all()
+
+
+def test_sanitise_keeps_a_known_tone_curve_and_replaces_others_with_a_note():
+    for limits in (LIMITS, ObjectLimits((0.0, 0.0, 0.0), (-1.0,) * 3, (1.0,) * 3, 0.1, 0.0, False),
+                   ViewLimits(0.0, 10.0, 3.0, 0.5, 9.0, False)):
+        state, notes = sanitise({"tonemap": "aces"}, limits)
+        assert state["tonemap"] == "aces" and notes == []
+        assert sanitise({}, limits)[0]["tonemap"] == "clamp"
+        state, notes = sanitise({"tonemap": "filmic<script>"}, limits)
+        assert state["tonemap"] == "clamp" and len(notes) == 1 and "tonemap=" in notes[0] and "\n" not in notes[0]
+
+
+def test_tone_map_with_a_curve_is_srgb_of_the_curve():
+    """The viewer's frames: srgb(curve(x 2^EV)) with the curve of wavlight.display (written out
+    here from Narkowicz's published constants), within one 8-bit level."""
+    rng = np.random.default_rng(2)
+    image = rng.exponential(0.8, (13, 19, 3)).astype(np.float32)
+    for exposure in (-1.0, 0.0, 2.5):
+        x = image.astype(np.float64) * 2.0 ** exposure
+        curve = np.clip(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0)
+        want = np.round(srgb_encode(curve) * 255)
+        got = tone_map(image, exposure, tonemap="aces")
+        assert got.dtype == np.uint8 and np.abs(got.astype(int) - want).max() <= 1
+    assert (tone_map(image, 0.0, tonemap="clamp") == tone_map(image, 0.0)).all()
 
 
 def _config(html: str) -> dict:
@@ -312,7 +336,8 @@ def test_page_and_socket_sanitise_bad_input(serve, transfer):
                 await ws.send_json({"type": "state", "rotate_y": "abc", "terms": -5, "env": 99, "exposure": 1e999})
                 header, payload, texts = await _next_frame(ws)
                 assert texts and texts[0]["type"] == "state" and len(texts[0]["notes"]) == 4
-                assert header["state"] == {"rotate_y": transfer.scene_rotate_y % 360, "exposure": 0.0, "terms": 1,
+                assert header["state"] == {"rotate_y": transfer.scene_rotate_y % 360, "exposure": 0.0,
+                                           "tonemap": "clamp", "terms": 1,
                                            "env": 0}
                 assert payload[:2] == b"\xff\xd8" and header["encoding"] == "jpeg"   # a JPEG
                 await ws.send_json({"type": "state", "rotate_y": 90, "terms": 64, "env": 1, "encoding": "raw"})
@@ -459,6 +484,36 @@ def test_browser_shows_url_state_and_a_slider_changes_the_picture(serve, page):
     _set(pg, "env", "1")
     pg.wait_for_function("() => viewer.last.state.env === 1")
     assert "env=1" in pg.url
+    assert pg.evaluate("viewer.errors") == 0
+
+
+def test_browser_tone_curve_from_the_url_and_the_choice(serve, page, bake_file):
+    """The tone curve is in the URL where it is not clamp, the choice shows it, and the picture
+    drawn is the frame through that curve (raw frames: the canvas holds the bytes sent)."""
+    v, pg = _opened(serve, page, "?rotate_y=30&terms=64&encoding=raw&tonemap=aces")
+    assert pg.input_value("#tonemap") == "aces"
+    assert pg.evaluate("viewer.last.state.tonemap") == "aces" and "tonemap=aces" in pg.url
+    assert pg.evaluate("Array.from(document.getElementById('tonemap').options).map(o => o.value)") == \
+        ["clamp", "aces"]
+    state, _ = sanitise({"rotate_y": "30", "terms": "64"}, v.limits)
+    other = wavlight.Transfer.load(bake_file[0])   # the frame the viewer computes, computed here
+    try:
+        image, _ = other.frame_timed(None, 30.0, 1.0, v.detail(state))
+    finally:
+        other.close()
+
+    def canvas():
+        data = pg.evaluate("""() => { const c = document.getElementById('frame');
+            return Array.from(c.getContext('2d').getImageData(0, 0, c.width, c.height).data); }""")
+        return np.array(data, np.uint8).reshape(image.shape[0], image.shape[1], 4)
+
+    assert (canvas() == tone_map(image, 0.0, alpha=True, tonemap="aces")).all()
+    _set(pg, "tonemap", "clamp")
+    pg.wait_for_function("() => viewer.last.state.tonemap === 'clamp'")
+    pg.wait_for_function("() => !location.search.includes('tonemap')")
+    assert (canvas() == tone_map(image, 0.0, alpha=True)).all()
+    _set(pg, "tonemap", "aces")
+    pg.wait_for_function("() => viewer.last.state.tonemap === 'aces' && location.search.includes('tonemap=aces')")
     assert pg.evaluate("viewer.errors") == 0
 
 
@@ -638,7 +693,8 @@ def test_object_sanitise_and_the_factors_each_bake_holds_fixed():
     lim = ObjectLimits(translate=(0.0, 0.6, 0.0), lo=(-3.7, -0.1, -3.7), hi=(3.7, 1.3, 3.7), step=0.01,
                        rotate_y=0.0, converge=True)
     state, notes = sanitise({"translate": "0.3,0,0.2", "rotate_y": "405", "exposure": "0.5"}, lim)
-    assert state == {"translate": [0.3, 0.0, 0.2], "rotate_y": 45.0, "exposure": 0.5, "encoding": "jpeg",
+    assert state == {"translate": [0.3, 0.0, 0.2], "rotate_y": 45.0, "exposure": 0.5,
+                     "tonemap": "clamp", "encoding": "jpeg",
                      "preview": False, "converge": False} and notes == []
     for bad, why in (("1,nan,2", "finite"), ("1,inf,2", "finite"), ("1,2", "three numbers"), ("1,2,3,4", "three"),
                      ("a,b,c", "numbers"), ([1, 2], "three"), ([1, True, 2], "numbers"), (5, "three"),
@@ -707,7 +763,8 @@ def test_object_page_and_socket_frames_are_the_moving_estimators(serve_object, o
                                     "encoding": "raw"})
                 header, payload, texts = await _next_frame(ws)
                 assert texts == []
-                assert header["state"] == {"translate": [0.3, 0.6, 0.2], "rotate_y": 45.0, "exposure": 0.5}
+                assert header["state"] == {"translate": [0.3, 0.6, 0.2], "rotate_y": 45.0, "exposure": 0.5,
+                                           "tonemap": "clamp"}
                 assert header["spp"] == viewer_module.OBJECT_FRAME_SPP and header["preview"] is False
                 want = expected([0.3, 0.6, 0.2], 45.0, viewer_module.OBJECT_FRAME_SPP, 0.5)
                 assert np.abs(picture(payload).astype(int) - want).max() <= 1
@@ -792,7 +849,8 @@ def test_browser_object_sliders_url_and_frame_rate(serve_object, page):
     assert pg.text_content("#rotate_y_value") == "45°" and pg.input_value("#rotate_y") == "45"
     assert "object rotation" in pg.text_content("label[for=rotate_y]")
     assert pg.evaluate("location.search") == "?translate=0.3,0,0.2&rotate_y=45&exposure=0.5"
-    assert pg.evaluate("viewer.last.state") == {"translate": [0.3, 0, 0.2], "rotate_y": 45, "exposure": 0.5}
+    assert pg.evaluate("viewer.last.state") == {"translate": [0.3, 0, 0.2], "rotate_y": 45, "exposure": 0.5,
+                                                "tonemap": "clamp"}
     first = _pixel_sum(pg)
     assert first > 0
     _set(pg, "translate_x", "-1")
@@ -898,7 +956,8 @@ VIEW_LIMITS = ViewLimits(azimuth=0.0, elevation=15.945, distance=3.64, distance_
 def test_view_sanitise_orbit_and_the_factors_a_view_bake_holds_fixed():
     lim = VIEW_LIMITS
     state, notes = sanitise({"azimuth": "30", "elevation": "15", "distance": "4.2", "exposure": "0.5"}, lim)
-    assert state == {"azimuth": 30.0, "elevation": 15.0, "distance": 4.2, "exposure": 0.5, "encoding": "jpeg",
+    assert state == {"azimuth": 30.0, "elevation": 15.0, "distance": 4.2, "exposure": 0.5,
+                     "tonemap": "clamp", "encoding": "jpeg",
                      "preview": False, "converge": False} and notes == []
     state, notes = sanitise({}, lim)
     assert (state["azimuth"], state["elevation"], state["distance"]) == (0.0, 15.945, 3.64) and notes == []
@@ -916,7 +975,7 @@ def test_view_sanitise_orbit_and_the_factors_a_view_bake_holds_fixed():
     assert state["distance"] == 4.123                                  # 4 significant digits, as the page
     # the factors a view bake holds fixed: noted and ignored
     state, notes = sanitise({"rotate_y": "10", "env": "1", "terms": "64", "translate": "0,0,0", "azimuth": 10}, lim)
-    assert set(state) == {"azimuth", "elevation", "distance", "exposure", "encoding", "preview", "converge"}
+    assert set(state) == {"azimuth", "elevation", "distance", "exposure", "tonemap", "encoding", "preview", "converge"}
     assert len(notes) == 4 and all("does not apply: this bake varies the view" in n for n in notes)
     # and the camera on the other bakes
     _, notes = sanitise({"azimuth": "10", "distance": "2"}, LIMITS)
@@ -980,7 +1039,8 @@ def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_v
                                         "exposure": ev, "encoding": "raw"})
                     header, payload, texts = await _next_frame(ws)
                     assert texts == [] and header["preview"] is False
-                    assert header["state"] == {"azimuth": az, "elevation": el, "distance": d, "exposure": ev}
+                    assert header["state"] == {"azimuth": az, "elevation": el, "distance": d, "exposure": ev,
+                                               "tonemap": "clamp"}
                     got[az, el, d, ev] = picture(header, payload)
                 # while dragging: a smaller frame of the same camera
                 await ws.send_json({"type": "state", "azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
@@ -993,7 +1053,8 @@ def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_v
                                     "rotate_y": 3, "terms": 4, "exposure": 0.5, "encoding": "raw"})
                 header, payload, texts = await _next_frame(ws)
                 assert texts and texts[0]["type"] == "state" and len(texts[0]["notes"]) == 5
-                assert header["state"] == {"azimuth": 0.0, "elevation": 15.945, "distance": 72.8, "exposure": 0.5}
+                assert header["state"] == {"azimuth": 0.0, "elevation": 15.945, "distance": 72.8, "exposure": 0.5,
+                                           "tonemap": "clamp"}
                 # converge: ViewFrames.converge at this camera, seeds 0, 1, ..., until the camera moves
                 await ws.send_json({"type": "state", "azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
                                     "encoding": "raw", "converge": True})
@@ -1065,7 +1126,8 @@ def test_browser_view_drag_orbits_the_camera_and_the_url_restores_it(serve_view,
     v, pg = _opened(serve_view, page, "?azimuth=30&elevation=15&distance=4.2&exposure=0.5")
     assert pg.is_visible("#azimuth") and pg.is_hidden("#rotate_y") and pg.is_hidden("#terms")
     assert pg.evaluate("location.search") == "?azimuth=30&elevation=15&distance=4.2&exposure=0.5"
-    assert pg.evaluate("viewer.last.state") == {"azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5}
+    assert pg.evaluate("viewer.last.state") == {"azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
+                                                "tonemap": "clamp"}
     assert (pg.input_value("#azimuth"), pg.input_value("#elevation")) == ("30", "15")
     assert pg.text_content("#distance_value") == "4.2" and pg.text_content("#azimuth_value") == "30°"
     assert pg.evaluate("[viewer.last.width, viewer.last.height]") == [96, 64]

@@ -8,9 +8,10 @@ an edit. A small version runs in ``tests/evaluation/test_stability.py``: ``QUICK
 analytic answers and light enough tails, and the all-black map) at 12 x 12 pixels, 3 x 32 spp.
 
 **Cases** (:data:`CASES`, from ``shared/docs/method.md``, "Failure modes to test"; each builds its
-scene in a temporary folder: a TOML file and its generated maps, written with
-:func:`wavlight.save_image`, .exr or .pfm; the real maps are those that ship with wavlight
-(:mod:`wavlight.data`), so that the suite runs offline):
+scene as a dict for :func:`wavlight.load_dict`, its generated maps given as float32 arrays
+(``[environment] pixels``: no file is written, and the pixels are those a float32 .exr or .pfm
+of them would hold); the real maps are those that ship with wavlight (:mod:`wavlight.data`), so
+that the suite runs offline):
 
 ==================  ==========================================================  ===========
 case                what it probes                                              reference
@@ -142,7 +143,6 @@ import json
 import math
 import os
 import statistics
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -170,28 +170,11 @@ def scene_dict(*, camera, environment, objects, materials, width, height) -> dic
             "objects": list(objects), "materials": materials}
 
 
-def write_map(folder, name, pixels) -> str:
-    """Write an (H, W, 3) float32 map (.exr or .pfm) and check that it reads back bit for bit."""
-    from ..envmap import read_image
-    from ..imageio import save_image
-
-    pixels = np.asarray(pixels, np.float32)
-    path = os.path.join(folder, name)
-    finite = np.all(np.isfinite(pixels))
-    if finite:
-        save_image(path, pixels)
-    else:  # save_image refuses non-finite pixels (rightly, for renders); maps may hold them
-        import OpenImageIO as oiio
-        out = oiio.ImageOutput.create(path)
-        ok = out.open(path, oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.FLOAT)) and \
-            out.write_image(np.ascontiguousarray(pixels))
-        out.close()
-        if not ok:
-            raise WavlightError(f"{path}: cannot write the map")
-    back = read_image(path)
-    if back.shape != pixels.shape or not np.array_equal(back, pixels, equal_nan=True):
-        raise WavlightError(f"{path}: the map does not read back as written")
-    return path
+def given_map(pixels) -> dict:
+    """An ``[environment]`` table of a generated map: its pixels as float32 (what a float32 .exr or
+    .pfm of them holds; NaN, Inf and negative texels kept for the scene's own sanitising)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return {"pixels": np.asarray(pixels, np.float32)}
 
 
 def sanitized(pixels) -> np.ndarray:
@@ -233,10 +216,9 @@ def floor_mask(scene, width, height, half_size) -> np.ndarray:
 # ----------------------------------------------------------------------------- cases
 @dataclass
 class Built:
-    """A case's scene (a dict for wavlight.load_dict, its files in ``folder``) and how to judge it."""
+    """A case's scene (a dict for wavlight.load_dict) and how to judge it."""
 
     scene: dict
-    folder: str
     reference: str                  # "analytic" | "mis" | "zero"
     expected: np.ndarray | None = None   # (3,) or (H, W, 3): the analytic reference
     floor_half: float | None = None      # analytic floor: pixels must hit it (see floor_mask)
@@ -248,7 +230,7 @@ class Built:
 class Case:
     name: str
     title: str
-    build: object                    # build(folder, width, height) -> Built
+    build: object                    # build(width, height) -> Built
     info: dict = field(default_factory=dict)
 
 
@@ -266,7 +248,7 @@ LAMBERT_FLOOR = {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}
 FLOOR_ALBEDO = np.array([0.6, 0.6, 0.6])
 
 
-def _floor_case(folder, width, height, env_table, pixels, *, eye=(0.0, 3.0, 3.0), target=(0.0, 0.0, 0.0),
+def _floor_case(width, height, env_table, pixels, *, eye=(0.0, 3.0, 3.0), target=(0.0, 0.0, 0.0),
                 fov=30.0, half=15.0, expect_warning=None, note="") -> Built:
     scale = float(env_table.get("scale", 1.0))
     scene = scene_dict(camera={"eye": list(eye), "target": list(target), "up": [0.0, 1.0, 0.0],
@@ -275,11 +257,11 @@ def _floor_case(folder, width, height, env_table, pixels, *, eye=(0.0, 3.0, 3.0)
                        objects=[{"shape": "quad", "center": [0.0, 0.0, 0.0], "normal": [0.0, 1.0, 0.0],
                                  "size": 2 * half, "material": "floor"}],
                        materials={"floor": LAMBERT_FLOOR}, width=width, height=height)
-    return Built(scene, folder, "analytic", floor_radiance(pixels, FLOOR_ALBEDO) * scale, floor_half=half,
+    return Built(scene, "analytic", floor_radiance(pixels, FLOOR_ALBEDO) * scale, floor_half=half,
                  expect_warning=expect_warning, note=note)
 
 
-def _sphere_floor(folder, width, height, env_table, sphere_mat, *, eye=(0.0, 1.4, 4.2), target=(0.0, 0.8, 0.0),
+def _sphere_floor(width, height, env_table, sphere_mat, *, eye=(0.0, 1.4, 4.2), target=(0.0, 0.8, 0.0),
                   fov=32.0, floor=True, reference="mis") -> Built:
     objects = [{"shape": "sphere", "center": [0.0, 0.8, 0.0], "radius": 0.8, "subdivisions": 4,
                 "material": "ball"}]
@@ -291,7 +273,7 @@ def _sphere_floor(folder, width, height, env_table, sphere_mat, *, eye=(0.0, 1.4
     scene = scene_dict(camera={"eye": list(eye), "target": list(target), "up": [0.0, 1.0, 0.0],
                                        "fov_y": fov},
                        environment=env_table, objects=objects, materials=mats, width=width, height=height)
-    return Built(scene, folder, reference)
+    return Built(scene, reference)
 
 
 def _dim_sky(width, height, factor=0.5):
@@ -315,13 +297,12 @@ def sun_disk_coverage(width, height, elevation, azimuth, radius_deg, k=8) -> np.
 
 
 @case("sun_synthetic", "0.5 deg sun of 1e5 over a dim sky (1024x512), lambert floor")
-def _sun_synthetic(folder, width, height):
+def _sun_synthetic(width, height):
     w, h = 1024, 512
     pix = _dim_sky(w, h)
     cov = sun_disk_coverage(w, h, 40.0, 30.0, 0.25)
     pix += cov[..., None] * 1e5
-    write_map(folder, "sun.exr", pix)
-    return _floor_case(folder, width, height, {"file": "sun.exr"}, pix,
+    return _floor_case(width, height, given_map(pix), pix,
                        note=f"sun on {int((cov > 0).sum())} texels, {100 * _sun_share(pix, cov):.0f}% of the floor's light")
 
 
@@ -331,29 +312,28 @@ def _sun_share(pix, cov):
 
 
 @case("sun_rooitou", "rooitou_park_512 tiny sun, ggx 0.05 sphere on a lambert floor")
-def _sun_rooitou(folder, width, height):
+def _sun_rooitou(width, height):
     env = {"file": "data:rooitou_park_512"}
-    return _sphere_floor(folder, width, height, env, {"type": "ggx", "albedo": [0.95, 0.8, 0.5], "roughness": 0.05})
+    return _sphere_floor(width, height, env, {"type": "ggx", "albedo": [0.95, 0.8, 0.5], "roughness": 0.05})
 
 
 @case("mirror_ggx", "near-mirror ggx 0.005 sphere on a floor, procedural sky (0.75 deg sun of 2e4)")
-def _mirror_ggx(folder, width, height):
+def _mirror_ggx(width, height):
     env = {"procedural": "sky", "sun_elevation": 30.0, "sun_azimuth": 160.0}
-    return _sphere_floor(folder, width, height, env, {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.005})
+    return _sphere_floor(width, height, env, {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.005})
 
 
 @case("overcast_lambert", "lambert floor under a smooth CIE overcast map (128x64 .pfm)")
-def _overcast(folder, width, height):
+def _overcast(width, height):
     w, h = 128, 64
     theta = (np.arange(h) + 0.5) / h * np.pi
     sky = np.where(theta < np.pi / 2, (1 + 2 * np.cos(theta)) / 3, 0.15)
     pix = np.broadcast_to(sky[:, None, None] * np.array([0.9, 0.95, 1.0]), (h, w, 3)).copy()
-    write_map(folder, "overcast.pfm", pix)
-    return _floor_case(folder, width, height, {"file": "overcast.pfm", "rotate_y": 40.0}, pix)
+    return _floor_case(width, height, {**given_map(pix), "rotate_y": 40.0}, pix)
 
 
 @case("grazing", "ggx 0.2 and phong 50 quads seen 80-89 deg off their normal, procedural sky")
-def _grazing(folder, width, height):
+def _grazing(width, height):
     scene = scene_dict(camera={"eye": [0.0, 0.35, 6.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0],
                                        "fov_y": 8.0},
                        environment={"procedural": "sky", "sun_elevation": 12.0, "sun_azimuth": 170.0},
@@ -364,12 +344,12 @@ def _grazing(folder, width, height):
                        materials={"glossy": {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.2},
                                   "shiny": {"type": "phong", "albedo": [0.8, 0.8, 0.8], "exponent": 50.0}},
                        width=width, height=height)
-    return Built(scene, folder, "mis")
+    return Built(scene, "mis")
 
 
 @case("room_slit", "a closed room lit through a slit under the front wall (procedural sky, low sun), "
                    "ggx 0.1 sphere on its lambert floor")
-def _room_slit(folder, width, height):
+def _room_slit(width, height):
     # 4 x 3 x 4 room; the front wall (z = 2) stops 0.4 above the floor, and the sun, 8 deg up
     # in the +z direction, lights the floor through that slit; every strategy that samples the
     # map (light, mis, wavelet, sir, structured) sends most samples to blocked directions
@@ -388,21 +368,19 @@ def _room_slit(folder, width, height):
                        materials={"wall": LAMBERT_FLOOR,
                                   "ball": {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.1}},
                        width=width, height=height)
-    return Built(scene, folder, "mis", note="light enters only through a 0.4-high slit")
+    return Built(scene, "mis", note="light enters only through a 0.4-high slit")
 
 
 @case("one_texel", "a 32x16 map black but one texel of 500, lambert floor")
-def _one_texel(folder, width, height):
+def _one_texel(width, height):
     pix = np.zeros((16, 32, 3))
     pix[3, 9] = 500.0
-    write_map(folder, "one.exr", pix)
-    return _floor_case(folder, width, height, {"file": "one.exr"}, pix)
+    return _floor_case(width, height, given_map(pix), pix)
 
 
 @case("all_black", "all-black map (library: black image; CLI: refused), ggx sphere on a floor")
-def _all_black(folder, width, height):
-    write_map(folder, "black.exr", np.zeros((8, 16, 3)))
-    b = _sphere_floor(folder, width, height, {"file": "black.exr"},
+def _all_black(width, height):
+    b = _sphere_floor(width, height, given_map(np.zeros((8, 16, 3))),
                       {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.1}, reference="zero")
     b.note = "the CLI refuses this scene (exit code 2); every strategy must give exactly 0"
     return b
@@ -436,18 +414,17 @@ def black_around_lamps(pixels, lamp: float = 100.0, band: float = 1 / 16) -> np.
 
 @case("black_by_lamps", "st_fagans_interior_512 with black texels next to its lamps and a black bottom band "
                         "(as the small Debevec probes), ggx 0.1 sphere on a floor")
-def _black_by_lamps(folder, width, height):
+def _black_by_lamps(width, height):
     from ..data import path
     from ..envmap import read_image
 
-    write_map(folder, "lamps.exr", black_around_lamps(read_image(str(path("st_fagans_interior_512")))))
-    env = {"file": "lamps.exr"}
-    return _sphere_floor(folder, width, height, env, {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.1},
+    env = given_map(black_around_lamps(read_image(str(path("st_fagans_interior_512")))))
+    return _sphere_floor(width, height, env, {"type": "ggx", "albedo": [0.9, 0.9, 0.9], "roughness": 0.1},
                          eye=(0.0, 2.6, 3.6), target=(0.0, 0.6, 0.0))
 
 
 @case("bad_texels", "sky with NaN, +Inf, -Inf and negative texels (warning expected), lambert floor")
-def _bad_texels(folder, width, height):
+def _bad_texels(width, height):
     rng = np.random.default_rng(7)
     pix = _dim_sky(64, 32, 1.0)
     pix[4, 10] = 40.0                                      # a lamp, so the map is not trivially smooth
@@ -457,33 +434,29 @@ def _bad_texels(folder, width, height):
     flat[idx[10:15]] = np.inf
     flat[idx[15:18], 1] = -np.inf
     flat[idx[18:], :] = -5.0
-    write_map(folder, "bad.exr", pix)
-    return _floor_case(folder, width, height, {"file": "bad.exr"}, pix, expect_warning="NaN, Inf or negative",
+    return _floor_case(width, height, given_map(pix), pix, expect_warning="NaN, Inf or negative",
                        note="28 bad texels (10 NaN, 5 +Inf, 3 -Inf, 10 negative)")
 
 
 @case("npot_map", "37x19 map (non-power-of-two, odd height), floor seen at 84-89 deg")
-def _npot(folder, width, height):
+def _npot(width, height):
     rng = np.random.default_rng(3)
     pix = _dim_sky(37, 19) + rng.gamma(2.0, 0.1, (19, 37, 3))
     pix[5, 30] = 80.0
-    write_map(folder, "npot.exr", pix)
-    return _floor_case(folder, width, height, {"file": "npot.exr", "rotate_y": -25.0}, pix,
+    return _floor_case(width, height, {**given_map(pix), "rotate_y": -25.0}, pix,
                        eye=(0.0, 0.5, 6.0), fov=8.0, half=100.0)
 
 
 @case("tiny_2x1", "a 2x1 map (two texels), lambert floor")
-def _tiny_2x1(folder, width, height):
+def _tiny_2x1(width, height):
     pix = np.array([[[2.0, 1.0, 0.5], [0.25, 1.0, 3.0]]])
-    write_map(folder, "tiny.pfm", pix)
-    return _floor_case(folder, width, height, {"file": "tiny.pfm", "rotate_y": 10.0}, pix)
+    return _floor_case(width, height, {**given_map(pix), "rotate_y": 10.0}, pix)
 
 
 @case("tiny_1x1", "a 1x1 map (the furnace: albedo x radiance), lambert floor")
-def _tiny_1x1(folder, width, height):
+def _tiny_1x1(width, height):
     pix = np.array([[[1.5, 1.0, 0.5]]])
-    write_map(folder, "one_px.exr", pix)
-    return _floor_case(folder, width, height, {"file": "one_px.exr", "scale": 2.0}, pix)
+    return _floor_case(width, height, {**given_map(pix), "scale": 2.0}, pix)
 
 
 # ----------------------------------------------------------------------------- statistics
@@ -675,59 +648,56 @@ def run_stability(out_dir, cases=None, strategies=None, size=None, spp=None, rep
             progress(done, total, what)
 
     case_info, cells, raw = [], [], []
-    with tempfile.TemporaryDirectory(prefix="wavlight-stability-") as tmp:
-        for name in names:
-            c = CASES[name]
-            info = {"case": name, "title": c.title, "status": "ok", "note": "", "warnings": [], "reference": None}
-            case_info.append(info)
-            folder = os.path.join(tmp, name)
-            os.makedirs(folder)
-            ref = ref_se = None
-            try:
-                built = c.build(folder, width, height)
-                with warnings.catch_warnings(record=True) as caught:
-                    warnings.simplefilter("always")
-                    sc = scene_mod.load_dict(built.scene, base_dir=built.folder)
-                info["warnings"] = sorted({str(w.message).replace(folder + os.sep, "") for w in caught})
-                info["reference"] = {"analytic": "analytic", "zero": "exactly 0",
-                                     "mis": f"mis {cfg['reference_spp']} spp"}[built.reference]
-                info["note"] = built.note
-                info["cli_refuses"] = bool(sc.environment.is_black)
-                if built.expect_warning is not None:
-                    info["expected_warning"] = built.expect_warning
-                    info["warned"] = any(built.expect_warning in w for w in info["warnings"])
-                mask = np.ones((height, width), bool)
-                if built.reference == "analytic":
-                    mask = floor_mask(sc, width, height, built.floor_half)
-                    ref = np.broadcast_to(np.asarray(built.expected, np.float64), (height, width, 3))
-                    info["expected"] = np.asarray(built.expected, float).tolist()
-                elif built.reference == "zero":
-                    ref = np.zeros((height, width, 3))
-                else:
-                    r = render(sc, spp=cfg["reference_spp"], strategy="mis", width=width, height=height,
-                               seed=REFERENCE_SEED, threads=threads)
-                    ref, ref_se = np.asarray(r.image, np.float64), np.asarray(r.stderr, np.float64)
-                    if not (np.all(np.isfinite(ref)) and np.all(np.isfinite(ref_se))):
-                        raise WavlightError("the mis reference holds NaN or Inf")
-                info["pixels_tested"] = int(mask.sum())
-                info["reference_mean"] = float(ref[mask].mean()) if mask.any() else 0.0
-            except Exception as e:  # a failing case must not stop the suite
-                info.update(status="failed", note=f"scene or reference failed: {described(e)}")
-                for s in strats:
-                    cells.append(_cell(name, s, cfg, verdict="failed", failure=info["note"]))
-                    raw.append(None)
-                    step(f"{name}/{s}: no reference")
-                step(f"{name}: failed")
-                continue
-            step(f"{name}: reference ({info['reference']})")
-            missing_warning = built.expect_warning is not None and not info["warned"]
+    for name in names:
+        c = CASES[name]
+        info = {"case": name, "title": c.title, "status": "ok", "note": "", "warnings": [], "reference": None}
+        case_info.append(info)
+        ref = ref_se = None
+        try:
+            built = c.build(width, height)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                sc = scene_mod.load_dict(built.scene)
+            info["warnings"] = sorted({str(w.message) for w in caught})
+            info["reference"] = {"analytic": "analytic", "zero": "exactly 0",
+                                 "mis": f"mis {cfg['reference_spp']} spp"}[built.reference]
+            info["note"] = built.note
+            info["cli_refuses"] = bool(sc.environment.is_black)
+            if built.expect_warning is not None:
+                info["expected_warning"] = built.expect_warning
+                info["warned"] = any(built.expect_warning in w for w in info["warnings"])
+            mask = np.ones((height, width), bool)
+            if built.reference == "analytic":
+                mask = floor_mask(sc, width, height, built.floor_half)
+                ref = np.broadcast_to(np.asarray(built.expected, np.float64), (height, width, 3))
+                info["expected"] = np.asarray(built.expected, float).tolist()
+            elif built.reference == "zero":
+                ref = np.zeros((height, width, 3))
+            else:
+                r = render(sc, spp=cfg["reference_spp"], strategy="mis", width=width, height=height,
+                           seed=REFERENCE_SEED, threads=threads)
+                ref, ref_se = np.asarray(r.image, np.float64), np.asarray(r.stderr, np.float64)
+                if not (np.all(np.isfinite(ref)) and np.all(np.isfinite(ref_se))):
+                    raise WavlightError("the mis reference holds NaN or Inf")
+            info["pixels_tested"] = int(mask.sum())
+            info["reference_mean"] = float(ref[mask].mean()) if mask.any() else 0.0
+        except Exception as e:  # a failing case must not stop the suite
+            info.update(status="failed", note=f"scene or reference failed: {described(e)}")
             for s in strats:
-                cell, stats = _run_cell(render, sc, name, s, cfg, width, height, ref, ref_se, mask, built, threads)
-                if missing_warning and cell["verdict"] != "failed":
-                    cell.update(verdict="failed", failure=f"expected a warning containing {built.expect_warning!r}")
-                cells.append(cell)
-                raw.append(stats)
-                step(f"{name}/{s}: {'failed' if cell['verdict'] == 'failed' else 'rendered'}")
+                cells.append(_cell(name, s, cfg, verdict="failed", failure=info["note"]))
+                raw.append(None)
+                step(f"{name}/{s}: no reference")
+            step(f"{name}: failed")
+            continue
+        step(f"{name}: reference ({info['reference']})")
+        missing_warning = built.expect_warning is not None and not info["warned"]
+        for s in strats:
+            cell, stats = _run_cell(render, sc, name, s, cfg, width, height, ref, ref_se, mask, built, threads)
+            if missing_warning and cell["verdict"] != "failed":
+                cell.update(verdict="failed", failure=f"expected a warning containing {built.expect_warning!r}")
+            cells.append(cell)
+            raw.append(stats)
+            step(f"{name}/{s}: {'failed' if cell['verdict'] == 'failed' else 'rendered'}")
 
     # thresholds from the number of cells tested, then verdicts
     tested = [i for i, st in enumerate(raw) if st is not None]

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from ..display import DISPLAY
 from ..options import FOV, HEIGHT, SEED, WIDTH, Option, markdown_table
 from .lighting import MAX_LEVELS, MAX_TERMS, PRIORITIES
 from .store import ENTRY_DTYPES, MAX_SPP, VARIES
@@ -86,7 +87,8 @@ FRAME = {o.key: o for o in (
     Option("scale", float, "Radiance scale.", default=1.0, lo=0.0, hi=1e30),
     Option("terms", int, "Lighting terms K kept.", default_doc="the bake's choice", lo=1, hi=BAKE["terms"].hi),
     Option("priority", str, "How the K terms are chosen.", default_doc="the bake's", values=PRIORITIES),
-    Option("turntable", int, "N frames of a full turn about +Y into the folder -o DIR (PNG; and an animated GIF).",
+    Option("turntable", int, "N frames of a full turn about +Y into the folder -o DIR (PNG; and an animated PNG, "
+           "and an MP4 with the extra video).",
            default_doc="none: one frame", lo=1, hi=3600, metavar="N"),
     Option("repeat", int, "Frames computed to time one (the median is reported).", default=5, lo=1, hi=1000),
     Option("spp", int, "The unbiased frame instead: N camera samples per pixel, directions from the product of "
@@ -108,7 +110,8 @@ FRAME = {o.key: o for o in (
     replace(WIDTH, help=_VIEW + "image width.", default=None, default_doc="the bake's"),
     replace(HEIGHT, help=_VIEW + "image height.", default=None, default_doc="the bake's"),
     Option("orbit", int, _VIEW + "N frames of an orbit of the eye about the target (about +Y) into the folder "
-           "-o DIR (PNG; and an animated GIF).", default_doc="none: one frame", lo=1, hi=3600, metavar="N"),
+           "-o DIR (PNG; and an animated PNG, and an MP4 with the extra video).", default_doc="none: one frame", lo=1,
+           hi=3600, metavar="N"),
     Option("refine", float, _VIEW + "a BRDF node's angular radius at most REFINE times its distance from the lobe "
            "plus the lobe's width, divided by g >= sqrt(share / MASS) (a power of two) where the node holds more "
            "than MASS of the transfer (smaller: more nodes, closer to the texels' sum).", default=0.6, lo=1e-4,
@@ -123,6 +126,7 @@ FRAME = {o.key: o for o in (
            lo=1, hi=16, metavar="S"),
     Option("tau", float, "A bake with --vary view, --mode pixel: the tolerance of the correction of the baked "
            "cosine to the face's (0: none).", default=0.1, lo=0.0, hi=100.0),
+    *DISPLAY,   # wavlight.display: the PNG frames' and the animations' exposure and tone curve
 )}
 
 # ----------------------------------------------------------------------------- the viewer

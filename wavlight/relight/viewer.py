@@ -1,18 +1,21 @@
 """The interactive viewer of a bake file (``wavlight view PATH``): a page served on
 127.0.0.1 with sliders for the rotation of the map, the exposure (logarithmic, in stops) and
-the lighting terms K, a choice among the maps given, the frame rate the page draws, and a
-"converge" control that refines the current lighting with the unbiased estimator.
+the lighting terms K, a choice of tone curve and among the maps given, the frame rate the page
+draws, and a "converge" control that refines the current lighting with the unbiased estimator.
 
     viewer = Viewer(wavlight.Transfer.load("bunny.wlt"), maps=["grace.hdr"])
     viewer.serve(port=0, ready=print)            # blocks; or start_background() / stop_background()
 
 One aiohttp ``web.Application``: ``GET /`` is the page (viewer.html, everything inline, with
-the state read from its URL, ``/?rotate_y=120&exposure=0.5&terms=256&env=1``, sanitised and
+the state read from its URL, ``/?rotate_y=120&exposure=0.5&terms=256&env=1`` (``&tonemap=aces``
+where the curve is not the default), sanitised and
 written into it), ``GET /ws`` a websocket. The page sends the state as JSON; the server
 answers with frames, one binary message each: a 4-byte little-endian length, a JSON header
 (the state used, the terms kept, timings) and the picture, JPEG (Pillow) or raw RGBA
 (``encoding=`` in the URL). A frame is the transfer's frame (:meth:`Transfer.frame_timed`)
-times 2^exposure, tone mapped to 8-bit sRGB in numpy (a lookup table of the sRGB curve).
+times 2^exposure through the tone curve (``tonemap``: :data:`wavlight.display.CURVES`, the
+curves of ``wavlight render --tonemap``), encoded to 8-bit sRGB in numpy (a lookup table of the
+sRGB curve, :func:`wavlight.display.encode8_lut`).
 
 Bad input: a URL or message value that is not a number, not finite or out
 of range is replaced by its default or clamped (:func:`sanitise`; an integer beyond the floats'
@@ -107,8 +110,8 @@ from importlib import resources
 import numpy as np
 from aiohttp import WSCloseCode, WSMsgType, web
 
+from ..display import TONEMAP, encode8_lut
 from ..errors import WavlightError, described, shown
-from ..imageio import srgb_encode
 from ..scene import load_scene, rotation
 from . import serving
 from .settings import OBJECT_FRAME_SPP, VIEWER
@@ -170,39 +173,28 @@ CAMERA_KEYS = ("azimuth", "elevation", "distance")
 #: the URL parameters of the factor each kind of bake holds fixed (its page has no control for them)
 HELD_FIXED = {"lighting": ("translate", *CAMERA_KEYS), "object": ("env", "terms", *CAMERA_KEYS),
               "view": ("rotate_y", "env", "terms", "translate")}
-#: sRGB lookup table: 8-bit values of the curve at LUT_SIZE evenly spaced linear values in [0, 1]
-LUT_SIZE = 1 << 14
-_LUT = (srgb_encode(np.linspace(0.0, 1.0, LUT_SIZE)) * 255.0 + 0.5).astype(np.uint8)
 _UNSET = object()
 _log = logging.getLogger("wavlight.viewer")
 
 
 # ----------------------------------------------------------------------------- pictures
-def tone_map(image: np.ndarray, exposure: float = 0.0, alpha: bool = False) -> np.ndarray:
+def tone_map(image: np.ndarray, exposure: float = 0.0, alpha: bool = False,
+             tonemap: str = TONEMAP.default) -> np.ndarray:
     """(H, W, 3) (or (H, W, 4) with ``alpha``: opaque) uint8 sRGB of the linear (H, W, 3) image
-    times 2^exposure, clamped to [0, 1]; NaN shows black and +Inf white. The sRGB curve through
-    :data:`_LUT` (within one 8-bit level of :func:`wavlight.imageio.srgb_encode`)."""
-    top = np.float32(LUT_SIZE - 1)
-    h, w = image.shape[:2]
-    x = np.empty((h, w, 4 if alpha else 3), np.float32)
-    if alpha:
-        x[..., 3] = top                    # the top of the table: 255
-    np.multiply(image, np.float32(2.0 ** exposure) * top, out=x[..., :3])
-    np.fmax(x, np.float32(0.0), out=x)     # fmax / fmin: NaN -> 0, +Inf -> the top
-    np.fmin(x, top, out=x)
-    x += np.float32(0.5)
-    return np.take(_LUT, x.astype(np.uint16))
+    times 2^exposure through the tone curve; NaN shows black and +Inf white
+    (:func:`wavlight.display.encode8_lut`: within one 8-bit level of the written PNGs)."""
+    return encode8_lut(image, exposure, tonemap, alpha)
 
 
-def encode(image: np.ndarray, exposure: float, encoding: str) -> bytes:
+def encode(image: np.ndarray, exposure: float, encoding: str, tonemap: str = TONEMAP.default) -> bytes:
     """The frame's picture as the page decodes it: JPEG (quality :data:`JPEG_QUALITY`) or raw
     RGBA rows (W x H x 4 bytes)."""
     if encoding == "raw":
-        return tone_map(image, exposure, alpha=True).tobytes()
+        return tone_map(image, exposure, alpha=True, tonemap=tonemap).tobytes()
     from PIL import Image
 
     out = io.BytesIO()
-    Image.fromarray(tone_map(image, exposure)).save(out, "JPEG", quality=JPEG_QUALITY)
+    Image.fromarray(tone_map(image, exposure, tonemap=tonemap)).save(out, "JPEG", quality=JPEG_QUALITY)
     return out.getvalue()
 
 
@@ -382,6 +374,15 @@ def _exposure(params, notes):
     return round(_clamped("exposure", _number("exposure", raw, 0.0, notes), *EXPOSURE_RANGE, notes, raw), 3)
 
 
+def _tonemap(params, notes):
+    """The tone curve, one of TONEMAP's values, the default where absent or unknown (a note)."""
+    raw = params.get("tonemap", TONEMAP.default)
+    if raw in TONEMAP.values:
+        return raw
+    notes.append(f"tonemap={shown(raw, 40)} is not one of {', '.join(TONEMAP.values)}: using {TONEMAP.default}")
+    return TONEMAP.default
+
+
 def _held_fixed(params, kind, notes):
     """A note for each parameter of the factor a bake of ``kind`` holds fixed (it is ignored)."""
     why = {"lighting": "this bake varies the lighting (the objects and the camera stay where they are)",
@@ -447,9 +448,10 @@ def _sanitise_object(params, limits: ObjectLimits):
     translate = _translation(get("translate"), limits, notes) if "translate" in params else list(limits.translate)
     rot = _angle("rotate_y", params, limits.rotate_y, notes)
     exposure = _exposure(params, notes)
+    tonemap = _tonemap(params, notes)
     _held_fixed(params, "object", notes)
     encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
-    return ({"translate": translate, "rotate_y": rot, "exposure": exposure, "encoding": encoding,
+    return ({"translate": translate, "rotate_y": rot, "exposure": exposure, "tonemap": tonemap, "encoding": encoding,
              "preview": preview, "converge": converge}, notes)
 
 
@@ -464,9 +466,11 @@ def _sanitise_view(params, limits: ViewLimits):
         else limits.distance
     dist = significant(_clamped("distance", dist, limits.distance_lo, limits.distance_hi, notes, get("distance")))
     exposure = _exposure(params, notes)
+    tonemap = _tonemap(params, notes)
     _held_fixed(params, "view", notes)
     encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
-    return ({"azimuth": az, "elevation": el, "distance": dist, "exposure": exposure, "encoding": encoding,
+    return ({"azimuth": az, "elevation": el, "distance": dist, "exposure": exposure, "tonemap": tonemap,
+             "encoding": encoding,
              "preview": preview, "converge": converge}, notes)
 
 
@@ -476,7 +480,8 @@ def sanitise(params, limits):
     that was replaced.
 
     rotate_y: degrees, wrapped into [0, 360), default the scene's; exposure: stops in
-    EXPOSURE_RANGE (clamped), default 0; terms: an integer in [1, max_terms] (clamped; a
+    EXPOSURE_RANGE (clamped), default 0; tonemap: one of TONEMAP's curves, else the default
+    (clamp); terms: an integer in [1, max_terms] (clamped; a
     fraction is rounded), default the bake's; env: an index of the maps, else 0 (the baked
     map); encoding: one of ENCODINGS, else the first; preview and converge: booleans (true only
     as JSON true or "1"/"true"; converge only where the estimator exists). A value that is not a
@@ -502,6 +507,7 @@ def sanitise(params, limits):
     get = params.get
     rot = _angle("rotate_y", params, limits.rotate_y, notes)
     exposure = _exposure(params, notes)
+    tonemap = _tonemap(params, notes)
     if "terms" in params:
         k = _number("terms", get("terms"), limits.terms, notes)
         if math.isfinite(k) and k != round(k):
@@ -519,7 +525,8 @@ def sanitise(params, limits):
             env = int(e)
     encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
     _held_fixed(params, "lighting", notes)
-    return ({"rotate_y": rot, "exposure": exposure, "terms": terms, "env": env, "encoding": encoding,
+    return ({"rotate_y": rot, "exposure": exposure, "tonemap": tonemap, "terms": terms, "env": env,
+             "encoding": encoding,
              "preview": preview, "converge": converge}, notes)
 
 
@@ -648,15 +655,15 @@ class Viewer:
         side = 1 << transfer.n_levels
         if self.views is not None:
             self.limits = self._view_limits()
-            self.state_keys = ("azimuth", "elevation", "distance", "exposure")
+            self.state_keys = ("azimuth", "elevation", "distance", "exposure", "tonemap")
         elif self.mover is None:
             self.limits = Limits(maps=len(self._maps), max_terms=side * side,
                                  rotate_y=transfer.scene_rotate_y % 360.0,
                                  terms=min(transfer.terms, side * side), converge=self.converge is not None)
-            self.state_keys = ("rotate_y", "exposure", "terms", "env")
+            self.state_keys = ("rotate_y", "exposure", "tonemap", "terms", "env")
         else:
             self.limits = self._object_limits()
-            self.state_keys = ("translate", "rotate_y", "exposure")
+            self.state_keys = ("translate", "rotate_y", "exposure", "tonemap")
         self._page = resources.files(__package__).joinpath("viewer.html").read_text(encoding="utf-8")
         self._pool = None       # the one thread that computes frames
         self._converge_pool = None   # the one thread that runs converge calls
@@ -771,7 +778,8 @@ class Viewer:
                     "default_azimuth": lim.azimuth, "default_elevation": lim.elevation,
                     "default_distance": lim.distance, "distance_min": lim.distance_lo,
                     "distance_max": lim.distance_hi, "elevation_limit": ELEVATION_LIMIT,
-                    "exposure_range": list(EXPOSURE_RANGE), "encodings": list(ENCODINGS),
+                    "exposure_range": list(EXPOSURE_RANGE), "tonemaps": list(TONEMAP.values),
+                    "encodings": list(ENCODINGS),
                     "width": t.width, "height": t.height, "preview_width": pw, "preview_height": ph,
                     "converge": self.converge is not None,
                     "converge_note": None if self.converge is not None else "no estimator given to this viewer",
@@ -783,13 +791,15 @@ class Viewer:
                     "object": obj.name if obj.name else f"object {obj.index}",
                     "translate_min": list(lim.lo), "translate_max": list(lim.hi), "translate_step": lim.step,
                     "default_translate": list(lim.translate), "default_rotate_y": lim.rotate_y,
-                    "exposure_range": list(EXPOSURE_RANGE), "encodings": list(ENCODINGS),
+                    "exposure_range": list(EXPOSURE_RANGE), "tonemaps": list(TONEMAP.values),
+                    "encodings": list(ENCODINGS),
                     "width": t.width, "height": t.height, "converge": self.converge is not None,
                     "converge_note": None if self.converge is not None else "no estimator given to this viewer",
                     "window": WINDOW, "frame_spp": OBJECT_FRAME_SPP, "preview_spp": OBJECT_PREVIEW_SPP}
         return {"vary": "lighting", "state": state, "notes": notes, "maps": [name for name, _ in self._maps],
                 "max_terms": self.limits.max_terms, "default_terms": self.limits.terms,
-                "exposure_range": list(EXPOSURE_RANGE), "encodings": list(ENCODINGS),
+                "exposure_range": list(EXPOSURE_RANGE), "tonemaps": list(TONEMAP.values),
+                "encodings": list(ENCODINGS),
                 "width": t.width, "height": t.height, "texels": f"{1 << t.n_levels}x{1 << t.n_levels}",
                 "converge": self.converge is not None,
                 "converge_note": None if self.converge is not None else
@@ -889,7 +899,7 @@ class Viewer:
         return preview_terms(state["terms"]) if state["preview"] else state["terms"]
 
     def frame_key(self, state, detail):
-        """What a frame depends on besides the exposure and encoding."""
+        """What a frame depends on besides the exposure, the tone curve and the encoding."""
         if self.views is not None:
             return (state["azimuth"], state["elevation"], state["distance"], detail)
         if self.mover is not None:
@@ -1095,7 +1105,7 @@ class _Client:
         self.wake = asyncio.Event()
         self.acked = asyncio.Event()
         self.sent = self.drawn = 0
-        self.shown = None           # (key, exposure, encoding) of the last frame sent
+        self.shown = None           # (key, exposure, tonemap, encoding) of the last frame sent
         self.sending = None         # the task encoding and sending the last frame
         self.linear = self.stats = None
         self.last_heard = time.monotonic()
@@ -1193,7 +1203,8 @@ class _Client:
             seq = self.sent
         loop = asyncio.get_running_loop()
         t0 = time.perf_counter()
-        payload = await loop.run_in_executor(None, encode, image, state["exposure"], state["encoding"])
+        payload = await loop.run_in_executor(None, encode, image, state["exposure"], state["encoding"],
+                                             state["tonemap"])
         h, w = image.shape[:2]
         header = {"type": "frame", "seq": seq, "width": w, "height": h, "encoding": state["encoding"],
                   "state": {k: state[k] for k in self.viewer.state_keys},
@@ -1243,7 +1254,7 @@ class _Client:
             return await self._flush() and await self._converge(state)
         detail = self.viewer.detail(state)
         key = self.viewer.frame_key(state, detail)
-        if self.shown == (key, state["exposure"], state["encoding"]):
+        if self.shown == (key, state["exposure"], state["tonemap"], state["encoding"]):
             return True
         if self.shown is None or self.shown[0] != key:
             self.shown = None
@@ -1254,7 +1265,7 @@ class _Client:
             return False
         self.sent += 1
         self.sending = asyncio.ensure_future(self.send_frame(self.linear, state, self.stats, seq=self.sent))
-        self.shown = (key, state["exposure"], state["encoding"])
+        self.shown = (key, state["exposure"], state["tonemap"], state["encoding"])
         return True
 
     async def _converge(self, state):
@@ -1288,7 +1299,7 @@ class _Client:
                     if not same(self.state):          # the lighting changed: the call's result is dropped
                         self.wake.set()
                         return True
-                    state = self.state                   # the exposure (or encoding) changed: the mean again
+                    state = self.state                   # the exposure (tone curve, encoding) changed: the mean again
                     if acc is not None:
                         await self._window()
                         if not await self.send_frame((acc / total).astype(np.float32), state,
