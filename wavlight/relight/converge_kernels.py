@@ -1,0 +1,150 @@
+"""The unbiased relit frame on the OpenCL device (kernels/converge.cl): the lighting's tables,
+each tile's product trees T1 x L (eq. 17-25) and the shading of its camera samples (eq. 12 with
+the mixture of :mod:`wavlight.relight.converge`).
+
+:class:`Lighting` holds one frame lighting's tables on the device (the lighting inside the
+texels, :meth:`wavlight.relight.converge._TexelLight.tables`). :class:`TreeKernel` builds a
+tile's trees from the bake file's quantized entries, read where they are mapped
+(:class:`wavlight.relight.frame.DeviceEntries`): the coefficients never pass through the host.
+:class:`ShadeKernel` shades a pass of a tile's camera samples: the host traces the camera rays
+before it and the shadow rays after it (embree), as :mod:`wavlight.integrator` does. Their numpy
+twins are :func:`wavlight.relight.converge.tile_trees_reference` and
+:func:`wavlight.relight.converge.shade_reference`.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .. import cl, raytrace, rng
+from ..haar.tree import tree_stride
+from ..raytrace import RayTracer
+
+#: a tile's pixels are eight to a work-item of converge_trees, in block rows of this many pixels
+BLOCK_SIDE = 16
+_WARMED = set()
+
+
+class TileTrees(NamedTuple):
+    """A tile's product trees on the device: P trees tree_stride(m) floats apart (node 0 at
+    TREE_ORIGIN, Morton levels: the layout of :class:`wavlight.haar.HaarTree`), and the pixels'
+    relit values G (P, 4) float32 (r, g, b, 0)."""
+
+    buffer: object
+    relit: object
+    pixels: int
+    levels: int
+
+    @property
+    def nbytes(self) -> int:
+        return 4 * self.pixels * (tree_stride(self.levels) + 4)
+
+
+class Lighting:
+    """One lighting's tables on the device (``tables``: :meth:`_TexelLight.tables`)."""
+
+    def __init__(self, tables: dict):
+        self.levels, self.top, self.kbits = int(tables["levels"]), int(tables["top"]), int(tables["kbits"])
+        self.map_w = int(tables["map_width"])
+        self.buffers = {name: cl.to_device(np.ascontiguousarray(tables[name])) for name in
+                        ("leaf_cdf", "texel_cdf", "columns", "rows", "map", "leaf_masses", "radiance", "omega")}
+
+    def light_args(self) -> tuple:
+        """The kernels' LIGHT_ARGS."""
+        b = self.buffers
+        return (b["leaf_cdf"], b["texel_cdf"], b["columns"], b["rows"], b["map"], np.uint32(self.map_w),
+                np.uint32(self.top), np.uint32(self.kbits))
+
+
+def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool):
+    """kernels/converge.cl built for product trees of ``levels`` levels, entries of ``bits`` bits,
+    the material kinds ``kinds`` (bit mask), ``slots`` directions per camera sample,
+    ``candidates`` resampled ones (0: none) and the control variate or not (memoised per
+    process, :func:`wavlight.cl.program`)."""
+    return cl.program("converge.cl", N_LEVELS=int(levels), QBITS=int(bits), BSDF_KINDS=int(kinds) or 1,
+                      SLOTS=int(slots), CANDIDATES=int(candidates), CONTROL=int(bool(control)),
+                      OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))))
+
+
+class TreeKernel:
+    """converge_trees for one bake: its entries on the device, the pixels' hit scales."""
+
+    def __init__(self, entries, hit_scale: np.ndarray, bake_levels: int, blocks_w: int, image_w: int):
+        self.entries, self.bake_levels, self.blocks_w, self.image_w = entries, int(bake_levels), int(blocks_w), int(image_w)
+        self.hit_scale = cl.to_device(np.ascontiguousarray(hit_scale, np.float32))
+
+    def __call__(self, prog, lighting: Lighting, tile, queue=None) -> TileTrees:
+        """The trees of ``tile`` (a :class:`wavlight.relight.converge.Tile`) under ``lighting``."""
+        queue = queue or cl.thread_queue()
+        m = lighting.levels
+        stride = tree_stride(m)
+        P = tile.w * tile.h
+        out = cl.empty(4 * P * stride)
+        relit = cl.empty(16 * P)
+        e = self.entries
+        hs = np.float32(float(1 << m) * 4.0 ** (self.bake_levels - m))
+        cl.kernel(prog, "converge_trees")(
+            queue, (-(-2 * BLOCK_SIDE * tile.blocks // cl.WORK_GROUP) * cl.WORK_GROUP,), (cl.WORK_GROUP,),
+            e.offsets[0], e.scale[0], e.data[0], np.uint32(self.bake_levels), np.uint32(e.n_blocks),
+            np.uint32(self.blocks_w), np.uint32(tile.block_row), np.uint32(tile.bx0), np.uint32(tile.x0),
+            np.uint32(tile.y0), np.uint32(tile.w), np.uint32(tile.h), np.uint32(self.image_w), self.hit_scale, hs,
+            lighting.buffers["leaf_masses"], lighting.buffers["radiance"], np.uint32(stride), out, relit)
+        return TileTrees(out, relit, P, m)
+
+
+class ShadeKernel:
+    """converge_shade for one scene: its face normals (and shadow-ray offset floors), materials,
+    their albedos and lobe widths on the device."""
+
+    def __init__(self, scene, tracer: RayTracer, lobe_width: np.ndarray):
+        rows = np.zeros((max(len(tracer.face_normals), 1), 4), np.float32)
+        rows[:len(tracer.face_normals), :3] = tracer.face_normals
+        rows[:len(tracer.face_normals), 3] = tracer.face_offset_floor
+        materials = scene.face_material if len(scene.face_material) else np.zeros(1, np.int32)
+        albedo = np.zeros((len(scene.materials), 4), np.float32)
+        albedo[:, :3] = scene.material_albedo
+        self.eye = np.asarray(scene.camera.eye, np.float32)
+        self.eye_offset = RayTracer.eye_offset_floor(scene.camera.eye)
+        self.tables = (cl.to_device(rows), cl.to_device(np.asarray(materials, np.int32)),
+                       cl.to_device(scene.material_kind.astype(np.int32)),
+                       cl.to_device(scene.material_param.astype(np.float32)), cl.to_device(albedo),
+                       cl.to_device(np.asarray(lobe_width, np.float32)))
+        self.kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
+
+    def __call__(self, prog, slots: int, d, prim, t, k: int, first: int, trees: TileTrees, spread, lighting: Lighting,
+                  shares, seed: int, tile: int, queue=None):
+        """One pass of a tile: camera rays along d (N, 3) from the eye that hit prim (N,) (-1: a miss)
+        at t (N,), k samples per pixel, pixel-major, the pass's first sample index ``first`` of
+        the tile (``tile``: its Philox tile). ``spread`` the tile pixels' footprint spreads on
+        the device, ``shares`` (defensive, light, coherence). Returns float32 direct (N, 3),
+        origin (N, 3), wi (S, 3, N) and value (S, 3, N) (planes: slot, component, sample)."""
+        queue = queue or cl.thread_queue()
+        count = len(d)
+        S = int(slots)
+        out = cl.scratch("converge_out", 4 * (6 + 6 * S) * max(count, 1))
+        if count:
+            defensive, light, coherence = shares
+            cl.kernel(prog, "converge_shade")(
+                queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(k),
+                np.uint32(first), cl.upload("converge_dirs", np.asarray(d, np.float32), queue),
+                cl.upload("converge_prim", np.asarray(prim, np.int32), queue),
+                cl.upload("converge_t", np.asarray(t, np.float32), queue), *self.eye, self.eye_offset, *self.tables,
+                trees.buffer, np.uint32(tree_stride(trees.levels)), trees.relit, spread,
+                lighting.buffers["leaf_masses"], lighting.buffers["omega"], *lighting.light_args(),
+                np.float32(defensive), np.float32(light), np.float32(coherence), np.uint32(tile),
+                np.uint32(rng.CONVERGE_DIRECTIONS[0]), *(np.uint32(x) for x in rng.key(seed)), out)
+        planes = cl.read(out, (6 + 6 * S, count), np.float32, queue)
+        return (planes[:3].T, planes[3:6].T, planes[6:6 + 3 * S].reshape(S, 3, count),
+                planes[6 + 3 * S:].reshape(S, 3, count))
+
+    def warm_up(self, prog, slots, trees: TileTrees, spread, lighting: Lighting, shares):
+        """A tiny and a large launch (PoCL compiles per work-group size and again for large grids:
+        wavlight.shading.KernelShader.warm_up), once per process and program, on rays that miss."""
+        if prog in _WARMED:
+            return
+        for count in (1, 1 << 16):
+            d = np.tile(np.float32([0.0, 0.0, 1.0]), (count, 1))
+            self(prog, slots, d, np.full(count, -1, np.int32), np.ones(count, np.float32), count, 0, trees, spread,
+                 lighting, shares, 0, 0)
+        _WARMED.add(prog)
