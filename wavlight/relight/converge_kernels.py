@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import cl, raytrace, rng
-from ..haar.tree import tree_stride
+from ..haar.tree import TREE_ORIGIN, host_order, tree_size, tree_stride
 from ..raytrace import RayTracer
 
 #: a tile's pixels are eight to a work-item of converge_trees, in block rows of this many pixels
@@ -39,6 +39,15 @@ class TileTrees(NamedTuple):
     @property
     def nbytes(self) -> int:
         return 4 * self.pixels * (tree_stride(self.levels) + 4)
+
+    def read(self, queue=None):
+        """The trees on the host: pyramids (P, tree_size(m)) float32 (row-major levels, as
+        :func:`wavlight.relight.converge.tile_trees_reference` gives them) and G (P, 3)."""
+        queue = queue or cl.thread_queue()
+        m = self.levels
+        raw = cl.read(self.buffer, (self.pixels, tree_stride(m)), np.float32, queue)
+        relit = cl.read(self.relit, (self.pixels, 4), np.float32, queue)
+        return host_order(raw[:, TREE_ORIGIN:TREE_ORIGIN + tree_size(m)], m), relit[:, :3]
 
 
 class Lighting:
