@@ -15,9 +15,9 @@
  * wavelets), summed bottom up into the pyramid the warp walks (eq. 17, parent = sum of its
  * children in float32: kernels/warp.h). The same pass gives the pixel's relit value
  * G = sum over t with gl_t > 0 of H+_t R_t (R_t the texel's mean radiance), the control
- * variate's integral. The tree is built in place in its slot of the output: level l's scaling
- * coefficients, in Morton order, give level l + 1's (children 4k .. 4k + 3 of node k), then the
- * leaves become masses and the levels above their sums. Eight pixels of one block row per
+ * variate's integral. Level l's scaling coefficients, in Morton order, give level l + 1's
+ * (children 4k .. 4k + 3 of node k) in private memory; the leaves are written as they come, and
+ * the levels above them as their sums, each node once. Eight pixels of one block row per
  * work-item (lanes): their entries are eight adjacent values of each entry row, and their
  * offsets one row of the table for all lanes.
  *
@@ -122,24 +122,14 @@ INLINE uint compact_bits(uint v)
     return v;
 }
 
-/* One per lane: the store of a level's four children of node k (Morton: 4k .. 4k + 3). */
-INLINE void store_children(__global float *tree, const uintv at, const realv c0, const realv c1, const realv c2,
-                           const realv c3, const uint live)
-{
-    for (uint j = 0; j < live; ++j) {
-        __global float *p = tree + at[j];
-        p[0] = c0[j];
-        p[1] = c1[j];
-        p[2] = c2[j];
-        p[3] = c3[j];
-    }
-}
-
 /* Global size: 2 x (the tile's blocks) x BLOCK_SIDE work-items of LANES = 8 pixels; the tile is
  * the w x h pixels at (x0, y0) of the image (width image_w), its blocks those of block row
  * block_row from block column bx0; tree p = (y - y0) w + (x - x0) at out + p tree_stride
  * (node 0 at TREE_ORIGIN), its G at relit + 4 p. gl and radiance: the lighting's leaf masses
- * and mean radiance (r, g, b, pad) of the 4^m texels in Morton order. hs = 2^m 4^(n - m). */
+ * and mean radiance (r, g, b, pad) of the 4^m texels in Morton order. hs = 2^m 4^(n - m).
+ * The levels above the leaves live in private memory, eight trees to a vector (node[] holds a
+ * level's scaling coefficients top down, then its masses bottom up: each node's value is
+ * written to the trees once). */
 __kernel void converge_trees(__global const int *offsets, __global const float *scale, __global const QTYPE *data,
                              const uint bake_levels, const uint n_blocks, const uint blocks_w, const uint block_row,
                              const uint bx0, const uint x0, const uint y0, const uint w, const uint h,
@@ -160,55 +150,77 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
     __global float *tree = out + TREE_ORIGIN;
     const uintv lane_x = min(LANE_IDS, (uintv)(live - 1u)) + xx0;   /* the last live lane repeats beyond w */
     const uintv tb = (yy * w + lane_x) * tree_stride;
-    /* level 0: the scaling coefficient */
-    {
-        const realv a = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, 0u, 0u);
-        for (uint l = 0; l < live; ++l) tree[tb[l]] = a[l];
-    }
-    /* levels 1 .. m: four children from the node's scaling coefficient and wavelets (eq. 13) */
-    for (int l = 0; l < N_LEVELS; ++l) {
-        const uint s = 1u << l;
+    realv node[LEVEL_OFFSET(N_LEVELS) > 0 ? LEVEL_OFFSET(N_LEVELS) : 1];
+    /* levels 0 .. m - 1: the scaling coefficients, four children from a node's and its three
+     * wavelets (eq. 13) */
+    node[0] = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, 0u, 0u);
+    for (int l = 0; l + 1 < N_LEVELS; ++l) {
+        const uint s = 1u << l, at = (uint)LEVEL_OFFSET(l), below = (uint)LEVEL_OFFSET(l + 1);
         for (uint k = 0; k < s * s; ++k) {
             const uint x = compact_bits(k), y = compact_bits(k >> 1);
-            const realv a = GATHER(tree, tb + (uint)LEVEL_OFFSET(l) + k);
+            const realv a = node[at + k];
             const realv d1 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, y, s + x);
             const realv d2 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, s + y, x);
             const realv d3 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, s + y, s + x);
-            store_children(tree, tb + (uint)LEVEL_OFFSET(l + 1) + 4 * k, 0.5f * ((a + d1) + (d2 + d3)),
-                           0.5f * ((a - d1) + (d2 - d3)), 0.5f * ((a + d1) - (d2 + d3)),
-                           0.5f * ((a - d1) - (d2 - d3)), live);
+            node[below + 4 * k] = 0.5f * ((a + d1) + (d2 + d3));
+            node[below + 4 * k + 1] = 0.5f * ((a - d1) + (d2 - d3));
+            node[below + 4 * k + 2] = 0.5f * ((a + d1) - (d2 + d3));
+            node[below + 4 * k + 3] = 0.5f * ((a - d1) - (d2 - d3));
         }
     }
-    /* the leaves: gl_t H+_t, and G */
+    /* the leaves: the texel values H, gl_t H+_t written, G summed, and their parents' masses */
     const realv c = GATHER(hit_scale, (y0 + yy) * image_w + x0 + lane_x) * hs;
     realv gr = 0.0f, gg = 0.0f, gb = 0.0f;
-    const uint leaf0 = (uint)LEVEL_OFFSET(N_LEVELS);
-    for (uint k = 0; k < (1u << (2 * N_LEVELS)); ++k) {
-        const realv hv = fmax(GATHER(tree, tb + leaf0 + k) * c, 0.0f);
-        const float g = gl[k];
-        if (g > 0.0f) {
-            gr += hv * radiance[4 * k];
-            gg += hv * radiance[4 * k + 1];
-            gb += hv * radiance[4 * k + 2];
-        }
-        const realv v = g * hv;
-        for (uint l = 0; l < live; ++l) tree[tb[l] + leaf0 + k] = v[l];
-    }
-    /* the levels above: parent = (c0 + c1) + (c2 + c3), in the order of tree_reduce */
-    for (int l = N_LEVELS - 1; l >= 0; --l) {
-        const uint s = 1u << l;
+    {
+        const int l = N_LEVELS - 1;
+        const uint s = 1u << l, at = (uint)LEVEL_OFFSET(l), leaf0 = (uint)LEVEL_OFFSET(N_LEVELS);
         for (uint k = 0; k < s * s; ++k) {
-            realv c0, c1, c2, c3;
-            GATHER4(tree, tb + (uint)LEVEL_OFFSET(l + 1) + 4 * k, &c0, &c1, &c2, &c3);
-            const realv v = (c0 + c1) + (c2 + c3);
-            for (uint q = 0; q < live; ++q) tree[tb[q] + (uint)LEVEL_OFFSET(l) + k] = v[q];
+            const uint x = compact_bits(k), y = compact_bits(k >> 1);
+            const realv a = node[at + k];
+            const realv d1 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, y, s + x);
+            const realv d2 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, s + y, x);
+            const realv d3 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, s + y, s + x);
+            realv v[4];
+            v[0] = 0.5f * ((a + d1) + (d2 + d3));
+            v[1] = 0.5f * ((a - d1) + (d2 - d3));
+            v[2] = 0.5f * ((a + d1) - (d2 + d3));
+            v[3] = 0.5f * ((a - d1) - (d2 - d3));
+            for (int q = 0; q < 4; ++q) {
+                const uint t = 4 * k + q;
+                const realv hv = fmax(v[q] * c, 0.0f);
+                const float g = gl[t];
+                if (g > 0.0f) {
+                    gr += hv * radiance[4 * t];
+                    gg += hv * radiance[4 * t + 1];
+                    gb += hv * radiance[4 * t + 2];
+                }
+                v[q] = g * hv;
+            }
+            for (uint q = 0; q < live; ++q) {
+                __global float *p = tree + tb[q] + leaf0 + 4 * k;
+                p[0] = v[0][q];
+                p[1] = v[1][q];
+                p[2] = v[2][q];
+                p[3] = v[3][q];
+            }
+            node[at + k] = (v[0] + v[1]) + (v[2] + v[3]);   /* in the order of tree_reduce */
         }
     }
-    for (uint l = 0; l < live; ++l) {
-        __global float *g = relit + 4 * (yy * w + xx0 + l);
-        g[0] = gr[l];
-        g[1] = gg[l];
-        g[2] = gb[l];
+    /* the levels above: parent = (c0 + c1) + (c2 + c3) */
+    for (int l = N_LEVELS - 2; l >= 0; --l) {
+        const uint s = 1u << l, at = (uint)LEVEL_OFFSET(l), below = (uint)LEVEL_OFFSET(l + 1);
+        for (uint k = 0; k < s * s; ++k)
+            node[at + k] = (node[below + 4 * k] + node[below + 4 * k + 1])
+                           + (node[below + 4 * k + 2] + node[below + 4 * k + 3]);
+    }
+    for (uint q = 0; q < live; ++q) {
+        __global float *p = tree + tb[q];
+        for (uint i = 0; i < (uint)LEVEL_OFFSET(N_LEVELS); ++i)
+            p[i] = node[i][q];
+        __global float *g = relit + 4 * (yy * w + xx0 + q);
+        g[0] = gr[q];
+        g[1] = gg[q];
+        g[2] = gb[q];
         g[3] = 0.0f;
     }
 }

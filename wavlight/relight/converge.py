@@ -468,8 +468,12 @@ class ConvergeFrames:
                               + (", resampled where the pixel's footprint is wider than the lobe" if candidates else "")}
         return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
 
+    def release_lighting(self):
+        """Drop the current lighting's tables and kept trees: the next frame makes them anew."""
+        self._lighting = None
+
     def close(self):
-        """Release the device memory of the kept trees and tables."""
+        """Release the device memory of the kept trees, tables and footprints."""
         self._lighting = None
         self._spread = {}
 
