@@ -99,18 +99,6 @@ INLINE realv load_entries(__global const QTYPE *q)
 #endif
 }
 
-/* Coefficient (row, col) of the bake's 2^n x 2^n layout for the lanes' pixels of block b, whose
- * entry row starts at pixel pix0: q scale (0 where the block keeps no entry of it). */
-INLINE realv coefficient(__global const int *offsets, __global const float *scale, __global const QTYPE *data,
-                         const uint bake_side, const uint n_blocks, const uint b, const uint pix0, const uint row,
-                         const uint col)
-{
-    const int o = offsets[(size_t)(row * bake_side + col) * n_blocks + b];
-    if (o < 0)
-        return (realv)0.0f;
-    return load_entries(data + (size_t)o * BLOCK_PIXELS + pix0) * scale[o];
-}
-
 /* Bits 0, 2, 4, .. of v packed into bits 0, 1, 2, .. (the inverse of SPREAD_BITS_INTO). */
 INLINE uint compact_bits(uint v)
 {
@@ -122,20 +110,48 @@ INLINE uint compact_bits(uint v)
     return v;
 }
 
+/* Coefficient (row, col) of the 2^m x 2^m layout (m = N_LEVELS: the top-left block of the bake's)
+ * for the lanes' pixels, whose entry rows start at pixel pix0: q scale, 0 where the block keeps
+ * no entry of it; block_offsets: the block's row of the offset table, coefficient-major. */
+INLINE realv coefficient(__global const int *block_offsets, __global const float *scale, __global const QTYPE *data,
+                         const uint pix0, const uint row, const uint col)
+{
+    const int o = block_offsets[(row << N_LEVELS) + col];
+    if (o < 0)
+        return (realv)0.0f;
+    return load_entries(data + (size_t)o * BLOCK_PIXELS + pix0) * scale[o];
+}
+
+/* The four children (Morton order) of a node of scaling coefficient a at level l, node k: eq. 13
+ * with its three wavelets. */
+INLINE void children(__global const int *block_offsets, __global const float *scale, __global const QTYPE *data,
+                     const uint pix0, const int l, const uint k, const realv a, realv v[4])
+{
+    const uint s = 1u << l, x = compact_bits(k), y = compact_bits(k >> 1);
+    const realv d1 = coefficient(block_offsets, scale, data, pix0, y, s + x);
+    const realv d2 = coefficient(block_offsets, scale, data, pix0, s + y, x);
+    const realv d3 = coefficient(block_offsets, scale, data, pix0, s + y, s + x);
+    v[0] = 0.5f * ((a + d1) + (d2 + d3));
+    v[1] = 0.5f * ((a - d1) + (d2 - d3));
+    v[2] = 0.5f * ((a + d1) - (d2 + d3));
+    v[3] = 0.5f * ((a - d1) - (d2 - d3));
+}
+
 /* Global size: 2 x (the tile's blocks) x BLOCK_SIDE work-items of LANES = 8 pixels; the tile is
  * the w x h pixels at (x0, y0) of the image (width image_w), its blocks those of block row
  * block_row from block column bx0; tree p = (y - y0) w + (x - x0) at out + p tree_stride
- * (node 0 at TREE_ORIGIN), its G at relit + 4 p. gl and radiance: the lighting's leaf masses
- * and mean radiance (r, g, b, pad) of the 4^m texels in Morton order. hs = 2^m 4^(n - m).
- * The levels above the leaves live in private memory, eight trees to a vector (node[] holds a
- * level's scaling coefficients top down, then its masses bottom up: each node's value is
- * written to the trees once). */
+ * (node 0 at TREE_ORIGIN), its G at relit + 4 p. offsets: per block its row of the offset table
+ * over the 4^m coefficients of the 2^m x 2^m layout (block-major: one block's lookups share
+ * cache lines). gl and radiance: the lighting's leaf masses and mean radiance (r, g, b, pad) of
+ * the 4^m texels in Morton order. hs = 2^m 4^(n - m). The levels above the last two live in
+ * private memory, eight trees to a vector (node[] holds a level's scaling coefficients top
+ * down, then its masses bottom up); the last two levels are made sixteen leaves at a time
+ * from their level m - 2 node, written as they come: each node is written to the trees once. */
 __kernel void converge_trees(__global const int *offsets, __global const float *scale, __global const QTYPE *data,
-                             const uint bake_levels, const uint n_blocks, const uint blocks_w, const uint block_row,
-                             const uint bx0, const uint x0, const uint y0, const uint w, const uint h,
-                             const uint image_w, __global const float *hit_scale, const float hs,
-                             __global const float *gl, __global const float *radiance, const uint tree_stride,
-                             __global float *out, __global float *relit)
+                             const uint blocks_w, const uint block_row, const uint bx0, const uint x0, const uint y0,
+                             const uint w, const uint h, const uint image_w, __global const float *hit_scale,
+                             const float hs, __global const float *gl, __global const float *radiance,
+                             const uint tree_stride, __global float *out, __global float *relit)
 {
 #if LANES != 8
 #error "converge_trees takes eight pixels of a block row per work-item (LANES 8)"
@@ -145,48 +161,40 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
     const uint xx0 = j * BLOCK_SIDE + part * LANES;   /* the first lane's column in the tile */
     if (yy >= h || xx0 >= w) return;
     const uint live = min((uint)LANES, w - xx0);
-    const uint b = block_row * blocks_w + bx0 + j, pix0 = yy * BLOCK_SIDE + part * LANES;
-    const uint bake_side = 1u << bake_levels;
+    const uint pix0 = yy * BLOCK_SIDE + part * LANES;
+    __global const int *bo = offsets + (size_t)(block_row * blocks_w + bx0 + j) * (1u << (2 * N_LEVELS));
     __global float *tree = out + TREE_ORIGIN;
     const uintv lane_x = min(LANE_IDS, (uintv)(live - 1u)) + xx0;   /* the last live lane repeats beyond w */
     const uintv tb = (yy * w + lane_x) * tree_stride;
-    realv node[LEVEL_OFFSET(N_LEVELS) > 0 ? LEVEL_OFFSET(N_LEVELS) : 1];
-    /* levels 0 .. m - 1: the scaling coefficients, four children from a node's and its three
-     * wavelets (eq. 13) */
-    node[0] = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, 0u, 0u);
-    for (int l = 0; l + 1 < N_LEVELS; ++l) {
-        const uint s = 1u << l, at = (uint)LEVEL_OFFSET(l), below = (uint)LEVEL_OFFSET(l + 1);
-        for (uint k = 0; k < s * s; ++k) {
-            const uint x = compact_bits(k), y = compact_bits(k >> 1);
-            const realv a = node[at + k];
-            const realv d1 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, y, s + x);
-            const realv d2 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, s + y, x);
-            const realv d3 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, s + y, s + x);
-            node[below + 4 * k] = 0.5f * ((a + d1) + (d2 + d3));
-            node[below + 4 * k + 1] = 0.5f * ((a - d1) + (d2 - d3));
-            node[below + 4 * k + 2] = 0.5f * ((a + d1) - (d2 + d3));
-            node[below + 4 * k + 3] = 0.5f * ((a - d1) - (d2 - d3));
-        }
-    }
-    /* the leaves: the texel values H, gl_t H+_t written, G summed, and their parents' masses */
     const realv c = GATHER(hit_scale, (y0 + yy) * image_w + x0 + lane_x) * hs;
     realv gr = 0.0f, gg = 0.0f, gb = 0.0f;
-    {
-        const int l = N_LEVELS - 1;
-        const uint s = 1u << l, at = (uint)LEVEL_OFFSET(l), leaf0 = (uint)LEVEL_OFFSET(N_LEVELS);
-        for (uint k = 0; k < s * s; ++k) {
-            const uint x = compact_bits(k), y = compact_bits(k >> 1);
-            const realv a = node[at + k];
-            const realv d1 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, y, s + x);
-            const realv d2 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, s + y, x);
-            const realv d3 = coefficient(offsets, scale, data, bake_side, n_blocks, b, pix0, s + y, s + x);
+#define TOP_LEVELS (N_LEVELS >= 2 ? N_LEVELS - 1 : 1)   /* levels 0 .. TOP_LEVELS - 1 in private memory */
+    realv node[LEVEL_OFFSET(TOP_LEVELS)];
+    /* levels 0 .. m - 2: the scaling coefficients */
+    node[0] = coefficient(bo, scale, data, pix0, 0u, 0u);
+    for (int l = 0; l + 1 < TOP_LEVELS; ++l) {
+        const uint at = (uint)LEVEL_OFFSET(l), below = (uint)LEVEL_OFFSET(l + 1);
+        for (uint k = 0; k < (1u << (2 * l)); ++k)
+            children(bo, scale, data, pix0, l, k, node[at + k], node + below + 4 * k);
+    }
+    /* level m - 1 (for m >= 2) and the leaves: gl_t H+_t written, G summed; the masses of
+     * level m - 1 written, those of level m - 2 kept */
+    const int l1 = TOP_LEVELS - 1;
+    const uint leaf0 = (uint)LEVEL_OFFSET(N_LEVELS);
+    for (uint k = 0; k < (1u << (2 * l1)); ++k) {
+        realv mid[4];
+        if (N_LEVELS >= 2) {
+            children(bo, scale, data, pix0, l1, k, node[(uint)LEVEL_OFFSET(l1) + k], mid);
+        } else {
+            mid[0] = node[0];
+        }
+        realv sum = 0.0f;
+        for (int q1 = 0; q1 < (N_LEVELS >= 2 ? 4 : 1); ++q1) {
+            const uint k1 = N_LEVELS >= 2 ? 4 * k + q1 : k;   /* the level m - 1 node */
             realv v[4];
-            v[0] = 0.5f * ((a + d1) + (d2 + d3));
-            v[1] = 0.5f * ((a - d1) + (d2 - d3));
-            v[2] = 0.5f * ((a + d1) - (d2 + d3));
-            v[3] = 0.5f * ((a - d1) - (d2 - d3));
+            children(bo, scale, data, pix0, N_LEVELS - 1, k1, mid[q1], v);
             for (int q = 0; q < 4; ++q) {
-                const uint t = 4 * k + q;
+                const uint t = 4 * k1 + q;
                 const realv hv = fmax(v[q] * c, 0.0f);
                 const float g = gl[t];
                 if (g > 0.0f) {
@@ -196,26 +204,30 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
                 }
                 v[q] = g * hv;
             }
+            const realv mass = (v[0] + v[1]) + (v[2] + v[3]);   /* in the order of tree_reduce */
             for (uint q = 0; q < live; ++q) {
-                __global float *p = tree + tb[q] + leaf0 + 4 * k;
-                p[0] = v[0][q];
-                p[1] = v[1][q];
-                p[2] = v[2][q];
-                p[3] = v[3][q];
+                __global float *p = tree + tb[q];
+                p[leaf0 + 4 * k1] = v[0][q];
+                p[leaf0 + 4 * k1 + 1] = v[1][q];
+                p[leaf0 + 4 * k1 + 2] = v[2][q];
+                p[leaf0 + 4 * k1 + 3] = v[3][q];
+                if (N_LEVELS >= 2)
+                    p[(uint)LEVEL_OFFSET(N_LEVELS - 1) + k1] = mass[q];
             }
-            node[at + k] = (v[0] + v[1]) + (v[2] + v[3]);   /* in the order of tree_reduce */
+            mid[q1] = mass;
         }
+        node[(uint)LEVEL_OFFSET(l1) + k] = N_LEVELS >= 2 ? (mid[0] + mid[1]) + (mid[2] + mid[3]) : mid[0];
     }
     /* the levels above: parent = (c0 + c1) + (c2 + c3) */
-    for (int l = N_LEVELS - 2; l >= 0; --l) {
-        const uint s = 1u << l, at = (uint)LEVEL_OFFSET(l), below = (uint)LEVEL_OFFSET(l + 1);
-        for (uint k = 0; k < s * s; ++k)
+    for (int l = l1 - 1; l >= 0; --l) {
+        const uint at = (uint)LEVEL_OFFSET(l), below = (uint)LEVEL_OFFSET(l + 1);
+        for (uint k = 0; k < (1u << (2 * l)); ++k)
             node[at + k] = (node[below + 4 * k] + node[below + 4 * k + 1])
                            + (node[below + 4 * k + 2] + node[below + 4 * k + 3]);
     }
     for (uint q = 0; q < live; ++q) {
         __global float *p = tree + tb[q];
-        for (uint i = 0; i < (uint)LEVEL_OFFSET(N_LEVELS); ++i)
+        for (uint i = 0; i < (uint)LEVEL_OFFSET(TOP_LEVELS); ++i)
             p[i] = node[i][q];
         __global float *g = relit + 4 * (yy * w + xx0 + q);
         g[0] = gr[q];
@@ -223,6 +235,7 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
         g[2] = gb[q];
         g[3] = 0.0f;
     }
+#undef TOP_LEVELS
 }
 
 /* ----------------------------------------------------------------------------- the lighting */

@@ -296,8 +296,8 @@ class ConvergeFrames:
             device = cl.runtime().device
             self.tree_cache_bytes = min(TREE_CACHE_BYTES, int(device.global_mem_size) // 4)
             entries = DeviceEntries(transfer._s["offsets"], transfer._s["entry_scale"], transfer._s["entry_data"])
-            self._trees = kernels.TreeKernel(entries, self.hit_scale, transfer.n_levels, transfer.blocks[0],
-                                             transfer.width)
+            self._trees = kernels.TreeKernel(entries, transfer._s["offsets"], self.hit_scale, transfer.n_levels,
+                                             transfer.blocks[0], transfer.width)
             self._shade = kernels.ShadeKernel(sc, self.tracer, self.lobe_width)
             camera.warm_up(sc)
         else:

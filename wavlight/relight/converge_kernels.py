@@ -77,11 +77,27 @@ def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, con
 
 
 class TreeKernel:
-    """converge_trees for one bake: its entries on the device, the pixels' hit scales."""
+    """converge_trees for one bake: its entries on the device (``entries``, the quantized rows and
+    their scales), its offset table per block over the coefficients of each product level m
+    (made once per m), the pixels' hit scales."""
 
-    def __init__(self, entries, hit_scale: np.ndarray, bake_levels: int, blocks_w: int, image_w: int):
-        self.entries, self.bake_levels, self.blocks_w, self.image_w = entries, int(bake_levels), int(blocks_w), int(image_w)
+    def __init__(self, entries, offsets: np.ndarray, hit_scale: np.ndarray, bake_levels: int, blocks_w: int,
+                 image_w: int):
+        self.entries, self.offsets = entries, offsets
+        self.bake_levels, self.blocks_w, self.image_w = int(bake_levels), int(blocks_w), int(image_w)
         self.hit_scale = cl.to_device(np.ascontiguousarray(hit_scale, np.float32))
+        self._by_level = {}
+
+    def block_offsets(self, levels: int):
+        """The device's (blocks, 4^m) int32 table: block b's entry of coefficient (row, col) of the
+        2^m x 2^m layout (the top-left block of the bake's 2^n x 2^n) at b 4^m + row 2^m + col."""
+        buf = self._by_level.get(levels)
+        if buf is None:
+            side, n = 1 << levels, self.bake_levels
+            rows = (np.arange(side)[:, None] * (1 << n) + np.arange(side)[None, :]).reshape(-1)
+            table = np.ascontiguousarray(np.asarray(self.offsets[rows], np.int32).T)
+            buf = self._by_level[levels] = cl.to_device(table)
+        return buf
 
     def __call__(self, prog, lighting: Lighting, tile, queue=None) -> TileTrees:
         """The trees of ``tile`` (a :class:`wavlight.relight.converge.Tile`) under ``lighting``."""
@@ -95,10 +111,10 @@ class TreeKernel:
         hs = np.float32(float(1 << m) * 4.0 ** (self.bake_levels - m))
         cl.kernel(prog, "converge_trees")(
             queue, (-(-2 * BLOCK_SIDE * tile.blocks // cl.WORK_GROUP) * cl.WORK_GROUP,), (cl.WORK_GROUP,),
-            e.offsets[0], e.scale[0], e.data[0], np.uint32(self.bake_levels), np.uint32(e.n_blocks),
-            np.uint32(self.blocks_w), np.uint32(tile.block_row), np.uint32(tile.bx0), np.uint32(tile.x0),
-            np.uint32(tile.y0), np.uint32(tile.w), np.uint32(tile.h), np.uint32(self.image_w), self.hit_scale, hs,
-            lighting.buffers["leaf_masses"], lighting.buffers["radiance"], np.uint32(stride), out, relit)
+            self.block_offsets(m), e.scale[0], e.data[0], np.uint32(self.blocks_w), np.uint32(tile.block_row),
+            np.uint32(tile.bx0), np.uint32(tile.x0), np.uint32(tile.y0), np.uint32(tile.w), np.uint32(tile.h),
+            np.uint32(self.image_w), self.hit_scale, hs, lighting.buffers["leaf_masses"], lighting.buffers["radiance"],
+            np.uint32(stride), out, relit)
         return TileTrees(out, relit, P, m)
 
 
