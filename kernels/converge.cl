@@ -43,8 +43,7 @@
  * rays), stratified over the pixel's k x CANDIDATES, weights w = target / p with
  * target = Y(L) [(f cos)^0.6 T^0.4 + 0.05 f cos + 0.1 T] (T = H+_t / Omega_t), and picks SLOTS
  * of them by one systematic uniform, each estimated as albedo f cos L x (sum w / CANDIDATES) /
- * target / SLOTS (resampled importance sampling; the picks are recomputed from their uniforms,
- * so that only the weights are kept). Outputs as planes of count floats: direct r g b (a miss's
+ * target / SLOTS (resampled importance sampling). Outputs as planes of count floats: direct r g b (a miss's
  * radiance, a hit's control-variate part), origin x y z, then per slot the direction x y z,
  * then per slot the estimate r g b. Uniforms: Philox (rng.h) of tile `tile` at index
  * first + r: stream dir_stream + slot (rng.CONVERGE_DIRECTIONS), RNG_CONVERGE_PICK; the
@@ -240,15 +239,19 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
 
 /* ----------------------------------------------------------------------------- the lighting */
 /* The lighting inside the texels (wavlight.relight.converge._TexelLight.tables): leaf_cdf the
- * running sums of each texel's k x k leaf masses (texel-major, row-major inside), texel_cdf the
- * running sum of the texels' masses, columns (share of the first map column, first and second
+ * running sums of each texel's k x k leaf masses (texel-major, row-major inside), texel_total
+ * each texel's last running sum, leaf_guide per texel k^2 + 1 counts (entry g: how many of its
+ * running sums are <= (g / k^2) total: the leaf of a point fu of the texel lies between those of
+ * g = floor(fu k^2) and g + 1, so that a bisection there takes a step or two inside one cache
+ * line, not log2(k^2) steps across the texel's table), texel_cdf the running sum of the texels'
+ * masses, columns (share of the first map column, first and second
  * map column as uint bits, 0) per leaf column and rows (share of the first map row in v and in
  * solid angle, first and second map row) per leaf row, map (r, g, b, luminance) per map pixel;
  * 2^top leaves a side, k = 2^kbits per texel side. */
-#define LIGHT_ARGS __global const float *leaf_cdf, __global const float *texel_cdf, __global const float *columns, \
-                   __global const float *rows, __global const float *map, const uint map_w, const uint top,    \
-                   const uint kbits
-#define LIGHT leaf_cdf, texel_cdf, columns, rows, map, map_w, top, kbits
+#define LIGHT_ARGS __global const float *leaf_cdf, __global const float *texel_total, __global const uint *leaf_guide, \
+                   __global const float *texel_cdf, __global const float *columns, __global const float *rows,        \
+                   __global const float *map, const uint map_w, const uint top, const uint kbits
+#define LIGHT leaf_cdf, texel_total, leaf_guide, texel_cdf, columns, rows, map, map_w, top, kbits
 
 /* How many of the n non-decreasing entries cdf[row0 ..] are <= target, per lane. */
 INLINE uintv entries_at_most(__global const float *cdf, const uintv row0, const uint n, const realv target)
@@ -332,9 +335,20 @@ INLINE void place_in_texel(LIGHT_ARGS, const uintv col, const uintv row, const r
                            realv *v)
 {
     const uint side = 1u << N_LEVELS, k = 1u << kbits, kk = k * k;
-    const uintv row0 = (row * side + col) * kk;
-    const realv target = fu * GATHER(leaf_cdf, row0 + (kk - 1u));
-    const uintv leaf = min(entries_at_most(leaf_cdf, row0, kk, target), kk - 1u);
+    const uintv t = row * side + col, row0 = t * kk;
+    const realv target = fu * GATHER(texel_total, t);
+    /* how many running sums are <= target: between the guide's counts of fu's cell and the next */
+    const uintv g = t * (kk + 1u) + as_uintv(min(convert_intv(fu * (float)kk), (int)kk - 1));
+    uintv lo = GATHER_T(uintv, leaf_guide, g), hi = GATHER_T(uintv, leaf_guide, g + 1u);
+    intv active = lo < hi;
+    while (any(active)) {
+        const uintv mid = (lo + hi) >> 1;
+        const intv below = GATHER(leaf_cdf, row0 + min(mid, kk - 1u)) <= target;
+        lo = select(lo, mid + 1u, active & below);
+        hi = select(hi, mid, active & ~below);
+        active = lo < hi;
+    }
+    const uintv leaf = min(lo, kk - 1u);
     realv mass;
     const realv below = leaf_below(leaf_cdf, row0, leaf, &mass);
     const realv s = clamp(select(fu, (target - below) / mass, mass > 0.0f), 0.0f, ONE_MINUS_EPS);
@@ -359,7 +373,7 @@ INLINE realv light_at(LIGHT_ARGS, const realv au, const realv av, uintv *col, ui
     *col = a >> kbits;
     *row = b >> kbits;
     const uintv row0 = (*row * side + *col) * kk;
-    const realv total = GATHER(leaf_cdf, row0 + (kk - 1u));
+    const realv total = GATHER(texel_total, *row * side + *col);
     realv mass;
     leaf_below(leaf_cdf, row0, ((b & (k - 1u)) << kbits) + (a & (k - 1u)), &mass);
     const realv f = select((realv)0.0f, mass / total * (float)kk, total > 0.0f);
@@ -422,8 +436,8 @@ INLINE Direction mixture_direction(SAMPLE_ARGS, const Point *pt, const realv u0,
     uintv row = as_uintv(min(convert_intv(gv * (float)side), (int)side - 1));
     realv fu = gu * (float)side - convert_realv(col), fv = gv * (float)side - convert_realv(row);
     const intv use_b = u2 < pt->alpha;
-    if (light > 0.0f) {   /* the lighting's texel: u0 in the texels' running sum; (u1, u3) inside */
-        const intv use_l = ~use_b & (u2 < pt->alpha + light);
+    const intv use_l = ~use_b & (u2 < pt->alpha + light);
+    if (light > 0.0f && any(use_l)) {   /* the lighting's texel: u0 in the texels' running sum; (u1, u3) inside */
         const uint texels = side * side;
         const realv total = texel_cdf[texels - 1u];
         const uintv t = min(entries_at_most(texel_cdf, (uintv)0u, texels, u0 * total), texels - 1u);
@@ -607,7 +621,8 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
             philox4x32_10(first * CANDIDATES + pixel, (uintv)tile, (uintv)RNG_STRATA, (uintv)0u, k0, k1, &unused0,
                           &key1, &key2, &unused3);
             const uintv j0 = j_in_pixel * CANDIDATES;
-            realv weight[CANDIDATES];
+            realv weight[CANDIDATES], cx[CANDIDATES], cy[CANDIDATES], cz[CANDIDATES], cv[CANDIDATES];
+            realv cr[CANDIDATES], cg[CANDIDATES], cb[CANDIDATES];
             realv total = 0.0f;
             for (uint c = 0; c < CANDIDATES; ++c) {
                 const Direction d = candidate(SAMPLE, &pt, i, (uintv)c, j0, k, first, tile, k0, k1, key1, key2);
@@ -615,31 +630,44 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
                 const realv w = target / d.pdf;
                 weight[c] = select((realv)0.0f, w, (d.pdf > 0.0f) & isfinite(w));
                 total += weight[c];
+                /* what a pick's estimate needs: f cos / target, and the direction and radiance */
+                cx[c] = d.x;
+                cy[c] = d.y;
+                cz[c] = d.z;
+                cv[c] = select((realv)0.0f, d.fcos / target, target > 0.0f);
+                cr[c] = d.r;
+                cg[c] = d.g;
+                cb[c] = d.b;
             }
             realv up, unused1, unused2, unused4;
             rng_uniforms(first + i, tile, RNG_CONVERGE_PICK, k0, k1, &up, &unused1, &unused2, &unused4);
             for (int s = 0; s < SLOTS; ++s) {   /* the first candidate whose running sum passes (u + s) / SLOTS */
                 const realv at = (up + (float)s) * share * total;
-                realv cum = 0.0f;
-                uintv pick = CANDIDATES - 1u;
+                realv cum = 0.0f, px_ = cx[CANDIDATES - 1], py_ = cy[CANDIDATES - 1], pz_ = cz[CANDIDATES - 1];
+                realv pv = cv[CANDIDATES - 1], pr = cr[CANDIDATES - 1], pg = cg[CANDIDATES - 1];
+                realv pb = cb[CANDIDATES - 1];
                 intv found = 0;
                 for (uint c = 0; c < CANDIDATES; ++c) {
                     cum += weight[c];
                     const intv take = ~found & (cum > at);
-                    pick = select(pick, (uintv)c, take);
+                    px_ = select(px_, cx[c], take);
+                    py_ = select(py_, cy[c], take);
+                    pz_ = select(pz_, cz[c], take);
+                    pv = select(pv, cv[c], take);
+                    pr = select(pr, cr[c], take);
+                    pg = select(pg, cg[c], take);
+                    pb = select(pb, cb[c], take);
                     found |= take;
                 }
-                const Direction d = candidate(SAMPLE, &pt, i, pick, j0, k, first, tile, k0, k1, key1, key2);
-                const realv target = resampling_target(&d);
-                realv scale = select((realv)0.0f, total / (float)CANDIDATES / target * share, target > 0.0f);
-                scale = select((realv)0.0f, scale, resample & isfinite(scale));
-                const realv v = scale * d.fcos;
-                out_v[6 + 3 * s] = select(out_v[6 + 3 * s], d.x, resample);
-                out_v[7 + 3 * s] = select(out_v[7 + 3 * s], d.y, resample);
-                out_v[8 + 3 * s] = select(out_v[8 + 3 * s], d.z, resample);
-                out_v[6 + 3 * SLOTS + 3 * s] = select(out_v[6 + 3 * SLOTS + 3 * s], ar * v * d.r, resample);
-                out_v[7 + 3 * SLOTS + 3 * s] = select(out_v[7 + 3 * SLOTS + 3 * s], ag * v * d.g, resample);
-                out_v[8 + 3 * SLOTS + 3 * s] = select(out_v[8 + 3 * SLOTS + 3 * s], ab * v * d.b, resample);
+                /* f cos L / target x (sum w) / CANDIDATES / SLOTS */
+                realv v = pv * (total / (float)CANDIDATES * share);
+                v = select((realv)0.0f, v, resample & isfinite(v));
+                out_v[6 + 3 * s] = select(out_v[6 + 3 * s], px_, resample);
+                out_v[7 + 3 * s] = select(out_v[7 + 3 * s], py_, resample);
+                out_v[8 + 3 * s] = select(out_v[8 + 3 * s], pz_, resample);
+                out_v[6 + 3 * SLOTS + 3 * s] = select(out_v[6 + 3 * SLOTS + 3 * s], ar * v * pr, resample);
+                out_v[7 + 3 * SLOTS + 3 * s] = select(out_v[7 + 3 * SLOTS + 3 * s], ag * v * pg, resample);
+                out_v[8 + 3 * SLOTS + 3 * s] = select(out_v[8 + 3 * SLOTS + 3 * s], ab * v * pb, resample);
             }
         }
 #endif

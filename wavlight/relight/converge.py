@@ -689,8 +689,10 @@ class _TexelLight:
 
     def tables(self) -> dict:
         """The lighting on the device's terms (kernels/converge.cl LIGHT_ARGS), float32 and uint32
-        bits: the running sums of each texel's leaf masses (leaf_cdf, texel-major) and of the
-        texels' masses (texel_cdf), per leaf column its first map column's share of the leaf's
+        bits: the running sums of each texel's leaf masses (leaf_cdf, texel-major), each texel's
+        last one (texel_total), the guide to them (leaf_guide: per texel and cell g of k^2 cells,
+        how many running sums are <= (g / k^2) total, in float32 as the kernel multiplies), the
+        running sum of the texels' masses (texel_cdf), per leaf column its first map column's share of the leaf's
         width and its two map columns (columns), per leaf row the first map row's share of the
         leaf's height and of its solid angle and its two map rows (rows), the map's pixels
         (r, g, b, luminance), and per texel in Morton order (the trees' leaf order) the leaf
@@ -713,8 +715,19 @@ class _TexelLight:
         morton = np.argsort(morton_index(col, row))        # texel (row-major) of each Morton index
         radiance = np.zeros((side * side, 4), np.float32)
         radiance[:, :3] = self.texel_radiance[morton]
+        cdf = np.ascontiguousarray(self.cdf, np.float32)                      # (texels, k^2), rows non-decreasing
+        texels, kk = cdf.shape
+        total = cdf[:, -1]
+        cells = (np.arange(kk + 1, dtype=np.float32) / np.float32(kk))[None, :] * total[:, None]   # float32 products
+        # counts per row by one search: non-negative float32 bits order as their values; the
+        # texel's index above them keeps the rows apart
+        offset = np.arange(texels, dtype=np.int64)[:, None] << 32
+        keys = (offset | cdf.view(np.uint32).astype(np.int64)).reshape(-1)
+        guide = np.searchsorted(keys, (offset | cells.view(np.uint32).astype(np.int64)).reshape(-1), side="right")
+        guide = (guide.reshape(texels, kk + 1) - np.arange(texels)[:, None] * kk).astype(np.uint32)
         return {"levels": self.n, "top": self.top, "kbits": self.top - self.n, "map_width": w,
-                "leaf_cdf": np.ascontiguousarray(self.cdf, np.float32).reshape(-1),
+                "leaf_cdf": cdf.reshape(-1), "texel_total": np.ascontiguousarray(total),
+                "leaf_guide": guide.reshape(-1),
                 "texel_cdf": np.cumsum(self.texel_mass).astype(np.float32), "columns": columns, "rows": rows,
                 "map": pixels, "leaf_masses": np.ascontiguousarray(self.leaf_masses().reshape(-1)[morton]),
                 "radiance": radiance, "omega": self.texel_angles.astype(np.float32)}

@@ -57,13 +57,14 @@ class Lighting:
         self.levels, self.top, self.kbits = int(tables["levels"]), int(tables["top"]), int(tables["kbits"])
         self.map_w = int(tables["map_width"])
         self.buffers = {name: cl.to_device(np.ascontiguousarray(tables[name])) for name in
-                        ("leaf_cdf", "texel_cdf", "columns", "rows", "map", "leaf_masses", "radiance", "omega")}
+                        ("leaf_cdf", "texel_total", "leaf_guide", "texel_cdf", "columns", "rows", "map", "leaf_masses",
+                         "radiance", "omega")}
 
     def light_args(self) -> tuple:
         """The kernels' LIGHT_ARGS."""
         b = self.buffers
-        return (b["leaf_cdf"], b["texel_cdf"], b["columns"], b["rows"], b["map"], np.uint32(self.map_w),
-                np.uint32(self.top), np.uint32(self.kbits))
+        return (b["leaf_cdf"], b["texel_total"], b["leaf_guide"], b["texel_cdf"], b["columns"], b["rows"], b["map"],
+                np.uint32(self.map_w), np.uint32(self.top), np.uint32(self.kbits))
 
 
 def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool):
