@@ -21,6 +21,10 @@
  * work-item (lanes): their entries are eight adjacent values of each entry row, and their
  * offsets one row of the table for all lanes.
  *
+ * converge_spread: per pixel, the angular spread of the mirror directions of its footprint's
+ * fixed grid of rays (twin: wavlight.relight.converge.footprint_spread), which decides where
+ * converge_shade resamples.
+ *
  * converge_shade: per camera sample (eight per work-item, pixel-major: sample r is sample
  * r mod k of tile pixel r / k), a miss sees the map; a hit gets its shading frame (hit.h) and
  * SLOTS directions of the mixture (1 - alpha - beta) product + alpha BSDF + beta lighting
@@ -674,4 +678,36 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
     }
     for (int q = 0; q < 6 + 6 * SLOTS; ++q)
         STORE_LANES(out_v[q], out + (size_t)q * count, base, count);
+}
+
+/* ----------------------------------------------------------------------------- the footprints */
+/* Eight pixels per work-item, each with `rays` grid rays (pixel-major) along dirs that hit faces
+ * prim (-1: a miss): per hit the face normal n turned towards the viewer, the mirror direction
+ * r = d - 2 (d . n) n; the pixel's spread sqrt(2 (1 - |sum r| / hits)) (0 where at most one ray
+ * hits). */
+__kernel void converge_spread(const uint count, const uint rays, __global const float *dirs, __global const int *prim,
+                              __global const float *face_normal, __global float *out)
+{
+    const uint base = LANE_BASE();
+    if (base >= count) return;
+    const uintv p = LANE_INDEX(count);
+    realv sx = 0.0f, sy = 0.0f, sz = 0.0f, hits = 0.0f;
+    for (uint j = 0; j < rays; ++j) {
+        const uintv i = p * rays + j;
+        realv dx, dy, dz;
+        GATHER3(dirs, 3 * i, &dx, &dy, &dz);
+        const intv f = GATHER_INT(prim, i);
+        const intv hit = f >= 0;
+        realv nx, ny, nz, unused;
+        GATHER4(face_normal, 4 * as_uintv(max(f, 0)), &nx, &ny, &nz, &unused);
+        const realv dn = dx * nx + dy * ny + dz * nz;
+        const realv flip = select((realv)1.0f, (realv)-1.0f, dn > 0.0f);
+        const realv dnf = dn * flip;   /* d . n with n turned towards the viewer */
+        sx += select((realv)0.0f, dx - 2.0f * dnf * (nx * flip), hit);
+        sy += select((realv)0.0f, dy - 2.0f * dnf * (ny * flip), hit);
+        sz += select((realv)0.0f, dz - 2.0f * dnf * (nz * flip), hit);
+        hits += select((realv)0.0f, (realv)1.0f, hit);
+    }
+    const realv length = sqrt(sx * sx + sy * sy + sz * sz) / fmax(hits, 1.0f);
+    STORE_LANES(select((realv)0.0f, sqrt(fmax(2.0f * (1.0f - length), 0.0f)), hits > 1.0f), out, base, count);
 }

@@ -167,3 +167,21 @@ def test_trees_are_kept_while_the_lighting_stays(bakes, monkeypatch):
     assert one.stats["setup_seconds"] > 0 and two.stats["setup_seconds"] == 0 and two.stats["tiles_kept"] == 0
     np.testing.assert_array_equal(one.image, first.image)
     assert two.stats["frame_seconds"] == two.stats["render_seconds"]
+
+
+def test_spread_kernel_equals_its_twin(bakes):
+    """converge_spread against footprint_spread on every tile's fixed grid of rays: the pixels
+    no ray or one ray hits have 0, the others the same spread (float32 against float64)."""
+    scene, by_bits, folder = bakes
+    tr = by_bits[8]
+    frames = cm.ConvergeFrames(tr, scene)
+    prog = ck.program(4, tr.bits, frames._shade.kinds, 2, cm.CANDIDATES, True)
+    got, want = [], []
+    for tile in frames.tiles:
+        d, prim = cm.footprint_rays(scene, frames.tracer, tile.x0, tile.y0, tile.w, tile.h, tr.width, tr.height)
+        got.append(frames._shade.spread(prog, d, prim, cm.FOOTPRINT_GRID ** 2)[1])
+        want.append(cm.footprint_spread(scene, frames.tracer, tile.x0, tile.y0, tile.w, tile.h, tr.width, tr.height))
+        assert got[-1].shape == want[-1].shape == (tile.w * tile.h,)
+    got, want = np.concatenate(got), np.concatenate(want)
+    assert (want == 0).any() and (want > 0.1).any()
+    np.testing.assert_allclose(got, want, rtol=1e-3, atol=2e-3)

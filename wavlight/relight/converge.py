@@ -310,16 +310,23 @@ class ConvergeFrames:
         return transfer._s is self._sections and bool(self._sections) and (scene is None or scene is self.scene)
 
     # -- what frames share
-    def spread(self, tile) -> np.ndarray:
-        """(w h,) float32: the footprint spread of the tile's pixels (measured once)."""
+    def spread(self, tile, prog=None):
+        """The footprint spread of the tile's pixels (measured once): (w h,) float32 on the host
+        and its device buffer (kernel ``converge_spread`` of ``prog``; twin footprint_spread)."""
         with self._lock:
             s = self._spread.get(tile.index)
         if s is None:
-            s = footprint_spread(self.scene, self.tracer, tile.x0, tile.y0, tile.w, tile.h, self.transfer.width,
-                                 self.transfer.height).astype(np.float32)
-            buf = cl.to_device(s) if self.backend == "opencl" else None
+            tr = self.transfer
+            if self.backend == "opencl" and prog is not None:
+                d, prim = footprint_rays(self.scene, self.tracer, tile.x0, tile.y0, tile.w, tile.h, tr.width,
+                                         tr.height)
+                s = self._shade.spread(prog, d, prim, FOOTPRINT_GRID ** 2)
+            else:
+                s = footprint_spread(self.scene, self.tracer, tile.x0, tile.y0, tile.w, tile.h, tr.width,
+                                     tr.height).astype(np.float32)
+                s = (cl.to_device(s) if self.backend == "opencl" else None, s)
             with self._lock:
-                self._spread[tile.index] = s = (s, buf)
+                self._spread[tile.index] = s = (s[1], s[0])
                 self._spread_rays += tile.w * tile.h * FOOTPRINT_GRID ** 2
         return s
 
@@ -405,7 +412,7 @@ class ConvergeFrames:
 
         def one(tile):
             trees, was_kept = self.tile_trees(state, tile, prog)
-            spread = self.spread(tile) if candidates else (np.zeros(tile.w * tile.h, np.float32), None)
+            spread = self.spread(tile, prog) if candidates else (np.zeros(tile.w * tile.h, np.float32), None)
             if self.backend == "opencl" and spread[1] is None:
                 spread = (spread[0], cl.to_device(spread[0]))
             if prog is not None:
@@ -531,6 +538,17 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME
     return result
 
 
+def footprint_rays(scene, tracer, x0: int, y0: int, w: int, h: int, width: int, height: int):
+    """The fixed FOOTPRINT_GRID x FOOTPRINT_GRID grid of rays through each pixel of the w x h tile
+    at (x0, y0), pixel-major: directions (P G^2, 3) float32 and the faces they hit (-1: a miss)."""
+    g = FOOTPRINT_GRID
+    P = w * h
+    pix = np.repeat(np.arange(P), g * g)
+    sub = (np.stack(np.meshgrid(np.arange(g), np.arange(g)), -1).reshape(-1, 2) + 0.5) / g
+    eye, d = camera_rays(scene, x0 + pix % w, y0 + pix // w, np.tile(sub, (P, 1)).astype(np.float32), width, height)
+    return d, tracer.intersect(eye, d)[0]
+
+
 def footprint_spread(scene, tracer, x0: int, y0: int, w: int, h: int, width: int, height: int) -> np.ndarray:
     """(h w,) the angular spread, radians, of the mirror directions over each pixel of the w x h
     tile at (x0, y0): rays through a fixed FOOTPRINT_GRID x FOOTPRINT_GRID grid of the pixel
@@ -543,12 +561,11 @@ def footprint_spread(scene, tracer, x0: int, y0: int, w: int, h: int, width: int
     g = FOOTPRINT_GRID
     P = w * h
     pix = np.repeat(np.arange(P), g * g)
-    sub = (np.stack(np.meshgrid(np.arange(g), np.arange(g)), -1).reshape(-1, 2) + 0.5) / g
-    eye, d = camera_rays(scene, x0 + pix % w, y0 + pix // w, np.tile(sub, (P, 1)).astype(np.float32), width, height)
-    prim, t = tracer.intersect(eye, d)
+    d, prim = footprint_rays(scene, tracer, x0, y0, w, h, width, height)
     hit = np.flatnonzero(prim >= 0)
-    nrm, _, _ = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
-    nrm, dh = nrm.astype(np.float64), d[hit].astype(np.float64)
+    nrm = tracer.face_normals[prim[hit]].astype(np.float64)
+    dh = d[hit].astype(np.float64)
+    nrm *= np.where(np.einsum("ij,ij->i", nrm, dh) > 0, -1.0, 1.0)[:, None]   # turned towards the viewer
     mirror = dh - 2.0 * np.einsum("ij,ij->i", dh, nrm)[:, None] * nrm
     sums = np.stack([np.bincount(pix[hit], mirror[:, k], P) for k in range(3)], 1)   # 3 axes, not pixels
     count = np.bincount(pix[hit], minlength=P)

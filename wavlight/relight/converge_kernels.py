@@ -164,6 +164,19 @@ class ShadeKernel:
         return (planes[:3].T, planes[3:6].T, planes[6:6 + 3 * S].reshape(S, 3, count),
                 planes[6 + 3 * S:].reshape(S, 3, count))
 
+    def spread(self, prog, d, prim, rays: int, queue=None):
+        """converge_spread: the footprint spreads (P,) of P pixels from their ``rays`` grid rays each
+        along d (P rays, 3) that hit prim (-1: a miss), on the device (the buffer) and the host."""
+        queue = queue or cl.thread_queue()
+        count = len(prim) // rays
+        out = cl.empty(4 * max(count, 1))
+        if count:
+            cl.kernel(prog, "converge_spread")(
+                queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(rays),
+                cl.upload("spread_dirs", np.asarray(d, np.float32), queue),
+                cl.upload("spread_prim", np.asarray(prim, np.int32), queue), self.tables[0], out)
+        return out, cl.read(out, (count,), np.float32, queue)
+
     def warm_up(self, prog, slots, trees: TileTrees, spread, lighting: Lighting, shares):
         """A tiny and a large launch (PoCL compiles per work-group size and again for large grids:
         wavlight.shading.KernelShader.warm_up), once per process and program, on rays that miss."""
