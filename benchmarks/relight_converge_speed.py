@@ -26,7 +26,8 @@ seed by seed (a burst of load slows all alike):
 
 Errors: relMSE against ``mis`` of the changed scene at --ref-spp (noise-corrected,
 wavlight.evaluation.metrics.relmse; the reference cached in /tmp/relight-bench/). Per method
-its median seconds and mean relMSE; over wavelet: the time ratio and the equal-time relMSE ratio,
+its median seconds (wall, and the process's CPU seconds over all its threads: less sensitive to
+other loads on a shared machine) and mean relMSE; over wavelet: the time ratio and the equal-time relMSE ratio,
 relMSE x seconds over wavelet's (below 1 the bake's frame wins); with the bake's wall time
 amortized over 10, 100 and 1000 frames, and the break-even frame count (the frames over which
 the bake's time must be spread for equal-time parity; none where the frame alone loses).
@@ -34,7 +35,8 @@ Targets: ``converge`` in at most 1.3 x wavelet's time, equal-time relMSE ratio a
 bunny cases and 0.6 on the sun case.
 
     python benchmarks/relight_converge_speed.py [--sizes 256,512] [--spp 16] [--seeds 3]
-        [--ref-spp 2048] [--bake-spp 16] [--levels M] [--footprint-grid G] [--only SUBSTR]
+        [--ref-spp 2048] [--bake-spp 16] [--levels M] [--footprint-grid G] [--slots S] [--candidates C]
+        [--only SUBSTR]
         [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
 
 The figures in benchmarks/results/relight_converge_speed.json come from
@@ -74,6 +76,9 @@ def main():
                     help="converge's product-tree levels at most (default: wavlight.relight.converge.PRODUCT_LEVELS)")
     ap.add_argument("--footprint-grid", type=int, default=None,
                     help="rays per side of the footprint grid (default: wavlight.relight.converge.FOOTPRINT_GRID)")
+    ap.add_argument("--slots", type=int, default=None, help="converge's directions per camera sample (default 2)")
+    ap.add_argument("--candidates", type=int, default=None,
+                    help="converge's candidates per resampled camera sample (default: CANDIDATES)")
     ap.add_argument("--only", default="", help="substring filter on case names")
     args = rc.parse(ap, "relight_converge_speed", 0)
     started = rc.begin(args)
@@ -83,7 +88,8 @@ def main():
 
     if args.footprint_grid is not None:
         cm.FOOTPRINT_GRID = args.footprint_grid
-    knobs = {} if args.levels is None else {"levels": args.levels}
+    knobs = {k: v for k, v in (("levels", args.levels), ("slots", args.slots), ("candidates", args.candidates))
+             if v is not None}
     sizes = [int(s) for s in args.sizes.split(",") if s]
     t_start = time.perf_counter()
     out = {}
@@ -106,26 +112,31 @@ def main():
             wavlight.render_full(changed, spp=1, strategy="wavelet", width=8, height=8)
             warm = cm.ConvergeFrames(transfer, scene)
             warm.frame(env, rotation + 1.0, spp=1, seed=99, **knobs)
-            runs = {k: {"seconds": [], "relmse": [], "stats": []} for k in METHODS}
+            runs = {k: {"seconds": [], "cpu_seconds": [], "relmse": [], "stats": []} for k in METHODS}
 
-            def record(method, result, seconds):
+            def record(method, result, seconds, cpu):
                 runs[method]["seconds"].append(seconds)
+                runs[method]["cpu_seconds"].append(cpu)
                 runs[method]["relmse"].append(relmse(result.image, ref, ref_err))
                 runs[method]["stats"].append(result.stats)
 
             for seed in range(args.seeds):
+                c0 = time.process_time()
                 r = wavlight.render_full(changed, spp=args.spp, strategy="wavelet", width=size, height=size, seed=seed)
-                record("wavelet", r, r.stats["setup_seconds"] + r.stats["render_seconds"])
+                record("wavelet", r, r.stats["setup_seconds"] + r.stats["render_seconds"], time.process_time() - c0)
                 frames = cm.ConvergeFrames(transfer, scene)   # the bake and the scene loaded: not timed
+                c0 = time.process_time()
                 r = frames.frame(env, rotation, spp=args.spp, seed=seed, **knobs)
-                record("converge", r, frames.setup_seconds + r.stats["render_seconds"])
+                record("converge", r, frames.setup_seconds + r.stats["render_seconds"], time.process_time() - c0)
                 frames.close()
                 del frames
                 warm.release_lighting()
+                c0 = time.process_time()
                 r = warm.frame(env, rotation, spp=args.spp, seed=seed, **knobs)
-                record("converge_new_lighting", r, r.stats["render_seconds"])
+                record("converge_new_lighting", r, r.stats["render_seconds"], time.process_time() - c0)
+                c0 = time.process_time()
                 r = warm.frame(env, rotation, spp=args.spp, seed=seed + 1000, **knobs)
-                record("converge_same_lighting", r, r.stats["render_seconds"])
+                record("converge_same_lighting", r, r.stats["render_seconds"], time.process_time() - c0)
             warm.close()
             row = {"bake": {"n_levels": transfer.n_levels, "terms": transfer.terms, "spp": transfer.spp,
                             "file_bytes": transfer.file_bytes, "wall_seconds": bake_seconds,
@@ -137,6 +148,7 @@ def main():
                 st = run["stats"][0]
                 row["methods"][method] = {
                     "seconds": float(statistics.median(run["seconds"])), "seconds_seeds": run["seconds"],
+                    "cpu_seconds": float(statistics.median(run["cpu_seconds"])),
                     **rc.mean_sd(run["relmse"]), "relmse_seeds": [float(x) for x in run["relmse"]],
                     **{k: st.get(k) for k in ("rays", "resampled_share", "product_levels", "lighting_seconds",
                                               "tiles_kept", "kept_tree_bytes", "setup_seconds", "render_seconds",
@@ -145,6 +157,7 @@ def main():
             for method in METHODS[:-1]:
                 c = row["methods"][method]
                 c["time_over_wavelet"] = c["seconds"] / w["seconds"]
+                c["cpu_over_wavelet"] = c["cpu_seconds"] / w["cpu_seconds"]
                 c["relmse_over_wavelet"] = c["relmse"] / w["relmse"]
                 c["equal_time_over_wavelet"] = c["relmse"] * c["seconds"] / (w["relmse"] * w["seconds"])
                 c["amortized"] = {str(n): c["relmse"] * (c["seconds"] + bake_seconds / n) / (w["relmse"] * w["seconds"])
@@ -172,6 +185,7 @@ def main():
                 cells[f"{label} time/wav"] = m[k]["time_over_wavelet"]
                 cells[f"{label} eq-time"] = m[k]["equal_time_over_wavelet"]
             cells["relMSE/wav"] = m["converge"]["relmse_over_wavelet"]
+            cells["cpu/wav"] = m["converge"]["cpu_over_wavelet"]
             cells["amortized 10/100/1000"] = "/".join(f"{m['converge']['amortized'][str(n)]:.2f}" for n in AMORTIZED)
             cells["break-even"] = m["converge"]["break_even_frames"]
             cells["met"] = row["targets"]["time_met"] and row["targets"]["equal_time_met"]
@@ -181,7 +195,7 @@ def main():
     print(rc.table(lines, list(lines[0]) if lines else ["case"]))
     rc.finish(args.output, rc.rounded({"sizes": sizes, "spp": args.spp, "seeds": args.seeds, "ref_spp": args.ref_spp,
                                        "bake_spp": args.bake_spp, "levels": args.levels or cm.PRODUCT_LEVELS,
-                                       "footprint_grid": cm.FOOTPRINT_GRID, "time_target": TIME_TARGET,
+                                       "footprint_grid": cm.FOOTPRINT_GRID, "knobs": knobs, "time_target": TIME_TARGET,
                                        "amortized_frames": list(AMORTIZED), "cases": out,
                                        "seconds": round(time.perf_counter() - t_start, 1)}), started)
 

@@ -143,7 +143,8 @@ INLINE void children(__global const int *block_offsets, __global const float *sc
 /* Global size: 2 x (the tile's blocks) x BLOCK_SIDE work-items of LANES = 8 pixels; the tile is
  * the w x h pixels at (x0, y0) of the image (width image_w), its blocks those of block row
  * block_row from block column bx0; tree p = (y - y0) w + (x - x0) at out + p tree_stride
- * (node 0 at TREE_ORIGIN), its G at relit + 4 p. offsets: per block its row of the offset table
+ * (node 0 at TREE_ORIGIN), its G at relit + 4 p; pixels of scale c = 0 (every camera sample of the
+ * bake missed: no transfer) get a root of 0 and nothing below it. offsets: per block its row of the offset table
  * over the 4^m coefficients of the 2^m x 2^m layout (block-major: one block's lookups share
  * cache lines). gl and radiance: the lighting's leaf masses and mean radiance (r, g, b, pad) of
  * the 4^m texels in Morton order. hs = 2^m 4^(n - m). The levels above the last two live in
@@ -170,6 +171,13 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
     const uintv lane_x = min(LANE_IDS, (uintv)(live - 1u)) + xx0;   /* the last live lane repeats beyond w */
     const uintv tb = (yy * w + lane_x) * tree_stride;
     const realv c = GATHER(hit_scale, (y0 + yy) * image_w + x0 + lane_x) * hs;
+    if (all(c == 0.0f)) {   /* pixels the bake saw no surface in: a root of 0 (no product), G = 0 */
+        for (uint q = 0; q < live; ++q) {
+            tree[tb[q]] = 0.0f;
+            vstore4((float4)0.0f, 0, relit + 4 * (yy * w + xx0 + q));
+        }
+        return;
+    }
     realv gr = 0.0f, gg = 0.0f, gb = 0.0f;
 #define TOP_LEVELS (N_LEVELS >= 2 ? N_LEVELS - 1 : 1)   /* levels 0 .. TOP_LEVELS - 1 in private memory */
     realv node[LEVEL_OFFSET(TOP_LEVELS)];
@@ -254,8 +262,9 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
  * 2^top leaves a side, k = 2^kbits per texel side. */
 #define LIGHT_ARGS __global const float *leaf_cdf, __global const float *texel_total, __global const uint *leaf_guide, \
                    __global const float *texel_cdf, __global const float *columns, __global const float *rows,        \
-                   __global const float *map, const uint map_w, const uint top, const uint kbits
-#define LIGHT leaf_cdf, texel_total, leaf_guide, texel_cdf, columns, rows, map, map_w, top, kbits
+                   __global const float *map, __global const float *map_lum, const uint map_w, const uint top,        \
+                   const uint kbits
+#define LIGHT leaf_cdf, texel_total, leaf_guide, texel_cdf, columns, rows, map, map_lum, map_w, top, kbits
 
 /* How many of the n non-decreasing entries cdf[row0 ..] are <= target, per lane. */
 INLINE uintv entries_at_most(__global const float *cdf, const uintv row0, const uint n, const realv target)
@@ -292,10 +301,10 @@ INLINE Pieces leaf_pieces(LIGHT_ARGS, const uintv a, const uintv b)
     p.r1 = as_uintv(r1);
     p.hc = cs;
     p.hr = rs;
-    p.m0 = GATHER(map, 4 * (p.r0 * map_w + p.c0) + 3) * cs * ra;
-    p.m1 = GATHER(map, 4 * (p.r0 * map_w + p.c1) + 3) * (1.0f - cs) * ra;
-    p.m2 = GATHER(map, 4 * (p.r1 * map_w + p.c0) + 3) * cs * (1.0f - ra);
-    p.m3 = GATHER(map, 4 * (p.r1 * map_w + p.c1) + 3) * (1.0f - cs) * (1.0f - ra);
+    p.m0 = GATHER(map_lum, p.r0 * map_w + p.c0) * cs * ra;
+    p.m1 = GATHER(map_lum, p.r0 * map_w + p.c1) * (1.0f - cs) * ra;
+    p.m2 = GATHER(map_lum, p.r1 * map_w + p.c0) * cs * (1.0f - ra);
+    p.m3 = GATHER(map_lum, p.r1 * map_w + p.c1) * (1.0f - cs) * (1.0f - ra);
     return p;
 }
 
@@ -490,7 +499,7 @@ INLINE Direction mixture_direction(SAMPLE_ARGS, const Point *pt, const realv u0,
     const realv pdf = (1.0f - pt->alpha - light) * p_prod + pt->alpha * p_bsdf + light * p_light;
     d.pdf = select((realv)0.0f, pdf, isfinite(pdf));
     const realv g = GATHER(gl, leaf_index - (uint)LEVEL_OFFSET(N_LEVELS));
-    d.transfer = select((realv)0.0f, leaf / g / GATHER(omega, crow), g > 0.0f);
+    d.transfer = select((realv)0.0f, leaf / g / GATHER(omega, crow), (g > 0.0f) & pt->has_product);
     return d;
 }
 

@@ -58,17 +58,22 @@ def test_trees_kernel_equals_its_twin(bakes, bits, levels):
     state = frames.lighting(None, 75.0, 1.0, levels)
     prog = ck.program(levels, tr.bits, 7, 2, 0, True)
     assert len(frames.tiles) == 2 and frames.tiles[0].blocks == 3 and frames.tiles[1].h == 4
+    skipped = 0
     for tile in frames.tiles:
         nodes, relit = frames._trees(prog, state.device, tile).read()
-        scale = frames.hit_scale[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
+        scale = frames.tree_scale[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
         want, want_relit = cm.tile_trees_reference(cm.tile_coefficients(tr, tile, levels), state.inside, scale)
         assert nodes.shape == want.shape == (tile.w * tile.h, haar.tree.tree_size(levels))
         assert (want[:, 0] > 0).mean() > 0.3
+        empty = scale == 0    # pixels whose bake samples all missed: a root of 0
+        assert (nodes[empty] == 0).all() and (want[empty] == 0).all()
+        skipped += int(empty.sum())
         np.testing.assert_allclose(nodes, want, rtol=0, atol=2e-5 * np.abs(want).max())
         np.testing.assert_allclose(relit, want_relit, rtol=1e-4, atol=1e-5 * np.abs(want_relit).max())
         side = 1 << levels
         leaves = nodes[:, haar.tree.level_offset(levels):].reshape(-1, side, side)
         np.testing.assert_allclose(nodes[:, 0], leaves.sum(axis=(1, 2)), rtol=1e-5, atol=1e-9 * leaves.max())
+    assert skipped > 0
 
 
 @pytest.mark.parametrize("ball, candidates, coherence, control", [

@@ -90,8 +90,11 @@ from .settings import FRAME, UNBIASED_SPP
 MAX_SPP = FRAME["spp"].hi
 #: the product trees' levels at most (finer bakes are summed to them: 2^m x 2^m texels of the
 #: transfer are its coefficients' top-left 2^m x 2^m block times 4^(n - m)); inside a texel
-#: the lighting's own leaves place the direction (docs/decisions/relight-product-levels.md)
-PRODUCT_LEVELS = 6
+#: the lighting's own leaves place the direction (docs/decisions/relight-product-levels.md,
+#: docs/decisions/relight-converge-kernels.md: 2^6 x 2^6 trees write four times the memory)
+PRODUCT_LEVELS = 5
+#: directions (shadow rays) per camera sample (docs/decisions/relight-converge-kernels.md)
+SLOTS = 4
 #: the mixture's shares: the BSDF (defensive) and the lighting alone; the product has the rest
 DEFENSIVE = 0.3
 LIGHT_SHARE = 0.1
@@ -286,6 +289,8 @@ class ConvergeFrames:
         sc = self.scene
         self.tracer = RayTracer(sc.vertices, sc.faces, threads=1)
         self.hit_scale = hit_scales(transfer).astype(np.float32)
+        #: the trees' scale: c, and 0 where every camera sample of the bake missed (no transfer: no tree)
+        self.tree_scale = np.where(bake_hits(transfer) > 0, self.hit_scale, 0.0).astype(np.float32)
         self.tiles = tiles_of(transfer)
         self.lobe_width = bsdfs.lobe_width(sc.material_kind, sc.material_param).astype(np.float32)
         self._spread, self._spread_rays = {}, 0
@@ -296,7 +301,7 @@ class ConvergeFrames:
             device = cl.runtime().device
             self.tree_cache_bytes = min(TREE_CACHE_BYTES, int(device.global_mem_size) // 4)
             entries = DeviceEntries(transfer._s["offsets"], transfer._s["entry_scale"], transfer._s["entry_data"])
-            self._trees = kernels.TreeKernel(entries, transfer._s["offsets"], self.hit_scale, transfer.n_levels,
+            self._trees = kernels.TreeKernel(entries, transfer._s["offsets"], self.tree_scale, transfer.n_levels,
                                              transfer.blocks[0], transfer.width)
             self._shade = kernels.ShadeKernel(sc, self.tracer, self.lobe_width)
             camera.warm_up(sc)
@@ -356,7 +361,7 @@ class ConvergeFrames:
         m = state.inside.n
         if self.backend == "numpy":
             coeffs = tile_coefficients(self.transfer, tile, m)
-            scale = self.hit_scale[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
+            scale = self.tree_scale[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
             nodes, relit = tile_trees_reference(coeffs, state.inside, scale)
             return (HaarTree.from_pyramids(nodes), nodes, relit), False
         made = self._trees(prog, state.device, tile)
@@ -368,7 +373,7 @@ class ConvergeFrames:
 
     # -- a frame
     def frame(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, spp: int = UNBIASED_SPP,
-              seed: int = FRAME["seed"].default, progress=None, slots: int = 2, defensive: float = DEFENSIVE,
+              seed: int = FRAME["seed"].default, progress=None, slots: int = SLOTS, defensive: float = DEFENSIVE,
               levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE, control: bool = True,
               candidates: int = CANDIDATES, coherence: float = COHERENCE) -> RenderResult:
         """The unbiased frame under ``env`` (default: the baked map; a file, data:NAME or an
@@ -505,7 +510,7 @@ _LAST_LOCK = threading.Lock()
 
 
 def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME["scale"].default,
-             spp: int = UNBIASED_SPP, seed: int = FRAME["seed"].default, threads=None, progress=None, slots: int = 2,
+             spp: int = UNBIASED_SPP, seed: int = FRAME["seed"].default, threads=None, progress=None, slots: int = SLOTS,
              defensive: float = DEFENSIVE, levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE,
              control: bool = True, candidates: int = CANDIDATES, coherence: float = COHERENCE,
              backend: str = "opencl") -> RenderResult:
@@ -573,19 +578,23 @@ def footprint_spread(scene, tracer, x0: int, y0: int, w: int, h: int, width: int
     return np.where(count > 1, np.sqrt(np.maximum(2.0 * (1.0 - length), 0.0)), 0.0)
 
 
+def bake_hits(transfer) -> np.ndarray:
+    """(H, W) float64: how many of the bake's S camera samples of each pixel hit a surface."""
+    hits = np.full(transfer.width * transfer.height, float(transfer.spp))
+    pixels = np.asarray(transfer._s["background_pixel"], np.int64)
+    if len(pixels):
+        mask = np.asarray(transfer._s["background_mask"], np.uint64)
+        hits[pixels] -= np.unpackbits(mask.view(np.uint8).reshape(-1, 8), axis=1).sum(1)
+    return hits.reshape(transfer.height, transfer.width)
+
+
 def hit_scales(transfer) -> np.ndarray:
     """(H, W) S / hits: the bake's camera samples over those of them that hit, per pixel (1 where
     all miss). The transfer is a mean over all S samples, misses counted as 0; a camera sample of
     the frame that hits is closer to the transfer of the hits alone, on a silhouette's pixels
     too. A constant per pixel: the control variate (g and G alike) stays unbiased."""
-    hits = np.full(transfer.width * transfer.height, float(transfer.spp))
-    pixels = np.asarray(transfer._s["background_pixel"], np.int64)
-    if len(pixels):
-        mask = np.asarray(transfer._s["background_mask"], np.uint64)
-        misses = np.unpackbits(mask.view(np.uint8).reshape(-1, 8), axis=1).sum(1)
-        hits[pixels] -= misses
-    scale = np.where(hits > 0, transfer.spp / np.maximum(hits, 1.0), 1.0)
-    return scale.reshape(transfer.height, transfer.width)
+    hits = bake_hits(transfer)
+    return np.where(hits > 0, transfer.spp / np.maximum(hits, 1.0), 1.0)
 
 
 class _TexelLight:
@@ -746,7 +755,7 @@ class _TexelLight:
                 "leaf_cdf": cdf.reshape(-1), "texel_total": np.ascontiguousarray(total),
                 "leaf_guide": guide.reshape(-1),
                 "texel_cdf": np.cumsum(self.texel_mass).astype(np.float32), "columns": columns, "rows": rows,
-                "map": pixels, "leaf_masses": np.ascontiguousarray(self.leaf_masses().reshape(-1)[morton]),
+                "map": pixels, "map_lum": np.ascontiguousarray(pixels[:, 3]), "leaf_masses": np.ascontiguousarray(self.leaf_masses().reshape(-1)[morton]),
                 "radiance": radiance, "omega": self.texel_angles.astype(np.float32)}
 
     def radiance(self, uv):

@@ -42,12 +42,14 @@ class TileTrees(NamedTuple):
 
     def read(self, queue=None):
         """The trees on the host: pyramids (P, tree_size(m)) float32 (row-major levels, as
-        :func:`wavlight.relight.converge.tile_trees_reference` gives them) and G (P, 3)."""
+        :func:`wavlight.relight.converge.tile_trees_reference` gives them; zeros below a root of
+        0, where the kernel writes the root alone) and G (P, 3)."""
         queue = queue or cl.thread_queue()
         m = self.levels
         raw = cl.read(self.buffer, (self.pixels, tree_stride(m)), np.float32, queue)
         relit = cl.read(self.relit, (self.pixels, 4), np.float32, queue)
-        return host_order(raw[:, TREE_ORIGIN:TREE_ORIGIN + tree_size(m)], m), relit[:, :3]
+        nodes = host_order(raw[:, TREE_ORIGIN:TREE_ORIGIN + tree_size(m)], m)
+        return np.where(nodes[:, :1] > 0, nodes, np.float32(0)), relit[:, :3]
 
 
 class Lighting:
@@ -57,14 +59,14 @@ class Lighting:
         self.levels, self.top, self.kbits = int(tables["levels"]), int(tables["top"]), int(tables["kbits"])
         self.map_w = int(tables["map_width"])
         self.buffers = {name: cl.to_device(np.ascontiguousarray(tables[name])) for name in
-                        ("leaf_cdf", "texel_total", "leaf_guide", "texel_cdf", "columns", "rows", "map", "leaf_masses",
-                         "radiance", "omega")}
+                        ("leaf_cdf", "texel_total", "leaf_guide", "texel_cdf", "columns", "rows", "map", "map_lum",
+                         "leaf_masses", "radiance", "omega")}
 
     def light_args(self) -> tuple:
         """The kernels' LIGHT_ARGS."""
         b = self.buffers
         return (b["leaf_cdf"], b["texel_total"], b["leaf_guide"], b["texel_cdf"], b["columns"], b["rows"], b["map"],
-                np.uint32(self.map_w), np.uint32(self.top), np.uint32(self.kbits))
+                b["map_lum"], np.uint32(self.map_w), np.uint32(self.top), np.uint32(self.kbits))
 
 
 def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool):
