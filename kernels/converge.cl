@@ -50,9 +50,10 @@
  * target / SLOTS (resampled importance sampling). Outputs as planes of count floats: direct r g b (a miss's
  * radiance, a hit's control-variate part), origin x y z, then per slot the direction x y z,
  * then per slot the estimate r g b. Uniforms: Philox (rng.h) of tile `tile` at index
- * first + r: stream dir_stream + slot (rng.CONVERGE_DIRECTIONS), RNG_CONVERGE_PICK; the
- * candidates' RNG_CONVERGE_RESAMPLE at index first CANDIDATES + r CANDIDATES + c, stratified
- * as wavlight.rng.Stream(seed, tile, first CANDIDATES, k CANDIDATES) strata them.
+ * first + r, four per camera sample in stream dir_stream (rng.CONVERGE_DIRECTIONS[0]) for its
+ * slots, RNG_CONVERGE_RESAMPLE for its candidates, RNG_CONVERGE_PICK for the picks; slot or
+ * candidate j takes point j of the R4 lattice shifted by them (lattice): one Philox draw per
+ * sample, and its directions spread over the uniforms' cube.
  */
 #include "warp.h"
 #include "bsdf.h"
@@ -69,6 +70,9 @@
 #endif
 #ifndef CONTROL
 #define CONTROL 1
+#endif
+#ifndef LATTICE0
+#error "converge.cl is built with -DLATTICE0 .. -DLATTICE3 (wavlight.relight.converge.LATTICE)"
 #endif
 #define LOBE_POWER 0.6f
 #define TARGET_BSDF 0.05f
@@ -351,7 +355,7 @@ INLINE void place_in_texel(LIGHT_ARGS, const uintv col, const uintv row, const r
     const uintv t = row * side + col, row0 = t * kk;
     const realv target = fu * GATHER(texel_total, t);
     /* how many running sums are <= target: between the guide's counts of fu's cell and the next */
-    const uintv g = t * (kk + 1u) + as_uintv(min(convert_intv(fu * (float)kk), (int)kk - 1));
+    const uintv g = t * (kk + 1u) + as_uintv(clamp(convert_intv(fu * (float)kk), 0, (int)kk - 1));
     uintv lo = GATHER_T(uintv, leaf_guide, g), hi = GATHER_T(uintv, leaf_guide, g + 1u);
     intv active = lo < hi;
     while (any(active)) {
@@ -382,7 +386,8 @@ INLINE realv light_at(LIGHT_ARGS, const realv au, const realv av, uintv *col, ui
 {
     const uint side = 1u << N_LEVELS, k = 1u << kbits, kk = k * k, count = 1u << top;
     const realv x = au * (float)count, y = av * (float)count;
-    const uintv a = as_uintv(min(convert_intv(x), (int)count - 1)), b = as_uintv(min(convert_intv(y), (int)count - 1));
+    const uintv a = as_uintv(clamp(convert_intv(x), 0, (int)count - 1));
+    const uintv b = as_uintv(clamp(convert_intv(y), 0, (int)count - 1));
     *col = a >> kbits;
     *row = b >> kbits;
     const uintv row0 = (*row * side + *col) * kk;
@@ -442,12 +447,14 @@ INLINE Direction mixture_direction(SAMPLE_ARGS, const Point *pt, const realv u0,
                                    const realv u3)
 {
     const uint side = 1u << N_LEVELS;
-    /* the product's texel: the tree's walk */
+    /* the product's texel: the tree's walk (a pixel without a product has a root of 0 and
+     * nothing written below it: its walk's point is clamped into the square, and not used) */
     realv gu = u0, gv = u1;
     tree_walk(tree, pt->tree_base, &gu, &gv);
-    uintv col = as_uintv(min(convert_intv(gu * (float)side), (int)side - 1));
-    uintv row = as_uintv(min(convert_intv(gv * (float)side), (int)side - 1));
-    realv fu = gu * (float)side - convert_realv(col), fv = gv * (float)side - convert_realv(row);
+    uintv col = as_uintv(clamp(convert_intv(gu * (float)side), 0, (int)side - 1));
+    uintv row = as_uintv(clamp(convert_intv(gv * (float)side), 0, (int)side - 1));
+    realv fu = clamp(gu * (float)side - convert_realv(col), 0.0f, ONE_MINUS_EPS);
+    realv fv = clamp(gv * (float)side - convert_realv(row), 0.0f, ONE_MINUS_EPS);
     const intv use_b = u2 < pt->alpha;
     const intv use_l = ~use_b & (u2 < pt->alpha + light);
     if (light > 0.0f && any(use_l)) {   /* the lighting's texel: u0 in the texels' running sum; (u1, u3) inside */
@@ -520,21 +527,23 @@ INLINE realv resampling_target(const Direction *d)
     return (0.2126f * d->r + 0.7152f * d->g + 0.0722f * d->b) * (both + TARGET_BSDF * f + TARGET_TRANSFER * t);
 }
 
-#if CANDIDATES
-/* Candidate c (per lane) of camera sample r of the pass: its uniforms (stream
- * RNG_CONVERGE_RESAMPLE at first CANDIDATES + r CANDIDATES + c, stratified over the pixel's
- * k CANDIDATES by keys key1, key2) and its direction. */
-INLINE Direction candidate(SAMPLE_ARGS, const Point *pt, const uintv r, const uintv c, const uintv j0, const uint k,
-                           const uint first, const uint tile, const uint k0, const uint k1, const uintv key1,
-                           const uintv key2)
+/* frac(u + j alpha): point j of the rank-1 lattice of the R4 sequence (Roberts 2018) shifted by
+ * u, alpha in 24-bit fixed point (LATTICE0 .. LATTICE3, wavlight.relight.converge.LATTICE), so
+ * that the sum is exact in float32 (numpy twin: wavlight.relight.converge.lattice). Each point is
+ * uniform as u is; the points of one u are spread over the unit cube. */
+INLINE realv lattice(const realv u, const uintv j, const uint alpha)
 {
-    realv u0, u1, u2, u3;
-    rng_uniforms(first * CANDIDATES + r * CANDIDATES + c, tile, RNG_CONVERGE_RESAMPLE, k0, k1, &u0, &u1, &u2, &u3);
-    stratify_pair(&u0, &u1, j0 + c, k * CANDIDATES, key1);
-    stratify_pair(&u2, &u3, j0 + c, k * CANDIDATES, key2);
-    return mixture_direction(SAMPLE, pt, u0, u1, u2, u3);
+    const realv c = u + convert_realv((j * alpha) & 0xFFFFFFu) * 0x1p-24f;
+    return select(c, c - 1.0f, c >= 1.0f);
 }
-#endif
+
+/* Direction j of the lattice of uniforms u0 .. u3 (mixture_direction's). */
+INLINE Direction lattice_direction(SAMPLE_ARGS, const Point *pt, const realv u0, const realv u1, const realv u2,
+                                   const realv u3, const uintv j)
+{
+    return mixture_direction(SAMPLE, pt, lattice(u0, j, LATTICE0), lattice(u1, j, LATTICE1),
+                             lattice(u2, j, LATTICE2), lattice(u3, j, LATTICE3));
+}
 
 __kernel void converge_shade(const uint count, const uint k, const uint first, __global const float *dirs,
                              __global const int *prim, __global const float *tfar, const float eye_x,
@@ -552,8 +561,8 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
     if (base >= count) return;
     __global const float *tree = trees + TREE_ORIGIN;   /* (common.h) */
     const uintv i = LANE_INDEX(count);
-    uintv j_in_pixel;
-    const uintv pixel = div_small(i, k, &j_in_pixel);
+    uintv unused_j;
+    const uintv pixel = div_small(i, k, &unused_j);
     realv dx, dy, dz;
     GATHER3(dirs, 3 * i, &dx, &dy, &dz);
     const intv p_id = GATHER_INT(prim, i);
@@ -600,11 +609,10 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
         const intv mix = hit & ~resample;
         const float share = 1.0f / (float)SLOTS;
         if (any(mix)) {   /* the mixture's directions, one shadow ray each */
-            realv cr = 0.0f, cg = 0.0f, cb = 0.0f;
+            realv cr = 0.0f, cg = 0.0f, cb = 0.0f, u0, u1, u2, u3;
+            rng_uniforms(first + i, tile, dir_stream, k0, k1, &u0, &u1, &u2, &u3);
             for (int s = 0; s < SLOTS; ++s) {
-                realv u0, u1, u2, u3;
-                rng_uniforms(first + i, tile, dir_stream + (uint)s, k0, k1, &u0, &u1, &u2, &u3);
-                const Direction d = mixture_direction(SAMPLE, &pt, u0, u1, u2, u3);
+                const Direction d = lattice_direction(SAMPLE, &pt, u0, u1, u2, u3, (uintv)s);
                 const realv w = select((realv)0.0f, ratio(d.fcos, d.pdf) * share, mix);
                 out_v[6 + 3 * s] = select((realv)0.0f, d.x, mix);
                 out_v[7 + 3 * s] = select((realv)0.0f, d.y, mix);
@@ -630,15 +638,13 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
         }
 #if CANDIDATES
         if (any(resample)) {   /* CANDIDATES mixture directions, SLOTS of them picked and traced */
-            uintv key1, key2, unused0, unused3;
-            philox4x32_10(first * CANDIDATES + pixel, (uintv)tile, (uintv)RNG_STRATA, (uintv)0u, k0, k1, &unused0,
-                          &key1, &key2, &unused3);
-            const uintv j0 = j_in_pixel * CANDIDATES;
+            realv u0, u1, u2, u3;
+            rng_uniforms(first + i, tile, RNG_CONVERGE_RESAMPLE, k0, k1, &u0, &u1, &u2, &u3);
             realv weight[CANDIDATES], cx[CANDIDATES], cy[CANDIDATES], cz[CANDIDATES], cv[CANDIDATES];
             realv cr[CANDIDATES], cg[CANDIDATES], cb[CANDIDATES];
             realv total = 0.0f;
             for (uint c = 0; c < CANDIDATES; ++c) {
-                const Direction d = candidate(SAMPLE, &pt, i, (uintv)c, j0, k, first, tile, k0, k1, key1, key2);
+                const Direction d = lattice_direction(SAMPLE, &pt, u0, u1, u2, u3, (uintv)c);
                 const realv target = resampling_target(&d);
                 const realv w = target / d.pdf;
                 weight[c] = select((realv)0.0f, w, (d.pdf > 0.0f) & isfinite(w));

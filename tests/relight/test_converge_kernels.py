@@ -14,7 +14,6 @@ import wavlight
 from scenes_util import write_raw_image
 from wavlight import camera, haar
 from wavlight.relight import converge as cm
-from wavlight.relight import converge_kernels as ck
 
 
 def sphere_on_floor(width, height, ball=None):
@@ -56,7 +55,7 @@ def test_trees_kernel_equals_its_twin(bakes, bits, levels):
     tr = by_bits[bits]
     frames = cm.ConvergeFrames(tr, scene)
     state = frames.lighting(None, 75.0, 1.0, levels)
-    prog = ck.program(levels, tr.bits, 7, 2, 0, True)
+    prog = frames.program(levels, 2, 0, True)
     assert len(frames.tiles) == 2 and frames.tiles[0].blocks == 3 and frames.tiles[1].h == 4
     skipped = 0
     for tile in frames.tiles:
@@ -94,7 +93,7 @@ def test_shade_kernel_equals_its_twin(bakes, ball, candidates, coherence, contro
     frames = cm.ConvergeFrames(tr, scene)
     slots, k, seed = 2, 8, 5
     state = frames.lighting(None, 75.0, 1.0, 4)
-    prog = ck.program(4, tr.bits, frames._shade.kinds, slots, candidates, control)
+    prog = frames.program(4, slots, candidates, control)
     tile = frames.tiles[0]
     trees = frames._trees(prog, state.device, tile)
     nodes, relit = trees.read()
@@ -180,7 +179,7 @@ def test_spread_kernel_equals_its_twin(bakes):
     scene, by_bits, folder = bakes
     tr = by_bits[8]
     frames = cm.ConvergeFrames(tr, scene)
-    prog = ck.program(4, tr.bits, frames._shade.kinds, 2, cm.CANDIDATES, True)
+    prog = frames.program(4, 2, cm.CANDIDATES, True)
     got, want = [], []
     for tile in frames.tiles:
         d, prim = cm.footprint_rays(scene, frames.tracer, tile.x0, tile.y0, tile.w, tile.h, tr.width, tr.height)

@@ -109,8 +109,14 @@ MAX_CANDIDATES = 256
 LOBE_POWER = 0.6
 TARGET_BSDF = 0.05
 TARGET_TRANSFER = 0.1
-#: directions per camera sample at most: one Philox stream each, rng.CONVERGE_DIRECTIONS
+#: directions per camera sample at most (slot j takes point j of the lattice below)
 MAX_SLOTS = len(rng.CONVERGE_DIRECTIONS)
+#: a camera sample's slots (and a resampled one's candidates) are the points j of the rank-1
+#: lattice of the R4 sequence (Roberts 2018: alpha_i = phi^-i, phi^5 = phi + 1) shifted by one
+#: Philox draw of four uniforms, frac(u_i + j alpha_i) (:func:`lattice`): each point uniform,
+#: the points of a sample spread over the cube; alpha_i in 24-bit fixed point, so that the sum
+#: is exact in float32 (the kernel adds the same floats)
+LATTICE = (14372620, 12312662, 10547948, 9036163)
 #: sub-pixel rays per side of the fixed grid that measures a pixel's footprint
 FOOTPRINT_GRID = 4
 #: a tile: at most this many of the bake's blocks of one block row (its trees on the device at
@@ -315,6 +321,10 @@ class ConvergeFrames:
         return transfer._s is self._sections and bool(self._sections) and (scene is None or scene is self.scene)
 
     # -- what frames share
+    def program(self, levels: int, slots: int, candidates: int, control: bool):
+        """kernels/converge.cl for this bake and scene (:func:`.converge_kernels.program`)."""
+        return kernels.program(levels, self.transfer.bits, self._shade.kinds, slots, candidates, control, LATTICE)
+
     def spread(self, tile, prog=None):
         """The footprint spread of the tile's pixels (measured once): (w h,) float32 on the host
         and its device buffer (kernel ``converge_spread`` of ``prog``; twin footprint_spread)."""
@@ -405,7 +415,7 @@ class ConvergeFrames:
         lighting_seconds = time.perf_counter() - t0
         prog = None
         if self.backend == "opencl":
-            prog = kernels.program(m, tr.bits, self._shade.kinds, slots, candidates, use_control)
+            prog = self.program(m, slots, candidates, use_control)
         width, height = tr.width, tr.height
         sums = np.zeros((height, width, 3))
         squares = np.zeros((height, width, 3))
@@ -873,6 +883,16 @@ def mean_and_error(sums: np.ndarray, squares: np.ndarray, spp: int):
     return mean, np.full_like(mean, np.inf)
 
 
+def lattice(u: np.ndarray, j) -> np.ndarray:
+    """(N, 4) float32: frac(u + j alpha) for uniforms u (N, 4) float32 and lattice points j (N,)
+    or a scalar, alpha = LATTICE / 2^24 (numpy twin of kernels/converge.cl ``lattice``, the same
+    float32 operations)."""
+    j = np.asarray(j, np.uint64)
+    offset = np.stack([((j * np.uint64(a)) & np.uint64(0xFFFFFF)).astype(np.float32) for a in LATTICE], -1)
+    c = np.asarray(u, np.float32) + offset * np.float32(2.0 ** -24)    # four axes, not samples
+    return np.where(c >= 1, c - np.float32(1), c).astype(np.float32)
+
+
 def tile_trees_reference(coeffs: np.ndarray, inside, hit_scale: np.ndarray):
     """numpy twin of ``converge_trees`` (kernels/converge.cl): for pixels' transfer coefficients
     (P, 2^m, 2^m) (:func:`tile_coefficients`), the lighting inside the texels ``inside`` (a
@@ -911,8 +931,9 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     (P, tree_size(m)) row-major, ``relit`` their G (P, 3), ``spread`` their footprint spreads (P,);
     ``inside`` the lighting (:class:`_TexelLight`), ``key`` = (seed, tile), ``first`` the pass's
     first sample index in the tile. A miss sees the map (direct); a hit gets ``slots``
-    directions of the mixture (:func:`mixture_directions`, Philox streams
-    rng.CONVERGE_DIRECTIONS at index first + r), each estimated as albedo f cos L / pdf / slots
+    directions of the mixture (:func:`mixture_directions`; the uniforms of slot j are
+    :func:`lattice` point j of Philox stream rng.CONVERGE_DIRECTIONS[0] at index first + r),
+    each estimated as albedo f cos L / pdf / slots
     (L the map's pixel, :meth:`_TexelLight.radiance`), and with ``control`` direct =
     albedo (G - sum of g / pdf / slots), g = :func:`transfer_from_trees` L; or, where its pixel's
     spread exceeds ``coherence`` times its lobe's width, ``slots`` picks among ``candidates``
@@ -939,8 +960,9 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     if len(mix):
         sub = hits.subset(mix)
         cv = np.zeros((len(mix), 3))
+        u_sample = rng.uniforms(seed, tile, rng.CONVERGE_DIRECTIONS[0], first, N)
         for slot in range(slots):   # directions per camera sample, not samples
-            u_all = rng.uniforms(seed, tile, rng.CONVERGE_DIRECTIONS[slot], first, N)
+            u_all = lattice(u_sample, slot)
             direction, weight, pdf = mixture_directions(trees, inside, u_all, sub.index, k, has_p[mix], alpha[mix],
                                                         sub.kind, sub.param, sub.wo, sub.axes, light, with_pdf=True)
             uv = world_to_square(direction)
@@ -977,11 +999,12 @@ def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp
     f cos V, is much wider than this sample's own lobe (a glossy pixel whose footprint spans
     several facets), the transfer's product spends most of its directions outside the lobe; the
     target's own lobe takes them back. ``count``: the camera samples of the pass, from sample
-    ``first`` of the tile on (the uniforms' layout: Philox stream rng.CONVERGE_RESAMPLE of
-    ``key``, each pair stratified over the pixel's spp x candidates, and rng.CONVERGE_PICK).
+    ``first`` of the tile on (the uniforms' layout: candidate j of sample r is :func:`lattice`
+    point j of Philox stream rng.CONVERGE_RESAMPLE of ``key`` at index first + r; the picks'
+    uniform rng.CONVERGE_PICK's).
     Returns directions (n, slots, 3) and estimates (n, slots, 3) before the shadow rays."""
     m = candidates
-    u = rng.Stream(*key, first * m, spp * m).uniforms(rng.CONVERGE_RESAMPLE, count * m)
+    u = lattice(np.repeat(rng.uniforms(*key, rng.CONVERGE_RESAMPLE, first, count), m, 0), np.tile(np.arange(m), count))
     cand = hits.candidates(m)
     direction, weight, pdf = mixture_directions(trees, inside, u, cand.index, spp * m, np.repeat(has_p, m),
                                                 np.repeat(alpha, m), cand.kind, cand.param, cand.wo, cand.axes, light,

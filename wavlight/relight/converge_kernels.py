@@ -69,14 +69,15 @@ class Lighting:
                 b["map_lum"], np.uint32(self.map_w), np.uint32(self.top), np.uint32(self.kbits))
 
 
-def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool):
+def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool, lattice):
     """kernels/converge.cl built for product trees of ``levels`` levels, entries of ``bits`` bits,
     the material kinds ``kinds`` (bit mask), ``slots`` directions per camera sample,
-    ``candidates`` resampled ones (0: none) and the control variate or not (memoised per
-    process, :func:`wavlight.cl.program`)."""
+    ``candidates`` resampled ones (0: none), the control variate or not, and the uniforms'
+    ``lattice`` (four 24-bit constants; memoised per process, :func:`wavlight.cl.program`)."""
     return cl.program("converge.cl", N_LEVELS=int(levels), QBITS=int(bits), BSDF_KINDS=int(kinds) or 1,
                       SLOTS=int(slots), CANDIDATES=int(candidates), CONTROL=int(bool(control)),
-                      OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))))
+                      OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))),
+                      **{f"LATTICE{i}": f"{int(a)}u" for i, a in enumerate(lattice)})
 
 
 class TreeKernel:
