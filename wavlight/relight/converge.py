@@ -301,6 +301,7 @@ class ConvergeFrames:
         self.lobe_width = bsdfs.lobe_width(sc.material_kind, sc.material_param).astype(np.float32)
         self._spread, self._spread_rays = {}, 0
         self._lighting = None
+        self._spare = {}   # tile -> TileTrees of a lighting no longer current, their buffers for reuse
         self._sections = transfer._s
         self._lock = threading.Lock()
         if backend == "opencl":
@@ -352,7 +353,9 @@ class ConvergeFrames:
         current = self._lighting
         if current is not None and current.key == key:
             return current
-        self._lighting = None   # its trees go before the new ones come
+        if current is not None:   # its trees' buffers serve the new lighting's (no new pages to fault in)
+            self._spare = current.trees
+        self._lighting = None
         base = self.transfer.environment(env, scale)                 # unrotated, scaled
         inside = _TexelLight(base, levels, rotate_y)
         device = kernels.Lighting(inside.tables()) if self.backend == "opencl" else None
@@ -374,11 +377,18 @@ class ConvergeFrames:
             scale = self.tree_scale[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
             nodes, relit = tile_trees_reference(coeffs, state.inside, scale)
             return (HaarTree.from_pyramids(nodes), nodes, relit), False
-        made = self._trees(prog, state.device, tile)
+        nbytes = kernels.TileTrees(None, None, tile.w * tile.h, m).nbytes
         with state.lock:
-            if state.kept_bytes + made.nbytes <= self.tree_cache_bytes:
+            keep = state.kept_bytes + nbytes <= self.tree_cache_bytes
+            if keep:
+                state.kept_bytes += nbytes
+            spare = self._spare.pop(tile.index, None) if keep else None
+        if spare is not None and spare.levels != m:
+            spare = None
+        made = self._trees(prog, state.device, tile, into=spare if keep else "scratch")
+        if keep:
+            with state.lock:
                 state.trees[tile.index] = made
-                state.kept_bytes += made.nbytes
         return made, False
 
     # -- a frame
@@ -475,6 +485,7 @@ class ConvergeFrames:
         threads = self.threads or default_threads()
         with ThreadPoolExecutor(threads) as pool:
             list(pool.map(one, self.tiles))
+        self._spare = {}
         seconds = time.perf_counter() - t0
         mean, err = mean_and_error(sums, squares, spp)
         rays = totals["rays"] + self._spread_rays - spread_rays
@@ -491,12 +502,15 @@ class ConvergeFrames:
         return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
 
     def release_lighting(self):
-        """Drop the current lighting's tables and kept trees: the next frame makes them anew."""
+        """Drop the current lighting's tables and kept trees: the next frame makes them anew (in
+        new buffers)."""
         self._lighting = None
+        self._spare = {}
 
     def close(self):
         """Release the device memory of the kept trees, tables and footprints."""
         self._lighting = None
+        self._spare = {}
         self._spread = {}
 
 

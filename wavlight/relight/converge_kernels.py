@@ -103,14 +103,20 @@ class TreeKernel:
             buf = self._by_level[levels] = cl.to_device(table)
         return buf
 
-    def __call__(self, prog, lighting: Lighting, tile, queue=None) -> TileTrees:
-        """The trees of ``tile`` (a :class:`wavlight.relight.converge.Tile`) under ``lighting``."""
+    def __call__(self, prog, lighting: Lighting, tile, queue=None, into=None) -> TileTrees:
+        """The trees of ``tile`` (a :class:`wavlight.relight.converge.Tile`) under ``lighting``, in
+        new buffers, or ``into``'s (a TileTrees of the same size), or with ``into="scratch"`` the
+        calling thread's scratch buffers (trees used by this thread only, until its next tile)."""
         queue = queue or cl.thread_queue()
         m = lighting.levels
         stride = tree_stride(m)
         P = tile.w * tile.h
-        out = cl.empty(4 * P * stride)
-        relit = cl.empty(16 * P)
+        if into == "scratch":
+            out, relit = cl.scratch("converge_trees", 4 * P * stride), cl.scratch("converge_relit", 16 * P)
+        elif into is not None:
+            out, relit = into.buffer, into.relit
+        else:
+            out, relit = cl.empty(4 * P * stride), cl.empty(16 * P)
         e = self.entries
         hs = np.float32(float(1 << m) * 4.0 ** (self.bake_levels - m))
         cl.kernel(prog, "converge_trees")(
