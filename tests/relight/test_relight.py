@@ -185,7 +185,7 @@ def test_unbiased_frame_equals_mis(shadowed, turned_mis, levels, control, cohere
     r = converge(tr, scene, rotate_y=80.0, spp=64, seed=3, levels=levels, control=control, coherence=coherence)
     assert r.stats["product_levels"] == min(levels, tr.n_levels)
     if coherence == 0.0:
-        assert r.stats["resampled_share"] > 0.99, r.stats
+        assert r.stats["resampled_share"] > 0.95, r.stats   # (all but where at most one footprint ray hits)
     ref = turned_mis
     var = r.stderr ** 2 + ref.stderr ** 2
     # 4 x 4 blocks of pixels (sums of independent pixel estimates: near Gaussian where single

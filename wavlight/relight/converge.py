@@ -118,7 +118,7 @@ MAX_SLOTS = len(rng.CONVERGE_DIRECTIONS)
 #: is exact in float32 (the kernel adds the same floats)
 LATTICE = (14372620, 12312662, 10547948, 9036163)
 #: sub-pixel rays per side of the fixed grid that measures a pixel's footprint
-FOOTPRINT_GRID = 4
+FOOTPRINT_GRID = 2
 #: a tile: at most this many of the bake's blocks of one block row (its trees on the device at
 #: once: 2048 pixels, 11 MB at 2^5 x 2^5 texels, 45 MB at 2^6 x 2^6)
 TILE_BLOCKS = 8
