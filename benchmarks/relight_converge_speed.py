@@ -41,7 +41,7 @@ bunny cases and 0.6 on the sun case.
 
 The figures in benchmarks/results/relight_converge_speed.json come from
 
-    python benchmarks/relight_converge_speed.py --wait-minutes 20
+    python benchmarks/relight_converge_speed.py --wait-minutes 10
 """
 from __future__ import annotations
 

@@ -302,6 +302,7 @@ class ConvergeFrames:
         self._spread, self._spread_rays = {}, 0
         self._lighting = None
         self._spare = {}   # tile -> TileTrees of a lighting no longer current, their buffers for reuse
+        self._map = None   # (map key, its Environment, its lighting.Projector): the last map's
         self._sections = transfer._s
         self._lock = threading.Lock()
         if backend == "opencl":
@@ -356,8 +357,13 @@ class ConvergeFrames:
         if current is not None:   # its trees' buffers serve the new lighting's (no new pages to fault in)
             self._spare = current.trees
         self._lighting = None
-        base = self.transfer.environment(env, scale)                 # unrotated, scaled
-        inside = _TexelLight(base, levels, rotate_y)
+        env_key = key[0] + (float(scale),)
+        if self._map is not None and self._map[0] == env_key:   # another rotation of the same map
+            base, projector = self._map[1], self._map[2]
+        else:
+            base, projector = self.transfer.environment(env, scale), None   # unrotated, scaled
+        inside = _TexelLight(base, levels, rotate_y, projector=projector)
+        self._map = (env_key, base, inside.projector)
         device = kernels.Lighting(inside.tables()) if self.backend == "opencl" else None
         state = _LightingState(key, inside, device)
         state.env = env   # (an Environment object's identity is its key: keep it alive)
@@ -509,7 +515,7 @@ class ConvergeFrames:
 
     def close(self):
         """Release the device memory of the kept trees, tables and footprints."""
-        self._lighting = None
+        self._lighting = self._map = None
         self._spare = {}
         self._spread = {}
 
@@ -635,9 +641,12 @@ class _TexelLight:
     :meth:`radiance` is the map pixel's. Without, the point is uniform in its leaf (what the
     moving object's kernel does, kernels/relight_moving.cl)."""
 
-    def __init__(self, environment, n_levels: int, rotate_y: float, map_pixels: bool = True):
+    def __init__(self, environment, n_levels: int, rotate_y: float, map_pixels: bool = True, projector=None):
         top = max(environment.square_levels(), n_levels)
-        rgb = lighting.project(environment, top, rotate_y)
+        if projector is None or projector.environment is not environment or projector.n_levels != top:
+            projector = lighting.Projector(environment, top)
+        self.projector = projector   # (for another rotation of the same map: :meth:`Projector.__call__` alone)
+        rgb = projector(rotate_y)
         leaf_angles = lighting.texel_solid_angles(top)[:, None]
         masses = luminance(rgb) * leaf_angles                                          # (M, M)
         self.n, self.top, self.k = n_levels, top, 1 << (top - n_levels)
