@@ -71,7 +71,7 @@ import numpy as np
 
 from .. import bsdfs, camera, cl, rng
 from ..camera import camera_rays
-from ..envmap import Environment, luminance
+from ..envmap import luminance
 from ..errors import ArgumentError, WavlightError, check_int, check_number
 from ..haar import inverse
 from ..haar.tree import HaarTree, build_reference, level_offset, morton_index
@@ -302,7 +302,7 @@ class ConvergeFrames:
         self._spread, self._spread_rays = {}, 0
         self._lighting = None
         self._spare = {}   # tile -> TileTrees of a lighting no longer current, their buffers for reuse
-        self._map = None   # (map key, its Environment, its lighting.Projector): the last map's
+        self._map = None   # (map key, its Environment, its lighting.Projector, env): the last map's
         self._sections = transfer._s
         self._lock = threading.Lock()
         if backend == "opencl":
@@ -358,12 +358,14 @@ class ConvergeFrames:
             self._spare = current.trees
         self._lighting = None
         env_key = key[0] + (float(scale),)
-        if self._map is not None and self._map[0] == env_key:   # another rotation of the same map
+        same_map = (self._map is not None and self._map[0] == env_key
+                    and (env_key[0] == "map" or self._map[3] is env))   # (an object: the very one)
+        if same_map:   # another rotation of the same map
             base, projector = self._map[1], self._map[2]
         else:
             base, projector = self.transfer.environment(env, scale), None   # unrotated, scaled
         inside = _TexelLight(base, levels, rotate_y, projector=projector)
-        self._map = (env_key, base, inside.projector)
+        self._map = (env_key, base, inside.projector, env)
         device = kernels.Lighting(inside.tables()) if self.backend == "opencl" else None
         state = _LightingState(key, inside, device)
         state.env = env   # (an Environment object's identity is its key: keep it alive)
