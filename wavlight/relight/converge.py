@@ -526,15 +526,14 @@ def visible_sum(tracer, direct, origin, wi, value):
     """(N, 3) float64 per camera sample: ``direct`` plus its slots' estimates ``value`` (S, 3, N)
     whose shadow rays from ``origin`` (N, 3) along ``wi`` (S, 3, N) are not blocked; only the
     estimates that are not 0 are traced. Returns it and the rays traced."""
-    slot, pt = np.nonzero(np.maximum(np.maximum(value[:, 0], value[:, 1]), value[:, 2]) > 0)
-    dirs = wi[slot, :, pt]
+    S, _, N = value.shape
+    live = np.flatnonzero(np.maximum(np.maximum(value[:, 0], value[:, 1]), value[:, 2]) > 0)   # slot N + sample
+    pt = live % N
+    dirs = np.stack([wi[:, c, :].reshape(-1)[live] for c in range(3)], 1)   # three components, not samples
     blocked = tracer.occluded(np.take(origin, pt, axis=0), np.asarray(dirs, np.float32))
-    visible = np.zeros((value.shape[0], value.shape[2]), bool)
-    visible[slot, pt] = ~blocked
-    out = np.asarray(direct, np.float64).copy()
-    for j in range(value.shape[0]):   # slots, not samples
-        out += (value[j] * visible[j]).T
-    return out, len(pt)
+    visible = np.zeros(S * N, value.dtype)
+    visible[live] = ~blocked
+    return np.asarray(direct, np.float64) + (value * visible.reshape(S, 1, N)).sum(0).T, len(live)
 
 
 _LAST = {"frames": None, "transfer": None}
