@@ -10,7 +10,10 @@ Scenes (dicts of the scene-file structure, :func:`wavlight.load_dict`):
 - ``bunny_lambert/rooitou_park_1k``: the same bunny in lambert, albedo 0.7, on its floor under
   the park's sun (a diffuse object with hard shadows);
 - ``sphere_ggx/rooitou_park_1k``: a ggx 0.2 gold sphere of radius 0.5 resting on the same floor,
-  same camera, under the sun.
+  same camera, under the sun;
+- ``spot_lambert/<map>``: scenes/spot_ggx.toml (Keenan Crane's Spot on a lambert floor) with Spot
+  in lambert, its copper's albedo, under ``<map>`` (rooitou_park_1k: the park's low sun, long
+  shadows on the floor).
 
 Maps and the bunny are named as ``data:NAME`` (:mod:`wavlight.data`): fetched on first use, or
 found in the folder that ``WAVLIGHT_DATA`` names; :func:`begin` fetches every one of
@@ -43,7 +46,7 @@ ROOT = os.path.dirname(HERE)
 CACHE = os.environ.get("RELIGHT_BENCH_CACHE", "/tmp/relight-bench")
 #: the wavlight.data assets the relight benchmarks read (their scenes' maps, relight_error.py's
 #: other maps, the bunny)
-ASSETS = ("bunny", "rooitou_park_1k", "st_fagans_interior_1k", "potsdamer_platz_1k", "empty_warehouse_01_1k",
+ASSETS = ("bunny", "spot", "rooitou_park_1k", "st_fagans_interior_1k", "potsdamer_platz_1k", "empty_warehouse_01_1k",
           "kiara_1_dawn_1k", "immenstadter_horn_1k")
 EPS = 1e-2   # wavlight.evaluation.metrics.EPS
 
@@ -113,7 +116,17 @@ def sphere_ggx(env: str) -> dict:
     return d
 
 
-SCENES = {"bunny_ggx": bunny_ggx, "bunny_lambert": bunny_lambert, "sphere_ggx": sphere_ggx}
+def spot_lambert(env: str) -> dict:
+    with open(os.path.join(ROOT, "scenes", "spot_ggx.toml"), "rb") as fh:
+        d = tomllib.load(fh)
+    d["environment"]["file"] = envmap(env)
+    d["environment"]["rotate_y"] = 0.0
+    d["materials"]["copper"] = {"type": "lambert", "albedo": d["materials"]["copper"]["albedo"]}
+    return d
+
+
+SCENES = {"bunny_ggx": bunny_ggx, "bunny_lambert": bunny_lambert, "sphere_ggx": sphere_ggx,
+          "spot_lambert": spot_lambert}
 
 
 def scene_dict(name: str) -> dict:

@@ -156,7 +156,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
                 with progress_bar("parts", "rays", quiet) as bar:
                     result = converge(transfer, s["scene"], env, spp=spp, progress=bar,
                                       **given(s, "rotate_y", "seed"), **given(lit, "scale"))
-                image, st = result.image, {"frame_seconds": result.stats["render_seconds"], "terms": None,
+                image, st = result.image, {"frame_seconds": result.stats["frame_seconds"], "terms": None,
                                            "entries_read": 0}
                 times.append(st["frame_seconds"])
             else:

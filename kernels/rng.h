@@ -9,11 +9,14 @@
 
 /* The stream ids the kernels name: wavlight/rng.py declares every stream (its STREAMS) and
  * tests/test_rng_streams.py checks that these agree with it. (relight_moving.cl takes its
- * stream, rng.MOVING_DIRECTIONS, as an argument.) */
+ * stream, rng.MOVING_DIRECTIONS, as an argument, and converge.cl the first of its direction
+ * streams, rng.CONVERGE_DIRECTIONS: one per slot.) */
 #define RNG_JITTER 0u
 #define RNG_SHADING 1u
 #define RNG_STRATA 2u   /* per pixel and pass: the cell orders of its three pairs */
 #define RNG_TEXEL 8u    /* the bake's texel uniforms (relight.cl) */
+#define RNG_CONVERGE_RESAMPLE 74u   /* the unbiased relit frame's candidates (converge.cl) */
+#define RNG_CONVERGE_PICK 75u       /* and its picks among them */
 
 inline void philox4x32_10(uintv c0, uintv c1, uintv c2, uintv c3, uint k0, uint k1,
                           uintv *r0, uintv *r1, uintv *r2, uintv *r3)

@@ -1,79 +1,99 @@
 """The unbiased counterpart of a relit frame: directions importance-sampled from the product
 T1 x L of the bake's transfer and the frame's lighting, evaluated with the true BRDF, radiance
-and a shadow ray (Chen & Gao sec. 3.2 and 4.3-4.4).
+and a shadow ray (Chen & Gao sec. 2.2, eq. 6-8 and 12, sec. 4.3-4.4, eq. 17-25).
 
-Per block of pixels, the pixels' transfer coefficients (every entry the bake kept, dequantized)
-and the lighting's luminance on the same texels give each pixel's product pyramid by eq. 25
-(:class:`wavlight.haar.ProductPyramids`, batched over the block's pixels, negative leaves of the
-compressed transfer clamped to 0), and the hierarchical warp samples it
-(:class:`wavlight.haar.HaarTree`, kernels/warp.h): a direction lands in texel t with probability
-proportional to T_p,t L_t; inside the texel, as the lighting's luminance at the map's own
-resolution (the world-frame square of 2^m x 2^m leaves, m = the map's depth, a light tree's
-leaves, :func:`.lighting.project`), and inside the leaf as the map's pixels (a leaf of a map
-turned by a fraction of a column overlaps two of them: :class:`_TexelLight`): a sun smaller
-than a texel is found inside it, a sun one pixel wide in proportion to its own radiance. The
-pdf per solid angle = p_t 4^n (mass of the leaf / mass of the texel) 4^(m - n) (mass of the
-piece / mass of the leaf) / (its share of the leaf's area) / (2 pi^2 sin theta).
-Visibility is inside that product (T1 holds V), which is what the ``wavelet`` strategy's product
-lacks on shadowed scenes: where T1 is accurate, the estimate's noise is the visibility's
-variance inside a texel and the pixel.
+Per tile of pixels (whole blocks of the bake, one block row), the pixels' transfer on
+2^m x 2^m texels (the bake's quantized entries, read on the device: m = min(n, PRODUCT_LEVELS),
+a finer bake summed to them) and the lighting's luminance on the same texels give each pixel's
+product pyramid by eq. 25 at its leaves, H+_t gl_t (H+_t = max(H_t, 0), the compressed
+transfer's ringing clamped; gl_t the lighting's luminance mass of texel t), summed bottom up
+(kernel ``converge_trees``, twin :func:`tile_trees_reference`); the hierarchical warp walks it
+(kernels/warp.h, eq. 17-22): a direction lands in texel t with probability proportional to
+H+_t gl_t; inside the texel, as the lighting's luminance at the map's own resolution (the
+world-frame square of 2^top x 2^top leaves, top = the map's depth, a light tree's leaves,
+:func:`.lighting.project`), and inside the leaf as the map's pixels (a leaf of a map turned by
+a fraction of a column overlaps two of them: :class:`_TexelLight`): a sun smaller than a texel
+is found inside it, a sun one pixel wide in proportion to its own radiance. The pdf per solid
+angle = p_t 4^m (mass of the leaf / mass of the texel) 4^(top - m) (mass of the piece / mass of
+the leaf) / (its share of the leaf's area) / (2 pi^2 sin theta). Visibility is inside that
+product (T1 holds V), which is what the ``wavelet`` strategy's product lacks on shadowed
+scenes: where T1 is accurate, the estimate's noise is the visibility's variance inside a texel
+and the pixel.
 
-The relit frame is the control variate (:func:`control_terms`): g(w) = c T_t / Omega_t L(w), the
-pixel's transfer in the direction's texel times the map's radiance there, has the known
-integral G = c sum_t T_t L_t (the pixel's approximate frame, eq. 8, with every term,
-:func:`relit_values`), and each sample adds G + (f cos V L - g) / pdf: unbiased, since the
-lighting's share of the mixture makes the pdf positive wherever g is. c = S / hits of the bake's
-camera samples (:func:`hit_scales`): the frame's sample that hits is compared with the transfer
-of the bake's samples that hit. Without a lighting share there is no control variate.
+The relit frame is the control variate: g(w) = H+_t / Omega_t L(w), the pixel's clamped
+transfer in the direction's texel (read from its tree's leaf, H+_t = leaf / gl_t) times the
+map's radiance there, has the known integral G = sum_t H+_t L_t (the pixel's approximate frame,
+eq. 8, with every term, L_t the texel's mean radiance; summed with the tree), and each sample
+adds G + (f cos V L - g) / pdf: unbiased, since the lighting's share of the mixture makes the
+pdf positive wherever g is. The transfer is scaled by c = S / hits of the bake's camera
+samples (:func:`hit_scales`): the frame's sample that hits is compared with the transfer of
+the bake's samples that hit. Without a lighting share there is no control variate.
 
-Each camera sample (jittered in its pixel) takes ``slots`` directions of the defensive mixture
-(1 - alpha - beta) p_product + alpha p_bsdf + beta p_light (alpha = ``defensive``, beta =
-``light``; where the pixel has no product, alpha = 1 - beta), each traced and weighted by
-f cos / that pdf. The lighting alone finds a bright light where the bake's one shadow ray per
-texel hid it from a pixel's transfer; the BSDF covers every direction its lobe reaches,
-so the pdf is non-zero wherever the integrand is (the compressed product may be 0 there:
-dropped coefficients, a surface the pixel's samples did not see in the bake, a pixel whose
-product is 0 altogether). Bakes finer than PRODUCT_LEVELS are sampled on coarser texels (their
-sums), the lighting's own leaves placing the direction inside them. Samples that miss see the
-environment. The estimate is unbiased for any transfer: a converged frame equals ``mis`` of the
-same scene and lighting within their standard errors (tests/relight/test_relight.py).
+Each camera sample (jittered in its pixel, stratified over the pass's samples of the pixel)
+takes ``slots`` directions of the defensive mixture (1 - alpha - beta) p_product + alpha p_bsdf
++ beta p_light (alpha = ``defensive``, beta = ``light``; where the pixel has no product,
+alpha = 1 - beta), each traced and weighted by f cos / that pdf. The lighting alone finds a
+bright light where the bake's one shadow ray per texel hid it from a pixel's transfer; the BSDF
+covers every direction its lobe reaches, so the pdf is non-zero wherever the integrand is (the
+compressed product may be 0 there: dropped coefficients, a surface the pixel's samples did not
+see in the bake, a pixel whose product is 0 altogether). Samples that miss see the environment.
+The estimate is unbiased for any transfer: a converged frame equals ``mis`` of the same scene
+and lighting within their standard errors (tests/relight/test_relight.py).
 
 T1 is the mean of the lobes of the pixel's camera samples. Where their mirror directions spread
 wider than COHERENCE times a sample's own lobe (a glossy pixel over several facets,
 :func:`footprint_spread`), T1 is much wider than that lobe: the sample then resamples its slots
 among CANDIDATES mixture directions by a target of its own lobe and T1's visibility
-(:func:`shade_by_resampling`, Talbot et al. 2005), without the control variate, whose g (T1's
+(:func:`resampling_target`, Talbot et al. 2005), without the control variate, whose g (T1's
 mean lobe) is far from the sample's f cos V there.
+
+Passes. :class:`ConvergeFrames` holds what frames share: the scene's ray tracer, its tables and
+the bake's entries on the device, the pixels' footprint spreads (measured once, on first use),
+and for the current lighting (map, rotation, scale) its tables and the tiles' trees, kept up to
+TREE_CACHE_BYTES of device memory. A frame then runs per tile: its trees (kept, or one launch of
+``converge_trees``), and per pass of at most PASS_SAMPLES camera samples: the camera rays
+(kernels/camera.cl), their hits (embree), one launch of ``converge_shade`` (every direction, pdf,
+estimate and control variate; twin :func:`shade_reference`), the shadow rays of the estimates
+that are not 0 (embree), and the pixels' sums. A second frame under the same lighting (more
+samples, another seed) pays only for the passes. :func:`converge` is one frame of a
+ConvergeFrames it keeps for the next call with the same transfer and scene.
 """
 from __future__ import annotations
 
 import os
 import threading
 import time
+import weakref
 from typing import NamedTuple
 
 import numpy as np
 
-from .. import bsdfs, rng
+from .. import bsdfs, camera, cl, rng
 from ..camera import camera_rays
-from ..envmap import Environment, luminance
+from ..envmap import luminance
 from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_number
-from ..haar import ProductPyramids, forward, texel_values
+from ..haar import inverse
+from ..haar.tree import HaarTree, build_reference, level_offset, morton_index
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import check_scene, load_scene
 from ..threads import default_threads, map_until_stopped
 from ..warp import frame as tangent_frame
 from ..warp import to_local
+from . import converge_kernels as kernels
 from . import lighting
-from .bake import BLOCK, camera_jitter
+from .bake import BLOCK
+from .frame import DeviceEntries
 from .settings import FRAME, UNBIASED_SPP
 
 MAX_SPP = FRAME["spp"].hi
 #: the product trees' levels at most (finer bakes are summed to them: 2^m x 2^m texels of the
 #: transfer are its coefficients' top-left 2^m x 2^m block times 4^(n - m)); inside a texel
-#: the lighting's own leaves place the direction (docs/decisions/relight-product-levels.md)
-PRODUCT_LEVELS = 6
+#: the lighting's own leaves place the direction (docs/decisions/relight-product-levels.md,
+#: docs/decisions/relight-converge-kernels.md: 2^6 x 2^6 trees write four times the memory)
+PRODUCT_LEVELS = 5
+#: directions (shadow rays) per camera sample (docs/decisions/relight-converge-kernels.md)
+SLOTS = 4
 #: the mixture's shares: the BSDF (defensive) and the lighting alone; the product has the rest
 DEFENSIVE = 0.3
 LIGHT_SHARE = 0.1
@@ -88,13 +108,32 @@ MAX_CANDIDATES = 256
 LOBE_POWER = 0.6
 TARGET_BSDF = 0.05
 TARGET_TRANSFER = 0.1
-#: directions per camera sample at most: one Philox stream each, rng.CONVERGE_DIRECTIONS
+#: directions per camera sample at most (slot j takes point j of the lattice below)
 MAX_SLOTS = len(rng.CONVERGE_DIRECTIONS)
+#: a camera sample's slots (and a resampled one's candidates) are the points j of the rank-1
+#: lattice of the R4 sequence (Roberts 2018: alpha_i = phi^-i, phi^5 = phi + 1) shifted by one
+#: Philox draw of four uniforms, frac(u_i + j alpha_i) (:func:`lattice`): each point uniform,
+#: the points of a sample spread over the cube; alpha_i in 24-bit fixed point, so that the sum
+#: is exact in float32 (the kernel adds the same floats)
+LATTICE = (14372620, 12312662, 10547948, 9036163)
 #: sub-pixel rays per side of the fixed grid that measures a pixel's footprint
-FOOTPRINT_GRID = 4
-#: camera samples per pixel of a block taken at once (a pass; more spp, more passes): the
-#: memory of a block's samples and their candidates stays bounded at any spp
+FOOTPRINT_GRID = 2
+#: a tile: at most this many of the bake's blocks of one block row (its trees on the device at
+#: once: 2048 pixels, 11 MB at 2^5 x 2^5 texels, 45 MB at 2^6 x 2^6)
+TILE_BLOCKS = 8
+#: camera samples of a tile taken at once (a pass; more spp, more passes): the memory of a pass
+#: stays bounded at any spp
+PASS_SAMPLES = 1 << 16
+#: and at most this many samples per pixel
 PASS_SPP = 64
+#: the tiles' trees of the current lighting kept on the device for the next frame, at most this
+#: many bytes (and a quarter of the device's global memory)
+TREE_CACHE_BYTES = 1 << 30
+#: a frame's tile i draws its Philox numbers as tile CONVERGE_TILES + i (streams rng.JITTER,
+#: rng.STRATA, rng.CONVERGE_*): not the bake's tiles, so that a frame's camera samples are
+#: never the bake's own
+CONVERGE_TILES = 13 << 16
+BACKENDS = ("opencl", "numpy")
 
 
 def check_scene_matches(transfer, scene):
@@ -159,7 +198,7 @@ def solid_angle_jacobian(d: np.ndarray) -> np.ndarray:
 
 
 class _Block:
-    """A block's stored coefficients, from the bake file's offset table."""
+    """A block's stored coefficients, from the bake file's offset table (the twins' input)."""
 
     def __init__(self, transfer):
         self.offsets = transfer._s["offsets"]
@@ -177,117 +216,383 @@ class _Block:
         return out
 
 
-def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME["scale"].default,
-             spp: int = UNBIASED_SPP, seed: int = FRAME["seed"].default, threads=None, progress=None, slots: int = 2, defensive: float = DEFENSIVE,
-             levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE, control: bool = True,
-             candidates: int = CANDIDATES, coherence: float = COHERENCE) -> RenderResult:
-    """The unbiased frame of ``transfer`` under ``env`` (default: the baked map) turned to
-    ``rotate_y`` (default: the scene's) and scaled, with ``spp`` camera samples per pixel (each
-    with ``slots`` directions of the defensive mixture; module docstring). ``scene``: the scene
-    the transfer was baked from (default: reloaded from the path the bake recorded; refused if
-    it changed). The product trees have min(n, ``levels``) levels. With ``control`` (and a
-    lighting share ``light`` > 0) the pixel's relit value G = sum_t T_t L_t is the control
-    variate's known integral (:func:`control_terms`). A camera sample whose pixel's footprint
-    reflects over more than ``coherence`` times its lobe's width resamples its slots from
-    ``candidates`` directions (:func:`shade_by_resampling`; 0: never). Returns a RenderResult:
-    image, per-pixel standard error, stats."""
-    where = "relight.converge"
-    spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)
-    levels = check_int(where, "levels", levels, 1, 16)
-    slots = check_int(where, "slots", slots, 1, MAX_SLOTS)
-    candidates = check_int(where, "candidates", candidates, 0, MAX_CANDIDATES)
-    coherence = check_number(where, "coherence", coherence, 0.0, None)
-    defensive, light = check_shares(where, defensive, light)
-    use_control = bool(control) and light > 0
-    scene = _scene_of(transfer, scene)
-    rot = transfer.scene_rotate_y if rotate_y is None else check_degrees(where, "rotate_y", rotate_y)
-    base = transfer.environment(env, scale)                     # unrotated, scaled
-    turned = Environment(base.pixels, 1.0, rot, base.name)      # for radiance lookups
-    n = min(transfer.n_levels, levels)
-    fine = transfer.n_levels
-    inside = _TexelLight(base, n, rot)
-    hit_scale = hit_scales(transfer) if use_control or candidates else None
-    if use_control:
-        inside.radiance_coefficients()                          # once, before the threads
-    pyramids = ProductPyramids(forward(inside.texel_luminance), n, nonnegative=True)
-    tracer = RayTracer(scene.vertices, scene.faces, threads=1)
-    blocks = _Block(transfer)
-    width, height = transfer.width, transfer.height
+def tile_coefficients(transfer, tile, levels: int) -> np.ndarray:
+    """(w h, 2^m, 2^m) float32: the transfer coefficients of the tile's pixels (row-major in the
+    tile) on 2^m x 2^m texels, m = ``levels`` <= n: the top-left 2^m x 2^m block of each
+    pixel's 2^n x 2^n coefficients times 4^(n - m), the transform of its summed texels."""
+    n, blocks = transfer.n_levels, _Block(transfer)
+    side = 1 << levels
+    out = np.zeros((tile.h, tile.w, side, side), np.float32)
+    for j in range(tile.blocks):   # blocks, not pixels
+        c = blocks.coefficients(transfer, tile.block_row * transfer.blocks[0] + tile.bx0 + j)
+        c = c.reshape(BLOCK, BLOCK, 1 << n, 1 << n)[:tile.h, :, :side, :side] * np.float32(4.0 ** (n - levels))
+        x = j * BLOCK
+        out[:, x:x + BLOCK] = c[:, :min(BLOCK, tile.w - x)]
+    return out.reshape(tile.w * tile.h, side, side)
+
+
+class Tile(NamedTuple):
+    """A tile of the image: ``blocks`` of the bake's blocks of block row ``block_row`` from block
+    column ``bx0``, the pixels x0 .. x0 + w - 1, y0 .. y0 + h - 1 (clipped to the image)."""
+
+    index: int
+    block_row: int
+    bx0: int
+    blocks: int
+    x0: int
+    y0: int
+    w: int
+    h: int
+
+
+def tiles_of(transfer) -> list:
+    """The image's tiles: TILE_BLOCKS blocks of a block row each (fewer at the right edge)."""
     bw, bh = transfer.blocks
-    sums = np.zeros((height, width, 3))
-    squares = np.zeros((height, width, 3))
-    totals = {"rays": 0, "done": 0, "hits": 0, "resampled": 0}
-    lock = threading.Lock()
-    t0 = time.perf_counter()
+    out = []
+    for by in range(bh):
+        for bx0 in range(0, bw, TILE_BLOCKS):
+            nb = min(TILE_BLOCKS, bw - bx0)
+            x0, y0 = bx0 * BLOCK, by * BLOCK
+            out.append(Tile(len(out), by, bx0, nb, x0, y0, min(nb * BLOCK, transfer.width - x0),
+                            min(BLOCK, transfer.height - y0)))
+    return out
 
-    def one(block, stop):
-        by, bx = divmod(block, bw)
-        x0, y0 = bx * BLOCK, by * BLOCK
-        w, h = min(BLOCK, width - x0), min(BLOCK, height - y0)
-        coeffs = blocks.coefficients(transfer, block).reshape(BLOCK, BLOCK, -1)[:h, :w].reshape(w * h, 1 << fine,
-                                                                                              1 << fine)
-        if n < fine:   # the coarser texels' transform: summed texels, the top-left block
-            coeffs = coeffs[:, :1 << n, :1 << n] * np.float32(4.0 ** (fine - n))
-        trees = pyramids.trees(coeffs)
-        mass = trees.integral                                   # (P,) 0: no product sample for the pixel
-        scaled = None
-        if hit_scale is not None:   # the transfer per camera sample that hits: the transfer counts the bake's
-            c = hit_scale[y0:y0 + h, x0:x0 + w].reshape(-1)     # misses as 0 (hit_scales)
-            scaled = coeffs * c.astype(np.float32)[:, None, None]
-        cv = (scaled, relit_values(scaled, inside)) if use_control else None   # G of the very coefficients g reads
-        P = w * h
-        pix = np.arange(P)
-        spread = footprint_spread(scene, tracer, x0, y0, w, h, width, height) if candidates else None
-        rays = P * FOOTPRINT_GRID ** 2 if candidates else 0
-        hits = chosen = 0
-        for first in range(0, spp, PASS_SPP):   # passes of samples per pixel, not samples: bounded memory
-            if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
-                return
-            k = min(PASS_SPP, spp - first)
-            px, py = np.repeat(x0 + pix % w, k), np.repeat(y0 + pix // w, k)
-            eye, d = camera_rays(scene, px, py, camera_jitter(seed, block, P, k, first * P), width, height)
-            prim, t = tracer.intersect(eye, d)
-            hit = np.flatnonzero(prim >= 0)
-            value = np.zeros((P * k, 3))
-            miss = np.flatnonzero(prim < 0)
-            value[miss] = turned.eval(d[miss].astype(np.float64))
-            rays += P * k
-            if len(hit):
-                resample = None
-                if candidates:
-                    mat = scene.face_material[prim[hit]]
-                    pick = spread[hit // k] > coherence * bsdfs.lobe_width(scene.material_kind[mat],
-                                                                           scene.material_param[mat])
-                    resample, chosen = (scaled, pick, candidates), chosen + int(pick.sum())
-                value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, k,
-                                                      (seed, block), turned, defensive, slots, light, cv, resample,
-                                                      first * P)
+
+class _LightingState:
+    """One lighting of a ConvergeFrames: its key, the lighting inside the texels, its tables on
+    the device and the tiles' trees kept under it."""
+
+    def __init__(self, key, inside, device):
+        self.key, self.inside, self.device = key, inside, device
+        self.trees, self.kept_bytes = {}, 0
+        self.lock = threading.Lock()
+
+
+def _environment_key(env):
+    """What identifies a frame's map: None (the baked one), a file or data: name, or an
+    Environment object (by identity; the ConvergeFrames keeps it)."""
+    if env is None or isinstance(env, (str, os.PathLike)):
+        return ("map", None if env is None else os.fspath(env))
+    return ("object", id(env))
+
+
+class ConvergeFrames:
+    """Unbiased frames of one lighting bake (module docstring): ``frame(env, rotate_y, scale,
+    spp, seed, ...)``. ``scene``: the scene the transfer was baked from (default: reloaded from
+    the path the bake recorded; refused if it changed). ``backend="numpy"`` runs the kernels'
+    numpy twins (same random numbers, same estimator; slow: tests). What does not depend on the
+    lighting is made here and kept; what does, per lighting, and kept while frames keep it."""
+
+    def __init__(self, transfer, scene=None, threads=None, backend: str = "opencl"):
+        if transfer.header.get("vary", "lighting") != "lighting":
+            raise WavlightError(f"{transfer.path}: this bake varies the {transfer.header.get('vary')}, not the "
+                                "lighting: its unbiased frames are its own")
+        if backend not in BACKENDS:
+            raise ArgumentError(f"relight.ConvergeFrames: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+        self.transfer, self.backend = transfer, backend
+        self.threads = threads
+        self.scene = _scene_of(transfer, scene)
+        t0 = time.perf_counter()
+        sc = self.scene
+        self.tracer = RayTracer(sc.vertices, sc.faces, threads=1)
+        self.hit_scale = hit_scales(transfer).astype(np.float32)
+        #: the trees' scale: c, and 0 where every camera sample of the bake missed (no transfer: no tree)
+        self.tree_scale = np.where(bake_hits(transfer) > 0, self.hit_scale, 0.0).astype(np.float32)
+        self.tiles = tiles_of(transfer)
+        self.lobe_width = bsdfs.lobe_width(sc.material_kind, sc.material_param).astype(np.float32)
+        self._spread, self._spread_rays = {}, 0
+        self._lighting = None
+        self._spare = {}   # tile -> TileTrees of a lighting no longer current, their buffers for reuse
+        self._map = None   # (map key, its Environment, its lighting.Projector, env): the last map's
+        self._sections = transfer._s
+        self._lock = threading.Lock()
+        if backend == "opencl":
+            device = cl.runtime().device
+            self.tree_cache_bytes = min(TREE_CACHE_BYTES, int(device.global_mem_size) // 4)
+            entries = DeviceEntries(transfer._s["offsets"], transfer._s["entry_scale"], transfer._s["entry_data"])
+            self._trees = kernels.TreeKernel(entries, transfer._s["offsets"], self.tree_scale, transfer.n_levels,
+                                             transfer.blocks[0], transfer.width)
+            self._shade = kernels.ShadeKernel(sc, self.tracer, self.lobe_width)
+            camera.warm_up(sc)
+        else:
+            self.tree_cache_bytes = 0
+        self.setup_seconds = time.perf_counter() - t0
+
+    def serves(self, transfer, scene) -> bool:
+        """Whether this holds ``transfer`` (open, the same sections) and ``scene`` (the same
+        object, or None where this one was reloaded from the bake's path)."""
+        return transfer._s is self._sections and bool(self._sections) and (scene is None or scene is self.scene)
+
+    # -- what frames share
+    def program(self, levels: int, slots: int, candidates: int, control: bool):
+        """kernels/converge.cl for this bake and scene (:func:`.converge_kernels.program`)."""
+        return kernels.program(levels, self.transfer.bits, self._shade.kinds, slots, candidates, control, LATTICE)
+
+    def spread(self, tile, prog=None):
+        """The footprint spread of the tile's pixels (measured once): (w h,) float32 on the host
+        and its device buffer (kernel ``converge_spread`` of ``prog``; twin footprint_spread)."""
+        with self._lock:
+            s = self._spread.get(tile.index)
+        if s is None:
+            tr = self.transfer
+            if self.backend == "opencl" and prog is not None:
+                d, prim = footprint_rays(self.scene, self.tracer, tile.x0, tile.y0, tile.w, tile.h, tr.width,
+                                         tr.height)
+                s = self._shade.spread(prog, d, prim, FOOTPRINT_GRID ** 2)
+            else:
+                s = footprint_spread(self.scene, self.tracer, tile.x0, tile.y0, tile.w, tile.h, tr.width,
+                                     tr.height).astype(np.float32)
+                s = (cl.to_device(s) if self.backend == "opencl" else None, s)
+            with self._lock:
+                self._spread[tile.index] = s = (s[1], s[0])
+                self._spread_rays += tile.w * tile.h * FOOTPRINT_GRID ** 2
+        return s
+
+    def lighting(self, env, rotate_y: float, scale: float, levels: int) -> _LightingState:
+        """The lighting state of (env, rotate_y, scale) on 2^levels texels: the current one, or
+        made anew (the current one's trees released)."""
+        key = (_environment_key(env), float(rotate_y), float(scale), int(levels))
+        current = self._lighting
+        if current is not None and current.key == key:
+            return current
+        if current is not None:   # its trees' buffers serve the new lighting's (no new pages to fault in)
+            self._spare = current.trees
+        self._lighting = None
+        env_key = key[0] + (float(scale),)
+        same_map = (self._map is not None and self._map[0] == env_key
+                    and (env_key[0] == "map" or self._map[3] is env))   # (an object: the very one)
+        if same_map:   # another rotation of the same map
+            base, projector = self._map[1], self._map[2]
+        else:
+            base, projector = self.transfer.environment(env, scale), None   # unrotated, scaled
+        inside = _TexelLight(base, levels, rotate_y, projector=projector)
+        self._map = (env_key, base, inside.projector, env)
+        device = kernels.Lighting(inside.tables()) if self.backend == "opencl" else None
+        state = _LightingState(key, inside, device)
+        state.env = env   # (an Environment object's identity is its key: keep it alive)
+        self._lighting = state
+        return state
+
+    def tile_trees(self, state, tile, prog):
+        """The tile's product trees under the lighting ``state``: kept ones, or built (and kept
+        while they fit in tree_cache_bytes); with the numpy backend (HaarTree, host nodes, G)."""
+        with state.lock:
+            kept = state.trees.get(tile.index)
+        if kept is not None:
+            return kept, True
+        m = state.inside.n
+        if self.backend == "numpy":
+            coeffs = tile_coefficients(self.transfer, tile, m)
+            scale = self.tree_scale[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
+            nodes, relit = tile_trees_reference(coeffs, state.inside, scale)
+            return (HaarTree.from_pyramids(nodes), nodes, relit), False
+        nbytes = kernels.TileTrees(None, None, tile.w * tile.h, m).nbytes
+        with state.lock:
+            keep = state.kept_bytes + nbytes <= self.tree_cache_bytes
+            if keep:
+                state.kept_bytes += nbytes
+            spare = self._spare.pop(tile.index, None) if keep else None
+        if spare is not None and spare.levels != m:
+            spare = None
+        made = self._trees(prog, state.device, tile, into=spare if keep else "scratch")
+        if keep:
+            with state.lock:
+                state.trees[tile.index] = made
+        return made, False
+
+    # -- a frame
+    def frame(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, spp: int = UNBIASED_SPP,
+              seed: int = FRAME["seed"].default, progress=None, slots: int = SLOTS, defensive: float = DEFENSIVE,
+              levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE, control: bool = True,
+              candidates: int = CANDIDATES, coherence: float = COHERENCE) -> RenderResult:
+        """The unbiased frame under ``env`` (default: the baked map; a file, data:NAME or an
+        Environment) turned to ``rotate_y`` (default: the scene's) and scaled, with ``spp`` camera
+        samples per pixel, each with ``slots`` directions of the defensive mixture (module
+        docstring). The product trees have min(n, ``levels``) levels. With ``control`` (and a
+        lighting share ``light`` > 0) the pixel's relit value G is the control variate's known
+        integral. A camera sample whose pixel's footprint reflects over more than ``coherence``
+        times its lobe's width resamples its slots from ``candidates`` directions (0: never).
+        Returns a RenderResult: image, per-pixel standard error, stats."""
+        where = "relight.converge"
+        spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)
+        levels = check_int(where, "levels", levels, 1, 16)
+        slots = check_int(where, "slots", slots, 1, MAX_SLOTS)
+        candidates = check_int(where, "candidates", candidates, 0, MAX_CANDIDATES)
+        coherence = check_number(where, "coherence", coherence, 0.0, None)
+        defensive, light = check_shares(where, defensive, light)
+        scale = FRAME["scale"].check(scale, where)
+        if rotate_y is not None:
+            rotate_y = check_degrees(where, "rotate_y", rotate_y)
+        if progress is not None and not callable(progress):
+            raise ArgumentError(f"{where}: progress must be a callable or None")
+        use_control = bool(control) and light > 0
+        tr = self.transfer
+        rot = tr.scene_rotate_y if rotate_y is None else float(rotate_y)
+        m = min(tr.n_levels, levels)
+        t0 = time.perf_counter()
+        state = self.lighting(env, rot, scale, m)
+        lighting_seconds = time.perf_counter() - t0
+        prog = None
+        if self.backend == "opencl":
+            prog = self.program(m, slots, candidates, use_control)
+        width, height = tr.width, tr.height
+        sums = np.zeros((height, width, 3))
+        squares = np.zeros((height, width, 3))
+        totals = {"rays": 0, "done": 0, "hits": 0, "resampled": 0, "kept": 0}
+        lock = threading.Lock()
+        shares = (defensive, light, coherence)
+        eye = np.broadcast_to(self.scene.camera.eye.astype(np.float32), (1, 3))
+        spread_rays = self._spread_rays
+
+        def one(tile, stop):
+            trees, was_kept = self.tile_trees(state, tile, prog)
+            spread = self.spread(tile, prog) if candidates else (np.zeros(tile.w * tile.h, np.float32), None)
+            if self.backend == "opencl" and spread[1] is None:
+                spread = (spread[0], cl.to_device(spread[0]))
+            if prog is not None:
+                self._shade.warm_up(prog, slots, trees, spread[1], state.device, shares)
+            P = tile.w * tile.h
+            tile_id = CONVERGE_TILES + tile.index
+            per_pass = pass_spp(spp, P)
+            s_sum, s_sq = np.zeros((P, 3)), np.zeros((P, 3))
+            rays = hits = chosen = 0
+            for first in range(0, spp, per_pass):   # passes of samples per pixel, not samples: bounded memory
+                if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
+                    return
+                k = min(per_pass, spp - first)
+                d = camera.pass_rays(self.scene, width, height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k,
+                                     first * P, kernel=self.backend == "opencl", stratified=True)
+                prim, t = self.tracer.intersect(np.broadcast_to(eye, d.shape), d)
+                rays += len(d)
+                if self.backend == "opencl":
+                    direct, origin, wi, value = self._shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
+                                                            state.device, shares, seed, tile_id)
+                else:
+                    direct, origin, wi, value = shade_reference(
+                        self.scene, self.tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], state.inside,
+                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence)
+                v, traced = visible_sum(self.tracer, direct, origin, wi, value)
                 rays += traced
-            hits += len(hit)
-            v = value.reshape(h, w, k, 3)
+                hit = prim >= 0
+                hits += int(hit.sum())
+                if candidates:
+                    mat = self.scene.face_material[prim[hit]]
+                    chosen += int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
+                v = v.reshape(P, k, 3)
+                s_sum += v.sum(1)
+                s_sq += (v * v).sum(1)
+            img = (slice(tile.y0, tile.y0 + tile.h), slice(tile.x0, tile.x0 + tile.w))
             with lock:
-                sums[y0:y0 + h, x0:x0 + w] += v.sum(2)
-                squares[y0:y0 + h, x0:x0 + w] += (v * v).sum(2)
-        with lock:
-            totals["rays"] += rays
-            totals["done"] += 1
-            totals["hits"] += hits
-            totals["resampled"] += chosen
-            if progress:
-                progress(totals["done"], bw * bh, totals["rays"], time.perf_counter() - t0)
+                sums[img] += s_sum.reshape(tile.h, tile.w, 3)
+                squares[img] += s_sq.reshape(tile.h, tile.w, 3)
+                totals["rays"] += rays
+                totals["done"] += 1
+                totals["hits"] += hits
+                totals["resampled"] += chosen
+                totals["kept"] += int(was_kept)
+                if progress:
+                    progress(totals["done"], len(self.tiles), totals["rays"], time.perf_counter() - t0)
 
-    map_until_stopped(one, range(bw * bh), threads or default_threads())
-    seconds = time.perf_counter() - t0
-    mean, err = mean_and_error(sums, squares, spp)
-    stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
-             "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
-             "rotate_y": rot, "product_levels": n, "slots": slots, "candidates": candidates,
-             "pass_spp": min(spp, PASS_SPP), "pass_samples": BLOCK * BLOCK * min(spp, PASS_SPP),
-             "resampled_share": round(totals["resampled"] / totals["hits"], 4) if totals["hits"] else 0.0,
-             "estimator": "product T1 x L (eq. 25) + BSDF + lighting, defensive mixture"
-                          + (", the relit frame as control variate" if use_control else "")
-                          + (", resampled where the pixel's footprint is wider than the lobe" if candidates else "")}
-    return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
+        threads = self.threads or default_threads()
+        map_until_stopped(one, self.tiles, threads)
+        self._spare = {}
+        seconds = time.perf_counter() - t0
+        mean, err = mean_and_error(sums, squares, spp)
+        max_tile = max(t.w * t.h for t in self.tiles)
+        rays = totals["rays"] + self._spread_rays - spread_rays
+        stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
+                 "lighting_seconds": round(lighting_seconds, 4), "rays": rays,
+                 "rays_per_second": round(rays / seconds, 1) if seconds > 0 else None,
+                 "rotate_y": rot, "product_levels": m, "slots": slots, "candidates": candidates,
+                 "pass_spp": pass_spp(spp, max_tile), "pass_samples": max_tile * pass_spp(spp, max_tile),
+                 "tiles": len(self.tiles), "tiles_kept": totals["kept"], "kept_tree_bytes": state.kept_bytes,
+                 "backend": self.backend,
+                 "resampled_share": round(totals["resampled"] / totals["hits"], 4) if totals["hits"] else 0.0,
+                 "estimator": "product T1 x L (eq. 25) + BSDF + lighting, defensive mixture"
+                              + (", the relit frame as control variate" if use_control else "")
+                              + (", resampled where the pixel's footprint is wider than the lobe" if candidates else "")}
+        return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
+
+    def release_lighting(self):
+        """Drop the current lighting's tables and kept trees: the next frame makes them anew (in
+        new buffers)."""
+        self._lighting = None
+        self._spare = {}
+
+    def close(self):
+        """Release the device memory of the kept trees, tables and footprints."""
+        self._lighting = self._map = None
+        self._spare = {}
+        self._spread = {}
+
+
+def pass_spp(spp: int, pixels: int) -> int:
+    """Camera samples per pixel of one pass over a tile of ``pixels``: at most PASS_SPP, and
+    PASS_SAMPLES in all."""
+    return max(1, min(spp, PASS_SPP, PASS_SAMPLES // pixels))
+
+
+def visible_sum(tracer, direct, origin, wi, value):
+    """(N, 3) float64 per camera sample: ``direct`` plus its slots' estimates ``value`` (S, 3, N)
+    whose shadow rays from ``origin`` (N, 3) along ``wi`` (S, 3, N) are not blocked; only the
+    estimates that are not 0 are traced. Returns it and the rays traced."""
+    S, _, N = value.shape
+    live = np.flatnonzero(np.maximum(np.maximum(value[:, 0], value[:, 1]), value[:, 2]) > 0)   # slot N + sample
+    pt = live % N
+    dirs = np.stack([wi[:, c, :].reshape(-1)[live] for c in range(3)], 1)   # three components, not samples
+    blocked = tracer.occluded(np.take(origin, pt, axis=0), np.asarray(dirs, np.float32))
+    visible = np.zeros(S * N, value.dtype)
+    visible[live] = ~blocked
+    return np.asarray(direct, np.float64) + (value * visible.reshape(S, 1, N)).sum(0).T, len(live)
+
+
+_LAST = {"frames": None, "transfer": None}
+_LAST_LOCK = threading.Lock()
+
+
+def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME["scale"].default,
+             spp: int = UNBIASED_SPP, seed: int = FRAME["seed"].default, threads=None, progress=None, slots: int = SLOTS,
+             defensive: float = DEFENSIVE, levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE,
+             control: bool = True, candidates: int = CANDIDATES, coherence: float = COHERENCE,
+             backend: str = "opencl") -> RenderResult:
+    """The unbiased frame of ``transfer`` under ``env`` (default: the baked map) turned to
+    ``rotate_y`` (default: the scene's) and scaled, with ``spp`` camera samples per pixel: one
+    frame of a :class:`ConvergeFrames` (its ``frame`` documents the other arguments), the one of
+    the last call where it holds the same transfer and scene (the same object, or None again),
+    so that another call under the same lighting pays only for its samples. ``scene``: the scene
+    the transfer was baked from (default: reloaded from the path the bake recorded; refused if
+    it changed). The stats' ``frame_seconds``: this call's time after the bake and scene were
+    loaded (the ConvergeFrames it made, if any, and the frame: ``setup_seconds`` +
+    ``render_seconds``)."""
+    with _LAST_LOCK:
+        frames = _LAST["frames"]
+        same = (frames is not None and _LAST["transfer"]() is transfer and frames.backend == backend
+                and frames.threads == threads and frames.serves(transfer, scene))
+        if not same:
+            _LAST["frames"] = _LAST["transfer"] = frames = None
+            if scene is None or isinstance(scene, (str, os.PathLike)):
+                scene = _scene_of(transfer, scene)   # loaded: not part of the frame's time
+            frames = ConvergeFrames(transfer, scene, threads, backend)
+            _LAST["frames"], _LAST["transfer"] = frames, weakref.ref(transfer)
+            setup = frames.setup_seconds
+        else:
+            setup = 0.0
+        result = frames.frame(env, rotate_y, scale, spp, seed, progress, slots, defensive, levels, light, control,
+                              candidates, coherence)
+    result.stats["setup_seconds"] = round(setup, 4)
+    result.stats["frame_seconds"] = round(setup + result.stats["render_seconds"], 4)
+    return result
+
+
+def footprint_rays(scene, tracer, x0: int, y0: int, w: int, h: int, width: int, height: int):
+    """The fixed FOOTPRINT_GRID x FOOTPRINT_GRID grid of rays through each pixel of the w x h tile
+    at (x0, y0), pixel-major: directions (P G^2, 3) float32 and the faces they hit (-1: a miss)."""
+    g = FOOTPRINT_GRID
+    P = w * h
+    pix = np.repeat(np.arange(P), g * g)
+    sub = (np.stack(np.meshgrid(np.arange(g), np.arange(g)), -1).reshape(-1, 2) + 0.5) / g
+    eye, d = camera_rays(scene, x0 + pix % w, y0 + pix // w, np.tile(sub, (P, 1)).astype(np.float32), width, height)
+    return d, tracer.intersect(eye, d)[0]
 
 
 def footprint_spread(scene, tracer, x0: int, y0: int, w: int, h: int, width: int, height: int) -> np.ndarray:
@@ -302,12 +607,11 @@ def footprint_spread(scene, tracer, x0: int, y0: int, w: int, h: int, width: int
     g = FOOTPRINT_GRID
     P = w * h
     pix = np.repeat(np.arange(P), g * g)
-    sub = (np.stack(np.meshgrid(np.arange(g), np.arange(g)), -1).reshape(-1, 2) + 0.5) / g
-    eye, d = camera_rays(scene, x0 + pix % w, y0 + pix // w, np.tile(sub, (P, 1)).astype(np.float32), width, height)
-    prim, t = tracer.intersect(eye, d)
+    d, prim = footprint_rays(scene, tracer, x0, y0, w, h, width, height)
     hit = np.flatnonzero(prim >= 0)
-    nrm, _, _ = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
-    nrm, dh = nrm.astype(np.float64), d[hit].astype(np.float64)
+    nrm = tracer.face_normals[prim[hit]].astype(np.float64)
+    dh = d[hit].astype(np.float64)
+    nrm *= np.where(np.einsum("ij,ij->i", nrm, dh) > 0, -1.0, 1.0)[:, None]   # turned towards the viewer
     mirror = dh - 2.0 * np.einsum("ij,ij->i", dh, nrm)[:, None] * nrm
     sums = np.stack([np.bincount(pix[hit], mirror[:, k], P) for k in range(3)], 1)   # 3 axes, not pixels
     count = np.bincount(pix[hit], minlength=P)
@@ -315,13 +619,14 @@ def footprint_spread(scene, tracer, x0: int, y0: int, w: int, h: int, width: int
     return np.where(count > 1, np.sqrt(np.maximum(2.0 * (1.0 - length), 0.0)), 0.0)
 
 
-def relit_values(coeffs: np.ndarray, inside) -> np.ndarray:
-    """(P, 3) float64 G = sum_t T_t L_t of pixels' transfer coefficients (P, 2^n, 2^n) and the
-    lighting's texel radiance (``inside``, a :class:`_TexelLight` of n levels): the relit frame's
-    value (eq. 8 with every term), by Parseval as 4^n sum_k T^_k L^_k (the transform is
-    orthonormal over the unit square). In float64: it is the control variate's exact integral,
-    which float32 would bias under a bright sun."""
-    return coeffs.reshape(len(coeffs), -1).astype(np.float64) @ inside.radiance_coefficients()
+def bake_hits(transfer) -> np.ndarray:
+    """(H, W) float64: how many of the bake's S camera samples of each pixel hit a surface."""
+    hits = np.full(transfer.width * transfer.height, float(transfer.spp))
+    pixels = np.asarray(transfer._s["background_pixel"], np.int64)
+    if len(pixels):
+        mask = np.asarray(transfer._s["background_mask"], np.uint64)
+        hits[pixels] -= np.unpackbits(mask.view(np.uint8).reshape(-1, 8), axis=1).sum(1)
+    return hits.reshape(transfer.height, transfer.width)
 
 
 def hit_scales(transfer) -> np.ndarray:
@@ -329,14 +634,8 @@ def hit_scales(transfer) -> np.ndarray:
     all miss). The transfer is a mean over all S samples, misses counted as 0; a camera sample of
     the frame that hits is closer to the transfer of the hits alone, on a silhouette's pixels
     too. A constant per pixel: the control variate (g and G alike) stays unbiased."""
-    hits = np.full(transfer.width * transfer.height, float(transfer.spp))
-    pixels = np.asarray(transfer._s["background_pixel"], np.int64)
-    if len(pixels):
-        mask = np.asarray(transfer._s["background_mask"], np.uint64)
-        misses = np.unpackbits(mask.view(np.uint8).reshape(-1, 8), axis=1).sum(1)
-        hits[pixels] -= misses
-    scale = np.where(hits > 0, transfer.spp / np.maximum(hits, 1.0), 1.0)
-    return scale.reshape(transfer.height, transfer.width)
+    hits = bake_hits(transfer)
+    return np.where(hits > 0, transfer.spp / np.maximum(hits, 1.0), 1.0)
 
 
 class _TexelLight:
@@ -353,9 +652,12 @@ class _TexelLight:
     :meth:`radiance` is the map pixel's. Without, the point is uniform in its leaf (what the
     moving object's kernel does, kernels/relight_moving.cl)."""
 
-    def __init__(self, environment, n_levels: int, rotate_y: float, map_pixels: bool = True):
+    def __init__(self, environment, n_levels: int, rotate_y: float, map_pixels: bool = True, projector=None):
         top = max(environment.square_levels(), n_levels)
-        rgb = lighting.project(environment, top, rotate_y)
+        if projector is None or projector.environment is not environment or projector.n_levels != top:
+            projector = lighting.Projector(environment, top)
+        self.projector = projector   # (for another rotation of the same map: :meth:`Projector.__call__` alone)
+        rgb = projector(rotate_y)
         leaf_angles = lighting.texel_solid_angles(top)[:, None]
         masses = luminance(rgb) * leaf_angles                                          # (M, M)
         self.n, self.top, self.k = n_levels, top, 1 << (top - n_levels)
@@ -448,13 +750,57 @@ class _TexelLight:
             return a, b, None, None
         return a, b, x[:, 0] - a >= self.col_share[a], x[:, 1] - b >= self.row_share[b]
 
-    def radiance_coefficients(self) -> np.ndarray:
-        """(4^n, 3) float64: the texels' mean radiance Haar-transformed, times 4^n (kept)."""
-        if getattr(self, "_radiance_coefficients", None) is None:
-            side = 1 << self.n
-            self._radiance_coefficients = (lighting.coefficients(self.texel_radiance.reshape(side, side, 3))
-                                           .reshape(3, -1).T * float(4 ** self.n))
-        return self._radiance_coefficients
+    def leaf_masses(self) -> np.ndarray:
+        """(2^n, 2^n) float32: the lighting's luminance mass of each texel on the unit square,
+        its mean luminance times 4^-n: the factor gl_t of the product trees' leaves (eq. 25 at
+        the finest level: the box mass of the lighting times the transfer's texel value)."""
+        side = 1 << self.n
+        return (self.texel_luminance * (1.0 / (side * side))).astype(np.float32)
+
+    def tables(self) -> dict:
+        """The lighting on the device's terms (kernels/converge.cl LIGHT_ARGS), float32 and uint32
+        bits: the running sums of each texel's leaf masses (leaf_cdf, texel-major), each texel's
+        last one (texel_total), the guide to them (leaf_guide: per texel and cell g of k^2 cells,
+        how many running sums are <= (g / k^2) total, in float32 as the kernel multiplies), the
+        running sum of the texels' masses (texel_cdf), per leaf column its first map column's share of the leaf's
+        width and its two map columns (columns), per leaf row the first map row's share of the
+        leaf's height and of its solid angle and its two map rows (rows), the map's pixels
+        (r, g, b, luminance), and per texel in Morton order (the trees' leaf order) the leaf
+        masses of :meth:`leaf_masses` and the mean radiance (r, g, b, 0); the texel rows' solid
+        angles (omega)."""
+        if not self.map_pixels:
+            raise ArgumentError("relight._TexelLight.tables: the kernels place points by the map's pixels")
+        count, side = 1 << self.top, 1 << self.n
+        columns = np.zeros((count, 4), np.float32)
+        columns[:, 0] = self.col_share
+        columns.view(np.uint32)[:, 1:3] = self.cols.T.astype(np.uint32)
+        rows = np.zeros((count, 4), np.float32)
+        rows[:, 0], rows[:, 1] = self.row_share, self.row_angle_share
+        rows.view(np.uint32)[:, 2:4] = self.rows.T.astype(np.uint32)
+        h, w = self.map_lum.shape
+        pixels = np.empty((h * w, 4), np.float32)
+        pixels[:, :3] = self.map_rgb.reshape(-1, 3)
+        pixels[:, 3] = self.map_lum.reshape(-1)
+        row, col = np.divmod(np.arange(side * side), side)
+        morton = np.argsort(morton_index(col, row))        # texel (row-major) of each Morton index
+        radiance = np.zeros((side * side, 4), np.float32)
+        radiance[:, :3] = self.texel_radiance[morton]
+        cdf = np.ascontiguousarray(self.cdf, np.float32)                      # (texels, k^2), rows non-decreasing
+        texels, kk = cdf.shape
+        total = cdf[:, -1]
+        cells = (np.arange(kk + 1, dtype=np.float32) / np.float32(kk))[None, :] * total[:, None]   # float32 products
+        # counts per row by one search: non-negative float32 bits order as their values; the
+        # texel's index above them keeps the rows apart
+        offset = np.arange(texels, dtype=np.int64)[:, None] << 32
+        keys = (offset | cdf.view(np.uint32).astype(np.int64)).reshape(-1)
+        guide = np.searchsorted(keys, (offset | cells.view(np.uint32).astype(np.int64)).reshape(-1), side="right")
+        guide = (guide.reshape(texels, kk + 1) - np.arange(texels)[:, None] * kk).astype(np.uint32)
+        return {"levels": self.n, "top": self.top, "kbits": self.top - self.n, "map_width": w,
+                "leaf_cdf": cdf.reshape(-1), "texel_total": np.ascontiguousarray(total),
+                "leaf_guide": guide.reshape(-1),
+                "texel_cdf": np.cumsum(self.texel_mass).astype(np.float32), "columns": columns, "rows": rows,
+                "map": pixels, "map_lum": np.ascontiguousarray(pixels[:, 3]), "leaf_masses": np.ascontiguousarray(self.leaf_masses().reshape(-1)[morton]),
+                "radiance": radiance, "omega": self.texel_angles.astype(np.float32)}
 
     def radiance(self, uv):
         """(N, 3): the lighting's radiance at points uv of the square: the map pixel's under the
@@ -571,49 +917,179 @@ def mean_and_error(sums: np.ndarray, squares: np.ndarray, spp: int):
     return mean, np.full_like(mean, np.inf)
 
 
+def lattice(u: np.ndarray, j) -> np.ndarray:
+    """(N, 4) float32: frac(u + j alpha) for uniforms u (N, 4) float32 and lattice points j (N,)
+    or a scalar, alpha = LATTICE / 2^24 (numpy twin of kernels/converge.cl ``lattice``, the same
+    float32 operations)."""
+    j = np.asarray(j, np.uint64)
+    offset = np.stack([((j * np.uint64(a)) & np.uint64(0xFFFFFF)).astype(np.float32) for a in LATTICE], -1)
+    c = np.asarray(u, np.float32) + offset * np.float32(2.0 ** -24)    # four axes, not samples
+    return np.where(c >= 1, c - np.float32(1), c).astype(np.float32)
+
+
+def tile_trees_reference(coeffs: np.ndarray, inside, hit_scale: np.ndarray):
+    """numpy twin of ``converge_trees`` (kernels/converge.cl): for pixels' transfer coefficients
+    (P, 2^m, 2^m) (:func:`tile_coefficients`), the lighting inside the texels ``inside`` (a
+    :class:`_TexelLight` of m levels) and the pixels' hit scales c (P,): the product pyramids
+    (P, tree_size(m)) float32 (row-major levels, the host's layout) of the leaves
+    gl_t H+_t, H+_t = max(c H_t, 0) (H_t the texel values of the inverse transform, eq. 13;
+    gl_t :meth:`_TexelLight.leaf_masses`), and the relit values G (P, 3) float64 = sum over t
+    with gl_t > 0 of H+_t L_t (L_t the texel's mean radiance)."""
+    side = 1 << inside.n
+    h = np.maximum(inverse(np.asarray(coeffs, np.float64)) * np.asarray(hit_scale, np.float64)[:, None, None], 0.0)
+    gl = inside.leaf_masses()
+    leaves = (gl[None] * h.astype(np.float32)).astype(np.float32)
+    relit = np.einsum("pij,ijc->pc", np.where(gl > 0, h, 0.0), inside.texel_radiance.reshape(side, side, 3))
+    return build_reference(leaves), relit
+
+
+def transfer_from_trees(nodes: np.ndarray, inside, pixel, uv) -> np.ndarray:
+    """(N,) H+_t / Omega_t: the clamped transfer of pixels ``pixel`` in the texel t that holds
+    each point uv (N, 2) of the square, per unit solid angle, read from their product trees'
+    leaves (``nodes`` (P, tree_size(m)), row-major levels): leaf / gl_t (0 where gl_t is 0)."""
+    t, _ = inside._texel(uv)
+    side = 1 << inside.n
+    gl = inside.leaf_masses().reshape(-1)[t].astype(np.float64)
+    leaf = np.asarray(nodes, np.float64)[np.asarray(pixel, np.int64), level_offset(inside.n) + t]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(gl > 0, leaf / np.where(gl > 0, gl, 1.0), 0.0) / inside.texel_angles[t // side]
+
+
+def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spread, inside, key, first: int,
+                    slots: int, defensive: float = DEFENSIVE, light: float = LIGHT_SHARE, control: bool = True,
+                    candidates: int = CANDIDATES, coherence: float = COHERENCE):
+    """numpy twin of ``converge_shade`` (kernels/converge.cl): one pass of a tile's camera rays
+    from ``scene``'s eye along d (N, 3) that hit ``tracer``'s triangles prim (N,) (-1: a miss)
+    at t (N,), k per pixel, pixel-major. The tile's pixels' product trees: ``trees`` (a
+    :class:`wavlight.haar.HaarTree`, whose warp kernels walk them), ``nodes`` their pyramids
+    (P, tree_size(m)) row-major, ``relit`` their G (P, 3), ``spread`` their footprint spreads (P,);
+    ``inside`` the lighting (:class:`_TexelLight`), ``key`` = (seed, tile), ``first`` the pass's
+    first sample index in the tile. A miss sees the map (direct); a hit gets ``slots``
+    directions of the mixture (:func:`mixture_directions`; the uniforms of slot j are
+    :func:`lattice` point j of Philox stream rng.CONVERGE_DIRECTIONS[0] at index first + r),
+    each estimated as albedo f cos L / pdf / slots
+    (L the map's pixel, :meth:`_TexelLight.radiance`), and with ``control`` direct =
+    albedo (G - sum of g / pdf / slots), g = :func:`transfer_from_trees` L; or, where its pixel's
+    spread exceeds ``coherence`` times its lobe's width, ``slots`` picks among ``candidates``
+    mixture directions by resampled importance sampling (:func:`resample_reference`). Returns
+    direct (N, 3), origin (N, 3), wi (S, 3, N), value (S, 3, N) float64, the kernel's planes."""
+    N = len(d)
+    seed, tile = key
+    direct, origin = np.zeros((N, 3)), np.zeros((N, 3))
+    wi, value = np.zeros((slots, 3, N)), np.zeros((slots, 3, N))
+    miss = np.flatnonzero(prim < 0)
+    direct[miss] = inside.radiance(world_to_square(np.asarray(d, np.float64)[miss]))
+    hit = np.flatnonzero(prim >= 0)
+    if not len(hit):
+        return direct, origin, wi, value
+    hits = _Hits.of(scene, tracer, d, t, prim, hit, k)
+    origin[hit] = hits.origin
+    has_p = np.asarray(nodes)[hits.pixel, 0] > 0
+    alpha = np.where(has_p, defensive, 1.0 - light)
+    albedo = scene.material_albedo[hits.mat].astype(np.float64)
+    chosen = np.zeros(len(hit), bool)
+    if candidates:
+        chosen = np.asarray(spread, np.float64)[hits.pixel] > coherence * bsdfs.lobe_width(hits.kind, hits.param)
+    mix = np.flatnonzero(~chosen)
+    if len(mix):
+        sub = hits.subset(mix)
+        cv = np.zeros((len(mix), 3))
+        u_sample = rng.uniforms(seed, tile, rng.CONVERGE_DIRECTIONS[0], first, N)
+        for slot in range(slots):   # directions per camera sample, not samples
+            u_all = lattice(u_sample, slot)
+            direction, weight, pdf = mixture_directions(trees, inside, u_all, sub.index, k, has_p[mix], alpha[mix],
+                                                        sub.kind, sub.param, sub.wo, sub.axes, light, with_pdf=True)
+            uv = world_to_square(direction)
+            radiance = inside.radiance(uv)
+            wi[slot][:, sub.index] = direction.T
+            value[slot][:, sub.index] = (albedo[mix] * (weight / slots)[:, None] * radiance).T
+            if control:
+                g = transfer_from_trees(nodes, inside, sub.pixel, uv)[:, None] * radiance
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    term = np.where((pdf > 0)[:, None], g / np.where(pdf > 0, pdf, 1.0)[:, None], 0.0)
+                cv += np.where(np.isfinite(term), term, 0.0) / slots
+        if control:
+            direct[sub.index] = albedo[mix] * (np.asarray(relit, np.float64)[sub.pixel] - cv)
+    pick = np.flatnonzero(chosen)
+    if len(pick):
+        sub = hits.subset(pick)
+        directions, values = resample_reference(sub, trees, nodes, inside, has_p[pick], alpha[pick], N, k, key, slots,
+                                                light, candidates, first)
+        for slot in range(slots):
+            wi[slot][:, sub.index] = directions[:, slot].T
+            value[slot][:, sub.index] = (albedo[pick] * values[:, slot]).T
+    return direct, origin, wi, value
+
+
+def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp: int, key, slots: int, light: float,
+                       candidates: int, first: int = 0):
+    """The resampled directions of camera samples ``hits`` (their estimate without the albedo),
+    by resampled importance sampling (Talbot et al. 2005): ``candidates`` directions x_m of the
+    defensive mixture q (:func:`mixture_directions`, no shadow ray), ``slots`` of them picked in
+    proportion to w_m = p(x_m) / q(x_m) (systematic: one uniform, the picks (u + k) / slots),
+    p = :func:`resampling_target`, each to be traced and weighted by f cos L V / p(y) x mean(w).
+    On average over the picks that is sum_m f cos L V (x_m) / q(x_m) / candidates, unbiased as p
+    is positive wherever f cos L is. Where the pixel's transfer, the mean of its camera samples'
+    f cos V, is much wider than this sample's own lobe (a glossy pixel whose footprint spans
+    several facets), the transfer's product spends most of its directions outside the lobe; the
+    target's own lobe takes them back. ``count``: the camera samples of the pass, from sample
+    ``first`` of the tile on (the uniforms' layout: candidate j of sample r is :func:`lattice`
+    point j of Philox stream rng.CONVERGE_RESAMPLE of ``key`` at index first + r; the picks'
+    uniform rng.CONVERGE_PICK's).
+    Returns directions (n, slots, 3) and estimates (n, slots, 3) before the shadow rays."""
+    m = candidates
+    u = lattice(np.repeat(rng.uniforms(*key, rng.CONVERGE_RESAMPLE, first, count), m, 0), np.tile(np.arange(m), count))
+    cand = hits.candidates(m)
+    direction, weight, pdf = mixture_directions(trees, inside, u, cand.index, spp * m, np.repeat(has_p, m),
+                                                np.repeat(alpha, m), cand.kind, cand.param, cand.wo, cand.axes, light,
+                                                with_pdf=True)
+    fcos = weight * pdf
+    uv = world_to_square(direction)
+    radiance = inside.radiance(uv)
+    target = resampling_target(fcos, radiance, transfer_from_trees(nodes, inside, cand.pixel, uv))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(pdf > 0, target / np.where(pdf > 0, pdf, 1.0), 0.0)
+    w = np.where(np.isfinite(w), w, 0.0).reshape(-1, m)
+    cdf = np.cumsum(w, 1)
+    n = len(hits.index)
+    u0 = rng.uniforms(*key, rng.CONVERGE_PICK, first, count)[hits.index, 0].astype(np.float64)
+    at = (u0[:, None] + np.arange(slots)) / slots * cdf[:, -1:]          # (n, slots) points on the sums
+    rows = np.repeat(np.arange(n), slots)
+    picks = np.minimum(_entries_at_most(cdf, rows, at.reshape(-1)), m - 1)   # the first entry above each
+    flat = rows * m + picks
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(target[flat] > 0, np.repeat(cdf[:, -1], slots) / m / target[flat], 0.0) / slots
+    estimate = (np.where(np.isfinite(scale), scale, 0.0) * fcos[flat])[:, None] * radiance[flat]
+    return direction[flat].reshape(n, slots, 3), estimate.reshape(n, slots, 3)
+
+
 def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: int, key, environment,
-                     defensive: float, slots: int, light: float = 0.0, control=None, resample=None, first: int = 0):
+                     defensive: float, slots: int, light: float = 0.0, first: int = 0):
     """The radiance (len(hit), 3) of the camera samples ``hit`` (of spp per pixel, directions
     ``d`` with hits ``prim`` at ``t``) from ``slots`` directions each of the defensive mixture
     (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
     ``trees`` of totals ``mass``) seen from ``scene``'s camera, each evaluated with the true
     f cos, ``environment``'s radiance and a shadow ray; the uniforms are Philox stream
-    (``key`` = (seed, tile), rng.CONVERGE_DIRECTIONS[slot]), from sample ``first`` of the tile on.
-    ``control`` = (C, G): the pixels'
-    transfer coefficients C (pixels, 2^n, 2^n) and G (pixels, 3) = sum_t T_t L_t, for the
-    control variate g = T_t / Omega_t L(w) (:func:`control_terms`). ``resample`` = (C, chosen,
-    candidates): the samples ``chosen`` (a mask over ``hit``) take their slots by resampling
-    ``candidates`` mixture directions instead, without the control variate
-    (:func:`shade_by_resampling`). Returns it and the rays traced."""
+    (``key`` = (seed, tile), rng.CONVERGE_DIRECTIONS[slot]), from sample ``first`` of the tile
+    on. The mixture alone, in numpy (the view bake's unbiased frame, :mod:`.view`; the lighting
+    bake's runs in kernels/converge.cl, twin :func:`shade_reference`). Returns it and the rays
+    traced."""
     if slots > MAX_SLOTS:   # one stream per slot
         raise ArgumentError(f"relight.shade_by_mixture: at most {MAX_SLOTS} slots, got {slots}")
     hits = _Hits.of(scene, tracer, d, t, prim, hit, spp)
     has_p = mass[hits.pixel] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)   # pixels without a product: the BSDF and the lighting
     total = np.zeros((len(hit), 3))
-    chosen = np.zeros(len(hit), bool) if resample is None else np.asarray(resample[1], bool)
     rays = 0
-    if chosen.any():
-        total[chosen], rays = shade_by_resampling(tracer, hits.subset(chosen), trees, inside, has_p[chosen],
-                                                  alpha[chosen], len(d), spp, key, environment, slots, light,
-                                                  resample[0], resample[2], first)
-    mix = hits.subset(~chosen)
-    part = np.zeros((len(mix.index), 3))
-    for slot in range(slots if len(mix.index) else 0):   # directions per camera sample, not samples
+    for slot in range(slots if len(hit) else 0):   # directions per camera sample, not samples
         u_all = rng.uniforms(*key, rng.CONVERGE_DIRECTIONS[slot], first, len(d))
-        direction, weight, pdf = mixture_directions(trees, inside, u_all, mix.index, spp, has_p[~chosen],
-                                                    alpha[~chosen], mix.kind, mix.param, mix.wo, mix.axes, light,
-                                                    with_pdf=True)
+        direction, weight = mixture_directions(trees, inside, u_all, hits.index, spp, has_p, alpha, hits.kind,
+                                               hits.param, hits.wo, hits.axes, light)
         weight = weight / slots
         live = np.flatnonzero(weight > 0)
-        blocked = tracer.occluded(mix.origin[live], direction[live].astype(np.float32))
+        blocked = tracer.occluded(hits.origin[live], direction[live].astype(np.float32))
         rays += len(live)
-        part[live] += (weight[live] * ~blocked)[:, None] * environment.eval(direction[live])
-        if control is not None:
-            part -= control_terms(control[0], inside, mix.pixel, direction, pdf) / slots
-    if control is not None and len(mix.index):
-        part += control[1][mix.pixel]
-    total[~chosen] = part
+        total[live] += (weight[live] * ~blocked)[:, None] * environment.eval(direction[live])
     return scene.material_albedo[hits.mat].astype(np.float64) * total, rays
 
 
@@ -662,78 +1138,6 @@ def resampling_target(fcos, radiance, transfer):
     fcos, transfer = np.maximum(fcos, 0.0), np.maximum(transfer, 0.0)
     return luminance(radiance) * (fcos ** LOBE_POWER * transfer ** (1.0 - LOBE_POWER) + TARGET_BSDF * fcos
                                   + TARGET_TRANSFER * transfer)
-
-
-def shade_by_resampling(tracer, hits, trees, inside, has_p, alpha, count: int, spp: int, key, environment, slots: int,
-                        light: float, coeffs, candidates: int, first: int = 0):
-    """The radiance (len(hits.index), 3), without the albedo, of camera samples ``hits`` by
-    resampled importance sampling (Talbot et al. 2005): ``candidates`` directions x_m of the
-    defensive mixture q (:func:`mixture_directions`, no shadow ray), ``slots`` of them picked in
-    proportion to w_m = p(x_m) / q(x_m) (systematic: one uniform, the picks (u + k) / slots),
-    p = :func:`resampling_target`, each traced and weighted by f cos L V / p(y) x mean(w). On
-    average over the picks that is sum_m f cos L V (x_m) / q(x_m) / candidates, unbiased as p is
-    positive wherever f cos L is. Where the pixel's transfer, the mean of its camera samples'
-    f cos V, is much wider than this sample's own lobe (a glossy pixel whose footprint spans
-    several facets), the transfer's product spends most of its directions outside the lobe; the
-    target's own lobe takes them back. ``count``: the camera samples of the call, from sample
-    ``first`` of the tile on (the uniforms' layout: Philox stream rng.CONVERGE_RESAMPLE of ``key``,
-    each pair stratified over the pixel's spp x candidates, and rng.CONVERGE_PICK). Returns it and the rays
-    traced."""
-    m = candidates
-    u = rng.Stream(*key, first * m, spp * m).uniforms(rng.CONVERGE_RESAMPLE, count * m)
-    cand = hits.candidates(m)
-    direction, weight, pdf = mixture_directions(trees, inside, u, cand.index, spp * m, np.repeat(has_p, m),
-                                                np.repeat(alpha, m), cand.kind, cand.param, cand.wo, cand.axes, light,
-                                                with_pdf=True)
-    fcos = weight * pdf
-    radiance = environment.eval(direction)
-    target = resampling_target(fcos, radiance, transfer_at(coeffs, inside, cand.pixel, world_to_square(direction)))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = np.where(pdf > 0, target / np.where(pdf > 0, pdf, 1.0), 0.0)
-    w = np.where(np.isfinite(w), w, 0.0).reshape(-1, m)
-    cdf = np.cumsum(w, 1)
-    n = len(hits.index)
-    u0 = rng.uniforms(*key, rng.CONVERGE_PICK, first, count)[hits.index, 0].astype(np.float64)
-    at = (u0[:, None] + np.arange(slots)) / slots * cdf[:, -1:]          # (n, slots) points on the sums
-    rows = np.repeat(np.arange(n), slots)
-    picks = np.minimum(_entries_at_most(cdf, rows, at.reshape(-1)), m - 1)   # the first entry above each
-    flat = rows * m + picks
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(target[flat] > 0, np.repeat(cdf[:, -1], slots) / m / target[flat], 0.0) / slots
-    value = np.where(np.isfinite(scale), scale, 0.0) * fcos[flat]
-    live = np.flatnonzero(value > 0)
-    origin = np.repeat(hits.origin, slots, 0)
-    blocked = tracer.occluded(origin[live], direction[flat[live]].astype(np.float32))
-    total = np.zeros((n * slots, 3))
-    total[live] = (value[live] * ~blocked)[:, None] * radiance[flat[live]]
-    return total.reshape(n, slots, 3).sum(1), len(live)
-
-
-def transfer_at(coeffs, inside, pixel, uv) -> np.ndarray:
-    """(N,) T_t / Omega_t: the transfer of pixels ``pixel`` (their coefficients ``coeffs``
-    (pixels, 2^n, 2^n)) in the texel t that holds each point uv of the square, per unit solid
-    angle (its integral of f cos V over the texel over the texel's solid angle), from 3n + 1
-    coefficients (:func:`wavlight.haar.texel_values`)."""
-    t, _ = inside._texel(uv)
-    side = 1 << inside.n
-    return texel_values(coeffs, pixel, t % side, t // side) / inside.texel_angles[t // side]
-
-
-def control_terms(coeffs, inside, pixel, direction, pdf):
-    """g(w) / pdf(w) (N, 3) of the control variate g(w) = T_t / Omega_t L(w): the pixel's
-    transfer in texel t (its integral of f cos V over the texel's solid angle Omega_t, from its
-    coefficients ``coeffs`` (pixels, 2^n, 2^n) by :func:`wavlight.haar.texel_values`) times the
-    lighting's radiance at w (:meth:`_TexelLight.radiance`). Its integral G = sum_t T_t L_t
-    (L_t the texel's mean radiance) is the relit frame's value of the pixel (eq. 8 with every term), known exactly, so
-    G + (f cos V L - g) / pdf is unbiased wherever pdf > 0 where g != 0: the lighting's
-    technique is positive wherever L is. Where T1 is close to the camera sample's f cos V (a lit diffuse
-    floor), the difference, not the integrand, carries the variance (``wavelet``'s candidates do
-    the same with their unshadowed estimate, docs/decisions/control-variate.md)."""
-    uv = world_to_square(direction)
-    g = transfer_at(coeffs, inside, pixel, uv)[:, None] * inside.radiance(uv)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = np.where((pdf > 0)[:, None], g / np.where(pdf > 0, pdf, 1.0)[:, None], 0.0)
-    return np.where(np.isfinite(out), out, 0.0)
 
 
 def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes,

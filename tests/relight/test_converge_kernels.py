@@ -1,0 +1,192 @@
+"""The unbiased relit frame's kernels (kernels/converge.cl) against their numpy twins
+(wavlight.relight.converge.tile_trees_reference and shade_reference): each tile's product trees
+and relit values, each camera sample's directions, estimates and control variate; the kernel
+frame against the numpy frame on the same random numbers; and the trees a ConvergeFrames keeps
+while the lighting stays."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import wavlight
+from scenes_util import write_raw_image
+from wavlight import camera, haar
+from wavlight.relight import converge as cm
+
+
+def sphere_on_floor(width, height, ball=None):
+    """A glossy sphere over a lambert floor under a sky with a small bright light; width and
+    height that are not multiples of the bake's blocks (16) nor of the kernels' lanes (8)."""
+    return {"render": {"width": width, "height": height},
+            "camera": {"eye": [0.0, 1.5, 3.5], "target": [0.0, 0.5, 0.0], "fov_y": 40.0},
+            "environment": {"file": "sky.exr", "rotate_y": 20.0},
+            "objects": [{"shape": "sphere", "center": [0.0, 0.6, 0.0], "radius": 0.6, "subdivisions": 3,
+                         "material": "ball"},
+                        {"shape": "quad", "center": [0.0, 0.0, 0.0], "size": 6.0, "material": "floor"}],
+            "materials": {"ball": ball or {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
+                          "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}
+
+
+@pytest.fixture(scope="module")
+def bakes(tmp_path_factory, device):
+    """The scene at 36 x 20 pixels (3 x 2 blocks, the last column 4 pixels wide, the last row 4
+    tall), baked at 8 and at 16 bits (2^4 x 2^4 texels)."""
+    folder = tmp_path_factory.mktemp("maps")
+    rng = np.random.default_rng(3)
+    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * np.ones((32, 64, 3))
+           * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
+    sky[6, 40] = 400.0
+    write_raw_image(folder / "sky.exr", sky)
+    scene = wavlight.load_dict(sphere_on_floor(36, 20), base_dir=folder)
+    out = {bits: wavlight.bake(scene, spp=4, levels=4, terms=256, priority="area", tolerance=1e-3, bits=bits)
+           for bits in (8, 16)}
+    return scene, out, folder
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("levels", [4, 2])
+def test_trees_kernel_equals_its_twin(bakes, bits, levels):
+    """converge_trees against tile_trees_reference, tile by tile (a whole block row, and the
+    tiles of the image's edges): the pyramids (float32 against float64 inverse transforms) and
+    the relit values G; the trees are additive (parent = sum of children, as the warp needs)."""
+    scene, by_bits, folder = bakes
+    tr = by_bits[bits]
+    frames = cm.ConvergeFrames(tr, scene)
+    state = frames.lighting(None, 75.0, 1.0, levels)
+    prog = frames.program(levels, 2, 0, True)
+    assert len(frames.tiles) == 2 and frames.tiles[0].blocks == 3 and frames.tiles[1].h == 4
+    skipped = 0
+    for tile in frames.tiles:
+        nodes, relit = frames._trees(prog, state.device, tile).read()
+        scale = frames.tree_scale[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
+        want, want_relit = cm.tile_trees_reference(cm.tile_coefficients(tr, tile, levels), state.inside, scale)
+        assert nodes.shape == want.shape == (tile.w * tile.h, haar.tree.tree_size(levels))
+        assert (want[:, 0] > 0).mean() > 0.3
+        empty = scale == 0    # pixels whose bake samples all missed: a root of 0
+        assert (nodes[empty] == 0).all() and (want[empty] == 0).all()
+        skipped += int(empty.sum())
+        np.testing.assert_allclose(nodes, want, rtol=0, atol=2e-5 * np.abs(want).max())
+        np.testing.assert_allclose(relit, want_relit, rtol=1e-4, atol=1e-5 * np.abs(want_relit).max())
+        side = 1 << levels
+        leaves = nodes[:, haar.tree.level_offset(levels):].reshape(-1, side, side)
+        np.testing.assert_allclose(nodes[:, 0], leaves.sum(axis=(1, 2)), rtol=1e-5, atol=1e-9 * leaves.max())
+    assert skipped > 0
+
+
+@pytest.mark.parametrize("ball, candidates, coherence, control", [
+    (None, cm.CANDIDATES, cm.COHERENCE, True),                      # glossy ball, the defaults
+    (None, cm.CANDIDATES, 0.0, True),                               # every hit resampled
+    ({"type": "phong", "albedo": [0.5, 0.6, 0.7], "exponent": 40.0}, 0, 1.0, False),   # no resampling, no control
+    ({"type": "lambert", "albedo": [0.5, 0.6, 0.7]}, 4, cm.COHERENCE, True)])
+def test_shade_kernel_equals_its_twin(bakes, ball, candidates, coherence, control):
+    """converge_shade against shade_reference on the same camera rays, trees and Philox numbers:
+    the misses' radiance, the control variate's part, every slot's direction and estimate. float32
+    against float64 moves a direction across a leaf's or a texel's edge now and then: such
+    samples are few, and the means agree."""
+    scene, by_bits, folder = bakes
+    tr = by_bits[8]
+    if ball is not None:   # the same transfer, another material on the ball (the estimate stays unbiased)
+        other = wavlight.load_dict(sphere_on_floor(36, 20, ball), base_dir=folder)
+        scene = dataclasses.replace(scene, materials=[other.materials[0], *scene.materials[1:]])
+    frames = cm.ConvergeFrames(tr, scene)
+    slots, k, seed = 2, 8, 5
+    state = frames.lighting(None, 75.0, 1.0, 4)
+    prog = frames.program(4, slots, candidates, control)
+    tile = frames.tiles[0]
+    trees = frames._trees(prog, state.device, tile)
+    nodes, relit = trees.read()
+    spread, spread_buf = frames.spread(tile)
+    tile_id = cm.CONVERGE_TILES + 3
+    d = camera.pass_rays(scene, tr.width, tr.height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k, 0,
+                         stratified=True)
+    prim, t = frames.tracer.intersect(np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape), d)
+    shares = (cm.DEFENSIVE, cm.LIGHT_SHARE, coherence)
+    got = frames._shade(prog, slots, d, prim, t, k, 0, trees, spread_buf, state.device, shares, seed, tile_id)
+    tree = haar.HaarTree.from_pyramids(nodes)
+    want = cm.shade_reference(scene, frames.tracer, d, prim, t, k, tree, nodes, relit, spread, state.inside,
+                              (seed, tile_id), 0, slots, cm.DEFENSIVE, cm.LIGHT_SHARE, control, candidates, coherence)
+    direct, origin, wi, value = (np.asarray(a, np.float64) for a in got)
+    hit = prim >= 0
+    assert 0.3 < hit.mean() < 1
+    np.testing.assert_allclose(direct[~hit], want[0][~hit], rtol=1e-6)
+    np.testing.assert_allclose(origin[hit], want[1][hit], rtol=0, atol=1e-5)
+    # per slot: the direction where the estimate is not 0, the estimate
+    same_dir = np.abs(wi - want[2]).max(1) < 1e-3
+    live = np.maximum(value.max(1), want[3].max(1)) > 0
+    close = np.abs(value - want[3]).max(1) <= 2e-3 * np.abs(want[3]).max(1) + 1e-6
+    assert live[:, hit].mean() > 0.5
+    assert (same_dir | ~live)[:, hit].mean() > 0.99 and close[:, hit].mean() > 0.99, (same_dir.mean(), close.mean())
+    d_close = np.abs(direct[hit] - want[0][hit]).max(1) <= 2e-3 * np.abs(want[0][hit]).max(1) + 1e-5
+    assert d_close.mean() > 0.99
+    if not control:
+        assert (direct[hit] == 0).all()
+    if coherence == 0.0 and candidates:   # no control variate where resampled: every pixel of spread > 0
+        chosen = hit & (spread[np.arange(len(d)) // k] > 0)
+        assert chosen[hit].mean() > 0.9 and (direct[chosen] == 0).all()
+    total_got = direct[hit].sum(0) + value[:, :, hit].sum((0, 2))
+    total_want = want[0][hit].sum(0) + want[3][:, :, hit].sum((0, 2))
+    se = np.sqrt((want[0][hit] + want[3][:, :, hit].sum(0).T).var(0) * hit.sum())
+    assert np.all(np.abs(total_got - total_want) < 0.2 * se + 1e-6), (total_got, total_want, se)
+
+
+def test_the_kernel_frame_matches_the_numpy_frame(bakes):
+    """The same frame (same random numbers: camera rays, directions, candidates) with the kernels
+    and with their numpy twins: nearly every pixel equal, and the images' sums within a fraction
+    of their standard error."""
+    scene, by_bits, folder = bakes
+    tr = by_bits[8]
+    a = cm.ConvergeFrames(tr, scene).frame(rotate_y=75.0, spp=4, seed=9, levels=4)
+    b = cm.ConvergeFrames(tr, scene, backend="numpy").frame(rotate_y=75.0, spp=4, seed=9, levels=4)
+    assert a.stats["backend"] == "opencl" and b.stats["backend"] == "numpy"
+    assert a.stats["resampled_share"] == b.stats["resampled_share"] > 0
+    diff = np.abs(a.image - b.image).max(2)
+    assert (diff > 1e-3 * (1 + np.abs(b.image).max(2))).mean() < 0.03, diff.max()
+    var = (b.stderr ** 2).sum()
+    assert abs((a.image - b.image).sum()) < 0.5 * np.sqrt(var)
+
+
+def test_trees_are_kept_while_the_lighting_stays(bakes, monkeypatch):
+    """A second frame under the same lighting reads the kept trees (and is the same image for the
+    same seed), a frame under another lighting builds them again; with no room for them none is
+    kept, and the image is the same. converge keeps its ConvergeFrames for the next call with the
+    same transfer and scene."""
+    scene, by_bits, folder = bakes
+    tr = by_bits[16]
+    frames = cm.ConvergeFrames(tr, scene)
+    first = frames.frame(rotate_y=40.0, spp=2, seed=3)
+    again = frames.frame(rotate_y=40.0, spp=2, seed=3)
+    turned = frames.frame(rotate_y=41.0, spp=2, seed=3)
+    assert first.stats["tiles_kept"] == 0 and again.stats["tiles_kept"] == len(frames.tiles) == 2
+    assert turned.stats["tiles_kept"] == 0 and turned.stats["lighting_seconds"] > 0
+    np.testing.assert_array_equal(first.image, again.image)
+    assert not np.array_equal(first.image, turned.image)
+    monkeypatch.setattr(cm, "TREE_CACHE_BYTES", 0)
+    tight = cm.ConvergeFrames(tr, scene)
+    once, twice = (tight.frame(rotate_y=40.0, spp=2, seed=3) for _ in range(2))
+    assert once.stats["kept_tree_bytes"] == twice.stats["tiles_kept"] == 0
+    np.testing.assert_array_equal(twice.image, first.image)
+    one = cm.converge(tr, scene, rotate_y=40.0, spp=2, seed=3)
+    two = cm.converge(tr, scene, rotate_y=40.0, spp=2, seed=4)
+    assert one.stats["setup_seconds"] > 0 and two.stats["setup_seconds"] == 0 and two.stats["tiles_kept"] == 0
+    np.testing.assert_array_equal(one.image, first.image)
+    assert two.stats["frame_seconds"] == two.stats["render_seconds"]
+
+
+def test_spread_kernel_equals_its_twin(bakes):
+    """converge_spread against footprint_spread on every tile's fixed grid of rays: the pixels
+    no ray or one ray hits have 0, the others the same spread (float32 against float64)."""
+    scene, by_bits, folder = bakes
+    tr = by_bits[8]
+    frames = cm.ConvergeFrames(tr, scene)
+    prog = frames.program(4, 2, cm.CANDIDATES, True)
+    got, want = [], []
+    for tile in frames.tiles:
+        d, prim = cm.footprint_rays(scene, frames.tracer, tile.x0, tile.y0, tile.w, tile.h, tr.width, tr.height)
+        got.append(frames._shade.spread(prog, d, prim, cm.FOOTPRINT_GRID ** 2)[1])
+        want.append(cm.footprint_spread(scene, frames.tracer, tile.x0, tile.y0, tile.w, tile.h, tr.width, tr.height))
+        assert got[-1].shape == want[-1].shape == (tile.w * tile.h,)
+    got, want = np.concatenate(got), np.concatenate(want)
+    assert (want == 0).any() and (want > 0.1).any()
+    np.testing.assert_allclose(got, want, rtol=1e-3, atol=2e-3)
