@@ -136,10 +136,14 @@ def priority(coeffs: np.ndarray, kind: str = "transfer", transfer_rms: np.ndarra
 
 def select_terms(coeffs: np.ndarray, terms: int, kind: str = "transfer", transfer_rms=None) -> np.ndarray:
     """The flat indices (K,) int64 of the ``terms`` coefficients of highest priority, sorted
-    by index (ties: the lower index first); coefficients of zero priority are never kept."""
+    by index (ties: the lower index first); coefficients of zero priority are never kept.
+    The K-th largest priority t comes from a partition (O(N^2), not a sort): every index above
+    t, then the lowest indices at t, the same set as the first K of a sort by (-priority, index)."""
     p = priority(coeffs, kind, transfer_rms)
     k = min(int(terms), int(np.count_nonzero(p)))
     if k <= 0:
         return np.zeros(0, np.int64)
-    order = np.lexsort((np.arange(p.size), -p))[:k]
-    return np.sort(order).astype(np.int64)
+    t = np.partition(p, p.size - k)[p.size - k]
+    above = np.flatnonzero(p > t)
+    at = np.flatnonzero(p == t)[:k - len(above)]
+    return np.sort(np.concatenate([above, at])).astype(np.int64)
