@@ -195,33 +195,47 @@ __kernel void frame_product(const uint n_terms, const uint n_blocks, const uint 
         const uint b = b0 + j, x0 = (b % blocks_x) * BLOCK, y0 = (b / blocks_x) * BLOCK;
         const float8 *a = acc + j * 3 * VECTORS;
         for (uint v = 0; v < VECTORS; ++v) {
-            const uint y = y0 + (8 * v) / BLOCK;
+            const uint y = y0 + (8 * v) / BLOCK, x = x0 + (8 * v) % BLOCK;
             if (y >= height) break;
-            for (uint l = 0; l < 8; ++l) {
-                const uint x = x0 + (8 * v + l) % BLOCK;
-                if (x >= width) continue;
-                const size_t i = 3 * ((size_t)y * width + x);
-                out[i] = a[v][l] * albedo[i];
-                out[i + 1] = a[VECTORS + v][l] * albedo[i + 1];
-                out[i + 2] = a[2 * VECTORS + v][l] * albedo[i + 2];
+            if (x >= width) continue;
+            const size_t i = 3 * ((size_t)y * width + x);
+            if (x + 8 <= width) {   /* eight pixels, RGB interleaved: three vectors */
+                const float16 rg = __builtin_shufflevector(a[v], a[VECTORS + v], 0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5,
+                                                           13, 6, 14, 7, 15);
+                const float16 bb = __builtin_shufflevector(a[2 * VECTORS + v], a[2 * VECTORS + v], 0, 1, 2, 3, 4, 5,
+                                                           6, 7, 0, 1, 2, 3, 4, 5, 6, 7);
+                const float8 o0 = __builtin_shufflevector(rg, bb, 0, 1, 16, 2, 3, 17, 4, 5);
+                const float8 o1 = __builtin_shufflevector(rg, bb, 18, 6, 7, 19, 8, 9, 20, 10);
+                const float8 o2 = __builtin_shufflevector(rg, bb, 11, 21, 12, 13, 22, 14, 15, 23);
+                vstore8(o0 * vload8(0, albedo + i), 0, out + i);
+                vstore8(o1 * vload8(0, albedo + i + 8), 0, out + i + 8);
+                vstore8(o2 * vload8(0, albedo + i + 16), 0, out + i + 16);
+            } else {
+                for (uint l = 0; x + l < width; ++l) {
+                    out[i + 3 * l] = a[v][l] * albedo[i + 3 * l];
+                    out[i + 3 * l + 1] = a[VECTORS + v][l] * albedo[i + 3 * l + 1];
+                    out[i + 3 * l + 2] = a[2 * VECTORS + v][l] * albedo[i + 3 * l + 2];
+                }
             }
         }
     }
 }
 
 /* The environment seen where a frame's pixels' camera samples missed, added to those pixels of
- * the frame. Background pixel i (the frame's pixel pixel[i]) has count[i] missing samples, in
+ * the frame. Background pixel i (the frame's pixel pixel[i]) has count[i] missing samples in
  * slots i SLOTS .. i SLOTS + count[i] - 1 of u0 (u at rotate_y = 0) and row (the map row, as
  * float bits; -1 in the slots beyond count[i]), sorted by row and then by u0, float32 as the
- * host computed them; ends[2 i], ends[2 i + 1] repeat its first and last (u0, row's bits).
- * The map turned by rotate_y has sample j at u = frac(u0_j + shift), shift = rotate_y / 360,
- * column floor(u W) (nearest texel, as Environment.eval); the pixel gets inv_samples times the
- * sum of those texels. The texel's key (row, floor(u0 + shift), column) is non-decreasing
- * along the sorted samples (each step is a rounding, monotone), so the samples of one texel
- * are a run: where the first and last sample share a texel (71% of the pixels of the bunny at
- * 512^2, 64 samples) the pixel reads ends alone; otherwise the run starting at sample j is as
- * long as the number of the pixel's samples with j's key, counted LANES at a time (1.3 runs
- * per pixel there).
+ * host computed them. The map turned by rotate_y has sample j at u = frac(u0_j + shift),
+ * shift = rotate_y / 360, column floor(u W) (nearest texel, as Environment.eval); the pixel
+ * gets inv_samples times the sum of those texels. The texel's key (row, floor(u0 + shift),
+ * column) is non-decreasing along the sorted samples (each step is a rounding, monotone), so
+ * the samples of one texel are a run, and the run starting at sample j is as long as the
+ * number of the pixel's samples with j's key (counted LANES at a time).
+ * Most pixels' samples lie in one or two map rows (84% and 16% of the bunny's at 512^2, 64
+ * samples): seg[2 i] and seg[2 i + 1] hold each row's first and last u0, its row and its
+ * number of samples, so that a row whose first and last sample share a texel (most) is one
+ * read of seg, and only a row that straddles a column reads its u0 slots, never the rows.
+ * Pixels over more rows (a wide footprint) read both per sample.
  * numpy twin: wavlight/relight/frame.py background_reference (per sample). */
 #ifndef SLOTS
 #define SLOTS 64
@@ -235,8 +249,52 @@ INLINE void background_texel(const float u0, const float shift, const int env_w,
     *col = min((int)(u * (float)env_w), env_w - 1);
 }
 
+/* -(the lanes' sum) of masks that are -1 where true */
+INLINE int background_lanes(const intv same)
+{
+    int m = 0;
+    for (uint l = 0; l < LANES; ++l) m -= same[l];
+    return m;
+}
+
+/* The samples of slots [lo, hi) of the pixel at base (all in map row rw) in the texel (turn, col) */
+INLINE int background_count_row(__global const float *u0, const size_t base, const uint lo, const uint hi,
+                                const float shift, const int env_w, const int turn, const int col)
+{
+    intv same = (intv)0;
+    for (uint v = lo / LANES * LANES; v < hi; v += LANES) {
+        realv u = LOADV_(u0, base + v) + shift;
+        const realv t = floor(u);
+        u = u - t;
+        const intv c = min(__builtin_convertvector(u * (float)env_w, intv), env_w - 1);
+        const intv at = as_intv(LANE_IDS) + (int)v;
+        same += (at >= (int)lo) & (at < (int)hi) & (__builtin_convertvector(t, intv) == turn) & (c == col);
+    }
+    return background_lanes(same);
+}
+
+/* The texels of slots [lo, hi) of one map row rw, whose last sample is in (turn1, col1), run by
+ * run, added to (r, g, b) */
+INLINE void background_row(__global const float *u0, const size_t base, const uint lo, const uint hi, const int rw,
+                           const float first_u0, const int turn1, const int col1, const float shift, const int env_w,
+                           __global const float *env, float *r, float *g, float *b)
+{
+    int turn, col;
+    background_texel(first_u0, shift, env_w, &turn, &col);
+    for (uint j = lo; j < hi;) {
+        if (j > lo) background_texel(u0[base + j], shift, env_w, &turn, &col);
+        const int m = (turn == turn1 && col == col1) ? (int)(hi - j)
+                                                     : background_count_row(u0, base, j, hi, shift, env_w, turn, col);
+        const size_t tex = 3 * ((size_t)rw * env_w + col);
+        *r += (float)m * env[tex];
+        *g += (float)m * env[tex + 1];
+        *b += (float)m * env[tex + 2];
+        j += (uint)max(m, 1);
+    }
+}
+
 __kernel void frame_background(const uint count, const float inv_samples, const int env_w, const float shift,
-                               __global const uint *samples, __global const float2 *ends,
+                               __global const uint *samples, __global const float4 *seg,
                                __global const float *u0, __global const float *row, __global const uint *pixel,
                                __global const float *env, __global float *out)
 {
@@ -244,25 +302,24 @@ __kernel void frame_background(const uint count, const float inv_samples, const 
     if (i >= count) return;
     const uint n = samples[i];
     if (n == 0u) return;
-    const float2 e0 = ends[2 * i], e1 = ends[2 * i + 1];
-    int turn0, col0, turn1, col1;
-    background_texel(e0.x, shift, env_w, &turn0, &col0);
-    background_texel(e1.x, shift, env_w, &turn1, &col1);
-    float r, g, b;
-    if (as_int(e0.y) == as_int(e1.y) && turn0 == turn1 && col0 == col1) {   /* one texel */
-        const float m = (float)n;
-        const size_t tex = 3 * ((size_t)as_int(e0.y) * env_w + col0);
-        r = m * env[tex];
-        g = m * env[tex + 1];
-        b = m * env[tex + 2];
-    } else {
-        r = g = b = 0.0f;
-        const size_t base = (size_t)i * SLOTS;
+    const size_t base = (size_t)i * SLOTS;
+    const float4 s0 = seg[2 * i], s1 = seg[2 * i + 1];       /* (first u0, last u0, row, samples) */
+    const uint n0 = as_uint(s0.w), n1 = as_uint(s1.w);
+    float r = 0.0f, g = 0.0f, b = 0.0f;
+    if (n0 + n1 == n) {                                      /* one or two rows */
+        int turn1, col1;
+        background_texel(s0.y, shift, env_w, &turn1, &col1);
+        background_row(u0, base, 0u, n0, as_int(s0.z), s0.x, turn1, col1, shift, env_w, env, &r, &g, &b);
+        if (n1) {
+            background_texel(s1.y, shift, env_w, &turn1, &col1);
+            background_row(u0, base, n0, n, as_int(s1.z), s1.x, turn1, col1, shift, env_w, env, &r, &g, &b);
+        }
+    } else {                                                 /* more rows: rows read per sample */
         for (uint j = 0; j < n;) {
             int turn, col;
             const int rw = as_int(row[base + j]);
             background_texel(u0[base + j], shift, env_w, &turn, &col);
-            intv same = (intv)0;                       /* -1 per slot of the same texel */
+            intv same = (intv)0;
             for (uint v = 0; v < SLOTS; v += LANES) {
                 realv u = LOADV_(u0, base + v) + shift;
                 const realv t = floor(u);
@@ -271,8 +328,7 @@ __kernel void frame_background(const uint count, const float inv_samples, const 
                 same += (as_intv(LOADV_(row, base + v)) == rw) & (__builtin_convertvector(t, intv) == turn) &
                         (c == col);
             }
-            int m = 0;
-            for (uint l = 0; l < LANES; ++l) m -= same[l];
+            const int m = background_lanes(same);
             const size_t tex = 3 * ((size_t)rw * env_w + col);
             r += (float)m * env[tex];
             g += (float)m * env[tex + 1];

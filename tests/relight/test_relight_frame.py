@@ -29,3 +29,84 @@ def test_select_terms_equals_the_sort(kind):
     for c in cases:
         for terms in (1, 5, 17, 64, 200, 256, 1000):
             np.testing.assert_array_equal(lighting.select_terms(c, terms, kind, rms), select_by_sort(c, terms, kind, rms))
+
+
+# ----------------------------------------------------------------------------- kernels and twins
+@pytest.mark.parametrize("bits", (8, 16))
+def test_product_kernel_writes_the_image_its_twin_does(device, bits):
+    """frame_product on an image whose sides are not whole blocks (edge blocks cut, a row of
+    eight pixels cut), entries of 8 and 16 bits, coefficients missing from some blocks: the
+    frame the twin untiles."""
+    from wavlight import cl
+    from wavlight.relight import frame
+
+    rng = np.random.default_rng(5)
+    width, height, block = 37, 21, 16
+    blocks_x, n_blocks, n_coeffs = 3, 6, 64
+    offsets = np.where(rng.random((n_coeffs, n_blocks)) < 0.6, 0, -1).astype(np.int32)
+    n_entries = int((offsets >= 0).sum())
+    offsets[offsets >= 0] = rng.permutation(n_entries)
+    dtype = np.int8 if bits == 8 else np.int16
+    info = np.iinfo(dtype)
+    data = rng.integers(info.min, info.max, (n_entries, block * block), endpoint=True).astype(dtype)
+    scale = rng.uniform(0.5, 2.0, n_entries).astype(np.float32) / info.max
+    albedo = rng.uniform(0.1, 1.0, (height, width, 3)).astype(np.float32)
+    entries = frame.DeviceEntries(offsets, scale, data)
+    for k in (0, 1, 7, 64):
+        columns = np.sort(rng.choice(n_coeffs, k, replace=False)).astype(np.int64)
+        values = rng.normal(size=(k, 3))
+        out = cl.empty(12 * width * height)
+        entries.image(columns, values, cl.to_device(albedo), blocks_x, width, height, out)
+        got = cl.read(out, (height, width, 3), np.float32, cl.thread_queue())
+        want = frame.image_reference(offsets, scale, data, columns, values, albedo, blocks_x)
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * max(np.abs(want).max(), 1e-30))
+
+
+def sample_directions(rng, m, samples):
+    """(m, samples, 3) directions: per pixel a centre, its samples spread by 0 (all alike),
+    1e-6, 1e-3 (a pixel), 0.01, 0.05 or 0.5 (many texels and rows); centres near the seam u = 0
+    and the poles among them."""
+    centre = rng.normal(size=(m, 3))
+    centre[: m // 8] = [0.0, 0.1, -1.0]                          # u = 0: the seam of the map
+    centre[m // 8: m // 6] = [1e-3, 1.0, 2e-3]                    # a pole
+    spread = rng.choice([0.0, 1e-6, 1e-3, 0.01, 0.05, 0.5], m)
+    d = centre[:, None, :] + spread[:, None, None] * rng.normal(size=(m, samples, 3))
+    return (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+
+
+@pytest.mark.parametrize("samples", (64, 20, 1))
+def test_background_kernel_equals_its_twin(device, samples):
+    """frame_background (runs of one texel) against the per-sample twin: masks full, partial
+    and empty, footprints from one texel to many rows, the seam, rotations of either sign, of
+    whole texels and of a hair."""
+    from wavlight import cl
+    from wavlight.relight import frame
+
+    rng = np.random.default_rng(7)
+    m = 400
+    dirs = sample_directions(rng, m, samples)
+    full = np.uint64((1 << samples) - 1) if samples < 64 else np.uint64(2 ** 64 - 1)
+    mask = np.where(rng.random(m) < 0.6, full,
+                    rng.integers(0, 2 ** 63, m, dtype=np.uint64) & full).astype(np.uint64)
+    mask[:5] = 0
+    width, height = 40, 23
+    pixel = rng.permutation(width * height)[:m].astype(np.uint32)
+    for env_h, env_w in ((16, 32), (64, 128)):
+        env = rng.uniform(0.0, 10.0, (env_h, env_w, 3)).astype(np.float32)
+        bg = frame.background_samples(dirs, mask, env_h)
+        u0, row = frame.background_lookup(dirs, env_h)
+        assert np.array_equal(bg.count, [bin(int(x)).count("1") for x in mask])
+        n0, n1 = bg.seg[:, 0, 3].view(np.uint32), bg.seg[:, 1, 3].view(np.uint32)
+        if samples > 1:   # pixels in one map row, in two, in more: each of the kernel's paths
+            assert ((n0 == bg.count) & (n0 > 0)).sum() > 20 and ((n1 > 0) & (n0 + n1 == bg.count)).sum() > 20
+            assert (n0 + n1 < bg.count).sum() > 20
+        buffers = (cl.to_device(bg.count), cl.to_device(bg.seg), cl.to_device(bg.u0), cl.to_device(bg.row),
+                   cl.to_device(pixel))
+        for rot in (0.0, 1e-9, -1e-9, 45.0, -90.0, 360.0 / env_w * 3, 180.0 / env_w, 359.999, -359.5):
+            out = cl.to_device(np.zeros((height, width, 3), np.float32), writable=True)
+            frame.background_cl(cl.to_device(env), env_w, rot, buffers, m, samples, out)
+            got = cl.read(out, (height, width, 3), np.float32, cl.thread_queue()).reshape(-1, 3)[pixel.astype(np.int64)]
+            want = frame.background_reference(env, rot, mask, u0, row)
+            # the same texels; a run of n samples in one texel is added as n times the texel
+            np.testing.assert_allclose(got, want, rtol=samples * 2.0 ** -23, atol=0)
+            assert np.all(got[mask == 0] == 0)

@@ -70,6 +70,9 @@ class DeviceEntries:
     (no copy on a CPU device where OpenCL can use the host memory), shared by every frame."""
 
     TILE_BLOCKS = 4
+    #: work-items per work-group of ``frame_product``: left to PoCL, a frame's 256 work-items (512^2)
+    #: were one group, on one core
+    GROUP = 4
 
     def __init__(self, offsets: np.ndarray, entry_scale: np.ndarray, entry_data: np.ndarray):
         self.pixels = int(entry_data.shape[1])
@@ -103,9 +106,9 @@ class DeviceEntries:
         light[:len(columns), :3] = values
         cols = np.zeros(max(len(columns), 1), np.int32)
         cols[:len(columns)] = columns
-        items = -(-self.n_blocks // self.TILE_BLOCKS)
+        items = -(-self.n_blocks // (self.TILE_BLOCKS * self.GROUP)) * self.GROUP
         cl.kernel(prog, "frame_product")(
-            queue, (items,), None, np.uint32(len(columns)), np.uint32(self.n_blocks), np.uint32(blocks_x),
+            queue, (items,), (self.GROUP,), np.uint32(len(columns)), np.uint32(self.n_blocks), np.uint32(blocks_x),
             np.uint32(width), np.uint32(height), cl.upload("frame_columns", cols, queue),
             cl.upload("frame_light", light, queue), self.offsets[0], self.scale[0], self.data[0], albedo_buffer, out)
 
@@ -127,13 +130,14 @@ class BackgroundSamples:
     them: pixel i's count[i] (M,) uint32 samples in the first slots of u0[i] and row[i] ((M,
     SLOTS) float32 and int32, SLOTS = S rounded up to whole vectors of ``cl.LANES``), sorted
     by map row and then by u at rotate_y = 0 (:func:`background_lookup`'s values; row -1 in
-    the slots beyond count[i]); ends (M, 2, 2) float32: each pixel's first and last sample's
-    (u0, row's bits)."""
+    the slots beyond count[i]); seg (M, 2, 4) float32: the pixel's first two map rows (its
+    samples' first and last u0 there, the row and the number of samples, both as int32 bits;
+    zeros where there is no second row)."""
 
     count: np.ndarray
     u0: np.ndarray
     row: np.ndarray
-    ends: np.ndarray
+    seg: np.ndarray
 
 
 def background_samples(dirs: np.ndarray, mask: np.ndarray, env_height: int, lanes: int = cl.LANES) -> BackgroundSamples:
@@ -153,12 +157,20 @@ def background_samples(dirs: np.ndarray, mask: np.ndarray, env_height: int, lane
     rows = np.full((m, slots), -1, np.int32)
     u0s[:, :samples] = np.where(kept, np.take_along_axis(u0, order, 1), 0.0)
     rows[:, :samples] = np.where(kept, np.take_along_axis(row, order, 1), -1)
-    ends = np.zeros((m, 2, 2), np.float32)
-    last = np.maximum(count.astype(np.int64) - 1, 0)
-    for side, at in ((0, np.zeros(m, np.int64)), (1, last)):
-        ends[:, side, 0] = u0s[np.arange(m), at]
-        ends[:, side, 1] = rows[np.arange(m), at].view(np.float32)
-    return BackgroundSamples(count, u0s, rows, ends)
+    # the first two rows' spans of slots: [0, n0) and [n0, n0 + n1)
+    n0 = (rows == rows[:, :1]).sum(1) * (count > 0)
+    second = rows[np.arange(m), np.minimum(n0, slots - 1)]
+    n1 = np.where(n0 < count, (rows == second[:, None]).sum(1), 0)
+    seg = np.zeros((m, 2, 4), np.float32)
+    ids = np.arange(m)
+    for k, (lo, n) in enumerate(((np.zeros(m, np.int64), n0), (n0, n1))):
+        has = n > 0
+        first, last = np.where(has, lo, 0), np.where(has, lo + n - 1, 0)
+        seg[:, k, 0] = np.where(has, u0s[ids, first], 0.0)
+        seg[:, k, 1] = np.where(has, u0s[ids, last], 0.0)
+        seg[:, k, 2] = np.where(has, rows[ids, first], 0).astype(np.int32).view(np.float32)
+        seg[:, k, 3] = n.astype(np.uint32).view(np.float32)
+    return BackgroundSamples(count, u0s, rows, seg)
 
 
 def background_reference(pixels: np.ndarray, rotate_y: float, mask: np.ndarray, u0: np.ndarray,
@@ -182,15 +194,15 @@ def background_cl(env_buffer, env_width: int, rotate_y: float, buffers, count: i
     """Enqueue the kernel ``frame_background``: the map (a device buffer, ``env_width`` columns)
     turned to ``rotate_y`` at the ``count`` background pixels' missing samples, added to those
     pixels of the frame in the device buffer ``out`` ((H, W, 3) float32). ``buffers``: the
-    device buffers of :class:`BackgroundSamples`' count, ends, u0 and row, and the pixels'
+    device buffers of :class:`BackgroundSamples`' count, seg, u0 and row, and the pixels'
     indices in the frame (M,) uint32; ``samples``: S, the camera samples per pixel."""
     if count:
         queue = queue or cl.thread_queue()
         prog = cl.program("relight.cl", SLOTS=-(-samples // cl.LANES) * cl.LANES)
-        n, ends, u0, row, pixel = buffers
+        n, seg, u0, row, pixel = buffers
         cl.kernel(prog, "frame_background")(
             queue, (cl.items(count),), (cl.WORK_GROUP,), np.uint32(count), np.float32(1.0 / samples),
-            np.int32(env_width), np.float32(rotate_y / 360.0), n, ends, u0, row, pixel, env_buffer, out)
+            np.int32(env_width), np.float32(rotate_y / 360.0), n, seg, u0, row, pixel, env_buffer, out)
 
 
 class DeviceFrame:
@@ -212,7 +224,7 @@ class DeviceFrame:
         last height asked for is kept), and the pixels' indices."""
         if self._bg is None or self._bg[0] != env_height:
             bg = background_samples(self._dirs, self._mask, env_height)
-            self._bg = (env_height, (cl.to_device(bg.count), cl.to_device(bg.ends), cl.to_device(bg.u0),
+            self._bg = (env_height, (cl.to_device(bg.count), cl.to_device(bg.seg), cl.to_device(bg.u0),
                                      cl.to_device(bg.row), self._pixel))
         return self._bg[1]
 
