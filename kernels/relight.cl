@@ -341,3 +341,107 @@ __kernel void frame_background(const uint count, const float inv_samples, const 
     out[o + 1] += g * inv_samples;
     out[o + 2] += b * inv_samples;
 }
+
+/* The lighting of a frame (wavlight/relight/lighting.py): the map turned by rotate_y, its mean
+ * radiance over each of the 2^n x 2^n world texels (Chen & Gao's T2), and its Haar coefficients
+ * (eq. 13, the dense nonstandard layout of wavlight.haar.forward), in double precision and in
+ * numpy's order of operations, contraction off: the coefficients are those of the twin,
+ * lighting.coefficients(Projector(...)(rotate_y, scale)), bit for bit. The host gives each
+ * texel edge e (0 .. N) its map column col = edges[e], fraction frac = edges[N + 1 + e] and
+ * whole turns turns = edges[2 (N + 1) + e] (Projector.edges), and each texel row r its weight
+ * edges[3 (N + 1) + r]; texel row r, edge e of channel ch is
+ *     at = (cum[r, col, ch] + frac by_rows[r, col, ch]) + turns total[r, ch],
+ * a texel (at[e + 1] - at[e]) weight[r] (weight = scale / Omega_r), times 2^-n. A work-item
+ * takes one channel's tile of tile x tile texels (tile = min(LIGHT_TILE, N)) through the log2
+ * tile finest levels, writing their details into coeffs (3, N, N) and the tile's scaling
+ * coefficient into grid (3, N / tile, N / tile); lighting_top takes each channel's grid through
+ * the levels left. */
+#ifdef cl_khr_fp64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#ifndef LIGHT_TILE
+#define LIGHT_TILE 16
+#endif
+
+/* One level of the transform of the g x g scaling coefficients s (row stride `stride`), in
+ * place, a tile at (ty, tx) of the level's (g / 2)-sized blocks: details to coeffs (side N) at
+ * level l. Each coefficient is written after the four it is made of were read (in place). */
+INLINE void lighting_level(double *s_private, __global double *s_global, const uint g, const uint stride,
+                           const uint ty, const uint tx, const uint l, const uint side, __global double *coeffs)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const uint h = g / 2u, H = 1u << l;
+    for (uint i = 0; i < h; ++i)
+        for (uint j = 0; j < h; ++j) {
+            const uint p = 2u * i * stride + 2u * j;
+            double a00, a01, a10, a11;
+            if (s_private) {
+                a00 = s_private[p]; a01 = s_private[p + 1]; a10 = s_private[p + stride]; a11 = s_private[p + stride + 1];
+            } else {
+                a00 = s_global[p]; a01 = s_global[p + 1]; a10 = s_global[p + stride]; a11 = s_global[p + stride + 1];
+            }
+            const size_t I = ty * h + i, J = tx * h + j;
+            coeffs[I * side + H + J] = 0.5 * ((a00 - a01) + (a10 - a11));
+            coeffs[(H + I) * side + J] = 0.5 * ((a00 + a01) - (a10 + a11));
+            coeffs[(H + I) * side + H + J] = 0.5 * ((a00 - a01) - (a10 - a11));
+            const double s = 0.5 * ((a00 + a01) + (a10 + a11));
+            if (s_private) s_private[i * stride + j] = s;
+            else s_global[i * stride + j] = s;
+        }
+}
+
+__kernel void lighting_tiles(const uint n_levels, const uint tile, const int map_w, __global const double *cum,
+                             __global const double *by_rows, __global const double *total,
+                             __global const double *edges, __global double *coeffs, __global double *grid)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const uint side = 1u << n_levels, across = side / tile, tiles = across * across;
+    __global const double *frac = edges + side + 1, *turns = edges + 2 * (side + 1), *weight = edges + 3 * (side + 1);
+    const uint gid = get_global_id(0);
+    if (gid >= 3u * tiles) return;
+    const uint ch = gid / tiles, t = gid % tiles, ty = t / across, tx = t % across;
+    const double unit = 1.0 / (double)side;   /* 2^-n, exact */
+    double s[LIGHT_TILE * LIGHT_TILE];
+    for (uint r = 0; r < tile; ++r) {
+        const uint row = ty * tile + r;
+        const double tot = total[3 * row + ch], w = weight[row];
+        __global const double *c_row = cum + (size_t)row * (map_w + 1) * 3 + ch;
+        __global const double *b_row = by_rows + (size_t)row * map_w * 3 + ch;
+        uint e = tx * tile;
+        size_t at = 3 * (size_t)edges[e];
+        double prev = (c_row[at] + frac[e] * b_row[at]) + turns[e] * tot;
+        for (uint c = 0; c < tile; ++c) {
+            e = tx * tile + c + 1u;
+            at = 3 * (size_t)edges[e];
+            const double next = (c_row[at] + frac[e] * b_row[at]) + turns[e] * tot;
+            s[r * LIGHT_TILE + c] = ((next - prev) * w) * unit;
+            prev = next;
+        }
+    }
+    __global double *out = coeffs + (size_t)ch * side * side;
+    uint g = tile, l = n_levels;
+    while (g > 1u) {
+        --l;
+        lighting_level(s, 0, g, LIGHT_TILE, ty, tx, l, side, out);
+        g /= 2u;
+    }
+    if (across == 1u) out[0] = s[0];
+    else grid[(size_t)ch * tiles + t] = s[0];
+}
+
+__kernel void lighting_top(const uint n_levels, const uint tile, __global double *coeffs, __global double *grid)
+{
+    const uint ch = get_global_id(0);
+    if (ch >= 3u) return;
+    const uint side = 1u << n_levels, across = side / tile;
+    __global double *s = grid + (size_t)ch * across * across;
+    __global double *out = coeffs + (size_t)ch * side * side;
+    uint g = across, l = 0;
+    while ((1u << l) < across) ++l;
+    while (g > 1u) {
+        --l;
+        lighting_level(0, s, g, across, 0, 0, l, side, out);
+        g /= 2u;
+    }
+    out[0] = s[0];
+}
+#endif

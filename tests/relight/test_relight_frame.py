@@ -110,3 +110,23 @@ def test_background_kernel_equals_its_twin(device, samples):
             # the same texels; a run of n samples in one texel is added as n times the texel
             np.testing.assert_allclose(got, want, rtol=samples * 2.0 ** -23, atol=0)
             assert np.all(got[mask == 0] == 0)
+
+
+@pytest.mark.parametrize("levels", (1, 3, 4, 5, 7))
+def test_lighting_kernels_equal_their_twin_bit_for_bit(device, levels):
+    """lighting_tiles and lighting_top: the Haar coefficients of the turned, scaled map's texels,
+    the numpy projection's and transform's, bit for bit, for maps narrower and wider than the
+    texels, any rotation (whole texels, either sign, past a turn), any scale."""
+    from wavlight.envmap import Environment
+
+    if not lighting.DeviceProjector.available():
+        pytest.skip("the device has no doubles")
+    rng = np.random.default_rng(levels)
+    for h, w in ((8, 16), (37, 70), (64, 256)):
+        env = Environment(rng.gamma(0.5, 2.0, (h, w, 3)).astype(np.float32), 1.0, 0.0, "random")
+        projector = lighting.Projector(env, levels)
+        device = lighting.DeviceProjector(projector)
+        for rot, scale in ((0.0, 1.0), (360.0 * 3 / (1 << levels), 1.0), (-47.3, 0.25), (359.99, 3.0), (1e-9, 1.0),
+                           (-1e-9, 1.0)):
+            want = lighting.coefficients(projector(rot, scale))
+            np.testing.assert_array_equal(device.coefficients(rot, scale), want)

@@ -139,6 +139,20 @@ class Transfer:
                 return projector
         return lighting.Projector(environment, self.n_levels)
 
+    def _coefficients(self, environment: Environment, rotate_y: float, backend: str) -> np.ndarray:
+        """(3, N, N) the lighting's Haar coefficients: on the device where it has doubles (its
+        kernels give numpy's coefficients bit for bit; the map's integrals uploaded once per
+        projector), else numpy's."""
+        projector = self._projector(environment)
+        if backend == "numpy" or not lighting.DeviceProjector.available():
+            return lighting.coefficients(projector(rotate_y))
+        device = self._lit.get(id(projector)) if self._lit is not None else None
+        if device is None or device.projector is not projector:
+            kept = {id(p) for _, p, _ in self._maps.values()}
+            self._lit = {k: v for k, v in (self._lit or {}).items() if k in kept}
+            device = self._lit[id(projector)] = lighting.DeviceProjector(projector)
+        return device.coefficients(rotate_y)
+
     def _environment(self, env, scale):
         if env is None:
             return Environment(np.asarray(self._s["environment"]), scale, 0.0, "the baked environment")
@@ -150,7 +164,8 @@ class Transfer:
         raise ArgumentError(f"Transfer.frame: env must be an Environment, a map file or None, got {shown(env)}")
 
     def lighting(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default):
-        """(3, N, N) Haar coefficients of the frame's lighting on the transfer's texels."""
+        """(3, N, N) Haar coefficients of the frame's lighting on the transfer's texels (numpy's;
+        a frame's come from the device, equal bit for bit)."""
         rot = self.scene_rotate_y if rotate_y is None else check_degrees("Transfer.lighting", "rotate_y", rotate_y)
         environment = self.environment(env, scale)
         return lighting.coefficients(self._projector(environment)(rot))
@@ -181,7 +196,7 @@ class Transfer:
         t0 = time.perf_counter()
         environment = self.environment(env, scale)
         rot = self.scene_rotate_y if rotate_y is None else rotate_y
-        coeffs = lighting.coefficients(self._projector(environment)(rot))
+        coeffs = self._coefficients(environment, rot, backend)
         t1 = time.perf_counter()
         columns = lighting.select_terms(coeffs, terms, priority, self._s["rms"])
         side = 1 << self.n_levels
