@@ -174,6 +174,18 @@ __kernel void frame_product(const uint n_terms, const uint n_blocks, const uint 
     float8 acc[TILE_BLOCKS * 3 * VECTORS];
     for (uint j = 0; j < TILE_BLOCKS * 3 * VECTORS; ++j) acc[j] = (float8)0.0f;
     for (uint k = 0; k < n_terms; ++k) {
+        /* ask for the offsets 8 terms on and the entries 4 terms on (10-14% of the kernel's time) */
+        if (k + 8u < n_terms) __builtin_prefetch(offsets + (size_t)columns[k + 8u] * n_blocks + b0);
+        if (k + 4u < n_terms) {
+            __global const int *ahead = offsets + (size_t)columns[k + 4u] * n_blocks + b0;
+            for (uint j = 0; j < tiles; ++j) {
+                const int o = ahead[j];
+                if (o < 0) continue;
+                __builtin_prefetch(scale + o);
+                for (uint c = 0; c < PIXELS * QBITS / 8; c += 64u)
+                    __builtin_prefetch((__global const char *)(data + (size_t)o * PIXELS) + c);
+            }
+        }
         __global const int *row = offsets + (size_t)columns[k] * n_blocks + b0;
         const float4 L = light[k];
         for (uint j = 0; j < tiles; ++j) {
