@@ -150,13 +150,13 @@ def background_samples(dirs: np.ndarray, mask: np.ndarray, env_height: int, lane
     missing = ((np.asarray(mask, np.uint64)[:, None] >> np.arange(samples, dtype=np.uint64)) & np.uint64(1)) > 0
     key = (row.astype(np.uint64) << np.uint64(32)) | u0.view(np.uint32).astype(np.uint64)
     key[~missing] = np.iinfo(np.uint64).max
-    order = np.argsort(key, axis=1, kind="stable")
+    key.sort(axis=1)                                               # the missing ones come first
     count = missing.sum(1).astype(np.uint32)
-    kept = np.arange(samples)[None, :] < count[:, None]           # the missing ones come first
+    kept = np.arange(samples)[None, :] < count[:, None]
     u0s = np.zeros((m, slots), np.float32)
     rows = np.full((m, slots), -1, np.int32)
-    u0s[:, :samples] = np.where(kept, np.take_along_axis(u0, order, 1), 0.0)
-    rows[:, :samples] = np.where(kept, np.take_along_axis(row, order, 1), -1)
+    u0s[:, :samples] = np.where(kept, (key & np.uint64(0xFFFFFFFF)).astype(np.uint32).view(np.float32), 0.0)
+    rows[:, :samples] = np.where(kept, (key >> np.uint64(32)).astype(np.int64), -1)
     # the first two rows' spans of slots: [0, n0) and [n0, n0 + n1)
     n0 = (rows == rows[:, :1]).sum(1) * (count > 0)
     second = rows[np.arange(m), np.minimum(n0, slots - 1)]

@@ -180,8 +180,11 @@ class Transfer:
 
     def frame_timed(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, terms=None, priority=None,
                     backend: str = "opencl"):
-        """The frame and its timings (seconds of projection, selection, product, assembly), the
-        terms, the entries read and the rotation (degrees, reduced modulo 360)."""
+        """The frame and its timings, the terms, the entries read and the rotation (degrees, reduced
+        modulo 360). Timings, seconds: lighting (the turned map's texels and their Haar
+        coefficients), terms (the selection of K), product (the sparse product times the albedo),
+        assembly (the rest: the background where camera samples missed, the copy back, the
+        finiteness check), background (the first part of the assembly), frame (all)."""
         where = "Transfer.frame"
         if self.header.get("vary") == "view":
             raise WavlightError(f"{self.path}: this bake varies the view (its lighting is fixed): its frames come "
@@ -207,6 +210,7 @@ class Transfer:
                                     self._s["albedo"], self.blocks[0])
             t3 = time.perf_counter()
             self._add_background(image, environment, rot)
+            t_bg = time.perf_counter()
         else:
             device = self._frame_device()
             queue = cl.thread_queue()
@@ -214,13 +218,16 @@ class Transfer:
             queue.finish()
             t3 = time.perf_counter()
             device.background(out, environment, rot, queue)
+            queue.finish()
+            t_bg = time.perf_counter()
             image = device.read(out, queue)
         if not np.isfinite(image).all():
             raise WavlightError(f"{self.path}: the frame overflows float32 (its transfer times the lighting; a "
                                 "smaller --scale or map)")
         t4 = time.perf_counter()
         return image, {"lighting_seconds": t1 - t0, "terms_seconds": t2 - t1, "product_seconds": t3 - t2,
-                       "assembly_seconds": t4 - t3, "frame_seconds": t4 - t0, "terms": int(len(columns)),
+                       "assembly_seconds": t4 - t3, "background_seconds": t_bg - t3, "frame_seconds": t4 - t0,
+                       "terms": int(len(columns)),
                        "entries_read": self._entries_read(columns), "rotate_y": rot}
 
     def _entries_read(self, columns: np.ndarray) -> int:
