@@ -18,7 +18,8 @@ map and K, then the timed ones; --rounds rounds alternate baseline and current, 
 drift of a shared machine's load falls on both alike. Per frame: Transfer.frame_timed's parts
 (lighting_seconds: the projection of the turned map and its Haar transform; terms_seconds: the
 selection of the K terms; product_seconds: the sparse product; assembly_seconds: the rest, the
-background where camera samples missed, the copy back and the finiteness check), its
+background where camera samples missed, the copy back and the finiteness check; the current
+code reports background_seconds, the first of these, too), its
 frame_seconds, and the process's CPU seconds over the call (every thread's: the kernels run on
 both cores). Medians over all rounds' frames: frames/s = 1 / frame_seconds (whole frames, as
 --json reports them); computation frames/s = 1 / (lighting + terms + product). The target
@@ -85,7 +86,8 @@ def worker(spec: dict) -> dict:
                         image, st = transfer.frame_timed(env, rot, 1.0, terms)
                         cpu = time.process_time() - c0
                         rows.append({**{p: st[p] for p in PARTS}, "cpu_seconds": cpu, "terms": st["terms"],
-                                     "entries_read": st["entries_read"]})
+                                     "entries_read": st["entries_read"],
+                                     "background_seconds": st.get("background_seconds")})
                         if mode == "turntable":
                             wavlight.save_image(os.path.join(folder, f"frame-{i:04d}.png"), image)
     finally:
@@ -121,6 +123,8 @@ def baseline_tree(rev: str) -> str:
 # ----------------------------------------------------------------------------- summary
 def summarise(frames: list) -> dict:
     med = {p: statistics.median(f[p] for f in frames) for p in PARTS + ("cpu_seconds",)}
+    bg = [f["background_seconds"] for f in frames if f.get("background_seconds") is not None]
+    med["background_seconds"] = statistics.median(bg) if bg else None   # (the baseline does not report it)
     compute = statistics.median(f["lighting_seconds"] + f["terms_seconds"] + f["product_seconds"] for f in frames)
     return {"frames": len(frames), "terms": frames[0]["terms"], "entries_read": frames[0]["entries_read"], **med,
             "compute_seconds": compute, "frames_per_second": 1.0 / med["frame_seconds"],
@@ -185,14 +189,14 @@ def main():
                   "met": bool(worst["frames_per_second"] >= 60)}
     bake_info = runs["current"][0]["bake"]
     shown = [{**{k: v for k, v in r.items() if not k.endswith("_seconds") and k != "frames_per_second_by_round"},
-              **{p.replace("_seconds", "_ms"): 1e3 * r[p] for p in PARTS + ("cpu_seconds", "compute_seconds")}}
+              **{p.replace("_seconds", "_ms"): None if r[p] is None else 1e3 * r[p]
+                 for p in PARTS + ("background_seconds", "cpu_seconds", "compute_seconds")}}
              for r in rows]
     print(f"frames {bake_info['width']}x{bake_info['height']}, {bake_info['texels']} texels, {bake_info['spp']} spp, "
           f"auto K {bake_info['terms']}; medians of {args.rounds} x {args.frames} frames (ms)")
-    fmt = {c: "{:.2f}" for c in ("lighting_ms", "terms_ms", "product_ms", "assembly_ms", "frame_ms", "cpu_ms",
-                                 "compute_ms", "frames_per_second", "compute_frames_per_second")}
-    print(rc.table(shown, ["subject", "env", "K", "mode", "terms", "lighting_ms", "terms_ms", "product_ms", "assembly_ms",
-                           "frame_ms", "cpu_ms", "frames_per_second", "compute_frames_per_second"], fmt))
+    cols = ["lighting_ms", "terms_ms", "product_ms", "assembly_ms", "background_ms", "frame_ms", "cpu_ms",
+            "frames_per_second", "compute_frames_per_second"]
+    print(rc.table(shown, ["subject", "env", "K", "mode", "terms", *cols], {c: "{:.2f}" for c in cols}))
     if target:
         print(f"K = 256: at least {target['frames_per_second_min']:.1f} whole frames/s ({target['at']}); "
               f"target >= 60: {'met' if target['met'] else 'NOT met'}")

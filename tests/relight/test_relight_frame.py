@@ -28,7 +28,8 @@ def test_select_terms_equals_the_sort(kind):
     rms = np.round(rng.random(256) * 4) / 4                                        # ties, and zeros
     for c in cases:
         for terms in (1, 5, 17, 64, 200, 256, 1000):
-            np.testing.assert_array_equal(lighting.select_terms(c, terms, kind, rms), select_by_sort(c, terms, kind, rms))
+            got = lighting.select_terms(c, terms, kind, rms)
+            np.testing.assert_array_equal(got, select_by_sort(c, terms, kind, rms))
 
 
 # ----------------------------------------------------------------------------- kernels and twins
