@@ -131,3 +131,73 @@ def test_lighting_kernels_equal_their_twin_bit_for_bit(device, levels):
                            (-1e-9, 1.0)):
             want = lighting.coefficients(projector(rot, scale))
             np.testing.assert_array_equal(device.coefficients(rot, scale), want)
+
+
+# ----------------------------------------------------------------------------- frames
+@pytest.fixture(scope="module")
+def small_bake(tmp_path_factory, device):
+    """A glossy sphere on a floor under a map with a small bright light, baked (24 x 20 pixels: edge
+    blocks), and a second map of another height."""
+    import wavlight
+    from scenes_util import write_raw_image
+
+    folder = tmp_path_factory.mktemp("maps")
+    rng = np.random.default_rng(3)
+    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
+    sky[6, 40] = 400.0
+    write_raw_image(folder / "sky.exr", sky)
+    write_raw_image(folder / "other.exr", rng.uniform(0.1, 3.0, (24, 48, 3)).astype(np.float32))
+    scene = wavlight.load_dict({
+        "render": {"width": 24, "height": 20},
+        "camera": {"eye": [0.0, 1.5, 3.5], "target": [0.0, 0.5, 0.0], "fov_y": 40.0},
+        "environment": {"file": "sky.exr", "rotate_y": 20.0},
+        "objects": [{"shape": "sphere", "center": [0.0, 0.6, 0.0], "radius": 0.6, "subdivisions": 3, "material": "ball"},
+                    {"shape": "quad", "center": [0.0, 0.0, 0.0], "size": 6.0, "material": "floor"}],
+        "materials": {"ball": {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
+                      "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}, base_dir=folder)
+    path = folder / "small.wlt"
+    wavlight.bake(scene, output=path, spp=8, levels=4, terms=64, priority="transfer", tolerance=1e-3, seed=2)
+    return path, folder / "other.exr"
+
+
+def float32_tolerance(tr, env, rot, terms):
+    """(H, W, 3) the float32 rounding a frame may carry against its float64 twin: the product's sum
+    of K terms in float32 (at most (K + 2) u sum_k |term_k| times the albedo, u = 2^-24) plus the
+    background's sum of S samples (at most (S + 2) u times its value)."""
+    from wavlight.relight import frame
+
+    s = tr._s
+    coeffs = tr.lighting(env, rot)
+    cols = lighting.select_terms(coeffs, terms, tr.priority, s["rms"])
+    values = coeffs.reshape(3, -1)[:, cols].T * float(4 ** tr.n_levels)
+    magnitude = frame.image_reference(s["offsets"], np.abs(s["entry_scale"]), np.abs(s["entry_data"].astype(np.int32)),
+                                      cols, np.abs(values), s["albedo"], tr.blocks[0])
+    u = 2.0 ** -24
+    tol = (len(cols) + 2) * u * magnitude.astype(np.float64)
+    environment = tr.environment(env)
+    u0, row = frame.background_lookup(s["background_dir"], environment.height)
+    seen = frame.background_reference(environment.pixels, rot, s["background_mask"], u0, row)
+    tol.reshape(-1, 3)[s["background_pixel"].astype(np.int64)] += (tr.spp + 2) * u * seen
+    return tol
+
+
+def test_frames_keep_nothing_that_changes_them(small_bake):
+    """What a Transfer keeps between frames (the map's integrals and its projector on the device,
+    the background's sorted samples per map height, the device's buffers) changes no frame: a
+    turntable, another map (of another height) in between and the first map again give the
+    frames of a Transfer loaded afresh for each, bit for bit, and the numpy backend's (float64
+    sums) within the float32 rounding of their sums."""
+    import wavlight
+
+    path, other = small_bake
+    kept = wavlight.Transfer.load(path)
+    turns = lighting.turntable(kept.scene_rotate_y, 7)
+    for env in (None, str(other), None):
+        for rot in turns:
+            got = kept.frame(env, rot, terms=48)
+            fresh = wavlight.Transfer.load(path)
+            np.testing.assert_array_equal(got, fresh.frame(env, rot, terms=48))
+            twin = fresh.frame(env, rot, terms=48, backend="numpy")
+            assert np.abs(twin).max() > 0
+            assert np.all(np.abs(got - twin) <= float32_tolerance(fresh, env, rot, 48))
+            fresh.close()
