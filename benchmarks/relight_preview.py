@@ -32,7 +32,8 @@ code; the load average is recorded at the start and end of every worker.
 
 The figures in benchmarks/results/relight_preview.json come from
 
-    python benchmarks/relight_preview.py --bake /tmp/preview-bench/bunny512.wlt --baseline d5a040a --wait-minutes 5
+    python benchmarks/relight_preview.py --bake /tmp/preview-bench/bunny512.wlt --baseline d5a040a --wait-load 2 \
+        --wait-minutes 10
 """
 from __future__ import annotations
 
