@@ -144,6 +144,9 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
 #define BLOCK 16
 #endif
 #define PIXELS (BLOCK * BLOCK)
+#if BLOCK % 8
+#error "frame_product writes eight pixels of one block row at a time: BLOCK is a multiple of 8"
+#endif
 #ifndef TILE_BLOCKS
 #define TILE_BLOCKS 4
 #endif
