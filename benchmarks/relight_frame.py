@@ -3,8 +3,9 @@
 here if it is not there), colour, for K in --terms: --warmup frames, then --frames frames at
 rotations 7.3 degrees apart (no two alike), median of each part of Transfer.frame_timed:
 lighting_seconds (projection of the turned map onto the texels and its Haar transform),
-terms_seconds (selection of the K terms), product_seconds (the sparse product on the device),
-assembly_seconds (albedo, the background where camera samples missed). frames/s = 1 /
+terms_seconds (selection of the K terms), product_seconds (the sparse product on the device, times
+the albedo), assembly_seconds (the background where camera samples missed, the copy back; before
+docs/decisions/relight-preview-frames.md, the albedo too). frames/s = 1 /
 frame_seconds; the target (>= 60 frames/s at K = 256) counts the frame computation, lighting +
 terms + product: compute frames/s = 1 / that sum (the median of the per-frame sums).
 

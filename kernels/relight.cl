@@ -1,7 +1,8 @@
 /* Relighting from precomputed transfer (Chen & Gao sec. 2.2, eq. 6-8): the bake's texel
- * rays and the frame's sparse product of transfer and lighting coefficients.
+ * rays, the frame's sparse product of transfer and lighting coefficients and the environment
+ * where the camera samples missed.
  * numpy twins: wavlight/relight/bake.py (texel_rays_reference), wavlight/relight/frame.py
- * (product_reference). */
+ * (image_reference, background_reference). */
 #include "rng.h"
 #include "bsdf.h"
 
@@ -129,15 +130,22 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
 /* The sparse product of a frame (wavlight/relight/frame.py): for the K kept lighting
  * coefficients c_k with weights L_k (RGB times N^2, a pad), block b's pixels sum
  * q_o scale_o L_k over the k whose entry o = offsets[c_k, b] exists (>= 0); entry o is the row
- * data[o] of QBITS-bit coefficients of the block's PIXELS pixels. One work-item takes
- * TILE_BLOCKS consecutive blocks and keeps their sums in private memory while it walks the K
- * coefficients (one row of the offset table each), eight pixels to a vector. The output is
- * three planes (channel, block, pixel). */
+ * data[o] of QBITS-bit coefficients of the block's PIXELS = BLOCK^2 pixels (pixel p at row
+ * p / BLOCK, column p % BLOCK of the block; block b at row b / blocks_x, column b % blocks_x of
+ * the image). One work-item takes TILE_BLOCKS consecutive blocks and keeps their sums in
+ * private memory while it walks the K coefficients (one row of the offset table each), eight
+ * pixels to a vector. It writes the frame itself: each pixel's sums times its albedo, RGB
+ * interleaved, (height, width, 3), the pixels of edge blocks beyond the image left out.
+ * numpy twin: frame.py image_reference. */
 #ifndef QBITS
 #define QBITS 8
 #endif
-#ifndef PIXELS
-#define PIXELS 256
+#ifndef BLOCK
+#define BLOCK 16
+#endif
+#define PIXELS (BLOCK * BLOCK)
+#if BLOCK % 8
+#error "frame_product writes eight pixels of one block row at a time: BLOCK is a multiple of 8"
 #endif
 #ifndef TILE_BLOCKS
 #define TILE_BLOCKS 4
@@ -158,9 +166,10 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
 #endif
 #define VECTORS (PIXELS / 8)
 
-__kernel void frame_product(const uint n_terms, const uint n_blocks, __global const int *columns,
-                            __global const float4 *light, __global const int *offsets,
-                            __global const float *scale, __global const QTYPE *data, __global float *out)
+__kernel void frame_product(const uint n_terms, const uint n_blocks, const uint blocks_x, const uint width,
+                            const uint height, __global const int *columns, __global const float4 *light,
+                            __global const int *offsets, __global const float *scale, __global const QTYPE *data,
+                            __global const float *albedo, __global float *out)
 {
     const uint b0 = get_global_id(0) * TILE_BLOCKS;
     if (b0 >= n_blocks) return;
@@ -168,6 +177,18 @@ __kernel void frame_product(const uint n_terms, const uint n_blocks, __global co
     float8 acc[TILE_BLOCKS * 3 * VECTORS];
     for (uint j = 0; j < TILE_BLOCKS * 3 * VECTORS; ++j) acc[j] = (float8)0.0f;
     for (uint k = 0; k < n_terms; ++k) {
+        /* ask for the offsets 8 terms on and the entries 4 terms on (10-14% of the kernel's time) */
+        if (k + 8u < n_terms) __builtin_prefetch(offsets + (size_t)columns[k + 8u] * n_blocks + b0);
+        if (k + 4u < n_terms) {
+            __global const int *ahead = offsets + (size_t)columns[k + 4u] * n_blocks + b0;
+            for (uint j = 0; j < tiles; ++j) {
+                const int o = ahead[j];
+                if (o < 0) continue;
+                __builtin_prefetch(scale + o);
+                for (uint c = 0; c < PIXELS * QBITS / 8; c += 64u)
+                    __builtin_prefetch((__global const char *)(data + (size_t)o * PIXELS) + c);
+            }
+        }
         __global const int *row = offsets + (size_t)columns[k] * n_blocks + b0;
         const float4 L = light[k];
         for (uint j = 0; j < tiles; ++j) {
@@ -185,49 +206,281 @@ __kernel void frame_product(const uint n_terms, const uint n_blocks, __global co
             }
         }
     }
-    const size_t plane = (size_t)n_blocks * PIXELS;
-    for (uint j = 0; j < tiles; ++j)
-        for (uint c = 0; c < 3; ++c)
-            for (uint v = 0; v < VECTORS; ++v)
-                vstore8(acc[(j * 3 + c) * VECTORS + v], 0, out + c * plane + (size_t)(b0 + j) * PIXELS + 8 * v);
+    for (uint j = 0; j < tiles; ++j) {
+        const uint b = b0 + j, x0 = (b % blocks_x) * BLOCK, y0 = (b / blocks_x) * BLOCK;
+        const float8 *a = acc + j * 3 * VECTORS;
+        for (uint v = 0; v < VECTORS; ++v) {
+            const uint y = y0 + (8 * v) / BLOCK, x = x0 + (8 * v) % BLOCK;
+            if (y >= height) break;
+            if (x >= width) continue;
+            const size_t i = 3 * ((size_t)y * width + x);
+            if (x + 8 <= width) {   /* eight pixels, RGB interleaved: three vectors */
+                const float16 rg = __builtin_shufflevector(a[v], a[VECTORS + v], 0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5,
+                                                           13, 6, 14, 7, 15);
+                const float16 bb = __builtin_shufflevector(a[2 * VECTORS + v], a[2 * VECTORS + v], 0, 1, 2, 3, 4, 5,
+                                                           6, 7, 0, 1, 2, 3, 4, 5, 6, 7);
+                const float8 o0 = __builtin_shufflevector(rg, bb, 0, 1, 16, 2, 3, 17, 4, 5);
+                const float8 o1 = __builtin_shufflevector(rg, bb, 18, 6, 7, 19, 8, 9, 20, 10);
+                const float8 o2 = __builtin_shufflevector(rg, bb, 11, 21, 12, 13, 22, 14, 15, 23);
+                vstore8(o0 * vload8(0, albedo + i), 0, out + i);
+                vstore8(o1 * vload8(0, albedo + i + 8), 0, out + i + 8);
+                vstore8(o2 * vload8(0, albedo + i + 16), 0, out + i + 16);
+            } else {
+                for (uint l = 0; x + l < width; ++l) {
+                    out[i + 3 * l] = a[v][l] * albedo[i + 3 * l];
+                    out[i + 3 * l + 1] = a[VECTORS + v][l] * albedo[i + 3 * l + 1];
+                    out[i + 3 * l + 2] = a[2 * VECTORS + v][l] * albedo[i + 3 * l + 2];
+                }
+            }
+        }
+    }
 }
 
-/* The environment seen where a frame's pixels' camera samples miss: background pixel i's
- * samples s with bit s of mask[i] set, each at its direction's u0 (u at rotate_y = 0) and map
- * row (v does not turn about +Y), float32 as the host computed them; the map turned by
- * rotate_y has the sample at u = frac(u0 + shift), shift = rotate_y / 360, column floor(u W)
- * (nearest texel, as Environment.eval); out[i] = (1 / samples) times the sum of those texels.
- * Eight pixels per work-item. numpy twin: wavlight/relight/frame.py background_reference. */
-__kernel void frame_background(const uint count, const uint samples, const int env_w, const float shift,
-                               __global const ulong *mask, __global const float *u0, __global const int *row,
-                               __global const float *env, __global float *out)
+/* The environment seen where a frame's pixels' camera samples missed, added to those pixels of
+ * the frame. Background pixel i (the frame's pixel pixel[i]) has count[i] missing samples in
+ * slots i SLOTS .. i SLOTS + count[i] - 1 of u0 (u at rotate_y = 0) and row (the map row, as
+ * float bits; -1 in the slots beyond count[i]), sorted by row and then by u0, float32 as the
+ * host computed them. The map turned by rotate_y has sample j at u = frac(u0_j + shift),
+ * shift = rotate_y / 360, column floor(u W) (nearest texel, as Environment.eval); the pixel
+ * gets inv_samples times the sum of those texels. The texel's key (row, floor(u0 + shift),
+ * column) is non-decreasing along the sorted samples (each step is a rounding, monotone), so
+ * the samples of one texel are a run, and the run starting at sample j is as long as the
+ * number of the pixel's samples with j's key (counted LANES at a time).
+ * Most pixels' samples lie in one or two map rows (84% and 16% of the bunny's at 512^2, 64
+ * samples): seg[2 i] and seg[2 i + 1] hold each row's first and last u0, its row and its
+ * number of samples, so that a row whose first and last sample share a texel (most) is one
+ * read of seg, and only a row that straddles a column reads its u0 slots, never the rows.
+ * Pixels over more rows (a wide footprint) read both per sample.
+ * numpy twin: wavlight/relight/frame.py background_reference (per sample). */
+#ifndef SLOTS
+#define SLOTS 64
+#endif
+INLINE void background_texel(const float u0, const float shift, const int env_w, int *turn, int *col)
 {
-    const uint base = LANE_BASE();
-    if (base >= count) return;
-    const uintv i = LANE_INDEX(count);
-    uintv lo = 0u, hi = 0u;
-    for (uint l = 0; l < LANES; ++l) {
-        const ulong bits = mask[i[l]];
-        lo[l] = (uint)bits;
-        hi[l] = (uint)(bits >> 32);
+    float u = u0 + shift;
+    const float t = __builtin_floorf(u);   /* scalar (kernels/simd.h overloads the vectors) */
+    u = u - t;
+    *turn = (int)t;
+    *col = min((int)(u * (float)env_w), env_w - 1);
+}
+
+/* -(the lanes' sum) of masks that are -1 where true */
+INLINE int background_lanes(const intv same)
+{
+    int m = 0;
+    for (uint l = 0; l < LANES; ++l) m -= same[l];
+    return m;
+}
+
+/* The samples of slots [lo, hi) of the pixel at base (all in map row rw) in the texel (turn, col) */
+INLINE int background_count_row(__global const float *u0, const size_t base, const uint lo, const uint hi,
+                                const float shift, const int env_w, const int turn, const int col)
+{
+    intv same = (intv)0;
+    for (uint v = lo / LANES * LANES; v < hi; v += LANES) {
+        realv u = LOADV_(u0, base + v) + shift;
+        const realv t = floor(u);
+        u = u - t;
+        const intv c = min(__builtin_convertvector(u * (float)env_w, intv), env_w - 1);
+        const intv at = as_intv(LANE_IDS) + (int)v;
+        same += (at >= (int)lo) & (at < (int)hi) & (__builtin_convertvector(t, intv) == turn) & (c == col);
     }
-    realv r = 0.0f, g = 0.0f, b = 0.0f;
-    for (uint s = 0; s < samples; ++s) {
-        const uintv bit = (s < 32u ? (lo >> s) : (hi >> (s - 32u))) & 1u;
-        const uintv at = i * samples + s;
-        realv u = GATHER(u0, at) + shift;
-        u = u - floor(u);
-        const intv col = min(convert_intv(u * (float)env_w), env_w - 1);
-        const uintv tex = 3u * as_uintv(GATHER_T(intv, row, at) * env_w + col);
-        const intv use = as_intv(bit) != 0;
-        r += select((realv)0.0f, GATHER(env, tex), use);
-        g += select((realv)0.0f, GATHER(env, tex + 1u), use);
-        b += select((realv)0.0f, GATHER(env, tex + 2u), use);
-    }
-    const float inv = 1.0f / (float)samples;
-    for (uint l = 0; l < LANES && base + l < count; ++l) {
-        out[3 * (base + l)] = r[l] * inv;
-        out[3 * (base + l) + 1] = g[l] * inv;
-        out[3 * (base + l) + 2] = b[l] * inv;
+    return background_lanes(same);
+}
+
+/* The texels of slots [lo, hi) of one map row rw, whose last sample is in (turn1, col1), run by
+ * run, added to (r, g, b) */
+INLINE void background_row(__global const float *u0, const size_t base, const uint lo, const uint hi, const int rw,
+                           const float first_u0, const int turn1, const int col1, const float shift, const int env_w,
+                           __global const float *env, float *r, float *g, float *b)
+{
+    int turn, col;
+    background_texel(first_u0, shift, env_w, &turn, &col);
+    for (uint j = lo; j < hi;) {
+        if (j > lo) background_texel(u0[base + j], shift, env_w, &turn, &col);
+        const int m = (turn == turn1 && col == col1) ? (int)(hi - j)
+                                                     : background_count_row(u0, base, j, hi, shift, env_w, turn, col);
+        const size_t tex = 3 * ((size_t)rw * env_w + col);
+        *r += (float)m * env[tex];
+        *g += (float)m * env[tex + 1];
+        *b += (float)m * env[tex + 2];
+        j += (uint)max(m, 1);
     }
 }
+
+/* Ask for the slots of the pixel BACKGROUND_AHEAD work-items on (PoCL runs a group's work-items
+ * in turn) where it will read them: a row of it straddles a column (its u0), or it spans more
+ * than two rows (its u0 and rows). The slots are far apart in memory: waiting for them was
+ * half the kernel's time (4.0-4.8 ms of CPU per frame of the bunny at 512^2 against 2.3-2.6). */
+#define BACKGROUND_AHEAD 8u
+INLINE void background_prefetch(__global const float4 *seg, const uint n, __global const float *u0,
+                                __global const float *row, const size_t base, const float shift, const int env_w)
+{
+    const float4 s0 = seg[0], s1 = seg[1];
+    int ta, ca, tb, cb, tc, cc, td, cd;
+    background_texel(s0.x, shift, env_w, &ta, &ca);
+    background_texel(s0.y, shift, env_w, &tb, &cb);
+    background_texel(s1.x, shift, env_w, &tc, &cc);
+    background_texel(s1.y, shift, env_w, &td, &cd);
+    const int wide = as_uint(s0.w) + as_uint(s1.w) != n;
+    if (wide || ca != cb || ta != tb || cc != cd || tc != td)
+        for (uint k = 0; k < SLOTS; k += 16u) {
+            __builtin_prefetch(u0 + base + k);
+            if (wide) __builtin_prefetch(row + base + k);
+        }
+}
+
+__kernel void frame_background(const uint count, const float inv_samples, const int env_w, const float shift,
+                               __global const uint *samples, __global const float4 *seg,
+                               __global const float *u0, __global const float *row, __global const uint *pixel,
+                               __global const float *env, __global float *out)
+{
+    const uint i = get_global_id(0);
+    if (i >= count) return;
+    const uint n = samples[i];
+    if (n == 0u) return;
+    const size_t base = (size_t)i * SLOTS;
+    const float4 s0 = seg[2 * i], s1 = seg[2 * i + 1];       /* (first u0, last u0, row, samples) */
+    if (i + BACKGROUND_AHEAD < count) background_prefetch(seg + 2 * (i + BACKGROUND_AHEAD), samples[i + BACKGROUND_AHEAD],
+                                                          u0, row, (size_t)(i + BACKGROUND_AHEAD) * SLOTS, shift, env_w);
+    const uint n0 = as_uint(s0.w), n1 = as_uint(s1.w);
+    float r = 0.0f, g = 0.0f, b = 0.0f;
+    if (n0 + n1 == n) {                                      /* one or two rows */
+        int turn1, col1;
+        background_texel(s0.y, shift, env_w, &turn1, &col1);
+        background_row(u0, base, 0u, n0, as_int(s0.z), s0.x, turn1, col1, shift, env_w, env, &r, &g, &b);
+        if (n1) {
+            background_texel(s1.y, shift, env_w, &turn1, &col1);
+            background_row(u0, base, n0, n, as_int(s1.z), s1.x, turn1, col1, shift, env_w, env, &r, &g, &b);
+        }
+    } else {                                                 /* more rows: rows read per sample */
+        for (uint j = 0; j < n;) {
+            int turn, col;
+            const int rw = as_int(row[base + j]);
+            background_texel(u0[base + j], shift, env_w, &turn, &col);
+            intv same = (intv)0;
+            for (uint v = 0; v < SLOTS; v += LANES) {
+                realv u = LOADV_(u0, base + v) + shift;
+                const realv t = floor(u);
+                u = u - t;
+                const intv c = min(__builtin_convertvector(u * (float)env_w, intv), env_w - 1);
+                same += (as_intv(LOADV_(row, base + v)) == rw) & (__builtin_convertvector(t, intv) == turn) &
+                        (c == col);
+            }
+            const int m = background_lanes(same);
+            const size_t tex = 3 * ((size_t)rw * env_w + col);
+            r += (float)m * env[tex];
+            g += (float)m * env[tex + 1];
+            b += (float)m * env[tex + 2];
+            j += (uint)max(m, 1);
+        }
+    }
+    const size_t o = 3 * (size_t)pixel[i];
+    out[o] += r * inv_samples;
+    out[o + 1] += g * inv_samples;
+    out[o + 2] += b * inv_samples;
+}
+
+/* The lighting of a frame (wavlight/relight/lighting.py): the map turned by rotate_y, its mean
+ * radiance over each of the 2^n x 2^n world texels (Chen & Gao's T2), and its Haar coefficients
+ * (eq. 13, the dense nonstandard layout of wavlight.haar.forward), in double precision and in
+ * numpy's order of operations, contraction off: the coefficients are those of the twin,
+ * lighting.coefficients(Projector(...)(rotate_y, scale)), bit for bit. The host gives each
+ * texel edge e (0 .. N) its map column col = edges[e], fraction frac = edges[N + 1 + e] and
+ * whole turns turns = edges[2 (N + 1) + e] (Projector.edges), and each texel row r its weight
+ * edges[3 (N + 1) + r]; texel row r, edge e of channel ch is
+ *     at = (cum[r, col, ch] + frac by_rows[r, col, ch]) + turns total[r, ch],
+ * a texel (at[e + 1] - at[e]) weight[r] (weight = scale / Omega_r), times 2^-n. A work-item
+ * takes one channel's tile of tile x tile texels (tile = min(LIGHT_TILE, N)) through the log2
+ * tile finest levels, writing their details into coeffs (3, N, N) and the tile's scaling
+ * coefficient into grid (3, N / tile, N / tile); lighting_top takes each channel's grid through
+ * the levels left. */
+#ifdef cl_khr_fp64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#ifndef LIGHT_TILE
+#define LIGHT_TILE 16
+#endif
+
+/* One level of the transform of the g x g scaling coefficients s (row stride `stride`), in
+ * place, a tile at (ty, tx) of the level's (g / 2)-sized blocks: details to coeffs (side N) at
+ * level l. Each coefficient is written after the four it is made of were read (in place). */
+INLINE void lighting_level(double *s_private, __global double *s_global, const uint g, const uint stride,
+                           const uint ty, const uint tx, const uint l, const uint side, __global double *coeffs)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const uint h = g / 2u, H = 1u << l;
+    for (uint i = 0; i < h; ++i)
+        for (uint j = 0; j < h; ++j) {
+            const uint p = 2u * i * stride + 2u * j;
+            double a00, a01, a10, a11;
+            if (s_private) {
+                a00 = s_private[p]; a01 = s_private[p + 1]; a10 = s_private[p + stride]; a11 = s_private[p + stride + 1];
+            } else {
+                a00 = s_global[p]; a01 = s_global[p + 1]; a10 = s_global[p + stride]; a11 = s_global[p + stride + 1];
+            }
+            const size_t I = ty * h + i, J = tx * h + j;
+            coeffs[I * side + H + J] = 0.5 * ((a00 - a01) + (a10 - a11));
+            coeffs[(H + I) * side + J] = 0.5 * ((a00 + a01) - (a10 + a11));
+            coeffs[(H + I) * side + H + J] = 0.5 * ((a00 - a01) - (a10 - a11));
+            const double s = 0.5 * ((a00 + a01) + (a10 + a11));
+            if (s_private) s_private[i * stride + j] = s;
+            else s_global[i * stride + j] = s;
+        }
+}
+
+__kernel void lighting_tiles(const uint n_levels, const uint tile, const int map_w, __global const double *cum,
+                             __global const double *by_rows, __global const double *total,
+                             __global const double *edges, __global double *coeffs, __global double *grid)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const uint side = 1u << n_levels, across = side / tile, tiles = across * across;
+    __global const double *frac = edges + side + 1, *turns = edges + 2 * (side + 1), *weight = edges + 3 * (side + 1);
+    const uint gid = get_global_id(0);
+    if (gid >= 3u * tiles) return;
+    const uint ch = gid / tiles, t = gid % tiles, ty = t / across, tx = t % across;
+    const double unit = 1.0 / (double)side;   /* 2^-n, exact */
+    double s[LIGHT_TILE * LIGHT_TILE];
+    for (uint r = 0; r < tile; ++r) {
+        const uint row = ty * tile + r;
+        const double tot = total[3 * row + ch], w = weight[row];
+        __global const double *c_row = cum + (size_t)row * (map_w + 1) * 3 + ch;
+        __global const double *b_row = by_rows + (size_t)row * map_w * 3 + ch;
+        uint e = tx * tile;
+        size_t at = 3 * (size_t)edges[e];
+        double prev = (c_row[at] + frac[e] * b_row[at]) + turns[e] * tot;
+        for (uint c = 0; c < tile; ++c) {
+            e = tx * tile + c + 1u;
+            at = 3 * (size_t)edges[e];
+            const double next = (c_row[at] + frac[e] * b_row[at]) + turns[e] * tot;
+            s[r * LIGHT_TILE + c] = ((next - prev) * w) * unit;
+            prev = next;
+        }
+    }
+    __global double *out = coeffs + (size_t)ch * side * side;
+    uint g = tile, l = n_levels;
+    while (g > 1u) {
+        --l;
+        lighting_level(s, 0, g, LIGHT_TILE, ty, tx, l, side, out);
+        g /= 2u;
+    }
+    if (across == 1u) out[0] = s[0];
+    else grid[(size_t)ch * tiles + t] = s[0];
+}
+
+__kernel void lighting_top(const uint n_levels, const uint tile, __global double *coeffs, __global double *grid)
+{
+    const uint ch = get_global_id(0);
+    if (ch >= 3u) return;
+    const uint side = 1u << n_levels, across = side / tile;
+    __global double *s = grid + (size_t)ch * across * across;
+    __global double *out = coeffs + (size_t)ch * side * side;
+    uint g = across, l = 0;
+    while ((1u << l) < across) ++l;
+    while (g > 1u) {
+        --l;
+        lighting_level(0, s, g, across, 0, 0, l, side, out);
+        g /= 2u;
+    }
+    out[0] = s[0];
+}
+#endif

@@ -1,16 +1,27 @@
 """A relit frame: the double product integral <T1, T2> of the transfer and the lighting
-(Chen & Gao eq. 6-8) as a sparse dot product of their Haar coefficients.
+(Chen & Gao eq. 6-8) as a sparse dot product of their Haar coefficients, and the environment
+where the camera samples missed.
 
 For pixel p, B_p = a_p sum_t T_p,t L_t = a_p N^2 sum_i T^_p,i L^_i (Parseval on the unit
 square's orthonormal basis, :mod:`wavlight.relight.lighting`), over the K lighting
 coefficients i a frame keeps and the transfer's stored entries: the offset table of the bake
 file gives entry o = offsets[i, b] of coefficient i in block b (or none), a row of quantized
 values q_o of the block's BLOCK^2 pixels with its scale. The kernel ``frame_product``
-(kernels/relight.cl; numpy twin :func:`product_reference`) walks the K rows of the table,
-four blocks to a work-item: a frame reads only the entries of its K coefficients, and the host
-sends only their indices and lighting values.
+(kernels/relight.cl; numpy twin :func:`image_reference`) walks the K rows of the table,
+four blocks to a work-item, and writes the frame's pixels times their albedo a_p: a frame reads
+only the entries of its K coefficients, and the host sends only their indices and lighting
+values and reads the frame back once.
+
+Where a pixel's camera samples missed, the frame adds the map itself, turned, at the samples'
+directions (nearest texel, as :meth:`wavlight.envmap.Environment.eval`): the kernel
+``frame_background`` (numpy twin :func:`background_reference`) takes each pixel's missing
+samples sorted by map row and u (:func:`background_samples`, once per map height), so that a
+rotation, which only shifts u, leaves the samples of one map texel in a run, and looks each
+run's texel up once.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -19,9 +30,9 @@ from .. import cl
 
 def product_reference(offsets: np.ndarray, entry_scale: np.ndarray, entry_data: np.ndarray, columns: np.ndarray,
                       values: np.ndarray) -> np.ndarray:
-    """numpy twin of ``frame_product``: (n_blocks, BLOCK^2, 3) float64, block b's pixels' sum over
-    the kept coefficients c_k (``columns`` (K,)) with lighting ``values`` (K, 3) (times N^2) of
-    q_o scale_o L_k, o = offsets[c_k, b] where it exists."""
+    """(n_blocks, BLOCK^2, 3) float64, block b's pixels' sum over the kept coefficients c_k
+    (``columns`` (K,)) with lighting ``values`` (K, 3) (times N^2) of q_o scale_o L_k,
+    o = offsets[c_k, b] where it exists."""
     n_blocks, pixels = offsets.shape[1], entry_data.shape[1]
     out = np.zeros((n_blocks, pixels, 3))
     rows = np.asarray(offsets[np.asarray(columns, np.int64)], np.int64)          # (K, n_blocks)
@@ -35,14 +46,37 @@ def product_reference(offsets: np.ndarray, entry_scale: np.ndarray, entry_data: 
     return out
 
 
+def untile(blocks: np.ndarray, blocks_x: int, width: int, height: int) -> np.ndarray:
+    """(height, width, C) pixels of (n_blocks, BLOCK^2, C) blocks, blocks_x to a row of the
+    image, BLOCK^2 pixels to a block in rows of BLOCK (the parts beyond the image left out)."""
+    n_blocks, pixels, c = blocks.shape
+    b = int(round(pixels ** 0.5))
+    bh = n_blocks // blocks_x
+    img = blocks.reshape(bh, blocks_x, b, b, c).transpose(0, 2, 1, 3, 4).reshape(bh * b, blocks_x * b, c)
+    return img[:height, :width]
+
+
+def image_reference(offsets: np.ndarray, entry_scale: np.ndarray, entry_data: np.ndarray, columns: np.ndarray,
+                    values: np.ndarray, albedo: np.ndarray, blocks_x: int) -> np.ndarray:
+    """numpy twin of ``frame_product``: (H, W, 3) float32, each pixel's sum over the kept
+    coefficients (:func:`product_reference`, in float64) times its albedo (H, W, 3)."""
+    h, w = albedo.shape[:2]
+    img = untile(product_reference(offsets, entry_scale, entry_data, columns, values), blocks_x, w, h)
+    return np.ascontiguousarray(img * albedo, np.float32)
+
+
 class DeviceEntries:
     """The bake file's index and quantized entries as read-only device buffers over its memory
-    maps (no copy on a CPU device where OpenCL can use the host memory), shared by every frame."""
+    (no copy on a CPU device where OpenCL can use the host memory), shared by every frame."""
 
     TILE_BLOCKS = 4
+    #: work-items per work-group of ``frame_product``: left to PoCL, a frame's 256 work-items (512^2)
+    #: were one group, on one core
+    GROUP = 4
 
     def __init__(self, offsets: np.ndarray, entry_scale: np.ndarray, entry_data: np.ndarray):
         self.pixels = int(entry_data.shape[1])
+        self.block = int(round(self.pixels ** 0.5))
         self.bits = 8 * entry_data.dtype.itemsize
         self.n_blocks = int(offsets.shape[1])
         self.offsets = self._buffer(offsets, np.int32)
@@ -61,23 +95,22 @@ class DeviceEntries:
         except (pyopencl.Error, TypeError, ValueError, BufferError):   # a read-only map: a copy
             return cl.to_device(np.ascontiguousarray(flat, dtype)), None
 
-    def product(self, columns: np.ndarray, values: np.ndarray, queue=None) -> np.ndarray:
-        """(n_blocks, BLOCK^2, 3) float32: the kernel ``frame_product`` for the kept coefficients
-        ``columns`` (K,) with lighting ``values`` (K, 3) (times N^2)."""
+    def image(self, columns: np.ndarray, values: np.ndarray, albedo_buffer, blocks_x: int, width: int, height: int,
+              out, queue=None):
+        """Enqueue the kernel ``frame_product`` for the kept coefficients ``columns`` (K,) with
+        lighting ``values`` (K, 3) (times N^2): the frame's (height, width, 3) float32 pixels
+        times their albedo (the device buffer ``albedo_buffer``), into the device buffer ``out``."""
         queue = queue or cl.thread_queue()
-        out = cl.empty(4 * 3 * self.n_blocks * self.pixels)
-        if len(columns):
-            prog = cl.program("relight.cl", QBITS=self.bits, PIXELS=self.pixels, TILE_BLOCKS=self.TILE_BLOCKS)
-            light = np.zeros((len(columns), 4), np.float32)
-            light[:, :3] = values
-            items = -(-self.n_blocks // self.TILE_BLOCKS)
-            cl.kernel(prog, "frame_product")(
-                queue, (items,), None, np.uint32(len(columns)), np.uint32(self.n_blocks),
-                cl.to_device(np.asarray(columns, np.int32)), cl.to_device(light), self.offsets[0], self.scale[0],
-                self.data[0], out)
-            planes = cl.read(out, (3, self.n_blocks, self.pixels), np.float32, queue)
-            return np.moveaxis(planes, 0, -1)
-        return np.zeros((self.n_blocks, self.pixels, 3), np.float32)
+        prog = cl.program("relight.cl", QBITS=self.bits, BLOCK=self.block, TILE_BLOCKS=self.TILE_BLOCKS)
+        light = np.zeros((max(len(columns), 1), 4), np.float32)
+        light[:len(columns), :3] = values
+        cols = np.zeros(max(len(columns), 1), np.int32)
+        cols[:len(columns)] = columns
+        items = -(-self.n_blocks // (self.TILE_BLOCKS * self.GROUP)) * self.GROUP
+        cl.kernel(prog, "frame_product")(
+            queue, (items,), (self.GROUP,), np.uint32(len(columns)), np.uint32(self.n_blocks), np.uint32(blocks_x),
+            np.uint32(width), np.uint32(height), cl.upload("frame_columns", cols, queue),
+            cl.upload("frame_light", light, queue), self.offsets[0], self.scale[0], self.data[0], albedo_buffer, out)
 
 
 def background_lookup(dirs: np.ndarray, env_height: int):
@@ -91,10 +124,60 @@ def background_lookup(dirs: np.ndarray, env_height: int):
     return u.reshape(dirs.shape[:2]), row.reshape(dirs.shape[:2])
 
 
+@dataclass(frozen=True)
+class BackgroundSamples:
+    """The missing camera samples of a frame's background pixels, as ``frame_background`` takes
+    them: pixel i's count[i] (M,) uint32 samples in the first slots of u0[i] and row[i] ((M,
+    SLOTS) float32 and int32, SLOTS = S rounded up to whole vectors of ``cl.LANES``), sorted
+    by map row and then by u at rotate_y = 0 (:func:`background_lookup`'s values; row -1 in
+    the slots beyond count[i]); seg (M, 2, 4) float32: the pixel's first two map rows (its
+    samples' first and last u0 there, the row and the number of samples, both as int32 bits;
+    zeros where there is no second row)."""
+
+    count: np.ndarray
+    u0: np.ndarray
+    row: np.ndarray
+    seg: np.ndarray
+
+
+def background_samples(dirs: np.ndarray, mask: np.ndarray, env_height: int, lanes: int = cl.LANES) -> BackgroundSamples:
+    """The background pixels' missing samples (bit s of ``mask`` (M,) set: sample s of the pixel's
+    directions ``dirs`` (M, S, 3)) for a map of ``env_height`` rows, sorted per pixel by row and
+    u0: the key row * 2^32 + the bits of u0 (a float32 >= 0, whose bits order as its values)."""
+    u0, row = background_lookup(dirs, env_height)
+    m, samples = u0.shape
+    slots = -(-max(samples, 1) // lanes) * lanes
+    missing = ((np.asarray(mask, np.uint64)[:, None] >> np.arange(samples, dtype=np.uint64)) & np.uint64(1)) > 0
+    key = (row.astype(np.uint64) << np.uint64(32)) | u0.view(np.uint32).astype(np.uint64)
+    key[~missing] = np.iinfo(np.uint64).max
+    key.sort(axis=1)                                               # the missing ones come first
+    count = missing.sum(1).astype(np.uint32)
+    kept = np.arange(samples)[None, :] < count[:, None]
+    u0s = np.zeros((m, slots), np.float32)
+    rows = np.full((m, slots), -1, np.int32)
+    u0s[:, :samples] = np.where(kept, (key & np.uint64(0xFFFFFFFF)).astype(np.uint32).view(np.float32), 0.0)
+    rows[:, :samples] = np.where(kept, (key >> np.uint64(32)).astype(np.int64), -1)
+    # the first two rows' spans of slots: [0, n0) and [n0, n0 + n1)
+    n0 = (rows == rows[:, :1]).sum(1) * (count > 0)
+    second = rows[np.arange(m), np.minimum(n0, slots - 1)]
+    n1 = np.where(n0 < count, (rows == second[:, None]).sum(1), 0)
+    seg = np.zeros((m, 2, 4), np.float32)
+    ids = np.arange(m)
+    for k, (lo, n) in enumerate(((np.zeros(m, np.int64), n0), (n0, n1))):
+        has = n > 0
+        first, last = np.where(has, lo, 0), np.where(has, lo + n - 1, 0)
+        seg[:, k, 0] = np.where(has, u0s[ids, first], 0.0)
+        seg[:, k, 1] = np.where(has, u0s[ids, last], 0.0)
+        seg[:, k, 2] = np.where(has, rows[ids, first], 0).astype(np.int32).view(np.float32)
+        seg[:, k, 3] = n.astype(np.uint32).view(np.float32)
+    return BackgroundSamples(count, u0s, rows, seg)
+
+
 def background_reference(pixels: np.ndarray, rotate_y: float, mask: np.ndarray, u0: np.ndarray,
                          row: np.ndarray) -> np.ndarray:
     """numpy twin of ``frame_background``: (M, 3) float32, (1 / S) sum over the missing samples of
-    the map (H, W, 3) turned to ``rotate_y`` at their nearest texels (the kernel's float32 steps)."""
+    the map (H, W, 3) turned to ``rotate_y`` at their nearest texels (the kernel's float32 steps),
+    sample by sample, from :func:`background_lookup`'s u0 and rows (M, S)."""
     m, samples = u0.shape
     h, w = pixels.shape[:2]
     u = u0 + np.float32(rotate_y / 360.0)
@@ -106,16 +189,65 @@ def background_reference(pixels: np.ndarray, rotate_y: float, mask: np.ndarray, 
     return total * np.float32(1.0 / samples)
 
 
-def background_cl(env_buffer, env_width: int, rotate_y: float, mask_buffer, u0_buffer, row_buffer, count: int,
-                  samples: int, queue=None) -> np.ndarray:
-    """The kernel ``frame_background`` on device buffers: (M, 3) float32."""
-    queue = queue or cl.thread_queue()
-    out = cl.scratch("frame_background", 12 * max(count, 1))
+def background_cl(env_buffer, env_width: int, rotate_y: float, buffers, count: int, samples: int, out,
+                  queue=None) -> None:
+    """Enqueue the kernel ``frame_background``: the map (a device buffer, ``env_width`` columns)
+    turned to ``rotate_y`` at the ``count`` background pixels' missing samples, added to those
+    pixels of the frame in the device buffer ``out`` ((H, W, 3) float32). ``buffers``: the
+    device buffers of :class:`BackgroundSamples`' count, seg, u0 and row, and the pixels'
+    indices in the frame (M,) uint32; ``samples``: S, the camera samples per pixel."""
     if count:
-        prog = cl.program("relight.cl")
-        cl.kernel(prog, "frame_background")(queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count),
-                                            np.uint32(samples), np.int32(env_width),
-                                            np.float32(rotate_y / 360.0), mask_buffer, u0_buffer, row_buffer,
-                                            env_buffer, out)
-        return cl.read(out, (count, 3), np.float32, queue)
-    return np.zeros((0, 3), np.float32)
+        queue = queue or cl.thread_queue()
+        prog = cl.program("relight.cl", SLOTS=-(-samples // cl.LANES) * cl.LANES)
+        n, seg, u0, row, pixel = buffers
+        cl.kernel(prog, "frame_background")(
+            queue, (cl.items(count),), (cl.WORK_GROUP,), np.uint32(count), np.float32(1.0 / samples),
+            np.int32(env_width), np.float32(rotate_y / 360.0), n, seg, u0, row, pixel, env_buffer, out)
+
+
+class DeviceFrame:
+    """What the frames of one bake keep on the device: its entries (:class:`DeviceEntries`), the
+    pixels' albedo, the background's samples (per map height) and the map (per Environment),
+    and the frame's buffer (the calling thread's scratch)."""
+
+    def __init__(self, sections: dict, width: int, height: int, blocks_x: int, samples: int):
+        s = sections
+        self.entries = DeviceEntries(s["offsets"], s["entry_scale"], s["entry_data"])
+        self.width, self.height, self.blocks_x, self.samples = width, height, blocks_x, samples
+        self.albedo = cl.to_device(np.ascontiguousarray(s["albedo"], np.float32))
+        self._dirs, self._mask = s["background_dir"], s["background_mask"]
+        self._pixel = cl.to_device(np.ascontiguousarray(s["background_pixel"], np.uint32)) if len(self._mask) else None
+        self._bg = self._env = None
+
+    def background_buffers(self, env_height: int):
+        """The device buffers of :func:`background_samples` for maps of ``env_height`` rows (the
+        last height asked for is kept), and the pixels' indices."""
+        if self._bg is None or self._bg[0] != env_height:
+            bg = background_samples(self._dirs, self._mask, env_height)
+            self._bg = (env_height, (cl.to_device(bg.count), cl.to_device(bg.seg), cl.to_device(bg.u0),
+                                     cl.to_device(bg.row), self._pixel))
+        return self._bg[1]
+
+    def env_buffer(self, environment):
+        """The map on the device, uploaded once per Environment."""
+        if self._env is None or self._env[0] is not environment:
+            self._env = (environment, cl.to_device(np.ascontiguousarray(environment.pixels, np.float32)))
+        return self._env[1]
+
+    def product(self, columns: np.ndarray, values: np.ndarray, queue=None):
+        """Enqueue the frame's sparse product (:meth:`DeviceEntries.image`) into the thread's
+        frame buffer, which is returned."""
+        queue = queue or cl.thread_queue()
+        out = cl.scratch("frame_image", 12 * self.width * self.height)
+        self.entries.image(columns, values, self.albedo, self.blocks_x, self.width, self.height, out, queue)
+        return out
+
+    def background(self, out, environment, rotate_y: float, queue=None) -> None:
+        """Enqueue the background's lookup (:func:`background_cl`) into the frame buffer ``out``."""
+        if len(self._mask):
+            background_cl(self.env_buffer(environment), environment.width, rotate_y,
+                          self.background_buffers(environment.height), len(self._mask), self.samples, out, queue)
+
+    def read(self, out, queue=None) -> np.ndarray:
+        """(H, W, 3) float32: the frame buffer, once its kernels are done."""
+        return cl.read(out, (self.height, self.width, 3), np.float32, queue or cl.thread_queue())

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import cl
 from ..envmap import LUMINANCE, Environment, _band_overlaps
 from ..errors import ArgumentError, check_degrees, check_int, check_number
 from ..haar import forward
@@ -78,22 +79,76 @@ class Projector:
         self.total = self.cum[:, -1]
         self.inv_omega = 1.0 / texel_solid_angles(n)
 
-    def __call__(self, rotate_y: float | None = None, scale: float = 1.0) -> np.ndarray:
-        """(N, N, 3) float64: the mean radiance over each world texel's solid angle of the map
-        turned by ``rotate_y`` degrees (default: the environment's own), times ``scale``."""
+    def edges(self, rotate_y: float | None = None):
+        """Each world texel edge's place in the map turned by ``rotate_y`` degrees (default: the
+        environment's own): its map column (N + 1,) int64, the fraction of that column and the
+        whole turns before it (N + 1,) float64."""
         where = "relight.project"
         rot = self.environment.rotate_y if rotate_y is None else check_number(where, "rotate_y", rotate_y)
-        scale = check_number(where, "scale", scale, 0.0)
         side = 1 << self.n_levels
         w = self.environment.width
         phi = np.arange(side + 1) / side * 2 * np.pi + np.radians(rot)             # map-frame phi of the edges
         turns = np.floor(phi / (2 * np.pi))
         x = (phi - turns * 2 * np.pi) / self.step                                   # in map columns, [0, W)
         col = np.minimum(x.astype(np.int64), w - 1)
-        frac = x - col
+        return col, x - col, turns
+
+    def weight(self, scale: float = 1.0) -> np.ndarray:
+        """(N,) scale / Omega_r, the factor of each texel row's integral."""
+        return check_number("relight.project", "scale", scale, 0.0) * self.inv_omega
+
+    def __call__(self, rotate_y: float | None = None, scale: float = 1.0) -> np.ndarray:
+        """(N, N, 3) float64: the mean radiance over each world texel's solid angle of the map
+        turned by ``rotate_y`` degrees (default: the environment's own), times ``scale``."""
+        col, frac, turns = self.edges(rotate_y)
         at = (np.take(self.cum, col, axis=1) + frac[None, :, None] * np.take(self.by_rows, col, axis=1)
               + turns[None, :, None] * self.total[:, None, :])                     # (N, N + 1, 3)
-        return (at[:, 1:] - at[:, :-1]) * (scale * self.inv_omega)[:, None, None]
+        return (at[:, 1:] - at[:, :-1]) * self.weight(scale)[:, None, None]
+
+
+class DeviceProjector:
+    """The Haar coefficients of a :class:`Projector`'s texels on the OpenCL device: the kernels
+    ``lighting_tiles`` and ``lighting_top`` (kernels/relight.cl; numpy twin
+    ``coefficients(projector(rotate_y, scale))``, which they equal bit for bit: the same
+    operations in the same order, in double precision). The map's integrals go to the device
+    once; a frame sends its N + 1 texel edges and reads the (3, N, N) coefficients back.
+    Needs a device with doubles (:func:`available`)."""
+
+    #: texels a side of a work-item's tile (it takes them through log2 TILE levels)
+    TILE = 16
+
+    def __init__(self, projector: Projector):
+        self.projector = projector
+        side = 1 << projector.n_levels
+        self.tile = min(self.TILE, side)
+        self.cum = cl.to_device(np.ascontiguousarray(projector.cum, np.float64))
+        self.by_rows = cl.to_device(np.ascontiguousarray(projector.by_rows, np.float64))
+        self.total = cl.to_device(np.ascontiguousarray(projector.total, np.float64))
+
+    @staticmethod
+    def available() -> bool:
+        """Whether the device computes in double precision (the kernels' only precision)."""
+        return "cl_khr_fp64" in cl.runtime().device.extensions.split()
+
+    def coefficients(self, rotate_y: float | None = None, scale: float = 1.0, queue=None) -> np.ndarray:
+        """(3, N, N) float64: :func:`coefficients` of ``projector(rotate_y, scale)``."""
+        queue = queue or cl.thread_queue()
+        p, n = self.projector, self.projector.n_levels
+        side = 1 << n
+        col, frac, turns = p.edges(rotate_y)
+        edges = np.zeros((4, side + 1))          # one upload: columns (exact as doubles), fractions, turns, weights
+        edges[0], edges[1], edges[2], edges[3, :side] = col, frac, turns, p.weight(scale)
+        tiles = (side // self.tile) ** 2
+        coeffs = cl.scratch("lighting_coeffs", 3 * side * side * 8)
+        grid = cl.scratch("lighting_grid", 3 * tiles * 8)
+        prog = cl.program("relight.cl")
+        group = 4 if tiles % 4 == 0 else 1   # several groups: left to PoCL, all were one, on one core
+        cl.kernel(prog, "lighting_tiles")(
+            queue, (3 * tiles,), (group,), np.uint32(n), np.uint32(self.tile), np.int32(p.environment.width), self.cum,
+            self.by_rows, self.total, cl.upload("lighting_edges", edges, queue), coeffs, grid)
+        if tiles > 1:
+            cl.kernel(prog, "lighting_top")(queue, (3,), None, np.uint32(n), np.uint32(self.tile), coeffs, grid)
+        return cl.read(coeffs, (3, side, side), np.float64, queue)
 
 
 def turntable(start: float, frames: int) -> list[float]:
@@ -136,10 +191,14 @@ def priority(coeffs: np.ndarray, kind: str = "transfer", transfer_rms: np.ndarra
 
 def select_terms(coeffs: np.ndarray, terms: int, kind: str = "transfer", transfer_rms=None) -> np.ndarray:
     """The flat indices (K,) int64 of the ``terms`` coefficients of highest priority, sorted
-    by index (ties: the lower index first); coefficients of zero priority are never kept."""
+    by index (ties: the lower index first); coefficients of zero priority are never kept.
+    The K-th largest priority t comes from a partition (O(N^2), not a sort): every index above
+    t, then the lowest indices at t, the same set as the first K of a sort by (-priority, index)."""
     p = priority(coeffs, kind, transfer_rms)
     k = min(int(terms), int(np.count_nonzero(p)))
     if k <= 0:
         return np.zeros(0, np.int64)
-    order = np.lexsort((np.arange(p.size), -p))[:k]
-    return np.sort(order).astype(np.int64)
+    t = np.partition(p, p.size - k)[p.size - k]
+    above = np.flatnonzero(p > t)
+    at = np.flatnonzero(p == t)[:k - len(above)]
+    return np.sort(np.concatenate([above, at])).astype(np.int64)

@@ -23,7 +23,7 @@ from ..atomic import atomic_write, size_is
 from ..envmap import Environment, read_image
 from ..errors import ArgumentError, WavlightError, check_degrees, shown
 from . import lighting, store
-from .frame import DeviceEntries, background_cl, background_lookup, background_reference, product_reference
+from .frame import DeviceFrame, background_lookup, background_reference, image_reference
 from .settings import FRAME
 
 MAX_TERMS = FRAME["terms"].hi
@@ -42,7 +42,7 @@ class Transfer:
     def __init__(self, path: str, baked: store.BakeFile):
         self.path, self.header, self._s = path, baked.header, baked.sections
         self._file = baked
-        self._device = self._bg = self._env = self._lit = self._bg_lookup = None
+        self._device = self._lit = self._bg_lookup = self._entry_counts = None
         self._maps = {}   # projectors of the maps frames asked for, by map (a few)
         h = baked.header
         self.width, self.height = int(h["width"]), int(h["height"])
@@ -86,7 +86,7 @@ class Transfer:
 
     def close(self):
         """Release the sections and the device's buffers."""
-        self._device = self._bg = self._env = self._lit = self._bg_lookup = None
+        self._device = self._lit = self._bg_lookup = self._entry_counts = None
         self._maps = {}
         self._s = {}
         self._file = None
@@ -147,6 +147,20 @@ class Transfer:
                 return projector
         return lighting.Projector(environment, self.n_levels)
 
+    def _coefficients(self, environment: Environment, rotate_y: float, backend: str) -> np.ndarray:
+        """(3, N, N) the lighting's Haar coefficients: on the device where it has doubles (its
+        kernels give numpy's coefficients bit for bit; the map's integrals uploaded once per
+        projector), else numpy's."""
+        projector = self._projector(environment)
+        if backend == "numpy" or not lighting.DeviceProjector.available():
+            return lighting.coefficients(projector(rotate_y))
+        device = self._lit.get(id(projector)) if self._lit is not None else None
+        if device is None or device.projector is not projector:
+            kept = {id(p) for _, p, _ in self._maps.values()}
+            self._lit = {k: v for k, v in (self._lit or {}).items() if k in kept}
+            device = self._lit[id(projector)] = lighting.DeviceProjector(projector)
+        return device.coefficients(rotate_y)
+
     def _environment(self, env, scale):
         if env is None:
             return Environment(np.asarray(self._s["environment"]), scale, 0.0, "the baked environment")
@@ -158,7 +172,8 @@ class Transfer:
         raise ArgumentError(f"Transfer.frame: env must be an Environment, a map file or None, got {shown(env)}")
 
     def lighting(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default):
-        """(3, N, N) Haar coefficients of the frame's lighting on the transfer's texels."""
+        """(3, N, N) Haar coefficients of the frame's lighting on the transfer's texels (numpy's;
+        a frame's come from the device, equal bit for bit)."""
         rot = self.scene_rotate_y if rotate_y is None else check_degrees("Transfer.lighting", "rotate_y", rotate_y)
         environment = self.environment(env, scale)
         return lighting.coefficients(self._projector(environment)(rot))
@@ -173,8 +188,11 @@ class Transfer:
 
     def frame_timed(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, terms=None, priority=None,
                     backend: str = "opencl"):
-        """The frame and its timings (seconds of projection, selection, product, assembly), the
-        terms, the entries read and the rotation (degrees, reduced modulo 360)."""
+        """The frame and its timings, the terms, the entries read and the rotation (degrees, reduced
+        modulo 360). Timings, seconds: lighting (the turned map's texels and their Haar
+        coefficients), terms (the selection of K), product (the sparse product times the albedo),
+        assembly (the rest: the background where camera samples missed, the copy back, the
+        finiteness check), background (the first part of the assembly), frame (all)."""
         where = "Transfer.frame"
         if self.header.get("vary") == "view":
             raise WavlightError(f"{self.path}: this bake varies the view (its lighting is fixed): its frames come "
@@ -189,65 +207,62 @@ class Transfer:
         t0 = time.perf_counter()
         environment = self.environment(env, scale)
         rot = self.scene_rotate_y if rotate_y is None else rotate_y
-        coeffs = lighting.coefficients(self._projector(environment)(rot))
+        coeffs = self._coefficients(environment, rot, backend)
         t1 = time.perf_counter()
         columns = lighting.select_terms(coeffs, terms, priority, self._s["rms"])
         side = 1 << self.n_levels
         values = coeffs.reshape(3, -1)[:, columns].T * float(side * side)
         t2 = time.perf_counter()
         if backend == "numpy":
-            blocks = product_reference(self._s["offsets"], self._s["entry_scale"], self._s["entry_data"], columns,
-                                       values)
+            image = image_reference(self._s["offsets"], self._s["entry_scale"], self._s["entry_data"], columns, values,
+                                    self._s["albedo"], self.blocks[0])
+            t3 = time.perf_counter()
+            self._add_background(image, environment, rot)
+            t_bg = time.perf_counter()
         else:
-            if self._device is None:
-                self._device = DeviceEntries(self._s["offsets"], self._s["entry_scale"], self._s["entry_data"])
-            blocks = self._device.product(columns, values)
-        t3 = time.perf_counter()
-        image = self._assemble(blocks, environment, rot, backend)
-        if not np.all(np.isfinite(image)):
+            device = self._frame_device()
+            queue = cl.thread_queue()
+            out = device.product(columns, values, queue)
+            queue.finish()
+            t3 = time.perf_counter()
+            device.background(out, environment, rot, queue)
+            queue.finish()
+            t_bg = time.perf_counter()
+            image = device.read(out, queue)
+        if not np.isfinite(image).all():
             raise WavlightError(f"{self.path}: the frame overflows float32 (its transfer times the lighting; a "
                                 "smaller --scale or map)")
         t4 = time.perf_counter()
-        entries = int(np.count_nonzero(np.asarray(self._s["offsets"][columns]) >= 0)) if len(columns) else 0
         return image, {"lighting_seconds": t1 - t0, "terms_seconds": t2 - t1, "product_seconds": t3 - t2,
-                       "assembly_seconds": t4 - t3, "frame_seconds": t4 - t0, "terms": int(len(columns)),
-                       "entries_read": entries, "rotate_y": rot}
+                       "assembly_seconds": t4 - t3, "background_seconds": t_bg - t3, "frame_seconds": t4 - t0,
+                       "terms": int(len(columns)),
+                       "entries_read": self._entries_read(columns), "rotate_y": rot}
 
-    def _assemble(self, blocks: np.ndarray, environment: Environment, rotate_y: float, backend: str) -> np.ndarray:
-        """(H, W, 3): the blocks' sums times the albedo, plus the environment where samples missed."""
-        b, (bw, bh) = self.block, self.blocks
-        img = blocks.reshape(bh, bw, b, b, 3).transpose(0, 2, 1, 3, 4).reshape(bh * b, bw * b, 3)
-        img = np.ascontiguousarray(img[:self.height, :self.width] * self._s["albedo"], np.float32)
+    def _entries_read(self, columns: np.ndarray) -> int:
+        """The stored entries of the coefficients ``columns``: the sum of their counts (counted
+        once per Transfer)."""
+        if self._entry_counts is None:
+            self._entry_counts = np.count_nonzero(np.asarray(self._s["offsets"]) >= 0, axis=1)
+        return int(self._entry_counts[columns].sum()) if len(columns) else 0
+
+    def _frame_device(self) -> DeviceFrame:
+        if self._device is None:
+            self._device = DeviceFrame(self._s, self.width, self.height, self.blocks[0], self.spp)
+        return self._device
+
+    def _add_background(self, image: np.ndarray, environment: Environment, rotate_y: float) -> None:
+        """numpy: the environment where the camera samples missed, added to ``image`` (H, W, 3)."""
         pixels = self._s["background_pixel"]
         if len(pixels):
             u0, row = self._background_lookup(environment.height)
-            if backend == "numpy":
-                seen = background_reference(environment.pixels, rotate_y, self._s["background_mask"], u0, row)
-            else:
-                mask_buf, u0_buf, row_buf = self._background_buffers(environment.height)
-                seen = background_cl(self._env_buffer(environment), environment.width, rotate_y, mask_buf, u0_buf,
-                                     row_buf, len(pixels), self.spp)
-            img.reshape(-1, 3)[np.asarray(pixels, np.int64)] += seen
-        return img
+            seen = background_reference(environment.pixels, rotate_y, self._s["background_mask"], u0, row)
+            image.reshape(-1, 3)[np.asarray(pixels, np.int64)] += seen
 
     def _background_lookup(self, env_height: int):
         """The background samples' u at rotation 0 and map rows, per map height (kept)."""
         if self._bg_lookup is None or self._bg_lookup[0] != env_height:
             self._bg_lookup = (env_height, *background_lookup(self._s["background_dir"], env_height))
         return self._bg_lookup[1:]
-
-    def _background_buffers(self, env_height: int):
-        if self._bg is None or self._bg[0] != env_height:
-            u0, row = self._background_lookup(env_height)
-            self._bg = (env_height, cl.to_device(np.ascontiguousarray(self._s["background_mask"])),
-                        cl.to_device(np.ascontiguousarray(u0)), cl.to_device(np.ascontiguousarray(row)))
-        return self._bg[1:]
-
-    def _env_buffer(self, environment: Environment):
-        """The map on the device, uploaded once per Environment."""
-        if self._env is None or self._env[0] is not environment:
-            self._env = (environment, cl.to_device(environment.pixels))
-        return self._env[1]
 
 
 def finish_bake(writer, output, header: dict, arrays: dict) -> Transfer:
