@@ -26,11 +26,15 @@
  *     p = (1 - alpha) p_tree(uv) (m_leaf / m_texel) k^2 / (2 pi^2 sin theta) + alpha p_bsdf,
  * the leaf masses m taken as differences of light_cdf, the same numbers the sampler bisects,
  * so that the density is that of the sampler exactly. L is the environment's nearest texel; the
- * contribution is 0 where p or f cos is 0 or it is not finite.
+ * contribution is 0 where p or f cos is 0 or it is not finite. Work is skipped where it cannot
+ * give a record: a product direction whose texel lies outside the cone from the shadow-ray origin
+ * around the sphere holding the box (grown by the texel's angular radius) is never completed, and
+ * the weight is computed only for directions that meet the box.
  *
  * Records: 10 words, the launch index i ND + j, then the bits of the floats of the shadow-ray
- * origin x y z, the direction x y z and the contribution r g b. Work-item g writes its records (in the order j, then
- * lane) to its own region of LANES ND records of `region` and their number to counts[g];
+ * origin x y z and the direction x y z in the object's own frame (local = R^T (world - T), ready
+ * for its ray tracer) and of the contribution r g b. Work-item g writes its records (in the order
+ * j, then lane) to its own region of LANES ND records of `region` and their number to counts[g];
  * moving_compact then copies the regions one after the other (the host's running sum of counts),
  * so that the records' order does not depend on the device's scheduling.
  *
@@ -53,6 +57,10 @@
 #error "relight_moving.cl is built with -DND (directions per camera sample)"
 #endif
 #define RECORD 10
+/* the largest angle between a texel's centre direction and any of its directions: half its
+ * height plus half its width along its widest latitude, 1.5 pi / 2^N_LEVELS, and a slack for
+ * float32 (the cone test below only skips work: it must never skip a direction that meets) */
+#define TEXEL_RADIUS (1.5f * PI_F / (float)(1u << N_LEVELS) + 1e-3f)
 
 /* The running sum of the k^2 leaf masses of a texel (light_cdf from row0) before leaf j, and
  * leaf j's mass (the difference of two running sums: the sampler's and the density's). */
@@ -75,25 +83,14 @@ INLINE void counter_uniforms(const uintv index, const uint tile, const uint stre
     *u3 = word_to_unit(r3);
 }
 
-/* A direction of the defensive mixture (its world direction w) and its weight f cos / p, at a
- * point with frame (s, t, n), view (ox, oy, oz) in that frame, material (kind, param), the pixel's
- * tree at tree_base (has_product: its root > 0), mixture weight alpha of the BSDF. */
-INLINE realv mixture_direction(__global const float *tree, const uintv tree_base, const intv has_product,
-                               __global const float *light_cdf, const uint k, const realv alpha,
-                               const intv kind, const realv param,
-                               const realv sx, const realv sy, const realv sz, const realv tx, const realv ty,
-                               const realv tz, const realv nx, const realv ny, const realv nz,
-                               const realv ox, const realv oy, const realv oz,
-                               const realv u0, const realv u1, const realv u2, const realv u3,
-                               realv *wx_out, realv *wy_out, realv *wz_out)
+/* The product's point on the square inside the texel (col, row) the tree walk reached with
+ * (fu, fv) left of its uniforms: the leaf of the lighting's own resolution in proportion to its
+ * mass by fu (the texel's k^2 leaves as a running sum, light_cdf, bisected), the point inside the
+ * leaf by the rest of fu and by fv; its world direction q. */
+INLINE void product_point(__global const float *light_cdf, const uint k, const uintv col, const uintv row,
+                          const realv fu, const realv fv, realv *qx, realv *qy, realv *qz)
 {
-    /* the product's direction: the tree's texel, then the leaf inside it */
-    realv gu = u0, gv = u1;
-    tree_walk(tree, tree_base, &gu, &gv);
     const uint side = 1u << N_LEVELS, kk = k * k;
-    const uintv col = as_uintv(min(convert_intv(gu * (float)side), (int)side - 1));
-    const uintv row = as_uintv(min(convert_intv(gv * (float)side), (int)side - 1));
-    const realv fu = gu * (float)side - convert_realv(col), fv = gv * (float)side - convert_realv(row);
     const uintv row0 = (row * side + col) * kk;
     const realv total = GATHER(light_cdf, row0 + (kk - 1u));
     const realv target = fu * total;
@@ -117,24 +114,25 @@ INLINE realv mixture_direction(__global const float *tree, const uintv tree_base
     realv sp, cp, st, ct;
     fast_sincos(2.0f * PI_F * pu, &sp, &cp);
     fast_sincos(PI_F * pv, &st, &ct);
-    const realv qx = sp * st, qy = ct, qz = -cp * st;
-    /* the BSDF's direction */
-    const intv use_b = u2 < alpha;
-    const realv ub0 = clamp(select((realv)0.0f, u2 / alpha, use_b), 0.0f, ONE_MINUS_EPS);
-    const realv ub1 = clamp(u3, 0.0f, ONE_MINUS_EPS);
-    realv bx, by, bz;
-    bsdf_sample(kind, param, ox, oy, oz, ub0, ub1, &bx, &by, &bz);
-    realv wx = select(qx, bx * sx + by * tx + bz * nx, use_b);
-    realv wy = select(qy, bx * sy + by * ty + bz * ny, use_b);
-    realv wz = select(qz, bx * sz + by * tz + bz * nz, use_b);
-    const realv len = sqrt(wx * wx + wy * wy + wz * wz);
-    wx /= len;
-    wy /= len;
-    wz /= len;
-    *wx_out = wx;
-    *wy_out = wy;
-    *wz_out = wz;
-    /* the mixture's density there: the product's (tree, leaf inside the texel, solid angle) */
+    *qx = sp * st;
+    *qy = ct;
+    *qz = -cp * st;
+}
+
+/* The defensive mixture's weight f cos / p at the unit world direction w: the density is the
+ * mixture's, both techniques' (the product's: tree, leaf inside the texel, solid angle), at a
+ * point with frame (s, t, n), view o in that frame, material (kind, param), the pixel's tree at
+ * tree_base (has_product: its root > 0), BSDF weight alpha; 0 where p or f cos is 0 or the weight
+ * is not finite. */
+INLINE realv mixture_weight(__global const float *tree, const uintv tree_base, const intv has_product,
+                            __global const float *light_cdf, const uint k, const realv alpha,
+                            const intv kind, const realv param,
+                            const realv sx, const realv sy, const realv sz, const realv tx, const realv ty,
+                            const realv tz, const realv nx, const realv ny, const realv nz,
+                            const realv ox, const realv oy, const realv oz,
+                            const realv wx, const realv wy, const realv wz)
+{
+    const uint side = 1u << N_LEVELS, kk = k * k;
     const realv sin_theta = sqrt(wx * wx + wz * wz);
     realv au = fast_atan2(wx, -wz) * INV_2PI_F;
     au -= floor(au);
@@ -193,7 +191,7 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
                                __global const float *texels, const int env_w, const int env_h,
                                __global const float *rot, const float defensive,
                                __global const float *place, __global const float *box,
-                               const uint tile, const uint stream, const uint first, const uint k0,
+                               __global const float *sphere, const uint tile, const uint stream, const uint first, const uint k0,
                                const uint k1, __global uint *region, __global uint *counts)
 {
     const uint base = LANE_BASE();
@@ -227,7 +225,18 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
     uintv unused0, key_guide, key_bsdf, unused3;
     philox4x32_10(first + pixel, (uintv)tile, (uintv)RNG_STRATA, (uintv)0u, k0, k1, &unused0, &key_guide, &key_bsdf,
                   &unused3);
-    const uint g = get_global_id(0), cells = spp * ND;
+    /* the cone from the shadow-ray origin around the sphere that holds the object's box: a texel
+     * none of whose directions is within it holds no direction that meets the box */
+    const realv cx = sphere[0] - qx, cy = sphere[1] - qy, cz = sphere[2] - qz;
+    const realv dist = sqrt(cx * cx + cy * cy + cz * cz);
+    const realv sin_cone = fmin(sphere[3] / dist, 1.0f);
+    const realv cone = select(fast_atan2(sin_cone, sqrt(fmax(1.0f - sin_cone * sin_cone, 0.0f))), (realv)PI_F,
+                              dist <= sphere[3]) + TEXEL_RADIUS;
+    realv sin_unused, cos_cone;
+    fast_sincos(fmin(cone, PI_F), &sin_unused, &cos_cone);
+    cos_cone = select(cos_cone - 1e-4f, (realv)-2.0f, cone >= PI_F);
+    const realv ax = cx / dist, ay = cy / dist, az = cz / dist;
+    const uint g = get_global_id(0), cells = spp * ND, side = 1u << N_LEVELS;
     __global uint *out = region + (size_t)g * (LANES * ND * RECORD);
     uint written = 0;
     for (uint j = 0; j < ND; ++j) {
@@ -236,31 +245,72 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
         const uintv cell = sample * ND + j;
         stratify_pair(&u0, &u1, cell, cells, key_guide);
         stratify_pair(&u2, &u3, cell, cells, key_bsdf);
-        realv wx, wy, wz;
-        const realv weight = mixture_direction(tree, tree_base, has_product, light_cdf, k, alpha, kind, param,
-                                               sx, sy, sz, tx, ty, tz, nx, ny, nz, ox, oy, oz, u0, u1, u2, u3,
-                                               &wx, &wy, &wz);
-        const intv keep = meets_box(place, box, qx, qy, qz, wx, wy, wz) & (weight > 0.0f);
-        if (!any(keep))
+        /* the product's texel (the tree walk), and whether it may hold a direction to the object */
+        realv gu = u0, gv = u1;
+        tree_walk(tree, tree_base, &gu, &gv);
+        const uintv col = as_uintv(min(convert_intv(gu * (float)side), (int)side - 1));
+        const uintv row = as_uintv(min(convert_intv(gv * (float)side), (int)side - 1));
+        const realv fu = gu * (float)side - convert_realv(col), fv = gv * (float)side - convert_realv(row);
+        realv sp, cp, st, ct;
+        fast_sincos(2.0f * PI_F * (convert_realv(col) + 0.5f) / (float)side, &sp, &cp);
+        fast_sincos(PI_F * (convert_realv(row) + 0.5f) / (float)side, &st, &ct);
+        const intv near = sp * st * ax + ct * ay - cp * st * az >= cos_cone;
+        /* the BSDF's direction */
+        const intv use_b = u2 < alpha;
+        const realv ub0 = clamp(select((realv)0.0f, u2 / alpha, use_b), 0.0f, ONE_MINUS_EPS);
+        const realv ub1 = clamp(u3, 0.0f, ONE_MINUS_EPS);
+        realv bx, by, bz;
+        bsdf_sample(kind, param, ox, oy, oz, ub0, ub1, &bx, &by, &bz);
+        realv wx = bx * sx + by * tx + bz * nx, wy = bx * sy + by * ty + bz * ny, wz = bx * sz + by * tz + bz * nz;
+        /* the product's direction inside its texel, where it may reach the object */
+        const intv product_near = near & ~use_b;
+        if (any(product_near)) {
+            realv px_, py_, pz_;
+            product_point(light_cdf, k, col, row, fu, fv, &px_, &py_, &pz_);
+            wx = select(wx, px_, product_near);
+            wy = select(wy, py_, product_near);
+            wz = select(wz, pz_, product_near);
+        }
+        const intv maybe = use_b | product_near;
+        if (!any(maybe))
             continue;
+        const realv len = sqrt(wx * wx + wy * wy + wz * wz);
+        wx /= len;
+        wy /= len;
+        wz /= len;
+        const intv meets = maybe & meets_box(place, box, qx, qy, qz, wx, wy, wz);
+        if (!any(meets))
+            continue;
+        const realv weight = mixture_weight(tree, tree_base, has_product, light_cdf, k, alpha, kind, param,
+                                            sx, sy, sz, tx, ty, tz, nx, ny, nz, ox, oy, oz, wx, wy, wz);
         /* the environment's radiance, the albedo */
         realv eu, ev;
         env_world_to_square(rot, wx, wy, wz, &eu, &ev);
         realv lr, lg, lb, unused_l;
         GATHER4(texels, 4 * env_texel(env_w, env_h, eu, ev), &lr, &lg, &lb, &unused_l);
         const realv vr = ar * weight * lr, vg = ag * weight * lg, vb = ab * weight * lb;
-        const intv live = keep & ((vr > 0.0f) | (vg > 0.0f) | (vb > 0.0f));
+        const intv live = meets & (weight > 0.0f) & ((vr > 0.0f) | (vg > 0.0f) | (vb > 0.0f));
+        if (!any(live))
+            continue;
+        /* the ray in the object's own frame (local = R^T (world - T)) */
+        const realv rx = qx - place[9], ry = qy - place[10], rz = qz - place[11];
+        const realv lox = rx * place[0] + ry * place[3] + rz * place[6];
+        const realv loy = rx * place[1] + ry * place[4] + rz * place[7];
+        const realv loz = rx * place[2] + ry * place[5] + rz * place[8];
+        const realv lwx = wx * place[0] + wy * place[3] + wz * place[6];
+        const realv lwy = wx * place[1] + wy * place[4] + wz * place[7];
+        const realv lwz = wx * place[2] + wy * place[5] + wz * place[8];
         for (uint l = 0; l < LANES && base + l < count; ++l) {
             if (!live[l])
                 continue;
             __global uint *rec = out + written * RECORD;
             rec[0] = (base + l) * ND + j;
-            rec[1] = as_uint(qx[l]);
-            rec[2] = as_uint(qy[l]);
-            rec[3] = as_uint(qz[l]);
-            rec[4] = as_uint(wx[l]);
-            rec[5] = as_uint(wy[l]);
-            rec[6] = as_uint(wz[l]);
+            rec[1] = as_uint(lox[l]);
+            rec[2] = as_uint(loy[l]);
+            rec[3] = as_uint(loz[l]);
+            rec[4] = as_uint(lwx[l]);
+            rec[5] = as_uint(lwy[l]);
+            rec[6] = as_uint(lwz[l]);
             rec[7] = as_uint(vr[l]);
             rec[8] = as_uint(vg[l]);
             rec[9] = as_uint(vb[l]);

@@ -49,6 +49,7 @@ from ..haar.tree import HaarTree, tree_stride
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import MAX_COORDINATE, rotation
+from ..threads import default_threads
 from ..sampler import stratify_pair
 from ..shading import KernelShader, NumpyShader
 from ..warp import frame as tangent_frame
@@ -65,7 +66,7 @@ FRAME_TILES = 11 << 16
 #: pixel takes them in passes of at most PASS_SPP (and CHUNK_SAMPLES / width) per pixel
 CHUNK_PIXELS = 1 << 16
 CHUNK_SAMPLES = 1 << 18
-#: a frame's camera rays and mixture samples are kept for the next frames of its seed and spp
+#: a frame's camera rays (and their hits on the rest) are kept for the next frames of its seed and spp
 #: where it is one pass of at most this many samples (the viewer's frames: 4 and 1 spp)
 KEPT_SAMPLES = 1 << 22
 #: the per-pixel product trees kept from frame to frame (device memory, about 1.4 kB a pixel
@@ -85,7 +86,11 @@ BOX_MARGIN = 1e-4
 OCCLUSION_BATCH = 1 << 16
 #: words per record of moving_occlusion (the sample's direction, origin, direction, contribution)
 RECORD = 10
-#: frames of this many (seed, spp) keep their camera rays and mixture samples for the next ones
+#: a frame is cut into at least MIN_CHUNKS chunks of rows where each keeps MIN_CHUNK_SAMPLES
+#: camera samples, run on a pool of threads (wavlight.threads.default_threads)
+MIN_CHUNKS = 16
+MIN_CHUNK_SAMPLES = 1 << 14
+#: frames of this many (seed, spp) keep their camera rays for the next ones
 KEPT_SEEDS = 2
 _WARMED = set()
 
@@ -151,7 +156,8 @@ def meets_box(place: np.ndarray, box: np.ndarray, origin: np.ndarray, direction:
 class Records(NamedTuple):
     """The directions of the object's occlusion D that meet its box: camera sample (N,) (its
     position in the launch), the direction's number j among the sample's (N,), shadow-ray origin
-    (N, 3), direction (N, 3) and unoccluded contribution albedo f cos L / p (N, 3)."""
+    (N, 3) and direction (N, 3) in the object's own frame (local = R^T (world - T)) and the
+    unoccluded contribution albedo f cos L / p (N, 3)."""
 
     sample: np.ndarray
     j: np.ndarray
@@ -170,7 +176,7 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
     defensive mixture (:func:`wavlight.relight.converge.mixture_directions`; the BSDF alone where
     the pixel's product is 0), their uniforms :func:`stratified_uniforms` (stream
     rng.MOVING_DIRECTIONS); the records of those whose ray meets the object's box
-    (:func:`meets_box`) with a contribution > 0."""
+    (:func:`meets_box`) with a contribution > 0 (their rays in the object's own frame)."""
     nd = directions
     count = len(d)
     eye = scene.camera.eye
@@ -199,7 +205,9 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
     # the kernel's order: work-item (LANES samples), then direction, then lane
     order = np.lexsort((i % cl.LANES, j, i // cl.LANES))
     order = order[keep[order]]
-    return Records(i[order], j[order], o[order], direction[order], value[order])
+    place = np.asarray(place, np.float64)
+    R, T = place[:9].reshape(3, 3), place[9:]
+    return Records(i[order], j[order], (o[order] - T) @ R, direction[order] @ R, value[order])
 
 
 def shading_points_reference(scene, tracer, object_tracer, object_material: int, environment, d, prim, t,
@@ -291,7 +299,7 @@ class _MovingKernels:
             self.kind, self.param, self.albedo, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
             np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
             cl.upload("moving_place", np.asarray(place, np.float32), q),
-            cl.upload("moving_box", np.asarray(box, np.float32), q),
+            cl.upload("moving_box", np.asarray(box, np.float32), q), cl.upload("moving_sphere", _sphere(place, box), q),
             np.uint32(tile), np.uint32(rng.MOVING_DIRECTIONS), np.uint32(first),
             *(np.uint32(x) for x in rng.key(seed)), region, counts)
         n = cl.read(counts, (groups,), np.uint32, q)
@@ -348,6 +356,15 @@ class _MovingKernels:
             self.points(eye, d, zeros, ones, zeros - 1, ones, np.arange(count, dtype=np.uint32), place, 0, 0.0, 1,
                         0, 0, 0)
         _WARMED.add(self.program)
+
+
+def _sphere(place, box) -> np.ndarray:
+    """(4,) float32: the centre (world) and radius of the sphere through the corners of the box
+    (6,) of the object's own frame, the object at ``place`` (R row-major, then T), a little grown."""
+    place, box = np.asarray(place, np.float64), np.asarray(box, np.float64)
+    centre = place[:9].reshape(3, 3) @ ((box[:3] + box[3:]) / 2) + place[9:]
+    radius = np.linalg.norm(box[3:] - box[:3]) / 2 * (1 + BOX_MARGIN)
+    return np.append(centre, radius).astype(np.float32)
 
 
 def _no_records() -> Records:
@@ -418,7 +435,7 @@ class MovingObject:
         self._mask_key, self._mask = None, None
         self._kept, self._chunks = {}, {}   # (seed, spp) -> the chunks' camera rays; this frame's
         self._kernels = None
-        self._pool, self._lock = ThreadPoolExecutor(1), threading.Lock()
+        self._pool, self._lock, self._tree_lock = ThreadPoolExecutor(default_threads()), threading.Lock(), threading.Lock()
         if backend == "opencl":
             self._shader = KernelShader(lit, self.wavelet)
             self._kernels = _MovingKernels(self.rest, self.rest_tracer, self.object_tracer, self.inside, self._shader,
@@ -528,8 +545,8 @@ class MovingObject:
         touched = self._object_pixels(R, T, width, height).reshape(-1)
         # samples per pixel of one pass: a frame of more takes them in passes (bounded memory)
         k = min(spp, PASS_SPP, max(1, CHUNK_SAMPLES // width))
-        # the camera rays and samples of the last KEPT_SEEDS (seed, spp) (the viewer's seed 0 at its
-        # two spp: while dragging and at rest), for frames of one pass of at most KEPT_SAMPLES
+        # the camera rays of the last KEPT_SEEDS (seed, spp) (the viewer's seed 0 at its two spp:
+        # while dragging and at rest), for frames of one pass of at most KEPT_SAMPLES
         keep = k == spp and width * height * spp <= KEPT_SAMPLES
         self._chunks = (self._kept.pop((seed, spp), None) or {}) if keep else {}
         if keep:
@@ -538,34 +555,38 @@ class MovingObject:
                 self._kept.pop(next(iter(self._kept)))
         image = np.zeros((width * height, 3))
         error = np.zeros((width * height, 3))
-        rays = 0
+        # chunks of whole rows: bounded memory, and at least MIN_CHUNKS where each keeps
+        # MIN_CHUNK_SAMPLES, so that the pool's threads overlap one chunk's numpy with another's
+        # rays and kernels (a constant, not the thread count: images do not depend on threads)
         rows = max(1, min(CHUNK_PIXELS // width, CHUNK_SAMPLES // (width * k)))
-        for chunk, y0 in enumerate(range(0, height, rows)):   # chunks of whole rows
-            first, last = y0 * width, min(y0 + rows, height) * width
+        rows = min(rows, max(-(-height // MIN_CHUNKS), -(-MIN_CHUNK_SAMPLES // (width * k))))
+
+        def run(chunk):
+            first, last = chunk * rows * width, min((chunk + 1) * rows, height) * width
             P = last - first
             sums, squares = np.zeros((P, 3)), np.zeros((P, 3))
+            n_rays = 0
             for start in range(0, spp, k):   # passes of samples per pixel, not samples
                 kk = min(k, spp - start)
-                value, n_rays = self._chunk(R, T, touched, first, last, kk, seed, chunk, start * P, keep)
-                rays += n_rays
+                value, r = self._chunk(R, T, touched, first, last, kk, seed, chunk, start * P, keep)
+                n_rays += r
                 v = value.reshape(P, kk, 3)
-                if kk == spp:   # one pass
-                    image[first:last] = v.mean(1)
-                    var = v.var(1, ddof=1) / spp if spp > 1 else None
-                else:
-                    sums += v.sum(1)
-                    squares += (v * v).sum(1)
-            if k < spp:
-                image[first:last], err = mean_and_error(sums, squares, spp)
-                var = err * err
+                sums += v.sum(1)
+                squares += np.einsum("pkc,pkc->pc", v, v)
+            mean, err = mean_and_error(sums, squares, spp)
+            image[first:last] = mean
             if spp > 1:
-                error[first:last] = np.sqrt(var + np.where(touched[first:last, None], 0.0, self._static_var[first:last]))
+                error[first:last] = np.sqrt(err * err + np.where(touched[first:last, None], 0.0,
+                                                                 self._static_var[first:last]))
             else:
                 error[first:last] = np.inf
+            return n_rays
+
+        rays = sum(self._pool.map(run, range(-(-height // rows))))
         seconds = time.perf_counter() - t0
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
                  "rays": rays, "object_pixels": int(touched.sum()), "backend": self.backend, "pass_spp": k,
-                 "pass_samples": min(height, rows) * width * k,
+                 "pass_samples": min(height, rows) * width * k, "chunks": -(-height // rows),
                  "translate": T.tolist(), "directions": self.directions,
                  "wavelet_candidates": self.wavelet.candidates, "wavelet_slots": self.wavelet.slots,
                  "estimator": "static image minus the object's occlusion D; wavelet where the object may be seen"}
@@ -608,21 +629,16 @@ class MovingObject:
         static = self._static_rows[first:last]
         value = np.repeat(static, spp, axis=0) if spp > 1 else static.copy()
         rays = P * spp
-        # pixels that may see the object: the wavelet strategy against the moved scene, on a second
-        # thread (numpy, embree and OpenCL release the GIL: one part's numpy overlaps the other's
-        # rays and kernels)
-        idx = np.flatnonzero(full)
-        pending = None
-        if len(idx):
-            pending = self._pool.submit(self._full, R, T, cam, idx, spp, seed, chunk, start)
         # the others: S_p minus the object's occlusion D at each sample
         rest = np.flatnonzero(~full & (cam.prim >= 0))
         if len(rest):
             D, r = self._occlusion(R, T, cam, rest, first, last, spp, seed, chunk, start)
             rays += r
             value[rest] -= D
-        if pending is not None:
-            value[idx], r = pending.result()
+        # pixels that may see the object: the wavelet strategy against the moved scene
+        idx = np.flatnonzero(full)
+        if len(idx):
+            value[idx], r = self._full(R, T, cam, idx, spp, seed, chunk, start)
             rays += r
         return value, rays
 
@@ -635,19 +651,22 @@ class MovingObject:
         n_pixels = self.transfer.width * self.transfer.height
         whole = self.backend == "opencl" and 4 * n_pixels * tree_stride(self.m) <= TREE_CACHE_BYTES
         if whole:
-            if self._all_trees is None:
-                leaves = np.asarray(self.leaves[:n_pixels], np.float32).reshape(n_pixels, side, side)
-                self._all_trees = HaarTree(np.maximum(leaves, 0.0))
+            with self._tree_lock:   # (the frame's chunks share it)
+                if self._all_trees is None:
+                    leaves = np.asarray(self.leaves[:n_pixels], np.float32).reshape(n_pixels, side, side)
+                    self._all_trees = HaarTree(np.maximum(leaves, 0.0))
             return self._all_trees, first
         key = (first, last)
-        if key in self._trees:
-            return self._trees[key], 0
+        with self._tree_lock:
+            if key in self._trees:
+                return self._trees[key], 0
         leaves = np.asarray(self.leaves[first:last], np.float32).reshape(last - first, side, side)
         made = HaarTree(np.maximum(leaves, 0.0))
         size = 4 * made.n_trees * made.stride
-        if self._tree_bytes + size <= TREE_CACHE_BYTES:
-            self._trees[key] = made
-            self._tree_bytes += size
+        with self._tree_lock:
+            if key not in self._trees and self._tree_bytes + size <= TREE_CACHE_BYTES:
+                self._trees[key] = made
+                self._tree_bytes += size
         return made, 0
 
     def _place(self, R, T):
@@ -682,12 +701,14 @@ class MovingObject:
                                                   seed, tile, start, place, box, offset)
             if not len(rec.sample):
                 continue
-            blocked = self._trace_object(R, T, rec.origin, rec.direction)
+            blocked = self.object_tracer.occluded(np.asarray(rec.origin, np.float32),
+                                                  np.asarray(rec.direction, np.float32))
             hit = np.flatnonzero(blocked)
             rays += len(rec.sample)
-            if len(hit):
-                rest_blocked = self.rest_tracer.occluded(np.asarray(rec.origin[hit], np.float32),
-                                                         np.asarray(rec.direction[hit], np.float32))
+            if len(hit):   # back to the world: world = R local + T
+                origin = (np.asarray(rec.origin[hit], np.float64) @ R.T + T).astype(np.float32)
+                direction = (np.asarray(rec.direction[hit], np.float64) @ R.T).astype(np.float32)
+                rest_blocked = self.rest_tracer.occluded(origin, direction)
                 rays += len(hit)
                 hit = hit[~rest_blocked]
                 at = np.asarray(rec.sample[hit], np.int64) + b0
