@@ -744,22 +744,22 @@ class MovingObject:
         n = np.ascontiguousarray(planes[0:3, hits].T)
         origin = np.ascontiguousarray(planes[3:6, hits].T, np.float32)
         u = np.ascontiguousarray(planes[6:10, hits].T, np.float32)
-        wi, val, offset = self._shader(n, -np.asarray(d[hits], np.float64), material[hits], u, with_offset=True)
-        # planes (slot, component, point): the kernel's own layout
-        wi, val = np.asarray(wi).transpose(1, 2, 0), np.asarray(val).transpose(1, 2, 0)
+        wi, val, offset = self._shader(n, -d[hits], material[hits], u, with_offset=True)
+        # shadow rays for the non-zero estimates of every slot, in one batch (as the integrator's
+        # visible_sum): against the rest, then the unblocked ones against the object
+        val = np.asarray(val).transpose(1, 2, 0)   # planes (slot, component, point): the kernel's layout
+        slot, pt = np.nonzero(np.maximum(np.maximum(val[:, 0], val[:, 1]), val[:, 2]) > 0)
+        w = np.take(np.asarray(wi, np.float32).reshape(-1, 3), pt * val.shape[0] + slot, axis=0)
+        o = np.take(origin, pt, axis=0)
+        blocked = self.rest_tracer.occluded(o, w)
+        free = np.flatnonzero(~blocked)
+        blocked[free] = self._trace_object(R, T, o[free], w[free])
+        rays += len(pt) + len(free)
+        visible = np.zeros((val.shape[0], len(hits)), val.dtype)
+        visible[slot, pt] = ~blocked
         total = np.asarray(offset, np.float64).T.copy()
-        for slot in range(wi.shape[0]):   # the strategy's slots, not samples
-            v = val[slot]
-            live = np.flatnonzero(np.maximum(np.maximum(v[0], v[1]), v[2]) > 0)
-            w = np.ascontiguousarray(np.take(wi[slot], live, axis=1).T, np.float32)
-            o = origin[live]
-            blocked = self.rest_tracer.occluded(o, w)
-            free = np.flatnonzero(~blocked)
-            blocked[free] = self._trace_object(R, T, o[free], w[free])
-            rays += len(live) + len(free)
-            visible = np.zeros(len(hits), bool)
-            visible[live] = ~blocked
-            total += v * visible
+        for j in range(val.shape[0]):   # the strategy's slots, not samples
+            total += val[j] * visible[j]
         value[hits] = total.T
         return value, rays
 
