@@ -10,26 +10,37 @@ render (``static``, S_p). With the object placed anew, a pixel's radiance is
     B_p = E_x[ integral f cos L V_rest (1 - O_j) dw ] = S_p - E_x[ D(x) ],
     D(x) = integral f cos L V_rest O_j dw,
 
-x a camera sample in the pixel. D is what the object takes away; it is estimated per sample
-(eq. 12's bidirectional estimator, with the visibility of the rest inside the sampled product:
-its noise is O_j's): a direction from the pixel's product T1 x L (the coarse texel by the
-hierarchical warp, eq. 17-22, then inside it the lighting's own resolution) or, with
-probability 0.1, from the BSDF, with the mixture's density; where it meets the object (traced
-against the object alone, in its own frame, so nothing is rebuilt per frame) and not the rest,
-D gets f cos L / p. A direction that misses the object's bounding sphere needs no ray (D = 0
-there exactly). The directions and their contributions do not depend on the object's place:
-kernels/relight_moving.cl computes them (numpy twin :func:`mixture_samples_reference`), and
-they are kept, with the camera rays, for the next frames of the same seed and spp (the viewer
-draws every frame with seed 0), so that a frame of a new place traces only the object.
+x a camera sample in the pixel. D is what the object takes away; it is estimated per camera
+sample (eq. 12's bidirectional estimator, with the visibility of the rest inside the sampled
+product: its noise is O_j's) from ``directions`` directions (DIRECTIONS) of the defensive
+mixture of the pixel's product T1 x L (the coarse texel by the hierarchical warp, eq. 17-22,
+then inside it the lighting's own resolution) and, with probability 0.1, the BSDF, at the
+mixture's density, their uniforms stratified over the pixel's spp x directions: where a
+direction meets the object (traced against the object alone, in its own frame, so nothing is
+rebuilt per frame) and not the rest, D gets f cos L / p, over the directions. The variance of D
+is the object's occlusion's: per direction a Bernoulli trial (blocked or not) times a nearly
+constant f cos L / p, largest in the object's hard shadow, where D is nearly all of S; the
+directions of one camera sample share its hit point, and stratified over the pixel the many
+that reach a sun fall on it in a fixed share rather than by chance
+(docs/decisions/moving-occlusion-directions.md). A direction that misses the object's box
+needs no ray (D = 0 there exactly): the kernel ``moving_occlusion`` (kernels/relight_moving.cl,
+numpy twin :func:`occlusion_records_reference`) tests each against the box at this frame's
+place (first its texel against the cone around the box, before the direction inside the texel
+is drawn) and returns only those that meet it, as records ready for the object's ray tracer.
 
 Pixels whose footprint may see the object itself (the cone of the pixel meets the object's
 bounding sphere and the pixel lies in the box of a projected triangle; decided from the
 object's place alone, not from random samples, so that the choice does not bias the estimate)
-are rendered in full with ``mis`` (the existing strategy: its shade kernel,
-:class:`wavlight.shading.KernelShader`, twin :func:`wavlight.strategies.shade_reference`)
-against the moved scene. Every frame is unbiased: tests/relight/test_relight_moving.py checks it
-against ``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator with the
-numpy twins (same random numbers).
+are rendered in full against the moved scene with the ``wavelet`` strategy (its product walk,
+resampling and control variate: the renderer's shade kernel, :class:`wavlight.shading.KernelShader`,
+twin :func:`wavlight.strategies.shade_reference`; its candidates and slots chosen from the
+scene's shadows as a render chooses them), the closer hit of the rest and the object and the
+shading uniforms, stratified over the pixel's samples, from the kernel ``moving_points`` (twin
+:func:`shading_points_reference`). The camera rays of a frame are kept for the next frames of
+the same seed and spp (the viewer draws every frame with seed 0); a frame runs as chunks of
+rows on a pool of threads. Every frame is unbiased: tests/relight/test_relight_moving.py
+checks it against ``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator
+with the numpy twins (same random numbers).
 """
 from __future__ import annotations
 
@@ -81,9 +92,9 @@ MAX_DIRECTIONS = 64
 #: the object's box (its own frame) is grown by this share of the coordinates' size before the
 #: kernel tests directions against it (float32 rounding: it must never drop a ray that meets it)
 BOX_MARGIN = 1e-4
-#: a launch of moving_occlusion takes at most this many camera samples (its records' regions:
-#: 40 bytes per direction, about 10 MB at 4 directions)
-OCCLUSION_BATCH = 1 << 16
+#: a launch of moving_occlusion takes at most this many directions (its records' regions: 40
+#: bytes per direction, about 10 MB)
+OCCLUSION_BATCH = 1 << 18
 #: words per record of moving_occlusion (the sample's direction, origin, direction, contribution)
 RECORD = 10
 #: a frame is cut into at least MIN_CHUNKS chunks of rows where each keeps MIN_CHUNK_SAMPLES
@@ -441,6 +452,7 @@ class MovingObject:
             self._kernels = _MovingKernels(self.rest, self.rest_tracer, self.object_tracer, self.inside, self._shader,
                                            self.m, self.directions)
             self._kernels.warm_up(sc.camera.eye, HaarTree(np.ones((1, 1 << self.m, 1 << self.m), np.float32)))
+            self._product_trees(0, 1)   # the whole image's trees where they fit: made with the bake's loading
         else:
             self._shader = NumpyShader(lit, self.wavelet)
 
@@ -519,8 +531,9 @@ class MovingObject:
 
     def _trace_object(self, R, T, origins, dirs, closest=False):
         """Rays against the object alone, in its own frame (rigid: distances are kept); origins
-        (N, 3), or (3,) for one origin of all rays."""
-        d = (np.asarray(dirs, np.float64) @ R).astype(np.float32)
+        (N, 3), or (3,) for one origin of all rays (moved in float64: a far place keeps its
+        precision; the directions in float32)."""
+        d = np.asarray(dirs, np.float32) @ np.asarray(R, np.float32)
         o = ((np.asarray(origins, np.float64) - T) @ R).astype(np.float32)
         o = np.broadcast_to(o, d.shape) if o.ndim == 1 else o
         if closest:
@@ -690,8 +703,9 @@ class MovingObject:
         tile = FRAME_TILES + chunk
         D = np.zeros((len(rest), 3))
         rays = 0
-        for b0 in range(0, len(rest), OCCLUSION_BATCH):   # launches of bounded memory, not samples
-            part = rest[b0:b0 + OCCLUSION_BATCH]
+        batch = max(1, OCCLUSION_BATCH // self.directions)
+        for b0 in range(0, len(rest), batch):   # launches of bounded memory, not samples
+            part = rest[b0:b0 + batch]
             if self.backend == "opencl":
                 rec = self._kernels.occlusion(self.scene.camera.eye, cam.d[part], cam.prim[part], cam.t[part], part,
                                               trees, offset, spp, seed, tile, start, place, box)
@@ -753,7 +767,10 @@ class MovingObject:
         o = np.take(origin, pt, axis=0)
         blocked = self.rest_tracer.occluded(o, w)
         free = np.flatnonzero(~blocked)
-        blocked[free] = self._trace_object(R, T, o[free], w[free])
+        if len(free):   # in the object's frame: each point's origin moved once, not each ray's
+            local = ((origin.astype(np.float64) - T) @ R).astype(np.float32)
+            blocked[free] = self.object_tracer.occluded(np.take(local, pt[free], axis=0),
+                                                        w[free] @ np.asarray(R, np.float32))
         rays += len(pt) + len(free)
         visible = np.zeros((val.shape[0], len(hits)), val.dtype)
         visible[slot, pt] = ~blocked
