@@ -35,10 +35,10 @@ Measured:
   1 / spp), with the frames at which the bake pays for itself. The floor the bake leaves: the
   relMSE the converged image without the bunny adds where the frame uses it,
   mean(s_static^2 / (r^2 + 0.01)) over the pixels not rendered in full;
-- the variance analysis (--no-analysis leaves it out): at the second place, each class's part of
-  relMSE at 1, 4, 16 and 64 directions per camera sample, and on the pixels the object shadows
-  the occlusion D by the numpy twin with one or four directions, independent or stratified over
-  the pixel's directions.
+- the variance analysis (--no-analysis leaves it out): at each place, each class's part of
+  relMSE at 1, 2, 4, 8, 16 and 64 directions per camera sample, with the frame's wall and CPU
+  seconds; at the second place, on the pixels the object shadows, the occlusion D by the numpy
+  twin with one or four directions, independent or stratified over the pixel's directions.
 
 Nothing is cached in the repository: the bake file and the references (keyed by the scene, the
 settings and a hash of wavlight/ and kernels/) go to --cache (default /tmp/relight-moving/).
@@ -75,6 +75,8 @@ TARGET_FPS = 10.0
 TARGET_EQUAL_TIME = 0.5
 #: the bake amortized over this many frames
 AMORTIZED = (10, 100, 1000)
+#: the variance analysis: directions per camera sample of the occlusion D
+ANALYSIS_DIRECTIONS = (1, 2, 4, 8, 16, 64)
 #: places of the bunny over its floor: translation (x, 0, z) and degrees about +Y
 PLACES = [((0.0, 0.0, 0.0), 0.0), ((0.6, 0.0, 0.4), 45.0), ((-0.7, 0.0, -0.5), 120.0), ((0.3, 0.0, -1.0), 250.0)]
 
@@ -391,35 +393,55 @@ def summarize(rows, bake_wall, spp) -> dict:
 
 
 def variance_analysis(args, transfer, scene) -> dict:
-    """Where the occlusion estimate's variance comes from, at the second place compared: (1) per
-    pixel class, the moving frame at 1, 4, 16 and 64 directions per camera sample (the kernels;
-    3 seeds); (2) on the shadowed pixels, D by the numpy twin with one and four directions per
-    camera sample, independent or stratified over the pixel (the estimator before and after)."""
+    """Where the occlusion estimate's variance comes from: (1) at every place compared, per pixel
+    class, the moving frame at 1, 2, 4, 8, 16 and 64 directions per camera sample (the kernels;
+    3 seeds), its relMSE, wall and CPU seconds, and relMSE x CPU seconds over that at 4
+    directions (the default); (2) at the second place, on the shadowed pixels, D by the numpy
+    twin with one and four directions per camera sample, independent or stratified over the
+    pixel (the estimator before and after)."""
+    from wavlight.evaluation.metrics import relmse
     from wavlight.relight import moving
     from wavlight.relight.moving import MovingObject, counter_uniforms
 
     size = args.size
+    out = {"spp": args.spp, "places": []}
+    movers = {nd: MovingObject(transfer, scene, directions=nd) for nd in ANALYSIS_DIRECTIONS}
+    for i in range(1, 1 + args.error_placements):
+        translate, degrees = PLACES[i]
+        where = (list(translate), [0.0, 1.0, 0.0, degrees])
+        ref, ref_se, _ = reference(args.cache, bunny_dict(translate, degrees), size, args.ref_spp, 10_000 + i,
+                                   not args.no_reuse)
+        classes = pixel_classes(movers[4], *movers[4].placement(*where), ref, ref_se, size)
+        rows = []
+        for nd, mover in movers.items():
+            mover.frame(*where, spp=args.spp, seed=0)
+            shares, wall, cpu, err = [], [], [], []
+            for seed in (1, 2, 3):
+                mover._mask_key = None
+                c0, t0 = time.process_time(), time.perf_counter()
+                r = mover.frame(*where, spp=args.spp, seed=seed)
+                wall.append(time.perf_counter() - t0)
+                cpu.append(time.process_time() - c0)
+                shares.append(class_shares(r.image, ref, ref_se, classes))
+                err.append(relmse(r.image, ref, ref_se))
+            rows.append({"directions": nd, "relmse": round(float(np.mean(err)), 7),
+                         "seconds_median": round(statistics.median(wall), 3),
+                         "cpu_seconds_median": round(statistics.median(cpu), 3),
+                         "classes": {k: round(float(np.mean([s[k] for s in shares])), 7) for k in classes}})
+            print(f"analysis: place {i}, {nd} directions: {rows[-1]}", file=sys.stderr, flush=True)
+        at4 = next(r for r in rows if r["directions"] == 4)
+        for r in rows:
+            r["relmse_cpu_over_4"] = round(r["relmse"] * r["cpu_seconds_median"]
+                                           / (at4["relmse"] * at4["cpu_seconds_median"]), 3)
+        out["places"].append({"place": i, "translate": translate, "rotate_y": degrees,
+                              "pixels": {k: int(v.sum()) for k, v in classes.items()}, "directions": rows})
     i = 2 if args.error_placements >= 2 else 1
     translate, degrees = PLACES[i]
     where = (list(translate), [0.0, 1.0, 0.0, degrees])
     ref, ref_se, _ = reference(args.cache, bunny_dict(translate, degrees), size, args.ref_spp, 10_000 + i,
                                not args.no_reuse)
-    out = {"place": i, "translate": translate, "rotate_y": degrees, "spp": args.spp, "directions": []}
-    classes = None
-    for nd in (1, 4, 16, 64):
-        mover = MovingObject(transfer, scene, directions=nd)
-        classes = classes or pixel_classes(mover, *mover.placement(*where), ref, ref_se, size)
-        mover.frame(*where, spp=args.spp, seed=0)
-        shares, secs = [], []
-        for seed in (1, 2, 3):
-            t0 = time.perf_counter()
-            r = mover.frame(*where, spp=args.spp, seed=seed)
-            secs.append(time.perf_counter() - t0)
-            shares.append(class_shares(r.image, ref, ref_se, classes))
-        out["directions"].append({"directions": nd, "seconds_median": round(statistics.median(secs), 3),
-                                  "classes": {k: round(float(np.mean([s[k] for s in shares])), 7)
-                                              for k in classes}})
-        print(f"analysis: {nd} directions: {out['directions'][-1]}", file=sys.stderr, flush=True)
+    classes = pixel_classes(movers[4], *movers[4].placement(*where), ref, ref_se, size)
+    out["twin_place"] = i
     # the numpy twin on the shadowed pixels: independent against stratified directions
     mover = MovingObject(transfer, scene, backend="numpy", directions=1)
     R, T = mover.placement(*where)
