@@ -266,9 +266,9 @@ def test_the_kernel_frame_matches_the_numpy_frame(moving, monkeypatch, chunks):
     assert abs((a.image - b.image).sum()) < 0.5 * np.sqrt(var)
 
 
-def test_frames_of_one_seed_share_their_samples(moving):
-    """A second frame of the seed and spp reuses the camera rays and mixture samples, and gives
-    what a fresh MovingObject gives at that place."""
+def test_frames_of_one_seed_share_their_camera_rays(moving):
+    """A second frame of the seed and spp reuses the camera rays (and their hits on the rest), and
+    gives what a fresh MovingObject gives at that place."""
     _, scene, tr = moving
     mover = MovingObject(tr, scene)
     mover.frame((0.0, 0.5, 0.0), spp=4, seed=3)
