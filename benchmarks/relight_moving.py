@@ -316,10 +316,12 @@ def compare(args, transfer, scene, mover, bake_wall) -> dict:
                 "seconds_median": round(statistics.median(e[1] for e in eq), 3),
                 "cpu_seconds_median": round(statistics.median(e[2] for e in eq), 3),
                 "relmse": [round(relmse(e[0].image, ref, ref_se), 7) for e in eq]}
-            methods[f"{name}_equal_time"]["relmse_mean"] = round(float(np.mean(methods[f"{name}_equal_time"]["relmse"])), 7)
+            eq_row = methods[f"{name}_equal_time"]
+            eq_row["relmse_mean"] = round(float(np.mean(eq_row["relmse"])), 7)
         floor = mover.static_se ** 2 / (np.asarray(ref, np.float64) ** 2 + 1e-2)
         rows.append({"place": i, "translate": translate, "rotate_y": degrees, "reference": ref_info,
-                     "static_floor_relmse": round(float(np.mean(np.where(classes["object"][..., None], 0.0, floor))), 7),
+                     "static_floor_relmse": round(float(np.mean(np.where(classes["object"][..., None], 0.0,
+                                                                         floor))), 7),
                      "reference_noise_relmse": round(float(np.mean(np.asarray(ref_se, np.float64) ** 2 /
                                                                    (np.asarray(ref, np.float64) ** 2 + 1e-2))), 7),
                      "pixels": {k: int(v.sum()) for k, v in classes.items()}, "methods": methods,

@@ -304,8 +304,10 @@ class _MovingKernels:
         sh = self.shader
         cl.kernel(self.program, "moving_occlusion")(
             q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count),
-            cl.upload("moving_slot", np.asarray(slots, np.uint32), q), cl.upload("moving_dirs", np.asarray(d, np.float32), q),
-            cl.upload("moving_prim", np.asarray(prim, np.int32), q), cl.upload("moving_t", np.asarray(t, np.float32), q),
+            cl.upload("moving_slot", np.asarray(slots, np.uint32), q),
+            cl.upload("moving_dirs", np.asarray(d, np.float32), q),
+            cl.upload("moving_prim", np.asarray(prim, np.int32), q),
+            cl.upload("moving_t", np.asarray(t, np.float32), q),
             *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
             self.kind, self.param, self.albedo, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
             np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
@@ -446,7 +448,8 @@ class MovingObject:
         self._mask_key, self._mask = None, None
         self._kept, self._chunks = {}, {}   # (seed, spp) -> the chunks' camera rays; this frame's
         self._kernels = None
-        self._pool, self._lock, self._tree_lock = ThreadPoolExecutor(default_threads()), threading.Lock(), threading.Lock()
+        self._pool = ThreadPoolExecutor(default_threads())
+        self._lock, self._tree_lock = threading.Lock(), threading.Lock()
         if backend == "opencl":
             self._shader = KernelShader(lit, self.wavelet)
             self._kernels = _MovingKernels(self.rest, self.rest_tracer, self.object_tracer, self.inside, self._shader,
