@@ -16,17 +16,29 @@ Measured:
   it (benchmarks/viewer_fps.py measures the page's side for lighting bakes); the target is
   >= 10 frames/s. Each frame is a new place (a drag through the place: 1 cm and 1 degree a
   frame) and a new seed, so that nothing is kept from the frame before; the same drag at the
-  viewer's fixed seed 0 (which keeps the camera rays and the D samples' directions) is timed
-  beside it;
+  viewer's fixed seed 0 (which keeps the camera rays) is timed beside it;
 - where a preview frame's time goes: every stage of MovingObject.frame wrapped by a timer (the
-  time of a stage excludes the stages it calls), the median over the frames of each place;
-- the error: relMSE = mean(((x - r)^2 - s_r^2) / (r^2 + 0.01)) (wavlight.evaluation.metrics.relmse,
-  the reference's variance subtracted) against `mis` at --ref-spp of the moved scene, for the
-  moving estimator at --spp, `wavelet` and `mis` at the same spp, and `wavelet` and `mis` at
-  equal time (their spp chosen from a pilot render so that setup + render takes the moving
-  frame's seconds; each place is a scene of its own for them, so their setup counts). The floor
-  the bake leaves: the relMSE the converged image without the bunny adds where the frame uses
-  it, mean(s_static^2 / (r^2 + 0.01)) over the pixels not rendered in full.
+  time of a stage excludes the stages it calls; the chunks run on a pool of threads, so the
+  stages overlap and their sum exceeds the frame's), the median over the frames of each place;
+- the target: relMSE = mean(((x - r)^2 - s_r^2) / (r^2 + 0.01)) (wavlight.evaluation.metrics.relmse,
+  the reference's variance subtracted) against `mis` at --ref-spp of the moved scene, at
+  --error-placements places and --seeds seeds, for the moving frame at --spp (its time: the
+  frame alone, the bake and the scene loaded and its first frame made; a new seed each time, so
+  that nothing of a frame before is kept) and `wavelet` rendered from scratch (setup + render:
+  each place is a scene of its own) at --spp, alternating, then `wavelet` at equal time (the spp
+  whose setup + render takes the frame's median time, from its own seconds per spp); the same
+  with the stratified sampler beside (the moving frame's camera samples and shading uniforms
+  are stratified); per pixel class (the pixels rendered in full, those whose value the object's
+  occlusion changes, the others) each one's part of relMSE; the ratios (relMSE, time, efficiency
+  = the inverse of their product, the equal-time relMSE ratio; the target is <= 0.5), and the same
+  with the bake's wall time amortized over 10, 100, 1000 frames (modelled: wavelet's relMSE as
+  1 / spp), with the frames at which the bake pays for itself. The floor the bake leaves: the
+  relMSE the converged image without the bunny adds where the frame uses it,
+  mean(s_static^2 / (r^2 + 0.01)) over the pixels not rendered in full;
+- the variance analysis (--no-analysis leaves it out): at each place, each class's part of
+  relMSE at 1, 2, 4, 8, 16 and 64 directions per camera sample, with the frame's wall and CPU
+  seconds; at the second place, on the pixels the object shadows, the occlusion D by the numpy
+  twin with one or four directions, independent or stratified over the pixel's directions.
 
 Nothing is cached in the repository: the bake file and the references (keyed by the scene, the
 settings and a hash of wavlight/ and kernels/) go to --cache (default /tmp/relight-moving/).
@@ -59,6 +71,12 @@ ROOT = os.path.dirname(HERE)
 SCENE = os.path.join(HERE, "scenes", "bunny_ggx.toml")
 ENVMAP = "rooitou_park_1k"     # a wavlight.data asset
 TARGET_FPS = 10.0
+#: the target: a frame's relMSE at most this share of wavelet's at equal time
+TARGET_EQUAL_TIME = 0.5
+#: the bake amortized over this many frames
+AMORTIZED = (10, 100, 1000)
+#: the variance analysis: directions per camera sample of the occlusion D
+ANALYSIS_DIRECTIONS = (1, 2, 4, 8, 16, 64)
 #: places of the bunny over its floor: translation (x, 0, z) and degrees about +Y
 PLACES = [((0.0, 0.0, 0.0), 0.0), ((0.6, 0.0, 0.4), 45.0), ((-0.7, 0.0, -0.5), 120.0), ((0.3, 0.0, -1.0), 250.0)]
 
@@ -163,16 +181,16 @@ def staged(mover, stages: Stages):
         def __init__(self, *a, **k):
             stages.wrap("product trees: build (once, kept)", super().__init__)(*a, **k)
 
-    patch(mover, "frame", "frame: chunks, mean and variance (numpy)")
-    patch(mover, "_chunk", "chunk: static image, sample sets, the wait for the mis thread (numpy)")
+    patch(mover, "frame", "frame: mean and variance (numpy), the wait for the chunks' threads")
+    patch(mover, "_chunk", "chunk: static image, sample sets (numpy)")
     patch(mover, "_object_pixels", "object pixels: mask (numpy)")
     patch(mover, "_sphere_pixels", "object pixels: cone test (numpy)")
     patch(mover, "_boxes", "object pixels: triangle boxes (numpy)")
-    patch(mover, "_full", "mis pixels: hits, normals, shadow rays set-up (numpy)")
-    patch(mover, "_shader", "mis pixels: mis shading (OpenCL shade)")
-    patch(mover, "_occlusion", "occlusion D: gathers, candidates (numpy)")
-    patch(mover, "_kernel", "occlusion D: mixture directions (OpenCL moving_directions)")
-    patch(mover, "_meets_sphere", "bounding-sphere tests (numpy)")
+    patch(mover, "_full", "wavelet pixels: hits, shadow rays set-up (numpy)")
+    patch(mover, "_shader", "wavelet pixels: wavelet shading (OpenCL shade)")
+    patch(mover._kernels, "points", "wavelet pixels: shading points (OpenCL moving_points)")
+    patch(mover, "_occlusion", "occlusion D: records, sums (numpy)")
+    patch(mover._kernels, "occlusion", "occlusion D: directions, box test, records (OpenCL moving_occlusion)")
     patch(mover, "_trace_object", "object rays: to its frame (numpy)")
     patch(mover, "_camera", "camera: sample cache (numpy)")
     patch(camera, "pass_rays", "camera: rays (OpenCL camera_rays)")
@@ -180,8 +198,6 @@ def staged(mover, stages: Stages):
     patch(mover.rest_tracer, "occluded", "trace: shadow rays vs the rest (embree)")
     patch(mover.object_tracer, "intersect", "trace: camera rays vs the object (embree)")
     patch(mover.object_tracer, "occluded", "trace: shadow rays vs the object (embree)")
-    patch(mover.environment, "eval", "environment lookups (numpy)")
-    patch(moving.rng, "uniforms", "random numbers (numpy, mis pixels)")
     tree = moving.HaarTree
     moving.HaarTree = TimedTree
     try:
@@ -217,6 +233,255 @@ def load_average():
     return [round(x, 2) for x in os.getloadavg()]
 
 
+# ----------------------------------------------------------------------------- the target
+def pixel_classes(mover, R, T, ref, ref_se, size):
+    """(H, W) masks of the variance analysis: ``object``, the pixels rendered in full (those
+    that may see the object); ``shadowed``, the others where the converged image without the
+    object exceeds the reference by more than 4 standard errors (the object's shadow and its
+    occlusion of the sky: where D is not 0); ``others``."""
+    obj = mover._object_pixels(R, T, size, size)
+    diff = (mover.static - np.asarray(ref, np.float64)).mean(2)
+    sigma = np.sqrt((mover.static_se ** 2 + np.asarray(ref_se, np.float64) ** 2).mean(2))
+    shadowed = ~obj & (diff > 4 * sigma)
+    return {"object": obj, "shadowed": shadowed, "others": ~obj & ~shadowed}
+
+
+def class_shares(image, ref, ref_se, classes) -> dict:
+    """Each class's part of relMSE (its pixels' terms summed over all the image's values: the
+    parts add up to relMSE)."""
+    from wavlight.evaluation.metrics import EPS
+
+    x, r = np.asarray(image, np.float64), np.asarray(ref, np.float64)
+    terms = (((x - r) ** 2 - np.asarray(ref_se, np.float64) ** 2) / (r * r + EPS)).mean(2)
+    return {k: round(float(terms[m].sum() / terms.size), 7) for k, m in classes.items()}
+
+
+def compare(args, transfer, scene, mover, bake_wall) -> dict:
+    """The moving frame at --spp against `wavelet` of the moved scene (a render from scratch:
+    its setup counted), at --seeds seeds and --error-placements places, alternating the two;
+    `wavelet` with the stratified sampler beside it (the moving frame's camera samples and
+    shading uniforms are stratified); both again at equal time; per-class relMSE; the bake
+    amortized."""
+    import wavlight
+    from wavlight.evaluation.metrics import relmse
+
+    size, spp = args.size, args.spp
+    seeds = [1 + k for k in range(args.seeds)]
+    rows = []
+    for i in range(1, 1 + args.error_placements):
+        translate, degrees = PLACES[i]
+        where = (list(translate), [0.0, 1.0, 0.0, degrees])
+        d = bunny_dict(translate, degrees)
+        print(f"reference: mis {args.ref_spp} spp of place {i} ...", file=sys.stderr, flush=True)
+        ref, ref_se, ref_info = reference(args.cache, d, size, args.ref_spp, 10_000 + i, not args.no_reuse)
+        moved = load(d)
+        classes = pixel_classes(mover, *mover.placement(*where), ref, ref_se, size)
+
+        def render(seed, n, sampler="independent"):
+            c0, t0 = time.process_time(), time.perf_counter()
+            out = wavlight.render_full(moved, spp=n, strategy="wavelet", width=size, height=size, seed=seed,
+                                       sampler=sampler)
+            return out, time.perf_counter() - t0, time.process_time() - c0
+
+        runs = {"moving": [], "wavelet": [], "wavelet_stratified": []}
+        mover.frame(*where, spp=spp, seed=0)   # the place's first frame (not timed)
+        for seed in seeds:   # alternating: the load drifts
+            mover._mask_key = None   # the place's pixel mask made again: per-frame preparation, timed
+            c0, t0 = time.process_time(), time.perf_counter()
+            m = mover.frame(*where, spp=spp, seed=seed)
+            runs["moving"].append((m.image, time.perf_counter() - t0, 0.0, time.process_time() - c0))
+            for name, sampler in (("wavelet", "independent"), ("wavelet_stratified", "stratified")):
+                out, secs, cpu = render(seed, spp, sampler)
+                runs[name].append((out.image, secs, out.stats["setup_seconds"], cpu))
+        t_moving = statistics.median(r[1] for r in runs["moving"])
+        methods = {}
+        for name, rs in runs.items():
+            methods[name] = {"spp": spp, "seconds": [round(r[1], 3) for r in rs],
+                             "seconds_median": round(statistics.median(r[1] for r in rs), 3),
+                             "cpu_seconds_median": round(statistics.median(r[3] for r in rs), 3),
+                             "relmse": [round(relmse(r[0], ref, ref_se), 7) for r in rs],
+                             "classes": [class_shares(r[0], ref, ref_se, classes) for r in rs]}
+            methods[name]["relmse_mean"] = round(float(np.mean(methods[name]["relmse"])), 7)
+            if name != "moving":
+                setup = statistics.median(r[2] for r in rs)
+                methods[name]["setup_seconds_median"] = round(setup, 3)
+                per_spp = max(methods[name]["seconds_median"] - setup, 1e-6) / spp
+                methods[name]["render_seconds_per_spp"] = round(per_spp, 5)
+        for name, sampler in (("wavelet", "independent"), ("wavelet_stratified", "stratified")):   # equal time
+            w = methods[name]
+            spp_eq = int(max(1, round((t_moving - w["setup_seconds_median"]) / w["render_seconds_per_spp"])))
+            eq = [render(seed, spp_eq, sampler) for seed in seeds]
+            methods[f"{name}_equal_time"] = {
+                "spp": spp_eq, "seconds": [round(e[1], 3) for e in eq],
+                "seconds_median": round(statistics.median(e[1] for e in eq), 3),
+                "cpu_seconds_median": round(statistics.median(e[2] for e in eq), 3),
+                "relmse": [round(relmse(e[0].image, ref, ref_se), 7) for e in eq]}
+            eq_row = methods[f"{name}_equal_time"]
+            eq_row["relmse_mean"] = round(float(np.mean(eq_row["relmse"])), 7)
+        floor = mover.static_se ** 2 / (np.asarray(ref, np.float64) ** 2 + 1e-2)
+        rows.append({"place": i, "translate": translate, "rotate_y": degrees, "reference": ref_info,
+                     "static_floor_relmse": round(float(np.mean(np.where(classes["object"][..., None], 0.0,
+                                                                         floor))), 7),
+                     "reference_noise_relmse": round(float(np.mean(np.asarray(ref_se, np.float64) ** 2 /
+                                                                   (np.asarray(ref, np.float64) ** 2 + 1e-2))), 7),
+                     "pixels": {k: int(v.sum()) for k, v in classes.items()}, "methods": methods,
+                     "load_average": load_average()})
+        line = ", ".join(f"{k} {v['relmse_mean']:.4g} ({v['spp']} spp, {v['seconds_median']:.2f} s)"
+                         for k, v in methods.items())
+        print(f"place {i}: relMSE {line}", file=sys.stderr, flush=True)
+    return summarize(rows, bake_wall, spp) | {"spp": spp, "seeds": seeds, "ref_spp": args.ref_spp,
+                                                "max_rss_mb": max_rss_mb()}
+
+
+def summarize(rows, bake_wall, spp) -> dict:
+    """The ratios over all places and seeds (per place: means of relMSE, medians of seconds; then
+    their geometric mean over the places): relMSE ratio and time ratio at equal spp, efficiency
+    (the inverse of their product: above 1 the moving frame is the more efficient), the equal-time
+    relMSE ratio (measured: wavelet rendered at the spp that takes the frame's time), the same
+    against wavelet with the stratified sampler, the ratio of the process's CPU seconds (every
+    thread's: PoCL's, embree's; less moved by other processes' load than the wall time's), and
+    the bake amortized over AMORTIZED frames
+    (modelled: wavelet's relMSE as 1 / spp at its measured seconds per spp and setup, the frame's
+    seconds plus the bake's over the frames)."""
+    def gmean(values):
+        return float(np.exp(np.mean(np.log(values))))
+
+    per_place = []
+    for row in rows:
+        m = row["methods"]
+        mv, w = m["moving"], m["wavelet"]
+        r_m, r_w, t_m, t_w = mv["relmse_mean"], w["relmse_mean"], mv["seconds_median"], w["seconds_median"]
+        per_place.append({"place": row["place"], "relmse_ratio": r_m / r_w, "time_ratio": t_m / t_w,
+                          "efficiency": (r_w * t_w) / (r_m * t_m),
+                          "equal_time_relmse_ratio": r_m / m["wavelet_equal_time"]["relmse_mean"],
+                          "stratified_relmse_ratio": r_m / m["wavelet_stratified"]["relmse_mean"],
+                          "stratified_time_ratio": t_m / m["wavelet_stratified"]["seconds_median"],
+                          "cpu_time_ratio": mv["cpu_seconds_median"] / w["cpu_seconds_median"],
+                          "stratified_equal_time_relmse_ratio":
+                              r_m / m["wavelet_stratified_equal_time"]["relmse_mean"],
+                          "r_m": r_m, "r_w": r_w, "t_m": t_m, "t_w": t_w, "setup_w": w["setup_seconds_median"],
+                          "per_spp_w": w["render_seconds_per_spp"]})
+    keys = ("relmse_ratio", "time_ratio", "efficiency", "equal_time_relmse_ratio", "stratified_relmse_ratio",
+            "stratified_time_ratio", "stratified_equal_time_relmse_ratio", "cpu_time_ratio")
+    overall = {k: round(gmean([p[k] for p in per_place]), 4) for k in keys}
+    overall["meets_target"] = bool(overall["equal_time_relmse_ratio"] <= TARGET_EQUAL_TIME)
+    overall["target"] = f"equal-time relMSE ratio <= {TARGET_EQUAL_TIME}"
+    frames = []
+    for n in AMORTIZED:
+        eff, eq, tr = [], [], []
+        for p in per_place:
+            t = p["t_m"] + bake_wall / n
+            r_w_eq = p["r_w"] * spp * p["per_spp_w"] / max(t - p["setup_w"], p["per_spp_w"])
+            eff.append((p["r_w"] * p["t_w"]) / (p["r_m"] * t))
+            eq.append(p["r_m"] / r_w_eq)
+            tr.append(t / p["t_w"])
+        frames.append({"frames": n, "time_ratio": round(gmean(tr), 4), "efficiency": round(gmean(eff), 4),
+                       "equal_time_relmse_ratio": round(gmean(eq), 4)})
+    # break-even: the frames from which the bake's time is paid for, per place (then the largest)
+    even, target = [], []
+    for p in per_place:
+        spare = p["r_w"] * p["t_w"] / p["r_m"] - p["t_m"]             # efficiency 1
+        even.append(bake_wall / spare if spare > 0 else None)
+        spare_t = p["setup_w"] + TARGET_EQUAL_TIME * spp * p["per_spp_w"] * p["r_w"] / p["r_m"] - p["t_m"]
+        target.append(bake_wall / spare_t if spare_t > 0 else None)
+    worst = lambda v: None if any(x is None for x in v) else int(np.ceil(max(v)))   # noqa: E731
+    return {"places": rows, "per_place": [{k: (round(v, 4) if isinstance(v, float) else v) for k, v in p.items()}
+                                          for p in per_place],
+            "overall": overall,
+            "amortized": {"bake_seconds": round(bake_wall, 2), "frames": frames,
+                          "break_even_frames": worst(even), "target_frames": worst(target),
+                          "model": "wavelet's relMSE as 1/spp at its measured seconds per spp and setup; the "
+                                   "frame's seconds plus the bake's over the frames"}}
+
+
+def variance_analysis(args, transfer, scene) -> dict:
+    """Where the occlusion estimate's variance comes from: (1) at every place compared, per pixel
+    class, the moving frame at 1, 2, 4, 8, 16 and 64 directions per camera sample (the kernels;
+    3 seeds), its relMSE, wall and CPU seconds, and relMSE x CPU seconds over that at 4
+    directions (the default); (2) at the second place, on the shadowed pixels, D by the numpy
+    twin with one and four directions per camera sample, independent or stratified over the
+    pixel (the estimator before and after)."""
+    from wavlight.evaluation.metrics import relmse
+    from wavlight.relight import moving
+    from wavlight.relight.moving import MovingObject, counter_uniforms
+
+    size = args.size
+    out = {"spp": args.spp, "places": []}
+    movers = {nd: MovingObject(transfer, scene, directions=nd) for nd in ANALYSIS_DIRECTIONS}
+    for i in range(1, 1 + args.error_placements):
+        translate, degrees = PLACES[i]
+        where = (list(translate), [0.0, 1.0, 0.0, degrees])
+        ref, ref_se, _ = reference(args.cache, bunny_dict(translate, degrees), size, args.ref_spp, 10_000 + i,
+                                   not args.no_reuse)
+        classes = pixel_classes(movers[4], *movers[4].placement(*where), ref, ref_se, size)
+        rows = []
+        for nd, mover in movers.items():
+            mover.frame(*where, spp=args.spp, seed=0)
+            shares, wall, cpu, err = [], [], [], []
+            for seed in (1, 2, 3):
+                mover._mask_key = None
+                c0, t0 = time.process_time(), time.perf_counter()
+                r = mover.frame(*where, spp=args.spp, seed=seed)
+                wall.append(time.perf_counter() - t0)
+                cpu.append(time.process_time() - c0)
+                shares.append(class_shares(r.image, ref, ref_se, classes))
+                err.append(relmse(r.image, ref, ref_se))
+            rows.append({"directions": nd, "relmse": round(float(np.mean(err)), 7),
+                         "seconds_median": round(statistics.median(wall), 3),
+                         "cpu_seconds_median": round(statistics.median(cpu), 3),
+                         "classes": {k: round(float(np.mean([s[k] for s in shares])), 7) for k in classes}})
+            print(f"analysis: place {i}, {nd} directions: {rows[-1]}", file=sys.stderr, flush=True)
+        at4 = next(r for r in rows if r["directions"] == 4)
+        for r in rows:
+            r["relmse_cpu_over_4"] = round(r["relmse"] * r["cpu_seconds_median"]
+                                           / (at4["relmse"] * at4["cpu_seconds_median"]), 3)
+        out["places"].append({"place": i, "translate": translate, "rotate_y": degrees,
+                              "pixels": {k: int(v.sum()) for k, v in classes.items()}, "directions": rows})
+    i = 2 if args.error_placements >= 2 else 1
+    translate, degrees = PLACES[i]
+    where = (list(translate), [0.0, 1.0, 0.0, degrees])
+    ref, ref_se, _ = reference(args.cache, bunny_dict(translate, degrees), size, args.ref_spp, 10_000 + i,
+                               not args.no_reuse)
+    classes = pixel_classes(movers[4], *movers[4].placement(*where), ref, ref_se, size)
+    out["twin_place"] = i
+    # the numpy twin on the shadowed pixels: independent against stratified directions
+    mover = MovingObject(transfer, scene, backend="numpy", directions=1)
+    R, T = mover.placement(*where)
+    spp = args.spp
+    cam = mover._camera(0, 0, size * size, spp, 1, keep=False)
+    rest = np.flatnonzero(np.repeat(classes["shadowed"].reshape(-1), spp) & (cam.prim >= 0))
+    pixels = np.flatnonzero(classes["shadowed"].reshape(-1))
+    static = mover.static.reshape(-1, 3)[pixels]
+    r = np.asarray(ref, np.float64).reshape(-1, 3)[pixels]
+    s2 = np.asarray(ref_se, np.float64).reshape(-1, 3)[pixels] ** 2
+    stratified_uniforms = moving.stratified_uniforms
+
+    def independent(seed, tile, stream, first, slots, spp_, directions=1):
+        slots = np.asarray(slots, np.int64)
+        return counter_uniforms(seed, tile, stream, np.repeat(first + slots, directions),
+                                np.tile(np.arange(directions), len(slots)))
+
+    out["numpy_twin_shadowed"] = []
+    try:
+        for nd in (1, 4):
+            mover.directions = nd
+            for label, fn in (("independent", independent), ("stratified", stratified_uniforms)):
+                moving.stratified_uniforms = fn
+                parts = []
+                for seed in (1, 2, 3):
+                    D, _ = mover._occlusion(R, T, cam, rest, 0, size * size, spp, seed, 0, 0)
+                    per_pixel = np.zeros((size * size, 3))
+                    np.add.at(per_pixel, rest // spp, D)
+                    B = static - per_pixel[pixels] / spp
+                    parts.append(float((((B - r) ** 2 - s2) / (r * r + 1e-2)).sum() / (3 * size * size)))
+                out["numpy_twin_shadowed"].append({"directions": nd, "uniforms": label,
+                                                   "shadowed_relmse": round(float(np.mean(parts)), 7)})
+                print(f"analysis: twin {nd} {label}: {out['numpy_twin_shadowed'][-1]}", file=sys.stderr, flush=True)
+    finally:
+        moving.stratified_uniforms = stratified_uniforms
+    return out
+
+
 # ----------------------------------------------------------------------------- the run
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
@@ -231,10 +496,12 @@ def main():
     ap.add_argument("--placements", type=int, default=4, help=f"places timed, at most {len(PLACES)} (default 4)")
     ap.add_argument("--frames", type=int, default=5, help="preview frames timed per place (default 5)")
     ap.add_argument("--spp", type=int, default=16, help="samples per pixel of the error comparison (default 16)")
-    ap.add_argument("--error-placements", type=int, default=2,
-                    help="places of the error comparison, from the second (default 2)")
+    ap.add_argument("--error-placements", type=int, default=3,
+                    help="places of the error comparison, from the second (default 3)")
+    ap.add_argument("--seeds", type=int, default=3, help="seeds of the frames compared at each place (default 3)")
+    ap.add_argument("--no-analysis", dest="analysis", action="store_false",
+                    help="leave out the variance analysis of the occlusion estimate")
     ap.add_argument("--ref-spp", type=int, default=4096, help="samples per pixel of the mis reference (default 4096)")
-    ap.add_argument("--seed", type=int, default=1, help="seed of the frames compared (default 1)")
     ap.add_argument("--cache", default="/tmp/relight-moving", help="bake file and references (default /tmp/relight-moving)")
     ap.add_argument("--no-reuse", action="store_true", help="render the references again")
     ap.add_argument("--quick", action="store_true",
@@ -247,8 +514,8 @@ def main():
     args = ap.parse_args()
     if args.quick:
         args.size, args.static_spp, args.placements, args.frames = 96, 64, 2, 3
-        args.error_placements, args.ref_spp = 1, 512
-    for name in ("size", "bake_spp", "static_spp", "preview_spp", "placements", "frames", "spp", "ref_spp"):
+        args.error_placements, args.ref_spp, args.seeds = 1, 512, 2
+    for name in ("size", "bake_spp", "static_spp", "preview_spp", "placements", "frames", "spp", "ref_spp", "seeds"):
         if getattr(args, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be at least 1")
     needs.fetch("relight_moving", ENVMAP, "bunny")
@@ -258,7 +525,6 @@ def main():
     prov = provenance()
 
     import wavlight
-    from wavlight.evaluation.metrics import EPS, relmse
     from wavlight.relight.moving import MovingObject
     from wavlight.relight.viewer import encode
 
@@ -351,50 +617,10 @@ def main():
                          "stages_share": {k: round(v / stage_total, 3) for k, v in stage_ms.items()}
                          if stage_total > 0 else {}}
 
-    # -- the error against mis of the moved scene
-    rows = []
-    for i in range(1, 1 + args.error_placements):
-        translate, degrees = PLACES[i]
-        d = bunny_dict(translate, degrees)
-        print(f"reference: mis {args.ref_spp} spp of place {i} ...", file=sys.stderr, flush=True)
-        ref, ref_se, ref_info = reference(args.cache, d, size, args.ref_spp, 10_000 + i, not args.no_reuse)
-        moved = load(d)
-
-        def render(strategy, spp):
-            t0 = time.perf_counter()
-            out = wavlight.render_full(moved, spp=spp, strategy=strategy, width=size, height=size, seed=args.seed)
-            return out, time.perf_counter() - t0
-
-        t0 = time.perf_counter()
-        m = mover.frame(*placement(i), spp=args.spp, seed=args.seed)
-        t_moving = time.perf_counter() - t0
-        touched = mover._object_pixels(*mover.placement(*placement(i)), size, size)
-        s2 = np.asarray(transfer._s["static_stderr"], np.float64) ** 2
-        floor = s2 / (np.asarray(ref, np.float64) ** 2 + EPS)
-        methods = {"moving": {"spp": args.spp, "seconds": round(t_moving, 3),
-                              "relmse": relmse(m.image, ref, ref_se)}}
-        for strategy in ("wavelet", "mis"):
-            out, secs = render(strategy, args.spp)
-            methods[f"{strategy}"] = {"spp": args.spp, "seconds": round(secs, 3), "relmse": relmse(out.image, ref, ref_se)}
-            pilot, t_pilot = render(strategy, 4)
-            setup = pilot.stats.get("setup_seconds", 0.0)
-            per_spp = max(t_pilot - setup, 1e-6) / 4
-            spp_eq = int(max(1, round((t_moving - setup) / per_spp)))
-            out, secs = render(strategy, spp_eq)
-            methods[f"{strategy}_equal_time"] = {"spp": spp_eq, "seconds": round(secs, 3),
-                                                 "relmse": relmse(out.image, ref, ref_se)}
-        for v in methods.values():
-            v["relmse"] = round(float(v["relmse"]), 6)
-        rows.append({"place": i, "translate": translate, "rotate_y": degrees, "reference": ref_info,
-                     "reference_noise_relmse": round(float(np.mean(np.asarray(ref_se, np.float64) ** 2 /
-                                                                   (np.asarray(ref, np.float64) ** 2 + EPS))), 6),
-                     "static_floor_relmse": round(float(np.mean(np.where(touched[..., None], 0.0, floor))), 6),
-                     "object_pixel_share": round(float(touched.mean()), 3), "methods": methods})
-        line = ", ".join(f"{k} {v['relmse']:.4g} ({v['spp']} spp, {v['seconds']:.2f} s)" for k, v in methods.items())
-        print(f"place {i}: relMSE {line}", file=sys.stderr, flush=True)
-        rows[-1]["load_average"] = load_average()
-    result["error"] = {"spp": args.spp, "ref_spp": args.ref_spp, "eps": EPS, "places": rows,
-                       "load_average": load_average(), "max_rss_mb": max_rss_mb()}
+    # -- the target: relMSE and time against wavelet of the moved scene, the bake amortized
+    result["error"] = compare(args, transfer, scene, mover, bake_wall)
+    if args.analysis:
+        result["variance_analysis"] = variance_analysis(args, transfer, scene)
     result["run_seconds"] = round(time.perf_counter() - t_run, 1)
 
     print(f"\npreview frame ({args.preview_spp} spp, {size} x {size}): median {median_all * 1e3:.0f} ms, "
@@ -404,6 +630,13 @@ def main():
     print("where a preview frame's time goes (median ms, exclusive):", file=sys.stderr)
     for label, ms in stage_ms.items():
         print(f"  {ms:8.1f}  {label}", file=sys.stderr)
+    e = result["error"]["overall"]
+    print(f"\n{args.spp} spp: relMSE ratio {e['relmse_ratio']:.3f}, time ratio {e['time_ratio']:.3f}, efficiency "
+          f"{e['efficiency']:.2f}; equal time: relMSE ratio {e['equal_time_relmse_ratio']:.3f} "
+          f"(target <= {TARGET_EQUAL_TIME}: {'met' if e['meets_target'] else 'not met'})", file=sys.stderr)
+    for row in result["error"]["amortized"]["frames"]:
+        print(f"  bake over {row['frames']} frames: time ratio {row['time_ratio']:.3f}, efficiency "
+              f"{row['efficiency']:.3f}, equal-time relMSE ratio {row['equal_time_relmse_ratio']:.3f}", file=sys.stderr)
     write_result(args.output, result, prov)
     transfer.close()
 

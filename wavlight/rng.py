@@ -44,7 +44,8 @@ CONVERGE_DIRECTIONS = range(10, 10 + 64)
 CONVERGE_RESAMPLE = 74
 CONVERGE_PICK = 75
 #: a moving-object frame (wavlight.relight.moving): the mixture's directions (kernels/relight_moving.cl
-#: gets it as its ``stream`` argument) and the mis shading of the pixels that may see the object
+#: gets it as its ``stream`` argument; the counter's last word is the direction's number among its
+#: camera sample's) and the shading uniforms of the pixels that may see the object
 MOVING_DIRECTIONS = 76
 MOVING_MIS = 77
 

@@ -1,5 +1,7 @@
 """Frames in which one object moves (wavlight.relight.moving): unbiased against mis of the moved
-scene, through the command line, and the one-line errors of edits the bake holds fixed."""
+scene (the whole frame, and its two estimators apart: wavelet where the object may be seen, the
+static image minus the object's occlusion elsewhere), the kernels against their numpy twins,
+through the command line, and the one-line errors of edits the bake holds fixed."""
 from __future__ import annotations
 
 import json
@@ -43,6 +45,30 @@ def test_frames_are_unbiased_against_mis_of_the_moved_scene(moving, translate):
     z = blocks(r.image - ref.image) / np.sqrt(blocks(var))
     assert abs(z_total) < 3.3 and np.abs(z).max() < 3.9, (z_total, np.abs(z).max())
     assert r.stats["object_pixels"] > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("directions", [1, 16])
+def test_each_estimator_is_unbiased_against_mis_of_the_moved_scene(moving, directions):
+    """The pixels rendered in full (wavelet against the moved scene) and the others (the static
+    image minus the occlusion D, from 1 or 16 stratified directions per camera sample) each
+    agree with mis of the moved scene, the ball's hard shadow on the floor among the others."""
+    folder, scene, tr = moving
+    translate, rotate = (0.4, 0.5, 0.3), [1.0, 1.0, 0.0, 40.0]
+    mover = MovingObject(tr, scene, directions=directions)
+    r = mover.frame(translate=translate, rotate=rotate, spp=32, seed=6)
+    d = scene_dict(translate)
+    d["objects"][0]["rotate"] = rotate
+    ref = wavlight.render_full(wavlight.load_dict(d, base_dir=folder), spp=1024, strategy="mis", seed=10)
+    full = mover._object_pixels(*mover.placement(translate, rotate), 32, 24)
+    static = mover.static.mean(2)
+    shadow = ~full & (static - ref.image.mean(2) > 4 * ref.stderr.mean(2) + 1e-3)
+    assert full.sum() > 20 and shadow.sum() > 20, (full.sum(), shadow.sum())
+    diff = r.image.astype(np.float64) - ref.image
+    var = r.stderr.astype(np.float64) ** 2 + ref.stderr.astype(np.float64) ** 2
+    for name, mask in (("full", full), ("others", ~full), ("shadow", shadow)):
+        z = diff[mask].sum() / np.sqrt(var[mask].sum())
+        assert abs(z) < 3.3, (name, z)
 
 
 def test_the_pixels_shaded_in_full_hold_every_view_of_the_object(moving):
@@ -115,14 +141,13 @@ def test_the_pixels_shaded_in_full_are_fewer_than_the_cone_gives(moving):
 
 
 @pytest.mark.parametrize("material", ["floor", "m"])
-def test_the_mixture_kernel_matches_its_numpy_twin(moving, material):
-    """kernels/relight_moving.cl moving_directions against mixture_samples_reference, on the same
+def test_the_occlusion_kernel_matches_its_numpy_twin(moving, material):
+    """kernels/relight_moving.cl moving_occlusion against occlusion_records_reference, on the same
     camera rays and Philox numbers: the floor as it is (lambert) and made ggx (the ball's
-    material). float32 against float64 moves a direction across a leaf's or a texel's edge now
-    and then: such samples are few, and the means agree."""
+    material). float32 against float64 moves a direction across a leaf's or a texel's edge (or
+    the box's) now and then: such records are few, and the contributions' sums agree."""
     import dataclasses
 
-    from wavlight import rng
     from wavlight.relight import moving as mv
 
     _, scene, tr = moving
@@ -130,23 +155,93 @@ def test_the_mixture_kernel_matches_its_numpy_twin(moving, material):
     rest = mover.rest
     index = [m.name for m in scene.materials].index(material)
     rest = dataclasses.replace(rest, face_material=np.full_like(rest.face_material, index))
-    kernel = mv._MixtureKernel(rest, mover.rest_tracer, mover.inside, mover._shader, mover.m)
-    spp, seed, tile = 4, 7, 321
+    kernels = mv._MovingKernels(rest, mover.rest_tracer, mover.object_tracer, mover.inside, mover._shader, mover.m, 4)
+    spp, seed, tile, first = 4, 7, 321, 96
     cam = mover._camera(0, 0, tr.width * tr.height, spp, seed)
     slots = np.flatnonzero(cam.prim >= 0)
     trees, offset = mover._product_trees(0, tr.width * tr.height)
-    got = kernel(scene.camera.eye, cam.d[slots], cam.prim[slots], cam.t[slots], slots, trees, offset, spp, seed, tile)
-    u = rng.uniforms(seed, tile, rng.MOVING_DIRECTIONS, 0, tr.width * tr.height * spp)
-    want = mv.mixture_samples_reference(rest, mover.rest_tracer, mover.environment, mover.inside, trees,
-                                        cam.d[slots], cam.prim[slots], cam.t[slots], slots, spp, u)
-    np.testing.assert_allclose(got[:, :3], want[:, :3], rtol=0, atol=1e-5)        # shadow-ray origins
-    same_dir = np.abs(got[:, 3:6] - want[:, 3:6]).max(1) < 1e-3
-    close = np.abs(got[:, 6:] - want[:, 6:]).max(1) <= 2e-3 * np.abs(want[:, 6:]).max(1) + 1e-6
+    place, box = mover._place(*mover.placement([0.3, 0.5, 0.2], [0.0, 1.0, 0.0, 30.0]))
+    got = kernels.occlusion(scene.camera.eye, cam.d[slots], cam.prim[slots], cam.t[slots], slots, trees, offset, spp,
+                            seed, tile, first, place, box)
+    want = mv.occlusion_records_reference(rest, mover.rest_tracer, mover.environment, mover.inside, trees,
+                                          cam.d[slots], cam.prim[slots], cam.t[slots], slots, spp, 4, seed, tile,
+                                          first, place, box, offset)
+    assert len(want.sample) > 200 and abs(len(got.sample) - len(want.sample)) <= 0.01 * len(want.sample)
+    # the records of the same sample and direction agree
+    common, ig, iw = np.intersect1d(got.sample * 4 + got.j, want.sample * 4 + want.j, return_indices=True)
+    assert len(common) > 0.98 * len(want.sample)
+    np.testing.assert_allclose(got.origin[ig], want.origin[iw], rtol=0, atol=1e-5)    # shadow-ray origins
+    same_dir = np.abs(got.direction[ig] - want.direction[iw]).max(1) < 1e-3
+    close = np.abs(got.value[ig] - want.value[iw]).max(1) <= 2e-3 * np.abs(want.value[iw]).max(1) + 1e-6
     assert same_dir.mean() > 0.995 and (same_dir & close).mean() > 0.99, (same_dir.mean(), close.mean())
-    assert (want[:, 6:].max(1) > 0).mean() > 0.5
-    mean_got, mean_want = got[:, 6:].mean(0), want[:, 6:].mean(0)
-    se = want[:, 6:].std(0) / np.sqrt(len(want))
-    assert np.all(np.abs(mean_got - mean_want) < 0.5 * se + 1e-6), (mean_got, mean_want, se)
+    assert np.all(np.diff(got.sample // 8) >= 0)    # the work-items' regions in order
+    sum_got, sum_want = got.value.sum(0), want.value.sum(0)
+    se = want.value.std(0) * np.sqrt(len(want.sample))
+    assert np.all(np.abs(sum_got - sum_want) < 0.05 * se + 1e-6), (sum_got, sum_want, se)
+
+
+def test_the_points_kernel_matches_its_numpy_twin(moving):
+    """kernels/relight_moving.cl moving_points against shading_points_reference: the closer of
+    the rest's and the object's hits, its normal, the shadow-ray origin, the stratified uniforms,
+    the environment for misses and the material, on the same rays and Philox numbers."""
+    from wavlight.relight import moving as mv
+
+    _, scene, tr = moving
+    mover = MovingObject(tr, scene)
+    R, T = mover.placement([0.3, 0.5, 0.2], [0.0, 1.0, 0.0, 30.0])
+    spp, seed, tile, first = 8, 11, 77, 16
+    cam = mover._camera(0, 0, tr.width * tr.height, spp, seed)
+    slots = np.flatnonzero(np.repeat(mover._object_pixels(R, T, tr.width, tr.height).reshape(-1), spp))
+    d, prim, t = cam.d[slots], cam.prim[slots], cam.t[slots]
+    prim_o, t_o = mover._trace_object(R, T, scene.camera.eye.astype(np.float32), d, closest=True)
+    place, _ = mover._place(R, T)
+    got, got_mat = mover._kernels.points(scene.camera.eye, d, prim, t, prim_o, t_o, slots, place, mover.object.material,
+                                         1e-6, spp, seed, tile, first)
+    want, want_mat = mv.shading_points_reference(mover.rest, mover.rest_tracer, mover.object_tracer,
+                                                 mover.object.material, mover.environment, d, prim, t, prim_o, t_o, R,
+                                                 T, 1e-6, slots, spp, seed, tile, first)
+    on_object = (prim_o >= 0) & ((prim < 0) | (t_o < t))
+    assert on_object.sum() > 50 and (~on_object & (prim >= 0)).sum() > 50 and (want_mat < 0).sum() > 0
+    np.testing.assert_array_equal(got_mat, want_mat)
+    hit = want_mat >= 0
+    np.testing.assert_allclose(got[0:6, hit], want[0:6, hit], rtol=0, atol=2e-5)    # normals, origins of hits
+    np.testing.assert_array_equal(got[6:10], want[6:10].astype(np.float32))          # the uniforms, bit for bit
+    np.testing.assert_allclose(got[10:13], want[10:13], rtol=1e-6)                   # the environment of misses
+    # the uniforms are stratified over each pixel's samples: every cell of the 2 x 4 grid once
+    px = slots // spp
+    for pixel in np.unique(px)[:20]:
+        u = got[6:8, px == pixel]
+        cells = np.floor(u[0] * 2).astype(int) + 2 * np.floor(u[1] * 4).astype(int)
+        assert sorted(cells) == list(range(8))
+
+
+def test_the_box_test_never_drops_a_direction_the_object_blocks(moving):
+    """Every direction of the twin's mixture that the object blocks (traced against the object
+    without any box) is among the records the box test keeps, the twin's and the kernel's (whose
+    cone test skips the texels far from the object)."""
+    from wavlight.relight import moving as mv
+
+    _, scene, tr = moving
+    mover = MovingObject(tr, scene)
+    spp, seed, tile = 4, 3, 5
+    cam = mover._camera(0, 0, tr.width * tr.height, spp, seed)
+    slots = np.flatnonzero(cam.prim >= 0)
+    trees, offset = mover._product_trees(0, tr.width * tr.height)
+    for translate, rotate in (([0.3, 0.5, 0.2], [0.0, 1.0, 0.0, 30.0]), ([-0.4, 0.3, 0.5], [1.0, 0.0, 1.0, 75.0])):
+        R, T = mover.placement(translate, rotate)
+        place, box = mover._place(R, T)
+        everything = np.float32([-1e6, -1e6, -1e6, 1e6, 1e6, 1e6])
+        args = (mover.rest, mover.rest_tracer, mover.environment, mover.inside, trees, cam.d[slots], cam.prim[slots],
+                cam.t[slots], slots, spp, 4, seed, tile, 0)
+        kept = mv.occlusion_records_reference(*args, place, box, offset)
+        every = mv.occlusion_records_reference(*args, place, everything, offset)
+        kernel = mover._kernels.occlusion(scene.camera.eye, cam.d[slots], cam.prim[slots], cam.t[slots], slots, trees,
+                                          offset, spp, seed, tile, 0, place, box)
+        blocked = mover.object_tracer.occluded(every.origin.astype(np.float32), every.direction.astype(np.float32))
+        assert blocked.sum() > 100
+        wanted = set((every.sample * 4 + every.j)[blocked])
+        assert not wanted - set(kept.sample * 4 + kept.j) and len(kept.sample) < 0.8 * len(every.sample)
+        assert not wanted - set(kernel.sample * 4 + kernel.j)
 
 
 @pytest.mark.parametrize("chunks", ["one", "rows", "rows, own trees"])
@@ -171,9 +266,9 @@ def test_the_kernel_frame_matches_the_numpy_frame(moving, monkeypatch, chunks):
     assert abs((a.image - b.image).sum()) < 0.5 * np.sqrt(var)
 
 
-def test_frames_of_one_seed_share_their_samples(moving):
-    """A second frame of the seed and spp reuses the camera rays and mixture samples, and gives
-    what a fresh MovingObject gives at that place."""
+def test_frames_of_one_seed_share_their_camera_rays(moving):
+    """A second frame of the seed and spp reuses the camera rays (and their hits on the rest), and
+    gives what a fresh MovingObject gives at that place."""
     _, scene, tr = moving
     mover = MovingObject(tr, scene)
     mover.frame((0.0, 0.5, 0.0), spp=4, seed=3)

@@ -10,26 +10,37 @@ render (``static``, S_p). With the object placed anew, a pixel's radiance is
     B_p = E_x[ integral f cos L V_rest (1 - O_j) dw ] = S_p - E_x[ D(x) ],
     D(x) = integral f cos L V_rest O_j dw,
 
-x a camera sample in the pixel. D is what the object takes away; it is estimated per sample
-(eq. 12's bidirectional estimator, with the visibility of the rest inside the sampled product:
-its noise is O_j's): a direction from the pixel's product T1 x L (the coarse texel by the
-hierarchical warp, eq. 17-22, then inside it the lighting's own resolution) or, with
-probability 0.1, from the BSDF, with the mixture's density; where it meets the object (traced
-against the object alone, in its own frame, so nothing is rebuilt per frame) and not the rest,
-D gets f cos L / p. A direction that misses the object's bounding sphere needs no ray (D = 0
-there exactly). The directions and their contributions do not depend on the object's place:
-kernels/relight_moving.cl computes them (numpy twin :func:`mixture_samples_reference`), and
-they are kept, with the camera rays, for the next frames of the same seed and spp (the viewer
-draws every frame with seed 0), so that a frame of a new place traces only the object.
+x a camera sample in the pixel. D is what the object takes away; it is estimated per camera
+sample (eq. 12's bidirectional estimator, with the visibility of the rest inside the sampled
+product: its noise is O_j's) from ``directions`` directions (DIRECTIONS) of the defensive
+mixture of the pixel's product T1 x L (the coarse texel by the hierarchical warp, eq. 17-22,
+then inside it the lighting's own resolution) and, with probability 0.1, the BSDF, at the
+mixture's density, their uniforms stratified over the pixel's spp x directions: where a
+direction meets the object (traced against the object alone, in its own frame, so nothing is
+rebuilt per frame) and not the rest, D gets f cos L / p, over the directions. The variance of D
+is the object's occlusion's: per direction a Bernoulli trial (blocked or not) times a nearly
+constant f cos L / p, largest in the object's hard shadow, where D is nearly all of S; the
+directions of one camera sample share its hit point, and stratified over the pixel the many
+that reach a sun fall on it in a fixed share rather than by chance
+(docs/decisions/moving-occlusion-directions.md). A direction that misses the object's box
+needs no ray (D = 0 there exactly): the kernel ``moving_occlusion`` (kernels/relight_moving.cl,
+numpy twin :func:`occlusion_records_reference`) tests each against the box at this frame's
+place (first its texel against the cone around the box, before the direction inside the texel
+is drawn) and returns only those that meet it, as records ready for the object's ray tracer.
 
 Pixels whose footprint may see the object itself (the cone of the pixel meets the object's
 bounding sphere and the pixel lies in the box of a projected triangle; decided from the
 object's place alone, not from random samples, so that the choice does not bias the estimate)
-are rendered in full with ``mis`` (the existing strategy: its shade kernel,
-:class:`wavlight.shading.KernelShader`, twin :func:`wavlight.strategies.shade_reference`)
-against the moved scene. Every frame is unbiased: tests/relight/test_relight_moving.py checks it
-against ``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator with the
-numpy twins (same random numbers).
+are rendered in full against the moved scene with the ``wavelet`` strategy (its product walk,
+resampling and control variate: the renderer's shade kernel, :class:`wavlight.shading.KernelShader`,
+twin :func:`wavlight.strategies.shade_reference`; its candidates and slots chosen from the
+scene's shadows as a render chooses them), the closer hit of the rest and the object and the
+shading uniforms, stratified over the pixel's samples, from the kernel ``moving_points`` (twin
+:func:`shading_points_reference`). The camera rays of a frame are kept for the next frames of
+the same seed and spp (the viewer draws every frame with seed 0); a frame runs as chunks of
+rows on a pool of threads. Every frame is unbiased: tests/relight/test_relight_moving.py
+checks it against ``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator
+with the numpy twins (same random numbers).
 """
 from __future__ import annotations
 
@@ -37,10 +48,11 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
+from typing import NamedTuple
 
 import numpy as np
 
-from .. import camera, cl, raytrace, rng, strategies
+from .. import camera, cl, occlusion, raytrace, rng, strategies
 from ..camera import camera_rays, project
 from ..envmap import Environment
 from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_real
@@ -48,7 +60,9 @@ from ..haar.tree import HaarTree, tree_stride
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import MAX_COORDINATE, rotation
-from ..shading import KernelShader
+from ..threads import default_threads
+from ..sampler import stratify_pair
+from ..shading import KernelShader, NumpyShader
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from .bake import bounding_sphere, camera_jitter
@@ -63,7 +77,7 @@ FRAME_TILES = 11 << 16
 #: pixel takes them in passes of at most PASS_SPP (and CHUNK_SAMPLES / width) per pixel
 CHUNK_PIXELS = 1 << 16
 CHUNK_SAMPLES = 1 << 18
-#: a frame's camera rays and mixture samples are kept for the next frames of its seed and spp
+#: a frame's camera rays (and their hits on the rest) are kept for the next frames of its seed and spp
 #: where it is one pass of at most this many samples (the viewer's frames: 4 and 1 spp)
 KEPT_SAMPLES = 1 << 22
 #: the per-pixel product trees kept from frame to frame (device memory, about 1.4 kB a pixel
@@ -71,49 +85,195 @@ KEPT_SAMPLES = 1 << 22
 TREE_CACHE_BYTES = 256 << 20
 DEFENSIVE = 0.1
 BACKENDS = ("opencl", "numpy")
-#: the bounding-sphere test of a direction keeps those within this relative margin (float32
-#: rounding of the points and directions: the test must never drop a direction that meets it)
-SPHERE_MARGIN = 1e-4
-#: frames of this many (seed, spp) keep their camera rays and mixture samples for the next ones
+#: directions of the mixture per camera sample for the object's occlusion D, stratified over the
+#: pixel's spp x DIRECTIONS (docs/decisions/moving-occlusion-directions.md)
+DIRECTIONS = 4
+MAX_DIRECTIONS = 64
+#: the object's box (its own frame) is grown by this share of the coordinates' size before the
+#: kernel tests directions against it (float32 rounding: it must never drop a ray that meets it)
+BOX_MARGIN = 1e-4
+#: a launch of moving_occlusion takes at most this many directions (its records' regions: 40
+#: bytes per direction, about 10 MB)
+OCCLUSION_BATCH = 1 << 18
+#: words per record of moving_occlusion (the sample's direction, origin, direction, contribution)
+RECORD = 10
+#: a frame is cut into at least MIN_CHUNKS chunks of rows where each keeps MIN_CHUNK_SAMPLES
+#: camera samples, run on a pool of threads (wavlight.threads.default_threads)
+MIN_CHUNKS = 16
+MIN_CHUNK_SAMPLES = 1 << 14
+#: frames of this many (seed, spp) keep their camera rays for the next ones
 KEPT_SEEDS = 2
 _WARMED = set()
 
 
-def mixture_samples_reference(scene, tracer, environment, inside, trees, d, prim, t, slots, spp: int, u_all,
-                              defensive: float = DEFENSIVE) -> np.ndarray:
-    """numpy twin of the ``moving_directions`` kernel (kernels/relight_moving.cl): for camera
-    rays from ``scene``'s eye along d (N, 3) that hit ``tracer``'s triangles prim (N,) at t (N,),
-    samples ``slots`` (N,) of a chunk of spp per pixel (pixel slot // spp's product tree in
-    ``trees``, uniforms ``u_all[slot]``): rows (N, 9) of the shadow-ray origin, the direction of
-    the defensive mixture (:func:`wavlight.relight.converge.mixture_directions`; the BSDF alone
-    where the pixel's product is 0) and its unoccluded contribution albedo f cos L / p."""
+def counter_uniforms(seed: int, tile: int, stream: int, index: np.ndarray, j=0) -> np.ndarray:
+    """(N, 4) float32: the four uniforms of Philox counters (index, tile, stream, j) (kernels/
+    relight_moving.cl ``counter_uniforms``; j = 0 is :func:`wavlight.rng.uniforms`' counter)."""
+    index = np.asarray(index, np.int64)
+    counter = np.zeros((len(index), 4), np.uint32)
+    counter[:, 0] = index.astype(np.uint64).astype(np.uint32)
+    counter[:, 1], counter[:, 2] = tile, stream
+    counter[:, 3] = np.broadcast_to(np.asarray(j, np.int64), index.shape).astype(np.uint32)
+    w = rng.philox4x32_10(counter, rng.key(seed))
+    return (w >> np.uint32(8)).astype(np.float32) * np.float32(2.0 ** -24)
+
+
+def strata_keys(seed: int, tile: int, index: np.ndarray) -> np.ndarray:
+    """(N, 4) uint32: the words of stream rng.STRATA at ``index`` (word 0 keys the camera
+    jitter's cells, words 1 and 2 the pairs of the directions or of the shading uniforms)."""
+    index = np.asarray(index, np.int64)
+    counter = np.zeros((len(index), 4), np.uint32)
+    counter[:, 0] = index.astype(np.uint64).astype(np.uint32)
+    counter[:, 1], counter[:, 2] = tile, rng.STRATA
+    return rng.philox4x32_10(counter, rng.key(seed))
+
+
+def stratified_uniforms(seed: int, tile: int, stream: int, first: int, slots: np.ndarray, spp: int,
+                        directions: int = 1) -> np.ndarray:
+    """(N D, 4) float32, numpy twin of the kernels' uniforms (kernels/relight_moving.cl): for the
+    camera samples ``slots`` (N,) of a pass of ``spp`` per pixel (pixel slot // spp) and D =
+    ``directions`` per sample (row i D + j), Philox counter (first + slot, tile, stream, j), the
+    pairs (0, 1) and (2, 3) stratified over the pixel's spp D cells (cell (slot % spp) D + j) by
+    words 1 and 2 of stream STRATA at first + pixel (:func:`wavlight.sampler.stratify_pair`)."""
+    slots = np.asarray(slots, np.int64)
+    index = np.repeat(first + slots, directions)
+    j = np.tile(np.arange(directions), len(slots))
+    u = counter_uniforms(seed, tile, stream, index, j)
+    keys = np.repeat(strata_keys(seed, tile, first + slots // spp), directions, axis=0)
+    cell = (np.repeat(slots % spp, directions) * directions + j).astype(np.uint32)
+    cells = spp * directions
+    u[:, 0], u[:, 1] = stratify_pair(u[:, 0], u[:, 1], cell, cells, keys[:, 1])
+    u[:, 2], u[:, 3] = stratify_pair(u[:, 2], u[:, 3], cell, cells, keys[:, 2])
+    return u
+
+
+def meets_box(place: np.ndarray, box: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(N,) bool, numpy twin of the kernel's ``meets_box``: whether the rays from origin (N, 3)
+    along direction (N, 3) meet the box (lo, hi) = box (6,) of the object's own frame, the object
+    at world = R local + T (place (12,): R row-major, then T). A slab test whose minima and
+    maxima drop NaN (0 / 0: a ray in a face's plane), as OpenCL's fmin and fmax."""
+    place = np.asarray(place, np.float64)
+    R, T = place[:9].reshape(3, 3), place[9:]
+    o = (np.asarray(origin, np.float64) - T) @ R
+    w = np.asarray(direction, np.float64) @ R
+    box = np.asarray(box, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (box[:3] - o) / w, (box[3:] - o) / w
+    near = np.fmax.reduce(np.fmin(t0, t1), axis=1, initial=-np.inf)
+    far = np.fmin.reduce(np.fmax(t0, t1), axis=1, initial=np.inf)
+    return (near <= far) & (far >= 0)
+
+
+class Records(NamedTuple):
+    """The directions of the object's occlusion D that meet its box: camera sample (N,) (its
+    position in the launch), the direction's number j among the sample's (N,), shadow-ray origin
+    (N, 3) and direction (N, 3) in the object's own frame (local = R^T (world - T)) and the
+    unoccluded contribution albedo f cos L / p (N, 3)."""
+
+    sample: np.ndarray
+    j: np.ndarray
+    origin: np.ndarray
+    direction: np.ndarray
+    value: np.ndarray
+
+
+def occlusion_records_reference(scene, tracer, environment, inside, trees, d, prim, t, slots, spp: int,
+                                directions: int, seed: int, tile: int, first: int, place, box,
+                                tree_offset: int = 0, defensive: float = DEFENSIVE) -> Records:
+    """numpy twin of the ``moving_occlusion`` kernel (kernels/relight_moving.cl), records in its
+    order: for camera rays from ``scene``'s eye along d (N, 3) that hit ``tracer``'s triangles
+    prim (N,) at t (N,), samples ``slots`` (N,) of a pass of spp per pixel (pixel slot // spp's
+    product tree at ``tree_offset`` + that in ``trees``), ``directions`` directions each of the
+    defensive mixture (:func:`wavlight.relight.converge.mixture_directions`; the BSDF alone where
+    the pixel's product is 0), their uniforms :func:`stratified_uniforms` (stream
+    rng.MOVING_DIRECTIONS); the records of those whose ray meets the object's box
+    (:func:`meets_box`) with a contribution > 0 (their rays in the object's own frame)."""
+    nd = directions
+    count = len(d)
     eye = scene.camera.eye
     nrm, _, origin = tracer.surface(eye, np.asarray(d, np.float32), np.asarray(t, np.float32), prim)
     nrm = nrm.astype(np.float64)
     s_ax, t_ax = tangent_frame(nrm)
-    wo_w = -np.asarray(d, np.float64)
-    wo = to_local(wo_w, s_ax, t_ax, nrm)
+    wo = to_local(-np.asarray(d, np.float64), s_ax, t_ax, nrm)
     mat = scene.face_material[prim]
-    kind, param = scene.material_kind[mat], scene.material_param[mat]
-    has = trees.integral[np.asarray(slots) // spp] > 0
+    slots = np.asarray(slots, np.int64)
+    pixel = slots // spp + tree_offset
+    u = stratified_uniforms(seed, tile, rng.MOVING_DIRECTIONS, first, slots, spp, nd)
+    # the mixture's slots: direction j of sample slot of pixel p is row p spp D + (slot % spp) D + j
+    rows = np.repeat(pixel * spp * nd + (slots % spp) * nd, nd) + np.tile(np.arange(nd), count)
+    u_all = np.full((trees.n_trees * spp * nd, 4), 0.5, np.float32)
+    u_all[rows] = u
+    has = np.repeat(trees.integral[pixel] > 0, nd)
     alpha = np.where(has, defensive, 1.0)
-    direction, weight = mixture_directions(trees, inside, u_all, np.asarray(slots), spp, has, alpha, kind, param, wo,
-                                           (s_ax, t_ax, nrm))
-    value = scene.material_albedo[mat] * (weight[:, None] * environment.eval(direction))
-    return np.concatenate([origin.astype(np.float64), direction, value], 1)
+    rep = lambda a: np.repeat(a, nd, axis=0)   # noqa: E731  (per sample -> per direction)
+    direction, weight = mixture_directions(trees, inside, u_all, rows, spp * nd, has, alpha,
+                                           rep(scene.material_kind[mat]), rep(scene.material_param[mat]), rep(wo),
+                                           (rep(s_ax), rep(t_ax), rep(nrm)))
+    value = rep(scene.material_albedo[mat]) * (weight[:, None] * environment.eval(direction))
+    o = rep(origin.astype(np.float64))
+    keep = meets_box(place, box, o, direction) & (weight > 0) & (value.max(1) > 0)
+    i, j = np.repeat(np.arange(count), nd), np.tile(np.arange(nd), count)
+    # the kernel's order: work-item (LANES samples), then direction, then lane
+    order = np.lexsort((i % cl.LANES, j, i // cl.LANES))
+    order = order[keep[order]]
+    place = np.asarray(place, np.float64)
+    R, T = place[:9].reshape(3, 3), place[9:]
+    return Records(i[order], j[order], (o[order] - T) @ R, direction[order] @ R, value[order])
 
 
-class _MixtureKernel:
-    """The ``moving_directions`` kernel with its tables: the rest's face normals (and shadow-ray
-    offset floors) and materials, the lighting inside the texels (running sums of each texel's
-    leaf masses, float32) and the environment's texels (shared with the mis shader)."""
+def shading_points_reference(scene, tracer, object_tracer, object_material: int, environment, d, prim, t,
+                             prim_object, t_object, R, T, object_offset: float, slots, spp: int, seed: int,
+                             tile: int, first: int):
+    """numpy twin of the ``moving_points`` kernel (kernels/relight_moving.cl): for camera rays
+    from ``scene``'s eye along d (N, 3) that hit the rest's triangles prim (N,) at t (N,) and the
+    object's (``object_tracer``'s, in its own frame: world = R local + T) prim_object at
+    t_object, the closer one's shading point: planes (13, N) of the normal turned towards the
+    viewer, the shadow-ray origin (the offset of kernels/hit.h, the object's floor
+    ``object_offset``), the four shading uniforms (stream rng.MOVING_MIS, stratified over the
+    pixel's spp samples: :func:`stratified_uniforms`) and the environment's radiance for misses
+    (0 for hits); and the material (N,) (-1 for a miss)."""
+    d = np.asarray(d, np.float32)
+    prim, prim_object = np.asarray(prim), np.asarray(prim_object)
+    t, t_object = np.asarray(t, np.float32), np.asarray(t_object, np.float32)
+    count = len(d)
+    eye = np.asarray(scene.camera.eye, np.float32)
+    on_object = (prim_object >= 0) & ((prim < 0) | (t_object < t))
+    hit = on_object | (prim >= 0)
+    out = np.zeros((13, count))
+    material = np.full(count, -1, np.int64)
+    rest = np.flatnonzero(hit & ~on_object)
+    n, _, origin = tracer.surface(eye, d[rest], t[rest], prim[rest])
+    out[0:3, rest], out[3:6, rest] = n.T, origin.T
+    material[rest] = scene.face_material[prim[rest]]
+    ob = np.flatnonzero(on_object)
+    m = (object_tracer.face_normals[prim_object[ob]].astype(np.float64) @ np.asarray(R, np.float64).T)
+    m *= np.where(np.einsum("ij,ij->i", m, d[ob]) > 0, -1.0, 1.0)[:, None]
+    p = eye.astype(np.float64) + d[ob] * t_object[ob, None].astype(np.float64)
+    eps = np.maximum(np.maximum(raytrace.OFFSET_RELATIVE * np.abs(p).max(1, initial=0.0), object_offset),
+                     RayTracer.eye_offset_floor(eye))
+    out[0:3, ob], out[3:6, ob] = m.T, (p + m * eps[:, None]).T
+    material[ob] = object_material
+    out[6:10] = stratified_uniforms(seed, tile, rng.MOVING_MIS, first, slots, spp).T
+    miss = np.flatnonzero(~hit)
+    out[10:13, miss] = environment.eval(d[miss].astype(np.float64)).T
+    return out, material
 
-    def __init__(self, rest, tracer, inside, shader, n_levels):
-        rows = np.zeros((max(len(tracer.face_normals), 1), 4), np.float32)
-        rows[:len(tracer.face_normals), :3] = tracer.face_normals
-        rows[:len(tracer.face_normals), 3] = tracer.face_offset_floor
+
+class _MovingKernels:
+    """The kernels of kernels/relight_moving.cl with their tables: the rest's face normals (and
+    shadow-ray offset floors) and materials, the object's face normals in its own frame, the
+    lighting inside the texels (running sums of each texel's leaf masses, float32) and the
+    environment's texels (shared with the shader)."""
+
+    def __init__(self, rest, tracer, object_tracer, inside, shader, n_levels, directions):
+        def rows(t):
+            out = np.zeros((max(len(t.face_normals), 1), 4), np.float32)
+            out[:len(t.face_normals), :3] = t.face_normals
+            out[:len(t.face_normals), 3] = t.face_offset_floor
+            return cl.to_device(out)
+
+        self.faces, self.object_faces = rows(tracer), rows(object_tracer)
         materials = rest.face_material if len(rest.face_material) else np.zeros(1, np.int32)
-        self.faces = cl.to_device(rows)
         self.face_material = cl.to_device(np.asarray(materials, np.int32))
         albedo = np.zeros((len(rest.materials), 4), np.float32)
         albedo[:, :3] = rest.material_albedo
@@ -122,54 +282,115 @@ class _MixtureKernel:
         self.albedo = cl.to_device(albedo)
         self.cdf = cl.to_device(np.ascontiguousarray(inside.cdf, np.float32))
         self.k = np.uint32(inside.k)
+        self.directions = int(directions)
         self.shader = shader
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(rest.material_kind, np.int64), initial=0)) or 1
-        self.program = cl.program("relight_moving.cl", N_LEVELS=int(n_levels), BSDF_KINDS=kinds,
+        self.program = cl.program("relight_moving.cl", N_LEVELS=int(n_levels), BSDF_KINDS=kinds, ND=self.directions,
                                   OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))))
 
-    def __call__(self, eye, d, prim, t, slots, trees, tree_offset: int, spp: int, seed: int, tile: int,
-                 start: int = 0):
-        """(N, 9) float32 rows as :func:`mixture_samples_reference` returns them, the uniforms
-        drawn in the kernel (Philox stream rng.MOVING_DIRECTIONS of ``tile``, index = ``start`` + slot),
-        pixel slot // spp's tree at ``tree_offset`` + that in ``trees``."""
+    def occlusion(self, eye, d, prim, t, slots, trees, tree_offset: int, spp: int, seed: int, tile: int, first: int,
+                  place, box) -> Records:
+        """The ``moving_occlusion`` kernel's records (as :func:`occlusion_records_reference`
+        returns them) and then ``moving_compact``: the uniforms drawn in the kernel, pixel
+        slot // spp's tree at ``tree_offset`` + that in ``trees``."""
         count = len(d)
         if count == 0:
-            return np.zeros((0, 9), np.float32)
+            return _no_records()
         q = cl.thread_queue()
-        out = cl.scratch("moving_out", 36 * count)
+        groups = -(-count // cl.LANES)
+        nd = self.directions
+        region = cl.scratch("moving_region", 4 * RECORD * cl.LANES * nd * groups)
+        counts = cl.scratch("moving_counts", 4 * groups)
         sh = self.shader
-        cl.kernel(self.program, "moving_directions")(
+        cl.kernel(self.program, "moving_occlusion")(
             q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count),
-            cl.upload("moving_slot", np.asarray(slots, np.uint32), q), cl.upload("moving_dirs", np.asarray(d, np.float32), q),
-            cl.upload("moving_prim", np.asarray(prim, np.int32), q), cl.upload("moving_t", np.asarray(t, np.float32), q),
+            cl.upload("moving_slot", np.asarray(slots, np.uint32), q),
+            cl.upload("moving_dirs", np.asarray(d, np.float32), q),
+            cl.upload("moving_prim", np.asarray(prim, np.int32), q),
+            cl.upload("moving_t", np.asarray(t, np.float32), q),
             *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
             self.kind, self.param, self.albedo, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
             np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
-            np.uint32(tile), np.uint32(rng.MOVING_DIRECTIONS), np.uint32(start),
-            *(np.uint32(x) for x in rng.key(seed)), out)
-        return np.ascontiguousarray(cl.read(out, (9, count), np.float32, q).T)
+            cl.upload("moving_place", np.asarray(place, np.float32), q),
+            cl.upload("moving_box", np.asarray(box, np.float32), q), cl.upload("moving_sphere", _sphere(place, box), q),
+            np.uint32(tile), np.uint32(rng.MOVING_DIRECTIONS), np.uint32(first),
+            *(np.uint32(x) for x in rng.key(seed)), region, counts)
+        n = cl.read(counts, (groups,), np.uint32, q)
+        offsets = np.zeros(groups, np.uint32)
+        np.cumsum(n[:-1], out=offsets[1:])
+        total = int(offsets[-1]) + int(n[-1])
+        if total == 0:
+            return _no_records()
+        out = cl.scratch("moving_records", 4 * RECORD * total)
+        cl.kernel(self.program, "moving_compact")(
+            q, (cl.items(groups),), (cl.WORK_GROUP,), np.uint32(groups), region, counts,
+            cl.upload("moving_offsets", offsets, q), out)
+        rec = cl.read(out, (total, RECORD), np.uint32, q)
+        values = rec[:, 1:].view(np.float32)
+        return Records(rec[:, 0] // np.uint32(nd), rec[:, 0] % np.uint32(nd), values[:, 0:3], values[:, 3:6],
+                       values[:, 6:9])
+
+    def points(self, eye, d, prim, t, prim_object, t_object, slots, place, object_material: int,
+               object_offset: float, spp: int, seed: int, tile: int, first: int):
+        """The ``moving_points`` kernel: (planes (13, N) float32, material (N,) int32) as
+        :func:`shading_points_reference` returns them."""
+        count = len(d)
+        q = cl.thread_queue()
+        out = cl.scratch("moving_points", 4 * 13 * max(count, 1))
+        mat = cl.scratch("moving_material", 4 * max(count, 1))
+        if count:
+            sh = self.shader
+            cl.kernel(self.program, "moving_points")(
+                q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count),
+                cl.upload("moving_slot", np.asarray(slots, np.uint32), q),
+                cl.upload("moving_dirs", np.asarray(d, np.float32), q),
+                cl.upload("moving_prim", np.asarray(prim, np.int32), q),
+                cl.upload("moving_t", np.asarray(t, np.float32), q),
+                cl.upload("moving_prim_object", np.asarray(prim_object, np.int32), q),
+                cl.upload("moving_t_object", np.asarray(t_object, np.float32), q),
+                *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
+                self.object_faces, np.int32(object_material), np.float32(object_offset),
+                cl.upload("moving_place", np.asarray(place, np.float32), q),
+                sh.texels, *sh.env_size, sh.rot, np.uint32(spp), np.uint32(tile), np.uint32(rng.MOVING_MIS),
+                np.uint32(first), *(np.uint32(x) for x in rng.key(seed)), out, mat)
+        return cl.read(out, (13, count), np.float32, q), cl.read(mat, (count,), np.int32, q)
 
     def warm_up(self, eye, trees):
-        """A tiny and a large launch (PoCL compiles per work-group size and again for large grids;
-        shading.KernelShader.warm_up), once per process and program."""
+        """A tiny and a large launch of each kernel (PoCL compiles per work-group size and again
+        for large grids; shading.KernelShader.warm_up), once per process and program."""
         if self.program in _WARMED:
             return
+        place = np.float32([1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0])
+        box = np.float32([-1, -1, -1, 1, 1, 1])
         for count in (1, 1 << 16):
             d = np.tile(np.float32([0.0, 0.0, 1.0]), (count, 1))
-            self(eye, d, np.zeros(count, np.int32), np.ones(count, np.float32), np.zeros(count, np.uint32), trees,
-                 0, 1, 0, 0)
+            zeros, ones = np.zeros(count, np.int32), np.ones(count, np.float32)
+            self.occlusion(eye, d, zeros, ones, np.zeros(count, np.uint32), trees, 0, 1, 0, 0, 0, place, box)
+            self.points(eye, d, zeros, ones, zeros - 1, ones, np.arange(count, dtype=np.uint32), place, 0, 0.0, 1,
+                        0, 0, 0)
         _WARMED.add(self.program)
+
+
+def _sphere(place, box) -> np.ndarray:
+    """(4,) float32: the centre (world) and radius of the sphere through the corners of the box
+    (6,) of the object's own frame, the object at ``place`` (R row-major, then T), a little grown."""
+    place, box = np.asarray(place, np.float64), np.asarray(box, np.float64)
+    centre = place[:9].reshape(3, 3) @ ((box[:3] + box[3:]) / 2) + place[9:]
+    radius = np.linalg.norm(box[3:] - box[:3]) / 2 * (1 + BOX_MARGIN)
+    return np.append(centre, radius).astype(np.float32)
+
+
+def _no_records() -> Records:
+    return Records(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3), np.float32),
+                   np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32))
 
 
 class _Chunk:
     """What a chunk's frames of one seed and spp share: its camera rays and their hits on the
-    rest, and the mixture samples (rows of :func:`mixture_samples_reference`) of the camera
-    samples computed so far (``done``)."""
+    rest (they do not depend on the object's place)."""
 
     def __init__(self, d, prim, t):
         self.d, self.prim, self.t = d, prim, t
-        self.samples = np.zeros((len(d), 9), np.float32)
-        self.done = np.zeros(len(d), bool)
 
 
 class MovingObject:
@@ -177,12 +398,13 @@ class MovingObject:
     of the rest and of the object (in its own frame), the lighting, the per-pixel products and,
     with ``backend="opencl"``, the kernels (module docstring)."""
 
-    def __init__(self, transfer, scene=None, backend: str = "opencl"):
+    def __init__(self, transfer, scene=None, backend: str = "opencl", directions: int = DIRECTIONS):
         if transfer.header.get("vary") != "object":
             raise WavlightError(f"{transfer.path}: this bake varies the {transfer.header.get('vary', 'lighting')}, "
                                 "not an object")
         if backend not in BACKENDS:
             raise ArgumentError(f"relight.moving: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+        self.directions = check_int("relight.moving", "directions", directions, 1, MAX_DIRECTIONS)
         self.transfer, self.backend = transfer, backend
         self.scene = _scene_of(transfer, scene)
         info = transfer.header["object"]
@@ -194,12 +416,8 @@ class MovingObject:
         self.rest_tracer = RayTracer(self.rest.vertices, self.rest.faces, threads=2)
         self.object_tracer = RayTracer(self.object.local, self.object.faces, threads=2)
         self._faces = tuple(np.ascontiguousarray(self.object.faces[:, j], np.int64) for j in range(3))
-        # the rest's face normals and materials (a row without faces: never read)
-        self._rest_normals = np.zeros((max(self.rest_tracer.n_faces, 1), 3), np.float32)
-        self._rest_normals[:self.rest_tracer.n_faces] = self.rest_tracer.face_normals
-        self._rest_material = np.zeros(max(self.rest_tracer.n_faces, 1), np.int64)
-        self._rest_material[:self.rest_tracer.n_faces] = self.rest.face_material
         self.center, self.radius = bounding_sphere(self.object.local)   # the scene's object (its hash checked)
+        self._box = (self.object.local.min(0).astype(np.float64), self.object.local.max(0).astype(np.float64))
         env = transfer.environment()
         rot = transfer.scene_rotate_y
         if rot != check_degrees(self.scene.path, "rotate_y", self.scene.environment.rotate_y):
@@ -208,11 +426,18 @@ class MovingObject:
         self.environment = Environment(env.pixels, 1.0, rot, env.name)   # radiance lookups, turned
         self.m = int(transfer.header["product_levels"])
         self.inside = _TexelLight(env, self.m, rot, map_pixels=False)   # as its kernel: uniform in a leaf
-        self.mis = strategies.make("mis")
-        self.mis.prepare(self.environment)
         sc = self.scene
-        self._materials = SimpleNamespace(kind=sc.material_kind, param=sc.material_param,
-                                          albedo=sc.material_albedo.astype(np.float64))
+        # the pixels rendered in full: the wavelet strategy, its budget from the scene's own shadows
+        # (the object at its place in the scene file), as a render of the scene chooses it
+        self.wavelet = strategies.make("wavelet")
+        if self.wavelet.wants_visibility:
+            whole = RayTracer(sc.vertices, sc.faces, threads=2)
+            self.wavelet.fit_to_visibility(occlusion.visibility_variance(sc, whole, transfer.width, transfer.height))
+            del whole
+        self.wavelet.prepare(self.environment, sc.materials)
+        lit = SimpleNamespace(environment=self.environment, material_kind=sc.material_kind,
+                              material_param=sc.material_param, material_albedo=sc.material_albedo,
+                              materials=sc.materials, face_material=sc.face_material)
         self.static = np.asarray(transfer._s["static"], np.float64)
         self.static_se = np.asarray(transfer._s["static_stderr"], np.float64)
         self._static_rows = self.static.reshape(-1, 3)
@@ -221,16 +446,18 @@ class MovingObject:
         self._trees, self._tree_bytes, self._all_trees = {}, 0, None
         self._centre_rays = (None, None)
         self._mask_key, self._mask = None, None
-        self._kept, self._chunks = {}, {}   # (seed, spp) -> the chunks' shared samples; this frame's
-        self._shader = self._kernel = None
-        self._pool, self._lock = ThreadPoolExecutor(1), threading.Lock()
+        self._kept, self._chunks = {}, {}   # (seed, spp) -> the chunks' camera rays; this frame's
+        self._kernels = None
+        self._pool = ThreadPoolExecutor(default_threads())
+        self._lock, self._tree_lock = threading.Lock(), threading.Lock()
         if backend == "opencl":
-            lit = SimpleNamespace(environment=self.environment, material_kind=sc.material_kind,
-                                  material_param=sc.material_param, material_albedo=sc.material_albedo,
-                                  materials=sc.materials, face_material=sc.face_material)
-            self._shader = KernelShader(lit, self.mis)
-            self._kernel = _MixtureKernel(self.rest, self.rest_tracer, self.inside, self._shader, self.m)
-            self._kernel.warm_up(sc.camera.eye, HaarTree(np.ones((1, 1 << self.m, 1 << self.m), np.float32)))
+            self._shader = KernelShader(lit, self.wavelet)
+            self._kernels = _MovingKernels(self.rest, self.rest_tracer, self.object_tracer, self.inside, self._shader,
+                                           self.m, self.directions)
+            self._kernels.warm_up(sc.camera.eye, HaarTree(np.ones((1, 1 << self.m, 1 << self.m), np.float32)))
+            self._product_trees(0, 1)   # the whole image's trees where they fit: made with the bake's loading
+        else:
+            self._shader = NumpyShader(lit, self.wavelet)
 
     # -- the object's place
     def placement(self, translate=None, rotate=None):
@@ -307,22 +534,14 @@ class MovingObject:
 
     def _trace_object(self, R, T, origins, dirs, closest=False):
         """Rays against the object alone, in its own frame (rigid: distances are kept); origins
-        (N, 3), or (3,) for one origin of all rays."""
-        d = (np.asarray(dirs, np.float64) @ R).astype(np.float32)
+        (N, 3), or (3,) for one origin of all rays (moved in float64: a far place keeps its
+        precision; the directions in float32)."""
+        d = np.asarray(dirs, np.float32) @ np.asarray(R, np.float32)
         o = ((np.asarray(origins, np.float64) - T) @ R).astype(np.float32)
         o = np.broadcast_to(o, d.shape) if o.ndim == 1 else o
         if closest:
             return self.object_tracer.intersect(o, d)
         return self.object_tracer.occluded(o, d)
-
-    def _meets_sphere(self, R, T, origins, dirs):
-        """(N,) bool: the rays from origins along unit dirs (N, 3) that meet the object's bounding
-        sphere (grown by SPHERE_MARGIN), the only ones that can meet the object."""
-        c = R @ self.center + T
-        to = c - np.asarray(origins, np.float64)
-        tc = np.einsum("ij,ij->i", to, np.asarray(dirs, np.float64))
-        r = self.radius * (1.0 + SPHERE_MARGIN)
-        return (tc > -r) & (np.einsum("ij,ij->i", to, to) - tc * tc <= r * r + SPHERE_MARGIN * tc * tc)
 
     # -- a frame
     def frame(self, translate=None, rotate=None, spp=None, seed: int = FRAME["seed"].default) -> RenderResult:
@@ -342,8 +561,8 @@ class MovingObject:
         touched = self._object_pixels(R, T, width, height).reshape(-1)
         # samples per pixel of one pass: a frame of more takes them in passes (bounded memory)
         k = min(spp, PASS_SPP, max(1, CHUNK_SAMPLES // width))
-        # the camera rays and samples of the last KEPT_SEEDS (seed, spp) (the viewer's seed 0 at its
-        # two spp: while dragging and at rest), for frames of one pass of at most KEPT_SAMPLES
+        # the camera rays of the last KEPT_SEEDS (seed, spp) (the viewer's seed 0 at its two spp:
+        # while dragging and at rest), for frames of one pass of at most KEPT_SAMPLES
         keep = k == spp and width * height * spp <= KEPT_SAMPLES
         self._chunks = (self._kept.pop((seed, spp), None) or {}) if keep else {}
         if keep:
@@ -352,35 +571,41 @@ class MovingObject:
                 self._kept.pop(next(iter(self._kept)))
         image = np.zeros((width * height, 3))
         error = np.zeros((width * height, 3))
-        rays = 0
+        # chunks of whole rows: bounded memory, and at least MIN_CHUNKS where each keeps
+        # MIN_CHUNK_SAMPLES, so that the pool's threads overlap one chunk's numpy with another's
+        # rays and kernels (a constant, not the thread count: images do not depend on threads)
         rows = max(1, min(CHUNK_PIXELS // width, CHUNK_SAMPLES // (width * k)))
-        for chunk, y0 in enumerate(range(0, height, rows)):   # chunks of whole rows
-            first, last = y0 * width, min(y0 + rows, height) * width
+        rows = min(rows, max(-(-height // MIN_CHUNKS), -(-MIN_CHUNK_SAMPLES // (width * k))))
+
+        def run(chunk):
+            first, last = chunk * rows * width, min((chunk + 1) * rows, height) * width
             P = last - first
             sums, squares = np.zeros((P, 3)), np.zeros((P, 3))
+            n_rays = 0
             for start in range(0, spp, k):   # passes of samples per pixel, not samples
                 kk = min(k, spp - start)
-                value, n_rays = self._chunk(R, T, touched, first, last, kk, seed, chunk, start * P, keep)
-                rays += n_rays
+                value, r = self._chunk(R, T, touched, first, last, kk, seed, chunk, start * P, keep)
+                n_rays += r
                 v = value.reshape(P, kk, 3)
-                if kk == spp:   # one pass
-                    image[first:last] = v.mean(1)
-                    var = v.var(1, ddof=1) / spp if spp > 1 else None
-                else:
-                    sums += v.sum(1)
-                    squares += (v * v).sum(1)
-            if k < spp:
-                image[first:last], err = mean_and_error(sums, squares, spp)
-                var = err * err
+                sums += v.sum(1)
+                squares += np.einsum("pkc,pkc->pc", v, v)
+            mean, err = mean_and_error(sums, squares, spp)
+            image[first:last] = mean
             if spp > 1:
-                error[first:last] = np.sqrt(var + np.where(touched[first:last, None], 0.0, self._static_var[first:last]))
+                error[first:last] = np.sqrt(err * err + np.where(touched[first:last, None], 0.0,
+                                                                 self._static_var[first:last]))
             else:
                 error[first:last] = np.inf
+            return n_rays
+
+        rays = sum(self._pool.map(run, range(-(-height // rows))))
         seconds = time.perf_counter() - t0
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
                  "rays": rays, "object_pixels": int(touched.sum()), "backend": self.backend, "pass_spp": k,
-                 "pass_samples": min(height, rows) * width * k,
-                 "translate": T.tolist(), "estimator": "static image minus the object's occlusion D"}
+                 "pass_samples": min(height, rows) * width * k, "chunks": -(-height // rows),
+                 "translate": T.tolist(), "directions": self.directions,
+                 "wavelet_candidates": self.wavelet.candidates, "wavelet_slots": self.wavelet.slots,
+                 "estimator": "static image minus the object's occlusion D; wavelet where the object may be seen"}
         return RenderResult(image.reshape(height, width, 3).astype(np.float32),
                             error.reshape(height, width, 3).astype(np.float32), stats)
 
@@ -420,21 +645,16 @@ class MovingObject:
         static = self._static_rows[first:last]
         value = np.repeat(static, spp, axis=0) if spp > 1 else static.copy()
         rays = P * spp
-        # pixels that may see the object: mis against the moved scene, on a second thread (numpy,
-        # embree and OpenCL release the GIL: one part's numpy overlaps the other's rays and
-        # kernels; measured 38 against 48 ms a preview frame at 256 x 256 on 2 cores)
-        idx = np.flatnonzero(full)
-        pending = None
-        if len(idx):
-            pending = self._pool.submit(self._full, R, T, cam.d[idx], cam.prim[idx], cam.t[idx], seed, chunk, start)
         # the others: S_p minus the object's occlusion D at each sample
         rest = np.flatnonzero(~full & (cam.prim >= 0))
         if len(rest):
             D, r = self._occlusion(R, T, cam, rest, first, last, spp, seed, chunk, start)
             rays += r
             value[rest] -= D
-        if pending is not None:
-            value[idx], r = pending.result()
+        # pixels that may see the object: the wavelet strategy against the moved scene
+        idx = np.flatnonzero(full)
+        if len(idx):
+            value[idx], r = self._full(R, T, cam, idx, spp, seed, chunk, start)
             rays += r
         return value, rays
 
@@ -447,107 +667,119 @@ class MovingObject:
         n_pixels = self.transfer.width * self.transfer.height
         whole = self.backend == "opencl" and 4 * n_pixels * tree_stride(self.m) <= TREE_CACHE_BYTES
         if whole:
-            if self._all_trees is None:
-                leaves = np.asarray(self.leaves[:n_pixels], np.float32).reshape(n_pixels, side, side)
-                self._all_trees = HaarTree(np.maximum(leaves, 0.0))
+            with self._tree_lock:   # (the frame's chunks share it)
+                if self._all_trees is None:
+                    leaves = np.asarray(self.leaves[:n_pixels], np.float32).reshape(n_pixels, side, side)
+                    self._all_trees = HaarTree(np.maximum(leaves, 0.0))
             return self._all_trees, first
         key = (first, last)
-        if key in self._trees:
-            return self._trees[key], 0
+        with self._tree_lock:
+            if key in self._trees:
+                return self._trees[key], 0
         leaves = np.asarray(self.leaves[first:last], np.float32).reshape(last - first, side, side)
         made = HaarTree(np.maximum(leaves, 0.0))
         size = 4 * made.n_trees * made.stride
-        if self._tree_bytes + size <= TREE_CACHE_BYTES:
-            self._trees[key] = made
-            self._tree_bytes += size
+        with self._tree_lock:
+            if key not in self._trees and self._tree_bytes + size <= TREE_CACHE_BYTES:
+                self._trees[key] = made
+                self._tree_bytes += size
         return made, 0
 
-    def _mixture_samples(self, cam, todo, first, last, spp, seed, chunk, start: int = 0):
-        """Rows (len(todo), 9) of the mixture samples of the chunk's camera samples ``todo``
-        (origin, direction, albedo f cos L / p): the kernel, or its numpy twin."""
-        trees, offset = self._product_trees(first, last)
-        tile = FRAME_TILES + chunk
-        if self.backend == "opencl":
-            return self._kernel(self.scene.camera.eye, cam.d[todo], cam.prim[todo], cam.t[todo], todo, trees, offset,
-                                spp, seed, tile, start)
-        u = rng.uniforms(seed, tile, rng.MOVING_DIRECTIONS, start, (last - first) * spp)
-        return mixture_samples_reference(self.rest, self.rest_tracer, self.environment, self.inside, trees,
-                                         cam.d[todo], cam.prim[todo], cam.t[todo], todo, spp, u)
+    def _place(self, R, T):
+        """The object's place for the kernels, (12,) float32 (R row-major, then T), and its box in
+        its own frame grown by BOX_MARGIN of its size and of the coordinates' (float32 rounding of
+        the rays and of their move into the object's frame), (6,) float32 (lo, hi)."""
+        lo, hi = self._box
+        size = float(np.max(hi - lo)) + float(np.abs(T).max()) + float(np.abs(np.concatenate([lo, hi])).max())
+        size = max(size, float(self.rest_tracer.scale))
+        grow = BOX_MARGIN * size
+        place = np.concatenate([np.asarray(R, np.float64).ravel(), np.asarray(T, np.float64)]).astype(np.float32)
+        return place, np.concatenate([lo - grow, hi + grow]).astype(np.float32)
 
     def _occlusion(self, R, T, cam, rest, first, last, spp, seed, chunk, start: int = 0):
-        """D (len(rest), 3) at the chunk's samples ``rest`` (which hit the rest of the scene)."""
-        todo = rest[~cam.done[rest]]
-        if len(todo):   # samples not drawn in an earlier frame of this seed
-            cam.samples[todo] = self._mixture_samples(cam, todo, first, last, spp, seed, chunk, start)
-            cam.done[todo] = True
-        s = cam.samples[rest]
-        origin, direction, value = s[:, :3], s[:, 3:6], s[:, 6:]
+        """(D (len(rest), 3), rays) at the chunk's samples ``rest`` (which hit the rest of the
+        scene): per sample the mean of its ``directions`` directions' contributions where the
+        object blocks them and the rest does not (directions that miss the object's box are not
+        traced: D is 0 there exactly)."""
+        trees, offset = self._product_trees(first, last)
+        place, box = self._place(R, T)
+        tile = FRAME_TILES + chunk
         D = np.zeros((len(rest), 3))
-        cand = np.flatnonzero((value.max(1) > 0) & self._meets_sphere(R, T, origin, direction))
         rays = 0
-        if len(cand):
-            blocked = self._trace_object(R, T, origin[cand], direction[cand])
-            rays += len(cand)
-            hit = cand[blocked]
-            if len(hit):
-                rest_blocked = self.rest_tracer.occluded(origin[hit], direction[hit])
+        batch = max(1, OCCLUSION_BATCH // self.directions)
+        for b0 in range(0, len(rest), batch):   # launches of bounded memory, not samples
+            part = rest[b0:b0 + batch]
+            if self.backend == "opencl":
+                rec = self._kernels.occlusion(self.scene.camera.eye, cam.d[part], cam.prim[part], cam.t[part], part,
+                                              trees, offset, spp, seed, tile, start, place, box)
+            else:
+                rec = occlusion_records_reference(self.rest, self.rest_tracer, self.environment, self.inside, trees,
+                                                  cam.d[part], cam.prim[part], cam.t[part], part, spp, self.directions,
+                                                  seed, tile, start, place, box, offset)
+            if not len(rec.sample):
+                continue
+            blocked = self.object_tracer.occluded(np.asarray(rec.origin, np.float32),
+                                                  np.asarray(rec.direction, np.float32))
+            hit = np.flatnonzero(blocked)
+            rays += len(rec.sample)
+            if len(hit):   # back to the world: world = R local + T
+                origin = (np.asarray(rec.origin[hit], np.float64) @ R.T + T).astype(np.float32)
+                direction = (np.asarray(rec.direction[hit], np.float64) @ R.T).astype(np.float32)
+                rest_blocked = self.rest_tracer.occluded(origin, direction)
                 rays += len(hit)
                 hit = hit[~rest_blocked]
-                D[hit] = value[hit]
-        return D, rays
+                at = np.asarray(rec.sample[hit], np.int64) + b0
+                for c in range(3):   # channels, not samples
+                    D[:, c] += np.bincount(at, weights=rec.value[hit, c], minlength=len(rest))
+        return D / self.directions, rays
 
-    def _full(self, R, T, d, prim_r, t_r, seed, chunk, start: int = 0):
-        """mis against the moved scene for samples of pixels that may see the object (the uniforms
-        from sample ``start`` of the chunk's tile on)."""
-        eye = self.scene.camera.eye.astype(np.float32)
-        prim_o, t_o = self._trace_object(R, T, eye, d, closest=True)
-        on_object = (prim_o >= 0) & ((prim_r < 0) | (t_o < t_r))
-        hit = on_object | (prim_r >= 0)
-        value = np.zeros((len(d), 3))
-        miss = np.flatnonzero(~hit)
-        value[miss] = self.environment.eval(d[miss].astype(np.float64))
-        hits = np.flatnonzero(hit)
-        if not len(hits):
-            return value, 0
-        obj = np.flatnonzero(on_object[hits])
-        dd = d[hits]
-        t = t_r[hits]
-        t[obj] = t_o[hits[obj]]
-        n = self._rest_normals[np.maximum(prim_r[hits], 0)]
-        n[obj] = self.object_tracer.face_normals[prim_o[hits[obj]]] @ R.T.astype(np.float32)
-        n[np.einsum("ij,ij->i", n, dd) > 0] *= -1.0
-        mats = self._rest_material[np.maximum(prim_r[hits], 0)]
-        mats[obj] = self.object.material
-        p = eye + dd * t[:, None]
-        u = rng.uniforms(seed, FRAME_TILES + chunk, rng.MOVING_MIS, start, len(hits))
+    def _full(self, R, T, cam, idx, spp, seed, chunk, start: int = 0):
+        """(values (len(idx), 3), rays): the wavelet strategy against the moved scene at the chunk's
+        samples ``idx`` (of pixels that may see the object): the closer hit of the rest's and the
+        object's, its shading uniforms from sample ``start`` of the chunk's tile on."""
+        eye = self.scene.camera.eye
+        d, prim_r, t_r, slots = cam.d[idx], cam.prim[idx], cam.t[idx], idx
+        prim_o, t_o = self._trace_object(R, T, eye.astype(np.float32), d, closest=True)
+        rays = len(idx)
+        tile = FRAME_TILES + chunk
+        # the object's own floor of the shadow-ray offset: its largest coordinate at this place
+        c = R @ self.center + T
+        object_offset = np.float32(raytrace.OFFSET_FLOOR * (float(np.abs(c).max()) + self.radius))
+        place, _ = self._place(R, T)
         if self.backend == "opencl":
-            wi, val = self._shader(n, -dd, mats.astype(np.int32), u)
+            planes, material = self._kernels.points(eye, d, prim_r, t_r, prim_o, t_o, slots, place,
+                                                    self.object.material, object_offset, spp, seed, tile, start)
         else:
-            mt = self._materials
-            n64, wo_w = n.astype(np.float64), -dd.astype(np.float64)
-            s_ax, t_ax = tangent_frame(n64)
-            wo = to_local(wo_w, s_ax, t_ax, n64)
-            sp = strategies.ShadingPoints(p.astype(np.float64), n64, s_ax, t_ax, wo, mt.kind[mats], mt.param[mats],
-                                          mt.albedo[mats], mats)
-            wi, val = strategies.shade_reference(self.mis, self.environment, sp, u.astype(np.float64))
-        # planes (slot, component, point): the kernel's own layout
-        wi, val = np.asarray(wi).transpose(1, 2, 0), np.asarray(val).transpose(1, 2, 0)
-        offset = np.maximum(np.float32(raytrace.OFFSET_RELATIVE) * np.abs(p).max(1), np.float32(1e-6 * self.rest_tracer.scale))
-        origin = p + n * offset[:, None]
-        total = np.zeros((3, len(hits)))
-        rays = 0
-        for slot in range(wi.shape[0]):   # the MIS pair, not samples
-            v = val[slot]
-            live = np.flatnonzero(np.maximum(np.maximum(v[0], v[1]), v[2]) > 0)
-            w = np.take(wi[slot], live, axis=1).T
-            o = origin[live]
-            blocked = self.rest_tracer.occluded(o, w)
-            near = np.flatnonzero(~blocked & self._meets_sphere(R, T, o, w))
-            blocked[near] = self._trace_object(R, T, o[near], w[near])
-            rays += len(live) + len(near)
-            visible = np.zeros(len(hits), bool)
-            visible[live] = ~blocked
-            total += v * visible
+            planes, material = shading_points_reference(self.rest, self.rest_tracer, self.object_tracer,
+                                                        self.object.material, self.environment, d, prim_r, t_r,
+                                                        prim_o, t_o, R, T, object_offset, slots, spp, seed, tile,
+                                                        start)
+        value = planes[10:13].T.astype(np.float64)   # misses: the environment
+        hits = np.flatnonzero(material >= 0)
+        if not len(hits):
+            return value, rays
+        n = np.ascontiguousarray(planes[0:3, hits].T)
+        origin = np.ascontiguousarray(planes[3:6, hits].T, np.float32)
+        u = np.ascontiguousarray(planes[6:10, hits].T, np.float32)
+        wi, val, offset = self._shader(n, -d[hits], material[hits], u, with_offset=True)
+        # shadow rays for the non-zero estimates of every slot, in one batch (as the integrator's
+        # visible_sum): against the rest, then the unblocked ones against the object
+        val = np.asarray(val).transpose(1, 2, 0)   # planes (slot, component, point): the kernel's layout
+        slot, pt = np.nonzero(np.maximum(np.maximum(val[:, 0], val[:, 1]), val[:, 2]) > 0)
+        w = np.take(np.asarray(wi, np.float32).reshape(-1, 3), pt * val.shape[0] + slot, axis=0)
+        o = np.take(origin, pt, axis=0)
+        blocked = self.rest_tracer.occluded(o, w)
+        free = np.flatnonzero(~blocked)
+        if len(free):   # in the object's frame: each point's origin moved once, not each ray's
+            local = ((origin.astype(np.float64) - T) @ R).astype(np.float32)
+            blocked[free] = self.object_tracer.occluded(np.take(local, pt[free], axis=0),
+                                                        w[free] @ np.asarray(R, np.float32))
+        rays += len(pt) + len(free)
+        visible = np.zeros((val.shape[0], len(hits)), val.dtype)
+        visible[slot, pt] = ~blocked
+        total = np.asarray(offset, np.float64).T.copy()
+        for j in range(val.shape[0]):   # the strategy's slots, not samples
+            total += val[j] * visible[j]
         value[hits] = total.T
         return value, rays
 
