@@ -9,10 +9,15 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def cache_dir(kind: str) -> Path:
-    """The cache sub-folder `kind`, created if missing (OSError when it cannot be)."""
+def cache_root() -> Path:
+    """The cache folder itself (not created)."""
     import platformdirs
 
-    folder = Path(platformdirs.user_cache_dir("wavlight")) / kind
+    return Path(platformdirs.user_cache_dir("wavlight"))
+
+
+def cache_dir(kind: str) -> Path:
+    """The cache sub-folder `kind`, created if missing (OSError when it cannot be)."""
+    folder = cache_root() / kind
     folder.mkdir(parents=True, exist_ok=True)
     return folder

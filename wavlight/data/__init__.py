@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
+from ..cache import cache_root
 from ..errors import WavlightError, one_line, shown
 
 #: the environment variable naming the data folder (default: the user cache, :func:`data_dir`)
@@ -129,9 +130,7 @@ def data_dir() -> Path:
         if folder.exists() and not folder.is_dir():
             raise WavlightError(f"{DATA_ENV}={value}: not a folder")
         return folder
-    import platformdirs
-
-    return Path(platformdirs.user_cache_dir("wavlight")) / "data"
+    return cache_root() / "data"
 
 
 def local_path(name: str) -> Path:
