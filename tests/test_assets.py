@@ -238,13 +238,13 @@ def _primary_material(scene, w, h):
 
 @pytest.mark.slow
 def test_glb_strategies_agree_with_mis(tmp_path):
-    """The GLB (a gold metal sphere, a metal floor with its stripes texture) under the park map:
+    """The GLB (a gold metal sphere, a metal floor with its stripes texture) under the indoor map:
     every kernel strategy's mean over the floor's and over the sphere's pixels agrees with mis
     within their standard errors (unbiased: only the sampling differs; the texture multiplies
     the albedo of every estimate alike)."""
     path = write_glb(tmp_path / "a.glb")
     w, h, spp = 48, 36, 64
-    scene = wavlight.load_asset(path, "data:rooitou_park_512", w, h)
+    scene = wavlight.load_asset(path, "data:st_fagans_interior_512", w, h)
     which = _primary_material(scene, w, h)
     floor, gold = _by_name(scene, "floor"), _by_name(scene, "gold")
     assert (which == floor).sum() > 100 and (which == gold).sum() > 30
