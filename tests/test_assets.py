@@ -191,27 +191,23 @@ f 1/1 4/4 3/3
 """
 
 
-def test_textured_quad_renders_its_texture(tmp_path):
+def _textured_quad(folder, w=40, h=40):
     """A lambert quad (Kd 0.8 times an 8 x 8 texture of 2 x 2 blocks of four texels) seen from
-    above under a constant map of 1, with cosine sampling and nothing to shadow it: each
-    estimate is exactly the albedo at the point. Where a pixel's footprint lies where the
-    bilinear lookup is flat (inside one block, between its texel centres), the pixel is
-    0.8 x the block's sRGB-decoded colour. The quad's texture coordinates put v = 1 (the image's
-    top row) at z = -1, the top of the picture."""
+    above under a constant map of 1, and (H, W) masks and values: ``flat`` where a pixel's
+    footprint lies where the bilinear lookup is flat (inside one block, between its texel
+    centres), ``albedo`` 0.8 x the block's sRGB-decoded colour there. The quad's texture
+    coordinates put v = 1 (the image's top row) at z = -1, the top of the picture."""
     import PIL.Image
 
     codes = np.array([[[250, 20, 20], [20, 250, 20]], [[20, 20, 250], [128, 128, 128]]], np.uint8)
-    img = codes.repeat(4, axis=0).repeat(4, axis=1)
-    PIL.Image.fromarray(img).save(tmp_path / "t.png")
-    (tmp_path / "q.mtl").write_text("newmtl q\nKd 0.8 0.8 0.8\nmap_Kd t.png\n")
-    (tmp_path / "q.obj").write_text(QUAD_OBJ)
-    w = h = 40
+    PIL.Image.fromarray(codes.repeat(4, axis=0).repeat(4, axis=1)).save(folder / "t.png")
+    (folder / "q.mtl").write_text("newmtl q\nKd 0.8 0.8 0.8\nmap_Kd t.png\n")
+    (folder / "q.obj").write_text(QUAD_OBJ)
     scene = wavlight.load_dict({
         "render": {"width": w, "height": h, "spp": 4},
         "camera": {"eye": [0.0, 3.0, 0.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 0.0, -1.0], "fov_y": 40.0},
         "environment": {"pixels": np.ones((8, 16, 3), np.float32)},
-        "objects": [{"mesh": str(tmp_path / "q.obj")}]})
-    result = wavlight.render_full(scene, strategy="cosine")
+        "objects": [{"mesh": str(folder / "q.obj")}]})
     cam = camera_of(scene)
     corners = cam.pixel_rays(1)                                    # (H, W, 4, 3)
     t = -cam.eye[1] / corners[..., 1]
@@ -222,9 +218,31 @@ def test_textured_quad_renders_its_texture(tmp_path):
     inside = lambda c: (c % 4 >= 0) & (c % 4 <= 3) & (c >= 0) & (c <= 7)
     flat = (np.all(inside(col) & inside(row), -1) & np.all(block_c == block_c[..., :1], -1)
             & np.all(block_r == block_r[..., :1], -1))
+    albedo = 0.8 * srgb(codes[block_r[..., 0].clip(0, 1).astype(int), block_c[..., 0].clip(0, 1).astype(int)])
+    return scene, flat, albedo
+
+
+def test_textured_quad_renders_its_texture(tmp_path):
+    """The textured quad under a constant map of 1, with cosine sampling and nothing to shadow
+    it: each estimate is exactly the albedo at the point, so the flat pixels are their block's
+    0.8 x sRGB-decoded colour (orientation, sRGB decoding and the bilinear lookup end to end)."""
+    scene, flat, albedo = _textured_quad(tmp_path)
     assert flat.sum() > 200
-    expected = 0.8 * srgb(codes[block_r[..., 0].clip(0, 1).astype(int), block_c[..., 0].clip(0, 1).astype(int)])
-    check_estimates(result.image, result.stderr, expected, flat, 4, atol=2e-5, rtol=2e-5, label="textured quad")
+    result = wavlight.render_full(scene, strategy="cosine")
+    check_estimates(result.image, result.stderr, albedo, flat, 4, atol=2e-5, rtol=2e-5, label="textured quad")
+
+
+def test_lighting_bake_albedo_carries_the_texture(tmp_path):
+    """The lighting bake's per-pixel albedo (relight/bake.py camera_samples) is the textured
+    albedo: the flat pixels of the textured quad hold their block's colour."""
+    from wavlight.raytrace import RayTracer
+    from wavlight.relight import bake as bake_mod
+
+    scene, flat, albedo = _textured_quad(tmp_path, 24, 24)
+    ps = bake_mod.camera_samples(scene, RayTracer(scene.vertices, scene.faces), 24, 24, 0, 0, 24, 24, 4, 5, 0)
+    got = ps.albedo.reshape(24, 24, 3)
+    assert flat.sum() > 50
+    np.testing.assert_allclose(got[flat], albedo[flat], rtol=2e-5, atol=2e-6)
 
 
 def _primary_material(scene, w, h):
