@@ -337,3 +337,15 @@ def test_render_asset_frames_its_bounds(tmp_path):
     np.testing.assert_allclose(with_camera.camera.eye, transform[:3, 3], atol=1e-9)
     view = with_camera.camera.target - with_camera.camera.eye
     np.testing.assert_allclose(view / np.linalg.norm(view), -transform[:3, 2], atol=1e-9)
+
+
+@pytest.mark.parametrize("vary", ["view", "object"])
+def test_bakes_without_textures_refuse_textured_scenes(tmp_path, vary):
+    """The bakes that do not carry textures yet (view, object) refuse a textured scene in one
+    line naming the scene, before any work, rather than render it untextured."""
+    path = write_glb(tmp_path / "a.glb")
+    scene = wavlight.load_dict({"environment": {"procedural": "sky"},
+                                "objects": [{"mesh": str(path), "name": "asset"}]}, base_dir=tmp_path)
+    with pytest.raises(wavlight.WavlightError) as e:
+        wavlight.bake(scene, vary=vary, **({"object": "asset"} if vary == "object" else {}))
+    assert "textures" in str(e.value) and vary in str(e.value) and "\n" not in str(e.value)

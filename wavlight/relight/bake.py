@@ -44,7 +44,7 @@ from ..envmap import LUMINANCE
 from ..errors import ArgumentError, shown
 from ..integrator import render_full
 from ..raytrace import RayTracer
-from ..scene import check_scene, load_scene
+from ..scene import check_scene, load_scene, require_untextured
 from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from . import lighting, store
@@ -592,6 +592,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
     if vary == "object":
         if object is None:
             raise ArgumentError(f"{where}: vary='object' needs the object that moves (a name or an index)")
+        require_untextured(scene, "a bake with vary='object'")
         moving = scene.find_object(object)
         scene = scene.without(moving)
         static_spp = BAKE["static_spp"].check(static_spp, where)

@@ -76,7 +76,7 @@ from ..haar import inverse
 from ..haar.tree import HaarTree, build_reference, level_offset, morton_index
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
-from ..scene import check_scene, load_scene
+from ..scene import check_scene, load_scene, require_untextured
 from ..threads import default_threads, map_until_stopped
 from ..warp import frame as tangent_frame
 from ..warp import to_local
@@ -292,6 +292,7 @@ class ConvergeFrames:
         self.transfer, self.backend = transfer, backend
         self.threads = threads
         self.scene = _scene_of(transfer, scene)
+        require_untextured(self.scene, "an unbiased frame (spp > 0)")
         t0 = time.perf_counter()
         sc = self.scene
         self.tracer = RayTracer(sc.vertices, sc.faces, threads=1)
