@@ -2,12 +2,13 @@
 GLB (a floor with a stripes texture of --texels² texels, a metal sphere; made with trimesh in a
 temporary folder), rays pixel-major as the renderer's passes order them, textured (-DTEXTURES=1: the barycentric upload, the texture coordinates and
 four texel gathers per hit) against the same scene with its textures dropped (-DTEXTURES=0),
-alternating launch by launch and render by render and keeping each one's best time (a shared
-machine's speed drifts between runs). Prints one JSON object and writes it, with the run's
+alternating launch by launch and render by render and keeping each one's best (and the
+launches' median) time: a shared machine's speed drifts between runs; the load average is
+recorded. Prints one JSON object and writes it, with the run's
 provenance (benchmarks/provenance.py), to benchmarks/results/texture_cost.json (-o FILE
 another, "-" none).
 
-    python benchmarks/texture_cost.py [--texels 1024] [--rays 262144] [--repeat 8] [--size 256] [--spp 16]
+    python benchmarks/texture_cost.py [--texels 1024] [--rays 262144] [--repeat 30] [--size 256] [--spp 16]
 """
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--texels", type=int, default=1024)
     ap.add_argument("--rays", type=int, default=1 << 18)
-    ap.add_argument("--repeat", type=int, default=8)
+    ap.add_argument("--repeat", type=int, default=30)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--strategy", default="mis")
@@ -99,6 +100,7 @@ def main():
     out = {"texels": args.texels, "rays": n, "hit_fraction": round(float((prim >= 0).mean()), 3),
            "strategy": args.strategy, "size": args.size, "spp": args.spp, "load_average": os.getloadavg()[0],
            "shade_rays_best_seconds": {k: round(min(v), 5) for k, v in launch.items()},
+           "shade_rays_median_seconds": {k: round(float(np.median(v)), 5) for k, v in launch.items()},
            "render_best_seconds": {k: round(min(v), 4) for k, v in render.items()}}
     out["shade_rays_ratio"] = round(out["shade_rays_best_seconds"]["textured"]
                                     / out["shade_rays_best_seconds"]["untextured"], 3)
