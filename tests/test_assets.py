@@ -349,3 +349,15 @@ def test_bakes_without_textures_refuse_textured_scenes(tmp_path, vary):
     with pytest.raises(wavlight.WavlightError) as e:
         wavlight.bake(scene, vary=vary, **({"object": "asset"} if vary == "object" else {}))
     assert "textures" in str(e.value) and vary in str(e.value) and "\n" not in str(e.value)
+
+
+def test_object_bake_refuses_an_object_of_several_materials(tmp_path):
+    """An object bake shades its moving object with one material: a mesh file of several parts
+    (an untextured GLB of a metal floor and a gold sphere) is refused in one line, before any work."""
+    path = write_glb(tmp_path / "a.glb", texture=False)
+    scene = wavlight.load_dict({"environment": {"procedural": "sky"},
+                                "objects": [{"mesh": str(path), "name": "asset"}]}, base_dir=tmp_path)
+    assert not scene.textured and len(np.unique(scene.face_material)) == 2
+    with pytest.raises(wavlight.WavlightError) as e:
+        wavlight.bake(scene, vary="object", object="asset")
+    assert "2 materials" in str(e.value) and "'asset'" in str(e.value) and "\n" not in str(e.value)

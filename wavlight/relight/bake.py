@@ -594,6 +594,10 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
             raise ArgumentError(f"{where}: vary='object' needs the object that moves (a name or an index)")
         require_untextured(scene, "a bake with vary='object'")
         moving = scene.find_object(object)
+        kinds = np.unique(scene.face_material[moving.faces_range[0]:moving.faces_range[1]])
+        if len(kinds) > 1:   # its frames shade the moving object with one material (SceneObject.material)
+            raise ArgumentError(f"{scene.path}: the object {object!r} has {len(kinds)} materials (its mesh file's "
+                                "parts); a bake with vary='object' moves an object of one material: give it a material")
         scene = scene.without(moving)
         static_spp = BAKE["static_spp"].check(static_spp, where)
     elif object is not None:
