@@ -1,12 +1,12 @@
 """What a base-colour texture costs the renderer: the shade_rays kernel and whole renders of one
 GLB (a floor with a stripes texture of --texels² texels, a metal sphere; made with trimesh in a
-temporary folder), rays pixel-major as the renderer's passes order them, textured (-DTEXTURES=1: the barycentric upload, the texture coordinates and
-four texel gathers per hit) against the same scene with its textures dropped (-DTEXTURES=0),
-alternating launch by launch and render by render and keeping each one's best (and the
-launches' median) time: a shared machine's speed drifts between runs; the load average is
-recorded. Prints one JSON object and writes it, with the run's
-provenance (benchmarks/provenance.py), to benchmarks/results/texture_cost.json (-o FILE
-another, "-" none).
+temporary folder), rays pixel-major as the renderer's passes order them, textured (-DTEXTURES=1:
+the barycentric upload, the texture coordinates and four texel gathers per hit) against the same
+scene with its textures dropped (-DTEXTURES=0), alternating launch by launch and render by render
+and keeping each one's best (and the launches' median) time: a shared machine's speed drifts
+between runs; the load average is recorded. Prints one JSON object and writes it, with the run's
+provenance (benchmarks/provenance.py), to benchmarks/results/texture_cost.json (-o FILE another,
+"-" none).
 
     python benchmarks/texture_cost.py [--texels 1024] [--rays 262144] [--repeat 30] [--size 256] [--spp 16]
 """

@@ -16,7 +16,7 @@ import pytest
 
 import wavlight
 from assets_util import MTL, STRIPE_A, STRIPE_B, stripes_image, write_glb, write_obj
-from scenes_util import Pinhole, camera_of, check_estimates
+from scenes_util import camera_of, check_estimates
 from wavlight import assets, bsdfs, textures
 
 

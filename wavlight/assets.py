@@ -108,7 +108,8 @@ def gltf_material(base_color=None, metallic=None, roughness=None, source="") -> 
     alpha = _alpha(roughness * roughness)
     if metallic >= 0.5:
         return FileMaterial("ggx", base, alpha, source=source, why=f"glTF metallicFactor {metallic:g} >= 0.5")
-    return FileMaterial("plastic", base, alpha, PLASTIC_IOR, source=source, why=f"glTF metallicFactor {metallic:g} < 0.5")
+    return FileMaterial("plastic", base, alpha, PLASTIC_IOR, source=source,
+                        why=f"glTF metallicFactor {metallic:g} < 0.5")
 
 
 def mtl_material(kd=None, ks=None, ns=None, source="") -> FileMaterial:

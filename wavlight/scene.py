@@ -736,8 +736,15 @@ def load_asset(path, environment=None, width=None, height=None) -> Scene:
     render = {k: v for k, v in (("width", width), ("height", height)) if v is not None}
     doc = {"render": render, "environment": {"file": environment} if environment is not None else {"procedural": "sky"},
            "objects": [{"mesh": path}]}
-    with assets.reuse(path, found):
-        scene = _parse(_plain(doc, path, "", 0), path, os.getcwd())
+    try:
+        with assets.reuse(path, found):
+            scene = _parse(_plain(doc, path, "", 0), path, os.getcwd())
+    except SceneError as e:   # the file's own problems without the scene-table key of its object
+        if e.key == "[[objects]][0].mesh" and str(e).startswith(f"{path}: {e.key}: {path}: "):
+            raise SceneError(path, "", str(e)[len(f"{path}: {e.key}: {path}: "):]) from None
+        if e.key.startswith("[[objects]][0]"):
+            raise SceneError(path, "", str(e)[len(f"{path}: {e.key}: "):]) from None
+        raise
     own = found[1] if found is not None else None
     if own is not None:
         camera = Camera(own.eye, own.target, own.up, own.fov_y)
@@ -919,8 +926,8 @@ def _part_materials(t: "_Table", parts, materials: list, index: dict, texture_li
             kind = bsdfs.TYPES.get(m.type)
             if kind is None:
                 t.fail("mesh", f"{mesh}: {part.name}: maps to {m.type} ({m.why}), "
-                               f"which this version of wavlight does not render; give the object a material "
-                               f"(material = \"NAME\") to render it")
+                               f"which this version of wavlight does not render; to render the file, give its object a "
+                               f"material in a scene file (material = \"NAME\")")
             albedo = np.asarray(m.albedo, np.float64)
             if not np.all(np.isfinite(albedo)) or albedo.max() > MAX_ALBEDO:
                 t.fail("mesh", f"{mesh}: {part.name}: albedo {albedo.tolist()} must be finite and at most "

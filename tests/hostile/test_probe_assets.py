@@ -131,3 +131,19 @@ def test_plastic_part_refused_or_rendered(tmp_path):
         assert o.code == 0 and out.exists(), o.describe()
     else:
         assert_clean_failure(o, path, "'red'", "plastic", output=out)
+
+
+def test_env_with_a_scene_file_refused(tmp_path):
+    """--env names the map of a mesh file rendered directly; a scene file names its own."""
+    scene = tmp_path / "s.toml"
+    scene.write_text('[environment]\nprocedural = "sky"\n')
+    o = run_inproc("render", scene, "--env", "data:rooitou_park_512", "-o", tmp_path / "s.png")
+    assert_clean_failure(o, "--env", scene, output=tmp_path / "s.png")
+
+
+def test_asset_that_is_no_mesh_refused(tmp_path):
+    """A .glb that is not a glTF: one line naming the file, nothing written."""
+    path = tmp_path / "junk.glb"
+    path.write_bytes(b"not a gltf at all" * 10)
+    o, out = _render(path, tmp_path)
+    assert_clean_failure(o, path, output=out)

@@ -91,7 +91,7 @@ def textured_floor(scene):
 @pytest.mark.parametrize("ball, candidates, coherence, control, textured", [
     (None, cm.CANDIDATES, cm.COHERENCE, True, False),                      # glossy ball, the defaults
     (None, cm.CANDIDATES, 0.0, True, False),                               # every hit resampled
-    ({"type": "phong", "albedo": [0.5, 0.6, 0.7], "exponent": 40.0}, 0, 1.0, False, False),   # no resampling, no control
+    ({"type": "phong", "albedo": [0.5, 0.6, 0.7], "exponent": 40.0}, 0, 1.0, False, False),   # no resampling or control
     ({"type": "lambert", "albedo": [0.5, 0.6, 0.7]}, 4, cm.COHERENCE, True, False),
     (None, cm.CANDIDATES, cm.COHERENCE, True, True)])                      # a textured floor
 def test_shade_kernel_equals_its_twin(bakes, ball, candidates, coherence, control, textured):
