@@ -361,3 +361,61 @@ def test_object_bake_refuses_an_object_of_several_materials(tmp_path):
     with pytest.raises(wavlight.WavlightError) as e:
         wavlight.bake(scene, vary="object", object="asset")
     assert "2 materials" in str(e.value) and "'asset'" in str(e.value) and "\n" not in str(e.value)
+
+
+def _gltf_quad(path, png: bytes | None):
+    """A glTF written by hand (no trimesh on the way out): the quad of QUAD_OBJ with glTF's own
+    texture coordinates (0, 0 the image's top-left corner: the OBJ's vt with v turned), a
+    metal material of base colour 0.8, and with ``png`` that image as its base-colour texture."""
+    import base64
+    import json
+
+    pos = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], np.float32)
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)       # (OBJ vt 0 1, 1 1, 1 0, 0 0) turned
+    idx = np.array([0, 2, 1, 0, 3, 2], np.uint16)
+    data = pos.tobytes() + uv.tobytes() + idx.tobytes()
+    pbr = {"baseColorFactor": [0.8, 0.8, 0.8, 1.0], "metallicFactor": 1.0, "roughnessFactor": 0.6}
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"name": "quad", "primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1},
+                                                        "indices": 2, "material": 0}]}],
+           "materials": [{"name": "q", "pbrMetallicRoughness": pbr}],
+           "buffers": [{"byteLength": len(data),
+                        "uri": "data:application/octet-stream;base64," + base64.b64encode(data).decode()}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48,
+                                                                              "byteLength": 32},
+                           {"buffer": 0, "byteOffset": 80, "byteLength": 12}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
+                          "min": [-1, 0, -1], "max": [1, 0, 1]},
+                         {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+                         {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}]}
+    if png is not None:
+        pbr["baseColorTexture"] = {"index": 0}
+        doc["textures"] = [{"source": 0}]
+        doc["images"] = [{"uri": "data:image/png;base64," + base64.b64encode(png).decode()}]
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_gltf_texture_coordinates_follow_the_gltf_convention(tmp_path):
+    """A hand-written glTF quad (glTF's texture coordinates: (0, 0) the image's top-left) renders
+    its texture the right way up: with the same seed, the textured image over the untextured one
+    (the same metal; the texture only scales each estimate) is, at the flat pixels of the
+    textured quad test, the block's sRGB-decoded colour."""
+    import io
+
+    import PIL.Image
+
+    _, flat, albedo = _textured_quad(tmp_path)     # the OBJ quad's expected blocks (0.8 x the colours)
+    buf = io.BytesIO()
+    PIL.Image.open(tmp_path / "t.png").save(buf, format="PNG")
+    images = []
+    for name, png in (("t.gltf", buf.getvalue()), ("w.gltf", None)):
+        scene = wavlight.load_dict({
+            "render": {"width": 40, "height": 40, "spp": 4},
+            "camera": {"eye": [0.0, 3.0, 0.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 0.0, -1.0], "fov_y": 40.0},
+            "environment": {"pixels": np.ones((8, 16, 3), np.float32)},
+            "objects": [{"mesh": str(_gltf_quad(tmp_path / name, png))}]})
+        assert scene.textured == (png is not None)
+        images.append(wavlight.render_full(scene, strategy="bsdf", seed=4).image)
+    ratio = images[0][flat] / images[1][flat]
+    np.testing.assert_allclose(ratio, albedo[flat] / 0.8, rtol=2e-5)
