@@ -34,6 +34,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import struct
 import warnings
 from dataclasses import dataclass
@@ -203,12 +204,11 @@ def _gltf_textures(doc):
 def _mtl_libraries(path: str):
     """The material libraries an OBJ names (``mtllib``), as paths beside it, and the ``map_Kd``
     each material of those found names ({material name: file name})."""
-    libs, maps = [], {}
+    maps = {}
     with open(path, "rb") as fh:
-        for raw in fh:
-            line = raw.decode("utf-8", "replace").strip()
-            if line[:7].lower() == "mtllib " or line[:7].lower() == "mtllib\t":
-                libs.append(os.path.join(os.path.dirname(path), line[7:].strip()))
+        text = fh.read()
+    libs = [os.path.join(os.path.dirname(path), m.decode("utf-8", "replace").strip())
+            for m in re.findall(rb"^[ \t]*mtllib[ \t]+([^\r\n]+)", text, flags=re.M | re.I)]
     for lib in libs:
         if not os.path.isfile(lib):
             continue
