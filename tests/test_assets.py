@@ -419,3 +419,15 @@ def test_gltf_texture_coordinates_follow_the_gltf_convention(tmp_path):
         images.append(wavlight.render_full(scene, strategy="bsdf", seed=4).image)
     ratio = images[0][flat] / images[1][flat]
     np.testing.assert_allclose(ratio, albedo[flat] / 0.8, rtol=2e-5)
+
+
+def test_texture_beyond_the_limit_falls_back_to_the_base_colour(tmp_path, monkeypatch):
+    """A texture of more texels than textures.MAX_TEXTURE_TEXELS (lowered here to 100, below the
+    stripes' 128) is not read: one warning naming the file and the part, the base colour alone."""
+    monkeypatch.setattr(textures, "MAX_TEXTURE_TEXELS", 100)
+    path = write_glb(tmp_path / "a.glb")
+    with pytest.warns(wavlight.SanitisedInputWarning) as caught:
+        scene = wavlight.load_dict({"environment": {"procedural": "sky"}, "objects": [{"mesh": str(path)}]})
+    lines = [str(w.message) for w in caught]
+    assert len(lines) == 1 and str(path) in lines[0] and "'floor'" in lines[0] and "16x8" in lines[0], lines
+    assert scene.textures == [] and not scene.textured
