@@ -202,9 +202,9 @@ def _gltf_textures(doc):
 
 
 def _mtl_libraries(path: str):
-    """The material libraries an OBJ names (``mtllib``), as paths beside it, and the ``map_Kd``
-    each material of those found names ({material name: file name})."""
-    maps = {}
+    """The material libraries an OBJ names (``mtllib``), as paths beside it, the ``map_Kd`` each
+    material of those found names ({material name: file name}) and the names of their materials."""
+    maps, names = {}, set()
     with open(path, "rb") as fh:
         text = fh.read()
     libs = [os.path.join(os.path.dirname(path), m.decode("utf-8", "replace").strip())
@@ -218,9 +218,10 @@ def _mtl_libraries(path: str):
                 w = raw.decode("utf-8", "replace").strip().split(None, 1)
                 if len(w) == 2 and w[0].lower() == "newmtl":
                     current = w[1].strip()
+                    names.add(current)
                 elif len(w) == 2 and w[0].lower() == "map_kd" and current is not None:
                     maps[current] = w[1].strip()
-    return libs, maps
+    return libs, maps, names
 
 
 # ----------------------------------------------------------------------------- reading
@@ -258,14 +259,14 @@ def _texture(path, part, image, uv, described="its base-colour texture"):
 
 
 def read(path: str):
-    """(parts, camera or None, the files read beside it) of a glTF or OBJ file; None for an OBJ that names no material
-    library (its geometry alone is read as any mesh's). Node transforms are applied. A
-    MeshError for a file that cannot be read; warnings (SanitisedInputWarning) for the
-    fallbacks listed in the module's docstring."""
+    """(parts, camera or None, the files read beside it) of a glTF or OBJ file; None for an OBJ
+    that names no material library (its geometry alone is read as any mesh's). Node transforms
+    are applied. A MeshError for a file that cannot be read; warnings (SanitisedInputWarning)
+    for the fallbacks listed in the module's docstring."""
     path = str(path)
     is_obj = path.lower().endswith(".obj")
     if is_obj:
-        libs, maps = _mtl_libraries(path)
+        libs, maps, names = _mtl_libraries(path)
         if not libs:
             return None
         missing = [os.path.basename(lib) for lib in libs if not os.path.isfile(lib)]
@@ -277,7 +278,7 @@ def read(path: str):
     else:
         doc = gltf_json(path)
         _check_gltf(path, doc)
-        maps, textured = {}, _gltf_textures(doc)
+        maps, names, textured = {}, set(), _gltf_textures(doc)
     scene = _trimesh_scene(path)
     parts, seen = [], {}
     for g in scene.dump():
@@ -307,7 +308,7 @@ def read(path: str):
                                   "alone is used")
         elif kind == "SimpleMaterial" and is_obj:
             kw = getattr(mat, "kwargs", {}) or {}
-            if not kw and mname not in maps:
+            if mname not in names:
                 _warn(path, part, "the material library has no such material; the scene's default material is used")
             else:
                 material = mtl_material(kw.get("kd"), kw.get("ks"), kw.get("ns"), source=mname or "")
