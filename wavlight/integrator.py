@@ -67,6 +67,7 @@ class _Renderer:
         self.threads = threads or default_threads()
         t0 = time.perf_counter()
         self.tracer = RayTracer(scene.vertices, scene.faces)
+        self.textured = scene.textured   # hits then need their barycentric coordinates (once: not per pass)
         self.strategy = strategies.make(strategy, **(options or {}))
         if self.strategy.wants_visibility:   # the wavelet budget from the scene's shadows
             self.strategy.fit_to_visibility(occlusion.visibility_variance(scene, self.tracer, width, height))
@@ -152,7 +153,7 @@ class _Renderer:
                              kernel=self.kernel_camera, stratified=bool(u.k))
         origins = np.broadcast_to(eye.astype(np.float32), d.shape)
         bary = None
-        if self.scene.textured:
+        if self.textured:
             prim, t, bu, bv = self.tracer.intersect_uv(origins, d)
             bary = np.stack([bu, bv], axis=1)
         else:

@@ -444,6 +444,7 @@ class ConvergeFrames:
         shares = (defensive, light, coherence)
         eye = np.broadcast_to(self.scene.camera.eye.astype(np.float32), (1, 3))
         spread_rays = self._spread_rays
+        textured = self.scene.textured
 
         def one(tile, stop):
             trees, was_kept = self.tile_trees(state, tile, prog)
@@ -464,7 +465,7 @@ class ConvergeFrames:
                 d = camera.pass_rays(self.scene, width, height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k,
                                      first * P, kernel=self.backend == "opencl", stratified=True)
                 bary = None
-                if self.scene.textured:   # the texture's albedo at each hit: embree's barycentric (u, v)
+                if textured:   # the texture's albedo at each hit: embree's barycentric (u, v)
                     prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
                     bary = np.stack([bu, bv], axis=1)
                 else:
