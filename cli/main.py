@@ -156,6 +156,9 @@ def _scene_settings(*options):
 @click.argument("scene_file", metavar="[SCENE]", required=False, type=click.Path(dir_okay=False))
 @click.option("--demo", default=None, metavar="NAME",
               help="Render the shipped scene NAME instead of a file (`wavlight scenes` lists them).")
+@click.option("--env", "env", default=None, metavar="MAP",
+              help="With a mesh file (.glb .gltf .obj) as SCENE: the environment map (a file or data:NAME; "
+                   "default: the procedural sky). The file's glTF camera, else one that frames its bounds.")
 @click.option("-o", "--output", default=None, help="Output image (.exr .hdr .pfm linear; .png sRGB). "
               "Default: the scene's name with .png.")
 @_scene_settings(SPP)
@@ -168,9 +171,10 @@ def _scene_settings(*options):
 @flags(DISPLAY)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def render(scene_file, demo, output, spp, strategy, width, height, seed, stderr_out, exposure, tonemap, as_json,
+def render(scene_file, demo, env, output, spp, strategy, width, height, seed, stderr_out, exposure, tonemap, as_json,
            quiet, **options):
-    """Render SCENE (a TOML scene file), or the shipped scene --demo NAME, to an image."""
+    """Render SCENE (a TOML scene file, or a .glb, .gltf or .obj mesh file with its materials), or the
+    shipped scene --demo NAME, to an image."""
     import time
 
     import numpy as np
@@ -204,8 +208,15 @@ def render(scene_file, demo, output, spp, strategy, width, height, seed, stderr_
         why = None if value is None else option.problem(value)
         if why:
             fail(f"{option.flag} {why}")
+    is_asset = wavlight.assets.has_materials(scene_file)
+    if env is not None and not is_asset:
+        fail(f"--env applies to a mesh file rendered directly ({', '.join(wavlight.assets.SUFFIXES)}), not to "
+             f"{scene_file}: a scene file names its map in [environment]")
     try:
-        scene = wavlight.load_scene(scene_file)
+        if is_asset:
+            scene = wavlight.load_asset(scene_file, env, width, height)
+        else:
+            scene = wavlight.load_scene(scene_file)
         for name in (output, stderr_out):   # an output must not overwrite the scene or a file it reads
             if name is not None:
                 refuse_inputs(name, [scene_file, *scene.files])

@@ -59,6 +59,10 @@
 #include "bsdf.h"
 #include "rng.h"
 #include "hit.h"
+#include "texture.h"
+#ifndef TEXTURES
+#define TEXTURES 0   /* 1: some material has a base-colour texture (texture.h) */
+#endif
 #ifndef N_LEVELS
 #error "converge.cl is built with -DN_LEVELS (the product trees' depth)"
 #endif
@@ -551,6 +555,9 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
                              __global const float *face_normal, __global const int *face_material,
                              __global const int *mat_kind, __global const float *mat_param,
                              __global const float *mat_albedo, __global const float *mat_width,
+                             __global const float *bary, __global const float *face_uv,
+                             __global const int *mat_texture, __global const float *tex_atlas,
+                             __global const int *tex_table,
                              __global const float *trees, const uint tree_stride, __global const float *relit,
                              __global const float *spread, __global const float *gl, __global const float *omega,
                              LIGHT_ARGS, const float defensive, const float light, const float coherence,
@@ -601,6 +608,17 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
         out_v[5] = pz + pt.nz * eps;
         realv ar, ag, ab, unused;
         GATHER4(mat_albedo, 4 * as_uintv(mat), &ar, &ag, &ab, &unused);
+#if TEXTURES
+        {   /* the albedo times the material's texture at the hit (texture.h; bary: embree's (u, v)) */
+            realv bu, bv, tu, tv, tr, tg, tb;
+            GATHER2(bary, 2 * i, &bu, &bv);
+            texture_uv(face_uv, f, bu, bv, &tu, &tv);
+            texture_rgb(tex_atlas, tex_table, GATHER_INT(mat_texture, mat), tu, tv, &tr, &tg, &tb);
+            ar *= tr;
+            ag *= tg;
+            ab *= tb;
+        }
+#endif
 #if CANDIDATES
         const intv resample = hit & (GATHER(spread, pixel) > coherence * GATHER(mat_width, mat));
 #else

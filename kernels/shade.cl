@@ -29,6 +29,10 @@
 #include "product.h"
 #include "rng.h"
 #include "hit.h"
+#include "texture.h"
+#ifndef TEXTURES
+#define TEXTURES 0   /* 1: some material has a base-colour texture (texture.h) */
+#endif
 #if STRATEGY >= 3 && !defined(N_LEVELS)
 #error "shade.cl with the light or product sample is built with -DN_LEVELS (the light tree's depth)"
 #endif
@@ -156,6 +160,7 @@ typedef struct {
  * e = wo, material mat, uniforms u0 .. u3; estimates are zero where live is 0. */
 inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, const realv nz,
                           const realv ex, const realv ey, const realv ez, const intv mat,
+                          const realv tint_r, const realv tint_g, const realv tint_b,
                           const realv u0, const realv u1, const realv u2, const realv u3, const intv live)
 {
 #if STRATEGY == 3 || STRATEGY == 4
@@ -332,6 +337,9 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     const uintv am = as_uintv(4 * mat);
     realv ar, ag, ab, unused, ta_r, ta_g, ta_b, tb_r, tb_g, tb_b;
     GATHER4(mat_albedo, am, &ar, &ag, &ab, &unused);
+    ar *= tint_r;   /* the albedo times the texture's lookup at the hit (1 without one) */
+    ag *= tint_g;
+    ab *= tint_b;
     GATHER4(texels, ka, &ta_r, &ta_g, &ta_b, &unused);
     GATHER4(texels, kb, &tb_r, &tb_g, &tb_b, &unused);
     Shaded s;
@@ -403,11 +411,13 @@ inline void store_values(const Shaded *s, __global float *value_out, const uint 
 }
 
 /* Shading points given directly: normals and view directions as rows of 3 floats,
- * material ids, u rows of 4; wi_out and value_out as planes (slot, component,
+ * material ids, with has_tint rows of 3 floats multiplying each point's albedo (a texture's
+ * value there), u rows of 4; wi_out and value_out as planes (slot, component,
  * point), offset_out (the part without a shadow ray) as planes r, g, b. The tests' entry
  * point; the renderer uses shade_rays. */
 __kernel void shade(__global const float *normal, __global const float *wo_world,
-                    __global const int *material, __global const float *u_in, const uint count,
+                    __global const int *material, __global const float *tint, const int has_tint,
+                    __global const float *u_in, const uint count,
                     SHADE_TABLE_ARGS, __global float *wi_out, __global float *value_out,
                     __global float *offset_out)
 {
@@ -419,8 +429,10 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     GATHER3(normal, 3 * i, &nx, &ny, &nz);
     GATHER3(wo_world, 3 * i, &ex, &ey, &ez);
     GATHER4(u_in, 4 * i, &u0, &u1, &u2, &u3);
-    const Shaded s = shade_lanes(SHADE_TABLES, nx, ny, nz, ex, ey, ez, GATHER_INT(material, i), u0, u1, u2, u3,
-                                 (intv)-1);
+    realv tr = 1.0f, tg = 1.0f, tb = 1.0f;
+    if (has_tint) GATHER3(tint, 3 * i, &tr, &tg, &tb);
+    const Shaded s = shade_lanes(SHADE_TABLES, nx, ny, nz, ex, ey, ez, GATHER_INT(material, i), tr, tg, tb,
+                                 u0, u1, u2, u3, (intv)-1);
     STORE_LANES(s.ax, wi_out, base, count);
     STORE_LANES(s.ay, wi_out + count, base, count);
     STORE_LANES(s.az, wi_out + 2 * count, base, count);
@@ -462,7 +474,9 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
  * at index rng_first + p, as the camera kernel's jitter by word 0); else u_in (rows of 4). A miss sees the environment (direct_out,
  * 3 planes r, g, b; for hits the estimate's part without a shadow ray, Shaded's o) and has
  * zero estimates. A hit takes its face
- * normal, flipped to face the viewer (two-sided shading), its face's material and
+ * normal, flipped to face the viewer (two-sided shading), its face's material (with
+ * -DTEXTURES=1 its albedo times its texture at the hit: texture.h, the face's texture
+ * coordinates face_uv interpolated at embree's barycentric bary, rows of 2) and
  * shade_lanes' directions and estimates; origin_out (rows of 3) is the hit point p
  * moved max(OFFSET_RELATIVE |p|, face_normal's 4th column, eye_offset) along that normal
  * (wavlight/raytrace.py: the offset floors of the face and of the eye), where its
@@ -473,6 +487,9 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
 __kernel void shade_rays(__global const float *dirs, __global const int *prim, __global const float *tfar,
                          const float eye_x, const float eye_y, const float eye_z, const float eye_offset,
                          __global const float *face_normal, __global const int *face_material,
+                         __global const float *bary, __global const float *face_uv,
+                         __global const int *mat_texture, __global const float *tex_atlas,
+                         __global const int *tex_table,
                          __global const float *u_in, const int draw_u, const uint rng_tile,
                          const uint rng_first, const uint rng_k0, const uint rng_k1, const uint rng_k,
                          const uint count,
@@ -522,8 +539,17 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
         } else {
             GATHER4(u_in, 4 * i, &u0, &u1, &u2, &u3);
         }
-        s = shade_lanes(SHADE_TABLES, nx, ny, nz, -dx, -dy, -dz, GATHER_INT(face_material, f), u0, u1, u2, u3,
-                        hit);
+        const intv mat = GATHER_INT(face_material, f);
+        realv tr = 1.0f, tg = 1.0f, tb = 1.0f;
+#if TEXTURES
+        {
+            realv bu, bv, tu, tv;
+            GATHER2(bary, 2 * i, &bu, &bv);
+            texture_uv(face_uv, f, bu, bv, &tu, &tv);
+            texture_rgb(tex_atlas, tex_table, GATHER_INT(mat_texture, mat), tu, tv, &tr, &tg, &tb);
+        }
+#endif
+        s = shade_lanes(SHADE_TABLES, nx, ny, nz, -dx, -dy, -dz, mat, tr, tg, tb, u0, u1, u2, u3, hit);
         STORE_LANES(er + s.o_r, direct_out, base, count);   /* (er: 0 for hits) */
         STORE_LANES(eg + s.o_g, direct_out + count, base, count);
         STORE_LANES(eb + s.o_b, direct_out + 2 * count, base, count);

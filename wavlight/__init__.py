@@ -16,14 +16,15 @@ the example scenes that ship with wavlight.
 from .errors import ArgumentError, SanitisedInputWarning, SceneError, WavlightError
 from .imageio import save_image
 from .integrator import RenderResult, render, render_full
-from .scene import Scene, load_dict, load_scene
+from .scene import Scene, load_asset, load_dict, load_scene
 from .strategies import STRATEGIES
 from .relight.bakes import bake
 from .relight.transfer import Transfer
 from .version import __version__
 
-__all__ = ["load_scene", "load_dict", "render", "bake", "Transfer", "render_full", "save_image", "Scene", "RenderResult",
-           "WavlightError", "SceneError", "ArgumentError", "SanitisedInputWarning", "STRATEGIES", "__version__"]
+__all__ = ["load_scene", "load_dict", "load_asset", "render", "bake", "Transfer", "render_full", "save_image",
+           "Scene", "RenderResult", "WavlightError", "SceneError", "ArgumentError", "SanitisedInputWarning",
+           "STRATEGIES", "__version__"]
 
 #: Subpackages and modules reachable as attributes (wavlight.evaluation.run_experiment, ...) without
 #: importing them here: the evaluation package pulls in matplotlib, which costs a second at start-up.

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import bsdfs, data, meshes
+from . import assets, bsdfs, data, meshes, textures
 from .envmap import MAX_RADIANCE, MAX_TEXELS, Environment, procedural_sky, read_image
 from .errors import SanitisedInputWarning, SceneError, WavlightError, file_problem, shown
 from .options import FOV, HEIGHT, SEED, SPP, WIDTH
@@ -71,6 +71,7 @@ class Material:
     kind: int          # bsdfs.LAMBERT | PHONG | GGX
     albedo: np.ndarray  # (3,)
     param: float       # phong exponent or ggx alpha (0 for lambert)
+    texture: int = -1  # index in Scene.textures of a base-colour texture multiplying albedo (-1: none)
 
 
 @dataclass
@@ -119,6 +120,10 @@ class Scene:
     files: list = field(default_factory=list)
     #: the [[objects]] as loaded (SceneObject): names, local geometry, transforms, face ranges
     objects: list = field(default_factory=list)
+    #: base-colour textures, (H, W, 3) float32 linear (sRGB-decoded at load), indexed by Material.texture
+    textures: list = field(default_factory=list)
+    #: (V, 2) float32 texture coordinates of the vertices (zeros where a mesh has none), or None
+    vertex_uv: np.ndarray | None = None
 
     def find_object(self, key) -> "SceneObject":
         """The object named ``key``, or at index ``key`` (an int or a string of digits); a
@@ -171,6 +176,39 @@ class Scene:
     def material_albedo(self):
         return np.array([m.albedo for m in self.materials], np.float32).reshape(-1, 3)
 
+    @property
+    def material_texture(self):
+        """(materials,) int32: each material's texture index, -1 where it has none."""
+        return np.array([getattr(m, "texture", -1) for m in self.materials], np.int32)
+
+    @property
+    def textured(self) -> bool:
+        """Whether some face's material has a base-colour texture (hits then need texture coordinates)."""
+        return bool(len(self.textures) and len(self.face_material)
+                    and (self.material_texture[np.unique(self.face_material)] >= 0).any())
+
+    def texture_atlas(self):
+        """(texels (T, 4) float32, table (n, 4) int32) of wavlight.textures.atlas, made once per Scene."""
+        key = tuple(id(t) for t in self.textures)
+        cached = self.__dict__.get("_atlas")
+        if cached is None or cached[0] != key:
+            cached = (key, textures.atlas(self.textures))
+            self.__dict__["_atlas"] = cached
+        return cached[1]
+
+    def albedo_at(self, face, bu, bv) -> np.ndarray:
+        """(N, 3) float32 albedo at hits on faces (N,) at embree's barycentric (bu, bv): the
+        material's albedo times its texture's bilinear lookup (wavlight.textures; the numpy twin
+        of the kernels' albedo)."""
+        face = np.asarray(face, np.int64)
+        mat = self.face_material[face]
+        albedo = self.material_albedo[mat]
+        if not self.textured:
+            return albedo
+        uv = textures.hit_uv(textures.face_uv(self.faces[face], self.vertex_uv), np.arange(len(face)), bu, bv)
+        texels, table = self.texture_atlas()
+        return (albedo * textures.lookup(texels, table, self.material_texture[mat], uv)).astype(np.float32)
+
 
 def check_scene(scene) -> None:
     """What a renderer relies on in a Scene, checked again at render time (a Scene can be built
@@ -212,6 +250,21 @@ def check_scene(scene) -> None:
         bad("face indices out of range")
     if len(fm) and (fm.min() < 0 or fm.max() >= len(scene.materials)):
         bad(f"face_material out of range (0..{len(scene.materials) - 1})")
+    tex = getattr(scene, "textures", [])
+    if not isinstance(tex, list) or not all(isinstance(t, np.ndarray) and t.dtype == np.float32 and t.ndim == 3
+                                            and t.shape[2] == 3 and t.shape[0] * t.shape[1] >= 1 for t in tex):
+        bad("textures must be a list of (H, W, 3) float32 arrays")
+    if sum(t.shape[0] * t.shape[1] for t in tex) > textures.MAX_ATLAS_TEXELS:
+        bad(f"textures hold more than {textures.MAX_ATLAS_TEXELS} texels")
+    if any(not (np.all(np.isfinite(t)) and t.min(initial=0.0) >= 0) for t in tex):
+        bad("textures must be finite and >= 0")
+    if any(not (-1 <= int(getattr(m, "texture", -1)) < len(tex)) for m in scene.materials):
+        bad(f"a material's texture index is out of range (-1..{len(tex) - 1})")
+    if getattr(scene, "textured", False):
+        uv = getattr(scene, "vertex_uv", None)
+        if (not isinstance(uv, np.ndarray) or uv.shape != (len(v), 2) or uv.dtype != np.float32
+                or not np.all(np.isfinite(uv))):
+            bad("a textured scene needs vertex_uv, (V, 2) finite float32")
     limits = {bsdfs.LAMBERT: (0.0, np.inf), bsdfs.PHONG: EXPONENT_RANGE, bsdfs.GGX: ROUGHNESS_RANGE}
     for m in scene.materials:
         albedo = np.asarray(getattr(m, "albedo", None), np.float64)
@@ -221,6 +274,14 @@ def check_scene(scene) -> None:
         if not (np.all(np.isfinite(albedo)) and albedo.min() >= 0 and lo <= float(m.param) <= hi):
             bad(f"material {m.name!r}: albedo must be finite and >= 0, the parameter in [{lo:g}, {hi:g}], "
                 f"got {albedo.tolist()} and {m.param}")
+
+
+def require_untextured(scene, what: str) -> None:
+    """A one-line WavlightError where ``scene`` has base-colour textures and ``what`` (a bake or
+    frame of wavlight.relight that does not carry them yet) would render it without them."""
+    if getattr(scene, "textured", False):
+        raise WavlightError(f"{scene.path}: {what} does not carry base-colour textures yet (lighting bakes, "
+                            "their relit and their unbiased frames do); give the textured objects a material to use it")
 
 
 # ----------------------------------------------------------------------------- validation helpers
@@ -485,12 +546,15 @@ def _load_mesh(t: _Table, path: str):
     return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
 
 
-def _shape(t: _Table, base_dir, files: list):
-    """(vertices, faces) of one object before its transform."""
+def _shape(t: _Table, base_dir, files: list, file_materials: bool = False):
+    """(vertices, faces, parts) of one object before its transform: ``parts`` (a list of
+    wavlight.assets.Part, whose vertices and faces are concatenated in order) for a glTF or OBJ +
+    MTL mesh file read with its materials (``file_materials``: the object names no material),
+    else None."""
     if t.has("mesh") and t.has("shape"):
         t.fail("shape", "give either mesh or shape, not both")
     if t.has("vertices") or t.has("faces") or isinstance(t.data.get("mesh"), _Given):
-        return _given_mesh(t)
+        return (*_given_mesh(t), None)
     if t.has("mesh"):
         rel = t.get("mesh", "str")
         try:
@@ -500,18 +564,29 @@ def _shape(t: _Table, base_dir, files: list):
         problem = file_problem(path)
         if problem:
             t.fail("mesh", f"{path}: {problem}")
+        if file_materials and assets.has_materials(path):
+            try:
+                found = assets.read_cached(path)
+            except (WavlightError, OSError) as e:
+                t.fail("mesh", f"{path}: {e}")
+            if found is not None:
+                parts, _, linked = found
+                files += [path, *linked]
+                starts = np.cumsum([0] + [len(p.vertices) for p in parts])
+                return (np.concatenate([p.vertices for p in parts]),
+                        np.concatenate([p.faces + s for p, s in zip(parts, starts)]), parts)
         v, f = _load_mesh(t, path)
         files.append(path)
         if len(f) == 0:
             t.fail("mesh", f"{path} holds no triangles")
-        return v, f
+        return v, f, None
     kind = t.get("shape", "str", required=True)
     if kind == "sphere":
         center = t.get("center", "vec3", np.zeros(3))
         radius = _positive(t, "radius", t.get("radius", "float", 1.0), lo=1e-9)
         sub = _positive(t, "subdivisions", t.get("subdivisions", "int", 5), lo=0, hi=8)
         v, f = meshes.icosphere(sub, radius)
-        return v + center, f
+        return v + center, f, None
     if kind == "quad":
         center = t.get("center", "vec3", np.zeros(3))
         normal = t.get("normal", "vec3", np.array([0.0, 1.0, 0.0]))
@@ -524,7 +599,8 @@ def _shape(t: _Table, base_dir, files: list):
         h1, h2 = 0.5 * size[0] * t1, 0.5 * size[1] * t2
         v = np.array([center - h1 - h2, center + h1 - h2, center + h1 + h2, center - h1 + h2])
         # counter-clockwise seen from +n
-        return v, np.array([[0, 1, 2], [0, 2, 3]]) if np.dot(np.cross(t1, t2), n) > 0 else np.array([[0, 2, 1], [0, 3, 2]])
+        return v, (np.array([[0, 1, 2], [0, 2, 3]]) if np.dot(np.cross(t1, t2), n) > 0
+                   else np.array([[0, 2, 1], [0, 3, 2]])), None
     t.fail("shape", f"unknown shape {kind!r} (sphere | quad)")
 
 
@@ -555,8 +631,9 @@ def _transform(t: _Table, v):
     return v, rotate, t.get("translate", "vec3", np.zeros(3))
 
 
-def _clean_triangles(path, key, v, f):
-    """Drop degenerate (zero-area) and out-of-range triangles with a warning."""
+def _good_triangles(path, key, v, f):
+    """(F,) bool: the triangles that are not degenerate (zero area), with a warning for the others;
+    a SceneError for out-of-range indices, vertices beyond range or every triangle degenerate."""
     if f.size and (f.min() < 0 or f.max() >= len(v)):
         raise SceneError(path, key, "face indices out of range")
     if not np.all(np.isfinite(v)):
@@ -573,7 +650,7 @@ def _clean_triangles(path, key, v, f):
                       stacklevel=3)
     if not good.any():
         raise SceneError(path, key, "every triangle is degenerate (zero area)")
-    return f[good]
+    return good
 
 
 # ----------------------------------------------------------------------------- loading
@@ -637,6 +714,45 @@ def load_dict(d: dict, base_dir=None) -> Scene:
     if not isinstance(base_dir, (str, os.PathLike)) or not os.path.isdir(base_dir):
         raise SceneError("<dict>", "", f"base_dir must be an existing folder, got {shown(base_dir)}")
     return _parse(_plain(d, "<dict>", "", 0), "<dict>", os.path.abspath(base_dir))
+
+
+def load_asset(path, environment=None, width=None, height=None) -> Scene:
+    """A scene of one mesh file, rendered directly (``wavlight render ASSET.glb --env MAP``): the
+    file as the only object, with its own materials (wavlight.assets), under the map
+    ``environment`` (a file or ``data:NAME``, relative to the current folder; the procedural sky
+    where None), seen by the file's glTF camera where it has one, else by a camera that frames
+    its bounds (:func:`wavlight.assets.frame_bounds`, the default field of view). Errors name the
+    file (SceneError)."""
+    path = os.path.abspath(os.fspath(path))
+    problem = file_problem(path)
+    if problem:
+        raise SceneError(path, "", problem)
+    if not assets.has_materials(path):
+        raise SceneError(path, "", f"an asset rendered directly is a {', '.join(assets.SUFFIXES)} file")
+    try:
+        found = assets.read(path)
+    except (WavlightError, OSError) as e:
+        raise SceneError(path, "", str(e)) from None
+    render = {k: v for k, v in (("width", width), ("height", height)) if v is not None}
+    doc = {"render": render, "environment": {"file": environment} if environment is not None else {"procedural": "sky"},
+           "objects": [{"mesh": path}]}
+    try:
+        with assets.reuse(path, found):
+            scene = _parse(_plain(doc, path, "", 0), path, os.getcwd())
+    except SceneError as e:   # the file's own problems without the scene-table key of its object
+        if e.key == "[[objects]][0].mesh" and str(e).startswith(f"{path}: {e.key}: {path}: "):
+            raise SceneError(path, "", str(e)[len(f"{path}: {e.key}: {path}: "):]) from None
+        if e.key.startswith("[[objects]][0]"):
+            raise SceneError(path, "", str(e)[len(f"{path}: {e.key}: "):]) from None
+        raise
+    own = found[1] if found is not None else None
+    if own is not None:
+        camera = Camera(own.eye, own.target, own.up, own.fov_y)
+    else:
+        eye, target, up = assets.frame_bounds(scene.vertices.min(axis=0), scene.vertices.max(axis=0), FOV.default,
+                                              scene.width / scene.height)
+        camera = Camera(eye, target, up, FOV.default)
+    return replace(scene, camera=camera)
 
 
 def _plain(v, path, key, depth):
@@ -736,7 +852,7 @@ def _parse(doc, path: str, base: str) -> Scene:
     if not isinstance(objs, list):
         raise SceneError(path, "objects", "must be an array of tables ([[objects]])")
     _check_objects(path, objs, index)
-    verts, faces, fmat, objects = [], [], [], []
+    verts, faces, fmat, objects, uvs, texture_list = [], [], [], [], [], []
     offset = face_offset = 0
     triangles = 0
     for i, o in enumerate(objs):
@@ -745,40 +861,96 @@ def _parse(doc, path: str, base: str) -> Scene:
         if object_name is not None:
             if not object_name or any(ob.name == object_name for ob in objects):
                 t.fail("name", f"must be a non-empty name no other object has, got {shown(object_name)}")
-        v, f = _shape(t, base, files)
+        name = t.get("material", "str")
+        v, f, parts = _shape(t, base, files, file_materials=name is None)
         triangles += len(f)
         if triangles > MAX_TRIANGLES:
             raise SceneError(path, t.name, f"the objects up to this one make more than {MAX_TRIANGLES} triangles; "
                                            f"at most {MAX_TRIANGLES} are supported (about 390 bytes each)")
         local, rotate, translate = _transform(t, v)
         v = local @ rotation(rotate).T + translate
-        name = t.get("material", "str")
-        if name is None:
-            if "__default__" not in index:
-                index["__default__"] = len(materials)
-                materials.append(Material("__default__", bsdfs.LAMBERT, np.full(3, 0.5, np.float32), 0.0))
-            name = "__default__"
-        elif name not in index:
+        uv = None
+        if name is not None and name not in index:
             t.fail("material", f"unknown material {name!r}")
+        if parts is not None:   # the mesh file's own materials, part by part
+            fm, uv = _part_materials(t, parts, materials, index, texture_list)
+        else:
+            if name is None:
+                name = _default_material(materials, index)
+            fm = np.full(len(f), index[name], np.int32)
         t.done()
-        f = _clean_triangles(path, t.name, v, f)
-        objects.append(SceneObject(object_name, i, local, f.astype(np.int32), rotate, translate, index[name],
+        good = _good_triangles(path, t.name, v, f)
+        f, fm = f[good], fm[good]
+        objects.append(SceneObject(object_name, i, local, f.astype(np.int32), rotate, translate, int(fm[0]),
                                    (face_offset, face_offset + len(f)), (offset, offset + len(v))))
         verts.append(v)
+        uvs.append(uv)
         faces.append(f + offset)
-        fmat.append(np.full(len(f), index[name], np.int32))
+        fmat.append(fm)
         offset += len(v)
         face_offset += len(f)
     if not materials:
         materials.append(Material("__default__", bsdfs.LAMBERT, np.full(3, 0.5, np.float32), 0.0))
     vertices = np.concatenate(verts).astype(np.float32) if verts else np.zeros((0, 3), np.float32)
+    vertex_uv = None
+    if any(uv is not None for uv in uvs):
+        vertex_uv = np.concatenate([np.zeros((len(v), 2), np.float32) if uv is None else uv
+                                    for v, uv in zip(verts, uvs)]).astype(np.float32)
     digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=_hashed).encode())
     for name in files:
         digest.update(_file_digest(name))
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
                  np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, options, digest.hexdigest(),
-                 files, objects)
+                 files, objects, texture_list, vertex_uv)
+
+
+def _default_material(materials: list, index: dict) -> str:
+    """The name of the default material (a grey lambert, albedo 0.5), added on first use."""
+    if "__default__" not in index:
+        index["__default__"] = len(materials)
+        materials.append(Material("__default__", bsdfs.LAMBERT, np.full(3, 0.5, np.float32), 0.0))
+    return "__default__"
+
+
+def _part_materials(t: "_Table", parts, materials: list, index: dict, texture_list: list):
+    """(per-face material indices (F,) int32, vertex texture coordinates (V, 2) float32 or None) of
+    a mesh file's parts (wavlight.assets.Part, in the order of its merged faces), appending a
+    Material per mapped part and its texture to the scene's (``texture_list``)."""
+    mesh, fm, uv, textured = t.data.get("mesh"), [], [], False
+    for part in parts:
+        m = part.material
+        if m is None:
+            k = index[_default_material(materials, index)]
+        else:
+            kind = bsdfs.TYPES.get(m.type)
+            if kind is None:
+                t.fail("mesh", f"{mesh}: {part.name}: maps to {m.type} ({m.why}), "
+                               f"which this version of wavlight does not render; to render the file, give its object a "
+                               f"material in a scene file (material = \"NAME\")")
+            albedo = np.asarray(m.albedo, np.float64)
+            if not np.all(np.isfinite(albedo)) or albedo.max() > MAX_ALBEDO:
+                t.fail("mesh", f"{mesh}: {part.name}: albedo {albedo.tolist()} must be finite and at most "
+                               f"{MAX_ALBEDO:g}")
+            tex = -1
+            if part.texture is not None:
+                ids = [id(x) for x in texture_list]
+                if id(part.texture) not in ids:
+                    if (sum(x.shape[0] * x.shape[1] for x in texture_list)
+                            + part.texture.shape[0] * part.texture.shape[1]) > textures.MAX_ATLAS_TEXELS:
+                        t.fail("mesh", f"{mesh}: {part.name}: the scene's textures would hold more than "
+                                       f"{textures.MAX_ATLAS_TEXELS} texels")
+                    texture_list.append(part.texture)
+                    ids.append(id(part.texture))
+                tex = ids.index(id(part.texture))
+                textured = True
+            extra = {"ior": m.ior} if "ior" in Material.__dataclass_fields__ else {}   # plastic's coating
+            k = len(materials)
+            materials.append(Material(f"{mesh}:{m.source or part.name}", kind, albedo.astype(np.float32),
+                                      float(m.alpha) if m.type != "lambert" else 0.0, texture=tex, **extra))
+        fm.append(np.full(len(part.faces), k, np.int32))
+        uv.append(part.uv if part.uv is not None else np.zeros((len(part.vertices), 2), np.float32))
+    return np.concatenate(fm), (np.concatenate(uv).astype(np.float32) if textured else None)
 
 
 def _check_objects(path, objs, materials: dict) -> None:

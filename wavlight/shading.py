@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import camera, cl, raytrace, rng, strategies, warp
+from . import camera, cl, raytrace, rng, strategies, textures, warp
 
 _WARMED = set()  # shade programs already launched in this process
 
@@ -83,12 +83,24 @@ class KernelShader:
         self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
                         self.texels, *self.env_size, self.rot, self.tree)
         self._geometry = None
+        self.textured = bool(getattr(scene, "textured", False)) and tracer is not None
         if tracer is not None:   # face normals and materials for shade_rays (a dummy row without faces)
             rows = np.zeros((max(len(tracer.face_normals), 1), 4), np.float32)   # normal, offset floor
             rows[:len(tracer.face_normals), :3] = tracer.face_normals
             rows[:len(tracer.face_normals), 3] = tracer.face_offset_floor
             materials = scene.face_material if len(scene.face_material) else np.zeros(1, np.int32)
             self._geometry = (cl.to_device(rows), cl.to_device(np.asarray(materials, np.int32)))
+        # base-colour textures (kernels/texture.h): the faces' texture coordinates, each material's
+        # texture and the scene's texels in one buffer, uploaded once; dummies without textures
+        if self.textured:
+            texels, table = scene.texture_atlas()
+            self._textures = (cl.to_device(textures.face_uv(scene.faces, scene.vertex_uv)),
+                              cl.to_device(scene.material_texture), cl.to_device(texels), cl.to_device(table))
+            sizes["TEXTURES"] = 1
+        else:
+            dummy = cl.to_device(np.zeros(8, np.float32))
+            self._textures = (dummy, cl.to_device(np.full(max(len(scene.materials), 1), -1, np.int32)), dummy,
+                              cl.to_device(np.zeros(4, np.int32)))
         if getattr(strategy, "heuristic", "power") == "balance":
             sizes["MIS_BALANCE"] = 1
         sizes["OFFSET_RELATIVE"] = repr(float(np.float32(raytrace.OFFSET_RELATIVE)))   # shadow-ray offsets
@@ -96,9 +108,10 @@ class KernelShader:
                                   **sizes)
         self.warm_up()
 
-    def __call__(self, n, wo, material, u, with_offset=False, **_):
+    def __call__(self, n, wo, material, u, with_offset=False, tint=None, **_):
         """Shading points given directly (the ``shade`` kernel; tests): world normals n and view
-        directions wo (N, 3), material ids (N,), uniforms u (N, 4) -> wi, value (N, S, 3) (S =
+        directions wo (N, 3), material ids (N,), uniforms u (N, 4), ``tint`` (N, 3) multiplying
+        each point's albedo (a texture's value there; None: 1) -> wi, value (N, S, 3) (S =
         ``slots``: 2, or 4 for the wavelet strategy's ``slots=4``), and
         with ``with_offset`` the estimates' part without a shadow ray, offset (N, 3) (the
         point's estimate is offset + the values of its visible slots)."""
@@ -113,7 +126,9 @@ class KernelShader:
         cl.kernel(self.program, "shade")(
             q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("normal", np.asarray(n, np.float32), q),
             cl.upload("wo", np.asarray(wo, np.float32), q),
-            cl.upload("material", np.asarray(material, np.int32), q), cl.upload("u", np.asarray(u, np.float32), q),
+            cl.upload("material", np.asarray(material, np.int32), q),
+            cl.upload("tint", np.asarray(tint if tint is not None else np.ones((1, 3)), np.float32), q),
+            np.int32(tint is not None), cl.upload("u", np.asarray(u, np.float32), q),
             np.uint32(count), *self._tables, wi_buf, val_buf, off_buf)
         # planes (slot, component, point) -> (point, slot, component) views
         wi = cl.read(wi_buf, (S, 3, count), np.float32, q).transpose(2, 0, 1)
@@ -122,14 +137,18 @@ class KernelShader:
             return wi, value, cl.read(off_buf, (3, count), np.float32, q).T
         return wi, value
 
-    def shade_rays(self, eye, d, prim, t, u) -> ShadedRays:
+    def shade_rays(self, eye, d, prim, t, u, bary=None) -> ShadedRays:
         """Camera rays from ``eye`` along d (N, 3) that hit triangle prim (N,) (-1: a miss) at
         distance t (N,), with uniforms u: an (N, 4) array, or an :class:`rng.Stream` whose
-        SHADING numbers the kernel draws itself (stratified as the stream says). One
+        SHADING numbers the kernel draws itself (stratified as the stream says); ``bary`` (N, 2):
+        embree's barycentric (u, v) of the hits (RayTracer.intersect_uv), needed where the scene
+        has textures. One
         ``shade_rays`` launch into the thread's reusable buffers (the global size padded to the
         fixed work-group size: PoCL compiles once per work-group size, done in warm_up)."""
         if self._geometry is None:
             raise ValueError("KernelShader.shade_rays needs the ray tracer's geometry (tracer=...)")
+        if self.textured and bary is None:
+            raise ValueError("KernelShader.shade_rays: a textured scene needs the hits' barycentric coordinates (bary)")
         count = len(d)
         q = cl.thread_queue()
         S = self.slots
@@ -149,7 +168,9 @@ class KernelShader:
             cl.kernel(self.program, "shade_rays")(
                 q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("dirs", np.asarray(d, np.float32), q),
                 cl.upload("prim", np.asarray(prim, np.int32), q), cl.upload("tfar", np.asarray(t, np.float32), q),
-                *np.asarray(eye, np.float32), raytrace.RayTracer.eye_offset_floor(eye), *self._geometry, u_buf, *draw, np.uint32(count), *self._tables, *bufs)
+                *np.asarray(eye, np.float32), raytrace.RayTracer.eye_offset_floor(eye), *self._geometry,
+                cl.upload("bary", np.asarray(bary, np.float32), q) if self.textured else self._textures[0],
+                *self._textures, u_buf, *draw, np.uint32(count), *self._tables, *bufs)
         origin, wi, value, direct = (cl.read(b, shape, np.float32, q) for b, shape in
                                      zip(bufs, ((count, 3), (count, S, 3), (S, 3, count), (3, count))))
         return ShadedRays(direct, origin, wi, value)
@@ -169,17 +190,19 @@ class KernelShader:
             if self._geometry is None:
                 self(up, up, np.zeros(count, np.int32), u)
             else:
-                self.shade_rays(np.zeros(3), up, np.full(count, -1, np.int32), np.ones(count, np.float32), u)
+                self.shade_rays(np.zeros(3), up, np.full(count, -1, np.int32), np.ones(count, np.float32), u,
+                                np.zeros((count, 2), np.float32))
         _WARMED.add(key)
 
 
-def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays:
+def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u, bary=None) -> ShadedRays:
     """numpy twin of ``shade_rays`` in kernels/shade.cl, around a shader of points
-    ``shade(n, wo, material, u, p=..., with_offset=True) -> wi, value (M, S, 3), offset (M, 3)``,
-    with u an (N, 4) array or an :class:`rng.Stream` (its SHADING numbers, as the kernel draws
-    them): misses see the environment; hits take their face normal flipped towards the viewer,
-    their face's material, the offset as their direct part, and shadow rays from the hit point
-    moved ``tracer.shadow_offsets`` along that normal."""
+    ``shade(n, wo, material, u, p=..., with_offset=True, tint=...) -> wi, value (M, S, 3), offset
+    (M, 3)``, with u an (N, 4) array or an :class:`rng.Stream` (its SHADING numbers, as the kernel
+    draws them): misses see the environment; hits take their face normal flipped towards the
+    viewer, their face's material (in a textured scene its texture at the hit, from embree's
+    barycentric ``bary`` (N, 2): Scene.albedo_at), the offset as their direct part, and shadow
+    rays from the hit point moved ``tracer.shadow_offsets`` along that normal."""
     d = np.asarray(d, np.float32)
     prim = np.asarray(prim)
     count = len(d)
@@ -193,7 +216,16 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays
     origin = np.zeros((count, 3), np.float32)
     n, p, origin[hit] = tracer.surface(eye, d[hit], np.asarray(t, np.float32)[hit], face)
     if len(hit):
-        wi_h, val_h, off_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p, with_offset=True)
+        tint = None
+        if getattr(scene, "textured", False):
+            if bary is None:
+                raise ValueError("shade_rays_reference: a textured scene needs the hits' barycentric coordinates")
+            b = np.asarray(bary, np.float32)[hit]
+            uv = textures.hit_uv(textures.face_uv(scene.faces, scene.vertex_uv), face, b[:, 0], b[:, 1])
+            texels, table = scene.texture_atlas()
+            tint = textures.lookup(texels, table, scene.material_texture[scene.face_material[face]], uv)
+        wi_h, val_h, off_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p, with_offset=True,
+                                   tint=tint)
         direct[:, hit] = np.asarray(off_h).T
     else:   # (no call: some shaders do not take zero points)
         wi_h = val_h = np.zeros((0, 2, 3))
@@ -215,18 +247,21 @@ class NumpyShader:
     def __init__(self, scene, strategy: strategies.Strategy, tracer=None):
         self.scene, self.strategy, self.tracer = scene, strategy, tracer
 
-    def shade_rays(self, eye, d, prim, t, u) -> ShadedRays:
+    def shade_rays(self, eye, d, prim, t, u, bary=None) -> ShadedRays:
         """Camera rays as in :meth:`KernelShader.shade_rays`, by :func:`shade_rays_reference`."""
-        return shade_rays_reference(self, self.scene, self.tracer, eye, d, prim, t, u)
+        return shade_rays_reference(self, self.scene, self.tracer, eye, d, prim, t, u, bary)
 
-    def __call__(self, n, wo, material, u, p=None, with_offset=False):
+    def __call__(self, n, wo, material, u, p=None, with_offset=False, tint=None):
         """As :meth:`KernelShader.__call__` (``p``: the hit points, for shaders that need them)."""
         sc = self.scene
         n = np.asarray(n, np.float64)
         s, t = warp.frame(n)
+        albedo = sc.material_albedo[material]
+        if tint is not None:
+            albedo = albedo * np.asarray(tint, np.float32)
         sp = strategies.ShadingPoints(p, n, s, t, warp.to_local(np.asarray(wo, np.float64), s, t, n),
                                       sc.material_kind[material], sc.material_param[material],
-                                      sc.material_albedo[material], np.asarray(material))
+                                      albedo, np.asarray(material))
         own = getattr(self.strategy, "shade", None)
         if own is not None:
             wi, value = own(sc.environment, sp, np.asarray(u, np.float64))

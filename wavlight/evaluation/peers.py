@@ -14,6 +14,10 @@ Equivalences and their limits:
   ``specular_reflectance`` = albedo): the same BRDF. phong has no Mitsuba
   counterpart: it is approximated by ggx with alpha = sqrt(2 / (n + 2)) and listed
   in ``stats["approximated_materials"]``.
+- A base-colour texture (a mesh file's, wavlight.textures): its part is written as an OBJ with
+  its texture coordinates (``vt``: Mitsuba's own reading of the OBJ convention), its albedo as
+  a ``bitmap`` texture of the linear texels times the material's albedo (``raw``, bilinear,
+  repeat), the same lookup as wavlight's.
 - The environment: Mitsuba's envmap uses the same (u, v) formula as wavlight but
   interpolates bilinearly between texel centres. wavlight looks up the nearest
   texel. We feed Mitsuba the map upsampled by nearest neighbour ``upsample`` times
@@ -63,8 +67,15 @@ def available() -> bool:
         return False
 
 
-def _bsdf(material):
+def _bsdf(material, texture=None):
+    """(Mitsuba BSDF dict, approximated) of a material; ``texture`` (H, W, 3) linear: its albedo
+    is the bitmap of the texels times the material's albedo."""
     albedo = {"type": "rgb", "value": [float(x) for x in material.albedo]}
+    if texture is not None:
+        mi, _ = _mitsuba()
+        texels = np.ascontiguousarray(texture * np.asarray(material.albedo, np.float32), np.float32)
+        albedo = {"type": "bitmap", "bitmap": mi.Bitmap(texels), "raw": True, "filter_type": "bilinear",
+                  "wrap_mode": "repeat"}
     if material.kind == bsdfs.LAMBERT:
         return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": albedo}}, False
     alpha = material.param if material.kind == bsdfs.GGX else float(np.sqrt(2.0 / (material.param + 2.0)))
@@ -103,13 +114,31 @@ def scene_dict(scene, strategy, width, height, spp, folder, upsample=8):
         faces = scene.faces[scene.face_material == index]
         if not len(faces):
             continue
-        path = os.path.join(folder, f"material_{index}.ply")
-        trimesh.Trimesh(scene.vertices, faces, process=False).export(path)
-        bsdf, approx = _bsdf(material)
+        texture = getattr(material, "texture", -1)
+        if texture >= 0 and scene.vertex_uv is not None:   # an OBJ with its texture coordinates
+            path = os.path.join(folder, f"material_{index}.obj")
+            _write_obj(path, scene.vertices, faces, scene.vertex_uv)
+            bsdf, approx = _bsdf(material, scene.textures[texture])
+            kind = "obj"
+        else:
+            path = os.path.join(folder, f"material_{index}.ply")
+            trimesh.Trimesh(scene.vertices, faces, process=False).export(path)
+            bsdf, approx = _bsdf(material)
+            kind = "ply"
         if approx:
             approximated.append(material.name)
-        d[f"shape_{index}"] = {"type": "ply", "filename": path, "face_normals": True, "bsdf": bsdf}
+        d[f"shape_{index}"] = {"type": kind, "filename": path, "face_normals": True, "bsdf": bsdf}
     return d, approximated
+
+
+def _write_obj(path, vertices, faces, uv):
+    """The faces' vertices with their texture coordinates as an OBJ (``v``, ``vt``, ``f a/a b/b c/c``)."""
+    used, inverse = np.unique(faces, return_inverse=True)
+    local = inverse.reshape(-1, 3) + 1
+    with open(path, "w") as fh:
+        np.savetxt(fh, vertices[used], fmt="v %.9g %.9g %.9g")
+        np.savetxt(fh, uv[used], fmt="vt %.9g %.9g")
+        np.savetxt(fh, np.repeat(local, 2, axis=1), fmt="f %d/%d %d/%d %d/%d")
 
 
 def render_mitsuba(scene, strategy="mis", spp=None, width=None, height=None, seed=None, upsample=8):

@@ -7,9 +7,10 @@ texel t of solid angle Omega_t,
     T_p,t = (1 / S) sum_s  ratio_s  integral over t of  f_s(w, wo_s) cos(theta) V(x_s, w) dw,
 
 f without its albedo (lambert, normalized phong and the ggx conductor here are albedo x shape),
-the pixel's albedo a_p stored apart (the mean albedo of its samples that hit; ratio_s =
-lum(albedo_s) / lum(a_p), so that luminance is exact where a pixel mixes materials and only
-its chroma is the mean's). A frame is then a_p sum_t T_p,t L_t with L_t the lighting's mean
+the pixel's albedo a_p stored apart (the mean albedo of its samples that hit, albedo_s the
+sample's material's albedo times its base-colour texture at the hit where it has one; ratio_s =
+lum(albedo_s) / lum(a_p), so that luminance is exact where a pixel mixes materials or texels and
+only its chroma is the mean's). A frame is then a_p sum_t T_p,t L_t with L_t the lighting's mean
 radiance over texel t (:mod:`wavlight.relight.lighting`), plus (1 / S) sum over the samples
 that miss of the environment in their direction (a bit mask per pixel; the frame draws the
 same camera samples again).
@@ -43,7 +44,7 @@ from ..envmap import LUMINANCE
 from ..errors import ArgumentError, shown
 from ..integrator import render_full
 from ..raytrace import RayTracer
-from ..scene import check_scene, load_scene
+from ..scene import check_scene, load_scene, require_untextured
 from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from . import lighting, store
@@ -111,7 +112,11 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
         px, py = np.asarray(at[0])[px], np.asarray(at[1])[py]
     px, py = np.repeat(px, S), np.repeat(py, S)
     eye, d = camera_rays(scene, px, py, camera_jitter(seed, tile, P, S), width, height)
-    prim, t = tracer.intersect(eye, d)
+    textured = getattr(scene, "textured", False)
+    if textured:   # the texture's albedo at each hit needs embree's barycentric coordinates
+        prim, t, bu, bv = tracer.intersect_uv(eye, d)
+    else:
+        prim, t = tracer.intersect(eye, d)
     hit = prim >= 0
     normal = np.zeros((count, 3), np.float32)
     origin = np.zeros((count, 3), np.float32)
@@ -120,6 +125,8 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
         normal[hit], origin[hit] = n, o
     mat = np.where(hit, scene.face_material[np.maximum(prim, 0)] if len(scene.face_material) else 0, 0)
     albedo_s = np.where(hit[:, None], scene.material_albedo[mat], 0.0)
+    if textured and hit.any():   # the sample's albedo times its material's texture there
+        albedo_s[hit] = scene.albedo_at(prim[hit], bu[hit], bv[hit])
     hits = hit.reshape(P, S).sum(1)
     albedo = (albedo_s.reshape(P, S, 3).sum(1) / np.maximum(hits, 1)[:, None]).astype(np.float32)
     lum_p = np.repeat(albedo @ LUMINANCE, S)
@@ -585,7 +592,12 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
     if vary == "object":
         if object is None:
             raise ArgumentError(f"{where}: vary='object' needs the object that moves (a name or an index)")
+        require_untextured(scene, "a bake with vary='object'")
         moving = scene.find_object(object)
+        kinds = np.unique(scene.face_material[moving.faces_range[0]:moving.faces_range[1]])
+        if len(kinds) > 1:   # its frames shade the moving object with one material (SceneObject.material)
+            raise ArgumentError(f"{scene.path}: the object {object!r} has {len(kinds)} materials (its mesh file's "
+                                "parts); a bake with vary='object' moves an object of one material: give it a material")
         scene = scene.without(moving)
         static_spp = BAKE["static_spp"].check(static_spp, where)
     elif object is not None:

@@ -326,7 +326,8 @@ class ConvergeFrames:
     # -- what frames share
     def program(self, levels: int, slots: int, candidates: int, control: bool):
         """kernels/converge.cl for this bake and scene (:func:`.converge_kernels.program`)."""
-        return kernels.program(levels, self.transfer.bits, self._shade.kinds, slots, candidates, control, LATTICE)
+        return kernels.program(levels, self.transfer.bits, self._shade.kinds, slots, candidates, control, LATTICE,
+                               self._shade.textured)
 
     def spread(self, tile, prog=None):
         """The footprint spread of the tile's pixels (measured once): (w h,) float32 on the host
@@ -443,6 +444,7 @@ class ConvergeFrames:
         shares = (defensive, light, coherence)
         eye = np.broadcast_to(self.scene.camera.eye.astype(np.float32), (1, 3))
         spread_rays = self._spread_rays
+        textured = self.scene.textured
 
         def one(tile, stop):
             trees, was_kept = self.tile_trees(state, tile, prog)
@@ -462,15 +464,21 @@ class ConvergeFrames:
                 k = min(per_pass, spp - first)
                 d = camera.pass_rays(self.scene, width, height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k,
                                      first * P, kernel=self.backend == "opencl", stratified=True)
-                prim, t = self.tracer.intersect(np.broadcast_to(eye, d.shape), d)
+                bary = None
+                if textured:   # the texture's albedo at each hit: embree's barycentric (u, v)
+                    prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
+                    bary = np.stack([bu, bv], axis=1)
+                else:
+                    prim, t = self.tracer.intersect(np.broadcast_to(eye, d.shape), d)
                 rays += len(d)
                 if self.backend == "opencl":
                     direct, origin, wi, value = self._shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
-                                                            state.device, shares, seed, tile_id)
+                                                            state.device, shares, seed, tile_id, bary=bary)
                 else:
                     direct, origin, wi, value = shade_reference(
                         self.scene, self.tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], state.inside,
-                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence)
+                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
+                        bary=bary)
                 v, traced = visible_sum(self.tracer, direct, origin, wi, value)
                 rays += traced
                 hit = prim >= 0
@@ -957,7 +965,7 @@ def transfer_from_trees(nodes: np.ndarray, inside, pixel, uv) -> np.ndarray:
 
 def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spread, inside, key, first: int,
                     slots: int, defensive: float = DEFENSIVE, light: float = LIGHT_SHARE, control: bool = True,
-                    candidates: int = CANDIDATES, coherence: float = COHERENCE):
+                    candidates: int = CANDIDATES, coherence: float = COHERENCE, bary=None):
     """numpy twin of ``converge_shade`` (kernels/converge.cl): one pass of a tile's camera rays
     from ``scene``'s eye along d (N, 3) that hit ``tracer``'s triangles prim (N,) (-1: a miss)
     at t (N,), k per pixel, pixel-major. The tile's pixels' product trees: ``trees`` (a
@@ -971,8 +979,10 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     (L the map's pixel, :meth:`_TexelLight.radiance`), and with ``control`` direct =
     albedo (G - sum of g / pdf / slots), g = :func:`transfer_from_trees` L; or, where its pixel's
     spread exceeds ``coherence`` times its lobe's width, ``slots`` picks among ``candidates``
-    mixture directions by resampled importance sampling (:func:`resample_reference`). Returns
-    direct (N, 3), origin (N, 3), wi (S, 3, N), value (S, 3, N) float64, the kernel's planes."""
+    mixture directions by resampled importance sampling (:func:`resample_reference`). In a
+    textured scene the albedo is the hit's (Scene.albedo_at, ``bary`` (N, 2) embree's barycentric
+    (u, v)). Returns direct (N, 3), origin (N, 3), wi (S, 3, N), value (S, 3, N) float64, the
+    kernel's planes."""
     N = len(d)
     seed, tile = key
     direct, origin = np.zeros((N, 3)), np.zeros((N, 3))
@@ -986,7 +996,13 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     origin[hit] = hits.origin
     has_p = np.asarray(nodes)[hits.pixel, 0] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)
-    albedo = scene.material_albedo[hits.mat].astype(np.float64)
+    if getattr(scene, "textured", False):
+        if bary is None:
+            raise ValueError("relight.converge.shade_reference: a textured scene needs the hits' barycentric (bary)")
+        b = np.asarray(bary, np.float32)[hit]
+        albedo = scene.albedo_at(prim[hit], b[:, 0], b[:, 1]).astype(np.float64)
+    else:
+        albedo = scene.material_albedo[hits.mat].astype(np.float64)
     chosen = np.zeros(len(hit), bool)
     if candidates:
         chosen = np.asarray(spread, np.float64)[hits.pixel] > coherence * bsdfs.lobe_width(hits.kind, hits.param)

@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import cl, raytrace, rng
+from .. import cl, raytrace, rng, textures
 from ..haar.tree import TREE_ORIGIN, host_order, tree_size, tree_stride
 from ..raytrace import RayTracer
 
@@ -69,13 +69,16 @@ class Lighting:
                 b["map_lum"], np.uint32(self.map_w), np.uint32(self.top), np.uint32(self.kbits))
 
 
-def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool, lattice):
+def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool, lattice,
+            textures: bool = False):
     """kernels/converge.cl built for product trees of ``levels`` levels, entries of ``bits`` bits,
     the material kinds ``kinds`` (bit mask), ``slots`` directions per camera sample,
-    ``candidates`` resampled ones (0: none), the control variate or not, and the uniforms'
-    ``lattice`` (four 24-bit constants; memoised per process, :func:`wavlight.cl.program`)."""
+    ``candidates`` resampled ones (0: none), the control variate or not, the uniforms'
+    ``lattice`` (four 24-bit constants) and base-colour ``textures`` or not (memoised per process,
+    :func:`wavlight.cl.program`)."""
     return cl.program("converge.cl", N_LEVELS=int(levels), QBITS=int(bits), BSDF_KINDS=int(kinds) or 1,
                       SLOTS=int(slots), CANDIDATES=int(candidates), CONTROL=int(bool(control)),
+                      TEXTURES=int(bool(textures)),
                       OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))),
                       **{f"LATTICE{i}": f"{int(a)}u" for i, a in enumerate(lattice)})
 
@@ -130,7 +133,8 @@ class TreeKernel:
 
 class ShadeKernel:
     """converge_shade for one scene: its face normals (and shadow-ray offset floors), materials,
-    their albedos and lobe widths on the device."""
+    their albedos and lobe widths on the device, and in a textured scene (``textured``) the
+    faces' texture coordinates, the materials' textures and the texels (wavlight.textures)."""
 
     def __init__(self, scene, tracer: RayTracer, lobe_width: np.ndarray):
         rows = np.zeros((max(len(tracer.face_normals), 1), 4), np.float32)
@@ -146,26 +150,40 @@ class ShadeKernel:
                        cl.to_device(scene.material_param.astype(np.float32)), cl.to_device(albedo),
                        cl.to_device(np.asarray(lobe_width, np.float32)))
         self.kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
+        self.textured = bool(getattr(scene, "textured", False))
+        if self.textured:
+            texels, table = scene.texture_atlas()
+            self.texture_tables = (cl.to_device(textures.face_uv(scene.faces, scene.vertex_uv)),
+                                   cl.to_device(scene.material_texture), cl.to_device(texels), cl.to_device(table))
+        else:
+            dummy = cl.to_device(np.zeros(8, np.float32))
+            self.texture_tables = (dummy, cl.to_device(np.full(max(len(scene.materials), 1), -1, np.int32)), dummy,
+                                   cl.to_device(np.zeros(4, np.int32)))
 
     def __call__(self, prog, slots: int, d, prim, t, k: int, first: int, trees: TileTrees, spread, lighting: Lighting,
-                  shares, seed: int, tile: int, queue=None):
+                  shares, seed: int, tile: int, queue=None, bary=None):
         """One pass of a tile: camera rays along d (N, 3) from the eye that hit prim (N,) (-1: a miss)
         at t (N,), k samples per pixel, pixel-major, the pass's first sample index ``first`` of
-        the tile (``tile``: its Philox tile). ``spread`` the tile pixels' footprint spreads on
+        the tile (``tile``: its Philox tile); ``bary`` (N, 2) embree's barycentric (u, v) of the
+        hits, needed in a textured scene. ``spread`` the tile pixels' footprint spreads on
         the device, ``shares`` (defensive, light, coherence). Returns float32 direct (N, 3),
         origin (N, 3), wi (S, 3, N) and value (S, 3, N) (planes: slot, component, sample)."""
         queue = queue or cl.thread_queue()
         count = len(d)
         S = int(slots)
         out = cl.scratch("converge_out", 4 * (6 + 6 * S) * max(count, 1))
+        if self.textured and bary is None and count:
+            raise ValueError("converge ShadeKernel: a textured scene needs the hits' barycentric coordinates (bary)")
         if count:
+            bary_buf = (cl.upload("converge_bary", np.asarray(bary, np.float32), queue) if self.textured
+                        else self.texture_tables[0])
             defensive, light, coherence = shares
             cl.kernel(prog, "converge_shade")(
                 queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(k),
                 np.uint32(first), cl.upload("converge_dirs", np.asarray(d, np.float32), queue),
                 cl.upload("converge_prim", np.asarray(prim, np.int32), queue),
                 cl.upload("converge_t", np.asarray(t, np.float32), queue), *self.eye, self.eye_offset, *self.tables,
-                trees.buffer, np.uint32(tree_stride(trees.levels)), trees.relit, spread,
+                bary_buf, *self.texture_tables, trees.buffer, np.uint32(tree_stride(trees.levels)), trees.relit, spread,
                 lighting.buffers["leaf_masses"], lighting.buffers["omega"], *lighting.light_args(),
                 np.float32(defensive), np.float32(light), np.float32(coherence), np.uint32(tile),
                 np.uint32(rng.CONVERGE_DIRECTIONS[0]), *(np.uint32(x) for x in rng.key(seed)), out)
@@ -194,5 +212,5 @@ class ShadeKernel:
         for count in (1, 1 << 16):
             d = np.tile(np.float32([0.0, 0.0, 1.0]), (count, 1))
             self(prog, slots, d, np.full(count, -1, np.int32), np.ones(count, np.float32), count, 0, trees, spread,
-                 lighting, shares, 0, 0)
+                 lighting, shares, 0, 0, bary=np.zeros((count, 2), np.float32))
         _WARMED.add(prog)

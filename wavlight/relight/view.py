@@ -111,7 +111,7 @@ from ..errors import ArgumentError, WavlightError, check_int, check_real
 from ..haar.tree import HaarTree
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
-from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene
+from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene, require_untextured
 from ..threads import default_threads, map_until_stopped
 from ..warp import frame as tangent_frame
 from ..warp import to_local
@@ -785,6 +785,7 @@ def bake_view(scene, output=None, levels=None, tolerance: float = BAKE["toleranc
                                                                    ("seed", seed)))
     points = BAKE["points"].check(VIEW_TEXEL_POINTS if points is None else points, where)
     cache_points = check_int(where, "cache_points", cache_points, 1, MAX_LATTICE)
+    require_untextured(scene, "a bake with vary='view'")
     if scene.environment.is_black:
         raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
     if output is not None:   # the map at least
