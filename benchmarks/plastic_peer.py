@@ -9,7 +9,7 @@ upsampled 8x by nearest neighbour, twosided roughplastic with ggx, nonlinear fal
 with ``direct`` (one emitter and one BSDF sample) over ``--seeds`` seeds. Over the pixels whose
 centre sees geometry: the bias (mean of wavlight - Mitsuba over the mean of Mitsuba, per
 channel) with its standard error (wavlight's per-pixel standard errors and Mitsuba's spread
-over its seeds), z = bias / standard error, and the relative MSE of wavlight against the
+over its seeds), over the pixels whose four corners see geometry, z = bias / standard error, and the relative MSE of wavlight against the
 Mitsuba mean with Mitsuba's own noise removed. A lambert control (the same scene, both
 materials lambert) measures the part of the difference that comes from the map lookups
 (Mitsuba's bilinear lookup of the upsampled map against wavlight's nearest texel,
@@ -53,13 +53,18 @@ def scene_dict(obj: str, sky: str, materials: dict, size: int) -> dict:
 
 
 def geometry_mask(scene, size):
-    """Pixels whose centre ray hits the scene."""
+    """Pixels whose four corners see geometry: the silhouettes' pixels, which also see the map
+    directly, are left out (there the two renderers' direct lookups of the map differ,
+    wavlight.evaluation.peers)."""
     from wavlight import camera, raytrace
 
+    tracer = raytrace.RayTracer(scene.vertices, scene.faces)
     py, px = np.divmod(np.arange(size * size), size)
-    o, d = camera.camera_rays(scene, px, py, np.full((size * size, 2), 0.5), size, size)
-    prim, _ = raytrace.RayTracer(scene.vertices, scene.faces).intersect(np.ascontiguousarray(o), d)
-    return (prim >= 0).reshape(size, size)
+    mask = np.ones(size * size, bool)
+    for corner in ((0.01, 0.01), (0.99, 0.01), (0.01, 0.99), (0.99, 0.99)):
+        o, d = camera.camera_rays(scene, px, py, np.tile(corner, (size * size, 1)), size, size)
+        mask &= tracer.intersect(np.ascontiguousarray(o), d)[0] >= 0
+    return mask.reshape(size, size)
 
 
 def compare(scene, size, spp, seeds):
