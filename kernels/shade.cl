@@ -199,6 +199,50 @@ INLINE realv mixture_pdf(__global const float *tree, const Lobe *spec, const Lob
 {
     return q * product_pdf(tree, spec, u, v) + (1.0f - q) * product_pdf(tree, diff, u, v);
 }
+
+#ifdef RIS_PRODUCT
+/* The resampling estimator's candidates share each lobe's root children (root_children): the
+ * lane's pick of the two, field by field. */
+INLINE RootChildren pick_root(const RootChildren *a, const RootChildren *b, const intv use_b)
+{
+    RootChildren r;
+#pragma unroll
+    for (int c = 0; c < 4; ++c) {
+        r.m[c] = select(a->m[c], b->m[c], use_b);
+        r.i[c] = select(a->i[c], b->i[c], use_b);
+#if CACHE_LEVEL_1
+#pragma unroll
+        for (int k = 0; k < 4; ++k) {
+            r.m1[c][k] = select(a->m1[c][k], b->m1[c][k], use_b);
+            r.i1[c][k] = select(a->i1[c][k], b->i1[c][k], use_b);
+        }
+#endif
+    }
+    return r;
+}
+
+/* mixture_walk and mixture_pdf with the two lobes' root children given (the same values). */
+INLINE realv mixture_walk_from(__global const float *tree, const Lobe *spec, const Lobe *diff,
+                               const RootChildren *root_s, const RootChildren *root_d, const realv q,
+                               realv *u, realv *v)
+{
+    const intv use_d = !(*u < q);
+    *u = select(*u / q, (*u - q) / (1.0f - q), use_d);
+    const Lobe walk = pick_lobe(spec, diff, use_d), other = pick_lobe(spec, diff, !use_d);
+    const RootChildren root_walk = pick_root(root_s, root_d, use_d);
+    const realv p_walk = product_walk_from(tree, &walk, &root_walk, u, v);
+    const RootChildren root_other = pick_root(root_s, root_d, !use_d);
+    const realv p_other = product_pdf_from(tree, &other, &root_other, *u, *v);
+    return select(q * p_walk + (1.0f - q) * p_other, (1.0f - q) * p_walk + q * p_other, use_d);
+}
+
+INLINE realv mixture_pdf_from(__global const float *tree, const Lobe *spec, const Lobe *diff,
+                              const RootChildren *root_s, const RootChildren *root_d, const realv q,
+                              const realv u, const realv v)
+{
+    return q * product_pdf_from(tree, spec, root_s, u, v) + (1.0f - q) * product_pdf_from(tree, diff, root_d, u, v);
+}
+#endif
 #endif
 
 /* Shade the lanes' points: world normal n (facing the viewer), world view direction
@@ -246,11 +290,11 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         realv cx[RIS_CANDIDATES], cy[RIS_CANDIDATES], cz[RIS_CANDIDATES], cw[RIS_CANDIDATES], cl[RIS_CANDIDATES];
         realv ck[RIS_CANDIDATES];   /* each candidate's share of f cos the albedo multiplies */
         realv total = 0.0f;
+        const RootChildren root = root_children(tree, &lobe);   /* shared by every candidate's walk */
 #if HAS_KIND(BSDF_PLASTIC)
+        const RootChildren root_d = root_children(tree, &lobe_d);   /* plastic's diffuse lobe's */
         realv alb_r, alb_g, alb_b, alb_unused;   /* the control variate's colours (plastic) */
         GATHER4(mat_albedo, as_uintv(4 * mat), &alb_r, &alb_g, &alb_b, &alb_unused);
-#else
-        const RootChildren root = root_children(tree, &lobe);   /* shared by every candidate's walk */
 #endif
 #pragma unroll 1
         for (int j = 0; j < RIS_CANDIDATES; ++j) {
@@ -259,7 +303,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
             if (j < RIS_PRODUCT) {
                 realv gu = cu, gv = cv;
 #if HAS_KIND(BSDF_PLASTIC)
-                const realv square_pdf = mixture_walk(tree, &lobe, &lobe_d, lobe_q, &gu, &gv);
+                const realv square_pdf = mixture_walk_from(tree, &lobe, &lobe_d, &root, &root_d, lobe_q, &gu, &gv);
 #else
                 const realv square_pdf = product_walk_from(tree, &lobe, &root, &gu, &gv);
 #endif
@@ -278,7 +322,8 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
                 dz = lx * sz + ly * tz + lz * nz;
                 env_world_to_square(rot, dx, dy, dz, &su, &sv);
 #if HAS_KIND(BSDF_PLASTIC)
-                p_prod = mixture_pdf(tree, &lobe, &lobe_d, lobe_q, su, sv) * env_square_to_solid_angle(dx, dz);
+                p_prod = mixture_pdf_from(tree, &lobe, &lobe_d, &root, &root_d, lobe_q, su, sv) *
+                         env_square_to_solid_angle(dx, dz);
 #else
                 p_prod = product_pdf_from(tree, &lobe, &root, su, sv) * env_square_to_solid_angle(dx, dz);
 #endif
