@@ -1,12 +1,16 @@
 #!/usr/bin/env python3
 """The cost of plastic: the bunny under rooitou_park_1k in plastic (alpha 0.15) against the same
 scene in ggx (alpha 0.15), rendered with ``mis`` and ``wavelet`` (its default budget), the two
-materials alternating within each repeat (a shared machine: record the load average).
+materials alternating within each repeat (a shared machine: record the load average). Then
+the error at equal spp of ``mis`` and ``wavelet`` on benchmarks/plastic_peer.py's plastic scenes
+(a sphere and the bunny under rooitou_park_1k, the sphere under st_fagans_interior_1k; 96²,
+``--spp``, two seeds): relMSE against ``mis`` at 1024 spp, and the render seconds.
 
 Usage:
     python benchmarks/plastic_speed.py [--size 256] [--spp 16] [--repeats 3] [-o FILE]
 Writes benchmarks/results/plastic_speed.json (with the run's provenance): per material and
-strategy the render seconds of each repeat (render_full's timings) and their median.
+strategy the render seconds of each repeat (render_full's timings) and their median; per
+plastic scene and strategy the relMSE and seconds of each seed.
 """
 import argparse
 import os
@@ -28,6 +32,28 @@ def scene(material: dict, size: int) -> dict:
             "materials": {"m": material, "floor": {"type": "lambert", "albedo": [0.5, 0.5, 0.5]}}}
 
 
+def equal_spp(spp: int, size: int = 96, ref_spp: int = 1024) -> dict:
+    """relMSE (mean of (x - ref)^2 / (ref^2 + 0.01)) and seconds of mis and wavelet per seed."""
+    import plastic_peer as pp
+    import wavlight
+
+    out = {}
+    for obj, sky in (("sphere", "sun"), ("bunny", "sun"), ("sphere", "indoor")):
+        sc = wavlight.load_dict(pp.scene_dict(obj, sky, pp.PLASTIC, size))
+        ref = wavlight.render_full(sc, strategy="mis", spp=ref_spp, seed=99)
+        for strategy in ("mis", "wavelet"):   # compile before timing
+            wavlight.render_full(sc, strategy=strategy, spp=1, seed=5)
+        case = out[f"{obj}/{sky}"] = {"mis": [], "wavelet": []}
+        for seed in (1, 2):
+            for strategy in ("mis", "wavelet"):
+                r = wavlight.render_full(sc, strategy=strategy, spp=spp, seed=seed)
+                rel = float(np.mean((r.image - ref.image) ** 2 / (ref.image ** 2 + 1e-2)))
+                case[strategy].append({"relmse": round(rel, 6), "seconds": round(float(r.stats["render_seconds"]), 3)})
+        print(f"{obj}/{sky}: " + ", ".join(f"{k} relMSE {np.mean([x['relmse'] for x in v]):.5f}"
+                                           for k, v in case.items()), file=sys.stderr, flush=True)
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=256)
@@ -39,7 +65,7 @@ def main():
 
     add_output_argument(ap, "plastic_speed")
     args = ap.parse_args()
-    needs.fetch("plastic_speed", "rooitou_park_1k", "bunny")
+    needs.fetch("plastic_speed", "rooitou_park_1k", "st_fagans_interior_1k", "bunny")
     prov = provenance()
     import wavlight
 
@@ -57,7 +83,8 @@ def main():
                 seconds[f"{k}/{strategy}"].append(round(float(r.stats["render_seconds"]), 3))
     result = {"size": args.size, "spp": args.spp, "repeats": args.repeats, "load_average_1min": load,
               "render_seconds": seconds,
-              "median_seconds": {k: float(np.median(v)) for k, v in seconds.items()}}
+              "median_seconds": {k: float(np.median(v)) for k, v in seconds.items()},
+              "equal_spp": equal_spp(args.spp)}
     for k, v in result["median_seconds"].items():
         print(f"{k}: {v:.3f} s", file=sys.stderr)
     write_result(args.output, result, prov)
