@@ -22,7 +22,10 @@
  * points given directly; the tests'). Eight points per work-item in vector types
  * (simd.h; launch ceil(count / 8) work-items or more): measured 3.7x over one scalar
  * point per work-item on an AVX2 CPU. -DBSDF_KINDS: the material kinds present
- * (bsdf.h).
+ * (bsdf.h). With plastic among them each slot's albedo becomes its direction's colour
+ * 1 - k + k albedo, k the share of f cos the albedo multiplies (bsdf.h material_eval_pdf;
+ * 1 for the other kinds), and wavelet's product sample a mixture of two walks for plastic
+ * (mixture_walk; -DPLASTIC_DIFFUSE_LEVELS).
  */
 #include "warp.h"
 #include "bsdf.h"

@@ -307,7 +307,8 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     + M_b p_bsdf(x_j)), p^ = f cos lum(L): the balance heuristic over the candidates' own
     pdfs (generalized RIS, Lin et al. 2022). Two directions y are resampled in proportion to
     w, with u.z and u.z + 1/2; each slot's estimate is albedo L(y) / lum(L(y)) sum(w) / 2,
-    times its visibility. Unbiased for every M: the expectation involves only each
+    times its visibility (plastic: its colour at y, bsdfs.tint, in place of the albedo, here and
+    in U below; the target p^ takes f cos without colour). Unbiased for every M: the expectation involves only each
     candidate's own marginal pdf, and M_p p_prod + M_b p_bsdf > 0 wherever f cos L > 0 (the
     BSDF covers its support). On an unoccluded point the estimate is the M-candidate MIS
     estimate of the unshadowed integral: its noise falls about as 1/M, for two shadow rays.
