@@ -505,16 +505,18 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     if (RIS_CONTROL_VARIATE) {
         /* albedo U - value_a - value_b; where it or a slot's scalar is not finite (an
          * overflow), the whole sample is 0, offset and values together (numpy twin: the same) */
-#if HAS_KIND(BSDF_PLASTIC)   /* U carries each candidate's tint already */
-        const realv u_r = cv_r, u_g = cv_g, u_b = cv_b;
-#else
-        const realv u_r = ar * cv_r, u_g = ag * cv_g, u_b = ab * cv_b;
+#if HAS_KIND(BSDF_PLASTIC)   /* U carries each candidate's colour already */
+#define U_TIMES_ALBEDO(a, u) (u)
+#else   /* (in the expression: a product kept apart from it rounds otherwise, without the fma) */
+#define U_TIMES_ALBEDO(a, u) (a) * (u)
 #endif
 #if SLOTS == 4
-        const realv o_r = u_r - s.ra - s.rb - s.rc - s.rd, o_g = u_g - s.ga - s.gb - s.gc - s.gd;
-        const realv o_b = u_b - s.ba - s.bb - s.bc - s.bd;
+        const realv o_r = U_TIMES_ALBEDO(ar, cv_r) - s.ra - s.rb - s.rc - s.rd;
+        const realv o_g = U_TIMES_ALBEDO(ag, cv_g) - s.ga - s.gb - s.gc - s.gd;
+        const realv o_b = U_TIMES_ALBEDO(ab, cv_b) - s.ba - s.bb - s.bc - s.bd;
 #else
-        const realv o_r = u_r - s.ra - s.rb, o_g = u_g - s.ga - s.gb, o_b = u_b - s.ba - s.bb;
+        const realv o_r = U_TIMES_ALBEDO(ar, cv_r) - s.ra - s.rb, o_g = U_TIMES_ALBEDO(ag, cv_g) - s.ga - s.gb;
+        const realv o_b = U_TIMES_ALBEDO(ab, cv_b) - s.ba - s.bb;
 #endif
         const intv ok = live & ris_finite & isfinite(o_r) & isfinite(o_g) & isfinite(o_b);
         s.o_r = select((realv)0.0f, o_r, ok);

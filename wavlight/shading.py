@@ -21,6 +21,16 @@ from . import bsdfs, camera, cl, raytrace, rng, strategies, warp
 _WARMED = set()  # shade programs already launched in this process
 
 
+def material_table(scene) -> np.ndarray:
+    """The scene's plastic table (Scene.material_table), float32 (materials, bsdfs.PLASTIC_STRIDE);
+    zeros for a scene-like record without one (wavlight.relight.moving's, which has no plastic:
+    the bakes refuse it)."""
+    table = getattr(scene, "material_table", None)
+    if table is None:
+        table = np.zeros((len(scene.material_kind), bsdfs.PLASTIC_STRIDE), np.float32)
+    return np.asarray(table, np.float32)
+
+
 class ShadedRays(NamedTuple):
     """Camera rays after shading, all float32 (float64 from the numpy twin).
 
@@ -60,7 +70,7 @@ class KernelShader:
         alb = np.zeros((len(scene.materials), 4), np.float32)
         alb[:, :3] = scene.material_albedo
         self.albedo = cl.to_device(alb)
-        self.table = cl.to_device(scene.material_table.ravel())   # the plastic rows (kernels/bsdf.h)
+        self.table = cl.to_device(material_table(scene).ravel())   # the plastic rows (kernels/bsdf.h)
         kappa = getattr(strategy, "kappa", np.zeros(len(scene.materials)))
         levels = np.asarray(getattr(strategy, "levels", np.zeros(len(scene.materials), np.int32)), np.int32)
         self.kappa = cl.to_device(np.asarray(kappa, np.float32))
@@ -221,7 +231,7 @@ class NumpyShader:
 
     def __init__(self, scene, strategy: strategies.Strategy, tracer=None):
         self.scene, self.strategy, self.tracer = scene, strategy, tracer
-        self.table = scene.material_table
+        self.table = material_table(scene)
 
     def shade_rays(self, eye, d, prim, t, u) -> ShadedRays:
         """Camera rays as in :meth:`KernelShader.shade_rays`, by :func:`shade_rays_reference`."""
