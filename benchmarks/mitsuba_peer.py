@@ -31,6 +31,7 @@ Mapping (see docs/scene-format.md of wavlight):
   objects     .ply/.obj -> Mitsuba ply/obj; other formats, spheres (trimesh icosphere) and quads are
               written as temporary PLYs. to_world = translate @ rotate @ scale. face_normals=True.
   materials   lambert -> twosided(diffuse); ggx -> twosided(roughconductor, ggx, material='none');
+              plastic -> twosided(roughplastic, ggx, alpha, int_ior = ior, ext_ior = 1, nonlinear = false);
               phong -> approximated by ggx with alpha = sqrt(2 / (exponent + 2)) (no phong in Mitsuba 3),
               listed under "approximated_materials".
 
@@ -127,6 +128,10 @@ def bsdf_dict(name, mat):
     albedo = {"type": "rgb", "value": vec3(mat.get("albedo", 0.5)).tolist()}
     if kind == "lambert":
         return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": albedo}}, False
+    if kind == "plastic":   # the same BSDF (docs/decisions/plastic-material.md)
+        return {"type": "twosided", "bsdf": {"type": "roughplastic", "distribution": "ggx",
+                "alpha": float(mat.get("alpha", 0.1)), "int_ior": float(mat.get("ior", 1.5)), "ext_ior": 1.0,
+                "nonlinear": False, "diffuse_reflectance": albedo}}, False
     if kind == "ggx":
         alpha = float(mat.get("roughness", 0.1))
     elif kind == "phong":

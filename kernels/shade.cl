@@ -22,7 +22,10 @@
  * points given directly; the tests'). Eight points per work-item in vector types
  * (simd.h; launch ceil(count / 8) work-items or more): measured 3.7x over one scalar
  * point per work-item on an AVX2 CPU. -DBSDF_KINDS: the material kinds present
- * (bsdf.h).
+ * (bsdf.h). With plastic among them each slot's albedo becomes its direction's colour
+ * 1 - k + k albedo, k the share of f cos the albedo multiplies (bsdf.h material_eval_pdf;
+ * 1 for the other kinds), and wavelet's product sample a mixture of two walks for plastic
+ * (mixture_walk; -DPLASTIC_DIFFUSE_LEVELS).
  */
 #include "warp.h"
 #include "bsdf.h"
@@ -72,11 +75,12 @@ inline realv light_pdf(__global const float *rot, __global const float *tree, co
 /* The tables every shading launch reads: materials, the wavelet lobes' data, the
  * environment and the light (or product) tree. */
 #define SHADE_TABLE_ARGS __global const int *mat_kind, __global const float *mat_param,            \
-                         __global const float *mat_albedo, __global const float *mat_kappa,        \
+                         __global const float *mat_albedo, __global const float *mat_table,        \
+                         __global const float *mat_kappa,                                          \
                          __global const int *mat_levels,                                           \
                          __global const float *texels, const int env_w, const int env_h,           \
                          __global const float *rot, __global const float *tree
-#define SHADE_TABLES mat_kind, mat_param, mat_albedo, mat_kappa, mat_levels, texels, env_w, env_h, \
+#define SHADE_TABLES mat_kind, mat_param, mat_albedo, mat_table, mat_kappa, mat_levels, texels, env_w, env_h, \
                      rot, tree
 
 /* Resampled importance sampling from product candidates (wavelet with -DRIS_PRODUCT = M_p,
@@ -117,13 +121,15 @@ inline realv texel_luminance(__global const float *texels, const int env_w, cons
  * of texel luminance l if it has found none yet and the running sum cum reaches its
  * threshold t with a positive weight (pos), or the candidate is the last one. */
 inline void ris_pick(const realv cum, const realv t, const intv pos, const intv last, const realv x, const realv y,
-                     const realv z, const realv l, intv *found, realv *px, realv *py, realv *pz, realv *pl)
+                     const realv z, const realv l, const realv k, intv *found, realv *px, realv *py, realv *pz,
+                     realv *pl, realv *pk)
 {
     const intv take = !*found & ((pos & (cum >= t)) | last);
     *px = select(*px, x, take);
     *py = select(*py, y, take);
     *pz = select(*pz, z, take);
     *pl = select(*pl, l, take);
+    *pk = select(*pk, k, take);
     *found |= take;
 }
 
@@ -156,6 +162,96 @@ typedef struct {
     realv o_r, o_g, o_b;
 } Shaded;
 
+/* The share of f cos the albedo multiplies (material_eval_pdf's fd / f; 1 where f is 0):
+ * a slot's colour is 1 - k + k albedo (bsdfs.tint), the albedo for every kind but plastic. */
+#define DIFFUSE_SHARE(fd, f) select((realv)1.0f, (fd) / (f), (f) > 0.0f)
+
+#if STRATEGY == 5 && HAS_KIND(BSDF_PLASTIC)
+#ifndef PLASTIC_DIFFUSE_LEVELS
+#error "shade.cl for wavelet with plastic is built with -DPLASTIC_DIFFUSE_LEVELS (its diffuse lobe's depth)"
+#endif
+/* Plastic's product sample is a one-sample mixture of two walks: its specular lobe (the
+ * material's own, a ggx lobe) with probability q = plastic_spec_prob, else its diffuse lobe
+ * (the lambert shape at depth PLASTIC_DIFFUSE_LEVELS, the material's light tree); density
+ * q p_spec + (1 - q) p_diffuse, exact as each walk's is (numpy twin:
+ * WaveletStrategy.sample). Other kinds: q = 1, their own lobe. */
+INLINE Lobe pick_lobe(const Lobe *a, const Lobe *b, const intv use_b)
+{
+    Lobe r;
+    r.ax = select(a->ax, b->ax, use_b); r.ay = select(a->ay, b->ay, use_b); r.az = select(a->az, b->az, use_b);
+    r.nx = select(a->nx, b->nx, use_b); r.ny = select(a->ny, b->ny, use_b); r.nz = select(a->nz, b->nz, use_b);
+    r.wx = select(a->wx, b->wx, use_b); r.wy = select(a->wy, b->wy, use_b); r.wz = select(a->wz, b->wz, use_b);
+    r.wn = select(a->wn, b->wn, use_b);
+    r.inv_kappa = select(a->inv_kappa, b->inv_kappa, use_b);
+    r.levels = select(a->levels, b->levels, use_b);
+    r.shape = select(a->shape, b->shape, use_b);
+    r.base = select(a->base, b->base, use_b);
+    return r;
+}
+
+/* The mixture's walk from (u, v) (u chooses the lobe and is rescaled), its density on the square. */
+INLINE realv mixture_walk(__global const float *tree, const Lobe *spec, const Lobe *diff, const realv q,
+                          realv *u, realv *v)
+{
+    const intv use_d = !(*u < q);
+    *u = select(*u / q, (*u - q) / (1.0f - q), use_d);
+    const Lobe walk = pick_lobe(spec, diff, use_d), other = pick_lobe(spec, diff, !use_d);
+    const realv p_walk = product_walk(tree, &walk, u, v);
+    const realv p_other = product_pdf(tree, &other, *u, *v);
+    return select(q * p_walk + (1.0f - q) * p_other, (1.0f - q) * p_walk + q * p_other, use_d);
+}
+
+INLINE realv mixture_pdf(__global const float *tree, const Lobe *spec, const Lobe *diff, const realv q,
+                         const realv u, const realv v)
+{
+    return q * product_pdf(tree, spec, u, v) + (1.0f - q) * product_pdf(tree, diff, u, v);
+}
+
+#ifdef RIS_PRODUCT
+/* The resampling estimator's candidates share each lobe's root children (root_children): the
+ * lane's pick of the two, field by field. */
+INLINE RootChildren pick_root(const RootChildren *a, const RootChildren *b, const intv use_b)
+{
+    RootChildren r;
+#pragma unroll
+    for (int c = 0; c < 4; ++c) {
+        r.m[c] = select(a->m[c], b->m[c], use_b);
+        r.i[c] = select(a->i[c], b->i[c], use_b);
+#if CACHE_LEVEL_1
+#pragma unroll
+        for (int k = 0; k < 4; ++k) {
+            r.m1[c][k] = select(a->m1[c][k], b->m1[c][k], use_b);
+            r.i1[c][k] = select(a->i1[c][k], b->i1[c][k], use_b);
+        }
+#endif
+    }
+    return r;
+}
+
+/* mixture_walk and mixture_pdf with the two lobes' root children given (the same values). */
+INLINE realv mixture_walk_from(__global const float *tree, const Lobe *spec, const Lobe *diff,
+                               const RootChildren *root_s, const RootChildren *root_d, const realv q,
+                               realv *u, realv *v)
+{
+    const intv use_d = !(*u < q);
+    *u = select(*u / q, (*u - q) / (1.0f - q), use_d);
+    const Lobe walk = pick_lobe(spec, diff, use_d), other = pick_lobe(spec, diff, !use_d);
+    const RootChildren root_walk = pick_root(root_s, root_d, use_d);
+    const realv p_walk = product_walk_from(tree, &walk, &root_walk, u, v);
+    const RootChildren root_other = pick_root(root_s, root_d, !use_d);
+    const realv p_other = product_pdf_from(tree, &other, &root_other, *u, *v);
+    return select(q * p_walk + (1.0f - q) * p_other, (1.0f - q) * p_walk + q * p_other, use_d);
+}
+
+INLINE realv mixture_pdf_from(__global const float *tree, const Lobe *spec, const Lobe *diff,
+                              const RootChildren *root_s, const RootChildren *root_d, const realv q,
+                              const realv u, const realv v)
+{
+    return q * product_pdf_from(tree, spec, root_s, u, v) + (1.0f - q) * product_pdf_from(tree, diff, root_d, u, v);
+}
+#endif
+#endif
+
 /* Shade the lanes' points: world normal n (facing the viewer), world view direction
  * e = wo, material mat, uniforms u0 .. u3; estimates are zero where live is 0. */
 inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, const realv nz,
@@ -173,6 +269,11 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     const realv ox = ex * sx + ey * sy + ez * sz, oy = ex * tx + ey * ty + ez * tz, oz = ex * nx + ey * ny + ez * nz;
     const intv kind = GATHER_INT(mat_kind, mat);
     const realv param = GATHER(mat_param, mat);
+    const uintv row = as_uintv(mat) * (uint)PLASTIC_STRIDE;   /* the plastic table's row */
+    realv ka = 1.0f, kb = 1.0f;   /* each slot's share of f cos that the albedo multiplies */
+#if SLOTS == 4
+    realv kc = 1.0f, kd = 1.0f;
+#endif
     /* slot a (and b): world direction, scalar f / pdf (x MIS weight) */
     realv ax = 0.0f, ay = 0.0f, az = 0.0f, sa = 0.0f;
     realv bx = 0.0f, by = 0.0f, bz = 0.0f, sb = 0.0f;
@@ -182,38 +283,60 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     realv cv_r = 0.0f, cv_g = 0.0f, cv_b = 0.0f;   /* U, the control variate (RIS) */
     intv ris_finite = -1;                          /* both slots' scalars finite (RIS) */
 #if STRATEGY == 5
-    const Lobe lobe = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, mat), GATHER_INT(mat_levels, mat));
+    const intv lobe_code = GATHER_INT(mat_levels, mat);
+    const Lobe lobe = make_lobe(rot, nx, ny, nz, ex, ey, ez, GATHER(mat_kappa, mat), lobe_code);
+#if HAS_KIND(BSDF_PLASTIC)
+    const Lobe lobe_d = make_lobe(rot, nx, ny, nz, ex, ey, ez, (realv)0.0f,
+                                  (lobe_code & ~0xffff) | (LOBE_LAMBERT << 8) | PLASTIC_DIFFUSE_LEVELS);
+    const realv lobe_q = select((realv)1.0f, plastic_spec_prob(mat_table, row, oz), kind == BSDF_PLASTIC);
+#endif
 #endif
 #if STRATEGY == 5 && defined(RIS_PRODUCT)
     {   /* wavelet with candidates: resampled from product (and BSDF) candidates */
         /* each candidate's direction, weight and texel luminance (the target's, kept for the
          * chosen ones' estimates) */
         realv cx[RIS_CANDIDATES], cy[RIS_CANDIDATES], cz[RIS_CANDIDATES], cw[RIS_CANDIDATES], cl[RIS_CANDIDATES];
+        realv ck[RIS_CANDIDATES];   /* each candidate's share of f cos the albedo multiplies */
         realv total = 0.0f;
         const RootChildren root = root_children(tree, &lobe);   /* shared by every candidate's walk */
+#if HAS_KIND(BSDF_PLASTIC)
+        const RootChildren root_d = root_children(tree, &lobe_d);   /* plastic's diffuse lobe's */
+        realv alb_r, alb_g, alb_b, alb_unused;   /* the control variate's colours (plastic) */
+        GATHER4(mat_albedo, as_uintv(4 * mat), &alb_r, &alb_g, &alb_b, &alb_unused);
+#endif
 #pragma unroll 1
         for (int j = 0; j < RIS_CANDIDATES; ++j) {
             const realv cu = shifted_uniform(u0, (uint)j * R2_FIXED_X), cv = shifted_uniform(u1, (uint)j * R2_FIXED_Y);
-            realv dx, dy, dz, p_prod, f, p_bsdf, lx, ly, lz, su, sv;   /* (su, sv): d on the square */
+            realv dx, dy, dz, p_prod, f, fd, p_bsdf, lx, ly, lz, su, sv;   /* (su, sv): d on the square */
             if (j < RIS_PRODUCT) {
                 realv gu = cu, gv = cv;
+#if HAS_KIND(BSDF_PLASTIC)
+                const realv square_pdf = mixture_walk_from(tree, &lobe, &lobe_d, &root, &root_d, lobe_q, &gu, &gv);
+#else
                 const realv square_pdf = product_walk_from(tree, &lobe, &root, &gu, &gv);
+#endif
                 env_square_to_world(rot, gu, gv, &dx, &dy, &dz);
                 p_prod = square_pdf * env_square_to_solid_angle(dx, dz);
                 lx = dx * sx + dy * sy + dz * sz;
                 ly = dx * tx + dy * ty + dz * tz;
                 lz = dx * nx + dy * ny + dz * nz;
-                bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &p_bsdf);
+                material_eval_pdf(kind, param, mat_table, row, lx, ly, lz, ox, oy, oz, &f, &fd, &p_bsdf);
                 env_world_to_square(rot, dx, dy, dz, &su, &sv);   /* the texel of d, as for every direction */
             } else {
-                bsdf_sample(kind, param, ox, oy, oz, cu, cv, &lx, &ly, &lz);
-                bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &p_bsdf);
+                material_sample(kind, param, mat_table, row, ox, oy, oz, cu, cv, &lx, &ly, &lz);
+                material_eval_pdf(kind, param, mat_table, row, lx, ly, lz, ox, oy, oz, &f, &fd, &p_bsdf);
                 dx = lx * sx + ly * tx + lz * nx;
                 dy = lx * sy + ly * ty + lz * ny;
                 dz = lx * sz + ly * tz + lz * nz;
                 env_world_to_square(rot, dx, dy, dz, &su, &sv);
+#if HAS_KIND(BSDF_PLASTIC)
+                p_prod = mixture_pdf_from(tree, &lobe, &lobe_d, &root, &root_d, lobe_q, su, sv) *
+                         env_square_to_solid_angle(dx, dz);
+#else
                 p_prod = product_pdf_from(tree, &lobe, &root, su, sv) * env_square_to_solid_angle(dx, dz);
+#endif
             }
+            ck[j] = DIFFUSE_SHARE(fd, f);
             realv tr, tg, tb;
             cl[j] = texel_luminance(texels, env_w, env_h, su, sv, &tr, &tg, &tb);
             const realv target = f * cl[j];
@@ -224,7 +347,13 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
             total += cw[j];
             if (RIS_CONTROL_VARIATE) {   /* w_j L(x_j) / lum(L(x_j)): w_j > 0 implies lum > 0 */
                 const realv k = select((realv)0.0f, cw[j] / cl[j], cw[j] > 0.0f);
+#if HAS_KIND(BSDF_PLASTIC)   /* times the candidate's tint (the albedo but for plastic), here */
+                cv_r += k * tr * (1.0f - ck[j] + ck[j] * alb_r);
+                cv_g += k * tg * (1.0f - ck[j] + ck[j] * alb_g);
+                cv_b += k * tb * (1.0f - ck[j] + ck[j] * alb_b);
+#else
                 cv_r += k * tr; cv_g += k * tg; cv_b += k * tb;
+#endif
             }
         }
         /* each slot takes the first candidate of positive weight whose running sum reaches
@@ -243,11 +372,11 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
             cum += cw[j];
             const intv last = (intv)(j == RIS_CANDIDATES - 1 ? -1 : 0);
             const intv pos = cw[j] > 0.0f;   /* (u.z = 0 must not pick a zero-weight candidate) */
-            ris_pick(cum, ta, pos, last, cx[j], cy[j], cz[j], cl[j], &found_a, &ax, &ay, &az, &la);
-            ris_pick(cum, tb, pos, last, cx[j], cy[j], cz[j], cl[j], &found_b, &bx, &by, &bz, &lb);
+            ris_pick(cum, ta, pos, last, cx[j], cy[j], cz[j], cl[j], ck[j], &found_a, &ax, &ay, &az, &la, &ka);
+            ris_pick(cum, tb, pos, last, cx[j], cy[j], cz[j], cl[j], ck[j], &found_b, &bx, &by, &bz, &lb, &kb);
 #if SLOTS == 4
-            ris_pick(cum, tc, pos, last, cx[j], cy[j], cz[j], cl[j], &found_c, &c_x, &c_y, &c_z, &lc);
-            ris_pick(cum, td, pos, last, cx[j], cy[j], cz[j], cl[j], &found_d, &d_x, &d_y, &d_z, &ld);
+            ris_pick(cum, tc, pos, last, cx[j], cy[j], cz[j], cl[j], ck[j], &found_c, &c_x, &c_y, &c_z, &lc, &kc);
+            ris_pick(cum, td, pos, last, cx[j], cy[j], cz[j], cl[j], ck[j], &found_d, &d_x, &d_y, &d_z, &ld, &kd);
 #endif
         }
         const float share = 1.0f / (float)SLOTS;   /* each slot's part of sum(w) */
@@ -264,14 +393,19 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     {   /* the light (light, mis) or product (wavelet) sample from u.xy */
 #if STRATEGY == 5
         realv gu = u0, gv = u1;
+#if HAS_KIND(BSDF_PLASTIC)
+        const realv square_pdf = mixture_walk(tree, &lobe, &lobe_d, lobe_q, &gu, &gv);
+#else
         const realv square_pdf = product_walk(tree, &lobe, &gu, &gv);
+#endif
 #endif
         env_square_to_world(rot, gu, gv, &ax, &ay, &az);
         const realv pdf = square_pdf * env_square_to_solid_angle(ax, az);
         const realv lx = ax * sx + ay * sy + az * sz, ly = ax * tx + ay * ty + az * tz;
         const realv lz = ax * nx + ay * ny + az * nz;
-        realv f, pdf_bsdf;
-        bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &pdf_bsdf);
+        realv f, fd, pdf_bsdf;
+        material_eval_pdf(kind, param, mat_table, row, lx, ly, lz, ox, oy, oz, &f, &fd, &pdf_bsdf);
+        ka = DIFFUSE_SHARE(fd, f);
 #if STRATEGY == 3
         sa = select((realv)0.0f, f / pdf, pdf > 0.0f);
 #else
@@ -282,16 +416,21 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
 #endif
 #if STRATEGY >= 4 && !(STRATEGY == 5 && defined(RIS_PRODUCT))
     {   /* the bsdf sample from u.zw, weighted against the guide's pdf */
-        realv lx, ly, lz, f, pdf;
-        bsdf_sample(kind, param, ox, oy, oz, u2, u3, &lx, &ly, &lz);
-        bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &pdf);
+        realv lx, ly, lz, f, fd, pdf;
+        material_sample(kind, param, mat_table, row, ox, oy, oz, u2, u3, &lx, &ly, &lz);
+        material_eval_pdf(kind, param, mat_table, row, lx, ly, lz, ox, oy, oz, &f, &fd, &pdf);
+        kb = DIFFUSE_SHARE(fd, f);
         bx = lx * sx + ly * tx + lz * nx;
         by = lx * sy + ly * ty + lz * ny;
         bz = lx * sz + ly * tz + lz * nz;
 #if STRATEGY == 5
         realv gu, gv;
         env_world_to_square(rot, bx, by, bz, &gu, &gv);
+#if HAS_KIND(BSDF_PLASTIC)
+        const realv other = mixture_pdf(tree, &lobe, &lobe_d, lobe_q, gu, gv) * env_square_to_solid_angle(bx, bz);
+#else
         const realv other = product_pdf(tree, &lobe, gu, gv) * env_square_to_solid_angle(bx, bz);
+#endif
 #else
         const realv other = light_pdf(rot, tree, N_LEVELS, bx, by, bz);
 #endif
@@ -310,13 +449,14 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         lz = u0;
         pdf = select((realv)0.0f, (realv)INV_2PI_F, lz > 0.0f);
 #elif STRATEGY == 1   /* cosine hemisphere: the lambert sampler */
-        bsdf_sample((intv)BSDF_LAMBERT, param, ox, oy, oz, u0, u1, &lx, &ly, &lz);
+        cosine_sample(u0, u1, &lx, &ly, &lz);
         pdf = fmax(lz, 0.0f) * INV_PI_F;
 #else
-        bsdf_sample(kind, param, ox, oy, oz, u0, u1, &lx, &ly, &lz);
+        material_sample(kind, param, mat_table, row, ox, oy, oz, u0, u1, &lx, &ly, &lz);
 #endif
-        realv f, pdf_bsdf;
-        bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &f, &pdf_bsdf);
+        realv f, fd, pdf_bsdf;
+        material_eval_pdf(kind, param, mat_table, row, lx, ly, lz, ox, oy, oz, &f, &fd, &pdf_bsdf);
+        ka = DIFFUSE_SHARE(fd, f);
 #if STRATEGY == 2
         pdf = pdf_bsdf;
 #endif
@@ -333,23 +473,28 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
     realv ua, va, ub, vb;
     env_world_to_square(rot, ax, ay, az, &ua, &va);
     env_world_to_square(rot, bx, by, bz, &ub, &vb);
-    const uintv ka = 4 * env_texel(env_w, env_h, ua, va), kb = 4 * env_texel(env_w, env_h, ub, vb);
+    const uintv texel_a = 4 * env_texel(env_w, env_h, ua, va), texel_b = 4 * env_texel(env_w, env_h, ub, vb);
     const uintv am = as_uintv(4 * mat);
     realv ar, ag, ab, unused, ta_r, ta_g, ta_b, tb_r, tb_g, tb_b;
     GATHER4(mat_albedo, am, &ar, &ag, &ab, &unused);
     ar *= tint_r;   /* the albedo times the texture's lookup at the hit (1 without one) */
     ag *= tint_g;
     ab *= tint_b;
-    GATHER4(texels, ka, &ta_r, &ta_g, &ta_b, &unused);
-    GATHER4(texels, kb, &tb_r, &tb_g, &tb_b, &unused);
+    GATHER4(texels, texel_a, &ta_r, &ta_g, &ta_b, &unused);
+    GATHER4(texels, texel_b, &tb_r, &tb_g, &tb_b, &unused);
     Shaded s;
     s.ax = ax; s.ay = ay; s.az = az; s.bx = bx; s.by = by; s.bz = bz;
-    s.ra = sa * ar * ta_r;
-    s.ga = sa * ag * ta_g;
-    s.ba = sa * ab * ta_b;
-    s.rb = sb * ar * tb_r;
-    s.gb = sb * ag * tb_g;
-    s.bb = sb * ab * tb_b;
+#if HAS_KIND(BSDF_PLASTIC)   /* each slot's colour: 1 - k + k albedo (bsdfs.tint) */
+#define TINT(k, a) (1.0f - (k) + (k) * (a))
+#else
+#define TINT(k, a) (a)
+#endif
+    s.ra = sa * TINT(ka, ar) * ta_r;
+    s.ga = sa * TINT(ka, ag) * ta_g;
+    s.ba = sa * TINT(ka, ab) * ta_b;
+    s.rb = sb * TINT(kb, ar) * tb_r;
+    s.gb = sb * TINT(kb, ag) * tb_g;
+    s.bb = sb * TINT(kb, ab) * tb_b;
 #if SLOTS == 4
     {
         sc = select((realv)0.0f, sc, live & (sc > 0.0f) & isfinite(sc));
@@ -360,19 +505,26 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         GATHER4(texels, 4 * env_texel(env_w, env_h, uc, vc), &tc_r, &tc_g, &tc_b, &unused);
         GATHER4(texels, 4 * env_texel(env_w, env_h, ud, vd), &td_r, &td_g, &td_b, &unused);
         s.c_x = c_x; s.c_y = c_y; s.c_z = c_z; s.d_x = d_x; s.d_y = d_y; s.d_z = d_z;
-        s.rc = sc * ar * tc_r; s.gc = sc * ag * tc_g; s.bc = sc * ab * tc_b;
-        s.rd = sd * ar * td_r; s.gd = sd * ag * td_g; s.bd = sd * ab * td_b;
+        s.rc = sc * TINT(kc, ar) * tc_r; s.gc = sc * TINT(kc, ag) * tc_g; s.bc = sc * TINT(kc, ab) * tc_b;
+        s.rd = sd * TINT(kd, ar) * td_r; s.gd = sd * TINT(kd, ag) * td_g; s.bd = sd * TINT(kd, ab) * td_b;
     }
 #endif
 #if STRATEGY == 5 && defined(RIS_PRODUCT)
     if (RIS_CONTROL_VARIATE) {
         /* albedo U - value_a - value_b; where it or a slot's scalar is not finite (an
          * overflow), the whole sample is 0, offset and values together (numpy twin: the same) */
+#if HAS_KIND(BSDF_PLASTIC)   /* U carries each candidate's colour already */
+#define U_TIMES_ALBEDO(a, u) (u)
+#else   /* (in the expression: a product kept apart from it rounds otherwise, without the fma) */
+#define U_TIMES_ALBEDO(a, u) (a) * (u)
+#endif
 #if SLOTS == 4
-        const realv o_r = ar * cv_r - s.ra - s.rb - s.rc - s.rd, o_g = ag * cv_g - s.ga - s.gb - s.gc - s.gd;
-        const realv o_b = ab * cv_b - s.ba - s.bb - s.bc - s.bd;
+        const realv o_r = U_TIMES_ALBEDO(ar, cv_r) - s.ra - s.rb - s.rc - s.rd;
+        const realv o_g = U_TIMES_ALBEDO(ag, cv_g) - s.ga - s.gb - s.gc - s.gd;
+        const realv o_b = U_TIMES_ALBEDO(ab, cv_b) - s.ba - s.bb - s.bc - s.bd;
 #else
-        const realv o_r = ar * cv_r - s.ra - s.rb, o_g = ag * cv_g - s.ga - s.gb, o_b = ab * cv_b - s.ba - s.bb;
+        const realv o_r = U_TIMES_ALBEDO(ar, cv_r) - s.ra - s.rb, o_g = U_TIMES_ALBEDO(ag, cv_g) - s.ga - s.gb;
+        const realv o_b = U_TIMES_ALBEDO(ab, cv_b) - s.ba - s.bb;
 #endif
         const intv ok = live & ris_finite & isfinite(o_r) & isfinite(o_g) & isfinite(o_b);
         s.o_r = select((realv)0.0f, o_r, ok);

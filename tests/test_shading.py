@@ -90,6 +90,52 @@ def _compare_shaders(scene, strat, rng):
     return wi_k, val_k
 
 
+def _plastic_scene(pixels, rotate_y=30.0):
+    """Two plastic materials between a lambert and a ggx one (a program with every kind the
+    plastic rows sit between)."""
+    mats = [Material("l", bsdfs.LAMBERT, np.array([0.7, 0.5, 0.3], np.float32), 0.0),
+            Material("pl", bsdfs.PLASTIC, np.array([0.8, 0.2, 0.1], np.float32), 0.05, 1.5),
+            Material("g", bsdfs.GGX, np.array([1.0, 0.8, 0.4], np.float32), 0.1),
+            Material("pl2", bsdfs.PLASTIC, np.array([0.1, 0.5, 0.9], np.float32), 0.4, 1.7)]
+    cam = Camera(np.zeros(3), np.array([0, 0, -1.0]), np.array([0, 1.0, 0]), 40.0)
+    return Scene("t", 8, 8, 1, "mis", 0, cam, Environment(pixels, 1.0, rotate_y), np.zeros((0, 3), np.float32),
+                 np.zeros((0, 3), np.int32), np.zeros(0, np.int32), mats)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("strategy, options", [
+    ("uniform", {}), ("cosine", {}), ("bsdf", {}), ("light", {}), ("mis", {}), ("mis_comp", {}),
+    ("wavelet", {"candidates": 0}), ("wavelet", {"candidates": 8}), ("wavelet", {"candidates": 8, "slots": 4}),
+    ("wavelet", {"candidates": 6, "control_variate": False})],
+    ids=["uniform", "cosine", "bsdf", "light", "mis", "mis_comp", "wavelet-pair", "wavelet-ris",
+         "wavelet-ris-4", "wavelet-ris-nocv"])
+def test_shade_kernel_matches_numpy_plastic(strategy, options):
+    """Plastic (each slot's colour 1 - k + k albedo, k the diffuse share of f cos; wavelet's
+    mixture of the specular and diffuse lobes' walks): kernel and numpy twin as above, the
+    control variate's offset included."""
+    rng = np.random.default_rng(21)
+    scene = _plastic_scene(procedural_sky(width=128, height=64, sun_radiance=500.0) + rng.random((64, 128, 3)) * 0.2)
+    strat = strategies.make(strategy, **options)
+    strat.prepare(scene.environment, scene.materials)
+    n_pts = 20000
+    n, wo = random_normals_views(rng, n_pts)
+    mat = rng.integers(0, 4, n_pts).astype(np.int32)
+    u = rng.random((n_pts, 4), dtype=np.float32)
+    wi_k, val_k, off_k = KernelShader(scene, strat)(n, wo, mat, u, with_offset=True)
+    wi_r, val_r, off_r = NumpyShader(scene, strat)(n, wo, mat, u, with_offset=True)
+    live = np.abs(val_r).max(axis=2) > 0
+    dir_ok = np.abs(wi_k - wi_r).max(axis=2) < 2e-4
+    val_ok = np.isclose(val_k, val_r, rtol=2e-3, atol=1e-6).all(axis=2)
+    off_ok = np.isclose(off_k, off_r, rtol=2e-3, atol=1e-5).all(axis=1)
+    plastic = np.isin(mat, [1, 3])
+    assert np.isfinite(val_k).all() and np.isfinite(off_k).all()
+    assert (dir_ok | ~live).mean() > 0.999
+    assert val_ok.mean() > 0.999, f"{(~val_ok).sum()} of {val_ok.size} values differ"
+    assert val_ok[plastic].mean() > 0.999
+    assert off_ok.mean() > 0.999
+    assert live[plastic].any()
+
+
 @pytest.mark.parametrize("sampler", ["independent", "stratified"])
 def test_render_kernel_equals_numpy_backend(sampler):
     """The whole renderer with the kernel and with the numpy twin, same seeds and sampler."""

@@ -47,6 +47,9 @@ from .strategies import CONSTRAINTS, OPTIONS, STRATEGIES
 
 ROUGHNESS_RANGE = (1e-4, 1.0)   # ggx alpha
 EXPONENT_RANGE = (0.0, 1e6)     # phong n
+IOR_RANGE = (1.0, 4.0)          # plastic ior, above 1 (Mitsuba refuses int_ior = ext_ior)
+PLASTIC_IOR = 1.5               # plastic's default ior
+PLASTIC_ALPHA = 0.1             # plastic's default alpha (roughplastic's)
 MAX_SIDE = WIDTH.hi
 MAX_SPP = SPP.hi
 #: Largest |coordinate| of a vertex or of the camera: embree ignores geometry beyond about
@@ -68,9 +71,10 @@ class Camera:
 @dataclass
 class Material:
     name: str
-    kind: int          # bsdfs.LAMBERT | PHONG | GGX
+    kind: int          # bsdfs.LAMBERT | PHONG | GGX | PLASTIC
     albedo: np.ndarray  # (3,)
-    param: float       # phong exponent or ggx alpha (0 for lambert)
+    param: float       # phong exponent, ggx or plastic alpha (0 for lambert)
+    ior: float = PLASTIC_IOR   # plastic's index of refraction (Mitsuba's int_ior; ext_ior 1)
     texture: int = -1  # index in Scene.textures of a base-colour texture multiplying albedo (-1: none)
 
 
@@ -209,6 +213,16 @@ class Scene:
         texels, table = self.texture_atlas()
         return (albedo * textures.lookup(texels, table, self.material_texture[mat], uv)).astype(np.float32)
 
+    @property
+    def material_table(self):
+        """The plastic table (materials, bsdfs.PLASTIC_STRIDE) float32: each plastic material's
+        row (bsdfs.plastic_table), zeros for the other kinds."""
+        rows = np.zeros((len(self.materials), bsdfs.PLASTIC_STRIDE), np.float32)
+        for i, m in enumerate(self.materials):   # materials, not pixels
+            if m.kind == bsdfs.PLASTIC:
+                rows[i] = bsdfs.plastic_table(m.param, getattr(m, "ior", PLASTIC_IOR), m.albedo)
+        return rows
+
 
 def check_scene(scene) -> None:
     """What a renderer relies on in a Scene, checked again at render time (a Scene can be built
@@ -265,11 +279,16 @@ def check_scene(scene) -> None:
         if (not isinstance(uv, np.ndarray) or uv.shape != (len(v), 2) or uv.dtype != np.float32
                 or not np.all(np.isfinite(uv))):
             bad("a textured scene needs vertex_uv, (V, 2) finite float32")
-    limits = {bsdfs.LAMBERT: (0.0, np.inf), bsdfs.PHONG: EXPONENT_RANGE, bsdfs.GGX: ROUGHNESS_RANGE}
+    limits = {bsdfs.LAMBERT: (0.0, np.inf), bsdfs.PHONG: EXPONENT_RANGE, bsdfs.GGX: ROUGHNESS_RANGE,
+              bsdfs.PLASTIC: ROUGHNESS_RANGE}
     for m in scene.materials:
         albedo = np.asarray(getattr(m, "albedo", None), np.float64)
         if getattr(m, "kind", None) not in limits or albedo.shape != (3,):
-            bad(f"material {getattr(m, 'name', m)!r}: kind must be lambert, phong or ggx, albedo 3 numbers")
+            bad(f"material {getattr(m, 'name', m)!r}: kind must be lambert, phong, ggx or plastic, albedo 3 numbers")
+        ior = getattr(m, "ior", PLASTIC_IOR)
+        if m.kind == bsdfs.PLASTIC and not (isinstance(ior, (int, float, np.floating, np.integer))
+                                            and IOR_RANGE[0] < float(ior) <= IOR_RANGE[1]):
+            bad(f"material {m.name!r}: plastic ior must be in ({IOR_RANGE[0]:g}, {IOR_RANGE[1]:g}], got {ior!r}")
         lo, hi = limits[m.kind]
         if not (np.all(np.isfinite(albedo)) and albedo.min() >= 0 and lo <= float(m.param) <= hi):
             bad(f"material {m.name!r}: albedo must be finite and >= 0, the parameter in [{lo:g}, {hi:g}], "
@@ -827,7 +846,7 @@ def _parse(doc, path: str, base: str) -> Scene:
         t = _Table(path, f"[materials.{name}]", m)
         kind = t.get("type", "str", required=True)
         if kind not in bsdfs.TYPES:
-            t.fail("type", f"unknown BRDF {kind!r} (lambert | phong | ggx)")
+            t.fail("type", f"unknown BRDF {kind!r} (lambert | phong | ggx | plastic)")
         albedo = t.get("albedo", "vec3", np.array([0.8, 0.8, 0.8]))
         if np.any(albedo < 0):
             t.fail("albedo", "must not be negative")
@@ -839,14 +858,19 @@ def _parse(doc, path: str, base: str) -> Scene:
         # Both keys are accepted on every type (the format's own example does so); each type uses its own.
         roughness = _positive(t, "roughness", t.get("roughness", "float", 0.2), *ROUGHNESS_RANGE)
         exponent = _positive(t, "exponent", t.get("exponent", "float", 100.0), *EXPONENT_RANGE)
-        param = {"ggx": roughness, "phong": exponent}.get(kind, 0.0)
+        alpha = _positive(t, "alpha", t.get("alpha", "float", PLASTIC_ALPHA), *ROUGHNESS_RANGE)
+        ior = t.get("ior", "float", PLASTIC_IOR)
+        if not IOR_RANGE[0] < ior <= IOR_RANGE[1]:
+            t.fail("ior", f"must be in ({IOR_RANGE[0]:g}, {IOR_RANGE[1]:g}] (above the outside's 1), got {ior}")
+        param = {"ggx": roughness, "phong": exponent, "plastic": alpha}.get(kind, 0.0)
         t.done()
-        for key, users in (("roughness", "ggx"), ("exponent", "phong")):   # a key of another type: said
+        for key, users in (("roughness", "ggx"), ("exponent", "phong"), ("alpha", "plastic"),
+                           ("ior", "plastic")):   # a key of another type: said
             if t.has(key) and kind != users:
                 warnings.warn(f"{path}: [materials.{name}].{key}: ignored: only {users} materials use it",
                               stacklevel=2)
         index[name] = len(materials)
-        materials.append(Material(name, bsdfs.TYPES[kind], albedo.astype(np.float32), float(param)))
+        materials.append(Material(name, bsdfs.TYPES[kind], albedo.astype(np.float32), float(param), float(ior)))
 
     objs = doc.get("objects", [])
     if not isinstance(objs, list):
@@ -944,10 +968,9 @@ def _part_materials(t: "_Table", parts, materials: list, index: dict, texture_li
                     ids.append(id(part.texture))
                 tex = ids.index(id(part.texture))
                 textured = True
-            extra = {"ior": m.ior} if "ior" in Material.__dataclass_fields__ else {}   # plastic's coating
             k = len(materials)
             materials.append(Material(f"{mesh}:{m.source or part.name}", kind, albedo.astype(np.float32),
-                                      float(m.alpha) if m.type != "lambert" else 0.0, texture=tex, **extra))
+                                      float(m.alpha) if m.type != "lambert" else 0.0, float(m.ior), texture=tex))
         fm.append(np.full(len(part.faces), k, np.int32))
         uv.append(part.uv if part.uv is not None else np.zeros((len(part.vertices), 2), np.float32))
     return np.concatenate(fm), (np.concatenate(uv).astype(np.float32) if textured else None)

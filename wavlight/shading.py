@@ -16,9 +16,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import camera, cl, raytrace, rng, strategies, textures, warp
+from . import bsdfs, camera, cl, raytrace, rng, strategies, textures, warp
 
 _WARMED = set()  # shade programs already launched in this process
+
+
+def material_table(scene) -> np.ndarray:
+    """The scene's plastic table (Scene.material_table), float32 (materials, bsdfs.PLASTIC_STRIDE);
+    zeros for a scene-like record without one (wavlight.relight.moving's, which has no plastic:
+    the bakes refuse it)."""
+    table = getattr(scene, "material_table", None)
+    if table is None:
+        table = np.zeros((len(scene.material_kind), bsdfs.PLASTIC_STRIDE), np.float32)
+    return np.asarray(table, np.float32)
 
 
 class ShadedRays(NamedTuple):
@@ -60,6 +70,7 @@ class KernelShader:
         alb = np.zeros((len(scene.materials), 4), np.float32)
         alb[:, :3] = scene.material_albedo
         self.albedo = cl.to_device(alb)
+        self.table = cl.to_device(material_table(scene).ravel())   # the plastic rows (kernels/bsdf.h)
         kappa = getattr(strategy, "kappa", np.zeros(len(scene.materials)))
         levels = np.asarray(getattr(strategy, "levels", np.zeros(len(scene.materials), np.int32)), np.int32)
         self.kappa = cl.to_device(np.asarray(kappa, np.float32))
@@ -69,18 +80,24 @@ class KernelShader:
         self.levels_per_material = cl.to_device(levels + 256 * shapes + 65536 * tree_of)
         depth = int(max(np.max(levels, initial=0), 0))
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
+        plastic = bool(kinds & (1 << bsdfs.PLASTIC))
         sizes = {}   # the walks' compile-time sizes: light tree depth; product depth and lobe shapes
         self.slots = 2   # directions (shadow rays) per shading sample: 4 for the resampling estimator's option
         if strategy.name in ("light", "mis", "mis_comp", "wavelet"):
             sizes["N_LEVELS"] = int(self.levels)
         if strategy.name == "wavelet":
-            sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=int(np.bitwise_or.reduce(1 << shapes, initial=0)),
-                         PRODUCT_TREES=int(trees.n_trees))
+            lobe_shapes = int(np.bitwise_or.reduce(1 << shapes, initial=0))
+            if plastic:   # plastic's diffuse lobe: the lambert shape at its own depth (kernels/shade.cl)
+                diffuse = int(strategy.plastic_diffuse_levels)
+                lobe_shapes |= 1 << bsdfs.LAMBERT
+                depth = max(depth, diffuse)
+                sizes["PLASTIC_DIFFUSE_LEVELS"] = diffuse
+            sizes.update(PRODUCT_LEVELS=depth, LOBE_SHAPES=lobe_shapes, PRODUCT_TREES=int(trees.n_trees))
             if getattr(strategy, "candidates", 0):   # resampling from product candidates
                 sizes.update(zip(("RIS_PRODUCT", "RIS_BSDF"), strategy.ris_split))
                 sizes["RIS_CONTROL_VARIATE"] = int(bool(strategy.control_variate))
                 sizes["RIS_SLOTS"] = self.slots = int(strategy.slots)
-        self._tables = (self.kind, self.param, self.albedo, self.kappa, self.levels_per_material,
+        self._tables = (self.kind, self.param, self.albedo, self.table, self.kappa, self.levels_per_material,
                         self.texels, *self.env_size, self.rot, self.tree)
         self._geometry = None
         self.textured = bool(getattr(scene, "textured", False)) and tracer is not None
@@ -246,6 +263,7 @@ class NumpyShader:
 
     def __init__(self, scene, strategy: strategies.Strategy, tracer=None):
         self.scene, self.strategy, self.tracer = scene, strategy, tracer
+        self.table = material_table(scene)
 
     def shade_rays(self, eye, d, prim, t, u, bary=None) -> ShadedRays:
         """Camera rays as in :meth:`KernelShader.shade_rays`, by :func:`shade_rays_reference`."""
@@ -261,7 +279,7 @@ class NumpyShader:
             albedo = albedo * np.asarray(tint, np.float32)
         sp = strategies.ShadingPoints(p, n, s, t, warp.to_local(np.asarray(wo, np.float64), s, t, n),
                                       sc.material_kind[material], sc.material_param[material],
-                                      albedo, np.asarray(material))
+                                      albedo, np.asarray(material), self.table[material])
         own = getattr(self.strategy, "shade", None)
         if own is not None:
             wi, value = own(sc.environment, sp, np.asarray(u, np.float64))

@@ -11,7 +11,8 @@ BSDF sample), ``mis_comp`` (the same with the envmap's ``mis_compensation``), ``
 Equivalences and their limits:
 
 - lambert -> ``diffuse``; ggx -> ``roughconductor`` (ggx, ``material = "none"``,
-  ``specular_reflectance`` = albedo): the same BRDF. phong has no Mitsuba
+  ``specular_reflectance`` = albedo); plastic -> ``roughplastic`` (ggx, alpha, ``int_ior`` =
+  ior, ``ext_ior`` 1, ``nonlinear`` false, ``diffuse_reflectance`` = albedo): the same BRDFs. phong has no Mitsuba
   counterpart: it is approximated by ggx with alpha = sqrt(2 / (n + 2)) and listed
   in ``stats["approximated_materials"]``.
 - A base-colour texture (a mesh file's, wavlight.textures): its part is written as an OBJ with
@@ -78,6 +79,11 @@ def _bsdf(material, texture=None):
                   "wrap_mode": "repeat"}
     if material.kind == bsdfs.LAMBERT:
         return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": albedo}}, False
+    if material.kind == bsdfs.PLASTIC:   # the same BSDF (docs/decisions/plastic-material.md)
+        return {"type": "twosided", "bsdf": {"type": "roughplastic", "distribution": "ggx",
+                                              "alpha": float(material.param), "int_ior": float(material.ior),
+                                              "ext_ior": 1.0, "nonlinear": False,
+                                              "diffuse_reflectance": albedo}}, False
     alpha = material.param if material.kind == bsdfs.GGX else float(np.sqrt(2.0 / (material.param + 2.0)))
     return {"type": "twosided", "bsdf": {"type": "roughconductor", "distribution": "ggx", "alpha": alpha,
                                           "material": "none", "specular_reflectance": albedo}}, \

@@ -5,7 +5,13 @@ makes: its keywords, their defaults and ranges are the records of
 :data:`wavlight.relight.settings.BAKE`."""
 from __future__ import annotations
 
-from ..errors import ArgumentError, shown
+import os
+
+import numpy as np
+
+from .. import bsdfs
+from ..errors import ArgumentError, WavlightError, shown
+from ..scene import load_scene
 from .bake import bake as bake_pixels
 from .settings import BAKE
 from .view import bake_view
@@ -33,6 +39,9 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
     where = "relight.bake"
     if vary not in VARY:
         raise ArgumentError(f"{where}: vary must be one of {' | '.join(VARY)}, got {shown(vary)}")
+    if isinstance(scene, (str, os.PathLike)):
+        scene = load_scene(scene)
+    check_bakeable(scene)
     if vary != "view":
         if density is not None:
             raise ArgumentError(f"{where}: density sets the surface cache of a bake with vary='view'")
@@ -46,3 +55,14 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         raise ArgumentError(f"{where}: a view bake runs locally (no Dask cluster)")
     return bake_view(scene, output, levels=levels, tolerance=tolerance, bits=bits, seed=seed, threads=threads,
                      progress=progress, backend=backend, points=points, density=density)
+
+
+def check_bakeable(scene) -> None:
+    """A one-line WavlightError for a scene that no bake can hold yet: faces of plastic, whose
+    albedo does not factor out of the BRDF, which every bake's frames multiply by afterwards."""
+    used = np.unique(np.asarray(getattr(scene, "face_material", []), np.int64))
+    names = [scene.materials[i].name for i in used if scene.materials[i].kind == bsdfs.PLASTIC]
+    if names:
+        raise WavlightError(f"{getattr(scene, 'path', 'scene')}: plastic materials ({', '.join(names)}) are not baked "
+                            "yet (their albedo does not factor out of the transfer); render them with "
+                            "wavlight render")

@@ -18,7 +18,9 @@ class ShadingPoints:
     """Surface points to shade (N of them), in world space with local frames.
 
     p, n, s, t : (N, 3) position, shading normal (facing the viewer) and tangents
-    wo : (N, 3) local direction to the viewer; kind, param, albedo : per point material
+    wo : (N, 3) local direction to the viewer; kind, param, albedo : per point material;
+    table : (N, bsdfs.PLASTIC_STRIDE) the plastic rows (Scene.material_table), needed where
+    a point is plastic
     """
 
     p: np.ndarray
@@ -30,6 +32,7 @@ class ShadingPoints:
     param: np.ndarray
     albedo: np.ndarray
     material: np.ndarray = None
+    table: np.ndarray = None
 
     def __len__(self):
         return len(self.n)
@@ -40,15 +43,28 @@ class ShadingPoints:
     def to_world(self, w):
         return warp.to_world(w, self.s, self.t, self.n)
 
+    def _table(self, idx):
+        return None if self.table is None else self.table[idx]
+
     def _by_kind(self, fn, out, *arrays):
-        for k in np.unique(self.kind):
+        for k in np.unique(self.kind):   # material kinds, not points
             idx = np.nonzero(self.kind == k)[0]
-            out[idx] = fn(int(k), self.param[idx], *(a[idx] for a in arrays))
+            out[idx] = fn(int(k), self.param[idx], *(a[idx] for a in arrays), table=self._table(idx))
         return out
 
     def bsdf_eval_cos(self, wi_local):
-        """f(wi, wo) cos_i without albedo, (N,)."""
+        """f(wi, wo) cos_i without albedo, (N,) (plastic: its specular and diffuse parts' sum)."""
         return self._by_kind(bsdfs.eval_cos, np.zeros(len(self)), wi_local, self.wo)
+
+    def bsdf_value(self, wi_local):
+        """(f cos without albedo (N,), the colour (N, 3) that makes it f cos with albedo:
+        the albedo, or plastic's bsdfs.tint)."""
+        f, diffuse = np.zeros(len(self)), np.zeros(len(self))
+        for k in np.unique(self.kind):   # material kinds, not points
+            idx = np.nonzero(self.kind == k)[0]
+            f[idx], diffuse[idx] = bsdfs.eval_split(int(k), self.param[idx], wi_local[idx], self.wo[idx],
+                                                    table=self._table(idx))
+        return f, bsdfs.tint(f, diffuse, self.albedo)
 
     def bsdf_pdf(self, wi_local):
         return self._by_kind(bsdfs.pdf, np.zeros(len(self)), wi_local, self.wo)
@@ -56,9 +72,9 @@ class ShadingPoints:
     def bsdf_sample(self, u):
         wi = np.zeros((len(self), 3))
         pdf = np.zeros(len(self))
-        for k in np.unique(self.kind):
+        for k in np.unique(self.kind):   # material kinds, not points
             idx = np.nonzero(self.kind == k)[0]
-            wi[idx], pdf[idx] = bsdfs.sample(int(k), self.param[idx], u[idx], self.wo[idx])
+            wi[idx], pdf[idx] = bsdfs.sample(int(k), self.param[idx], u[idx], self.wo[idx], table=self._table(idx))
         return wi, pdf
 
 
@@ -131,11 +147,23 @@ HEURISTICS = {"power": power_heuristic, "balance": balance_heuristic}
 
 
 def _unoccluded(sp, env, ds, mis_weight):
-    """albedo f cos L / pdf (x MIS weight) per sample, (N, 3); 0 where pdf is 0."""
-    fcos = sp.bsdf_eval_cos(ds.wi_local)
+    """albedo f cos L / pdf (x MIS weight) per sample, (N, 3); 0 where pdf is 0 (plastic: its
+    f cos with albedo, the scalar f cos times its tint)."""
+    fcos, tint = sp.bsdf_value(ds.wi_local)
     with np.errstate(divide="ignore", invalid="ignore"):
         scalar = np.where(ds.pdf > 0, fcos * mis_weight / ds.pdf, 0.0)
     scalar = np.where((scalar > 0) & np.isfinite(scalar), scalar, 0.0)
-    return scalar[:, None] * sp.albedo * env.eval(ds.wi_world)
+    return scalar[:, None] * tint * env.eval(ds.wi_world)
 
 
+
+
+def refuse_plastic(name: str, materials) -> None:
+    """The numpy-only strategies (sir, structured) carry the albedo as one factor of the whole
+    estimate: a one-line ArgumentError for a scene with plastic, whose albedo does not factor out."""
+    from ..errors import ArgumentError
+
+    plastic = [m.name for m in materials if m.kind == bsdfs.PLASTIC]
+    if plastic:
+        raise ArgumentError(f"strategy {name}: plastic materials ({', '.join(plastic)}) are not supported; "
+                            "use uniform, cosine, bsdf, light, mis, mis_comp or wavelet")

@@ -99,14 +99,17 @@ def _material(where: str, kind, param):
     if kind == bsdfs.LAMBERT:
         return int(kind), param
     param = check_number(where, "param", param, 0.0)
-    if kind == bsdfs.GGX and param == 0.0:
-        raise ArgumentError(f"{where}: param (ggx alpha) must be positive, got 0")
+    if kind in (bsdfs.GGX, bsdfs.PLASTIC) and param == 0.0:
+        raise ArgumentError(f"{where}: param (ggx or plastic alpha) must be positive, got 0")
     return int(kind), param
 
 
 def lobe_shape(kind: int, param: float) -> int:
-    """The node-importance model of a material: its kind, or GGX_HALF for ggx with alpha > 0.1."""
+    """The node-importance model of a material: its kind, or GGX_HALF for ggx with alpha > 0.1;
+    plastic's specular lobe as ggx's."""
     kind, param = _material("strategies.product.lobe_shape", kind, param)
+    if kind == bsdfs.PLASTIC:   # its specular lobe (its diffuse one: plastic_diffuse_lobe)
+        kind = bsdfs.GGX
     return GGX_HALF if kind == bsdfs.GGX and param > GGX_HALF_MIN_ALPHA else int(kind)
 
 

@@ -72,7 +72,7 @@ import numpy as np
 from ..envmap import luminance
 from ..errors import ArgumentError, shown
 from ..options import Option
-from .base import DirectionSamples, ShadingPoints, Strategy
+from .base import DirectionSamples, ShadingPoints, Strategy, refuse_plastic
 from .light import LIGHT_LEVELS, LightStrategy
 
 #: about this many candidates (points x M) are processed at once (bounded memory)
@@ -130,6 +130,7 @@ class SirStrategy(Strategy):
         self.env = None
 
     def prepare(self, environment, materials=()):
+        refuse_plastic("sir", materials)
         self.env = environment
         if self.source == "light":
             self.light.prepare(environment)

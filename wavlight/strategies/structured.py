@@ -79,7 +79,7 @@ from ..envmap import luminance
 from ..errors import ArgumentError, check_int
 from ..options import Option
 from .sir import _repeat, _slice, rng_from_uniforms
-from .base import DirectionSamples, ShadingPoints, Strategy
+from .base import DirectionSamples, ShadingPoints, Strategy, refuse_plastic
 
 MODES = ("stratified", "preintegrated")
 DEFAULT_STRATA = 16
@@ -267,6 +267,7 @@ class StructuredStrategy(Strategy):
         self.env = None
 
     def prepare(self, environment, materials=()):
+        refuse_plastic("structured", materials)
         self.env = environment
         # an all-black map has no strata: every estimate is 0 (as the integral is)
         self.strata = None if environment.is_black else Strata(environment, self.k, self.levels)

@@ -178,6 +178,8 @@ class WaveletStrategy(Strategy):
         self.kappa = np.array([product.lobe_kappa(m.kind, m.param) for m in materials], np.float64)
         self.levels = np.array([product.product_levels(k, n, self.override) for k in self.kappa], np.int32)
         self.shapes = np.array([product.lobe_shape(m.kind, m.param) for m in materials], np.int32)
+        # plastic's diffuse lobe: the lambert shape at a lambert material's depth (see sample)
+        self.plastic_diffuse_levels = product.product_levels(0.0, n, self.override)
         self._host_nodes = None
 
     @property
@@ -193,18 +195,58 @@ class WaveletStrategy(Strategy):
                         2.0 * np.einsum("ij,ij->i", wo_w, sp.n)[:, None] * sp.n - wo_w)
         return axis, self.kappa[material], self.levels[material], self.shapes[material]
 
+    def _diffuse_lobes(self, sp):
+        """Plastic's diffuse lobes: the lambert shape about the normal, kappa 0, at
+        plastic_diffuse_levels."""
+        count = len(sp)
+        return (sp.n, np.zeros(count), np.full(count, self.plastic_diffuse_levels, np.int32),
+                np.full(count, bsdfs.LAMBERT, np.int32))
+
+    def _lobe_q(self, sp):
+        """The probability of each point's own (specular) lobe: plastic_spec_prob for plastic, 1 else."""
+        plastic = sp.kind == bsdfs.PLASTIC
+        if not plastic.any():
+            return None
+        q = np.ones(len(sp))
+        q[plastic] = bsdfs.plastic_spec_prob(sp.wo[plastic], sp.table[plastic])
+        return q
+
     def sample(self, sp, u):
+        """The product walk; for plastic a one-sample mixture of its specular lobe's walk
+        (probability q = bsdfs.plastic_spec_prob) and its diffuse lobe's (the lambert shape),
+        u.x choosing and rescaled (float32, as kernels/shade.cl mixture_walk); density q p_spec +
+        (1 - q) p_diffuse."""
         axis, kappa, levels, shape = self._lobes(sp, sp.material)
+        q = self._lobe_q(sp)
+        if q is not None:
+            q32, u0 = q.astype(np.float32), np.asarray(u[:, 0], np.float32)
+            use_d = ~(u0 < q32)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u0 = np.where(use_d, (u0 - q32) / (np.float32(1) - q32), u0 / q32).astype(np.float32)
+            u = np.stack([u0.astype(np.float64), np.asarray(u[:, 1], np.float64)], 1)
+            diffuse = self._diffuse_lobes(sp)
+            axis, kappa, levels, shape = (np.where(use_d.reshape((-1,) + (1,) * (np.ndim(a) - 1)), b, a)
+                                          for a, b in zip((axis, kappa, levels, shape), diffuse))
         uv, pdf_sq = product.sample_reference(self._nodes, self.trees.n_levels, self.env, axis, sp.n,
                                               kappa, levels, shape, u, self.tree_index[sp.material])
         d = self.env.square_to_world(uv)
+        if q is not None:
+            local = sp.to_local(d)
+            return DirectionSamples(d, local, self.pdf(sp, local, d))
         return DirectionSamples(d, sp.to_local(d), pdf_sq * self.env.square_to_solid_angle(d))
 
     def pdf(self, sp, wi_local, wi_world):
         axis, kappa, levels, shape = self._lobes(sp, sp.material)
         uv = self.env.world_to_square(wi_world)
-        return product.pdf_reference(self._nodes, self.trees.n_levels, self.env, axis, sp.n, kappa, levels,
-                                     shape, uv, self.tree_index[sp.material]) * self.env.square_to_solid_angle(wi_world)
+        trees = self.tree_index[sp.material]
+        p = product.pdf_reference(self._nodes, self.trees.n_levels, self.env, axis, sp.n, kappa, levels, shape, uv,
+                                  trees)
+        q = self._lobe_q(sp)
+        if q is not None:
+            axis, kappa, levels, shape = self._diffuse_lobes(sp)
+            p = q * p + (1.0 - q) * product.pdf_reference(self._nodes, self.trees.n_levels, self.env, axis, sp.n,
+                                                          kappa, levels, shape, uv, trees)
+        return p * self.env.square_to_solid_angle(wi_world)
 
     @property
     def ris_split(self):
@@ -265,7 +307,8 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     + M_b p_bsdf(x_j)), p^ = f cos lum(L): the balance heuristic over the candidates' own
     pdfs (generalized RIS, Lin et al. 2022). Two directions y are resampled in proportion to
     w, with u.z and u.z + 1/2; each slot's estimate is albedo L(y) / lum(L(y)) sum(w) / 2,
-    times its visibility. Unbiased for every M: the expectation involves only each
+    times its visibility (plastic: its colour at y, bsdfs.tint, in place of the albedo, here and
+    in U below; the target p^ takes f cos without colour). Unbiased for every M: the expectation involves only each
     candidate's own marginal pdf, and M_p p_prod + M_b p_bsdf > 0 wherever f cos L > 0 (the
     BSDF covers its support). On an unoccluded point the estimate is the M-candidate MIS
     estimate of the unshadowed integral: its noise falls about as 1/M, for two shadow rays.
@@ -294,7 +337,8 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
     u = np.asarray(u)
     dirs = np.zeros((m, n, 3))
     w = np.zeros((m, n))
-    colour = np.zeros((n, 3))   # U: sum_j w_j L(x_j) / lum(L(x_j))
+    colour = np.zeros((n, 3))   # U: sum_j w_j L(x_j) / lum(L(x_j)) times x_j's colour (the albedo but for plastic)
+    tints = np.zeros((m, n, 3))   # each candidate's colour: the albedo, plastic's bsdfs.tint
     for j in range(m):
         uu = candidate_uniforms(u, j).astype(np.float64)
         ds = strategy.sample(sp, uu) if j < mp else strategy.bsdf.sample(sp, uu)
@@ -302,12 +346,13 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
         p_bsdf = strategy.bsdf.pdf(sp, ds.wi_local, ds.wi_world) if j < mp else ds.pdf
         rgb = env.eval(ds.wi_world)
         lum = luminance(rgb)
-        target = sp.bsdf_eval_cos(ds.wi_local) * lum
+        fcos, tints[j] = sp.bsdf_value(ds.wi_local)
+        target = fcos * lum
         denom = mp * p_prod + mb * p_bsdf
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             wj = np.where((denom > 0) & (target > 0), target / denom, 0.0)
             w[j] = np.where(np.isfinite(wj), wj, 0.0)
-            colour += np.where((w[j] > 0)[:, None], w[j][:, None] * rgb / lum[:, None], 0.0)
+            colour += np.where((w[j] > 0)[:, None], w[j][:, None] * rgb / lum[:, None] * tints[j], 0.0)
         dirs[j] = ds.wi_world
     total = w.sum(0)
     cum = np.cumsum(w, 0)
@@ -329,11 +374,11 @@ def ris_shade_reference(strategy: "WaveletStrategy", env, sp: ShadingPoints, u: 
         lum = luminance(rgb)
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = np.where((total > 0) & (lum > 0), np.float32(1.0 / slots) * total / lum, 0.0)
-        wi[:, slot], value[:, slot] = y, scale[:, None] * sp.albedo * rgb
+        wi[:, slot], value[:, slot] = y, scale[:, None] * tints[pick, np.arange(n)] * rgb
     offset = np.zeros((n, 3))
     if strategy.control_variate:
         with np.errstate(invalid="ignore", over="ignore"):
-            offset = sp.albedo * colour - value.sum(1)
+            offset = colour - value.sum(1)
         # where the offset or a slot's value overflowed, the whole sample is 0 (as the kernel)
         ok = np.isfinite(offset).all(1) & np.isfinite(value).all((1, 2))
         value, offset = np.where(ok[:, None, None], value, 0.0), np.where(ok[:, None], offset, 0.0)
