@@ -1146,82 +1146,27 @@ class ViewFrames:
         return np.maximum(T * f, 0.0).astype(np.float32)
 
     def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = UNBIASED_SPP,
-                 seed: int = FRAME["seed"].default, slots: int = SLOTS, defensive: float = DEFENSIVE, threads=None,
-                 progress=None, light: float = LIGHT_SHARE) -> RenderResult:
-        """The unbiased frame from ``eye`` (module docstring): image, per-pixel standard error, stats."""
+                 seed: int = FRAME["seed"].default, slots=None, defensive=None, threads=None,
+                 progress=None, light=None, control: bool = True, backend: str = "opencl") -> RenderResult:
+        """The unbiased frame from ``eye`` (module docstring; kernels and kept trees:
+        :mod:`wavlight.relight.view_converge`, whose SLOTS, DEFENSIVE and LIGHT_SHARE are the
+        defaults): image, per-pixel standard error, stats; ``setup_seconds`` the device tables
+        made by this call (the first), ``frame_seconds`` that plus the frame's."""
+        from . import view_converge as vc
+
         where = "relight.view"
         spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)
-        check_shares(where, defensive, light)
+        slots = vc.SLOTS if slots is None else slots
+        defensive = vc.DEFENSIVE if defensive is None else defensive
+        light = vc.LIGHT_SHARE if light is None else light
+        defensive, light = check_shares(where, defensive, light)
         cam = self.camera(eye, target, fov)
         width, height = self.size(width, height)
         scene = dataclasses.replace(self.scene, camera=cam)
-        inside = self._texel_light()
-        env = self.environment
-        count = width * height
-        sums = np.zeros((count, 3))
-        squares = np.zeros((count, 3))
-        totals = {"rays": 0, "done": 0}
-        lock = threading.Lock()
-        chunks = range(0, count, CONVERGE_CHUNK)
         t0 = time.perf_counter()
-        tracer = self.tracer
-        pass_spp = min(spp, PASS_SPP)
-
-        def one(first, stop):
-            pix = np.arange(first, min(first + CONVERGE_CHUNK, count))
-            P = len(pix)
-            chunk = first // CONVERGE_CHUNK
-            # each pixel's product from its centre ray's hit
-            eye_c, d_c = camera_rays(scene, pix % width, pix // width, np.full((P, 2), 0.5, np.float32), width, height)
-            prim_c, t_c = tracer.intersect(eye_c, d_c)
-            leaves = np.zeros((P, 1 << min(self.n, PRODUCT_LEVELS), 1 << min(self.n, PRODUCT_LEVELS)), np.float32)
-            hc = np.flatnonzero(prim_c >= 0)
-            if len(hc):
-                ids, w, fn = self.hit_points(cam.eye, d_c[hc], prim_c[hc], t_c[hc])
-                ok = w.sum(1) > 0
-                if ok.any():
-                    nrm = fn[ok] * np.where(np.einsum("ij,ij->i", fn[ok], d_c[hc][ok]) > 0, -1.0, 1.0)[:, None]
-                    leaves[hc[ok]] = self.product_leaves(ids[ok], w[ok], nrm, -d_c[hc][ok].astype(np.float64),
-                                                         self.scene.face_material[prim_c[hc][ok]])
-            trees = HaarTree(leaves)
-            mass = trees.integral
-            rays = P
-            for start in range(0, spp, pass_spp):   # passes of samples per pixel, not samples: bounded memory
-                if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
-                    return
-                k = min(pass_spp, spp - start)
-                px, py = np.repeat(pix % width, k), np.repeat(pix // width, k)
-                eye_s, d = camera_rays(scene, px, py, camera_jitter(seed, JITTER_TILE + chunk, P, k, start * P), width,
-                                       height)
-                prim, t = tracer.intersect(eye_s, d)
-                rays += P * k
-                value = np.zeros((P * k, 3))
-                miss = np.flatnonzero(prim < 0)
-                value[miss] = env.eval(d[miss].astype(np.float64))
-                hit = np.flatnonzero(prim >= 0)
-                if len(hit):
-                    value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, k,
-                                                          (seed, JITTER_TILE + chunk), env, defensive, slots, light,
-                                                          first=start * P)
-                    rays += traced
-                v = value.reshape(P, k, 3)
-                with lock:
-                    sums[pix] += v.sum(1)
-                    squares[pix] += (v * v).sum(1)
-            with lock:
-                totals["rays"] += rays
-                totals["done"] += 1
-                if progress:
-                    progress(totals["done"], len(chunks), totals["rays"], time.perf_counter() - t0)
-
-        # one chunk per core: each chunk's rays are split again over the tracer's own two threads
-        # (self.tracer, shared with the approximate frame), which makes two threads per core
-        map_until_stopped(one, chunks, threads or default_threads(per_core=1))
-        seconds = time.perf_counter() - t0
-        mean, err = mean_and_error(sums, squares, spp)
-        stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
-                 "rays": totals["rays"], "eye": cam.eye.tolist(), "target": cam.target.tolist(), "fov": cam.fov_y,
-                 "pass_spp": pass_spp, "pass_samples": CONVERGE_CHUNK * pass_spp,
-                 "estimator": "product T1 x f_r of the surface cache + BSDF + lighting, one-sample mixture"}
-        return RenderResult(mean.reshape(height, width, 3).astype(np.float32),
-                            err.reshape(height, width, 3).astype(np.float32), stats)
+        frames = vc.converger(self, self._texel_light(), backend, threads)
+        setup = time.perf_counter() - t0
+        result = frames.frame(scene, width, height, spp, seed, slots, defensive, light, control, PASS_SPP, progress)
+        result.stats["setup_seconds"] = round(setup, 4)
+        result.stats["frame_seconds"] = round(setup + result.stats["render_seconds"], 4)
+        return result
