@@ -78,20 +78,18 @@ midpoint rule each leave an error; and one ray per pixel samples facets smaller 
 where ``mis`` integrates over the pixel (benchmarks/relight_view.py measures both modes against
 ``mis``, with one and with 4 x 4 rays per pixel).
 
-The unbiased frame (:meth:`ViewFrames.converge`). Each pixel's camera samples draw their
-directions from a defensive mixture: with probability 1 - DEFENSIVE - LIGHT_SHARE from the product T1 x f_r
-(visibility inside it: T1 holds V) of the cache at the hit of the pixel's centre ray, on
-2^m x 2^m texels (m = min(n, PRODUCT_LEVELS); the top-left 2^m x 2^m block of T1's coefficients
-is the transform of its coarser texels, eq. 13), times f_r at the texels' centres for that hit's
-normal and view, walked by the hierarchical warp (:class:`wavlight.haar.HaarTree`, eq. 17-22),
-then inside the texel by the lighting's own luminance at the map's resolution
-(:class:`wavlight.relight.converge._TexelLight`); with probability DEFENSIVE (or 1 - LIGHT_SHARE
-where the pixel has no product) from the BSDF; with probability LIGHT_SHARE from the lighting
-alone (a bright light that the bake's one shadow ray per texel hid from a cache point's T1 is
-still found). Every direction is evaluated with the true f_r cos, the radiance and a shadow
-ray, and weighted by the mixture's pdf (every technique's pdf, exact):
-unbiased whatever the cache's approximations (tests/relight/test_relight_view.py checks it against
-``mis``).
+The unbiased frame (:meth:`ViewFrames.converge`, on the device: :mod:`wavlight.relight.view_converge`).
+Each pixel's camera samples draw their directions from a defensive mixture: the product T1 x f_r
+(visibility inside it: T1 holds V) of the cache at the hit of the pixel's centre ray, on 2^m x 2^m
+texels (m = min(n, PRODUCT_LEVELS); the top-left 2^m x 2^m block of T1's coefficients is the
+transform of its coarser texels, eq. 13), times f_r at the texels' centres for that hit's normal
+and view, walked by the hierarchical warp (eq. 17-22), then inside the texel by the lighting's own
+luminance at the map's resolution (:class:`wavlight.relight.converge._TexelLight`); the BSDF; and
+the lighting alone (a bright light that the bake's one shadow ray per texel hid from a cache
+point's T1 is still found). Every direction is evaluated with the true f_r cos, the radiance and a
+shadow ray, and weighted by the mixture's pdf (every technique's pdf, exact); the pixel's product
+at the trees' texels is the control variate's known integral: unbiased whatever the cache's
+approximations (tests/relight/test_relight_view.py checks it against ``mis``).
 """
 from __future__ import annotations
 
@@ -108,18 +106,15 @@ from .. import bsdfs, cl, haar
 from ..camera import camera_rays
 from ..envmap import LUMINANCE, Environment
 from ..errors import ArgumentError, WavlightError, check_int, check_real
-from ..haar.tree import HaarTree
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene
-from ..threads import default_threads, map_until_stopped
+from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting, store
-from .bake import BLOCK, PixelSamples, camera_jitter, choose_model, texel_rays, \
-    texel_rays_reference
-from .converge import LIGHT_SHARE, PASS_SPP, _scene_of, check_shares, _TexelLight, mean_and_error, shade_by_mixture, \
-    square_to_world
+from .bake import BLOCK, PixelSamples, choose_model, texel_rays, texel_rays_reference
+from .converge import PASS_SPP, _scene_of, check_shares, _TexelLight, square_to_world
 from .frame import DeviceEntries
 from .settings import BAKE, CACHE_POINTS, FRAME, UNBIASED_SPP, VIEW_TEXEL_POINTS, WRITTEN_SUPERSAMPLE
 from .store import lattice_size
@@ -137,16 +132,10 @@ REFINE = FRAME["refine"].default
 MASS = FRAME["mass"].default
 #: g is rounded up to a power of two 2^k, k <= MASS_STEPS (cos and sin of the scaled radius tabulated)
 MASS_STEPS = 8
-#: the unbiased frame: the product's texel levels, the BSDF's share, directions per sample
+#: the unbiased frame's product texel levels at most (:mod:`wavlight.relight.view_converge`)
 PRODUCT_LEVELS = 5
-DEFENSIVE = 0.1
-SLOTS = 2
-#: the unbiased frame's chunk c draws its Philox numbers as tile JITTER_TILE + c (camera jitter:
-#: rng.JITTER; directions: rng.CONVERGE_DIRECTIONS, :func:`wavlight.relight.converge.shade_by_mixture`)
-JITTER_TILE = 1 << 20
 #: pixels per chunk of a frame (bounded memory)
 CHUNK_PIXELS = 1 << 16
-CONVERGE_CHUNK = 1 << 10
 #: a view direction this close to the tangent plane is lifted to it (silhouette points)
 MIN_COS_VIEW = 1e-3
 #: the approximate frame's modes: a product per cache point or per pixel; :meth:`ViewFrames.frame`'s
@@ -1121,29 +1110,6 @@ class ViewFrames:
             m = min(self.n, PRODUCT_LEVELS)
             self._inside = _TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), m, env.rotate_y)
         return self._inside
-
-    def product_leaves(self, ids, w, normal, wo_world, mat):
-        """(P, 2^m, 2^m) float32: per pixel the luminance of its cache's T1 on 2^m x 2^m texels
-        (the coarse block of its coefficients, inverted) times f_r at the texels' centres for the
-        pixel's normal, view direction and material (clamped at 0: a sampling density)."""
-        m = min(self.n, PRODUCT_LEVELS)
-        side, small = 1 << self.n, 1 << m
-        rr, cc = np.mgrid[0:small, 0:small]
-        cols = (rr * side + cc).ravel()
-        uniq, inv = np.unique(ids.reshape(-1), return_inverse=True)
-        s = self.transfer._s
-        coeffs = _coefficients(s["offsets"], s["entry_scale"], s["entry_data"], uniq, cols)       # (U, 3, M^2)
-        lum = np.tensordot(coeffs, LUMINANCE.astype(np.float64), axes=([1], [0])).reshape(-1, small, small)
-        coarse = haar.inverse(lum) * float(4 ** (self.n - m))                                     # texel sums
-        T = np.einsum("pj,pjab->pab", w, coarse[inv.reshape(ids.shape)])
-        dirs = lighting.texel_directions(m).reshape(-1, 3)
-        s_ax, t_ax = tangent_frame(normal)
-        wo = to_local(wo_world, s_ax, t_ax, normal)
-        wl = np.stack([dirs @ a.T for a in (s_ax, t_ax, normal)], -1).transpose(1, 0, 2)        # (P, M^2, 3)
-        P = len(normal)
-        f = brdf_reference(np.repeat(self.kind_of[mat], small * small), np.repeat(self.param_of[mat], small * small),
-                           wl.reshape(-1, 3), np.repeat(wo, small * small, axis=0)).reshape(P, small, small)
-        return np.maximum(T * f, 0.0).astype(np.float32)
 
     def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = UNBIASED_SPP,
                  seed: int = FRAME["seed"].default, slots=None, defensive=None, threads=None,
