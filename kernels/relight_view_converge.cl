@@ -47,17 +47,18 @@ inline uint vc_compact(uint v)
     return v;
 }
 
-/* The luminance of the weighted blend of coefficient (row, col) of the 2^n x 2^n layout over the
- * pixel's three cache points (block b[k], row j[k] in it, weight wt[k]). */
-inline float vc_coeff(const uint row, const uint col, const uint n_levels, const uint n_blocks, const uint *b,
-                      const uint *j, const float *wt, __global const int *offsets, __global const float *scale,
-                      __global const VQTYPE *data)
+/* The luminance of the weighted blend of coefficient (row, col) of the 2^m x 2^m layout (the
+ * top-left block of the bake's 2^n x 2^n) over the pixel's three cache points (block b[k], row j[k]
+ * in it, weight wt[k]); offsets: per block its entries of the 4^m coefficients (block-major, so
+ * that a pixel's lookups share cache lines). */
+inline float vc_coeff(const uint row, const uint col, const uint *b, const uint *j, const float *wt,
+                      __global const int *offsets, __global const float *scale, __global const VQTYPE *data)
 {
-    const size_t i = (size_t)((row << n_levels) + col) * n_blocks;
+    const uint i = (row << N_LEVELS) + col;
     float v = 0.0f;
     for (int k = 0; k < 3; ++k) {
         if (!(wt[k] > 0.0f)) continue;
-        const int o = offsets[i + b[k]];
+        const int o = offsets[(size_t)b[k] * VC_TEXELS + i];
         if (o >= 0) {
             const size_t at = (size_t)o * ROW + j[k];
             v += (wt[k] * scale[o]) * (VC_LR * (float)data[at] + VC_LG * (float)data[at + POINTS]
@@ -71,9 +72,9 @@ inline float vc_coeff(const uint row, const uint col, const uint n_levels, const
  * levels), its G at relit + 4 p (r, g, b, 0). ids, weights: (count, 3) from view_lookup; prim,
  * dirs: the centre rays' faces (-1: a miss) and unit directions; face_normal (faces, 3);
  * texel_dir (4^m, 4) the texels' centre directions, gl (4^m) and radiance (4^m, 4): the lighting's
- * leaf masses and mean radiance, all in Morton order. */
-__kernel void view_converge_trees(const uint count, const uint n_levels, const uint n_blocks,
-                                  __global const uint *ids, __global const float *weights, __global const int *prim,
+ * leaf masses and mean radiance, all in Morton order; offsets (blocks, 4^m) the entries of the
+ * coefficients of the 2^m x 2^m layout per block (row-major). */
+__kernel void view_converge_trees(const uint count, __global const uint *ids, __global const float *weights, __global const int *prim,
                                   __global const float *dirs, __global const float *face_normal,
                                   __global const int *face_material, __global const int *mat_kind,
                                   __global const float *mat_param, __global const int *offsets,
@@ -103,15 +104,15 @@ __kernel void view_converge_trees(const uint count, const uint n_levels, const u
         return;
     }
     float node[VC_NODES];
-    node[0] = vc_coeff(0u, 0u, n_levels, n_blocks, b, j, wt, offsets, scale, data);
+    node[0] = vc_coeff(0u, 0u, b, j, wt, offsets, scale, data);
     for (uint l = 0; l < N_LEVELS; ++l) {
         const uint at = (uint)LEVEL_OFFSET(l), below = (uint)LEVEL_OFFSET(l + 1), s = 1u << l;
         for (uint k = 0; k < (1u << (2 * l)); ++k) {
             const uint x = vc_compact(k), y = vc_compact(k >> 1);
             const float a = node[at + k];
-            const float d1 = vc_coeff(y, s + x, n_levels, n_blocks, b, j, wt, offsets, scale, data);
-            const float d2 = vc_coeff(s + y, x, n_levels, n_blocks, b, j, wt, offsets, scale, data);
-            const float d3 = vc_coeff(s + y, s + x, n_levels, n_blocks, b, j, wt, offsets, scale, data);
+            const float d1 = vc_coeff(y, s + x, b, j, wt, offsets, scale, data);
+            const float d2 = vc_coeff(s + y, x, b, j, wt, offsets, scale, data);
+            const float d3 = vc_coeff(s + y, s + x, b, j, wt, offsets, scale, data);
             node[below + 4 * k] = 0.5f * ((a + d1) + (d2 + d3));
             node[below + 4 * k + 1] = 0.5f * ((a - d1) + (d2 - d3));
             node[below + 4 * k + 2] = 0.5f * ((a + d1) - (d2 + d3));

@@ -50,9 +50,6 @@ from . import lighting
 from .converge import COHERENCE, LATTICE, MAX_SLOTS, PASS_SAMPLES, TREE_CACHE_BYTES, mean_and_error, \
     shade_reference, visible_sum
 
-#: the product trees' levels at most (2^5 x 2^5 texels, as the lighting bake's:
-#: docs/decisions/relight-converge-kernels.md)
-PRODUCT_LEVELS = 5
 #: directions (shadow rays) per camera sample, and the mixture's shares of the BSDF and the
 #: lighting alone (docs/decisions/relight-view-converge-kernels.md)
 SLOTS = 4
@@ -203,6 +200,10 @@ class ViewConverge:
             dirs = np.zeros((side * side, 4), np.float32)
             dirs[:, :3] = lighting.texel_directions(m).reshape(-1, 3)[morton]
             self.texel_dirs = cl.to_device(dirs)
+            n = frames.n
+            rows = (np.arange(side)[:, None] * (1 << n) + np.arange(side)[None, :]).reshape(-1)
+            self.block_offsets = cl.to_device(np.ascontiguousarray(
+                np.asarray(frames.transfer._s["offsets"][rows], np.int32).T))   # (blocks, 4^m)
             self.materials = (cl.to_device(sc.material_kind.astype(np.int32)),
                               cl.to_device(sc.material_param.astype(np.float32)))
             self.spread = cl.to_device(np.zeros(TILE_PIXELS, np.float32))   # (no resampling: not read)
@@ -260,9 +261,8 @@ class ViewConverge:
         e = self.device.entries
         hs = np.float32(float(1 << m) * 4.0 ** (self.frames.n - m))
         cl.kernel(self.tree_program, "view_converge_trees")(
-            queue, (cl.items(P),), (cl.WORK_GROUP,), np.uint32(P), np.uint32(self.frames.n),
-            np.uint32(self.device.n_blocks), ids_b, w_b, prim_b, dir_b, self.lookup.face_normal,
-            self.lookup.face_material, *self.materials, e.offsets[0], e.scale[0], e.data[0], self.texel_dirs,
+            queue, (cl.items(P),), (cl.WORK_GROUP,), np.uint32(P), ids_b, w_b, prim_b, dir_b, self.lookup.face_normal,
+            self.lookup.face_material, *self.materials, self.block_offsets, e.scale[0], e.data[0], self.texel_dirs,
             self.light.buffers["leaf_masses"], self.light.buffers["radiance"], hs, np.uint32(stride), out, relit)
         made = kernels.TileTrees(out, relit, P, m)
         if keep:
