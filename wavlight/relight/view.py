@@ -105,7 +105,7 @@ import numpy as np
 from .. import bsdfs, cl, haar
 from ..camera import camera_rays
 from ..envmap import LUMINANCE, Environment
-from ..errors import ArgumentError, WavlightError, check_int, check_real
+from ..errors import ArgumentError, WavlightError, check_int, check_number, check_real
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene
@@ -1113,10 +1113,11 @@ class ViewFrames:
 
     def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = UNBIASED_SPP,
                  seed: int = FRAME["seed"].default, slots=None, defensive=None, threads=None,
-                 progress=None, light=None, control: bool = True, backend: str = "opencl") -> RenderResult:
+                 progress=None, light=None, control: bool = True, backend: str = "opencl", candidates=None,
+                 coherence=None) -> RenderResult:
         """The unbiased frame from ``eye`` (module docstring; kernels and kept trees:
-        :mod:`wavlight.relight.view_converge`, whose SLOTS, DEFENSIVE and LIGHT_SHARE are the
-        defaults): image, per-pixel standard error, stats; ``setup_seconds`` the device tables
+        :mod:`wavlight.relight.view_converge`, whose SLOTS, DEFENSIVE, LIGHT_SHARE, CANDIDATES
+        and COHERENCE are the defaults): image, per-pixel standard error, stats; ``setup_seconds`` the device tables
         made by this call (the first), ``frame_seconds`` that plus the frame's."""
         from . import view_converge as vc
 
@@ -1125,6 +1126,8 @@ class ViewFrames:
         slots = vc.SLOTS if slots is None else slots
         defensive = vc.DEFENSIVE if defensive is None else defensive
         light = vc.LIGHT_SHARE if light is None else light
+        candidates = vc.CANDIDATES if candidates is None else candidates
+        coherence = check_number(where, "coherence", vc.COHERENCE if coherence is None else coherence, 0.0)
         defensive, light = check_shares(where, defensive, light)
         cam = self.camera(eye, target, fov)
         width, height = self.size(width, height)
@@ -1132,7 +1135,8 @@ class ViewFrames:
         t0 = time.perf_counter()
         frames = vc.converger(self, self._texel_light(), backend, threads)
         setup = time.perf_counter() - t0
-        result = frames.frame(scene, width, height, spp, seed, slots, defensive, light, control, PASS_SPP, progress)
+        result = frames.frame(scene, width, height, spp, seed, slots, defensive, light, control, PASS_SPP, progress,
+                              candidates, coherence)
         result.stats["setup_seconds"] = round(setup, 4)
         result.stats["frame_seconds"] = round(setup + result.stats["render_seconds"], 4)
         return result

@@ -47,8 +47,8 @@ from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import converge_kernels as kernels
 from . import lighting
-from .converge import COHERENCE, LATTICE, MAX_SLOTS, PASS_SAMPLES, TREE_CACHE_BYTES, mean_and_error, \
-    shade_reference, visible_sum
+from .converge import CANDIDATES, COHERENCE, FOOTPRINT_GRID, LATTICE, MAX_CANDIDATES, MAX_SLOTS, PASS_SAMPLES, \
+    TREE_CACHE_BYTES, footprint_rays, footprint_spread, mean_and_error, shade_reference, visible_sum
 
 #: directions (shadow rays) per camera sample, and the mixture's shares of the BSDF and the
 #: lighting alone (docs/decisions/relight-view-converge-kernels.md)
@@ -192,6 +192,7 @@ class ViewConverge:
             self.light = kernels.Lighting(inside.tables())
             self.shade = kernels.ShadeKernel(sc, frames.tracer, self.lobe_width)
             self.bits = int(self.device.entries.bits)
+            self.spread_program = kernels.program(m, self.bits, self.shade.kinds, 1, 0, False, LATTICE)
             self.tree_program = cl.program("relight_view_converge.cl", QBITS=self.bits, POINTS=POINTS, K=1,
                                            MASS_STEPS=MASS_STEPS, N_LEVELS=m)
             side = 1 << m
@@ -206,15 +207,14 @@ class ViewConverge:
                 np.asarray(frames.transfer._s["offsets"][rows], np.int32).T))   # (blocks, 4^m)
             self.materials = (cl.to_device(sc.material_kind.astype(np.int32)),
                               cl.to_device(sc.material_param.astype(np.float32)))
-            self.spread = cl.to_device(np.zeros(TILE_PIXELS, np.float32))   # (no resampling: not read)
             camera.warm_up(sc)
         else:
             self.tree_cache_bytes = 0
         self.setup_seconds = time.perf_counter() - t0
 
-    def program(self, slots: int, control: bool):
+    def program(self, slots: int, candidates: int, control: bool):
         """kernels/converge.cl's shade kernel for this bake's product levels and scene."""
-        return kernels.program(self.levels, self.bits, self.shade.kinds, slots, 0, control, LATTICE)
+        return kernels.program(self.levels, self.bits, self.shade.kinds, slots, candidates, control, LATTICE)
 
     def use_camera(self, key):
         """Keep the trees of camera ``key`` (eye, target, fov, width, height): another camera's
@@ -227,19 +227,23 @@ class ViewConverge:
     def tile_trees(self, scene, tile, width: int, height: int):
         """The tile's product trees from ``scene``'s camera (kept, or built and kept while they
         fit in tree_cache_bytes): a :class:`.converge_kernels.TileTrees`, or with the numpy
-        backend (HaarTree, host pyramids, G); and whether they were kept."""
+        backend (HaarTree, host pyramids, G); the pixels' footprint spreads (P,) on the host and
+        the device (:func:`wavlight.relight.converge.footprint_spread`, kernel ``converge_spread``);
+        and whether they were kept."""
         with self._lock:
             kept = self._trees.get(tile.index)
         if kept is not None:
-            return kept, True
+            return kept[0], kept[1], True
         P = tile.w * tile.h
         pix = np.arange(P)
         eye, d = camera_rays(scene, tile.x0 + pix % tile.w, tile.y0 + pix // tile.w, np.full((P, 2), 0.5, np.float32),
                              width, height)
         prim, _, u, v = self.frames.tracer.intersect_uv(eye, d)
+        tracer = self.frames.tracer
         if self.backend == "numpy":
             nodes, relit = trees_reference(self.frames, self.inside, d, prim, u, v)
-            return (HaarTree.from_pyramids(nodes), nodes, relit), False
+            spread = footprint_spread(scene, tracer, tile.x0, tile.y0, tile.w, tile.h, width, height)
+            return (HaarTree.from_pyramids(nodes), nodes, relit), (spread.astype(np.float32), None), False
         m = self.levels
         stride = tree_stride(m)
         queue = cl.thread_queue()
@@ -249,6 +253,7 @@ class ViewConverge:
             if keep:
                 self.kept_bytes += nbytes
             spare = self._spare.pop(tile.index, None) if keep else None
+        spare = spare[0] if spare is not None else None
         if spare is not None and (spare.pixels != P or spare.levels != m):
             spare = None
         if spare is not None:
@@ -264,21 +269,27 @@ class ViewConverge:
             queue, (cl.items(P),), (cl.WORK_GROUP,), np.uint32(P), ids_b, w_b, prim_b, dir_b, self.lookup.face_normal,
             self.lookup.face_material, *self.materials, self.block_offsets, e.scale[0], e.data[0], self.texel_dirs,
             self.light.buffers["leaf_masses"], self.light.buffers["radiance"], hs, np.uint32(stride), out, relit)
-        made = kernels.TileTrees(out, relit, P, m)
+        fd, fprim = footprint_rays(scene, tracer, tile.x0, tile.y0, tile.w, tile.h, width, height)
+        spread_b, spread = self.shade.spread(self.spread_program, fd, fprim, FOOTPRINT_GRID ** 2, queue)
+        made = (kernels.TileTrees(out, relit, P, m), (spread, spread_b))
         if keep:
             with self._lock:
                 self._trees[tile.index] = made
-        return made, False
+        return made[0], made[1], False
 
     def frame(self, scene, width: int, height: int, spp: int, seed: int, slots: int = SLOTS,
               defensive: float = DEFENSIVE, light: float = LIGHT_SHARE, control: bool = True, pass_limit: int = 64,
-              progress=None) -> RenderResult:
+              progress=None, candidates: int = CANDIDATES, coherence: float = COHERENCE) -> RenderResult:
         """The unbiased frame of ``scene`` (the bake's scene with the frame's camera) at width x
         height, ``spp`` camera samples per pixel, each with ``slots`` directions of the defensive
         mixture (shares ``defensive`` and ``light``; with ``control`` and light > 0 the relit
         value G is the control variate's integral), at most ``pass_limit`` samples per pixel a
-        pass. Returns a RenderResult: image, per-pixel standard error, stats."""
+        pass. A camera sample whose pixel's footprint reflects over more than ``coherence`` times
+        its lobe's width resamples its slots from ``candidates`` mixture directions (0: never;
+        :mod:`wavlight.relight.converge`). Returns a RenderResult: image, per-pixel standard
+        error, stats."""
         slots = check_int("relight.view", "slots", slots, 1, MAX_SLOTS)
+        candidates = check_int("relight.view", "candidates", candidates, 0, MAX_CANDIDATES)
         use_control = bool(control) and light > 0
         cam = scene.camera
         self.use_camera((tuple(np.asarray(cam.eye, np.float64)), tuple(np.asarray(cam.target, np.float64)),
@@ -287,29 +298,30 @@ class ViewConverge:
         tracer = self.frames.tracer
         prog = None
         if self.backend == "opencl":
-            prog = self.program(slots, use_control)
+            prog = self.program(slots, candidates, use_control)
             self.shade.eye = np.asarray(cam.eye, np.float32)
             self.shade.eye_offset = RayTracer.eye_offset_floor(cam.eye)
         t0 = time.perf_counter()
         sums = np.zeros((height, width, 3))
         squares = np.zeros((height, width, 3))
-        totals = {"rays": 0, "done": 0, "kept": 0, "trees_seconds": 0.0}
+        totals = {"rays": 0, "done": 0, "kept": 0, "trees_seconds": 0.0, "hits": 0, "resampled": 0}
         lock = threading.Lock()
-        shares = (defensive, light, COHERENCE)
+        shares = (defensive, light, coherence)
         eye = np.broadcast_to(np.asarray(cam.eye, np.float32), (1, 3))
         max_tile = max(t.w * t.h for t in tiles)
 
         def one(tile, stop):
             ta = time.perf_counter()
-            trees, was_kept = self.tile_trees(scene, tile, width, height)
+            trees, spread, was_kept = self.tile_trees(scene, tile, width, height)
             tb = time.perf_counter()
             P = tile.w * tile.h
             if prog is not None:
-                self.shade.warm_up(prog, slots, trees, self.spread, self.light, shares)
+                self.shade.warm_up(prog, slots, trees, spread[1], self.light, shares)
             tile_id = VIEW_TILES + tile.index
             k_pass = per_pass(spp, P, pass_limit)
             s_sum, s_sq = np.zeros((P, 3)), np.zeros((P, 3))
-            rays = 0 if was_kept else P
+            rays = 0 if was_kept else P * (1 + FOOTPRINT_GRID ** 2)
+            hits = chosen = 0
             for first in range(0, spp, k_pass):   # passes of samples per pixel, not samples: bounded memory
                 if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
                     return
@@ -318,14 +330,19 @@ class ViewConverge:
                 prim, t = tracer.intersect(np.broadcast_to(eye, d.shape), d)
                 rays += len(d)
                 if self.backend == "opencl":
-                    direct, origin, wi, value = self.shade(prog, slots, d, prim, t, k, first * P, trees, self.spread,
+                    direct, origin, wi, value = self.shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
                                                            self.light, shares, seed, tile_id)
                 else:
                     direct, origin, wi, value = shade_reference(
-                        scene, tracer, d, prim, t, k, trees[0], trees[1], trees[2], np.zeros(P, np.float32),
-                        self.inside, (seed, tile_id), first * P, slots, defensive, light, use_control, 0, COHERENCE)
+                        scene, tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], self.inside,
+                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence)
                 v, traced = visible_sum(tracer, direct, origin, wi, value)
                 rays += traced
+                hit = prim >= 0
+                hits += int(hit.sum())
+                if candidates:
+                    mat = scene.face_material[prim[hit]]
+                    chosen += int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
                 v = v.reshape(P, k, 3)
                 s_sum += v.sum(1)
                 s_sq += (v * v).sum(1)
@@ -336,6 +353,8 @@ class ViewConverge:
                 totals["rays"] += rays
                 totals["done"] += 1
                 totals["kept"] += int(was_kept)
+                totals["hits"] += hits
+                totals["resampled"] += chosen
                 totals["trees_seconds"] += tb - ta
                 if progress:
                     progress(totals["done"], len(tiles), totals["rays"], time.perf_counter() - t0)
@@ -348,11 +367,13 @@ class ViewConverge:
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
                  "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
                  "eye": np.asarray(cam.eye).tolist(), "target": np.asarray(cam.target).tolist(), "fov": cam.fov_y,
-                 "product_levels": self.levels, "slots": slots, "pass_spp": k_pass, "pass_samples": max_tile * k_pass,
+                 "product_levels": self.levels, "slots": slots, "candidates": candidates,
+                 "resampled_share": round(totals["resampled"] / totals["hits"], 4) if totals["hits"] else 0.0, "pass_spp": k_pass, "pass_samples": max_tile * k_pass,
                  "tiles": len(tiles), "tiles_kept": totals["kept"], "kept_tree_bytes": self.kept_bytes,
                  "trees_thread_seconds": round(totals["trees_seconds"], 4), "backend": self.backend,
                  "estimator": "product T1 x f_r of the surface cache + BSDF + lighting, defensive mixture"
-                              + (", the relit frame as control variate" if use_control else "")}
+                              + (", the relit frame as control variate" if use_control else "")
+                              + (", resampled where the pixel's footprint is wider than the lobe" if candidates else "")}
         return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
 
     def close(self):
