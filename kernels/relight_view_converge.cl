@@ -12,8 +12,9 @@
  * (four children from a node's scaling coefficient and its three wavelets: node value A / 2^l for
  * the average A of the non-standard basis), so that a texel's value times hs = 2^m 4^(n - m) is
  * Y(T1) summed over the bake's texels inside it: Y(sum_t L_t G_t), G_t the integral of V cos over
- * bake texel t. With f_r at the texel's centre (the pixel's face normal, turned towards the
- * viewer, its view direction -d, its material; 0 below the face's horizon), the leaf is
+ * bake texel t. With f_r the mean of the BRDF at the centres of the texel's VC_SUB x VC_SUB parts
+ * (the pixel's face normal, turned towards the viewer, its view direction -d, its material; 0
+ * below the face's horizon: the midpoint rule over the parts), the leaf is
  *     leaf_t = max(f_r Y(T1_t), 0) / 4^m   where gl_t > 0, else 0
  * (gl_t the lighting's luminance mass of the texel, :meth:`_TexelLight.leaf_masses`, = Y(R_t) / 4^m,
  * R_t its mean radiance): leaf_t = H+_t gl_t with H+_t = max(f_r Y(T1_t) / Y(R_t), 0), about f_r G_t,
@@ -27,6 +28,9 @@
 
 #ifndef N_LEVELS
 #define N_LEVELS 5
+#endif
+#ifndef VC_SUB
+#define VC_SUB 1   /* f_r's points per texel side */
 #endif
 #define VC_SIDE (1u << N_LEVELS)
 #define VC_TEXELS (VC_SIDE * VC_SIDE)
@@ -71,7 +75,8 @@ inline float vc_coeff(const uint row, const uint col, const uint *b, const uint 
 /* Global size >= count: pixel p's tree at out + p tree_stride (node 0 at TREE_ORIGIN, Morton
  * levels), its G at relit + 4 p (r, g, b, 0). ids, weights: (count, 3) from view_lookup; prim,
  * dirs: the centre rays' faces (-1: a miss) and unit directions; face_normal (faces, 3);
- * texel_dir (4^m, 4) the texels' centre directions, gl (4^m) and radiance (4^m, 4): the lighting's
+ * texel_dir (4^m, VC_SUB^2, 4) the directions of the centres of each texel's VC_SUB x VC_SUB parts
+ * (row-major in the texel), gl (4^m) and radiance (4^m, 4): the lighting's
  * leaf masses and mean radiance, all in Morton order; offsets (blocks, 4^m) the entries of the
  * coefficients of the 2^m x 2^m layout per block (row-major). */
 __kernel void view_converge_trees(const uint count, __global const uint *ids, __global const float *weights, __global const int *prim,
@@ -148,10 +153,14 @@ __kernel void view_converge_trees(const uint count, __global const uint *ids, __
     const float per_texel = 1.0f / (float)VC_TEXELS;
     float gr = 0.0f, gg = 0.0f, gb = 0.0f;
     for (uint t = 0; t < VC_TEXELS; ++t) {
-        const float4 c = texel_dir[t];
-        const float ix = c.x * sx + c.y * sy + c.z * sz, iy = c.x * tx + c.y * ty + c.z * tz;
-        const float iz = c.x * nx + c.y * ny + c.z * nz;
-        const float fr = iz > 0.0f ? view_brdf(kd, pa, ix, iy, iz, ox, oy, oz, g1o) : 0.0f;
+        float fr = 0.0f;
+        for (uint q = 0; q < VC_SUB * VC_SUB; ++q) {
+            const float4 c = texel_dir[t * VC_SUB * VC_SUB + q];
+            const float ix = c.x * sx + c.y * sy + c.z * sz, iy = c.x * tx + c.y * ty + c.z * tz;
+            const float iz = c.x * nx + c.y * ny + c.z * nz;
+            fr += iz > 0.0f ? view_brdf(kd, pa, ix, iy, iz, ox, oy, oz, g1o) : 0.0f;
+        }
+        fr *= 1.0f / (float)(VC_SUB * VC_SUB);
         const float g = gl[t];
         const float leaf = g > 0.0f ? MAX1(fr * (node[leaf0 + t] * hs), 0.0f) * per_texel : 0.0f;
         if (leaf > 0.0f) {

@@ -126,16 +126,20 @@ def test_the_trees_hold_the_approximate_frame(bakes):
     assert np.linalg.norm(got - want) / np.linalg.norm(want) < 0.25
 
 
-def test_the_kernel_frame_matches_the_numpy_frame(bakes):
-    """The same frame (the same random numbers: camera rays, directions) with the kernels and with
-    their numpy twins: nearly every pixel equal, and the images' sums within a fraction of their
-    standard error."""
+@pytest.mark.parametrize("options", [{}, {"candidates": 8, "coherence": 0.0}, {"control": False, "slots": 2}])
+def test_the_kernel_frame_matches_the_numpy_frame(bakes, options):
+    """The same frame (the same random numbers: camera rays, directions, candidates) with the
+    kernels and with their numpy twins, with the defaults, with every hit whose footprint spreads
+    resampled, and without the control variate: nearly every pixel equal, and the images' sums
+    within a fraction of their standard error."""
     scene, by_bits, folder = bakes
     frames = view.ViewFrames(by_bits[8], scene)
-    a = frames.converge(EYE, TARGET, spp=4, seed=9)
-    b = frames.converge(EYE, TARGET, spp=4, seed=9, backend="numpy")
+    a = frames.converge(EYE, TARGET, spp=4, seed=9, **options)
+    b = frames.converge(EYE, TARGET, spp=4, seed=9, backend="numpy", **options)
     assert a.stats["backend"] == "opencl" and b.stats["backend"] == "numpy"
     assert a.stats["rays"] == b.stats["rays"] > 0
+    assert a.stats["resampled_share"] == b.stats["resampled_share"]
+    assert (a.stats["resampled_share"] > 0.5) == bool(options.get("candidates"))
     diff = np.abs(a.image - b.image).max(2)
     assert (diff > 1e-3 * (1 + np.abs(b.image).max(2))).mean() < 0.03, diff.max()
     var = (b.stderr ** 2).sum()

@@ -133,7 +133,7 @@ MASS = FRAME["mass"].default
 #: g is rounded up to a power of two 2^k, k <= MASS_STEPS (cos and sin of the scaled radius tabulated)
 MASS_STEPS = 8
 #: the unbiased frame's product texel levels at most (:mod:`wavlight.relight.view_converge`)
-PRODUCT_LEVELS = 5
+PRODUCT_LEVELS = 4
 #: pixels per chunk of a frame (bounded memory)
 CHUNK_PIXELS = 1 << 16
 #: a view direction this close to the tangent plane is lifted to it (silhouette points)

@@ -47,14 +47,20 @@ from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import converge_kernels as kernels
 from . import lighting
-from .converge import CANDIDATES, COHERENCE, FOOTPRINT_GRID, LATTICE, MAX_CANDIDATES, MAX_SLOTS, PASS_SAMPLES, \
+from .converge import COHERENCE, FOOTPRINT_GRID, LATTICE, MAX_CANDIDATES, MAX_SLOTS, PASS_SAMPLES, \
     TREE_CACHE_BYTES, footprint_rays, footprint_spread, mean_and_error, shade_reference, visible_sum
 
 #: directions (shadow rays) per camera sample, and the mixture's shares of the BSDF and the
 #: lighting alone (docs/decisions/relight-view-converge-kernels.md)
 SLOTS = 4
-DEFENSIVE = 0.1
+DEFENSIVE = 0.3
 LIGHT_SHARE = 0.1
+#: resampled directions (:mod:`wavlight.relight.converge`): none by default, their candidates
+#: cost more than they save here (docs/decisions/relight-view-converge-kernels.md)
+CANDIDATES = 0
+#: f_r in a tree's texel: its mean over the centres of FR_POINTS x FR_POINTS parts of the texel
+#: (docs/decisions/relight-view-converge-kernels.md)
+FR_POINTS = 2
 #: a tile: whole rows of the frame, at most this many pixels (its trees: 22 MB at 2^5 x 2^5)
 TILE_PIXELS = 1 << 12
 #: a frame's tile i draws its Philox numbers as tile VIEW_TILES + i: neither the bake's tiles
@@ -119,17 +125,33 @@ def texel_luminance(transfer, ids: np.ndarray, w: np.ndarray, levels: int) -> np
     return haar.inverse(blend) * float(4 ** (n - m)) if len(blend) else blend
 
 
-def trees_reference(frames, inside, d, prim, u, v):
+def part_directions(levels: int, parts: int) -> np.ndarray:
+    """(4^m, parts^2, 4) float32: per texel of 2^m x 2^m (row-major) the world directions of the
+    centres of its parts x parts parts (row-major in the texel), padded to four floats."""
+    side = 1 << levels
+    u = (np.arange(side * parts) + 0.5) / (side * parts)
+    phi, theta = np.meshgrid(2 * np.pi * u, np.pi * u)
+    st = np.sin(theta)
+    fine = np.stack([np.sin(phi) * st, np.cos(theta), -np.cos(phi) * st], -1)          # (side S, side S, 3)
+    parts_ = fine.reshape(side, parts, side, parts, 3).transpose(0, 2, 1, 3, 4).reshape(side * side, parts * parts, 3)
+    out = np.zeros((side * side, parts * parts, 4), np.float32)
+    out[..., :3] = parts_
+    return out
+
+
+def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
     """numpy twin of ``view_converge_trees`` (kernels/relight_view_converge.cl): for P centre
     rays (unit directions d (P, 3), faces prim (P,), -1 a miss, embree's u, v) of ``frames``
     (a :class:`wavlight.relight.view.ViewFrames`) and the lighting inside the texels ``inside``
     (a _TexelLight of m levels): the product pyramids (P, tree_size(m)) float32 (row-major
     levels) of leaves max(f_r Y(T1_t), 0) / 4^m where gl_t > 0 (module docstring), and the
-    relit values G (P, 3) float64 = sum_t (leaf_t / gl_t) R_t."""
+    relit values G (P, 3) float64 = sum_t (leaf_t / gl_t) R_t; f_r the mean over the centres of
+    ``parts`` x ``parts`` parts of each texel (default FR_POINTS)."""
     from .view import brdf_reference
 
     m = inside.n
     side = 1 << m
+    S = FR_POINTS if parts is None else int(parts)
     P = len(prim)
     leaves = np.zeros((P, side, side), np.float32)
     relit = np.zeros((P, 3))
@@ -146,14 +168,13 @@ def trees_reference(frames, inside, d, prim, u, v):
             nrm *= np.where(np.einsum("ij,ij->i", nrm, dh) > 0, -1.0, 1.0)[:, None]
             s_ax, t_ax = tangent_frame(nrm)
             wo = to_local(-dh, s_ax, t_ax, nrm)
-            dirs = lighting.texel_directions(m).reshape(-1, 3)
-            wl = np.stack([a @ dirs.T for a in (s_ax, t_ax, nrm)], -1)                     # (M, side^2, 3)
+            dirs = part_directions(m, S)[..., :3].astype(np.float64).reshape(-1, 3)    # (side^2 S^2, 3)
+            wl = np.stack([a @ dirs.T for a in (s_ax, t_ax, nrm)], -1)                     # (M, side^2 S^2, 3)
             mat = frames.scene.face_material[prim[rows]]
-            M = len(rows)
-            f = brdf_reference(np.repeat(frames.kind_of[mat], side * side),
-                               np.repeat(frames.param_of[mat], side * side), wl.reshape(-1, 3),
-                               np.repeat(wo, side * side, axis=0)).reshape(M, side, side)
-            f = np.where(wl[..., 2].reshape(M, side, side) > 0, f, 0.0)
+            M, n_dirs = len(rows), len(dirs)
+            f = brdf_reference(np.repeat(frames.kind_of[mat], n_dirs), np.repeat(frames.param_of[mat], n_dirs),
+                               wl.reshape(-1, 3), np.repeat(wo, n_dirs, axis=0)).reshape(M, n_dirs)
+            f = np.where(wl[..., 2] > 0, f, 0.0).reshape(M, side, side, S * S).mean(-1)
             gl = inside.leaf_masses().astype(np.float64)                                  # (side, side)
             leaf = np.where(gl > 0, np.maximum(f * T, 0.0) / (side * side), 0.0)
             leaves[rows] = leaf
@@ -181,7 +202,7 @@ class ViewConverge:
         sc = frames.scene
         self.lobe_width = bsdfs.lobe_width(sc.material_kind, sc.material_param).astype(np.float32)
         self._camera = None
-        self._trees, self._spare, self.kept_bytes = {}, {}, 0
+        self._trees, self._spare, self._spreads, self.kept_bytes = {}, {}, {}, 0
         self._lock = threading.Lock()
         if backend == "opencl":
             m = self.levels
@@ -192,15 +213,14 @@ class ViewConverge:
             self.light = kernels.Lighting(inside.tables())
             self.shade = kernels.ShadeKernel(sc, frames.tracer, self.lobe_width)
             self.bits = int(self.device.entries.bits)
+            self.no_spread = cl.to_device(np.zeros(1, np.float32))
             self.spread_program = kernels.program(m, self.bits, self.shade.kinds, 1, 0, False, LATTICE)
             self.tree_program = cl.program("relight_view_converge.cl", QBITS=self.bits, POINTS=POINTS, K=1,
-                                           MASS_STEPS=MASS_STEPS, N_LEVELS=m)
+                                           MASS_STEPS=MASS_STEPS, N_LEVELS=m, VC_SUB=FR_POINTS)
             side = 1 << m
             row, col = np.divmod(np.arange(side * side), side)
             morton = np.argsort(morton_index(col, row))        # texel (row-major) of each Morton index
-            dirs = np.zeros((side * side, 4), np.float32)
-            dirs[:, :3] = lighting.texel_directions(m).reshape(-1, 3)[morton]
-            self.texel_dirs = cl.to_device(dirs)
+            self.texel_dirs = cl.to_device(part_directions(m, FR_POINTS)[morton].reshape(-1, 4))
             n = frames.n
             rows = (np.arange(side)[:, None] * (1 << n) + np.arange(side)[None, :]).reshape(-1)
             self.block_offsets = cl.to_device(np.ascontiguousarray(
@@ -221,29 +241,25 @@ class ViewConverge:
         are released, their buffers kept for the new camera's tiles of the same size."""
         if self._camera != key:
             self._spare = self._trees
-            self._trees, self.kept_bytes = {}, 0
+            self._trees, self._spreads, self.kept_bytes = {}, {}, 0
             self._camera = key
 
     def tile_trees(self, scene, tile, width: int, height: int):
         """The tile's product trees from ``scene``'s camera (kept, or built and kept while they
         fit in tree_cache_bytes): a :class:`.converge_kernels.TileTrees`, or with the numpy
-        backend (HaarTree, host pyramids, G); the pixels' footprint spreads (P,) on the host and
-        the device (:func:`wavlight.relight.converge.footprint_spread`, kernel ``converge_spread``);
-        and whether they were kept."""
+        backend (HaarTree, host pyramids, G); and whether they were kept."""
         with self._lock:
             kept = self._trees.get(tile.index)
         if kept is not None:
-            return kept[0], kept[1], True
+            return kept, True
         P = tile.w * tile.h
         pix = np.arange(P)
         eye, d = camera_rays(scene, tile.x0 + pix % tile.w, tile.y0 + pix // tile.w, np.full((P, 2), 0.5, np.float32),
                              width, height)
         prim, _, u, v = self.frames.tracer.intersect_uv(eye, d)
-        tracer = self.frames.tracer
         if self.backend == "numpy":
             nodes, relit = trees_reference(self.frames, self.inside, d, prim, u, v)
-            spread = footprint_spread(scene, tracer, tile.x0, tile.y0, tile.w, tile.h, width, height)
-            return (HaarTree.from_pyramids(nodes), nodes, relit), (spread.astype(np.float32), None), False
+            return (HaarTree.from_pyramids(nodes), nodes, relit), False
         m = self.levels
         stride = tree_stride(m)
         queue = cl.thread_queue()
@@ -253,7 +269,6 @@ class ViewConverge:
             if keep:
                 self.kept_bytes += nbytes
             spare = self._spare.pop(tile.index, None) if keep else None
-        spare = spare[0] if spare is not None else None
         if spare is not None and (spare.pixels != P or spare.levels != m):
             spare = None
         if spare is not None:
@@ -269,13 +284,31 @@ class ViewConverge:
             queue, (cl.items(P),), (cl.WORK_GROUP,), np.uint32(P), ids_b, w_b, prim_b, dir_b, self.lookup.face_normal,
             self.lookup.face_material, *self.materials, self.block_offsets, e.scale[0], e.data[0], self.texel_dirs,
             self.light.buffers["leaf_masses"], self.light.buffers["radiance"], hs, np.uint32(stride), out, relit)
-        fd, fprim = footprint_rays(scene, tracer, tile.x0, tile.y0, tile.w, tile.h, width, height)
-        spread_b, spread = self.shade.spread(self.spread_program, fd, fprim, FOOTPRINT_GRID ** 2, queue)
-        made = (kernels.TileTrees(out, relit, P, m), (spread, spread_b))
+        made = kernels.TileTrees(out, relit, P, m)
         if keep:
             with self._lock:
                 self._trees[tile.index] = made
-        return made[0], made[1], False
+        return made, False
+
+    def spread(self, scene, tile, width: int, height: int):
+        """The footprint spreads of the tile's pixels from ``scene``'s camera (measured once per
+        camera, :func:`wavlight.relight.converge.footprint_spread`; kernel ``converge_spread``):
+        (P,) float32 on the host and the device buffer (None with the numpy backend)."""
+        with self._lock:
+            kept = self._spreads.get(tile.index)
+        if kept is not None:
+            return kept
+        tracer = self.frames.tracer
+        if self.backend == "numpy":
+            s = (footprint_spread(scene, tracer, tile.x0, tile.y0, tile.w, tile.h, width, height).astype(np.float32),
+                 None)
+        else:
+            fd, fprim = footprint_rays(scene, tracer, tile.x0, tile.y0, tile.w, tile.h, width, height)
+            buf, host = self.shade.spread(self.spread_program, fd, fprim, FOOTPRINT_GRID ** 2)
+            s = (host, buf)
+        with self._lock:
+            self._spreads[tile.index] = s
+        return s
 
     def frame(self, scene, width: int, height: int, spp: int, seed: int, slots: int = SLOTS,
               defensive: float = DEFENSIVE, light: float = LIGHT_SHARE, control: bool = True, pass_limit: int = 64,
@@ -312,15 +345,20 @@ class ViewConverge:
 
         def one(tile, stop):
             ta = time.perf_counter()
-            trees, spread, was_kept = self.tile_trees(scene, tile, width, height)
-            tb = time.perf_counter()
+            trees, was_kept = self.tile_trees(scene, tile, width, height)
             P = tile.w * tile.h
+            rays = 0 if was_kept else P
+            if candidates:
+                rays += 0 if tile.index in self._spreads else P * FOOTPRINT_GRID ** 2
+                spread = self.spread(scene, tile, width, height)
+            else:   # not read
+                spread = (np.zeros(P, np.float32), None if prog is None else self.no_spread)
+            tb = time.perf_counter()
             if prog is not None:
                 self.shade.warm_up(prog, slots, trees, spread[1], self.light, shares)
             tile_id = VIEW_TILES + tile.index
             k_pass = per_pass(spp, P, pass_limit)
             s_sum, s_sq = np.zeros((P, 3)), np.zeros((P, 3))
-            rays = 0 if was_kept else P * (1 + FOOTPRINT_GRID ** 2)
             hits = chosen = 0
             for first in range(0, spp, k_pass):   # passes of samples per pixel, not samples: bounded memory
                 if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
@@ -378,7 +416,7 @@ class ViewConverge:
 
     def close(self):
         """Release the kept trees' device memory."""
-        self._trees, self._spare, self.kept_bytes, self._camera = {}, {}, 0, None
+        self._trees, self._spare, self._spreads, self.kept_bytes, self._camera = {}, {}, {}, 0, None
 
 
 def pass_rays(scene, width: int, height: int, seed: int, tile_id: int, tile, k: int, first: int, kernel: bool):
