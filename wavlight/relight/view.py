@@ -1133,7 +1133,8 @@ class ViewFrames:
         width, height = self.size(width, height)
         scene = dataclasses.replace(self.scene, camera=cam)
         t0 = time.perf_counter()
-        frames = vc.converger(self, self._texel_light(), backend, threads)
+        inside = vc.bake_lighting(self.transfer, self.environment, min(self.n, PRODUCT_LEVELS), self._texel_light)
+        frames = vc.converger(self, inside, backend, threads)
         setup = time.perf_counter() - t0
         result = frames.frame(scene, width, height, spp, seed, slots, defensive, light, control, PASS_SPP, progress,
                               candidates, coherence)
