@@ -52,7 +52,7 @@ from .converge import COHERENCE, FOOTPRINT_GRID, LATTICE, MAX_CANDIDATES, MAX_SL
 
 #: directions (shadow rays) per camera sample, and the mixture's shares of the BSDF and the
 #: lighting alone (docs/decisions/relight-view-converge-kernels.md)
-SLOTS = 4
+SLOTS = 8
 DEFENSIVE = 0.3
 LIGHT_SHARE = 0.1
 #: resampled directions (:mod:`wavlight.relight.converge`): none by default, their candidates
