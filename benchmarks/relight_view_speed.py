@@ -29,7 +29,8 @@ amortized over 10, 100 and 1000 frames, and the break-even frame count (none whe
 alone loses). Target: the equal-time ratio of ``converge`` at most 1.0.
 
     python benchmarks/relight_view_speed.py [--sizes 256,512] [--spp 16] [--seeds 3] [--ref-spp 1024]
-        [--turn 40] [--slots S] [--defensive A] [--no-control] [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
+        [--turn 40] [--slots S] [--defensive A] [--levels M] [--candidates C] [--no-control]
+        [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
 
 The figures in benchmarks/results/relight_view_speed.json come from
 
@@ -59,10 +60,13 @@ def main():
     ap.add_argument("--seeds", type=int, default=3, help="frames per method")
     ap.add_argument("--ref-spp", type=int, default=1024, help="samples per pixel of the mis reference")
     ap.add_argument("--turn", type=float, default=40.0, help="degrees the eye turns about the target")
-    ap.add_argument("--slots", type=int, default=None, help="directions per camera sample (default view_converge.SLOTS)")
+    ap.add_argument("--slots", type=int, default=None,
+                    help="directions per camera sample (default view_converge.SLOTS)")
     ap.add_argument("--defensive", type=float, default=None, help="the BSDF's share (default view_converge.DEFENSIVE)")
     ap.add_argument("--levels", type=int, default=None,
                     help="product-tree levels at most (default wavlight.relight.view.PRODUCT_LEVELS)")
+    ap.add_argument("--candidates", type=int, default=None,
+                    help="candidates of a resampled camera sample (default view_converge.CANDIDATES, 0: none)")
     ap.add_argument("--no-control", action="store_true", help="without the control variate")
     args = rc.parse(ap, "relight_view_speed", 0)
     started = rc.begin(args)
@@ -73,7 +77,8 @@ def main():
 
     if args.levels is not None:
         view.PRODUCT_LEVELS = args.levels
-    knobs = {k: v for k, v in (("slots", args.slots), ("defensive", args.defensive)) if v is not None}
+    knobs = {k: v for k, v in (("slots", args.slots), ("defensive", args.defensive), ("candidates", args.candidates))
+             if v is not None}
     if args.no_control:
         knobs["control"] = False
     sizes = [int(s) for s in args.sizes.split(",") if s]

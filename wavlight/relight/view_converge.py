@@ -39,7 +39,7 @@ from .. import bsdfs, camera, cl, haar
 from ..camera import camera_rays
 from ..envmap import LUMINANCE
 from ..errors import ArgumentError, check_int
-from ..haar.tree import HaarTree, build_reference, level_offset, morton_index, tree_stride
+from ..haar.tree import HaarTree, build_reference, morton_index, tree_stride
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..threads import default_threads, map_until_stopped
@@ -406,12 +406,14 @@ class ViewConverge:
                  "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
                  "eye": np.asarray(cam.eye).tolist(), "target": np.asarray(cam.target).tolist(), "fov": cam.fov_y,
                  "product_levels": self.levels, "slots": slots, "candidates": candidates,
-                 "resampled_share": round(totals["resampled"] / totals["hits"], 4) if totals["hits"] else 0.0, "pass_spp": k_pass, "pass_samples": max_tile * k_pass,
+                 "resampled_share": round(totals["resampled"] / totals["hits"], 4) if totals["hits"] else 0.0,
+                 "pass_spp": k_pass, "pass_samples": max_tile * k_pass,
                  "tiles": len(tiles), "tiles_kept": totals["kept"], "kept_tree_bytes": self.kept_bytes,
                  "trees_thread_seconds": round(totals["trees_seconds"], 4), "backend": self.backend,
                  "estimator": "product T1 x f_r of the surface cache + BSDF + lighting, defensive mixture"
                               + (", the relit frame as control variate" if use_control else "")
-                              + (", resampled where the pixel's footprint is wider than the lobe" if candidates else "")}
+                              + (", resampled where the pixel's footprint is wider than the lobe"
+                                 if candidates else "")}
         return RenderResult(mean.astype(np.float32), err.astype(np.float32), stats)
 
     def close(self):
