@@ -54,6 +54,11 @@ def texel_light(frames, levels):
     return cm._TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), levels, env.rotate_y)
 
 
+def converger(frames, inside):
+    device = view.ViewDevice(frames.transfer)
+    return vc.ViewConverge(frames, inside, device, view.FrameDevice(frames, device))
+
+
 def camera_scene(frames, eye=EYE, target=TARGET):
     return dataclasses.replace(frames.scene, camera=frames.camera(eye, target, None))
 
@@ -82,7 +87,7 @@ def test_trees_kernel_equals_its_twin(bakes, bits, levels, ball, monkeypatch):
         scene = dataclasses.replace(scene, materials=[other.materials[0], *scene.materials[1:]])
     frames = view.ViewFrames(by_bits[bits], scene)
     inside = texel_light(frames, levels)
-    conv = vc.ViewConverge(frames, inside)
+    conv = converger(frames, inside)
     monkeypatch.setattr(vc, "TILE_PIXELS", 36 * 8)
     width, height = 36, 20
     sc = camera_scene(frames)
@@ -114,7 +119,7 @@ def test_the_trees_hold_the_approximate_frame(bakes):
     correction aside), so that the control variate's g is close to the integrand."""
     scene, by_bits, folder = bakes
     frames = view.ViewFrames(by_bits[16], scene)
-    conv = vc.ViewConverge(frames, texel_light(frames, 4))
+    conv = converger(frames, texel_light(frames, 4))
     sc = camera_scene(frames)
     tile = vc.tiles_of(36, 20)[0]
     _, relit = conv.tile_trees(sc, tile, 36, 20)[0].read()

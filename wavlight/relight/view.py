@@ -1134,7 +1134,12 @@ class ViewFrames:
         scene = dataclasses.replace(self.scene, camera=cam)
         t0 = time.perf_counter()
         inside = vc.bake_lighting(self.transfer, self.environment, min(self.n, PRODUCT_LEVELS), self._texel_light)
-        frames = vc.converger(self, inside, backend, threads)
+        if backend == "opencl":   # the entries and the lookup's tables, shared with the approximate frame
+            if self._device is None:
+                self._device = ViewDevice(self.transfer)
+            if self._frame_device is None:
+                self._frame_device = FrameDevice(self, self._device)
+        frames = vc.converger(self, inside, self._device, self._frame_device, backend, threads)
         setup = time.perf_counter() - t0
         result = frames.frame(scene, width, height, spp, seed, slots, defensive, light, control, PASS_SPP, progress,
                               candidates, coherence)

@@ -47,6 +47,7 @@ from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import converge_kernels as kernels
 from . import lighting
+from .bake import BLOCK
 from .converge import COHERENCE, FOOTPRINT_GRID, LATTICE, MAX_CANDIDATES, MAX_SLOTS, PASS_SAMPLES, \
     TREE_CACHE_BYTES, footprint_rays, footprint_spread, mean_and_error, shade_reference, visible_sum
 
@@ -67,6 +68,8 @@ TILE_PIXELS = 1 << 12
 #: nor the lighting bake's frames' (wavlight.relight.converge.CONVERGE_TILES)
 VIEW_TILES = 14 << 16
 BACKENDS = ("opencl", "numpy")
+#: cache points per block of the bake file (wavlight.relight.view.POINTS)
+POINTS = BLOCK * BLOCK
 
 
 class Tile(NamedTuple):
@@ -96,8 +99,6 @@ def point_coefficients(transfer, points: np.ndarray, columns: np.ndarray) -> np.
     """(len(points), 3, len(columns)) float64: the stored coefficients ``columns`` (flat indices of
     the 2^n x 2^n layout) of cache points ``points`` (block p // POINTS, row p % POINTS), 0 where
     the block keeps none."""
-    from .view import POINTS
-
     s = transfer._s
     b, j = points // POINTS, points % POINTS
     o = np.asarray(s["offsets"][np.asarray(columns, np.int64)[None, :], b[:, None]], np.int64)   # (I, C)
@@ -147,8 +148,6 @@ def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
     levels) of leaves max(f_r Y(T1_t), 0) / 4^m where gl_t > 0 (module docstring), and the
     relit values G (P, 3) float64 = sum_t (leaf_t / gl_t) R_t; f_r the mean over the centres of
     ``parts`` x ``parts`` parts of each texel (default FR_POINTS)."""
-    from .view import brdf_reference
-
     m = inside.n
     side = 1 << m
     S = FR_POINTS if parts is None else int(parts)
@@ -172,9 +171,12 @@ def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
             wl = np.stack([a @ dirs.T for a in (s_ax, t_ax, nrm)], -1)                     # (M, side^2 S^2, 3)
             mat = frames.scene.face_material[prim[rows]]
             M, n_dirs = len(rows), len(dirs)
-            f = brdf_reference(np.repeat(frames.kind_of[mat], n_dirs), np.repeat(frames.param_of[mat], n_dirs),
-                               wl.reshape(-1, 3), np.repeat(wo, n_dirs, axis=0)).reshape(M, n_dirs)
-            f = np.where(wl[..., 2] > 0, f, 0.0).reshape(M, side, side, S * S).mean(-1)
+            fcos, _ = bsdfs.eval_pdf_each(np.repeat(frames.kind_of[mat], n_dirs),
+                                          np.repeat(frames.param_of[mat], n_dirs), wl.reshape(-1, 3),
+                                          np.repeat(wo, n_dirs, axis=0))
+            iz = wl[..., 2].reshape(-1)
+            f = np.where(iz > 0, fcos / np.where(iz > 0, iz, 1.0), 0.0)   # f_r: f cos / cos above the horizon
+            f = f.reshape(M, side, side, S * S).mean(-1)
             gl = inside.leaf_masses().astype(np.float64)                                  # (side, side)
             leaf = np.where(gl > 0, np.maximum(f * T, 0.0) / (side * side), 0.0)
             leaves[rows] = leaf
@@ -187,13 +189,13 @@ def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
 class ViewConverge:
     """Unbiased frames of one view bake (module docstring): ``frame(camera, width, height, spp,
     seed, ...)``. ``frames``: its :class:`wavlight.relight.view.ViewFrames`; ``inside``: the
-    bake's lighting inside the product's texels (a _TexelLight); ``backend="numpy"`` runs the
+    bake's lighting inside the product's texels (a _TexelLight); ``device`` and ``lookup``: the
+    bake's entries on the device and the cache lookup's tables (its ViewDevice and FrameDevice,
+    which the approximate frame uses too); ``backend="numpy"`` runs the
     kernels' numpy twins (the same random numbers and estimator; slow: tests). What every frame
     shares is made here; the trees of the last camera are kept."""
 
-    def __init__(self, frames, inside, backend: str = "opencl", threads=None):
-        from .view import MASS_STEPS, POINTS, FrameDevice, ViewDevice
-
+    def __init__(self, frames, inside, device=None, lookup=None, backend: str = "opencl", threads=None):
         if backend not in BACKENDS:
             raise ArgumentError(f"relight.view: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         t0 = time.perf_counter()
@@ -206,17 +208,19 @@ class ViewConverge:
         self._lock = threading.Lock()
         if backend == "opencl":
             m = self.levels
-            device = cl.runtime().device
-            self.tree_cache_bytes = min(TREE_CACHE_BYTES, int(device.global_mem_size) // 4)
-            self.device = ViewDevice(frames.transfer)
-            self.lookup = FrameDevice(frames, self.device)
+            runtime_device = cl.runtime().device
+            self.tree_cache_bytes = min(TREE_CACHE_BYTES, int(runtime_device.global_mem_size) // 4)
+            if device is None or lookup is None:
+                raise ArgumentError("relight.ViewConverge: the opencl backend takes the bake's ViewDevice and "
+                                    "FrameDevice (wavlight.relight.view)")
+            self.device, self.lookup = device, lookup
             self.light = kernels.Lighting(inside.tables())
             self.shade = kernels.ShadeKernel(sc, frames.tracer, self.lobe_width)
             self.bits = int(self.device.entries.bits)
             self.no_spread = cl.to_device(np.zeros(1, np.float32))
             self.spread_program = kernels.program(m, self.bits, self.shade.kinds, 1, 0, False, LATTICE)
             self.tree_program = cl.program("relight_view_converge.cl", QBITS=self.bits, POINTS=POINTS, K=1,
-                                           MASS_STEPS=MASS_STEPS, N_LEVELS=m, VC_SUB=FR_POINTS)
+                                           N_LEVELS=m, VC_SUB=FR_POINTS)
             side = 1 << m
             row, col = np.divmod(np.arange(side * side), side)
             morton = np.argsort(morton_index(col, row))        # texel (row-major) of each Morton index
@@ -448,12 +452,12 @@ def bake_lighting(transfer, environment, levels: int, make):
     return inside
 
 
-def converger(frames, inside, backend: str = "opencl", threads=None) -> ViewConverge:
+def converger(frames, inside, device=None, lookup=None, backend: str = "opencl", threads=None) -> ViewConverge:
     """The ViewConverge of ``frames`` (made on first use and kept with it, per backend and
     threads), so that frames from the same camera keep their trees."""
     with _KEPT_LOCK:
         per = _KEPT.setdefault(frames, {})
         found = per.get((backend, threads))
         if found is None:
-            found = per[(backend, threads)] = ViewConverge(frames, inside, backend, threads)
+            found = per[(backend, threads)] = ViewConverge(frames, inside, device, lookup, backend, threads)
         return found
