@@ -5,10 +5,11 @@ Per tile of pixels (whole rows of the frame, at most TILE_PIXELS), the pixels' p
 each pixel's centre ray is traced (embree), its three cache points and weights found
 (``view_lookup``, kernels/relight_view.cl), and kernel ``view_converge_trees``
 (kernels/relight_view_converge.cl, numpy twin :func:`trees_reference`) builds its tree on
-2^m x 2^m texels (m = min(n, ``levels``)): the leaves H+_t gl_t with H+_t = max(f_r Y(T1_t) / Y(R_t), 0),
-T1_t the blend of the points' transfer summed over the texel (the top-left 2^m x 2^m block of the
-bake's coefficients, eq. 13), f_r at the texel's centre for the pixel's face normal, view
-direction and material, R_t the lighting's mean radiance and gl_t its luminance mass
+2^m x 2^m texels (m = min(n, wavlight.relight.view.PRODUCT_LEVELS)): the leaves H+_t gl_t with
+H+_t = max(f_r Y(T1_t) / Y(R_t), 0), T1_t the blend of the points' transfer summed over the texel
+(the top-left 2^m x 2^m block of the bake's coefficients, eq. 13), f_r the mean of the BRDF at
+the centres of FR_POINTS x FR_POINTS parts of the texel for the pixel's face normal, view direction
+and material (0 below the face's horizon), R_t the lighting's mean radiance and gl_t its luminance mass
 (:meth:`wavlight.relight.converge._TexelLight.leaf_masses`): H+_t is about the integral of
 f_r cos V over the texel, as the lighting bake's trees hold it (:mod:`wavlight.relight.converge`),
 and the same pass sums the pixel's relit value G = sum_t H+_t R_t (the approximate frame at m
@@ -25,6 +26,8 @@ beta lighting, their pdfs (every technique's), estimates albedo f cos L / pdf / 
 then the shadow rays of the estimates that are not 0 (embree, :func:`wavlight.relight.converge.visible_sum`).
 Unbiased whatever the cache's approximations: the lighting's share makes the pdf positive
 wherever g is, the BSDF's wherever f cos L is (tests/relight/test_relight_view.py against ``mis``).
+With ``candidates`` a camera sample whose pixel's footprint reflects wider than its lobe
+resamples its directions (the lighting bake's resampling; the footprints measured once per camera).
 """
 from __future__ import annotations
 
