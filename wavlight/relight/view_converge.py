@@ -437,22 +437,6 @@ def pass_rays(scene, width: int, height: int, seed: int, tile_id: int, tile, k: 
 
 _KEPT = weakref.WeakKeyDictionary()
 _KEPT_LOCK = threading.Lock()
-_LIGHTING = weakref.WeakKeyDictionary()
-
-
-def bake_lighting(transfer, environment, levels: int, make):
-    """The bake's lighting inside the product's texels (``make()``, a _TexelLight of ``levels``
-    levels of ``environment``), kept with the loaded ``transfer`` for the next ViewFrames of the
-    same transfer and environment (as a lighting bake's map and projector are,
-    :meth:`wavlight.relight.transfer.Transfer.environment`)."""
-    with _KEPT_LOCK:
-        found = _LIGHTING.get(transfer)
-    if found is not None and found[0] is environment and found[1] == levels:
-        return found[2]
-    inside = make()
-    with _KEPT_LOCK:
-        _LIGHTING[transfer] = (environment, levels, inside)
-    return inside
 
 
 def converger(frames, inside, device=None, lookup=None, backend: str = "opencl", threads=None) -> ViewConverge:
