@@ -1133,7 +1133,7 @@ class ViewFrames:
         width, height = self.size(width, height)
         scene = dataclasses.replace(self.scene, camera=cam)
         t0 = time.perf_counter()
-        inside = vc.bake_lighting(self.transfer, self.environment, min(self.n, PRODUCT_LEVELS), self._texel_light)
+        inside = self._texel_light()
         if backend == "opencl":   # the entries and the lookup's tables, shared with the approximate frame
             if self._device is None:
                 self._device = ViewDevice(self.transfer)
