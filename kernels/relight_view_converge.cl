@@ -79,7 +79,8 @@ inline float vc_coeff(const uint row, const uint col, const uint *b, const uint 
  * (row-major in the texel), gl (4^m) and radiance (4^m, 4): the lighting's
  * leaf masses and mean radiance, all in Morton order; offsets (blocks, 4^m) the entries of the
  * coefficients of the 2^m x 2^m layout per block (row-major). */
-__kernel void view_converge_trees(const uint count, __global const uint *ids, __global const float *weights, __global const int *prim,
+__kernel void view_converge_trees(const uint count, __global const uint *ids, __global const float *weights,
+                                  __global const int *prim,
                                   __global const float *dirs, __global const float *face_normal,
                                   __global const int *face_material, __global const int *mat_kind,
                                   __global const float *mat_param, __global const int *offsets,

@@ -82,8 +82,8 @@ The unbiased frame (:meth:`ViewFrames.converge`, on the device: :mod:`wavlight.r
 Each pixel's camera samples draw their directions from a defensive mixture: the product T1 x f_r
 (visibility inside it: T1 holds V) of the cache at the hit of the pixel's centre ray, on 2^m x 2^m
 texels (m = min(n, PRODUCT_LEVELS); the top-left 2^m x 2^m block of T1's coefficients is the
-transform of its coarser texels, eq. 13), times f_r at the texels' centres for that hit's normal
-and view, walked by the hierarchical warp (eq. 17-22), then inside the texel by the lighting's own
+transform of its coarser texels, eq. 13), times f_r averaged over points of each texel for that
+hit's normal and view, walked by the hierarchical warp (eq. 17-22), then inside the texel by the lighting's own
 luminance at the map's resolution (:class:`wavlight.relight.converge._TexelLight`); the BSDF; and
 the lighting alone (a bright light that the bake's one shadow ray per texel hid from a cache
 point's T1 is still found). Every direction is evaluated with the true f_r cos, the radiance and a
@@ -1117,8 +1117,9 @@ class ViewFrames:
                  coherence=None) -> RenderResult:
         """The unbiased frame from ``eye`` (module docstring; kernels and kept trees:
         :mod:`wavlight.relight.view_converge`, whose SLOTS, DEFENSIVE, LIGHT_SHARE, CANDIDATES
-        and COHERENCE are the defaults): image, per-pixel standard error, stats; ``setup_seconds`` the device tables
-        made by this call (the first), ``frame_seconds`` that plus the frame's."""
+        and COHERENCE are the defaults; ``control``: the control variate; ``backend="numpy"``
+        the kernels' numpy twins): image, per-pixel standard error, stats; ``setup_seconds`` the
+        device tables made by this call (the first), ``frame_seconds`` that plus the frame's."""
         from . import view_converge as vc
 
         where = "relight.view"
