@@ -476,17 +476,19 @@ def test_camera_flags_on_other_bakes(baked, tmp_path):
 
 
 def test_an_error_stops_the_unbiased_frame_at_the_next_pass(baked, monkeypatch):
-    """A chunk of the unbiased frame that fails (as Ctrl-C stops the command's wait): the chunks
+    """A tile of the unbiased frame that fails (as Ctrl-C stops the command's wait): the tiles
     under way stop at their next pass instead of running their remaining spp."""
     from test_relight import Failing
+    from wavlight.relight import view_converge
 
     _, scene, tr = baked
     frames = view.ViewFrames(tr, scene)
-    failing = Failing(view.camera_rays, fail_at=4)   # after both chunks' centre rays
-    monkeypatch.setattr(view, "camera_rays", failing)
+    monkeypatch.setattr(view_converge, "TILE_PIXELS", 48 * 16)   # two tiles
+    failing = Failing(view_converge.pass_rays, fail_at=3)        # after both tiles' first passes
+    monkeypatch.setattr(view_converge, "pass_rays", failing)
     with pytest.raises(RuntimeError, match="stopped"):
         frames.converge(EYE, TARGET, width=48, height=32, spp=view.PASS_SPP * 12, threads=2)
-    assert failing.after <= 2, failing.after   # 12 passes a chunk: up to 10 more without the stop
+    assert failing.after <= 2, failing.after   # 12 passes a tile: up to 10 more without the stop
 
 
 def test_a_frames_size_is_the_given_one_else_the_bakes(baked):

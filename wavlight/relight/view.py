@@ -78,20 +78,18 @@ midpoint rule each leave an error; and one ray per pixel samples facets smaller 
 where ``mis`` integrates over the pixel (benchmarks/relight_view.py measures both modes against
 ``mis``, with one and with 4 x 4 rays per pixel).
 
-The unbiased frame (:meth:`ViewFrames.converge`). Each pixel's camera samples draw their
-directions from a defensive mixture: with probability 1 - DEFENSIVE - LIGHT_SHARE from the product T1 x f_r
-(visibility inside it: T1 holds V) of the cache at the hit of the pixel's centre ray, on
-2^m x 2^m texels (m = min(n, PRODUCT_LEVELS); the top-left 2^m x 2^m block of T1's coefficients
-is the transform of its coarser texels, eq. 13), times f_r at the texels' centres for that hit's
-normal and view, walked by the hierarchical warp (:class:`wavlight.haar.HaarTree`, eq. 17-22),
-then inside the texel by the lighting's own luminance at the map's resolution
-(:class:`wavlight.relight.converge._TexelLight`); with probability DEFENSIVE (or 1 - LIGHT_SHARE
-where the pixel has no product) from the BSDF; with probability LIGHT_SHARE from the lighting
-alone (a bright light that the bake's one shadow ray per texel hid from a cache point's T1 is
-still found). Every direction is evaluated with the true f_r cos, the radiance and a shadow
-ray, and weighted by the mixture's pdf (every technique's pdf, exact):
-unbiased whatever the cache's approximations (tests/relight/test_relight_view.py checks it against
-``mis``).
+The unbiased frame (:meth:`ViewFrames.converge`, on the device: :mod:`wavlight.relight.view_converge`).
+Each pixel's camera samples draw their directions from a defensive mixture: the product T1 x f_r
+(visibility inside it: T1 holds V) of the cache at the hit of the pixel's centre ray, on 2^m x 2^m
+texels (m = min(n, PRODUCT_LEVELS); the top-left 2^m x 2^m block of T1's coefficients is the
+transform of its coarser texels, eq. 13), times f_r averaged over points of each texel for that
+hit's normal and view, walked by the hierarchical warp (eq. 17-22), then inside the texel by the lighting's own
+luminance at the map's resolution (:class:`wavlight.relight.converge._TexelLight`); the BSDF; and
+the lighting alone (a bright light that the bake's one shadow ray per texel hid from a cache
+point's T1 is still found). Every direction is evaluated with the true f_r cos, the radiance and a
+shadow ray, and weighted by the mixture's pdf (every technique's pdf, exact); the pixel's product
+at the trees' texels is the control variate's known integral: unbiased whatever the cache's
+approximations (tests/relight/test_relight_view.py checks it against ``mis``).
 """
 from __future__ import annotations
 
@@ -107,19 +105,16 @@ import numpy as np
 from .. import bsdfs, cl, haar
 from ..camera import camera_rays
 from ..envmap import LUMINANCE, Environment
-from ..errors import ArgumentError, WavlightError, check_int, check_real
-from ..haar.tree import HaarTree
+from ..errors import ArgumentError, WavlightError, check_int, check_number, check_real
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene, require_untextured
-from ..threads import default_threads, map_until_stopped
+from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting, store
-from .bake import BLOCK, PixelSamples, camera_jitter, choose_model, texel_rays, \
-    texel_rays_reference
-from .converge import LIGHT_SHARE, PASS_SPP, _scene_of, check_shares, _TexelLight, mean_and_error, shade_by_mixture, \
-    square_to_world
+from .bake import BLOCK, PixelSamples, choose_model, texel_rays, texel_rays_reference
+from .converge import PASS_SPP, _scene_of, check_shares, _TexelLight, square_to_world
 from .frame import DeviceEntries
 from .settings import BAKE, CACHE_POINTS, FRAME, UNBIASED_SPP, VIEW_TEXEL_POINTS, WRITTEN_SUPERSAMPLE
 from .store import lattice_size
@@ -137,16 +132,10 @@ REFINE = FRAME["refine"].default
 MASS = FRAME["mass"].default
 #: g is rounded up to a power of two 2^k, k <= MASS_STEPS (cos and sin of the scaled radius tabulated)
 MASS_STEPS = 8
-#: the unbiased frame: the product's texel levels, the BSDF's share, directions per sample
-PRODUCT_LEVELS = 5
-DEFENSIVE = 0.1
-SLOTS = 2
-#: the unbiased frame's chunk c draws its Philox numbers as tile JITTER_TILE + c (camera jitter:
-#: rng.JITTER; directions: rng.CONVERGE_DIRECTIONS, :func:`wavlight.relight.converge.shade_by_mixture`)
-JITTER_TILE = 1 << 20
+#: the unbiased frame's product texel levels at most (:mod:`wavlight.relight.view_converge`)
+PRODUCT_LEVELS = 4
 #: pixels per chunk of a frame (bounded memory)
 CHUNK_PIXELS = 1 << 16
-CONVERGE_CHUNK = 1 << 10
 #: a view direction this close to the tangent plane is lifted to it (silhouette points)
 MIN_COS_VIEW = 1e-3
 #: the approximate frame's modes: a product per cache point or per pixel; :meth:`ViewFrames.frame`'s
@@ -1123,106 +1112,39 @@ class ViewFrames:
             self._inside = _TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), m, env.rotate_y)
         return self._inside
 
-    def product_leaves(self, ids, w, normal, wo_world, mat):
-        """(P, 2^m, 2^m) float32: per pixel the luminance of its cache's T1 on 2^m x 2^m texels
-        (the coarse block of its coefficients, inverted) times f_r at the texels' centres for the
-        pixel's normal, view direction and material (clamped at 0: a sampling density)."""
-        m = min(self.n, PRODUCT_LEVELS)
-        side, small = 1 << self.n, 1 << m
-        rr, cc = np.mgrid[0:small, 0:small]
-        cols = (rr * side + cc).ravel()
-        uniq, inv = np.unique(ids.reshape(-1), return_inverse=True)
-        s = self.transfer._s
-        coeffs = _coefficients(s["offsets"], s["entry_scale"], s["entry_data"], uniq, cols)       # (U, 3, M^2)
-        lum = np.tensordot(coeffs, LUMINANCE.astype(np.float64), axes=([1], [0])).reshape(-1, small, small)
-        coarse = haar.inverse(lum) * float(4 ** (self.n - m))                                     # texel sums
-        T = np.einsum("pj,pjab->pab", w, coarse[inv.reshape(ids.shape)])
-        dirs = lighting.texel_directions(m).reshape(-1, 3)
-        s_ax, t_ax = tangent_frame(normal)
-        wo = to_local(wo_world, s_ax, t_ax, normal)
-        wl = np.stack([dirs @ a.T for a in (s_ax, t_ax, normal)], -1).transpose(1, 0, 2)        # (P, M^2, 3)
-        P = len(normal)
-        f = brdf_reference(np.repeat(self.kind_of[mat], small * small), np.repeat(self.param_of[mat], small * small),
-                           wl.reshape(-1, 3), np.repeat(wo, small * small, axis=0)).reshape(P, small, small)
-        return np.maximum(T * f, 0.0).astype(np.float32)
-
     def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = UNBIASED_SPP,
-                 seed: int = FRAME["seed"].default, slots: int = SLOTS, defensive: float = DEFENSIVE, threads=None,
-                 progress=None, light: float = LIGHT_SHARE) -> RenderResult:
-        """The unbiased frame from ``eye`` (module docstring): image, per-pixel standard error, stats."""
+                 seed: int = FRAME["seed"].default, slots=None, defensive=None, threads=None,
+                 progress=None, light=None, control: bool = True, backend: str = "opencl", candidates=None,
+                 coherence=None) -> RenderResult:
+        """The unbiased frame from ``eye`` (module docstring; kernels and kept trees:
+        :mod:`wavlight.relight.view_converge`, whose SLOTS, DEFENSIVE, LIGHT_SHARE, CANDIDATES
+        and COHERENCE are the defaults; ``control``: the control variate; ``backend="numpy"``
+        the kernels' numpy twins): image, per-pixel standard error, stats; ``setup_seconds`` the
+        device tables made by this call (the first), ``frame_seconds`` that plus the frame's."""
+        from . import view_converge as vc
+
         where = "relight.view"
         spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)
-        check_shares(where, defensive, light)
+        slots = vc.SLOTS if slots is None else slots
+        defensive = vc.DEFENSIVE if defensive is None else defensive
+        light = vc.LIGHT_SHARE if light is None else light
+        candidates = vc.CANDIDATES if candidates is None else candidates
+        coherence = check_number(where, "coherence", vc.COHERENCE if coherence is None else coherence, 0.0)
+        defensive, light = check_shares(where, defensive, light)
         cam = self.camera(eye, target, fov)
         width, height = self.size(width, height)
         scene = dataclasses.replace(self.scene, camera=cam)
-        inside = self._texel_light()
-        env = self.environment
-        count = width * height
-        sums = np.zeros((count, 3))
-        squares = np.zeros((count, 3))
-        totals = {"rays": 0, "done": 0}
-        lock = threading.Lock()
-        chunks = range(0, count, CONVERGE_CHUNK)
         t0 = time.perf_counter()
-        tracer = self.tracer
-        pass_spp = min(spp, PASS_SPP)
-
-        def one(first, stop):
-            pix = np.arange(first, min(first + CONVERGE_CHUNK, count))
-            P = len(pix)
-            chunk = first // CONVERGE_CHUNK
-            # each pixel's product from its centre ray's hit
-            eye_c, d_c = camera_rays(scene, pix % width, pix // width, np.full((P, 2), 0.5, np.float32), width, height)
-            prim_c, t_c = tracer.intersect(eye_c, d_c)
-            leaves = np.zeros((P, 1 << min(self.n, PRODUCT_LEVELS), 1 << min(self.n, PRODUCT_LEVELS)), np.float32)
-            hc = np.flatnonzero(prim_c >= 0)
-            if len(hc):
-                ids, w, fn = self.hit_points(cam.eye, d_c[hc], prim_c[hc], t_c[hc])
-                ok = w.sum(1) > 0
-                if ok.any():
-                    nrm = fn[ok] * np.where(np.einsum("ij,ij->i", fn[ok], d_c[hc][ok]) > 0, -1.0, 1.0)[:, None]
-                    leaves[hc[ok]] = self.product_leaves(ids[ok], w[ok], nrm, -d_c[hc][ok].astype(np.float64),
-                                                         self.scene.face_material[prim_c[hc][ok]])
-            trees = HaarTree(leaves)
-            mass = trees.integral
-            rays = P
-            for start in range(0, spp, pass_spp):   # passes of samples per pixel, not samples: bounded memory
-                if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
-                    return
-                k = min(pass_spp, spp - start)
-                px, py = np.repeat(pix % width, k), np.repeat(pix // width, k)
-                eye_s, d = camera_rays(scene, px, py, camera_jitter(seed, JITTER_TILE + chunk, P, k, start * P), width,
-                                       height)
-                prim, t = tracer.intersect(eye_s, d)
-                rays += P * k
-                value = np.zeros((P * k, 3))
-                miss = np.flatnonzero(prim < 0)
-                value[miss] = env.eval(d[miss].astype(np.float64))
-                hit = np.flatnonzero(prim >= 0)
-                if len(hit):
-                    value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, k,
-                                                          (seed, JITTER_TILE + chunk), env, defensive, slots, light,
-                                                          first=start * P)
-                    rays += traced
-                v = value.reshape(P, k, 3)
-                with lock:
-                    sums[pix] += v.sum(1)
-                    squares[pix] += (v * v).sum(1)
-            with lock:
-                totals["rays"] += rays
-                totals["done"] += 1
-                if progress:
-                    progress(totals["done"], len(chunks), totals["rays"], time.perf_counter() - t0)
-
-        # one chunk per core: each chunk's rays are split again over the tracer's own two threads
-        # (self.tracer, shared with the approximate frame), which makes two threads per core
-        map_until_stopped(one, chunks, threads or default_threads(per_core=1))
-        seconds = time.perf_counter() - t0
-        mean, err = mean_and_error(sums, squares, spp)
-        stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
-                 "rays": totals["rays"], "eye": cam.eye.tolist(), "target": cam.target.tolist(), "fov": cam.fov_y,
-                 "pass_spp": pass_spp, "pass_samples": CONVERGE_CHUNK * pass_spp,
-                 "estimator": "product T1 x f_r of the surface cache + BSDF + lighting, one-sample mixture"}
-        return RenderResult(mean.reshape(height, width, 3).astype(np.float32),
-                            err.reshape(height, width, 3).astype(np.float32), stats)
+        inside = self._texel_light()
+        if backend == "opencl":   # the entries and the lookup's tables, shared with the approximate frame
+            if self._device is None:
+                self._device = ViewDevice(self.transfer)
+            if self._frame_device is None:
+                self._frame_device = FrameDevice(self, self._device)
+        frames = vc.converger(self, inside, self._device, self._frame_device, backend, threads)
+        setup = time.perf_counter() - t0
+        result = frames.frame(scene, width, height, spp, seed, slots, defensive, light, control, PASS_SPP, progress,
+                              candidates, coherence)
+        result.stats["setup_seconds"] = round(setup, 4)
+        result.stats["frame_seconds"] = round(setup + result.stats["render_seconds"], 4)
+        return result
