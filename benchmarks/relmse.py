@@ -95,12 +95,12 @@ def floor_image(scene, spp, size, seed, directions, sampler):
     eye = scene.camera.eye
 
     def averaged(tile, first, x0, y0, w, h, k):
-        d, prim, t, u = r.camera_samples(tile, first, x0, y0, w, h, k)
+        d, prim, t, u, uv = r.camera_samples(tile, first, x0, y0, w, h, k)
         total = 0.0
         for j in range(directions):   # D, not samples: each a batched launch over the pass
             # the shading numbers of another seed (stratified per pixel as the compared renders')
             draws = u._replace(seed=(1 << 40) + directions * seed + j)
-            total = total + r.visible_sum(r.shader.shade_rays(eye, d, prim, t, draws))
+            total = total + r.visible_sum(r.shader.shade_rays(eye, d, prim, t, draws, uv))
         return total / directions
 
     r._samples = averaged

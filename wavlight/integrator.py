@@ -66,7 +66,7 @@ class _Renderer:
         self.sampler = sampler_name
         self.threads = threads or default_threads()
         t0 = time.perf_counter()
-        self.tracer = RayTracer(scene.vertices, scene.faces)
+        self.tracer = RayTracer(scene.vertices, scene.faces, normals=scene.normals, normal_faces=scene.normal_faces)
         self.strategy = strategies.make(strategy, **(options or {}))
         if self.strategy.wants_visibility:   # the wavelet budget from the scene's shadows
             self.strategy.fit_to_visibility(occlusion.visibility_variance(scene, self.tracer, width, height))
@@ -137,21 +137,22 @@ class _Renderer:
     def _samples(self, tile, first, x0, y0, w, h, k):
         """(3, w h k) radiance estimates (planes r, g, b): samples first .. first + k - 1 of each
         pixel of a tile, pixel-major."""
-        d, prim, t, u = self.camera_samples(tile, first, x0, y0, w, h, k)
-        return self.visible_sum(self.shader.shade_rays(self.scene.camera.eye, d, prim, t, u))
+        d, prim, t, u, uv = self.camera_samples(tile, first, x0, y0, w, h, k)
+        return self.visible_sum(self.shader.shade_rays(self.scene.camera.eye, d, prim, t, u, uv))
 
     def camera_samples(self, tile, first, x0, y0, w, h, k):
         """The camera rays of samples first .. first + k - 1 of each pixel of a tile, pixel-major:
-        directions d, hit triangle prim and distance t, and the shading uniforms u (an
+        directions d, hit triangle prim, distance t, the shading uniforms u (an
         ``rng.Stream``: Philox numbers at tile sample indices first w h + (pixel k + j), drawn
-        in the kernels; ``stratified``: each pair stratified over the pixel's k samples)."""
+        in the kernels; ``stratified``: each pair stratified over the pixel's k samples) and embree's
+        barycentrics (u, v) of the hits, for the shading normals."""
         eye = self.scene.camera.eye
         u = rng.Stream(self.seed, tile, first * w * h, k if self.sampler == "stratified" else 0)
         d = camera.pass_rays(self.scene, self.width, self.height, self.seed, tile, x0, y0, w, h, k, u.first,
                              kernel=self.kernel_camera, stratified=bool(u.k))
-        prim, t = self.tracer.intersect(np.broadcast_to(eye.astype(np.float32), d.shape), d)
+        prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye.astype(np.float32), d.shape), d)
         self.count_rays(len(d))
-        return d, prim, t, u
+        return d, prim, t, u, (bu, bv)
 
 
 def _tiles(width, height, spp):

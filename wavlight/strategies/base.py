@@ -19,6 +19,9 @@ class ShadingPoints:
 
     p, n, s, t : (N, 3) position, shading normal (facing the viewer) and tangents
     wo : (N, 3) local direction to the viewer; kind, param, albedo : per point material
+    g : (N, 3) the geometric normal (facing the viewer) in the local frame, or None (the
+    shading normal is the geometric one): directions below it carry no light
+    (docs/decisions/shading-normals.md)
     """
 
     p: np.ndarray
@@ -30,6 +33,7 @@ class ShadingPoints:
     param: np.ndarray
     albedo: np.ndarray
     material: np.ndarray = None
+    g: np.ndarray = None
 
     def __len__(self):
         return len(self.n)
@@ -47,8 +51,11 @@ class ShadingPoints:
         return out
 
     def bsdf_eval_cos(self, wi_local):
-        """f(wi, wo) cos_i without albedo, (N,)."""
-        return self._by_kind(bsdfs.eval_cos, np.zeros(len(self)), wi_local, self.wo)
+        """f(wi, wo) cos_i without albedo, (N,); 0 where wi is below the geometric surface (``g``)."""
+        fcos = self._by_kind(bsdfs.eval_cos, np.zeros(len(self)), wi_local, self.wo)
+        if self.g is not None:
+            fcos = np.where(np.einsum("ij,ij->i", wi_local, self.g) > 0, fcos, 0.0)
+        return fcos
 
     def bsdf_pdf(self, wi_local):
         return self._by_kind(bsdfs.pdf, np.zeros(len(self)), wi_local, self.wo)
