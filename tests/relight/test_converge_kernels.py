@@ -101,12 +101,15 @@ def test_shade_kernel_equals_its_twin(bakes, ball, candidates, coherence, contro
     tile_id = cm.CONVERGE_TILES + 3
     d = camera.pass_rays(scene, tr.width, tr.height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k, 0,
                          stratified=True)
-    prim, t = frames.tracer.intersect(np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape), d)
+    prim, t, bu, bv = frames.tracer.intersect_uv(np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape), d)
+    assert frames.tracer.smooth   # the ball's shading normals, interpolated in both
     shares = (cm.DEFENSIVE, cm.LIGHT_SHARE, coherence)
-    got = frames._shade(prog, slots, d, prim, t, k, 0, trees, spread_buf, state.device, shares, seed, tile_id)
+    got = frames._shade(prog, slots, d, prim, t, k, 0, trees, spread_buf, state.device, shares, seed, tile_id,
+                        uv=(bu, bv))
     tree = haar.HaarTree.from_pyramids(nodes)
     want = cm.shade_reference(scene, frames.tracer, d, prim, t, k, tree, nodes, relit, spread, state.inside,
-                              (seed, tile_id), 0, slots, cm.DEFENSIVE, cm.LIGHT_SHARE, control, candidates, coherence)
+                              (seed, tile_id), 0, slots, cm.DEFENSIVE, cm.LIGHT_SHARE, control, candidates, coherence,
+                              uv=(bu, bv))
     direct, origin, wi, value = (np.asarray(a, np.float64) for a in got)
     hit = prim >= 0
     assert 0.3 < hit.mean() < 1

@@ -294,7 +294,7 @@ class ConvergeFrames:
         self.scene = _scene_of(transfer, scene)
         t0 = time.perf_counter()
         sc = self.scene
-        self.tracer = RayTracer(sc.vertices, sc.faces, threads=1)
+        self.tracer = RayTracer(sc.vertices, sc.faces, threads=1, normals=sc.normals, normal_faces=sc.normal_faces)
         self.hit_scale = hit_scales(transfer).astype(np.float32)
         #: the trees' scale: c, and 0 where every camera sample of the bake missed (no transfer: no tree)
         self.tree_scale = np.where(bake_hits(transfer) > 0, self.hit_scale, 0.0).astype(np.float32)
@@ -462,15 +462,16 @@ class ConvergeFrames:
                 k = min(per_pass, spp - first)
                 d = camera.pass_rays(self.scene, width, height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k,
                                      first * P, kernel=self.backend == "opencl", stratified=True)
-                prim, t = self.tracer.intersect(np.broadcast_to(eye, d.shape), d)
+                prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
                 rays += len(d)
                 if self.backend == "opencl":
                     direct, origin, wi, value = self._shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
-                                                            state.device, shares, seed, tile_id)
+                                                            state.device, shares, seed, tile_id, uv=(bu, bv))
                 else:
                     direct, origin, wi, value = shade_reference(
                         self.scene, self.tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], state.inside,
-                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence)
+                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
+                        uv=(bu, bv))
                 v, traced = visible_sum(self.tracer, direct, origin, wi, value)
                 rays += traced
                 hit = prim >= 0
@@ -957,7 +958,7 @@ def transfer_from_trees(nodes: np.ndarray, inside, pixel, uv) -> np.ndarray:
 
 def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spread, inside, key, first: int,
                     slots: int, defensive: float = DEFENSIVE, light: float = LIGHT_SHARE, control: bool = True,
-                    candidates: int = CANDIDATES, coherence: float = COHERENCE):
+                    candidates: int = CANDIDATES, coherence: float = COHERENCE, uv=None):
     """numpy twin of ``converge_shade`` (kernels/converge.cl): one pass of a tile's camera rays
     from ``scene``'s eye along d (N, 3) that hit ``tracer``'s triangles prim (N,) (-1: a miss)
     at t (N,), k per pixel, pixel-major. The tile's pixels' product trees: ``trees`` (a
@@ -972,7 +973,8 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     albedo (G - sum of g / pdf / slots), g = :func:`transfer_from_trees` L; or, where its pixel's
     spread exceeds ``coherence`` times its lobe's width, ``slots`` picks among ``candidates``
     mixture directions by resampled importance sampling (:func:`resample_reference`). Returns
-    direct (N, 3), origin (N, 3), wi (S, 3, N), value (S, 3, N) float64, the kernel's planes."""
+    direct (N, 3), origin (N, 3), wi (S, 3, N), value (S, 3, N) float64, the kernel's planes.
+    ``uv``: embree's barycentrics of the hits (N,) each, for the shading normals (None: flat)."""
     N = len(d)
     seed, tile = key
     direct, origin = np.zeros((N, 3)), np.zeros((N, 3))
@@ -982,7 +984,7 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     hit = np.flatnonzero(prim >= 0)
     if not len(hit):
         return direct, origin, wi, value
-    hits = _Hits.of(scene, tracer, d, t, prim, hit, k)
+    hits = _Hits.of(scene, tracer, d, t, prim, hit, k, uv)
     origin[hit] = hits.origin
     has_p = np.asarray(nodes)[hits.pixel, 0] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)
@@ -998,7 +1000,8 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
         for slot in range(slots):   # directions per camera sample, not samples
             u_all = lattice(u_sample, slot)
             direction, weight, pdf = mixture_directions(trees, inside, u_all, sub.index, k, has_p[mix], alpha[mix],
-                                                        sub.kind, sub.param, sub.wo, sub.axes, light, with_pdf=True)
+                                                        sub.kind, sub.param, sub.wo, sub.axes, light, with_pdf=True,
+                                                        geometric=sub.geometric)
             uv = world_to_square(direction)
             radiance = inside.radiance(uv)
             wi[slot][:, sub.index] = direction.T
@@ -1042,7 +1045,7 @@ def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp
     cand = hits.candidates(m)
     direction, weight, pdf = mixture_directions(trees, inside, u, cand.index, spp * m, np.repeat(has_p, m),
                                                 np.repeat(alpha, m), cand.kind, cand.param, cand.wo, cand.axes, light,
-                                                with_pdf=True)
+                                                with_pdf=True, geometric=cand.geometric)
     fcos = weight * pdf
     uv = world_to_square(direction)
     radiance = inside.radiance(uv)
@@ -1084,7 +1087,7 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     for slot in range(slots if len(hit) else 0):   # directions per camera sample, not samples
         u_all = rng.uniforms(*key, rng.CONVERGE_DIRECTIONS[slot], first, len(d))
         direction, weight = mixture_directions(trees, inside, u_all, hits.index, spp, has_p, alpha, hits.kind,
-                                               hits.param, hits.wo, hits.axes, light)
+                                               hits.param, hits.wo, hits.axes, light, geometric=hits.geometric)
         weight = weight / slots
         live = np.flatnonzero(weight > 0)
         blocked = tracer.occluded(hits.origin[live], direction[live].astype(np.float32))
@@ -1095,7 +1098,8 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
 
 class _Hits(NamedTuple):
     """Camera samples that hit: their index among the tile's samples, pixel, shading frame
-    (s, t, n: the face normal turned to the viewer), view in it, shadow-ray origin, material."""
+    (s, t, n: the shading normal turned to the viewer), view in it, shadow-ray origin, material,
+    the geometric normal turned to the viewer (directions below it carry no light)."""
 
     index: np.ndarray
     pixel: np.ndarray
@@ -1105,20 +1109,27 @@ class _Hits(NamedTuple):
     mat: np.ndarray
     kind: np.ndarray
     param: np.ndarray
+    geometric: np.ndarray
 
     @classmethod
-    def of(cls, scene, tracer, d, t, prim, hit, spp: int):
-        nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+    def of(cls, scene, tracer, d, t, prim, hit, spp: int, uv=None):
+        """``uv``: embree's barycentrics of all the rays (None: every face flat)."""
+        if uv is not None and tracer.smooth:
+            nrm, geo, _, origin = tracer.hit(scene.camera.eye, d[hit], t[hit], prim[hit], np.asarray(uv[0])[hit],
+                                             np.asarray(uv[1])[hit])
+        else:
+            nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+            geo = nrm
         nrm = nrm.astype(np.float64)
         s_ax, t_ax = tangent_frame(nrm)
         wo = to_local(-d[hit].astype(np.float64), s_ax, t_ax, nrm)
         mat = scene.face_material[prim[hit]]
         return cls(np.asarray(hit), np.asarray(hit) // spp, (s_ax, t_ax, nrm), wo, origin, mat,
-                   scene.material_kind[mat], scene.material_param[mat])
+                   scene.material_kind[mat], scene.material_param[mat], geo.astype(np.float64))
 
     def subset(self, sel):
         return _Hits(self.index[sel], self.pixel[sel], tuple(a[sel] for a in self.axes), self.wo[sel],
-                     self.origin[sel], self.mat[sel], self.kind[sel], self.param[sel])
+                     self.origin[sel], self.mat[sel], self.kind[sel], self.param[sel], self.geometric[sel])
 
     def candidates(self, m: int):
         """Each sample m times in a row, the candidates of :func:`shade_by_resampling`: their
@@ -1141,13 +1152,14 @@ def resampling_target(fcos, radiance, transfer):
 
 
 def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes,
-                       light: float = 0.0, with_pdf: bool = False):
+                       light: float = 0.0, with_pdf: bool = False, geometric=None):
     """Directions of the defensive mixture and their weights, for the samples ``hit`` of
     ``len(u_all)`` (spp per pixel, each pixel's product tree in ``trees``): with probability
     1 - alpha - light the product (its tree by the hierarchical warp, eq. 17-22, then inside
     the texel by the lighting, ``inside``), with probability alpha the BSDF, with probability
     ``light`` the lighting alone (:meth:`_TexelLight.sample_light`: where a noisy transfer
-    hides a bright light, the lighting still finds it); ``axes`` (s, t, n) the hits' tangent
+    hides a bright light, the lighting still finds it); ``geometric`` the hits' geometric normals
+    (f cos = 0 below them: docs/decisions/shading-normals.md); ``axes`` (s, t, n) the hits' tangent
     frames, ``wo`` the view in them. The pdf is the mixture's, every technique's at the chosen
     direction, so that f cos / pdf is unbiased. Returns unit directions (N, 3) and f cos / pdf
     (N,) (0 where either is 0 or not finite); with ``with_pdf`` also the mixture's pdf (N,) per solid
@@ -1172,6 +1184,8 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
     p_prod = np.where(has_product, p_tree.astype(np.float64) * inside.factor(uv), 0.0) * solid_angle_jacobian(direction)
     wl = to_local(direction, s_ax, t_ax, nrm)
     fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
+    if geometric is not None:
+        fcos = np.where(np.einsum("ij,ij->i", direction, geometric) > 0, fcos, 0.0)
     pdf = (1 - alpha - light) * p_prod + alpha * p_bsdf
     if light > 0:
         pdf = pdf + light * inside.light_pdf(uv) * solid_angle_jacobian(direction)

@@ -129,8 +129,8 @@ class TreeKernel:
 
 
 class ShadeKernel:
-    """converge_shade for one scene: its face normals (and shadow-ray offset floors), materials,
-    their albedos and lobe widths on the device."""
+    """converge_shade for one scene: its face normals (and shadow-ray offset floors), the shading
+    normals' corner rows and table, materials, their albedos and lobe widths on the device."""
 
     def __init__(self, scene, tracer: RayTracer, lobe_width: np.ndarray):
         rows = np.zeros((max(len(tracer.face_normals), 1), 4), np.float32)
@@ -141,6 +141,9 @@ class ShadeKernel:
         albedo[:, :3] = scene.material_albedo
         self.eye = np.asarray(scene.camera.eye, np.float32)
         self.eye_offset = RayTracer.eye_offset_floor(scene.camera.eye)
+        corners = tracer.corner_normals if len(tracer.corner_normals) else np.zeros((1, 3), np.int32)
+        self.smooth = (cl.to_device(np.ascontiguousarray(corners, np.int32)),
+                       cl.to_device(np.ascontiguousarray(tracer.shading_normals, np.float32)), np.int32(tracer.smooth))
         self.tables = (cl.to_device(rows), cl.to_device(np.asarray(materials, np.int32)),
                        cl.to_device(scene.material_kind.astype(np.int32)),
                        cl.to_device(scene.material_param.astype(np.float32)), cl.to_device(albedo),
@@ -148,11 +151,12 @@ class ShadeKernel:
         self.kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
 
     def __call__(self, prog, slots: int, d, prim, t, k: int, first: int, trees: TileTrees, spread, lighting: Lighting,
-                  shares, seed: int, tile: int, queue=None):
+                  shares, seed: int, tile: int, queue=None, uv=None):
         """One pass of a tile: camera rays along d (N, 3) from the eye that hit prim (N,) (-1: a miss)
         at t (N,), k samples per pixel, pixel-major, the pass's first sample index ``first`` of
         the tile (``tile``: its Philox tile). ``spread`` the tile pixels' footprint spreads on
-        the device, ``shares`` (defensive, light, coherence). Returns float32 direct (N, 3),
+        the device, ``shares`` (defensive, light, coherence), ``uv`` embree's barycentrics of the
+        hits (u (N,), v (N,); None: every face flat). Returns float32 direct (N, 3),
         origin (N, 3), wi (S, 3, N) and value (S, 3, N) (planes: slot, component, sample)."""
         queue = queue or cl.thread_queue()
         count = len(d)
@@ -160,12 +164,15 @@ class ShadeKernel:
         out = cl.scratch("converge_out", 4 * (6 + 6 * S) * max(count, 1))
         if count:
             defensive, light, coherence = shares
+            smooth = self.smooth[2] if uv is not None else np.int32(0)
+            bary = (cl.upload("converge_bary", np.stack([np.asarray(uv[0], np.float32), np.asarray(uv[1], np.float32)],
+                                                        1), queue) if smooth else self.smooth[1])   # (not read when flat)
             cl.kernel(prog, "converge_shade")(
                 queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(k),
                 np.uint32(first), cl.upload("converge_dirs", np.asarray(d, np.float32), queue),
                 cl.upload("converge_prim", np.asarray(prim, np.int32), queue),
-                cl.upload("converge_t", np.asarray(t, np.float32), queue), *self.eye, self.eye_offset, *self.tables,
-                trees.buffer, np.uint32(tree_stride(trees.levels)), trees.relit, spread,
+                cl.upload("converge_t", np.asarray(t, np.float32), queue), *self.eye, self.eye_offset, *self.tables[:2],
+                bary, *self.smooth, *self.tables[2:], trees.buffer, np.uint32(tree_stride(trees.levels)), trees.relit, spread,
                 lighting.buffers["leaf_masses"], lighting.buffers["omega"], *lighting.light_args(),
                 np.float32(defensive), np.float32(light), np.float32(coherence), np.uint32(tile),
                 np.uint32(rng.CONVERGE_DIRECTIONS[0]), *(np.uint32(x) for x in rng.key(seed)), out)

@@ -715,7 +715,7 @@ def _point_samples(cache: SurfaceCache, tracer, lo: int, hi: int) -> PixelSample
     offset = tracer.shadow_offsets(p, cache.face[lo:hi], np.zeros(3))
     origin = (p + normal.astype(np.float32) * offset[:, None]).astype(np.float32)
     ones = np.ones(P, np.uint32)
-    return PixelSamples(1, ones, normal.astype(np.float32), normal.astype(np.float32),
+    return PixelSamples(1, ones, normal.astype(np.float32), normal.astype(np.float32), normal.astype(np.float32),
                         np.full(P, bsdfs.LAMBERT, np.int32), np.zeros(P, np.float32), np.ones(P, np.float32),
                         np.zeros(P, np.uint32), ones, np.arange(P, dtype=np.uint32), origin,
                         np.ones((P, 3), np.float32), np.zeros(P, np.uint64), normal.astype(np.float32))
