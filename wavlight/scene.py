@@ -156,6 +156,12 @@ class Scene:
                        objects=[o for o in self.objects if o is not ob],
                        content_hash=hashlib.sha256(f"{self.content_hash} without {ob.index}".encode()).hexdigest())
 
+    def faceted(self) -> "Scene":
+        """The same scene shaded with its face normals everywhere (as ``face_normals = true`` on every
+        object): what the view and object bakes render (docs/relight.md)."""
+        return replace(self, normal_faces=None,
+                       content_hash=hashlib.sha256(f"{self.content_hash} faceted".encode()).hexdigest())
+
     def moved(self, ob: "SceneObject", translate=None, rotate=None) -> "Scene":
         """The same scene with object ``ob`` at a new place: ``translate`` (3,) and ``rotate``
         [axis x, y, z, degrees] replace its own keys where given (absolute, as in the file)."""
