@@ -292,3 +292,17 @@ def test_face_normals_must_be_a_boolean():
     with pytest.raises(wavlight.SceneError, match=r"face_normals: must be true or false"):
         wavlight.load_dict({"environment": {"pixels": np.ones((8, 16, 3), np.float32)},
                             "objects": [{"shape": "sphere", "face_normals": 1}]})
+
+
+def test_scenes_edited_in_python_have_their_normals_checked():
+    from wavlight.scene import check_scene
+
+    scene = _sphere(subdivisions=1, size=8, spp=1)
+    check_scene(scene)
+    check_scene(scene.faceted())
+    assert scene.faceted().content_hash != scene.content_hash
+    for bad, match in ((replace(scene, normal_faces=scene.normal_faces[:3]), "normal_faces \\(F, 3\\)"),
+                       (replace(scene, normals=scene.normals * np.nan), "normals hold NaN"),
+                       (replace(scene, normal_faces=scene.normal_faces + len(scene.normals)), "name rows")):
+        with pytest.raises(wavlight.WavlightError, match=match):
+            wavlight.render(bad, spp=1)

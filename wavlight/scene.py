@@ -233,6 +233,16 @@ def check_scene(scene) -> None:
         bad("face indices out of range")
     if len(fm) and (fm.min() < 0 or fm.max() >= len(scene.materials)):
         bad(f"face_material out of range (0..{len(scene.materials) - 1})")
+    if getattr(scene, "normal_faces", None) is not None:   # the shading normals (None: every face flat)
+        rows = np.asarray(scene.normal_faces)
+        n = np.asarray(scene.normals if scene.normals is not None else np.zeros((0, 3)))
+        if n.ndim != 2 or n.shape[1] != 3 or rows.shape != f.shape or (rows.size and not np.issubdtype(rows.dtype,
+                                                                                                       np.integer)):
+            bad(f"normals (N, 3) and normal_faces (F, 3) integers expected, got {n.shape} and {rows.shape}")
+        if rows.size and (rows.min() < -1 or rows.max() >= len(n)):
+            bad(f"normal_faces must name rows of the {len(n)} normals or be -1")
+        if not np.all(np.isfinite(n)):
+            bad("normals hold NaN or Inf")
     limits = {bsdfs.LAMBERT: (0.0, np.inf), bsdfs.PHONG: EXPONENT_RANGE, bsdfs.GGX: ROUGHNESS_RANGE}
     for m in scene.materials:
         albedo = np.asarray(getattr(m, "albedo", None), np.float64)
