@@ -161,7 +161,8 @@ typedef struct {
  * (facing the viewer), world view direction e = wo, material mat, uniforms u0 .. u3; estimates
  * are zero where live is 0. */
 inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, const realv nz,
-                          const realv gx, const realv gy, const realv gz, const realv ex, const realv ey, const realv ez, const intv mat,
+                          const realv gx, const realv gy, const realv gz,
+                          const realv ex, const realv ey, const realv ez, const intv mat,
                           const realv u0, const realv u1, const realv u2, const realv u3, const intv live)
 {
 #if STRATEGY == 3 || STRATEGY == 4
