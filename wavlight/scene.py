@@ -158,7 +158,7 @@ class Scene:
 
     def faceted(self) -> "Scene":
         """The same scene shaded with its face normals everywhere (as ``face_normals = true`` on every
-        object): what the view and object bakes render (docs/relight.md)."""
+        object)."""
         return replace(self, normal_faces=None,
                        content_hash=hashlib.sha256(f"{self.content_hash} faceted".encode()).hexdigest())
 

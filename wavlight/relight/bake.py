@@ -376,8 +376,8 @@ def bake_block_task(task: dict) -> dict:
         scene = load_scene(task["scene_path"])
         if scene.content_hash != task["content_hash"]:
             raise ArgumentError(f"{task['scene_path']}: this worker sees another scene than the bake read")
-        if task.get("without") is not None:   # an object bake: face normals (docs/relight.md), as bake() makes it
-            scene = scene.without(scene.find_object(task["without"])).faceted()
+        if task.get("without") is not None:
+            scene = scene.without(scene.find_object(task["without"]))
         worker = _WORKERS[key] = _Worker(scene)
     return bake_block(worker, task["settings"], task["tile"])
 
@@ -600,9 +600,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         if object is None:
             raise ArgumentError(f"{where}: vary='object' needs the object that moves (a name or an index)")
         moving = scene.find_object(object)
-        # the moving object's frames shade with face normals (their kernels have no shading normals
-        # yet): the rest's transfer and static image too, so that the frames add up
-        scene = scene.without(moving).faceted()
+        scene = scene.without(moving)
         static_spp = BAKE["static_spp"].check(static_spp, where)
     elif object is not None:
         raise ArgumentError(f"{where}: an object is given only with vary='object'")
