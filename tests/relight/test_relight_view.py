@@ -24,9 +24,8 @@ def scene_dict(camera=None, material=None):
     return {"render": {"width": 24, "height": 24},
             "camera": camera or {"eye": [0.0, 1.5, 3.5], "target": [0.0, 0.5, 0.0], "fov_y": 40.0},
             "environment": {"file": "sky.exr", "rotate_y": 20.0},
-            # face normals: a view bake shades with them and its cache's (docs/relight.md), its mis reference too
             "objects": [{"shape": "sphere", "center": [0.0, 0.6, 0.0], "radius": 0.6, "subdivisions": 3,
-                         "material": "ball", "face_normals": True},
+                         "material": "ball"},
                         {"shape": "quad", "center": [0.0, 0.0, 0.0], "size": 6.0, "material": "floor"}],
             "materials": {"ball": material or {"type": "ggx", "albedo": [0.9, 0.8, 0.6], "roughness": 0.3},
                           "floor": {"type": "lambert", "albedo": [0.6, 0.6, 0.6]}}}

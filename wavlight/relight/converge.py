@@ -1067,7 +1067,7 @@ def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp
 
 
 def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: int, key, environment,
-                     defensive: float, slots: int, light: float = 0.0, first: int = 0):
+                     defensive: float, slots: int, light: float = 0.0, first: int = 0, uv=None):
     """The radiance (len(hit), 3) of the camera samples ``hit`` (of spp per pixel, directions
     ``d`` with hits ``prim`` at ``t``) from ``slots`` directions each of the defensive mixture
     (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
@@ -1075,11 +1075,11 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     f cos, ``environment``'s radiance and a shadow ray; the uniforms are Philox stream
     (``key`` = (seed, tile), rng.CONVERGE_DIRECTIONS[slot]), from sample ``first`` of the tile
     on. The mixture alone, in numpy (the view bake's unbiased frame, :mod:`.view`; the lighting
-    bake's runs in kernels/converge.cl, twin :func:`shade_reference`). Returns it and the rays
-    traced."""
+    bake's runs in kernels/converge.cl, twin :func:`shade_reference`); ``uv`` the barycentrics of
+    the rays' hits, for the shading normals (None: flat). Returns it and the rays traced."""
     if slots > MAX_SLOTS:   # one stream per slot
         raise ArgumentError(f"relight.shade_by_mixture: at most {MAX_SLOTS} slots, got {slots}")
-    hits = _Hits.of(scene, tracer, d, t, prim, hit, spp)
+    hits = _Hits.of(scene, tracer, d, t, prim, hit, spp, uv)
     has_p = mass[hits.pixel] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)   # pixels without a product: the BSDF and the lighting
     total = np.zeros((len(hit), 3))

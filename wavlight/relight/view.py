@@ -11,7 +11,9 @@ spread over every object's surface: each scene face of area A carries a triangul
 longest edge / 2 h, h = sqrt(2 / (sqrt(3) D)) the spacing of an equilateral lattice of density
 D), D the density in points per unit area (default: CACHE_POINTS over the scene's area,
 :mod:`wavlight.relight.settings`); lattice points that coincide (shared vertices and edges of one object)
-are one cache point, whose normal is the area-weighted mean of its faces' normals. A camera ray's
+are one cache point, whose normal is the area-weighted mean of its faces' shading normals there
+(the corner normals interpolated at the lattice point, turned to the face normal's side: the
+face normal where a face is shaded flat; docs/decisions/shading-normals.md). A camera ray's
 hit on face F at barycentric (u, v) lies in one lattice triangle of F: its three points and
 their barycentric weights are the hit's cache points (points of the same object; a point whose
 normal is more than CREASE_DEGREES from the face's is left out, the others renormalized).
@@ -110,7 +112,7 @@ from ..envmap import LUMINANCE, Environment
 from ..errors import ArgumentError, WavlightError, check_int, check_real
 from ..haar.tree import HaarTree
 from ..integrator import RenderResult
-from ..raytrace import RayTracer
+from ..raytrace import SMOOTH_MIN_LENGTH2, RayTracer
 from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene
 from ..threads import default_threads, map_until_stopped
 from ..warp import frame as tangent_frame
@@ -247,6 +249,7 @@ def build_cache(scene, density=None, points: int = CACHE_POINTS) -> SurfaceCache
                             f"(at most {MAX_LATTICE}): lower it")
     base = np.concatenate([[0], np.cumsum(sizes)[:-1]])
     pos = np.zeros((total, 3))
+    bary = np.zeros((total, 2))   # each lattice entry's (u, v) on its face
     entry_face = np.repeat(np.arange(len(f)), sizes)
     for kk in np.unique(k):   # distinct subdivisions, not faces
         faces = np.flatnonzero(k == kk)
@@ -255,6 +258,7 @@ def build_cache(scene, density=None, points: int = CACHE_POINTS) -> SurfaceCache
         at = base[faces][:, None] + local[None, :]
         pos[at] = (v[f[faces, 0]][:, None] + (i / kk)[None, :, None] * e0[faces][:, None]
                    + (j / kk)[None, :, None] * e1[faces][:, None])
+        bary[at, 0], bary[at, 1] = (i / kk)[None, :], (j / kk)[None, :]
     obj = face_objects(scene)[entry_face]
     extent = max(float(np.abs(v).max()), 1e-30)
     quant = np.round(pos / (extent * 2.0 ** -40)).astype(np.int64)
@@ -262,7 +266,8 @@ def build_cache(scene, density=None, points: int = CACHE_POINTS) -> SurfaceCache
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
     count = len(first)
-    normal = np.stack([np.bincount(inverse, cross[entry_face, a], count) for a in range(3)], 1)
+    weighted = entry_normals(scene, entry_face, bary, cross)   # area x the shading normal there
+    normal = np.stack([np.bincount(inverse, weighted[:, a], count) for a in range(3)], 1)
     length = np.linalg.norm(normal, axis=1, keepdims=True)
     fallback = cross[entry_face[first]]
     normal = np.where(length > 0, normal / np.where(length > 0, length, 1.0),
@@ -283,6 +288,26 @@ def build_cache(scene, density=None, points: int = CACHE_POINTS) -> SurfaceCache
     material = (scene.face_material[face] if len(scene.face_material) else np.zeros(count)).astype(np.int32)
     return SurfaceCache(position[order], normal[order], material, face, k.astype(np.int32), base.astype(np.int64),
                         rank[inverse].astype(np.int32), spacing, float(density))
+
+
+def entry_normals(scene, face: np.ndarray, bary: np.ndarray, cross: np.ndarray) -> np.ndarray:
+    """(N, 3): at points (u, v) = ``bary`` of faces ``face``, the shading normal (the scene's
+    corner normals interpolated, turned to the side of the face normal; the face normal where the
+    face is flat or they cancel) times the face's |cross| (twice its area): ``cross[face]`` itself
+    where flat."""
+    c = cross[face]
+    if scene.normal_faces is None or not len(face):
+        return c
+    table = np.concatenate([np.asarray(scene.normals, np.float64).reshape(-1, 3), np.zeros((1, 3))])
+    rows = np.asarray(scene.normal_faces, np.int64)[face]
+    n = table[np.where(rows < 0, len(table) - 1, rows)]
+    u, v = bary[:, :1], bary[:, 1:]
+    s = (1.0 - u - v) * n[:, 0] + u * n[:, 1] + v * n[:, 2]
+    length = np.linalg.norm(s, axis=1, keepdims=True)
+    ok = length ** 2 > SMOOTH_MIN_LENGTH2
+    s = np.where(ok, s / np.where(ok, length, 1.0), 0.0)
+    s *= np.where(np.einsum("ij,ij->i", s, c) < 0, -1.0, 1.0)[:, None]
+    return np.where(ok, s * np.linalg.norm(c, axis=1, keepdims=True), c)
 
 
 def barycentric(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, p: np.ndarray):
@@ -708,14 +733,17 @@ class _Settings:
 
 def _point_samples(cache: SurfaceCache, tracer, lo: int, hi: int) -> PixelSamples:
     """The cache points lo .. hi - 1 as the texel kernel's pixels: one sample, one lambert group
-    each, the shadow rays from the point moved off the surface along its normal."""
+    each (its cosine with the point's normal, nothing below its face: the face normal), the
+    shadow rays from the point moved off the surface along its face's normal."""
     P = hi - lo
     normal = cache.normal[lo:hi]
+    geometric = tracer.face_normals[cache.face[lo:hi]].astype(np.float32)
+    geometric *= np.where(np.einsum("ij,ij->i", geometric, normal) < 0, -1.0, 1.0).astype(np.float32)[:, None]
     p = cache.position[lo:hi].astype(np.float32)
     offset = tracer.shadow_offsets(p, cache.face[lo:hi], np.zeros(3))
-    origin = (p + normal.astype(np.float32) * offset[:, None]).astype(np.float32)
+    origin = (p + geometric * offset[:, None]).astype(np.float32)
     ones = np.ones(P, np.uint32)
-    return PixelSamples(1, ones, normal.astype(np.float32), normal.astype(np.float32), normal.astype(np.float32),
+    return PixelSamples(1, ones, normal.astype(np.float32), geometric, normal.astype(np.float32),
                         np.full(P, bsdfs.LAMBERT, np.int32), np.zeros(P, np.float32), np.ones(P, np.float32),
                         np.zeros(P, np.uint32), ones, np.arange(P, dtype=np.uint32), origin,
                         np.ones((P, 3), np.float32), np.zeros(P, np.uint64), normal.astype(np.float32))
@@ -895,7 +923,8 @@ class ViewFrames:
                                 f", not the view")
         self.transfer = transfer
         self.scene = _scene_of(transfer, scene)
-        self.tracer = RayTracer(self.scene.vertices, self.scene.faces, threads=2)
+        self.tracer = RayTracer(self.scene.vertices, self.scene.faces, threads=2, normals=self.scene.normals,
+                                normal_faces=self.scene.normal_faces)
         s = transfer._s
         self.position = np.asarray(s["view_position"], np.float64)
         self.normal = np.asarray(s["view_normal"], np.float64)
@@ -966,6 +995,15 @@ class ViewFrames:
         w = w * (compat & front[:, None])
         total = w.sum(1, keepdims=True)
         return ids, np.where(total > 0, w / np.where(total > 0, total, 1.0), 0.0), fn
+
+    def shading_normals(self, eye, d, t, prim, u, v, fn):
+        """The shading normals (M, 3) float32 of hits at barycentrics (u, v) (RayTracer.hit), turned
+        to the side of their face normals ``fn`` as the cache is (a hit on the face's back side has
+        no cache); ``fn`` itself where the scene is flat."""
+        if not self.tracer.smooth or not len(prim):
+            return fn
+        n = self.tracer.hit(eye, np.asarray(d, np.float32), np.asarray(t, np.float32), prim, u, v)[0]
+        return (n * np.where(np.einsum("ij,ij->i", n, fn) < 0, -1.0, 1.0)[:, None]).astype(np.float32)
 
     def _point_items(self, points, eye):
         """The point mode's items: cache points, material kind and parameter, normals and view
@@ -1059,6 +1097,7 @@ class ViewFrames:
                 else:
                     ids, w, fn = self.hit_points(cam.eye, d[hit], prim[hit], t[hit], (u[hit], v[hit]))
                 mat = self.scene.face_material[prim[hit]]
+                fn = self.shading_normals(cam.eye, d[hit], t[hit], prim[hit], u[hit], v[hit], fn)
             if mode == "point":
                 if not on_device:
                     used = np.zeros(len(self.position), bool)
@@ -1173,11 +1212,12 @@ class ViewFrames:
             chunk = first // CONVERGE_CHUNK
             # each pixel's product from its centre ray's hit
             eye_c, d_c = camera_rays(scene, pix % width, pix // width, np.full((P, 2), 0.5, np.float32), width, height)
-            prim_c, t_c = tracer.intersect(eye_c, d_c)
+            prim_c, t_c, u_c, v_c = tracer.intersect_uv(eye_c, d_c)
             leaves = np.zeros((P, 1 << min(self.n, PRODUCT_LEVELS), 1 << min(self.n, PRODUCT_LEVELS)), np.float32)
             hc = np.flatnonzero(prim_c >= 0)
             if len(hc):
                 ids, w, fn = self.hit_points(cam.eye, d_c[hc], prim_c[hc], t_c[hc])
+                fn = self.shading_normals(cam.eye, d_c[hc], t_c[hc], prim_c[hc], u_c[hc], v_c[hc], fn)
                 ok = w.sum(1) > 0
                 if ok.any():
                     nrm = fn[ok] * np.where(np.einsum("ij,ij->i", fn[ok], d_c[hc][ok]) > 0, -1.0, 1.0)[:, None]
@@ -1193,7 +1233,7 @@ class ViewFrames:
                 px, py = np.repeat(pix % width, k), np.repeat(pix // width, k)
                 eye_s, d = camera_rays(scene, px, py, camera_jitter(seed, JITTER_TILE + chunk, P, k, start * P), width,
                                        height)
-                prim, t = tracer.intersect(eye_s, d)
+                prim, t, bu, bv = tracer.intersect_uv(eye_s, d)
                 rays += P * k
                 value = np.zeros((P * k, 3))
                 miss = np.flatnonzero(prim < 0)
@@ -1202,7 +1242,7 @@ class ViewFrames:
                 if len(hit):
                     value[hit], traced = shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, k,
                                                           (seed, JITTER_TILE + chunk), env, defensive, slots, light,
-                                                          first=start * P)
+                                                          first=start * P, uv=(bu, bv))
                     rays += traced
                 v = value.reshape(P, k, 3)
                 with lock:
