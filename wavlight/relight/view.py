@@ -54,8 +54,9 @@ max(1, sqrt(phi / mass)) rounded up to a power of two (docs/decisions/view-walk-
   times the barycentric blend of its three points' B_k. lambert points need only the scaling
   coefficient: B = T^_0 N^2 / pi. One product per point: the fastest.
 - ``pixel``: per ray, B = <sum_k w_k T1(x_k), f_r(., wo) rho> (the product is linear in T1: the
-  walk reads the three points' coefficients and blends them) with the hit face's normal n (as
-  ``mis`` shades) and the pixel's own view direction, so that f_r is the pixel's. T1 holds
+  walk reads the three points' coefficients and blends them) with the hit's shading normal n (as
+  ``mis`` shades: the face normal where the face is flat) and the pixel's own view direction, so
+  that f_r is the pixel's. T1 holds
   max(cos, 0) at the points' normals, whose blend m = sum_k w_k n_k makes sum_k w_k T1_k =
   L V (m . w) above the points' horizons; with ``tau`` > 0 a leaf's factor rho (at most RHO_MAX)
   turns that cosine into the face's, max(n . w, 0) / (m . w) smoothed over the node
@@ -1028,7 +1029,8 @@ class ViewFrames:
     def pixel_products(self, ids, w, face_normal, d, mat, refine=REFINE, tau: float = TAU, backend="opencl",
                        mass: float = MASS):
         """B (M, 3) (albedo factored out) and nodes visited of pixels: the blend of their cache
-        points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the face normal, the view
+        points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the normal ``face_normal`` (the
+        hits' shading normals, :meth:`shading_normals`), the view
         direction -d, material ``mat`` and the cosine's correction ``tau`` (module docstring)."""
         n = np.asarray(face_normal, np.float64)
         wo = lifted_view(n, -np.asarray(d, np.float64))
@@ -1048,7 +1050,7 @@ class ViewFrames:
         """The approximate frame (H, W, 3) float32 seen from ``eye`` towards ``target`` (defaults:
         the scene's camera) and its timings (module docstring): ``mode`` "point" (a product per
         cache point, blended per pixel) or "pixel" (a product per pixel, of its points' blended T1
-        with its face normal, view direction and the cosine corrected within ``tau``); ``refine``
+        with its shading normal, view direction and the cosine corrected within ``tau``); ``refine``
         and ``mass`` set where the walk stops (module docstring); ``supersample`` S traces S x S rays
         per pixel (its sub-pixels' centres) and takes their mean (``mis`` integrates over the
         pixel, and a mesh's facets can be smaller than a pixel)."""
