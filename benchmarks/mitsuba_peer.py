@@ -29,7 +29,8 @@ Mapping (see docs/scene-format.md of wavlight):
   environment envmap(filename, scale, to_world = rotate(+Y, rotate_y)). `procedural = "sky"` is not
               supported: the script prints {"skipped": true, ...} and exits with status 0.
   objects     .ply/.obj -> Mitsuba ply/obj; other formats, spheres (trimesh icosphere) and quads are
-              written as temporary PLYs. to_world = translate @ rotate @ scale. face_normals=True.
+              written as temporary PLYs. to_world = translate @ rotate @ scale. face_normals as the
+              object's key (default false: Mitsuba's vertex normals, the file's or its own).
   materials   lambert -> twosided(diffuse); ggx -> twosided(roughconductor, ggx, material='none');
               plastic -> twosided(roughplastic, ggx, alpha, int_ior = ior, ext_ior = 1, nonlinear = false);
               phong -> approximated by ggx with alpha = sqrt(2 / (exponent + 2)) (no phong in Mitsuba 3),
@@ -118,7 +119,7 @@ def shape_dict(obj, base, tmpdir, idx):
         path = os.path.join(tmpdir, f"object_{idx}.ply")
         trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(path)  # geometry only
         d = {"type": "ply", "filename": path}
-    d.update(face_normals=True, to_world=object_transform(obj))
+    d.update(face_normals=bool(obj.get("face_normals", False)), to_world=object_transform(obj))
     return d
 
 

@@ -194,9 +194,9 @@ def staged(mover, stages: Stages):
     patch(mover, "_trace_object", "object rays: to its frame (numpy)")
     patch(mover, "_camera", "camera: sample cache (numpy)")
     patch(camera, "pass_rays", "camera: rays (OpenCL camera_rays)")
-    patch(mover.rest_tracer, "intersect", "trace: camera rays vs the rest (embree)")
+    patch(mover.rest_tracer, "intersect_uv", "trace: camera rays vs the rest (embree)")
     patch(mover.rest_tracer, "occluded", "trace: shadow rays vs the rest (embree)")
-    patch(mover.object_tracer, "intersect", "trace: camera rays vs the object (embree)")
+    patch(mover.object_tracer, "intersect_uv", "trace: camera rays vs the object (embree)")
     patch(mover.object_tracer, "occluded", "trace: shadow rays vs the object (embree)")
     tree = moving.HaarTree
     moving.HaarTree = TimedTree

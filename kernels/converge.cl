@@ -432,6 +432,7 @@ INLINE void world_to_square(const realv x, const realv y, const realv z, realv *
  * the mixture's shares. */
 typedef struct {
     realv sx, sy, sz, tx, ty, tz, nx, ny, nz, ox, oy, oz, param;
+    realv gx, gy, gz;   /* the geometric normal (towards the viewer): no light from below it */
     intv kind, has_product;
     uintv tree_base;
     realv alpha;
@@ -507,6 +508,7 @@ INLINE Direction mixture_direction(SAMPLE_ARGS, const Point *pt, const realv u0,
     const realv lz = d.x * pt->nx + d.y * pt->ny + d.z * pt->nz;
     realv p_bsdf;
     bsdf_eval_pdf(pt->kind, pt->param, lx, ly, lz, pt->ox, pt->oy, pt->oz, &d.fcos, &p_bsdf);
+    d.fcos = select((realv)0.0f, d.fcos, d.x * pt->gx + d.y * pt->gy + d.z * pt->gz > 0.0f);
     const realv pdf = (1.0f - pt->alpha - light) * p_prod + pt->alpha * p_bsdf + light * p_light;
     d.pdf = select((realv)0.0f, pdf, isfinite(pdf));
     const realv g = GATHER(gl, leaf_index - (uint)LEVEL_OFFSET(N_LEVELS));
@@ -553,9 +555,10 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
                              __global const int *prim, __global const float *tfar, const float eye_x,
                              const float eye_y, const float eye_z, const float eye_offset,
                              __global const float *face_normal, __global const int *face_material,
-                             __global const int *mat_kind, __global const float *mat_param,
+                             __global const float *bary, __global const int *corner, __global const float *normals,
+                             const int smooth, __global const int *mat_kind, __global const float *mat_param,
                              __global const float *mat_albedo, __global const float *mat_width,
-                             __global const float *bary, __global const float *face_uv,
+                             __global const float *face_uv,
                              __global const int *mat_texture, __global const float *tex_atlas,
                              __global const int *tex_table,
                              __global const float *trees, const uint tree_stride, __global const float *relit,
@@ -592,7 +595,15 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
         Point pt;
         realv px, py, pz, eps;
         hit_point(dx, dy, dz, GATHER(tfar, i), f, face_normal, eye_x, eye_y, eye_z, eye_offset,
-                  &pt.nx, &pt.ny, &pt.nz, &px, &py, &pz, &eps);
+                  &pt.gx, &pt.gy, &pt.gz, &px, &py, &pz, &eps);
+        pt.nx = pt.gx;
+        pt.ny = pt.gy;
+        pt.nz = pt.gz;
+        if (smooth) {   /* the shading normal (hit.h) at embree's barycentrics */
+            realv bu, bv;
+            GATHER2(bary, 2 * i, &bu, &bv);
+            shading_normal(dx, dy, dz, bu, bv, f, corner, normals, pt.gx, pt.gy, pt.gz, &pt.nx, &pt.ny, &pt.nz);
+        }
         make_frame(pt.nx, pt.ny, pt.nz, &pt.sx, &pt.sy, &pt.sz, &pt.tx, &pt.ty, &pt.tz);
         pt.ox = -(dx * pt.sx + dy * pt.sy + dz * pt.sz);
         pt.oy = -(dx * pt.tx + dy * pt.ty + dz * pt.tz);
@@ -603,9 +614,9 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
         pt.tree_base = pixel * tree_stride;
         pt.has_product = GATHER(tree, pt.tree_base) > 0.0f;
         pt.alpha = select((realv)(1.0f - light), (realv)defensive, pt.has_product);
-        out_v[3] = px + pt.nx * eps;
-        out_v[4] = py + pt.ny * eps;
-        out_v[5] = pz + pt.nz * eps;
+        out_v[3] = px + pt.gx * eps;   /* shadow rays from the geometric surface */
+        out_v[4] = py + pt.gy * eps;
+        out_v[5] = pz + pt.gz * eps;
         realv ar, ag, ab, unused;
         GATHER4(mat_albedo, 4 * as_uintv(mat), &ar, &ag, &ab, &unused);
 #if TEXTURES

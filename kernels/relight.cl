@@ -8,9 +8,10 @@
 
 /* Pair g = p 4^n + t of a tile (pixel p, texel t = row 2^n + col of the world-frame lat-long
  * square); eight pairs per work-item, all of one pixel (4^n is a multiple of eight). The
- * pixel's camera samples come as groups (the samples on one triangle: one normal and
- * material; wavlight/relight/bake.py): group j of pixel p at p S + j, of count[p] groups,
- * with its normal, mean view direction wo, material, weight c_j = (sum of its samples' albedo
+ * pixel's camera samples come as groups (the samples on one flat triangle, or one sample on a
+ * smooth face: one normal and material; wavlight/relight/bake.py): group j of pixel p at p S + j,
+ * of count[p] groups, with its shading normal, geometric normal (f = 0 for directions below
+ * it: docs/decisions/shading-normals.md), mean view direction wo, material, weight c_j = (sum of its samples' albedo
  * ratios) / S and its members (sample indices members[first_j .. first_j + size_j - 1]).
  * The texel gets Q = TEXEL_POINTS points, g x g strata (g = 1, 2 or 4) uniform in solid angle
  * (u from col, cos theta from row) at one jitter (u0, u1) of Philox stream RNG_TEXEL at pair index first + g of tile
@@ -26,7 +27,8 @@
 #define TEXEL_GRID (TEXEL_POINTS == 16 ? 4 : (TEXEL_POINTS == 4 ? 2 : 1))
 __kernel void bake_texel_rays(const uint count, const uint first, const uint n_levels, const uint samples,
                               const uint tile, const uint k0, const uint k1, __global const uint *group_count,
-                              __global const float *normal, __global const float *wo,
+                              __global const float *normal, __global const float *geometric,
+                              __global const float *wo,
                               __global const int *kind, __global const float *param,
                               __global const float *weight, __global const uint *group_first,
                               __global const uint *group_size, __global const uint *members,
@@ -64,6 +66,7 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
     for (uint j = 0; j < groups; ++j) {
         const uint gj = p * samples + j;
         const float nx = normal[3 * gj], ny = normal[3 * gj + 1], nz = normal[3 * gj + 2];
+        const float gx = geometric[3 * gj], gy = geometric[3 * gj + 1], gz = geometric[3 * gj + 2];
         const float wx = wo[3 * gj], wy = wo[3 * gj + 1], wz = wo[3 * gj + 2];
         realv sx, sy, sz, tx, ty, tz;
         make_frame((realv)nx, (realv)ny, (realv)nz, &sx, &sy, &sz, &tx, &ty, &tz);
@@ -73,12 +76,13 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
         const realv pa = (realv)param[gj];
         const float c = weight[gj];
         realv ix[TEXEL_POINTS], iy[TEXEL_POINTS], iz[TEXEL_POINTS];
-        intv above = (intv)0;
+        intv above = (intv)0, outside[TEXEL_POINTS];
         for (int q = 0; q < TEXEL_POINTS; ++q) {
             ix[q] = dx[q] * sx + dy[q] * sy + dz[q] * sz;
             iy[q] = dx[q] * tx + dy[q] * ty + dz[q] * tz;
             iz[q] = dx[q] * nx + dy[q] * ny + dz[q] * nz;
-            above |= iz[q] > 0.0f;
+            outside[q] = dx[q] * gx + dy[q] * gy + dz[q] * gz > 0.0f;   /* above the geometric surface */
+            above |= (iz[q] > 0.0f) & outside[q];
         }
         if (!any(above)) {           /* the texel lies below this group's horizon: f = 0 */
             step += TEXEL_POINTS;    /* step k stays item j Q + q, as in the twin */
@@ -96,7 +100,7 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
 #if HAS_KIND(BSDF_GGX)
             if (kd == BSDF_GGX) bsdf_eval_pdf((intv)BSDF_GGX, pa, ix[q], iy[q], iz[q], ox, oy, oz, &fv, &unused);
 #endif
-            fv = select(fv * c, (realv)0.0f, !(fv > 0.0f));
+            fv = select(fv * c, (realv)0.0f, !(fv > 0.0f) | !outside[q]);
             /* reservoir step: take (j, q) with probability fv / (total + fv) */
             const realv grown = total + fv;
             const intv take = step_uniform(key, step++) * grown < fv;

@@ -184,6 +184,8 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
                                __global const int *prim, __global const float *tfar,
                                const float eye_x, const float eye_y, const float eye_z, const float eye_offset,
                                __global const float *face_normal, __global const int *face_material,
+                               __global const float *bary, __global const int *corner,
+                               __global const float *normals, const int smooth,
                                __global const int *mat_kind, __global const float *mat_param,
                                __global const float *mat_albedo,
                                __global const float *tree, const uint tree_stride, const uint tree_offset,
@@ -202,14 +204,20 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
     realv dx, dy, dz;
     GATHER3(dirs, 3 * i, &dx, &dy, &dz);
     const uintv f = as_uintv(max(GATHER_INT(prim, i), 0));
-    realv nx, ny, nz, px, py, pz, eps;
+    realv gx, gy, gz, px, py, pz, eps;
     hit_point(dx, dy, dz, GATHER(tfar, i), f, face_normal, eye_x, eye_y, eye_z, eye_offset,
-              &nx, &ny, &nz, &px, &py, &pz, &eps);
+              &gx, &gy, &gz, &px, &py, &pz, &eps);
+    realv nx = gx, ny = gy, nz = gz;   /* the shading normal (hit.h), the face's where flat */
+    if (smooth) {
+        realv bu, bv;
+        GATHER2(bary, 2 * i, &bu, &bv);
+        shading_normal(dx, dy, dz, bu, bv, f, corner, normals, gx, gy, gz, &nx, &ny, &nz);
+    }
     realv sx, sy, sz, tx, ty, tz;
     make_frame(nx, ny, nz, &sx, &sy, &sz, &tx, &ty, &tz);
     const realv ox = -(dx * sx + dy * sy + dz * sz), oy = -(dx * tx + dy * ty + dz * tz);
     const realv oz = -(dx * nx + dy * ny + dz * nz);
-    const realv qx = px + nx * eps, qy = py + ny * eps, qz = pz + nz * eps;
+    const realv qx = px + gx * eps, qy = py + gy * eps, qz = pz + gz * eps;   /* from the geometric surface */
     const intv mat = GATHER_INT(face_material, f);
     const intv kind = GATHER_INT(mat_kind, mat);
     const realv param = GATHER(mat_param, mat);
@@ -281,8 +289,11 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
         const intv meets = maybe & meets_box(place, box, qx, qy, qz, wx, wy, wz);
         if (!any(meets))
             continue;
-        const realv weight = mixture_weight(tree, tree_base, has_product, light_cdf, k, alpha, kind, param,
-                                            sx, sy, sz, tx, ty, tz, nx, ny, nz, ox, oy, oz, wx, wy, wz);
+        /* (no light from below the geometric surface: docs/decisions/shading-normals.md) */
+        const realv weight = select((realv)0.0f,
+                                    mixture_weight(tree, tree_base, has_product, light_cdf, k, alpha, kind, param,
+                                                   sx, sy, sz, tx, ty, tz, nx, ny, nz, ox, oy, oz, wx, wy, wz),
+                                    wx * gx + wy * gy + wz * gz > 0.0f);
         /* the environment's radiance, the albedo */
         realv eu, ev;
         env_world_to_square(rot, wx, wy, wz, &eu, &ev);
@@ -339,7 +350,12 @@ __kernel void moving_points(const uint count, __global const uint *slot_in, __gl
                             __global const int *prim_object, __global const float *tfar_object,
                             const float eye_x, const float eye_y, const float eye_z, const float eye_offset,
                             __global const float *face_normal, __global const int *face_material,
-                            __global const float *object_normal, const int object_material,
+                            __global const float *bary, __global const int *corner,
+                            __global const float *normals, const int smooth,
+                            __global const float *object_normal,
+                            __global const float *bary_object, __global const int *object_corner,
+                            __global const float *object_normals, const int object_smooth,
+                            const int object_material,
                             const float object_offset, __global const float *place,
                             __global const float *texels, const int env_w, const int env_h,
                             __global const float *rot, const uint spp,
@@ -355,11 +371,18 @@ __kernel void moving_points(const uint count, __global const uint *slot_in, __gl
     const realv tr = GATHER(tfar, i), to = GATHER(tfar_object, i);
     const intv on_object = (fo >= 0) & ((fr < 0) | (to < tr));
     const intv hit = on_object | (fr >= 0);
-    /* the rest's shading point */
-    realv nx, ny, nz, px, py, pz, eps;
+    /* the rest's shading point: the face normal g, the shading normal n (hit.h) */
+    realv gx, gy, gz, px, py, pz, eps;
     hit_point(dx, dy, dz, tr, as_uintv(max(fr, 0)), face_normal, eye_x, eye_y, eye_z, eye_offset,
-              &nx, &ny, &nz, &px, &py, &pz, &eps);
-    /* the object's: its face normal turned to the world, towards the viewer */
+              &gx, &gy, &gz, &px, &py, &pz, &eps);
+    realv nx = gx, ny = gy, nz = gz;
+    if (smooth) {
+        realv bu, bv;
+        GATHER2(bary, 2 * i, &bu, &bv);
+        shading_normal(dx, dy, dz, bu, bv, as_uintv(max(fr, 0)), corner, normals, gx, gy, gz, &nx, &ny, &nz);
+    }
+    /* the object's: its face normal turned to the world, towards the viewer; its shading normal
+     * interpolated in its own frame (the view turned there: local = R^T world), then turned */
     if (any(on_object)) {
         realv lx, ly, lz, unused;
         GATHER4(object_normal, 4 * as_uintv(max(fo, 0)), &lx, &ly, &lz, &unused);
@@ -370,12 +393,28 @@ __kernel void moving_points(const uint count, __global const uint *slot_in, __gl
         mx *= flip;
         my *= flip;
         mz *= flip;
+        realv sx = mx, sy = my, sz = mz;
+        if (object_smooth) {
+            const realv ldx = dx * place[0] + dy * place[3] + dz * place[6];
+            const realv ldy = dx * place[1] + dy * place[4] + dz * place[7];
+            const realv ldz = dx * place[2] + dy * place[5] + dz * place[8];
+            realv bu, bv, qnx, qny, qnz;
+            GATHER2(bary_object, 2 * i, &bu, &bv);
+            shading_normal(ldx, ldy, ldz, bu, bv, as_uintv(max(fo, 0)), object_corner, object_normals, lx, ly, lz,
+                           &qnx, &qny, &qnz);
+            sx = place[0] * qnx + place[1] * qny + place[2] * qnz;
+            sy = place[3] * qnx + place[4] * qny + place[5] * qnz;
+            sz = place[6] * qnx + place[7] * qny + place[8] * qnz;
+        }
         const realv qx = eye_x + dx * to, qy = eye_y + dy * to, qz = eye_z + dz * to;
         const realv size = fmax(fmax(fabs(qx), fabs(qy)), fabs(qz));
         const realv e = fmax(fmax((float)OFFSET_RELATIVE * size, object_offset), eye_offset);
-        nx = select(nx, mx, on_object);
-        ny = select(ny, my, on_object);
-        nz = select(nz, mz, on_object);
+        nx = select(nx, sx, on_object);
+        ny = select(ny, sy, on_object);
+        nz = select(nz, sz, on_object);
+        gx = select(gx, mx, on_object);
+        gy = select(gy, my, on_object);
+        gz = select(gz, mz, on_object);
         px = select(px, qx, on_object);
         py = select(py, qy, on_object);
         pz = select(pz, qz, on_object);
@@ -405,13 +444,17 @@ __kernel void moving_points(const uint count, __global const uint *slot_in, __gl
     rng_uniforms(first + slot, tile, stream, k0, k1, &u0, &u1, &u2, &u3);
     stratify_pair(&u0, &u1, sample, spp, key_guide);
     stratify_pair(&u2, &u3, sample, spp, key_bsdf);
-    /* planes: normal x y z, origin x y z, u0 .. u3, direct r g b */
+    /* planes: shading normal x y z, origin x y z (along the face normal), u0 .. u3, direct r g b,
+     * face normal x y z */
     STORE_LANES(nx, out, base, count);
     STORE_LANES(ny, out + count, base, count);
     STORE_LANES(nz, out + 2 * count, base, count);
-    STORE_LANES(px + nx * eps, out + 3 * count, base, count);
-    STORE_LANES(py + ny * eps, out + 4 * count, base, count);
-    STORE_LANES(pz + nz * eps, out + 5 * count, base, count);
+    STORE_LANES(px + gx * eps, out + 3 * count, base, count);
+    STORE_LANES(py + gy * eps, out + 4 * count, base, count);
+    STORE_LANES(pz + gz * eps, out + 5 * count, base, count);
+    STORE_LANES(gx, out + 13 * count, base, count);
+    STORE_LANES(gy, out + 14 * count, base, count);
+    STORE_LANES(gz, out + 15 * count, base, count);
     STORE_LANES(u0, out + 6 * count, base, count);
     STORE_LANES(u1, out + 7 * count, base, count);
     STORE_LANES(u2, out + 8 * count, base, count);

@@ -252,9 +252,16 @@ INLINE realv mixture_pdf_from(__global const float *tree, const Lobe *spec, cons
 #endif
 #endif
 
-/* Shade the lanes' points: world normal n (facing the viewer), world view direction
- * e = wo, material mat, uniforms u0 .. u3; estimates are zero where live is 0. */
+/* Where a world direction (x, y, z) leaves below the geometric surface (g: the geometric normal
+ * facing the viewer), f is 0: light does not reach through the surface because the shading
+ * normal leans (docs/decisions/shading-normals.md). numpy twin: ShadingPoints.bsdf_eval_cos. */
+#define ABOVE_GEOMETRIC(f, x, y, z) select((realv)0.0f, (f), (x) * gx + (y) * gy + (z) * gz > 0.0f)
+
+/* Shade the lanes' points: world shading normal n (facing the viewer), world geometric normal g
+ * (facing the viewer), world view direction e = wo, material mat, uniforms u0 .. u3; estimates
+ * are zero where live is 0. */
 inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, const realv nz,
+                          const realv gx, const realv gy, const realv gz,
                           const realv ex, const realv ey, const realv ez, const intv mat,
                           const realv tint_r, const realv tint_g, const realv tint_b,
                           const realv u0, const realv u1, const realv u2, const realv u3, const intv live)
@@ -336,6 +343,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
                 p_prod = product_pdf_from(tree, &lobe, &root, su, sv) * env_square_to_solid_angle(dx, dz);
 #endif
             }
+            f = ABOVE_GEOMETRIC(f, dx, dy, dz);
             ck[j] = DIFFUSE_SHARE(fd, f);
             realv tr, tg, tb;
             cl[j] = texel_luminance(texels, env_w, env_h, su, sv, &tr, &tg, &tb);
@@ -405,6 +413,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         const realv lz = ax * nx + ay * ny + az * nz;
         realv f, fd, pdf_bsdf;
         material_eval_pdf(kind, param, mat_table, row, lx, ly, lz, ox, oy, oz, &f, &fd, &pdf_bsdf);
+        f = ABOVE_GEOMETRIC(f, ax, ay, az);
         ka = DIFFUSE_SHARE(fd, f);
 #if STRATEGY == 3
         sa = select((realv)0.0f, f / pdf, pdf > 0.0f);
@@ -423,6 +432,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         bx = lx * sx + ly * tx + lz * nx;
         by = lx * sy + ly * ty + lz * ny;
         bz = lx * sz + ly * tz + lz * nz;
+        f = ABOVE_GEOMETRIC(f, bx, by, bz);
 #if STRATEGY == 5
         realv gu, gv;
         env_world_to_square(rot, bx, by, bz, &gu, &gv);
@@ -463,6 +473,7 @@ inline Shaded shade_lanes(SHADE_TABLE_ARGS, const realv nx, const realv ny, cons
         ax = lx * sx + ly * tx + lz * nx;
         ay = lx * sy + ly * ty + lz * ny;
         az = lx * sz + ly * tz + lz * nz;
+        f = ABOVE_GEOMETRIC(f, ax, ay, az);
         sa = select((realv)0.0f, f / pdf, pdf > 0.0f);
     }
 #endif
@@ -562,12 +573,12 @@ inline void store_values(const Shaded *s, __global float *value_out, const uint 
 #endif
 }
 
-/* Shading points given directly: normals and view directions as rows of 3 floats,
- * material ids, with has_tint rows of 3 floats multiplying each point's albedo (a texture's
- * value there), u rows of 4; wi_out and value_out as planes (slot, component,
- * point), offset_out (the part without a shadow ray) as planes r, g, b. The tests' entry
- * point; the renderer uses shade_rays. */
-__kernel void shade(__global const float *normal, __global const float *wo_world,
+/* Shading points given directly: shading normals, geometric normals and view directions as
+ * rows of 3 floats, material ids, with has_tint rows of 3 floats multiplying each point's
+ * albedo (a texture's value there), u rows of 4; wi_out and value_out as planes (slot,
+ * component, point), offset_out (the part without a shadow ray) as planes r, g, b. The tests'
+ * entry point; the renderer uses shade_rays. */
+__kernel void shade(__global const float *normal, __global const float *geometric, __global const float *wo_world,
                     __global const int *material, __global const float *tint, const int has_tint,
                     __global const float *u_in, const uint count,
                     SHADE_TABLE_ARGS, __global float *wi_out, __global float *value_out,
@@ -577,14 +588,15 @@ __kernel void shade(__global const float *normal, __global const float *wo_world
     if (base >= count) return;
     tree += TREE_ORIGIN;   /* the light tree's node 0 (common.h) */
     const uintv i = LANE_INDEX(count);
-    realv nx, ny, nz, ex, ey, ez, u0, u1, u2, u3;
+    realv nx, ny, nz, gx, gy, gz, ex, ey, ez, u0, u1, u2, u3;
     GATHER3(normal, 3 * i, &nx, &ny, &nz);
+    GATHER3(geometric, 3 * i, &gx, &gy, &gz);
     GATHER3(wo_world, 3 * i, &ex, &ey, &ez);
     GATHER4(u_in, 4 * i, &u0, &u1, &u2, &u3);
     realv tr = 1.0f, tg = 1.0f, tb = 1.0f;
     if (has_tint) GATHER3(tint, 3 * i, &tr, &tg, &tb);
-    const Shaded s = shade_lanes(SHADE_TABLES, nx, ny, nz, ex, ey, ez, GATHER_INT(material, i), tr, tg, tb,
-                                 u0, u1, u2, u3, (intv)-1);
+    const Shaded s = shade_lanes(SHADE_TABLES, nx, ny, nz, gx, gy, gz, ex, ey, ez, GATHER_INT(material, i),
+                                 tr, tg, tb, u0, u1, u2, u3, (intv)-1);
     STORE_LANES(s.ax, wi_out, base, count);
     STORE_LANES(s.ay, wi_out + count, base, count);
     STORE_LANES(s.az, wi_out + 2 * count, base, count);
@@ -626,11 +638,12 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
  * at index rng_first + p, as the camera kernel's jitter by word 0); else u_in (rows of 4). A miss sees the environment (direct_out,
  * 3 planes r, g, b; for hits the estimate's part without a shadow ray, Shaded's o) and has
  * zero estimates. A hit takes its face
- * normal, flipped to face the viewer (two-sided shading), its face's material (with
- * -DTEXTURES=1 its albedo times its texture at the hit: texture.h, the face's texture
- * coordinates face_uv interpolated at embree's barycentric bary, rows of 2) and
+ * normal, flipped to face the viewer (two-sided shading), with smooth != 0 its shading normal
+ * (hit.h shading_normal, from embree's barycentrics bary (rows of 2 floats u, v), the faces'
+ * corner rows and the normals), its face's material (with -DTEXTURES=1 its albedo times its
+ * texture at the hit: texture.h, the face's texture coordinates face_uv interpolated at bary) and
  * shade_lanes' directions and estimates; origin_out (rows of 3) is the hit point p
- * moved max(OFFSET_RELATIVE |p|, face_normal's 4th column, eye_offset) along that normal
+ * moved max(OFFSET_RELATIVE |p|, face_normal's 4th column, eye_offset) along the face normal
  * (wavlight/raytrace.py: the offset floors of the face and of the eye), where its
  * shadow rays start; wi_out holds rows of
  * 3 SLOTS floats (slot a x y z, slot b x y z, and c, d), value_out planes as in shade. Vectors of
@@ -639,7 +652,8 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
 __kernel void shade_rays(__global const float *dirs, __global const int *prim, __global const float *tfar,
                          const float eye_x, const float eye_y, const float eye_z, const float eye_offset,
                          __global const float *face_normal, __global const int *face_material,
-                         __global const float *bary, __global const float *face_uv,
+                         __global const float *bary, __global const int *corner, __global const float *normals,
+                         const int smooth, __global const float *face_uv,
                          __global const int *mat_texture, __global const float *tex_atlas,
                          __global const int *tex_table,
                          __global const float *u_in, const int draw_u, const uint rng_tile,
@@ -673,10 +687,16 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
     Shaded s;
     if (any(hit)) {
         const uintv f = as_uintv(max(face, 0));
-        realv nx, ny, nz, px, py, pz, eps;
+        realv gx, gy, gz, px, py, pz, eps;
         hit_point(dx, dy, dz, GATHER(tfar, i), f, face_normal, eye_x, eye_y, eye_z, eye_offset,
-                  &nx, &ny, &nz, &px, &py, &pz, &eps);
-        store_rows3(px + nx * eps, py + ny * eps, pz + nz * eps, origin_out, 3, 0, base, count);
+                  &gx, &gy, &gz, &px, &py, &pz, &eps);
+        store_rows3(px + gx * eps, py + gy * eps, pz + gz * eps, origin_out, 3, 0, base, count);
+        realv nx = gx, ny = gy, nz = gz;
+        if (smooth) {
+            realv bu, bv;
+            GATHER2(bary, 2 * i, &bu, &bv);
+            shading_normal(dx, dy, dz, bu, bv, f, corner, normals, gx, gy, gz, &nx, &ny, &nz);
+        }
         realv u0, u1, u2, u3;
         if (draw_u) {
             rng_uniforms(rng_first + LANE_IDS + base, rng_tile, RNG_SHADING, rng_k0, rng_k1, &u0, &u1, &u2, &u3);
@@ -701,7 +721,8 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
             texture_rgb(tex_atlas, tex_table, GATHER_INT(mat_texture, mat), tu, tv, &tr, &tg, &tb);
         }
 #endif
-        s = shade_lanes(SHADE_TABLES, nx, ny, nz, -dx, -dy, -dz, mat, tr, tg, tb, u0, u1, u2, u3, hit);
+        s = shade_lanes(SHADE_TABLES, nx, ny, nz, gx, gy, gz, -dx, -dy, -dz, mat, tr, tg, tb, u0, u1, u2, u3,
+                        hit);
         STORE_LANES(er + s.o_r, direct_out, base, count);   /* (er: 0 for hits) */
         STORE_LANES(eg + s.o_g, direct_out + count, base, count);
         STORE_LANES(eb + s.o_b, direct_out + 2 * count, base, count);

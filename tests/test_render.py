@@ -64,8 +64,10 @@ def furnace(tmp_path_factory):
     scene = load(d, render=dict(width=24, height=24, spp=64, seed=3),
                  camera=dict(eye=[0.3, 0.4, 3.5], target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0], fov_y=40.0),
                  environment=dict(file=env),
+                 # face normals: the identity holds for the geometric normal (with shading normals the
+                 # directions between the shading and the geometric horizon carry no light)
                  objects=[dict(shape="sphere", center=[0.0, 0.0, 0.0], radius=1.0, subdivisions=5,
-                               material="white")],
+                               material="white", face_normals=True)],
                  materials={"white": dict(type="lambert", albedo=albedo)})
     cam = camera_of(scene)
     inner, background = _sphere_masks(cam, np.zeros(3), _inradius(scene, np.zeros(3)), 1.0)

@@ -73,13 +73,18 @@ def test_slot_shifts_nest():
 
 
 def _compare_shaders(scene, strat, rng):
+    """Shading normals n and, for half of the points, a geometric normal g that leans away from n
+    (facing the viewer, as a hit's): directions below g carry no light in both."""
     strat.prepare(scene.environment, scene.materials)
     n_pts = 20000
     n, wo = random_normals_views(rng, n_pts)
+    g = n + 0.5 * rng.normal(size=n.shape) * (np.arange(n_pts) % 2)[:, None]
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    g *= np.where(np.einsum("ij,ij->i", g, wo) < 0, -1.0, 1.0)[:, None]
     mat = rng.integers(0, 4, n_pts).astype(np.int32)
     u = rng.random((n_pts, 4), dtype=np.float32)
-    wi_k, val_k = KernelShader(scene, strat)(n, wo, mat, u)
-    wi_r, val_r = NumpyShader(scene, strat)(n, wo, mat, u)
+    wi_k, val_k = KernelShader(scene, strat)(n, wo, mat, u, g=g)
+    wi_r, val_r = NumpyShader(scene, strat)(n, wo, mat, u, g=g)
     live = np.abs(val_r).max(axis=2) > 0
     dir_ok = np.abs(wi_k - wi_r).max(axis=2) < 2e-4
     val_ok = np.isclose(val_k, val_r, rtol=2e-3, atol=1e-6).all(axis=2)
@@ -268,7 +273,8 @@ def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     rng = np.random.default_rng(12)
     env = scene.environment
     scene.environment = Environment(env.pixels + rng.random(env.pixels.shape).astype(np.float32) * 0.2, 1.0, 50.0)
-    tracer = RayTracer(scene.vertices, scene.faces)
+    tracer = RayTracer(scene.vertices, scene.faces, normals=scene.normals, normal_faces=scene.normal_faces)
+    assert tracer.smooth
     name, _, variant = strategy.partition(":")
     strat = strategies.make(name, **{"no-control-variate": {"control_variate": False},
                                      "four-slots": {"slots": 4}}.get(variant, {}))
@@ -277,11 +283,11 @@ def test_shade_rays_kernel_matches_numpy(strategy, drawn):
     w, h = 64, 48
     o, d = camera.camera_rays(scene, rng.integers(0, w, count), rng.integers(0, h, count), rng.random((count, 2)),
                                   w, h)
-    prim, t = tracer.intersect(o, d)
+    prim, t, bu, bv = tracer.intersect_uv(o, d)
     assert 0.1 < (prim >= 0).mean() < 0.9                       # both hits and misses
     u = rng.random((count, 4), dtype=np.float32) if drawn is None else philox.Stream(5, 17, 3000, drawn)
-    got = KernelShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u)
-    ref = NumpyShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u)
+    got = KernelShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u, np.stack([bu, bv], 1))
+    ref = NumpyShader(scene, strat, tracer).shade_rays(scene.camera.eye, d, prim, t, u, np.stack([bu, bv], 1))
     miss, hit = prim < 0, prim >= 0
     assert got.direct.shape == ref.direct.shape == (3, count)
     assert np.all(got.value[:, :, miss] == 0)

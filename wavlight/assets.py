@@ -75,8 +75,9 @@ class FileMaterial:
 class Part:
     """One part of a mesh file: ``name`` (its mesh and material, for messages), vertices (V, 3)
     float64 with the file's node transforms applied, faces (F, 3) int64, ``uv`` (V, 2) float32
-    or None, ``material`` (a :class:`FileMaterial`, or None for the scene's default) and
-    ``texture`` ((H, W, 3) float32 linear, or None)."""
+    or None, ``material`` (a :class:`FileMaterial`, or None for the scene's default),
+    ``texture`` ((H, W, 3) float32 linear, or None) and ``normals`` (V, 3): the file's vertex
+    normals with the node transforms applied, trimesh's (angle-weighted) where it has none."""
 
     name: str
     vertices: np.ndarray
@@ -84,6 +85,7 @@ class Part:
     uv: np.ndarray | None
     material: FileMaterial | None
     texture: np.ndarray | None
+    normals: np.ndarray | None = None
 
 
 @dataclass
@@ -258,6 +260,16 @@ def _texture(path, part, image, uv, described="its base-colour texture"):
         return None
 
 
+def _normals(scene, g) -> np.ndarray:
+    """(V, 3) the vertex normals of ``g``, one of ``scene.dump()``'s copies: its source geometry's
+    (the file's, or trimesh's where it has none) through the node's transform (the inverse
+    transpose). dump() itself drops the file's normals and computes them anew."""
+    matrix, name = scene.graph[g.metadata["node"]]
+    n = np.asarray(scene.geometry[name].vertex_normals, np.float64) @ np.linalg.inv(np.asarray(matrix)[:3, :3])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
 def read(path: str):
     """(parts, camera or None, the files read beside it) of a glTF or OBJ file; None for an OBJ
     that names no material library (its geometry alone is read as any mesh's). Node transforms
@@ -324,7 +336,7 @@ def read(path: str):
                 seen[key] = _texture(path, part, image, uv, described)
             texture = seen[key]
         parts.append(Part(part, np.asarray(g.vertices, np.float64), np.asarray(faces, np.int64),
-                          uv if texture is not None else None, material, texture))
+                          uv if texture is not None else None, material, texture, _normals(scene, g)))
     if not parts:
         raise MeshError("holds no triangles")
     return parts, _camera(scene), _linked_files(path, doc, libs if is_obj else [], maps)

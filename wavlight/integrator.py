@@ -66,8 +66,9 @@ class _Renderer:
         self.sampler = sampler_name
         self.threads = threads or default_threads()
         t0 = time.perf_counter()
-        self.tracer = RayTracer(scene.vertices, scene.faces)
-        self.textured = scene.textured   # hits then need their barycentric coordinates (once: not per pass)
+        self.tracer = RayTracer(scene.vertices, scene.faces, normals=scene.normals, normal_faces=scene.normal_faces)
+        # hits need their barycentric coordinates for the shading normals or textures (once: not per pass)
+        self.needs_bary = bool(scene.textured or self.tracer.smooth)
         self.strategy = strategies.make(strategy, **(options or {}))
         if self.strategy.wants_visibility:   # the wavelet budget from the scene's shadows
             self.strategy.fit_to_visibility(occlusion.visibility_variance(scene, self.tracer, width, height))
@@ -146,14 +147,15 @@ class _Renderer:
         directions d, hit triangle prim and distance t, the shading uniforms u (an
         ``rng.Stream``: Philox numbers at tile sample indices first w h + (pixel k + j), drawn
         in the kernels; ``stratified``: each pair stratified over the pixel's k samples), and
-        in a textured scene the hits' barycentric coordinates bary (N, 2) (else None)."""
+        where the scene is textured or smooth the hits' barycentric coordinates bary (N, 2)
+        (else None)."""
         eye = self.scene.camera.eye
         u = rng.Stream(self.seed, tile, first * w * h, k if self.sampler == "stratified" else 0)
         d = camera.pass_rays(self.scene, self.width, self.height, self.seed, tile, x0, y0, w, h, k, u.first,
                              kernel=self.kernel_camera, stratified=bool(u.k))
         origins = np.broadcast_to(eye.astype(np.float32), d.shape)
         bary = None
-        if self.textured:
+        if self.needs_bary:
             prim, t, bu, bv = self.tracer.intersect_uv(origins, d)
             bary = np.stack([bu, bv], axis=1)
         else:

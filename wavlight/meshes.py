@@ -94,9 +94,11 @@ def check_indices(idx, nv: int, what: str = "face", holder: str = "the file"):
     return out
 
 
-def read_ply(path: str):
+def read_ply(path: str, normals: bool = False):
     """(vertices (V, 3) float64, faces (F, 3) int64) of a triangle PLY in the subset above,
-    or None when the file is outside it. ValueError for a malformed header or bad indices."""
+    or None when the file is outside it. ValueError for a malformed header or bad indices.
+    With ``normals``: (vertices, faces, the file's vertex normals nx, ny, nz (V, 3) float64 or
+    None where it has none)."""
     data = _read_bytes(path)
     fmt, elements, start = _header(data)
     if [e[0] for e in elements] != ["vertex", "face"]:
@@ -113,6 +115,7 @@ def read_ply(path: str):
         raise MeshError(f"the face list '{' '.join(fprops[0])}' has a floating-point type; "
                          "counts and vertex indices must be integer types")
     xyz = [names.index(c) for c in "xyz"]
+    nxyz = [names.index(c) for c in ("nx", "ny", "nz")] if {"nx", "ny", "nz"} <= set(names) else None
     width = 4 + len(fprops) - 1                     # count, three indices, the other face properties
     if fmt == "ascii":
         try:
@@ -124,10 +127,11 @@ def read_ply(path: str):
                              f"holds fewer values")
         if len(tokens) != nv * len(vprops) + nf * width:
             return None                             # polygons other than triangles, or trailing data
-        verts = tokens[:nv * len(vprops)].reshape(nv, len(vprops))[:, xyz]
+        table = tokens[:nv * len(vprops)].reshape(nv, len(vprops))
         # values as the declared type holds them (float x y z: float32, as a binary file would)
-        verts = np.stack([verts[:, k].astype(_TYPES[vprops[j][1]]) for k, j in enumerate(xyz)], 1)
-        verts = verts.astype(np.float64)
+        verts = np.stack([table[:, j].astype(_TYPES[vprops[j][1]]) for j in xyz], 1).astype(np.float64)
+        vn = None if nxyz is None else np.stack([table[:, j].astype(_TYPES[vprops[j][1]]) for j in nxyz],
+                                                1).astype(np.float64)
         rows = tokens[nv * len(vprops):].reshape(nf, width)
         counts, idx = rows[:, 0], rows[:, 1:4]
     elif fmt in ("binary_little_endian", "binary_big_endian"):
@@ -142,27 +146,31 @@ def read_ply(path: str):
             return None
         v = np.frombuffer(data, vdt, count=nv, offset=start)
         verts = np.stack([v[f"p{k}"] for k in xyz], axis=1).astype(np.float64)
+        vn = None if nxyz is None else np.stack([v[f"p{k}"] for k in nxyz], axis=1).astype(np.float64)
         f = np.frombuffer(data, fdt, count=nf, offset=start + nv * vdt.itemsize)
         counts, idx = f["n"], f["i"]
     else:
         return None
     if not np.all(counts == 3):
         return None
-    return verts, check_indices(idx, nv)
+    return (verts, check_indices(idx, nv), vn) if normals else (verts, check_indices(idx, nv))
 
 
-def read_obj(path: str):
+def read_obj(path: str, normals: bool = False):
     """(vertices (V, 3) float64, faces (F, 3) int64) of a Wavefront OBJ file's geometry: ``v x y
     z [...]`` and ``f a b c ...`` lines (references ``i``, ``i/t``, ``i//n``, ``i/t/n``; 1-based,
     negative ones relative to the vertices read so far; a quad as (0, 1, 2), (2, 3, 0) and a
-    polygon of k > 4 vertices as the fan of k - 2 triangles (0, j, j + 1), as trimesh splits them). Other lines (vt, vn, o, g, s, usemtl, mtllib, l, p, ...) are
-    ignored; a backslash at the end of a line continues it. Bytes that are not UTF-8 (say in
+    polygon of k > 4 vertices as the fan of k - 2 triangles (0, j, j + 1), as trimesh splits
+    them). With ``normals`` also the file's ``vn`` normals (N, 3) float64 and each corner's row
+    of them (F, 3) int64, -1 for a corner without one (``i`` or ``i/t``, or an index outside
+    the ``vn`` lines). Other lines (vt, o, g, s, usemtl, mtllib, l, p, ...) are ignored; a backslash at the end of a line continues it. Bytes that are not UTF-8 (say in
     a comment) are replaced. ValueError naming the line for a vertex without three numbers, a
     face of fewer than three vertices, an index that is not an integer, 0 or outside the
     vertices."""
     text = _read_bytes(path).decode("utf-8", errors="replace").replace("\\\r\n", " ").replace("\\\n", " ")
     coords, vlines = [], []
-    tris, tlines = [], []
+    tris, tlines, ntris = [], [], []
+    ncoords = []
     nv = 0
     for number, line in enumerate(text.splitlines(), 1):
         w = line.split()
@@ -175,12 +183,16 @@ def read_obj(path: str):
             coords += w[1:4]
             vlines.append(number)
             nv += 1
+        elif key == "vn" and normals:
+            ncoords.append(w[1:4])
         elif key == "f":
             if len(w) < 4:
                 raise MeshError(f"line {number}: a face needs at least three vertices, got {line.strip()[:60]!r}")
-            refs = []
+            refs, nrefs = [], []
             for ref in w[1:]:
                 head = ref.split("/", 1)[0]
+                if normals:
+                    nrefs.append(_normal_ref(ref, len(ncoords)))
                 try:
                     i = int(head)
                 except ValueError:
@@ -199,10 +211,14 @@ def read_obj(path: str):
             if len(refs) == 4:   # trimesh's split of a quad, so that the triangles match its reader's
                 tris += [(refs[0], refs[1], refs[2]), (refs[2], refs[3], refs[0])]
                 tlines += [number, number]
+                if normals:
+                    ntris += [(nrefs[0], nrefs[1], nrefs[2]), (nrefs[2], nrefs[3], nrefs[0])]
                 continue
             for j in range(1, len(refs) - 1):
                 tris.append((refs[0], refs[j], refs[j + 1]))
                 tlines.append(number)
+                if normals:
+                    ntris.append((nrefs[0], nrefs[j], nrefs[j + 1]))
     try:
         verts = np.array(coords, np.float64).reshape(-1, 3)
     except ValueError:
@@ -216,7 +232,49 @@ def read_obj(path: str):
     if faces.size and faces.max() >= nv:
         k = int(np.argmax(faces.max(axis=1) >= nv))
         raise MeshError(f"line {tlines[k]}: face index {int(faces[k].max()) + 1} but the file holds {nv} vertices")
-    return verts, faces
+    if not normals:
+        return verts, faces
+    try:
+        vn = np.array([c + ["nan"] * (3 - len(c)) for c in ncoords], np.float64).reshape(-1, 3)
+    except ValueError:
+        vn = np.full((len(ncoords), 3), np.nan)   # an unreadable vn line: no file normals
+    corner = np.array(ntris, np.int64).reshape(-1, 3)
+    return verts, faces, vn, corner
+
+
+def _normal_ref(ref: str, count: int) -> int:
+    """The 0-based ``vn`` row of a face reference ``i/t/n`` or ``i//n`` (negative: relative to the
+    ``count`` normals read so far), -1 where it names none or one outside them."""
+    parts = ref.split("/")
+    if len(parts) < 3 or not parts[2]:
+        return -1
+    try:
+        k = int(parts[2])
+    except ValueError:
+        return -1
+    k = count + k if k < 0 else k - 1
+    return k if 0 <= k < count else -1
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3) float64 unit normals per vertex: the sum of its faces' normals weighted by their
+    areas (the cross products of two edges, unnormalised), normalised; zero for a vertex of no
+    face or whose faces cancel. (trimesh and Mitsuba 3 weight by the corner's angle instead.)"""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    e = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n = np.zeros_like(v)
+    for k in range(3):   # the three corners, vectorised over faces
+        np.add.at(n, f[:, k], e)
+    return unit_rows(n)
+
+
+def unit_rows(n: np.ndarray) -> np.ndarray:
+    """Rows of n divided by their lengths (float64); rows of zero length, or not finite, become zero."""
+    n = np.asarray(n, np.float64)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    ok = np.isfinite(length) & (length > 0)
+    return np.where(ok, np.divide(n, np.where(ok, length, 1.0)), 0.0)
 
 
 def icosphere(subdivisions: int, radius: float = 1.0):

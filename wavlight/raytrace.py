@@ -58,6 +58,9 @@ def _rays(where, origins, dirs):
 # (1 + |p|) 1.8e-4, which assumes scenes of unit size.
 OFFSET_RELATIVE = 1e-4
 OFFSET_FLOOR = 1e-6
+#: an interpolated shading normal shorter than this squared (corner normals that cancel, a flat
+#: face's row of zeros) gives way to the geometric normal
+SMOOTH_MIN_LENGTH2 = 1e-12
 
 
 class EmbreeQueries:
@@ -124,9 +127,14 @@ def default_queries():
 class RayTracer:
     """Closest-hit and occlusion queries against vertices (V, 3) and faces (F, 3).
 
-    ``queries``: the class that answers them (default :func:`default_queries`)."""
+    ``queries``: the class that answers them (default :func:`default_queries`). ``normals`` (N, 3)
+    and ``normal_faces`` (F, 3) (a Scene's: each corner's row of normals, -1 for a face shaded
+    with its geometric normal; None: every face flat) give the shading normals of :meth:`hit`
+    (docs/decisions/shading-normals.md): ``shading_normals`` holds them with a last row of zeros
+    that the -1 corners name (``corner_normals``), and ``smooth`` says whether any face uses them."""
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, threads: int = 1, queries=None):
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, threads: int = 1, queries=None, normals=None,
+                 normal_faces=None):
         vertices, faces = _geometry(vertices, faces)
         self.n_faces = len(faces)
         self.threads = check_int("RayTracer", "threads", threads, 1, MAX_THREADS)
@@ -148,6 +156,15 @@ class RayTracer:
             self.face_normals = np.zeros((0, 3), np.float32)
             self.face_offset_floor = np.zeros(0, np.float32)
             self.scale = 1.0
+        table = np.zeros((0, 3), np.float32) if normals is None else np.asarray(normals, np.float32).reshape(-1, 3)
+        self.shading_normals = np.concatenate([table, np.zeros((1, 3), np.float32)])
+        rows = (np.full((self.n_faces, 3), -1, np.int64) if normal_faces is None
+                else np.asarray(normal_faces, np.int64).reshape(-1, 3))
+        if rows.shape != (self.n_faces, 3) or (rows.size and (rows.min() < -1 or rows.max() >= len(table))):
+            raise ArgumentError(f"RayTracer: normal_faces must be ({self.n_faces}, 3) rows of the {len(table)} "
+                                f"normals or -1, got shape {rows.shape}")
+        self.corner_normals = np.where(rows < 0, len(table), rows).astype(np.int32)
+        self.smooth = bool(np.any(rows >= 0))
 
     @staticmethod
     def eye_offset_floor(eye) -> np.float32:
@@ -168,6 +185,25 @@ class RayTracer:
         n = fn * np.where(np.einsum("ij,ij->i", fn, d) > 0, np.float32(-1), np.float32(1))[:, None]
         p = np.asarray(eye, np.float32) + d * np.asarray(t, np.float32)[:, None]
         return n, p, p + n * self.shadow_offsets(p, face, eye)[:, None]
+
+    def hit(self, eye, d, t, face, u, v):
+        """At hits of rays eye + t d (d (N, 3), t (N,), float32) on faces (N,) at embree's
+        barycentrics u, v (N,): (shading normal, geometric normal, p, shadow-ray origin), float32,
+        as the kernels' ``hit_point`` and ``shading_normal`` (kernels/hit.h) compute them. The
+        geometric normal and the origin are :meth:`surface`'s; the shading normal is
+        normalize((1 - u - v) n0 + u n1 + v n2) of the face's corner normals, turned towards the
+        viewer, or the geometric normal where that sum is (nearly) zero (a flat face's corners
+        name the row of zeros)."""
+        g, p, origin = self.surface(eye, d, t, face)
+        u = np.asarray(u, np.float32)[:, None]
+        v = np.asarray(v, np.float32)[:, None]
+        c = self.shading_normals[self.corner_normals[face]]   # (N, 3 corners, 3)
+        n = (np.float32(1) - u - v) * c[:, 0] + u * c[:, 1] + v * c[:, 2]
+        length2 = np.einsum("ij,ij->i", n, n)
+        ok = length2 > np.float32(SMOOTH_MIN_LENGTH2)
+        n = np.where(ok[:, None], n / np.sqrt(np.where(ok, length2, 1))[:, None], g).astype(np.float32)
+        n = n * np.where(np.einsum("ij,ij->i", n, d) > 0, np.float32(-1), np.float32(1))[:, None]
+        return n, g, p, origin
 
     def _map(self, fn, origins, dirs):
         n = len(origins)

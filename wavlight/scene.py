@@ -94,13 +94,20 @@ class SceneObject:
     material: int
     faces_range: tuple
     vertices_range: tuple
+    #: shading normals after ``scale`` (its inverse transpose) but before ``rotate`` (N, 3), and
+    #: their rows in the scene's ``normals``
+    local_normals: np.ndarray = None
+    normals_range: tuple = (0, 0)
 
 
 @dataclass
 class Scene:
     """A loaded scene: settings, camera, environment, and one merged triangle soup.
 
-    vertices : (V, 3) float32; faces : (F, 3) int32; face_material : (F,) int32
+    vertices : (V, 3) float32; faces : (F, 3) int32; face_material : (F,) int32;
+    normals : (N, 3) float32 unit shading normals; normal_faces : (F, 3) int32, each corner's row
+    of ``normals``, -1 where the face is shaded with its geometric normal (``face_normals = true``,
+    or a Scene made without normals: ``normal_faces`` None, every face flat)
     """
 
     path: str
@@ -128,6 +135,9 @@ class Scene:
     textures: list = field(default_factory=list)
     #: (V, 2) float32 texture coordinates of the vertices (zeros where a mesh has none), or None
     vertex_uv: np.ndarray | None = None
+    #: the shading normals (docs/decisions/shading-normals.md) and each face corner's row of them
+    normals: np.ndarray = None
+    normal_faces: np.ndarray = None
 
     def find_object(self, key) -> "SceneObject":
         """The object named ``key``, or at index ``key`` (an int or a string of digits); a
@@ -150,9 +160,16 @@ class Scene:
         """The same scene without object ``ob`` (its faces removed; vertices kept)."""
         keep = np.ones(len(self.faces), bool)
         keep[ob.faces_range[0]:ob.faces_range[1]] = False
-        return replace(self, faces=self.faces[keep], face_material=self.face_material[keep],
+        normal_faces = None if self.normal_faces is None else self.normal_faces[keep]
+        return replace(self, faces=self.faces[keep], face_material=self.face_material[keep], normal_faces=normal_faces,
                        objects=[o for o in self.objects if o is not ob],
                        content_hash=hashlib.sha256(f"{self.content_hash} without {ob.index}".encode()).hexdigest())
+
+    def faceted(self) -> "Scene":
+        """The same scene shaded with its face normals everywhere (as ``face_normals = true`` on every
+        object)."""
+        return replace(self, normal_faces=None,
+                       content_hash=hashlib.sha256(f"{self.content_hash} faceted".encode()).hexdigest())
 
     def moved(self, ob: "SceneObject", translate=None, rotate=None) -> "Scene":
         """The same scene with object ``ob`` at a new place: ``translate`` (3,) and ``rotate``
@@ -162,8 +179,12 @@ class Scene:
         vertices = self.vertices.copy()
         start, stop = ob.vertices_range
         vertices[start:stop] = (ob.local @ rotation(rotate).T + translate).astype(np.float32)
+        normals = self.normals
+        if ob.local_normals is not None and len(ob.local_normals):
+            normals = self.normals.copy()
+            normals[ob.normals_range[0]:ob.normals_range[1]] = (ob.local_normals @ rotation(rotate).T).astype(np.float32)
         moved = replace(ob, translate=translate, rotate=rotate)
-        return replace(self, vertices=vertices, objects=[moved if o is ob else o for o in self.objects],
+        return replace(self, vertices=vertices, normals=normals, objects=[moved if o is ob else o for o in self.objects],
                        content_hash=hashlib.sha256(f"{self.content_hash} moved {ob.index} {list(translate)} "
                                                    f"{rotate}".encode()).hexdigest())
 
@@ -279,6 +300,16 @@ def check_scene(scene) -> None:
         if (not isinstance(uv, np.ndarray) or uv.shape != (len(v), 2) or uv.dtype != np.float32
                 or not np.all(np.isfinite(uv))):
             bad("a textured scene needs vertex_uv, (V, 2) finite float32")
+    if getattr(scene, "normal_faces", None) is not None:   # the shading normals (None: every face flat)
+        rows = np.asarray(scene.normal_faces)
+        n = np.asarray(scene.normals if scene.normals is not None else np.zeros((0, 3)))
+        if n.ndim != 2 or n.shape[1] != 3 or rows.shape != f.shape or (rows.size and not np.issubdtype(rows.dtype,
+                                                                                                       np.integer)):
+            bad(f"normals (N, 3) and normal_faces (F, 3) integers expected, got {n.shape} and {rows.shape}")
+        if rows.size and (rows.min() < -1 or rows.max() >= len(n)):
+            bad(f"normal_faces must name rows of the {len(n)} normals or be -1")
+        if not np.all(np.isfinite(n)):
+            bad("normals hold NaN or Inf")
     limits = {bsdfs.LAMBERT: (0.0, np.inf), bsdfs.PHONG: EXPONENT_RANGE, bsdfs.GGX: ROUGHNESS_RANGE,
               bsdfs.PLASTIC: ROUGHNESS_RANGE}
     for m in scene.materials:
@@ -343,6 +374,9 @@ class _Table:
         elif kind == "str":
             if not isinstance(v, str):
                 self.fail(key, f"must be a string, got {shown(v)}")
+        elif kind == "bool":
+            if not isinstance(v, bool):
+                self.fail(key, f"must be true or false, got {shown(v)}")
         elif kind == "vec3":
             if (not isinstance(v, list) or len(v) != 3
                     or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
@@ -537,43 +571,81 @@ def _given_triangles(o: dict) -> int:
     return int(shape[0]) if len(shape) else 0
 
 
+def _smooth(v, f, file_normals=None, corners=None):
+    """(normals (N, 3), each corner's row (F, 3)): the file's normals where it gives them (per
+    vertex, or per corner as an OBJ does: ``corners``, -1 where a corner has none), else the
+    area-weighted vertex normals (:func:`meshes.vertex_normals`). A file normal that is zero or not
+    finite is replaced by the computed one."""
+    computed = meshes.vertex_normals(v, f)
+    if file_normals is None or len(file_normals) == 0:
+        return computed, np.asarray(f, np.int64)
+    given = meshes.unit_rows(file_normals)
+    if corners is None:   # per vertex
+        bad = ~np.any(given != 0, axis=1)
+        return np.where(bad[:, None], computed, given), np.asarray(f, np.int64)
+    ok = corners >= 0
+    ok[ok] = np.any(given[corners[ok]] != 0, axis=1)
+    rows = np.where(ok, corners, len(given) + np.asarray(f, np.int64))
+    return np.concatenate([given, computed]), rows
+
+
 def _load_mesh(t: _Table, path: str):
-    """(vertices, faces) of a mesh file: PLY triangle meshes by :func:`meshes.read_ply`, OBJ by
-    :func:`meshes.read_obj` (an index 0, past the end or fractional is named with its line, not
-    taken for a degenerate triangle), everything else by trimesh, imported only then."""
+    """(vertices, faces, normals, corner rows) of a mesh file: PLY triangle meshes by
+    :func:`meshes.read_ply`, OBJ by :func:`meshes.read_obj` (an index 0, past the end or
+    fractional is named with its line, not taken for a degenerate triangle), everything else by
+    trimesh, imported only then: each geometry of the file with its node's transform, loaded
+    with ``process=False`` so that its vertices and their normals stay as the file has them
+    (trimesh's concatenation of a file's parts, ``force="mesh"``, drops the normals). Normals as
+    :func:`_smooth` makes them; trimesh's own where the file has none (angle-weighted)."""
     try:
         if path.lower().endswith(".ply"):
-            mesh = meshes.read_ply(path)
+            mesh = meshes.read_ply(path, normals=True)
             if mesh is not None:
-                return mesh
+                return (*mesh[:2], *_smooth(*mesh))
         if path.lower().endswith(".obj"):
-            v, f = meshes.read_obj(path)
+            v, f, vn, corners = meshes.read_obj(path, normals=True)
             if len(f) == 0:
                 t.fail("mesh", f"{path} holds no triangles")
-            return v, f
+            return (v, f, *_smooth(v, f, vn, corners))
         import trimesh
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            mesh = trimesh.load(path, force="mesh")
+            loaded = trimesh.load(path, process=False)
+            parts = []
+            if isinstance(loaded, trimesh.Scene):
+                for node in loaded.graph.nodes_geometry:
+                    matrix, name = loaded.graph[node]
+                    g = loaded.geometry[name]
+                    if hasattr(g, "faces") and len(g.faces):
+                        m = np.asarray(matrix, np.float64)
+                        normal_matrix = np.linalg.inv(m[:3, :3]).T
+                        parts.append((g.vertices @ m[:3, :3].T + m[:3, 3], g.faces, g.vertex_normals @ normal_matrix.T))
+            elif hasattr(loaded, "faces") and len(loaded.faces):
+                parts.append((loaded.vertices, loaded.faces, loaded.vertex_normals))
     except SceneError:
         raise
     except Exception as e:  # trimesh raises many types for bad files
         t.fail("mesh", f"cannot load {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
-    if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
+    if not parts:
         t.fail("mesh", f"{path} holds no triangles")
-    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+    offsets = np.cumsum([0] + [len(p[0]) for p in parts])
+    v = np.concatenate([np.asarray(p[0], np.float64) for p in parts])
+    f = np.concatenate([np.asarray(p[1], np.int64) + o for p, o in zip(parts, offsets)])
+    return (v, f, *_smooth(v, f, np.concatenate([np.asarray(p[2], np.float64) for p in parts])))
 
 
 def _shape(t: _Table, base_dir, files: list, file_materials: bool = False):
-    """(vertices, faces, parts) of one object before its transform: ``parts`` (a list of
-    wavlight.assets.Part, whose vertices and faces are concatenated in order) for a glTF or OBJ +
-    MTL mesh file read with its materials (``file_materials``: the object names no material),
-    else None."""
+    """(vertices, faces, normals, each corner's row of normals, parts) of one object before its
+    transform: a mesh file's normals, else area-weighted vertex normals (meshes given as arrays
+    too), the sphere's exact normals, the quad's own; ``parts`` (a list of wavlight.assets.Part,
+    whose vertices and faces are concatenated in order) for a glTF or OBJ + MTL mesh file read
+    with its materials (``file_materials``: the object names no material), else None."""
     if t.has("mesh") and t.has("shape"):
         t.fail("shape", "give either mesh or shape, not both")
     if t.has("vertices") or t.has("faces") or isinstance(t.data.get("mesh"), _Given):
-        return (*_given_mesh(t), None)
+        v, f = _given_mesh(t)
+        return (v, f, *_smooth(v, f), None)
     if t.has("mesh"):
         rel = t.get("mesh", "str")
         try:
@@ -592,20 +664,21 @@ def _shape(t: _Table, base_dir, files: list, file_materials: bool = False):
                 parts, _, linked = found
                 files += [path, *linked]
                 starts = np.cumsum([0] + [len(p.vertices) for p in parts])
-                return (np.concatenate([p.vertices for p in parts]),
-                        np.concatenate([p.faces + s for p, s in zip(parts, starts)]), parts)
-        v, f = _load_mesh(t, path)
+                v = np.concatenate([p.vertices for p in parts])
+                f = np.concatenate([p.faces + s for p, s in zip(parts, starts)])
+                return (v, f, *_smooth(v, f, np.concatenate([p.normals for p in parts])), parts)
+        v, f, n, rows = _load_mesh(t, path)
         files.append(path)
         if len(f) == 0:
             t.fail("mesh", f"{path} holds no triangles")
-        return v, f, None
+        return v, f, n, rows, None
     kind = t.get("shape", "str", required=True)
     if kind == "sphere":
         center = t.get("center", "vec3", np.zeros(3))
         radius = _positive(t, "radius", t.get("radius", "float", 1.0), lo=1e-9)
         sub = _positive(t, "subdivisions", t.get("subdivisions", "int", 5), lo=0, hi=8)
         v, f = meshes.icosphere(sub, radius)
-        return v + center, f, None
+        return v + center, f, v / radius, f, None
     if kind == "quad":
         center = t.get("center", "vec3", np.zeros(3))
         normal = t.get("normal", "vec3", np.array([0.0, 1.0, 0.0]))
@@ -618,8 +691,8 @@ def _shape(t: _Table, base_dir, files: list, file_materials: bool = False):
         h1, h2 = 0.5 * size[0] * t1, 0.5 * size[1] * t2
         v = np.array([center - h1 - h2, center + h1 - h2, center + h1 + h2, center - h1 + h2])
         # counter-clockwise seen from +n
-        return v, (np.array([[0, 1, 2], [0, 2, 3]]) if np.dot(np.cross(t1, t2), n) > 0
-                   else np.array([[0, 2, 1], [0, 3, 2]])), None
+        f = np.array([[0, 1, 2], [0, 2, 3]]) if np.dot(np.cross(t1, t2), n) > 0 else np.array([[0, 2, 1], [0, 3, 2]])
+        return v, f, np.tile(n / np.linalg.norm(n), (4, 1)), f, None
     t.fail("shape", f"unknown shape {kind!r} (sphere | quad)")
 
 
@@ -631,8 +704,8 @@ def rotation(rotate) -> np.ndarray:
 
 
 def _transform(t: _Table, v):
-    """(scaled local vertices, rotate [ax, ay, az, deg] or None, translate (3,)): an object's
-    transform in the order scale, rotate, translate."""
+    """(scaled local vertices, rotate [ax, ay, az, deg] or None, translate (3,), scale (3,)): an
+    object's transform in the order scale, rotate, translate."""
     scale = t.num_or_vec("scale", 3, 1.0)
     if np.any(scale == 0):
         t.fail("scale", "must not be zero")
@@ -647,7 +720,7 @@ def _transform(t: _Table, v):
         if np.linalg.norm(np.array(r[:3], np.float64)) == 0:
             t.fail("rotate", "axis must not be zero")
         rotate = [float(x) for x in r]
-    return v, rotate, t.get("translate", "vec3", np.zeros(3))
+    return v, rotate, t.get("translate", "vec3", np.zeros(3)), scale
 
 
 def _good_triangles(path, key, v, f):
@@ -679,7 +752,7 @@ MAX_SCENE_BYTES = 16 << 20
 #: 2^24 of them is about 6.5 GB); counted from the shapes before they are made
 MAX_TRIANGLES = 1 << 24
 OBJECT_KEYS = {"mesh", "shape", "center", "radius", "subdivisions", "normal", "size", "translate", "rotate",
-               "scale", "material", "name", "vertices", "faces"}
+               "scale", "material", "name", "vertices", "faces", "face_normals"}
 #: the most vertices a mesh given as arrays may have: three per triangle of the most a scene may
 #: have (a mesh file's limit is its size, meshes.MAX_MESH_BYTES)
 MAX_GIVEN_VERTICES = 3 * MAX_TRIANGLES
@@ -876,8 +949,8 @@ def _parse(doc, path: str, base: str) -> Scene:
     if not isinstance(objs, list):
         raise SceneError(path, "objects", "must be an array of tables ([[objects]])")
     _check_objects(path, objs, index)
-    verts, faces, fmat, objects, uvs, texture_list = [], [], [], [], [], []
-    offset = face_offset = 0
+    verts, faces, fmat, objects, uvs, texture_list, normals, normal_faces = [], [], [], [], [], [], [], []
+    offset = face_offset = normal_offset = 0
     triangles = 0
     for i, o in enumerate(objs):
         t = _Table(path, f"[[objects]][{i}]", o)
@@ -886,13 +959,16 @@ def _parse(doc, path: str, base: str) -> Scene:
             if not object_name or any(ob.name == object_name for ob in objects):
                 t.fail("name", f"must be a non-empty name no other object has, got {shown(object_name)}")
         name = t.get("material", "str")
-        v, f, parts = _shape(t, base, files, file_materials=name is None)
+        v, f, n, rows, parts = _shape(t, base, files, file_materials=name is None)
+        flat = t.get("face_normals", "bool", False)
         triangles += len(f)
         if triangles > MAX_TRIANGLES:
             raise SceneError(path, t.name, f"the objects up to this one make more than {MAX_TRIANGLES} triangles; "
                                            f"at most {MAX_TRIANGLES} are supported (about 390 bytes each)")
-        local, rotate, translate = _transform(t, v)
+        local, rotate, translate, scale = _transform(t, v)
         v = local @ rotation(rotate).T + translate
+        # normals go with the inverse transpose of the scale (then the rotation)
+        local_n = np.zeros((0, 3)) if flat else meshes.unit_rows(n / scale)
         uv = None
         if name is not None and name not in index:
             t.fail("material", f"unknown material {name!r}")
@@ -905,10 +981,15 @@ def _parse(doc, path: str, base: str) -> Scene:
         t.done()
         good = _good_triangles(path, t.name, v, f)
         f, fm = f[good], fm[good]
+        rows = np.full((len(f), 3), -1, np.int64) if flat else rows[good] + normal_offset
         objects.append(SceneObject(object_name, i, local, f.astype(np.int32), rotate, translate, int(fm[0]),
-                                   (face_offset, face_offset + len(f)), (offset, offset + len(v))))
+                                   (face_offset, face_offset + len(f)), (offset, offset + len(v)), local_n,
+                                   (normal_offset, normal_offset + len(local_n))))
         verts.append(v)
         uvs.append(uv)
+        normals.append(local_n @ rotation(rotate).T)
+        normal_faces.append(rows)
+        normal_offset += len(local_n)
         faces.append(f + offset)
         fmat.append(fm)
         offset += len(v)
@@ -926,7 +1007,9 @@ def _parse(doc, path: str, base: str) -> Scene:
     return Scene(path, width, height, spp, strategy, seed, camera, environment, vertices,
                  np.concatenate(faces).astype(np.int32) if faces else np.zeros((0, 3), np.int32),
                  np.concatenate(fmat) if fmat else np.zeros(0, np.int32), materials, options, digest.hexdigest(),
-                 files, objects, texture_list, vertex_uv)
+                 files, objects, texture_list, vertex_uv,
+                 np.concatenate(normals).astype(np.float32) if normals else np.zeros((0, 3), np.float32),
+                 np.concatenate(normal_faces).astype(np.int32) if normal_faces else np.zeros((0, 3), np.int32))
 
 
 def _default_material(materials: list, index: dict) -> str:

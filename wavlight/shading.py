@@ -3,7 +3,9 @@
 :class:`KernelShader` uploads the environment (texels, rotation), the light tree,
 the material table and the face normals once, then shades each batch of camera rays
 with one launch of the ``shade_rays`` kernel (eight rays per work-item): misses see
-the environment; each hit gets its shading frame and, per strategy sample (two for
+the environment; each hit gets its shading frame (the shading normal interpolated at embree's
+barycentrics, the geometric normal for the shadow rays' origin and for which directions may
+carry light: docs/decisions/shading-normals.md) and, per strategy sample (two for
 MIS; the light or product sample walks its tree in the kernel), a direction, its
 unoccluded estimate and the shadow ray's origin. Its numpy twin is
 :func:`shade_rays_reference` around :func:`wavlight.strategies.shade_reference`;
@@ -99,7 +101,7 @@ class KernelShader:
                 sizes["RIS_SLOTS"] = self.slots = int(strategy.slots)
         self._tables = (self.kind, self.param, self.albedo, self.table, self.kappa, self.levels_per_material,
                         self.texels, *self.env_size, self.rot, self.tree)
-        self._geometry = None
+        self._geometry = self._smooth = None
         self.textured = bool(getattr(scene, "textured", False)) and tracer is not None
         if tracer is not None:   # face normals and materials for shade_rays (a dummy row without faces)
             rows = np.zeros((max(len(tracer.face_normals), 1), 4), np.float32)   # normal, offset floor
@@ -107,6 +109,10 @@ class KernelShader:
             rows[:len(tracer.face_normals), 3] = tracer.face_offset_floor
             materials = scene.face_material if len(scene.face_material) else np.zeros(1, np.int32)
             self._geometry = (cl.to_device(rows), cl.to_device(np.asarray(materials, np.int32)))
+            corners = tracer.corner_normals if len(tracer.corner_normals) else np.zeros((1, 3), np.int32)
+            self._smooth = (cl.to_device(np.ascontiguousarray(corners, np.int32)),
+                            cl.to_device(np.ascontiguousarray(tracer.shading_normals, np.float32)),
+                            np.int32(tracer.smooth))
         # base-colour textures (kernels/texture.h): the faces' texture coordinates, each material's
         # texture and the scene's texels in one buffer, uploaded once; dummies without textures
         if self.textured:
@@ -121,14 +127,16 @@ class KernelShader:
         if getattr(strategy, "heuristic", "power") == "balance":
             sizes["MIS_BALANCE"] = 1
         sizes["OFFSET_RELATIVE"] = repr(float(np.float32(raytrace.OFFSET_RELATIVE)))   # shadow-ray offsets
+        sizes["SMOOTH_MIN_LENGTH2"] = repr(float(np.float32(raytrace.SMOOTH_MIN_LENGTH2))) + "f"
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds,
                                   **sizes)
         self.warm_up()
 
-    def __call__(self, n, wo, material, u, with_offset=False, tint=None, **_):
-        """Shading points given directly (the ``shade`` kernel; tests): world normals n and view
-        directions wo (N, 3), material ids (N,), uniforms u (N, 4), ``tint`` (N, 3) multiplying
-        each point's albedo (a texture's value there; None: 1) -> wi, value (N, S, 3) (S =
+    def __call__(self, n, wo, material, u, g=None, with_offset=False, tint=None, **_):
+        """Shading points given directly (the ``shade`` kernel; tests): world shading normals n,
+        geometric normals g (default n; both facing the viewer) and view directions wo (N, 3),
+        material ids (N,), uniforms u (N, 4), ``tint`` (N, 3) multiplying each point's albedo (a
+        texture's value there; None: 1) -> wi, value (N, S, 3) (S =
         ``slots``: 2, or 4 for the wavelet strategy's ``slots=4``), and
         with ``with_offset`` the estimates' part without a shadow ray, offset (N, 3) (the
         point's estimate is offset + the values of its visible slots)."""
@@ -142,6 +150,7 @@ class KernelShader:
         off_buf = cl.scratch("offset", count * 12)
         cl.kernel(self.program, "shade")(
             q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("normal", np.asarray(n, np.float32), q),
+            cl.upload("geometric", np.asarray(n if g is None else g, np.float32), q),
             cl.upload("wo", np.asarray(wo, np.float32), q),
             cl.upload("material", np.asarray(material, np.int32), q),
             cl.upload("tint", np.asarray(tint if tint is not None else np.ones((1, 3)), np.float32), q),
@@ -159,7 +168,7 @@ class KernelShader:
         distance t (N,), with uniforms u: an (N, 4) array, or an :class:`rng.Stream` whose
         SHADING numbers the kernel draws itself (stratified as the stream says); ``bary`` (N, 2):
         embree's barycentric (u, v) of the hits (RayTracer.intersect_uv), needed where the scene
-        has textures. One
+        has textures (None: every face shaded flat). One
         ``shade_rays`` launch into the thread's reusable buffers (the global size padded to the
         fixed work-group size: PoCL compiles once per work-group size, done in warm_up)."""
         if self._geometry is None:
@@ -182,12 +191,14 @@ class KernelShader:
             else:
                 draw = (np.int32(0), *(np.uint32(0),) * 5)
                 u_buf = cl.upload("u", np.asarray(u, np.float32), q)
+            smooth = self._smooth[2] if bary is not None else np.int32(0)
+            bary_buf = (cl.upload("bary", np.asarray(bary, np.float32), q) if bary is not None and (smooth or self.textured)
+                        else self.tree)   # (not read when flat and untextured)
             cl.kernel(self.program, "shade_rays")(
                 q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), cl.upload("dirs", np.asarray(d, np.float32), q),
                 cl.upload("prim", np.asarray(prim, np.int32), q), cl.upload("tfar", np.asarray(t, np.float32), q),
-                *np.asarray(eye, np.float32), raytrace.RayTracer.eye_offset_floor(eye), *self._geometry,
-                cl.upload("bary", np.asarray(bary, np.float32), q) if self.textured else self._textures[0],
-                *self._textures, u_buf, *draw, np.uint32(count), *self._tables, *bufs)
+                *np.asarray(eye, np.float32), raytrace.RayTracer.eye_offset_floor(eye), *self._geometry, bary_buf,
+                *self._smooth[:2], smooth, *self._textures, u_buf, *draw, np.uint32(count), *self._tables, *bufs)
         origin, wi, value, direct = (cl.read(b, shape, np.float32, q) for b, shape in
                                      zip(bufs, ((count, 3), (count, S, 3), (S, 3, count), (3, count))))
         return ShadedRays(direct, origin, wi, value)
@@ -214,12 +225,13 @@ class KernelShader:
 
 def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u, bary=None) -> ShadedRays:
     """numpy twin of ``shade_rays`` in kernels/shade.cl, around a shader of points
-    ``shade(n, wo, material, u, p=..., with_offset=True, tint=...) -> wi, value (M, S, 3), offset
-    (M, 3)``, with u an (N, 4) array or an :class:`rng.Stream` (its SHADING numbers, as the kernel
-    draws them): misses see the environment; hits take their face normal flipped towards the
-    viewer, their face's material (in a textured scene its texture at the hit, from embree's
-    barycentric ``bary`` (N, 2): Scene.albedo_at), the offset as their direct part, and shadow
-    rays from the hit point moved ``tracer.shadow_offsets`` along that normal."""
+    ``shade(n, wo, material, u, p=..., g=..., with_offset=True, tint=...) -> wi, value (M, S, 3),
+    offset (M, 3)``, with u an (N, 4) array or an :class:`rng.Stream` (its SHADING numbers, as the
+    kernel draws them): misses see the environment; hits take their shading normal
+    (``tracer.hit`` at embree's barycentric ``bary`` (N, 2); without them the face normal) and
+    their face normal, both flipped towards the viewer, their face's material (in a textured
+    scene its texture at the hit: Scene.albedo_at), the offset as their direct part, and shadow
+    rays from the hit point moved ``tracer.shadow_offsets`` along the face normal."""
     d = np.asarray(d, np.float32)
     prim = np.asarray(prim)
     count = len(d)
@@ -231,18 +243,23 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u, bary=None) ->
     direct[:, miss] = scene.environment.eval(d[miss].astype(np.float64)).T
     face = prim[hit]
     origin = np.zeros((count, 3), np.float32)
-    n, p, origin[hit] = tracer.surface(eye, d[hit], np.asarray(t, np.float32)[hit], face)
+    if bary is not None and tracer.smooth:
+        b = np.asarray(bary)[hit]
+        n, g, p, origin[hit] = tracer.hit(eye, d[hit], np.asarray(t, np.float32)[hit], face, b[:, 0], b[:, 1])
+    else:
+        n, p, origin[hit] = tracer.surface(eye, d[hit], np.asarray(t, np.float32)[hit], face)
+        g = n
     if len(hit):
         tint = None
         if getattr(scene, "textured", False):
             if bary is None:
                 raise ValueError("shade_rays_reference: a textured scene needs the hits' barycentric coordinates")
             b = np.asarray(bary, np.float32)[hit]
-            uv = textures.hit_uv(textures.face_uv(scene.faces, scene.vertex_uv), face, b[:, 0], b[:, 1])
+            tex_uv = textures.hit_uv(textures.face_uv(scene.faces, scene.vertex_uv), face, b[:, 0], b[:, 1])
             texels, table = scene.texture_atlas()
-            tint = textures.lookup(texels, table, scene.material_texture[scene.face_material[face]], uv)
-        wi_h, val_h, off_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p, with_offset=True,
-                                   tint=tint)
+            tint = textures.lookup(texels, table, scene.material_texture[scene.face_material[face]], tex_uv)
+        wi_h, val_h, off_h = shade(n, -d[hit], scene.face_material[face], np.asarray(u)[hit], p=p, g=g,
+                                   with_offset=True, tint=tint)
         direct[:, hit] = np.asarray(off_h).T
     else:   # (no call: some shaders do not take zero points)
         wi_h = val_h = np.zeros((0, 2, 3))
@@ -269,7 +286,7 @@ class NumpyShader:
         """Camera rays as in :meth:`KernelShader.shade_rays`, by :func:`shade_rays_reference`."""
         return shade_rays_reference(self, self.scene, self.tracer, eye, d, prim, t, u, bary)
 
-    def __call__(self, n, wo, material, u, p=None, with_offset=False, tint=None):
+    def __call__(self, n, wo, material, u, p=None, g=None, with_offset=False, tint=None):
         """As :meth:`KernelShader.__call__` (``p``: the hit points, for shaders that need them)."""
         sc = self.scene
         n = np.asarray(n, np.float64)
@@ -277,9 +294,10 @@ class NumpyShader:
         albedo = sc.material_albedo[material]
         if tint is not None:
             albedo = albedo * np.asarray(tint, np.float32)
+        g_local = None if g is None else warp.to_local(np.asarray(g, np.float64), s, t, n)
         sp = strategies.ShadingPoints(p, n, s, t, warp.to_local(np.asarray(wo, np.float64), s, t, n),
                                       sc.material_kind[material], sc.material_param[material],
-                                      albedo, np.asarray(material), self.table[material])
+                                      albedo, np.asarray(material), self.table[material], g_local)
         own = getattr(self.strategy, "shade", None)
         if own is not None:
             wi, value = own(sc.environment, sp, np.asarray(u, np.float64))

@@ -160,6 +160,7 @@ def test_a_degenerate_face_in_a_python_built_scene_renders_finite(tmp_path):
     scene = _scene(tmp_path)
     scene.faces = np.concatenate([scene.faces, [[0, 0, 1]]]).astype(np.int32)
     scene.face_material = np.concatenate([scene.face_material, [0]]).astype(np.int32)
+    scene.normal_faces = np.concatenate([scene.normal_faces, [[-1, -1, -1]]]).astype(np.int32)   # shaded flat
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
         image = wavlight.render(scene, spp=2)

@@ -118,6 +118,7 @@ def test_shade_kernel_equals_its_twin(bakes, ball, candidates, coherence, contro
     d = camera.pass_rays(scene, tr.width, tr.height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k, 0,
                          stratified=True)
     prim, t, bu, bv = frames.tracer.intersect_uv(np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape), d)
+    assert frames.tracer.smooth   # the ball's shading normals, interpolated in both
     bary = np.stack([bu, bv], 1)
     shares = (cm.DEFENSIVE, cm.LIGHT_SHARE, coherence)
     got = frames._shade(prog, slots, d, prim, t, k, 0, trees, spread_buf, state.device, shares, seed, tile_id,

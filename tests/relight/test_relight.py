@@ -109,7 +109,7 @@ def test_sparse_product_equals_the_dense_dot_product(maps, device):
     scene = wavlight.load_dict(sphere_on_floor({"file": "sky.exr"}, width=16, height=16), base_dir=maps)
     tr = wavlight.bake(scene, spp=2, levels=4, terms=256, priority="magnitude", tolerance=1e-6, bits=16, seed=4,
                        points=4)
-    tracer = RayTracer(scene.vertices, scene.faces)
+    tracer = RayTracer(scene.vertices, scene.faces, normals=scene.normals, normal_faces=scene.normal_faces)
     env = scene.environment
     L = lighting.project(env, 4, 75.0)
     image = np.zeros((16, 16, 3))

@@ -161,11 +161,12 @@ def test_the_occlusion_kernel_matches_its_numpy_twin(moving, material):
     slots = np.flatnonzero(cam.prim >= 0)
     trees, offset = mover._product_trees(0, tr.width * tr.height)
     place, box = mover._place(*mover.placement([0.3, 0.5, 0.2], [0.0, 1.0, 0.0, 30.0]))
+    uv = (cam.uv[0][slots], cam.uv[1][slots])
     got = kernels.occlusion(scene.camera.eye, cam.d[slots], cam.prim[slots], cam.t[slots], slots, trees, offset, spp,
-                            seed, tile, first, place, box)
+                            seed, tile, first, place, box, uv=uv)
     want = mv.occlusion_records_reference(rest, mover.rest_tracer, mover.environment, mover.inside, trees,
                                           cam.d[slots], cam.prim[slots], cam.t[slots], slots, spp, 4, seed, tile,
-                                          first, place, box, offset)
+                                          first, place, box, offset, uv=uv)
     assert len(want.sample) > 200 and abs(len(got.sample) - len(want.sample)) <= 0.01 * len(want.sample)
     # the records of the same sample and direction agree
     common, ig, iw = np.intersect1d(got.sample * 4 + got.j, want.sample * 4 + want.j, return_indices=True)
@@ -192,19 +193,22 @@ def test_the_points_kernel_matches_its_numpy_twin(moving):
     spp, seed, tile, first = 8, 11, 77, 16
     cam = mover._camera(0, 0, tr.width * tr.height, spp, seed)
     slots = np.flatnonzero(np.repeat(mover._object_pixels(R, T, tr.width, tr.height).reshape(-1), spp))
-    d, prim, t = cam.d[slots], cam.prim[slots], cam.t[slots]
-    prim_o, t_o = mover._trace_object(R, T, scene.camera.eye.astype(np.float32), d, closest=True)
+    d, prim, t, uv = cam.d[slots], cam.prim[slots], cam.t[slots], (cam.uv[0][slots], cam.uv[1][slots])
+    prim_o, t_o, uv_o = mover._trace_object(R, T, scene.camera.eye.astype(np.float32), d, closest=True)
+    assert mover.object_tracer.smooth   # the ball's shading normals, in its own frame, turned with it
     place, _ = mover._place(R, T)
     got, got_mat = mover._kernels.points(scene.camera.eye, d, prim, t, prim_o, t_o, slots, place, mover.object.material,
-                                         1e-6, spp, seed, tile, first)
+                                         1e-6, spp, seed, tile, first, uv=uv, uv_object=uv_o)
     want, want_mat = mv.shading_points_reference(mover.rest, mover.rest_tracer, mover.object_tracer,
                                                  mover.object.material, mover.environment, d, prim, t, prim_o, t_o, R,
-                                                 T, 1e-6, slots, spp, seed, tile, first)
+                                                 T, 1e-6, slots, spp, seed, tile, first, uv=uv, uv_object=uv_o)
     on_object = (prim_o >= 0) & ((prim < 0) | (t_o < t))
     assert on_object.sum() > 50 and (~on_object & (prim >= 0)).sum() > 50 and (want_mat < 0).sum() > 0
     np.testing.assert_array_equal(got_mat, want_mat)
     hit = want_mat >= 0
     np.testing.assert_allclose(got[0:6, hit], want[0:6, hit], rtol=0, atol=2e-5)    # normals, origins of hits
+    np.testing.assert_allclose(got[13:16, hit], want[13:16, hit], rtol=0, atol=2e-5)  # face normals
+    assert np.abs(want[0:3, hit] - want[13:16, hit]).max() > 1e-3                   # shading normals differ
     np.testing.assert_array_equal(got[6:10], want[6:10].astype(np.float32))          # the uniforms, bit for bit
     np.testing.assert_allclose(got[10:13], want[10:13], rtol=1e-6)                   # the environment of misses
     # the uniforms are stratified over each pixel's samples: every cell of the 2 x 4 grid once

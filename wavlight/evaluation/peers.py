@@ -3,7 +3,8 @@
 Optional (``pip install 'wavlight[peers]'``; the ``llvm_ad_rgb`` variant needs
 Debian's ``libllvm19``). :func:`render_mitsuba` takes a loaded :class:`Scene` and
 renders it with equivalent settings: pinhole camera (``fov_axis = "y"``), box
-filter, independent sampler, ``twosided`` BSDFs on face-normal meshes, the
+filter, independent sampler, ``twosided`` BSDFs on meshes with the scene's shading
+normals (per corner; ``face_normals`` for the faces shaded flat), the
 environment rotated by ``rotate_y`` about +Y. Strategies: ``mis`` (1 emitter + 1
 BSDF sample), ``mis_comp`` (the same with the envmap's ``mis_compensation``), ``light``
 (emitter only), ``bsdf`` (BSDF only).
@@ -116,35 +117,64 @@ def scene_dict(scene, strategy, width, height, spp, folder, upsample=8):
                          "mis_compensation": strategy == "mis_comp",
                          "to_world": mi.ScalarTransform4f().rotate([0.0, 1.0, 0.0], scene.environment.rotate_y)}}
     approximated = []
+    rows = (np.full((len(scene.faces), 3), -1, np.int64) if scene.normal_faces is None
+            else np.asarray(scene.normal_faces, np.int64))
+    smooth = np.all(rows >= 0, axis=1)
     for index, material in enumerate(scene.materials):
-        faces = scene.faces[scene.face_material == index]
-        if not len(faces):
-            continue
         texture = getattr(material, "texture", -1)
-        if texture >= 0 and scene.vertex_uv is not None:   # an OBJ with its texture coordinates
-            path = os.path.join(folder, f"material_{index}.obj")
-            _write_obj(path, scene.vertices, faces, scene.vertex_uv)
-            bsdf, approx = _bsdf(material, scene.textures[texture])
-            kind = "obj"
-        else:
-            path = os.path.join(folder, f"material_{index}.ply")
-            trimesh.Trimesh(scene.vertices, faces, process=False).export(path)
-            bsdf, approx = _bsdf(material)
-            kind = "ply"
+        textured = texture >= 0 and scene.vertex_uv is not None   # an OBJ with its texture coordinates
+        bsdf, approx = _bsdf(material, scene.textures[texture]) if textured else _bsdf(material)
         if approx:
             approximated.append(material.name)
-        d[f"shape_{index}"] = {"type": kind, "filename": path, "face_normals": True, "bsdf": bsdf}
+        for flat in (True, False):
+            sel = (scene.face_material == index) & (smooth != flat)
+            if not sel.any():
+                continue
+            name = f"material_{index}_{'flat' if flat else 'smooth'}"
+            normals = None if flat else scene.normals[rows[sel]].reshape(-1, 3)
+            if textured:
+                path = os.path.join(folder, name + ".obj")
+                _write_obj(path, scene.vertices, scene.faces[sel], scene.vertex_uv, normals)
+            elif flat:
+                path = os.path.join(folder, name + ".ply")
+                trimesh.Trimesh(scene.vertices, scene.faces[sel], process=False).export(path)
+            else:   # a vertex per corner, with that corner's normal
+                path = os.path.join(folder, name + ".ply")
+                _write_ply(path, scene.vertices[scene.faces[sel]].reshape(-1, 3), normals)
+            d[f"shape_{index}_{int(flat)}"] = {"type": "obj" if textured else "ply", "filename": path,
+                                               "face_normals": flat, "bsdf": bsdf}
     return d, approximated
 
 
-def _write_obj(path, vertices, faces, uv):
-    """The faces' vertices with their texture coordinates as an OBJ (``v``, ``vt``, ``f a/a b/b c/c``)."""
+def _write_obj(path, vertices, faces, uv, normals=None):
+    """The faces' vertices with their texture coordinates as an OBJ (``v``, ``vt``, ``f a/a b/b c/c``),
+    and with ``normals`` (3 F, 3: each corner's) its ``vn`` (``f a/a/i ...``)."""
     used, inverse = np.unique(faces, return_inverse=True)
     local = inverse.reshape(-1, 3) + 1
     with open(path, "w") as fh:
         np.savetxt(fh, vertices[used], fmt="v %.9g %.9g %.9g")
         np.savetxt(fh, uv[used], fmt="vt %.9g %.9g")
-        np.savetxt(fh, np.repeat(local, 2, axis=1), fmt="f %d/%d %d/%d %d/%d")
+        if normals is None:
+            np.savetxt(fh, np.repeat(local, 2, axis=1), fmt="f %d/%d %d/%d %d/%d")
+        else:
+            np.savetxt(fh, normals, fmt="vn %.9g %.9g %.9g")
+            corner = np.arange(1, 3 * len(local) + 1).reshape(-1, 3)
+            rows = np.stack([local, local, corner], axis=2).reshape(len(local), 9)
+            np.savetxt(fh, rows, fmt="f %d/%d/%d %d/%d/%d %d/%d/%d")
+
+
+def _write_ply(path, vertices, normals):
+    """A binary PLY of triangles (0, 1, 2), (3, 4, 5), ... with vertex normals."""
+    n = len(vertices)
+    v = np.zeros(n, [("p", "<f4", 3), ("n", "<f4", 3)])
+    v["p"], v["n"] = vertices, normals
+    f = np.zeros(n // 3, [("c", "u1"), ("i", "<i4", 3)])
+    f["c"], f["i"] = 3, np.arange(n, dtype=np.int32).reshape(-1, 3)
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n"
+              f"property float z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face {n // 3}\n"
+              "property list uchar int vertex_indices\nend_header\n")
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii") + v.tobytes() + f.tobytes())
 
 
 def render_mitsuba(scene, strategy="mis", spp=None, width=None, height=None, seed=None, upsample=8):

@@ -17,14 +17,17 @@ same camera samples again).
 
 Estimator (kernels/relight.cl, bake_texel_rays; numpy twin :func:`texel_rays_reference`):
 one shadow ray per (pixel, texel) pair. The pixel's samples are grouped by the triangle they
-hit (one normal and material per group: :class:`PixelSamples`); the texel gets four points
+hit (one normal and material per group: :class:`PixelSamples`; on a face shaded smooth, where
+the shading normal varies over the triangle, each sample is a group of its own); the texel gets
+four points
 stratified 2 x 2 and uniform in solid angle; f cos is evaluated for every group at every point
 (weighted by the group's share of the pixel's samples), and the ray goes from a sample of the
 group picked with probability f / sum f towards its point; the estimate Omega_t (sum f / 4) V
 is unbiased for the pixel's mean of the texel's four-point quadrature of f cos V over its
 footprint, and exact where V is the same over texel and pixel: only the visibility's variance is
-left, and the cost grows with the triangles a pixel sees, not with its samples. Texels where
-the BRDF is 0 (below the horizon, outside a phong lobe) cost no ray. The texels then go
+left, and the cost grows with the triangles a pixel sees (with its samples on smooth faces).
+Texels where the BRDF is 0 (below the horizon, outside a phong lobe, below the geometric surface:
+docs/decisions/shading-normals.md) cost no ray. The texels then go
 through the Haar transform (:func:`wavlight.haar.forward_cl`), and a block of BLOCK x BLOCK
 pixels is compressed and quantized (:mod:`wavlight.relight.store`).
 """
@@ -60,11 +63,13 @@ BLOCK = store.BLOCK
 class PixelSamples:
     """The camera samples of a tile's P pixels, S each, and their groups.
 
-    A group is the samples of one pixel that hit one triangle (one normal, one material: f
+    A group is the samples of one pixel that hit one flat triangle (one normal, one material: f
     depends on the sample only through its view direction, whose spread over a pixel is
-    negligible), so a texel needs one BRDF evaluation per group and point, not per sample.
-    Group j of pixel p sits at p S + j (count[p] of them): normal, wo (its members' mean
-    view direction), kind, param, weight (sum of its members' albedo ratios / S), first and
+    negligible), or one sample on a smooth face (its own shading normal), so a texel needs one
+    BRDF evaluation per group and point, not per sample.
+    Group j of pixel p sits at p S + j (count[p] of them): normal (the shading normal),
+    geometric (the face's normal towards the viewer: no light from below it), wo (its members'
+    mean view direction), kind, param, weight (sum of its members' albedo ratios / S), first and
     size (its members: members[p S + first .. + size - 1], sample indices p S + s).
 
     origin (P S, 3) float32: each sample's shadow-ray origin; albedo (P, 3) float32 a_p;
@@ -75,6 +80,7 @@ class PixelSamples:
     samples: int
     count: np.ndarray
     normal: np.ndarray
+    geometric: np.ndarray
     wo: np.ndarray
     kind: np.ndarray
     param: np.ndarray
@@ -113,16 +119,14 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
     px, py = np.repeat(px, S), np.repeat(py, S)
     eye, d = camera_rays(scene, px, py, camera_jitter(seed, tile, P, S), width, height)
     textured = getattr(scene, "textured", False)
-    if textured:   # the texture's albedo at each hit needs embree's barycentric coordinates
-        prim, t, bu, bv = tracer.intersect_uv(eye, d)
-    else:
-        prim, t = tracer.intersect(eye, d)
+    prim, t, bu, bv = tracer.intersect_uv(eye, d)
     hit = prim >= 0
     normal = np.zeros((count, 3), np.float32)
+    geometric = np.zeros((count, 3), np.float32)
     origin = np.zeros((count, 3), np.float32)
     if hit.any():
-        n, _, o = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
-        normal[hit], origin[hit] = n, o
+        normal[hit], geometric[hit], _, origin[hit] = tracer.hit(scene.camera.eye, d[hit], t[hit], prim[hit], bu[hit],
+                                                                 bv[hit])
     mat = np.where(hit, scene.face_material[np.maximum(prim, 0)] if len(scene.face_material) else 0, 0)
     albedo_s = np.where(hit[:, None], scene.material_albedo[mat], 0.0)
     if textured and hit.any():   # the sample's albedo times its material's texture there
@@ -132,13 +136,16 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
     lum_p = np.repeat(albedo @ LUMINANCE, S)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(lum_p > 0, (albedo_s @ LUMINANCE) / lum_p, 0.0)
-    # groups: a pixel's hits on one triangle, in order of (pixel, triangle)
+    # groups: a pixel's hits on one flat triangle, or one hit on a smooth face, in order of
+    # (pixel, triangle or sample)
     sample = np.arange(count)
     live = sample[hit]
-    order = live[np.lexsort((prim[live], live // S))]
+    smooth = np.any(tracer.corner_normals[np.maximum(prim, 0)] < len(tracer.shading_normals) - 1, axis=1)
+    key = np.where(smooth, tracer.n_faces + sample, prim).astype(np.int64)
+    order = live[np.lexsort((key[live], live // S))]
     pixel_of = order // S
     new = np.ones(len(order), bool)
-    new[1:] = (pixel_of[1:] != pixel_of[:-1]) | (prim[order][1:] != prim[order][:-1])
+    new[1:] = (pixel_of[1:] != pixel_of[:-1]) | (key[order][1:] != key[order][:-1])
     starts = np.flatnonzero(new)
     sizes = np.diff(np.append(starts, len(order)))
     gpix = pixel_of[starts]
@@ -154,6 +161,8 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
     size[slot] = sizes
     g_normal = np.zeros((count, 3), np.float32)
     g_normal[slot] = normal[order[starts]]
+    g_geometric = np.zeros((count, 3), np.float32)
+    g_geometric[slot] = geometric[order[starts]]
     wo_sum = np.add.reduceat(-d[order].astype(np.float64), starts, axis=0) if len(order) else np.zeros((0, 3))
     g_wo = np.zeros((count, 3), np.float32)
     g_wo[slot] = wo_sum / np.linalg.norm(wo_sum, axis=1, keepdims=True)
@@ -165,8 +174,8 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
     g_weight[slot] = (np.add.reduceat(ratio[order], starts) if len(order) else np.zeros(0)) / S
     missed = (~hit).reshape(P, S).astype(np.uint64)
     mask = (missed << np.arange(S, dtype=np.uint64)).sum(1, dtype=np.uint64)
-    return PixelSamples(S, group_count, g_normal, g_wo, g_kind, g_param, g_weight, first, size, members,
-                        origin, albedo, mask, d)
+    return PixelSamples(S, group_count, g_normal, g_geometric, g_wo, g_kind, g_param, g_weight, first, size,
+                        members, origin, albedo, mask, d)
 
 
 #: points per texel where f cos is evaluated (kernels/relight.cl TEXEL_POINTS): g x g strata
@@ -217,6 +226,7 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
         on = j < groups
         gj = p * S + j
         n = ps.normal[gj].astype(np.float64)
+        geo = ps.geometric[gj].astype(np.float64)
         sx, tx = tangent_frame(np.where(on[:, None], n, [0.0, 0.0, 1.0]))
         wo_w = ps.wo[gj].astype(np.float64)
         wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (sx, tx, n)], 1)
@@ -227,7 +237,7 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
             for kd in np.unique(kind[on]):   # material kinds, not pairs
                 sel = on & (kind == kd)
                 f[sel] = bsdfs.eval_cos(int(kd), param[sel], wi[sel], wo[sel])
-            f = np.where(on & np.isfinite(f) & (f > 0), f * c, 0.0)
+            f = np.where(on & np.isfinite(f) & (f > 0) & (np.einsum("ij,ij->i", d, geo) > 0), f * c, 0.0)
             grown = total + f
             take = rng.step_uniforms(key, step).astype(np.float64) * grown < f
             step += 1
@@ -257,8 +267,8 @@ def texel_rays(ps: PixelSamples, n_levels: int, seed: int, tile: int, bsdf_kinds
     cl.kernel(prog, "bake_texel_rays")(
         queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(0),
         np.uint32(n_levels), np.uint32(ps.samples), np.uint32(tile), np.uint32(k0), np.uint32(k1),
-        *(cl.to_device(a) for a in (ps.count, ps.normal, ps.wo, ps.kind, ps.param, ps.weight, ps.first, ps.size,
-                                    ps.members)), dirs, weights, picks)
+        *(cl.to_device(a) for a in (ps.count, ps.normal, ps.geometric, ps.wo, ps.kind, ps.param, ps.weight,
+                                    ps.first, ps.size, ps.members)), dirs, weights, picks)
     return (cl.read(dirs, (count, 3), np.float32, queue), cl.read(weights, (count,), np.float32, queue),
             cl.read(picks, (count,), np.uint32, queue))
 
@@ -328,7 +338,8 @@ class _Worker:
 
     def __init__(self, scene):
         self.scene = scene
-        self.tracer = RayTracer(scene.vertices, scene.faces, threads=1)
+        self.tracer = RayTracer(scene.vertices, scene.faces, threads=1, normals=scene.normals,
+                                normal_faces=scene.normal_faces)
         self.kinds = int(np.bitwise_or.reduce(1 << np.unique(scene.material_kind))) if len(scene.materials) else 1
 
 

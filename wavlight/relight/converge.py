@@ -294,7 +294,7 @@ class ConvergeFrames:
         self.scene = _scene_of(transfer, scene)
         t0 = time.perf_counter()
         sc = self.scene
-        self.tracer = RayTracer(sc.vertices, sc.faces, threads=1)
+        self.tracer = RayTracer(sc.vertices, sc.faces, threads=1, normals=sc.normals, normal_faces=sc.normal_faces)
         self.hit_scale = hit_scales(transfer).astype(np.float32)
         #: the trees' scale: c, and 0 where every camera sample of the bake missed (no transfer: no tree)
         self.tree_scale = np.where(bake_hits(transfer) > 0, self.hit_scale, 0.0).astype(np.float32)
@@ -444,7 +444,6 @@ class ConvergeFrames:
         shares = (defensive, light, coherence)
         eye = np.broadcast_to(self.scene.camera.eye.astype(np.float32), (1, 3))
         spread_rays = self._spread_rays
-        textured = self.scene.textured
 
         def one(tile, stop):
             trees, was_kept = self.tile_trees(state, tile, prog)
@@ -464,12 +463,8 @@ class ConvergeFrames:
                 k = min(per_pass, spp - first)
                 d = camera.pass_rays(self.scene, width, height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k,
                                      first * P, kernel=self.backend == "opencl", stratified=True)
-                bary = None
-                if textured:   # the texture's albedo at each hit: embree's barycentric (u, v)
-                    prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
-                    bary = np.stack([bu, bv], axis=1)
-                else:
-                    prim, t = self.tracer.intersect(np.broadcast_to(eye, d.shape), d)
+                prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
+                bary = np.stack([bu, bv], axis=1)   # the shading normals and textures at the hits
                 rays += len(d)
                 if self.backend == "opencl":
                     direct, origin, wi, value = self._shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
@@ -979,10 +974,11 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     (L the map's pixel, :meth:`_TexelLight.radiance`), and with ``control`` direct =
     albedo (G - sum of g / pdf / slots), g = :func:`transfer_from_trees` L; or, where its pixel's
     spread exceeds ``coherence`` times its lobe's width, ``slots`` picks among ``candidates``
-    mixture directions by resampled importance sampling (:func:`resample_reference`). In a
-    textured scene the albedo is the hit's (Scene.albedo_at, ``bary`` (N, 2) embree's barycentric
-    (u, v)). Returns direct (N, 3), origin (N, 3), wi (S, 3, N), value (S, 3, N) float64, the
-    kernel's planes."""
+    mixture directions by resampled importance sampling (:func:`resample_reference`). Hits are
+    shaded with their shading normals and, in a textured scene, the hit's albedo
+    (Scene.albedo_at), both at ``bary`` (N, 2) embree's barycentric (u, v) of the hits (None:
+    every face flat). Returns direct (N, 3), origin (N, 3), wi (S, 3, N), value (S, 3, N)
+    float64, the kernel's planes."""
     N = len(d)
     seed, tile = key
     direct, origin = np.zeros((N, 3)), np.zeros((N, 3))
@@ -992,7 +988,7 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     hit = np.flatnonzero(prim >= 0)
     if not len(hit):
         return direct, origin, wi, value
-    hits = _Hits.of(scene, tracer, d, t, prim, hit, k)
+    hits = _Hits.of(scene, tracer, d, t, prim, hit, k, bary)
     origin[hit] = hits.origin
     has_p = np.asarray(nodes)[hits.pixel, 0] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)
@@ -1014,7 +1010,8 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
         for slot in range(slots):   # directions per camera sample, not samples
             u_all = lattice(u_sample, slot)
             direction, weight, pdf = mixture_directions(trees, inside, u_all, sub.index, k, has_p[mix], alpha[mix],
-                                                        sub.kind, sub.param, sub.wo, sub.axes, light, with_pdf=True)
+                                                        sub.kind, sub.param, sub.wo, sub.axes, light, with_pdf=True,
+                                                        geometric=sub.geometric)
             uv = world_to_square(direction)
             radiance = inside.radiance(uv)
             wi[slot][:, sub.index] = direction.T
@@ -1058,7 +1055,7 @@ def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp
     cand = hits.candidates(m)
     direction, weight, pdf = mixture_directions(trees, inside, u, cand.index, spp * m, np.repeat(has_p, m),
                                                 np.repeat(alpha, m), cand.kind, cand.param, cand.wo, cand.axes, light,
-                                                with_pdf=True)
+                                                with_pdf=True, geometric=cand.geometric)
     fcos = weight * pdf
     uv = world_to_square(direction)
     radiance = inside.radiance(uv)
@@ -1080,7 +1077,7 @@ def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp
 
 
 def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: int, key, environment,
-                     defensive: float, slots: int, light: float = 0.0, first: int = 0):
+                     defensive: float, slots: int, light: float = 0.0, first: int = 0, uv=None):
     """The radiance (len(hit), 3) of the camera samples ``hit`` (of spp per pixel, directions
     ``d`` with hits ``prim`` at ``t``) from ``slots`` directions each of the defensive mixture
     (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
@@ -1088,11 +1085,11 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     f cos, ``environment``'s radiance and a shadow ray; the uniforms are Philox stream
     (``key`` = (seed, tile), rng.CONVERGE_DIRECTIONS[slot]), from sample ``first`` of the tile
     on. The mixture alone, in numpy (the view bake's unbiased frame, :mod:`.view`; the lighting
-    bake's runs in kernels/converge.cl, twin :func:`shade_reference`). Returns it and the rays
-    traced."""
+    bake's runs in kernels/converge.cl, twin :func:`shade_reference`); ``uv`` the barycentrics of
+    the rays' hits, for the shading normals (None: flat). Returns it and the rays traced."""
     if slots > MAX_SLOTS:   # one stream per slot
         raise ArgumentError(f"relight.shade_by_mixture: at most {MAX_SLOTS} slots, got {slots}")
-    hits = _Hits.of(scene, tracer, d, t, prim, hit, spp)
+    hits = _Hits.of(scene, tracer, d, t, prim, hit, spp, None if uv is None else np.stack(uv, axis=1))
     has_p = mass[hits.pixel] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)   # pixels without a product: the BSDF and the lighting
     total = np.zeros((len(hit), 3))
@@ -1100,7 +1097,7 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
     for slot in range(slots if len(hit) else 0):   # directions per camera sample, not samples
         u_all = rng.uniforms(*key, rng.CONVERGE_DIRECTIONS[slot], first, len(d))
         direction, weight = mixture_directions(trees, inside, u_all, hits.index, spp, has_p, alpha, hits.kind,
-                                               hits.param, hits.wo, hits.axes, light)
+                                               hits.param, hits.wo, hits.axes, light, geometric=hits.geometric)
         weight = weight / slots
         live = np.flatnonzero(weight > 0)
         blocked = tracer.occluded(hits.origin[live], direction[live].astype(np.float32))
@@ -1111,7 +1108,8 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
 
 class _Hits(NamedTuple):
     """Camera samples that hit: their index among the tile's samples, pixel, shading frame
-    (s, t, n: the face normal turned to the viewer), view in it, shadow-ray origin, material."""
+    (s, t, n: the shading normal turned to the viewer), view in it, shadow-ray origin, material,
+    the geometric normal turned to the viewer (directions below it carry no light)."""
 
     index: np.ndarray
     pixel: np.ndarray
@@ -1121,20 +1119,27 @@ class _Hits(NamedTuple):
     mat: np.ndarray
     kind: np.ndarray
     param: np.ndarray
+    geometric: np.ndarray
 
     @classmethod
-    def of(cls, scene, tracer, d, t, prim, hit, spp: int):
-        nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+    def of(cls, scene, tracer, d, t, prim, hit, spp: int, bary=None):
+        """``bary`` (N, 2): embree's barycentrics of all the rays (None: every face flat)."""
+        if bary is not None and tracer.smooth:
+            b = np.asarray(bary)[hit]
+            nrm, geo, _, origin = tracer.hit(scene.camera.eye, d[hit], t[hit], prim[hit], b[:, 0], b[:, 1])
+        else:
+            nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
+            geo = nrm
         nrm = nrm.astype(np.float64)
         s_ax, t_ax = tangent_frame(nrm)
         wo = to_local(-d[hit].astype(np.float64), s_ax, t_ax, nrm)
         mat = scene.face_material[prim[hit]]
         return cls(np.asarray(hit), np.asarray(hit) // spp, (s_ax, t_ax, nrm), wo, origin, mat,
-                   scene.material_kind[mat], scene.material_param[mat])
+                   scene.material_kind[mat], scene.material_param[mat], geo.astype(np.float64))
 
     def subset(self, sel):
         return _Hits(self.index[sel], self.pixel[sel], tuple(a[sel] for a in self.axes), self.wo[sel],
-                     self.origin[sel], self.mat[sel], self.kind[sel], self.param[sel])
+                     self.origin[sel], self.mat[sel], self.kind[sel], self.param[sel], self.geometric[sel])
 
     def candidates(self, m: int):
         """Each sample m times in a row, the candidates of :func:`shade_by_resampling`: their
@@ -1157,13 +1162,14 @@ def resampling_target(fcos, radiance, transfer):
 
 
 def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes,
-                       light: float = 0.0, with_pdf: bool = False):
+                       light: float = 0.0, with_pdf: bool = False, geometric=None):
     """Directions of the defensive mixture and their weights, for the samples ``hit`` of
     ``len(u_all)`` (spp per pixel, each pixel's product tree in ``trees``): with probability
     1 - alpha - light the product (its tree by the hierarchical warp, eq. 17-22, then inside
     the texel by the lighting, ``inside``), with probability alpha the BSDF, with probability
     ``light`` the lighting alone (:meth:`_TexelLight.sample_light`: where a noisy transfer
-    hides a bright light, the lighting still finds it); ``axes`` (s, t, n) the hits' tangent
+    hides a bright light, the lighting still finds it); ``geometric`` the hits' geometric normals
+    (f cos = 0 below them: docs/decisions/shading-normals.md); ``axes`` (s, t, n) the hits' tangent
     frames, ``wo`` the view in them. The pdf is the mixture's, every technique's at the chosen
     direction, so that f cos / pdf is unbiased. Returns unit directions (N, 3) and f cos / pdf
     (N,) (0 where either is 0 or not finite); with ``with_pdf`` also the mixture's pdf (N,) per solid
@@ -1188,6 +1194,8 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
     p_prod = np.where(has_product, p_tree.astype(np.float64) * inside.factor(uv), 0.0) * solid_angle_jacobian(direction)
     wl = to_local(direction, s_ax, t_ax, nrm)
     fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
+    if geometric is not None:
+        fcos = np.where(np.einsum("ij,ij->i", direction, geometric) > 0, fcos, 0.0)
     pdf = (1 - alpha - light) * p_prod + alpha * p_bsdf
     if light > 0:
         pdf = pdf + light * inside.light_pdf(uv) * solid_angle_jacobian(direction)

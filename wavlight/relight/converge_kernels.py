@@ -132,9 +132,10 @@ class TreeKernel:
 
 
 class ShadeKernel:
-    """converge_shade for one scene: its face normals (and shadow-ray offset floors), materials,
-    their albedos and lobe widths on the device, and in a textured scene (``textured``) the
-    faces' texture coordinates, the materials' textures and the texels (wavlight.textures)."""
+    """converge_shade for one scene: its face normals (and shadow-ray offset floors), the shading
+    normals' corner rows and table, materials, their albedos and lobe widths on the device, and in
+    a textured scene (``textured``) the faces' texture coordinates, the materials' textures and
+    the texels (wavlight.textures)."""
 
     def __init__(self, scene, tracer: RayTracer, lobe_width: np.ndarray):
         rows = np.zeros((max(len(tracer.face_normals), 1), 4), np.float32)
@@ -145,6 +146,9 @@ class ShadeKernel:
         albedo[:, :3] = scene.material_albedo
         self.eye = np.asarray(scene.camera.eye, np.float32)
         self.eye_offset = RayTracer.eye_offset_floor(scene.camera.eye)
+        corners = tracer.corner_normals if len(tracer.corner_normals) else np.zeros((1, 3), np.int32)
+        self.smooth = (cl.to_device(np.ascontiguousarray(corners, np.int32)),
+                       cl.to_device(np.ascontiguousarray(tracer.shading_normals, np.float32)), np.int32(tracer.smooth))
         self.tables = (cl.to_device(rows), cl.to_device(np.asarray(materials, np.int32)),
                        cl.to_device(scene.material_kind.astype(np.int32)),
                        cl.to_device(scene.material_param.astype(np.float32)), cl.to_device(albedo),
@@ -165,8 +169,9 @@ class ShadeKernel:
         """One pass of a tile: camera rays along d (N, 3) from the eye that hit prim (N,) (-1: a miss)
         at t (N,), k samples per pixel, pixel-major, the pass's first sample index ``first`` of
         the tile (``tile``: its Philox tile); ``bary`` (N, 2) embree's barycentric (u, v) of the
-        hits, needed in a textured scene. ``spread`` the tile pixels' footprint spreads on
-        the device, ``shares`` (defensive, light, coherence). Returns float32 direct (N, 3),
+        hits, for the shading normals and needed in a textured scene (None: every face flat).
+        ``spread`` the tile pixels' footprint spreads on the device, ``shares`` (defensive, light,
+        coherence). Returns float32 direct (N, 3),
         origin (N, 3), wi (S, 3, N) and value (S, 3, N) (planes: slot, component, sample)."""
         queue = queue or cl.thread_queue()
         count = len(d)
@@ -175,15 +180,17 @@ class ShadeKernel:
         if self.textured and bary is None and count:
             raise ValueError("converge ShadeKernel: a textured scene needs the hits' barycentric coordinates (bary)")
         if count:
-            bary_buf = (cl.upload("converge_bary", np.asarray(bary, np.float32), queue) if self.textured
-                        else self.texture_tables[0])
             defensive, light, coherence = shares
+            smooth = self.smooth[2] if bary is not None else np.int32(0)
+            bary_buf = (cl.upload("converge_bary", np.asarray(bary, np.float32), queue)
+                        if bary is not None and (smooth or self.textured) else self.smooth[1])   # (not read)
             cl.kernel(prog, "converge_shade")(
                 queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(k),
                 np.uint32(first), cl.upload("converge_dirs", np.asarray(d, np.float32), queue),
                 cl.upload("converge_prim", np.asarray(prim, np.int32), queue),
-                cl.upload("converge_t", np.asarray(t, np.float32), queue), *self.eye, self.eye_offset, *self.tables,
-                bary_buf, *self.texture_tables, trees.buffer, np.uint32(tree_stride(trees.levels)), trees.relit, spread,
+                cl.upload("converge_t", np.asarray(t, np.float32), queue), *self.eye, self.eye_offset, *self.tables[:2],
+                bary_buf, *self.smooth, *self.tables[2:], *self.texture_tables, trees.buffer,
+                np.uint32(tree_stride(trees.levels)), trees.relit, spread,
                 lighting.buffers["leaf_masses"], lighting.buffers["omega"], *lighting.light_args(),
                 np.float32(defensive), np.float32(light), np.float32(coherence), np.uint32(tile),
                 np.uint32(rng.CONVERGE_DIRECTIONS[0]), *(np.uint32(x) for x in rng.key(seed)), out)

@@ -179,7 +179,7 @@ class Records(NamedTuple):
 
 def occlusion_records_reference(scene, tracer, environment, inside, trees, d, prim, t, slots, spp: int,
                                 directions: int, seed: int, tile: int, first: int, place, box,
-                                tree_offset: int = 0, defensive: float = DEFENSIVE) -> Records:
+                                tree_offset: int = 0, defensive: float = DEFENSIVE, uv=None) -> Records:
     """numpy twin of the ``moving_occlusion`` kernel (kernels/relight_moving.cl), records in its
     order: for camera rays from ``scene``'s eye along d (N, 3) that hit ``tracer``'s triangles
     prim (N,) at t (N,), samples ``slots`` (N,) of a pass of spp per pixel (pixel slot // spp's
@@ -187,11 +187,18 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
     defensive mixture (:func:`wavlight.relight.converge.mixture_directions`; the BSDF alone where
     the pixel's product is 0), their uniforms :func:`stratified_uniforms` (stream
     rng.MOVING_DIRECTIONS); the records of those whose ray meets the object's box
-    (:func:`meets_box`) with a contribution > 0 (their rays in the object's own frame)."""
+    (:func:`meets_box`) with a contribution > 0 (their rays in the object's own frame). ``uv``: the
+    hits' barycentrics (u, v) for their shading normals (None: flat); no light from below the
+    geometric surface (docs/decisions/shading-normals.md)."""
     nd = directions
     count = len(d)
     eye = scene.camera.eye
-    nrm, _, origin = tracer.surface(eye, np.asarray(d, np.float32), np.asarray(t, np.float32), prim)
+    d32, t32 = np.asarray(d, np.float32), np.asarray(t, np.float32)
+    if uv is not None and tracer.smooth:
+        nrm, geo, _, origin = tracer.hit(eye, d32, t32, prim, uv[0], uv[1])
+    else:
+        nrm, _, origin = tracer.surface(eye, d32, t32, prim)
+        geo = nrm
     nrm = nrm.astype(np.float64)
     s_ax, t_ax = tangent_frame(nrm)
     wo = to_local(-np.asarray(d, np.float64), s_ax, t_ax, nrm)
@@ -208,7 +215,7 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
     rep = lambda a: np.repeat(a, nd, axis=0)   # noqa: E731  (per sample -> per direction)
     direction, weight = mixture_directions(trees, inside, u_all, rows, spp * nd, has, alpha,
                                            rep(scene.material_kind[mat]), rep(scene.material_param[mat]), rep(wo),
-                                           (rep(s_ax), rep(t_ax), rep(nrm)))
+                                           (rep(s_ax), rep(t_ax), rep(nrm)), geometric=rep(geo.astype(np.float64)))
     value = rep(scene.material_albedo[mat]) * (weight[:, None] * environment.eval(direction))
     o = rep(origin.astype(np.float64))
     keep = meets_box(place, box, o, direction) & (weight > 0) & (value.max(1) > 0)
@@ -223,15 +230,18 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
 
 def shading_points_reference(scene, tracer, object_tracer, object_material: int, environment, d, prim, t,
                              prim_object, t_object, R, T, object_offset: float, slots, spp: int, seed: int,
-                             tile: int, first: int):
+                             tile: int, first: int, uv=None, uv_object=None):
     """numpy twin of the ``moving_points`` kernel (kernels/relight_moving.cl): for camera rays
     from ``scene``'s eye along d (N, 3) that hit the rest's triangles prim (N,) at t (N,) and the
     object's (``object_tracer``'s, in its own frame: world = R local + T) prim_object at
-    t_object, the closer one's shading point: planes (13, N) of the normal turned towards the
-    viewer, the shadow-ray origin (the offset of kernels/hit.h, the object's floor
+    t_object, the closer one's shading point: planes (16, N) of the shading normal turned towards
+    the viewer (interpolated at the barycentrics ``uv`` of the rest's hits and ``uv_object`` of
+    the object's, the tracers' :meth:`RayTracer.hit`; None: the face normal), the shadow-ray
+    origin (the offset of kernels/hit.h along the face normal, the object's floor
     ``object_offset``), the four shading uniforms (stream rng.MOVING_MIS, stratified over the
-    pixel's spp samples: :func:`stratified_uniforms`) and the environment's radiance for misses
-    (0 for hits); and the material (N,) (-1 for a miss)."""
+    pixel's spp samples: :func:`stratified_uniforms`), the environment's radiance for misses
+    (0 for hits) and the face normal turned towards the viewer; and the material (N,) (-1 for a
+    miss)."""
     d = np.asarray(d, np.float32)
     prim, prim_object = np.asarray(prim), np.asarray(prim_object)
     t, t_object = np.asarray(t, np.float32), np.asarray(t_object, np.float32)
@@ -239,11 +249,16 @@ def shading_points_reference(scene, tracer, object_tracer, object_material: int,
     eye = np.asarray(scene.camera.eye, np.float32)
     on_object = (prim_object >= 0) & ((prim < 0) | (t_object < t))
     hit = on_object | (prim >= 0)
-    out = np.zeros((13, count))
+    out = np.zeros((16, count))
     material = np.full(count, -1, np.int64)
     rest = np.flatnonzero(hit & ~on_object)
-    n, _, origin = tracer.surface(eye, d[rest], t[rest], prim[rest])
-    out[0:3, rest], out[3:6, rest] = n.T, origin.T
+    if uv is not None and tracer.smooth:
+        n, g, _, origin = tracer.hit(eye, d[rest], t[rest], prim[rest], np.asarray(uv[0])[rest],
+                                     np.asarray(uv[1])[rest])
+    else:
+        n, _, origin = tracer.surface(eye, d[rest], t[rest], prim[rest])
+        g = n
+    out[0:3, rest], out[3:6, rest], out[13:16, rest] = n.T, origin.T, g.T
     material[rest] = scene.face_material[prim[rest]]
     ob = np.flatnonzero(on_object)
     m = (object_tracer.face_normals[prim_object[ob]].astype(np.float64) @ np.asarray(R, np.float64).T)
@@ -251,7 +266,17 @@ def shading_points_reference(scene, tracer, object_tracer, object_material: int,
     p = eye.astype(np.float64) + d[ob] * t_object[ob, None].astype(np.float64)
     eps = np.maximum(np.maximum(raytrace.OFFSET_RELATIVE * np.abs(p).max(1, initial=0.0), object_offset),
                      RayTracer.eye_offset_floor(eye))
-    out[0:3, ob], out[3:6, ob] = m.T, (p + m * eps[:, None]).T
+    out[3:6, ob], out[13:16, ob] = (p + m * eps[:, None]).T, m.T
+    ns = m
+    if uv_object is not None and object_tracer.smooth and len(ob):   # the object's own corner normals, turned
+        c = object_tracer.shading_normals[object_tracer.corner_normals[prim_object[ob]]].astype(np.float64)
+        a, b = np.asarray(uv_object[0], np.float64)[ob, None], np.asarray(uv_object[1], np.float64)[ob, None]
+        s = ((1.0 - a - b) * c[:, 0] + a * c[:, 1] + b * c[:, 2]) @ np.asarray(R, np.float64).T
+        length = np.linalg.norm(s, axis=1, keepdims=True)
+        ok = length ** 2 > raytrace.SMOOTH_MIN_LENGTH2
+        ns = np.where(ok, s / np.where(ok, length, 1.0), m)
+        ns *= np.where(np.einsum("ij,ij->i", ns, d[ob]) > 0, -1.0, 1.0)[:, None]
+    out[0:3, ob] = ns.T
     material[ob] = object_material
     out[6:10] = stratified_uniforms(seed, tile, rng.MOVING_MIS, first, slots, spp).T
     miss = np.flatnonzero(~hit)
@@ -272,7 +297,13 @@ class _MovingKernels:
             out[:len(t.face_normals), 3] = t.face_offset_floor
             return cl.to_device(out)
 
+        def smooth(t):   # the shading normals' corner rows and table, and whether any face uses them
+            corners = t.corner_normals if len(t.corner_normals) else np.zeros((1, 3), np.int32)
+            return (cl.to_device(np.ascontiguousarray(corners, np.int32)),
+                    cl.to_device(np.ascontiguousarray(t.shading_normals, np.float32)), np.int32(t.smooth))
+
         self.faces, self.object_faces = rows(tracer), rows(object_tracer)
+        self.smooth, self.object_smooth = smooth(tracer), smooth(object_tracer)
         materials = rest.face_material if len(rest.face_material) else np.zeros(1, np.int32)
         self.face_material = cl.to_device(np.asarray(materials, np.int32))
         albedo = np.zeros((len(rest.materials), 4), np.float32)
@@ -289,7 +320,7 @@ class _MovingKernels:
                                   OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))))
 
     def occlusion(self, eye, d, prim, t, slots, trees, tree_offset: int, spp: int, seed: int, tile: int, first: int,
-                  place, box) -> Records:
+                  place, box, uv=None) -> Records:
         """The ``moving_occlusion`` kernel's records (as :func:`occlusion_records_reference`
         returns them) and then ``moving_compact``: the uniforms drawn in the kernel, pixel
         slot // spp's tree at ``tree_offset`` + that in ``trees``."""
@@ -309,6 +340,7 @@ class _MovingKernels:
             cl.upload("moving_prim", np.asarray(prim, np.int32), q),
             cl.upload("moving_t", np.asarray(t, np.float32), q),
             *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
+            *self._bary("moving_bary", uv, self.smooth, q),
             self.kind, self.param, self.albedo, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
             np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
             cl.upload("moving_place", np.asarray(place, np.float32), q),
@@ -330,13 +362,21 @@ class _MovingKernels:
         return Records(rec[:, 0] // np.uint32(nd), rec[:, 0] % np.uint32(nd), values[:, 0:3], values[:, 3:6],
                        values[:, 6:9])
 
+    def _bary(self, name, uv, smooth, q):
+        """The kernels' barycentrics buffer (rows u, v), the tables and the flag of ``smooth`` (flat
+        where ``uv`` is None)."""
+        flag = smooth[2] if uv is not None else np.int32(0)
+        bary = (cl.upload(name, np.stack([np.asarray(uv[0], np.float32), np.asarray(uv[1], np.float32)], 1), q)
+                if flag else smooth[1])   # (not read when flat)
+        return bary, smooth[0], smooth[1], flag
+
     def points(self, eye, d, prim, t, prim_object, t_object, slots, place, object_material: int,
-               object_offset: float, spp: int, seed: int, tile: int, first: int):
-        """The ``moving_points`` kernel: (planes (13, N) float32, material (N,) int32) as
+               object_offset: float, spp: int, seed: int, tile: int, first: int, uv=None, uv_object=None):
+        """The ``moving_points`` kernel: (planes (16, N) float32, material (N,) int32) as
         :func:`shading_points_reference` returns them."""
         count = len(d)
         q = cl.thread_queue()
-        out = cl.scratch("moving_points", 4 * 13 * max(count, 1))
+        out = cl.scratch("moving_points", 4 * 16 * max(count, 1))
         mat = cl.scratch("moving_material", 4 * max(count, 1))
         if count:
             sh = self.shader
@@ -349,11 +389,13 @@ class _MovingKernels:
                 cl.upload("moving_prim_object", np.asarray(prim_object, np.int32), q),
                 cl.upload("moving_t_object", np.asarray(t_object, np.float32), q),
                 *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
-                self.object_faces, np.int32(object_material), np.float32(object_offset),
+                *self._bary("moving_bary", uv, self.smooth, q), self.object_faces,
+                *self._bary("moving_bary_object", uv_object, self.object_smooth, q), np.int32(object_material),
+                np.float32(object_offset),
                 cl.upload("moving_place", np.asarray(place, np.float32), q),
                 sh.texels, *sh.env_size, sh.rot, np.uint32(spp), np.uint32(tile), np.uint32(rng.MOVING_MIS),
                 np.uint32(first), *(np.uint32(x) for x in rng.key(seed)), out, mat)
-        return cl.read(out, (13, count), np.float32, q), cl.read(mat, (count,), np.int32, q)
+        return cl.read(out, (16, count), np.float32, q), cl.read(mat, (count,), np.int32, q)
 
     def warm_up(self, eye, trees):
         """A tiny and a large launch of each kernel (PoCL compiles per work-group size and again
@@ -369,6 +411,16 @@ class _MovingKernels:
             self.points(eye, d, zeros, ones, zeros - 1, ones, np.arange(count, dtype=np.uint32), place, 0, 0.0, 1,
                         0, 0, 0)
         _WARMED.add(self.program)
+
+
+def _object_normals(scene, ob) -> dict:
+    """The object's shading normals in its own frame (after its scale, before its rotation) and
+    its faces' corner rows of them: RayTracer's ``normals`` and ``normal_faces``."""
+    rows = (np.full((len(ob.faces), 3), -1, np.int64) if scene.normal_faces is None
+            else np.asarray(scene.normal_faces[ob.faces_range[0]:ob.faces_range[1]], np.int64))
+    local = ob.local_normals if ob.local_normals is not None else np.zeros((0, 3))
+    return {"normals": np.asarray(local, np.float32),
+            "normal_faces": np.where(rows >= 0, rows - ob.normals_range[0], -1)}
 
 
 def _sphere(place, box) -> np.ndarray:
@@ -389,8 +441,8 @@ class _Chunk:
     """What a chunk's frames of one seed and spp share: its camera rays and their hits on the
     rest (they do not depend on the object's place)."""
 
-    def __init__(self, d, prim, t):
-        self.d, self.prim, self.t = d, prim, t
+    def __init__(self, d, prim, t, uv):
+        self.d, self.prim, self.t, self.uv = d, prim, t, uv
 
 
 class MovingObject:
@@ -413,8 +465,10 @@ class MovingObject:
                                 f"one of the scene's")
         self.object = self.scene.find_object(info["index"])
         self.rest = self.scene.without(self.object)
-        self.rest_tracer = RayTracer(self.rest.vertices, self.rest.faces, threads=2)
-        self.object_tracer = RayTracer(self.object.local, self.object.faces, threads=2)
+        self.rest_tracer = RayTracer(self.rest.vertices, self.rest.faces, threads=2, normals=self.rest.normals,
+                                     normal_faces=self.rest.normal_faces)
+        self.object_tracer = RayTracer(self.object.local, self.object.faces, threads=2,
+                                       **_object_normals(self.scene, self.object))
         self._faces = tuple(np.ascontiguousarray(self.object.faces[:, j], np.int64) for j in range(3))
         self.center, self.radius = bounding_sphere(self.object.local)   # the scene's object (its hash checked)
         self._box = (self.object.local.min(0).astype(np.float64), self.object.local.max(0).astype(np.float64))
@@ -539,8 +593,9 @@ class MovingObject:
         d = np.asarray(dirs, np.float32) @ np.asarray(R, np.float32)
         o = ((np.asarray(origins, np.float64) - T) @ R).astype(np.float32)
         o = np.broadcast_to(o, d.shape) if o.ndim == 1 else o
-        if closest:
-            return self.object_tracer.intersect(o, d)
+        if closest:   # prim, t and the barycentrics (u, v)
+            prim, t, u, v = self.object_tracer.intersect_uv(o, d)
+            return prim, t, (u, v)
         return self.object_tracer.occluded(o, d)
 
     # -- a frame
@@ -629,8 +684,8 @@ class MovingObject:
             d = camera_rays(scene, np.repeat(pixels % width, spp), np.repeat(pixels // width, spp),
                             camera_jitter(seed, tile, P, spp, start), width, height)[1]
         eye = np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape)
-        prim, t = self.rest_tracer.intersect(eye, d)
-        kept = _Chunk(d, prim, t)
+        prim, t, bu, bv = self.rest_tracer.intersect_uv(eye, d)
+        kept = _Chunk(d, prim, t, (bu, bv))
         if keep:
             self._chunks[chunk] = kept
         return kept
@@ -711,11 +766,13 @@ class MovingObject:
             part = rest[b0:b0 + batch]
             if self.backend == "opencl":
                 rec = self._kernels.occlusion(self.scene.camera.eye, cam.d[part], cam.prim[part], cam.t[part], part,
-                                              trees, offset, spp, seed, tile, start, place, box)
+                                              trees, offset, spp, seed, tile, start, place, box,
+                                              uv=(cam.uv[0][part], cam.uv[1][part]))
             else:
                 rec = occlusion_records_reference(self.rest, self.rest_tracer, self.environment, self.inside, trees,
                                                   cam.d[part], cam.prim[part], cam.t[part], part, spp, self.directions,
-                                                  seed, tile, start, place, box, offset)
+                                                  seed, tile, start, place, box, offset,
+                                                  uv=(cam.uv[0][part], cam.uv[1][part]))
             if not len(rec.sample):
                 continue
             blocked = self.object_tracer.occluded(np.asarray(rec.origin, np.float32),
@@ -739,7 +796,8 @@ class MovingObject:
         object's, its shading uniforms from sample ``start`` of the chunk's tile on."""
         eye = self.scene.camera.eye
         d, prim_r, t_r, slots = cam.d[idx], cam.prim[idx], cam.t[idx], idx
-        prim_o, t_o = self._trace_object(R, T, eye.astype(np.float32), d, closest=True)
+        uv = (cam.uv[0][idx], cam.uv[1][idx])
+        prim_o, t_o, uv_o = self._trace_object(R, T, eye.astype(np.float32), d, closest=True)
         rays = len(idx)
         tile = FRAME_TILES + chunk
         # the object's own floor of the shadow-ray offset: its largest coordinate at this place
@@ -748,12 +806,13 @@ class MovingObject:
         place, _ = self._place(R, T)
         if self.backend == "opencl":
             planes, material = self._kernels.points(eye, d, prim_r, t_r, prim_o, t_o, slots, place,
-                                                    self.object.material, object_offset, spp, seed, tile, start)
+                                                    self.object.material, object_offset, spp, seed, tile, start,
+                                                    uv=uv, uv_object=uv_o)
         else:
             planes, material = shading_points_reference(self.rest, self.rest_tracer, self.object_tracer,
                                                         self.object.material, self.environment, d, prim_r, t_r,
                                                         prim_o, t_o, R, T, object_offset, slots, spp, seed, tile,
-                                                        start)
+                                                        start, uv=uv, uv_object=uv_o)
         value = planes[10:13].T.astype(np.float64)   # misses: the environment
         hits = np.flatnonzero(material >= 0)
         if not len(hits):
@@ -761,7 +820,8 @@ class MovingObject:
         n = np.ascontiguousarray(planes[0:3, hits].T)
         origin = np.ascontiguousarray(planes[3:6, hits].T, np.float32)
         u = np.ascontiguousarray(planes[6:10, hits].T, np.float32)
-        wi, val, offset = self._shader(n, -d[hits], material[hits], u, with_offset=True)
+        g = np.ascontiguousarray(planes[13:16, hits].T)
+        wi, val, offset = self._shader(n, -d[hits], material[hits], u, g=g, with_offset=True)
         # shadow rays for the non-zero estimates of every slot, in one batch (as the integrator's
         # visible_sum): against the rest, then the unblocked ones against the object
         val = np.asarray(val).transpose(1, 2, 0)   # planes (slot, component, point): the kernel's layout

@@ -119,7 +119,7 @@ FRAME = {o.key: o for o in (
     Option("mass", float, _VIEW + "a node holding more than this share of the transfer's mass (a sun) is refined "
            "further (0: by the lobe alone).", default=0.003, lo=0.0, hi=1.0),
     Option("mode", str, _VIEW + "a product per cache point, blended per pixel (fast: the viewer's), or per pixel "
-           "of its points' blended transfer with the pixel's face normal and view (closer to mis; slower).",
+           "of its points' blended transfer with the pixel's shading normal and view (closer to mis; slower).",
            default="pixel", values=("point", "pixel")),
     Option("supersample", int, _VIEW + "S x S rays per pixel, averaged (a mesh's facets can be smaller than a "
            "pixel).", default_doc=f"{WRITTEN_SUPERSAMPLE} in --mode pixel, 1 in --mode point (the viewer's frame)",

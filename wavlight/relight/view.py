@@ -11,7 +11,9 @@ spread over every object's surface: each scene face of area A carries a triangul
 longest edge / 2 h, h = sqrt(2 / (sqrt(3) D)) the spacing of an equilateral lattice of density
 D), D the density in points per unit area (default: CACHE_POINTS over the scene's area,
 :mod:`wavlight.relight.settings`); lattice points that coincide (shared vertices and edges of one object)
-are one cache point, whose normal is the area-weighted mean of its faces' normals. A camera ray's
+are one cache point, whose normal is the area-weighted mean of its faces' shading normals there
+(the corner normals interpolated at the lattice point, turned to the face normal's side: the
+face normal where a face is shaded flat; docs/decisions/shading-normals.md). A camera ray's
 hit on face F at barycentric (u, v) lies in one lattice triangle of F: its three points and
 their barycentric weights are the hit's cache points (points of the same object; a point whose
 normal is more than CREASE_DEGREES from the face's is left out, the others renormalized).
@@ -52,8 +54,9 @@ max(1, sqrt(phi / mass)) rounded up to a power of two (docs/decisions/view-walk-
   times the barycentric blend of its three points' B_k. lambert points need only the scaling
   coefficient: B = T^_0 N^2 / pi. One product per point: the fastest.
 - ``pixel``: per ray, B = <sum_k w_k T1(x_k), f_r(., wo) rho> (the product is linear in T1: the
-  walk reads the three points' coefficients and blends them) with the hit face's normal n (as
-  ``mis`` shades) and the pixel's own view direction, so that f_r is the pixel's. T1 holds
+  walk reads the three points' coefficients and blends them) with the hit's shading normal n (as
+  ``mis`` shades: the face normal where the face is flat) and the pixel's own view direction, so
+  that f_r is the pixel's. T1 holds
   max(cos, 0) at the points' normals, whose blend m = sum_k w_k n_k makes sum_k w_k T1_k =
   L V (m . w) above the points' horizons; with ``tau`` > 0 a leaf's factor rho (at most RHO_MAX)
   turns that cosine into the face's, max(n . w, 0) / (m . w) smoothed over the node
@@ -107,7 +110,7 @@ from ..camera import camera_rays
 from ..envmap import LUMINANCE, Environment
 from ..errors import ArgumentError, WavlightError, check_int, check_number, check_real
 from ..integrator import RenderResult
-from ..raytrace import RayTracer
+from ..raytrace import SMOOTH_MIN_LENGTH2, RayTracer
 from ..scene import MAX_COORDINATE, Camera, check_scene, load_scene, require_untextured
 from ..threads import default_threads
 from ..warp import frame as tangent_frame
@@ -236,6 +239,7 @@ def build_cache(scene, density=None, points: int = CACHE_POINTS) -> SurfaceCache
                             f"(at most {MAX_LATTICE}): lower it")
     base = np.concatenate([[0], np.cumsum(sizes)[:-1]])
     pos = np.zeros((total, 3))
+    bary = np.zeros((total, 2))   # each lattice entry's (u, v) on its face
     entry_face = np.repeat(np.arange(len(f)), sizes)
     for kk in np.unique(k):   # distinct subdivisions, not faces
         faces = np.flatnonzero(k == kk)
@@ -244,6 +248,7 @@ def build_cache(scene, density=None, points: int = CACHE_POINTS) -> SurfaceCache
         at = base[faces][:, None] + local[None, :]
         pos[at] = (v[f[faces, 0]][:, None] + (i / kk)[None, :, None] * e0[faces][:, None]
                    + (j / kk)[None, :, None] * e1[faces][:, None])
+        bary[at, 0], bary[at, 1] = (i / kk)[None, :], (j / kk)[None, :]
     obj = face_objects(scene)[entry_face]
     extent = max(float(np.abs(v).max()), 1e-30)
     quant = np.round(pos / (extent * 2.0 ** -40)).astype(np.int64)
@@ -251,7 +256,8 @@ def build_cache(scene, density=None, points: int = CACHE_POINTS) -> SurfaceCache
     _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
     count = len(first)
-    normal = np.stack([np.bincount(inverse, cross[entry_face, a], count) for a in range(3)], 1)
+    weighted = entry_normals(scene, entry_face, bary, cross)   # area x the shading normal there
+    normal = np.stack([np.bincount(inverse, weighted[:, a], count) for a in range(3)], 1)
     length = np.linalg.norm(normal, axis=1, keepdims=True)
     fallback = cross[entry_face[first]]
     normal = np.where(length > 0, normal / np.where(length > 0, length, 1.0),
@@ -272,6 +278,26 @@ def build_cache(scene, density=None, points: int = CACHE_POINTS) -> SurfaceCache
     material = (scene.face_material[face] if len(scene.face_material) else np.zeros(count)).astype(np.int32)
     return SurfaceCache(position[order], normal[order], material, face, k.astype(np.int32), base.astype(np.int64),
                         rank[inverse].astype(np.int32), spacing, float(density))
+
+
+def entry_normals(scene, face: np.ndarray, bary: np.ndarray, cross: np.ndarray) -> np.ndarray:
+    """(N, 3): at points (u, v) = ``bary`` of faces ``face``, the shading normal (the scene's
+    corner normals interpolated, turned to the side of the face normal; the face normal where the
+    face is flat or they cancel) times the face's |cross| (twice its area): ``cross[face]`` itself
+    where flat."""
+    c = cross[face]
+    if scene.normal_faces is None or not len(face):
+        return c
+    table = np.concatenate([np.asarray(scene.normals, np.float64).reshape(-1, 3), np.zeros((1, 3))])
+    rows = np.asarray(scene.normal_faces, np.int64)[face]
+    n = table[np.where(rows < 0, len(table) - 1, rows)]
+    u, v = bary[:, :1], bary[:, 1:]
+    s = (1.0 - u - v) * n[:, 0] + u * n[:, 1] + v * n[:, 2]
+    length = np.linalg.norm(s, axis=1, keepdims=True)
+    ok = length ** 2 > SMOOTH_MIN_LENGTH2
+    s = np.where(ok, s / np.where(ok, length, 1.0), 0.0)
+    s *= np.where(np.einsum("ij,ij->i", s, c) < 0, -1.0, 1.0)[:, None]
+    return np.where(ok, s * np.linalg.norm(c, axis=1, keepdims=True), c)
 
 
 def barycentric(vertices: np.ndarray, faces: np.ndarray, face: np.ndarray, p: np.ndarray):
@@ -697,14 +723,17 @@ class _Settings:
 
 def _point_samples(cache: SurfaceCache, tracer, lo: int, hi: int) -> PixelSamples:
     """The cache points lo .. hi - 1 as the texel kernel's pixels: one sample, one lambert group
-    each, the shadow rays from the point moved off the surface along its normal."""
+    each (its cosine with the point's normal, nothing below its face: the face normal), the
+    shadow rays from the point moved off the surface along its face's normal."""
     P = hi - lo
     normal = cache.normal[lo:hi]
+    geometric = tracer.face_normals[cache.face[lo:hi]].astype(np.float32)
+    geometric *= np.where(np.einsum("ij,ij->i", geometric, normal) < 0, -1.0, 1.0).astype(np.float32)[:, None]
     p = cache.position[lo:hi].astype(np.float32)
     offset = tracer.shadow_offsets(p, cache.face[lo:hi], np.zeros(3))
-    origin = (p + normal.astype(np.float32) * offset[:, None]).astype(np.float32)
+    origin = (p + geometric * offset[:, None]).astype(np.float32)
     ones = np.ones(P, np.uint32)
-    return PixelSamples(1, ones, normal.astype(np.float32), normal.astype(np.float32),
+    return PixelSamples(1, ones, normal.astype(np.float32), geometric, normal.astype(np.float32),
                         np.full(P, bsdfs.LAMBERT, np.int32), np.zeros(P, np.float32), np.ones(P, np.float32),
                         np.zeros(P, np.uint32), ones, np.arange(P, dtype=np.uint32), origin,
                         np.ones((P, 3), np.float32), np.zeros(P, np.uint64), normal.astype(np.float32))
@@ -885,7 +914,8 @@ class ViewFrames:
                                 f", not the view")
         self.transfer = transfer
         self.scene = _scene_of(transfer, scene)
-        self.tracer = RayTracer(self.scene.vertices, self.scene.faces, threads=2)
+        self.tracer = RayTracer(self.scene.vertices, self.scene.faces, threads=2, normals=self.scene.normals,
+                                normal_faces=self.scene.normal_faces)
         s = transfer._s
         self.position = np.asarray(s["view_position"], np.float64)
         self.normal = np.asarray(s["view_normal"], np.float64)
@@ -957,6 +987,15 @@ class ViewFrames:
         total = w.sum(1, keepdims=True)
         return ids, np.where(total > 0, w / np.where(total > 0, total, 1.0), 0.0), fn
 
+    def shading_normals(self, eye, d, t, prim, u, v, fn):
+        """The shading normals (M, 3) float32 of hits at barycentrics (u, v) (RayTracer.hit), turned
+        to the side of their face normals ``fn`` as the cache is (a hit on the face's back side has
+        no cache); ``fn`` itself where the scene is flat."""
+        if not self.tracer.smooth or not len(prim):
+            return fn
+        n = self.tracer.hit(eye, np.asarray(d, np.float32), np.asarray(t, np.float32), prim, u, v)[0]
+        return (n * np.where(np.einsum("ij,ij->i", n, fn) < 0, -1.0, 1.0)[:, None]).astype(np.float32)
+
     def _point_items(self, points, eye):
         """The point mode's items: cache points, material kind and parameter, normals and view
         directions towards ``eye`` (lifted above the tangent plane)."""
@@ -980,7 +1019,8 @@ class ViewFrames:
     def pixel_products(self, ids, w, face_normal, d, mat, refine=REFINE, tau: float = TAU, backend="opencl",
                        mass: float = MASS):
         """B (M, 3) (albedo factored out) and nodes visited of pixels: the blend of their cache
-        points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the face normal, the view
+        points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the normal ``face_normal`` (the
+        hits' shading normals, :meth:`shading_normals`), the view
         direction -d, material ``mat`` and the cosine's correction ``tau`` (module docstring)."""
         n = np.asarray(face_normal, np.float64)
         wo = lifted_view(n, -np.asarray(d, np.float64))
@@ -1000,7 +1040,7 @@ class ViewFrames:
         """The approximate frame (H, W, 3) float32 seen from ``eye`` towards ``target`` (defaults:
         the scene's camera) and its timings (module docstring): ``mode`` "point" (a product per
         cache point, blended per pixel) or "pixel" (a product per pixel, of its points' blended T1
-        with its face normal, view direction and the cosine corrected within ``tau``); ``refine``
+        with its shading normal, view direction and the cosine corrected within ``tau``); ``refine``
         and ``mass`` set where the walk stops (module docstring); ``supersample`` S traces S x S rays
         per pixel (its sub-pixels' centres) and takes their mean (``mis`` integrates over the
         pixel, and a mesh's facets can be smaller than a pixel)."""
@@ -1049,6 +1089,7 @@ class ViewFrames:
                 else:
                     ids, w, fn = self.hit_points(cam.eye, d[hit], prim[hit], t[hit], (u[hit], v[hit]))
                 mat = self.scene.face_material[prim[hit]]
+                fn = self.shading_normals(cam.eye, d[hit], t[hit], prim[hit], u[hit], v[hit], fn)
             if mode == "point":
                 if not on_device:
                     used = np.zeros(len(self.position), bool)

@@ -371,15 +371,17 @@ class ViewConverge:
                     return
                 k = min(k_pass, spp - first)
                 d = pass_rays(scene, width, height, seed, tile_id, tile, k, first * P, self.backend == "opencl")
-                prim, t = tracer.intersect(np.broadcast_to(eye, d.shape), d)
+                prim, t, bu, bv = tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
+                bary = np.stack([bu, bv], axis=1)   # the hits' shading normals (the trees take face normals)
                 rays += len(d)
                 if self.backend == "opencl":
                     direct, origin, wi, value = self.shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
-                                                           self.light, shares, seed, tile_id)
+                                                           self.light, shares, seed, tile_id, bary=bary)
                 else:
                     direct, origin, wi, value = shade_reference(
                         scene, tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], self.inside,
-                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence)
+                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
+                        bary=bary)
                 v, traced = visible_sum(tracer, direct, origin, wi, value)
                 rays += traced
                 hit = prim >= 0

@@ -21,6 +21,9 @@ class ShadingPoints:
     wo : (N, 3) local direction to the viewer; kind, param, albedo : per point material;
     table : (N, bsdfs.PLASTIC_STRIDE) the plastic rows (Scene.material_table), needed where
     a point is plastic
+    g : (N, 3) the geometric normal (facing the viewer) in the local frame, or None (the
+    shading normal is the geometric one): directions below it carry no light
+    (docs/decisions/shading-normals.md)
     """
 
     p: np.ndarray
@@ -33,6 +36,7 @@ class ShadingPoints:
     albedo: np.ndarray
     material: np.ndarray = None
     table: np.ndarray = None
+    g: np.ndarray = None
 
     def __len__(self):
         return len(self.n)
@@ -53,8 +57,12 @@ class ShadingPoints:
         return out
 
     def bsdf_eval_cos(self, wi_local):
-        """f(wi, wo) cos_i without albedo, (N,) (plastic: its specular and diffuse parts' sum)."""
-        return self._by_kind(bsdfs.eval_cos, np.zeros(len(self)), wi_local, self.wo)
+        """f(wi, wo) cos_i without albedo, (N,) (plastic: its specular and diffuse parts' sum); 0
+        where wi is below the geometric surface (``g``)."""
+        fcos = self._by_kind(bsdfs.eval_cos, np.zeros(len(self)), wi_local, self.wo)
+        if self.g is not None:
+            fcos = np.where(np.einsum("ij,ij->i", wi_local, self.g) > 0, fcos, 0.0)
+        return fcos
 
     def bsdf_value(self, wi_local):
         """(f cos without albedo (N,), the colour (N, 3) that makes it f cos with albedo:
@@ -64,6 +72,9 @@ class ShadingPoints:
             idx = np.nonzero(self.kind == k)[0]
             f[idx], diffuse[idx] = bsdfs.eval_split(int(k), self.param[idx], wi_local[idx], self.wo[idx],
                                                     table=self._table(idx))
+        if self.g is not None:   # below the geometric surface: no light (as bsdf_eval_cos)
+            below = np.einsum("ij,ij->i", wi_local, self.g) <= 0
+            f[below], diffuse[below] = 0.0, 0.0
         return f, bsdfs.tint(f, diffuse, self.albedo)
 
     def bsdf_pdf(self, wi_local):

@@ -92,13 +92,13 @@ def _repeat(sp: ShadingPoints, m: int) -> ShadingPoints:
     """Every shading point m times in a row (point-major), for one candidate each."""
     rep = lambda a: None if a is None else np.repeat(np.asarray(a), m, axis=0)
     return ShadingPoints(rep(sp.p), rep(sp.n), rep(sp.s), rep(sp.t), rep(sp.wo), rep(sp.kind), rep(sp.param),
-                         rep(sp.albedo), rep(sp.material))
+                         rep(sp.albedo), rep(sp.material), rep(sp.table), rep(sp.g))
 
 
 def _slice(sp: ShadingPoints, a: int, b: int) -> ShadingPoints:
     cut = lambda x: None if x is None else x[a:b]
     return ShadingPoints(cut(sp.p), sp.n[a:b], sp.s[a:b], sp.t[a:b], sp.wo[a:b], sp.kind[a:b], sp.param[a:b],
-                         sp.albedo[a:b], cut(sp.material))
+                         sp.albedo[a:b], cut(sp.material), cut(sp.table), cut(sp.g))
 
 
 def rng_from_uniforms(u: np.ndarray, *tag) -> np.random.Generator:
