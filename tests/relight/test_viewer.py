@@ -192,12 +192,22 @@ def _opened(serve, page, query="", **options):
     return v, pg
 
 
-def _start_converge(pg, rounds=2):
-    """Press converge and wait for ``rounds`` rounds of refinement."""
+def _start_converge(pg, passes=2):
+    """Press converge and wait for ``passes`` passes of refinement."""
     assert not pg.is_disabled("#converge")
     pg.click("#converge")
-    pg.wait_for_function(f"() => viewer.last.converge && viewer.last.converge.rounds >= {rounds}")
+    pg.wait_for_function(f"() => viewer.last.converge && viewer.last.converge.passes >= {passes}")
     assert "spp" in pg.text_content("#converge_info")
+
+
+#: the page's converge line: "converge: N spp, relative error X% (...)"
+CONVERGE_TEXT = re.compile(r"converge: (\d+) spp, relative error ([0-9.]+)%")
+
+
+def _converge_shown(pg):
+    """(spp, relative error in %) the page shows, or None before a pass with an error."""
+    m = CONVERGE_TEXT.search(pg.text_content("#converge_info") or "")
+    return (int(m.group(1)), float(m.group(2))) if m else None
 
 
 def _wait(predicate, seconds=10.0):
@@ -433,9 +443,10 @@ def test_converge_streams_the_spp_weighted_mean_and_stops_when_the_lighting_chan
             async with client.ws_connect(v.url + "ws") as ws:
                 await ws.send_json({"type": "state", "rotate_y": 45, "converge": True, "encoding": "raw"})
                 headers = []
-                while len(headers) < 4:
+                while len(headers) < 4:   # (the relit frame of the state first, then the passes)
                     header, payload, _ = await _next_frame(ws)
-                    headers.append((header, payload))
+                    if header["converge"] is not None or headers:
+                        headers.append((header, payload))
                 await ws.send_json({"type": "state", "rotate_y": 50, "converge": False, "encoding": "raw"})
                 while True:
                     header, _, _ = await _next_frame(ws)
@@ -446,11 +457,16 @@ def test_converge_streams_the_spp_weighted_mean_and_stops_when_the_lighting_chan
     headers, after = asyncio.run(talk())
     for header, payload in headers:
         c = header["converge"]
-        seeds = range(c["rounds"])
+        seeds = range(c["passes"])
         spp = np.array([values[s][0] for s in seeds], float)
-        mean = float(np.sum(spp * [values[s][1] for s in seeds]) / spp.sum())
-        assert c["spp"] == spp.sum()
-        assert c["relative_stderr"] == pytest.approx(np.sqrt(np.sum((spp * 0.002) ** 2)) / spp.sum() / mean, rel=1e-4)
+        means = np.array([values[s][1] for s in seeds])
+        n = spp.sum()
+        mean = float(np.sum(spp * means) / n)
+        assert c["spp"] == n
+        # the samples of all passes pooled: their sum of squares less n mean^2, over (n - 1) n
+        squares = np.sum((spp - 1) * spp * 0.002 ** 2 + spp * means ** 2)
+        pooled = np.sqrt((squares - n * mean ** 2) / (n - 1) / n)
+        assert c["relative_error"] == pytest.approx(pooled / mean, rel=1e-4)
         want = round(float(srgb_encode(np.float32(mean))) * 255)
         got = np.frombuffer(payload, np.uint8).reshape(transfer.height, transfer.width, 4)[..., :3]
         assert np.abs(got.astype(int) - want).max() <= 1
@@ -580,18 +596,35 @@ def test_browser_page_closed_mid_stream_leaves_the_server_serving(serve, page, c
     assert "Traceback" not in err and "Error handling request" not in err
 
 
-def test_browser_converge_refines_and_stops_when_a_slider_moves(serve, page):
-    fake = FakeConverge()
+def test_browser_converge_shows_spp_growing_error_falling_and_restarts_when_a_slider_moves(serve, page):
+    fake = FakeConverge(delay=0.02)
     v, pg = _opened(serve, page, "?rotate_y=60", converge=fake)
-    _start_converge(pg, 3)
+    _start_converge(pg, 5)
     _doubling([c["spp"] for c in fake.calls])
     assert len({c["seed"] for c in fake.calls}) == len(fake.calls)
+    shown = pg.evaluate("viewer.converged")          # [spp, relative error] of each pass drawn
+    spp, error = [s for s, _ in shown], [e for _, e in shown]
+    assert spp == sorted(set(spp)) and len(spp) >= 5
+    # the fake's error is 5% / sqrt(spp) a pass: the pooled error falls as 1 / sqrt(spp) (its
+    # estimate from thousands of pixels: within a few percent)
+    assert error[-1] < error[0] * np.sqrt(spp[0] / spp[-1]) * 1.3 and error[-1] < error[0] / 2
+    page_spp, page_error = _converge_shown(pg)
+    assert page_spp == pg.evaluate("viewer.last.converge.spp") and page_error > 0
+    # a change of state: the preview of the new state, then passes again from the first
     _set(pg, "rotate_y", "90")
-    pg.wait_for_function("() => viewer.last.converge === null && viewer.last.state.rotate_y === 90")
+    pg.wait_for_function("() => viewer.last.state.rotate_y === 90 && viewer.last.converge !== null"
+                         " && viewer.converged.length >= 2")
+    assert pg.get_attribute("#converge", "aria-pressed") == "true"
+    assert pg.evaluate("viewer.restarts") >= 1 and pg.evaluate("viewer.converged[0][0]") == 2
+    again = [c for c in fake.calls if c["rotate_y"] == 90]
+    assert again and again[0]["seed"] == 0 and again[0]["spp"] == 2
+    # released: no more passes
+    pg.click("#converge")
+    pg.wait_for_function("() => viewer.last.converge === null")
     assert pg.get_attribute("#converge", "aria-pressed") == "false"
     n = len(fake.calls)
     time.sleep(0.3)
-    assert len(fake.calls) == n and all(c["rotate_y"] == 60 for c in fake.calls)
+    assert len(fake.calls) <= n + 1 and {c["rotate_y"] for c in fake.calls} == {60, 90}
 
 
 def test_browser_converge_disabled_without_the_estimator(serve, page):
@@ -799,10 +832,10 @@ def test_object_page_and_socket_frames_are_the_moving_estimators(serve_object, o
                     if header["converge"] is not None:
                         reports.append((header["converge"], picture(payload).copy()))
                 c, pic = reports[0]
-                assert c["spp"] == c["call_spp"] == 2 and c["rounds"] == 1
+                assert c["spp"] == c["pass_spp"] == 2 and c["passes"] == 1
                 assert np.abs(pic.astype(int) - expected([0.3, 0.6, 0.2], 45.0, 2, 0.5)).max() <= 1
-                _doubling([r[0]["call_spp"] for r in reports])
-                assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["call_spp"] for r in reports]))
+                _doubling([r[0]["pass_spp"] for r in reports])
+                assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["pass_spp"] for r in reports]))
                 await ws.send_json({"type": "state", "translate": [0.5, 0.6, 0.2], "rotate_y": 45, "exposure": 0.5,
                                     "encoding": "raw", "converge": False})
                 while True:
@@ -895,11 +928,15 @@ def test_browser_object_bad_parameters_show_the_values_used(serve_object, page):
     assert pg.evaluate("viewer.errors") == 0 and pg.text_content("#status") == ""
 
 
-def test_browser_object_converge_refines_and_stops_when_the_object_moves(serve_object, page):
+def test_browser_object_converge_refines_and_restarts_when_the_object_moves(serve_object, page):
     v, pg = _opened(serve_object, page, "?translate=0.3,0.6,0.2")
     _start_converge(pg)
     _set(pg, "translate_z", "-0.5")
-    pg.wait_for_function("() => viewer.last.converge === null && viewer.last.state.translate[2] === -0.5")
+    pg.wait_for_function("() => viewer.last.converge !== null && viewer.last.state.translate[2] === -0.5"
+                         " && viewer.restarts >= 1")
+    assert pg.get_attribute("#converge", "aria-pressed") == "true"
+    pg.click("#converge")
+    pg.wait_for_function("() => viewer.last.converge === null")
     assert pg.get_attribute("#converge", "aria-pressed") == "false"
 
 
@@ -1082,11 +1119,11 @@ def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_v
     assert np.abs(got["preview"].astype(int) - tone_map(image, 0.5, alpha=True)).max() <= 1
     assert len({p.tobytes() for p in got.values()}) == len(got)          # each camera its own picture
     c, pic = reports[0]
-    assert c["spp"] == c["call_spp"] == 2 and c["rounds"] == 1
+    assert c["spp"] == c["pass_spp"] == 2 and c["passes"] == 1
     result = frames.converge(eye=_orbit(30, 15, 4.2), target=VIEW_TARGET, fov=40.0, width=96, height=64, spp=2, seed=0)
     assert np.abs(pic.astype(int) - tone_map(result.image, 0.5, alpha=True)).max() <= 1
-    _doubling([r[0]["call_spp"] for r in reports])
-    assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["call_spp"] for r in reports]))
+    _doubling([r[0]["pass_spp"] for r in reports])
+    assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["pass_spp"] for r in reports]))
 
 
 def test_view_viewer_refuses_maps_and_the_command_line(view_transfer, view_bake, tmp_path):
@@ -1190,13 +1227,13 @@ def test_browser_view_bad_parameters_show_the_values_used(serve_view, page):
     assert pg.evaluate("viewer.errors") == 0 and pg.text_content("#status") == ""
 
 
-def test_browser_view_converge_refines_and_stops_when_the_camera_moves(serve_view, page):
+def test_browser_view_converge_refines_and_restarts_when_the_camera_moves(serve_view, page):
     v, pg = _opened(serve_view, page, "?azimuth=30&elevation=15&distance=4.2")
     _start_converge(pg)
     assert pg.evaluate("[viewer.last.width, viewer.last.height]") == [96, 64]
     _drag(pg, "#frame", 30, 0, steps=4)
     pg.mouse.up()
-    pg.wait_for_function("() => viewer.last.converge === null && viewer.last.preview === false"
-                         " && viewer.last.state.azimuth === viewer.state.azimuth")
-    assert pg.get_attribute("#converge", "aria-pressed") == "false"
+    pg.wait_for_function("() => viewer.last.converge !== null && viewer.last.preview === false"
+                         " && viewer.last.state.azimuth === viewer.state.azimuth && viewer.restarts >= 1")
+    assert pg.get_attribute("#converge", "aria-pressed") == "true"
     assert pg.evaluate("viewer.last.state.azimuth") < 30

@@ -400,6 +400,18 @@ class ConvergeFrames:
                 state.trees[tile.index] = made
         return made, False
 
+    def prepare(self, levels: int = PRODUCT_LEVELS, slots: int = SLOTS, candidates: int = CANDIDATES,
+                control: bool = True) -> None:
+        """Make now what the first frame would (its kernels' program and every tile's footprint
+        spread, which do not depend on the lighting), so that it pays only for its lighting and
+        passes: the viewer prepares its converge thread's frames when a page opens."""
+        prog = None
+        if self.backend == "opencl":
+            prog = self.program(min(self.transfer.n_levels, levels), slots, candidates, bool(control))
+        if candidates:
+            for tile in self.tiles:
+                self.spread(tile, prog)
+
     # -- a frame
     def frame(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, spp: int = UNBIASED_SPP,
               seed: int = FRAME["seed"].default, progress=None, slots: int = SLOTS, defensive: float = DEFENSIVE,

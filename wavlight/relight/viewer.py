@@ -114,6 +114,7 @@ from ..display import TONEMAP, encode8_lut
 from ..errors import WavlightError, described, shown
 from ..scene import load_scene, rotation
 from . import serving
+from .progressive import PassSchedule, RunningMean
 from .settings import OBJECT_FRAME_SPP, VIEWER
 
 try:   # the unbiased estimator of a relit frame, where this version has it
@@ -145,13 +146,6 @@ MAX_MESSAGE_DEPTH = 16
 #: an integer in a message with more digits than this is answered with a note and the message
 #: ignored (fewer digits beyond the floats' range are clamped like any number out of range)
 MAX_INTEGER_DIGITS = 1000
-#: converge: the first call's spp (2: a standard error needs two samples), doubling while a call
-#: takes less than half of CONVERGE_ROUND_SECONDS, up to CONVERGE_MAX_CALL_SPP; refinement ends at
-#: CONVERGE_MAX_SPP samples in all
-CONVERGE_FIRST_SPP = 2
-CONVERGE_ROUND_SECONDS = 0.5
-CONVERGE_MAX_CALL_SPP = 64
-CONVERGE_MAX_SPP = 1 << 16
 #: the threads of one converge call, where the estimator takes ``threads``: every core but one, which
 #: the frame thread keeps (on two cores, a 128 x 128 bake: frames 2.4 ms in the median beside a call
 #: on one thread, 5.1 ms beside the estimator's default of two per core, the call no slower)
@@ -668,6 +662,7 @@ class Viewer:
         self._pool = None       # the one thread that computes frames
         self._converge_pool = None   # the one thread that runs converge calls
         self._converging = None      # that thread's own bake (and moving object or view frames)
+        self._prepared = None        # the task that made them when the first page opened
         self._listener = None
         self._sockets: set = set()
         self._tasks: set = set()
@@ -826,6 +821,8 @@ class Viewer:
             self._listener.upgraded(transport)
         client = _Client(self, ws, transport)
         self._sockets.add(ws)
+        if self.converge is not None and self._converging is None and self._converge_pool is not None:
+            self._prepared = self._prepared or asyncio.ensure_future(self.run_converge(self.prepare_converge))
         task = asyncio.ensure_future(client.frames())
         self._tasks.add(task)
         try:
@@ -976,8 +973,27 @@ class Viewer:
                 from .view import ViewFrames
 
                 converge = ViewFrames(transfer, self.views.scene).converge
+            elif self._default_converge:
+                from .converge import ConvergeFrames
+
+                converge = _LightingConverge(ConvergeFrames(transfer, self._scene_for_converge(), CONVERGE_THREADS))
             self._converging = _ConvergeSide(transfer, converge)
         return self._converging
+
+    def prepare_converge(self):
+        """Make the converge thread's objects and what their first pass would make regardless of the
+        state (a lighting bake's footprints and program): run in the converge thread when a page
+        opens, so that a click pays only for its state's lighting and passes. A failure here is the
+        click's to report (its pass fails the same way): ignored."""
+        if self.converge is None:
+            return
+        try:
+            side = self._converge_side()
+            prepare = getattr(side.converge, "prepare", None)
+            if prepare is not None:
+                prepare()
+        except Exception:   # (the first pass reports it)
+            self._converging = None
 
     def _scene_for_converge(self):
         """The scene of the bake, loaded once (the estimator checks that it is the one baked);
@@ -1021,8 +1037,15 @@ class Viewer:
         for pool in pools:
             await asyncio.get_running_loop().run_in_executor(None, lambda p=pool: p.shutdown(wait=True,
                                                                                              cancel_futures=True))
+        if self._prepared is not None:
+            self._prepared.cancel()
+            await asyncio.gather(self._prepared, return_exceptions=True)
+            self._prepared = None
         if self._converging is not None:
             side, self._converging = self._converging, None
+            frames = getattr(side.converge, "frames", None)
+            if frames is not None:
+                frames.close()
             side.transfer.close()
 
     def serve(self, port: int = VIEWER["port"].default, ready=None) -> None:
@@ -1086,6 +1109,20 @@ class Viewer:
                 pass
         self._thread.join(timeout)
         self._thread = None
+
+
+class _LightingConverge:
+    """The default estimator of a lighting bake's converge thread: the frames of one
+    :class:`~wavlight.relight.converge.ConvergeFrames` (its tracer, footprints and the current
+    lighting's trees kept from pass to pass), called as the module function is."""
+
+    def __init__(self, frames):
+        self.frames = frames
+        self.prepare = frames.prepare
+
+    def __call__(self, transfer, scene=None, env=None, rotate_y=None, scale=1.0, spp=2, seed=0, threads=None,
+                 progress=None):
+        return self.frames.frame(env, rotate_y, scale, spp, seed, progress)
 
 
 @dataclass
@@ -1248,10 +1285,18 @@ class _Client:
                 self.sending.cancel()
 
     async def _answer(self, state) -> bool:
-        """The frame of one state (or the converge rounds); False once the socket has closed."""
-        if state["converge"] and self.viewer.converge is not None:
+        """The frame of one state, then, with converge (and not a preview: a control held), the
+        passes refining it; False once the socket has closed."""
+        converging = state["converge"] and not state["preview"] and self.viewer.converge is not None
+        if not await self._frame(state):
+            return False
+        if converging:
             self.shown = None
             return await self._flush() and await self._converge(state)
+        return True
+
+    async def _frame(self, state) -> bool:
+        """The state's frame (the relit frame, or its preview), unless it is the one shown."""
         detail = self.viewer.detail(state)
         key = self.viewer.frame_key(state, detail)
         if self.shown == (key, state["exposure"], state["tonemap"], state["encoding"]):
@@ -1269,14 +1314,16 @@ class _Client:
         return True
 
     async def _converge(self, state):
-        """Refine the state's lighting (or the object's place) with repeated calls of the
-        estimator, streaming the spp-weighted average after each; return when that factor or the
+        """Refine the state's factor (the lighting, the object's place or the camera) with passes
+        of the estimator (:mod:`.progressive`: seeds 0, 1, 2, ..., spp from FIRST_SPP doubling),
+        streaming the running mean of all their samples after each; return when that factor or the
         control changes (True), or the socket closed (False)."""
         lighting = self.viewer.converge_key(state)
-        total, rounds, spp = 0, 0, CONVERGE_FIRST_SPP
-        acc = var = report = None
+        run, schedule = RunningMean(), PassSchedule()
+        report = None
         job = waiter = None
         stop = threading.Event()
+        began = time.perf_counter()
 
         def same(s):
             return s["converge"] and self.viewer.converge_key(s) == lighting
@@ -1284,10 +1331,11 @@ class _Client:
         try:
             while True:
                 job = None
-                if total < CONVERGE_MAX_SPP:
+                if not schedule.done():
                     t0 = time.perf_counter()
-                    job = asyncio.ensure_future(self.viewer.run_converge(self.viewer.converge_call, state, spp, rounds,
-                                                                         stop))
+                    spp = schedule.spp
+                    job = asyncio.ensure_future(self.viewer.run_converge(self.viewer.converge_call, state, spp,
+                                                                         run.passes, stop))
                 while job is None or not job.done():   # (no job: converged; answer exposure changes)
                     waiter = asyncio.ensure_future(self.wake.wait())
                     await asyncio.wait({waiter} if job is None else {job, waiter},
@@ -1296,13 +1344,13 @@ class _Client:
                         waiter.cancel()
                         continue
                     self.wake.clear()
-                    if not same(self.state):          # the lighting changed: the call's result is dropped
+                    if not same(self.state):          # the factor changed: the pass's result is dropped
                         self.wake.set()
                         return True
                     state = self.state                   # the exposure (tone curve, encoding) changed: the mean again
-                    if acc is not None:
+                    if run.mean is not None:
                         await self._window()
-                        if not await self.send_frame((acc / total).astype(np.float32), state,
+                        if not await self.send_frame(run.mean.astype(np.float32), state,
                                                      {"frame_seconds": 0.0, "terms": None}, report):
                             return False
                 try:
@@ -1314,28 +1362,18 @@ class _Client:
                     await self._wait_for_change(lighting)
                     return True
                 seconds = time.perf_counter() - t0
-                image = np.asarray(image, np.float64)
-                stderr = np.asarray(stderr, np.float64)
-                if acc is None:
-                    acc, var = image * spp, (stderr * spp) ** 2
-                else:
-                    acc += image * spp
-                    var += (stderr * spp) ** 2
-                total += spp
-                rounds += 1
-                mean = acc / total
-                level = float(np.mean(mean))
-                report = {"spp": total, "rounds": rounds, "call_spp": spp, "call_seconds": round(seconds, 3),
-                          "relative_stderr": round(float(np.sqrt(var).mean() / total / level), 6)
-                          if level > 0 else None, "done": total >= CONVERGE_MAX_SPP}
+                run.add(image, stderr, spp)
+                schedule.after(seconds)
+                error = run.relative_error()
+                report = {"spp": run.spp, "passes": run.passes, "pass_spp": spp, "pass_seconds": round(seconds, 3),
+                          "seconds": round(time.perf_counter() - began, 3),
+                          "relative_error": None if error is None else round(error, 6), "done": schedule.done()}
                 await self._window()
-                if not await self.send_frame(mean.astype(np.float32), state,
+                if not await self.send_frame(run.mean.astype(np.float32), state,
                                              {"frame_seconds": seconds, "terms": None}, report):
                     return False
-                if seconds < CONVERGE_ROUND_SECONDS / 2 and spp < CONVERGE_MAX_CALL_SPP:
-                    spp *= 2
         finally:
-            stop.set()            # a call still running ends at its next progress report
+            stop.set()            # a pass still running ends at its next progress report
             for t in (job, waiter):
                 if t is not None and not t.done():
                     t.cancel()
