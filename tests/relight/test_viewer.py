@@ -602,8 +602,8 @@ def test_browser_converge_shows_spp_growing_error_falling_and_restarts_when_a_sl
     _start_converge(pg, 5)
     _doubling([c["spp"] for c in fake.calls])
     assert len({c["seed"] for c in fake.calls}) == len(fake.calls)
-    shown = pg.evaluate("viewer.converged")          # [spp, relative error] of each pass drawn
-    spp, error = [s for s, _ in shown], [e for _, e in shown]
+    shown = pg.evaluate("viewer.converged")          # [spp, relative error, time] of each pass drawn
+    spp, error = [s[0] for s in shown], [s[1] for s in shown]
     assert spp == sorted(set(spp)) and len(spp) >= 5
     # the fake's error is 5% / sqrt(spp) a pass: the pooled error falls as 1 / sqrt(spp) (its
     # estimate from thousands of pixels: within a few percent)
