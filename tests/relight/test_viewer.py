@@ -751,17 +751,17 @@ def test_object_limits_and_placement_come_from_the_scene(serve_object, object_tr
     v = serve_object()
     lim = _object_limits(v)
     assert lim.translate == (0.0, 0.6, 0.0) and lim.rotate_y == 0.0
-    scene = v.mover.scene
+    scene = v.frames.mover.scene
     used = scene.vertices[np.unique(scene.faces)]
     lo, hi = np.array(lim.lo), np.array(lim.hi)
     # every translation that keeps the card's bounding sphere's centre in the scene's bounds is in range
-    center, radius = v.mover.center, v.mover.radius
+    center, radius = v.frames.mover.center, v.frames.mover.radius
     assert np.all(lo <= used.min(0) - center - radius + 1e-9) and np.all(hi >= used.max(0) - center + radius - 1e-9)
     assert np.all(lo <= lim.translate) and np.all(np.array(lim.translate) <= hi)
     assert np.all(hi - lo <= (used.max(0) - used.min(0)) + 2 * radius + 2 * lim.step + 1e-9)
     # the slider's rotation about +Y after the card's own rotation about +X
     for degrees in (0.0, 45.0, 180.0, 300.0):
-        t, r = v.placement({"translate": [0.1, 0.6, -0.2], "rotate_y": degrees})
+        t, r = v.frames.placement({"translate": [0.1, 0.6, -0.2], "rotate_y": degrees})
         assert t == [0.1, 0.6, -0.2]
         want = rotation([0.0, 1.0, 0.0, degrees]) @ rotation(CARD_ROTATE)
         assert np.allclose(rotation(r), want, atol=1e-9), degrees
@@ -783,7 +783,7 @@ def test_object_page_and_socket_frames_are_the_moving_estimators(serve_object, o
     mover = MovingObjectOf(object_transfer, v)
 
     def expected(translate, rotate_y, spp, exposure=0.0):
-        t, r = v.placement({"translate": translate, "rotate_y": rotate_y})
+        t, r = v.frames.placement({"translate": translate, "rotate_y": rotate_y})
         return tone_map(mover.frame(t, r, spp=spp, seed=0).image, exposure, alpha=True)
 
     def picture(payload):
@@ -859,7 +859,7 @@ def MovingObjectOf(transfer, v):
     """A moving object of its own for the same bake and scene as the viewer's (expected frames)."""
     from wavlight.relight.moving import MovingObject
 
-    return MovingObject(transfer, v.mover.scene)
+    return MovingObject(transfer, v.frames.mover.scene)
 
 
 def test_object_viewer_refuses_maps_and_the_command_line_errors_are_one_line(object_transfer, object_bake, tmp_path):
@@ -1035,7 +1035,7 @@ def test_view_limits_are_the_scene_cameras(serve_view, view_transfer):
     lim = v.limits
     assert isinstance(lim, ViewLimits) and lim == VIEW_LIMITS
     state, _ = sanitise({}, lim)
-    eye, target, fov = v.camera(state)
+    eye, target, fov = v.frames.camera(state)
     assert np.allclose(eye, VIEW_EYE, atol=1e-3) and np.allclose(target, VIEW_TARGET) and fov == 40.0
     status, html = _get(v.url)
     config = _config(html)

@@ -284,9 +284,9 @@ class ConvergeFrames:
     lighting is made here and kept; what does, per lighting, and kept while frames keep it."""
 
     def __init__(self, transfer, scene=None, threads=None, backend: str = "opencl"):
-        if transfer.header.get("vary", "lighting") != "lighting":
-            raise WavlightError(f"{transfer.path}: this bake varies the {transfer.header.get('vary')}, not the "
-                                "lighting: its unbiased frames are its own")
+        if transfer.varies != "lighting":
+            raise WavlightError(f"{transfer.path}: this bake varies the {transfer.varies}, not the lighting: its "
+                                "unbiased frames are its own")
         if backend not in BACKENDS:
             raise ArgumentError(f"relight.ConvergeFrames: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         self.transfer, self.backend = transfer, backend

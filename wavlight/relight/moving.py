@@ -399,8 +399,8 @@ class MovingObject:
     with ``backend="opencl"``, the kernels (module docstring)."""
 
     def __init__(self, transfer, scene=None, backend: str = "opencl", directions: int = DIRECTIONS):
-        if transfer.header.get("vary") != "object":
-            raise WavlightError(f"{transfer.path}: this bake varies the {transfer.header.get('vary', 'lighting')}, "
+        if transfer.varies != "object":
+            raise WavlightError(f"{transfer.path}: this bake varies the {transfer.varies}, "
                                 "not an object")
         if backend not in BACKENDS:
             raise ArgumentError(f"relight.moving: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")

@@ -889,7 +889,7 @@ class ViewFrames:
     cache and device entries."""
 
     def __init__(self, transfer, scene=None):
-        varies = transfer.header.get("vary", "lighting")
+        varies = transfer.varies
         if varies != "view":
             raise WavlightError(f"{transfer.path}: this bake varies the {'lighting' if varies == 'lighting' else 'object'}"
                                 f", not the view")
