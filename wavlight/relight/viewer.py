@@ -121,9 +121,9 @@ from .viewstate import (CAMERA_KEYS, DISTANCE_FACTORS, ELEVATION_LIMIT, EXPOSURE
 #: the benchmarks')
 __all__ = ["CAMERA_KEYS", "CONVERGE_THREADS", "DISTANCE_FACTORS", "ELEVATION_LIMIT", "ENCODINGS", "EXPOSURE_RANGE",
            "HOST", "JPEG_QUALITY", "Limits", "MAX_INTEGER_DIGITS", "MAX_MESSAGE_BYTES", "MAX_MESSAGE_DEPTH",
-           "OBJECT_FRAME_SPP", "OBJECT_PREVIEW_SPP", "ObjectLimits", "VIEW_PREVIEW_PIXELS", "ViewLimits", "Viewer", "encode", "message",
-           "nesting_depth", "orbit_angles", "orbit_basis", "orbit_eye", "preview_size", "preview_terms",
-           "read_message", "sanitise", "significant", "tone_map", "translate_range"]
+           "OBJECT_FRAME_SPP", "OBJECT_PREVIEW_SPP", "ObjectLimits", "VIEW_PREVIEW_PIXELS", "ViewLimits", "Viewer",
+           "encode", "message", "nesting_depth", "orbit_angles", "orbit_basis", "orbit_eye", "preview_size",
+           "preview_terms", "read_message", "sanitise", "significant", "tone_map", "translate_range"]
 
 #: the only address the viewer listens on
 HOST = "127.0.0.1"
