@@ -80,6 +80,8 @@ class Frames:
     flags: tuple = ()
     fixed = ""
     sequence_flag = None
+    #: whether every frame is unbiased (an object bake's), not only those of :meth:`converge`
+    unbiased = False
     #: the page's state keys of the factor (beside exposure and tone curve)
     page_keys: tuple = ()
 
@@ -88,12 +90,13 @@ class Frames:
         self.given_scene = scene
 
     # -- `wavlight frame`
-    def held(self, settings) -> None:
-        """A WavlightError for a flag of another factor given (one line)."""
+    @classmethod
+    def refuse_held(cls, path, settings) -> None:
+        """A WavlightError (one line) for a flag of a factor the bake at ``path`` holds fixed."""
         for key in LIGHTING_FLAGS + OBJECT_FLAGS + VIEW_FLAGS:
-            if key not in self.flags and settings.get(key) is not None:
-                raise WavlightError(f"{self.transfer.path}: this bake varies {self.fixed}; {FRAME[key].flag} "
-                                    f"does not apply (bake with --vary {_FACTOR_OF_FLAG[key]})")
+            if key not in cls.flags and settings.get(key) is not None:
+                raise WavlightError(f"{path}: this bake varies {cls.fixed}; {FRAME[key].flag} does not apply "
+                                    f"(bake with --vary {_FACTOR_OF_FLAG[key]})")
 
     def state_from(self, settings) -> dict:
         """The factor's state from `wavlight frame`'s settings (None: the bake's own)."""
@@ -116,9 +119,12 @@ class Frames:
         raise NotImplementedError
 
     def sequence(self, states, detail=None):
-        """The frames of ``states`` in turn: (image, stats) each."""
+        """The frames of ``states`` in turn: (image, stats) each, ``frame_seconds`` the wall time of
+        each :meth:`frame`."""
         for state in states:
-            yield self.frame(state, detail)
+            t0 = time.perf_counter()
+            image, stats = self.frame(state, detail)
+            yield image, dict(stats, frame_seconds=time.perf_counter() - t0)
 
     def report(self, state, stats) -> dict:
         """The factor's fields of `wavlight frame --json` for a frame of ``state``."""
@@ -198,11 +204,15 @@ class LightingFrames(Frames):
         rotate_y, scale = settings.get("rotate_y"), settings.get("scale")
         if rotate_y is not None and not math.isfinite(rotate_y):
             raise WavlightError(f"--rotate-y must be a finite number of degrees, got {rotate_y}")
+        scale = FRAME["scale"].default if scale is None else scale
         env = None
         if settings.get("env") is not None:
-            env = self.transfer.environment(settings["env"], FRAME["scale"].default if scale is None else scale)
-            scale = None   # (in env already)
-        return {"env": env, "rotate_y": rotate_y, "scale": FRAME["scale"].default if scale is None else scale,
+            env = self.transfer.environment(settings["env"], scale)
+        if (env if env is not None else self.transfer.environment(None, scale)).is_black:
+            scaled = f" times --scale {scale:g}" if scale != 1.0 else ""
+            raise WavlightError(f"{settings.get('env') or self.transfer.path}: the environment{scaled} is black "
+                                "everywhere; the frame would be black")
+        return {"env": env, "rotate_y": rotate_y, "scale": 1.0 if env is not None else scale,   # (env: scaled)
                 "terms": settings.get("terms"), "priority": settings.get("priority")}
 
     def frame(self, state, detail=None):
@@ -294,6 +304,7 @@ class ObjectFrames(Frames):
     flags = OBJECT_FLAGS
     fixed = "an object (its lighting and camera are fixed)"
     page_keys = ("translate", "rotate_y")
+    unbiased = True
 
     def __init__(self, transfer, scene=None):
         super().__init__(transfer, scene)
@@ -315,7 +326,8 @@ class ObjectFrames(Frames):
         if translate is not None and not all(math.isfinite(x) and abs(x) <= MAX_COORDINATE for x in translate):
             raise WavlightError(f"--translate must be three finite numbers within the ray tracer's range (|x| <= "
                                 f"{MAX_COORDINATE:g}), got {' '.join(str(x) for x in translate)}")
-        return {"translate": translate, "rotate": settings.get("rotate"), "spp": settings.get("spp")}
+        return {"translate": translate, "rotate": settings.get("rotate"), "spp": settings.get("spp"),
+                "seed": FRAME["seed"].default if settings.get("seed") is None else settings["seed"]}
 
     def inputs(self) -> list:
         return [self.mover.scene.path, *self.mover.scene.files]
