@@ -224,7 +224,7 @@ def check_scene(scene) -> None:
 
 
 # ----------------------------------------------------------------------------- validation helpers
-class _Table:
+class Table:
     """One TOML table, reading typed keys and rejecting unknown ones."""
 
     def __init__(self, path, name, data):
@@ -306,7 +306,7 @@ class _Table:
             self.fail(extra[0], "unknown key")
 
 
-def _positive(t: _Table, key, value, lo=None, hi=None):
+def _positive(t: Table, key, value, lo=None, hi=None):
     if lo is not None and value < lo:
         t.fail(key, f"must be at least {lo}, got {value}")
     if hi is not None and value > hi:
@@ -366,7 +366,7 @@ def _hashed(value):
     raise TypeError(f"{type(value).__name__} is not a scene value")
 
 
-def _given_array(t: _Table, key: str, value, what: str) -> np.ndarray:
+def _given_array(t: Table, key: str, value, what: str) -> np.ndarray:
     """``value`` as an array of real numbers (not copied where it is one), or a one-line error."""
     if isinstance(value, np.ndarray):
         a = value
@@ -380,7 +380,7 @@ def _given_array(t: _Table, key: str, value, what: str) -> np.ndarray:
     return a
 
 
-def _given_pixels(t: _Table) -> np.ndarray:
+def _given_pixels(t: Table) -> np.ndarray:
     """The map of ``[environment] pixels``: (H, W, 3) float32 (a copy), with the limits of a map file."""
     present, given = t.lookup("pixels")
     if not isinstance(given, _Given):
@@ -397,7 +397,7 @@ def _given_pixels(t: _Table) -> np.ndarray:
     return pixels
 
 
-def _given_mesh(t: _Table):
+def _given_mesh(t: Table):
     """(vertices (V, 3) float64, faces (F, 3) int64) of ``vertices`` and ``faces`` arrays, or of a
     ``mesh`` object with vertices and faces (a trimesh.Trimesh), with a mesh file's checks."""
     if t.has("mesh"):
@@ -457,7 +457,7 @@ def _given_triangles(o: dict) -> int:
     return int(shape[0]) if len(shape) else 0
 
 
-def _load_mesh(t: _Table, path: str):
+def _load_mesh(t: Table, path: str):
     """(vertices, faces) of a mesh file: PLY triangle meshes by :func:`meshes.read_ply`, OBJ by
     :func:`meshes.read_obj` (an index 0, past the end or fractional is named with its line, not
     taken for a degenerate triangle), everything else by trimesh, imported only then."""
@@ -485,7 +485,7 @@ def _load_mesh(t: _Table, path: str):
     return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
 
 
-def _shape(t: _Table, base_dir, files: list):
+def _shape(t: Table, base_dir, files: list):
     """(vertices, faces) of one object before its transform."""
     if t.has("mesh") and t.has("shape"):
         t.fail("shape", "give either mesh or shape, not both")
@@ -535,7 +535,7 @@ def rotation(rotate) -> np.ndarray:
     return _axis_angle(np.asarray(rotate[:3], np.float64), float(rotate[3]))
 
 
-def _transform(t: _Table, v):
+def _transform(t: Table, v):
     """(scaled local vertices, rotate [ax, ay, az, deg] or None, translate (3,)): an object's
     transform in the order scale, rotate, translate."""
     scale = t.num_or_vec("scale", 3, 1.0)
@@ -676,7 +676,7 @@ def _parse(doc, path: str, base: str) -> Scene:
         raise SceneError(path, unknown[0], "unknown table")
     files = []   # the files the scene reads, for its content hash
 
-    r = _Table(path, "[render]", doc.get("render", {}))
+    r = Table(path, "[render]", doc.get("render", {}))
     width, height, spp = (_positive(r, o.key, r.get(o.key, "int", o.default), o.lo, o.hi)
                           for o in (WIDTH, HEIGHT, SPP))
     strategy = r.get("strategy", "str", "mis")
@@ -686,7 +686,7 @@ def _parse(doc, path: str, base: str) -> Scene:
     options = r.options()
     r.done()
 
-    c = _Table(path, "[camera]", doc.get("camera", {}))
+    c = Table(path, "[camera]", doc.get("camera", {}))
     camera = Camera(c.get("eye", "vec3", np.array([0.0, 1.0, 4.0])),
                     c.get("target", "vec3", np.array([0.0, 0.5, 0.0])),
                     c.get("up", "vec3", np.array([0.0, 1.0, 0.0])),
@@ -701,14 +701,14 @@ def _parse(doc, path: str, base: str) -> Scene:
         c.fail("up", "must not be parallel to the view direction")
     c.done()
 
-    environment = _environment(_Table(path, "[environment]", doc.get("environment", {})), base, files)
+    environment = _environment(Table(path, "[environment]", doc.get("environment", {})), base, files)
 
     mats_doc = doc.get("materials", {})
     if not isinstance(mats_doc, dict):
         raise SceneError(path, "materials", "must be a table of tables")
     materials, index = [], {}
     for name, m in mats_doc.items():
-        t = _Table(path, f"[materials.{name}]", m)
+        t = Table(path, f"[materials.{name}]", m)
         kind = t.get("type", "str", required=True)
         if kind not in bsdfs.TYPES:
             t.fail("type", f"unknown BRDF {kind!r} (lambert | phong | ggx)")
@@ -740,7 +740,7 @@ def _parse(doc, path: str, base: str) -> Scene:
     offset = face_offset = 0
     triangles = 0
     for i, o in enumerate(objs):
-        t = _Table(path, f"[[objects]][{i}]", o)
+        t = Table(path, f"[[objects]][{i}]", o)
         object_name = t.get("name", "str")
         if object_name is not None:
             if not object_name or any(ob.name == object_name for ob in objects):
@@ -836,7 +836,7 @@ def _file_digest(name) -> bytes:
     return h.digest()
 
 
-def _environment(t: _Table, base, files: list) -> Environment:
+def _environment(t: Table, base, files: list) -> Environment:
     scale = _positive(t, "scale", t.get("scale", "float", 1.0), 0.0)
     rotate_y = t.get("rotate_y", "float", 0.0)
     if t.has("file") and t.has("procedural"):

@@ -82,8 +82,10 @@ class Frames:
     sequence_flag = None
     #: whether every frame is unbiased (an object bake's), not only those of :meth:`converge`
     unbiased = False
-    #: the page's state keys of the factor (beside exposure and tone curve)
+    #: the page's state keys of the factor's value (a converged image is of one), and those a
+    #: frame's header shows (beside the exposure and the tone curve)
     page_keys: tuple = ()
+    shown_keys: tuple = ()
 
     def __init__(self, transfer, scene=None):
         self.transfer = transfer
@@ -134,7 +136,7 @@ class Frames:
     def limits(self, converge: bool):
         raise NotImplementedError
 
-    def page_config(self, limits) -> dict:
+    def page_config(self, limits, preview_pixels: int = VIEW_PREVIEW_PIXELS) -> dict:
         """The page's controls of the factor (its part of the page's config)."""
         raise NotImplementedError
 
@@ -191,6 +193,7 @@ class LightingFrames(Frames):
     fixed = "the lighting (its objects and camera are fixed)"
     sequence_flag = "turntable"
     page_keys = ("rotate_y", "env")
+    shown_keys = ("rotate_y", "terms", "env")
 
     def __init__(self, transfer, scene=None, maps=()):
         super().__init__(transfer, scene)
@@ -240,7 +243,7 @@ class LightingFrames(Frames):
         return Limits(maps=len(self.maps), max_terms=side * side, rotate_y=self.transfer.scene_rotate_y % 360.0,
                       terms=min(self.transfer.terms, side * side), converge=converge)
 
-    def page_config(self, limits) -> dict:
+    def page_config(self, limits, preview_pixels=VIEW_PREVIEW_PIXELS) -> dict:
         t = self.transfer
         return {"maps": [name for name, _ in self.maps], "max_terms": limits.max_terms,
                 "default_terms": limits.terms, "texels": f"{1 << t.n_levels}x{1 << t.n_levels}",
@@ -303,7 +306,7 @@ class ObjectFrames(Frames):
     factor = "object"
     flags = OBJECT_FLAGS
     fixed = "an object (its lighting and camera are fixed)"
-    page_keys = ("translate", "rotate_y")
+    page_keys = shown_keys = ("translate", "rotate_y")
     unbiased = True
 
     def __init__(self, transfer, scene=None):
@@ -363,7 +366,7 @@ class ObjectFrames(Frames):
         return ObjectLimits(translate=tuple(default), lo=lo, hi=hi, step=step,
                             rotate_y=round(self.own_rotate_y % 360.0, 3) % 360.0, converge=converge)
 
-    def page_config(self, limits) -> dict:
+    def page_config(self, limits, preview_pixels=VIEW_PREVIEW_PIXELS) -> dict:
         obj = self.mover.object
         return {"object": obj.name if obj.name else f"object {obj.index}", "translate_min": list(limits.lo),
                 "translate_max": list(limits.hi), "translate_step": limits.step,
@@ -405,7 +408,7 @@ class CameraFrames(Frames):
     flags = VIEW_FLAGS
     fixed = "the view (its lighting and objects are fixed)"
     sequence_flag = "orbit"
-    page_keys = ("azimuth", "elevation", "distance")
+    page_keys = shown_keys = ("azimuth", "elevation", "distance")
 
     def __init__(self, transfer, scene=None):
         super().__init__(transfer, scene)

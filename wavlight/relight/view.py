@@ -85,7 +85,7 @@ directions from a defensive mixture: with probability 1 - DEFENSIVE - LIGHT_SHAR
 is the transform of its coarser texels, eq. 13), times f_r at the texels' centres for that hit's
 normal and view, walked by the hierarchical warp (:class:`wavlight.haar.HaarTree`, eq. 17-22),
 then inside the texel by the lighting's own luminance at the map's resolution
-(:class:`wavlight.relight.converge._TexelLight`); with probability DEFENSIVE (or 1 - LIGHT_SHARE
+(:class:`wavlight.relight.mixture.TexelLight`); with probability DEFENSIVE (or 1 - LIGHT_SHARE
 where the pixel has no product) from the BSDF; with probability LIGHT_SHARE from the lighting
 alone (a bright light that the bake's one shadow ray per texel hid from a cache point's T1 is
 still found). Every direction is evaluated with the true f_r cos, the radiance and a shadow
@@ -118,8 +118,8 @@ from ..warp import to_local
 from . import lighting, store
 from .bake import BLOCK, PixelSamples, camera_jitter, choose_model, texel_rays, \
     texel_rays_reference
-from .converge import LIGHT_SHARE, PASS_SPP, _scene_of, check_shares, _TexelLight, mean_and_error, shade_by_mixture, \
-    square_to_world
+from .converge import PASS_SPP
+from .mixture import LIGHT_SHARE, TexelLight, check_shares, mean_and_error, scene_of, shade_by_mixture, square_to_world
 from .frame import DeviceEntries
 from .settings import BAKE, CACHE_POINTS, FRAME, UNBIASED_SPP, VIEW_TEXEL_POINTS, WRITTEN_SUPERSAMPLE
 from .store import lattice_size
@@ -142,7 +142,7 @@ PRODUCT_LEVELS = 5
 DEFENSIVE = 0.1
 SLOTS = 2
 #: the unbiased frame's chunk c draws its Philox numbers as tile JITTER_TILE + c (camera jitter:
-#: rng.JITTER; directions: rng.CONVERGE_DIRECTIONS, :func:`wavlight.relight.converge.shade_by_mixture`)
+#: rng.JITTER; directions: rng.CONVERGE_DIRECTIONS, :func:`wavlight.relight.mixture.shade_by_mixture`)
 JITTER_TILE = 1 << 20
 #: pixels per chunk of a frame (bounded memory)
 CHUNK_PIXELS = 1 << 16
@@ -690,7 +690,7 @@ class FrameDevice:
             self.map_from_world, out)
         if image is None:
             return cl.read(out, (count, 3), np.float32, queue)
-        cl._cl().enqueue_copy(queue, image, out)
+        cl.opencl().enqueue_copy(queue, image, out)
         return image
 
 
@@ -894,7 +894,7 @@ class ViewFrames:
             raise WavlightError(f"{transfer.path}: this bake varies the {'lighting' if varies == 'lighting' else 'object'}"
                                 f", not the view")
         self.transfer = transfer
-        self.scene = _scene_of(transfer, scene)
+        self.scene = scene_of(transfer, scene)
         self.tracer = RayTracer(self.scene.vertices, self.scene.faces, threads=2)
         s = transfer._s
         self.position = np.asarray(s["view_position"], np.float64)
@@ -1119,7 +1119,7 @@ class ViewFrames:
         if self._inside is None:
             env = self.environment
             m = min(self.n, PRODUCT_LEVELS)
-            self._inside = _TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), m, env.rotate_y)
+            self._inside = TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), m, env.rotate_y)
         return self._inside
 
     def product_leaves(self, ids, w, normal, wo_world, mat):

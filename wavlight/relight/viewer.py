@@ -177,8 +177,7 @@ class Viewer:
             takes = {}
         self._converge_progress, self._converge_threads = "progress" in takes, "threads" in takes
         self.limits = self.frames.limits(self.converge is not None)
-        self.state_keys = (*self.frames.page_keys, "exposure", "tonemap") + (("terms",) if self.varies == "lighting"
-                                                                             else ())
+        self.state_keys = (*self.frames.shown_keys, "exposure", "tonemap")
         self._page = resources.files(__package__).joinpath("viewer.html").read_text(encoding="utf-8")
         self._pool = None       # the one thread that computes frames
         self._converge_pool = None   # the one thread that runs converge passes
@@ -249,9 +248,7 @@ class Viewer:
                   "converge_note": None if self.converge is not None else
                   "no converge estimator given to this viewer",
                   "window": WINDOW}
-        if self.varies == "view":
-            return {**config, **self.frames.page_config(self.limits, self.preview_pixels)}
-        return {**config, **self.frames.page_config(self.limits)}
+        return {**config, **self.frames.page_config(self.limits, self.preview_pixels)}
 
     async def _page_handler(self, request):
         state, notes = sanitise(request.query, self.limits)

@@ -130,7 +130,7 @@ def balance_heuristic(p_a, p_b):
 HEURISTICS = {"power": power_heuristic, "balance": balance_heuristic}
 
 
-def _unoccluded(sp, env, ds, mis_weight):
+def unoccluded(sp, env, ds, mis_weight):
     """albedo f cos L / pdf (x MIS weight) per sample, (N, 3); 0 where pdf is 0."""
     fcos = sp.bsdf_eval_cos(ds.wi_local)
     with np.errstate(divide="ignore", invalid="ignore"):
