@@ -344,6 +344,24 @@ class ConvergeFrames:
             for tile in self.tiles:
                 self.spread(tile, prog)
 
+    def warm(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, levels: int = PRODUCT_LEVELS,
+             stop=None) -> int:
+        """Make the lighting's tables and every tile's product trees (kept while they fit) before a
+        frame asks for them, tile by tile until ``stop()`` is true: the viewer's converge thread
+        warms the lighting of a page at rest, so that its first pass pays only for its samples.
+        Returns the tiles whose trees are kept."""
+        tr = self.transfer
+        m = min(tr.n_levels, levels)
+        state = self.lighting(env, tr.scene_rotate_y if rotate_y is None else float(rotate_y), scale, m)
+        if self.backend != "opencl":
+            return 0
+        prog = self.program(m, SLOTS, CANDIDATES, True)
+        for tile in self.tiles:
+            if stop is not None and stop():
+                break
+            self.tile_trees(state, tile, prog)
+        return len(state.trees)
+
     # -- a frame
     def frame(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, spp: int = UNBIASED_SPP,
               seed: int = FRAME["seed"].default, progress=None, slots: int = SLOTS, defensive: float = DEFENSIVE,

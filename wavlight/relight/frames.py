@@ -177,6 +177,10 @@ class Frames:
     def prepare(self) -> None:
         """Make what the first unbiased frame makes regardless of the state."""
 
+    def warm(self, state, stop=None) -> None:
+        """Make what the unbiased frames of ``state`` share before the first is asked for (a
+        lighting's tables and product trees), until ``stop()`` is true; nothing by default."""
+
     def close(self) -> None:
         """Release what the frames keep (device memory)."""
 
@@ -292,6 +296,10 @@ class LightingFrames(Frames):
     def prepare(self):
         self.estimator()
         self._frames.prepare()
+
+    def warm(self, state, stop=None):
+        self.estimator()
+        self._frames.warm(state.get("env"), state.get("rotate_y"), state.get("scale", 1.0), stop=stop)
 
     def close(self):
         if self._frames is not None:

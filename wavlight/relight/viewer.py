@@ -138,6 +138,10 @@ MESSAGE_CLOSE_BYTES = 1 << 20
 #: the frame thread keeps (on two cores, a 128 x 128 bake: frames 2.4 ms in the median beside a call
 #: on one thread, 5.1 ms beside the estimator's default of two per core, the call no slower)
 CONVERGE_THREADS = max(1, (os.cpu_count() or 2) - 1)
+#: a page whose state rests this long after its full frame (converge not pressed) has the state's
+#: lighting warmed in the converge thread (its tables and product trees), unless a page converges:
+#: a click then pays only for its first pass
+WARM_AFTER_SECONDS = 0.3
 _UNSET = object()
 _log = logging.getLogger("wavlight.viewer")
 
@@ -183,6 +187,10 @@ class Viewer:
         self._converge_pool = None   # the one thread that runs converge passes
         self._converging = None      # that thread's own frames (on a copy of the bake)
         self._prepared = None        # the task that made them when the first page opened
+        self._warm_key = None        # the factor's value warmed last, and the warming's generation:
+        self._warm_generation = 0    # a newer state or a converging page stops a warming under way
+        self._warming: set = set()
+        self.converging_pages = 0
         self._listener = None
         self._sockets: set = set()
         self._tasks: set = set()
@@ -380,6 +388,41 @@ class Viewer:
             self._converging = self.frames.for_converge()
         return self._converging
 
+    def warm_later(self, state):
+        """The page's state rests: warm its factor's shared parts in the converge thread after
+        WARM_AFTER_SECONDS, unless another state comes or a page converges meanwhile (in the loop)."""
+        if not self._default_converge or self.converge is None or self._converge_pool is None:
+            return
+        key = self.converge_key(state)
+        self._warm_generation += 1
+        if key == self._warm_key:
+            return
+        generation = self._warm_generation
+
+        async def later():
+            await asyncio.sleep(WARM_AFTER_SECONDS)
+            if generation != self._warm_generation or self.converging_pages:
+                return
+            self._warm_key = key
+            await self.run_converge(self._warm, state, generation)
+        task = asyncio.ensure_future(later())
+        self._warming.add(task)
+        task.add_done_callback(self._warmed)
+
+    def _warmed(self, task):
+        self._warming.discard(task)
+        if not task.cancelled() and task.exception() is not None:   # (a pass reports the same failure)
+            self._warm_key = None
+
+    def stop_warming(self):
+        """A page converges: a warming under way stops at its next tile."""
+        self._warm_generation += 1
+
+    def _warm(self, state, generation):
+        """Warm the state's shared parts (in the converge thread), tile by tile while it is current."""
+        frames = self._converge_side()
+        frames.warm(frames.from_page(state), lambda: generation != self._warm_generation or self.converging_pages)
+
     def prepare_converge(self):
         """Make the converge thread's frames and what their first pass makes regardless of the state
         (a lighting bake's footprints and kernels): run in the converge thread when a page opens,
@@ -427,6 +470,9 @@ class Viewer:
         for pool in pools:
             await asyncio.get_running_loop().run_in_executor(None, lambda p=pool: p.shutdown(wait=True,
                                                                                              cancel_futures=True))
+        for task in list(self._warming):
+            task.cancel()
+        await asyncio.gather(*self._warming, return_exceptions=True)
         if self._prepared is not None:
             self._prepared.cancel()
             await asyncio.gather(self._prepared, return_exceptions=True)
@@ -658,7 +704,14 @@ class _Client:
             return False
         if converging:
             self.shown = None
-            return await self._flush() and await self._converge(state)
+            self.viewer.converging_pages += 1
+            self.viewer.stop_warming()
+            try:
+                return await self._flush() and await self._converge(state)
+            finally:
+                self.viewer.converging_pages -= 1
+        if not state["preview"]:
+            self.viewer.warm_later(state)
         return True
 
     async def _frame(self, state) -> bool:
