@@ -49,15 +49,20 @@ def main():
     ap.add_argument("--repeats", type=int, default=2, help="runs per size, alternated")
     ap.add_argument("--seconds", type=float, default=5.0, help="how long after the click a run watches")
     ap.add_argument("--chromium", default=shutil.which("chromium") or shutil.which("chromium-browser"))
+    ap.add_argument("--wait-load", type=float, default=2.0, metavar="L",
+                    help="wait until the 1-minute load average is below L before timing")
+    ap.add_argument("--wait-minutes", type=float, default=0.0, metavar="M",
+                    help="wait at most M minutes, polling every 30 s, then run anyway (0: no wait)")
     add_output_argument(ap, "viewer_converge")
     args = ap.parse_args()
     if not args.chromium:
         sys.exit("no chromium found (give --chromium PATH)")
-    prov = provenance()
     import relight_common as rc
     import needs
 
     needs.fetch("viewer_converge", *rc.ASSETS)
+    wait = rc.wait_for_quiet(args.wait_load, 30, args.wait_minutes) if args.wait_minutes > 0 else None
+    prov = provenance()
     from playwright.sync_api import sync_playwright
 
     from wavlight.relight.viewer import Viewer
@@ -69,7 +74,7 @@ def main():
                            "bake_spp": BAKE_SPP, "seconds_watched": args.seconds, "chromium": args.chromium,
                            "targets": {str(k): {"first_picture_seconds": v[0], "spp_within_seconds": v[1]}
                                        for k, v in TARGETS.items()},
-                           "sizes": {}, "runs": []}
+                           "sizes": {}, "runs": [], "wait": wait}
     try:
         for size in sizes:
             print(f"the {size}x{size} bake (cached, or baked now) ...", file=sys.stderr, flush=True)

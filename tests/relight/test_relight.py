@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import wavlight
-from wavlight import bsdfs, cl
+from wavlight import bsdfs, cl, warp
 from scenes_util import write_raw_image
 from wavlight import haar
 from wavlight.envmap import Environment
@@ -302,8 +302,8 @@ def test_control_variate_integral_is_the_mean_of_its_samples(one_tile, levels):
     hit = np.flatnonzero(prim >= 0)
     nrm, _, _ = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
     nrm = nrm.astype(np.float64)
-    s_ax, t_ax = c.tangent_frame(nrm)
-    wo = c.to_local(-d[hit].astype(np.float64), s_ax, t_ax, nrm)
+    s_ax, t_ax = warp.frame(nrm)
+    wo = warp.to_local(-d[hit].astype(np.float64), s_ax, t_ax, nrm)
     mat = scene.face_material[prim[hit]]
     has_p = trees.integral[hit // spp] > 0
     alpha = np.where(has_p, c.DEFENSIVE, 1.0 - c.LIGHT_SHARE)
@@ -379,7 +379,7 @@ def test_resampling_target_is_positive_where_the_integrand_is():
     transfer = np.array([0.0, 3.0, 2.0, 0.0, 5.0])
     p = mixture.resampling_target(fcos, radiance, transfer)
     assert p[0] > 0 and p[1] > 0 and p[2] > 0 and p[3] == 0 and p[4] == 0
-    c = converge_mod
+    c = mixture
     expect = (1.0 ** c.LOBE_POWER * 3.0 ** (1 - c.LOBE_POWER) + c.TARGET_BSDF + 3.0 * c.TARGET_TRANSFER)
     assert np.isclose(p[1], wavlight.envmap.luminance(radiance[1:2])[0] * expect)
 
