@@ -10,12 +10,12 @@ One aiohttp ``web.Application``: ``GET /`` is the page (viewer.html, everything 
 the state read from its URL, ``/?rotate_y=120&exposure=0.5&terms=256&env=1`` (``&tonemap=aces``
 where the curve is not the default), sanitised and
 written into it), ``GET /ws`` a websocket. The page sends the state as JSON; the server
-answers with frames, one binary message each: a 4-byte little-endian length, a JSON header
-(the state used, the terms kept, timings) and the picture, JPEG (Pillow) or raw RGBA
-(``encoding=`` in the URL). A frame is the transfer's frame (:meth:`Transfer.frame_timed`)
-times 2^exposure through the tone curve (``tonemap``: :data:`wavlight.display.CURVES`, the
-curves of ``wavlight render --tonemap``), encoded to 8-bit sRGB in numpy (a lookup table of the
-sRGB curve, :func:`wavlight.display.encode8_lut`).
+answers with frames, one binary message each (:mod:`.pictures`): a 4-byte little-endian length, a
+JSON header (the state used, the terms kept, timings) and the picture, JPEG (Pillow) or raw RGBA
+(``encoding=`` in the URL). A frame is the frame of the factor the bake varies
+(:func:`wavlight.relight.frames.frames_for`: :meth:`Transfer.frame_timed` for a lighting bake)
+times 2^exposure through the tone curve, encoded to 8-bit sRGB. The page's state, its limits and
+the notes for values replaced are :mod:`.viewstate`'s.
 
 Bad input: a URL or message value that is not a number, not finite or out
 of range is replaced by its default or clamped (:func:`sanitise`; an integer beyond the floats'
@@ -45,30 +45,37 @@ drawn: states that arrive while a frame is computed replace each other, and at m
 backlog). While a slider is dragged the page may ask for a preview (``preview``: fewer terms,
 :func:`preview_terms`), and for the full frame when it is released.
 
-Converge. :func:`wavlight.relight.converge.converge` (where that module exists; else the button
-is disabled) estimates the frame's true image without the K-term and texel approximations. The
-control calls it repeatedly at the current lighting with seeds 0, 1, 2, ..., from 2 spp (a
-standard error needs two samples) doubling while a call stays short, and streams the average
-weighted by spp after each call (each call is unbiased and independent, so the average is, and
-its standard error is sqrt(sum w_k^2 e_k^2) with w_k = spp_k / sum spp); a new exposure shows
-the same average again. It stops as soon as the lighting (rotation, map) changes or the control
-is released: the page releases it when the rotation, the map or K moves, and a call under way
-ends at its next progress report. The calls of every page run in a converge thread of their own,
-with the bake loaded again for it (and, for the default estimator of an object or a view bake,
-its own moving object or view frames): a call takes seconds, and the other pages' frames do not
-wait for it (nor its own page's frames once its lighting moved). A call runs on
-:data:`CONVERGE_THREADS` threads (every core but one, where the estimator takes ``threads``).
+Converge (:mod:`.progressive`). The control refines the current state's factor with the unbiased
+estimator (the frames' own, :meth:`Frames.estimate`), without the K-term and texel approximations:
+passes with seeds 0, 1, 2, ..., the first of FIRST_SPP samples per pixel (a standard error needs
+two), each next one twice the last while a pass takes less than GROW_SECONDS, merged exactly into
+a running mean (:class:`.progressive.RunningMean`: the mean and standard error of all the samples
+at once), streamed after each pass with the spp reached and the estimated relative error (the
+header's ``converge``: ``spp``, ``passes``, ``pass_spp``, ``pass_seconds``, ``seconds``,
+``relative_error``, ``done``); a new exposure or curve shows the same mean again. Any change of
+the factor (a slider released, the camera dragged) ends the passes (a pass under way ends at its
+next progress report), shows the new state's frame and, the control still pressed, starts the
+passes again from there; while a control is held (a preview) no pass runs. The passes of every
+page run in a converge thread of their own, with the bake loaded again for it and its own frames
+(:meth:`Frames.for_converge`), made and prepared (:meth:`Frames.prepare`: a lighting bake's
+footprints and kernels) when the first page opens; a page whose state rested
+:data:`WARM_AFTER_SECONDS` after its full frame has its state's shared parts warmed there
+(:meth:`Frames.warm`: a lighting's tables and product trees), stopped by a newer state or a
+converging page, so that a click pays only for its passes. The other pages' frames do not wait for
+a pass (nor its own page's frames once its state moved). A pass runs on :data:`CONVERGE_THREADS`
+threads (every core but one, where the estimator takes ``threads``).
 
 A bake that varies one object (``vary = "object"``, :mod:`wavlight.relight.moving`). The page
 offers that factor's controls instead of the lighting's: the object's translation (x, y, z
-sliders over :func:`translate_range`, the scene's bounds widened by the object's bounding radius)
+sliders over :func:`.viewstate.translate_range`, the scene's bounds widened by the object's
+bounding radius)
 and its rotation about +Y in degrees (``rotate_y``: composed with the object's own rotation, whose
 angle about +Y it starts from), with the exposure and the frame rate; the state is in the URL as
 ``/?translate=0.3,0,0.2&rotate_y=45&exposure=0.5``. A frame is the moving-object estimator
 (:meth:`MovingObject.frame`, unbiased, seed 0) at :data:`OBJECT_FRAME_SPP` samples per pixel, or
 :data:`OBJECT_PREVIEW_SPP` while a slider is dragged; converge calls the same estimator with seeds
-0, 1, 2, ... and accumulates as above, and stops when the placement changes (a call under way
-runs to its end: the estimator reports no progress). The parameters of
+0, 1, 2, ... and accumulates as above, and starts again when the placement changes (a pass under
+way runs to its end: the estimator reports no progress). The parameters of
 the factor a bake holds fixed (``env`` and ``terms`` on an object bake, ``translate`` on a lighting
 bake) follow the rule of any bad value: they are replaced by the bake's own (ignored) with a
 one-line note; a translation that is not three finite numbers becomes the object's own, a
@@ -85,8 +92,8 @@ distance within the scene's distance times :data:`DISTANCE_FACTORS` (always > 0)
 with a note. A frame is the approximate frame (:meth:`ViewFrames.frame`) at the bake's size, or
 at :func:`preview_size` (at most :data:`VIEW_PREVIEW_PIXELS` pixels, its aspect kept) while the
 camera is dragged; converge calls :meth:`ViewFrames.converge` (unbiased) at the bake's size with
-seeds 0, 1, 2, ... and accumulates as above, and stops when the camera moves (a call under way
-ends at its next progress report). ``rotate_y``, ``env``, ``terms`` and ``translate`` do not
+seeds 0, 1, 2, ... and accumulates as above, and starts again when the camera moves (a pass under
+way ends at its next progress report). ``rotate_y``, ``env``, ``terms`` and ``translate`` do not
 apply to it and get a note, as do ``azimuth``, ``elevation`` and ``distance`` on the other bakes.
 """
 from __future__ import annotations
