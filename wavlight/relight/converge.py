@@ -356,10 +356,14 @@ class ConvergeFrames:
         if self.backend != "opencl":
             return 0
         prog = self.program(m, SLOTS, CANDIDATES, True)
-        for tile in self.tiles:
+        for i, tile in enumerate(self.tiles):
             if stop is not None and stop():
                 break
-            self.tile_trees(state, tile, prog)
+            trees, _ = self.tile_trees(state, tile, prog)
+            if i == 0:   # the shading kernel's first launches (PoCL compiles per work-group size)
+                host, device = self.spread(tile, prog)
+                self._shade.warm_up(prog, SLOTS, trees, cl.to_device(host) if device is None else device,
+                                    state.device, (DEFENSIVE, LIGHT_SHARE, COHERENCE))
         return len(state.trees)
 
     # -- a frame

@@ -63,7 +63,8 @@ footprints and kernels) when the first page opens; a page whose state rested
 (:meth:`Frames.warm`: a lighting's tables and product trees), stopped by a newer state or a
 converging page, so that a click pays only for its passes. The other pages' frames do not wait for
 a pass (nor its own page's frames once its state moved). A pass runs on :data:`CONVERGE_THREADS`
-threads (every core but one, where the estimator takes ``threads``).
+threads (every core but one, where the estimator takes ``threads``) while other pages are open,
+on :data:`ALONE_THREADS` (every core) while the converging page is the only one.
 
 A bake that varies one object (``vary = "object"``, :mod:`wavlight.relight.moving`). The page
 offers that factor's controls instead of the lighting's: the object's translation (x, y, z
@@ -141,10 +142,14 @@ ACK_SECONDS = 1.0
 #: a message larger than this closes the socket (the websocket protocol's code 1009, before it is
 #: read whole): the most a page's socket buffers
 MESSAGE_CLOSE_BYTES = 1 << 20
-#: the threads of one converge pass, where the estimator takes ``threads``: every core but one, which
-#: the frame thread keeps (on two cores, a 128 x 128 bake: frames 2.4 ms in the median beside a call
-#: on one thread, 5.1 ms beside the estimator's default of two per core, the call no slower)
+#: the threads of one converge pass, where the estimator takes ``threads``, while other pages are
+#: open: every core but one, which the frame thread keeps (on two cores, a 128 x 128 bake: frames
+#: 2.4 ms in the median beside a call on one thread, 5.1 ms beside the estimator's default of two
+#: per core, the call no slower); with the converging page alone, ALONE_THREADS (a page that
+#: converges draws no frame: a pass of 8 spp at 256 x 256 took 1.3 s on two threads against 1.8 s
+#: on one, two cores under a load of 9)
 CONVERGE_THREADS = max(1, (os.cpu_count() or 2) - 1)
+ALONE_THREADS = os.cpu_count() or 2
 #: a page whose state rests this long after its full frame (converge not pressed) has the state's
 #: lighting warmed in the converge thread (its tables and product trees), unless a page converges:
 #: a click then pays only for its first pass
@@ -373,7 +378,7 @@ class Viewer:
         at the bake's size; in the converge thread, with its own frames: :meth:`_converge_side`);
         ``stop`` (a threading.Event) set ends the pass early where the estimator reports its
         progress (then :class:`_Stopped`)."""
-        kwargs = {"threads": CONVERGE_THREADS} if self._converge_threads else {}
+        kwargs = {"threads": CONVERGE_THREADS if self.clients > 1 else ALONE_THREADS} if self._converge_threads else {}
         if stop is not None and self._converge_progress:
             def progress(*args):
                 if stop.is_set():
