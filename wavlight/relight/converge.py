@@ -364,6 +364,8 @@ class ConvergeFrames:
                 host, device = self.spread(tile, prog)
                 self._shade.warm_up(prog, SLOTS, trees, cl.to_device(host) if device is None else device,
                                     state.device, (DEFENSIVE, LIGHT_SHARE, COHERENCE))
+        # the trees are read by a frame's tile threads on queues of their own: built before they are
+        cl.thread_queue().finish()
         return len(state.trees)
 
     # -- a frame
