@@ -160,12 +160,11 @@ def frame(bake_file, output, as_json, quiet, **settings):
     except wavlight.WavlightError as e:
         fail(e)
     median = statistics.median(times)
-    stats = {"vary": frames.factor, "estimator": "unbiased" if unbiased else "relit",
+    own = frames.report(state, first if count is not None else st)   # the factor's keys (a view's size)
+    stats = {"width": transfer.width, "height": transfer.height, **{k: v for k, v in st.items() if k != "stderr"},
+             **own, "vary": frames.factor, "frame": "unbiased" if unbiased else "relit",
              "frame_seconds": round(median, 6), "frames_per_second": round(1.0 / median, 3) if median > 0 else None,
              "first_frame_seconds": round(times[0], 6), "frames": len(times),
-             "width": transfer.width, "height": transfer.height,
-             **{k: v for k, v in st.items() if k not in ("stderr", "frame_seconds", "frames_per_second")},
-             **frames.report(state, first if count is not None else st),
              "output": outputs if count is not None else outputs[0]}
     if as_json:
         click.echo(json.dumps(stats, default=_plain))
