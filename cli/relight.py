@@ -1,9 +1,11 @@
 """`wavlight bake` and `wavlight frame`: thin layers over :mod:`wavlight.relight`.
 
 ``bake SCENE -o PATH`` precomputes the transfer of the scene's camera and objects;
-``frame PATH`` relights it: one frame under another map, rotation or scale, a turntable of
-frames (``--turntable N -o DIR``, with its animations: :mod:`wavlight.animation`), or with
-``--spp N`` the unbiased estimate that converges to the true image. PNG outputs take the display
+``frame PATH`` relights it through the frames of the factor it varies
+(:func:`wavlight.relight.frames.frames_for`: the lighting, an object's place or the camera): one
+frame, a turntable or orbit of frames (``--turntable N`` / ``--orbit N -o DIR``, with its
+animations: :mod:`wavlight.animation`), or with ``--spp N`` the unbiased estimate that converges
+to the true image. PNG outputs take the display
 transform of ``--exposure`` and ``--tonemap`` (:mod:`wavlight.display`), and PNG and EXR outputs
 the frame's metadata (:func:`wavlight.imageio.provenance`). Errors are one line and exit 2, as
 for ``render``.

@@ -27,7 +27,8 @@ value: passes of converge accumulate while it stays), and :meth:`Frames.estimate
 or the type's own unbiased frame, called with the factor's arguments). :meth:`Frames.for_converge`
 makes a Frames of its own for the viewer's converge thread (a copy of the bake: the two threads
 share only read-only arrays), :meth:`Frames.prepare` makes what its first pass would regardless
-of the state.
+of the state, :meth:`Frames.warm` what the passes of one state share (a lighting's tables and
+product trees) before the first is asked for.
 """
 from __future__ import annotations
 
