@@ -232,7 +232,7 @@ class ConvergeFrames:
         self.tree_scale = np.where(bake_hits(transfer) > 0, self.hit_scale, 0.0).astype(np.float32)
         self.tiles = tiles_of(transfer)
         self.lobe_width = bsdfs.lobe_width(sc.material_kind, sc.material_param).astype(np.float32)
-        self.spread_to, self._spread_rays = {}, 0
+        self._spread, self._spread_rays = {}, 0
         self._lighting = None
         self._spare = {}   # tile -> TileTrees of a lighting no longer current, their buffers for reuse
         self._map = None   # (map key, its Environment, its lighting.Projector, env): the last map's
@@ -264,7 +264,7 @@ class ConvergeFrames:
         """The footprint spread of the tile's pixels (measured once): (w h,) float32 on the host
         and its device buffer (kernel ``converge_spread`` of ``prog``; twin footprint_spread)."""
         with self._lock:
-            s = self.spread_to.get(tile.index)
+            s = self._spread.get(tile.index)
         if s is None:
             tr = self.transfer
             if self.backend == "opencl" and prog is not None:
@@ -276,7 +276,7 @@ class ConvergeFrames:
                                      tr.height).astype(np.float32)
                 s = (cl.to_device(s) if self.backend == "opencl" else None, s)
             with self._lock:
-                self.spread_to[tile.index] = s = (s[1], s[0])
+                self._spread[tile.index] = s = (s[1], s[0])
                 self._spread_rays += tile.w * tile.h * FOOTPRINT_GRID ** 2
         return s
 
@@ -491,7 +491,7 @@ class ConvergeFrames:
         """Release the device memory of the kept trees, tables and footprints."""
         self._lighting = self._map = None
         self._spare = {}
-        self.spread_to = {}
+        self._spread = {}
 
 
 def pass_spp(spp: int, pixels: int) -> int:
