@@ -4,7 +4,7 @@ samples taken (Chen & Gao eq. 12's estimator is a mean of independent samples: a
 of them is the same estimator at more spp).
 
     run = RunningMean()
-    for seed, spp in enumerate(schedule):        # PassSchedule: 2, 4, 8, ... spp per pass
+    for seed, spp in enumerate(schedule):        # PassSchedule: 2, 2, 4, 8, ... spp per pass
         result = frames.converge(state, spp, seed)
         run.add(result.image, result.stderr, spp)
         show(run.mean, run.spp, run.relative_error())
@@ -24,10 +24,12 @@ a pixel is lit where Y(m_p) > LIT_FRACTION times the image's mean luminance and 
 finite. None while no pixel is lit or every error is unknown (a single sample).
 
 Schedule (:class:`PassSchedule`): the first pass takes FIRST_SPP samples per pixel, and each
-next pass twice the last while the last pass took less than GROW_SECONDS (so that the fixed cost
-of a pass, its launches and tables, is paid over more samples as the image converges and the
-page gets a new picture at least every few seconds), at most MAX_PASS_SPP; refinement ends at
-MAX_SPP samples in all.
+next pass as many as all the passes before it, at most twice the last, while the last pass took
+less than GROW_SECONDS (else as many as the last): 2, 2, 4, 8, 16, ..., so that the samples taken
+double with each pass (the error falls by sqrt(2) a pass: 64 spp after six passes and 64 spp of
+work, where passes of 2, 4, 8, ... would pass it only after 126), the fixed cost of a pass is
+paid over more samples as the image converges, and the page gets a new picture at least every
+few seconds; at most MAX_PASS_SPP a pass; refinement ends at MAX_SPP samples in all.
 """
 from __future__ import annotations
 
@@ -38,8 +40,8 @@ from ..envmap import LUMINANCE
 #: a pixel counts towards the relative error where its mean luminance is above this fraction of
 #: the image's mean luminance (a black background's relative error is not defined)
 LIT_FRACTION = 1e-3
-#: the passes' samples per pixel: the first pass's, doubled while a pass takes less than
-#: GROW_SECONDS, at most MAX_PASS_SPP per pass; MAX_SPP in all
+#: the passes' samples per pixel: the first pass's, then as many as all before (at most twice the
+#: last) while a pass takes less than GROW_SECONDS, at most MAX_PASS_SPP per pass; MAX_SPP in all
 FIRST_SPP = 2
 GROW_SECONDS = 1.0
 MAX_PASS_SPP = 64
@@ -116,5 +118,5 @@ class PassSchedule:
         """The pass of ``spp`` samples took ``seconds``: the next one's spp."""
         self.taken += self.spp
         if seconds < self.grow_seconds and self.spp < self.most:
-            self.spp = min(self.most, 2 * self.spp)
+            self.spp = min(self.most, 2 * self.spp, self.taken)
         self.spp = max(1, min(self.spp, self.total - self.taken)) if not self.done() else self.spp

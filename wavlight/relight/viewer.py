@@ -48,7 +48,8 @@ backlog). While a slider is dragged the page may ask for a preview (``preview``:
 Converge (:mod:`.progressive`). The control refines the current state's factor with the unbiased
 estimator (the frames' own, :meth:`Frames.estimate`), without the K-term and texel approximations:
 passes with seeds 0, 1, 2, ..., the first of FIRST_SPP samples per pixel (a standard error needs
-two), each next one twice the last while a pass takes less than GROW_SECONDS, merged exactly into
+two), each next one as many as all before it (2, 2, 4, 8, ...) while a pass takes less than
+GROW_SECONDS, merged exactly into
 a running mean (:class:`.progressive.RunningMean`: the mean and standard error of all the samples
 at once), streamed after each pass with the spp reached and the estimated relative error (the
 header's ``converge``: ``spp``, ``passes``, ``pass_spp``, ``pass_seconds``, ``seconds``,
@@ -746,7 +747,7 @@ class _Client:
 
     async def _converge(self, state):
         """Refine the state's factor (the lighting, the object's place or the camera) with passes
-        of the estimator (:mod:`.progressive`: seeds 0, 1, 2, ..., spp from FIRST_SPP doubling),
+        of the estimator (:mod:`.progressive`: seeds 0, 1, 2, ..., spp 2, 2, 4, 8, ...),
         streaming the running mean of all their samples after each; return when that factor or the
         control changes (True), or the socket closed (False)."""
         lighting = self.viewer.converge_key(state)
