@@ -54,7 +54,7 @@ def main():
     args = ap.parse_args()
     prov = provenance()
     from wavlight import haar
-    from wavlight.haar.sparse import _common, _Keyed
+    from wavlight.haar.sparse import common_nodes, Keyed
 
     rng = np.random.default_rng(3)
     out = {"dense": {}, "sparse": {}}
@@ -75,8 +75,8 @@ def main():
         t3 = best_of(lambda: haar.triple_product_integral(g, h, k))
         t2 = best_of(lambda: haar.double_product_integral(g, h))
         # the wavelets two sets share (case 3 needs the third set's average at each)
-        c = [_Keyed(s, n) for s in (g, h, k)]
-        common = sum(len(_common(a, b)[0]) for a, b in ((c[0], c[1]), (c[0], c[2]), (c[1], c[2])))
+        c = [Keyed(s, n) for s in (g, h, k)]
+        common = sum(len(common_nodes(a, b)[0]) for a, b in ((c[0], c[1]), (c[0], c[2]), (c[1], c[2])))
         out["sparse"][str(kept)] = {"levels": n, "common_wavelets": common,
                                     "triple_seconds": round(t3, 6), "double_seconds": round(t2, 6),
                                     "triple_ns_per_coefficient": round(1e9 * t3 / kept, 2),

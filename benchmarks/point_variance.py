@@ -462,7 +462,7 @@ def mixture_estimates(strategy, env, sp, u, share):
     with u.x, rescaled), and weighs f L cos / (share p_product + (1 - share) p_bsdf); the two
     slots are averaged. Returns (N, 2, 3) like shade_reference, summing to the estimate."""
     from wavlight import strategies
-    from wavlight.strategies.base import _unoccluded
+    from wavlight.strategies.base import unoccluded
 
     out = np.zeros((len(sp), 2, 3))
     for slot in range(2):
@@ -478,7 +478,7 @@ def mixture_estimates(strategy, env, sp, u, share):
         p_bsdf = np.where(pick, strategy.bsdf.pdf(sp, ds.wi_local, ds.wi_world), b.pdf)
         with np.errstate(divide="ignore", invalid="ignore"):
             w = np.where(ds.pdf > 0, ds.pdf / (share * p_prod + (1 - share) * p_bsdf), 0.0)
-        out[:, slot] = 0.5 * _unoccluded(sp, env, ds, w)
+        out[:, slot] = 0.5 * unoccluded(sp, env, ds, w)
     return out
 
 

@@ -306,7 +306,7 @@ def object_baked(width, height, levels):
 def moved(viewer, state, i):
     """The state moved i steps along the run's path: the camera i degrees of azimuth, or the object
     i cm along x and i degrees about +Y."""
-    if viewer.views is not None:
+    if viewer.varies == "view":
         return dict(state, azimuth=(state["azimuth"] + i) % 360.0)
     x, y, z = state["translate"]
     return dict(state, translate=[x + 0.01 * (i % 50), y, z], rotate_y=(state["rotate_y"] + i) % 360.0)

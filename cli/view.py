@@ -40,6 +40,7 @@ def view(bake_file, maps, port, scene, no_browser):
     except ImportError as e:
         fail(f"wavlight view needs aiohttp ({e}): pip install 'wavlight[viewer]'")
     from wavlight.relight import Transfer
+    from wavlight.relight.frames import FRAMES
 
     def ready(url):
         click.echo(url)
@@ -48,10 +49,9 @@ def view(bake_file, maps, port, scene, no_browser):
 
     try:
         transfer = Transfer.load(bake_file)
-        varies = transfer.header.get("vary")
-        if varies in ("object", "view") and maps:
-            what = "an object" if varies == "object" else "the view"
-            fail(f"{bake_file}: this bake varies {what} (its lighting is fixed); {VIEWER['maps'].flag} does not apply")
+        kind = FRAMES[transfer.varies]
+        if maps and "env" not in kind.flags:
+            fail(f"{bake_file}: this bake varies {kind.fixed}; {VIEWER['maps'].flag} does not apply")
         viewer = Viewer(transfer, maps=maps, scene=scene)
         viewer.serve(ready=ready, **given({"port": port}))
     except WavlightError as e:

@@ -87,6 +87,58 @@ def test_no_import_cycles():
     assert _cycle(graph) is None, " -> ".join(_cycle(graph))
 
 
+def _private_imports(name: str, path: Path, mods: dict) -> list:
+    """Where module ``name`` takes another project module's private name: ``from m import _x``
+    (anywhere in the file, functions included), or ``alias._x`` on a name bound to a project
+    module by an import. Dunder names (``__version__``) are not private."""
+    is_package = path.name == "__init__.py"
+    package = name if is_package else name.rsplit(".", 1)[0]
+    found, modules = [], {}
+
+    def private(attr):
+        return attr.startswith("_") and not (attr.startswith("__") and attr.endswith("__"))
+
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[:len(base) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            for a in node.names:
+                if f"{mod}.{a.name}" in mods:   # a module: its alias
+                    modules[a.asname or a.name] = f"{mod}.{a.name}"
+                elif mod in mods and mod != name and private(a.name):
+                    found.append(f"{name}:{node.lineno} imports {mod}.{a.name}")
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name in mods and a.asname:
+                    modules[a.asname] = a.name
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in modules
+                and modules[node.value.id] != name and private(node.attr)):
+            found.append(f"{name}:{node.lineno} uses {modules[node.value.id]}.{node.attr}")
+    return found
+
+
+def test_no_module_takes_another_modules_private_names():
+    """One concept per module, and what it offers others is public: no ``from m import _x`` nor
+    ``m._x`` of another project module (the package's own __init__ included)."""
+    mods = _modules()
+    found = [f for name, path in sorted(mods.items()) for f in _private_imports(name, path, mods)]
+    assert found == []
+
+
+def test_the_private_import_finder_finds_one(tmp_path):
+    (tmp_path / "a.py").write_text("def _hidden():\n    pass\n")
+    (tmp_path / "b.py").write_text("from .a import _hidden\nfrom . import a\nx = a._hidden\n")
+    mods = {"p.a": tmp_path / "a.py", "p.b": tmp_path / "b.py"}
+    assert len(_private_imports("p.b", tmp_path / "b.py", mods)) == 2
+    assert _private_imports("p.a", tmp_path / "a.py", mods) == []
+
+
 def test_the_cycle_finder_finds_a_cycle():
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b"}, "b": set()}) is None

@@ -116,7 +116,7 @@ def _invoker_cache() -> None:
         os.environ["PYOPENCL_NO_CACHE"] = "1"
 
 
-def _cl():
+def opencl():
     """pyopencl, with the pip-installed OpenCL drivers registered (wavlight.icd) before the ICD
     loader's first use: pyopencl's import does not use it, the first platform query does; and
     its invoker cache turned off where it cannot be written (:func:`_invoker_cache`)."""
@@ -134,7 +134,7 @@ def _cl():
 
 def list_devices():
     """All (platform index, device index, platform, device) tuples."""
-    cl = _cl()
+    cl = opencl()
     out = []
     try:
         platforms = cl.get_platforms()
@@ -156,7 +156,7 @@ def _is_pocl(device) -> bool:
 
 def build_problem(device) -> str | None:
     """None when `device` builds and runs a tiny program, else the driver's reason in one line."""
-    cl = _cl()
+    cl = opencl()
     try:
         ctx = cl.Context([device])
         prg = cl._cl._Program(ctx, _PROBE_SRC)
@@ -216,7 +216,7 @@ def _pick_device():
                                         f"({problem})")
                 return d, f"{DEVICE_ENV}={want!r} chose it"
         raise WavlightError(f"{DEVICE_ENV}={want!r} matches no OpenCL device (see `wavlight info`)")
-    cl = _cl()
+    cl = opencl()
 
     def rank(t):   # PoCL CPU devices first, then other CPUs, then anything else
         _, _, _, d = t
@@ -245,7 +245,7 @@ def runtime() -> Runtime:
     global _runtime
     with _lock:
         if _runtime is None:
-            cl = _cl()
+            cl = opencl()
             dev, reason = _pick_device()
             ctx = cl.Context([dev])
             _runtime = Runtime(ctx, cl.CommandQueue(ctx), dev, reason)
@@ -259,7 +259,7 @@ def thread_queue():
     """An in-order command queue of the calling thread (queues are cheap; kernels are not shared)."""
     q = getattr(_local, "queue", None)
     if q is None:
-        q = _local.queue = _cl().CommandQueue(runtime().context)
+        q = _local.queue = opencl().CommandQueue(runtime().context)
     return q
 
 
@@ -327,7 +327,7 @@ def _build(ctx, name: str, defines: tuple):
 
     Drivers without a kernel cache of their own (Intel's CPU runtime: 17-20 s of builds per
     process) get wavlight's: the program's binary, loaded in about 10 ms the next time."""
-    cl = _cl()
+    cl = opencl()
     opts = " ".join([f"-D{k}={v}" for k, v in defines] + [f"-DLANES={LANES}"])   # kernels/simd.h
     source = kernel_source(name)
     device = ctx.devices[0]
@@ -366,7 +366,7 @@ def inline_builtins(device) -> bool:
         return want == "1"
     if want:
         raise WavlightError(f"{INLINE_ENV}={want!r}: must be 0 or 1 (or unset: chosen per device)")
-    cl = _cl()
+    cl = opencl()
     return _is_pocl(device) and bool(device.type & cl.device_type.CPU)
 
 
@@ -402,24 +402,24 @@ def kernel(prog, name: str):
         cache = _local.kernels = {}
     knl = cache.get((prog, name))
     if knl is None:
-        knl = cache[(prog, name)] = _cl().Kernel(prog, name)
+        knl = cache[(prog, name)] = opencl().Kernel(prog, name)
     return knl
 
 
 def to_device(a: np.ndarray, writable: bool = False):
     """A device buffer holding a copy of ``a``."""
-    cl = _cl()
+    cl = opencl()
     flags = (cl.mem_flags.READ_WRITE if writable else cl.mem_flags.READ_ONLY) | cl.mem_flags.COPY_HOST_PTR
     return cl.Buffer(runtime().context, flags, hostbuf=np.ascontiguousarray(a))
 
 
 def empty(nbytes: int):
-    cl = _cl()
+    cl = opencl()
     return cl.Buffer(runtime().context, cl.mem_flags.READ_WRITE, size=max(int(nbytes), 4))
 
 
 def read(buf, shape, dtype, queue=None) -> np.ndarray:
-    cl = _cl()
+    cl = opencl()
     out = np.empty(shape, dtype)
     cl.enqueue_copy(queue or runtime().queue, out, buf)
     return out
@@ -447,5 +447,5 @@ def upload(name: str, a: np.ndarray, queue):
     """`a` copied into the calling thread's scratch buffer `name` (blocking), which is returned."""
     a = np.ascontiguousarray(a)
     buf = scratch(name, a.nbytes)
-    _cl().enqueue_copy(queue, buf, a)
+    opencl().enqueue_copy(queue, buf, a)
     return buf

@@ -229,7 +229,7 @@ def rotation_y(degrees: float) -> np.ndarray:
     return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
 
 
-def _band_overlaps(leaf_edges, texel_edges, antiderivative):
+def band_overlaps(leaf_edges, texel_edges, antiderivative):
     """For each leaf interval [leaf_edges[i], leaf_edges[i + 1]): the texel intervals it overlaps,
     as indices (L, B) and measures F(hi) - F(lo) of the overlaps (L, B), zero past the last one
     (B = the most texels any leaf overlaps; the bands of a matrix product)."""
@@ -365,9 +365,9 @@ class Environment:
         # rows: solid-angle overlap of leaf row i with texel row r, in cos(theta); columns: in phi.
         # Each leaf overlaps a band of a few texels, so the products rows @ lum @ cols run over
         # the bands only (the dense products took 70 ms per call at 1024^2).
-        ri, rw = _band_overlaps(np.arange(side + 1) / side * np.pi, np.arange(self.height + 1) / self.height * np.pi,
+        ri, rw = band_overlaps(np.arange(side + 1) / side * np.pi, np.arange(self.height + 1) / self.height * np.pi,
                                 lambda x: -np.cos(x))
-        ci, cw = _band_overlaps(np.arange(side + 1) / side * 2 * np.pi,
+        ci, cw = band_overlaps(np.arange(side + 1) / side * 2 * np.pi,
                                 np.arange(self.width + 1) / self.width * 2 * np.pi, lambda x: x)
         by_rows = sum(rw[:, b, None] * np.take(lum, ri[:, b], axis=0) for b in range(ri.shape[1]))     # (side, W)
         return sum(np.take(by_rows, ci[:, b], axis=1) * cw[None, :, b] for b in range(ci.shape[1]))  # (side, side)

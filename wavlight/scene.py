@@ -335,7 +335,7 @@ def require_untextured(scene, what: str) -> None:
 
 
 # ----------------------------------------------------------------------------- validation helpers
-class _Table:
+class Table:
     """One TOML table, reading typed keys and rejecting unknown ones."""
 
     def __init__(self, path, name, data):
@@ -420,7 +420,7 @@ class _Table:
             self.fail(extra[0], "unknown key")
 
 
-def _positive(t: _Table, key, value, lo=None, hi=None):
+def _positive(t: Table, key, value, lo=None, hi=None):
     if lo is not None and value < lo:
         t.fail(key, f"must be at least {lo}, got {value}")
     if hi is not None and value > hi:
@@ -480,7 +480,7 @@ def _hashed(value):
     raise TypeError(f"{type(value).__name__} is not a scene value")
 
 
-def _given_array(t: _Table, key: str, value, what: str) -> np.ndarray:
+def _given_array(t: Table, key: str, value, what: str) -> np.ndarray:
     """``value`` as an array of real numbers (not copied where it is one), or a one-line error."""
     if isinstance(value, np.ndarray):
         a = value
@@ -494,7 +494,7 @@ def _given_array(t: _Table, key: str, value, what: str) -> np.ndarray:
     return a
 
 
-def _given_pixels(t: _Table) -> np.ndarray:
+def _given_pixels(t: Table) -> np.ndarray:
     """The map of ``[environment] pixels``: (H, W, 3) float32 (a copy), with the limits of a map file."""
     present, given = t.lookup("pixels")
     if not isinstance(given, _Given):
@@ -511,7 +511,7 @@ def _given_pixels(t: _Table) -> np.ndarray:
     return pixels
 
 
-def _given_mesh(t: _Table):
+def _given_mesh(t: Table):
     """(vertices (V, 3) float64, faces (F, 3) int64) of ``vertices`` and ``faces`` arrays, or of a
     ``mesh`` object with vertices and faces (a trimesh.Trimesh), with a mesh file's checks."""
     if t.has("mesh"):
@@ -589,7 +589,7 @@ def _smooth(v, f, file_normals=None, corners=None):
     return np.concatenate([given, computed]), rows
 
 
-def _load_mesh(t: _Table, path: str):
+def _load_mesh(t: Table, path: str):
     """(vertices, faces, normals, corner rows) of a mesh file: PLY triangle meshes by
     :func:`meshes.read_ply`, OBJ by :func:`meshes.read_obj` (an index 0, past the end or
     fractional is named with its line, not taken for a degenerate triangle), everything else by
@@ -635,7 +635,7 @@ def _load_mesh(t: _Table, path: str):
     return (v, f, *_smooth(v, f, np.concatenate([np.asarray(p[2], np.float64) for p in parts])))
 
 
-def _shape(t: _Table, base_dir, files: list, file_materials: bool = False):
+def _shape(t: Table, base_dir, files: list, file_materials: bool = False):
     """(vertices, faces, normals, each corner's row of normals, parts) of one object before its
     transform: a mesh file's normals, else area-weighted vertex normals (meshes given as arrays
     too), the sphere's exact normals, the quad's own; ``parts`` (a list of wavlight.assets.Part,
@@ -703,7 +703,7 @@ def rotation(rotate) -> np.ndarray:
     return _axis_angle(np.asarray(rotate[:3], np.float64), float(rotate[3]))
 
 
-def _transform(t: _Table, v):
+def _transform(t: Table, v):
     """(scaled local vertices, rotate [ax, ay, az, deg] or None, translate (3,), scale (3,)): an
     object's transform in the order scale, rotate, translate."""
     scale = t.num_or_vec("scale", 3, 1.0)
@@ -884,7 +884,7 @@ def _parse(doc, path: str, base: str) -> Scene:
         raise SceneError(path, unknown[0], "unknown table")
     files = []   # the files the scene reads, for its content hash
 
-    r = _Table(path, "[render]", doc.get("render", {}))
+    r = Table(path, "[render]", doc.get("render", {}))
     width, height, spp = (_positive(r, o.key, r.get(o.key, "int", o.default), o.lo, o.hi)
                           for o in (WIDTH, HEIGHT, SPP))
     strategy = r.get("strategy", "str", "mis")
@@ -894,7 +894,7 @@ def _parse(doc, path: str, base: str) -> Scene:
     options = r.options()
     r.done()
 
-    c = _Table(path, "[camera]", doc.get("camera", {}))
+    c = Table(path, "[camera]", doc.get("camera", {}))
     camera = Camera(c.get("eye", "vec3", np.array([0.0, 1.0, 4.0])),
                     c.get("target", "vec3", np.array([0.0, 0.5, 0.0])),
                     c.get("up", "vec3", np.array([0.0, 1.0, 0.0])),
@@ -909,14 +909,14 @@ def _parse(doc, path: str, base: str) -> Scene:
         c.fail("up", "must not be parallel to the view direction")
     c.done()
 
-    environment = _environment(_Table(path, "[environment]", doc.get("environment", {})), base, files)
+    environment = _environment(Table(path, "[environment]", doc.get("environment", {})), base, files)
 
     mats_doc = doc.get("materials", {})
     if not isinstance(mats_doc, dict):
         raise SceneError(path, "materials", "must be a table of tables")
     materials, index = [], {}
     for name, m in mats_doc.items():
-        t = _Table(path, f"[materials.{name}]", m)
+        t = Table(path, f"[materials.{name}]", m)
         kind = t.get("type", "str", required=True)
         if kind not in bsdfs.TYPES:
             t.fail("type", f"unknown BRDF {kind!r} (lambert | phong | ggx | plastic)")
@@ -953,7 +953,7 @@ def _parse(doc, path: str, base: str) -> Scene:
     offset = face_offset = normal_offset = 0
     triangles = 0
     for i, o in enumerate(objs):
-        t = _Table(path, f"[[objects]][{i}]", o)
+        t = Table(path, f"[[objects]][{i}]", o)
         object_name = t.get("name", "str")
         if object_name is not None:
             if not object_name or any(ob.name == object_name for ob in objects):
@@ -1020,7 +1020,7 @@ def _default_material(materials: list, index: dict) -> str:
     return "__default__"
 
 
-def _part_materials(t: "_Table", parts, materials: list, index: dict, texture_list: list):
+def _part_materials(t: "Table", parts, materials: list, index: dict, texture_list: list):
     """(per-face material indices (F,) int32, vertex texture coordinates (V, 2) float32 or None) of
     a mesh file's parts (wavlight.assets.Part, in the order of its merged faces), appending a
     Material per mapped part and its texture to the scene's (``texture_list``)."""
@@ -1114,7 +1114,7 @@ def _file_digest(name) -> bytes:
     return h.digest()
 
 
-def _environment(t: _Table, base, files: list) -> Environment:
+def _environment(t: Table, base, files: list) -> Environment:
     scale = _positive(t, "scale", t.get("scale", "float", 1.0), 0.0)
     rotate_y = t.get("rotate_y", "float", 0.0)
     if t.has("file") and t.has("procedural"):

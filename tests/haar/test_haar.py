@@ -349,7 +349,7 @@ def test_product_scaling_at_nodes():
 
 
 def test_node_of_is_exact_at_every_level():
-    """haar.sparse._node_of inverts the pyramid index (4^l - 1) / 3 + y 2^l + x exactly at the first,
+    """haar.sparse.node_of inverts the pyramid index (4^l - 1) / 3 + y 2^l + x exactly at the first,
     last and a middle node of every level up to MAX_LEVELS (a float64 logarithm misplaces the
     last nodes of levels >= 27)."""
     levels, xs, ys = [], [], []
@@ -359,7 +359,7 @@ def test_node_of_is_exact_at_every_level():
             levels.append(l), xs.append(x), ys.append(y)
     l, x, y = (np.array(a, np.int64) for a in (levels, xs, ys))
     nid = (np.left_shift(1, 2 * l) - 1) // 3 + (y << l) + x
-    got = haar_sparse._node_of(nid)
+    got = haar_sparse.node_of(nid)
     for a, b in zip(got, (l, x, y)):
         np.testing.assert_array_equal(a, b)
 

@@ -232,3 +232,21 @@ def test_textured_unbiased_frame_equals_mis(bakes):
     z = blocks(r.image - ref.image) / np.sqrt(blocks(var))
     assert np.abs(z).max() < 4.2, z
     assert abs((r.image - ref.image).sum() / np.sqrt(var.sum())) < 3.3
+
+
+def test_a_warmed_lighting_gives_the_frame_of_its_trees_built_in_the_frame(bakes):
+    """warm (in one thread) makes the lighting's trees that a frame's tile threads then read on
+    queues of their own: the frame is the one that builds them itself, for the same seed; prepare
+    measures the footprints ahead; a warming stopped at once keeps no tree."""
+    scene, by_bits, _ = bakes
+    tr = by_bits[8]
+    cold = cm.ConvergeFrames(tr, scene, threads=2).frame(rotate_y=70.0, spp=2, seed=5)
+    frames = cm.ConvergeFrames(tr, scene, threads=2)
+    frames.prepare()
+    assert len(frames._spread) == len(frames.tiles)
+    assert frames.warm(None, 70.0, stop=lambda: True) == 0
+    assert frames.warm(None, 70.0) == len(frames.tiles)
+    warm = frames.frame(rotate_y=70.0, spp=2, seed=5)
+    assert warm.stats["tiles_kept"] == len(frames.tiles) and cold.stats["tiles_kept"] == 0
+    np.testing.assert_array_equal(warm.image, cold.image)
+    np.testing.assert_array_equal(warm.stderr, cold.stderr)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import wavlight
-from wavlight import bsdfs, cl
+from wavlight import bsdfs, cl, warp
 from scenes_util import write_raw_image
 from wavlight import haar
 from wavlight.envmap import Environment
@@ -20,6 +20,7 @@ from wavlight.relight import bake as bake_mod
 from wavlight.relight import frame as frame_mod
 from wavlight.relight import lighting, store
 from wavlight.relight import converge as converge_mod
+from wavlight.relight import mixture
 from wavlight.relight.converge import converge
 
 
@@ -301,8 +302,8 @@ def test_control_variate_integral_is_the_mean_of_its_samples(one_tile, levels):
     hit = np.flatnonzero(prim >= 0)
     nrm, _, _ = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
     nrm = nrm.astype(np.float64)
-    s_ax, t_ax = c.tangent_frame(nrm)
-    wo = c.to_local(-d[hit].astype(np.float64), s_ax, t_ax, nrm)
+    s_ax, t_ax = warp.frame(nrm)
+    wo = warp.to_local(-d[hit].astype(np.float64), s_ax, t_ax, nrm)
     mat = scene.face_material[prim[hit]]
     has_p = trees.integral[hit // spp] > 0
     alpha = np.where(has_p, c.DEFENSIVE, 1.0 - c.LIGHT_SHARE)
@@ -376,9 +377,9 @@ def test_resampling_target_is_positive_where_the_integrand_is():
     fcos = np.array([1.0, 1.0, 0.0, 0.0, 2.0])
     radiance = np.array([[1.0, 1.0, 1.0], [0.5, 0.0, 0.0], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
     transfer = np.array([0.0, 3.0, 2.0, 0.0, 5.0])
-    p = converge_mod.resampling_target(fcos, radiance, transfer)
+    p = mixture.resampling_target(fcos, radiance, transfer)
     assert p[0] > 0 and p[1] > 0 and p[2] > 0 and p[3] == 0 and p[4] == 0
-    c = converge_mod
+    c = mixture
     expect = (1.0 ** c.LOBE_POWER * 3.0 ** (1 - c.LOBE_POWER) + c.TARGET_BSDF + 3.0 * c.TARGET_TRANSFER)
     assert np.isclose(p[1], wavlight.envmap.luminance(radiance[1:2])[0] * expect)
 
@@ -418,17 +419,17 @@ def test_points_inside_a_texel_follow_the_map_pixels(rotate_y):
     pixels = np.zeros((32, 64, 3), np.float32)
     pixels[9, 21] = 50.0
     env = Environment(pixels, 1.0, 0.0, "one pixel")
-    inside = converge_mod._TexelLight(env, 3, rotate_y)
+    inside = mixture.TexelLight(env, 3, rotate_y)
     u = np.random.default_rng(1).random((20000, 3))
     uv = inside.sample_light(u[:, 0], u[:, 1], u[:, 2])
     assert (inside.radiance(uv)[:, 0] == 50.0).all()
     turned = Environment(pixels, 1.0, rotate_y, "one pixel")
-    assert (turned.eval(converge_mod.square_to_world(uv))[:, 0] == 50.0).mean() > 0.999
+    assert (turned.eval(mixture.square_to_world(uv))[:, 0] == 50.0).mean() > 0.999
     # the density is the sampler's: E[1 / pdf] is the area of its support, the pixel's 1 / (64 x 32)
     inv = 1.0 / inside.light_pdf(uv)
     assert abs(inv.mean() * 64 * 32 - 1.0) < 5 * inv.std() / np.sqrt(len(inv)) * 64 * 32 + 1e-12
-    plain = converge_mod._TexelLight(env, 3, rotate_y, map_pixels=False)
-    hits = (turned.eval(converge_mod.square_to_world(plain.sample_light(u[:, 0], u[:, 1], u[:, 2])))[:, 0] == 50.0)
+    plain = mixture.TexelLight(env, 3, rotate_y, map_pixels=False)
+    hits = (turned.eval(mixture.square_to_world(plain.sample_light(u[:, 0], u[:, 1], u[:, 2])))[:, 0] == 50.0)
     if rotate_y % (360.0 / 64) == 0:
         assert hits.all()
     else:

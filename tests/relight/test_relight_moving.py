@@ -97,6 +97,12 @@ def test_command_line_and_the_factors_the_bake_holds_fixed(moving, tmp_path):
     r = run("frame", out, "--translate", 0.5, 0.5, 0.2, "--spp", 2, "-o", tmp_path / "f.exr", "--json")
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["frames_per_second"] > 0 and (tmp_path / "f.exr").exists()
+    # --repeat means what it means on every bake: the frame of the same state that many times
+    r = run("frame", out, "--translate", 0.5, 0.5, 0.2, "--repeat", 3, "-o", tmp_path / "r.exr", "--json")
+    assert r.exit_code == 0, r.output
+    st = json.loads(r.stdout)
+    assert st["frames"] == 3 and st["vary"] == "object" and st["frame"] == "unbiased"
+    assert st["frames_per_second"] == pytest.approx(1.0 / st["frame_seconds"], rel=1e-2)
     for args, words in ((("--rotate-y", 30), "varies an object"), (("--env", folder / "sky.exr"), "varies an object")):
         r = run("frame", out, *args, "-o", tmp_path / "g.png")
         assert r.exit_code == 2 and words in r.stderr and not (tmp_path / "g.png").exists(), r.output

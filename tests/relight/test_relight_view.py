@@ -468,7 +468,7 @@ def test_camera_flags_on_other_bakes(baked, tmp_path):
     assert run("bake", folder / "named.toml", "-o", ob, "--spp", 1, "--levels", 3, "--terms", 16, "--priority", "area",
                "--vary", "object", "--object", "ball", "--static-spp", 2, "-q").exit_code == 0
     r = run("frame", ob, "--eye", 1, 1, 1, "-o", tmp_path / "g.png")
-    one_error_line(r, "varies the object", "--eye")
+    one_error_line(r, "varies an object", "--eye")
     r = run("bake", folder / "scene.toml", "-o", tmp_path / "x.wlt", "--density", 10)
     one_error_line(r, "--density", "--vary view")
     with pytest.raises(wavlight.WavlightError, match="varies the view"):

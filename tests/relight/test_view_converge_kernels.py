@@ -15,6 +15,7 @@ from scenes_util import write_raw_image
 from wavlight import haar
 from wavlight.envmap import Environment
 from wavlight.relight import converge as cm
+from wavlight.relight import mixture
 from wavlight.relight import view
 from wavlight.relight import view_converge as vc
 
@@ -51,7 +52,7 @@ def bakes(tmp_path_factory, device):
 
 def texel_light(frames, levels):
     env = frames.environment
-    return cm._TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), levels, env.rotate_y)
+    return mixture.TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), levels, env.rotate_y)
 
 
 def converger(frames, inside):

@@ -192,12 +192,17 @@ def _opened(serve, page, query="", **options):
     return v, pg
 
 
-def _start_converge(pg, rounds=2):
-    """Press converge and wait for ``rounds`` rounds of refinement."""
+def _start_converge(pg, passes=2):
+    """Press converge and wait for ``passes`` passes of refinement."""
     assert not pg.is_disabled("#converge")
     pg.click("#converge")
-    pg.wait_for_function(f"() => viewer.last.converge && viewer.last.converge.rounds >= {rounds}")
+    pg.wait_for_function(f"() => viewer.last.converge && viewer.last.converge.passes >= {passes}")
     assert "spp" in pg.text_content("#converge_info")
+
+
+#: the page's converge line: "converge: N spp, relative error X% (...)"
+CONVERGE_TEXT = re.compile(r"converge: (\d+) spp, relative error ([0-9.]+)%")
+
 
 
 def _wait(predicate, seconds=10.0):
@@ -433,9 +438,10 @@ def test_converge_streams_the_spp_weighted_mean_and_stops_when_the_lighting_chan
             async with client.ws_connect(v.url + "ws") as ws:
                 await ws.send_json({"type": "state", "rotate_y": 45, "converge": True, "encoding": "raw"})
                 headers = []
-                while len(headers) < 4:
+                while len(headers) < 4:   # (the relit frame of the state first, then the passes)
                     header, payload, _ = await _next_frame(ws)
-                    headers.append((header, payload))
+                    if header["converge"] is not None or headers:
+                        headers.append((header, payload))
                 await ws.send_json({"type": "state", "rotate_y": 50, "converge": False, "encoding": "raw"})
                 while True:
                     header, _, _ = await _next_frame(ws)
@@ -446,11 +452,16 @@ def test_converge_streams_the_spp_weighted_mean_and_stops_when_the_lighting_chan
     headers, after = asyncio.run(talk())
     for header, payload in headers:
         c = header["converge"]
-        seeds = range(c["rounds"])
+        seeds = range(c["passes"])
         spp = np.array([values[s][0] for s in seeds], float)
-        mean = float(np.sum(spp * [values[s][1] for s in seeds]) / spp.sum())
-        assert c["spp"] == spp.sum()
-        assert c["relative_stderr"] == pytest.approx(np.sqrt(np.sum((spp * 0.002) ** 2)) / spp.sum() / mean, rel=1e-4)
+        means = np.array([values[s][1] for s in seeds])
+        n = spp.sum()
+        mean = float(np.sum(spp * means) / n)
+        assert c["spp"] == n
+        # the samples of all passes pooled: their sum of squares less n mean^2, over (n - 1) n
+        squares = np.sum((spp - 1) * spp * 0.002 ** 2 + spp * means ** 2)
+        pooled = np.sqrt((squares - n * mean ** 2) / (n - 1) / n)
+        assert c["relative_error"] == pytest.approx(pooled / mean, rel=1e-4)
         want = round(float(srgb_encode(np.float32(mean))) * 255)
         got = np.frombuffer(payload, np.uint8).reshape(transfer.height, transfer.width, 4)[..., :3]
         assert np.abs(got.astype(int) - want).max() <= 1
@@ -580,18 +591,36 @@ def test_browser_page_closed_mid_stream_leaves_the_server_serving(serve, page, c
     assert "Traceback" not in err and "Error handling request" not in err
 
 
-def test_browser_converge_refines_and_stops_when_a_slider_moves(serve, page):
-    fake = FakeConverge()
+def test_browser_converge_shows_spp_growing_error_falling_and_restarts_when_a_slider_moves(serve, page):
+    fake = FakeConverge(delay=0.02)
     v, pg = _opened(serve, page, "?rotate_y=60", converge=fake)
-    _start_converge(pg, 3)
+    _start_converge(pg, 5)
     _doubling([c["spp"] for c in fake.calls])
     assert len({c["seed"] for c in fake.calls}) == len(fake.calls)
+    shown = pg.evaluate("viewer.converged")          # [spp, relative error, time] of each pass drawn
+    spp, error = [s[0] for s in shown], [s[1] for s in shown]
+    assert spp == sorted(set(spp)) and len(spp) >= 5
+    # the fake's error is 5% / sqrt(spp) a pass: the pooled error falls as 1 / sqrt(spp) (its
+    # estimate from thousands of pixels: within a few percent)
+    assert error[-1] < error[0] * np.sqrt(spp[0] / spp[-1]) * 1.3 and error[-1] < error[0] / 2
+    text, last = pg.evaluate("[document.getElementById('converge_info').textContent, viewer.last.converge.spp]")
+    m = CONVERGE_TEXT.search(text)         # (read at once with the last header: passes keep coming)
+    assert m and int(m.group(1)) == last and float(m.group(2)) > 0
+    # a change of state: the preview of the new state, then passes again from the first
     _set(pg, "rotate_y", "90")
-    pg.wait_for_function("() => viewer.last.converge === null && viewer.last.state.rotate_y === 90")
+    pg.wait_for_function("() => viewer.last.state.rotate_y === 90 && viewer.last.converge !== null"
+                         " && viewer.converged.length >= 2")
+    assert pg.get_attribute("#converge", "aria-pressed") == "true"
+    assert pg.evaluate("viewer.restarts") >= 1 and pg.evaluate("viewer.converged[0][0]") == 2
+    again = [c for c in fake.calls if c["rotate_y"] == 90]
+    assert again and again[0]["seed"] == 0 and again[0]["spp"] == 2
+    # released: no more passes
+    pg.click("#converge")
+    pg.wait_for_function("() => viewer.last.converge === null")
     assert pg.get_attribute("#converge", "aria-pressed") == "false"
     n = len(fake.calls)
     time.sleep(0.3)
-    assert len(fake.calls) == n and all(c["rotate_y"] == 60 for c in fake.calls)
+    assert len(fake.calls) <= n + 1 and {c["rotate_y"] for c in fake.calls} == {60, 90}
 
 
 def test_browser_converge_disabled_without_the_estimator(serve, page):
@@ -718,17 +747,17 @@ def test_object_limits_and_placement_come_from_the_scene(serve_object, object_tr
     v = serve_object()
     lim = _object_limits(v)
     assert lim.translate == (0.0, 0.6, 0.0) and lim.rotate_y == 0.0
-    scene = v.mover.scene
+    scene = v.frames.mover.scene
     used = scene.vertices[np.unique(scene.faces)]
     lo, hi = np.array(lim.lo), np.array(lim.hi)
     # every translation that keeps the card's bounding sphere's centre in the scene's bounds is in range
-    center, radius = v.mover.center, v.mover.radius
+    center, radius = v.frames.mover.center, v.frames.mover.radius
     assert np.all(lo <= used.min(0) - center - radius + 1e-9) and np.all(hi >= used.max(0) - center + radius - 1e-9)
     assert np.all(lo <= lim.translate) and np.all(np.array(lim.translate) <= hi)
     assert np.all(hi - lo <= (used.max(0) - used.min(0)) + 2 * radius + 2 * lim.step + 1e-9)
     # the slider's rotation about +Y after the card's own rotation about +X
     for degrees in (0.0, 45.0, 180.0, 300.0):
-        t, r = v.placement({"translate": [0.1, 0.6, -0.2], "rotate_y": degrees})
+        t, r = v.frames.placement({"translate": [0.1, 0.6, -0.2], "rotate_y": degrees})
         assert t == [0.1, 0.6, -0.2]
         want = rotation([0.0, 1.0, 0.0, degrees]) @ rotation(CARD_ROTATE)
         assert np.allclose(rotation(r), want, atol=1e-9), degrees
@@ -750,7 +779,7 @@ def test_object_page_and_socket_frames_are_the_moving_estimators(serve_object, o
     mover = MovingObjectOf(object_transfer, v)
 
     def expected(translate, rotate_y, spp, exposure=0.0):
-        t, r = v.placement({"translate": translate, "rotate_y": rotate_y})
+        t, r = v.frames.placement({"translate": translate, "rotate_y": rotate_y})
         return tone_map(mover.frame(t, r, spp=spp, seed=0).image, exposure, alpha=True)
 
     def picture(payload):
@@ -799,10 +828,10 @@ def test_object_page_and_socket_frames_are_the_moving_estimators(serve_object, o
                     if header["converge"] is not None:
                         reports.append((header["converge"], picture(payload).copy()))
                 c, pic = reports[0]
-                assert c["spp"] == c["call_spp"] == 2 and c["rounds"] == 1
+                assert c["spp"] == c["pass_spp"] == 2 and c["passes"] == 1
                 assert np.abs(pic.astype(int) - expected([0.3, 0.6, 0.2], 45.0, 2, 0.5)).max() <= 1
-                _doubling([r[0]["call_spp"] for r in reports])
-                assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["call_spp"] for r in reports]))
+                _doubling([r[0]["pass_spp"] for r in reports])
+                assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["pass_spp"] for r in reports]))
                 await ws.send_json({"type": "state", "translate": [0.5, 0.6, 0.2], "rotate_y": 45, "exposure": 0.5,
                                     "encoding": "raw", "converge": False})
                 while True:
@@ -826,7 +855,7 @@ def MovingObjectOf(transfer, v):
     """A moving object of its own for the same bake and scene as the viewer's (expected frames)."""
     from wavlight.relight.moving import MovingObject
 
-    return MovingObject(transfer, v.mover.scene)
+    return MovingObject(transfer, v.frames.mover.scene)
 
 
 def test_object_viewer_refuses_maps_and_the_command_line_errors_are_one_line(object_transfer, object_bake, tmp_path):
@@ -895,11 +924,15 @@ def test_browser_object_bad_parameters_show_the_values_used(serve_object, page):
     assert pg.evaluate("viewer.errors") == 0 and pg.text_content("#status") == ""
 
 
-def test_browser_object_converge_refines_and_stops_when_the_object_moves(serve_object, page):
+def test_browser_object_converge_refines_and_restarts_when_the_object_moves(serve_object, page):
     v, pg = _opened(serve_object, page, "?translate=0.3,0.6,0.2")
     _start_converge(pg)
     _set(pg, "translate_z", "-0.5")
-    pg.wait_for_function("() => viewer.last.converge === null && viewer.last.state.translate[2] === -0.5")
+    pg.wait_for_function("() => viewer.last.converge !== null && viewer.last.state.translate[2] === -0.5"
+                         " && viewer.restarts >= 1")
+    assert pg.get_attribute("#converge", "aria-pressed") == "true"
+    pg.click("#converge")
+    pg.wait_for_function("() => viewer.last.converge === null")
     assert pg.get_attribute("#converge", "aria-pressed") == "false"
 
 
@@ -998,7 +1031,7 @@ def test_view_limits_are_the_scene_cameras(serve_view, view_transfer):
     lim = v.limits
     assert isinstance(lim, ViewLimits) and lim == VIEW_LIMITS
     state, _ = sanitise({}, lim)
-    eye, target, fov = v.camera(state)
+    eye, target, fov = v.frames.camera(state)
     assert np.allclose(eye, VIEW_EYE, atol=1e-3) and np.allclose(target, VIEW_TARGET) and fov == 40.0
     status, html = _get(v.url)
     config = _config(html)
@@ -1082,11 +1115,11 @@ def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_v
     assert np.abs(got["preview"].astype(int) - tone_map(image, 0.5, alpha=True)).max() <= 1
     assert len({p.tobytes() for p in got.values()}) == len(got)          # each camera its own picture
     c, pic = reports[0]
-    assert c["spp"] == c["call_spp"] == 2 and c["rounds"] == 1
+    assert c["spp"] == c["pass_spp"] == 2 and c["passes"] == 1
     result = frames.converge(eye=_orbit(30, 15, 4.2), target=VIEW_TARGET, fov=40.0, width=96, height=64, spp=2, seed=0)
     assert np.abs(pic.astype(int) - tone_map(result.image, 0.5, alpha=True)).max() <= 1
-    _doubling([r[0]["call_spp"] for r in reports])
-    assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["call_spp"] for r in reports]))
+    _doubling([r[0]["pass_spp"] for r in reports])
+    assert [r[0]["spp"] for r in reports] == list(np.cumsum([r[0]["pass_spp"] for r in reports]))
 
 
 def test_view_viewer_refuses_maps_and_the_command_line(view_transfer, view_bake, tmp_path):
@@ -1190,13 +1223,13 @@ def test_browser_view_bad_parameters_show_the_values_used(serve_view, page):
     assert pg.evaluate("viewer.errors") == 0 and pg.text_content("#status") == ""
 
 
-def test_browser_view_converge_refines_and_stops_when_the_camera_moves(serve_view, page):
+def test_browser_view_converge_refines_and_restarts_when_the_camera_moves(serve_view, page):
     v, pg = _opened(serve_view, page, "?azimuth=30&elevation=15&distance=4.2")
     _start_converge(pg)
     assert pg.evaluate("[viewer.last.width, viewer.last.height]") == [96, 64]
     _drag(pg, "#frame", 30, 0, steps=4)
     pg.mouse.up()
-    pg.wait_for_function("() => viewer.last.converge === null && viewer.last.preview === false"
-                         " && viewer.last.state.azimuth === viewer.state.azimuth")
-    assert pg.get_attribute("#converge", "aria-pressed") == "false"
+    pg.wait_for_function("() => viewer.last.converge !== null && viewer.last.preview === false"
+                         " && viewer.last.state.azimuth === viewer.state.azimuth && viewer.restarts >= 1")
+    assert pg.get_attribute("#converge", "aria-pressed") == "true"
     assert pg.evaluate("viewer.last.state.azimuth") < 30

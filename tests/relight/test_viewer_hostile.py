@@ -403,6 +403,14 @@ def test_at_the_descriptor_limit_new_connections_are_refused_and_open_pages_kept
             async with aiohttp.ClientSession() as client, client.ws_connect(url + "ws") as page:
                 await page.send_json({"type": "state", "rotate_y": 10})
                 await next_frame(page)                       # the page is open and drawn
+                # and has converged once (the converge thread, prepared when the page opened, has
+                # its bake and kernels), then released
+                await page.send_json({"type": "state", "rotate_y": 10, "converge": True})
+                while (await next_frame(page, 120))[0]["converge"] is None:
+                    pass
+                await page.send_json({"type": "state", "rotate_y": 10, "converge": False})
+                while (await next_frame(page, 120))[0]["converge"] is not None:
+                    pass
                 # the limit: what the viewer has open now, and a few more
                 spare = 12
                 resource.prlimit(proc.pid, resource.RLIMIT_NOFILE,
@@ -517,9 +525,10 @@ def test_a_page_converging_leaves_another_pages_previews_responsive(converge_bak
     finally:
         v.stop_background()
     base = statistics.median(unloaded)
-    calls = [r["call_seconds"] for r in reports]
-    # the premise: a call holds a thread far longer than the bound (a preview waiting for it fails)
-    assert min(calls) > 4 * FACTOR * base, (calls, base)
+    calls = [r["pass_seconds"] for r in reports]
+    # the premise: a pass holds a thread longer than twice the bound (a preview waiting for the
+    # rest of one, half of it on average, fails)
+    assert min(calls) > 2 * FACTOR * base, (calls, base)
     assert statistics.median(loaded) <= FACTOR * base, (sorted(loaded), base, calls)
     assert max(loaded) < min(calls), (sorted(loaded), calls)   # no preview waited for a whole call
     assert v.clients == 0 and v.running_tasks == 0

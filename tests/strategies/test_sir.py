@@ -162,7 +162,7 @@ def test_sample_pdf_is_reciprocal_contribution_weight():
     ds = st.sample(sp, u)
     assert wi.shape == value.shape == (len(sp), 1, 3)
     np.testing.assert_allclose(ds.wi_world, wi[:, 0])
-    np.testing.assert_allclose(strategies.base._unoccluded(sp, env, ds, 1.0), value[:, 0], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(strategies.base.unoccluded(sp, env, ds, 1.0), value[:, 0], rtol=1e-9, atol=1e-12)
 
 
 def test_black_lobe_and_bsdf_furnace_at_shading_level():

@@ -11,7 +11,7 @@ from ..errors import WavlightError, file_problem, shown
 from ..relight.settings import BAKE
 from ..scene import MAX_SIDE, MAX_SPP
 from ..strategies import APPLIES, STRATEGIES
-from ..scene import _Table as SceneTable
+from ..scene import Table as SceneTable
 
 
 PEER_PREFIX = "mitsuba:"

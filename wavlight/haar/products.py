@@ -8,23 +8,23 @@ import numpy as np
 from ..errors import ArgumentError, check_int, check_integers
 from .sparse import (
     SparseHaar,
-    _averages,
-    _channels,
-    _common,
-    _Keyed,
-    _node_of,
-    _node_table,
-    _Rows,
-    _shape_out,
+    node_averages,
+    channels_of,
+    common_nodes,
+    Keyed,
+    node_of,
+    node_table,
+    Rows,
+    shape_out,
 )
 from .transform import (
     MAX_LEVELS,
-    _broadcast,
-    _details,
-    _embed,
-    _float,
-    _levels_of,
-    _scaling_levels,
+    broadcast_sets,
+    details,
+    embed,
+    as_float,
+    levels_of,
+    scaling_levels,
     coeff_basis,
 )
 
@@ -35,7 +35,7 @@ def tripling(i, j, k, n_levels: int) -> np.ndarray:
     coefficient theorem (Ng et al. 2004). Indices are flat dense indices; vectorised."""
     where = "haar.tripling"
     n_levels = check_int(where, "n_levels", n_levels, 0, MAX_LEVELS)
-    i, j, k = _broadcast(where, {name: check_integers(where, name, a, 4 ** n_levels)
+    i, j, k = broadcast_sets(where, {name: check_integers(where, name, a, 4 ** n_levels)
                                  for name, a in (("i", i), ("j", j), ("k", k))})
     b = {"i": coeff_basis(i, n_levels), "j": coeff_basis(j, n_levels), "k": coeff_basis(k, n_levels)}
     ids = {"i": i, "j": j, "k": k}
@@ -71,27 +71,27 @@ def double_product_integral(G, H):
     makes it the dot product of the coefficient vectors."""
     where = "haar.double_product_integral"
     if isinstance(G, SparseHaar) and isinstance(H, SparseHaar):
-        _channels(where, G, H)
+        channels_of(where, G, H)
         n = max(G.n_levels, H.n_levels)
-        g, h = _Keyed(G, n), _Keyed(H, n)
-        _, a, b = _common(g, h)
+        g, h = Keyed(G, n), Keyed(H, n)
+        _, a, b = common_nodes(g, h)
         total = (a * b).sum(axis=0) + g.get(np.int64(0)) * h.get(np.int64(0))
-        return _shape_out(total, G, H)
-    g, h = _dense_common(where, G=G, H=H)
+        return shape_out(total, G, H)
+    g, h = dense_common(where, G=G, H=H)
     return np.sum(g * h, axis=(-2, -1))
 
 
-def _dense_common(where: str, **sets):
+def dense_common(where: str, **sets):
     """The named sets (dense or SparseHaar) as dense arrays of one resolution, batch shapes
     checked to broadcast."""
-    arrs = {k: s.to_dense() if isinstance(s, SparseHaar) else _float(s, where, k) for k, s in sets.items()}
-    n = max(_levels_of(a, where, k) for k, a in arrs.items())
+    arrs = {k: s.to_dense() if isinstance(s, SparseHaar) else as_float(s, where, k) for k, s in sets.items()}
+    n = max(levels_of(a, where, k) for k, a in arrs.items())
     try:
         np.broadcast_shapes(*(a.shape[:-2] for a in arrs.values()))
     except ValueError:
         shapes = ", ".join(f"{k} {a.shape}" for k, a in arrs.items())
         raise ArgumentError(f"{where}: batch shapes do not broadcast: {shapes}") from None
-    return [_embed(a, n) for a in arrs.values()]
+    return [embed(a, n) for a in arrs.values()]
 
 
 def _permanent(g1, g2, g3, h1, h2, h3, k1, k2, k3):
@@ -104,14 +104,14 @@ def triple_product_integral(G, H, K):
     linear in the number of coefficients (see the module notes)."""
     where = "haar.triple_product_integral"
     if all(isinstance(s, SparseHaar) for s in (G, H, K)):
-        _channels(where, G, H, K)
+        channels_of(where, G, H, K)
         return _triple_sparse(G, H, K)
-    g, h, k = _dense_common(where, G=G, H=H, K=K)
-    n = _levels_of(g, where, "G")
+    g, h, k = dense_common(where, G=G, H=H, K=K)
+    n = levels_of(g, where, "G")
     total = g[..., 0, 0] * h[..., 0, 0] * k[..., 0, 0]  # case 1
-    pyramids = (_scaling_levels(c, n) for c in (g, h, k))
+    pyramids = (scaling_levels(c, n) for c in (g, h, k))
     for l, (_, sg), (_, sh), (_, sk) in zip(range(n), *pyramids):  # wavelet levels 0..n-1
-        gb, hb, kb = (_details(c, l) for c in (g, h, k))
+        gb, hb, kb = (details(c, l) for c in (g, h, k))
         s = 1 << l
         ag, ah, ak = sg * s, sh * s, sk * s  # averages over the node squares
         term = sum(gb[m] * hb[m] * ak + gb[m] * kb[m] * ah + hb[m] * kb[m] * ag for m in range(3))
@@ -122,22 +122,22 @@ def triple_product_integral(G, H, K):
 
 def _triple_sparse(G, H, K):
     n = max(G.n_levels, H.n_levels, K.n_levels)
-    cg, ch, ck = _Keyed(G, n), _Keyed(H, n), _Keyed(K, n)
+    cg, ch, ck = Keyed(G, n), Keyed(H, n), Keyed(K, n)
     total = cg.get(np.int64(0)) * ch.get(np.int64(0)) * ck.get(np.int64(0))
     # case 3: identical wavelet pairs times the third function's average (its coarser part)
     for a_set, b_set, c_set in ((cg, ch, ck), (cg, ck, ch), (ch, ck, cg)):
-        keys, a, b = _common(a_set, b_set)
+        keys, a, b = common_nodes(a_set, b_set)
         if len(keys):
-            total = total + (a * b * _averages(c_set, (keys - 1) // 3)).sum(axis=0)
+            total = total + (a * b * node_averages(c_set, (keys - 1) // 3)).sum(axis=0)
     # case 2: three different wavelet types on one square
-    (ng, tg), (nh, th), (nk, tk) = (_node_table(c, n) for c in (cg, ch, ck))
+    (ng, tg), (nh, th), (nk, tk) = (node_table(c, n) for c in (cg, ch, ck))
     space = max((4 ** n - 1) // 3, 1)
-    ih, ik = _Rows(nh, space).find(ng), _Rows(nk, space).find(ng)
+    ih, ik = Rows(nh, space).find(ng), Rows(nk, space).find(ng)
     in_all = (ih >= 0) & (ik >= 0)
     allk = ng[in_all]
     if len(allk):
         a, b, c = tg[in_all], th[ih[in_all]], tk[ik[in_all]]
-        scale = np.ldexp(1.0, _node_of(allk)[0])[:, None]
+        scale = np.ldexp(1.0, node_of(allk)[0])[:, None]
         total = total + (scale * _permanent(a[:, 0], a[:, 1], a[:, 2], b[:, 0], b[:, 1], b[:, 2],
                                             c[:, 0], c[:, 1], c[:, 2])).sum(axis=0)
-    return _shape_out(total, G, H, K)
+    return shape_out(total, G, H, K)

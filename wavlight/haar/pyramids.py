@@ -7,15 +7,15 @@ import numpy as np
 
 from .. import cl
 from ..errors import ArgumentError, check_int, check_integers
-from .products import _dense_common
-from .sparse import SparseHaar, _averages, _channels, _common, _Keyed, _node_of
+from .products import dense_common
+from .sparse import SparseHaar, node_averages, channels_of, common_nodes, Keyed, node_of
 from .transform import (
     MAX_LEVELS,
-    _broadcast,
-    _details,
-    _float,
-    _scaling_levels,
-    _square,
+    broadcast_sets,
+    details,
+    as_float,
+    scaling_levels,
+    checked_square,
     coeff_basis,
     coeff_index,
     node_scale,
@@ -37,10 +37,10 @@ def scaling_pyramid(coeffs, levels: int | None = None) -> np.ndarray:
         sub = SparseHaar(L, coeff_index(keep[0][sel], keep[1][sel], keep[2][sel], keep[3][sel], L),
                          coeffs.value[sel])
         return scaling_pyramid(sub.to_dense())
-    c, n = _square(coeffs, where, "coeffs")
+    c, n = checked_square(coeffs, where, "coeffs")
     L = n if levels is None else check_int(where, "levels", levels, 0, n)
     out = np.empty(c.shape[:-2] + (tree_size(L),), c.dtype)
-    for l, s in _scaling_levels(c[..., :1 << L, :1 << L], L):
+    for l, s in scaling_levels(c[..., :1 << L, :1 << L], L):
         out[..., level_offset(l):level_offset(l + 1)] = s.reshape(s.shape[:-2] + (-1,)) * 2.0 ** -l
     return out
 
@@ -59,17 +59,17 @@ def product_scaling(G, H, levels: int | None = None) -> np.ndarray:
     """
     where = "haar.product_scaling"
     sparse = isinstance(G, SparseHaar) and isinstance(H, SparseHaar)
-    G, H = (s if isinstance(s, SparseHaar) else _square(s, where, k)[0] for k, s in (("G", G), ("H", H)))
+    G, H = (s if isinstance(s, SparseHaar) else checked_square(s, where, k)[0] for k, s in (("G", G), ("H", H)))
     n = max(s.n_levels if isinstance(s, SparseHaar) else s.shape[-1].bit_length() - 1 for s in (G, H))
     L = n if levels is None else check_int(where, "levels", levels, 0, n)
     if sparse:
-        _channels(where, G, H)
+        channels_of(where, G, H)
         # scaling pyramids from the coefficients of levels < L; D from the common wavelets
         pg, ph = (_pad_pyramid(scaling_pyramid(s, min(L, s.n_levels)), min(L, s.n_levels), L)
                   for s in (G, H))
-        keys, a, b = _common(_Keyed(G, n), _Keyed(H, n))
+        keys, a, b = common_nodes(Keyed(G, n), Keyed(H, n))
         prod = (a * b).T  # (C, Kc)
-        lv, x, y = _node_of((keys - 1) // 3)
+        lv, x, y = node_of((keys - 1) // 3)
         d = np.maximum(lv - L, 0)
         lv, x, y = np.minimum(lv, L), x >> d, y >> d  # finer than L: fold into the level-L ancestor
         D = np.zeros((prod.shape[0], tree_size(L)))
@@ -81,19 +81,19 @@ def product_scaling(G, H, levels: int | None = None) -> np.ndarray:
             D[:, level_offset(l):level_offset(l + 1)] += _reduce4(child).reshape(-1, s * s)
         out = pg * ph * node_scale(L) ** 2 + D  # G^0 H^0 + D (F^0 = 2^l mass)
         return out if any(s.value.ndim == 2 for s in (G, H)) else out[0]
-    g, h = _dense_common(where, G=G, H=H)
+    g, h = dense_common(where, G=G, H=H)
     shape = np.broadcast_shapes(g.shape[:-2], h.shape[:-2])
     out = np.empty(shape + (tree_size(L),), np.result_type(g, h))
     # D_{l,t}: own wavelet products plus the children's D, bottom up from level n - 1
     D = np.zeros(shape + (1 << n, 1 << n), out.dtype)
     for l in range(n - 1, -1, -1):
-        own = sum(a * b for a, b in zip(_details(g, l), _details(h, l)))
+        own = sum(a * b for a, b in zip(details(g, l), details(h, l)))
         D = own + _reduce4(D)
         if l <= L:
             out[..., level_offset(l):level_offset(l + 1)] = D.reshape(shape + (-1,))
     if L == n:
         out[..., level_offset(n):] = 0.0
-    for (l, sg), (_, sh) in zip(_scaling_levels(g, L), _scaling_levels(h, L)):
+    for (l, sg), (_, sh) in zip(scaling_levels(g, L), scaling_levels(h, L)):
         out[..., level_offset(l):level_offset(l + 1)] += (sg * sh).reshape(shape + (-1,))
     return out
 
@@ -116,7 +116,7 @@ def _sparse_of(where: str, name: str, s) -> SparseHaar:
     """A SparseHaar as is; dense (2^n, 2^n) or (C, 2^n, 2^n) coefficients as their non-zeros."""
     if isinstance(s, SparseHaar):
         return s
-    c, _ = _square(s, where, name)
+    c, _ = checked_square(s, where, name)
     if c.ndim > 3:
         raise ArgumentError(f"{where}: {name} must be one set, (2^n, 2^n) or (C, 2^n, 2^n), got shape {c.shape}")
     return SparseHaar.from_dense(c)
@@ -129,8 +129,8 @@ def product_scaling_at(G, H, level, x, y) -> np.ndarray:
     G, H: SparseHaar or dense (2^n, 2^n) / (C, 2^n, 2^n) coefficients; levels 0..max n."""
     where = "haar.product_scaling_at"
     G, H = (_sparse_of(where, k, s) for k, s in (("G", G), ("H", H)))
-    _channels(where, G, H)
-    level, x, y = _broadcast(where, {k: check_integers(where, k, a).reshape(-1)
+    channels_of(where, G, H)
+    level, x, y = broadcast_sets(where, {k: check_integers(where, k, a).reshape(-1)
                                      for k, a in (("level", level), ("x", x), ("y", y))})
     n = max(G.n_levels, H.n_levels)
     if np.any((level < 0) | (level > n)):
@@ -138,13 +138,13 @@ def product_scaling_at(G, H, level, x, y) -> np.ndarray:
     side = np.left_shift(1, level)
     if np.any((x < 0) | (y < 0) | (x >= side) | (y >= side)):
         raise ArgumentError(f"{where}: x and y must be in [0, 2^level)")
-    g, h = _Keyed(G, n), _Keyed(H, n)
+    g, h = Keyed(G, n), Keyed(H, n)
     nid = (np.left_shift(1, 2 * level) - 1) // 3 + (y << level) + x
-    out = _averages(g, nid) * _averages(h, nid) * np.ldexp(1.0, -2 * level)[:, None]
-    keys, a, b = _common(g, h)
+    out = node_averages(g, nid) * node_averages(h, nid) * np.ldexp(1.0, -2 * level)[:, None]
+    keys, a, b = common_nodes(g, h)
     if len(keys):
         prod = a * b
-        lv, px, py = _node_of((keys - 1) // 3)
+        lv, px, py = node_of((keys - 1) // 3)
         z = morton_index(px, py)
         zq = morton_index(x, y)
         for lp in np.unique(lv):
@@ -181,7 +181,7 @@ class ProductPyramids:
         if isinstance(G, SparseHaar):
             n, channels = G.n_levels, G.value.ndim - 1
         else:
-            G, n = _square(G, where, "G")
+            G, n = checked_square(G, where, "G")
             channels = G.ndim - 2
         if channels:
             raise ArgumentError(f"{where}: G must be one single-channel coefficient set, (2^n, 2^n) or "
@@ -221,7 +221,7 @@ class ProductPyramids:
         device (no copy to the host and back; its ``integral`` read from the roots alone)."""
         from .tree import TREE_ORIGIN, HaarTree, tree_stride
 
-        h = np.ascontiguousarray(_float(H, "haar.ProductPyramids.trees", "H"), np.float32)
+        h = np.ascontiguousarray(as_float(H, "haar.ProductPyramids.trees", "H"), np.float32)
         side = 1 << self.h_levels
         if h.ndim != 3 or h.shape[1:] != (side, side) or len(h) == 0:
             raise ArgumentError(f"haar.ProductPyramids.trees: H must be (T, {side}, {side}) with T >= 1, "
@@ -231,14 +231,14 @@ class ProductPyramids:
         out = cl.empty(4 * len(h) * stride)
         self.enqueue(queue, cl.to_device(h), len(h), out, stride, TREE_ORIGIN)
         roots = np.empty(len(h), np.float32)
-        cl._cl().enqueue_copy(queue, roots, out, buffer_origin=(4 * TREE_ORIGIN, 0), host_origin=(0, 0),
+        cl.opencl().enqueue_copy(queue, roots, out, buffer_origin=(4 * TREE_ORIGIN, 0), host_origin=(0, 0),
                               region=(4, len(h)), buffer_pitches=(4 * stride,), host_pitches=(4,))
         return HaarTree.on_device(out, self.levels, len(h), roots)
 
     def __call__(self, H, queue=None) -> np.ndarray:
         """Pyramids (T, stride) float32 for H (T, 2^m, 2^m) or (2^m, 2^m) dense coefficients,
         row-major (the host's layout)."""
-        h = np.ascontiguousarray(_float(H, "haar.ProductPyramids", "H"), np.float32)
+        h = np.ascontiguousarray(as_float(H, "haar.ProductPyramids", "H"), np.float32)
         h = h[None] if h.ndim == 2 else h
         side = 1 << self.h_levels
         if h.ndim != 3 or h.shape[1:] != (side, side):

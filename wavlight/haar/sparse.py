@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ArgumentError, check_int, check_integers, check_number, check_real
-from .transform import MAX_LEVELS, _float, _square, coeff_basis
+from .transform import MAX_LEVELS, as_float, checked_square, coeff_basis
 
 
 # ============================================================================= sparse sets and compression
@@ -25,7 +25,7 @@ class SparseHaar:
         where = "haar.SparseHaar"
         n = check_int(where, "n_levels", self.n_levels, 0, MAX_LEVELS)
         idx = check_integers(where, "index", self.index, 4 ** n).reshape(-1)
-        val = _float(self.value, where, "value")
+        val = as_float(self.value, where, "value")
         if val.shape[:1] != idx.shape or val.ndim > 2:
             raise ArgumentError(f"{where}: value must be (K,) or (K, C) for K = {len(idx)} indices, "
                                 f"got shape {val.shape}")
@@ -52,7 +52,7 @@ class SparseHaar:
         """From (2^n, 2^n) or (C, 2^n, 2^n) coefficients; ``keep`` = flat indices or a flat
         boolean mask (default: the coefficients non-zero in any channel)."""
         where = "haar.SparseHaar.from_dense"
-        c, n = _square(coeffs, where, "coeffs")
+        c, n = checked_square(coeffs, where, "coeffs")
         if c.ndim > 3:
             raise ArgumentError(f"{where}: coeffs must be one set, (2^n, 2^n) or (C, 2^n, 2^n), got shape {c.shape}")
         flat = c.reshape(c.shape[:-2] + (-1,))
@@ -70,7 +70,7 @@ class SparseHaar:
         return cls(n, keep, flat[keep])
 
 
-def _channels(where: str, *sets: "SparseHaar"):
+def channels_of(where: str, *sets: "SparseHaar"):
     """Sparse sets' channel counts (values (K,) or (K, C)) must agree or be 1."""
     counts = {s.value.shape[1] for s in sets if s.value.ndim == 2} - {1}
     if len(counts) > 1:
@@ -78,7 +78,7 @@ def _channels(where: str, *sets: "SparseHaar"):
 
 
 def _energy(coeffs, where: str) -> np.ndarray:
-    c, _ = _square(coeffs, where, "coeffs")
+    c, _ = checked_square(coeffs, where, "coeffs")
     if c.ndim > 3:
         raise ArgumentError(f"{where}: coeffs must be one set, (2^n, 2^n) or (C, 2^n, 2^n), got shape {c.shape}")
     e = np.square(c.astype(np.float64)).reshape(-1, c.shape[-1] ** 2)
@@ -119,10 +119,10 @@ def compress_energy(coeffs, fraction: float) -> SparseHaar:
 TABLE_SPREAD = 64
 
 
-class _Keyed:
+class Keyed:
     """A coefficient set by key: wavelet (l, x, y, m) -> 1 + 3 nid + m - 1 with nid the node's
     pyramid index (independent of n), the scaling function -> 0; values (K, C) in the set's
-    dtype. ``get`` finds keys through :class:`_Rows` (no sorting for sets dense enough for a
+    dtype. ``get`` finds keys through :class:`Rows` (no sorting for sets dense enough for a
     table)."""
 
     def __init__(self, sp: SparseHaar, n_levels: int):
@@ -130,7 +130,7 @@ class _Keyed:
         nid = (np.left_shift(1, 2 * l) - 1) // 3 + (y << l) + x
         self.keys = np.where(m == 0, 0, 1 + 3 * nid + m - 1)
         self.vals = sp.value.reshape(len(sp.value), 1 if sp.value.ndim == 1 else sp.value.shape[1])
-        self.rows = _Rows(self.keys, 4 ** n_levels)
+        self.rows = Rows(self.keys, 4 ** n_levels)
 
     def get(self, q) -> np.ndarray:
         """Values (..., C) at keys q, 0 where absent."""
@@ -141,7 +141,7 @@ class _Keyed:
         return np.where((row >= 0)[..., None], self.vals[row], self.vals.dtype.type(0))
 
 
-class _Rows:
+class Rows:
     """Row of each of ``keys`` (distinct, in [0, space)): find(q) -> row, or -1 where absent;
     a table over the space where it holds at most TABLE_SPREAD slots per key, else binary
     search over the sorted keys."""
@@ -181,7 +181,7 @@ def _distinct(idx: np.ndarray, space: int):
 _LEVEL_STARTS = np.array([(4 ** l - 1) // 3 for l in range(33)], np.int64)
 
 
-def _node_of(nid):
+def node_of(nid):
     """(level, x, y) of pyramid node indices (the level by integer search, exact at every
     level up to MAX_LEVELS)."""
     nid = np.asarray(nid, np.int64)
@@ -190,7 +190,7 @@ def _node_of(nid):
     return l, r & (np.left_shift(1, l) - 1), r >> l
 
 
-def _averages(t: _Keyed, nid):
+def node_averages(t: Keyed, nid):
     """Average of the function over the squares of nodes ``nid``: 2^l F^0_{l,t}, the scaling
     coefficient plus the parents' wavelets at the right sign, (Q, C). Top-down over the
     distinct nodes on the queries' paths to the root, one level at a time (the traversal of
@@ -198,7 +198,7 @@ def _averages(t: _Keyed, nid):
     of the parent's wavelets. The queries are grouped by level in one stable sort of their
     levels, so the cost is the number of distinct nodes on the paths (at most min(Q n,
     4^n / 3)), not Q times the depth."""
-    l, x, y = _node_of(nid)
+    l, x, y = node_of(nid)
     depth = int(l.max(initial=0))
     by_level = np.argsort(l.astype(np.int8), kind="stable")   # a radix sort of small integers
     bounds = np.concatenate([[0], np.cumsum(np.bincount(l, minlength=depth + 1))])
@@ -224,14 +224,14 @@ def _averages(t: _Keyed, nid):
     return out
 
 
-def _common(a: _Keyed, b: _Keyed):
+def common_nodes(a: Keyed, b: Keyed):
     """Wavelet keys present in both sets, with both value rows."""
     row = b.rows.find(a.keys)
     w = (a.keys > 0) & (row >= 0)
     return a.keys[w], a.vals[w], b.vals[row[w]]
 
 
-def _node_table(t: _Keyed, n_levels: int):
+def node_table(t: Keyed, n_levels: int):
     """Distinct wavelet nodes of a set and their (U, 3, C) coefficient table."""
     w = t.keys > 0
     nid, m = np.divmod(t.keys[w] - 1, 3)
@@ -241,5 +241,5 @@ def _node_table(t: _Keyed, n_levels: int):
     return uniq, table
 
 
-def _shape_out(total: np.ndarray, *sets: SparseHaar):
+def shape_out(total: np.ndarray, *sets: SparseHaar):
     return total if any(s.value.ndim == 2 for s in sets) else total[0]

@@ -18,7 +18,7 @@ def coeff_index(level, x, y, m, n_levels: int):
     (level = x = y = 0). Vectorised."""
     where = "haar.coeff_index"
     n_levels = check_int(where, "n_levels", n_levels, 0, MAX_LEVELS)
-    level, x, y, m = _broadcast(where, {k: check_integers(where, k, v) for k, v in
+    level, x, y, m = broadcast_sets(where, {k: check_integers(where, k, v) for k, v in
                                         (("level", level), ("x", x), ("y", y), ("m", m))})
     if np.any((m < 0) | (m > 3)):
         raise ArgumentError(f"{where}: m must be 0 (scaling) or 1, 2, 3 (wavelets), got {m[(m < 0) | (m > 3)][0]}")
@@ -56,7 +56,7 @@ def node_scale(n_levels: int) -> np.ndarray:
     return np.concatenate([np.full(4 ** l, 2.0 ** l) for l in range(n_levels + 1)])
 
 
-def _levels_of(a: np.ndarray, where: str, name: str) -> int:
+def levels_of(a: np.ndarray, where: str, name: str) -> int:
     """n of (..., 2^n, 2^n) arrays, else ArgumentError."""
     side = a.shape[-1] if a.ndim >= 2 else 0
     if a.ndim < 2 or a.shape[-2] != side or side < 1 or side & (side - 1):
@@ -64,19 +64,19 @@ def _levels_of(a: np.ndarray, where: str, name: str) -> int:
     return side.bit_length() - 1
 
 
-def _float(a, where: str, name: str) -> np.ndarray:
+def as_float(a, where: str, name: str) -> np.ndarray:
     """a as a float array (float32 or wider) of finite real numbers, else ArgumentError."""
     a = check_real(where, name, a, finite=True)
     return a.astype(np.result_type(a.dtype, np.float32), copy=False)
 
 
-def _square(a, where: str, name: str):
+def checked_square(a, where: str, name: str):
     """a as finite float (..., 2^n, 2^n) arrays, and n."""
-    a = _float(a, where, name)
-    return a, _levels_of(a, where, name)
+    a = as_float(a, where, name)
+    return a, levels_of(a, where, name)
 
 
-def _broadcast(where: str, arrays: dict) -> list:
+def broadcast_sets(where: str, arrays: dict) -> list:
     """The named arrays broadcast together, else ArgumentError naming their shapes."""
     try:
         return np.broadcast_arrays(*arrays.values())
@@ -85,7 +85,7 @@ def _broadcast(where: str, arrays: dict) -> list:
         raise ArgumentError(f"{where}: shapes do not broadcast: {shapes}") from None
 
 
-def _embed(c: np.ndarray, n: int) -> np.ndarray:
+def embed(c: np.ndarray, n: int) -> np.ndarray:
     """Coefficients of resolution 2^k zero-padded to 2^n (the same function)."""
     k = c.shape[-1]
     if k == 1 << n:
@@ -95,7 +95,7 @@ def _embed(c: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def _details(c: np.ndarray, l: int):
+def details(c: np.ndarray, l: int):
     """The three wavelet blocks (m = 1, 2, 3) of level l, each (..., 2^l, 2^l)."""
     s = 1 << l
     return c[..., :s, s:2 * s], c[..., s:2 * s, :s], c[..., s:2 * s, s:2 * s]
@@ -104,7 +104,7 @@ def _details(c: np.ndarray, l: int):
 # ============================================================================= transform (sec. 4.1)
 def forward(images) -> np.ndarray:
     """Orthonormal nonstandard Haar transform of (..., 2^n, 2^n) images (eq. 13), dense layout."""
-    a, n = _square(images, "haar.forward", "images")
+    a, n = checked_square(images, "haar.forward", "images")
     out = np.empty_like(a)
     s = a * 2.0 ** -n  # F^0_{n,t} = 2^-n * pixel
     for l in range(n - 1, -1, -1):
@@ -119,13 +119,13 @@ def forward(images) -> np.ndarray:
     return out
 
 
-def _scaling_levels(c: np.ndarray, last: int):
+def scaling_levels(c: np.ndarray, last: int):
     """Yield (l, F^0_l) for l = 0..last from dense coefficients, top down (inverse steps)."""
     s = c[..., 0:1, 0:1]
     yield 0, s
     for l in range(last):
         h = 1 << l
-        d1, d2, d3 = _details(c, l)
+        d1, d2, d3 = details(c, l)
         nxt = np.empty(s.shape[:-2] + (2 * h, 2 * h), s.dtype)
         nxt[..., 0::2, 0::2] = 0.5 * ((s + d1) + (d2 + d3))
         nxt[..., 0::2, 1::2] = 0.5 * ((s - d1) + (d2 - d3))
@@ -137,8 +137,8 @@ def _scaling_levels(c: np.ndarray, last: int):
 
 def inverse(coeffs) -> np.ndarray:
     """Images (..., 2^n, 2^n) from dense coefficients; inverse of :func:`forward`."""
-    c, n = _square(coeffs, "haar.inverse", "coeffs")
-    for _, s in _scaling_levels(c, n):
+    c, n = checked_square(coeffs, "haar.inverse", "coeffs")
+    for _, s in scaling_levels(c, n):
         pass
     return s * 2.0 ** n
 
@@ -148,7 +148,7 @@ def texel_values(coeffs, which, x, y) -> np.ndarray:
     """(N,) float64: ``inverse(coeffs)[which, y, x]`` for dense coefficient sets (T, 2^n, 2^n),
     without the whole inverse: per texel its n + 1 scaling values top down (eq. 13's children
     0.5 (F^0 +- d1 +- d2 +- d3)), 3n + 1 coefficients read; a loop over levels, not texels."""
-    c, n = _square(coeffs, "haar.texel_values", "coeffs")
+    c, n = checked_square(coeffs, "haar.texel_values", "coeffs")
     if c.ndim != 3:
         raise ArgumentError(f"haar.texel_values: coeffs must be (T, 2^n, 2^n), got shape {c.shape}")
     which, x, y = (np.asarray(a, np.int64).reshape(-1) for a in (which, x, y))
@@ -176,10 +176,10 @@ def forward_cl(images, queue=None):
     (..., tree_size(n)) float32 computed on the way (haar/tree.py layout).
     """
     where = "haar.forward_cl"
-    img = np.ascontiguousarray(_float(images, where, "images"), np.float32)
+    img = np.ascontiguousarray(as_float(images, where, "images"), np.float32)
     if img.ndim < 2:
         raise ArgumentError(f"{where}: images must be (..., 2^n, 2^n), got shape {img.shape}")
-    n = _levels_of(img, where, "images")
+    n = levels_of(img, where, "images")
     lead, side, stride = img.shape[:-2], 1 << n, tree_size(n)
     img = img.reshape(-1, side, side)
     T = img.shape[0]
@@ -204,10 +204,10 @@ def inverse_cl(coeffs, queue=None):
     folded into one batch), one launch per level (kernels/haar.cl ``haar_inverse_level``;
     numpy twin :func:`inverse`): images of the same shape, float32."""
     where = "haar.inverse_cl"
-    c = np.ascontiguousarray(_float(coeffs, where, "coeffs"), np.float32)
+    c = np.ascontiguousarray(as_float(coeffs, where, "coeffs"), np.float32)
     if c.ndim < 2:
         raise ArgumentError(f"{where}: coeffs must be (..., 2^n, 2^n), got shape {c.shape}")
-    n = _levels_of(c, where, "coeffs")
+    n = levels_of(c, where, "coeffs")
     shape = c.shape
     c = c.reshape((-1,) + shape[-2:])
     T = c.shape[0]

@@ -12,7 +12,7 @@ transfer's ringing clamped; gl_t the lighting's luminance mass of texel t), summ
 H+_t gl_t; inside the texel, as the lighting's luminance at the map's own resolution (the
 world-frame square of 2^top x 2^top leaves, top = the map's depth, a light tree's leaves,
 :func:`.lighting.project`), and inside the leaf as the map's pixels (a leaf of a map turned by
-a fraction of a column overlaps two of them: :class:`_TexelLight`): a sun smaller than a texel
+a fraction of a column overlaps two of them: :class:`TexelLight`): a sun smaller than a texel
 is found inside it, a sun one pixel wide in proportion to its own radiance. The pdf per solid
 angle = p_t 4^m (mass of the leaf / mass of the texel) 4^(top - m) (mass of the piece / mass of
 the leaf) / (its share of the leaf's area) / (2 pi^2 sin theta). Visibility is inside that
@@ -70,20 +70,17 @@ import numpy as np
 
 from .. import bsdfs, camera, cl, rng
 from ..camera import camera_rays
-from ..envmap import luminance
 from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_number
 from ..haar import inverse
-from ..haar.tree import HaarTree, build_reference, level_offset, morton_index
+from ..haar.tree import HaarTree, build_reference, level_offset
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
-from ..scene import check_scene, load_scene
 from ..threads import default_threads, map_until_stopped
-from ..warp import frame as tangent_frame
-from ..warp import to_local
 from . import converge_kernels as kernels
-from . import lighting
 from .bake import BLOCK
 from .frame import DeviceEntries
+from .mixture import (DEFENSIVE, LATTICE, LIGHT_SHARE, MAX_SLOTS, Hits, TexelLight, check_shares, entries_at_most,
+                      lattice, mean_and_error, mixture_directions, resampling_target, scene_of, world_to_square)
 from .settings import FRAME, UNBIASED_SPP
 
 MAX_SPP = FRAME["spp"].hi
@@ -94,28 +91,12 @@ MAX_SPP = FRAME["spp"].hi
 PRODUCT_LEVELS = 5
 #: directions (shadow rays) per camera sample (docs/decisions/relight-converge-kernels.md)
 SLOTS = 4
-#: the mixture's shares: the BSDF (defensive) and the lighting alone; the product has the rest
-DEFENSIVE = 0.3
-LIGHT_SHARE = 0.1
 #: resampled directions (docs/decisions/relight-resampling.md): a camera sample whose pixel's
 #: footprint reflects over more than COHERENCE times its lobe's width (:func:`footprint_spread`,
 #: :func:`wavlight.bsdfs.lobe_width`) picks its slots among CANDIDATES mixture directions
 CANDIDATES = 16
 COHERENCE = 0.25
 MAX_CANDIDATES = 256
-#: the resampling target (:func:`resampling_target`): the sample's lobe to this power, the
-#: transfer to the rest, and the shares of f cos and of T that keep it positive
-LOBE_POWER = 0.6
-TARGET_BSDF = 0.05
-TARGET_TRANSFER = 0.1
-#: directions per camera sample at most (slot j takes point j of the lattice below)
-MAX_SLOTS = len(rng.CONVERGE_DIRECTIONS)
-#: a camera sample's slots (and a resampled one's candidates) are the points j of the rank-1
-#: lattice of the R4 sequence (Roberts 2018: alpha_i = phi^-i, phi^5 = phi + 1) shifted by one
-#: Philox draw of four uniforms, frac(u_i + j alpha_i) (:func:`lattice`): each point uniform,
-#: the points of a sample spread over the cube; alpha_i in 24-bit fixed point, so that the sum
-#: is exact in float32 (the kernel adds the same floats)
-LATTICE = (14372620, 12312662, 10547948, 9036163)
 #: sub-pixel rays per side of the fixed grid that measures a pixel's footprint
 FOOTPRINT_GRID = 2
 #: a tile: at most this many of the bake's blocks of one block row (its trees on the device at
@@ -136,65 +117,16 @@ CONVERGE_TILES = 13 << 16
 BACKENDS = ("opencl", "numpy")
 
 
-def check_scene_matches(transfer, scene):
-    """The scene a bake was made from, as loaded now: a WavlightError if its content or camera
-    differs from the bake's (the transfer would be of another scene)."""
-    if scene.content_hash != transfer.scene.get("content_hash"):
-        raise WavlightError(f"{scene.path}: the scene has changed since {transfer.path} was baked (its content "
-                            "hash differs): bake it again")
-    cam = transfer.camera
-    same = all(np.allclose(getattr(scene.camera, k), cam[k], rtol=0, atol=1e-9) for k in ("eye", "target", "up"))
-    if not same or abs(float(scene.camera.fov_y) - float(cam["fov_y"])) > 1e-9:
-        raise WavlightError(f"{scene.path}: its camera differs from the one {transfer.path} was baked for")
 
 
-def check_shares(where: str, defensive, light):
-    """The mixture's shares: defensive (the BSDF's) and light (the lighting's) in [0, 1), with
-    defensive + light < 1 where a pixel has a product and the BSDF's share left to the others."""
-    defensive = check_number(where, "defensive", defensive, 0.0, 1.0)
-    light = check_number(where, "light", light, 0.0, 1.0)
-    if light >= 1.0 or defensive + light >= 1.0:
-        raise ArgumentError(f"{where}: defensive + light must be below 1 (the product's share), got "
-                            f"{defensive:g} + {light:g}")
-    return defensive, light
 
 
-def _scene_of(transfer, scene):
-    if scene is None:
-        path = transfer.scene.get("path")
-        if not path:
-            raise WavlightError(f"{transfer.path}: baked from a scene given as a dict: pass its scene")
-        if not os.path.isfile(path):
-            raise WavlightError(f"{transfer.path}: its scene {path} is not there: pass the scene (--scene FILE)")
-        scene = load_scene(path)
-    elif isinstance(scene, (str, os.PathLike)):
-        scene = load_scene(scene)
-    check_scene(scene)
-    check_scene_matches(transfer, scene)
-    return scene
 
 
-def square_to_world(uv: np.ndarray) -> np.ndarray:
-    """World directions (N, 3) of points of the world-frame lat-long square (rotate_y = 0)."""
-    phi, theta = 2 * np.pi * uv[:, 0], np.pi * uv[:, 1]
-    st = np.sin(theta)
-    return np.stack([np.sin(phi) * st, np.cos(theta), -np.cos(phi) * st], 1)
 
 
-def world_to_square(d: np.ndarray) -> np.ndarray:
-    """The inverse of :func:`square_to_world` (points in [0, 1)^2)."""
-    u = np.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi)
-    u = u - np.floor(u)
-    v = np.arccos(np.clip(d[:, 1], -1.0, 1.0)) / np.pi
-    one_below = np.nextafter(1.0, 0.0)
-    return np.stack([np.minimum(u, one_below), np.minimum(v, one_below)], 1)
 
 
-def solid_angle_jacobian(d: np.ndarray) -> np.ndarray:
-    """du dv / d omega = 1 / (2 pi^2 sin theta) at world directions (0 at the poles)."""
-    s = np.hypot(d[:, 0], d[:, 2])
-    with np.errstate(divide="ignore"):
-        return np.where(s > 0, 1.0 / (2 * np.pi ** 2 * np.where(s > 0, s, 1.0)), 0.0)
 
 
 class _Block:
@@ -284,14 +216,14 @@ class ConvergeFrames:
     lighting is made here and kept; what does, per lighting, and kept while frames keep it."""
 
     def __init__(self, transfer, scene=None, threads=None, backend: str = "opencl"):
-        if transfer.header.get("vary", "lighting") != "lighting":
-            raise WavlightError(f"{transfer.path}: this bake varies the {transfer.header.get('vary')}, not the "
-                                "lighting: its unbiased frames are its own")
+        if transfer.varies != "lighting":
+            raise WavlightError(f"{transfer.path}: this bake varies the {transfer.varies}, not the lighting: its "
+                                "unbiased frames are its own")
         if backend not in BACKENDS:
             raise ArgumentError(f"relight.ConvergeFrames: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         self.transfer, self.backend = transfer, backend
         self.threads = threads
-        self.scene = _scene_of(transfer, scene)
+        self.scene = scene_of(transfer, scene)
         t0 = time.perf_counter()
         sc = self.scene
         self.tracer = RayTracer(sc.vertices, sc.faces, threads=1, normals=sc.normals, normal_faces=sc.normal_faces)
@@ -366,7 +298,7 @@ class ConvergeFrames:
             base, projector = self._map[1], self._map[2]
         else:
             base, projector = self.transfer.environment(env, scale), None   # unrotated, scaled
-        inside = _TexelLight(base, levels, rotate_y, projector=projector)
+        inside = TexelLight(base, levels, rotate_y, projector=projector)
         self._map = (env_key, base, inside.projector, env)
         device = kernels.Lighting(inside.tables()) if self.backend == "opencl" else None
         state = _LightingState(key, inside, device)
@@ -400,6 +332,42 @@ class ConvergeFrames:
             with state.lock:
                 state.trees[tile.index] = made
         return made, False
+
+    def prepare(self, levels: int = PRODUCT_LEVELS, slots: int = SLOTS, candidates: int = CANDIDATES,
+                control: bool = True) -> None:
+        """Make now what the first frame would (its kernels' program and every tile's footprint
+        spread, which do not depend on the lighting), so that it pays only for its lighting and
+        passes: the viewer prepares its converge thread's frames when a page opens."""
+        prog = None
+        if self.backend == "opencl":
+            prog = self.program(min(self.transfer.n_levels, levels), slots, candidates, bool(control))
+        if candidates:
+            for tile in self.tiles:
+                self.spread(tile, prog)
+
+    def warm(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, levels: int = PRODUCT_LEVELS,
+             stop=None) -> int:
+        """Make the lighting's tables and every tile's product trees (kept while they fit) before a
+        frame asks for them, tile by tile until ``stop()`` is true: the viewer's converge thread
+        warms the lighting of a page at rest, so that its first pass pays only for its samples.
+        Returns the tiles whose trees are kept."""
+        tr = self.transfer
+        m = min(tr.n_levels, levels)
+        state = self.lighting(env, tr.scene_rotate_y if rotate_y is None else float(rotate_y), scale, m)
+        if self.backend != "opencl":
+            return 0
+        prog = self.program(m, SLOTS, CANDIDATES, True)
+        for i, tile in enumerate(self.tiles):
+            if stop is not None and stop():
+                break
+            trees, _ = self.tile_trees(state, tile, prog)
+            if i == 0:   # the shading kernel's first launches (PoCL compiles per work-group size)
+                host, device = self.spread(tile, prog)
+                self._shade.warm_up(prog, SLOTS, trees, cl.to_device(host) if device is None else device,
+                                    state.device, (DEFENSIVE, LIGHT_SHARE, COHERENCE))
+        # the trees are read by a frame's tile threads on queues of their own: built before they are
+        cl.thread_queue().finish()
+        return len(state.trees)
 
     # -- a frame
     def frame(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, spp: int = UNBIASED_SPP,
@@ -574,7 +542,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME
         if not same:
             _LAST["frames"] = _LAST["transfer"] = frames = None
             if scene is None or isinstance(scene, (str, os.PathLike)):
-                scene = _scene_of(transfer, scene)   # loaded: not part of the frame's time
+                scene = scene_of(transfer, scene)   # loaded: not part of the frame's time
             frames = ConvergeFrames(transfer, scene, threads, backend)
             _LAST["frames"], _LAST["transfer"] = frames, weakref.ref(transfer)
             setup = frames.setup_seconds
@@ -641,302 +609,21 @@ def hit_scales(transfer) -> np.ndarray:
     return np.where(hits > 0, transfer.spp / np.maximum(hits, 1.0), 1.0)
 
 
-class _TexelLight:
-    """The lighting inside the transfer's texels at the map's resolution: leaf masses (exact
-    integrals of luminance, world frame, turned) grouped by texel, for sampling a point inside a
-    texel in proportion to them and for the density factor of that choice.
-
-    The leaves are the world-frame square's 2^m x 2^m cells (m >= the map's square levels, so a
-    leaf is at most one map pixel wide and tall). Turned by an angle that is not a whole number
-    of map columns, a leaf overlaps up to 2 x 2 of the map's pixels; with ``map_pixels`` (the
-    default) the point is placed inside the leaf in proportion to those pieces (their luminance
-    times their share of the leaf's solid angle), so that a sun one map pixel wide is sampled in
-    proportion to its own radiance, not to its leaf's mean with a dark neighbour; and
-    :meth:`radiance` is the map pixel's. Without, the point is uniform in its leaf (what the
-    moving object's kernel does, kernels/relight_moving.cl)."""
-
-    def __init__(self, environment, n_levels: int, rotate_y: float, map_pixels: bool = True, projector=None):
-        top = max(environment.square_levels(), n_levels)
-        if projector is None or projector.environment is not environment or projector.n_levels != top:
-            projector = lighting.Projector(environment, top)
-        self.projector = projector   # (for another rotation of the same map: :meth:`Projector.__call__` alone)
-        rgb = projector(rotate_y)
-        leaf_angles = lighting.texel_solid_angles(top)[:, None]
-        masses = luminance(rgb) * leaf_angles                                          # (M, M)
-        self.n, self.top, self.k = n_levels, top, 1 << (top - n_levels)
-        side, k = 1 << n_levels, self.k
-        self.rgb = rgb
-        self.texel_angles = lighting.texel_solid_angles(n_levels)
-        # each texel's mean radiance: its leaves' integrals over its solid angle (exact, nested)
-        self.texel_radiance = ((rgb * leaf_angles[:, :, None]).reshape(side, k, side, k, 3).sum((1, 3))
-                               / self.texel_angles[:, None, None]).reshape(side * side, 3)
-        blocks = masses.reshape(side, k, side, k).transpose(0, 2, 1, 3).reshape(side * side, k * k)
-        self.texel_mass = blocks.sum(1)
-        self.texel_luminance = (self.texel_mass.reshape(side, side)
-                                / lighting.texel_solid_angles(n_levels)[:, None])
-        self.cdf = np.cumsum(blocks, axis=1)
-        self.blocks = blocks
-        self.map_pixels = bool(map_pixels)
-        if self.map_pixels:
-            self._pieces(environment, rotate_y)
-
-    def _pieces(self, environment, rotate_y: float):
-        """Per leaf column: the map columns of its two pieces and the first's share of the leaf's
-        width; per leaf row: the map rows, the first's share of the height and of the solid angle
-        (the map turned by rotate_y: map u = world u + rotate_y / 360, as lighting.Projector)."""
-        count = 1 << self.top
-        h, w = environment.height, environment.width
-        self.map_rgb = environment.pixels.astype(np.float64)
-        self.map_lum = luminance(self.map_rgb)
-        x0 = ((np.arange(count) / count + float(rotate_y) / 360.0) % 1.0) * w   # a leaf's left edge, map columns
-        first = np.floor(x0)
-        self.col_share = np.clip((first + 1.0 - x0) * count / w, 0.0, 1.0)
-        self.cols = np.stack([first.astype(np.int64) % w, (first.astype(np.int64) + 1) % w])
-        y0 = np.arange(count) * h / count
-        first = np.floor(y0)
-        self.row_share = np.clip((first + 1.0 - y0) * count / h, 0.0, 1.0)
-        self.rows = np.stack([np.minimum(first.astype(np.int64), h - 1), np.minimum(first.astype(np.int64) + 1, h - 1)])
-        theta = np.pi * np.arange(count + 1) / count
-        split = np.pi * (np.arange(count) + self.row_share) / count
-        band = np.cos(theta[:-1]) - np.cos(theta[1:])                  # > 0: every row has solid angle
-        self.row_angle_share = np.clip((np.cos(theta[:-1]) - np.cos(split)) / band, 0.0, 1.0)
-
-    def _piece_masses(self, a, b):
-        """(4, N) the pieces' luminance times their share of leaf (column a, row b)'s solid angle,
-        in the order (row 0, col 0), (row 0, col 1), (row 1, col 0), (row 1, col 1)."""
-        wc, wr = self.col_share[a], self.row_angle_share[b]
-        out = []
-        for r, share_r in ((0, wr), (1, 1.0 - wr)):        # the 2 x 2 pieces, not samples
-            for c, share_c in ((0, wc), (1, 1.0 - wc)):
-                out.append(self.map_lum[self.rows[r, b], self.cols[c, a]] * share_c * share_r)
-        return np.stack(out)
-
-    def _place_in_leaf(self, a, b, su, sv):
-        """Points (fu, fv) inside leaves (column a, row b) from uniforms su, sv, in proportion to
-        the pieces' masses, and the density factor of that placement against uniform in the leaf."""
-        m = self._piece_masses(a, b)
-        total = m.sum(0)
-        top = m[0] + m[1]
-        one_below = np.nextafter(1.0, 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lower = sv * total >= top                       # the second row piece
-            sv2 = np.where(lower, (sv * total - top) / (total - top), sv * total / top)
-            sv2 = np.where(np.isfinite(sv2), np.clip(sv2, 0.0, one_below), sv)
-            m0, m1 = np.where(lower, m[2], m[0]), np.where(lower, m[3], m[1])
-            right = su * (m0 + m1) >= m0
-            su2 = np.where(right, (su * (m0 + m1) - m0) / m1, su * (m0 + m1) / m0)
-            su2 = np.where(np.isfinite(su2), np.clip(su2, 0.0, one_below), su)
-        hc, hr = self.col_share[a], self.row_share[b]
-        fu = np.where(right, hc + su2 * (1.0 - hc), su2 * hc)
-        fv = np.where(lower, hr + sv2 * (1.0 - hr), sv2 * hr)
-        return fu, fv, self._piece_factor(m, total, right, lower, a, b)
-
-    def _piece_factor(self, m, total, right, lower, a, b):
-        """The density of a point in piece (lower, right) of leaves (a, b) against uniform in the
-        leaf: the piece's share of the leaf's mass over its share of the leaf's area."""
-        piece = np.where(lower, np.where(right, m[3], m[2]), np.where(right, m[1], m[0]))
-        area = (np.where(right, 1.0 - self.col_share[a], self.col_share[a])
-                * np.where(lower, 1.0 - self.row_share[b], self.row_share[b]))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f = np.where((total > 0) & (area > 0),
-                         piece / np.where(total > 0, total, 1.0) / np.where(area > 0, area, 1.0), 0.0)
-        return f
-
-    def _leaf_of(self, uv):
-        """Leaf column a and row b of points uv, and whether each lies in its leaf's second
-        column piece (right) and second row piece (lower) of the map's pixels."""
-        count = 1 << self.top
-        x = np.asarray(uv, np.float64) * count
-        cell = np.minimum(x.astype(np.int64), count - 1)
-        a, b = cell[:, 0], cell[:, 1]
-        if not self.map_pixels:
-            return a, b, None, None
-        return a, b, x[:, 0] - a >= self.col_share[a], x[:, 1] - b >= self.row_share[b]
-
-    def leaf_masses(self) -> np.ndarray:
-        """(2^n, 2^n) float32: the lighting's luminance mass of each texel on the unit square,
-        its mean luminance times 4^-n: the factor gl_t of the product trees' leaves (eq. 25 at
-        the finest level: the box mass of the lighting times the transfer's texel value)."""
-        side = 1 << self.n
-        return (self.texel_luminance * (1.0 / (side * side))).astype(np.float32)
-
-    def tables(self) -> dict:
-        """The lighting on the device's terms (kernels/converge.cl LIGHT_ARGS), float32 and uint32
-        bits: the running sums of each texel's leaf masses (leaf_cdf, texel-major), each texel's
-        last one (texel_total), the guide to them (leaf_guide: per texel and cell g of k^2 cells,
-        how many running sums are <= (g / k^2) total, in float32 as the kernel multiplies), the
-        running sum of the texels' masses (texel_cdf), per leaf column its first map column's share of the leaf's
-        width and its two map columns (columns), per leaf row the first map row's share of the
-        leaf's height and of its solid angle and its two map rows (rows), the map's pixels
-        (r, g, b, luminance), and per texel in Morton order (the trees' leaf order) the leaf
-        masses of :meth:`leaf_masses` and the mean radiance (r, g, b, 0); the texel rows' solid
-        angles (omega)."""
-        if not self.map_pixels:
-            raise ArgumentError("relight._TexelLight.tables: the kernels place points by the map's pixels")
-        count, side = 1 << self.top, 1 << self.n
-        columns = np.zeros((count, 4), np.float32)
-        columns[:, 0] = self.col_share
-        columns.view(np.uint32)[:, 1:3] = self.cols.T.astype(np.uint32)
-        rows = np.zeros((count, 4), np.float32)
-        rows[:, 0], rows[:, 1] = self.row_share, self.row_angle_share
-        rows.view(np.uint32)[:, 2:4] = self.rows.T.astype(np.uint32)
-        h, w = self.map_lum.shape
-        pixels = np.empty((h * w, 4), np.float32)
-        pixels[:, :3] = self.map_rgb.reshape(-1, 3)
-        pixels[:, 3] = self.map_lum.reshape(-1)
-        row, col = np.divmod(np.arange(side * side), side)
-        morton = np.argsort(morton_index(col, row))        # texel (row-major) of each Morton index
-        radiance = np.zeros((side * side, 4), np.float32)
-        radiance[:, :3] = self.texel_radiance[morton]
-        cdf = np.ascontiguousarray(self.cdf, np.float32)                      # (texels, k^2), rows non-decreasing
-        texels, kk = cdf.shape
-        total = cdf[:, -1]
-        cells = (np.arange(kk + 1, dtype=np.float32) / np.float32(kk))[None, :] * total[:, None]   # float32 products
-        # counts per row by one search: non-negative float32 bits order as their values; the
-        # texel's index above them keeps the rows apart
-        offset = np.arange(texels, dtype=np.int64)[:, None] << 32
-        keys = (offset | cdf.view(np.uint32).astype(np.int64)).reshape(-1)
-        guide = np.searchsorted(keys, (offset | cells.view(np.uint32).astype(np.int64)).reshape(-1), side="right")
-        guide = (guide.reshape(texels, kk + 1) - np.arange(texels)[:, None] * kk).astype(np.uint32)
-        return {"levels": self.n, "top": self.top, "kbits": self.top - self.n, "map_width": w,
-                "leaf_cdf": cdf.reshape(-1), "texel_total": np.ascontiguousarray(total),
-                "leaf_guide": guide.reshape(-1),
-                "texel_cdf": np.cumsum(self.texel_mass).astype(np.float32), "columns": columns, "rows": rows,
-                "map": pixels, "map_lum": np.ascontiguousarray(pixels[:, 3]), "leaf_masses": np.ascontiguousarray(self.leaf_masses().reshape(-1)[morton]),
-                "radiance": radiance, "omega": self.texel_angles.astype(np.float32)}
-
-    def radiance(self, uv):
-        """(N, 3): the lighting's radiance at points uv of the square: the map pixel's under the
-        point (with ``map_pixels``; the piece of its leaf that holds it), else its leaf's mean."""
-        a, b, right, lower = self._leaf_of(uv)
-        if not self.map_pixels:
-            return self.rgb[b, a]
-        row = np.where(lower, self.rows[1, b], self.rows[0, b])
-        return self.map_rgb[row, np.where(right, self.cols[1, a], self.cols[0, a])]
-
-    def _texel(self, uv):
-        side = 1 << self.n
-        cell = np.minimum((uv * side).astype(np.int64), side - 1)
-        return cell[:, 1] * side + cell[:, 0], uv * side - cell
-
-    def sample(self, uv):
-        """Points of the product tree's texels (uniform inside them) moved to a leaf chosen by the
-        luminance inside the texel (the point's position in its texel reused as the uniforms),
-        then inside the leaf by the map's pixels (``map_pixels``): (uv (N, 2), density factor
-        (N,) against uniform in the texel)."""
-        t, frac = self._texel(uv)
-        k, side = self.k, 1 << self.n
-        one_below = np.nextafter(1.0, 0.0)
-        if k == 1:
-            leaf = np.zeros(len(uv), np.int64)
-            s, factor = np.clip(frac[:, 0], 0.0, one_below), np.where(self.texel_mass[t] > 0, 1.0, 0.0)
-        else:
-            total = self.texel_mass[t]
-            target = frac[:, 0] * total
-            leaf = np.minimum(_entries_at_most(self.cdf, t, target), k * k - 1)
-            below = np.where(leaf > 0, self.cdf[t, np.maximum(leaf - 1, 0)], 0.0)
-            mass = self.blocks[t, leaf]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                s = np.where(mass > 0, (target - below) / np.where(mass > 0, mass, 1.0), frac[:, 0])
-                factor = np.where(total > 0, mass / np.where(total > 0, total, 1.0) * k * k, 0.0)
-            s = np.clip(s, 0.0, one_below)
-        a = (t % side) * k + leaf % k
-        b = (t // side) * k + leaf // k
-        sv = np.clip(frac[:, 1], 0.0, one_below)
-        if self.map_pixels:
-            fu, fv, inner = self._place_in_leaf(a, b, s, sv)
-            factor = factor * inner
-        else:
-            fu, fv = s, sv
-        count = 1 << self.top
-        out = np.stack([np.minimum((a + fu) / count, one_below), np.minimum((b + fv) / count, one_below)], 1)
-        return out, factor
-
-    def sample_light(self, a, b, c):
-        """Points of the square drawn from the lighting alone: a texel in proportion to its mass
-        by ``a``, then the point (b, c) of the texel moved to a leaf by :meth:`sample` (three
-        uniforms, so that each choice has all of its bits): the lighting's technique of the
-        mixture, density :meth:`light_pdf` per unit square."""
-        cdf = self._texel_cdf()
-        t = np.minimum(np.searchsorted(cdf, a * cdf[-1], side="right"), len(cdf) - 1)
-        side = 1 << self.n
-        one_below = np.nextafter(1.0, 0.0)
-        uv = np.stack([(t % side + np.clip(b, 0.0, one_below)) / side, (t // side + np.clip(c, 0.0, one_below)) / side],
-                      1)
-        return self.sample(uv)[0]
-
-    def light_pdf(self, uv):
-        """The density per unit square of :meth:`sample_light` at points uv (N, 2)."""
-        t, _ = self._texel(uv)
-        total = self._texel_cdf()[-1]
-        if total <= 0:
-            return np.zeros(len(uv))
-        return self.texel_mass[t] / total * float(4 ** self.n) * self.factor(uv)
-
-    def _texel_cdf(self):
-        if getattr(self, "_cdf", None) is None:
-            self._cdf = np.cumsum(self.texel_mass)
-        return self._cdf
-
-    def factor(self, uv):
-        """The density factor of :meth:`sample` at points uv (N, 2) against uniform in the texel:
-        (leaf mass / texel mass) k^2, times the piece's inside the leaf (``map_pixels``); 0 where
-        the texel holds no light."""
-        t, _ = self._texel(uv)
-        k = self.k
-        a, b, right, lower = self._leaf_of(uv)
-        total = self.texel_mass[t]
-        leaf = (b % k) * k + a % k
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f = np.where(total > 0, self.blocks[t, leaf] / np.where(total > 0, total, 1.0) * k * k, 0.0)
-        if self.map_pixels:
-            m = self._piece_masses(a, b)
-            f = f * self._piece_factor(m, m.sum(0), right, lower, a, b)
-        return f
 
 
-def _entries_at_most(cdf: np.ndarray, rows: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Per sample i, how many entries of the non-decreasing row ``cdf[rows[i]]`` are <= target[i]
-    (``np.searchsorted(..., side="right")`` row by row), by a bisection over all samples at once:
-    log2 of the row's length gathers of one value per sample, never a copy of the rows."""
-    lo = np.zeros(len(rows), np.int64)
-    hi = np.full(len(rows), cdf.shape[1], np.int64)
-    active = lo < hi
-    while active.any():
-        mid = (lo + hi) // 2
-        below = cdf[rows, np.minimum(mid, cdf.shape[1] - 1)] <= target
-        lo = np.where(active & below, mid + 1, lo)
-        hi = np.where(active & ~below, mid, hi)
-        active = lo < hi
-    return lo
 
 
-def mean_and_error(sums: np.ndarray, squares: np.ndarray, spp: int):
-    """Per-pixel mean and its standard error from the sums and sums of squares of ``spp``
-    independent samples (inf with a single sample)."""
-    mean = sums / spp
-    if spp > 1:
-        return mean, np.sqrt(np.maximum(squares - spp * mean ** 2, 0.0) / (spp - 1) / spp)
-    return mean, np.full_like(mean, np.inf)
 
 
-def lattice(u: np.ndarray, j) -> np.ndarray:
-    """(N, 4) float32: frac(u + j alpha) for uniforms u (N, 4) float32 and lattice points j (N,)
-    or a scalar, alpha = LATTICE / 2^24 (numpy twin of kernels/converge.cl ``lattice``, the same
-    float32 operations)."""
-    j = np.asarray(j, np.uint64)
-    offset = np.stack([((j * np.uint64(a)) & np.uint64(0xFFFFFF)).astype(np.float32) for a in LATTICE], -1)
-    c = np.asarray(u, np.float32) + offset * np.float32(2.0 ** -24)    # four axes, not samples
-    return np.where(c >= 1, c - np.float32(1), c).astype(np.float32)
 
 
 def tile_trees_reference(coeffs: np.ndarray, inside, hit_scale: np.ndarray):
     """numpy twin of ``converge_trees`` (kernels/converge.cl): for pixels' transfer coefficients
     (P, 2^m, 2^m) (:func:`tile_coefficients`), the lighting inside the texels ``inside`` (a
-    :class:`_TexelLight` of m levels) and the pixels' hit scales c (P,): the product pyramids
+    :class:`TexelLight` of m levels) and the pixels' hit scales c (P,): the product pyramids
     (P, tree_size(m)) float32 (row-major levels, the host's layout) of the leaves
     gl_t H+_t, H+_t = max(c H_t, 0) (H_t the texel values of the inverse transform, eq. 13;
-    gl_t :meth:`_TexelLight.leaf_masses`), and the relit values G (P, 3) float64 = sum over t
+    gl_t :meth:`TexelLight.leaf_masses`), and the relit values G (P, 3) float64 = sum over t
     with gl_t > 0 of H+_t L_t (L_t the texel's mean radiance)."""
     side = 1 << inside.n
     h = np.maximum(inverse(np.asarray(coeffs, np.float64)) * np.asarray(hit_scale, np.float64)[:, None, None], 0.0)
@@ -966,12 +653,12 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     at t (N,), k per pixel, pixel-major. The tile's pixels' product trees: ``trees`` (a
     :class:`wavlight.haar.HaarTree`, whose warp kernels walk them), ``nodes`` their pyramids
     (P, tree_size(m)) row-major, ``relit`` their G (P, 3), ``spread`` their footprint spreads (P,);
-    ``inside`` the lighting (:class:`_TexelLight`), ``key`` = (seed, tile), ``first`` the pass's
+    ``inside`` the lighting (:class:`TexelLight`), ``key`` = (seed, tile), ``first`` the pass's
     first sample index in the tile. A miss sees the map (direct); a hit gets ``slots``
     directions of the mixture (:func:`mixture_directions`; the uniforms of slot j are
     :func:`lattice` point j of Philox stream rng.CONVERGE_DIRECTIONS[0] at index first + r),
     each estimated as albedo f cos L / pdf / slots
-    (L the map's pixel, :meth:`_TexelLight.radiance`), and with ``control`` direct =
+    (L the map's pixel, :meth:`TexelLight.radiance`), and with ``control`` direct =
     albedo (G - sum of g / pdf / slots), g = :func:`transfer_from_trees` L; or, where its pixel's
     spread exceeds ``coherence`` times its lobe's width, ``slots`` picks among ``candidates``
     mixture directions by resampled importance sampling (:func:`resample_reference`). Hits are
@@ -988,7 +675,7 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     hit = np.flatnonzero(prim >= 0)
     if not len(hit):
         return direct, origin, wi, value
-    hits = _Hits.of(scene, tracer, d, t, prim, hit, k, bary)
+    hits = Hits.of(scene, tracer, d, t, prim, hit, k, bary)
     origin[hit] = hits.origin
     has_p = np.asarray(nodes)[hits.pixel, 0] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)
@@ -1068,7 +755,7 @@ def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp
     u0 = rng.uniforms(*key, rng.CONVERGE_PICK, first, count)[hits.index, 0].astype(np.float64)
     at = (u0[:, None] + np.arange(slots)) / slots * cdf[:, -1:]          # (n, slots) points on the sums
     rows = np.repeat(np.arange(n), slots)
-    picks = np.minimum(_entries_at_most(cdf, rows, at.reshape(-1)), m - 1)   # the first entry above each
+    picks = np.minimum(entries_at_most(cdf, rows, at.reshape(-1)), m - 1)   # the first entry above each
     flat = rows * m + picks
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(target[flat] > 0, np.repeat(cdf[:, -1], slots) / m / target[flat], 0.0) / slots
@@ -1076,138 +763,11 @@ def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp
     return direction[flat].reshape(n, slots, 3), estimate.reshape(n, slots, 3)
 
 
-def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: int, key, environment,
-                     defensive: float, slots: int, light: float = 0.0, first: int = 0, uv=None):
-    """The radiance (len(hit), 3) of the camera samples ``hit`` (of spp per pixel, directions
-    ``d`` with hits ``prim`` at ``t``) from ``slots`` directions each of the defensive mixture
-    (:func:`mixture_directions`, the lighting's share ``light``; the pixels' product trees
-    ``trees`` of totals ``mass``) seen from ``scene``'s camera, each evaluated with the true
-    f cos, ``environment``'s radiance and a shadow ray; the uniforms are Philox stream
-    (``key`` = (seed, tile), rng.CONVERGE_DIRECTIONS[slot]), from sample ``first`` of the tile
-    on. The mixture alone, in numpy (the view bake's unbiased frame, :mod:`.view`; the lighting
-    bake's runs in kernels/converge.cl, twin :func:`shade_reference`); ``uv`` the barycentrics of
-    the rays' hits, for the shading normals (None: flat). Returns it and the rays traced."""
-    if slots > MAX_SLOTS:   # one stream per slot
-        raise ArgumentError(f"relight.shade_by_mixture: at most {MAX_SLOTS} slots, got {slots}")
-    hits = _Hits.of(scene, tracer, d, t, prim, hit, spp, None if uv is None else np.stack(uv, axis=1))
-    has_p = mass[hits.pixel] > 0
-    alpha = np.where(has_p, defensive, 1.0 - light)   # pixels without a product: the BSDF and the lighting
-    total = np.zeros((len(hit), 3))
-    rays = 0
-    for slot in range(slots if len(hit) else 0):   # directions per camera sample, not samples
-        u_all = rng.uniforms(*key, rng.CONVERGE_DIRECTIONS[slot], first, len(d))
-        direction, weight = mixture_directions(trees, inside, u_all, hits.index, spp, has_p, alpha, hits.kind,
-                                               hits.param, hits.wo, hits.axes, light, geometric=hits.geometric)
-        weight = weight / slots
-        live = np.flatnonzero(weight > 0)
-        blocked = tracer.occluded(hits.origin[live], direction[live].astype(np.float32))
-        rays += len(live)
-        total[live] += (weight[live] * ~blocked)[:, None] * environment.eval(direction[live])
-    return scene.material_albedo[hits.mat].astype(np.float64) * total, rays
 
 
-class _Hits(NamedTuple):
-    """Camera samples that hit: their index among the tile's samples, pixel, shading frame
-    (s, t, n: the shading normal turned to the viewer), view in it, shadow-ray origin, material,
-    the geometric normal turned to the viewer (directions below it carry no light)."""
-
-    index: np.ndarray
-    pixel: np.ndarray
-    axes: tuple
-    wo: np.ndarray
-    origin: np.ndarray
-    mat: np.ndarray
-    kind: np.ndarray
-    param: np.ndarray
-    geometric: np.ndarray
-
-    @classmethod
-    def of(cls, scene, tracer, d, t, prim, hit, spp: int, bary=None):
-        """``bary`` (N, 2): embree's barycentrics of all the rays (None: every face flat)."""
-        if bary is not None and tracer.smooth:
-            b = np.asarray(bary)[hit]
-            nrm, geo, _, origin = tracer.hit(scene.camera.eye, d[hit], t[hit], prim[hit], b[:, 0], b[:, 1])
-        else:
-            nrm, _, origin = tracer.surface(scene.camera.eye, d[hit], t[hit], prim[hit])
-            geo = nrm
-        nrm = nrm.astype(np.float64)
-        s_ax, t_ax = tangent_frame(nrm)
-        wo = to_local(-d[hit].astype(np.float64), s_ax, t_ax, nrm)
-        mat = scene.face_material[prim[hit]]
-        return cls(np.asarray(hit), np.asarray(hit) // spp, (s_ax, t_ax, nrm), wo, origin, mat,
-                   scene.material_kind[mat], scene.material_param[mat], geo.astype(np.float64))
-
-    def subset(self, sel):
-        return _Hits(self.index[sel], self.pixel[sel], tuple(a[sel] for a in self.axes), self.wo[sel],
-                     self.origin[sel], self.mat[sel], self.kind[sel], self.param[sel], self.geometric[sel])
-
-    def candidates(self, m: int):
-        """Each sample m times in a row, the candidates of :func:`shade_by_resampling`: their
-        ``index`` is their row among the tile's samples' m candidates each (sample-major)."""
-        rows = (self.index[:, None] * m + np.arange(m)).reshape(-1)
-        return _Hits(rows, *(tuple(np.repeat(a, m, 0) for a in f) if isinstance(f, tuple) else np.repeat(f, m, 0)
-                             for f in self[1:]))
 
 
-def resampling_target(fcos, radiance, transfer):
-    """The target of the resampled directions (:func:`shade_by_resampling`) at directions of
-    the camera sample's f cos, the lighting's ``radiance`` (N, 3) and the pixel's transfer T
-    per solid angle: Y(L) [(f cos)^LOBE_POWER T^(1 - LOBE_POWER) + TARGET_BSDF f cos +
-    TARGET_TRANSFER T], Y the luminance. The first term is the sample's own lobe with the
-    visibility the transfer holds; the second keeps it positive wherever f cos L is, so that the
-    estimate is unbiased where the transfer missed a direction."""
-    fcos, transfer = np.maximum(fcos, 0.0), np.maximum(transfer, 0.0)
-    return luminance(radiance) * (fcos ** LOBE_POWER * transfer ** (1.0 - LOBE_POWER) + TARGET_BSDF * fcos
-                                  + TARGET_TRANSFER * transfer)
 
 
-def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes,
-                       light: float = 0.0, with_pdf: bool = False, geometric=None):
-    """Directions of the defensive mixture and their weights, for the samples ``hit`` of
-    ``len(u_all)`` (spp per pixel, each pixel's product tree in ``trees``): with probability
-    1 - alpha - light the product (its tree by the hierarchical warp, eq. 17-22, then inside
-    the texel by the lighting, ``inside``), with probability alpha the BSDF, with probability
-    ``light`` the lighting alone (:meth:`_TexelLight.sample_light`: where a noisy transfer
-    hides a bright light, the lighting still finds it); ``geometric`` the hits' geometric normals
-    (f cos = 0 below them: docs/decisions/shading-normals.md); ``axes`` (s, t, n) the hits' tangent
-    frames, ``wo`` the view in them. The pdf is the mixture's, every technique's at the chosen
-    direction, so that f cos / pdf is unbiased. Returns unit directions (N, 3) and f cos / pdf
-    (N,) (0 where either is 0 or not finite); with ``with_pdf`` also the mixture's pdf (N,) per solid
-    angle."""
-    s_ax, t_ax, nrm = axes
-    u = u_all[hit].astype(np.float64)
-    uv_tree, _ = trees.sample(np.ascontiguousarray(u_all[:, :2]), spp)   # every sample slot, in pixel order
-    uv_p, _ = inside.sample(uv_tree[hit].astype(np.float64))
-    d_p = square_to_world(uv_p)
-    use_b = u[:, 2] < alpha          # the BSDF's uniforms: u.z rescaled below alpha, and u.w
-    ub = np.clip(np.stack([np.where(use_b, u[:, 2] / alpha, 0.0), u[:, 3]], 1), 0.0, np.nextafter(1.0, 0.0))
-    wl_b = bsdfs.sample_each(kind, param, ub, wo)
-    d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
-    direction = np.where(use_b[:, None], d_b, d_p)
-    if light > 0:                    # the lighting's: u.z in [alpha, alpha + light) chooses it, and its
-        use_l = ~use_b & (u[:, 2] < alpha + light)   # direction takes the product's unused u.x, u.y and u.w
-        if use_l.any():
-            direction[use_l] = square_to_world(inside.sample_light(u[use_l, 0], u[use_l, 1], u[use_l, 3]))
-    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    uv = world_to_square(direction)
-    p_tree = trees.pdf(np.ascontiguousarray(_spread(uv, hit, len(u_all)), np.float32), spp)[hit]
-    p_prod = np.where(has_product, p_tree.astype(np.float64) * inside.factor(uv), 0.0) * solid_angle_jacobian(direction)
-    wl = to_local(direction, s_ax, t_ax, nrm)
-    fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
-    if geometric is not None:
-        fcos = np.where(np.einsum("ij,ij->i", direction, geometric) > 0, fcos, 0.0)
-    pdf = (1 - alpha - light) * p_prod + alpha * p_bsdf
-    if light > 0:
-        pdf = pdf + light * inside.light_pdf(uv) * solid_angle_jacobian(direction)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0)
-    weight = np.where(np.isfinite(weight), weight, 0.0)
-    return (direction, weight, np.where(np.isfinite(pdf), pdf, 0.0)) if with_pdf else (direction, weight)
 
 
-def _spread(values: np.ndarray, at: np.ndarray, count: int) -> np.ndarray:
-    """(count, 2): ``values`` at rows ``at``, the point (0.5, 0.5) elsewhere (the tree pdf kernel
-    takes one point per sample of every pixel)."""
-    out = np.full((count, 2), 0.5)
-    out[at] = values
-    return out

@@ -3,7 +3,7 @@ each tile's product trees T1 x L (eq. 17-25) and the shading of its camera sampl
 the mixture of :mod:`wavlight.relight.converge`).
 
 :class:`Lighting` holds one frame lighting's tables on the device (the lighting inside the
-texels, :meth:`wavlight.relight.converge._TexelLight.tables`). :class:`TreeKernel` builds a
+texels, :meth:`wavlight.relight.mixture.TexelLight.tables`). :class:`TreeKernel` builds a
 tile's trees from the bake file's quantized entries, read where they are mapped
 (:class:`wavlight.relight.frame.DeviceEntries`): the coefficients never pass through the host.
 :class:`ShadeKernel` shades a pass of a tile's camera samples: the host traces the camera rays
@@ -53,7 +53,7 @@ class TileTrees(NamedTuple):
 
 
 class Lighting:
-    """One lighting's tables on the device (``tables``: :meth:`_TexelLight.tables`)."""
+    """One lighting's tables on the device (``tables``: :meth:`.mixture.TexelLight.tables`)."""
 
     def __init__(self, tables: dict):
         self.levels, self.top, self.kbits = int(tables["levels"]), int(tables["top"]), int(tables["kbits"])

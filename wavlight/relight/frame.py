@@ -85,7 +85,7 @@ class DeviceEntries:
 
     @staticmethod
     def _buffer(a, dtype):
-        pyopencl = cl._cl()
+        pyopencl = cl.opencl()
         flat = np.asarray(a).reshape(-1)
         if flat.size == 0:
             flat = np.zeros(64, dtype)

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import cl
-from ..envmap import LUMINANCE, Environment, _band_overlaps
+from ..envmap import LUMINANCE, Environment, band_overlaps
 from ..errors import ArgumentError, check_degrees, check_int, check_number
 from ..haar import forward
 from ..haar.transform import coeff_basis
@@ -70,7 +70,7 @@ class Projector:
         h, w = environment.height, environment.width
         pixels = environment.pixels.astype(np.float64)
         # rows: the solid-angle measure in cos(theta) of texel row r's overlap with map row j
-        ri, rw = _band_overlaps(np.arange(side + 1) / side * np.pi, np.arange(h + 1) / h * np.pi, lambda x: -np.cos(x))
+        ri, rw = band_overlaps(np.arange(side + 1) / side * np.pi, np.arange(h + 1) / h * np.pi, lambda x: -np.cos(x))
         by_rows = sum(rw[:, b, None, None] * np.take(pixels, ri[:, b], axis=0) for b in range(ri.shape[1]))
         # columns: the cumulative integral along phi at the map's column edges, periodic
         self.step = 2 * np.pi / w

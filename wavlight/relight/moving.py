@@ -66,7 +66,8 @@ from ..shading import KernelShader, NumpyShader
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from .bake import bounding_sphere, camera_jitter
-from .converge import PASS_SPP, _scene_of, _TexelLight, mean_and_error, mixture_directions
+from .converge import PASS_SPP
+from .mixture import TexelLight, mean_and_error, mixture_directions, scene_of
 from .settings import FRAME, OBJECT_FRAME_SPP
 
 #: a frame's chunk c draws its Philox numbers as tile FRAME_TILES + c (streams rng.JITTER,
@@ -184,7 +185,7 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
     order: for camera rays from ``scene``'s eye along d (N, 3) that hit ``tracer``'s triangles
     prim (N,) at t (N,), samples ``slots`` (N,) of a pass of spp per pixel (pixel slot // spp's
     product tree at ``tree_offset`` + that in ``trees``), ``directions`` directions each of the
-    defensive mixture (:func:`wavlight.relight.converge.mixture_directions`; the BSDF alone where
+    defensive mixture (:func:`wavlight.relight.mixture.mixture_directions`; the BSDF alone where
     the pixel's product is 0), their uniforms :func:`stratified_uniforms` (stream
     rng.MOVING_DIRECTIONS); the records of those whose ray meets the object's box
     (:func:`meets_box`) with a contribution > 0 (their rays in the object's own frame). ``uv``: the
@@ -451,14 +452,14 @@ class MovingObject:
     with ``backend="opencl"``, the kernels (module docstring)."""
 
     def __init__(self, transfer, scene=None, backend: str = "opencl", directions: int = DIRECTIONS):
-        if transfer.header.get("vary") != "object":
-            raise WavlightError(f"{transfer.path}: this bake varies the {transfer.header.get('vary', 'lighting')}, "
+        if transfer.varies != "object":
+            raise WavlightError(f"{transfer.path}: this bake varies the {transfer.varies}, "
                                 "not an object")
         if backend not in BACKENDS:
             raise ArgumentError(f"relight.moving: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         self.directions = check_int("relight.moving", "directions", directions, 1, MAX_DIRECTIONS)
         self.transfer, self.backend = transfer, backend
-        self.scene = _scene_of(transfer, scene)
+        self.scene = scene_of(transfer, scene)
         info = transfer.header["object"]
         if info["index"] >= len(self.scene.objects) or info.get("name") != self.scene.objects[info["index"]].name:
             raise WavlightError(f"{transfer.path}: its moving object, {info['index']} ({info.get('name')}), is not "
@@ -479,7 +480,7 @@ class MovingObject:
                                 f"{self.scene.environment.rotate_y:g}")
         self.environment = Environment(env.pixels, 1.0, rot, env.name)   # radiance lookups, turned
         self.m = int(transfer.header["product_levels"])
-        self.inside = _TexelLight(env, self.m, rot, map_pixels=False)   # as its kernel: uniform in a leaf
+        self.inside = TexelLight(env, self.m, rot, map_pixels=False)   # as its kernel: uniform in a leaf
         sc = self.scene
         # the pixels rendered in full: the wavelet strategy, its budget from the scene's own shadows
         # (the object at its place in the scene file), as a render of the scene chooses it

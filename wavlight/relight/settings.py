@@ -90,7 +90,10 @@ FRAME = {o.key: o for o in (
     Option("turntable", int, "N frames of a full turn about +Y into the folder -o DIR (PNG; and an animated PNG, "
            "and an MP4 with the extra video).",
            default_doc="none: one frame", lo=1, hi=3600, metavar="N"),
-    Option("repeat", int, "Frames computed to time one (the median is reported).", default=5, lo=1, hi=1000),
+    Option("repeat", int, "Frames of the same state computed to time one, for every factor (frame_seconds: the "
+           "median wall time; frames_per_second: its inverse).", default=5,
+           default_doc="5; 1 for an unbiased frame (--spp, and every frame of a bake with --vary object)", lo=1,
+           hi=1000),
     Option("spp", int, "The unbiased frame instead: N camera samples per pixel, directions from the product of "
            "transfer and lighting and from the BSDF, true shadow rays (reloads the baked scene).",
            default_doc=f"none: the relit frame; a bake with --vary object: {OBJECT_FRAME_SPP} (its frames are "

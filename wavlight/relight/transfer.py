@@ -98,6 +98,13 @@ class Transfer:
             pass
 
     @property
+    def varies(self) -> str:
+        """The factor the bake's frames vary: "lighting" (a bake file without ``vary``, made before
+        the other factors existed, included), "object" or "view" (relight.settings BAKE["vary"]):
+        :func:`wavlight.relight.frames.frames_for` chooses its frames' type by it."""
+        return self.header.get("vary", "lighting")
+
+    @property
     def scene_rotate_y(self) -> float:
         """The rotation of the map in the baked scene, degrees reduced modulo 360: a frame's
         default."""
@@ -116,7 +123,7 @@ class Transfer:
                 "rays_per_second": m.get("rays_per_second"), "measured": m,
                 "scene": self.scene,
                 **({"vary": "view", "model": self.header.get("model"), "cache": self.header.get("cache")}
-                   if self.header.get("vary") == "view" else {})}
+                   if self.varies == "view" else {})}
 
     @property
     def file_bytes(self) -> int:
@@ -194,7 +201,7 @@ class Transfer:
         assembly (the rest: the background where camera samples missed, the copy back, the
         finiteness check), background (the first part of the assembly), frame (all)."""
         where = "Transfer.frame"
-        if self.header.get("vary") == "view":
+        if self.varies == "view":
             raise WavlightError(f"{self.path}: this bake varies the view (its lighting is fixed): its frames come "
                                 "from wavlight.relight.view.ViewFrames")
         if rotate_y is not None:

@@ -87,7 +87,7 @@ Each pixel's camera samples draw their directions from a defensive mixture: the 
 texels (m = min(n, PRODUCT_LEVELS); the top-left 2^m x 2^m block of T1's coefficients is the
 transform of its coarser texels, eq. 13), times f_r averaged over points of each texel for that
 hit's normal and view, walked by the hierarchical warp (eq. 17-22), then inside the texel by the lighting's own
-luminance at the map's resolution (:class:`wavlight.relight.converge._TexelLight`); the BSDF; and
+luminance at the map's resolution (:class:`wavlight.relight.mixture.TexelLight`); the BSDF; and
 the lighting alone (a bright light that the bake's one shadow ray per texel hid from a cache
 point's T1 is still found). Every direction is evaluated with the true f_r cos, the radiance and a
 shadow ray, and weighted by the mixture's pdf (every technique's pdf, exact); the pixel's product
@@ -117,7 +117,8 @@ from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import lighting, store
 from .bake import BLOCK, PixelSamples, choose_model, texel_rays, texel_rays_reference
-from .converge import PASS_SPP, _scene_of, check_shares, _TexelLight, square_to_world
+from .converge import PASS_SPP
+from .mixture import TexelLight, check_shares, scene_of, square_to_world
 from .frame import DeviceEntries
 from .settings import BAKE, CACHE_POINTS, FRAME, UNBIASED_SPP, VIEW_TEXEL_POINTS, WRITTEN_SUPERSAMPLE
 from .store import lattice_size
@@ -705,7 +706,7 @@ class FrameDevice:
             self.map_from_world, out)
         if image is None:
             return cl.read(out, (count, 3), np.float32, queue)
-        cl._cl().enqueue_copy(queue, image, out)
+        cl.opencl().enqueue_copy(queue, image, out)
         return image
 
 
@@ -908,12 +909,12 @@ class ViewFrames:
     cache and device entries."""
 
     def __init__(self, transfer, scene=None):
-        varies = transfer.header.get("vary", "lighting")
+        varies = transfer.varies
         if varies != "view":
             raise WavlightError(f"{transfer.path}: this bake varies the {'lighting' if varies == 'lighting' else 'object'}"
                                 f", not the view")
         self.transfer = transfer
-        self.scene = _scene_of(transfer, scene)
+        self.scene = scene_of(transfer, scene)
         self.tracer = RayTracer(self.scene.vertices, self.scene.faces, threads=2, normals=self.scene.normals,
                                 normal_faces=self.scene.normal_faces)
         s = transfer._s
@@ -1150,7 +1151,7 @@ class ViewFrames:
         if self._inside is None:
             env = self.environment
             m = min(self.n, PRODUCT_LEVELS)
-            self._inside = _TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), m, env.rotate_y)
+            self._inside = TexelLight(Environment(env.pixels, 1.0, 0.0, env.name), m, env.rotate_y)
         return self._inside
 
     def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = UNBIASED_SPP,

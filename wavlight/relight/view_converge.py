@@ -10,7 +10,7 @@ H+_t = max(f_r Y(T1_t) / Y(R_t), 0), T1_t the blend of the points' transfer summ
 (the top-left 2^m x 2^m block of the bake's coefficients, eq. 13), f_r the mean of the BRDF at
 the centres of FR_POINTS x FR_POINTS parts of the texel for the pixel's face normal, view direction
 and material (0 below the face's horizon), R_t the lighting's mean radiance and gl_t its luminance mass
-(:meth:`wavlight.relight.converge._TexelLight.leaf_masses`): H+_t is about the integral of
+(:meth:`wavlight.relight.mixture.TexelLight.leaf_masses`): H+_t is about the integral of
 f_r cos V over the texel, as the lighting bake's trees hold it (:mod:`wavlight.relight.converge`),
 and the same pass sums the pixel's relit value G = sum_t H+_t R_t (the approximate frame at m
 levels by the midpoint rule). The trees of the current camera (eye, target, fov, size) are kept
@@ -146,7 +146,7 @@ def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
     """numpy twin of ``view_converge_trees`` (kernels/relight_view_converge.cl): for P centre
     rays (unit directions d (P, 3), faces prim (P,), -1 a miss, embree's u, v) of ``frames``
     (a :class:`wavlight.relight.view.ViewFrames`) and the lighting inside the texels ``inside``
-    (a _TexelLight of m levels): the product pyramids (P, tree_size(m)) float32 (row-major
+    (a TexelLight of m levels): the product pyramids (P, tree_size(m)) float32 (row-major
     levels) of leaves max(f_r Y(T1_t), 0) / 4^m where gl_t > 0 (module docstring), and the
     relit values G (P, 3) float64 = sum_t (leaf_t / gl_t) R_t; f_r the mean over the centres of
     ``parts`` x ``parts`` parts of each texel (default FR_POINTS)."""
@@ -191,7 +191,7 @@ def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
 class ViewConverge:
     """Unbiased frames of one view bake (module docstring): ``frame(camera, width, height, spp,
     seed, ...)``. ``frames``: its :class:`wavlight.relight.view.ViewFrames`; ``inside``: the
-    bake's lighting inside the product's texels (a _TexelLight); ``device`` and ``lookup``: the
+    bake's lighting inside the product's texels (a TexelLight); ``device`` and ``lookup``: the
     bake's entries on the device and the cache lookup's tables (its ViewDevice and FrameDevice,
     which the approximate frame uses too); ``backend="numpy"`` runs the
     kernels' numpy twins (the same random numbers and estimator; slow: tests). What every frame

@@ -157,7 +157,7 @@ def balance_heuristic(p_a, p_b):
 HEURISTICS = {"power": power_heuristic, "balance": balance_heuristic}
 
 
-def _unoccluded(sp, env, ds, mis_weight):
+def unoccluded(sp, env, ds, mis_weight):
     """albedo f cos L / pdf (x MIS weight) per sample, (N, 3); 0 where pdf is 0 (plastic: its
     f cos with albedo, the scalar f cos times its tint)."""
     fcos, tint = sp.bsdf_value(ds.wi_local)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import HEURISTICS, Strategy, ShadingPoints, _unoccluded
+from .base import HEURISTICS, Strategy, ShadingPoints, unoccluded
 from .light import MisStrategy
 from .wavelet import WaveletStrategy, ris_shade_reference
 
@@ -30,9 +30,9 @@ def shade_reference(strategy: Strategy, env, sp: ShadingPoints, u: np.ndarray, w
         for slot, mine, other, uu in pairs:
             ds = mine.sample(sp, uu)
             w = weight(ds.pdf, other.pdf(sp, ds.wi_local, ds.wi_world))
-            wi[:, slot], value[:, slot] = ds.wi_world, _unoccluded(sp, env, ds, w)
+            wi[:, slot], value[:, slot] = ds.wi_world, unoccluded(sp, env, ds, w)
     else:
         ds = strategy.sample(sp, u[:, :2])
-        wi[:, 0], value[:, 0] = ds.wi_world, _unoccluded(sp, env, ds, 1.0)
+        wi[:, 0], value[:, 0] = ds.wi_world, unoccluded(sp, env, ds, 1.0)
     return (wi, value, np.zeros((n, 3))) if with_offset else (wi, value)
 

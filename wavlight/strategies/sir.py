@@ -88,14 +88,14 @@ SIR_SAMPLES = Option("sir_samples", int, "sir: directions N resampled from the c
                      default=DEFAULT_SAMPLES, lo=1, hi=1024)
 
 
-def _repeat(sp: ShadingPoints, m: int) -> ShadingPoints:
+def repeat_points(sp: ShadingPoints, m: int) -> ShadingPoints:
     """Every shading point m times in a row (point-major), for one candidate each."""
     rep = lambda a: None if a is None else np.repeat(np.asarray(a), m, axis=0)
     return ShadingPoints(rep(sp.p), rep(sp.n), rep(sp.s), rep(sp.t), rep(sp.wo), rep(sp.kind), rep(sp.param),
                          rep(sp.albedo), rep(sp.material), rep(sp.table), rep(sp.g))
 
 
-def _slice(sp: ShadingPoints, a: int, b: int) -> ShadingPoints:
+def slice_points(sp: ShadingPoints, a: int, b: int) -> ShadingPoints:
     cut = lambda x: None if x is None else x[a:b]
     return ShadingPoints(cut(sp.p), sp.n[a:b], sp.s[a:b], sp.t[a:b], sp.wo[a:b], sp.kind[a:b], sp.param[a:b],
                          sp.albedo[a:b], cut(sp.material), cut(sp.table), cut(sp.g))
@@ -140,7 +140,7 @@ class SirStrategy(Strategy):
         """M candidates per point: world directions (P, M, 3), f cos (P, M), radiance (P, M, 3),
         p_hat (P, M) and resampling weights w = p_hat / q (P, M)."""
         p, m = len(sp), self.candidates
-        rep = _repeat(sp, m)
+        rep = repeat_points(sp, m)
         u = rng.random((p * m, 2))
         if self.source == "light":
             d, q = self.light.sample_directions(u)
@@ -184,7 +184,7 @@ class SirStrategy(Strategy):
         step = max(1, min(CHUNK_CANDIDATES // self.candidates, CHUNK_COMPARISONS // (self.candidates * n)))
         for a in range(0, count, step):
             b = min(count, a + step)
-            wi[a:b], scalar[a:b], radiance[a:b], big_w[a:b] = self._chunk(_slice(sp, a, b), rng, n)
+            wi[a:b], scalar[a:b], radiance[a:b], big_w[a:b] = self._chunk(slice_points(sp, a, b), rng, n)
         return wi, scalar, radiance, big_w
 
     def _rng(self, u):

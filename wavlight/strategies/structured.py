@@ -78,7 +78,7 @@ import numpy as np
 from ..envmap import luminance
 from ..errors import ArgumentError, check_int
 from ..options import Option
-from .sir import _repeat, _slice, rng_from_uniforms
+from .sir import repeat_points, slice_points, rng_from_uniforms
 from .base import DirectionSamples, ShadingPoints, Strategy, refuse_plastic
 
 MODES = ("stratified", "preintegrated")
@@ -315,7 +315,7 @@ class StructuredStrategy(Strategy):
         pos = np.searchsorted(st.cum, (begins + y * st.phi[None, :]).ravel(), side="right")
         pos = np.clip(pos, np.tile(st.start, p), np.tile(st.stop - 1, p))
         d, t = self._texel_directions(pos, a.ravel(), b.ravel())
-        rep = _repeat(sp, k)
+        rep = repeat_points(sp, k)
         fcos = np.maximum(rep.bsdf_eval_cos(rep.to_local(d)), 0.0)
         rgb = self.env.pixels.reshape(-1, 3)[t].astype(np.float64)
         scalar = fcos * np.tile(st.phi, p) / st.lum[t]
@@ -333,7 +333,7 @@ class StructuredStrategy(Strategy):
             x = (np.arange(n)[None, :] + u[:, :1]) / n             # systematic over the stratum CDF
             y, a, b = rng.random((3, p, n))
         d, t = self._texel_directions(self.strata.sample_texels(x.ravel(), y.ravel()), a.ravel(), b.ravel())
-        rep = _repeat(sp, n)
+        rep = repeat_points(sp, n)
         fcos = np.maximum(rep.bsdf_eval_cos(rep.to_local(d)), 0.0)
         rgb = self.env.pixels.reshape(-1, 3)[t].astype(np.float64)
         scalar = fcos * self.strata.total / self.strata.lum[t] / n
@@ -344,7 +344,7 @@ class StructuredStrategy(Strategy):
     def _preintegrated(self, sp: ShadingPoints, u):
         st = self.strata
         p, k = len(sp), st.k
-        rep = _repeat(sp, k)
+        rep = repeat_points(sp, k)
         d = np.tile(st.centroid, (p, 1))
         fcos = np.maximum(rep.bsdf_eval_cos(rep.to_local(d)), 0.0).reshape(p, k)
         albedo = np.asarray(sp.albedo, np.float64)
@@ -372,7 +372,7 @@ class StructuredStrategy(Strategy):
         fn = self._stratified if self.mode == "stratified" else self._preintegrated
         per = self.strata.k if (self.mode != "stratified" or self.samples == PER_STRATUM) else self.samples
         step = max(1, CHUNK // per)
-        parts = [fn(_slice(sp, a, min(len(sp), a + step)), u[a:a + step]) for a in range(0, len(sp), step)]
+        parts = [fn(slice_points(sp, a, min(len(sp), a + step)), u[a:a + step]) for a in range(0, len(sp), step)]
         if not parts:
             s = per if (self.mode == "stratified" or self.strata.k <= ALL_LIGHTS) else 1
             return np.zeros((0, s, 3)), np.zeros((0, s, 3))
