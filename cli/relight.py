@@ -85,7 +85,7 @@ def _metadata(transfer, strategy, spp=None, seed=None) -> dict:
 
 
 #: the flags of a frame that set the lighting, a moved object, and the camera of a view bake
-LIGHTING_FLAGS = ("env", "rotate_y", "scale", "terms", "priority", "turntable")
+LIGHTING_FLAGS = ("env", "rotate_y", "scale", "terms", "priority", "turntable", "background")
 OBJECT_FLAGS = ("translate", "rotate")
 VIEW_FLAGS = ("eye", "target", "fov", "width", "height", "orbit", "refine", "mass", "mode", "supersample", "tau")
 
@@ -133,7 +133,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
             if value is not None:
                 fail(f"{bake_file}: this bake varies the lighting; {flag_name} moves an object "
                      "(bake with --vary object)")
-        lit = given(s, "rotate_y", "scale", "terms", "priority")   # the frame's lighting, as given
+        lit = given(s, "rotate_y", "scale", "terms", "priority", "background")   # the frame's lighting, as given
         env_file = None if s["env"] is None else data.resolve(s["env"], kind="environment map", download=False)
         env = None
         if s["env"] is not None:
@@ -155,7 +155,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
 
                 with progress_bar("parts", "rays", quiet) as bar:
                     result = converge(transfer, s["scene"], env, spp=spp, progress=bar,
-                                      **given(s, "rotate_y", "seed"), **given(lit, "scale"))
+                                      **given(s, "rotate_y", "seed"), **given(lit, "scale", "background"))
                 image, st = result.image, {"frame_seconds": result.stats["frame_seconds"], "terms": None,
                                            "entries_read": 0}
                 times.append(st["frame_seconds"])

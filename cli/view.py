@@ -28,7 +28,7 @@ from .common import fail, flags, given
 @click.command()
 @click.argument("bake_file", metavar="PATH", type=click.Path(dir_okay=False))
 @flags(VIEWER.values())
-def view(bake_file, maps, port, scene, no_browser):
+def view(bake_file, maps, background, port, scene, no_browser):
     """Serve an interactive viewer of the bake file PATH on 127.0.0.1 and print its URL."""
     import threading
     import webbrowser
@@ -52,7 +52,7 @@ def view(bake_file, maps, port, scene, no_browser):
         if varies in ("object", "view") and maps:
             what = "an object" if varies == "object" else "the view"
             fail(f"{bake_file}: this bake varies {what} (its lighting is fixed); {VIEWER['maps'].flag} does not apply")
-        viewer = Viewer(transfer, maps=maps, scene=scene)
+        viewer = Viewer(transfer, maps=maps, scene=scene, **given({"background": background}))
         viewer.serve(ready=ready, **given({"port": port}))
     except WavlightError as e:
         fail(e)

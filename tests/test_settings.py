@@ -24,9 +24,9 @@ ROOT = Path(__file__).resolve().parents[1]
 LIBRARY = {
     "bake": [(wavlight.bake, tuple(settings.BAKE))],
     "frame": [
-        (transfer.Transfer.frame, ("env", "rotate_y", "scale", "terms", "priority")),
-        (transfer.Transfer.frame_timed, ("env", "rotate_y", "scale", "terms", "priority")),
-        (converge.converge, ("scene", "env", "rotate_y", "scale", "seed")),
+        (transfer.Transfer.frame, ("env", "rotate_y", "scale", "terms", "priority", "background")),
+        (transfer.Transfer.frame_timed, ("env", "rotate_y", "scale", "terms", "priority", "background")),
+        (converge.converge, ("scene", "env", "rotate_y", "scale", "seed", "background")),
         (moving.MovingObject.frame, ("translate", "rotate", "spp", "seed")),
         (view.still_settings, ("refine", "mass", "mode", "supersample", "tau")),
         # (mode and supersample default to the viewer's frame here: still_settings holds the written one's)
@@ -34,7 +34,7 @@ LIBRARY = {
         (view.ViewFrames.converge, ("eye", "target", "fov", "width", "height", "seed")),
         (imageio.save_image, ("exposure", "tonemap")),
     ],
-    "view": [(viewer.Viewer.__init__, ("maps", "scene")), (viewer.Viewer.serve, ("port",))],
+    "view": [(viewer.Viewer.__init__, ("maps", "scene", "background")), (viewer.Viewer.serve, ("port",))],
 }
 #: settings of the command itself, which no library call takes
 COMMAND_ONLY = {"bake": set(), "frame": {"turntable", "repeat", "orbit"}, "view": {"no_browser"}}

@@ -92,6 +92,8 @@ class KernelShader:
         if getattr(strategy, "heuristic", "power") == "balance":
             sizes["MIS_BALANCE"] = 1
         sizes["OFFSET_RELATIVE"] = repr(float(np.float32(raytrace.OFFSET_RELATIVE)))   # shadow-ray offsets
+        if env.background == "bilinear":   # what camera rays that miss see (kernels/sphere.h env_bilinear)
+            sizes["BACKGROUND_BILINEAR"] = 1
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds,
                                   **sizes)
         self.warm_up()
@@ -177,9 +179,9 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays
     """numpy twin of ``shade_rays`` in kernels/shade.cl, around a shader of points
     ``shade(n, wo, material, u, p=..., with_offset=True) -> wi, value (M, S, 3), offset (M, 3)``,
     with u an (N, 4) array or an :class:`rng.Stream` (its SHADING numbers, as the kernel draws
-    them): misses see the environment; hits take their face normal flipped towards the viewer,
-    their face's material, the offset as their direct part, and shadow rays from the hit point
-    moved ``tracer.shadow_offsets`` along that normal."""
+    them): misses see the environment (:meth:`Environment.eval_background`); hits take their face
+    normal flipped towards the viewer, their face's material, the offset as their direct part, and
+    shadow rays from the hit point moved ``tracer.shadow_offsets`` along that normal."""
     d = np.asarray(d, np.float32)
     prim = np.asarray(prim)
     count = len(d)
@@ -188,7 +190,7 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u) -> ShadedRays
     miss = prim < 0
     hit = np.flatnonzero(~miss)
     direct = np.zeros((3, count))
-    direct[:, miss] = scene.environment.eval(d[miss].astype(np.float64)).T
+    direct[:, miss] = scene.environment.eval_background(d[miss].astype(np.float64)).T
     face = prim[hit]
     origin = np.zeros((count, 3), np.float32)
     n, p, origin[hit] = tracer.surface(eye, d[hit], np.asarray(t, np.float32)[hit], face)

@@ -615,11 +615,15 @@ class Viewer:
     ``maps`` must be empty, and ``converge`` (default :meth:`ViewFrames.converge`) is called as
     converge(eye=, target=, fov=, width=, height=, spp=, seed=) and returns a RenderResult or
     (image, stderr). ``preview_pixels``: the most pixels of its frames while the camera is
-    dragged (:func:`preview_size`)."""
+    dragged (:func:`preview_size`). ``background``: what the camera samples that miss see in a
+    lighting bake's frames and converged frames (default bilinear: the viewer's picture; the
+    lighting is the map's texels either way)."""
 
     def __init__(self, transfer, maps=VIEWER["maps"].default, converge=_UNSET, scene=None,
-                 preview_pixels: int = VIEW_PREVIEW_PIXELS):
+                 preview_pixels: int = VIEW_PREVIEW_PIXELS, background: str = VIEWER["background"].default):
         self.transfer = transfer
+        #: what the camera samples that miss see in a lighting bake's frames (VIEWER["background"])
+        self.background = VIEWER["background"].check(background, "relight.Viewer")
         self.varies = transfer.header.get("vary", "lighting")
         self.mover = self.views = None
         self.preview_pixels = int(preview_pixels)
@@ -651,6 +655,7 @@ class Viewer:
         except (TypeError, ValueError):
             takes = {}
         self._converge_progress, self._converge_threads = "progress" in takes, "threads" in takes
+        self._converge_background = "background" in takes
         self._scene = scene
         side = 1 << transfer.n_levels
         if self.views is not None:
@@ -930,7 +935,8 @@ class Viewer:
             result = self.mover.frame(translate, rotate, spp=detail, seed=0)
             return result.image, {"frame_seconds": result.stats["render_seconds"], "terms": None, "spp": detail,
                                   "object_pixels": result.stats.get("object_pixels")}
-        return self.transfer.frame_timed(self._env(state["env"]), state["rotate_y"], 1.0, detail)
+        return self.transfer.frame_timed(self._env(state["env"]), state["rotate_y"], 1.0, detail,
+                                         background=self.background)
 
     def converge_call(self, state, spp, seed, stop=None):
         """(image, stderr) of one call of the estimator at the state's lighting (or the object's
@@ -952,6 +958,8 @@ class Viewer:
             translate, rotate = self.placement(state)
             result = side.converge(translate=translate, rotate=rotate, spp=spp, seed=seed, **kwargs)
         else:
+            if self._converge_background:
+                kwargs["background"] = self.background
             result = side.converge(side.transfer, scene=self._scene_for_converge(), env=self._env(state["env"]),
                                    rotate_y=state["rotate_y"], scale=1.0, spp=spp, seed=seed, **kwargs)
         if hasattr(result, "image"):   # a RenderResult
