@@ -498,7 +498,7 @@ def test_browser_tone_curve_from_the_url_and_the_choice(serve, page, bake_file):
     state, _ = sanitise({"rotate_y": "30", "terms": "64"}, v.limits)
     other = wavlight.Transfer.load(bake_file[0])   # the frame the viewer computes, computed here
     try:
-        image, _ = other.frame_timed(None, 30.0, 1.0, v.detail(state))
+        image, _ = other.frame_timed(None, 30.0, 1.0, v.detail(state), background=v.background)
     finally:
         other.close()
 
