@@ -195,6 +195,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
              "terms": st["terms"], "entries_read": st["entries_read"], "width": transfer.width,
              "height": transfer.height, "texels": f"{1 << transfer.n_levels}x{1 << transfer.n_levels}",
              "priority": s["priority"] or transfer.priority, "frames": len(times), "rotate_y": rotation,
+             "background": s["background"] or FRAME["background"].default,
              "memory_bytes_per_frame": int(st["entries_read"] * (transfer.block ** 2 * transfer.bits // 8 + 20)),
              "measured": transfer.measured, "output": outputs if turntable else outputs[0]}
     if as_json:
