@@ -121,7 +121,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
         varies = transfer.header.get("vary", "lighting")
         if varies == "view":
             return _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet,
-                               held(LIGHTING_FLAGS + OBJECT_FLAGS))
+                               held(tuple(k for k in LIGHTING_FLAGS if k != "background") + OBJECT_FLAGS))
         for flag_name, value in held(VIEW_FLAGS).items():
             if value is not None:
                 factor = "lighting" if varies == "lighting" else "object"
@@ -334,7 +334,7 @@ def _view_frame(transfer, bake_file, output, s, repeat, as_json, quiet, held):
     else:
         if output is None:
             fail("--orbit writes a folder of frames: give it with -o DIR")
-    frames = ViewFrames(transfer, s["scene"])
+    frames = ViewFrames(transfer, s["scene"], **given(s, "background"))
     if orbit is None:
         refuse_inputs(output, [frames.scene.path, *frames.scene.files])
     else:

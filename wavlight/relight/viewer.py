@@ -616,8 +616,8 @@ class Viewer:
     converge(eye=, target=, fov=, width=, height=, spp=, seed=) and returns a RenderResult or
     (image, stderr). ``preview_pixels``: the most pixels of its frames while the camera is
     dragged (:func:`preview_size`). ``background``: what the camera samples that miss see in a
-    lighting bake's frames and converged frames (default bilinear: the viewer's picture; the
-    lighting is the map's texels either way)."""
+    lighting or view bake's frames and converged frames (default bilinear: the viewer's picture;
+    the lighting is the map's texels either way; an object bake's background is its static image's)."""
 
     def __init__(self, transfer, maps=VIEWER["maps"].default, converge=_UNSET, scene=None,
                  preview_pixels: int = VIEW_PREVIEW_PIXELS, background: str = VIEWER["background"].default):
@@ -644,7 +644,7 @@ class Viewer:
         elif self.varies == "view":
             from .view import ViewFrames
 
-            self.views = ViewFrames(transfer, scene)
+            self.views = ViewFrames(transfer, scene, background=self.background)
             default_converge = self.views.converge
         else:
             default_converge = _converge_function
@@ -983,7 +983,7 @@ class Viewer:
             elif self._default_converge and self.views is not None:
                 from .view import ViewFrames
 
-                converge = ViewFrames(transfer, self.views.scene).converge
+                converge = ViewFrames(transfer, self.views.scene, background=self.background).converge
             self._converging = _ConvergeSide(transfer, converge)
         return self._converging
 
