@@ -14,8 +14,8 @@ Scenes (shadowed; each rendered as it is, its map at its own rotation):
 
 Per scene and image size (--sizes):
 
-- ``wavelet`` at each of --wavelet-spp samples per pixel, --seeds seeds: setup_seconds +
-  render_seconds (the scene loaded before, as for the bake);
+- ``wavelet`` at each of --wavelet-spp samples per pixel, --seeds seeds, --sampler's pixel samples:
+  setup_seconds + render_seconds (the scene loaded before, as for the bake);
 - ``baked`` per bake setting (--bakes: ``SPPxLEVELS`` or ``SPPxLEVELSxTOLERANCE``): the bake
   (wavlight.bake with every model choice given, so no pilot: spp camera samples, 2^levels
   texels, the compression's tolerance; in a temporary file) timed in full, then per frame spp of
@@ -30,7 +30,8 @@ seconds) and the break-even time: the total seconds above which the baked render
 (bake / (1 - efficiency ratio), none when the frame alone loses).
 
     python benchmarks/coarse_bake_render.py [--sizes 256] [--wavelet-spp 4,16,64] [--frame-spp 4,16,64]
-        [--bakes 1x4,2x4,4x4,1x5,2x5,4x5] [--seeds 2] [--ref-spp 2048] [--dragon] [--only SUBSTR]
+        [--bakes 1x4,2x4,4x4,1x5,2x5,4x5] [--seeds 2] [--ref-spp 2048] [--sampler independent|stratified]
+        [--dragon] [--only SUBSTR]
         [--wait-load 1.0] [--wait-minutes 0] [-o FILE]
 
 The figures in benchmarks/results/coarse_bake_render.json come from the command recorded in
@@ -90,6 +91,8 @@ def main():
                     help="bake settings SPPxLEVELS[xTOLERANCE], comma-separated")
     ap.add_argument("--seeds", type=int, default=2, help="renders per wavelet spp and per baked setting")
     ap.add_argument("--ref-spp", type=int, default=2048, help="samples per pixel of the mis reference")
+    ap.add_argument("--sampler", default="independent", choices=("independent", "stratified"),
+                    help="wavelet's pixel samples (the unbiased frame's camera samples are stratified)")
     ap.add_argument("--dragon", action="store_true", help="also the dragon (its reference rendered if not cached)")
     ap.add_argument("--only", default="", help="substring filter on scene names")
     args = rc.parse(ap, "coarse_bake_render", 0)
@@ -123,7 +126,8 @@ def main():
             warmed = False
             for seed in range(args.seeds):
                 for s in wav_spp:
-                    r = wavlight.render_full(scene, spp=s, strategy="wavelet", width=size, height=size, seed=seed)
+                    r = wavlight.render_full(scene, spp=s, strategy="wavelet", width=size, height=size, seed=seed,
+                                             sampler=args.sampler)
                     wav[s]["seconds"].append(r.stats["setup_seconds"] + r.stats["render_seconds"])
                     wav[s]["relmse"].append(relmse(r.image, ref, ref_err))
                 for b in bakes:
@@ -206,6 +210,7 @@ def main():
                            "frame eff/wav", "break-even s"]))
     rc.finish(args.output, rc.rounded({"sizes": sizes, "wavelet_spp": wav_spp, "frame_spp": frame_spp,
                                        "bakes": [list(b) for b in bakes], "bake_terms": 64, "seeds": args.seeds,
+                                       "wavelet_sampler": args.sampler,
                                        "ref_spp": args.ref_spp, "product_levels": cm.PRODUCT_LEVELS, "scenes": out,
                                        "seconds": round(time.perf_counter() - t_start, 1)}), started)
 
