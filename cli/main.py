@@ -18,7 +18,7 @@ import warnings
 import click
 
 from wavlight.display import DISPLAY
-from wavlight.options import HEIGHT, SEED, SPP, WIDTH
+from wavlight.options import BACKGROUND, HEIGHT, SEED, SPP, WIDTH
 from wavlight.strategies import APPLIES, OPTIONS, STRATEGIES
 
 from .common import check_output, fail, flag, flags, given, one_line, refuse_inputs
@@ -165,14 +165,15 @@ def _scene_settings(*options):
 @click.option("--strategy", type=click.Choice(STRATEGIES),
               default=None, help="Sampling strategy (overrides the scene).")
 @_scene_settings(WIDTH, HEIGHT, SEED)
+@flag(BACKGROUND, "the scene's [environment] background, nearest where it has none")
 @_strategy_options
 @click.option("--stderr-out", "stderr_out", default=None, metavar="FILE",
               help="Also write each pixel's standard error of the mean (linear: .exr .hdr .pfm; needs spp >= 2).")
 @flags(DISPLAY)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with settings and timings.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar and no closing message.")
-def render(scene_file, demo, env, output, spp, strategy, width, height, seed, stderr_out, exposure, tonemap, as_json,
-           quiet, **options):
+def render(scene_file, demo, env, output, spp, strategy, width, height, seed, background, stderr_out, exposure,
+           tonemap, as_json, quiet, **options):
     """Render SCENE (a TOML scene file, or a .glb, .gltf or .obj mesh file with its materials), or the
     shipped scene --demo NAME, to an image."""
     import time
@@ -227,7 +228,7 @@ def render(scene_file, demo, env, output, spp, strategy, width, height, seed, st
             fail(f"{stderr_out}: a standard error needs spp >= 2")
         with progress_bar("parts", "samples", quiet) as bar:
             result = wavlight.render_full(scene, spp=spp, strategy=strategy, width=width, height=height,
-                                          seed=seed, progress=bar, **options)
+                                          seed=seed, progress=bar, background=background, **options)
         bad = int((~np.isfinite(result.image)).any(axis=-1).sum())
         if bad:   # (the inputs are finite and bounded: an estimate overflowed float32)
             fail(f"{output}: {bad} pixel(s) came out NaN or Inf (an estimate radiance x BRDF / pdf overflowed "

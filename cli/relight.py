@@ -129,7 +129,7 @@ def frame(bake_file, output, as_json, quiet, **settings):
             refuse_inputs(output, inputs)
         elif output is None:
             fail(f"--{kind.sequence_flag} writes a folder of frames: give it with -o DIR")
-        frames = frames_for(transfer, s["scene"])
+        frames = frames_for(transfer, s["scene"], **given(s, "background"))
         state = frames.state_from(s)                    # checked before anything is written
         meta = (lambda st: _metadata(transfer, "unbiased", st.get("spp"), st.get("seed"))) if unbiased else \
             (lambda st: _metadata(transfer, "relit"))

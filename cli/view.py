@@ -28,7 +28,7 @@ from .common import fail, flags, given
 @click.command()
 @click.argument("bake_file", metavar="PATH", type=click.Path(dir_okay=False))
 @flags(VIEWER.values())
-def view(bake_file, maps, port, scene, no_browser):
+def view(bake_file, maps, background, port, scene, no_browser):
     """Serve an interactive viewer of the bake file PATH on 127.0.0.1 and print its URL."""
     import threading
     import webbrowser
@@ -52,7 +52,10 @@ def view(bake_file, maps, port, scene, no_browser):
         kind = FRAMES[transfer.varies]
         if maps and "env" not in kind.flags:
             fail(f"{bake_file}: this bake varies {kind.fixed}; {VIEWER['maps'].flag} does not apply")
-        viewer = Viewer(transfer, maps=maps, scene=scene)
+        if background is not None and "background" not in kind.flags:
+            fail(f"{bake_file}: this bake varies {kind.fixed}; {VIEWER['background'].flag} does not apply "
+                 "(its background is its static image's)")
+        viewer = Viewer(transfer, maps=maps, scene=scene, **given({"background": background}))
         viewer.serve(ready=ready, **given({"port": port}))
     except WavlightError as e:
         fail(e)

@@ -55,6 +55,9 @@
  * candidate j takes point j of the R4 lattice shifted by them (lattice): one Philox draw per
  * sample, and its directions spread over the uniforms' cube.
  */
+#ifndef BACKGROUND_BILINEAR
+#define BACKGROUND_BILINEAR 0
+#endif
 #include "warp.h"
 #include "bsdf.h"
 #include "rng.h"
@@ -563,7 +566,8 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
                              __global const int *tex_table,
                              __global const float *trees, const uint tree_stride, __global const float *relit,
                              __global const float *spread, __global const float *gl, __global const float *omega,
-                             LIGHT_ARGS, const float defensive, const float light, const float coherence,
+                             LIGHT_ARGS, const int map_h, const float map_shift, const float defensive,
+                             const float light, const float coherence,
                              const uint tile, const uint dir_stream, const uint k0, const uint k1,
                              __global float *out)
 {
@@ -579,13 +583,20 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
     const intv hit = p_id >= 0;
     realv out_v[6 + 6 * SLOTS];
     for (int q = 0; q < 6 + 6 * SLOTS; ++q) out_v[q] = 0.0f;
-    /* a miss: the map in direction d */
+    /* a miss: the map in direction d (its pixel, or with BACKGROUND_BILINEAR filtered bilinearly in
+     * the map's own square: u + map_shift, map_h rows) */
     {
         realv au, av;
         world_to_square(dx, dy, dz, &au, &av);
-        uintv ccol, crow;
         realv r, g, b;
+#if BACKGROUND_BILINEAR
+        realv mu = au + map_shift;
+        mu = mu - floor(mu);
+        env_bilinear(map, (int)map_w, map_h, mu, av, &r, &g, &b);
+#else
+        uintv ccol, crow;
         light_at(LIGHT, au, av, &ccol, &crow, &r, &g, &b);
+#endif
         out_v[0] = select(r, (realv)0.0f, hit);
         out_v[1] = select(g, (realv)0.0f, hit);
         out_v[2] = select(b, (realv)0.0f, hit);

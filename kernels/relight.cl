@@ -2,7 +2,7 @@
  * rays, the frame's sparse product of transfer and lighting coefficients and the environment
  * where the camera samples missed.
  * numpy twins: wavlight/relight/bake.py (texel_rays_reference), wavlight/relight/frame.py
- * (image_reference, background_reference). */
+ * (image_reference, background_reference, background_bilinear_reference). */
 #include "rng.h"
 #include "bsdf.h"
 
@@ -488,3 +488,43 @@ __kernel void lighting_top(const uint n_levels, const uint tile, __global double
     out[0] = s[0];
 }
 #endif
+
+/* The same background filtered bilinearly (background = "bilinear"; display only: the frame's
+ * lighting stays the map's texels). Background pixel i has count[i] missing samples in slots
+ * i samples .. of uv: (u at rotate_y = 0, v) as float2, in any order; the map (rows of 3 floats,
+ * env_w x env_h) turned by shift = rotate_y / 360 is interpolated between its texel centres at
+ * u = frac(u0 + shift), v, wrapping in u and clamped in v (kernels/sphere.h env_bilinear, on
+ * rows of 3). The pixel gets inv_samples times the sum.
+ * numpy twin: wavlight/relight/frame.py background_bilinear_reference. */
+__kernel void frame_background_bilinear(const uint count, const uint samples, const float inv_samples,
+                                        const int env_w, const int env_h, const float shift,
+                                        __global const uint *missing, __global const float2 *uv,
+                                        __global const uint *pixel, __global const float *env, __global float *out)
+{
+    const uint i = get_global_id(0);
+    if (i >= count) return;
+    const uint n = missing[i];
+    float r = 0.0f, g = 0.0f, b = 0.0f;
+    for (uint j = 0; j < n; ++j) {
+        const float2 s = uv[(size_t)i * samples + j];
+        float u = s.x + shift;
+        u = u - __builtin_floorf(u);
+        const float x = u * (float)env_w - 0.5f;
+        const float y = __builtin_fminf(__builtin_fmaxf(s.y * (float)env_h - 0.5f, 0.0f), (float)(env_h - 1));
+        const float x0 = __builtin_floorf(x), y0 = __builtin_floorf(y);
+        const float fx = x - x0, fy = y - y0, gx = 1.0f - fx, gy = 1.0f - fy;
+        int c0 = (int)x0;
+        c0 = c0 < 0 ? c0 + env_w : (c0 >= env_w ? c0 - env_w : c0);
+        const int c1 = c0 + 1 >= env_w ? 0 : c0 + 1;
+        const int r0 = min((int)y0, env_h - 1), r1 = min(r0 + 1, env_h - 1);
+        __global const float *a = env + 3 * ((size_t)r0 * env_w + c0), *bb = env + 3 * ((size_t)r0 * env_w + c1);
+        __global const float *c = env + 3 * ((size_t)r1 * env_w + c0), *d = env + 3 * ((size_t)r1 * env_w + c1);
+        r += (a[0] * gx + bb[0] * fx) * gy + (c[0] * gx + d[0] * fx) * fy;
+        g += (a[1] * gx + bb[1] * fx) * gy + (c[1] * gx + d[1] * fx) * fy;
+        b += (a[2] * gx + bb[2] * fx) * gy + (c[2] * gx + d[2] * fx) * fy;
+    }
+    const size_t o = 3 * (size_t)pixel[i];
+    out[o] += r * inv_samples;
+    out[o + 1] += g * inv_samples;
+    out[o + 2] += b * inv_samples;
+}

@@ -478,8 +478,44 @@ inline void view_texel(const float dx, const float dy, const float dz, __global 
     *row = min((uint)((wv < below ? wv : below) * (wide)height), height - 1u);
 }
 
+#ifndef BACKGROUND_BILINEAR
+#define BACKGROUND_BILINEAR 0
+#endif
+#if BACKGROUND_BILINEAR
+/* The map (rows of 3 floats, width x height) in world direction d, filtered bilinearly between
+ * its texel centres, wrapping in u and clamped in v (kernels/sphere.h env_bilinear on rows of 3;
+ * u, v as view_texel's exact branch). numpy twin: wavlight.envmap.Environment.eval_background. */
+INLINE void view_bilinear(const float dx, const float dy, const float dz, __global const wide *M,
+                          __global const float *env, const uint width, const uint height, float *r, float *g,
+                          float *b)
+{
+    const wide wx = dx, wy = dy, wz = dz;
+    const wide nx = wx * M[0] + wy * M[1] + wz * M[2];
+    const wide ny = wx * M[3] + wy * M[4] + wz * M[5];
+    const wide nz = wx * M[6] + wy * M[7] + wz * M[8];
+    wide wu = atan2(nx, -nz) * (wide)0.15915494309189535;     /* 1 / (2 pi) */
+    wu = wu < (wide)0 ? wu + (wide)1 : wu;
+    const wide wv = acos(WCLAMP(ny, (wide)-1, (wide)1)) * (wide)0.3183098861837907;   /* 1 / pi */
+    const int w = (int)width, h = (int)height;
+    const float x = (float)wu * (float)w - 0.5f;
+    const float y = __builtin_fminf(__builtin_fmaxf((float)wv * (float)h - 0.5f, 0.0f), (float)(h - 1));
+    const float x0 = __builtin_floorf(x), y0 = __builtin_floorf(y);
+    const float fx = x - x0, fy = y - y0, gx = 1.0f - fx, gy = 1.0f - fy;
+    int c0 = (int)x0;
+    c0 = c0 < 0 ? c0 + w : (c0 >= w ? c0 - w : c0);
+    const int c1 = c0 + 1 >= w ? 0 : c0 + 1;
+    const int r0 = min((int)y0, h - 1), r1 = min(r0 + 1, h - 1);
+    __global const float *a = env + 3 * ((size_t)r0 * w + c0), *bb = env + 3 * ((size_t)r0 * w + c1);
+    __global const float *c = env + 3 * ((size_t)r1 * w + c0), *d = env + 3 * ((size_t)r1 * w + c1);
+    *r = (a[0] * gx + bb[0] * fx) * gy + (c[0] * gx + d[0] * fx) * fy;
+    *g = (a[1] * gx + bb[1] * fx) * gy + (c[1] * gx + d[1] * fx) * fy;
+    *b = (a[2] * gx + bb[2] * fx) * gy + (c[2] * gx + d[2] * fx) * fy;
+}
+#endif
+
 /* Per camera ray: a hit's pixel albedo x sum_k w_k B_k (B the walks' products, row[p] the row
  * of cache point p, -1: none), a miss's the environment's nearest texel in the ray's direction
+ * (with BACKGROUND_BILINEAR 1: view_bilinear's filter)
  * (phi = atan2(x, -z), theta = acos(y) in the map's frame, map_from_world the rotation:
  * wavlight/envmap.py Environment.world_to_square). */
 __kernel void view_assemble(const uint count, __global const int *prim, __global const uint *ids,
@@ -507,12 +543,17 @@ __kernel void view_assemble(const uint count, __global const int *prim, __global
         g *= albedo[3 * mt + 1];
         bl *= albedo[3 * mt + 2];
     } else {
+#if BACKGROUND_BILINEAR
+        view_bilinear(dir[3 * p], dir[3 * p + 1], dir[3 * p + 2], map_from_world, env, env_width, env_height, &r, &g,
+                      &bl);
+#else
         uint col, rw;
         view_texel(dir[3 * p], dir[3 * p + 1], dir[3 * p + 2], map_from_world, env_width, env_height, &col, &rw);
         __global const float *e = env + 3 * ((size_t)rw * env_width + col);
         r = e[0];
         g = e[1];
         bl = e[2];
+#endif
     }
     out[3 * p] = r;
     out[3 * p + 1] = g;

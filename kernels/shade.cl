@@ -27,6 +27,9 @@
  * 1 for the other kinds), and wavelet's product sample a mixture of two walks for plastic
  * (mixture_walk; -DPLASTIC_DIFFUSE_LEVELS).
  */
+#ifndef BACKGROUND_BILINEAR
+#define BACKGROUND_BILINEAR 0
+#endif
 #include "warp.h"
 #include "bsdf.h"
 #include "product.h"
@@ -636,6 +639,7 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
  * rng_k > 0 (the stratified sampler; rays r = p k + j, k = rng_k samples per pixel) each
  * pair moved into its cell (stratify_pair, keyed by words 1 and 2 of stream RNG_STRATA
  * at index rng_first + p, as the camera kernel's jitter by word 0); else u_in (rows of 4). A miss sees the environment (direct_out,
+ * its nearest texel, or with BACKGROUND_BILINEAR 1 env_bilinear's filtered value;
  * 3 planes r, g, b; for hits the estimate's part without a shadow ray, Shaded's o) and has
  * zero estimates. A hit takes its face
  * normal, flipped to face the viewer (two-sided shading), with smooth != 0 its shading normal
@@ -674,9 +678,13 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
     if (!all(hit)) {
         realv u, v;
         env_world_to_square(rot, dx, dy, dz, &u, &v);
-        const uintv k = 4 * env_texel(env_w, env_h, u, v);
-        realv r, g, b, unused;
-        GATHER4(texels, k, &r, &g, &b, &unused);
+        realv r, g, b;
+#if BACKGROUND_BILINEAR
+        env_bilinear(texels, env_w, env_h, u, v, &r, &g, &b);
+#else
+        realv unused;
+        GATHER4(texels, 4 * env_texel(env_w, env_h, u, v), &r, &g, &b, &unused);
+#endif
         er = select(r, 0.0f, hit);
         eg = select(g, 0.0f, hit);
         eb = select(b, 0.0f, hit);

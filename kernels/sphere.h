@@ -109,4 +109,31 @@ inline uintv env_texel(const int w, const int h, const realv u, const realv v)
     const intv row = min(convert_intv(v * (float)h), h - 1);
     return as_uintv(row * w + col);
 }
+
+/* The map texels (rows of 4 floats: r, g, b, unused) of width w and height h at points (u, v) of
+ * its square, interpolated bilinearly between texel centres: wrapping in u (longitude), clamped
+ * in v (the poles). What a camera ray that misses sees with background = "bilinear"; the
+ * lighting stays the nearest texel's. numpy twin: wavlight.envmap.bilinear. */
+inline void env_bilinear(__global const float *texels, const int w, const int h, const realv u, const realv v,
+                         realv *r, realv *g, realv *b)
+{
+    const realv x = u * (float)w - 0.5f;
+    const realv y = clamp(v * (float)h - 0.5f, 0.0f, (float)(h - 1));
+    const realv x0 = floor(x), y0 = floor(y);
+    const realv fx = x - x0, fy = y - y0;
+    intv c0 = convert_intv(x0);
+    c0 = select(c0, c0 + w, c0 < 0);
+    c0 = select(c0, c0 - w, c0 >= w);
+    const intv c1 = select(c0 + 1, (intv)0, c0 + 1 >= w);
+    const intv r0 = min(convert_intv(y0), h - 1), r1 = min(r0 + 1, h - 1);
+    realv ar, ag, ab, br, bg, bb, cr, cg, cb, dr, dg, db, unused;
+    GATHER4(texels, 4 * as_uintv(r0 * w + c0), &ar, &ag, &ab, &unused);
+    GATHER4(texels, 4 * as_uintv(r0 * w + c1), &br, &bg, &bb, &unused);
+    GATHER4(texels, 4 * as_uintv(r1 * w + c0), &cr, &cg, &cb, &unused);
+    GATHER4(texels, 4 * as_uintv(r1 * w + c1), &dr, &dg, &db, &unused);
+    const realv gx = 1.0f - fx, gy = 1.0f - fy;
+    *r = (ar * gx + br * fx) * gy + (cr * gx + dr * fx) * fy;
+    *g = (ag * gx + bg * fx) * gy + (cg * gx + dg * fx) * fy;
+    *b = (ab * gx + bb * fx) * gy + (cb * gx + db * fx) * fy;
+}
 #endif

@@ -15,7 +15,7 @@ from click.testing import CliRunner
 import wavlight
 from wavlight import imageio
 from wavlight.cli.main import main
-from wavlight.relight import converge, moving, settings, transfer, view, viewer
+from wavlight.relight import converge, frames, moving, settings, transfer, view, viewer
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -24,17 +24,19 @@ ROOT = Path(__file__).resolve().parents[1]
 LIBRARY = {
     "bake": [(wavlight.bake, tuple(settings.BAKE))],
     "frame": [
-        (transfer.Transfer.frame, ("env", "rotate_y", "scale", "terms", "priority")),
-        (transfer.Transfer.frame_timed, ("env", "rotate_y", "scale", "terms", "priority")),
-        (converge.converge, ("scene", "env", "rotate_y", "scale", "seed")),
+        (frames.frames_for, ("scene", "background")),
+        (transfer.Transfer.frame, ("env", "rotate_y", "scale", "terms", "priority", "background")),
+        (transfer.Transfer.frame_timed, ("env", "rotate_y", "scale", "terms", "priority", "background")),
+        (converge.converge, ("scene", "env", "rotate_y", "scale", "seed", "background")),
         (moving.MovingObject.frame, ("translate", "rotate", "spp", "seed")),
         (view.still_settings, ("refine", "mass", "mode", "supersample", "tau")),
         # (mode and supersample default to the viewer's frame here: still_settings holds the written one's)
         (view.ViewFrames.frame, ("eye", "target", "fov", "width", "height", "refine", "mass", "tau")),
         (view.ViewFrames.converge, ("eye", "target", "fov", "width", "height", "seed")),
+        (view.ViewFrames.__init__, ("scene", "background")),
         (imageio.save_image, ("exposure", "tonemap")),
     ],
-    "view": [(viewer.Viewer.__init__, ("maps", "scene")), (viewer.Viewer.serve, ("port",))],
+    "view": [(viewer.Viewer.__init__, ("maps", "scene", "background")), (viewer.Viewer.serve, ("port",))],
 }
 #: settings of the command itself, which no library call takes
 COMMAND_ONLY = {"bake": set(), "frame": {"turntable", "repeat", "orbit"}, "view": {"no_browser"}}

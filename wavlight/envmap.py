@@ -13,17 +13,25 @@ within a texel but for the sin(theta) variation across the leaf, as in Mitsuba 3
 envmap; the pdf is positive wherever the map is. The square-to-sphere Jacobian is
 du dv / d omega = 1 / (2 pi^2 sin theta).
 
+The lighting is that piecewise-constant map everywhere. Only what the camera sees directly
+(camera rays that miss every object) may be filtered instead: with ``background = "bilinear"``
+(:data:`wavlight.options.BACKGROUND`), :meth:`Environment.eval_background` interpolates between
+texel centres (:func:`bilinear`, wrapping in u, clamped in v), as the kernels' ``env_bilinear``
+(kernels/sphere.h).
+
 The built-in procedural sky (``procedural = "sky"`` in a scene) is a smooth
 gradient plus a small, very bright sun disk, made at 512 x 256 texels; see
 :func:`procedural_sky` for its keys.
 """
 from __future__ import annotations
 
+import copy
 import warnings
 
 import numpy as np
 
 from . import warp
+from .options import BACKGROUND
 from .errors import (ArgumentError, SanitisedInputWarning, WavlightError, check_int, check_number, check_real,
                      file_problem, shown)
 
@@ -244,14 +252,40 @@ def band_overlaps(leaf_edges, texel_edges, antiderivative):
     return idx, np.where(inside, antiderivative(hi) - antiderivative(lo), 0.0)
 
 
+def bilinear(pixels: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(N, 3) float32: the map ``pixels`` (H, W, 3) at points (u, v) (N,) of its own square,
+    interpolated bilinearly between texel centres ((c + 1/2) / W, (r + 1/2) / H): wrapping in u
+    (longitude: the last column's neighbour is the first), clamped in v (the first and last rows
+    hold up to the poles). In float32, the steps of kernels/sphere.h ``env_bilinear``."""
+    h, w = pixels.shape[:2]
+    x = np.asarray(u, np.float32) * np.float32(w) - np.float32(0.5)
+    y = np.clip(np.asarray(v, np.float32) * np.float32(h) - np.float32(0.5), np.float32(0.0), np.float32(h - 1))
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = (x - x0)[:, None]
+    fy = (y - y0)[:, None]
+    c0 = np.mod(x0.astype(np.int64), w)
+    c1 = np.where(c0 + 1 == w, 0, c0 + 1)
+    r0 = np.minimum(y0.astype(np.int64), h - 1)
+    r1 = np.minimum(r0 + 1, h - 1)
+    flat = np.asarray(pixels, np.float32).reshape(-1, 3)
+    top = flat[r0 * w + c0] * (np.float32(1.0) - fx) + flat[r0 * w + c1] * fx
+    bottom = flat[r1 * w + c0] * (np.float32(1.0) - fx) + flat[r1 * w + c1] * fx
+    return (top * (np.float32(1.0) - fy) + bottom * fy).astype(np.float32)
+
+
 class Environment:
     """An equirectangular environment map with scale and rotate_y.
 
     pixels : (H, W, 3) float32, sanitised and multiplied by ``scale``.
+    background : how camera rays that miss see it (:data:`wavlight.options.BACKGROUND`):
+        ``nearest`` (the map itself) or ``bilinear`` (:meth:`eval_background`); display only.
     """
 
-    def __init__(self, pixels: np.ndarray, scale: float = 1.0, rotate_y: float = 0.0, name="environment"):
+    def __init__(self, pixels: np.ndarray, scale: float = 1.0, rotate_y: float = 0.0, name="environment",
+                 background: str = BACKGROUND.default):
         name = name if isinstance(name, str) else shown(name)
+        self.background = BACKGROUND.check(background, f"Environment {name}")
         scale = check_number(f"Environment {name}", "scale", scale, 0.0)
         rotate_y = check_number(f"Environment {name}", "rotate_y", rotate_y)
         pixels = check_real(f"Environment {name}", "pixels", pixels)
@@ -283,6 +317,22 @@ class Environment:
     def eval(self, d_world: np.ndarray) -> np.ndarray:
         """Radiance (N, 3) float32 arriving from world directions d (N, 3) (nearest texel)."""
         return self.pixels.reshape(-1, 3)[self.texel_index(d_world)]   # (a view, not a cached copy)
+
+    def eval_background(self, d_world: np.ndarray) -> np.ndarray:
+        """Radiance (N, 3) float32 that camera rays along world directions d (N, 3) see where they
+        miss: :meth:`eval` (nearest), or :func:`bilinear` with ``background = "bilinear"``."""
+        if self.background == "nearest":
+            return self.eval(d_world)
+        uv = self.world_to_square(np.asarray(d_world, np.float64))
+        return bilinear(self.pixels, uv[:, 0], uv[:, 1])
+
+    def with_background(self, background: str) -> "Environment":
+        """This map (the same pixels, not a copy) seen by missing camera rays as ``background``."""
+        if background == self.background:
+            return self
+        other = copy.copy(self)
+        other.background = BACKGROUND.check(background, f"Environment {self.name}")
+        return other
 
     @property
     def is_black(self) -> bool:

@@ -26,6 +26,7 @@ shadow rays (:mod:`wavlight.occlusion`) and chooses them from the scene's shadow
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import threading
 import time
@@ -40,7 +41,7 @@ from .raytrace import RayTracer
 from .shading import KernelShader, NumpyShader
 from .errors import WavlightError, shown
 from .imageio import check_memory
-from .options import HEIGHT, SEED, SPP, WIDTH
+from .options import BACKGROUND, HEIGHT, SEED, SPP, WIDTH
 from .sampler import SAMPLER
 from .scene import Scene, check_scene, load_scene
 from .strategies import STRATEGIES
@@ -212,7 +213,7 @@ def _integer(name, value, lo, hi):
 
 
 def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, seed=None,
-                progress=None, threads=None, backend="opencl", **options) -> RenderResult:
+                progress=None, threads=None, backend="opencl", background=None, **options) -> RenderResult:
     """Render with statistics: image, per-pixel standard error and timings.
 
     ``scene`` is a Scene or a scene file's path. Arguments left as None come from the scene
@@ -229,10 +230,18 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     default; options of strategies other than the one rendered are checked and ignored.
     ``wavelet`` without candidates or slots chooses them from the scene's shadows
     (strategies.AUTO_BUDGET, :mod:`wavlight.occlusion`).
+
+    ``background`` (:data:`wavlight.options.BACKGROUND`; None: the scene's ``[environment]
+    background``) is what camera rays that miss see: the map's nearest texel or its bilinear
+    filter; the lighting is the map itself either way.
     """
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
     check_scene(scene)
+    if background is not None:
+        background = BACKGROUND.check(background, "render_full")
+        if background != scene.environment.background:
+            scene = dataclasses.replace(scene, environment=scene.environment.with_background(background))
 
     def pick(option, value, fallback):
         """The argument, else the scene's value; validated either way (a Scene may be edited)."""
@@ -278,6 +287,7 @@ def render_full(scene: Scene, spp=None, strategy=None, width=None, height=None, 
     seconds = time.perf_counter() - t0
     samples = width * height * spp
     stats = {"strategy": strategy, "spp": spp, "width": width, "height": height, "seed": seed,
+             "background": scene.environment.background,
              "setup_seconds": round(r.setup_seconds, 4), "render_seconds": round(seconds, 4),
              "samples_per_second": round(samples / seconds, 1) if seconds > 0 else None,
              "rays": r.rays, "rays_per_second": round(r.rays / seconds, 1) if seconds > 0 else None,

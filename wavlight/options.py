@@ -205,5 +205,12 @@ WIDTH = Option("width", int, "Image width in pixels.", default=256, lo=1, hi=163
 HEIGHT = Option("height", int, "Image height in pixels.", default=256, lo=1, hi=16384)
 SEED = Option("seed", int, "Random seed: a render is a deterministic function of scene, settings and seed.",
               default=0, lo=0, hi=2 ** 63 - 1)
+#: how camera rays that miss every object see the environment: the scene file's [environment]
+#: background, the --background flag of ``wavlight render``, ``frame`` and ``view``. Display only:
+#: the lighting stays the piecewise-constant map that sampling and the measurements rely on.
+BACKGROUND = Option("background", str, "How camera rays that miss see the map: its nearest texel (the "
+                    "piecewise-constant map the lighting is) or filtered bilinearly between texel centres "
+                    "(wrapping in longitude, clamped at the poles); the lighting is the same either way.",
+                    default="nearest", values=("nearest", "bilinear"))
 #: the camera's vertical field of view: the scene file's [camera] fov_y, a view bake's frames
 FOV = Option("fov_y", float, "The vertical field of view, degrees.", default=35.0, lo=1e-3, hi=179.0)

@@ -42,7 +42,7 @@ import numpy as np
 from . import assets, bsdfs, data, meshes, textures
 from .envmap import MAX_RADIANCE, MAX_TEXELS, Environment, procedural_sky, read_image
 from .errors import SanitisedInputWarning, SceneError, WavlightError, file_problem, shown
-from .options import FOV, HEIGHT, SEED, SPP, WIDTH
+from .options import BACKGROUND, FOV, HEIGHT, SEED, SPP, WIDTH
 from .strategies import CONSTRAINTS, OPTIONS, STRATEGIES
 
 ROUGHNESS_RANGE = (1e-4, 1.0)   # ggx alpha
@@ -1117,6 +1117,10 @@ def _file_digest(name) -> bytes:
 def _environment(t: Table, base, files: list) -> Environment:
     scale = _positive(t, "scale", t.get("scale", "float", 1.0), 0.0)
     rotate_y = t.get("rotate_y", "float", 0.0)
+    background = t.get("background", "str", BACKGROUND.default)
+    why = BACKGROUND.problem(background)
+    if why:
+        t.fail("background", why)
     if t.has("file") and t.has("procedural"):
         t.fail("procedural", "give either file or procedural, not both")
     if t.has("pixels") and (t.has("file") or t.has("procedural")):
@@ -1155,4 +1159,4 @@ def _environment(t: Table, base, files: list) -> Environment:
     if peak > np.float32(MAX_RADIANCE):
         t.fail("scale" if scale != 1.0 else source, f"radiance up to {peak:.3g}; at most {MAX_RADIANCE:g} is "
                "supported (float32 estimates would overflow): rescale the map")
-    return Environment(pixels, scale, rotate_y, name)
+    return Environment(pixels, scale, rotate_y, name, background)

@@ -128,6 +128,8 @@ class KernelShader:
             sizes["MIS_BALANCE"] = 1
         sizes["OFFSET_RELATIVE"] = repr(float(np.float32(raytrace.OFFSET_RELATIVE)))   # shadow-ray offsets
         sizes["SMOOTH_MIN_LENGTH2"] = repr(float(np.float32(raytrace.SMOOTH_MIN_LENGTH2))) + "f"
+        if env.background == "bilinear":   # what camera rays that miss see (kernels/sphere.h env_bilinear)
+            sizes["BACKGROUND_BILINEAR"] = 1
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds,
                                   **sizes)
         self.warm_up()
@@ -227,11 +229,11 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u, bary=None) ->
     """numpy twin of ``shade_rays`` in kernels/shade.cl, around a shader of points
     ``shade(n, wo, material, u, p=..., g=..., with_offset=True, tint=...) -> wi, value (M, S, 3),
     offset (M, 3)``, with u an (N, 4) array or an :class:`rng.Stream` (its SHADING numbers, as the
-    kernel draws them): misses see the environment; hits take their shading normal
-    (``tracer.hit`` at embree's barycentric ``bary`` (N, 2); without them the face normal) and
-    their face normal, both flipped towards the viewer, their face's material (in a textured
-    scene its texture at the hit: Scene.albedo_at), the offset as their direct part, and shadow
-    rays from the hit point moved ``tracer.shadow_offsets`` along the face normal."""
+    kernel draws them): misses see the environment (:meth:`Environment.eval_background`); hits take
+    their shading normal (``tracer.hit`` at embree's barycentric ``bary`` (N, 2); without them the
+    face normal) and their face normal, both flipped towards the viewer, their face's material (in a
+    textured scene its texture at the hit: Scene.albedo_at), the offset as their direct part, and
+    shadow rays from the hit point moved ``tracer.shadow_offsets`` along the face normal."""
     d = np.asarray(d, np.float32)
     prim = np.asarray(prim)
     count = len(d)
@@ -240,7 +242,7 @@ def shade_rays_reference(shade, scene, tracer, eye, d, prim, t, u, bary=None) ->
     miss = prim < 0
     hit = np.flatnonzero(~miss)
     direct = np.zeros((3, count))
-    direct[:, miss] = scene.environment.eval(d[miss].astype(np.float64)).T
+    direct[:, miss] = scene.environment.eval_background(d[miss].astype(np.float64)).T
     face = prim[hit]
     origin = np.zeros((count, 3), np.float32)
     if bary is not None and tracer.smooth:

@@ -83,6 +83,30 @@ def test_frame_json_turntable_and_spp(baked, tmp_path):
     assert json.loads(r.stdout)["spp"] == 2 and (tmp_path / "c.exr").exists()
 
 
+def test_frame_background(baked, tmp_path):
+    """--background: the relit and the unbiased frames report it; the bilinear sky differs from the
+    nearest one's; a value that is not one of them is refused by click (exit 2, no traceback)."""
+    from wavlight.envmap import read_image
+
+    folder, out, _ = baked
+    images = {}
+    for background in ("nearest", "bilinear"):
+        name = tmp_path / f"{background}.exr"
+        r = run("frame", out, "-o", name, "--background", background, "--repeat", 1, "--json")
+        assert r.exit_code == 0, r.output
+        assert json.loads(r.stdout)["background"] == background
+        images[background] = read_image(str(name))
+        r = run("frame", out, "--spp", 2, "-o", tmp_path / f"u-{background}.exr", "--background", background,
+                "--json")
+        assert r.exit_code == 0, r.output
+        assert json.loads(r.stdout)["background"] == background
+    assert not np.array_equal(images["nearest"], images["bilinear"])
+    assert json.loads(run("frame", out, "-o", tmp_path / "d.png", "--repeat", 1, "--json").stdout)["background"] \
+        == "nearest"
+    r = run("frame", out, "-o", tmp_path / "c.png", "--background", "cubic")
+    assert r.exit_code == 2 and "Traceback" not in r.output and not (tmp_path / "c.png").exists()
+
+
 @pytest.mark.parametrize("args, words", [
     (("--terms", 0), ("--terms",)),
     (("--rotate-y", "nan"), ("--rotate-y", "finite")),

@@ -265,6 +265,37 @@ def test_assemble_kernel_equals_its_twin(baked):
     np.testing.assert_allclose(got[hit], want, rtol=1e-5, atol=1e-7)
 
 
+def test_assemble_kernel_filters_the_background_as_its_twin(baked):
+    """With background="bilinear" view_assemble's misses are Environment.eval_background's
+    filter (the seam, the poles, texel borders and random directions), and the frames of both
+    backends agree; the hits are the nearest background's frame's."""
+    _, scene, tr = baked
+    frames = view.ViewFrames(tr, scene, background="bilinear")
+    env = frames.environment
+    assert env.background == "bilinear" and scene.environment.background == "nearest"
+    rng = np.random.default_rng(9)
+    uv = np.concatenate([rng.integers(0, [env.width + 1, env.height + 1], (2000, 2)) / [env.width, env.height],
+                         rng.random((2000, 2)), [[0.0, 0.0], [0.5, 1.0], [0.0, 0.5], [1.0, 0.5]]])
+    d = env.square_to_world(np.clip(uv, 0.0, 1.0)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    prim = np.full(len(d), -1, np.int32)
+    zeros = np.zeros(len(d), np.float32)
+    device = view.ViewDevice(tr)
+    fd = view.FrameDevice(frames, device)
+    queue = wavlight.cl.thread_queue()
+    ids_b, w_b, prim_b, dir_b, points = fd.lookup(prim, zeros, zeros, d, queue)
+    got = fd.assemble(len(prim), prim_b, ids_b, w_b, dir_b, points, wavlight.cl.to_device(np.zeros((1, 3),
+                                                                                                  np.float32)), queue)
+    want = env.eval_background(d.astype(np.float64))
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5 * float(np.abs(want).max()))
+    fa, _ = frames.frame(EYE, TARGET)
+    fb, _ = frames.frame(EYE, TARGET, backend="numpy")
+    np.testing.assert_allclose(fa, fb, rtol=2e-2, atol=1e-4 * fb.max())
+    near, _ = view.ViewFrames(tr, scene).frame(EYE, TARGET)
+    differs = (np.asarray(near) != np.asarray(fa)).any(-1)
+    assert 0 < differs.mean() < 1   # the sky differs, the surfaces do not
+
+
 def test_walk_to_the_texels_is_the_dense_sum(baked):
     """With refine -> 0 every node is refined down to the texels: B = sum_t T1_t f_r(w_t), the
     stored coefficients inverted to texels and summed densely."""

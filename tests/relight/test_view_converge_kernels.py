@@ -181,3 +181,38 @@ def test_bad_backend_is_one_clear_error(bakes):
     frames = view.ViewFrames(by_bits[16], scene)
     with pytest.raises(wavlight.WavlightError, match="backend"):
         frames.converge(EYE, TARGET, spp=1, backend="cuda")
+
+
+def test_the_kernel_frame_matches_the_numpy_frame_with_the_bilinear_background(bakes):
+    """With background="bilinear" the camera samples that miss see the map's filter in
+    converge_shade (BACKGROUND_BILINEAR) as in its twin (TexelLight.background); the samples that
+    hit are the nearest background's frame's (the same random numbers, the lighting unchanged)."""
+    scene, by_bits, folder = bakes
+    frames = view.ViewFrames(by_bits[8], scene, background="bilinear")
+    a = frames.converge(EYE, TARGET, spp=4, seed=9)
+    b = frames.converge(EYE, TARGET, spp=4, seed=9, backend="numpy")
+    assert a.stats["background"] == b.stats["background"] == "bilinear"
+    diff = np.abs(a.image - b.image).max(2)
+    assert (diff > 1e-3 * (1 + np.abs(b.image).max(2))).mean() < 0.03, diff.max()
+    assert abs((a.image - b.image).sum()) < 0.5 * np.sqrt((b.stderr ** 2).sum())
+    near = view.ViewFrames(by_bits[8], scene).converge(EYE, TARGET, spp=4, seed=9)
+    assert near.stats["background"] == "nearest"
+    # pixels whose samples all hit: the same numbers (the kernel's miss branch alone differs)
+    sc = dataclasses.replace(scene, camera=frames.camera(EYE, TARGET, None))
+    x, y = np.meshgrid(np.arange(36), np.arange(20))
+    corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], np.float32)
+    hit_all = np.ones(36 * 20, bool)
+    for c in corners:
+        eye, d = wavlight.camera.camera_rays(sc, x.ravel(), y.ravel(), np.tile(c, (36 * 20, 1)), 36, 20)
+        prim, _ = frames.tracer.intersect(eye, d)
+        hit_all &= prim >= 0
+    hit_all = hit_all.reshape(20, 36)
+    inner = hit_all.copy()   # and their neighbours' corners too: no silhouette passes between them
+    inner[1:] &= hit_all[:-1]
+    inner[:-1] &= hit_all[1:]
+    inner[:, 1:] &= hit_all[:, :-1]
+    inner[:, :-1] &= hit_all[:, 1:]
+    hit_all = inner
+    assert hit_all.any() and (~hit_all).any()
+    np.testing.assert_allclose(a.image[hit_all], near.image[hit_all], rtol=1e-5, atol=1e-6)
+    assert not np.allclose(a.image[~hit_all], near.image[~hit_all], rtol=1e-5, atol=1e-6)

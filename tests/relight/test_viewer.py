@@ -45,6 +45,7 @@ import wavlight  # noqa: E402
 from wavlight.cli.main import main  # noqa: E402
 from wavlight.imageio import srgb_encode  # noqa: E402
 from wavlight.relight import viewer as viewer_module  # noqa: E402
+from wavlight.relight.settings import VIEWER  # noqa: E402
 from wavlight.relight.viewer import (EXPOSURE_RANGE, Limits, ObjectLimits, Viewer, ViewLimits, sanitise,  # noqa: E402
                                      tone_map)
 from wavlight.scene import rotation  # noqa: E402
@@ -509,7 +510,7 @@ def test_browser_tone_curve_from_the_url_and_the_choice(serve, page, bake_file):
     state, _ = sanitise({"rotate_y": "30", "terms": "64"}, v.limits)
     other = wavlight.Transfer.load(bake_file[0])   # the frame the viewer computes, computed here
     try:
-        image, _ = other.frame_timed(None, 30.0, 1.0, v.detail(state))
+        image, _ = other.frame_timed(None, 30.0, 1.0, v.detail(state), background=v.background)
     finally:
         other.close()
 
@@ -1043,9 +1044,10 @@ def test_view_limits_are_the_scene_cameras(serve_view, view_transfer):
 
 
 def _view_frames(transfer, scene):
+    """The view frames the viewer shows: with its default background."""
     from wavlight.relight.view import ViewFrames
 
-    return ViewFrames(transfer, scene)
+    return ViewFrames(transfer, scene, background=VIEWER["background"].default)
 
 
 def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_view, view_transfer, view_bake):

@@ -256,10 +256,10 @@ class ConvergeFrames:
         return transfer._s is self._sections and bool(self._sections) and (scene is None or scene is self.scene)
 
     # -- what frames share
-    def program(self, levels: int, slots: int, candidates: int, control: bool):
+    def program(self, levels: int, slots: int, candidates: int, control: bool, background: str = "nearest"):
         """kernels/converge.cl for this bake and scene (:func:`.converge_kernels.program`)."""
         return kernels.program(levels, self.transfer.bits, self._shade.kinds, slots, candidates, control, LATTICE,
-                               self._shade.textured)
+                               self._shade.textured, background)
 
     def spread(self, tile, prog=None):
         """The footprint spread of the tile's pixels (measured once): (w h,) float32 on the host
@@ -373,7 +373,8 @@ class ConvergeFrames:
     def frame(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, spp: int = UNBIASED_SPP,
               seed: int = FRAME["seed"].default, progress=None, slots: int = SLOTS, defensive: float = DEFENSIVE,
               levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE, control: bool = True,
-              candidates: int = CANDIDATES, coherence: float = COHERENCE) -> RenderResult:
+              candidates: int = CANDIDATES, coherence: float = COHERENCE,
+              background: str = FRAME["background"].default) -> RenderResult:
         """The unbiased frame under ``env`` (default: the baked map; a file, data:NAME or an
         Environment) turned to ``rotate_y`` (default: the scene's) and scaled, with ``spp`` camera
         samples per pixel, each with ``slots`` directions of the defensive mixture (module
@@ -381,8 +382,10 @@ class ConvergeFrames:
         lighting share ``light`` > 0) the pixel's relit value G is the control variate's known
         integral. A camera sample whose pixel's footprint reflects over more than ``coherence``
         times its lobe's width resamples its slots from ``candidates`` directions (0: never).
-        Returns a RenderResult: image, per-pixel standard error, stats."""
+        Camera samples that miss see the map's pixel, or with ``background="bilinear"`` its
+        bilinear filter (display only). Returns a RenderResult: image, per-pixel standard error, stats."""
         where = "relight.converge"
+        background = FRAME["background"].check(background, where)
         spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)
         levels = check_int(where, "levels", levels, 1, 16)
         slots = check_int(where, "slots", slots, 1, MAX_SLOTS)
@@ -403,7 +406,7 @@ class ConvergeFrames:
         lighting_seconds = time.perf_counter() - t0
         prog = None
         if self.backend == "opencl":
-            prog = self.program(m, slots, candidates, use_control)
+            prog = self.program(m, slots, candidates, use_control, background)
         width, height = tr.width, tr.height
         sums = np.zeros((height, width, 3))
         squares = np.zeros((height, width, 3))
@@ -441,7 +444,7 @@ class ConvergeFrames:
                     direct, origin, wi, value = shade_reference(
                         self.scene, self.tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], state.inside,
                         (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
-                        bary=bary)
+                        bary=bary, background=background)
                 v, traced = visible_sum(self.tracer, direct, origin, wi, value)
                 rays += traced
                 hit = prim >= 0
@@ -474,7 +477,8 @@ class ConvergeFrames:
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
                  "lighting_seconds": round(lighting_seconds, 4), "rays": rays,
                  "rays_per_second": round(rays / seconds, 1) if seconds > 0 else None,
-                 "rotate_y": rot, "product_levels": m, "slots": slots, "candidates": candidates,
+                 "rotate_y": rot, "background": background,
+                 "product_levels": m, "slots": slots, "candidates": candidates,
                  "pass_spp": pass_spp(spp, max_tile), "pass_samples": max_tile * pass_spp(spp, max_tile),
                  "tiles": len(self.tiles), "tiles_kept": totals["kept"], "kept_tree_bytes": state.kept_bytes,
                  "backend": self.backend,
@@ -525,7 +529,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME
              spp: int = UNBIASED_SPP, seed: int = FRAME["seed"].default, threads=None, progress=None, slots: int = SLOTS,
              defensive: float = DEFENSIVE, levels: int = PRODUCT_LEVELS, light: float = LIGHT_SHARE,
              control: bool = True, candidates: int = CANDIDATES, coherence: float = COHERENCE,
-             backend: str = "opencl") -> RenderResult:
+             backend: str = "opencl", background: str = FRAME["background"].default) -> RenderResult:
     """The unbiased frame of ``transfer`` under ``env`` (default: the baked map) turned to
     ``rotate_y`` (default: the scene's) and scaled, with ``spp`` camera samples per pixel: one
     frame of a :class:`ConvergeFrames` (its ``frame`` documents the other arguments), the one of
@@ -549,7 +553,7 @@ def converge(transfer, scene=None, env=None, rotate_y=None, scale: float = FRAME
         else:
             setup = 0.0
         result = frames.frame(env, rotate_y, scale, spp, seed, progress, slots, defensive, levels, light, control,
-                              candidates, coherence)
+                              candidates, coherence, background)
     result.stats["setup_seconds"] = round(setup, 4)
     result.stats["frame_seconds"] = round(setup + result.stats["render_seconds"], 4)
     return result
@@ -647,14 +651,16 @@ def transfer_from_trees(nodes: np.ndarray, inside, pixel, uv) -> np.ndarray:
 
 def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spread, inside, key, first: int,
                     slots: int, defensive: float = DEFENSIVE, light: float = LIGHT_SHARE, control: bool = True,
-                    candidates: int = CANDIDATES, coherence: float = COHERENCE, bary=None):
+                    candidates: int = CANDIDATES, coherence: float = COHERENCE, bary=None,
+                    background: str = "nearest"):
     """numpy twin of ``converge_shade`` (kernels/converge.cl): one pass of a tile's camera rays
     from ``scene``'s eye along d (N, 3) that hit ``tracer``'s triangles prim (N,) (-1: a miss)
     at t (N,), k per pixel, pixel-major. The tile's pixels' product trees: ``trees`` (a
     :class:`wavlight.haar.HaarTree`, whose warp kernels walk them), ``nodes`` their pyramids
     (P, tree_size(m)) row-major, ``relit`` their G (P, 3), ``spread`` their footprint spreads (P,);
     ``inside`` the lighting (:class:`TexelLight`), ``key`` = (seed, tile), ``first`` the pass's
-    first sample index in the tile. A miss sees the map (direct); a hit gets ``slots``
+    first sample index in the tile. A miss sees the map (direct; :meth:`TexelLight.background`:
+    its pixel, or with ``background="bilinear"`` its filter); a hit gets ``slots``
     directions of the mixture (:func:`mixture_directions`; the uniforms of slot j are
     :func:`lattice` point j of Philox stream rng.CONVERGE_DIRECTIONS[0] at index first + r),
     each estimated as albedo f cos L / pdf / slots
@@ -671,7 +677,7 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     direct, origin = np.zeros((N, 3)), np.zeros((N, 3))
     wi, value = np.zeros((slots, 3, N)), np.zeros((slots, 3, N))
     miss = np.flatnonzero(prim < 0)
-    direct[miss] = inside.radiance(world_to_square(np.asarray(d, np.float64)[miss]))
+    direct[miss] = inside.background(world_to_square(np.asarray(d, np.float64)[miss]), background)
     hit = np.flatnonzero(prim >= 0)
     if not len(hit):
         return direct, origin, wi, value

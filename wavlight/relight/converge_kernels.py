@@ -58,6 +58,7 @@ class Lighting:
     def __init__(self, tables: dict):
         self.levels, self.top, self.kbits = int(tables["levels"]), int(tables["top"]), int(tables["kbits"])
         self.map_w = int(tables["map_width"])
+        self.map_h, self.map_shift = int(tables["map_height"]), float(tables["map_shift"])   # (the background)
         self.buffers = {name: cl.to_device(np.ascontiguousarray(tables[name])) for name in
                         ("leaf_cdf", "texel_total", "leaf_guide", "texel_cdf", "columns", "rows", "map", "map_lum",
                          "leaf_masses", "radiance", "omega")}
@@ -70,15 +71,16 @@ class Lighting:
 
 
 def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool, lattice,
-            textures: bool = False):
+            textures: bool = False, background: str = "nearest"):
     """kernels/converge.cl built for product trees of ``levels`` levels, entries of ``bits`` bits,
     the material kinds ``kinds`` (bit mask), ``slots`` directions per camera sample,
     ``candidates`` resampled ones (0: none), the control variate or not, the uniforms'
-    ``lattice`` (four 24-bit constants) and base-colour ``textures`` or not (memoised per process,
-    :func:`wavlight.cl.program`)."""
+    ``lattice`` (four 24-bit constants), base-colour ``textures`` or not and what misses see
+    (``background``: nearest or bilinear; memoised per process, :func:`wavlight.cl.program`)."""
+    extra = {"BACKGROUND_BILINEAR": 1} if background == "bilinear" else {}
     return cl.program("converge.cl", N_LEVELS=int(levels), QBITS=int(bits), BSDF_KINDS=int(kinds) or 1,
                       SLOTS=int(slots), CANDIDATES=int(candidates), CONTROL=int(bool(control)),
-                      TEXTURES=int(bool(textures)),
+                      TEXTURES=int(bool(textures)), **extra,
                       OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))),
                       **{f"LATTICE{i}": f"{int(a)}u" for i, a in enumerate(lattice)})
 
@@ -192,7 +194,8 @@ class ShadeKernel:
                 bary_buf, *self.smooth, *self.tables[2:], *self.texture_tables, trees.buffer,
                 np.uint32(tree_stride(trees.levels)), trees.relit, spread,
                 lighting.buffers["leaf_masses"], lighting.buffers["omega"], *lighting.light_args(),
-                np.float32(defensive), np.float32(light), np.float32(coherence), np.uint32(tile),
+                np.int32(lighting.map_h), np.float32(lighting.map_shift), np.float32(defensive), np.float32(light),
+                np.float32(coherence), np.uint32(tile),
                 np.uint32(rng.CONVERGE_DIRECTIONS[0]), *(np.uint32(x) for x in rng.key(seed)), out)
         planes = cl.read(out, (6 + 6 * S, count), np.float32, queue)
         return (planes[:3].T, planes[3:6].T, planes[6:6 + 3 * S].reshape(S, 3, count),

@@ -17,7 +17,10 @@ directions (nearest texel, as :meth:`wavlight.envmap.Environment.eval`): the ker
 ``frame_background`` (numpy twin :func:`background_reference`) takes each pixel's missing
 samples sorted by map row and u (:func:`background_samples`, once per map height), so that a
 rotation, which only shifts u, leaves the samples of one map texel in a run, and looks each
-run's texel up once.
+run's texel up once. With ``background = "bilinear"`` (:data:`wavlight.options.BACKGROUND`;
+display only, the lighting stays the map's texels) the kernel ``frame_background_bilinear``
+(numpy twin :func:`background_bilinear_reference`) filters the turned map bilinearly at each
+missing sample (:func:`wavlight.envmap.bilinear`).
 """
 from __future__ import annotations
 
@@ -26,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import cl
+from ..envmap import bilinear
 
 
 def product_reference(offsets: np.ndarray, entry_scale: np.ndarray, entry_data: np.ndarray, columns: np.ndarray,
@@ -189,6 +193,36 @@ def background_reference(pixels: np.ndarray, rotate_y: float, mask: np.ndarray, 
     return total * np.float32(1.0 / samples)
 
 
+def background_uv(dirs: np.ndarray, mask: np.ndarray):
+    """The background pixels' missing samples for ``frame_background_bilinear``: count (M,) uint32
+    and uv (M, S, 2) float32, pixel i's missing samples' (u at rotate_y = 0, v) in its first
+    count[i] slots (in their order; zeros beyond), from their directions (M, S, 3) and ``mask``."""
+    m, samples = np.asarray(mask).shape[0], dirs.shape[1]
+    d = np.asarray(dirs, np.float64).reshape(-1, 3)
+    u = np.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi)
+    u = u - np.floor(u)
+    v = np.arccos(np.clip(d[:, 1], -1.0, 1.0)) / np.pi
+    both = np.stack([u, v], 1).astype(np.float32).reshape(m, samples, 2)
+    missing = ((np.asarray(mask, np.uint64)[:, None] >> np.arange(samples, dtype=np.uint64)) & np.uint64(1)) > 0
+    order = np.argsort(~missing, axis=1, kind="stable")               # the missing ones first, in order
+    uv = np.take_along_axis(both, order[:, :, None], axis=1)
+    count = missing.sum(1).astype(np.uint32)
+    uv[np.arange(samples)[None, :] >= count[:, None]] = 0.0
+    return count, np.ascontiguousarray(uv)
+
+
+def background_bilinear_reference(pixels: np.ndarray, rotate_y: float, count: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """numpy twin of ``frame_background_bilinear``: (M, 3) float32, (1 / S) sum over each pixel's
+    count[i] missing samples uv (M, S, 2) (:func:`background_uv`) of the map (H, W, 3) turned to
+    ``rotate_y``, filtered bilinearly (:func:`wavlight.envmap.bilinear`; the kernel's float32 steps)."""
+    m, samples = uv.shape[:2]
+    u = uv[:, :, 0].reshape(-1) + np.float32(rotate_y / 360.0)
+    u = u - np.floor(u)
+    seen = bilinear(pixels, u, uv[:, :, 1].reshape(-1)).reshape(m, samples, 3)
+    kept = np.arange(samples)[None, :] < np.asarray(count)[:, None]
+    return (seen * kept[..., None]).sum(1, dtype=np.float32) * np.float32(1.0 / samples)
+
+
 def background_cl(env_buffer, env_width: int, rotate_y: float, buffers, count: int, samples: int, out,
                   queue=None) -> None:
     """Enqueue the kernel ``frame_background``: the map (a device buffer, ``env_width`` columns)
@@ -205,6 +239,21 @@ def background_cl(env_buffer, env_width: int, rotate_y: float, buffers, count: i
             np.int32(env_width), np.float32(rotate_y / 360.0), n, seg, u0, row, pixel, env_buffer, out)
 
 
+def background_bilinear_cl(env_buffer, env_width: int, env_height: int, rotate_y: float, buffers, count: int,
+                           samples: int, out, queue=None) -> None:
+    """Enqueue the kernel ``frame_background_bilinear``: as :func:`background_cl`, the map filtered
+    bilinearly; ``buffers``: the device buffers of :func:`background_uv`'s count and uv, and the
+    pixels' indices in the frame (M,) uint32."""
+    if count:
+        queue = queue or cl.thread_queue()
+        prog = cl.program("relight.cl", SLOTS=-(-samples // cl.LANES) * cl.LANES)
+        n, uv, pixel = buffers
+        cl.kernel(prog, "frame_background_bilinear")(
+            queue, (cl.items(count),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(samples),
+            np.float32(1.0 / samples), np.int32(env_width), np.int32(env_height), np.float32(rotate_y / 360.0),
+            n, uv, pixel, env_buffer, out)
+
+
 class DeviceFrame:
     """What the frames of one bake keep on the device: its entries (:class:`DeviceEntries`), the
     pixels' albedo, the background's samples (per map height) and the map (per Environment),
@@ -217,7 +266,7 @@ class DeviceFrame:
         self.albedo = cl.to_device(np.ascontiguousarray(s["albedo"], np.float32))
         self._dirs, self._mask = s["background_dir"], s["background_mask"]
         self._pixel = cl.to_device(np.ascontiguousarray(s["background_pixel"], np.uint32)) if len(self._mask) else None
-        self._bg = self._env = None
+        self._bg = self._env = self._uv = None
 
     def background_buffers(self, env_height: int):
         """The device buffers of :func:`background_samples` for maps of ``env_height`` rows (the
@@ -227,6 +276,13 @@ class DeviceFrame:
             self._bg = (env_height, (cl.to_device(bg.count), cl.to_device(bg.seg), cl.to_device(bg.u0),
                                      cl.to_device(bg.row), self._pixel))
         return self._bg[1]
+
+    def bilinear_buffers(self):
+        """The device buffers of :func:`background_uv` (made once), and the pixels' indices."""
+        if self._uv is None:
+            count, uv = background_uv(self._dirs, self._mask)
+            self._uv = (cl.to_device(count), cl.to_device(uv), self._pixel)
+        return self._uv
 
     def env_buffer(self, environment):
         """The map on the device, uploaded once per Environment."""
@@ -242,9 +298,15 @@ class DeviceFrame:
         self.entries.image(columns, values, self.albedo, self.blocks_x, self.width, self.height, out, queue)
         return out
 
-    def background(self, out, environment, rotate_y: float, queue=None) -> None:
-        """Enqueue the background's lookup (:func:`background_cl`) into the frame buffer ``out``."""
-        if len(self._mask):
+    def background(self, out, environment, rotate_y: float, queue=None, background: str = "nearest") -> None:
+        """Enqueue the background's lookup (:func:`background_cl`, or :func:`background_bilinear_cl`
+        with ``background="bilinear"``) into the frame buffer ``out``."""
+        if not len(self._mask):
+            return
+        if background == "bilinear":
+            background_bilinear_cl(self.env_buffer(environment), environment.width, environment.height, rotate_y,
+                                   self.bilinear_buffers(), len(self._mask), self.samples, out, queue)
+        else:
             background_cl(self.env_buffer(environment), environment.width, rotate_y,
                           self.background_buffers(environment.height), len(self._mask), self.samples, out, queue)
 

@@ -17,7 +17,10 @@ flags that set its factor; the other factors' flags are refused on its bakes, :m
 sequence of frames: ``turntable``, ``orbit``; an object's turn about +Y has none on the command
 line). A state is a dict of the factor's values in the library's terms (a lighting: ``env``,
 ``rotate_y``, ``scale``, ``terms``, ``priority``; an object: ``translate``, ``rotate``; a camera:
-``eye``, ``target``, ``fov``, ``width``, ``height`` and the approximate frame's settings).
+``eye``, ``target``, ``fov``, ``width``, ``height`` and the approximate frame's settings). What
+camera samples that miss see (``background``, :data:`wavlight.options.BACKGROUND`: the map's
+nearest texel or its bilinear filter; the lighting is the map's texels either way) is a lighting or
+a view bake's Frames' own, given to :func:`frames_for`.
 
 The viewer's side (:mod:`.viewer`): :meth:`Frames.limits` (what a page may ask for, a
 :mod:`.viewstate` limits type), :meth:`Frames.page_config` (the page's controls), a page's state
@@ -48,6 +51,9 @@ from .viewstate import (DISTANCE_FACTORS, ELEVATION_LIMIT, VIEW_PREVIEW_PIXELS, 
 LIGHTING_FLAGS = ("env", "rotate_y", "scale", "terms", "priority", "turntable")
 OBJECT_FLAGS = ("translate", "rotate")
 VIEW_FLAGS = ("eye", "target", "fov", "width", "height", "orbit", "refine", "mass", "mode", "supersample", "tau")
+#: the flag of what camera samples that miss see: a lighting or a view bake's (an object bake's
+#: background is its static image's, rendered at the bake)
+BACKGROUND_FLAGS = ("background",)
 #: the approximate frame's settings of a view bake (view.still_settings)
 APPROXIMATE = ("refine", "mass", "mode", "supersample", "tau")
 #: a bake that varies an object: samples per pixel of the frame drawn while a slider is held
@@ -88,15 +94,17 @@ class Frames:
     page_keys: tuple = ()
     shown_keys: tuple = ()
 
-    def __init__(self, transfer, scene=None):
+    def __init__(self, transfer, scene=None, background: str = FRAME["background"].default):
         self.transfer = transfer
         self.given_scene = scene
+        #: what camera samples that miss see (FRAME["background"]; an object bake's is its image's)
+        self.background = FRAME["background"].check(background, "relight.frames")
 
     # -- `wavlight frame`
     @classmethod
     def refuse_held(cls, path, settings) -> None:
         """A WavlightError (one line) for a flag of a factor the bake at ``path`` holds fixed."""
-        for key in LIGHTING_FLAGS + OBJECT_FLAGS + VIEW_FLAGS:
+        for key in LIGHTING_FLAGS + OBJECT_FLAGS + VIEW_FLAGS + BACKGROUND_FLAGS:
             if key not in cls.flags and settings.get(key) is not None:
                 raise WavlightError(f"{path}: this bake varies {cls.fixed}; {FRAME[key].flag} does not apply "
                                     f"(bake with --vary {_FACTOR_OF_FLAG[key]})")
@@ -170,7 +178,7 @@ class Frames:
 
     def for_converge(self):
         """A Frames of the same factor on a copy of the bake (the converge thread's)."""
-        return type(self)(self.transfer.copy(), self.scene_for_converge())
+        return type(self)(self.transfer.copy(), self.scene_for_converge(), background=self.background)
 
     def scene_for_converge(self):
         return self.given_scene
@@ -194,14 +202,14 @@ class LightingFrames(Frames):
     same lighting pays only for its passes)."""
 
     factor = "lighting"
-    flags = LIGHTING_FLAGS
+    flags = LIGHTING_FLAGS + BACKGROUND_FLAGS
     fixed = "the lighting (its objects and camera are fixed)"
     sequence_flag = "turntable"
     page_keys = ("rotate_y", "env")
     shown_keys = ("rotate_y", "terms", "env")
 
-    def __init__(self, transfer, scene=None, maps=()):
-        super().__init__(transfer, scene)
+    def __init__(self, transfer, scene=None, maps=(), background: str = FRAME["background"].default):
+        super().__init__(transfer, scene, background)
         self.maps = [("the baked map", None)]
         for m in maps:
             env = transfer.environment(m, 1.0)   # a one-line WavlightError for a bad file
@@ -226,7 +234,7 @@ class LightingFrames(Frames):
     def frame(self, state, detail=None):
         terms = state.get("terms") if detail is None else detail
         return self.transfer.frame_timed(state.get("env"), state.get("rotate_y"), state.get("scale", 1.0), terms,
-                                         state.get("priority"))
+                                         state.get("priority"), background=self.background)
 
     def turn(self, state, count):
         from .lighting import turntable
@@ -238,7 +246,7 @@ class LightingFrames(Frames):
         t = self.transfer
         return {"terms": stats.get("terms"), "entries_read": stats.get("entries_read"),
                 "texels": f"{1 << t.n_levels}x{1 << t.n_levels}", "priority": state.get("priority") or t.priority,
-                "rotate_y": stats.get("rotate_y"), "measured": t.measured,
+                "rotate_y": stats.get("rotate_y"), "background": self.background, "measured": t.measured,
                 "memory_bytes_per_frame": int((stats.get("entries_read") or 0)
                                               * (t.block ** 2 * t.bits // 8 + 20))}
 
@@ -266,12 +274,12 @@ class LightingFrames(Frames):
             from .converge import ConvergeFrames
 
             self._frames = ConvergeFrames(self.transfer, self.scene_for_converge())
-        frames = self._frames
+        frames, background = self._frames, self.background
 
         def unbiased(transfer=None, scene=None, env=None, rotate_y=None, scale=1.0, spp=2, seed=0, progress=None,
                      threads=None):
             frames.threads = threads if threads is not None else frames.threads
-            return frames.frame(env, rotate_y, scale, spp, seed, progress)
+            return frames.frame(env, rotate_y, scale, spp, seed, progress, background=background)
         return unbiased
 
     def arguments(self, state) -> dict:
@@ -279,7 +287,7 @@ class LightingFrames(Frames):
                 "rotate_y": state.get("rotate_y"), "scale": state.get("scale", 1.0)}
 
     def for_converge(self):
-        other = LightingFrames(self.transfer.copy(), self.scene_for_converge())
+        other = LightingFrames(self.transfer.copy(), self.scene_for_converge(), background=self.background)
         other.maps = self.maps
         return other
 
@@ -318,8 +326,8 @@ class ObjectFrames(Frames):
     page_keys = shown_keys = ("translate", "rotate_y")
     unbiased = True
 
-    def __init__(self, transfer, scene=None):
-        super().__init__(transfer, scene)
+    def __init__(self, transfer, scene=None, background: str = FRAME["background"].default):
+        super().__init__(transfer, scene, background)   # (not used: the static image's background)
         from .moving import MovingObject
 
         self.mover = MovingObject(transfer, scene)
@@ -414,16 +422,16 @@ class CameraFrames(Frames):
     :meth:`ViewFrames.converge`."""
 
     factor = "view"
-    flags = VIEW_FLAGS
+    flags = VIEW_FLAGS + BACKGROUND_FLAGS
     fixed = "the view (its lighting and objects are fixed)"
     sequence_flag = "orbit"
     page_keys = shown_keys = ("azimuth", "elevation", "distance")
 
-    def __init__(self, transfer, scene=None):
-        super().__init__(transfer, scene)
+    def __init__(self, transfer, scene=None, background: str = FRAME["background"].default):
+        super().__init__(transfer, scene, background)
         from .view import ViewFrames
 
-        self.views = ViewFrames(transfer, scene)
+        self.views = ViewFrames(transfer, scene, background=self.background)
         self.given_scene = self.views.scene
 
     def state_from(self, settings) -> dict:
@@ -475,7 +483,8 @@ class CameraFrames(Frames):
                 "texels": f"{1 << self.transfer.n_levels}x{1 << self.transfer.n_levels}",
                 "timings": {k: round(v, 6) for k, v in stats.items() if k.endswith("_seconds")},
                 "cache_points_shaded": stats.get("cache_points_shaded"),
-                "nodes_per_point": stats.get("nodes_per_point"), "model": self.transfer.header.get("model")}
+                "nodes_per_point": stats.get("nodes_per_point"), "model": self.transfer.header.get("model"),
+                "background": self.background}
 
     # -- the viewer
     def limits(self, converge):
@@ -519,22 +528,24 @@ class CameraFrames(Frames):
                 "height": state["height"]}
 
     def for_converge(self):
-        return CameraFrames(self.transfer.copy(), self.views.scene)
+        return CameraFrames(self.transfer.copy(), self.views.scene, background=self.background)
 
 
 #: the type of each factor a bake may vary (relight.settings BAKE["vary"])
 FRAMES = {"lighting": LightingFrames, "object": ObjectFrames, "view": CameraFrames}
 _FACTOR_OF_FLAG = {**{k: "lighting" for k in LIGHTING_FLAGS}, **{k: "object" for k in OBJECT_FLAGS},
-                   **{k: "view" for k in VIEW_FLAGS}}
+                   **{k: "view" for k in VIEW_FLAGS}, **{k: "lighting" for k in BACKGROUND_FLAGS}}
 
 
-def frames_for(transfer, scene=None, maps=()) -> Frames:
+def frames_for(transfer, scene=None, maps=(), background: str = FRAME["background"].default) -> Frames:
     """The frames of ``transfer`` by the factor it varies (:attr:`Transfer.varies`); ``scene``: the
     scene it was baked from (default: the file the bake names); ``maps``: other maps of a lighting
-    bake (an object or a view bake's lighting is fixed: a one-line WavlightError)."""
+    bake (an object or a view bake's lighting is fixed: a one-line WavlightError); ``background``:
+    what camera samples that miss see in a lighting or a view bake's frames (nearest or bilinear;
+    an object bake's background is its static image's)."""
     kind = FRAMES[transfer.varies]
     if kind is not LightingFrames:
         if len(maps):
             raise WavlightError(f"{transfer.path}: this bake varies {kind.fixed}: no other map applies")
-        return kind(transfer, scene)
-    return kind(transfer, scene, maps)
+        return kind(transfer, scene, background=background)
+    return kind(transfer, scene, maps, background=background)

@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import bsdfs, rng
-from ..envmap import luminance
+from ..envmap import bilinear, luminance
 from ..errors import ArgumentError, WavlightError, check_number
 from ..haar.tree import morton_index
 from ..scene import check_scene, load_scene
@@ -135,6 +135,7 @@ class TexelLight:
         leaf_angles = lighting.texel_solid_angles(top)[:, None]
         masses = luminance(rgb) * leaf_angles                                          # (M, M)
         self.n, self.top, self.k = n_levels, top, 1 << (top - n_levels)
+        self.rotate_y = float(rotate_y)
         side, k = 1 << n_levels, self.k
         self.rgb = rgb
         self.texel_angles = lighting.texel_solid_angles(n_levels)
@@ -269,7 +270,8 @@ class TexelLight:
         keys = (offset | cdf.view(np.uint32).astype(np.int64)).reshape(-1)
         guide = np.searchsorted(keys, (offset | cells.view(np.uint32).astype(np.int64)).reshape(-1), side="right")
         guide = (guide.reshape(texels, kk + 1) - np.arange(texels)[:, None] * kk).astype(np.uint32)
-        return {"levels": self.n, "top": self.top, "kbits": self.top - self.n, "map_width": w,
+        return {"levels": self.n, "top": self.top, "kbits": self.top - self.n, "map_width": w, "map_height": h,
+                "map_shift": np.float32(self.rotate_y / 360.0),
                 "leaf_cdf": cdf.reshape(-1), "texel_total": np.ascontiguousarray(total),
                 "leaf_guide": guide.reshape(-1),
                 "texel_cdf": np.cumsum(self.texel_mass).astype(np.float32), "columns": columns, "rows": rows,
@@ -284,6 +286,15 @@ class TexelLight:
             return self.rgb[b, a]
         row = np.where(lower, self.rows[1, b], self.rows[0, b])
         return self.map_rgb[row, np.where(right, self.cols[1, a], self.cols[0, a])]
+
+    def background(self, uv, background: str = "nearest"):
+        """(N, 3): what camera rays that miss see at points uv of the world-frame square: the map
+        pixel (:meth:`radiance`), or with ``background="bilinear"`` the turned map filtered
+        bilinearly (:func:`wavlight.envmap.bilinear`, the kernel's float32 steps)."""
+        if background != "bilinear":
+            return self.radiance(uv)
+        u = np.asarray(uv[:, 0], np.float32) + np.float32(self.rotate_y / 360.0)
+        return bilinear(self.map_rgb, u - np.floor(u), uv[:, 1]).astype(np.float64)
 
     def _texel(self, uv):
         side = 1 << self.n

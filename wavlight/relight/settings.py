@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ..display import DISPLAY
-from ..options import FOV, HEIGHT, SEED, WIDTH, Option, markdown_table
+from ..options import BACKGROUND, FOV, HEIGHT, SEED, WIDTH, Option, markdown_table
 from .lighting import MAX_LEVELS, MAX_TERMS, PRIORITIES
 from .store import ENTRY_DTYPES, MAX_SPP, VARIES
 
@@ -85,6 +85,7 @@ FRAME = {o.key: o for o in (
     Option("rotate_y", float, "Rotation of the map about +Y, degrees, absolute as the scene's rotate_y.",
            default_doc="the scene's", metavar="DEG"),
     Option("scale", float, "Radiance scale.", default=1.0, lo=0.0, hi=1e30),
+    replace(BACKGROUND, help=BACKGROUND.help + " Frames of a lighting or a view bake."),
     Option("terms", int, "Lighting terms K kept.", default_doc="the bake's choice", lo=1, hi=BAKE["terms"].hi),
     Option("priority", str, "How the K terms are chosen.", default_doc="the bake's", values=PRIORITIES),
     Option("turntable", int, "N frames of a full turn about +Y into the folder -o DIR (PNG; and an animated PNG, "
@@ -138,6 +139,9 @@ VIEWER = {o.key: o for o in (
            "(repeatable; the baked map is always the first).",
            default=(), default_doc="the baked map alone", flag_name="--env", metavar="FILE",
            repeatable=True),
+    replace(BACKGROUND, default="bilinear",
+            help=BACKGROUND.help + " A bake that varies the lighting or the view (an object bake shows its static "
+            "image's)."),
     Option("port", int, "The port on 127.0.0.1 (0: a free one).", default=0, lo=0, hi=65535),
     Option("scene", str, "The scene the bake was made from, where it is not at the path the bake recorded (converge; "
            "a bake with --vary object or --vary view needs it for every frame).",

@@ -23,7 +23,8 @@ from ..atomic import atomic_write, size_is
 from ..envmap import Environment, read_image
 from ..errors import ArgumentError, WavlightError, check_degrees, shown
 from . import lighting, store
-from .frame import DeviceFrame, background_lookup, background_reference, image_reference
+from .frame import (DeviceFrame, background_bilinear_reference, background_lookup, background_reference,
+                    background_uv, image_reference)
 from .settings import FRAME
 
 MAX_TERMS = FRAME["terms"].hi
@@ -187,14 +188,16 @@ class Transfer:
 
     # -- frames
     def frame(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, terms=None, priority=None,
-              backend: str = "opencl") -> np.ndarray:
+              backend: str = "opencl", background: str = FRAME["background"].default) -> np.ndarray:
         """(H, W, 3) float32: the frame under ``env`` (default: the scene's map) turned to
         ``rotate_y`` degrees about +Y (absolute, as the scene's rotate_y; default the scene's),
-        times ``scale``, from ``terms`` lighting coefficients (default: the bake's choice)."""
-        return self.frame_timed(env, rotate_y, scale, terms, priority, backend)[0]
+        times ``scale``, from ``terms`` lighting coefficients (default: the bake's choice); where
+        camera samples missed, the map's nearest texels or (``background="bilinear"``) its
+        bilinear filter."""
+        return self.frame_timed(env, rotate_y, scale, terms, priority, backend, background)[0]
 
     def frame_timed(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, terms=None, priority=None,
-                    backend: str = "opencl"):
+                    backend: str = "opencl", background: str = FRAME["background"].default):
         """The frame and its timings, the terms, the entries read and the rotation (degrees, reduced
         modulo 360). Timings, seconds: lighting (the turned map's texels and their Haar
         coefficients), terms (the selection of K), product (the sparse product times the albedo),
@@ -207,6 +210,7 @@ class Transfer:
         if rotate_y is not None:
             rotate_y = check_degrees(where, "rotate_y", rotate_y)
         scale = FRAME["scale"].check(scale, where)
+        background = FRAME["background"].check(background, where)
         terms = self.terms if terms is None else FRAME["terms"].check(terms, where)
         priority = self.priority if priority is None else FRAME["priority"].check(priority, where)
         if backend not in ("opencl", "numpy"):
@@ -224,7 +228,7 @@ class Transfer:
             image = image_reference(self._s["offsets"], self._s["entry_scale"], self._s["entry_data"], columns, values,
                                     self._s["albedo"], self.blocks[0])
             t3 = time.perf_counter()
-            self._add_background(image, environment, rot)
+            self._add_background(image, environment, rot, background)
             t_bg = time.perf_counter()
         else:
             device = self._frame_device()
@@ -232,7 +236,7 @@ class Transfer:
             out = device.product(columns, values, queue)
             queue.finish()
             t3 = time.perf_counter()
-            device.background(out, environment, rot, queue)
+            device.background(out, environment, rot, queue, background)
             queue.finish()
             t_bg = time.perf_counter()
             image = device.read(out, queue)
@@ -257,10 +261,15 @@ class Transfer:
             self._device = DeviceFrame(self._s, self.width, self.height, self.blocks[0], self.spp)
         return self._device
 
-    def _add_background(self, image: np.ndarray, environment: Environment, rotate_y: float) -> None:
+    def _add_background(self, image: np.ndarray, environment: Environment, rotate_y: float,
+                        background: str = "nearest") -> None:
         """numpy: the environment where the camera samples missed, added to ``image`` (H, W, 3)."""
         pixels = self._s["background_pixel"]
-        if len(pixels):
+        if len(pixels) and background == "bilinear":
+            count, uv = background_uv(self._s["background_dir"], self._s["background_mask"])
+            seen = background_bilinear_reference(environment.pixels, rotate_y, count, uv)
+            image.reshape(-1, 3)[np.asarray(pixels, np.int64)] += seen
+        elif len(pixels):
             u0, row = self._background_lookup(environment.height)
             seen = background_reference(environment.pixels, rotate_y, self._s["background_mask"], u0, row)
             image.reshape(-1, 3)[np.asarray(pixels, np.int64)] += seen

@@ -65,7 +65,8 @@ max(1, sqrt(phi / mass)) rounded up to a power of two (docs/decisions/view-walk-
   ``tau`` = 0 keeps the baked cosine (rho = 1). lambert pixels take the scaling coefficient
   where rho is constant (tau = 0, or n along m), and walk otherwise.
 
-Pixels whose ray misses see the environment (its nearest texel, :meth:`wavlight.envmap.Environment.eval`).
+Pixels whose ray misses see the environment (its nearest texel, :meth:`wavlight.envmap.Environment.eval`;
+with ``background="bilinear"`` its filter, :meth:`~wavlight.envmap.Environment.eval_background`).
 
 On the device (backend ``opencl``) a frame after its camera rays is three kernels: ``view_lookup``
 (per ray its three cache points and weights, numpy twin :meth:`ViewFrames.hit_points`, and a
@@ -672,8 +673,9 @@ class FrameDevice:
         self.map_from_world = cl.to_device(np.ascontiguousarray(env.map_from_world, self.wide).reshape(-1))
         self.cos_crease = np.float32(np.cos(np.radians(CREASE_DEGREES)))
         self._zeros = np.zeros(self.points, np.uint8)
+        bilinear = {"BACKGROUND_BILINEAR": 1} if env.background == "bilinear" else {}
         self.program = cl.program("relight_view.cl", QBITS=device.entries.bits, POINTS=POINTS, K=1,
-                                  MASS_STEPS=MASS_STEPS)
+                                  MASS_STEPS=MASS_STEPS, **bilinear)
 
     def lookup(self, prim, u, v, d, queue):
         """Launch ``view_lookup`` on camera rays (prim (N,) int32, -1 a miss; embree's u, v; unit
@@ -908,7 +910,8 @@ class ViewFrames:
     """The frames of a view bake: its scene (reloaded and checked against the bake), tracer,
     cache and device entries."""
 
-    def __init__(self, transfer, scene=None):
+    def __init__(self, transfer, scene=None, background: str = FRAME["background"].default):
+        background = FRAME["background"].check(background, "relight.ViewFrames")
         varies = transfer.varies
         if varies != "view":
             raise WavlightError(f"{transfer.path}: this bake varies the {'lighting' if varies == 'lighting' else 'object'}"
@@ -937,7 +940,8 @@ class ViewFrames:
         self.face_normal = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         self.face_normal32 = self.face_normal.astype(np.float32)
         self.normal32 = self.normal.astype(np.float32)
-        self.environment = self.scene.environment
+        #: the lighting, and what camera rays that miss see (``background``: nearest or bilinear)
+        self.environment = self.scene.environment.with_background(background)
         self._device = None
         self._frame_device = None
         self._centres = {}
@@ -1129,7 +1133,7 @@ class ViewFrames:
                 shaded = len(ok)
             if not on_device:
                 miss = np.flatnonzero(prim < 0)
-                rays[pix[miss]] = self.environment.eval(d[miss].astype(np.float64))
+                rays[pix[miss]] = self.environment.eval_background(d[miss].astype(np.float64))
             if sub > 1:
                 image[first:first + chunk] = rays.reshape(chunk, sub, 3).mean(1)
             te = time.perf_counter()

@@ -202,6 +202,8 @@ class ViewConverge:
             raise ArgumentError(f"relight.view: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         t0 = time.perf_counter()
         self.frames, self.inside, self.backend, self.threads = frames, inside, backend, threads
+        #: what camera samples that miss see (the ViewFrames' background: nearest or bilinear)
+        self.background = frames.environment.background
         self.levels = inside.n
         sc = frames.scene
         self.lobe_width = bsdfs.lobe_width(sc.material_kind, sc.material_param).astype(np.float32)
@@ -239,8 +241,9 @@ class ViewConverge:
         self.setup_seconds = time.perf_counter() - t0
 
     def program(self, slots: int, candidates: int, control: bool):
-        """kernels/converge.cl's shade kernel for this bake's product levels and scene."""
-        return kernels.program(self.levels, self.bits, self.shade.kinds, slots, candidates, control, LATTICE)
+        """kernels/converge.cl's shade kernel for this bake's product levels, scene and background."""
+        return kernels.program(self.levels, self.bits, self.shade.kinds, slots, candidates, control, LATTICE,
+                               background=self.background)
 
     def use_camera(self, key):
         """Keep the trees of camera ``key`` (eye, target, fov, width, height): another camera's
@@ -381,7 +384,7 @@ class ViewConverge:
                     direct, origin, wi, value = shade_reference(
                         scene, tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], self.inside,
                         (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
-                        bary=bary)
+                        bary=bary, background=self.background)
                 v, traced = visible_sum(tracer, direct, origin, wi, value)
                 rays += traced
                 hit = prim >= 0
@@ -413,8 +416,8 @@ class ViewConverge:
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
                  "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,
                  "eye": np.asarray(cam.eye).tolist(), "target": np.asarray(cam.target).tolist(), "fov": cam.fov_y,
-                 "product_levels": self.levels, "slots": slots, "candidates": candidates,
-                 "resampled_share": round(totals["resampled"] / totals["hits"], 4) if totals["hits"] else 0.0,
+                 "background": self.background, "product_levels": self.levels, "slots": slots,
+                 "candidates": candidates, "resampled_share": round(totals["resampled"] / totals["hits"], 4) if totals["hits"] else 0.0,
                  "pass_spp": k_pass, "pass_samples": max_tile * k_pass,
                  "tiles": len(tiles), "tiles_kept": totals["kept"], "kept_tree_bytes": self.kept_bytes,
                  "trees_thread_seconds": round(totals["trees_seconds"], 4), "backend": self.backend,

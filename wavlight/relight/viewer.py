@@ -176,13 +176,18 @@ class Viewer:
     converge(transfer=, scene=, env=, rotate_y=, scale=, spp=, seed=), an object bake's
     converge(translate=, rotate=, spp=, seed=), a view bake's converge(eye=, target=, fov=, width=,
     height=, spp=, seed=), each returning (image, stderr) or a RenderResult (and given ``progress``
-    and ``threads`` where it takes them). ``preview_pixels``: the most pixels of a view bake's
-    frames while the camera is dragged (:func:`preview_size`)."""
+    and ``threads`` where it takes them; a lighting bake's ``background`` too). ``preview_pixels``:
+    the most pixels of a view bake's frames while the camera is dragged (:func:`preview_size`).
+    ``background``: what the camera samples that miss see in a lighting or view bake's frames and
+    converged frames (default bilinear: the viewer's picture; the lighting is the map's texels
+    either way; an object bake's background is its static image's)."""
 
     def __init__(self, transfer, maps=VIEWER["maps"].default, converge=_UNSET, scene=None,
-                 preview_pixels: int = VIEW_PREVIEW_PIXELS):
+                 preview_pixels: int = VIEW_PREVIEW_PIXELS, background: str = VIEWER["background"].default):
         self.transfer = transfer
-        self.frames = frames_for(transfer, scene, maps)
+        #: what the camera samples that miss see in a lighting or a view bake's frames (VIEWER["background"])
+        self.background = VIEWER["background"].check(background, "relight.Viewer")
+        self.frames = frames_for(transfer, scene, maps, background=self.background)
         self.varies = self.frames.factor
         self.preview_pixels = int(preview_pixels)
         self.converge = self.frames.estimator if converge is _UNSET else converge
@@ -193,6 +198,7 @@ class Viewer:
         except (TypeError, ValueError):
             takes = {}
         self._converge_progress, self._converge_threads = "progress" in takes, "threads" in takes
+        self._converge_background = "background" in takes and self.varies == "lighting"
         self.limits = self.frames.limits(self.converge is not None)
         self.state_keys = (*self.frames.shown_keys, "exposure", "tonemap")
         self._page = resources.files(__package__).joinpath("viewer.html").read_text(encoding="utf-8")
@@ -385,6 +391,8 @@ class Viewer:
                 if stop.is_set():
                     raise _Stopped()
             kwargs["progress"] = progress
+        if self._converge_background:   # a given estimator of a lighting bake that takes it
+            kwargs["background"] = self.background
         frames = self._converge_side()
         estimator = None if self._default_converge else self.converge
         result = frames.estimate(estimator, frames.from_page(state), spp, seed, **kwargs)
