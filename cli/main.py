@@ -194,7 +194,7 @@ def render(scene_file, demo, env, output, spp, strategy, width, height, seed, ba
         except wavlight.WavlightError as e:
             fail(e)
     if output is None:
-        output = os.path.splitext(os.path.basename(scene_file))[0] + ".png"
+        output = os.path.splitext(os.path.basename(scene_file.removeprefix("data:")))[0] + ".png"
     check_output(output, FORMATS)
     look = given({"exposure": exposure, "tonemap": tonemap})
     try:
@@ -209,7 +209,7 @@ def render(scene_file, demo, env, output, spp, strategy, width, height, seed, ba
         why = None if value is None else option.problem(value)
         if why:
             fail(f"{option.flag} {why}")
-    is_asset = wavlight.assets.has_materials(scene_file)
+    is_asset = wavlight.assets.renders_directly(scene_file)
     if env is not None and not is_asset:
         fail(f"--env applies to a mesh file rendered directly ({', '.join(wavlight.assets.SUFFIXES)}), not to "
              f"{scene_file}: a scene file names its map in [environment]")

@@ -232,6 +232,18 @@ def has_materials(path: str) -> bool:
     return str(path).lower().endswith(SUFFIXES)
 
 
+def renders_directly(reference: str) -> bool:
+    """Whether ``reference`` (a path, or ``data:NAME`` of wavlight.data) names a mesh file that
+    ``wavlight render`` renders directly: a .glb, .gltf or .obj file, or such a mesh asset."""
+    from . import data
+
+    reference = str(reference)
+    if reference.startswith(data.PREFIX):
+        found = data.registry().get(reference[len(data.PREFIX):])
+        return found is not None and found.kind == "mesh" and has_materials(found.file)
+    return has_materials(reference)
+
+
 def _trimesh_scene(path: str):
     import trimesh
 

@@ -814,8 +814,14 @@ def load_asset(path, environment=None, width=None, height=None) -> Scene:
     ``environment`` (a file or ``data:NAME``, relative to the current folder; the procedural sky
     where None), seen by the file's glTF camera where it has one, else by a camera that frames
     its bounds (:func:`wavlight.assets.frame_bounds`, the default field of view). Errors name the
-    file (SceneError)."""
-    path = os.path.abspath(os.fspath(path))
+    file (SceneError). ``path`` may name a mesh asset of wavlight.data (``data:spot``)."""
+    path = os.fspath(path)
+    if path.startswith(data.PREFIX):
+        try:
+            path = data.resolve(path, kind="mesh")
+        except WavlightError as e:
+            raise SceneError(path, "", str(e)) from None
+    path = os.path.abspath(path)
     problem = file_problem(path)
     if problem:
         raise SceneError(path, "", problem)
