@@ -10,3 +10,14 @@ from .experiment import format_summary, run_experiment, run_suite
 from .spec import load_spec
 
 __all__ = ["run_experiment", "run_suite", "format_summary", "load_spec"]
+
+#: submodules imported on first use as attributes (``wavlight.evaluation.stability``): the
+#: stability suite and the peers pull in what an experiment does not need
+_LAZY = ("charts", "metrics", "peers", "records", "stability")
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'wavlight.evaluation' has no attribute {name!r}")
