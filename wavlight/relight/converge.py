@@ -334,29 +334,31 @@ class ConvergeFrames:
         return made, False
 
     def prepare(self, levels: int = PRODUCT_LEVELS, slots: int = SLOTS, candidates: int = CANDIDATES,
-                control: bool = True) -> None:
+                control: bool = True, background: str = FRAME["background"].default) -> None:
         """Make now what the first frame would (its kernels' program and every tile's footprint
         spread, which do not depend on the lighting), so that it pays only for its lighting and
-        passes: the viewer prepares its converge thread's frames when a page opens."""
+        passes: the viewer prepares its converge thread's frames when a page opens. ``background``:
+        the frames' (their program differs by it)."""
         prog = None
         if self.backend == "opencl":
-            prog = self.program(min(self.transfer.n_levels, levels), slots, candidates, bool(control))
+            prog = self.program(min(self.transfer.n_levels, levels), slots, candidates, bool(control),
+                                FRAME["background"].check(background, "relight.converge"))
         if candidates:
             for tile in self.tiles:
                 self.spread(tile, prog)
 
     def warm(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, levels: int = PRODUCT_LEVELS,
-             stop=None) -> int:
+             stop=None, background: str = FRAME["background"].default) -> int:
         """Make the lighting's tables and every tile's product trees (kept while they fit) before a
         frame asks for them, tile by tile until ``stop()`` is true: the viewer's converge thread
-        warms the lighting of a page at rest, so that its first pass pays only for its samples.
-        Returns the tiles whose trees are kept."""
+        warms the lighting of a page at rest, so that its first pass pays only for its samples
+        (with the program of its ``background``). Returns the tiles whose trees are kept."""
         tr = self.transfer
         m = min(tr.n_levels, levels)
         state = self.lighting(env, tr.scene_rotate_y if rotate_y is None else float(rotate_y), scale, m)
         if self.backend != "opencl":
             return 0
-        prog = self.program(m, SLOTS, CANDIDATES, True)
+        prog = self.program(m, SLOTS, CANDIDATES, True, FRAME["background"].check(background, "relight.converge"))
         for i, tile in enumerate(self.tiles):
             if stop is not None and stop():
                 break

@@ -304,11 +304,12 @@ class LightingFrames(Frames):
 
     def prepare(self):
         self.estimator()
-        self._frames.prepare()
+        self._frames.prepare(background=self.background)
 
     def warm(self, state, stop=None):
         self.estimator()
-        self._frames.warm(state.get("env"), state.get("rotate_y"), state.get("scale", 1.0), stop=stop)
+        self._frames.warm(state.get("env"), state.get("rotate_y"), state.get("scale", 1.0), stop=stop,
+                          background=self.background)
 
     def close(self):
         if self._frames is not None:
