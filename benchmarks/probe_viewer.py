@@ -237,12 +237,12 @@ def message_cases():
 
 
 async def probe_messages(child, rows):
-    async with aiohttp.ClientSession() as session:
+    async with aiohttp.ClientSession() as client:
         for cls, case, payload, expected in message_cases():
             t0 = time.monotonic()
             why = None
             try:
-                ws = await session.ws_connect(child.url + "ws", max_msg_size=0)
+                ws = await client.ws_connect(child.url + "ws", max_msg_size=0)
                 await ws.send_json({"type": "state", "rotate_y": 1})
                 await frame(ws)
                 if isinstance(payload, bytes):
@@ -417,7 +417,7 @@ async def probe_idle(child, rows, limit=60.0):
 
 
 async def probe_many_websockets(child, rows):
-    async with aiohttp.ClientSession() as session, session.ws_connect(child.url + "ws") as page:
+    async with aiohttp.ClientSession() as client, client.ws_connect(child.url + "ws") as page:
         await page.send_json({"type": "state", "rotate_y": 1})
         await frame(page)
         for case, abrupt in (("300 opened and closed, 50 at a time", False),
@@ -435,7 +435,7 @@ async def probe_many_websockets(child, rows):
                         await reader.readuntil(b"\r\n\r\n")
                         writer.transport.abort()
                     else:
-                        ws = await session.ws_connect(child.url + "ws")
+                        ws = await client.ws_connect(child.url + "ws")
                         await ws.send_json({"type": "state", "rotate_y": i})
                         await ws.close()
                 except (aiohttp.ClientError, ConnectionError, asyncio.IncompleteReadError):
@@ -452,7 +452,7 @@ async def probe_many_websockets(child, rows):
 
 
 async def probe_converge(child, rows, factor=8.0):
-    async with aiohttp.ClientSession() as session, session.ws_connect(child.url + "ws") as b:
+    async with aiohttp.ClientSession() as client, client.ws_connect(child.url + "ws") as b:
         async def preview(i):
             t = time.perf_counter()
             await b.send_json({"type": "state", "rotate_y": 3 * i, "preview": True})
@@ -471,7 +471,7 @@ async def probe_converge(child, rows, factor=8.0):
             for _ in range(15):
                 unloaded.append(await preview(i))
                 i += 1
-            pages = [await session.ws_connect(child.url + "ws") for _ in range(n)]
+            pages = [await client.ws_connect(child.url + "ws") for _ in range(n)]
             reports = []
 
             async def converging(ws, k, reports=reports):
@@ -509,7 +509,7 @@ async def probe_descriptors(bake, tree, rows):
     child = Child(bake, tree, {"HTTP_IDLE_SECONDS": 300})
     held = []
     try:
-        async with aiohttp.ClientSession() as session, session.ws_connect(child.url + "ws") as page:
+        async with aiohttp.ClientSession() as client, client.ws_connect(child.url + "ws") as page:
             await page.send_json({"type": "state", "rotate_y": 1})
             await frame(page)
             fds = len(os.listdir(f"/proc/{child.proc.pid}/fd"))
