@@ -156,3 +156,18 @@ def test_the_points_kernel_matches_its_numpy_twin_with_textures(textured):
         ratio = want[17, where] / want[16, where]
         assert where.sum() > 30 and (ratio < 0.3).any() and (ratio > 0.9).any(), (where.sum(), ratio)
     assert np.all(want[16:19, ~hit] == 1.0)
+
+
+def test_the_kernel_frame_matches_the_numpy_frame_with_textures(textured):
+    """The same frame (same random numbers) with the kernels and with their numpy twins, the
+    textures read by both (the points shaded in full with their texture as the shade kernel's
+    tint; NumpyShader multiplies it into the albedo)."""
+    _, scene, tr = textured
+    translate, rotate = (0.2, 0.0, 0.6), [0.0, 1.0, 0.0, 30.0]
+    a = MovingObject(tr, scene).frame(translate, rotate, spp=8, seed=5)
+    b = MovingObject(tr, scene, backend="numpy").frame(translate, rotate, spp=8, seed=5)
+    assert a.stats["object_pixels"] == b.stats["object_pixels"] > 0
+    diff = np.abs(a.image - b.image).max(2)
+    assert (diff > 1e-3 * (1 + np.abs(b.image).max(2))).mean() < 0.03, diff.max()
+    var = (b.stderr ** 2).sum()
+    assert abs((a.image - b.image).sum()) < 0.5 * np.sqrt(var)

@@ -42,8 +42,9 @@ rows on a pool of threads. Base-colour textures (wavlight.textures, kernels/text
 where the albedo is: D's contributions take the albedo of the rest's hit times its texture there,
 and the points rendered in full take the texture of the rest's or the object's hit (its own
 faces' texture coordinates, :func:`object_face_uv`) into the shade kernel's ``tint``; the static
-image and the bake's albedo are rendered and baked with them. Every frame is unbiased: tests/relight/test_relight_moving.py
-checks it against ``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator
+image and the bake's albedo are rendered and baked with them. Every frame is unbiased:
+tests/relight/test_relight_moving.py (and test_relight_moving_textured.py) check it against
+``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator
 with the numpy twins (same random numbers).
 """
 from __future__ import annotations
