@@ -1045,7 +1045,7 @@ def test_view_limits_are_the_scene_cameras(serve_view, view_transfer):
 
 def _view_frames(transfer, scene):
     """The view frames the viewer shows: with its default background."""
-    from wavlight.relight.view import ViewFrames
+    from wavlight.relight.view_frames import ViewFrames
 
     return ViewFrames(transfer, scene, background=VIEWER["background"].default)
 

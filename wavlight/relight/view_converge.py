@@ -1,11 +1,11 @@
-"""The view bake's unbiased frame on the device (:meth:`wavlight.relight.view.ViewFrames.converge`;
+"""The view bake's unbiased frame on the device (:meth:`wavlight.relight.view_frames.ViewFrames.converge`;
 Chen & Gao sec. 2.2, eq. 6-8 with the view as the varying factor, sec. 4.3-4.4, eq. 12-25).
 
 Per tile of pixels (whole rows of the frame, at most TILE_PIXELS), the pixels' product trees:
 each pixel's centre ray is traced (embree), its three cache points and weights found
 (``view_lookup``, kernels/relight_view.cl), and kernel ``view_converge_trees``
 (kernels/relight_view_converge.cl, numpy twin :func:`trees_reference`) builds its tree on
-2^m x 2^m texels (m = min(n, wavlight.relight.view.PRODUCT_LEVELS)): the leaves H+_t gl_t with
+2^m x 2^m texels (m = min(n, wavlight.relight.view_frames.PRODUCT_LEVELS)): the leaves H+_t gl_t with
 H+_t = max(f_r Y(T1_t) / Y(R_t), 0), T1_t the blend of the points' transfer summed over the texel
 (the top-left 2^m x 2^m block of the bake's coefficients, eq. 13), f_r the mean of the BRDF at
 the centres of FR_POINTS x FR_POINTS parts of the texel for the pixel's face normal, view direction
@@ -70,7 +70,7 @@ TILE_PIXELS = 1 << 12
 #: nor the lighting bake's frames' (wavlight.relight.converge.CONVERGE_TILES)
 VIEW_TILES = 14 << 16
 BACKENDS = ("opencl", "numpy")
-#: cache points per block of the bake file (wavlight.relight.view.POINTS)
+#: cache points per block of the bake file (wavlight.relight.surface_cache.POINTS)
 POINTS = BLOCK * BLOCK
 
 
@@ -145,7 +145,7 @@ def part_directions(levels: int, parts: int) -> np.ndarray:
 def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
     """numpy twin of ``view_converge_trees`` (kernels/relight_view_converge.cl): for P centre
     rays (unit directions d (P, 3), faces prim (P,), -1 a miss, embree's u, v) of ``frames``
-    (a :class:`wavlight.relight.view.ViewFrames`) and the lighting inside the texels ``inside``
+    (a :class:`wavlight.relight.view_frames.ViewFrames`) and the lighting inside the texels ``inside``
     (a TexelLight of m levels): the product pyramids (P, tree_size(m)) float32 (row-major
     levels) of leaves max(f_r Y(T1_t), 0) / 4^m where gl_t > 0 (module docstring), and the
     relit values G (P, 3) float64 = sum_t (leaf_t / gl_t) R_t; f_r the mean over the centres of
@@ -190,7 +190,7 @@ def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
 # ----------------------------------------------------------------------------- the frames
 class ViewConverge:
     """Unbiased frames of one view bake (module docstring): ``frame(camera, width, height, spp,
-    seed, ...)``. ``frames``: its :class:`wavlight.relight.view.ViewFrames`; ``inside``: the
+    seed, ...)``. ``frames``: its :class:`wavlight.relight.view_frames.ViewFrames`; ``inside``: the
     bake's lighting inside the product's texels (a TexelLight); ``device`` and ``lookup``: the
     bake's entries on the device and the cache lookup's tables (its ViewDevice and FrameDevice,
     which the approximate frame uses too); ``backend="numpy"`` runs the
@@ -216,7 +216,7 @@ class ViewConverge:
             self.tree_cache_bytes = min(TREE_CACHE_BYTES, int(runtime_device.global_mem_size) // 4)
             if device is None or lookup is None:
                 raise ArgumentError("relight.ViewConverge: the opencl backend takes the bake's ViewDevice and "
-                                    "FrameDevice (wavlight.relight.view)")
+                                    "FrameDevice (wavlight.relight.view_walk)")
             self.device, self.lookup = device, lookup
             self.light = kernels.Lighting(inside.tables())
             self.shade = kernels.ShadeKernel(sc, frames.tracer, self.lobe_width)

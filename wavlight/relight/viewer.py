@@ -83,7 +83,7 @@ bake) follow the rule of any bad value: they are replaced by the bake's own (ign
 one-line note; a translation that is not three finite numbers becomes the object's own, a
 component outside its range is clamped.
 
-A bake that varies the view (``vary = "view"``, :mod:`wavlight.relight.view`). The page orbits
+A bake that varies the view (``vary = "view"``, :mod:`wavlight.relight.view_frames`). The page orbits
 the camera about the scene camera's target: dragging on the picture turns it (azimuth about the
 camera's up, elevation above the plane normal to it), the wheel or a slider sets the distance;
 the state is in the URL as ``/?azimuth=30&elevation=15&distance=4.2&exposure=0.5`` and starts
