@@ -558,7 +558,7 @@ def test_browser_bad_url_parameters_show_the_values_used(serve, page, transfer):
     assert pg.text_content("#terms_value") == "1"
     assert pg.input_value("#env") == "0"
     assert pg.text_content("#exposure_value").startswith("0 EV")
-    assert pg.evaluate("location.search") == f"?rotate_y={rot:g}&exposure=0&terms=1&env=0"
+    assert pg.evaluate("location.search") == f"?token={v.token}&rotate_y={rot:g}&exposure=0&terms=1&env=0"
     notes = pg.text_content("#notes").splitlines()
     assert len(notes) == 4 and any("rotate_y='abc'" in n for n in notes)
     assert pg.evaluate("viewer.errors") == 0 and pg.text_content("#status") == ""
@@ -884,7 +884,7 @@ def test_browser_object_sliders_url_and_frame_rate(serve_object, page):
     assert [pg.input_value(f"#translate_{a}") for a in "xyz"] == ["0.3", "0", "0.2"]
     assert pg.text_content("#rotate_y_value") == "45°" and pg.input_value("#rotate_y") == "45"
     assert "object rotation" in pg.text_content("label[for=rotate_y]")
-    assert pg.evaluate("location.search") == "?translate=0.3,0,0.2&rotate_y=45&exposure=0.5"
+    assert pg.evaluate("location.search") == "?token=" + v.token + "&translate=0.3,0,0.2&rotate_y=45&exposure=0.5"
     assert pg.evaluate("viewer.last.state") == {"translate": [0.3, 0, 0.2], "rotate_y": 45, "exposure": 0.5,
                                                 "tonemap": "clamp"}
     first = _pixel_sum(pg)
@@ -920,7 +920,7 @@ def test_browser_object_bad_parameters_show_the_values_used(serve_object, page):
     pg.goto(v.url + "&translate=1,nan&rotate_y=abc&exposure=inf&env=1&terms=5")
     _frames(pg, 1)
     default = ",".join(f"{x:g}" for x in lim.translate)
-    assert pg.evaluate("location.search") == f"?translate={default}&rotate_y={lim.rotate_y:g}&exposure=0"
+    assert pg.evaluate("location.search") == f"?token={v.token}&translate={default}&rotate_y={lim.rotate_y:g}&exposure=0"
     notes = pg.text_content("#notes").splitlines()
     assert len(notes) == 5 and any("translate='1,nan'" in n for n in notes)
     assert sum("does not apply" in n for n in notes) == 2
@@ -1166,7 +1166,7 @@ def _query(pg) -> dict:
 def test_browser_view_drag_orbits_the_camera_and_the_url_restores_it(serve_view, page):
     v, pg = _opened(serve_view, page, "?azimuth=30&elevation=15&distance=4.2&exposure=0.5")
     assert pg.is_visible("#azimuth") and pg.is_hidden("#rotate_y") and pg.is_hidden("#terms")
-    assert pg.evaluate("location.search") == "?azimuth=30&elevation=15&distance=4.2&exposure=0.5"
+    assert pg.evaluate("location.search") == "?token=" + v.token + "&azimuth=30&elevation=15&distance=4.2&exposure=0.5"
     assert pg.evaluate("viewer.last.state") == {"azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
                                                 "tonemap": "clamp"}
     assert (pg.input_value("#azimuth"), pg.input_value("#elevation")) == ("30", "15")
@@ -1218,7 +1218,7 @@ def test_browser_view_drag_orbits_the_camera_and_the_url_restores_it(serve_view,
 
 def test_browser_view_bad_parameters_show_the_values_used(serve_view, page):
     v, pg = _opened(serve_view, page, "?azimuth=-90&elevation=120&distance=nan&exposure=99&rotate_y=4&env=2")
-    assert pg.evaluate("location.search") == "?azimuth=270&elevation=89&distance=3.64&exposure=12"
+    assert pg.evaluate("location.search") == "?token=" + v.token + "&azimuth=270&elevation=89&distance=3.64&exposure=12"
     assert pg.text_content("#elevation_value") == "89°" and pg.input_value("#elevation") == "89"
     notes = pg.text_content("#notes").splitlines()
     assert len(notes) == 5 and sum("does not apply" in n for n in notes) == 2
