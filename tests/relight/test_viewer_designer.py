@@ -27,16 +27,16 @@ import pytest
 
 pytest.importorskip("aiohttp")
 
-import aiohttp  # noqa: E402
-import test_viewer  # noqa: E402
+import aiohttp
+import test_viewer
+from wavlight.cli.relight import frame as frame_command_line
 
-import wavlight  # noqa: E402
-from wavlight.cli.relight import frame as frame_command_line  # noqa: E402
-from wavlight.relight import uploads  # noqa: E402
-from wavlight.relight.converge import bake_hits  # noqa: E402
-from wavlight.relight.pictures import tone_map  # noqa: E402
-from wavlight.relight.viewer import Viewer  # noqa: E402
-from wavlight.relight.viewstate import orbit_eye  # noqa: E402
+import wavlight
+from wavlight.relight import uploads
+from wavlight.relight.converge import bake_hits
+from wavlight.relight.pictures import tone_map
+from wavlight.relight.viewer import Viewer
+from wavlight.relight.viewstate import orbit_eye
 
 bake_file, transfer, serve = test_viewer.bake_file, test_viewer.transfer, test_viewer.serve
 browser, page = test_viewer.browser, test_viewer.page

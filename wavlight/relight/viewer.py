@@ -124,7 +124,7 @@ from .pictures import ENCODINGS, JPEG_QUALITY, encode, message, png, tone_map
 from .progressive import PassSchedule, RunningMean
 from .reproduce import frame_command
 from .settings import OBJECT_FRAME_SPP, VIEWER
-from .uploads import MAP_EXTENSIONS, MAX_UPLOAD_BYTES, MAX_UPLOADED_MAPS, Refused, Uploads, shown_name
+from .uploads import MAP_EXTENSIONS, MAX_UPLOAD_BYTES, MAX_UPLOADED_MAPS, Refused, Uploads
 from .viewstate import (CAMERA_KEYS, DISTANCE_FACTORS, ELEVATION_LIMIT, EXPOSURE_RANGE, MAX_INTEGER_DIGITS,
                         MAX_MESSAGE_BYTES, MAX_MESSAGE_DEPTH, VIEW_PREVIEW_PIXELS, Limits, ObjectLimits, ViewLimits,
                         nesting_depth, orbit_angles, orbit_basis, orbit_eye, preview_size, preview_terms, read_message,
