@@ -398,3 +398,17 @@ def test_upload_names_are_shown_not_paths():
     with pytest.raises(uploads.Refused) as e:
         uploads.extension("map.exe")
     assert e.value.status == 415
+
+
+def test_the_maps_taken_from_pages_are_bounded(serve, bake_file, monkeypatch):
+    monkeypatch.setattr(test_viewer.viewer_module, "MAX_UPLOADED_MAPS", 1)
+    v = serve()
+    good = bake_file[1].read_bytes()
+
+    async def talk():
+        async with aiohttp.ClientSession() as client:
+            assert (await post(client, v, good, "one.exr"))[0] == 200
+            status, data = await post(client, v, good, "two.exr")
+            assert status == 409 and one_line(data["error"]) and "no more" in data["error"]
+    in_a_thread(talk)
+    assert v.limits.maps == 3 and os.listdir(v.uploads.folder) == []

@@ -26,7 +26,24 @@ object, of an unknown type, or binary gets a one-line error, and the socket stay
 it is written to stderr). Only what the websocket protocol itself forbids closes the socket, with
 the protocol's code: a message over :data:`MESSAGE_CLOSE_BYTES` (1009), text that is not UTF-8
 (1007). A socket closed in the middle of a frame ends its tasks without a traceback; a request
-whose Host or Origin is not this server (another site in the same browser) is refused.
+whose Host or Origin is not this server (another site in the same browser, DNS rebinding) is
+refused (403), on every route.
+
+The run's token. :attr:`Viewer.url` is ``http://127.0.0.1:PORT/?token=...`` (a
+``secrets.token_urlsafe`` made per Viewer): every request must carry it (the page keeps it in its
+URL, its socket's and its uploads'), else 403 with one line (``GET /`` without it: a hint to open
+the URL the viewer printed). :attr:`Viewer.address` is the server without it,
+:attr:`Viewer.socket_url` the page's socket.
+
+A designer's tools. ``POST /upload?name=FILE&token=...`` (a lighting bake): the file's bytes,
+streamed into the run's temporary folder within its bound (:mod:`.uploads`), read and checked as
+any map (:meth:`Viewer.add_map`) and removed; the map joins the list (JSON: its index and name, and
+notes), or one line says why not (413, 415, 400; 409 on a bake whose lighting is fixed) and the
+maps are kept. A ``{"type": "png"}`` message is answered with the last frame sent as a PNG
+(:func:`.pictures.png`, a binary message of type ``png``). Each frame's header carries the
+``wavlight frame`` command of its state (:mod:`.reproduce`). A lighting bake's state has
+``show_background``: false blacks out (and makes transparent in the PNG) the pixels none of whose
+camera samples hit a surface (:meth:`Viewer.coverage`).
 
 Connections (:mod:`wavlight.relight.serving`). The viewer accepts connections itself: at the file
 descriptor limit a new one is answered 503 and closed at once, with one log line per interval,
@@ -203,6 +220,7 @@ class Viewer:
         self.map_files = [None, *(os.fspath(m) if isinstance(m, (str, os.PathLike)) else getattr(m, "name", None)
                                   for m in maps)] if self.varies == "lighting" else [None]
         self.scene_file = os.fspath(scene) if isinstance(scene, (str, os.PathLike)) else None
+        self.uploaded = 0       # maps taken from the pages
         self._coverage = None   # a lighting bake's share of camera samples that hit, per pixel (hidden background)
         self.preview_pixels = int(preview_pixels)
         self.converge = self.frames.estimator if converge is _UNSET else converge
@@ -393,8 +411,8 @@ class Viewer:
         if self.varies != "lighting":
             return web.json_response({"error": f"this bake varies {self.frames.fixed}: another map does not apply"},
                                      status=409)
-        if len(self.frames.maps) > MAX_UPLOADED_MAPS:
-            return web.json_response({"error": f"the viewer holds {len(self.frames.maps)} maps: no more are taken"},
+        if self.uploaded >= MAX_UPLOADED_MAPS:
+            return web.json_response({"error": f"the viewer took {self.uploaded} maps from its pages: no more"},
                                      status=409)
         try:
             path, name = await self.uploads.receive(request, request.query.get("name", ""))
@@ -430,6 +448,7 @@ class Viewer:
             raise WavlightError(f"{name}: the environment is black everywhere; the frame would be black")
         self.frames.maps.append((name, env))
         self.map_files.append(name)
+        self.uploaded += 1
         self.limits = self.frames.limits(self.converge is not None)
         return len(self.frames.maps) - 1, [str(w.message).replace(path, name) for w in caught]
 
