@@ -412,3 +412,23 @@ def test_the_maps_taken_from_pages_are_bounded(serve, bake_file, monkeypatch):
             assert status == 409 and one_line(data["error"]) and "no more" in data["error"]
     in_a_thread(talk)
     assert v.limits.maps == 3 and os.listdir(v.uploads.folder) == []
+
+
+def test_the_command_run_writes_the_picture_the_viewer_shows(transfer, bake_file, tmp_path):
+    from click.testing import CliRunner
+    from PIL import Image
+
+    from wavlight.cli.main import main
+    from wavlight.relight.pictures import png
+
+    v = Viewer(transfer, maps=[str(bake_file[1])])
+    state, _ = test_viewer.sanitise({"rotate_y": 75, "env": 1, "terms": 100, "exposure": 1.25, "tonemap": "aces"},
+                                    v.limits)
+    args = shlex.split(v.command(state))[1:]
+    args[args.index("-o") + 1] = str(tmp_path / "frame.png")
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    written = np.asarray(Image.open(tmp_path / "frame.png").convert("RGB")).astype(int)
+    linear, _ = v.frame(state, v.detail(state))
+    shown = np.asarray(Image.open(io.BytesIO(png(linear, state["exposure"], state["tonemap"])))).astype(int)
+    assert written.shape == shown.shape and np.abs(written - shown).max() <= 1
