@@ -12,7 +12,8 @@ Classes and what passes:
   the socket kept (a good state then gets its frame); a message over the protocol's limit or
   text that is not UTF-8: closed with the websocket protocol's code (1009, 1007);
 - HTTP (bad methods, huge headers and URLs, a flood of bad requests, Host and Origin): a 4xx
-  answer (403 for another site), at most one log line (for a flood: at most one per interval);
+  answer (403 for another site or a request without the run's token: the page, its socket, an
+  upload), at most one log line (for a flood: at most one per interval);
 - idle connections (sending nothing, a partial request line, a slowloris, an idle keep-alive, a
   half-open websocket, a websocket that answers pings but sends nothing, one that reads nothing):
   closed within a minute (the child's settings shortened where the tree has them);
@@ -75,7 +76,7 @@ def bake_file() -> str:
         os.makedirs(CACHE, exist_ok=True)
         code = ("import sys, wavlight; wavlight.bake(sys.argv[1], output=sys.argv[2], width=128, height=128, spp=2, "
                 "levels=5, terms=256, priority='transfer').close()")
-        subprocess.run([sys.executable, "-c", code, os.path.join(ROOT, "scenes", "bunny_ggx.toml"), path], check=True,
+        subprocess.run([sys.executable, "-c", code, os.path.join(HERE, "scenes", "bunny_ggx.toml"), path], check=True,
                        cwd=ROOT)
     return path
 
