@@ -4,20 +4,12 @@ pass stopping the frame."""
 from __future__ import annotations
 
 import threading
-from typing import NamedTuple
 
 import numpy as np
 import pytest
 
 from wavlight.relight.tile_passes import TileWork, pass_spp, run_tiles
-
-
-class Tile(NamedTuple):
-    index: int
-    x0: int
-    y0: int
-    w: int
-    h: int
+from wavlight.relight.view_converge import Tile   # a view bake's tiles: index, x0, y0, w, h
 
 
 WIDTH, HEIGHT = 7, 5

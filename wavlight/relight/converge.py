@@ -84,7 +84,6 @@ from .frame import DeviceEntries
 from .mixture import (DEFENSIVE, LATTICE, LIGHT_SHARE, MAX_SLOTS, Hits, TexelLight, check_shares, entries_at_most,
                       lattice, mixture_directions, resampling_target, scene_of, world_to_square)
 from .settings import FRAME, UNBIASED_SPP
-from .tile_passes import TileWork, run_tiles
 
 MAX_SPP = FRAME["spp"].hi
 #: the product trees' levels at most (finer bakes are summed to them: 2^m x 2^m texels of the
@@ -452,9 +451,9 @@ class ConvergeFrames:
                 chosen = int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
             return v, {"rays": rays, "hits": int(hit.sum()), "resampled": chosen}
 
-        work = TileWork(start, samples, lambda pixels: pass_spp(spp, pixels))
-        mean, err, totals = run_tiles(work, self.tiles, width, height, spp, self.threads or default_threads(),
-                                      progress, t0)
+        work = tile_passes.TileWork(start, samples, lambda pixels: pass_spp(spp, pixels))
+        mean, err, totals = tile_passes.run_tiles(work, self.tiles, width, height, spp,
+                                                  self.threads or default_threads(), progress, t0)
         self._spare = {}
         seconds = time.perf_counter() - t0
         max_tile = max(t.w * t.h for t in self.tiles)

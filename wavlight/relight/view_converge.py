@@ -55,7 +55,6 @@ from . import tile_passes
 from .bake import BLOCK
 from .converge import COHERENCE, FOOTPRINT_GRID, LATTICE, MAX_CANDIDATES, MAX_SLOTS, PASS_SAMPLES, \
     TREE_CACHE_BYTES, footprint_rays, footprint_spread, shade_reference, visible_sum
-from .tile_passes import TileWork, run_tiles
 
 #: directions (shadow rays) per camera sample, and the mixture's shares of the BSDF and the
 #: lighting alone (docs/decisions/relight-view-converge-kernels.md)
@@ -392,9 +391,9 @@ class ViewConverge:
                 chosen = int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
             return v, {"rays": rays, "hits": int(hit.sum()), "resampled": chosen}
 
-        work = TileWork(start, samples, lambda pixels: per_pass(spp, pixels, pass_limit))
-        mean, err, totals = run_tiles(work, tiles, width, height, spp, self.threads or default_threads(), progress,
-                                      t0)
+        work = tile_passes.TileWork(start, samples, lambda pixels: per_pass(spp, pixels, pass_limit))
+        mean, err, totals = tile_passes.run_tiles(work, tiles, width, height, spp, self.threads or default_threads(),
+                                                  progress, t0)
         self._spare = {}
         seconds = time.perf_counter() - t0
         k_pass = per_pass(spp, max_tile, pass_limit)
