@@ -544,7 +544,7 @@ def choose_model(scene, tolerance: float, spp, seed: int, levels=None, terms=Non
                       "predicted_error": round(predicted, 5)}}
 
 
-#: the factors a bake of per-pixel transfer varies (a bake that varies the view: relight/view.py)
+#: the factors a bake of per-pixel transfer varies (a bake that varies the view: relight/view_bake.py)
 PIXEL_VARY = ("lighting", "object")
 #: a bake that varies one object: each pixel's product T1 x L on 2^OBJECT_PRODUCT_LEVELS texels,
 #: and the scene without the object converged with this many samples per pixel
@@ -581,7 +581,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
     samples per pixel (the ``wavelet`` strategy; unbiased). Base-colour textures are carried as
     in a lighting bake: the pixels' albedo is their samples' textured albedo, the static image is
     rendered with the textures, and the frames shade the rest and the object with theirs.
-    (A bake that varies the view is :func:`wavlight.relight.view.bake_view`; :func:`wavlight.bake`
+    (A bake that varies the view is :func:`wavlight.relight.view_bake.bake_view`; :func:`wavlight.bake`
     takes all three.)
     ``progress(done, total, rays, seconds)`` after each block. ``dask_address``: bake the
     blocks on that dask.distributed scheduler (the workers read the scene file at the same
