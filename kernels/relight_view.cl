@@ -40,6 +40,10 @@
  * vector unit across the children; one BRDF call per four leaves), and only the children to be
  * refined are pushed; the nodes visited are the root and four per refined node. */
 #include "bsdf.h"
+#include "texture.h"
+#ifndef TEXTURES
+#define TEXTURES 0   /* 1: some material has a base-colour texture (texture.h): view_assemble reads it */
+#endif
 
 #ifndef QBITS
 #define QBITS 8
@@ -522,7 +526,9 @@ INLINE void view_bilinear(const float dx, const float dy, const float dz, __glob
 __kernel void view_assemble(const uint count, __global const int *prim, __global const uint *ids,
                             __global const float *weights, __global const int *row, __global const float *B,
                             __global const int *face_material, __global const float *albedo,
-                            __global const float *dir, __global const float *env, const uint env_width,
+                            __global const float *bary, __global const float *face_uv,
+                            __global const int *mat_texture, __global const float *tex_atlas,
+                            __global const int *tex_table, __global const float *dir, __global const float *env, const uint env_width,
                             const uint env_height, __global const wide *map_from_world, __global float *out)
 {
     const uint p = get_global_id(0);
@@ -543,6 +549,16 @@ __kernel void view_assemble(const uint count, __global const int *prim, __global
         r *= albedo[3 * mt];
         g *= albedo[3 * mt + 1];
         bl *= albedo[3 * mt + 2];
+#if TEXTURES
+        {   /* times the material's texture at the hit (texture.h, its lanes all this ray's) */
+            realv tu, tv, tr, tg, tb;
+            texture_uv(face_uv, (uintv)((uint)f), (realv)bary[2 * p], (realv)bary[2 * p + 1], &tu, &tv);
+            texture_rgb(tex_atlas, tex_table, (intv)mat_texture[mt], tu, tv, &tr, &tg, &tb);
+            r *= tr.s0;
+            g *= tg.s0;
+            bl *= tb.s0;
+        }
+#endif
     } else {
 #if BACKGROUND_BILINEAR
         view_bilinear(dir[3 * p], dir[3 * p + 1], dir[3 * p + 2], map_from_world, env, env_width, env_height, &r, &g,

@@ -162,6 +162,8 @@ class ViewFrames:
         self.kind_of = self.scene.material_kind
         self.param_of = self.scene.material_param
         self.albedo_of = self.scene.material_albedo.astype(np.float64)
+        #: base-colour textures: the frames take the albedo at the hit (:meth:`hit_albedo`)
+        self.textured = bool(self.scene.textured)
         fn = np.asarray(self.tracer.face_normals, np.float64)
         self.face_normal = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         self.face_normal32 = self.face_normal.astype(np.float32)
@@ -217,6 +219,14 @@ class ViewFrames:
         w = w * (compat & front[:, None])
         total = w.sum(1, keepdims=True)
         return ids, np.where(total > 0, w / np.where(total > 0, total, 1.0), 0.0), fn
+
+    def hit_albedo(self, prim, u, v) -> np.ndarray:
+        """(M, 3) float32: the albedo at hits on faces prim at embree's (u, v): the material's, times
+        its base-colour texture there in a textured scene (Scene.albedo_at: the numpy twin of
+        ``view_assemble``'s texture lookup, kernels/texture.h)."""
+        if not self.textured:
+            return self.albedo_of[self.scene.face_material[prim]].astype(np.float32)
+        return self.scene.albedo_at(prim, np.asarray(u, np.float32), np.asarray(v, np.float32))
 
     def shading_normals(self, eye, d, t, prim, u, v, fn):
         """The shading normals (M, 3) float32 of hits at barycentrics (u, v) (RayTracer.hit), turned
@@ -335,7 +345,7 @@ class ViewFrames:
                     else:
                         B_b, nodes = cl.scratch("view_walk_out", 12), np.zeros(0, np.uint32)
                     td = time.perf_counter()
-                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, points, B_b, queue, rays)
+                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, points, B_b, queue, rays, uv=(u, v))
                 else:
                     B, nodes = self.products(points, cam.eye, refine, backend, mass)
                     td = time.perf_counter()
@@ -344,7 +354,7 @@ class ViewFrames:
                     at[points] = np.arange(len(points))
                     rows = np.concatenate([np.asarray(B, np.float32).reshape(-1, 3), np.zeros((1, 3), np.float32)])
                     blend = np.einsum("ij,ijc->ic", w.astype(np.float32), rows[at[ids]])
-                    rays[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
+                    rays[pix[hit]] = blend * self.hit_albedo(prim[hit], u[hit], v[hit])
                 shaded = len(points)
             else:
                 ok = np.flatnonzero(w.sum(1) > 0)
@@ -354,8 +364,9 @@ class ViewFrames:
                 td = time.perf_counter()
                 if on_device:   # the environment where rays miss (no point's row: 0 on hits)
                     fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, np.zeros(0, np.int64),
-                                cl.scratch("view_walk_out", 12), queue, rays)
-                rays[pix[hit][ok]] = np.asarray(B, np.float32) * self.albedo_of[mat[ok]].astype(np.float32)
+                                cl.scratch("view_walk_out", 12), queue, rays, uv=(u, v))
+                at = hit[ok]
+                rays[pix[at]] = np.asarray(B, np.float32) * self.hit_albedo(prim[at], u[at], v[at])
                 shaded = len(ok)
             if not on_device:
                 miss = np.flatnonzero(prim < 0)
