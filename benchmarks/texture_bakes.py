@@ -86,7 +86,8 @@ def main():
     import wavlight
     from wavlight.camera import camera_rays
     from wavlight.relight.moving import MovingObject
-    from wavlight.relight.surface_cache import lattice_points
+    from wavlight.relight.surface_cache import build_cache, lattice_points
+    from wavlight.relight.view_bake import point_albedo
     from wavlight.relight.view_frames import ViewFrames
 
     eye, target = [1.5, 2.2, 3.2], [0.0, 0.3, 0.0]
@@ -129,17 +130,19 @@ def main():
         for density in [float(x) for x in args.densities.split(",")] + [None]:
             tr = wavlight.bake(textured, None, vary="view", levels=3, density=density, tolerance=1e-2)
             frames = ViewFrames(tr, textured)
-            cache = np.asarray(tr._s["albedo"], np.float32)
-            cam = frames.camera(eye, target)
-            seen = dataclasses.replace(textured, camera=cam)
+            cache = build_cache(textured, density)   # the bake's own (deterministic)
+            albedo_of_points = point_albedo(textured, cache)
+            seen = dataclasses.replace(textured, camera=frames.camera(eye, target))
 
-            def blended(prim, u, v, f=frames):
-                ids, w = lattice_points(f.face_k, f.face_base, f.lattice, prim, u, v)
-                return np.einsum("ij,ijc->ic", w, cache[ids]).astype(np.float32)
+            def blended(prim, u, v, c=cache, a=albedo_of_points):
+                ids, w = lattice_points(c.face_k, c.face_base, c.lattice, prim, u, v)
+                return np.einsum("ij,ijc->ic", w, a[ids]).astype(np.float32)
 
             def image(albedo, ss, f=frames, seen=seen):
-                cx, cy, off = f._pixel_centres(size, 0, size * size, ss)
-                o, d = camera_rays(seen, cx, cy, off, size, size)
+                k = np.arange(size * size * ss * ss)   # a pixel's ss x ss sub-pixel centres, adjacent
+                pixel, sub = k // (ss * ss), k % (ss * ss)
+                off = np.stack([(sub % ss + 0.5) / ss, (sub // ss + 0.5) / ss], 1).astype(np.float32)
+                o, d = camera_rays(seen, pixel % size, pixel // size, off, size, size)
                 prim, _, u, v = f.tracer.intersect_uv(o, d)
                 hit = prim >= 0
                 a = np.zeros((len(prim), 3), np.float32)
@@ -147,8 +150,8 @@ def main():
                 return a.reshape(size * size, ss * ss, 3).mean(1)
 
             exact = image(frames.hit_albedo, 16)
-            row = {"density": tr.header["cache"]["density"], "spacing": round(tr.header["cache"]["spacing"], 5),
-                   "points": tr.header["cache"]["points"]}
+            assert len(cache) == tr.header["cache"]["points"]
+            row = {"density": cache.density, "spacing": round(cache.spacing, 5), "points": len(cache)}
             for name, albedo in (("hit", frames.hit_albedo), ("cache", blended)):
                 for ss in (1, 4):
                     a = image(albedo, ss)
