@@ -12,8 +12,9 @@
  * Per sample (eight per work-item, simd.h): the camera ray (direction d from the eye, the rest's
  * triangle prim at distance t) gives the hit point p, its face normal turned towards the viewer
  * and its material (with -DTEXTURES=1 its albedo times its base-colour texture at the hit: texture.h,
- * the face's texture coordinates face_uv interpolated at embree's bary), and the shadow-ray origin p moved max(OFFSET_RELATIVE |p|, the face's offset
- * floor, the eye's) along the normal (kernels/hit.h). Direction j of the sample (j < ND) takes the
+ * the face's texture coordinates face_uv interpolated at embree's bary), and the shadow-ray origin
+ * p moved max(OFFSET_RELATIVE |p|, the face's offset floor, the eye's) along the normal
+ * (kernels/hit.h). Direction j of the sample (j < ND) takes the
  * four words of Philox counter (first + slot, tile, stream, j) (rng.h), its pairs (u0, u1) and
  * (u2, u3) stratified over the pixel's K = spp ND directions (cell number (slot % spp) ND + j,
  * stratify_pair, keyed by words 1 and 2 of stream RNG_STRATA at index first + slot / spp: the

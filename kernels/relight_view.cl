@@ -518,8 +518,9 @@ INLINE void view_bilinear(const float dx, const float dy, const float dz, __glob
 }
 #endif
 
-/* Per camera ray: a hit's pixel albedo x sum_k w_k B_k (B the walks' products, row[p] the row
- * of cache point p, -1: none), a miss's the environment's nearest texel in the ray's direction
+/* Per camera ray: a hit's albedo x sum_k w_k B_k (B the walks' products, row[p] the row
+ * of cache point p, -1: none; the albedo its material's, with TEXTURES 1 times the material's
+ * texture at the hit: texture.h at embree's bary, rows u v; numpy twin ViewFrames.hit_albedo), a miss's the environment's nearest texel in the ray's direction
  * (with BACKGROUND_BILINEAR 1: view_bilinear's filter)
  * (phi = atan2(x, -z), theta = acos(y) in the map's frame, map_from_world the rotation:
  * wavlight/envmap.py Environment.world_to_square). */
@@ -528,8 +529,9 @@ __kernel void view_assemble(const uint count, __global const int *prim, __global
                             __global const int *face_material, __global const float *albedo,
                             __global const float *bary, __global const float *face_uv,
                             __global const int *mat_texture, __global const float *tex_atlas,
-                            __global const int *tex_table, __global const float *dir, __global const float *env, const uint env_width,
-                            const uint env_height, __global const wide *map_from_world, __global float *out)
+                            __global const int *tex_table, __global const float *dir, __global const float *env,
+                            const uint env_width, const uint env_height, __global const wide *map_from_world,
+                            __global float *out)
 {
     const uint p = get_global_id(0);
     if (p >= count) return;
