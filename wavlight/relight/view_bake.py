@@ -20,7 +20,8 @@ Haar transform (sec. 4.1); blocks of BLOCK^2 points (sorted by object and Morton
 position, so that a block is a patch of surface) are compressed together (coefficient columns by
 decreasing energy until what is left out is within the tolerance,
 :func:`wavlight.relight.store.compress_block`) and quantized (a scale per coefficient and block,
-shared by the three channels).
+shared by the three channels). T1 holds no albedo: the file stores each cache point's albedo
+apart, its material's times its base-colour texture at the point (:func:`point_albedo`).
 """
 from __future__ import annotations
 

@@ -23,6 +23,12 @@ has its three cache points and weights, and the product <T1, f_r> is the top-dow
   the baked cosine at the points' blended normal is turned into n's (the cosine's correction,
   :mod:`wavlight.relight.view_walk`).
 
+A ray's value is B times the albedo at its hit: the material's, in a textured scene times its
+base-colour texture there (:meth:`ViewFrames.hit_albedo`; on the device ``view_assemble`` with
+kernels/texture.h), not the blend of the cache points' albedos, which would blur a texture to
+the cache's spacing (docs/decisions/view-bake-textures.md). The unbiased frame shades each
+camera sample with the texture at its hit (``converge_shade`` built with the textures).
+
 Pixels whose ray misses see the environment (its nearest texel, :meth:`wavlight.envmap.Environment.eval`;
 with ``background="bilinear"`` its filter, :meth:`~wavlight.envmap.Environment.eval_background`).
 
