@@ -133,18 +133,22 @@ def test_unbiased_frame_equals_mis_from_another_camera(baked):
     z = diff / np.sqrt((se ** 2).reshape(6, 4, 6, 4, 3).sum(axis=(1, 3)))
     assert np.abs(z).max() < 4.0, z
     # the approximate frame (4 x 4 rays per pixel, as mis integrates over the pixel) is as near mis
-    # as that of the same bake without the textures is to mis of the untextured scene: the texture
-    # at the hit adds no error of its own to the cache's
+    # on the textured surfaces as that of the same bake without the textures is to mis of the
+    # untextured scene (the same random numbers): the texture at the hit adds no error of its own
     plain = dataclasses.replace(scene, materials=[dataclasses.replace(m, texture=-1) for m in scene.materials])
     plain_frames = view_frames.ViewFrames(tr, plain)
     plain_ref = wavlight.render_full(dataclasses.replace(moved, materials=plain.materials), spp=1024, strategy="mis",
-                                     seed=12)
+                                     seed=11)
+    d, prim, _, _ = _rays(frames, 24)
+    textured = (prim >= 0) & (scene.material_texture[scene.face_material[np.maximum(prim, 0)]] >= 0)
+    textured = textured.reshape(24, 24)
+    assert textured.sum() > 200
     for mode in view_frames.MODES:
         errors = []
         for f, want in ((frames, ref), (plain_frames, plain_ref)):
             image, _ = f.frame(EYE, TARGET, mode=mode, supersample=4)
-            errors.append(np.linalg.norm(image - want.image) / np.linalg.norm(want.image))
-        assert errors[0] < 1.1 * errors[1] + 0.02, (mode, errors)
+            errors.append(np.linalg.norm((image - want.image)[textured]))
+        assert errors[0] < 1.1 * errors[1], (mode, errors)
 
 
 def test_the_unbiased_frame_of_both_backends_agree(baked):
@@ -159,3 +163,5 @@ def test_the_unbiased_frame_of_both_backends_agree(baked):
     assert (diff > 1e-3 * (1 + np.abs(b.image).max(2))).mean() < 0.03, diff.max()
     var = (b.stderr ** 2).sum()
     assert abs((a.image - b.image).sum()) < 0.5 * np.sqrt(var)
+
+

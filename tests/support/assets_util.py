@@ -128,19 +128,20 @@ vt 2 2
 vt 0 2
 vt 1 3
 usemtl tex
-f 1/1 2/2 5/5
-f 2/2 3/3 5/5
-f 3/3 4/4 5/5
-f 4/4 1/1 5/5
-f 1/1 3/3 2/2
-f 1/1 4/4 3/3
+f 1/1 5/5 2/2
+f 2/2 5/5 3/3
+f 3/3 5/5 4/4
+f 4/4 5/5 1/1
+f 1/1 2/2 3/3
+f 1/1 3/3 4/4
 """
 
 
 def write_textured_pyramid(folder) -> Path:
     """An OBJ of a square pyramid (base 2 x 2 at y = 0, apex at y = 1.5) whose one material "tex"
     has a base-colour texture of stripes repeating across each face, with its MTL and stripes.png
-    in ``folder``: an object of one textured material."""
+    in ``folder``: an object of one textured material, its faces wound outwards (a view bake
+    caches the side a face's normal points to)."""
     import PIL.Image
 
     folder = Path(folder)
