@@ -3,8 +3,9 @@ frame takes its albedo from. One scene, made in a temporary folder: texture_cost
 floor with a stripes texture of --texels² texels, a metal sphere) and a square pyramid whose one
 material has the stripes too (the object that moves), under --env, seen at --size². Each bake is
 made of the textured scene and of the same scene with its textures dropped, alternating
-(--repeat times each): the bake's wall seconds, its file's bytes and the median time of three
-frames (an object bake's at 4 spp, a view bake's approximate frame in its default mode). Then,
+(--repeat times each): the bake's wall seconds, its file's bytes and
+the median time of five frames of each, alternating frame by frame (an object bake's at 4 spp, a
+view bake's approximate frame in its default mode). Then,
 for view bakes of --densities cache points per unit area, the error of the frames' albedo factor
 against the pixel's integral of the textured albedo (16 x 16 rays per pixel): the albedo at each
 ray's hit (what the frames take) against the blend of the hit's three cache points' textured
@@ -59,16 +60,6 @@ def write_pyramid(folder, texels):
         fh.write(PYRAMID)
 
 
-def timed_frames(frame, count=3):
-    frame()   # (first frame: programs built, tables uploaded)
-    times = []
-    for _ in range(count):
-        t0 = time.perf_counter()
-        frame()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
-
-
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--texels", type=int, default=64)
@@ -104,26 +95,35 @@ def main():
                                                          for m in textured.materials])
         assert textured.textured and not plain.textured
         out = {"texels": args.texels, "size": args.size, "environment": args.env, "object_bake": {}, "view_bake": {}}
-        for _ in range(args.repeat):   # alternating the two scenes
-            for name, scene in (("textured", textured), ("untextured", plain)):
-                path = os.path.join(folder, f"{name}.wlt")
-                t0 = time.perf_counter()
-                tr = wavlight.bake(scene, path, spp=16, levels=6, terms=256, priority="area", vary="object",
-                                   object="tile", static_spp=256)
-                seconds = time.perf_counter() - t0
-                mover = MovingObject(tr, scene)
-                frame = timed_frames(lambda: mover.frame((1.0, 0.0, 0.2), spp=4, seed=0))
-                out["object_bake"].setdefault(name, []).append(
-                    {"bake_seconds": round(seconds, 2), "file_bytes": os.path.getsize(path),
-                     "frame_seconds": round(frame, 4)})
-                t0 = time.perf_counter()
-                tr = wavlight.bake(scene, path, vary="view", levels=5)
-                seconds = time.perf_counter() - t0
-                frames = ViewFrames(tr, scene)
-                frame = timed_frames(lambda: frames.frame(eye, target, width=args.size, height=args.size))
-                out["view_bake"].setdefault(name, []).append(
-                    {"bake_seconds": round(seconds, 2), "file_bytes": os.path.getsize(path),
-                     "frame_seconds": round(frame, 4)})
+        for _ in range(args.repeat):   # the two scenes' bakes alternating, then their frames alternating
+            for kind in ("object_bake", "view_bake"):
+                made = {}
+                for name, scene in (("textured", textured), ("untextured", plain)):
+                    path = os.path.join(folder, f"{kind}_{name}.wlt")
+                    t0 = time.perf_counter()
+                    if kind == "object_bake":
+                        tr = wavlight.bake(scene, path, spp=16, levels=6, terms=256, priority="area", vary="object",
+                                           object="tile", static_spp=256)
+                        seconds = time.perf_counter() - t0
+                        mover = MovingObject(tr, scene)
+                        frame = (lambda m=mover: m.frame((1.0, 0.0, 0.2), spp=4, seed=0))
+                    else:
+                        tr = wavlight.bake(scene, path, vary="view", levels=5)
+                        seconds = time.perf_counter() - t0
+                        frames = ViewFrames(tr, scene)
+                        frame = (lambda f=frames: f.frame(eye, target, width=args.size, height=args.size))
+                    made[name] = (seconds, os.path.getsize(path), frame)
+                    frame()   # (the first frame: programs built, tables uploaded)
+                times = {name: [] for name in made}
+                for _ in range(5):   # frames alternating
+                    for name, (_, _, frame) in made.items():
+                        t0 = time.perf_counter()
+                        frame()
+                        times[name].append(time.perf_counter() - t0)
+                for name, (seconds, size, _) in made.items():
+                    out[kind].setdefault(name, []).append(
+                        {"bake_seconds": round(seconds, 2), "file_bytes": size,
+                         "frame_seconds": round(float(np.median(times[name])), 4)})
         # the view frames' albedo factor: at the hit, or blended from the cache's points
         size = args.size
         out["view_albedo_error"] = []
