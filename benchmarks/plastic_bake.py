@@ -6,14 +6,17 @@ The bunny of benchmarks/plastic_speed.py on its lambert floor under rooitou_park
 model (``--levels``, ``--spp``, ``--terms``, priority area, ``--tolerance``), one after the
 other (a shared machine: the load average is recorded; the bake seconds are noisy); each bake's frames under the map turned by 110 degrees against ``mis`` of that
 turned scene (``--ref-spp``): the relative L2 error over the pixels that see a surface, the
-reference's own noise taken out.
+reference's own noise taken out. Then the unbiased frame (``--converge-spp``) of each bake under
+that turn: its relative standard error over those pixels and its seconds; for plastic also with
+product trees that leave the coat out (``converge.coat_weights`` replaced by zeros: the trees of
+the base's transfer alone, the shading unchanged), the evidence for sampling the coat.
 
 Usage:
     python benchmarks/plastic_bake.py [--size 128] [--levels 6] [--spp 16] [--terms 512]
                                       [--tolerance 0.02] [--ref-spp 256] [--repeats 3] [-o FILE]
 Writes benchmarks/results/plastic_bake.json (with the run's provenance): per material the file's
 bytes, the entries of the transfer and of the coat, the coat's blocks, the bake seconds (as it
-reports them), the median frame seconds over ``--repeats`` frames and the frame's error.
+reports them), the median frame seconds over ``--repeats`` frames, the frame's error and the unbiased frame's relative standard error.
 """
 import argparse
 import os
@@ -41,6 +44,7 @@ def main():
     ap.add_argument("--tolerance", type=float, default=0.02)
     ap.add_argument("--ref-spp", type=int, default=256)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--converge-spp", type=int, default=16)
     sys.path.insert(0, HERE)
     import needs
     from plastic_speed import MATERIALS, scene
@@ -83,6 +87,21 @@ def main():
                    "frame_error": round(corrected_error(image, ref, hits), 5),
                    "mis_noise": round(float(np.sqrt((ref.stderr[hits].astype(np.float64) ** 2).sum()
                                                     / (ref.image[hits].astype(np.float64) ** 2).sum())), 5)}
+            from wavlight.relight import converge
+
+            def unbiased(label):
+                r = converge.ConvergeFrames(tr, sc).frame(rotate_y=turn, spp=args.converge_spp, seed=3)
+                rel = np.sqrt((r.stderr[hits].astype(np.float64) ** 2).sum() / (r.image[hits].astype(np.float64) ** 2).sum())
+                row[label] = {"relative_stderr": round(float(rel), 5), "seconds": r.stats["render_seconds"]}
+
+            unbiased("converge")
+            if name == "plastic":
+                kept = converge.coat_weights
+                converge.coat_weights = lambda t: np.zeros_like(kept(t))
+                try:
+                    unbiased("converge_trees_without_coat")
+                finally:
+                    converge.coat_weights = kept
             result["materials"][name] = row
             tr.close()
             print(f"{name}: {row}", file=sys.stderr, flush=True)

@@ -15,6 +15,16 @@ radiance over texel t (:mod:`wavlight.relight.lighting`), plus (1 / S) sum over 
 that miss of the environment in their direction (a bit mask per pixel; the frame draws the
 same camera samples again).
 
+Plastic (Mitsuba 3's roughplastic, ``nonlinear`` false) is not albedo x shape: f cos = coat +
+albedo x base, linear in the albedo. T takes its base (the part the albedo multiplies), and a
+bake that varies the lighting estimates a second transfer, the coat's,
+
+    C_p,t = (1 / S) sum over the samples on plastic of  integral over t of  f_coat cos V dw,
+
+without the albedo (its pass of the texel kernel, ``part`` 1, with its own uniforms and shadow
+rays), stored for the blocks that see plastic (:data:`wavlight.relight.store.COAT_SECTIONS`):
+a frame is a_p sum_t T_p,t L_t + sum_t C_p,t L_t (docs/decisions/plastic-in-the-bake.md).
+
 Estimator (kernels/relight.cl, bake_texel_rays; numpy twin :func:`texel_rays_reference`):
 one shadow ray per (pixel, texel) pair. The pixel's samples are grouped by the triangle they
 hit (one normal and material per group: :class:`PixelSamples`; on a face shaded smooth, where

@@ -47,6 +47,15 @@ among CANDIDATES mixture directions by a target of its own lobe and T1's visibil
 (:func:`resampling_target`, Talbot et al. 2005), without the control variate, whose g (T1's
 mean lobe) is far from the sample's f cos V there.
 
+Plastic (f cos = coat + albedo x base: docs/decisions/plastic-in-the-bake.md). Each direction is
+estimated with its true colour, (coat + albedo base) L / pdf (:func:`.mixture.tint_of`), and the
+BSDF's share samples either lobe (bsdfs.plastic_sample). The product is that of
+H = T + w_p C, the bake's transfer and its coat's, w_p = 1 / lum(a_p) on a pixel whose block holds
+a coat (:func:`coat_weights`; the frame's lum(a_p) T + C over lum(a_p)), summed in the
+coefficients (the transform is linear); the control variate's colour is the sample's albedo a
+tinted by the coat's share s of the pixel's mean transfer (its scaling coefficients'),
+(1 - s) a + s lum(a): a constant per camera sample, so the estimate stays unbiased.
+
 Passes. :class:`ConvergeFrames` holds what frames share: the scene's ray tracer, its tables and
 the bake's entries on the device, the pixels' footprint spreads (measured once, on first use),
 and for the current lighting (map, rotation, scale) its tables and the tiles' trees, kept up to

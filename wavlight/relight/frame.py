@@ -10,7 +10,9 @@ values q_o of the block's BLOCK^2 pixels with its scale. The kernel ``frame_prod
 (kernels/relight.cl; numpy twin :func:`image_reference`) walks the K rows of the table,
 four blocks to a work-item, and writes the frame's pixels times their albedo a_p: a frame reads
 only the entries of its K coefficients, and the host sends only their indices and lighting
-values and reads the frame back once.
+values and reads the frame back once. A bake with plastic's coat (C, stored for the blocks that
+see plastic: :data:`wavlight.relight.store.COAT_SECTIONS`) adds N^2 sum_i C^_p,i L^_i over the same
+coefficients, without the albedo (``frame_product`` built with COAT, twin :func:`coat_reference`).
 
 Where a pixel's camera samples missed, the frame adds the map itself, turned, at the samples'
 directions (nearest texel, as :meth:`wavlight.envmap.Environment.eval`): the kernel
