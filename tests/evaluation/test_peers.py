@@ -41,7 +41,8 @@ def test_furnace_agrees_with_wavlight(tmp_path, strategy):
 @pytest.mark.slow
 def test_textured_glb_agrees_with_mitsuba(tmp_path):
     """The GLB of tests/support/assets_util (a gold metal sphere, a metal floor with its sRGB
-    stripes texture; flat faces: both renderers take face normals) under the indoor map: wavlight's
+    stripes texture; no normals in the file: both renderers shade with the vertex normals wavlight
+    computes, given to Mitsuba per corner) under the indoor map: wavlight's
     mis and Mitsuba's (roughconductor, material none, the texture as a bilinear repeating bitmap
     read through Mitsuba's own OBJ texture coordinates) agree over the floor's and the sphere's
     pixels within 1.5% plus four of the difference's standard errors (Mitsuba's from the spread of
