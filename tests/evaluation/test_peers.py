@@ -21,6 +21,32 @@ def test_envmap_lookup_matches_inside_texels():
         assert peers.envmap_mismatch(env, upsample=k, count=50_000) < 1.5 * band
 
 
+
+def test_texture_codes_for_mitsuba():
+    """A texture of decoded 8-bit sRGB codes goes to Mitsuba as those codes (every one of the 256
+    recovered); texels that are no such decoding (scaled) go as linear values."""
+    from wavlight import textures
+
+    codes = np.arange(256, dtype=np.uint8).reshape(16, 16, 1).repeat(3, axis=2)
+    np.testing.assert_array_equal(peers.srgb_codes(textures.decode_srgb8(codes)), codes)
+    assert peers.srgb_codes(textures.decode_srgb8(codes) * np.float32(0.9)) is None
+
+
+def test_llvm_19_chosen_where_unset():
+    """Where DRJIT_LIBLLVM_PATH is unset, importing Mitsuba through peers sets it to the first
+    LLVM 19 library that exists (none: left unset), and the variant loads."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os; from wavlight.evaluation import peers; ok = peers.available(); "
+            "print(os.environ.get('DRJIT_LIBLLVM_PATH', '-'), ok)")
+    env = {k: v for k, v in os.environ.items() if k != "DRJIT_LIBLLVM_PATH"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    path, ok = out.stdout.split()[-2:]
+    assert ok == "True", out.stderr
+    assert path == next((p for p in peers.LIBLLVM_19 if os.path.isfile(p)), "-")
+
 @pytest.mark.parametrize("strategy", ["mis", "mis_comp"])
 def test_furnace_agrees_with_wavlight(tmp_path, strategy):
     """Constant environment, lambert sphere: both renderers give the albedo on the sphere."""
