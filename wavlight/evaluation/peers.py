@@ -5,9 +5,9 @@ Debian's ``libllvm19``; with ``DRJIT_LIBLLVM_PATH`` naming Debian 12's LLVM 14, 
 leaves its LLVM backend inactive. Where the variable is unset it is set, before Mitsuba is
 imported, to the first LLVM 19 library of :data:`LIBLLVM_19` that exists).
 
-:func:`render_mitsuba` takes a loaded :class:`Scene` and renders it with equivalent settings: pinhole camera (``fov_axis = "y"``), box
-filter, independent sampler, ``twosided`` BSDFs on meshes with the scene's shading
-normals (per corner; ``face_normals`` for the faces shaded flat), the
+:func:`render_mitsuba` takes a loaded :class:`Scene` and renders it with equivalent settings:
+pinhole camera (``fov_axis = "y"``), box filter, independent sampler, ``twosided`` BSDFs on meshes
+with the scene's shading normals (per corner; ``face_normals`` for the faces shaded flat), the
 environment rotated by ``rotate_y`` about +Y. Strategies: ``mis`` (1 emitter + 1
 BSDF sample), ``mis_comp`` (the same with the envmap's ``mis_compensation``), ``light``
 (emitter only), ``bsdf`` (BSDF only).
@@ -34,6 +34,11 @@ Equivalences and their limits:
   |Mitsuba - wavlight| / mean = 2.0% (k = 4: 6.0%); debevec_grace_256x128 at k = 32: 2.2%
   (k = 8: 8.3%); the directions inside a blend band are 1 - (1 - 1/k)^2 of the square
   (23% at k = 8), everywhere else the lookups are identical.
+
+:func:`part_agreement` measures a wavlight render against Mitsuba's renders of several seeds part
+by part, over the pixels whose four corners see one part (:func:`part_pixels`): the relative
+bias with its standard error, and the relMSE over the reference's own noise
+(``benchmarks/mitsuba_peer.py --designer-glb``, tests/evaluation/test_peers.py).
 """
 from __future__ import annotations
 
