@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Render a wavlight scene TOML with Mitsuba 3's ``direct`` integrator and print timings as JSON.
 
-A peer reference for wavlight benchmarks: it reads the scene file itself (``tomllib``, no wavlight
-import), builds the equivalent Mitsuba scene with ``mi.load_dict`` on the ``llvm_ad_rgb`` variant
+A peer reference for wavlight benchmarks: it reads the scene file itself (``tomllib``; wavlight
+only resolves ``data:NAME`` files), builds the equivalent Mitsuba scene with ``mi.load_dict`` on the ``llvm_ad_rgb`` variant
 (CPU), renders it and prints one JSON object on stdout. The same object, with the run's
 provenance (benchmarks/provenance.py; the OpenCL platform is asked of a separate process, so
 that PoCL's LLVM is not loaded beside Dr.Jit's), goes to the result file
@@ -111,12 +111,25 @@ def quad_mesh(center, normal, size):
     return trimesh.Trimesh(verts, [[0, 1, 2], [0, 2, 3]], process=False)
 
 
+def input_path(value, base, kind):
+    """The file a scene value names: ``data:NAME`` through wavlight.data (fetched on first use, or
+    read from WAVLIGHT_DATA), else a path relative to the scene's folder."""
+    if not str(value).startswith("data:"):
+        return os.path.normpath(os.path.join(base, value))
+    import wavlight.data
+
+    try:
+        return wavlight.data.resolve(str(value), kind=kind)
+    except wavlight.WavlightError as e:
+        sys.exit(f"mitsuba_peer: {e}")
+
+
 def shape_dict(obj, base, tmpdir, idx):
     """Mitsuba shape dict (without BSDF) for one [[objects]] entry."""
     import trimesh
     mesh = None
     if "mesh" in obj:
-        path = os.path.normpath(os.path.join(base, obj["mesh"]))
+        path = input_path(obj["mesh"], base, "mesh")
         ext = os.path.splitext(path)[1].lower()
         if ext in (".ply", ".obj"):
             d = {"type": ext[1:], "filename": path}
@@ -177,7 +190,7 @@ def build_scene(cfg, base, width, height, spp, strategy, tmpdir):
     env = cfg.get("environment")
     if env:
         scene["environment"] = {
-            "type": "envmap", "filename": os.path.normpath(os.path.join(base, env["file"])),
+            "type": "envmap", "filename": input_path(env["file"], base, "environment map"),
             "scale": float(env.get("scale", 1.0)),
             "to_world": mi.ScalarTransform4f().rotate([0.0, 1.0, 0.0], float(env.get("rotate_y", 0.0)))}
     approximated = []
