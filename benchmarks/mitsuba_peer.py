@@ -27,7 +27,8 @@ nonlinear false, int_ior 1.5, ext_ior 1, the texture as a bilinear sRGB bitmap, 
 with face_normals false; S seeds of N spp). Per part (peers.part_agreement, the pixels whose four
 corners see that part): the relative bias with its standard error and z, and the relMSE (the
 reference's own noise removed) over the reference's own noise. The acceptance: |bias| < 1.5% and
-relMSE within 3x the reference's noise. This mode imports wavlight; the result goes to
+relMSE within 3x the reference's noise. A control ("control_mitsuba_face_normals") gives Mitsuba
+face normals instead (the scene's corner normals dropped): the comparison must see the difference. This mode imports wavlight; the result goes to
 benchmarks/results/mitsuba_peer_glb.json unless -o names another. Its figures come from
     python benchmarks/mitsuba_peer.py --designer-glb --spp 256 --seeds 4 --width 128 --height 96
 
@@ -67,6 +68,7 @@ caches compiled kernels in ~/.drjit, so jit_seconds is ~0.2 s on a cold cache an
 the JSON line.
 """
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -263,8 +265,16 @@ def designer_glb(args, prov):
                 parts[part] = r
                 print(f"{label} {part} ({r['type']}, {r['pixels']} pixels): bias {r['bias']} +- {r['bias_se']} "
                       f"(z {r['bias_z']}), relMSE / reference noise {r['relmse_ratio']}", file=sys.stderr, flush=True)
+            # the control: Mitsuba given face normals (the scene's corner normals dropped), wavlight smooth
+            flat = dataclasses.replace(scene, normal_faces=None)
+            runs = np.stack([peers.render_mitsuba(flat, "mis", spp=spp, seed=50 + s).image for s in range(seeds)])
+            control = {name.rsplit(":", 1)[-1]: {"bias": np.round(r["bias"], 5).tolist(),
+                                                 "bias_z": np.round(r["bias_z"], 2).tolist(),
+                                                 "relmse_ratio": round(r["relmse_ratio"], 3)}
+                       for name, r in peers.part_agreement(scene, ours, runs).items()}
             result["maps"][label] = {"environment": env, "wavlight_seconds": round(t1 - t0, 2),
-                                     "mitsuba_seconds": round(t2 - t1, 2), "parts": parts}
+                                     "mitsuba_seconds": round(t2 - t1, 2), "parts": parts,
+                                     "control_mitsuba_face_normals": control}
     result["accepted"] = all(p["accepted"] for m in result["maps"].values() for p in m["parts"].values())
     result["mitsuba_version"] = mi.__version__
     print(json.dumps(result))
