@@ -142,7 +142,7 @@ class Reader:
         for ``signed``)."""
         from wavlight.relight import Transfer
         from wavlight.relight.moving import MovingObject
-        from wavlight.relight.view import ViewFrames
+        from wavlight.relight.view_frames import ViewFrames
 
         tr = Transfer.load(path)
         try:

@@ -12,7 +12,8 @@ Classes and what passes:
   the socket kept (a good state then gets its frame); a message over the protocol's limit or
   text that is not UTF-8: closed with the websocket protocol's code (1009, 1007);
 - HTTP (bad methods, huge headers and URLs, a flood of bad requests, Host and Origin): a 4xx
-  answer (403 for another site), at most one log line (for a flood: at most one per interval);
+  answer (403 for another site or a request without the run's token: the page, its socket, an
+  upload), at most one log line (for a flood: at most one per interval);
 - idle connections (sending nothing, a partial request line, a slowloris, an idle keep-alive, a
   half-open websocket, a websocket that answers pings but sends nothing, one that reads nothing):
   closed within a minute (the child's settings shortened where the tree has them);
@@ -46,6 +47,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.parse
 
 import aiohttp
 
@@ -74,7 +76,7 @@ def bake_file() -> str:
         os.makedirs(CACHE, exist_ok=True)
         code = ("import sys, wavlight; wavlight.bake(sys.argv[1], output=sys.argv[2], width=128, height=128, spp=2, "
                 "levels=5, terms=256, priority='transfer').close()")
-        subprocess.run([sys.executable, "-c", code, os.path.join(ROOT, "scenes", "bunny_ggx.toml"), path], check=True,
+        subprocess.run([sys.executable, "-c", code, os.path.join(HERE, "scenes", "bunny_ggx.toml"), path], check=True,
                        cwd=ROOT)
     return path
 
@@ -93,7 +95,10 @@ class Child:
         self.url = self.proc.stdout.readline().strip()
         if not self.url.startswith("http://"):
             raise RuntimeError(f"the viewer did not start: {self.proc.stderr.read()[-500:]}")
-        self.port = int(self.url.rsplit(":", 1)[1].strip("/"))
+        parts = urllib.parse.urlsplit(self.url)
+        #: the page's query (its token, where the viewer has one): every request carries it
+        self.port, self.query = parts.port, parts.query
+        self.ws_url = f"http://127.0.0.1:{self.port}/ws" + (f"?{self.query}" if self.query else "")
         self.lines: list = []
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -171,8 +176,8 @@ def masked(opcode: int, payload: bytes) -> bytes:
     return head + mask + bytes(c ^ mask[i % 4] for i, c in enumerate(payload))
 
 
-def upgrade(port) -> bytes:
-    return (f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+def upgrade(port, query="") -> bytes:
+    return (f"GET /ws{'?' + query if query else ''} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
             "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n").encode()
 
 
@@ -242,7 +247,7 @@ async def probe_messages(child, rows):
             t0 = time.monotonic()
             why = None
             try:
-                ws = await client.ws_connect(child.url + "ws", max_msg_size=0)
+                ws = await client.ws_connect(child.ws_url, max_msg_size=0)
                 await ws.send_json({"type": "state", "rotate_y": 1})
                 await frame(ws)
                 if isinstance(payload, bytes):
@@ -274,7 +279,7 @@ async def probe_messages(child, rows):
     for case, payload in (("invalid byte", b"\xff\xfe"), ("encoded surrogate", b'{"a":"\xed\xa0\x80"}')):
         t0 = time.monotonic()
         reader, writer = await asyncio.open_connection("127.0.0.1", child.port)
-        writer.write(upgrade(child.port))
+        writer.write(upgrade(child.port, child.query))
         await reader.readuntil(b"\r\n\r\n")
         writer.write(masked(1, payload))
         await writer.drain()
@@ -325,11 +330,15 @@ async def probe_http(child, rows):
     cases += [("HTTP: Host and Origin", "Host evil.example", b"GET / HTTP/1.1\r\nHost: evil.example\r\n\r\n"),
               ("HTTP: Host and Origin", "Host another port", b"GET / HTTP/1.1\r\nHost: 127.0.0.1:1\r\n\r\n"),
               ("HTTP: Host and Origin", "no Host (HTTP/1.0)", b"GET / HTTP/1.0\r\n\r\n"),
-              ("HTTP: Host and Origin", "ws Origin evil", upgrade(port).replace(
+              ("HTTP: Host and Origin", "ws Origin evil", upgrade(port, child.query).replace(
                   b"\r\n\r\n", b"\r\nOrigin: http://evil.example\r\n\r\n")),
-              ("HTTP: Host and Origin", "ws Origin null", upgrade(port).replace(b"\r\n\r\n", b"\r\nOrigin: null\r\n\r\n")),
-              ("HTTP: Host and Origin", "ws Origin https", upgrade(port).replace(
-                  b"\r\n\r\n", f"\r\nOrigin: https://{host}\r\n\r\n".encode()))]
+              ("HTTP: Host and Origin", "ws Origin null", upgrade(port, child.query).replace(b"\r\n\r\n", b"\r\nOrigin: null\r\n\r\n")),
+              ("HTTP: Host and Origin", "ws Origin https", upgrade(port, child.query).replace(
+                  b"\r\n\r\n", f"\r\nOrigin: https://{host}\r\n\r\n".encode())),
+              ("HTTP: Host and Origin", "the page without the token", f"GET / HTTP/1.1\r\nHost: {host}\r\n\r\n".encode()),
+              ("HTTP: Host and Origin", "ws without the token", upgrade(port)),
+              ("HTTP: Host and Origin", "upload without the token", (f"POST /upload?name=a.exr HTTP/1.1\r\nHost: {host}\r\n"
+                                                                     "Content-Length: 1\r\n\r\nx").encode())]
     for cls, case, data in cases:
         t0 = time.monotonic()
         answer = await raw_request(port, data)
@@ -365,12 +374,12 @@ async def probe_idle(child, rows, limit=60.0):
     t0 = time.monotonic()
     watched = {"sends nothing": (await open_with(b""))[0],
                "partial request line": (await open_with(b"GET / HT"))[0]}
-    r, w = await open_with(f"GET / HTTP/1.1\r\nHost: {host}\r\n\r\n".encode())
+    r, w = await open_with(f"GET /?{child.query} HTTP/1.1\r\nHost: {host}\r\n\r\n".encode())
     await r.read(65536)
     watched["idle keep-alive"] = r
-    r, w = await open_with(upgrade(port), ws=True)      # never reads again: no pong
+    r, w = await open_with(upgrade(port, child.query), ws=True)      # never reads again: no pong
     watched["half-open websocket (no pong)"] = r
-    r, w = await open_with(upgrade(port), ws=True)      # asks for frames, never reads them
+    r, w = await open_with(upgrade(port, child.query), ws=True)      # asks for frames, never reads them
     for i in range(200):
         w.write(masked(1, json.dumps({"type": "state", "rotate_y": i, "encoding": "raw"}).encode()))
     watched["websocket that reads nothing"] = r
@@ -389,7 +398,7 @@ async def probe_idle(child, rows, limit=60.0):
     trickling = asyncio.ensure_future(trickle())
 
     async def pongs_only():   # answers pings (aiohttp does) and sends nothing
-        async with aiohttp.ClientSession() as s, s.ws_connect(child.url + "ws") as ws:
+        async with aiohttp.ClientSession() as s, s.ws_connect(child.ws_url) as ws:
             t = time.monotonic()
             msg = await ws.receive(timeout=limit)
             while msg.type in (aiohttp.WSMsgType.TEXT, aiohttp.WSMsgType.BINARY):
@@ -417,7 +426,7 @@ async def probe_idle(child, rows, limit=60.0):
 
 
 async def probe_many_websockets(child, rows):
-    async with aiohttp.ClientSession() as client, client.ws_connect(child.url + "ws") as page:
+    async with aiohttp.ClientSession() as client, client.ws_connect(child.ws_url) as page:
         await page.send_json({"type": "state", "rotate_y": 1})
         await frame(page)
         for case, abrupt in (("300 opened and closed, 50 at a time", False),
@@ -430,12 +439,12 @@ async def probe_many_websockets(child, rows):
                 try:
                     if abrupt:
                         reader, writer = await asyncio.open_connection("127.0.0.1", child.port)
-                        writer.write(upgrade(child.port) + masked(1, b'{"type":"state","rotate_y":%d}' % i))
+                        writer.write(upgrade(child.port, child.query) + masked(1, b'{"type":"state","rotate_y":%d}' % i))
                         await writer.drain()
                         await reader.readuntil(b"\r\n\r\n")
                         writer.transport.abort()
                     else:
-                        ws = await client.ws_connect(child.url + "ws")
+                        ws = await client.ws_connect(child.ws_url)
                         await ws.send_json({"type": "state", "rotate_y": i})
                         await ws.close()
                 except (aiohttp.ClientError, ConnectionError, asyncio.IncompleteReadError):
@@ -452,7 +461,7 @@ async def probe_many_websockets(child, rows):
 
 
 async def probe_converge(child, rows, factor=8.0):
-    async with aiohttp.ClientSession() as client, client.ws_connect(child.url + "ws") as b:
+    async with aiohttp.ClientSession() as client, client.ws_connect(child.ws_url) as b:
         async def preview(i):
             t = time.perf_counter()
             await b.send_json({"type": "state", "rotate_y": 3 * i, "preview": True})
@@ -471,7 +480,7 @@ async def probe_converge(child, rows, factor=8.0):
             for _ in range(15):
                 unloaded.append(await preview(i))
                 i += 1
-            pages = [await client.ws_connect(child.url + "ws") for _ in range(n)]
+            pages = [await client.ws_connect(child.ws_url) for _ in range(n)]
             reports = []
 
             async def converging(ws, k, reports=reports):
@@ -509,7 +518,7 @@ async def probe_descriptors(bake, tree, rows):
     child = Child(bake, tree, {"HTTP_IDLE_SECONDS": 300})
     held = []
     try:
-        async with aiohttp.ClientSession() as client, client.ws_connect(child.url + "ws") as page:
+        async with aiohttp.ClientSession() as client, client.ws_connect(child.ws_url) as page:
             await page.send_json({"type": "state", "rotate_y": 1})
             await frame(page)
             fds = len(os.listdir(f"/proc/{child.proc.pid}/fd"))

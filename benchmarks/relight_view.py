@@ -1,4 +1,4 @@
-"""Frames from a moving camera (wavlight.relight.view) on the bunny of benchmarks/scenes/bunny_ggx.toml and
+"""Frames from a moving camera (wavlight.relight.view_frames) on the bunny of benchmarks/scenes/bunny_ggx.toml and
 its rough variants: per scene, the view bake at the automatic choice (levels from the pilot, the
 default cache) and per frame mode its approximate frame's relative L2 error against a converged
 ``mis`` render from the same camera, split into bunny / floor / background, raw and with the
@@ -23,7 +23,7 @@ sources).
         [--mis-spp 1024] [--frames 15] [--still-frames 3]
         [--levels auto] [--refine 0.6] [--turn 40] [-o FILE]
 
-Each scene's written frame (``wavlight frame``'s settings, view.STILL: ``pixel`` at 4 x 4 rays)
+Each scene's written frame (``wavlight frame``'s settings, view_frames.STILL: ``pixel`` at 4 x 4 rays)
 is timed at --size too.
 
 The figures in benchmarks/results/relight_view.json come from the defaults.
@@ -61,20 +61,21 @@ SCENES = {"bunny_ggx": lambda: common.bunny_ggx(ENV), "bunny_ggx05": bunny_ggx05
 
 def turned(d: dict, degrees: float) -> dict:
     """The dict with its eye turned ``degrees`` about the vertical through the target."""
-    from wavlight.relight import view
+    from wavlight.relight import view_frames
 
     d = copy.deepcopy(d)
     cam = d["camera"]
-    eye = view.orbit_eyes(cam["eye"], cam["target"], max(1, round(360.0 / degrees)))[1]
+    eye = view_frames.orbit_eyes(cam["eye"], cam["target"], max(1, round(360.0 / degrees)))[1]
     cam["eye"] = [float(x) for x in eye]
     return d
 
 
 def bake_key(d: dict, levels) -> str:
-    from wavlight.relight import view
+    from wavlight.relight import surface_cache, view_bake
 
-    src = "".join(inspect.getsource(f) for f in (view.build_cache, view._point_samples, view.point_transfer,
-                                                  view._bake_block, view.bake_view))
+    src = "".join(inspect.getsource(f) for f in (surface_cache.build_cache, view_bake._point_samples,
+                                                  view_bake.point_transfer, view_bake._bake_block,
+                                                  view_bake.bake_view))
     h = hashlib.sha256(json.dumps([d, levels, common.source_hash(common.BAKE_SOURCES), src],
                                   sort_keys=True, default=str).encode())
     return h.hexdigest()[:20]
@@ -132,9 +133,9 @@ def main():
     ap.add_argument("--scenes", default="bunny_ggx,bunny_ggx05,bunny_lambert")
     ap.add_argument("--modes", default="point,point:0:0.15:0,pixel,pixel:0.1:0.15:0",
                     help="the approximate frame's settings (ViewFrames.frame), MODE[:TAU[:REFINE[:MASS]]] (TAU: the "
-                         "pixel mode's cosine correction, 0 none, default view.TAU; REFINE default --refine; MASS "
-                         "default view.MASS, 0 the walk by the lobe alone)")
-    ap.add_argument("--still-frames", type=int, default=3, help="timed written frames (view.STILL) per scene")
+                         "pixel mode's cosine correction, 0 none, default view_frames.TAU; REFINE default "
+                         "--refine; MASS default view_walk.MASS, 0 the walk by the lobe alone)")
+    ap.add_argument("--still-frames", type=int, default=3, help="timed written frames (view_frames.STILL) per scene")
     ap.add_argument("--size", type=int, default=512, help="timed frames: width and height")
     ap.add_argument("--error-size", type=int, default=256, help="the error's frames and references: width, height")
     ap.add_argument("--mis-spp", type=int, default=1024, help="samples per pixel of the mis references")
@@ -143,13 +144,13 @@ def main():
                          "over the pixel, and the bunny's facets are smaller than a pixel")
     ap.add_argument("--frames", type=int, default=15, help="timed frames per setting")
     ap.add_argument("--levels", default="auto", help="texel levels n of the bakes, or auto (the pilot's)")
-    ap.add_argument("--refine", type=float, default=None, help="the walk's refine (default view.REFINE)")
+    ap.add_argument("--refine", type=float, default=None, help="the walk's refine (default view_walk.REFINE)")
     ap.add_argument("--turn", type=float, default=40.0, help="degrees the eye turns about the target")
     args = common.parse(ap, "relight_view", 0.0)
     started = common.begin(args)
-    from wavlight.relight import view
+    from wavlight.relight import view_frames, view_walk
 
-    refine = view.REFINE if args.refine is None else args.refine
+    refine = view_walk.REFINE if args.refine is None else args.refine
     levels = None if args.levels == "auto" else int(args.levels)
     rows, scenes = [], {}
     for name in [s for s in args.scenes.split(",") if s]:
@@ -157,7 +158,7 @@ def main():
         ref, stderr, rinfo = common.cached_reference(d, args.error_size, args.mis_spp)
         tr, binfo = cached_view_bake(d, levels)
         summary = tr.summary()
-        frames = view.ViewFrames(tr, common.load(d))
+        frames = view_frames.ViewFrames(tr, common.load(d))
         cam = frames.scene.camera
         masks = regions(frames, d, args.error_size)
         scenes[name] = {"eye": cam.eye.tolist(), "target": cam.target.tolist(), "material": d["materials"]["gold"],
@@ -169,8 +170,8 @@ def main():
                                       "wall_seconds": rinfo.get("wall_seconds")}}
         for spec in [m for m in args.modes.split(",") if m]:
             mode, tau, ref_, mass = (spec.split(":") + ["", "", ""])[:4]
-            opts = {"refine": float(ref_) if ref_ else refine, "mode": mode, "tau": float(tau) if tau else view.TAU,
-                    "mass": float(mass) if mass else view.MASS}
+            opts = {"refine": float(ref_) if ref_ else refine, "mode": mode,
+                    "tau": float(tau) if tau else view_frames.TAU, "mass": float(mass) if mass else view_walk.MASS}
             err = {}
             for ss in sorted({1, *[int(x) for x in args.supersample.split(",") if x]}):
                 big = args.error_size * ss
@@ -190,11 +191,12 @@ def main():
                 print(f"{name:14s} {spec:16s} {ss:4s} fps {rows[-1]['frames_per_second']:5.2f}  "
                       + "  ".join(f"{k} {v['raw']:.4f}/{v['corrected']:.4f} (noise {v['noise']:.4f})"
                                   for k, v in e.items()), flush=True)
-        frames.frame(cam.eye, cam.target, cam.fov_y, args.size, args.size, **view.STILL)   # untimed: the build
-        stats = [frames.frame(cam.eye, cam.target, cam.fov_y, args.size, args.size, **view.STILL)[1]
+        frames.frame(cam.eye, cam.target, cam.fov_y, args.size, args.size, **view_frames.STILL)   # untimed: the build
+        stats = [frames.frame(cam.eye, cam.target, cam.fov_y, args.size, args.size, **view_frames.STILL)[1]
                  for _ in range(args.still_frames)]
-        scenes[name]["still"] = dict(view.STILL, **{p: statistics.median(s[p] for s in stats) for p in PARTS})
-        print(f"{name:14s} written frame ({view.STILL['mode']}, {view.STILL['supersample']}^2 rays) at {args.size}^2: "
+        scenes[name]["still"] = dict(view_frames.STILL, **{p: statistics.median(s[p] for s in stats) for p in PARTS})
+        still = view_frames.STILL
+        print(f"{name:14s} written frame ({still['mode']}, {still['supersample']}^2 rays) at {args.size}^2: "
               f"{scenes[name]['still']['frame_seconds']:.3f} s", flush=True)
         tr.close()
     data = {"size": args.size, "error_size": args.error_size, "supersample": args.supersample, "mis_spp": args.mis_spp, "turn": args.turn,

@@ -4,10 +4,10 @@ approximate frame's relative L2 error against converged ``mis`` against its fram
 Scenes (benchmarks/relight_view.py): the rough bunnies, ``bunny_ggx05`` (ggx 0.5) and
 ``bunny_lambert``, on the lambert floor under the park with its sun, seen from the scene's eye
 turned --turn degrees about the target. Per scene and cache of --points points over the scene's
-area (``wavlight.relight.view.bake_view``'s ``cache_points``; the default cache is
+area (``wavlight.relight.view_bake.bake_view``'s ``cache_points``; the default cache is
 wavlight.relight.settings.CACHE_POINTS) at --levels texel levels, and per walk refine in --refines (the walk's
 terms: a node is refined where the BRDF varies over it by more than refine; smaller refines
-walk more nodes per point) with the walk's --mass (view.MASS by default; 0: by the lobe alone),
+walk more nodes per point) with the walk's --mass (view_walk.MASS by default; 0: by the lobe alone),
 the ``point`` frame at one ray per pixel: its relative L2 error
 against ``mis`` at --mis-spp (the reference's noise taken out in quadrature; over the whole
 image and over the bunny) at --error-size, and its time at --size (median of --frames after one
@@ -42,7 +42,7 @@ FIGURE = os.path.join(HERE, "..", "docs", "figures", "relight-view-error")
 def cached_bake(d: dict, levels: int, points: int):
     """(Transfer, info) of the view bake of ``d`` with a cache of ``points`` points."""
     import wavlight
-    from wavlight.relight import view
+    from wavlight.relight import view_bake
 
     folder = os.path.join(common.CACHE, "view-bakes")
     os.makedirs(folder, exist_ok=True)
@@ -52,7 +52,7 @@ def cached_bake(d: dict, levels: int, points: int):
         with open(side) as fh:
             return wavlight.Transfer.load(path), dict(json.load(fh), cached=True)
     t0 = time.perf_counter()
-    tr = view.bake_view(common.load(d), path, levels=levels, cache_points=points)
+    tr = view_bake.bake_view(common.load(d), path, levels=levels, cache_points=points)
     info = {"wall_seconds": round(time.perf_counter() - t0, 3), "load_average": common.load_average()}
     with open(side, "w") as fh:
         json.dump(info, fh)
@@ -101,7 +101,7 @@ def main():
     ap.add_argument("--levels", type=int, default=6, help="texel levels n of the bakes")
     ap.add_argument("--refines", default="0.6,0.3,0.15,0.08", help="the walk's refine values")
     ap.add_argument("--mass", type=float, default=None,
-                    help="the walk's mass (default view.MASS; 0: by the lobe alone)")
+                    help="the walk's mass (default view_walk.MASS; 0: by the lobe alone)")
     ap.add_argument("--size", type=int, default=512, help="timed frames: width and height")
     ap.add_argument("--error-size", type=int, default=256, help="the error's frames and references")
     ap.add_argument("--mis-spp", type=int, default=1024, help="samples per pixel of the mis references")
@@ -110,9 +110,9 @@ def main():
     ap.add_argument("--figure", default=FIGURE, help="chart path without extension")
     args = common.parse(ap, "relight_view_density", 0.0)
     started = common.begin(args)
-    from wavlight.relight import view
+    from wavlight.relight import view_frames, view_walk
 
-    mass = view.MASS if args.mass is None else args.mass
+    mass = view_walk.MASS if args.mass is None else args.mass
 
     rows, bakes = [], []
     for name in [s for s in args.scenes.split(",") if s]:
@@ -125,7 +125,7 @@ def main():
                           "spacing": summary["cache"]["spacing"], "n_levels": tr.n_levels,
                           "bake_seconds": summary["bake_seconds"], "file_bytes": summary["file_bytes"],
                           "cached": info["cached"]})
-            frames = view.ViewFrames(tr, common.load(d))
+            frames = view_frames.ViewFrames(tr, common.load(d))
             cam = frames.scene.camera
             masks = rv.regions(frames, d, args.error_size)
             for refine in [float(x) for x in args.refines.split(",") if x]:

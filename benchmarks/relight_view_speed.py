@@ -64,7 +64,7 @@ def main():
                     help="directions per camera sample (default view_converge.SLOTS)")
     ap.add_argument("--defensive", type=float, default=None, help="the BSDF's share (default view_converge.DEFENSIVE)")
     ap.add_argument("--levels", type=int, default=None,
-                    help="product-tree levels at most (default wavlight.relight.view.PRODUCT_LEVELS)")
+                    help="product-tree levels at most (default wavlight.relight.view_frames.PRODUCT_LEVELS)")
     ap.add_argument("--candidates", type=int, default=None,
                     help="candidates of a resampled camera sample (default view_converge.CANDIDATES, 0: none)")
     ap.add_argument("--no-control", action="store_true", help="without the control variate")
@@ -72,11 +72,11 @@ def main():
     started = rc.begin(args)
     import wavlight
     from wavlight.evaluation.metrics import relmse
-    from wavlight.relight import view
+    from wavlight.relight import view_frames
     from wavlight.relight import view_converge as vc
 
     if args.levels is not None:
-        view.PRODUCT_LEVELS = args.levels
+        view_frames.PRODUCT_LEVELS = args.levels
     knobs = {k: v for k, v in (("slots", args.slots), ("defensive", args.defensive), ("candidates", args.candidates))
              if v is not None}
     if args.no_control:
@@ -101,7 +101,7 @@ def main():
               f"{rc.reference_noise(ref, ref_err):.4f})", file=sys.stderr, flush=True)
         # compile and warm every kernel, untimed
         wavlight.render_full(changed, spp=1, strategy="wavelet", width=8, height=8)
-        warm = view.ViewFrames(transfer, scene)
+        warm = view_frames.ViewFrames(transfer, scene)
         warm.converge(other["camera"]["eye"], target, width=size, height=size, spp=1, seed=99, **knobs)
         runs = {k: {"seconds": [], "cpu_seconds": [], "relmse": [], "stats": [], "load": []} for k in METHODS}
 
@@ -117,7 +117,7 @@ def main():
             r = wavlight.render_full(changed, spp=args.spp, strategy="wavelet", width=size, height=size, seed=seed)
             record("wavelet", r, r.stats["setup_seconds"] + r.stats["render_seconds"], time.process_time() - c0)
             c0, t0 = time.process_time(), time.perf_counter()
-            frames = view.ViewFrames(transfer, scene)   # the bake and the scene loaded: its tracer timed
+            frames = view_frames.ViewFrames(transfer, scene)   # the bake and the scene loaded: its tracer timed
             r = frames.converge(eye, target, width=size, height=size, spp=args.spp, seed=seed, **knobs)
             record("converge", r, time.perf_counter() - t0, time.process_time() - c0)
             del frames
@@ -181,7 +181,7 @@ def main():
           "relMSE ratio (relMSE x seconds over wavelet's)")
     print(rc.table(lines, list(lines[0]) if lines else ["size"]))
     rc.finish(args.output, rc.rounded({"sizes": sizes, "spp": args.spp, "seeds": args.seeds, "ref_spp": args.ref_spp,
-                                       "levels": view.PRODUCT_LEVELS, "slots": knobs.get("slots", vc.SLOTS),
+                                       "levels": view_frames.PRODUCT_LEVELS, "slots": knobs.get("slots", vc.SLOTS),
                                        "defensive": knobs.get("defensive", vc.DEFENSIVE),
                                        "control": not args.no_control, "target": TARGET,
                                        "amortized_frames": list(AMORTIZED), "case": out,

@@ -1,6 +1,6 @@
 """The view frame's walk against its own texel sum: per bunny of benchmarks/relight_view.py (its
 view bakes, cached in /tmp/relight-bench/view-bakes), --points cache points on the bunny facing
-the camera of relight_view.py, B = <T1, f_r> by the walk (:func:`wavlight.relight.view.product_reference`,
+the camera of relight_view.py, B = <T1, f_r> by the walk (:func:`wavlight.relight.view_walk.product_reference`,
 the kernel's numpy twin) at each refine and mass against the same walk refined down to every
 texel (refine --truth-refine, mass 0: the midpoint rule at texel size). The relative L2 over
 the points and the nodes visited per point show what the walk's stopping rule costs and buys;
@@ -35,13 +35,13 @@ def main():
     ap.add_argument("--turn", type=float, default=40.0, help="degrees the eye turns about the target")
     args = common.parse(ap, "view_walk", 0.0)
     started = common.begin(args)
-    from wavlight.relight import view
+    from wavlight.relight import view_frames, view_walk
 
     rows, scenes = [], {}
     for name in [s for s in args.scenes.split(",") if s]:
         d = relight_view.turned(relight_view.SCENES[name](), args.turn)
         tr, _ = relight_view.cached_view_bake(d, None)
-        frames = view.ViewFrames(tr, common.load(d))
+        frames = view_frames.ViewFrames(tr, common.load(d))
         eye = frames.scene.camera.eye
         floor = frames.scene.face_material[-1]
         facing = np.einsum("ij,ij->i", frames.normal, eye - frames.position) > 0
@@ -49,8 +49,8 @@ def main():
         points = np.sort(np.random.default_rng(1).choice(candidates, min(args.points, len(candidates)), replace=False))
         items = frames._point_items(points, eye)
         s = tr._s
-        walk = lambda refine, mass: view.product_reference(s["offsets"], s["entry_scale"], s["entry_data"],  # noqa: E731
-                                                           tr.n_levels, *items, refine=refine, mass=mass)
+        walk = lambda refine, mass: view_walk.product_reference(  # noqa: E731
+            s["offsets"], s["entry_scale"], s["entry_data"], tr.n_levels, *items, refine=refine, mass=mass)
         truth, truth_nodes = walk(args.truth_refine, 0.0)
         scenes[name] = {"points": len(points), "n_levels": tr.n_levels,
                         "truth_nodes_per_point": float(truth_nodes.mean())}

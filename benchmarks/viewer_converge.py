@@ -149,7 +149,7 @@ def run(browser, viewer, size, rotate_y, seconds, rested) -> dict:
     page = browser.new_page(viewport={"width": size + 420, "height": max(size, 400) + 80})
     try:
         t_open = time.perf_counter()
-        page.goto(f"{viewer.url}?rotate_y={rotate_y:g}&encoding=jpeg")
+        page.goto(f"{viewer.url}&rotate_y={rotate_y:g}&encoding=jpeg")
         page.wait_for_function("() => window.viewer && viewer.frames >= 1", timeout=60000)
         first_frame = time.perf_counter() - t_open
         if rested:   # the converge thread's preparation (the first page), then the warming of this lighting

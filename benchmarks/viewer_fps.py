@@ -224,7 +224,7 @@ def lighting(args, prov):
             plan = [(e, False) for _ in range(args.repeats) for e in ENCODINGS] + [(ENCODINGS[0], True)]
             for encoding, drag in plan:
                 page = browser.new_page(viewport={"width": args.width + 420, "height": args.height + 80})
-                page.goto(f"{url}?terms={args.terms}&encoding={encoding}&rotate_y=0")
+                page.goto(f"{url}&terms={args.terms}&encoding={encoding}&rotate_y=0")
                 page.wait_for_function("() => window.viewer && viewer.frames >= 1", timeout=60000)
                 run = page.evaluate(ANIMATE, [args.seconds, 1.0, drag, args.interval_ms])
                 page.close()
@@ -427,7 +427,7 @@ def varied(args, prov):
             for control, encoding, drag in plan:
                 page = browser.new_page(viewport={"width": max(transfer.width, 384) + 420,
                                                   "height": max(transfer.height, 384) + 80})
-                page.goto(f"{url}?{query}&encoding={encoding}")
+                page.goto(f"{url}&{query}&encoding={encoding}")
                 page.wait_for_function("() => window.viewer && viewer.frames >= 1", timeout=60000)
                 page.evaluate(MEASURE)
                 extra = {}

@@ -4,8 +4,9 @@
 ``view PATH [--env FILE ...] [--port P] [--no-browser]`` serves a page on 127.0.0.1 (no other
 address) with sliders for the rotation, the exposure and the terms K, the maps to choose from
 (index 0 is the baked one, then each ``--env`` in order), the frame rate and the converge
-control; it prints the page's URL on one line and opens it in the system browser unless
-``--no-browser``. The state is in the URL (``/?rotate_y=120&exposure=0.5&terms=256&env=1``).
+control; it prints the page's URL on one line, with the run's token
+(``http://127.0.0.1:PORT/?token=...``: requests without it are refused), and opens it in the
+system browser unless ``--no-browser``. The state is in the URL (``/?token=...&rotate_y=120&exposure=0.5&terms=256&env=1``).
 A bake made with ``--vary object`` shows that factor's controls instead: the object's translation
 and its rotation about +Y (``/?translate=0.3,0,0.2&rotate_y=45&exposure=0.5``), its frames and
 converge by the moving-object estimator; ``--env`` does not apply to it, and ``--scene FILE``

@@ -1,9 +1,9 @@
 /* Frames from a moving camera (Chen & Gao sec. 2.2, eq. 6-8, the view the varying factor): the
  * double product B = <T1, f_r(x, ., wo) rho> of baked transfer T1 = L V cos (Haar coefficients
  * on the world-frame lat-long square of N = 2^n texels, three channels, compressed and quantized
- * in blocks of POINTS points: wavlight/relight/view.py) and the BRDF without its albedo,
+ * in blocks of POINTS points: wavlight/relight/view_bake.py) and the BRDF without its albedo,
  * evaluated top-down over T1's quadtree (eq. 13's nonstandard basis).
- * numpy twin: wavlight/relight/view.py product_reference.
+ * numpy twin: wavlight/relight/view_walk.py product_reference.
  *
  * An item is K cache points with weights (K = 1: a cache point; K = 3: a pixel, its lattice
  * triangle's points and barycentric weights): its T1 is sum_k w_k T1_k (the product is linear
@@ -57,10 +57,10 @@
 #define K 1
 #endif
 #ifndef MASS_STEPS
-#define MASS_STEPS 8      /* view.py MASS_STEPS */
+#define MASS_STEPS 8      /* view_walk.py MASS_STEPS */
 #endif
-#define RHO_MAX 4.0f      /* view.py RHO_MAX */
-#define RHO_FLOOR 0.5f    /* view.py RHO_FLOOR */
+#define RHO_MAX 4.0f      /* view_walk.py RHO_MAX */
+#define RHO_FLOOR 0.5f    /* view_walk.py RHO_FLOOR */
 #define STACK 40
 /* scalar forms (kernels/simd.h redefines sqrt and fmax for the lane vectors) */
 #if defined(WL_INLINE_BUILTINS)
@@ -153,7 +153,7 @@ inline float4 view_ramp4(const float4 x, const float4 s)
 }
 
 /* k = min(ceil(log2(share) / 2), MASS_STEPS) for share = phi / mass > 1, else 0: the walk's
- * g = 2^k >= sqrt(share) (numpy twin: view.py mass_steps) */
+ * g = 2^k >= sqrt(share) (numpy twin: view_walk.py mass_steps) */
 inline uint view_mass_steps(const float share)
 {
     if (!(share > 1.0f)) return 0u;
@@ -349,7 +349,8 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
 }
 
 /* ------------------------------------------------------------------ the frame around the walks
- * numpy twins: wavlight/relight/view.py ViewFrames.hit_points (lattice_points) and the assembly
+ * numpy twins: wavlight/relight/view_frames.py ViewFrames.hit_points (surface_cache.py
+ * lattice_points) and the assembly
  * of ViewFrames.frame's numpy backend. Lattice coordinates and the environment's direction
  * angles in double precision where the device has it (as numpy computes them: the same lattice
  * triangle and texel but within rounding of their borders), else in float. */
@@ -369,7 +370,7 @@ inline long view_local(const long i, const long j, const long k)
 
 /* Per camera ray: the three cache points and normalized barycentric weights of its hit on face
  * prim (-1: a miss, weights 0) at embree's (u, v), the lattice triangle holding it (module
- * docstring of view.py); a point is left out (weight 0) on the face's back (dir . n_face >= 0)
+ * docstring of surface_cache.py); a point is left out (weight 0) on the face's back (dir . n_face >= 0)
  * or where its normal is further than the crease from the face's (n_point . n_face < cos_crease).
  * used[p] = 1 for every point of weight > 0 (the points the frame's walks shade). */
 __kernel void view_lookup(const uint count, __global const int *prim, __global const float *hit_u,

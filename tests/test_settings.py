@@ -15,7 +15,7 @@ from click.testing import CliRunner
 import wavlight
 from wavlight import imageio
 from wavlight.cli.main import main
-from wavlight.relight import converge, frames, moving, settings, transfer, view, viewer
+from wavlight.relight import converge, frames, moving, settings, transfer, view_frames, viewer
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,11 +29,11 @@ LIBRARY = {
         (transfer.Transfer.frame_timed, ("env", "rotate_y", "scale", "terms", "priority", "background")),
         (converge.converge, ("scene", "env", "rotate_y", "scale", "seed", "background")),
         (moving.MovingObject.frame, ("translate", "rotate", "spp", "seed")),
-        (view.still_settings, ("refine", "mass", "mode", "supersample", "tau")),
+        (view_frames.still_settings, ("refine", "mass", "mode", "supersample", "tau")),
         # (mode and supersample default to the viewer's frame here: still_settings holds the written one's)
-        (view.ViewFrames.frame, ("eye", "target", "fov", "width", "height", "refine", "mass", "tau")),
-        (view.ViewFrames.converge, ("eye", "target", "fov", "width", "height", "seed")),
-        (view.ViewFrames.__init__, ("scene", "background")),
+        (view_frames.ViewFrames.frame, ("eye", "target", "fov", "width", "height", "refine", "mass", "tau")),
+        (view_frames.ViewFrames.converge, ("eye", "target", "fov", "width", "height", "seed")),
+        (view_frames.ViewFrames.__init__, ("scene", "background")),
         (imageio.save_image, ("exposure", "tonemap")),
     ],
     "view": [(viewer.Viewer.__init__, ("maps", "scene", "background")), (viewer.Viewer.serve, ("port",))],
@@ -86,14 +86,14 @@ def test_library_defaults_are_the_records(name):
 
 
 def test_the_written_frames_defaults():
-    """still_settings() is the written frame view.STILL: its records' defaults, and supersample's
+    """still_settings() is the written frame view_frames.STILL: its records' defaults, and supersample's
     rule for the mode (point mode: one ray per pixel)."""
     records = settings.FRAME
-    assert view.STILL == {"refine": records["refine"].default, "mass": records["mass"].default,
+    assert view_frames.STILL == {"refine": records["refine"].default, "mass": records["mass"].default,
                           "mode": records["mode"].default, "supersample": settings.WRITTEN_SUPERSAMPLE,
                           "tau": records["tau"].default}
-    assert records["mode"].default == "pixel" and view.still_settings(mode="point")["supersample"] == 1
-    assert view.still_settings(mode="point", supersample=3)["supersample"] == 3
+    assert records["mode"].default == "pixel" and view_frames.still_settings(mode="point")["supersample"] == 1
+    assert view_frames.still_settings(mode="point", supersample=3)["supersample"] == 3
 
 
 def test_a_bake_without_flags_is_the_librarys_bake(monkeypatch, tmp_path):

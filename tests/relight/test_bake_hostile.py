@@ -36,7 +36,7 @@ from wavlight.errors import WavlightError
 from wavlight.relight import Transfer, store
 from wavlight.relight.converge import converge
 from wavlight.relight.moving import MovingObject
-from wavlight.relight.view import ViewFrames
+from wavlight.relight.view_frames import ViewFrames
 
 SCENE = over_floor({"shape": "sphere", "name": "ball", "translate": [0.0, 0.5, 0.0], "radius": 0.5,
                     "subdivisions": 2}, width=16, height=12, target=(0.0, 0.3, 0.0))
@@ -592,7 +592,7 @@ CHANGE = r"""
 import os, shutil, sys
 import numpy as np
 from wavlight.relight import Transfer
-from wavlight.relight.view import ViewFrames
+from wavlight.relight.view_frames import ViewFrames
 path, other, kind = sys.argv[1:4]
 
 def frame(tr, frames):
@@ -660,12 +660,12 @@ def test_object_frames_in_passes_are_unbiased(bakes, monkeypatch):
 
 
 def test_view_frames_in_passes_are_unbiased(bakes, monkeypatch):
-    from wavlight.relight import view
+    from wavlight.relight import view_frames
 
     tr = Transfer.load(bakes / "view.wlt")
     frames = ViewFrames(tr)
     one = frames.converge([1.0, 2.0, 3.0], [0.0, 0.3, 0.0], 40.0, 16, 12, spp=16, seed=1)
-    monkeypatch.setattr(view, "PASS_SPP", 3)
+    monkeypatch.setattr(view_frames, "PASS_SPP", 3)
     passes = frames.converge([1.0, 2.0, 3.0], [0.0, 0.3, 0.0], 40.0, 16, 12, spp=16, seed=2)
     assert passes.stats["pass_spp"] == 3 and one.stats["pass_spp"] == 16
     _agree(passes, one, "view frame in passes")

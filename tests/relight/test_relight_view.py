@@ -1,4 +1,4 @@
-"""Frames from a moving camera (wavlight.relight.view): the product kernel against its numpy twin
+"""Frames from a moving camera (wavlight.relight.view_frames): the product kernel against its numpy twin
 and against the dense sum over texels, the BRDF factor against wavlight.bsdfs, the surface
 cache's lattice, the bake's texels as integrals, the unbiased frame against mis from another
 camera, the command line and its one-line errors."""
@@ -15,7 +15,7 @@ import wavlight
 from scenes_util import check_estimates, toml_text, write_raw_image
 from test_relight_cli import one_error_line, run
 from wavlight import animation, bsdfs, haar
-from wavlight.relight import lighting, view
+from wavlight.relight import lighting, surface_cache, view_bake, view_frames, view_walk
 
 EYE, TARGET = [2.0, 2.0, 3.0], [0.0, 0.5, 0.0]
 
@@ -56,17 +56,17 @@ def test_brdf_factor_is_f_cos_over_cos():
     wi /= np.linalg.norm(wi, axis=1, keepdims=True)
     wo /= np.linalg.norm(wo, axis=1, keepdims=True)
     for kind, param in ((bsdfs.LAMBERT, 0.0), (bsdfs.PHONG, 20.0), (bsdfs.GGX, 0.2), (bsdfs.GGX, 0.6)):
-        got = view.brdf_reference(np.full(len(wi), kind), np.full(len(wi), param), wi, wo) * wi[:, 2]
+        got = view_walk.brdf_reference(np.full(len(wi), kind), np.full(len(wi), param), wi, wo) * wi[:, 2]
         np.testing.assert_allclose(got, bsdfs.eval_cos(kind, np.full(len(wi), param), wi, wo), rtol=1e-9, atol=1e-12)
 
 
 def test_product_kernel_equals_its_twin(baked):
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     points = np.arange(0, len(frames.position), 5)
     kinds = frames.kind_of[frames.material[points]]
     assert (kinds == bsdfs.GGX).sum() > 100 and (kinds == bsdfs.LAMBERT).sum() > 100
-    for eye, refine, mass in ((EYE, 0.25, view.MASS), ([-1.0, 0.8, 2.0], 0.1, view.MASS), (EYE, 0.25, 0.0),
+    for eye, refine, mass in ((EYE, 0.25, view_walk.MASS), ([-1.0, 0.8, 2.0], 0.1, view_walk.MASS), (EYE, 0.25, 0.0),
                               (EYE, 0.4, 1e-3)):
         a, na = frames.products(points, eye, refine, mass=mass)
         b, nb = frames.products(points, eye, refine, backend="numpy", mass=mass)
@@ -84,17 +84,17 @@ def test_product_kernel_equals_its_twin_for_every_kind(baked):
     """The walk's BRDF (phong, ggx smooth and rough, lambert) on the same points, kernel against
     product_reference, with the points' own normals and views."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     points, _, _, nrm, wo = frames._point_items(np.arange(2, len(frames.position), 11), EYE)
     rng = np.random.default_rng(7)
     choice = rng.integers(0, 4, len(points))
     kind = np.array([bsdfs.PHONG, bsdfs.GGX, bsdfs.GGX, bsdfs.LAMBERT])[choice]
     param = np.array([20.0, 0.05, 0.6, 0.0])[choice]
-    device = view.ViewDevice(tr)
+    device = view_walk.ViewDevice(tr)
     s = tr._s
     for refine in (0.2, 0.4):
         a, na = device.products(points, kind, param, nrm, wo, refine)
-        b, nb = view.product_reference(s["offsets"], s["entry_scale"], s["entry_data"], tr.n_levels, points, kind,
+        b, nb = view_walk.product_reference(s["offsets"], s["entry_scale"], s["entry_data"], tr.n_levels, points, kind,
                                        param, nrm, wo, refine)
         assert np.abs(b).max() > 0 and (na == nb).mean() > 0.99
         for k in range(4):
@@ -119,12 +119,12 @@ def pixel_items(frames, eye, target, size=24):
     return ids[ok], w[ok], fn[ok], d[hit][ok], scene.face_material[prim[hit][ok]]
 
 
-@pytest.mark.parametrize("tau", [0.0, view.TAU])
+@pytest.mark.parametrize("tau", [0.0, view_frames.TAU])
 def test_pixel_kernel_equals_its_twin(baked, tau):
     """Per pixel: the blend of three points' T1 with the face normal and the pixel's view, the
     kernel (K = 3) against product_reference, with and without the cosine's correction."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     ids, w, fn, d, mat = pixel_items(frames, EYE, TARGET)
     kinds = frames.kind_of[mat]
     assert (kinds == bsdfs.GGX).sum() > 50 and (kinds == bsdfs.LAMBERT).sum() > 50
@@ -139,14 +139,14 @@ def test_pixel_kernel_equals_its_twin(baked, tau):
     np.testing.assert_allclose(fa, fb, rtol=2e-2, atol=1e-3 * fb.max())
 
 
-@pytest.mark.parametrize("mode", view.MODES)
+@pytest.mark.parametrize("mode", view_frames.MODES)
 def test_supersampled_frame_is_the_finer_frame_box_filtered(baked, mode, monkeypatch):
     """S x S rays per pixel through its sub-pixels' centres: the frame at S times the size,
     averaged over S x S blocks; on the device and in numpy, in chunks of rays that do not divide
     the frame."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
-    monkeypatch.setattr(view, "CHUNK_PIXELS", 7)   # 28 rays: 3 pixels of 9 rays per chunk
+    frames = view_frames.ViewFrames(tr, scene)
+    monkeypatch.setattr(view_frames, "CHUNK_PIXELS", 7)   # 28 rays: 3 pixels of 9 rays per chunk
     for backend in ("opencl", "numpy"):
         fine, _ = frames.frame(EYE, TARGET, width=30, height=18, mode=mode, backend=backend)
         got, st = frames.frame(EYE, TARGET, width=10, height=6, mode=mode, backend=backend, supersample=3)
@@ -159,13 +159,13 @@ def test_mass_steps_round_the_square_root_up_to_a_power_of_two():
     1 and NaN, MASS_STEPS for infinity (as the kernel's float32 bits give them)."""
     share = np.array([0.0, 0.5, 1.0, np.nextafter(np.float32(1), np.float32(2)), 4.0, np.nextafter(np.float32(4), 8),
                       16.0, 17.0, 1e30, np.inf, np.nan], np.float32)
-    want = [0, 0, 0, 1, 1, 2, 2, 3, view.MASS_STEPS, view.MASS_STEPS, 0]
-    assert view.mass_steps(share).tolist() == want
+    want = [0, 0, 0, 1, 1, 2, 2, 3, view_walk.MASS_STEPS, view_walk.MASS_STEPS, 0]
+    assert view_walk.mass_steps(share).tolist() == want
     rng = np.random.default_rng(5)
     x = np.exp(rng.uniform(0.0, 12.0, 1000)).astype(np.float32)
-    k = view.mass_steps(x)
+    k = view_walk.mass_steps(x)
     g = 2.0 ** k
-    assert np.all((g >= np.sqrt(x.astype(np.float64)) * (1 - 1e-7)) | (k == view.MASS_STEPS))
+    assert np.all((g >= np.sqrt(x.astype(np.float64)) * (1 - 1e-7)) | (k == view_walk.MASS_STEPS))
     assert np.all((g / 2 < np.sqrt(x.astype(np.float64))) | (k == 0))
 
 
@@ -173,14 +173,14 @@ def test_pixel_walk_of_one_point_is_the_point_walk(baked):
     """An item of one cache point (weights 1, 0, 0) shaded with the point's normal and view is
     the point mode's product, the correction on or off (rho = 1 where n = m)."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     points = np.arange(1, len(frames.position), 7)
     wo = np.asarray(EYE) - frames.position[points]
-    wo = view.lifted_view(frames.normal[points], wo / np.linalg.norm(wo, axis=1, keepdims=True))
+    wo = view_walk.lifted_view(frames.normal[points], wo / np.linalg.norm(wo, axis=1, keepdims=True))
     ids = np.stack([points, points[::-1], points], 1)
     w = np.tile([1.0, 0.0, 0.0], (len(points), 1))
     want, nw = frames.products(points, EYE, backend="numpy")
-    for tau in (0.0, view.TAU):
+    for tau in (0.0, view_frames.TAU):
         got, ng = frames.pixel_products(ids, w, frames.normal[points], -wo, frames.material[points], tau=tau,
                                         backend="numpy")
         np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-9 * np.abs(want).max())
@@ -203,9 +203,9 @@ def test_lookup_kernel_equals_hit_points(baked, eye):
     per hit (all but rays within rounding of a lattice triangle's border), zero weights on misses
     (and, from below the floor, on the faces' backs), and the points of weight > 0."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     cam, d, prim, t, u, v = frame_rays(frames, eye, TARGET, 48)
-    fd = view.FrameDevice(frames, view.ViewDevice(tr))
+    fd = view_walk.FrameDevice(frames, view_walk.ViewDevice(tr))
     queue = wavlight.cl.thread_queue()
     ids_b, w_b, _, _, points = fd.lookup(prim, u, v, d, queue)
     ids = wavlight.cl.read(ids_b, (len(prim), 3), np.uint32, queue).astype(np.int64)
@@ -231,7 +231,7 @@ def test_assemble_kernel_equals_its_twin(baked):
     the albedo; misses take the environment's texel of Environment.eval, the same texel for
     directions anywhere (poles, the seam, texel borders: float angles, double near a border)."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     cam, d, prim, t, u, v = frame_rays(frames, EYE, TARGET, 40)
     rng = np.random.default_rng(5)
     env = frames.environment
@@ -246,8 +246,8 @@ def test_assemble_kernel_equals_its_twin(baked):
     d = np.concatenate([d, extra]).astype(np.float32)
     prim = np.concatenate([prim, np.full(len(extra), -1, np.int32)])
     u, v = np.concatenate([u, np.zeros(len(extra), np.float32)]), np.concatenate([v, np.zeros(len(extra), np.float32)])
-    device = view.ViewDevice(tr)
-    fd = view.FrameDevice(frames, device)
+    device = view_walk.ViewDevice(tr)
+    fd = view_walk.FrameDevice(frames, device)
     queue = wavlight.cl.thread_queue()
     ids_b, w_b, prim_b, dir_b, points = fd.lookup(prim, u, v, d, queue)
     B = np.abs(rng.normal(size=(len(points), 3))).astype(np.float32)
@@ -257,7 +257,7 @@ def test_assemble_kernel_equals_its_twin(baked):
     miss, hit = prim < 0, np.flatnonzero(prim >= 0)
     same = (got[miss] == env.eval(d[miss].astype(np.float64))).all(1)
     # exact with double precision near the borders; in float only a border's neighbour may differ
-    assert same.all() if view.device_has_doubles() else same.mean() > 0.98
+    assert same.all() if view_walk.device_has_doubles() else same.mean() > 0.98
     at = np.full(len(frames.position), len(points), np.int64)
     at[points] = np.arange(len(points))
     rows = np.concatenate([B, np.zeros((1, 3), np.float32)])
@@ -270,7 +270,7 @@ def test_assemble_kernel_filters_the_background_as_its_twin(baked):
     filter (the seam, the poles, texel borders and random directions), and the frames of both
     backends agree; the hits are the nearest background's frame's."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene, background="bilinear")
+    frames = view_frames.ViewFrames(tr, scene, background="bilinear")
     env = frames.environment
     assert env.background == "bilinear" and scene.environment.background == "nearest"
     rng = np.random.default_rng(9)
@@ -280,8 +280,8 @@ def test_assemble_kernel_filters_the_background_as_its_twin(baked):
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     prim = np.full(len(d), -1, np.int32)
     zeros = np.zeros(len(d), np.float32)
-    device = view.ViewDevice(tr)
-    fd = view.FrameDevice(frames, device)
+    device = view_walk.ViewDevice(tr)
+    fd = view_walk.FrameDevice(frames, device)
     queue = wavlight.cl.thread_queue()
     ids_b, w_b, prim_b, dir_b, points = fd.lookup(prim, zeros, zeros, d, queue)
     got = fd.assemble(len(prim), prim_b, ids_b, w_b, dir_b, points, wavlight.cl.to_device(np.zeros((1, 3),
@@ -291,7 +291,7 @@ def test_assemble_kernel_filters_the_background_as_its_twin(baked):
     fa, _ = frames.frame(EYE, TARGET)
     fb, _ = frames.frame(EYE, TARGET, backend="numpy")
     np.testing.assert_allclose(fa, fb, rtol=2e-2, atol=1e-4 * fb.max())
-    near, _ = view.ViewFrames(tr, scene).frame(EYE, TARGET)
+    near, _ = view_frames.ViewFrames(tr, scene).frame(EYE, TARGET)
     differs = (np.asarray(near) != np.asarray(fa)).any(-1)
     assert 0 < differs.mean() < 1   # the sky differs, the surfaces do not
 
@@ -300,22 +300,23 @@ def test_walk_to_the_texels_is_the_dense_sum(baked):
     """With refine -> 0 every node is refined down to the texels: B = sum_t T1_t f_r(w_t), the
     stored coefficients inverted to texels and summed densely."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     points = np.arange(3, len(frames.position), 97)
     side = 1 << tr.n_levels
     s = tr._s
-    coeffs = view._coefficients(s["offsets"], s["entry_scale"], s["entry_data"], points, np.arange(side * side))
+    coeffs = view_walk._coefficients(s["offsets"], s["entry_scale"], s["entry_data"], points, np.arange(side * side))
     T = haar.inverse(coeffs.reshape(len(points), 3, side, side))                        # (I, 3, N, N) texels
     wo = np.asarray(EYE) - frames.position[points]
-    wo = view.lifted_view(frames.normal[points], wo / np.linalg.norm(wo, axis=1, keepdims=True))
+    wo = view_walk.lifted_view(frames.normal[points], wo / np.linalg.norm(wo, axis=1, keepdims=True))
     mat = frames.material[points]
     dirs = lighting.texel_directions(tr.n_levels).reshape(-1, 3)
     n = frames.normal[points]
     s_ax, t_ax = wavlight.warp.frame(n)
     wl = np.stack([dirs @ a.T for a in (s_ax, t_ax, n)], -1).transpose(1, 0, 2)          # (I, N^2, 3)
     wol = np.stack([np.einsum("ij,ij->i", wo, a) for a in (s_ax, t_ax, n)], 1)
-    f = view.brdf_reference(np.repeat(frames.kind_of[mat], side * side), np.repeat(frames.param_of[mat], side * side),
-                            wl.reshape(-1, 3), np.repeat(wol, side * side, axis=0)).reshape(len(points), -1)
+    f = view_walk.brdf_reference(np.repeat(frames.kind_of[mat], side * side),
+                                 np.repeat(frames.param_of[mat], side * side), wl.reshape(-1, 3),
+                                 np.repeat(wol, side * side, axis=0)).reshape(len(points), -1)
     dense = np.einsum("icn,in->ic", T.reshape(len(points), 3, -1), f)
     got, nodes = frames.products(points, EYE, refine=1e-4)
     assert nodes.max() > side * side / 2                                                  # the texels were reached
@@ -327,7 +328,7 @@ def test_walk_to_the_texels_is_the_dense_sum(baked):
     assert err < 0.03 and few[glossy].mean() < nodes[glossy].mean() * 0.8, (err, few[glossy].mean())
     # the bright light holds much of T1's mass in a few nodes: refining them (mass) is closer to
     # the dense sum than the walk by the lobe alone with as many nodes or more
-    for refine in (view.REFINE, view.REFINE / 2, view.REFINE / 4):
+    for refine in (view_walk.REFINE, view_walk.REFINE / 2, view_walk.REFINE / 4):
         plain, plain_nodes = frames.products(points, EYE, refine=refine, mass=0.0)
         if plain_nodes[glossy].mean() >= few[glossy].mean():
             break
@@ -340,7 +341,7 @@ def test_lattice_finds_the_hit_and_its_points(baked):
     """A hit's three cache points and weights reproduce the hit point (flat faces), all of its
     own object, and the cache covers every face."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     rng = np.random.default_rng(1)
     face = rng.integers(0, len(scene.faces), 5000)
     face[:200] = len(scene.faces) - 1                                                      # the floor, finely divided
@@ -349,9 +350,9 @@ def test_lattice_finds_the_hit_and_its_points(baked):
     u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
     tri = scene.vertices[scene.faces[face]].astype(np.float64)
     p = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
-    uu, vv = view.barycentric(scene.vertices, scene.faces, face, p)
+    uu, vv = surface_cache.barycentric(scene.vertices, scene.faces, face, p)
     np.testing.assert_allclose(np.stack([uu, vv], 1), np.stack([u, v], 1), atol=1e-5)
-    ids, w = view.lattice_points(frames.face_k, frames.face_base, frames.lattice, face, uu, vv)
+    ids, w = surface_cache.lattice_points(frames.face_k, frames.face_base, frames.lattice, face, uu, vv)
     np.testing.assert_allclose(w.sum(1), 1.0, atol=1e-12)
     np.testing.assert_allclose(np.einsum("ij,ijk->ik", w, frames.position[ids]), p, atol=1e-5)
     assert np.all(frames.material[ids] == scene.face_material[face][:, None])
@@ -364,15 +365,15 @@ def test_bake_texels_are_integrals_of_L_V_cos(baked):
     """On open floor far from the sphere, G = T1 / L is the texel's integral of max(cos, 0) over
     its solid angle (not a point value): the texels of the upper hemisphere sum to pi."""
     _, scene, tr = baked
-    cache = view.build_cache(scene, 400)
+    cache = surface_cache.build_cache(scene, 400)
     far = np.flatnonzero((np.abs(cache.position[:, 0]) > 2.5) & (np.abs(cache.position[:, 2]) > 2.5))[:256]
-    sub = view.SurfaceCache(cache.position[far], cache.normal[far], cache.material[far], cache.face[far],
+    sub = surface_cache.SurfaceCache(cache.position[far], cache.normal[far], cache.material[far], cache.face[far],
                             cache.face_k, cache.face_base, cache.lattice, cache.spacing, cache.density)
     n = 4
     light = lighting.project(scene.environment, n)
-    s = view._Settings(n, 1e-3, 16, 0, "opencl", 4, light)
+    s = view_bake._Settings(n, 1e-3, 16, 0, "opencl", 4, light)
     tracer = wavlight.raytrace.RayTracer(scene.vertices, scene.faces)
-    T1, rays = view.point_transfer(sub, tracer, s, 0)
+    T1, rays = view_bake.point_transfer(sub, tracer, s, 0)
     G = T1[:, 0] / light[None, :, :, 0]
     side = 1 << n
     z = np.cos(np.pi * np.arange(side + 1) / side)
@@ -385,7 +386,7 @@ def test_bake_texels_are_integrals_of_L_V_cos(baked):
 
 def test_unbiased_frame_equals_mis_from_another_camera(baked):
     folder, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     spp = 64
     r = frames.converge(EYE, TARGET, spp=spp, seed=3)
     moved = wavlight.load_dict(scene_dict({"eye": EYE, "target": TARGET, "fov_y": 40.0}), base_dir=folder)
@@ -403,7 +404,7 @@ def test_unbiased_frame_equals_mis_from_another_camera(baked):
     # the product makes the estimate better than the BSDF alone would: per sample below mis's
     assert np.median(r.stderr[hits] * np.sqrt(spp)) < np.median(ref.stderr[hits] * np.sqrt(512))
     # and the approximate frame is near it
-    for mode in view.MODES:
+    for mode in view_frames.MODES:
         image, _ = frames.frame(EYE, TARGET, mode=mode)
         assert np.linalg.norm(image - ref.image) / np.linalg.norm(ref.image) < 0.12, mode
 
@@ -412,8 +413,8 @@ def test_a_camera_that_sees_only_uncached_sides_gets_a_frame(baked):
     """From below the floor every hit is a face's back, which has no cache: the frame is black
     there and the environment where rays miss, in both modes (never an error)."""
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
-    for mode in view.MODES:
+    frames = view_frames.ViewFrames(tr, scene)
+    for mode in view_frames.MODES:
         image, _ = frames.frame([0.0, -1.0, 3.5], [0.0, 0.5, 0.0], mode=mode)
         assert np.all(np.isfinite(image)) and image.min() >= 0 and image.max() > 0, mode
 
@@ -432,7 +433,7 @@ def test_command_line(baked, tmp_path):
     assert r.exit_code == 0, r.output
     st = json.loads(r.stdout)
     assert st["frame_seconds"] > 0 and st["frames_per_second"] > 0 and (st["width"], st["height"]) == (20, 16)
-    assert all(st[k] == v for k, v in view.STILL.items())   # a written frame's defaults
+    assert all(st[k] == v for k, v in view_frames.STILL.items())   # a written frame's defaults
     r = run("frame", out, "--eye", *EYE, "--target", *TARGET, "--width", 20, "--height", 16, "--tau", 0.2,
             "--supersample", 2, "--mass", 0, "-o", tmp_path / "p.png", "--json")
     assert r.exit_code == 0, r.output
@@ -458,7 +459,7 @@ def test_help_gives_the_walks_defaults():
     r = run("frame", "--help")
     text = " ".join(r.output.split())
     assert r.exit_code == 0
-    assert f"Default: {view.REFINE:g}." in text and f"Default: {view.MASS:g}." in text, text
+    assert f"Default: {view_walk.REFINE:g}." in text and f"Default: {view_walk.MASS:g}." in text, text
 
 
 @pytest.mark.parametrize("args, words", [
@@ -513,18 +514,18 @@ def test_an_error_stops_the_unbiased_frame_at_the_next_pass(baked, monkeypatch):
     from wavlight.relight import view_converge
 
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     monkeypatch.setattr(view_converge, "TILE_PIXELS", 48 * 16)   # two tiles
     failing = Failing(view_converge.pass_rays, fail_at=3)        # after both tiles' first passes
     monkeypatch.setattr(view_converge, "pass_rays", failing)
     with pytest.raises(RuntimeError, match="stopped"):
-        frames.converge(EYE, TARGET, width=48, height=32, spp=view.PASS_SPP * 12, threads=2)
+        frames.converge(EYE, TARGET, width=48, height=32, spp=view_frames.PASS_SPP * 12, threads=2)
     assert failing.after <= 2, failing.after   # 12 passes a tile: up to 10 more without the stop
 
 
 def test_a_frames_size_is_the_given_one_else_the_bakes(baked):
     _, scene, tr = baked
-    frames = view.ViewFrames(tr, scene)
+    frames = view_frames.ViewFrames(tr, scene)
     assert frames.size() == (tr.width, tr.height) and frames.size(40, None) == (40, tr.height)
     with pytest.raises(wavlight.WavlightError, match="width"):
         frames.size(0, 8)

@@ -16,7 +16,7 @@ from wavlight import haar
 from wavlight.envmap import Environment
 from wavlight.relight import converge as cm
 from wavlight.relight import mixture
-from wavlight.relight import view
+from wavlight.relight import view_frames, view_walk
 from wavlight.relight import view_converge as vc
 
 EYE, TARGET = [2.0, 2.0, 3.0], [0.0, 0.5, 0.0]
@@ -56,8 +56,8 @@ def texel_light(frames, levels):
 
 
 def converger(frames, inside):
-    device = view.ViewDevice(frames.transfer)
-    return vc.ViewConverge(frames, inside, device, view.FrameDevice(frames, device))
+    device = view_walk.ViewDevice(frames.transfer)
+    return vc.ViewConverge(frames, inside, device, view_walk.FrameDevice(frames, device))
 
 
 def camera_scene(frames, eye=EYE, target=TARGET):
@@ -86,7 +86,7 @@ def test_trees_kernel_equals_its_twin(bakes, bits, levels, ball, monkeypatch):
     if ball is not None:   # the same transfer, another material on the ball (T1 has no BRDF in it)
         other = wavlight.load_dict(sphere_on_floor(ball), base_dir=folder)
         scene = dataclasses.replace(scene, materials=[other.materials[0], *scene.materials[1:]])
-    frames = view.ViewFrames(by_bits[bits], scene)
+    frames = view_frames.ViewFrames(by_bits[bits], scene)
     inside = texel_light(frames, levels)
     conv = converger(frames, inside)
     monkeypatch.setattr(vc, "TILE_PIXELS", 36 * 8)
@@ -119,7 +119,7 @@ def test_the_trees_hold_the_approximate_frame(bakes):
     approximate frame's pixel mode on the ball and the floor (its finer walk and cosine
     correction aside), so that the control variate's g is close to the integrand."""
     scene, by_bits, folder = bakes
-    frames = view.ViewFrames(by_bits[16], scene)
+    frames = view_frames.ViewFrames(by_bits[16], scene)
     conv = converger(frames, texel_light(frames, 4))
     sc = camera_scene(frames)
     tile = vc.tiles_of(36, 20)[0]
@@ -139,7 +139,7 @@ def test_the_kernel_frame_matches_the_numpy_frame(bakes, options):
     resampled, and without the control variate: nearly every pixel equal, and the images' sums
     within a fraction of their standard error."""
     scene, by_bits, folder = bakes
-    frames = view.ViewFrames(by_bits[8], scene)
+    frames = view_frames.ViewFrames(by_bits[8], scene)
     a = frames.converge(EYE, TARGET, spp=4, seed=9, **options)
     b = frames.converge(EYE, TARGET, spp=4, seed=9, backend="numpy", **options)
     assert a.stats["backend"] == "opencl" and b.stats["backend"] == "numpy"
@@ -158,7 +158,7 @@ def test_trees_are_kept_while_the_camera_stays(bakes, monkeypatch):
     image is the same."""
     scene, by_bits, folder = bakes
     monkeypatch.setattr(vc, "TILE_PIXELS", 36 * 8)
-    frames = view.ViewFrames(by_bits[16], scene)
+    frames = view_frames.ViewFrames(by_bits[16], scene)
     first = frames.converge(EYE, TARGET, spp=2, seed=3)
     again = frames.converge(EYE, TARGET, spp=2, seed=3)
     other = frames.converge([2.1, 2.0, 3.0], TARGET, spp=2, seed=3)
@@ -170,7 +170,7 @@ def test_trees_are_kept_while_the_camera_stays(bakes, monkeypatch):
     assert not np.array_equal(first.image, other.image)
     assert again.stats["rays"] < first.stats["rays"]   # no centre rays
     monkeypatch.setattr(vc, "TREE_CACHE_BYTES", 0)
-    tight = view.ViewFrames(by_bits[16], scene)
+    tight = view_frames.ViewFrames(by_bits[16], scene)
     once, twice = (tight.converge(EYE, TARGET, spp=2, seed=3) for _ in range(2))
     assert once.stats["kept_tree_bytes"] == twice.stats["tiles_kept"] == 0
     np.testing.assert_array_equal(twice.image, first.image)
@@ -178,7 +178,7 @@ def test_trees_are_kept_while_the_camera_stays(bakes, monkeypatch):
 
 def test_bad_backend_is_one_clear_error(bakes):
     scene, by_bits, folder = bakes
-    frames = view.ViewFrames(by_bits[16], scene)
+    frames = view_frames.ViewFrames(by_bits[16], scene)
     with pytest.raises(wavlight.WavlightError, match="backend"):
         frames.converge(EYE, TARGET, spp=1, backend="cuda")
 
@@ -188,14 +188,14 @@ def test_the_kernel_frame_matches_the_numpy_frame_with_the_bilinear_background(b
     converge_shade (BACKGROUND_BILINEAR) as in its twin (TexelLight.background); the samples that
     hit are the nearest background's frame's (the same random numbers, the lighting unchanged)."""
     scene, by_bits, folder = bakes
-    frames = view.ViewFrames(by_bits[8], scene, background="bilinear")
+    frames = view_frames.ViewFrames(by_bits[8], scene, background="bilinear")
     a = frames.converge(EYE, TARGET, spp=4, seed=9)
     b = frames.converge(EYE, TARGET, spp=4, seed=9, backend="numpy")
     assert a.stats["background"] == b.stats["background"] == "bilinear"
     diff = np.abs(a.image - b.image).max(2)
     assert (diff > 1e-3 * (1 + np.abs(b.image).max(2))).mean() < 0.03, diff.max()
     assert abs((a.image - b.image).sum()) < 0.5 * np.sqrt((b.stderr ** 2).sum())
-    near = view.ViewFrames(by_bits[8], scene).converge(EYE, TARGET, spp=4, seed=9)
+    near = view_frames.ViewFrames(by_bits[8], scene).converge(EYE, TARGET, spp=4, seed=9)
     assert near.stats["background"] == "nearest"
     # pixels whose samples all hit: the same numbers (the kernel's miss branch alone differs)
     sc = dataclasses.replace(scene, camera=frames.camera(EYE, TARGET, None))

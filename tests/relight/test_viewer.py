@@ -188,7 +188,7 @@ def _opened(serve, page, query="", **options):
     the page's first frame."""
     v = serve(**options)
     pg = page()
-    pg.goto(v.url + query)
+    pg.goto(v.url + query.replace("?", "&", 1))
     _frames(pg, 1)
     return v, pg
 
@@ -222,7 +222,7 @@ LIMITS = Limits(maps=2, max_terms=1024, rotate_y=0.0, terms=256)
 def test_sanitise_replaces_and_clamps_with_one_line_notes():
     state, notes = sanitise({"rotate_y": "abc", "terms": "-5", "env": "99", "exposure": "inf"}, LIMITS)
     assert state == {"rotate_y": 0.0, "exposure": 0.0, "tonemap": "clamp", "terms": 1, "env": 0, "encoding": "jpeg",
-                     "preview": False, "converge": False}
+                     "show_background": True, "preview": False, "converge": False}
     assert len(notes) == 4 and all("\n" not in n for n in notes)
     assert any("rotate_y='abc' is not a number" in n for n in notes)
     assert any("exposure='inf' is not finite" in n for n in notes)
@@ -239,6 +239,12 @@ def test_sanitise_replaces_and_clamps_with_one_line_notes():
     assert notes == [] and state["terms"] == 256
     on, _ = sanitise({"converge": True, "preview": True}, Limits(2, 1024, 0.0, 256, converge=True))
     assert on["converge"] is True and on["preview"] is True
+    # the background: shown unless given as false; anything else shown, with a note
+    for raw, shown_ in ((False, False), ("0", False), ("false", False), (True, True), ("1", True)):
+        state, notes = sanitise({"show_background": raw}, LIMITS)
+        assert state["show_background"] is shown_ and notes == []
+    state, notes = sanitise({"show_background": "maybe"}, LIMITS)
+    assert state["show_background"] is True and len(notes) == 1 and "show_background='maybe'" in notes[0]
 
 
 def test_tone_map_is_srgb_of_exposure_times_linear():
@@ -316,7 +322,7 @@ async def _next_frame(ws, timeout=10.0, ack=True):
 
 def test_page_and_socket_sanitise_bad_input(serve, transfer):
     v = serve()
-    status, html = _get(v.url + "?rotate_y=abc&terms=-5&env=99&exposure=inf&encoding=gif")
+    status, html = _get(v.url + "&rotate_y=abc&terms=-5&env=99&exposure=inf&encoding=gif")
     assert status == 200
     config = _config(html)
     assert {k: config["state"][k] for k in ("rotate_y", "terms", "env", "exposure", "encoding")} == \
@@ -324,15 +330,15 @@ def test_page_and_socket_sanitise_bad_input(serve, transfer):
     assert len(config["notes"]) == 5
     assert config["maps"] == ["the baked map", "gradient.exr"] and config["max_terms"] == 4 ** LEVELS
     assert not re.search(r'<(script|link)[^>]+(src|href)="(https?:)?//', html)
-    assert _get(v.url + "nothing-here")[0] == 404
+    assert _get(v.address + "nothing-here?token=" + v.token)[0] == 404
     status, text = _get(v.url, {"Host": "example.com"})
     assert status == 403 and text.count("\n") == 1
 
     async def talk():
         async with aiohttp.ClientSession() as client:
             with pytest.raises(aiohttp.WSServerHandshakeError):
-                await client.ws_connect(v.url + "ws", headers={"Origin": "http://example.com"})
-            async with client.ws_connect(v.url + "ws") as ws:
+                await client.ws_connect(v.socket_url, headers={"Origin": "http://example.com"})
+            async with client.ws_connect(v.socket_url) as ws:
                 for bad in ("not json", "[1, 2]", json.dumps({"type": "launch"})):
                     await ws.send_str(bad)
                     reply = json.loads((await ws.receive(timeout=10)).data)
@@ -344,7 +350,7 @@ def test_page_and_socket_sanitise_bad_input(serve, transfer):
                 assert texts and texts[0]["type"] == "state" and len(texts[0]["notes"]) == 4
                 assert header["state"] == {"rotate_y": transfer.scene_rotate_y % 360, "exposure": 0.0,
                                            "tonemap": "clamp", "terms": 1,
-                                           "env": 0}
+                                           "env": 0, "show_background": True}
                 assert payload[:2] == b"\xff\xd8" and header["encoding"] == "jpeg"   # a JPEG
                 await ws.send_json({"type": "state", "rotate_y": 90, "terms": 64, "env": 1, "encoding": "raw"})
                 header, payload, _ = await _next_frame(ws)
@@ -366,11 +372,11 @@ def test_page_and_socket_sanitise_bad_input(serve, transfer):
     assert _wait(lambda: v.clients == 0 and v.running_tasks == 0)
 
 
-def _drop_mid_frame(port, state):
+def _drop_mid_frame(port, token, state):
     """A websocket opened by hand, sent one state, then its TCP connection reset without a
     closing handshake while the frame is computed."""
     with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
-        s.sendall(f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        s.sendall(f"GET /ws?token={token} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
                   "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
         assert s.recv(4096).startswith(b"HTTP/1.1 101")
         body, mask = json.dumps(state).encode(), b"\x01\x02\x03\x04"
@@ -387,12 +393,12 @@ def test_sockets_closed_mid_frame_leave_the_server_serving(serve, capfd):
     async def talk():
         async with aiohttp.ClientSession() as client:
             for i in range(3):   # closed while its frame is computed
-                ws = await client.ws_connect(v.url + "ws")
+                ws = await client.ws_connect(v.socket_url)
                 await ws.send_json({"type": "state", "rotate_y": 10 * i})
                 await asyncio.sleep(0.1)
                 await ws.close()
-            _drop_mid_frame(v.port, {"type": "state", "rotate_y": 77})
-            async with client.ws_connect(v.url + "ws") as ws:
+            _drop_mid_frame(v.port, v.token, {"type": "state", "rotate_y": 77})
+            async with client.ws_connect(v.socket_url) as ws:
                 await ws.send_json({"type": "state", "rotate_y": 5})
                 header, _, _ = await _next_frame(ws)
                 assert header["state"]["rotate_y"] == 5
@@ -436,7 +442,7 @@ def test_converge_streams_the_spp_weighted_mean_and_stops_when_the_lighting_chan
 
     async def talk():
         async with aiohttp.ClientSession() as client:
-            async with client.ws_connect(v.url + "ws") as ws:
+            async with client.ws_connect(v.socket_url) as ws:
                 await ws.send_json({"type": "state", "rotate_y": 45, "converge": True, "encoding": "raw"})
                 headers = []
                 while len(headers) < 4:   # (the relit frame of the state first, then the passes)
@@ -552,7 +558,7 @@ def test_browser_bad_url_parameters_show_the_values_used(serve, page, transfer):
     assert pg.text_content("#terms_value") == "1"
     assert pg.input_value("#env") == "0"
     assert pg.text_content("#exposure_value").startswith("0 EV")
-    assert pg.evaluate("location.search") == f"?rotate_y={rot:g}&exposure=0&terms=1&env=0"
+    assert pg.evaluate("location.search") == f"?token={v.token}&rotate_y={rot:g}&exposure=0&terms=1&env=0"
     notes = pg.text_content("#notes").splitlines()
     assert len(notes) == 4 and any("rotate_y='abc'" in n for n in notes)
     assert pg.evaluate("viewer.errors") == 0 and pg.text_content("#status") == ""
@@ -561,8 +567,8 @@ def test_browser_bad_url_parameters_show_the_values_used(serve, page, transfer):
 def test_browser_two_pages_at_once_both_get_frames(serve, page):
     v = serve()
     a, b = page(), page()
-    a.goto(v.url + "?rotate_y=10")
-    b.goto(v.url + "?rotate_y=200&env=1")
+    a.goto(v.url + "&rotate_y=10")
+    b.goto(v.url + "&rotate_y=200&env=1")
     _frames(a, 1)
     _frames(b, 1)
     assert _wait(lambda: v.clients == 2)
@@ -585,7 +591,7 @@ def test_browser_page_closed_mid_stream_leaves_the_server_serving(serve, page, c
     a.close()
     assert _wait(lambda: v.clients == 0 and v.running_tasks == 0)
     b = page()
-    b.goto(v.url + "?rotate_y=33")
+    b.goto(v.url + "&rotate_y=33")
     _frames(b, 1)
     assert b.evaluate("viewer.last.state.rotate_y") == 33
     err = capfd.readouterr().err
@@ -641,8 +647,8 @@ def _run_view_command(args, query):
                             stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
     try:
         line = proc.stdout.readline()
-        assert re.fullmatch(r"http://127\.0\.0\.1:\d+/\n", line), line
-        status, html = _get(line.strip() + query)
+        assert re.fullmatch(r"http://127\.0\.0\.1:\d+/\?token=[\w-]+\n", line), line
+        status, html = _get(line.strip() + query.replace("?", "&", 1))
         assert status == 200
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=20)
@@ -767,13 +773,13 @@ def test_object_limits_and_placement_come_from_the_scene(serve_object, object_tr
 def test_object_page_and_socket_frames_are_the_moving_estimators(serve_object, object_transfer):
     v = serve_object()
     lim = _object_limits(v)
-    status, html = _get(v.url + "?translate=0.3,0,0.2&rotate_y=45&exposure=0.5")
+    status, html = _get(v.url + "&translate=0.3,0,0.2&rotate_y=45&exposure=0.5")
     config = _config(html)
     assert status == 200 and config["vary"] == "object" and config["object"] == "card"
     assert config["state"]["translate"] == [0.3, 0.0, 0.2] and config["state"]["rotate_y"] == 45.0
     assert config["notes"] == [] and "maps" not in config and "max_terms" not in config
     assert config["translate_min"] == list(lim.lo) and config["translate_max"] == list(lim.hi)
-    status, html = _get(v.url + "?translate=1,nan,2&rotate_y=inf&env=1&terms=5")
+    status, html = _get(v.url + "&translate=1,nan,2&rotate_y=inf&env=1&terms=5")
     config = _config(html)
     assert config["state"]["translate"] == list(lim.translate) and config["state"]["rotate_y"] == lim.rotate_y
     assert len(config["notes"]) == 4 and all("\n" not in n for n in config["notes"])
@@ -788,7 +794,7 @@ def test_object_page_and_socket_frames_are_the_moving_estimators(serve_object, o
 
     async def talk():
         async with aiohttp.ClientSession() as client:
-            async with client.ws_connect(v.url + "ws") as ws:
+            async with client.ws_connect(v.socket_url) as ws:
                 await ws.send_json({"type": "state", "translate": [0.3, 0.6, 0.2], "rotate_y": 45, "exposure": 0.5,
                                     "encoding": "raw"})
                 header, payload, texts = await _next_frame(ws)
@@ -878,7 +884,7 @@ def test_browser_object_sliders_url_and_frame_rate(serve_object, page):
     assert [pg.input_value(f"#translate_{a}") for a in "xyz"] == ["0.3", "0", "0.2"]
     assert pg.text_content("#rotate_y_value") == "45°" and pg.input_value("#rotate_y") == "45"
     assert "object rotation" in pg.text_content("label[for=rotate_y]")
-    assert pg.evaluate("location.search") == "?translate=0.3,0,0.2&rotate_y=45&exposure=0.5"
+    assert pg.evaluate("location.search") == "?token=" + v.token + "&translate=0.3,0,0.2&rotate_y=45&exposure=0.5"
     assert pg.evaluate("viewer.last.state") == {"translate": [0.3, 0, 0.2], "rotate_y": 45, "exposure": 0.5,
                                                 "tonemap": "clamp"}
     first = _pixel_sum(pg)
@@ -911,14 +917,14 @@ def test_browser_object_bad_parameters_show_the_values_used(serve_object, page):
     v = serve_object()
     lim = _object_limits(v)
     pg = page()
-    pg.goto(v.url + "?translate=1,nan&rotate_y=abc&exposure=inf&env=1&terms=5")
+    pg.goto(v.url + "&translate=1,nan&rotate_y=abc&exposure=inf&env=1&terms=5")
     _frames(pg, 1)
     default = ",".join(f"{x:g}" for x in lim.translate)
-    assert pg.evaluate("location.search") == f"?translate={default}&rotate_y={lim.rotate_y:g}&exposure=0"
+    assert pg.evaluate("location.search") == f"?token={v.token}&translate={default}&rotate_y={lim.rotate_y:g}&exposure=0"
     notes = pg.text_content("#notes").splitlines()
     assert len(notes) == 5 and any("translate='1,nan'" in n for n in notes)
     assert sum("does not apply" in n for n in notes) == 2
-    pg.goto(v.url + "?translate=99,0.6,-99")
+    pg.goto(v.url + "&translate=99,0.6,-99")
     _frames(pg, 1)
     assert pg.evaluate("viewer.last.state.translate") == [lim.hi[0], 0.6, lim.lo[2]]
     assert len(pg.text_content("#notes").splitlines()) == 2
@@ -1045,7 +1051,7 @@ def test_view_limits_are_the_scene_cameras(serve_view, view_transfer):
 
 def _view_frames(transfer, scene):
     """The view frames the viewer shows: with its default background."""
-    from wavlight.relight.view import ViewFrames
+    from wavlight.relight.view_frames import ViewFrames
 
     return ViewFrames(transfer, scene, background=VIEWER["background"].default)
 
@@ -1053,7 +1059,7 @@ def _view_frames(transfer, scene):
 def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_view, view_transfer, view_bake):
     v = serve_view()
     # the page's state from the URL: bad values replaced, the fixed factors noted
-    status, html = _get(v.url + "?azimuth=abc&elevation=100&distance=-2&exposure=inf&rotate_y=5&env=1&terms=3"
+    status, html = _get(v.url + "&azimuth=abc&elevation=100&distance=-2&exposure=inf&rotate_y=5&env=1&terms=3"
                                 "&translate=1,2,3")
     config = _config(html)
     assert {k: config["state"][k] for k in ("azimuth", "elevation", "distance", "exposure")} == \
@@ -1068,7 +1074,7 @@ def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_v
 
     async def talk():
         async with aiohttp.ClientSession() as client:
-            async with client.ws_connect(v.url + "ws") as ws:
+            async with client.ws_connect(v.socket_url) as ws:
                 for az, el, d, ev in cameras:
                     await ws.send_json({"type": "state", "azimuth": az, "elevation": el, "distance": d,
                                         "exposure": ev, "encoding": "raw"})
@@ -1160,7 +1166,7 @@ def _query(pg) -> dict:
 def test_browser_view_drag_orbits_the_camera_and_the_url_restores_it(serve_view, page):
     v, pg = _opened(serve_view, page, "?azimuth=30&elevation=15&distance=4.2&exposure=0.5")
     assert pg.is_visible("#azimuth") and pg.is_hidden("#rotate_y") and pg.is_hidden("#terms")
-    assert pg.evaluate("location.search") == "?azimuth=30&elevation=15&distance=4.2&exposure=0.5"
+    assert pg.evaluate("location.search") == "?token=" + v.token + "&azimuth=30&elevation=15&distance=4.2&exposure=0.5"
     assert pg.evaluate("viewer.last.state") == {"azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
                                                 "tonemap": "clamp"}
     assert (pg.input_value("#azimuth"), pg.input_value("#elevation")) == ("30", "15")
@@ -1212,7 +1218,7 @@ def test_browser_view_drag_orbits_the_camera_and_the_url_restores_it(serve_view,
 
 def test_browser_view_bad_parameters_show_the_values_used(serve_view, page):
     v, pg = _opened(serve_view, page, "?azimuth=-90&elevation=120&distance=nan&exposure=99&rotate_y=4&env=2")
-    assert pg.evaluate("location.search") == "?azimuth=270&elevation=89&distance=3.64&exposure=12"
+    assert pg.evaluate("location.search") == "?token=" + v.token + "&azimuth=270&elevation=89&distance=3.64&exposure=12"
     assert pg.text_content("#elevation_value") == "89°" and pg.input_value("#elevation") == "89"
     notes = pg.text_content("#notes").splitlines()
     assert len(notes) == 5 and sum("does not apply" in n for n in notes) == 2

@@ -103,10 +103,10 @@ def closed_by_peer(sock, seconds) -> float | None:
     return None
 
 
-def handshake(port) -> socket.socket:
-    """A websocket opened by hand (raw socket) after its 101."""
+def handshake(port, token) -> socket.socket:
+    """A websocket opened by hand (raw socket, with the viewer's ``token``) after its 101."""
     s = socket.create_connection(("127.0.0.1", port), timeout=10)
-    s.sendall(f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+    s.sendall(f"GET /ws?token={token} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
               "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n".encode())
     assert s.recv(4096).startswith(b"HTTP/1.1 101")
     return s
@@ -189,7 +189,7 @@ def test_malformed_messages_get_one_line_notes_and_keep_the_socket(serve, capfd)
     ]
 
     async def talk():
-        async with aiohttp.ClientSession() as client, client.ws_connect(v.url + "ws") as ws:
+        async with aiohttp.ClientSession() as client, client.ws_connect(v.socket_url) as ws:
             drawn = {}
             for i, (text, kind, says) in enumerate(cases):
                 # a good state first (another picture than the case's), then the case
@@ -246,7 +246,7 @@ def test_idle_half_open_and_slowloris_connections_are_cut(serve, short_timeouts,
             socket.create_connection(("127.0.0.1", v.port)) as partial, \
             socket.create_connection(("127.0.0.1", v.port)) as kept:
         partial.sendall(b"GET / HT")
-        kept.sendall(f"GET / HTTP/1.1\r\n{host}\r\n".encode())
+        kept.sendall(f"GET /?token={v.token} HTTP/1.1\r\n{host}\r\n".encode())
         kept.settimeout(10)
         assert kept.recv(65536).startswith(b"HTTP/1.1 200")
         t0 = time.monotonic()
@@ -287,7 +287,7 @@ def test_half_open_and_idle_websockets_are_closed(serve, short_timeouts, capfd):
     ws_idle = short_timeouts.WS_IDLE_SECONDS
     beat = short_timeouts.WS_HEARTBEAT_SECONDS
     # half-open: the peer answers no ping (nor reads anything)
-    with handshake(v.port):
+    with handshake(v.port, v.token):
         assert wait_until(lambda: v.clients == 1)
         t0 = time.monotonic()
         assert wait_until(lambda: v.clients == 0, 10 * beat + 5.0)
@@ -296,7 +296,7 @@ def test_half_open_and_idle_websockets_are_closed(serve, short_timeouts, capfd):
     async def talk():
         async with aiohttp.ClientSession() as client:
             # idle: pongs come back (aiohttp answers pings) but the page sends nothing
-            async with client.ws_connect(v.url + "ws") as ws:
+            async with client.ws_connect(v.socket_url) as ws:
                 await ws.send_json({"type": "state", "rotate_y": 5})
                 await next_frame(ws)
                 t0 = time.monotonic()
@@ -307,7 +307,7 @@ def test_half_open_and_idle_websockets_are_closed(serve, short_timeouts, capfd):
                 assert msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.CLOSING)
                 assert ws.close_code == short_timeouts.IDLE_CLOSE_CODE
             # a page that keeps sending is kept for longer than the idle time
-            async with client.ws_connect(v.url + "ws") as ws:
+            async with client.ws_connect(v.socket_url) as ws:
                 t0 = time.monotonic()
                 i = 0
                 while time.monotonic() - t0 < 2 * ws_idle:
@@ -328,7 +328,7 @@ def test_half_open_and_idle_websockets_are_closed(serve, short_timeouts, capfd):
 def test_browser_page_closed_for_idleness_connects_again_when_a_control_moves(serve, short_timeouts, page):
     v = serve()
     pg = page()
-    pg.goto(v.url + "?rotate_y=30")
+    pg.goto(v.url + "&rotate_y=30")
     pg.wait_for_function("() => window.viewer && window.viewer.frames >= 1")
     # nothing moves: the viewer closes the socket, the page says so and does not retry by itself
     pg.wait_for_function("() => document.getElementById('status').textContent.startsWith('idle')",
@@ -395,12 +395,12 @@ def test_at_the_descriptor_limit_new_connections_are_refused_and_open_pages_kept
     try:
         url = proc.stdout.readline().strip()
         assert url.startswith("http://127.0.0.1:"), url
-        port = int(url.rsplit(":", 1)[1].strip("/"))
+        port = int(url.split("//", 1)[1].split("/", 1)[0].rsplit(":", 1)[1])
         reader = concurrent.futures.ThreadPoolExecutor(1)
         reader.submit(lambda: [lines.append(line) for line in proc.stderr])
 
         async def talk():
-            async with aiohttp.ClientSession() as client, client.ws_connect(url + "ws") as page:
+            async with aiohttp.ClientSession() as client, client.ws_connect(url.replace("/?token=", "/ws?token=")) as page:
                 await page.send_json({"type": "state", "rotate_y": 10})
                 await next_frame(page)                       # the page is open and drawn
                 # and has converged once (the converge thread, prepared when the page opened, has
@@ -505,11 +505,11 @@ def test_a_page_converging_leaves_another_pages_previews_responsive(converge_bak
                 reports.append(header["converge"])
 
     async def talk():
-        async with aiohttp.ClientSession() as client, client.ws_connect(v.url + "ws") as b:
+        async with aiohttp.ClientSession() as client, client.ws_connect(v.socket_url) as b:
             for i in range(5):                                  # warm: kernels, the map's projector
                 await preview(b, i)
             unloaded = [await preview(b, i) for i in range(5, 25)]
-            async with client.ws_connect(v.url + "ws") as a:
+            async with client.ws_connect(v.socket_url) as a:
                 await a.send_json({"type": "state", "rotate_y": 200, "converge": True})
                 reports: list = []
                 task = asyncio.ensure_future(converging(a, reports))

@@ -610,7 +610,7 @@ def plastic_materials(scene) -> list:
     return [scene.materials[i].name for i in used if scene.materials[i].kind == bsdfs.PLASTIC]
 
 
-#: the factors a bake of per-pixel transfer varies (a bake that varies the view: relight/view.py)
+#: the factors a bake of per-pixel transfer varies (a bake that varies the view: relight/view_bake.py)
 PIXEL_VARY = ("lighting", "object")
 #: a bake that varies one object: each pixel's product T1 x L on 2^OBJECT_PRODUCT_LEVELS texels,
 #: and the scene without the object converged with this many samples per pixel
@@ -645,7 +645,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
     shadows alike), each pixel's product T1 x L of that transfer and the scene's fixed lighting on
     2^OBJECT_PRODUCT_LEVELS texels, and the scene without it converged with ``static_spp``
     samples per pixel (the ``wavelet`` strategy; unbiased).
-    (A bake that varies the view is :func:`wavlight.relight.view.bake_view`; :func:`wavlight.bake`
+    (A bake that varies the view is :func:`wavlight.relight.view_bake.bake_view`; :func:`wavlight.bake`
     takes all three.)
     ``progress(done, total, rays, seconds)`` after each block. ``dask_address``: bake the
     blocks on that dask.distributed scheduler (the workers read the scene file at the same

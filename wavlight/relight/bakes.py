@@ -1,6 +1,6 @@
 """The bake for the one factor its frames vary (Chen & Gao sec. 2.2): the lighting or one object
 (per-pixel transfer, :func:`wavlight.relight.bake.bake`), or the view (a surface cache,
-:func:`wavlight.relight.view.bake_view`). This is ``wavlight.bake``, the call ``wavlight bake``
+:func:`wavlight.relight.view_bake.bake_view`). This is ``wavlight.bake``, the call ``wavlight bake``
 makes: its keywords, their defaults and ranges are the records of
 :data:`wavlight.relight.settings.BAKE`."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ from ..errors import ArgumentError, WavlightError, shown
 from ..scene import load_scene
 from .bake import bake as bake_pixels, plastic_materials
 from .settings import BAKE
-from .view import bake_view
+from .view_bake import bake_view
 
 #: the factors a bake may vary
 VARY = BAKE["vary"].values
@@ -31,7 +31,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
     meaning of every other argument (``spp``, ``levels``, ``terms``, ``priority`` and ``points``
     left None are chosen from the scene by pilot bakes). ``vary="view"`` bakes T1 = L V cos per
     point of a surface cache of ``density`` points per unit area for frames from any camera
-    (:func:`wavlight.relight.view.bake_view`). There width, height, spp, terms and priority do
+    (:func:`wavlight.relight.view_bake.bake_view`). There width, height, spp, terms and priority do
     not apply, and the bake runs locally."""
     where = "relight.bake"
     if vary not in VARY:

@@ -63,7 +63,8 @@ TREE_CACHE_BYTES of device memory. A frame then runs per tile: its trees (kept, 
 ``converge_trees``), and per pass of at most PASS_SAMPLES camera samples: the camera rays
 (kernels/camera.cl), their hits (embree), one launch of ``converge_shade`` (every direction, pdf,
 estimate and control variate; twin :func:`shade_reference`), the shadow rays of the estimates
-that are not 0 (embree), and the pixels' sums. A second frame under the same lighting (more
+that are not 0 (embree), and the pixels' sums (the loop over tiles and passes:
+:func:`wavlight.relight.tile_passes.run_tiles`). A second frame under the same lighting (more
 samples, another seed) pays only for the passes. :func:`converge` is one frame of a
 ConvergeFrames it keeps for the next call with the same transfer and scene.
 """
@@ -85,13 +86,13 @@ from ..haar.tree import HaarTree, build_reference, level_offset
 from ..envmap import LUMINANCE
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
-from ..threads import default_threads, map_until_stopped
+from ..threads import default_threads
 from . import converge_kernels as kernels
+from . import tile_passes
 from .bake import BLOCK
 from .frame import DeviceEntries
 from .mixture import (DEFENSIVE, LATTICE, LIGHT_SHARE, MAX_SLOTS, Hits, TexelLight, check_shares, entries_at_most,
-                      lattice, mean_and_error, mixture_directions, resampling_target, scene_of, tint_of,
-                      world_to_square)
+                      lattice, mixture_directions, resampling_target, scene_of, tint_of, world_to_square)
 from .settings import FRAME, UNBIASED_SPP
 
 MAX_SPP = FRAME["spp"].hi
@@ -462,70 +463,50 @@ class ConvergeFrames:
         if self.backend == "opencl":
             prog = self.program(m, slots, candidates, use_control, background)
         width, height = tr.width, tr.height
-        sums = np.zeros((height, width, 3))
-        squares = np.zeros((height, width, 3))
-        totals = {"rays": 0, "done": 0, "hits": 0, "resampled": 0, "kept": 0}
-        lock = threading.Lock()
         shares = (defensive, light, coherence)
         eye = np.broadcast_to(self.scene.camera.eye.astype(np.float32), (1, 3))
         spread_rays = self._spread_rays
 
-        def one(tile, stop):
+        def start(tile):
             trees, was_kept = self.tile_trees(state, tile, prog)
             spread = self.spread(tile, prog) if candidates else (np.zeros(tile.w * tile.h, np.float32), None)
             if self.backend == "opencl" and spread[1] is None:
                 spread = (spread[0], cl.to_device(spread[0]))
             if prog is not None:
                 self._shade.warm_up(prog, slots, trees, spread[1], state.device, shares)
+            return (trees, spread), {"kept": int(was_kept)}
+
+        def samples(shared, tile, first, k):
+            trees, spread = shared
             P = tile.w * tile.h
             tile_id = CONVERGE_TILES + tile.index
-            per_pass = pass_spp(spp, P)
-            s_sum, s_sq = np.zeros((P, 3)), np.zeros((P, 3))
-            rays = hits = chosen = 0
-            for first in range(0, spp, per_pass):   # passes of samples per pixel, not samples: bounded memory
-                if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
-                    return
-                k = min(per_pass, spp - first)
-                d = camera.pass_rays(self.scene, width, height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k,
-                                     first * P, kernel=self.backend == "opencl", stratified=True)
-                prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
-                bary = np.stack([bu, bv], axis=1)   # the shading normals and textures at the hits
-                rays += len(d)
-                if self.backend == "opencl":
-                    direct, origin, wi, value = self._shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
-                                                            state.device, shares, seed, tile_id, bary=bary)
-                else:
-                    direct, origin, wi, value = shade_reference(
-                        self.scene, self.tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], state.inside,
-                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
-                        bary=bary, background=background)
-                v, traced = visible_sum(self.tracer, direct, origin, wi, value)
-                rays += traced
-                hit = prim >= 0
-                hits += int(hit.sum())
-                if candidates:
-                    mat = self.scene.face_material[prim[hit]]
-                    chosen += int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
-                v = v.reshape(P, k, 3)
-                s_sum += v.sum(1)
-                s_sq += (v * v).sum(1)
-            img = (slice(tile.y0, tile.y0 + tile.h), slice(tile.x0, tile.x0 + tile.w))
-            with lock:
-                sums[img] += s_sum.reshape(tile.h, tile.w, 3)
-                squares[img] += s_sq.reshape(tile.h, tile.w, 3)
-                totals["rays"] += rays
-                totals["done"] += 1
-                totals["hits"] += hits
-                totals["resampled"] += chosen
-                totals["kept"] += int(was_kept)
-                if progress:
-                    progress(totals["done"], len(self.tiles), totals["rays"], time.perf_counter() - t0)
+            d = camera.pass_rays(self.scene, width, height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k,
+                                 first * P, kernel=self.backend == "opencl", stratified=True)
+            prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
+            bary = np.stack([bu, bv], axis=1)   # the shading normals and textures at the hits
+            rays = len(d)
+            if self.backend == "opencl":
+                direct, origin, wi, value = self._shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
+                                                        state.device, shares, seed, tile_id, bary=bary)
+            else:
+                direct, origin, wi, value = shade_reference(
+                    self.scene, self.tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], state.inside,
+                    (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
+                    bary=bary, background=background)
+            v, traced = visible_sum(self.tracer, direct, origin, wi, value)
+            rays += traced
+            hit = prim >= 0
+            chosen = 0
+            if candidates:
+                mat = self.scene.face_material[prim[hit]]
+                chosen = int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
+            return v, {"rays": rays, "hits": int(hit.sum()), "resampled": chosen}
 
-        threads = self.threads or default_threads()
-        map_until_stopped(one, self.tiles, threads)
+        work = tile_passes.TileWork(start, samples, lambda pixels: pass_spp(spp, pixels))
+        mean, err, totals = tile_passes.run_tiles(work, self.tiles, width, height, spp,
+                                                  self.threads or default_threads(), progress, t0)
         self._spare = {}
         seconds = time.perf_counter() - t0
-        mean, err = mean_and_error(sums, squares, spp)
         max_tile = max(t.w * t.h for t in self.tiles)
         rays = totals["rays"] + self._spread_rays - spread_rays
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
@@ -558,7 +539,7 @@ class ConvergeFrames:
 def pass_spp(spp: int, pixels: int) -> int:
     """Camera samples per pixel of one pass over a tile of ``pixels``: at most PASS_SPP, and
     PASS_SAMPLES in all."""
-    return max(1, min(spp, PASS_SPP, PASS_SAMPLES // pixels))
+    return tile_passes.pass_spp(spp, pixels, PASS_SPP, PASS_SAMPLES)
 
 
 def visible_sum(tracer, direct, origin, wi, value):

@@ -2,7 +2,7 @@
 the map, its rotation and scale change, Chen & Gao sec. 2 eq. 8 for the relit frame and eq. 12 for
 the unbiased one), of an object bake (:class:`ObjectFrames`: one object's place changes, the
 moving-object estimator of :mod:`.moving`) and of a view bake (:class:`CameraFrames`: the camera
-changes, :class:`wavlight.relight.view.ViewFrames`). :func:`frames_for` chooses the type once, from
+changes, :class:`wavlight.relight.view_frames.ViewFrames`). :func:`frames_for` chooses the type once, from
 the bake file's ``vary``; the command line's ``frame`` and the viewer then speak to one interface:
 
     frames = frames_for(transfer, scene)          # LightingFrames, ObjectFrames or CameraFrames
@@ -430,13 +430,13 @@ class CameraFrames(Frames):
 
     def __init__(self, transfer, scene=None, background: str = FRAME["background"].default):
         super().__init__(transfer, scene, background)
-        from .view import ViewFrames
+        from .view_frames import ViewFrames
 
         self.views = ViewFrames(transfer, scene, background=self.background)
         self.given_scene = self.views.scene
 
     def state_from(self, settings) -> dict:
-        from .view import still_settings
+        from .view_frames import still_settings
 
         for key in ("eye", "target"):
             if settings.get(key) is not None and not all(math.isfinite(x) and abs(x) <= MAX_COORDINATE
@@ -472,7 +472,7 @@ class CameraFrames(Frames):
         return image, dict(stats, terms=None, spp=None)
 
     def turn(self, state, count):
-        from .view import orbit_eyes
+        from .view_frames import orbit_eyes
 
         return [dict(state, eye=e) for e in orbit_eyes(state["eye"], state["target"], count)]
 

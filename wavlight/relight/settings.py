@@ -5,7 +5,7 @@ records, keyed by the library's keyword.
 (flag, range, choices, help text and the default shown), the library takes its defaults and
 ranges from them (:func:`wavlight.bake`, :meth:`wavlight.relight.Transfer.frame`,
 :func:`wavlight.relight.converge.converge`, :class:`wavlight.relight.moving.MovingObject`,
-:class:`wavlight.relight.view.ViewFrames`, :class:`wavlight.relight.viewer.Viewer`), and the docs
+:class:`wavlight.relight.view_frames.ViewFrames`, :class:`wavlight.relight.viewer.Viewer`), and the docs
 their tables (:func:`options_table`; ``python docs/update_tables.py``). The few constants that a
 default's description names (the pilot's choices of camera samples, the view bake's cache) are
 declared here beside it.

@@ -95,7 +95,7 @@ SECTIONS = PIXEL_SECTIONS + ("offsets", "entry_scale", "entry_data")
 #: converged (``static``, its standard error), and each pixel's product T1 x L on coarse texels
 OBJECT_SECTIONS = ("static", "static_stderr", "product_leaves")
 #: the sections of a bake that varies the view (``vary = "view"``): the surface cache and the
-#: lattice that finds a hit's cache points (:mod:`wavlight.relight.view`)
+#: lattice that finds a hit's cache points (:mod:`wavlight.relight.surface_cache`)
 VIEW_SECTIONS = ("view_position", "view_normal", "view_material", "view_face_k", "view_face_base", "view_lattice")
 #: the sections of plastic's coat (a lighting bake whose header says ``coat``: true): its blocks,
 #: their index and entries, as offsets, entry_scale and entry_data are the transfer's
@@ -481,7 +481,7 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
       the directions finite; offsets -1 or the entries in order, each entry once (so that every
       entry index is below E); static finite, static_stderr finite and >= 0, product_leaves
       finite; view positions finite, normals of unit length (within NORMAL_TOLERANCE),
-      materials >= 0 (the scene's count: :class:`wavlight.relight.view.ViewFrames`), each face's
+      materials >= 0 (the scene's count: :class:`wavlight.relight.view_frames.ViewFrames`), each face's
       subdivisions in 1..MAX_FACE_K, its first lattice entry the sum of the lattice sizes before
       it, the lattice as long as their sum and its cache points below P; coat_blocks increasing
       and below the blocks, coat_entry_scale finite and >= 0, coat_offsets -1 or the coat

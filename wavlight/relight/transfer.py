@@ -206,7 +206,7 @@ class Transfer:
         where = "Transfer.frame"
         if self.varies == "view":
             raise WavlightError(f"{self.path}: this bake varies the view (its lighting is fixed): its frames come "
-                                "from wavlight.relight.view.ViewFrames")
+                                "from wavlight.relight.view_frames.ViewFrames")
         if rotate_y is not None:
             rotate_y = check_degrees(where, "rotate_y", rotate_y)
         scale = FRAME["scale"].check(scale, where)

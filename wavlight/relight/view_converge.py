@@ -1,11 +1,11 @@
-"""The view bake's unbiased frame on the device (:meth:`wavlight.relight.view.ViewFrames.converge`;
+"""The view bake's unbiased frame on the device (:meth:`wavlight.relight.view_frames.ViewFrames.converge`;
 Chen & Gao sec. 2.2, eq. 6-8 with the view as the varying factor, sec. 4.3-4.4, eq. 12-25).
 
 Per tile of pixels (whole rows of the frame, at most TILE_PIXELS), the pixels' product trees:
 each pixel's centre ray is traced (embree), its three cache points and weights found
 (``view_lookup``, kernels/relight_view.cl), and kernel ``view_converge_trees``
 (kernels/relight_view_converge.cl, numpy twin :func:`trees_reference`) builds its tree on
-2^m x 2^m texels (m = min(n, wavlight.relight.view.PRODUCT_LEVELS)): the leaves H+_t gl_t with
+2^m x 2^m texels (m = min(n, wavlight.relight.view_frames.PRODUCT_LEVELS)): the leaves H+_t gl_t with
 H+_t = max(f_r Y(T1_t) / Y(R_t), 0), T1_t the blend of the points' transfer summed over the texel
 (the top-left 2^m x 2^m block of the bake's coefficients, eq. 13), f_r the mean of the BRDF at
 the centres of FR_POINTS x FR_POINTS parts of the texel for the pixel's face normal, view direction
@@ -28,6 +28,8 @@ Unbiased whatever the cache's approximations: the lighting's share makes the pdf
 wherever g is, the BSDF's wherever f cos L is (tests/relight/test_relight_view.py against ``mis``).
 With ``candidates`` a camera sample whose pixel's footprint reflects wider than its lobe
 resamples its directions (the lighting bake's resampling; the footprints measured once per camera).
+The tiles and their passes run in :func:`wavlight.relight.tile_passes.run_tiles`, as the lighting
+bake's do.
 """
 from __future__ import annotations
 
@@ -45,13 +47,14 @@ from ..errors import ArgumentError, check_int
 from ..haar.tree import HaarTree, build_reference, morton_index, tree_stride
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
-from ..threads import default_threads, map_until_stopped
+from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from . import converge_kernels as kernels
+from . import tile_passes
 from .bake import BLOCK
 from .converge import COHERENCE, FOOTPRINT_GRID, LATTICE, MAX_CANDIDATES, MAX_SLOTS, PASS_SAMPLES, \
-    TREE_CACHE_BYTES, footprint_rays, footprint_spread, mean_and_error, shade_reference, visible_sum
+    TREE_CACHE_BYTES, footprint_rays, footprint_spread, shade_reference, visible_sum
 
 #: directions (shadow rays) per camera sample, and the mixture's shares of the BSDF and the
 #: lighting alone (docs/decisions/relight-view-converge-kernels.md)
@@ -70,7 +73,7 @@ TILE_PIXELS = 1 << 12
 #: nor the lighting bake's frames' (wavlight.relight.converge.CONVERGE_TILES)
 VIEW_TILES = 14 << 16
 BACKENDS = ("opencl", "numpy")
-#: cache points per block of the bake file (wavlight.relight.view.POINTS)
+#: cache points per block of the bake file (wavlight.relight.surface_cache.POINTS)
 POINTS = BLOCK * BLOCK
 
 
@@ -93,7 +96,7 @@ def tiles_of(width: int, height: int) -> list:
 def per_pass(spp: int, pixels: int, limit: int) -> int:
     """Camera samples per pixel of one pass over a tile of ``pixels``: at most ``limit`` and
     PASS_SAMPLES in all."""
-    return max(1, min(spp, limit, PASS_SAMPLES // pixels))
+    return tile_passes.pass_spp(spp, pixels, limit, PASS_SAMPLES)
 
 
 # ----------------------------------------------------------------------------- the trees' twin
@@ -145,7 +148,7 @@ def part_directions(levels: int, parts: int) -> np.ndarray:
 def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
     """numpy twin of ``view_converge_trees`` (kernels/relight_view_converge.cl): for P centre
     rays (unit directions d (P, 3), faces prim (P,), -1 a miss, embree's u, v) of ``frames``
-    (a :class:`wavlight.relight.view.ViewFrames`) and the lighting inside the texels ``inside``
+    (a :class:`wavlight.relight.view_frames.ViewFrames`) and the lighting inside the texels ``inside``
     (a TexelLight of m levels): the product pyramids (P, tree_size(m)) float32 (row-major
     levels) of leaves max(f_r Y(T1_t), 0) / 4^m where gl_t > 0 (module docstring), and the
     relit values G (P, 3) float64 = sum_t (leaf_t / gl_t) R_t; f_r the mean over the centres of
@@ -190,7 +193,7 @@ def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
 # ----------------------------------------------------------------------------- the frames
 class ViewConverge:
     """Unbiased frames of one view bake (module docstring): ``frame(camera, width, height, spp,
-    seed, ...)``. ``frames``: its :class:`wavlight.relight.view.ViewFrames`; ``inside``: the
+    seed, ...)``. ``frames``: its :class:`wavlight.relight.view_frames.ViewFrames`; ``inside``: the
     bake's lighting inside the product's texels (a TexelLight); ``device`` and ``lookup``: the
     bake's entries on the device and the cache lookup's tables (its ViewDevice and FrameDevice,
     which the approximate frame uses too); ``backend="numpy"`` runs the
@@ -216,7 +219,7 @@ class ViewConverge:
             self.tree_cache_bytes = min(TREE_CACHE_BYTES, int(runtime_device.global_mem_size) // 4)
             if device is None or lookup is None:
                 raise ArgumentError("relight.ViewConverge: the opencl backend takes the bake's ViewDevice and "
-                                    "FrameDevice (wavlight.relight.view)")
+                                    "FrameDevice (wavlight.relight.view_walk)")
             self.device, self.lookup = device, lookup
             self.light = kernels.Lighting(inside.tables())
             self.shade = kernels.ShadeKernel(sc, frames.tracer, self.lobe_width)
@@ -344,15 +347,11 @@ class ViewConverge:
             self.shade.eye = np.asarray(cam.eye, np.float32)
             self.shade.eye_offset = RayTracer.eye_offset_floor(cam.eye)
         t0 = time.perf_counter()
-        sums = np.zeros((height, width, 3))
-        squares = np.zeros((height, width, 3))
-        totals = {"rays": 0, "done": 0, "kept": 0, "trees_seconds": 0.0, "hits": 0, "resampled": 0}
-        lock = threading.Lock()
         shares = (defensive, light, coherence)
         eye = np.broadcast_to(np.asarray(cam.eye, np.float32), (1, 3))
         max_tile = max(t.w * t.h for t in tiles)
 
-        def one(tile, stop):
+        def start(tile):
             ta = time.perf_counter()
             trees, was_kept = self.tile_trees(scene, tile, width, height)
             P = tile.w * tile.h
@@ -365,53 +364,38 @@ class ViewConverge:
             tb = time.perf_counter()
             if prog is not None:
                 self.shade.warm_up(prog, slots, trees, spread[1], self.light, shares)
-            tile_id = VIEW_TILES + tile.index
-            k_pass = per_pass(spp, P, pass_limit)
-            s_sum, s_sq = np.zeros((P, 3)), np.zeros((P, 3))
-            hits = chosen = 0
-            for first in range(0, spp, k_pass):   # passes of samples per pixel, not samples: bounded memory
-                if stop.is_set():   # the caller stopped waiting (an error, Ctrl-C)
-                    return
-                k = min(k_pass, spp - first)
-                d = pass_rays(scene, width, height, seed, tile_id, tile, k, first * P, self.backend == "opencl")
-                prim, t, bu, bv = tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
-                bary = np.stack([bu, bv], axis=1)   # the hits' shading normals (the trees take face normals)
-                rays += len(d)
-                if self.backend == "opencl":
-                    direct, origin, wi, value = self.shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
-                                                           self.light, shares, seed, tile_id, bary=bary)
-                else:
-                    direct, origin, wi, value = shade_reference(
-                        scene, tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], self.inside,
-                        (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
-                        bary=bary, background=self.background)
-                v, traced = visible_sum(tracer, direct, origin, wi, value)
-                rays += traced
-                hit = prim >= 0
-                hits += int(hit.sum())
-                if candidates:
-                    mat = scene.face_material[prim[hit]]
-                    chosen += int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
-                v = v.reshape(P, k, 3)
-                s_sum += v.sum(1)
-                s_sq += (v * v).sum(1)
-            img = (slice(tile.y0, tile.y0 + tile.h), slice(tile.x0, tile.x0 + tile.w))
-            with lock:
-                sums[img] += s_sum.reshape(tile.h, tile.w, 3)
-                squares[img] += s_sq.reshape(tile.h, tile.w, 3)
-                totals["rays"] += rays
-                totals["done"] += 1
-                totals["kept"] += int(was_kept)
-                totals["hits"] += hits
-                totals["resampled"] += chosen
-                totals["trees_seconds"] += tb - ta
-                if progress:
-                    progress(totals["done"], len(tiles), totals["rays"], time.perf_counter() - t0)
+            return (trees, spread), {"rays": rays, "kept": int(was_kept), "trees_seconds": tb - ta}
 
-        map_until_stopped(one, tiles, self.threads or default_threads())
+        def samples(shared, tile, first, k):
+            trees, spread = shared
+            P = tile.w * tile.h
+            tile_id = VIEW_TILES + tile.index
+            d = pass_rays(scene, width, height, seed, tile_id, tile, k, first * P, self.backend == "opencl")
+            prim, t, bu, bv = tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
+            bary = np.stack([bu, bv], axis=1)   # the hits' shading normals (the trees take face normals)
+            rays = len(d)
+            if self.backend == "opencl":
+                direct, origin, wi, value = self.shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
+                                                       self.light, shares, seed, tile_id, bary=bary)
+            else:
+                direct, origin, wi, value = shade_reference(
+                    scene, tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], self.inside,
+                    (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
+                    bary=bary, background=self.background)
+            v, traced = visible_sum(tracer, direct, origin, wi, value)
+            rays += traced
+            hit = prim >= 0
+            chosen = 0
+            if candidates:
+                mat = scene.face_material[prim[hit]]
+                chosen = int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
+            return v, {"rays": rays, "hits": int(hit.sum()), "resampled": chosen}
+
+        work = tile_passes.TileWork(start, samples, lambda pixels: per_pass(spp, pixels, pass_limit))
+        mean, err, totals = tile_passes.run_tiles(work, tiles, width, height, spp, self.threads or default_threads(),
+                                                  progress, t0)
         self._spare = {}
         seconds = time.perf_counter() - t0
-        mean, err = mean_and_error(sums, squares, spp)
         k_pass = per_pass(spp, max_tile, pass_limit)
         stats = {"spp": spp, "seed": seed, "width": width, "height": height, "render_seconds": round(seconds, 4),
                  "rays": totals["rays"], "rays_per_second": round(totals["rays"] / seconds, 1) if seconds > 0 else None,

@@ -26,7 +26,24 @@ object, of an unknown type, or binary gets a one-line error, and the socket stay
 it is written to stderr). Only what the websocket protocol itself forbids closes the socket, with
 the protocol's code: a message over :data:`MESSAGE_CLOSE_BYTES` (1009), text that is not UTF-8
 (1007). A socket closed in the middle of a frame ends its tasks without a traceback; a request
-whose Host or Origin is not this server (another site in the same browser) is refused.
+whose Host or Origin is not this server (another site in the same browser, DNS rebinding) is
+refused (403), on every route.
+
+The run's token. :attr:`Viewer.url` is ``http://127.0.0.1:PORT/?token=...`` (a
+``secrets.token_urlsafe`` made per Viewer): every request must carry it (the page keeps it in its
+URL, its socket's and its uploads'), else 403 with one line (``GET /`` without it: a hint to open
+the URL the viewer printed). :attr:`Viewer.address` is the server without it,
+:attr:`Viewer.socket_url` the page's socket.
+
+A designer's tools. ``POST /upload?name=FILE&token=...`` (a lighting bake): the file's bytes,
+streamed into the run's temporary folder within its bound (:mod:`.uploads`), read and checked as
+any map (:meth:`Viewer.add_map`) and removed; the map joins the list (JSON: its index and name, and
+notes), or one line says why not (413, 415, 400; 409 on a bake whose lighting is fixed) and the
+maps are kept. A ``{"type": "png"}`` message is answered with the last frame sent as a PNG
+(:func:`.pictures.png`, a binary message of type ``png``). Each frame's header carries the
+``wavlight frame`` command of its state (:mod:`.reproduce`). A lighting bake's state has
+``show_background``: false blacks out (and makes transparent in the PNG) the pixels none of whose
+camera samples hit a surface (:meth:`Viewer.coverage`).
 
 Connections (:mod:`wavlight.relight.serving`). The viewer accepts connections itself: at the file
 descriptor limit a new one is answered 503 and closed at once, with one log line per interval,
@@ -83,7 +100,7 @@ bake) follow the rule of any bad value: they are replaced by the bake's own (ign
 one-line note; a translation that is not three finite numbers becomes the object's own, a
 component outside its range is clamped.
 
-A bake that varies the view (``vary = "view"``, :mod:`wavlight.relight.view`). The page orbits
+A bake that varies the view (``vary = "view"``, :mod:`wavlight.relight.view_frames`). The page orbits
 the camera about the scene camera's target: dragging on the picture turns it (azimuth about the
 camera's up, elevation above the plane normal to it), the wheel or a slider sets the distance;
 the state is in the URL as ``/?azimuth=30&elevation=15&distance=4.2&exposure=0.5`` and starts
@@ -106,9 +123,11 @@ import inspect
 import json
 import logging
 import os
+import secrets
 import signal
 import threading
 import time
+import warnings
 from importlib import resources
 
 import numpy as np
@@ -118,9 +137,11 @@ from ..display import TONEMAP
 from ..errors import WavlightError, described, shown
 from . import serving
 from .frames import OBJECT_PREVIEW_SPP, frames_for
-from .pictures import ENCODINGS, JPEG_QUALITY, encode, message, tone_map
+from .pictures import ENCODINGS, JPEG_QUALITY, encode, message, png, tone_map
 from .progressive import PassSchedule, RunningMean
+from .reproduce import frame_command
 from .settings import OBJECT_FRAME_SPP, VIEWER
+from .uploads import MAP_EXTENSIONS, MAX_UPLOAD_BYTES, MAX_UPLOADED_MAPS, Refused, Uploads
 from .viewstate import (CAMERA_KEYS, DISTANCE_FACTORS, ELEVATION_LIMIT, EXPOSURE_RANGE, MAX_INTEGER_DIGITS,
                         MAX_MESSAGE_BYTES, MAX_MESSAGE_DEPTH, VIEW_PREVIEW_PIXELS, Limits, ObjectLimits, ViewLimits,
                         nesting_depth, orbit_angles, orbit_basis, orbit_eye, preview_size, preview_terms, read_message,
@@ -183,12 +204,24 @@ class Viewer:
     either way; an object bake's background is its static image's)."""
 
     def __init__(self, transfer, maps=VIEWER["maps"].default, converge=_UNSET, scene=None,
-                 preview_pixels: int = VIEW_PREVIEW_PIXELS, background: str = VIEWER["background"].default):
+                 preview_pixels: int = VIEW_PREVIEW_PIXELS, background: str = VIEWER["background"].default,
+                 max_upload_bytes: int = MAX_UPLOAD_BYTES):
         self.transfer = transfer
+        #: the per-run secret every request carries (``?token=``): the page's URL, its socket, its uploads
+        self.token = secrets.token_urlsafe(24)
+        #: the maps sent from the page (:mod:`.uploads`: a temporary folder, bounded in size)
+        self.uploads = Uploads(max_upload_bytes)
         #: what the camera samples that miss see in a lighting or a view bake's frames (VIEWER["background"])
         self.background = VIEWER["background"].check(background, "relight.Viewer")
         self.frames = frames_for(transfer, scene, maps, background=self.background)
         self.varies = self.frames.factor
+        #: each map's --env in the command that reproduces a frame (index 0, the baked map: none;
+        #: a map sent from the page: the file name it had there)
+        self.map_files = [None, *(os.fspath(m) if isinstance(m, (str, os.PathLike)) else getattr(m, "name", None)
+                                  for m in maps)] if self.varies == "lighting" else [None]
+        self.scene_file = os.fspath(scene) if isinstance(scene, (str, os.PathLike)) else None
+        self.uploaded = 0       # maps taken from the pages
+        self._coverage = None   # a lighting bake's share of camera samples that hit, per pixel (hidden background)
         self.preview_pixels = int(preview_pixels)
         self.converge = self.frames.estimator if converge is _UNSET else converge
         self._default_converge = converge is _UNSET
@@ -200,7 +233,8 @@ class Viewer:
         self._converge_progress, self._converge_threads = "progress" in takes, "threads" in takes
         self._converge_background = "background" in takes and self.varies == "lighting"
         self.limits = self.frames.limits(self.converge is not None)
-        self.state_keys = (*self.frames.shown_keys, "exposure", "tonemap")
+        self.state_keys = (*self.frames.shown_keys, "exposure", "tonemap",
+                           *(("show_background",) if self.varies == "lighting" else ()))
         self._page = resources.files(__package__).joinpath("viewer.html").read_text(encoding="utf-8")
         self._pool = None       # the one thread that computes frames
         self._converge_pool = None   # the one thread that runs converge passes
@@ -220,15 +254,28 @@ class Viewer:
     # -- the application
     def application(self) -> web.Application:
         """The aiohttp application: ``/`` the page, ``/ws`` the websocket."""
-        app = web.Application(middlewares=[self._watched, self._only_here], client_max_size=1 << 16)
+        app = web.Application(middlewares=[self._watched, self._only_here, self._with_token],
+                              client_max_size=1 << 16)   # (an upload is streamed: uploads.MAX_UPLOAD_BYTES)
         app.router.add_get("/", self._page_handler)
         app.router.add_get("/ws", self._socket_handler)
+        app.router.add_post("/upload", self._upload_handler)
         app.on_shutdown.append(self._close_sockets)
         return app
 
     @property
     def url(self) -> str:
+        """The page's URL, with the run's token: what ``wavlight view`` prints and opens."""
+        return f"{self.address}?token={self.token}"
+
+    @property
+    def address(self) -> str:
+        """The server's address without the token (a request to it is refused)."""
         return f"http://{HOST}:{self.port}/"
+
+    @property
+    def socket_url(self) -> str:
+        """The page's websocket, with the token."""
+        return f"ws://{HOST}:{self.port}/ws?token={self.token}"
 
     @property
     def clients(self) -> int:
@@ -266,6 +313,18 @@ class Viewer:
             return web.Response(status=403, text=f"refused: Origin {shown(origin, 60)} is not this viewer\n")
         return await handler(request)
 
+    @web.middleware
+    async def _with_token(self, request, handler):
+        """Requests that carry the run's token (``?token=``, compared in constant time) only: 403
+        with one line otherwise (the page without it: a hint to open the URL the viewer printed)."""
+        given = request.query.get("token", "")
+        if not secrets.compare_digest(given.encode("utf-8", "surrogateescape"), self.token.encode()):
+            if request.path == "/" and request.method == "GET":
+                return web.Response(status=403, text="refused: open the URL the viewer printed (it carries "
+                                    "?token=...; this address alone is not enough)\n")
+            return web.Response(status=403, text="refused: this request does not carry the viewer's token\n")
+        return await handler(request)
+
     def _config(self, state, notes) -> dict:
         t = self.transfer
         config = {"vary": self.varies, "state": state, "notes": notes,
@@ -274,7 +333,15 @@ class Viewer:
                   "converge": self.converge is not None,
                   "converge_note": None if self.converge is not None else
                   "no converge estimator given to this viewer",
-                  "window": WINDOW}
+                  "window": WINDOW, "token": self.token,
+                  "uploads": self.varies == "lighting",
+                  "uploads_note": None if self.varies == "lighting" else
+                  f"this bake varies {self.frames.fixed}: another map does not apply",
+                  "max_upload_bytes": self.uploads.limit, "map_extensions": list(MAP_EXTENSIONS),
+                  "background_toggle": self.varies == "lighting",
+                  "background_note": None if self.varies == "lighting" else
+                  f"this bake varies {self.frames.fixed}: the pixels that see the map are not stored for each state",
+                  "env_files": self.map_files}
         return {**config, **self.frames.page_config(self.limits, self.preview_pixels)}
 
     async def _page_handler(self, request):
@@ -333,6 +400,77 @@ class Viewer:
             if self._listener is not None:   # a peer that reads nothing holds a closing socket: cut it
                 self._listener.cut_later(transport)
         return ws
+
+    async def _upload_handler(self, request):
+        """A map sent from the page (POST /upload?name=FILE&token=..., the file's bytes as the
+        body): written to the run's folder within its bound (:mod:`.uploads`), read and checked
+        as any map (:meth:`add_map`, in the frame thread), then removed; JSON: the new map's
+        index and name and the notes of its checks, or ``error``, one line (413 beyond the bound,
+        415 a name that is not a map's, 400 a file that is not a usable map, 409 a bake whose
+        lighting is fixed or a full list): the maps the viewer had are kept."""
+        if self.varies != "lighting":
+            return web.json_response({"error": f"this bake varies {self.frames.fixed}: another map does not apply"},
+                                     status=409)
+        if self.uploaded >= MAX_UPLOADED_MAPS:
+            return web.json_response({"error": f"the viewer took {self.uploaded} maps from its pages: no more"},
+                                     status=409)
+        try:
+            path, name = await self.uploads.receive(request, request.query.get("name", ""))
+        except Refused as e:
+            return web.json_response({"error": e.message}, status=e.status, headers={"Connection": "close"})
+        try:
+            index, notes = await self.run(self.add_map, path, name)
+        except WavlightError as e:
+            return web.json_response({"error": described(e).replace(path, name)}, status=400)
+        except Exception as e:   # a fault, not bad input: one (rate-limited) line
+            _log.error("an upload failed: %s", described(e))
+            return web.json_response({"error": f"{name}: cannot be read ({described(e).replace(path, name)})"},
+                                     status=400)
+        finally:
+            try:
+                os.unlink(path)
+            except OSError:
+                pass
+        return web.json_response({"index": index, "name": name, "notes": notes})
+
+    def add_map(self, path, name):
+        """(index, notes): the map file ``path`` read and checked as any map
+        (:func:`wavlight.envmap.read_image`, :class:`wavlight.envmap.Environment`: an unreadable
+        file or one that is not an image is a WavlightError; NaN, Inf and negative texels are set
+        to 0 and an 8-bit image is decoded from sRGB, each with a note; a map black everywhere is
+        refused), named ``name``, added to the maps a page may choose (the limits follow)."""
+        from ..envmap import Environment, read_image
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            env = Environment(read_image(path), 1.0, 0.0, name)
+        if env.is_black:
+            raise WavlightError(f"{name}: the environment is black everywhere; the frame would be black")
+        self.frames.maps.append((name, env))
+        self.map_files.append(name)
+        self.uploaded += 1
+        self.limits = self.frames.limits(self.converge is not None)
+        return len(self.frames.maps) - 1, [str(w.message).replace(path, name) for w in caught]
+
+    def coverage(self):
+        """(H, W) float32: the share of a lighting bake's camera samples of each pixel that hit a
+        surface (:func:`wavlight.relight.converge.bake_hits`), what a hidden background blacks out
+        (:func:`.pictures.encode`); None for another bake."""
+        if self.varies != "lighting":
+            return None
+        if self._coverage is None:
+            from .converge import bake_hits
+
+            self._coverage = (bake_hits(self.transfer) / float(self.transfer.spp)).astype(np.float32)
+        return self._coverage
+
+    def command(self, state, spp=None) -> str:
+        """The ``wavlight frame`` command that reproduces the frame of a page's sanitised state
+        (:func:`.reproduce.frame_command`; ``spp``: the samples of a converged picture)."""
+        env = self.map_files[state["env"]] if self.varies == "lighting" and state["env"] < len(self.map_files) \
+            else None
+        return frame_command(self.frames, state, self.transfer.path, env, self.scene_file,
+                             self.background if self.varies != "object" else None, spp)
 
     async def _close_sockets(self, app):
         for ws in list(self._sockets):
@@ -464,6 +602,7 @@ class Viewer:
         WavlightError."""
         serving.one_line_logs("aiohttp.server", "aiohttp.web", "aiohttp.access", "aiohttp.websocket",
                               "wavlight.viewer")
+        self.uploads.open()
         self._pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="wavlight-frame")
         self._converge_pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="wavlight-converge")
         self._runner = web.AppRunner(self.application(), access_log=None, handle_signals=False, shutdown_timeout=2.0)
@@ -502,6 +641,7 @@ class Viewer:
             side, self._converging = self._converging, None
             side.close()
             side.transfer.close()
+        self.uploads.close()
 
     def serve(self, port: int = VIEWER["port"].default, ready=None) -> None:
         """Serve until SIGINT or SIGTERM; ``ready(url)`` once listening."""
@@ -575,8 +715,9 @@ class _Client:
         self.wake = asyncio.Event()
         self.acked = asyncio.Event()
         self.sent = self.drawn = 0
-        self.shown = None           # (key, exposure, tonemap, encoding) of the last frame sent
+        self.shown = None           # (key, exposure, tonemap, encoding, background) of the last frame sent
         self.sending = None         # the task encoding and sending the last frame
+        self.picture = None         # (linear image, state, converge report) of the last frame sent: the PNG
         self.linear = self.stats = None
         self.last_heard = time.monotonic()
 
@@ -611,8 +752,13 @@ class _Client:
                 self.drawn = seq
                 self.acked.set()
             return None
+        if kind == "png":
+            unknown = [k for k in data if k != "type"]
+            if unknown:
+                await self.error(f"unknown keys of a png request ignored: {shown(unknown, 60)}")
+            return await self.send_png()
         if kind != "state":
-            return await self.error(f"unknown message type {shown(kind, 40)} (state or drawn): ignored")
+            return await self.error(f"unknown message type {shown(kind, 40)} (state, drawn or png): ignored")
         state, notes = sanitise(data, self.viewer.limits)
         known = {"type", *state, *self.viewer.limits.held}
         unknown = [k for k in data if k not in known]
@@ -665,19 +811,26 @@ class _Client:
             except TimeoutError:
                 return
 
+    def _coverage(self, state):
+        """The coverage a hidden background blacks out (:func:`.pictures.encode`), or None."""
+        return None if state.get("show_background", True) else self.viewer.coverage()
+
     async def send_frame(self, image, state, stats, converge=None, seq=None):
-        """Tone map, encode (a worker thread of the loop's default pool) and send; False when
-        the socket has closed. ``seq``: the number already given to the frame (else the next)."""
+        """Tone map, encode (a worker thread of the loop's default pool) and send, with the
+        command that reproduces it; False when the socket has closed. ``seq``: the number already
+        given to the frame (else the next)."""
         if seq is None:
             self.sent += 1
             seq = self.sent
+        self.picture = (image, state, converge)
         loop = asyncio.get_running_loop()
         t0 = time.perf_counter()
         payload = await loop.run_in_executor(None, encode, image, state["exposure"], state["encoding"],
-                                             state["tonemap"])
+                                             state["tonemap"], self._coverage(state))
         h, w = image.shape[:2]
         header = {"type": "frame", "seq": seq, "width": w, "height": h, "encoding": state["encoding"],
                   "state": {k: state[k] for k in self.viewer.state_keys},
+                  "command": self.viewer.command(state, converge["spp"] if converge else None),
                   "terms_used": stats.get("terms"), "spp": stats.get("spp"), "preview": bool(stats.get("preview")),
                   "frame_ms": round(1e3 * stats.get("frame_seconds", 0.0), 2),
                   "encode_ms": round(1e3 * (time.perf_counter() - t0), 2), "bytes": len(payload),
@@ -687,6 +840,23 @@ class _Client:
         except (ConnectionError, RuntimeError):
             return False
         return not self.ws.closed
+
+    async def send_png(self):
+        """The last frame sent as a PNG (:func:`.pictures.png`: as the page shows it; a hidden
+        background transparent), one binary message of type ``png``; a one-line error before the
+        first frame."""
+        if self.picture is None:
+            return await self.error("no frame yet to save as PNG")
+        image, state, _ = self.picture
+        payload = await asyncio.get_running_loop().run_in_executor(None, png, image, state["exposure"],
+                                                                   state["tonemap"], self._coverage(state))
+        h, w = image.shape[:2]
+        header = {"type": "png", "width": w, "height": h, "bytes": len(payload),
+                  "state": {k: state[k] for k in self.viewer.state_keys}}
+        try:
+            await self.ws.send_bytes(message(header, payload))
+        except (ConnectionError, RuntimeError):
+            pass
 
     async def _flush(self) -> bool:
         """Wait for the frame being encoded and sent; False when the socket has closed."""
@@ -739,7 +909,8 @@ class _Client:
         """The state's frame (the relit frame, or its preview), unless it is the one shown."""
         detail = self.viewer.detail(state)
         key = self.viewer.frame_key(state, detail)
-        if self.shown == (key, state["exposure"], state["tonemap"], state["encoding"]):
+        look = (state["exposure"], state["tonemap"], state["encoding"], state.get("show_background", True))
+        if self.shown == (key, *look):
             return True
         if self.shown is None or self.shown[0] != key:
             self.shown = None
@@ -750,7 +921,7 @@ class _Client:
             return False
         self.sent += 1
         self.sending = asyncio.ensure_future(self.send_frame(self.linear, state, self.stats, seq=self.sent))
-        self.shown = (key, state["exposure"], state["tonemap"], state["encoding"])
+        self.shown = (key, *look)
         return True
 
     async def _converge(self, state):

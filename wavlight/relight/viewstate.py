@@ -75,7 +75,7 @@ class ObjectLimits:
     step: float
     rotate_y: float
     converge: bool = False
-    held = ("env", "terms", *CAMERA_KEYS)
+    held = ("env", "terms", *CAMERA_KEYS, "show_background")
     why = "this bake varies an object (its lighting and the camera are fixed)"
 
 
@@ -91,7 +91,7 @@ class ViewLimits:
     distance_lo: float
     distance_hi: float
     converge: bool = False
-    held = ("rotate_y", "env", "terms", "translate")
+    held = ("rotate_y", "env", "terms", "translate", "show_background")
     why = "this bake varies the view (its lighting and objects are fixed)"
 
 
@@ -227,6 +227,20 @@ def _tonemap(params, notes):
     return TONEMAP.default
 
 
+def _show_background(params, notes):
+    """Whether the frame shows the map where the camera sees it: true unless given as JSON false
+    or "0"/"false" (anything else: true, with a note)."""
+    if "show_background" not in params:
+        return True
+    raw = params.get("show_background")
+    if raw is False or raw in ("0", "false"):
+        return False
+    if raw is True or raw in ("1", "true"):
+        return True
+    notes.append(f"show_background={shown(raw, 40)} is not true or false: using true")
+    return True
+
+
 def _held_fixed(params, limits, notes):
     """A note for each parameter of the factors the bake of ``limits`` holds fixed (it is ignored)."""
     for key in limits.held:
@@ -324,21 +338,23 @@ def sanitise(params, limits):
     EXPOSURE_RANGE (clamped), default 0; tonemap: one of TONEMAP's curves, else the default
     (clamp); terms: an integer in [1, max_terms] (clamped; a
     fraction is rounded), default the bake's; env: an index of the maps, else 0 (the baked
-    map); encoding: one of ENCODINGS, else the first; preview and converge: booleans (true only
-    as JSON true or "1"/"true"; converge only where the estimator exists). A value that is not a
-    finite number becomes the default; ``translate`` (an object's place) and the camera's
-    ``azimuth``, ``elevation`` and ``distance`` do not apply and get a note.
+    map); show_background: whether the map is shown where the camera sees it (false only as JSON
+    false or "0"/"false"), default true; encoding: one of ENCODINGS, else the first; preview and
+    converge: booleans (true only as JSON true or "1"/"true"; converge only where the estimator
+    exists). A value that is not a finite number becomes the default; ``translate`` (an object's
+    place) and the camera's ``azimuth``, ``elevation`` and ``distance`` do not apply and get a note.
 
     With :class:`ObjectLimits` (a bake that varies one object): translate: "x,y,z" (or a list of
     three numbers), each clamped to its range, the object's own where it is not three finite
     numbers; rotate_y: the object's rotation about +Y, degrees, wrapped into [0, 360); exposure,
-    encoding, preview and converge as above; ``env`` and ``terms`` do not apply and get a note.
+    encoding, preview and converge as above; ``env``, ``terms`` and ``show_background`` (the
+    pixels that see the map move with the object) do not apply and get a note.
 
     With :class:`ViewLimits` (a bake that varies the view): azimuth: degrees, wrapped into
     [0, 360); elevation: degrees, clamped to [-ELEVATION_LIMIT, ELEVATION_LIMIT]; distance:
     clamped to [distance_lo, distance_hi] (> 0), 4 significant digits; each default the scene
-    camera's; exposure, encoding, preview and converge as above; ``rotate_y``, ``env``, ``terms``
-    and ``translate`` do not apply and get a note (as ``azimuth``, ``elevation`` and ``distance``
+    camera's; exposure, encoding, preview and converge as above; ``rotate_y``, ``env``, ``terms``,
+    ``translate`` and ``show_background`` do not apply and get a note (as ``azimuth``, ``elevation`` and ``distance``
     do on the other bakes)."""
     if isinstance(limits, ObjectLimits):
         return _sanitise_object(params, limits)
@@ -365,9 +381,10 @@ def sanitise(params, limits):
         else:
             env = int(e)
     encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
+    show_background = _show_background(params, notes)
     _held_fixed(params, limits, notes)
     return ({"rotate_y": rot, "exposure": exposure, "tonemap": tonemap, "terms": terms, "env": env,
-             "encoding": encoding,
+             "show_background": show_background, "encoding": encoding,
              "preview": preview, "converge": converge}, notes)
 
 
