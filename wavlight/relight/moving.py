@@ -52,7 +52,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import camera, cl, occlusion, raytrace, rng, strategies
+from .. import bsdfs, camera, cl, occlusion, raytrace, rng, strategies
 from ..camera import camera_rays, project
 from ..envmap import Environment
 from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_real
@@ -67,7 +67,7 @@ from ..warp import frame as tangent_frame
 from ..warp import to_local
 from .bake import bounding_sphere, camera_jitter
 from .converge import PASS_SPP
-from .mixture import TexelLight, mean_and_error, mixture_directions, scene_of
+from .mixture import TexelLight, mean_and_error, mixture_directions, scene_of, tint_of
 from .settings import FRAME, OBJECT_FRAME_SPP
 
 #: a frame's chunk c draws its Philox numbers as tile FRAME_TILES + c (streams rng.JITTER,
@@ -214,10 +214,12 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
     has = np.repeat(trees.integral[pixel] > 0, nd)
     alpha = np.where(has, defensive, 1.0)
     rep = lambda a: np.repeat(a, nd, axis=0)   # noqa: E731  (per sample -> per direction)
-    direction, weight = mixture_directions(trees, inside, u_all, rows, spp * nd, has, alpha,
-                                           rep(scene.material_kind[mat]), rep(scene.material_param[mat]), rep(wo),
-                                           (rep(s_ax), rep(t_ax), rep(nrm)), geometric=rep(geo.astype(np.float64)))
-    value = rep(scene.material_albedo[mat]) * (weight[:, None] * environment.eval(direction))
+    table = rep(scene.material_table[mat]) if len(scene.materials) else None   # plastic's rows
+    direction, weight, share = mixture_directions(trees, inside, u_all, rows, spp * nd, has, alpha,
+                                                  rep(scene.material_kind[mat]), rep(scene.material_param[mat]),
+                                                  rep(wo), (rep(s_ax), rep(t_ax), rep(nrm)),
+                                                  geometric=rep(geo.astype(np.float64)), table=table, with_share=True)
+    value = tint_of(share, rep(scene.material_albedo[mat])) * (weight[:, None] * environment.eval(direction))
     o = rep(origin.astype(np.float64))
     keep = meets_box(place, box, o, direction) & (weight > 0) & (value.max(1) > 0)
     i, j = np.repeat(np.arange(count), nd), np.tile(np.arange(nd), count)
@@ -312,6 +314,8 @@ class _MovingKernels:
         self.kind = cl.to_device(rest.material_kind.astype(np.int32))
         self.param = cl.to_device(rest.material_param.astype(np.float32))
         self.albedo = cl.to_device(albedo)
+        self.table = cl.to_device(np.ascontiguousarray(rest.material_table, np.float32).reshape(-1)
+                                  if len(rest.materials) else np.zeros(bsdfs.PLASTIC_STRIDE, np.float32))
         self.cdf = cl.to_device(np.ascontiguousarray(inside.cdf, np.float32))
         self.k = np.uint32(inside.k)
         self.directions = int(directions)
@@ -342,7 +346,7 @@ class _MovingKernels:
             cl.upload("moving_t", np.asarray(t, np.float32), q),
             *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
             *self._bary("moving_bary", uv, self.smooth, q),
-            self.kind, self.param, self.albedo, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
+            self.kind, self.param, self.albedo, self.table, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
             np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
             cl.upload("moving_place", np.asarray(place, np.float32), q),
             cl.upload("moving_box", np.asarray(box, np.float32), q), cl.upload("moving_sphere", _sphere(place, box), q),
@@ -492,7 +496,8 @@ class MovingObject:
         self.wavelet.prepare(self.environment, sc.materials)
         lit = SimpleNamespace(environment=self.environment, material_kind=sc.material_kind,
                               material_param=sc.material_param, material_albedo=sc.material_albedo,
-                              materials=sc.materials, face_material=sc.face_material)
+                              materials=sc.materials, face_material=sc.face_material,
+                              material_table=sc.material_table)   # (plastic's rows)
         self.static = np.asarray(transfer._s["static"], np.float64)
         self.static_se = np.asarray(transfer._s["static_stderr"], np.float64)
         self._static_rows = self.static.reshape(-1, 3)
