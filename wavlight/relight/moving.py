@@ -17,7 +17,9 @@ mixture of the pixel's product T1 x L (the coarse texel by the hierarchical warp
 then inside it the lighting's own resolution) and, with probability 0.1, the BSDF, at the
 mixture's density, their uniforms stratified over the pixel's spp x directions: where a
 direction meets the object (traced against the object alone, in its own frame, so nothing is
-rebuilt per frame) and not the rest, D gets f cos L / p, over the directions. The variance of D
+rebuilt per frame) and not the rest, D gets f cos L / p, over the directions (plastic: (coat +
+albedo base) L / p, its BSDF share sampling both lobes, and its pixels' product leaves that of
+T + C / lum(a_p), the coat's transfer added: docs/decisions/plastic-in-the-bake.md). The variance of D
 is the object's occlusion's: per direction a Bernoulli trial (blocked or not) times a nearly
 constant f cos L / p, largest in the object's hard shadow, where D is nearly all of S; the
 directions of one camera sample share its hit point, and stratified over the pixel the many
