@@ -61,8 +61,8 @@
  * candidate j takes point j of the R4 lattice shifted by them (lattice): one Philox draw per
  * sample, and its directions spread over the uniforms' cube.
  */
-#ifndef BACKGROUND_BILINEAR
-#define BACKGROUND_BILINEAR 0
+#ifndef BACKGROUND_MODE   /* what misses see: 0 the map's pixel, 1 filtered bilinearly, 2 nothing */
+#define BACKGROUND_MODE 0   /* (wavlight.envmap.BACKGROUND_MODE, wavlight.options.BACKGROUND) */
 #endif
 #include "warp.h"
 #include "bsdf.h"
@@ -629,13 +629,14 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
     const intv hit = p_id >= 0;
     realv out_v[6 + 6 * SLOTS];
     for (int q = 0; q < 6 + 6 * SLOTS; ++q) out_v[q] = 0.0f;
-    /* a miss: the map in direction d (its pixel, or with BACKGROUND_BILINEAR filtered bilinearly in
-     * the map's own square: u + map_shift, map_h rows) */
+    /* a miss: the map in direction d (its pixel, with BACKGROUND_MODE 1 filtered bilinearly in
+     * the map's own square: u + map_shift, map_h rows; with 2 nothing: the background hidden) */
+#if BACKGROUND_MODE != 2
     {
         realv au, av;
         world_to_square(dx, dy, dz, &au, &av);
         realv r, g, b;
-#if BACKGROUND_BILINEAR
+#if BACKGROUND_MODE == 1
         realv mu = au + map_shift;
         mu = mu - floor(mu);
         env_bilinear(map, (int)map_w, map_h, mu, av, &r, &g, &b);
@@ -647,6 +648,7 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
         out_v[1] = select(g, (realv)0.0f, hit);
         out_v[2] = select(b, (realv)0.0f, hit);
     }
+#endif
     if (any(hit)) {
         const uintv f = as_uintv(max(p_id, 0));
         Point pt;

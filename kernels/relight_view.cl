@@ -483,10 +483,10 @@ inline void view_texel(const float dx, const float dy, const float dz, __global 
     *row = min((uint)((wv < below ? wv : below) * (wide)height), height - 1u);
 }
 
-#ifndef BACKGROUND_BILINEAR
-#define BACKGROUND_BILINEAR 0
+#ifndef BACKGROUND_MODE   /* what misses see: 0 the nearest texel, 1 view_bilinear, 2 nothing */
+#define BACKGROUND_MODE 0   /* (wavlight.envmap.BACKGROUND_MODE, wavlight.options.BACKGROUND) */
 #endif
-#if BACKGROUND_BILINEAR
+#if BACKGROUND_MODE == 1
 /* The map (rows of 3 floats, width x height) in world direction d, filtered bilinearly between
  * its texel centres, wrapping in u and clamped in v (kernels/sphere.h env_bilinear on rows of 3;
  * u, v as view_texel's exact branch). numpy twin: wavlight.envmap.Environment.eval_background. */
@@ -521,7 +521,7 @@ INLINE void view_bilinear(const float dx, const float dy, const float dz, __glob
 /* Per camera ray: a hit's albedo x sum_k w_k B_k (B the walks' products, row[p] the row
  * of cache point p, -1: none; the albedo its material's, with TEXTURES 1 times the material's
  * texture at the hit: texture.h at embree's bary, rows u v; numpy twin ViewFrames.hit_albedo), a miss's the environment's nearest texel in the ray's direction
- * (with BACKGROUND_BILINEAR 1: view_bilinear's filter)
+ * (with BACKGROUND_MODE 1: view_bilinear's filter; with 2: 0, the background hidden)
  * (phi = atan2(x, -z), theta = acos(y) in the map's frame, map_from_world the rotation:
  * wavlight/envmap.py Environment.world_to_square). */
 __kernel void view_assemble(const uint count, __global const int *prim, __global const uint *ids,
@@ -562,10 +562,10 @@ __kernel void view_assemble(const uint count, __global const int *prim, __global
         }
 #endif
     } else {
-#if BACKGROUND_BILINEAR
+#if BACKGROUND_MODE == 1
         view_bilinear(dir[3 * p], dir[3 * p + 1], dir[3 * p + 2], map_from_world, env, env_width, env_height, &r, &g,
                       &bl);
-#else
+#elif BACKGROUND_MODE == 0
         uint col, rw;
         view_texel(dir[3 * p], dir[3 * p + 1], dir[3 * p + 2], map_from_world, env_width, env_height, &col, &rw);
         __global const float *e = env + 3 * ((size_t)rw * env_width + col);

@@ -27,8 +27,8 @@
  * 1 for the other kinds), and wavelet's product sample a mixture of two walks for plastic
  * (mixture_walk; -DPLASTIC_DIFFUSE_LEVELS).
  */
-#ifndef BACKGROUND_BILINEAR
-#define BACKGROUND_BILINEAR 0
+#ifndef BACKGROUND_MODE   /* what camera rays that miss see: 0 the nearest texel, 1 env_bilinear, 2 nothing */
+#define BACKGROUND_MODE 0   /* (wavlight.envmap.BACKGROUND_MODE, wavlight.options.BACKGROUND) */
 #endif
 #include "warp.h"
 #include "bsdf.h"
@@ -639,7 +639,7 @@ inline void store_rows3(const realv x, const realv y, const realv z, __global fl
  * rng_k > 0 (the stratified sampler; rays r = p k + j, k = rng_k samples per pixel) each
  * pair moved into its cell (stratify_pair, keyed by words 1 and 2 of stream RNG_STRATA
  * at index rng_first + p, as the camera kernel's jitter by word 0); else u_in (rows of 4). A miss sees the environment (direct_out,
- * its nearest texel, or with BACKGROUND_BILINEAR 1 env_bilinear's filtered value;
+ * its nearest texel, with BACKGROUND_MODE 1 env_bilinear's filtered value, with 2 zero (the background hidden);
  * 3 planes r, g, b; for hits the estimate's part without a shadow ray, Shaded's o) and has
  * zero estimates. A hit takes its face
  * normal, flipped to face the viewer (two-sided shading), with smooth != 0 its shading normal
@@ -675,11 +675,12 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
     realv dx, dy, dz;
     GATHER3(dirs, 3 * i, &dx, &dy, &dz);
     realv er = 0.0f, eg = 0.0f, eb = 0.0f;
+#if BACKGROUND_MODE != 2   /* (2: the background hidden, misses add 0) */
     if (!all(hit)) {
         realv u, v;
         env_world_to_square(rot, dx, dy, dz, &u, &v);
         realv r, g, b;
-#if BACKGROUND_BILINEAR
+#if BACKGROUND_MODE == 1
         env_bilinear(texels, env_w, env_h, u, v, &r, &g, &b);
 #else
         realv unused;
@@ -689,6 +690,7 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
         eg = select(g, 0.0f, hit);
         eb = select(b, 0.0f, hit);
     }
+#endif
     STORE_LANES(er, direct_out, base, count);
     STORE_LANES(eg, direct_out + count, base, count);
     STORE_LANES(eb, direct_out + 2 * count, base, count);

@@ -17,7 +17,9 @@ The lighting is that piecewise-constant map everywhere. Only what the camera see
 (camera rays that miss every object) may be filtered instead: with ``background = "bilinear"``
 (:data:`wavlight.options.BACKGROUND`), :meth:`Environment.eval_background` interpolates between
 texel centres (:func:`bilinear`, wrapping in u, clamped in v), as the kernels' ``env_bilinear``
-(kernels/sphere.h).
+(kernels/sphere.h); with ``background = "none"`` they see nothing (0: the background hidden, what
+Mitsuba calls hide_emitters; the lighting still the map). The kernels take the choice as
+``-DBACKGROUND_MODE`` (:data:`BACKGROUND_MODE`).
 
 The built-in procedural sky (``procedural = "sky"`` in a scene) is a smooth
 gradient plus a small, very bright sun disk, made at 512 x 256 texels; see
@@ -37,6 +39,8 @@ from .errors import (ArgumentError, SanitisedInputWarning, WavlightError, check_
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
 ONE_BELOW = float(np.nextafter(1.0, 0.0))
+#: the kernels' -DBACKGROUND_MODE per :data:`wavlight.options.BACKGROUND` value (kernels/common.h)
+BACKGROUND_MODE = {"nearest": 0, "bilinear": 1, "none": 2}
 TREE_TOLERANCE = 0.01  # total-variation distance a coarser light tree may leave (Environment.light_levels)
 MAX_TEXELS = 1 << 26
 
@@ -279,7 +283,8 @@ class Environment:
 
     pixels : (H, W, 3) float32, sanitised and multiplied by ``scale``.
     background : how camera rays that miss see it (:data:`wavlight.options.BACKGROUND`):
-        ``nearest`` (the map itself) or ``bilinear`` (:meth:`eval_background`); display only.
+        ``nearest`` (the map itself), ``bilinear`` (:meth:`eval_background`) or ``none`` (black);
+        display only.
     """
 
     def __init__(self, pixels: np.ndarray, scale: float = 1.0, rotate_y: float = 0.0, name="environment",
@@ -320,9 +325,12 @@ class Environment:
 
     def eval_background(self, d_world: np.ndarray) -> np.ndarray:
         """Radiance (N, 3) float32 that camera rays along world directions d (N, 3) see where they
-        miss: :meth:`eval` (nearest), or :func:`bilinear` with ``background = "bilinear"``."""
+        miss: :meth:`eval` (nearest), :func:`bilinear` with ``background = "bilinear"``, or 0 with
+        ``background = "none"`` (the background hidden)."""
         if self.background == "nearest":
             return self.eval(d_world)
+        if self.background == "none":   # the background hidden: misses contribute 0
+            return np.zeros((len(d_world), 3), np.float32)
         uv = self.world_to_square(np.asarray(d_world, np.float64))
         return bilinear(self.pixels, uv[:, 0], uv[:, 1])
 

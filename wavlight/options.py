@@ -210,7 +210,8 @@ SEED = Option("seed", int, "Random seed: a render is a deterministic function of
 #: the lighting stays the piecewise-constant map that sampling and the measurements rely on.
 BACKGROUND = Option("background", str, "How camera rays that miss see the map: its nearest texel (the "
                     "piecewise-constant map the lighting is) or filtered bilinearly between texel centres "
-                    "(wrapping in longitude, clamped at the poles); the lighting is the same either way.",
-                    default="nearest", values=("nearest", "bilinear"))
+                    "(wrapping in longitude, clamped at the poles), or not at all (none: black, what misses "
+                    "contribute is 0); the lighting is the same either way.",
+                    default="nearest", values=("nearest", "bilinear", "none"))
 #: the camera's vertical field of view: the scene file's [camera] fov_y, a view bake's frames
 FOV = Option("fov_y", float, "The vertical field of view, degrees.", default=35.0, lo=1e-3, hi=179.0)

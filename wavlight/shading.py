@@ -19,6 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import bsdfs, camera, cl, raytrace, rng, strategies, textures, warp
+from .envmap import BACKGROUND_MODE
 
 _WARMED = set()  # shade programs already launched in this process
 
@@ -127,8 +128,8 @@ class KernelShader:
             sizes["MIS_BALANCE"] = 1
         sizes["OFFSET_RELATIVE"] = repr(float(np.float32(raytrace.OFFSET_RELATIVE)))   # shadow-ray offsets
         sizes["SMOOTH_MIN_LENGTH2"] = repr(float(np.float32(raytrace.SMOOTH_MIN_LENGTH2))) + "f"
-        if env.background == "bilinear":   # what camera rays that miss see (kernels/sphere.h env_bilinear)
-            sizes["BACKGROUND_BILINEAR"] = 1
+        # what camera rays that miss see (nearest texel, kernels/sphere.h env_bilinear, or nothing)
+        sizes["BACKGROUND_MODE"] = BACKGROUND_MODE[env.background]
         self.program = cl.program("shade.cl", STRATEGY=strategies.KERNEL_ID[strategy.name], BSDF_KINDS=kinds,
                                   **sizes)
         self.warm_up()

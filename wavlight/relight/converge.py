@@ -709,7 +709,7 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     ``inside`` the lighting (:class:`TexelLight`; ``relit`` (P, 4) with the coat's share last where
     the bake has plastic's coat, :func:`tile_trees_reference`), ``key`` = (seed, tile), ``first`` the pass's
     first sample index in the tile. A miss sees the map (direct; :meth:`TexelLight.background`:
-    its pixel, or with ``background="bilinear"`` its filter); a hit gets ``slots``
+    its pixel, with ``background="bilinear"`` its filter, with ``"none"`` 0); a hit gets ``slots``
     directions of the mixture (:func:`mixture_directions`; the uniforms of slot j are
     :func:`lattice` point j of Philox stream rng.CONVERGE_DIRECTIONS[0] at index first + r),
     each estimated as albedo f cos L / pdf / slots (plastic: (coat + albedo base) L / pdf / slots,

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import bsdfs, cl, raytrace, rng, textures
+from ..envmap import BACKGROUND_MODE
 from ..haar.tree import TREE_ORIGIN, host_order, tree_size, tree_stride
 from ..raytrace import RayTracer
 
@@ -81,9 +82,9 @@ def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, con
     the material kinds ``kinds`` (bit mask), ``slots`` directions per camera sample,
     ``candidates`` resampled ones (0: none), the control variate or not, the uniforms'
     ``lattice`` (four 24-bit constants), base-colour ``textures`` or not, what misses see
-    (``background``: nearest or bilinear) and whether the trees add plastic's coat (``coat``;
+    (``background``: nearest, bilinear or none) and whether the trees add plastic's coat (``coat``;
     memoised per process, :func:`wavlight.cl.program`)."""
-    extra = {"BACKGROUND_BILINEAR": 1} if background == "bilinear" else {}
+    extra = {"BACKGROUND_MODE": BACKGROUND_MODE[background]}
     if coat:
         extra["COAT"] = 1
     return cl.program("converge.cl", N_LEVELS=int(levels), QBITS=int(bits), BSDF_KINDS=int(kinds) or 1,

@@ -22,7 +22,9 @@ rotation, which only shifts u, leaves the samples of one map texel in a run, and
 run's texel up once. With ``background = "bilinear"`` (:data:`wavlight.options.BACKGROUND`;
 display only, the lighting stays the map's texels) the kernel ``frame_background_bilinear``
 (numpy twin :func:`background_bilinear_reference`) filters the turned map bilinearly at each
-missing sample (:func:`wavlight.envmap.bilinear`).
+missing sample (:func:`wavlight.envmap.bilinear`). With ``background = "none"`` the frame adds
+nothing there (the background hidden: a missing sample contributes 0, as a hit's product part is
+the rest of the pixel's estimate).
 """
 from __future__ import annotations
 
@@ -328,7 +330,10 @@ class DeviceFrame:
 
     def background(self, out, environment, rotate_y: float, queue=None, background: str = "nearest") -> None:
         """Enqueue the background's lookup (:func:`background_cl`, or :func:`background_bilinear_cl`
-        with ``background="bilinear"``) into the frame buffer ``out``."""
+        with ``background="bilinear"``) into the frame buffer ``out``; with ``background="none"``
+        nothing (the background hidden: misses contribute 0)."""
+        if background == "none":
+            return
         if not len(self._mask):
             return
         if background == "bilinear":

@@ -289,8 +289,11 @@ class TexelLight:
 
     def background(self, uv, background: str = "nearest"):
         """(N, 3): what camera rays that miss see at points uv of the world-frame square: the map
-        pixel (:meth:`radiance`), or with ``background="bilinear"`` the turned map filtered
-        bilinearly (:func:`wavlight.envmap.bilinear`, the kernel's float32 steps)."""
+        pixel (:meth:`radiance`), with ``background="bilinear"`` the turned map filtered
+        bilinearly (:func:`wavlight.envmap.bilinear`, the kernel's float32 steps), with
+        ``background="none"`` 0 (the background hidden)."""
+        if background == "none":
+            return np.zeros((len(uv), 3))
         if background != "bilinear":
             return self.radiance(uv)
         u = np.asarray(uv[:, 0], np.float32) + np.float32(self.rotate_y / 360.0)

@@ -192,8 +192,8 @@ class Transfer:
         """(H, W, 3) float32: the frame under ``env`` (default: the scene's map) turned to
         ``rotate_y`` degrees about +Y (absolute, as the scene's rotate_y; default the scene's),
         times ``scale``, from ``terms`` lighting coefficients (default: the bake's choice); where
-        camera samples missed, the map's nearest texels or (``background="bilinear"``) its
-        bilinear filter."""
+        camera samples missed, the map's nearest texels, (``background="bilinear"``) its
+        bilinear filter or (``background="none"``) nothing: those samples contribute 0."""
         return self.frame_timed(env, rotate_y, scale, terms, priority, backend, background)[0]
 
     def frame_timed(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, terms=None, priority=None,
@@ -267,8 +267,11 @@ class Transfer:
 
     def _add_background(self, image: np.ndarray, environment: Environment, rotate_y: float,
                         background: str = "nearest") -> None:
-        """numpy: the environment where the camera samples missed, added to ``image`` (H, W, 3)."""
+        """numpy: the environment where the camera samples missed, added to ``image`` (H, W, 3)
+        (with ``background="none"`` nothing: misses contribute 0)."""
         pixels = self._s["background_pixel"]
+        if background == "none":
+            return
         if len(pixels) and background == "bilinear":
             count, uv = background_uv(self._s["background_dir"], self._s["background_mask"])
             seen = background_bilinear_reference(environment.pixels, rotate_y, count, uv)

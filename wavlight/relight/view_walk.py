@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import bsdfs, cl, textures
+from ..envmap import BACKGROUND_MODE
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from .frame import DeviceEntries
@@ -408,9 +409,9 @@ class FrameDevice:
         self.map_from_world = cl.to_device(np.ascontiguousarray(env.map_from_world, self.wide).reshape(-1))
         self.cos_crease = np.float32(np.cos(np.radians(CREASE_DEGREES)))
         self._zeros = np.zeros(self.points, np.uint8)
-        bilinear = {"BACKGROUND_BILINEAR": 1} if env.background == "bilinear" else {}
         self.program = cl.program("relight_view.cl", QBITS=device.entries.bits, POINTS=POINTS, K=1,
-                                  MASS_STEPS=MASS_STEPS, TEXTURES=int(self.textured), **bilinear)
+                                  MASS_STEPS=MASS_STEPS, TEXTURES=int(self.textured),
+                                  BACKGROUND_MODE=BACKGROUND_MODE[env.background])
 
     def lookup(self, prim, u, v, d, queue):
         """Launch ``view_lookup`` on camera rays (prim (N,) int32, -1 a miss; embree's u, v; unit
