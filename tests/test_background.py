@@ -1,6 +1,6 @@
-"""What camera rays that miss see (wavlight.options.BACKGROUND): the map's nearest texel, or its
+"""What camera rays that miss see (wavlight.options.BACKGROUND): the map's nearest texel, its
 bilinear filter (wavlight.envmap.bilinear, kernels/sphere.h env_bilinear) that wraps in u and is
-clamped in v. The filter against its definition, the kernels (shade_rays, converge_shade,
+clamped in v, or nothing (none: misses contribute 0). The filter against its definition, the kernels (shade_rays, converge_shade,
 frame_background_bilinear) against their numpy twins, the lighting left as it was, and the
 option's scene key and flags."""
 from __future__ import annotations
@@ -63,10 +63,13 @@ def test_environment_background_nearest_is_eval_and_bilinear_is_the_filter():
     np.testing.assert_allclose(other.eval_background(d), bilinear(env.pixels, uv[:, 0], uv[:, 1]), rtol=1e-6)
     with pytest.raises(wavlight.WavlightError, match="background must be one of nearest | bilinear"):
         Environment(_map(), background="cubic")
+    hidden = env.with_background("none")
+    assert hidden.pixels is env.pixels
+    np.testing.assert_array_equal(hidden.eval_background(d), np.zeros((len(d), 3), np.float32))
 
 
 # ----------------------------------------------------------------------------- the kernels and their twins
-@pytest.mark.parametrize("background", ("nearest", "bilinear"))
+@pytest.mark.parametrize("background", ("nearest", "bilinear", "none"))
 def test_render_kernel_equals_its_twin_and_hits_are_unchanged(device, background):
     """render_full on the device and with the numpy twin; a pixel whose samples all hit the
     sphere is the same with either background (the lighting is the map's texels)."""
@@ -81,6 +84,9 @@ def test_render_kernel_equals_its_twin_and_hits_are_unchanged(device, background
     np.testing.assert_array_equal(gpu.image[centre], near.image[centre])
     if background == "bilinear":
         assert not np.allclose(gpu.image[0, :4], near.image[0, :4])   # the sky: filtered
+    if background == "none":   # the sky's pixels miss with every sample: black
+        np.testing.assert_array_equal(gpu.image[0, :4], 0.0)
+        assert (near.image[0, :4] > 0).all()
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +108,34 @@ def test_frame_background_bilinear_kernel_equals_its_twin(small_bake):
         np.testing.assert_array_equal(gpu[hit], near[hit])
 
 
-@pytest.mark.parametrize("background", ("nearest", "bilinear"))
+def test_a_frame_without_background_is_the_frame_less_its_background_part(small_bake):
+    """background="none": the relit frame without the map where camera samples missed; the
+    nearest frame is it plus the background part (background_reference at the same samples:
+    exactly on the numpy backend), and the device frame is its twin's."""
+    from wavlight.relight import frame
+
+    scene, transfer = small_bake
+    pixels = np.asarray(transfer._s["background_pixel"], np.int64)
+    assert len(pixels)
+    for rot in (0.0, 37.0):
+        gpu = transfer.frame(rotate_y=rot, background="none")
+        cpu = transfer.frame(rotate_y=rot, background="none", backend="numpy")
+        np.testing.assert_allclose(gpu, cpu, rtol=1e-5, atol=1e-6)
+        near = transfer.frame(rotate_y=rot, backend="numpy")
+        env = transfer.environment(None, 1.0)
+        u0, row = frame.background_lookup(transfer._s["background_dir"], env.height)
+        part = frame.background_reference(env.pixels, rot, transfer._s["background_mask"], u0, row)
+        both = cpu.copy()
+        both.reshape(-1, 3)[pixels] += part
+        np.testing.assert_array_equal(both, near)
+        assert (part > 0).any()
+        hit = np.ones(transfer.width * transfer.height, bool)
+        hit[pixels] = False
+        hit = hit.reshape(transfer.height, transfer.width)
+        np.testing.assert_array_equal(gpu[hit], transfer.frame(rotate_y=rot)[hit])
+
+
+@pytest.mark.parametrize("background", ("nearest", "bilinear", "none"))
 def test_converge_kernel_equals_its_twin(small_bake, background):
     from wavlight.relight.converge import ConvergeFrames
 
@@ -111,6 +144,34 @@ def test_converge_kernel_equals_its_twin(small_bake, background):
     cpu = ConvergeFrames(transfer, scene, backend="numpy").frame(None, 37.0, spp=2, seed=1, background=background)
     assert gpu.stats["background"] == background
     np.testing.assert_allclose(gpu.image, cpu.image, rtol=1e-4, atol=1e-5)
+
+
+def test_an_unbiased_frame_without_background_drops_the_misses_alone(small_bake):
+    """converge_shade with background="none": the same samples as with nearest; pixels whose
+    bake samples all hit are the same numbers, those whose samples all miss are 0, and a
+    silhouette's pixel loses at most its missing share of the brightest texel."""
+    from wavlight.relight.converge import ConvergeFrames, bake_hits
+
+    scene, transfer = small_bake
+    frames = ConvergeFrames(transfer, scene)
+    near = frames.frame(None, 37.0, spp=2, seed=1)
+    none = frames.frame(None, 37.0, spp=2, seed=1, background="none")
+    assert none.stats["background"] == "none"
+    share = bake_hits(transfer) / transfer.spp
+    interior = share == 1
+    for axis in (0, 1):   # and their neighbours all hit too (the frame's samples are not the bake's)
+        interior &= np.roll(share, 1, axis) == 1
+        interior &= np.roll(share, -1, axis) == 1
+    sky = share == 0
+    for axis in (0, 1):
+        sky &= np.roll(share, 1, axis) == 0
+        sky &= np.roll(share, -1, axis) == 0
+    assert interior.any() and sky.any()
+    np.testing.assert_array_equal(none.image[interior], near.image[interior])
+    np.testing.assert_array_equal(none.image[sky], 0.0)
+    assert (near.image[sky] > 0).all()
+    top = float(transfer.environment(None, 1.0).pixels.max())
+    assert (none.image <= near.image + 1e-6 * top).all()
 
 
 def test_frame_background_bilinear_twin_is_the_filter_at_each_missing_sample():
