@@ -19,8 +19,9 @@ line). A state is a dict of the factor's values in the library's terms (a lighti
 ``rotate_y``, ``scale``, ``terms``, ``priority``; an object: ``translate``, ``rotate``; a camera:
 ``eye``, ``target``, ``fov``, ``width``, ``height`` and the approximate frame's settings). What
 camera samples that miss see (``background``, :data:`wavlight.options.BACKGROUND`: the map's
-nearest texel or its bilinear filter; the lighting is the map's texels either way) is a lighting or
-a view bake's Frames' own, given to :func:`frames_for`.
+nearest texel, its bilinear filter or none; the lighting is the map's texels either way) is a
+lighting or a view bake's Frames' own, given to :func:`frames_for`; a state's ``background`` (the
+viewer's hidden background: ``none``) replaces it for that frame.
 
 The viewer's side (:mod:`.viewer`): :meth:`Frames.limits` (what a page may ask for, a
 :mod:`.viewstate` limits type), :meth:`Frames.page_config` (the page's controls), a page's state
@@ -234,7 +235,7 @@ class LightingFrames(Frames):
     def frame(self, state, detail=None):
         terms = state.get("terms") if detail is None else detail
         return self.transfer.frame_timed(state.get("env"), state.get("rotate_y"), state.get("scale", 1.0), terms,
-                                         state.get("priority"), background=self.background)
+                                         state.get("priority"), background=state.get("background") or self.background)
 
     def turn(self, state, count):
         from .lighting import turntable
@@ -277,7 +278,7 @@ class LightingFrames(Frames):
         frames, background = self._frames, self.background
 
         def unbiased(transfer=None, scene=None, env=None, rotate_y=None, scale=1.0, spp=2, seed=0, progress=None,
-                     threads=None):
+                     threads=None, background=background):
             frames.threads = threads if threads is not None else frames.threads
             return frames.frame(env, rotate_y, scale, spp, seed, progress, background=background)
         return unbiased
@@ -309,7 +310,7 @@ class LightingFrames(Frames):
     def warm(self, state, stop=None):
         self.estimator()
         self._frames.warm(state.get("env"), state.get("rotate_y"), state.get("scale", 1.0), stop=stop,
-                          background=self.background)
+                          background=state.get("background") or self.background)
 
     def close(self):
         if self._frames is not None:
@@ -465,7 +466,8 @@ class CameraFrames(Frames):
         width, height = (state["width"], state["height"]) if detail is None else detail
         opts = {k: state[k] for k in APPROXIMATE if k in state}
         t0 = time.perf_counter()
-        result = self.views.frame(state["eye"], state["target"], state["fov"], width, height, **opts)
+        result = self.views.frame(state["eye"], state["target"], state["fov"], width, height,
+                                  background=state.get("background"), **opts)
         image, stats = (result.image, result.stats) if hasattr(result, "image") else result
         stats = dict(stats or {})
         stats.setdefault("frame_seconds", time.perf_counter() - t0)

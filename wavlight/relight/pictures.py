@@ -4,12 +4,16 @@ sRGB in numpy (a lookup table of the sRGB curve, :func:`wavlight.display.encode8
 (Pillow) or raw RGBA, or as the PNG the page downloads (:func:`png`); and the binary message
 that carries one to the page: a 4-byte little-endian length, a JSON header, the picture.
 
-A background hidden (the page's ``show_background`` false) is a ``coverage`` of the frame's
-pixels: the share (H, W) of the bake's camera samples of each pixel that hit a surface
-(:func:`wavlight.relight.converge.bake_hits` over the bake's spp). Where it is 0 (the camera sees
-only the map) the picture is black, and transparent in the PNG, whose alpha is the coverage (a
-silhouette's pixel keeps its colour, the map's share of its missed samples included: the frame
-does not hold the two parts apart)."""
+A background hidden (the page's ``show_background`` false) is in the frame itself: a lighting or
+a view bake's frames with background ``none`` (:data:`wavlight.options.BACKGROUND`: camera
+samples that miss contribute 0), black where the camera sees only the map. The PNG of such a
+frame has straight (not premultiplied) alpha where a ``coverage`` is known: a lighting bake's
+share (H, W) of the bake's camera samples of each pixel that hit a surface
+(:func:`wavlight.relight.converge.bake_hits` over the bake's spp) is the alpha, and the colour
+is the frame divided by it (the surface's own colour on a silhouette's pixel; 0 where it is 0).
+A view bake's frames do not keep their hit shares: its PNG stays opaque, hidden pixels black
+(docs/decisions/viewer-designer-tools.md)."""
+"""
 from __future__ import annotations
 
 import io
@@ -34,39 +38,38 @@ def tone_map(image: np.ndarray, exposure: float = 0.0, alpha: bool = False,
     return encode8_lut(image, exposure, tonemap, alpha)
 
 
-def _covered(picture: np.ndarray, coverage) -> np.ndarray:
-    """The tone-mapped ``picture`` black where ``coverage`` (H, W) is 0 (None, or another size:
-    unchanged)."""
-    if coverage is None or coverage.shape != picture.shape[:2]:
-        return picture
-    picture[coverage <= 0, :3] = 0
-    return picture
-
-
-def encode(image: np.ndarray, exposure: float, encoding: str, tonemap: str = TONEMAP.default,
-           coverage=None) -> bytes:
+def encode(image: np.ndarray, exposure: float, encoding: str, tonemap: str = TONEMAP.default) -> bytes:
     """The frame's picture as the page decodes it: JPEG (quality :data:`JPEG_QUALITY`) or raw
-    RGBA rows (W x H x 4 bytes); with ``coverage`` (the background hidden), black where it is 0."""
+    RGBA rows (W x H x 4 bytes)."""
     if encoding == "raw":
-        return _covered(tone_map(image, exposure, alpha=True, tonemap=tonemap), coverage).tobytes()
+        return tone_map(image, exposure, alpha=True, tonemap=tonemap).tobytes()
     from PIL import Image
 
     out = io.BytesIO()
-    Image.fromarray(_covered(tone_map(image, exposure, tonemap=tonemap), coverage)).save(out, "JPEG",
-                                                                                         quality=JPEG_QUALITY)
+    Image.fromarray(tone_map(image, exposure, tonemap=tonemap)).save(out, "JPEG", quality=JPEG_QUALITY)
     return out.getvalue()
+
+
+def straight(image: np.ndarray, coverage: np.ndarray) -> np.ndarray:
+    """(H, W, 3): the linear ``image`` of a frame without background divided by its ``coverage``
+    (H, W) where that is > 0 (a silhouette's pixel: the surface's colour, not its share), 0 where
+    it is 0: the colour of a straight-alpha picture whose alpha is the coverage."""
+    cover = np.asarray(coverage, np.float32)[..., None]
+    return np.where(cover > 0, np.asarray(image, np.float32) / np.where(cover > 0, cover, 1.0), 0.0).astype(np.float32)
 
 
 def png(image: np.ndarray, exposure: float, tonemap: str = TONEMAP.default, coverage=None) -> bytes:
     """The frame as the page shows it (times 2^exposure through the tone curve, 8-bit sRGB) as a
-    PNG: RGB, or with ``coverage`` (the background hidden) RGBA, alpha the coverage (0: transparent
-    and black)."""
+    PNG: RGB, or with ``coverage`` (the background hidden, ``image`` a frame without background)
+    RGBA with straight alpha: the colour :func:`straight` (the frame over the coverage), the alpha
+    the coverage (0: transparent and black)."""
     from PIL import Image
 
-    picture = tone_map(image, exposure, alpha=coverage is not None, tonemap=tonemap)
-    if coverage is not None and coverage.shape == picture.shape[:2]:
+    if coverage is not None and coverage.shape == image.shape[:2]:
+        picture = tone_map(straight(image, coverage), exposure, alpha=True, tonemap=tonemap)
         picture[..., 3] = np.round(np.clip(coverage, 0.0, 1.0) * 255.0).astype(np.uint8)
-        picture = _covered(picture, coverage)
+    else:
+        picture = tone_map(image, exposure, tonemap=tonemap)
     out = io.BytesIO()
     Image.fromarray(picture).save(out, "PNG")
     return out.getvalue()

@@ -14,7 +14,8 @@ exposure and the tone curve (``--exposure``, ``--tonemap``) and ``--scene`` wher
 given one. With ``spp`` (the samples a converged picture reached) the command is the unbiased
 frame instead (``--spp N --seed 0``): the same estimator with as many samples as the page's
 running mean (whose passes had seeds 0, 1, 2, ...), so the same picture within its noise, not
-the same samples. Hiding the background is the page's display alone (no flag).
+the same samples. The page's background hidden is ``--background none`` (frames whose camera
+samples that miss contribute 0).
 """
 from __future__ import annotations
 
@@ -36,8 +37,8 @@ def frame_args(frames, state, bake_path, env_file=None, scene=None, background=N
     """The arguments (after ``wavlight``) of ``wavlight frame`` for the page's sanitised
     ``state`` of ``frames`` (:func:`wavlight.relight.frames.frames_for`'s): ``bake_path`` the bake
     file, ``env_file`` the ``--env`` of the state's map (None: the baked map), ``scene`` the
-    ``--scene`` given to the viewer (None: the path the bake recorded), ``background`` the
-    background filter (a lighting or a view bake's), ``spp`` the samples per pixel of a converged
+    ``--scene`` given to the viewer (None: the path the bake recorded), ``background`` what
+    misses see (a lighting or a view bake's: its filter, or none with the background hidden), ``spp`` the samples per pixel of a converged
     picture (None: the frame the viewer draws at rest)."""
     args = ["frame", str(bake_path), "-o", OUTPUT]
 

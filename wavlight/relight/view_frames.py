@@ -60,6 +60,7 @@ approximations (tests/relight/test_relight_view.py checks it against ``mis``).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 
@@ -174,12 +175,31 @@ class ViewFrames:
         self.face_normal = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         self.face_normal32 = self.face_normal.astype(np.float32)
         self.normal32 = self.normal.astype(np.float32)
-        #: the lighting, and what camera rays that miss see (``background``: nearest or bilinear)
+        #: the lighting, and what camera rays that miss see (``background``: nearest, bilinear or none)
         self.environment = self.scene.environment.with_background(background)
         self._device = None
         self._frame_device = None
         self._centres = {}
         self._inside = None
+        self._others = {}
+
+    def with_background(self, background: str) -> "ViewFrames":
+        """These frames with camera rays that miss seeing ``background`` (:data:`wavlight.options.BACKGROUND`;
+        the viewer's hidden background is ``none``): made once and kept, sharing the scene, the
+        tracer and the device entries; only the assembly's program (its ``BACKGROUND_MODE``) and
+        the converge frames are their own."""
+        background = FRAME["background"].check(background, "relight.ViewFrames")
+        if background == self.environment.background:
+            return self
+        other = self._others.get(background)
+        if other is None:
+            if self._device is None:
+                self._device = ViewDevice(self.transfer)
+            other = copy.copy(self)
+            other.environment = self.environment.with_background(background)
+            other._frame_device, other._centres, other._others = None, {}, {}
+            self._others[background] = other
+        return other
 
     # -- cameras
     def camera(self, eye=None, target=None, fov=None):
@@ -283,14 +303,18 @@ class ViewFrames:
 
     def frame(self, eye=None, target=None, fov=None, width=None, height=None, refine: float = REFINE,
               backend: str = "opencl", mode: str = MODE, tau: float = TAU, mass: float = MASS,
-              supersample: int = 1):
+              supersample: int = 1, background=None):
         """The approximate frame (H, W, 3) float32 seen from ``eye`` towards ``target`` (defaults:
         the scene's camera) and its timings (module docstring): ``mode`` "point" (a product per
         cache point, blended per pixel) or "pixel" (a product per pixel, of its points' blended T1
         with its shading normal, view direction and the cosine corrected within ``tau``); ``refine``
         and ``mass`` set where the walk stops (:mod:`wavlight.relight.view_walk`); ``supersample`` S
         traces S x S rays per pixel (its sub-pixels' centres) and takes their mean (``mis``
-        integrates over the pixel, and a mesh's facets can be smaller than a pixel)."""
+        integrates over the pixel, and a mesh's facets can be smaller than a pixel); ``background``
+        (None: these frames') what rays that miss see (:meth:`with_background`)."""
+        if background is not None and background != self.environment.background:
+            return self.with_background(background).frame(eye, target, fov, width, height, refine, backend, mode,
+                                                          tau, mass, supersample)
         where = "relight.view"
         refine, mass = FRAME["refine"].check(refine, where), FRAME["mass"].check(mass, where)
         if backend not in ("opencl", "numpy"):
@@ -404,13 +428,19 @@ class ViewFrames:
     def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = UNBIASED_SPP,
                  seed: int = FRAME["seed"].default, slots=None, defensive=None, threads=None,
                  progress=None, light=None, control: bool = True, backend: str = "opencl", candidates=None,
-                 coherence=None) -> RenderResult:
+                 coherence=None, background=None) -> RenderResult:
         """The unbiased frame from ``eye`` (module docstring; kernels and kept trees:
         :mod:`wavlight.relight.view_converge`, whose SLOTS, DEFENSIVE, LIGHT_SHARE, CANDIDATES
         and COHERENCE are the defaults; ``control``: the control variate; ``backend="numpy"``
         the kernels' numpy twins): image, per-pixel standard error, stats; ``setup_seconds`` the
-        device tables made by this call (the first), ``frame_seconds`` that plus the frame's."""
+        device tables made by this call (the first), ``frame_seconds`` that plus the frame's;
+        ``background`` (None: these frames') what samples that miss see (:meth:`with_background`)."""
         from . import view_converge as vc
+
+        if background is not None and background != self.environment.background:
+            return self.with_background(background).converge(eye, target, fov, width, height, spp, seed, slots,
+                                                             defensive, threads, progress, light, control, backend,
+                                                             candidates, coherence)
 
         where = "relight.view"
         spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)

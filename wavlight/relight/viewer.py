@@ -41,9 +41,11 @@ any map (:meth:`Viewer.add_map`) and removed; the map joins the list (JSON: its 
 notes), or one line says why not (413, 415, 400; 409 on a bake whose lighting is fixed) and the
 maps are kept. A ``{"type": "png"}`` message is answered with the last frame sent as a PNG
 (:func:`.pictures.png`, a binary message of type ``png``). Each frame's header carries the
-``wavlight frame`` command of its state (:mod:`.reproduce`). A lighting bake's state has
-``show_background``: false blacks out (and makes transparent in the PNG) the pixels none of whose
-camera samples hit a surface (:meth:`Viewer.coverage`).
+``wavlight frame`` command of its state (:mod:`.reproduce`). A lighting or a view bake's state has
+``show_background``: false makes its frames, preview and converged, with background ``none``
+(camera samples that miss contribute 0: black where the camera sees only the map;
+:meth:`Viewer.background_of`); a lighting bake's PNG then has straight alpha, the share of the
+bake's camera samples that hit (:meth:`Viewer.coverage`), a view bake's stays opaque.
 
 Connections (:mod:`wavlight.relight.serving`). The viewer accepts connections itself: at the file
 descriptor limit a new one is answered 503 and closed at once, with one log line per interval,
@@ -231,10 +233,10 @@ class Viewer:
         except (TypeError, ValueError):
             takes = {}
         self._converge_progress, self._converge_threads = "progress" in takes, "threads" in takes
-        self._converge_background = "background" in takes and self.varies == "lighting"
+        self._converge_background = self.varies != "object" and (self._default_converge or "background" in takes)
         self.limits = self.frames.limits(self.converge is not None)
         self.state_keys = (*self.frames.shown_keys, "exposure", "tonemap",
-                           *(("show_background",) if self.varies == "lighting" else ()))
+                           *(("show_background",) if self.varies != "object" else ()))
         self._page = resources.files(__package__).joinpath("viewer.html").read_text(encoding="utf-8")
         self._pool = None       # the one thread that computes frames
         self._converge_pool = None   # the one thread that runs converge passes
@@ -338,9 +340,9 @@ class Viewer:
                   "uploads_note": None if self.varies == "lighting" else
                   f"this bake varies {self.frames.fixed}: another map does not apply",
                   "max_upload_bytes": self.uploads.limit, "map_extensions": list(MAP_EXTENSIONS),
-                  "background_toggle": self.varies == "lighting",
-                  "background_note": None if self.varies == "lighting" else
-                  f"this bake varies {self.frames.fixed}: the pixels that see the map are not stored for each state",
+                  "background_toggle": self.varies != "object",
+                  "background_note": None if self.varies != "object" else
+                  f"this bake varies {self.frames.fixed}: its background is the bake's static image",
                   "env_files": self.map_files}
         return {**config, **self.frames.page_config(self.limits, self.preview_pixels)}
 
@@ -454,8 +456,9 @@ class Viewer:
 
     def coverage(self):
         """(H, W) float32: the share of a lighting bake's camera samples of each pixel that hit a
-        surface (:func:`wavlight.relight.converge.bake_hits`), what a hidden background blacks out
-        (:func:`.pictures.encode`); None for another bake."""
+        surface (:func:`wavlight.relight.converge.bake_hits`), the alpha of the PNG of a frame
+        without background (:func:`.pictures.png`); None for another bake (a view bake's frames do
+        not keep their hit shares: its PNG stays opaque, black where hidden)."""
         if self.varies != "lighting":
             return None
         if self._coverage is None:
@@ -470,7 +473,7 @@ class Viewer:
         env = self.map_files[state["env"]] if self.varies == "lighting" and state["env"] < len(self.map_files) \
             else None
         return frame_command(self.frames, state, self.transfer.path, env, self.scene_file,
-                             self.background if self.varies != "object" else None, spp)
+                             self.background_of(state), spp)
 
     async def _close_sockets(self, app):
         for ws in list(self._sockets):
@@ -502,18 +505,33 @@ class Viewer:
         a view bake."""
         return self.frames.detail(state, self.preview_pixels)
 
+    def background_of(self, state):
+        """What the frames of a page's state show where camera samples miss: ``none`` with the
+        background hidden (show_background false; a lighting or a view bake), else the viewer's
+        ``background`` (None for an object bake: its static image's)."""
+        if self.varies == "object":
+            return None
+        return self.background if state.get("show_background", True) else "none"
+
     def frame_key(self, state, detail):
         """What a frame depends on besides the exposure, the tone curve and the encoding."""
-        return (*self.frames.key(state), detail)
+        return (*self.frames.key(state), detail, self.background_of(state))
 
     def converge_key(self, state):
         """The factor the converged image is of: the lighting (rotation, map), the object's place or
-        the camera."""
-        return self.frames.key(state)
+        the camera, and what misses see."""
+        return (*self.frames.key(state), self.background_of(state))
+
+    def _factor_state(self, state, detail=None):
+        """The factor's state of a page's state (:meth:`Frames.from_page`), with its background."""
+        factor = self.frames.from_page(state, detail)
+        if self.varies != "object":
+            factor["background"] = self.background_of(state)
+        return factor
 
     def frame(self, state, detail):
         """(linear image, stats) of the state at ``detail`` (:meth:`detail`; in the frame thread)."""
-        image, stats = self.frames.frame(self.frames.from_page(state, detail), detail)
+        image, stats = self.frames.frame(self._factor_state(state, detail), detail)
         return image, {"frame_seconds": stats.get("frame_seconds", 0.0), "terms": stats.get("terms"),
                        "spp": stats.get("spp"), **({"object_pixels": stats["object_pixels"]}
                                                    if "object_pixels" in stats else {})}
@@ -529,8 +547,8 @@ class Viewer:
                 if stop.is_set():
                     raise _Stopped()
             kwargs["progress"] = progress
-        if self._converge_background:   # a given estimator of a lighting bake that takes it
-            kwargs["background"] = self.background
+        if self._converge_background:   # the frames' own, or a given estimator that takes it
+            kwargs["background"] = self.background_of(state)
         frames = self._converge_side()
         estimator = None if self._default_converge else self.converge
         result = frames.estimate(estimator, frames.from_page(state), spp, seed, **kwargs)
@@ -580,7 +598,10 @@ class Viewer:
     def _warm(self, state, generation):
         """Warm the state's shared parts (in the converge thread), tile by tile while it is current."""
         frames = self._converge_side()
-        frames.warm(frames.from_page(state), lambda: generation != self._warm_generation or self.converging_pages)
+        factor = frames.from_page(state)
+        if self.varies != "object":
+            factor["background"] = self.background_of(state)
+        frames.warm(factor, lambda: generation != self._warm_generation or self.converging_pages)
 
     def prepare_converge(self):
         """Make the converge thread's frames and what their first pass makes regardless of the state
@@ -812,7 +833,7 @@ class _Client:
                 return
 
     def _coverage(self, state):
-        """The coverage a hidden background blacks out (:func:`.pictures.encode`), or None."""
+        """The PNG's alpha with the background hidden (:func:`.pictures.png`), or None (opaque)."""
         return None if state.get("show_background", True) else self.viewer.coverage()
 
     async def send_frame(self, image, state, stats, converge=None, seq=None):
@@ -826,7 +847,7 @@ class _Client:
         loop = asyncio.get_running_loop()
         t0 = time.perf_counter()
         payload = await loop.run_in_executor(None, encode, image, state["exposure"], state["encoding"],
-                                             state["tonemap"], self._coverage(state))
+                                             state["tonemap"])
         h, w = image.shape[:2]
         header = {"type": "frame", "seq": seq, "width": w, "height": h, "encoding": state["encoding"],
                   "state": {k: state[k] for k in self.viewer.state_keys},

@@ -91,7 +91,7 @@ class ViewLimits:
     distance_lo: float
     distance_hi: float
     converge: bool = False
-    held = ("rotate_y", "env", "terms", "translate", "show_background")
+    held = ("rotate_y", "env", "terms", "translate")
     why = "this bake varies the view (its lighting and objects are fixed)"
 
 
@@ -324,8 +324,9 @@ def _sanitise_view(params, limits: ViewLimits):
     tonemap = _tonemap(params, notes)
     _held_fixed(params, limits, notes)
     encoding, preview, converge = _encoding_and_flags(params, limits.converge, notes)
+    show_background = _show_background(params, notes)
     return ({"azimuth": az, "elevation": el, "distance": dist, "exposure": exposure, "tonemap": tonemap,
-             "encoding": encoding,
+             "show_background": show_background, "encoding": encoding,
              "preview": preview, "converge": converge}, notes)
 
 
@@ -348,14 +349,14 @@ def sanitise(params, limits):
     three numbers), each clamped to its range, the object's own where it is not three finite
     numbers; rotate_y: the object's rotation about +Y, degrees, wrapped into [0, 360); exposure,
     encoding, preview and converge as above; ``env``, ``terms`` and ``show_background`` (the
-    pixels that see the map move with the object) do not apply and get a note.
+    background is the bake's static image) do not apply and get a note.
 
     With :class:`ViewLimits` (a bake that varies the view): azimuth: degrees, wrapped into
     [0, 360); elevation: degrees, clamped to [-ELEVATION_LIMIT, ELEVATION_LIMIT]; distance:
     clamped to [distance_lo, distance_hi] (> 0), 4 significant digits; each default the scene
-    camera's; exposure, encoding, preview and converge as above; ``rotate_y``, ``env``, ``terms``,
-    ``translate`` and ``show_background`` do not apply and get a note (as ``azimuth``, ``elevation`` and ``distance``
-    do on the other bakes)."""
+    camera's; exposure, show_background, encoding, preview and converge as above; ``rotate_y``,
+    ``env``, ``terms`` and ``translate`` do not apply and get a note (as ``azimuth``, ``elevation``
+    and ``distance`` do on the other bakes)."""
     if isinstance(limits, ObjectLimits):
         return _sanitise_object(params, limits)
     if isinstance(limits, ViewLimits):
