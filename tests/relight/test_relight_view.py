@@ -296,6 +296,34 @@ def test_assemble_kernel_filters_the_background_as_its_twin(baked):
     assert 0 < differs.mean() < 1   # the sky differs, the surfaces do not
 
 
+def test_assemble_kernel_hides_the_background_as_its_twin(baked):
+    """With background="none" view_assemble's misses are 0 (Environment.eval_background's
+    twin), the frames of both backends agree, and the hits are the nearest background's frame's."""
+    _, scene, tr = baked
+    frames = view_frames.ViewFrames(tr, scene)
+    hidden = frames.with_background("none")
+    env = hidden.environment
+    rng = np.random.default_rng(11)
+    d = rng.normal(size=(500, 3)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    prim = np.full(len(d), -1, np.int32)
+    zeros = np.zeros(len(d), np.float32)
+    fd = view_walk.FrameDevice(hidden, view_walk.ViewDevice(tr))
+    queue = wavlight.cl.thread_queue()
+    ids_b, w_b, prim_b, dir_b, points = fd.lookup(prim, zeros, zeros, d, queue)
+    got = fd.assemble(len(prim), prim_b, ids_b, w_b, dir_b, points,
+                      wavlight.cl.to_device(np.zeros((1, 3), np.float32)), queue)
+    np.testing.assert_array_equal(got, env.eval_background(d.astype(np.float64)))
+    np.testing.assert_array_equal(got, 0.0)
+    fa, _ = frames.frame(EYE, TARGET, background="none")
+    fb, _ = hidden.frame(EYE, TARGET, backend="numpy")
+    np.testing.assert_allclose(fa, fb, rtol=2e-2, atol=1e-4 * fb.max())
+    near, _ = frames.frame(EYE, TARGET)
+    sky = (np.asarray(fa) == 0).all(-1)
+    assert 0 < sky.mean() < 1 and (near[sky] > 0).any()
+    np.testing.assert_array_equal(fa[~sky], near[~sky])   # the surfaces are the same numbers
+
+
 def test_walk_to_the_texels_is_the_dense_sum(baked):
     """With refine -> 0 every node is refined down to the texels: B = sum_t T1_t f_r(w_t), the
     stored coefficients inverted to texels and summed densely."""

@@ -216,3 +216,42 @@ def test_the_kernel_frame_matches_the_numpy_frame_with_the_bilinear_background(b
     assert hit_all.any() and (~hit_all).any()
     np.testing.assert_allclose(a.image[hit_all], near.image[hit_all], rtol=1e-5, atol=1e-6)
     assert not np.allclose(a.image[~hit_all], near.image[~hit_all], rtol=1e-5, atol=1e-6)
+
+
+def test_the_frame_without_background_is_its_twins_and_drops_the_misses_alone(bakes):
+    """With background="none" (the viewer's hidden background) converge_shade's misses
+    contribute 0 as in its twin; pixels whose rays all miss are 0, pixels whose samples all hit
+    are the nearest background's frame's (the same random numbers), and the sibling frames
+    (ViewFrames.with_background) are kept."""
+    scene, by_bits, folder = bakes
+    frames = view_frames.ViewFrames(by_bits[8], scene)
+    hidden = frames.with_background("none")
+    assert hidden is frames.with_background("none") and hidden.environment.background == "none"
+    assert frames.environment.background == "nearest" and hidden.tracer is frames.tracer
+    a = frames.converge(EYE, TARGET, spp=4, seed=9, background="none")
+    b = hidden.converge(EYE, TARGET, spp=4, seed=9, backend="numpy")
+    assert a.stats["background"] == b.stats["background"] == "none"
+    diff = np.abs(a.image - b.image).max(2)
+    assert (diff > 1e-3 * (1 + np.abs(b.image).max(2))).mean() < 0.03, diff.max()
+    near = frames.converge(EYE, TARGET, spp=4, seed=9)
+    sc = dataclasses.replace(scene, camera=frames.camera(EYE, TARGET, None))
+    x, y = np.meshgrid(np.arange(36), np.arange(20))
+    corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], np.float32)
+    hit_all, miss_all = np.ones(36 * 20, bool), np.ones(36 * 20, bool)
+    for c in corners:
+        eye, d = wavlight.camera.camera_rays(sc, x.ravel(), y.ravel(), np.tile(c, (36 * 20, 1)), 36, 20)
+        prim, _ = frames.tracer.intersect(eye, d)
+        hit_all &= prim >= 0
+        miss_all &= prim < 0
+    hit_all, miss_all = hit_all.reshape(20, 36), miss_all.reshape(20, 36)
+    for m in (hit_all, miss_all):   # their neighbours' corners too: no silhouette passes between them
+        inner = m.copy()
+        inner[1:] &= m[:-1]
+        inner[:-1] &= m[1:]
+        inner[:, 1:] &= m[:, :-1]
+        inner[:, :-1] &= m[:, 1:]
+        m[...] = inner
+    assert hit_all.any() and miss_all.any()
+    np.testing.assert_allclose(a.image[hit_all], near.image[hit_all], rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(a.image[miss_all], 0.0)
+    assert (near.image[miss_all] > 0).all()

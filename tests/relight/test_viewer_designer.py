@@ -293,13 +293,20 @@ def test_the_png_is_the_picture_shown_and_a_hidden_background_is_transparent(ser
     assert png.format == "PNG" and png.mode == "RGB" and png.size == (transfer.width, transfer.height)
     assert np.abs(np.asarray(png).astype(int) - shown.astype(int)).max() <= 1
     assert np.abs(raw[..., :3].astype(int) - shown.astype(int)).max() <= 1
+    # hidden: the frame without background (misses contribute 0), the PNG with straight alpha
     raw, png = out[False]
     rgba = np.asarray(png)
     assert png.mode == "RGBA"
+    hidden = transfer.frame(None, 40.0, background="none")
+    assert np.abs(raw[..., :3].astype(int) - tone_map(hidden, 0.5, tonemap="aces").astype(int)).max() <= 1
     assert (rgba[cover == 0] == 0).all() and (raw[cover == 0, :3] == 0).all()   # black, and transparent
     hit = cover > 0
     assert np.array_equal(rgba[..., 3][hit], np.round(cover[hit] * 255).astype(np.uint8))
-    assert np.abs(rgba[hit, :3].astype(int) - shown[hit].astype(int)).max() <= 1
+    edge = hit & (cover < 1)   # a silhouette's pixels: the object's colour over its coverage
+    assert edge.any()
+    own = tone_map(hidden[edge] / cover[edge, None], 0.5, tonemap="aces")
+    assert np.abs(rgba[edge, :3].astype(int) - own.astype(int)).max() <= 1
+    assert np.abs(rgba[cover == 1, :3].astype(int) - shown[cover == 1].astype(int)).max() <= 1
 
 
 # ----------------------------------------------------------------------------- in the browser
@@ -367,7 +374,8 @@ def test_browser_saves_the_png_copies_the_command_and_hides_the_background(serve
     pixels = pixels.reshape(transfer.height, transfer.width, 4)
     cover = bake_hits(transfer) / transfer.spp
     assert (pixels[cover == 0, :3] == 0).all() and pixels[cover > 0, :3].any()
-    assert "hidden in the page only" in pg.get_attribute("#command", "title")
+    pg.wait_for_function("() => document.getElementById('command').value.includes('--background none')")
+    assert "--background none" in pg.get_attribute("#command", "title")
     with pg.expect_download() as info:
         pg.click("#download")
     rgba = np.asarray(Image.open(info.value.path()))

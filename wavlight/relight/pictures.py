@@ -12,7 +12,7 @@ share (H, W) of the bake's camera samples of each pixel that hit a surface
 (:func:`wavlight.relight.converge.bake_hits` over the bake's spp) is the alpha, and the colour
 is the frame divided by it (the surface's own colour on a silhouette's pixel; 0 where it is 0).
 A view bake's frames do not keep their hit shares: its PNG stays opaque, hidden pixels black
-(docs/decisions/viewer-designer-tools.md)."""
+(docs/decisions/viewer-designer-tools.md).
 """
 from __future__ import annotations
 

@@ -38,8 +38,9 @@ def frame_args(frames, state, bake_path, env_file=None, scene=None, background=N
     ``state`` of ``frames`` (:func:`wavlight.relight.frames.frames_for`'s): ``bake_path`` the bake
     file, ``env_file`` the ``--env`` of the state's map (None: the baked map), ``scene`` the
     ``--scene`` given to the viewer (None: the path the bake recorded), ``background`` what
-    misses see (a lighting or a view bake's: its filter, or none with the background hidden), ``spp`` the samples per pixel of a converged
-    picture (None: the frame the viewer draws at rest)."""
+    misses see (a lighting or a view bake's: its filter, or none with the background hidden),
+    ``spp`` the samples per pixel of a converged picture (None: the frame the viewer draws at
+    rest)."""
     args = ["frame", str(bake_path), "-o", OUTPUT]
 
     def flag(key, *values):
