@@ -997,8 +997,10 @@ def test_view_sanitise_orbit_and_the_factors_a_view_bake_holds_fixed():
     lim = VIEW_LIMITS
     state, notes = sanitise({"azimuth": "30", "elevation": "15", "distance": "4.2", "exposure": "0.5"}, lim)
     assert state == {"azimuth": 30.0, "elevation": 15.0, "distance": 4.2, "exposure": 0.5,
-                     "tonemap": "clamp", "encoding": "jpeg",
+                     "tonemap": "clamp", "show_background": True, "encoding": "jpeg",
                      "preview": False, "converge": False} and notes == []
+    state, notes = sanitise({"show_background": "0"}, lim)   # a view bake's frames hide it too
+    assert state["show_background"] is False and notes == []
     state, notes = sanitise({}, lim)
     assert (state["azimuth"], state["elevation"], state["distance"]) == (0.0, 15.945, 3.64) and notes == []
     state, notes = sanitise({"azimuth": "-30", "elevation": "95", "distance": "0"}, lim)
@@ -1015,7 +1017,8 @@ def test_view_sanitise_orbit_and_the_factors_a_view_bake_holds_fixed():
     assert state["distance"] == 4.123                                  # 4 significant digits, as the page
     # the factors a view bake holds fixed: noted and ignored
     state, notes = sanitise({"rotate_y": "10", "env": "1", "terms": "64", "translate": "0,0,0", "azimuth": 10}, lim)
-    assert set(state) == {"azimuth", "elevation", "distance", "exposure", "tonemap", "encoding", "preview", "converge"}
+    assert set(state) == {"azimuth", "elevation", "distance", "exposure", "tonemap", "show_background", "encoding",
+                          "preview", "converge"}
     assert len(notes) == 4 and all("does not apply: this bake varies the view" in n for n in notes)
     # and the camera on the other bakes
     _, notes = sanitise({"azimuth": "10", "distance": "2"}, LIMITS)
@@ -1056,6 +1059,42 @@ def _view_frames(transfer, scene):
     return ViewFrames(transfer, scene, background=VIEWER["background"].default)
 
 
+def test_view_socket_hides_the_background_with_frames_without_it(serve_view):
+    """A view bake's show_background false: its frames are made with background none (black
+    where every ray misses, the surfaces unchanged), the command says --background none, and the
+    PNG stays opaque (a view frame keeps no hit share)."""
+    v = serve_view()
+    assert _config(_get(v.url)[1])["background_toggle"] is True
+
+    def picture(header, payload):
+        return np.frombuffer(payload, np.uint8).reshape(header["height"], header["width"], 4).copy()
+
+    async def talk():
+        async with aiohttp.ClientSession() as client:
+            async with client.ws_connect(v.socket_url) as ws:
+                out = {}
+                for show in (True, False):
+                    await ws.send_json({"type": "state", "azimuth": 30, "elevation": 15, "distance": 4.2,
+                                        "encoding": "raw", "show_background": show})
+                    header, payload, texts = await _next_frame(ws)
+                    assert texts == [] and header["state"]["show_background"] is show
+                    await ws.send_json({"type": "png"})
+                    png_header, png, _ = await _next_frame(ws, ack=False)
+                    assert png_header["type"] == "png"
+                    out[show] = (header, picture(header, payload), png)
+                return out
+    out = asyncio.run(talk())
+    (h1, shown, _), (h0, hidden, png) = out[True], out[False]
+    assert "--background none" in h0["command"] and "--background none" not in h1["command"]
+    black = (hidden[..., :3] == 0).all(-1)
+    assert 0 < black.mean() < 1 and shown[black, :3].any()           # the sky hidden
+    assert np.array_equal(hidden[~black], shown[~black])             # the surfaces the same
+    from PIL import Image
+    import io
+
+    assert Image.open(io.BytesIO(png)).mode == "RGB"
+
+
 def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_view, view_transfer, view_bake):
     v = serve_view()
     # the page's state from the URL: bad values replaced, the fixed factors noted
@@ -1081,7 +1120,7 @@ def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_v
                     header, payload, texts = await _next_frame(ws)
                     assert texts == [] and header["preview"] is False
                     assert header["state"] == {"azimuth": az, "elevation": el, "distance": d, "exposure": ev,
-                                               "tonemap": "clamp"}
+                                               "tonemap": "clamp", "show_background": True}
                     got[az, el, d, ev] = picture(header, payload)
                 # while dragging: a smaller frame of the same camera
                 await ws.send_json({"type": "state", "azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
@@ -1095,7 +1134,7 @@ def test_view_socket_frames_are_view_frames_and_bad_parameters_get_notes(serve_v
                 header, payload, texts = await _next_frame(ws)
                 assert texts and texts[0]["type"] == "state" and len(texts[0]["notes"]) == 5
                 assert header["state"] == {"azimuth": 0.0, "elevation": 15.945, "distance": 72.8, "exposure": 0.5,
-                                           "tonemap": "clamp"}
+                                           "tonemap": "clamp", "show_background": True}
                 # converge: ViewFrames.converge at this camera, seeds 0, 1, ..., until the camera moves
                 await ws.send_json({"type": "state", "azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
                                     "encoding": "raw", "converge": True})
@@ -1168,7 +1207,7 @@ def test_browser_view_drag_orbits_the_camera_and_the_url_restores_it(serve_view,
     assert pg.is_visible("#azimuth") and pg.is_hidden("#rotate_y") and pg.is_hidden("#terms")
     assert pg.evaluate("location.search") == "?token=" + v.token + "&azimuth=30&elevation=15&distance=4.2&exposure=0.5"
     assert pg.evaluate("viewer.last.state") == {"azimuth": 30, "elevation": 15, "distance": 4.2, "exposure": 0.5,
-                                                "tonemap": "clamp"}
+                                                "tonemap": "clamp", "show_background": True}
     assert (pg.input_value("#azimuth"), pg.input_value("#elevation")) == ("30", "15")
     assert pg.text_content("#distance_value") == "4.2" and pg.text_content("#azimuth_value") == "30°"
     assert pg.evaluate("[viewer.last.width, viewer.last.height]") == [96, 64]

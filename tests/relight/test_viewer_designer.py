@@ -304,8 +304,9 @@ def test_the_png_is_the_picture_shown_and_a_hidden_background_is_transparent(ser
     assert np.array_equal(rgba[..., 3][hit], np.round(cover[hit] * 255).astype(np.uint8))
     edge = hit & (cover < 1)   # a silhouette's pixels: the object's colour over its coverage
     assert edge.any()
-    own = tone_map(hidden[edge] / cover[edge, None], 0.5, tonemap="aces")
-    assert np.abs(rgba[edge, :3].astype(int) - own.astype(int)).max() <= 1
+    own = tone_map((hidden / np.maximum(cover, 1e-9)[..., None]).astype(np.float32), 0.5, tonemap="aces")
+    assert np.abs(rgba[edge, :3].astype(int) - own[edge].astype(int)).max() <= 1
+    assert (own[edge].astype(int) > tone_map(hidden, 0.5, tonemap="aces")[edge].astype(int)).any()
     assert np.abs(rgba[cover == 1, :3].astype(int) - shown[cover == 1].astype(int)).max() <= 1
 
 
