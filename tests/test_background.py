@@ -218,6 +218,34 @@ def test_render_flag(tmp_path, device):
     assert json.loads(out.output.strip().splitlines()[-1])["background"] == "bilinear"
     out = CliRunner().invoke(main, ["render", str(scene), "-o", str(tmp_path / "b.png"), "--background", "cubic"])
     assert out.exit_code == 2 and "Traceback" not in out.output
+    # none: nothing is hit in this scene, the PNG black
+    from PIL import Image
+
+    out = CliRunner().invoke(main, ["render", str(scene), "-o", str(tmp_path / "c.png"), "--json", "-q",
+                                    "--background", "none", "--strategy", "cosine"])
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.output.strip().splitlines()[-1])["background"] == "none"
+    assert not np.asarray(Image.open(tmp_path / "c.png")).any()
+
+
+def test_frame_flag_none_is_black_where_nothing_is_hit(tmp_path, small_bake):
+    """wavlight frame --background none on a lighting bake: the PNG black where every bake sample
+    missed, the relit object kept; an object bake refuses the flag in one line (above)."""
+    from PIL import Image
+
+    from wavlight.cli.main import main
+    from wavlight.relight.converge import bake_hits
+
+    scene, transfer = small_bake
+    path = tmp_path / "l.wlt"
+    wavlight.bake(scene, spp=4, levels=3, terms=16, priority="transfer", output=str(path))
+    out = CliRunner().invoke(main, ["frame", str(path), "-o", str(tmp_path / "f.png"), "--background", "none",
+                                    "--json", "-q"])
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.output.strip().splitlines()[-1])["background"] == "none"
+    png = np.asarray(Image.open(tmp_path / "f.png"))
+    hits = bake_hits(transfer)
+    assert not png[hits == 0].any() and png[hits == transfer.spp].any()
 
 
 def test_the_viewer_defaults_to_bilinear_and_the_commands_to_nearest():
