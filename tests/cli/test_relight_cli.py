@@ -90,7 +90,7 @@ def test_frame_background(baked, tmp_path):
 
     folder, out, _ = baked
     images = {}
-    for background in ("nearest", "bilinear"):
+    for background in ("nearest", "bilinear", "none"):
         name = tmp_path / f"{background}.exr"
         r = run("frame", out, "-o", name, "--background", background, "--repeat", 1, "--json")
         assert r.exit_code == 0, r.output
@@ -101,6 +101,8 @@ def test_frame_background(baked, tmp_path):
         assert r.exit_code == 0, r.output
         assert json.loads(r.stdout)["background"] == background
     assert not np.array_equal(images["nearest"], images["bilinear"])
+    # none: the relit product alone (the map adds nothing where samples missed)
+    assert (images["none"] <= images["nearest"]).all() and not np.array_equal(images["none"], images["nearest"])
     assert json.loads(run("frame", out, "-o", tmp_path / "d.png", "--repeat", 1, "--json").stdout)["background"] \
         == "nearest"
     r = run("frame", out, "-o", tmp_path / "c.png", "--background", "cubic")

@@ -185,7 +185,7 @@ def test_bad_backend_is_one_clear_error(bakes):
 
 def test_the_kernel_frame_matches_the_numpy_frame_with_the_bilinear_background(bakes):
     """With background="bilinear" the camera samples that miss see the map's filter in
-    converge_shade (BACKGROUND_BILINEAR) as in its twin (TexelLight.background); the samples that
+    converge_shade (BACKGROUND_MODE 1) as in its twin (TexelLight.background); the samples that
     hit are the nearest background's frame's (the same random numbers, the lighting unchanged)."""
     scene, by_bits, folder = bakes
     frames = view_frames.ViewFrames(by_bits[8], scene, background="bilinear")

@@ -437,8 +437,8 @@ class ConvergeFrames:
         lighting share ``light`` > 0) the pixel's relit value G is the control variate's known
         integral. A camera sample whose pixel's footprint reflects over more than ``coherence``
         times its lobe's width resamples its slots from ``candidates`` directions (0: never).
-        Camera samples that miss see the map's pixel, or with ``background="bilinear"`` its
-        bilinear filter (display only). Returns a RenderResult: image, per-pixel standard error, stats."""
+        Camera samples that miss see the map's pixel, with ``background="bilinear"`` its
+        bilinear filter, with ``background="none"`` nothing: they contribute 0 (display only). Returns a RenderResult: image, per-pixel standard error, stats."""
         where = "relight.converge"
         background = FRAME["background"].check(background, where)
         spp, seed = FRAME["spp"].check(spp, where), FRAME["seed"].check(seed, where)

@@ -544,8 +544,8 @@ def frames_for(transfer, scene=None, maps=(), background: str = FRAME["backgroun
     """The frames of ``transfer`` by the factor it varies (:attr:`Transfer.varies`); ``scene``: the
     scene it was baked from (default: the file the bake names); ``maps``: other maps of a lighting
     bake (an object or a view bake's lighting is fixed: a one-line WavlightError); ``background``:
-    what camera samples that miss see in a lighting or a view bake's frames (nearest or bilinear;
-    an object bake's background is its static image's)."""
+    what camera samples that miss see in a lighting or a view bake's frames (nearest, bilinear or
+    none; an object bake's background is its static image's)."""
     kind = FRAMES[transfer.varies]
     if kind is not LightingFrames:
         if len(maps):

@@ -205,7 +205,7 @@ class ViewConverge:
             raise ArgumentError(f"relight.view: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         t0 = time.perf_counter()
         self.frames, self.inside, self.backend, self.threads = frames, inside, backend, threads
-        #: what camera samples that miss see (the ViewFrames' background: nearest or bilinear)
+        #: what camera samples that miss see (the ViewFrames' background: nearest, bilinear or none)
         self.background = frames.environment.background
         self.levels = inside.n
         sc = frames.scene

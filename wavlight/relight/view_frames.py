@@ -30,7 +30,8 @@ the cache's spacing (docs/decisions/view-bake-textures.md). The unbiased frame s
 camera sample with the texture at its hit (``converge_shade`` built with the textures).
 
 Pixels whose ray misses see the environment (its nearest texel, :meth:`wavlight.envmap.Environment.eval`;
-with ``background="bilinear"`` its filter, :meth:`~wavlight.envmap.Environment.eval_background`).
+with ``background="bilinear"`` its filter, with ``background="none"`` 0: the background hidden,
+:meth:`~wavlight.envmap.Environment.eval_background`; :meth:`ViewFrames.with_background`).
 
 On the device (backend ``opencl``) a frame after its camera rays is three kernels: ``view_lookup``
 (per ray its three cache points and weights, numpy twin :meth:`ViewFrames.hit_points`, and a
