@@ -199,11 +199,13 @@ class Viewer:
     converge(transfer=, scene=, env=, rotate_y=, scale=, spp=, seed=), an object bake's
     converge(translate=, rotate=, spp=, seed=), a view bake's converge(eye=, target=, fov=, width=,
     height=, spp=, seed=), each returning (image, stderr) or a RenderResult (and given ``progress``
-    and ``threads`` where it takes them; a lighting bake's ``background`` too). ``preview_pixels``:
+    and ``threads`` where it takes them; a lighting or a view bake's ``background`` too: ``none``
+    where the page hides the background). ``preview_pixels``:
     the most pixels of a view bake's frames while the camera is dragged (:func:`preview_size`).
     ``background``: what the camera samples that miss see in a lighting or view bake's frames and
-    converged frames (default bilinear: the viewer's picture; the lighting is the map's texels
-    either way; an object bake's background is its static image's)."""
+    converged frames (default bilinear: the viewer's picture; ``none`` where a page hides it,
+    :meth:`background_of`; the lighting is the map's texels either way; an object bake's
+    background is its static image's)."""
 
     def __init__(self, transfer, maps=VIEWER["maps"].default, converge=_UNSET, scene=None,
                  preview_pixels: int = VIEW_PREVIEW_PIXELS, background: str = VIEWER["background"].default,
