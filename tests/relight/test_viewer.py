@@ -1083,7 +1083,7 @@ def test_view_socket_hides_the_background_with_frames_without_it(serve_view):
                     assert png_header["type"] == "png"
                     out[show] = (header, picture(header, payload), png)
                 return out
-    out = asyncio.run(talk())
+    out = _in_a_thread(talk)
     (h1, shown, _), (h0, hidden, png) = out[True], out[False]
     assert "--background none" in h0["command"] and "--background none" not in h1["command"]
     black = (hidden[..., :3] == 0).all(-1)
