@@ -62,11 +62,12 @@ def project(cam, points: np.ndarray, width, height):
 
 
 def pass_rays(scene, width, height, seed, tile, x0, y0, w, h, k, first, kernel=True,
-              stratified=False) -> np.ndarray:
+              stratified=False, device=False):
     """(w h k, 3) float32 directions of one pass: k samples of each pixel of the w x h tile at
     (x0, y0), pixel-major, with jitters from Philox stream JITTER at tile sample indices
     first .. first + w h k - 1 (``stratified``: stratified over each pixel's k samples,
-    ``rng.Stream(seed, tile, first, k)``)."""
+    ``rng.Stream(seed, tile, first, k)``). With ``device`` (and ``kernel``) also the device buffer
+    that holds them, the calling thread's (valid until its next pass): (directions, buffer)."""
     count = w * h * k
     if count >= MAX_PASS_RAYS:
         raise ValueError(f"camera.pass_rays: a pass holds at most {MAX_PASS_RAYS - 1} rays, "
@@ -83,7 +84,8 @@ def pass_rays(scene, width, height, seed, tile, x0, y0, w, h, k, first, kernel=T
         q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.int32(x0), np.int32(y0), np.uint32(w), np.uint32(k),
         np.uint32(count), np.uint32(first), np.uint32(tile), *(np.uint32(x) for x in rng.key(seed)),
         np.int32(bool(stratified)), *fwd, *right, *up, *consts, out)
-    return cl.read(out, (count, 3), np.float32, q)
+    dirs = cl.read(out, (count, 3), np.float32, q)
+    return (dirs, out) if device else dirs
 
 
 def warm_up(scene):
