@@ -62,12 +62,11 @@ def project(cam, points: np.ndarray, width, height):
 
 
 def pass_rays(scene, width, height, seed, tile, x0, y0, w, h, k, first, kernel=True,
-              stratified=False, device=False):
+              stratified=False) -> np.ndarray:
     """(w h k, 3) float32 directions of one pass: k samples of each pixel of the w x h tile at
     (x0, y0), pixel-major, with jitters from Philox stream JITTER at tile sample indices
     first .. first + w h k - 1 (``stratified``: stratified over each pixel's k samples,
-    ``rng.Stream(seed, tile, first, k)``). With ``device`` (and ``kernel``) also the device buffer
-    that holds them, the calling thread's (valid until its next pass): (directions, buffer)."""
+    ``rng.Stream(seed, tile, first, k)``)."""
     count = w * h * k
     if count >= MAX_PASS_RAYS:
         raise ValueError(f"camera.pass_rays: a pass holds at most {MAX_PASS_RAYS - 1} rays, "
@@ -84,8 +83,7 @@ def pass_rays(scene, width, height, seed, tile, x0, y0, w, h, k, first, kernel=T
         q, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.int32(x0), np.int32(y0), np.uint32(w), np.uint32(k),
         np.uint32(count), np.uint32(first), np.uint32(tile), *(np.uint32(x) for x in rng.key(seed)),
         np.int32(bool(stratified)), *fwd, *right, *up, *consts, out)
-    dirs = cl.read(out, (count, 3), np.float32, q)
-    return (dirs, out) if device else dirs
+    return cl.read(out, (count, 3), np.float32, q)
 
 
 def warm_up(scene):

@@ -429,16 +429,14 @@ class ConvergeFrames:
             trees, spread = shared
             P = tile.w * tile.h
             tile_id = CONVERGE_TILES + tile.index
-            on_device = self.backend == "opencl"
             d = camera.pass_rays(self.scene, width, height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k,
-                                 first * P, kernel=on_device, stratified=True, device=on_device)
-            d, d_buffer = d if on_device else (d, None)   # (the shade kernel reads the camera kernel's buffer)
+                                 first * P, kernel=self.backend == "opencl", stratified=True)
             prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
             bary = np.stack([bu, bv], axis=1)   # the shading normals and textures at the hits
             rays = len(d)
             if self.backend == "opencl":
                 direct, origin, wi, value = self._shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
-                                                        state.device, shares, seed, tile_id, bary=bary, dirs=d_buffer)
+                                                        state.device, shares, seed, tile_id, bary=bary)
             else:
                 direct, origin, wi, value = shade_reference(
                     self.scene, self.tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], state.inside,

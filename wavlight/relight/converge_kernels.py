@@ -167,14 +167,13 @@ class ShadeKernel:
                                    cl.to_device(np.zeros(4, np.int32)))
 
     def __call__(self, prog, slots: int, d, prim, t, k: int, first: int, trees: TileTrees, spread, lighting: Lighting,
-                  shares, seed: int, tile: int, queue=None, bary=None, dirs=None):
+                  shares, seed: int, tile: int, queue=None, bary=None):
         """One pass of a tile: camera rays along d (N, 3) from the eye that hit prim (N,) (-1: a miss)
         at t (N,), k samples per pixel, pixel-major, the pass's first sample index ``first`` of
         the tile (``tile``: its Philox tile); ``bary`` (N, 2) embree's barycentric (u, v) of the
-        hits, for the shading normals and needed in a textured scene (None: every face flat);
-        ``dirs`` a device buffer that holds d already on ``queue``'s device (the camera kernel's:
-        not uploaded again; None: d is uploaded). The inputs are uploaded without a wait each
-        (the queue is in order; the read of the planes waits for all).
+        hits, for the shading normals and needed in a textured scene (None: every face flat).
+        The inputs are uploaded without a wait each (the queue is in order; the read of the
+        planes waits for them).
         ``spread`` the tile pixels' footprint spreads on the device, ``shares`` (defensive, light,
         coherence). Returns float32 direct (N, 3),
         origin (N, 3), wi (S, 3, N) and value (S, 3, N) (planes: slot, component, sample)."""
@@ -189,11 +188,10 @@ class ShadeKernel:
             smooth = self.smooth[2] if bary is not None else np.int32(0)
             bary_buf = (cl.upload("converge_bary", np.asarray(bary, np.float32), queue, blocking=False)
                         if bary is not None and (smooth or self.textured) else self.smooth[1])   # (not read)
-            if dirs is None:
-                dirs = cl.upload("converge_dirs", np.asarray(d, np.float32), queue, blocking=False)
             cl.kernel(prog, "converge_shade")(
                 queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(k),
-                np.uint32(first), dirs, cl.upload("converge_prim", np.asarray(prim, np.int32), queue, blocking=False),
+                np.uint32(first), cl.upload("converge_dirs", np.asarray(d, np.float32), queue, blocking=False),
+                cl.upload("converge_prim", np.asarray(prim, np.int32), queue, blocking=False),
                 cl.upload("converge_t", np.asarray(t, np.float32), queue, blocking=False), *self.eye, self.eye_offset,
                 *self.tables[:2],
                 bary_buf, *self.smooth, *self.tables[2:], *self.texture_tables, trees.buffer,
