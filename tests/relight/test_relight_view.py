@@ -422,10 +422,10 @@ def test_frames_of_one_map_share_its_lighting_and_make_the_same_frame(baked):
     m = min(first.n, view_frames.PRODUCT_LEVELS)
     inside = first._texel_light()
     assert second._texel_light() is inside
-    assert view_frames.texel_light(env.with_background("nearest"), m) is inside
+    assert view_frames.texel_light(env.with_background("nearest"), m) == (inside, True)
     assert view_converge.device_lighting(inside) is view_converge.device_lighting(second._texel_light())
-    turned = view_frames.texel_light(wavlight.envmap.Environment(env.pixels.copy(), 1.0, env.rotate_y + 30.0), m)
-    assert turned is not inside
+    turned, was_kept = view_frames.texel_light(wavlight.envmap.Environment(env.pixels.copy(), 1.0, env.rotate_y + 30.0), m)
+    assert turned is not inside and not was_kept
     made = TexelLight(wavlight.envmap.Environment(env.pixels, 1.0, 0.0), m, env.rotate_y)
     for name, table in made.tables().items():
         np.testing.assert_array_equal(np.asarray(table), np.asarray(inside.tables()[name]), err_msg=name)
@@ -434,6 +434,7 @@ def test_frames_of_one_map_share_its_lighting_and_make_the_same_frame(baked):
     fresh = view_frames.ViewFrames(tr, scene)
     assert fresh._texel_light() is not inside
     again = fresh.converge(EYE, TARGET, width=12, height=12, spp=2, seed=5)
+    assert kept.stats["lighting_kept"] and not again.stats["lighting_kept"]
     np.testing.assert_array_equal(kept.image, again.image)
 
 

@@ -143,11 +143,12 @@ _LIGHTS = OrderedDict()
 _LIGHTS_LOCK = threading.Lock()
 
 
-def texel_light(environment, levels: int) -> TexelLight:
+def texel_light(environment, levels: int):
     """The lighting of ``environment`` (its pixels turned by its rotate_y) inside 2^levels x 2^levels
     texels (:class:`wavlight.relight.mixture.TexelLight`), kept for the next ViewFrames of the same
     map: keyed by the pixels' content (a hash of their bytes), the rotation and the levels, the
-    last LIGHTS_KEPT of them (read-only once made: frames of several threads share one)."""
+    last LIGHTS_KEPT of them (read-only once made: frames of several threads share one).
+    Returns it and whether it was kept (made before by this process)."""
     pixels = np.ascontiguousarray(environment.pixels)
     key = (hashlib.blake2b(pixels.view(np.uint8).reshape(-1), digest_size=16).digest(), pixels.shape,
            pixels.dtype.str, float(environment.rotate_y), int(levels))
@@ -155,13 +156,13 @@ def texel_light(environment, levels: int) -> TexelLight:
         found = _LIGHTS.get(key)
         if found is not None:
             _LIGHTS.move_to_end(key)
-            return found
+            return found, True
     inside = TexelLight(Environment(pixels, 1.0, 0.0, environment.name), int(levels), environment.rotate_y)
     with _LIGHTS_LOCK:
         _LIGHTS[key] = inside
         while len(_LIGHTS) > LIGHTS_KEPT:
             _LIGHTS.popitem(last=False)
-    return inside
+    return inside, False
 
 
 class ViewFrames:
@@ -204,6 +205,8 @@ class ViewFrames:
         self._frame_device = None
         self._centres = {}
         self._inside = None
+        #: whether the lighting inside the texels came from the process's kept ones (:func:`texel_light`)
+        self.lighting_kept = None
 
     # -- cameras
     def camera(self, eye=None, target=None, fov=None):
@@ -411,7 +414,7 @@ class ViewFrames:
     # -- the unbiased frame
     def _texel_light(self):
         if self._inside is None:
-            self._inside = texel_light(self.environment, min(self.n, PRODUCT_LEVELS))
+            self._inside, self.lighting_kept = texel_light(self.environment, min(self.n, PRODUCT_LEVELS))
         return self._inside
 
     def converge(self, eye=None, target=None, fov=None, width=None, height=None, spp: int = UNBIASED_SPP,
@@ -449,4 +452,5 @@ class ViewFrames:
                               candidates, coherence)
         result.stats["setup_seconds"] = round(setup, 4)
         result.stats["frame_seconds"] = round(setup + result.stats["render_seconds"], 4)
+        result.stats["lighting_kept"] = self.lighting_kept
         return result
