@@ -11,8 +11,10 @@
  *
  * Per sample (eight per work-item, simd.h): the camera ray (direction d from the eye, the rest's
  * triangle prim at distance t) gives the hit point p, its face normal turned towards the viewer
- * and its material, and the shadow-ray origin p moved max(OFFSET_RELATIVE |p|, the face's offset
- * floor, the eye's) along the normal (kernels/hit.h). Direction j of the sample (j < ND) takes the
+ * and its material (with -DTEXTURES=1 its albedo times its base-colour texture at the hit: texture.h,
+ * the face's texture coordinates face_uv interpolated at embree's bary), and the shadow-ray origin
+ * p moved max(OFFSET_RELATIVE |p|, the face's offset floor, the eye's) along the normal
+ * (kernels/hit.h). Direction j of the sample (j < ND) takes the
  * four words of Philox counter (first + slot, tile, stream, j) (rng.h), its pairs (u0, u1) and
  * (u2, u3) stratified over the pixel's K = spp ND directions (cell number (slot % spp) ND + j,
  * stratify_pair, keyed by words 1 and 2 of stream RNG_STRATA at index first + slot / spp: the
@@ -44,12 +46,18 @@
  * viewer, the material, the shadow-ray origin and the pixel's four stratified shading uniforms
  * (Philox stream `stream` at index first + slot, pairs stratified over the pixel's spp samples as
  * the stratified sampler does, keyed by words 1 and 2 of RNG_STRATA at first + slot / spp); a miss
- * sees the environment. The host shades them with the `wavelet` strategy's shade kernel
+ * sees the environment; with -DTEXTURES=1 the base-colour texture's value at the hit (the rest's
+ * faces' texture coordinates face_uv, the object's object_face_uv; 1 without a texture), which
+ * the shade kernel multiplies into the albedo. The host shades them with the `wavelet` strategy's shade kernel
  * (wavlight.shading.KernelShader). numpy twin: wavlight.relight.moving.shading_points_reference. */
 #include "warp.h"
 #include "bsdf.h"
 #include "rng.h"
 #include "hit.h"
+#include "texture.h"
+#ifndef TEXTURES
+#define TEXTURES 0   /* 1: some material has a base-colour texture (texture.h) */
+#endif
 #ifndef N_LEVELS
 #error "relight_moving.cl is built with -DN_LEVELS (the product trees' depth)"
 #endif
@@ -191,6 +199,8 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
                                __global const float *normals, const int smooth,
                                __global const int *mat_kind, __global const float *mat_param,
                                __global const float *mat_albedo, __global const float *mat_table,
+                               __global const float *face_uv, __global const int *mat_texture,
+                               __global const float *tex_atlas, __global const int *tex_table,
                                __global const float *tree, const uint tree_stride, const uint tree_offset,
                                const uint spp, __global const float *light_cdf, const uint k,
                                __global const float *texels, const int env_w, const int env_h,
@@ -226,6 +236,17 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
     const realv param = GATHER(mat_param, mat);
     realv ar, ag, ab, unused_a;
     GATHER4(mat_albedo, 4 * as_uintv(mat), &ar, &ag, &ab, &unused_a);
+#if TEXTURES
+    {   /* the albedo times the material's texture at the hit (texture.h; bary: embree's (u, v)) */
+        realv bu, bv, tu, tv, tr, tg, tb;
+        GATHER2(bary, 2 * i, &bu, &bv);
+        texture_uv(face_uv, f, bu, bv, &tu, &tv);
+        texture_rgb(tex_atlas, tex_table, GATHER_INT(mat_texture, mat), tu, tv, &tr, &tg, &tb);
+        ar *= tr;
+        ag *= tg;
+        ab *= tb;
+    }
+#endif
     const uintv table_row = as_uintv(mat) * (uint)PLASTIC_STRIDE;   /* its row of the plastic table */
     /* the pixel's tree and strata */
     const uintv slot = as_uintv(GATHER_INT((__global const int *)slot_in, i));
@@ -363,7 +384,9 @@ __kernel void moving_points(const uint count, __global const uint *slot_in, __gl
                             __global const float *object_normal,
                             __global const float *bary_object, __global const int *object_corner,
                             __global const float *object_normals, const int object_smooth,
-                            const int object_material,
+                            const int object_material, __global const float *face_uv,
+                            __global const float *object_face_uv, __global const int *mat_texture,
+                            __global const float *tex_atlas, __global const int *tex_table,
                             const float object_offset, __global const float *place,
                             __global const float *texels, const int env_w, const int env_h,
                             __global const float *rot, const uint spp,
@@ -430,6 +453,23 @@ __kernel void moving_points(const uint count, __global const uint *slot_in, __gl
     }
     const intv mat = select(select(GATHER_INT(face_material, as_uintv(max(fr, 0))), (intv)object_material, on_object),
                             (intv)-1, ~hit);
+    /* the texture's value at the hit, the rest's or the object's (1 without one, and for misses) */
+    realv hr = 1.0f, hg = 1.0f, hb = 1.0f;
+#if TEXTURES
+    if (any(hit)) {
+        realv bu, bv, ou, ov, tu, tv, su, sv;
+        GATHER2(bary, 2 * i, &bu, &bv);
+        GATHER2(bary_object, 2 * i, &ou, &ov);
+        texture_uv(face_uv, as_uintv(max(fr, 0)), bu, bv, &tu, &tv);
+        texture_uv(object_face_uv, as_uintv(max(fo, 0)), ou, ov, &su, &sv);
+        realv tr, tg, tb;
+        texture_rgb(tex_atlas, tex_table, select((intv)-1, GATHER_INT(mat_texture, as_uintv(max(mat, 0))), hit),
+                    select(tu, su, on_object), select(tv, sv, on_object), &tr, &tg, &tb);
+        hr = tr;
+        hg = tg;
+        hb = tb;
+    }
+#endif
     /* the environment for misses */
     realv er = 0.0f, eg = 0.0f, eb = 0.0f;
     if (!all(hit)) {
@@ -453,7 +493,7 @@ __kernel void moving_points(const uint count, __global const uint *slot_in, __gl
     stratify_pair(&u0, &u1, sample, spp, key_guide);
     stratify_pair(&u2, &u3, sample, spp, key_bsdf);
     /* planes: shading normal x y z, origin x y z (along the face normal), u0 .. u3, direct r g b,
-     * face normal x y z */
+     * face normal x y z, the texture's value r g b */
     STORE_LANES(nx, out, base, count);
     STORE_LANES(ny, out + count, base, count);
     STORE_LANES(nz, out + 2 * count, base, count);
@@ -470,6 +510,9 @@ __kernel void moving_points(const uint count, __global const uint *slot_in, __gl
     STORE_LANES(er, out + 10 * count, base, count);
     STORE_LANES(eg, out + 11 * count, base, count);
     STORE_LANES(eb, out + 12 * count, base, count);
+    STORE_LANES(hr, out + 16 * count, base, count);
+    STORE_LANES(hg, out + 17 * count, base, count);
+    STORE_LANES(hb, out + 18 * count, base, count);
     for (uint l = 0; l < LANES && base + l < count; ++l)
         material_out[base + l] = mat[l];
 }

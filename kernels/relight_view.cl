@@ -40,6 +40,10 @@
  * vector unit across the children; one BRDF call per four leaves), and only the children to be
  * refined are pushed; the nodes visited are the root and four per refined node. */
 #include "bsdf.h"
+#include "texture.h"
+#ifndef TEXTURES
+#define TEXTURES 0   /* 1: some material has a base-colour texture (texture.h): view_assemble reads it */
+#endif
 
 #ifndef QBITS
 #define QBITS 8
@@ -514,16 +518,20 @@ INLINE void view_bilinear(const float dx, const float dy, const float dz, __glob
 }
 #endif
 
-/* Per camera ray: a hit's pixel albedo x sum_k w_k B_k (B the walks' products, row[p] the row
- * of cache point p, -1: none), a miss's the environment's nearest texel in the ray's direction
+/* Per camera ray: a hit's albedo x sum_k w_k B_k (B the walks' products, row[p] the row
+ * of cache point p, -1: none; the albedo its material's, with TEXTURES 1 times the material's
+ * texture at the hit: texture.h at embree's bary, rows u v; numpy twin ViewFrames.hit_albedo), a miss's the environment's nearest texel in the ray's direction
  * (with BACKGROUND_BILINEAR 1: view_bilinear's filter)
  * (phi = atan2(x, -z), theta = acos(y) in the map's frame, map_from_world the rotation:
  * wavlight/envmap.py Environment.world_to_square). */
 __kernel void view_assemble(const uint count, __global const int *prim, __global const uint *ids,
                             __global const float *weights, __global const int *row, __global const float *B,
                             __global const int *face_material, __global const float *albedo,
-                            __global const float *dir, __global const float *env, const uint env_width,
-                            const uint env_height, __global const wide *map_from_world, __global float *out)
+                            __global const float *bary, __global const float *face_uv,
+                            __global const int *mat_texture, __global const float *tex_atlas,
+                            __global const int *tex_table, __global const float *dir, __global const float *env,
+                            const uint env_width, const uint env_height, __global const wide *map_from_world,
+                            __global float *out)
 {
     const uint p = get_global_id(0);
     if (p >= count) return;
@@ -543,6 +551,16 @@ __kernel void view_assemble(const uint count, __global const int *prim, __global
         r *= albedo[3 * mt];
         g *= albedo[3 * mt + 1];
         bl *= albedo[3 * mt + 2];
+#if TEXTURES
+        {   /* times the material's texture at the hit (texture.h, its lanes all this ray's) */
+            realv tu, tv, tr, tg, tb;
+            texture_uv(face_uv, (uintv)((uint)f), (realv)bary[2 * p], (realv)bary[2 * p + 1], &tu, &tv);
+            texture_rgb(tex_atlas, tex_table, (intv)mat_texture[mt], tu, tv, &tr, &tg, &tb);
+            r *= tr.s0;
+            g *= tg.s0;
+            bl *= tb.s0;
+        }
+#endif
     } else {
 #if BACKGROUND_BILINEAR
         view_bilinear(dir[3 * p], dir[3 * p + 1], dir[3 * p + 2], map_from_world, env, env_width, env_height, &r, &g,

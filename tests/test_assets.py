@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 import wavlight
-from assets_util import MTL, STRIPE_A, STRIPE_B, stripes_image, write_designer_glb, write_glb, write_obj
+from assets_util import (MTL, STRIPE_A, STRIPE_B, stripes_image, write_designer_glb, write_glb, write_obj,
+                         write_textured_pyramid)
 from scenes_util import camera_of, check_estimates
 from wavlight import assets, bsdfs, textures
 
@@ -361,16 +362,21 @@ def test_render_asset_frames_its_bounds(tmp_path):
     np.testing.assert_allclose(view / np.linalg.norm(view), -transform[:3, 2], atol=1e-9)
 
 
-@pytest.mark.parametrize("vary", ["view", "object"])
-def test_bakes_without_textures_refuse_textured_scenes(tmp_path, vary):
-    """The bakes that do not carry textures yet (view, object) refuse a textured scene in one
-    line naming the scene, before any work, rather than render it untextured."""
+@pytest.mark.parametrize("vary", ["lighting", "view", "object"])
+def test_every_bake_takes_a_textured_scene(tmp_path, vary):
+    """Every bake carries base-colour textures: a textured scene (the GLB's striped floor and a
+    textured pyramid, the object that moves) bakes for each factor; each bake's albedo is the
+    textured one (tests/relight/test_relight_moving_textured.py, test_relight_view_textured.py)."""
     path = write_glb(tmp_path / "a.glb")
-    scene = wavlight.load_dict({"environment": {"procedural": "sky"},
-                                "objects": [{"mesh": str(path), "name": "asset"}]}, base_dir=tmp_path)
-    with pytest.raises(wavlight.WavlightError) as e:
-        wavlight.bake(scene, vary=vary, **({"object": "asset"} if vary == "object" else {}))
-    assert "textures" in str(e.value) and vary in str(e.value) and "\n" not in str(e.value)
+    write_textured_pyramid(tmp_path)
+    scene = wavlight.load_dict({"render": {"width": 16, "height": 12}, "environment": {"procedural": "sky"},
+                                "objects": [{"mesh": str(path)}, {"mesh": "p.obj", "name": "tile", "scale": 0.4}]},
+                               base_dir=tmp_path)
+    assert scene.textured
+    options = {"lighting": {"spp": 1, "terms": 16, "priority": "area"}, "view": {"density": 50},
+               "object": {"object": "tile", "spp": 1, "terms": 16, "priority": "area", "static_spp": 2}}[vary]
+    tr = wavlight.bake(scene, vary=vary, levels=2, **options)
+    assert tr.varies == vary
 
 
 def test_object_bake_refuses_an_object_of_several_materials(tmp_path):

@@ -326,14 +326,6 @@ def check_scene(scene) -> None:
                 f"got {albedo.tolist()} and {m.param}")
 
 
-def require_untextured(scene, what: str) -> None:
-    """A one-line WavlightError where ``scene`` has base-colour textures and ``what`` (a bake or
-    frame of wavlight.relight that does not carry them yet) would render it without them."""
-    if getattr(scene, "textured", False):
-        raise WavlightError(f"{scene.path}: {what} does not carry base-colour textures yet (lighting bakes, "
-                            "their relit and their unbiased frames do); give the textured objects a material to use it")
-
-
 # ----------------------------------------------------------------------------- validation helpers
 class Table:
     """One TOML table, reading typed keys and rejecting unknown ones."""

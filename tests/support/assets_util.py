@@ -142,3 +142,44 @@ def write_obj(folder, mtl="a.mtl", write_mtl=True, write_texture=True, shiny="sh
     if write_texture:
         PIL.Image.fromarray(stripes_image(8, 4)).save(folder / "stripes.png")
     return folder / "a.obj"
+
+
+PYRAMID_MTL = """newmtl tex
+Kd 0.9 0.9 0.9
+map_Kd stripes.png
+"""
+
+PYRAMID_OBJ = """mtllib p.mtl
+v -1 0 -1
+v 1 0 -1
+v 1 0 1
+v -1 0 1
+v 0 1.5 0
+vt 0 0
+vt 2 0
+vt 2 2
+vt 0 2
+vt 1 3
+usemtl tex
+f 1/1 5/5 2/2
+f 2/2 5/5 3/3
+f 3/3 5/5 4/4
+f 4/4 5/5 1/1
+f 1/1 2/2 3/3
+f 1/1 3/3 4/4
+"""
+
+
+def write_textured_pyramid(folder) -> Path:
+    """An OBJ of a square pyramid (base 2 x 2 at y = 0, apex at y = 1.5) whose one material "tex"
+    has a base-colour texture of stripes repeating across each face, with its MTL and stripes.png
+    in ``folder``: an object of one textured material, its faces wound outwards (a view bake
+    caches the side a face's normal points to)."""
+    import PIL.Image
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "p.obj").write_text(PYRAMID_OBJ)
+    (folder / "p.mtl").write_text(PYRAMID_MTL)
+    PIL.Image.fromarray(stripes_image(8, 4)).save(folder / "stripes.png")
+    return folder / "p.obj"

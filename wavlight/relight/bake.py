@@ -57,7 +57,7 @@ from ..envmap import LUMINANCE
 from ..errors import ArgumentError, shown
 from ..integrator import render_full
 from ..raytrace import RayTracer
-from ..scene import check_scene, load_scene, require_untextured
+from ..scene import check_scene, load_scene
 from ..threads import default_threads
 from ..warp import frame as tangent_frame
 from . import lighting, store
@@ -650,7 +650,9 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
     moves (:mod:`wavlight.relight.moving`): the transfer of the scene without it (camera rays and
     shadows alike), each pixel's product T1 x L of that transfer and the scene's fixed lighting on
     2^OBJECT_PRODUCT_LEVELS texels, and the scene without it converged with ``static_spp``
-    samples per pixel (the ``wavelet`` strategy; unbiased).
+    samples per pixel (the ``wavelet`` strategy; unbiased). Base-colour textures are carried as
+    in a lighting bake: the pixels' albedo is their samples' textured albedo, the static image is
+    rendered with the textures, and the frames shade the rest and the object with theirs.
     (A bake that varies the view is :func:`wavlight.relight.view_bake.bake_view`; :func:`wavlight.bake`
     takes all three.)
     ``progress(done, total, rays, seconds)`` after each block. ``dask_address``: bake the
@@ -675,7 +677,6 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
     if vary == "object":
         if object is None:
             raise ArgumentError(f"{where}: vary='object' needs the object that moves (a name or an index)")
-        require_untextured(scene, "a bake with vary='object'")
         moving = scene.find_object(object)
         kinds = np.unique(scene.face_material[moving.faces_range[0]:moving.faces_range[1]])
         if len(kinds) > 1:   # its frames shade the moving object with one material (SceneObject.material)

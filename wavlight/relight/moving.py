@@ -40,8 +40,13 @@ scene's shadows as a render chooses them), the closer hit of the rest and the ob
 shading uniforms, stratified over the pixel's samples, from the kernel ``moving_points`` (twin
 :func:`shading_points_reference`). The camera rays of a frame are kept for the next frames of
 the same seed and spp (the viewer draws every frame with seed 0); a frame runs as chunks of
-rows on a pool of threads. Every frame is unbiased: tests/relight/test_relight_moving.py
-checks it against ``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator
+rows on a pool of threads. Base-colour textures (wavlight.textures, kernels/texture.h) are read
+where the albedo is: D's contributions take the albedo of the rest's hit times its texture there,
+and the points rendered in full take the texture of the rest's or the object's hit (its own
+faces' texture coordinates, :func:`object_face_uv`) into the shade kernel's ``tint``; the static
+image and the bake's albedo are rendered and baked with them. Every frame is unbiased:
+tests/relight/test_relight_moving.py (and test_relight_moving_textured.py) check it against
+``mis`` of the moved scene. ``backend="numpy"`` computes the same estimator
 with the numpy twins (same random numbers).
 """
 from __future__ import annotations
@@ -54,7 +59,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import bsdfs, camera, cl, occlusion, raytrace, rng, strategies
+from .. import bsdfs, camera, cl, occlusion, raytrace, rng, strategies, textures
 from ..camera import camera_rays, project
 from ..envmap import Environment
 from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_real
@@ -191,8 +196,9 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
     the pixel's product is 0), their uniforms :func:`stratified_uniforms` (stream
     rng.MOVING_DIRECTIONS); the records of those whose ray meets the object's box
     (:func:`meets_box`) with a contribution > 0 (their rays in the object's own frame). ``uv``: the
-    hits' barycentrics (u, v) for their shading normals (None: flat); no light from below the
-    geometric surface (docs/decisions/shading-normals.md)."""
+    hits' barycentrics (u, v) for their shading normals (None: flat) and, in a textured scene, for
+    the albedo at the hit (its material's times its texture's: Scene.albedo_at); no light from below
+    the geometric surface (docs/decisions/shading-normals.md)."""
     nd = directions
     count = len(d)
     eye = scene.camera.eye
@@ -221,7 +227,13 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
                                                   rep(scene.material_kind[mat]), rep(scene.material_param[mat]),
                                                   rep(wo), (rep(s_ax), rep(t_ax), rep(nrm)),
                                                   geometric=rep(geo.astype(np.float64)), table=table, with_share=True)
-    value = tint_of(share, rep(scene.material_albedo[mat])) * (weight[:, None] * environment.eval(direction))
+    if getattr(scene, "textured", False):
+        if uv is None:
+            raise ValueError("occlusion_records_reference: a textured scene needs the hits' barycentrics (uv)")
+        albedo = scene.albedo_at(prim, uv[0], uv[1])
+    else:
+        albedo = scene.material_albedo[mat]
+    value = tint_of(share, rep(albedo)) * (weight[:, None] * environment.eval(direction))
     o = rep(origin.astype(np.float64))
     keep = meets_box(place, box, o, direction) & (weight > 0) & (value.max(1) > 0)
     i, j = np.repeat(np.arange(count), nd), np.tile(np.arange(nd), count)
@@ -235,7 +247,7 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
 
 def shading_points_reference(scene, tracer, object_tracer, object_material: int, environment, d, prim, t,
                              prim_object, t_object, R, T, object_offset: float, slots, spp: int, seed: int,
-                             tile: int, first: int, uv=None, uv_object=None):
+                             tile: int, first: int, uv=None, uv_object=None, object_face_uv=None):
     """numpy twin of the ``moving_points`` kernel (kernels/relight_moving.cl): for camera rays
     from ``scene``'s eye along d (N, 3) that hit the rest's triangles prim (N,) at t (N,) and the
     object's (``object_tracer``'s, in its own frame: world = R local + T) prim_object at
@@ -245,8 +257,10 @@ def shading_points_reference(scene, tracer, object_tracer, object_material: int,
     origin (the offset of kernels/hit.h along the face normal, the object's floor
     ``object_offset``), the four shading uniforms (stream rng.MOVING_MIS, stratified over the
     pixel's spp samples: :func:`stratified_uniforms`), the environment's radiance for misses
-    (0 for hits) and the face normal turned towards the viewer; and the material (N,) (-1 for a
-    miss)."""
+    (0 for hits), the face normal turned towards the viewer and the base-colour texture's value at
+    the hit (wavlight.textures: the rest's faces' texture coordinates, the object's
+    ``object_face_uv`` (its faces' rows, :func:`object_face_uv`); 1 without a texture and for
+    misses); and the material (N,) (-1 for a miss)."""
     d = np.asarray(d, np.float32)
     prim, prim_object = np.asarray(prim), np.asarray(prim_object)
     t, t_object = np.asarray(t, np.float32), np.asarray(t_object, np.float32)
@@ -254,7 +268,8 @@ def shading_points_reference(scene, tracer, object_tracer, object_material: int,
     eye = np.asarray(scene.camera.eye, np.float32)
     on_object = (prim_object >= 0) & ((prim < 0) | (t_object < t))
     hit = on_object | (prim >= 0)
-    out = np.zeros((16, count))
+    out = np.zeros((19, count))
+    out[16:19] = 1.0
     material = np.full(count, -1, np.int64)
     rest = np.flatnonzero(hit & ~on_object)
     if uv is not None and tracer.smooth:
@@ -286,16 +301,40 @@ def shading_points_reference(scene, tracer, object_tracer, object_material: int,
     out[6:10] = stratified_uniforms(seed, tile, rng.MOVING_MIS, first, slots, spp).T
     miss = np.flatnonzero(~hit)
     out[10:13, miss] = environment.eval(d[miss].astype(np.float64)).T
+    if len(scene.textures) and scene.vertex_uv is not None:   # the texture's value at each hit
+        if uv is None or (len(ob) and (uv_object is None or object_face_uv is None)):
+            raise ValueError("shading_points_reference: a textured scene needs the hits' barycentrics (uv, uv_object) "
+                             "and the object's face_uv rows")
+        texels, table = scene.texture_atlas()
+        mtex = scene.material_texture
+        tex_uv = textures.hit_uv(textures.face_uv(scene.faces[prim[rest]], scene.vertex_uv), np.arange(len(rest)),
+                                 np.asarray(uv[0])[rest], np.asarray(uv[1])[rest])
+        out[16:19, rest] = textures.lookup(texels, table, mtex[material[rest]], tex_uv).T
+        if len(ob):
+            tex_uv = textures.hit_uv(object_face_uv, prim_object[ob], np.asarray(uv_object[0])[ob],
+                                     np.asarray(uv_object[1])[ob])
+            out[16:19, ob] = textures.lookup(texels, table, np.full(len(ob), mtex[object_material]), tex_uv).T
     return out, material
+
+
+def object_face_uv(scene, ob):
+    """(F, 6) float32: the texture coordinates of the object ``ob``'s faces' corners (its own
+    faces' rows of wavlight.textures.face_uv), or None in a scene without texture coordinates."""
+    if scene.vertex_uv is None:
+        return None
+    return textures.face_uv(np.asarray(ob.faces, np.int64) + ob.vertices_range[0], scene.vertex_uv)
 
 
 class _MovingKernels:
     """The kernels of kernels/relight_moving.cl with their tables: the rest's face normals (and
     shadow-ray offset floors) and materials, the object's face normals in its own frame, the
     lighting inside the texels (running sums of each texel's leaf masses, float32) and the
-    environment's texels (shared with the shader)."""
+    environment's texels (shared with the shader); with ``textured`` the base-colour textures
+    (wavlight.textures: the rest's faces' texture coordinates, the object's ``object_face_uv``
+    rows, the materials' textures and the texels; built with -DTEXTURES=1)."""
 
-    def __init__(self, rest, tracer, object_tracer, inside, shader, n_levels, directions):
+    def __init__(self, rest, tracer, object_tracer, inside, shader, n_levels, directions, textured: bool = False,
+                 object_face_uv=None):
         def rows(t):
             out = np.zeros((max(len(t.face_normals), 1), 4), np.float32)
             out[:len(t.face_normals), :3] = t.face_normals
@@ -322,8 +361,21 @@ class _MovingKernels:
         self.k = np.uint32(inside.k)
         self.directions = int(directions)
         self.shader = shader
+        self.textured = bool(textured)
+        if self.textured:
+            texels, table = rest.texture_atlas()
+            rows = object_face_uv if object_face_uv is not None and len(object_face_uv) else np.zeros((1, 6))
+            self.textures = (cl.to_device(textures.face_uv(rest.faces, rest.vertex_uv) if len(rest.faces)
+                                          else np.zeros((1, 6), np.float32)),
+                             cl.to_device(np.ascontiguousarray(rows, np.float32)), cl.to_device(rest.material_texture),
+                             cl.to_device(texels), cl.to_device(table))
+        else:
+            dummy = cl.to_device(np.zeros(8, np.float32))
+            self.textures = (dummy, dummy, cl.to_device(np.full(max(len(rest.materials), 1), -1, np.int32)), dummy,
+                             cl.to_device(np.zeros(4, np.int32)))
         kinds = int(np.bitwise_or.reduce(1 << np.asarray(rest.material_kind, np.int64), initial=0)) or 1
         self.program = cl.program("relight_moving.cl", N_LEVELS=int(n_levels), BSDF_KINDS=kinds, ND=self.directions,
+                                  TEXTURES=int(self.textured),
                                   OFFSET_RELATIVE=repr(float(np.float32(raytrace.OFFSET_RELATIVE))))
 
     def occlusion(self, eye, d, prim, t, slots, trees, tree_offset: int, spp: int, seed: int, tile: int, first: int,
@@ -348,7 +400,8 @@ class _MovingKernels:
             cl.upload("moving_t", np.asarray(t, np.float32), q),
             *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
             *self._bary("moving_bary", uv, self.smooth, q),
-            self.kind, self.param, self.albedo, self.table, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
+            self.kind, self.param, self.albedo, self.table, self.textures[0], *self.textures[2:], trees.buffer,
+            np.uint32(trees.stride), np.uint32(tree_offset),
             np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
             cl.upload("moving_place", np.asarray(place, np.float32), q),
             cl.upload("moving_box", np.asarray(box, np.float32), q), cl.upload("moving_sphere", _sphere(place, box), q),
@@ -371,19 +424,21 @@ class _MovingKernels:
 
     def _bary(self, name, uv, smooth, q):
         """The kernels' barycentrics buffer (rows u, v), the tables and the flag of ``smooth`` (flat
-        where ``uv`` is None)."""
+        where ``uv`` is None; a textured scene needs ``uv``: the texture coordinates at the hits)."""
         flag = smooth[2] if uv is not None else np.int32(0)
+        if self.textured and uv is None:
+            raise ValueError("relight.moving kernels: a textured scene needs the hits' barycentrics (uv)")
         bary = (cl.upload(name, np.stack([np.asarray(uv[0], np.float32), np.asarray(uv[1], np.float32)], 1), q)
-                if flag else smooth[1])   # (not read when flat)
+                if flag or self.textured else smooth[1])   # (not read when flat and untextured)
         return bary, smooth[0], smooth[1], flag
 
     def points(self, eye, d, prim, t, prim_object, t_object, slots, place, object_material: int,
                object_offset: float, spp: int, seed: int, tile: int, first: int, uv=None, uv_object=None):
-        """The ``moving_points`` kernel: (planes (16, N) float32, material (N,) int32) as
+        """The ``moving_points`` kernel: (planes (19, N) float32, material (N,) int32) as
         :func:`shading_points_reference` returns them."""
         count = len(d)
         q = cl.thread_queue()
-        out = cl.scratch("moving_points", 4 * 16 * max(count, 1))
+        out = cl.scratch("moving_points", 4 * 19 * max(count, 1))
         mat = cl.scratch("moving_material", 4 * max(count, 1))
         if count:
             sh = self.shader
@@ -398,11 +453,11 @@ class _MovingKernels:
                 *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
                 *self._bary("moving_bary", uv, self.smooth, q), self.object_faces,
                 *self._bary("moving_bary_object", uv_object, self.object_smooth, q), np.int32(object_material),
-                np.float32(object_offset),
+                self.textures[0], self.textures[1], *self.textures[2:], np.float32(object_offset),
                 cl.upload("moving_place", np.asarray(place, np.float32), q),
                 sh.texels, *sh.env_size, sh.rot, np.uint32(spp), np.uint32(tile), np.uint32(rng.MOVING_MIS),
                 np.uint32(first), *(np.uint32(x) for x in rng.key(seed)), out, mat)
-        return cl.read(out, (16, count), np.float32, q), cl.read(mat, (count,), np.int32, q)
+        return cl.read(out, (19, count), np.float32, q), cl.read(mat, (count,), np.int32, q)
 
     def warm_up(self, eye, trees):
         """A tiny and a large launch of each kernel (PoCL compiles per work-group size and again
@@ -414,9 +469,10 @@ class _MovingKernels:
         for count in (1, 1 << 16):
             d = np.tile(np.float32([0.0, 0.0, 1.0]), (count, 1))
             zeros, ones = np.zeros(count, np.int32), np.ones(count, np.float32)
-            self.occlusion(eye, d, zeros, ones, np.zeros(count, np.uint32), trees, 0, 1, 0, 0, 0, place, box)
+            uv = (np.zeros(count, np.float32),) * 2 if self.textured else None
+            self.occlusion(eye, d, zeros, ones, np.zeros(count, np.uint32), trees, 0, 1, 0, 0, 0, place, box, uv=uv)
             self.points(eye, d, zeros, ones, zeros - 1, ones, np.arange(count, dtype=np.uint32), place, 0, 0.0, 1,
-                        0, 0, 0)
+                        0, 0, 0, uv=uv, uv_object=uv)
         _WARMED.add(self.program)
 
 
@@ -477,6 +533,9 @@ class MovingObject:
         self.object_tracer = RayTracer(self.object.local, self.object.faces, threads=2,
                                        **_object_normals(self.scene, self.object))
         self._faces = tuple(np.ascontiguousarray(self.object.faces[:, j], np.int64) for j in range(3))
+        # base-colour textures: the rest's and the object's (its faces' texture coordinates)
+        self.textured = bool(self.scene.textured)
+        self._object_face_uv = object_face_uv(self.scene, self.object) if self.textured else None
         self.center, self.radius = bounding_sphere(self.object.local)   # the scene's object (its hash checked)
         self._box = (self.object.local.min(0).astype(np.float64), self.object.local.max(0).astype(np.float64))
         env = transfer.environment()
@@ -515,7 +574,7 @@ class MovingObject:
         if backend == "opencl":
             self._shader = KernelShader(lit, self.wavelet)
             self._kernels = _MovingKernels(self.rest, self.rest_tracer, self.object_tracer, self.inside, self._shader,
-                                           self.m, self.directions)
+                                           self.m, self.directions, self.textured, self._object_face_uv)
             self._kernels.warm_up(sc.camera.eye, HaarTree(np.ones((1, 1 << self.m, 1 << self.m), np.float32)))
             self._product_trees(0, 1)   # the whole image's trees where they fit: made with the bake's loading
         else:
@@ -820,7 +879,8 @@ class MovingObject:
             planes, material = shading_points_reference(self.rest, self.rest_tracer, self.object_tracer,
                                                         self.object.material, self.environment, d, prim_r, t_r,
                                                         prim_o, t_o, R, T, object_offset, slots, spp, seed, tile,
-                                                        start, uv=uv, uv_object=uv_o)
+                                                        start, uv=uv, uv_object=uv_o,
+                                                        object_face_uv=self._object_face_uv)
         value = planes[10:13].T.astype(np.float64)   # misses: the environment
         hits = np.flatnonzero(material >= 0)
         if not len(hits):
@@ -829,7 +889,8 @@ class MovingObject:
         origin = np.ascontiguousarray(planes[3:6, hits].T, np.float32)
         u = np.ascontiguousarray(planes[6:10, hits].T, np.float32)
         g = np.ascontiguousarray(planes[13:16, hits].T)
-        wi, val, offset = self._shader(n, -d[hits], material[hits], u, g=g, with_offset=True)
+        tint = np.ascontiguousarray(planes[16:19, hits].T) if self.textured else None   # the texture at the hit
+        wi, val, offset = self._shader(n, -d[hits], material[hits], u, g=g, with_offset=True, tint=tint)
         # shadow rays for the non-zero estimates of every slot, in one batch (as the integrator's
         # visible_sum): against the rest, then the unblocked ones against the object
         val = np.asarray(val).transpose(1, 2, 0)   # planes (slot, component, point): the kernel's layout

@@ -20,7 +20,8 @@ Haar transform (sec. 4.1); blocks of BLOCK^2 points (sorted by object and Morton
 position, so that a block is a patch of surface) are compressed together (coefficient columns by
 decreasing energy until what is left out is within the tolerance,
 :func:`wavlight.relight.store.compress_block`) and quantized (a scale per coefficient and block,
-shared by the three channels).
+shared by the three channels). T1 holds no albedo: the file stores each cache point's albedo
+apart, its material's times its base-colour texture at the point (:func:`point_albedo`).
 """
 from __future__ import annotations
 
@@ -36,12 +37,12 @@ from .. import bsdfs, haar
 from ..envmap import LUMINANCE
 from ..errors import ArgumentError, check_int
 from ..raytrace import RayTracer
-from ..scene import check_scene, load_scene, require_untextured
+from ..scene import check_scene, load_scene
 from ..threads import default_threads
 from . import lighting, store
 from .bake import BLOCK, PixelSamples, choose_model, texel_rays, texel_rays_reference
 from .settings import BAKE, CACHE_POINTS, VIEW_TEXEL_POINTS
-from .surface_cache import MAX_LATTICE, POINTS, SurfaceCache, build_cache
+from .surface_cache import MAX_LATTICE, POINTS, SurfaceCache, barycentric, build_cache
 from .transfer import finish_bake
 
 
@@ -116,6 +117,16 @@ def _bake_block(cache, tracer, s: _Settings, block: int) -> dict:
             "sum_sq": np.einsum("pc,pc->c", lum, lum)}
 
 
+def point_albedo(scene, cache: SurfaceCache) -> np.ndarray:
+    """(P, 3) float32: the albedo of each cache point, its material's times its base-colour texture
+    there (Scene.albedo_at at the point's place on its face; a point shared by faces takes its
+    first face's texture coordinates)."""
+    if not len(cache) or not scene.textured:
+        return scene.material_albedo[cache.material].astype(np.float32).reshape(-1, 3)
+    u, v = barycentric(scene.vertices, scene.faces, cache.face, cache.position)
+    return scene.albedo_at(cache.face, u.astype(np.float32), v.astype(np.float32)).reshape(-1, 3)
+
+
 def bake_view(scene, output=None, levels=None, tolerance: float = BAKE["tolerance"].default,
               bits: int = BAKE["bits"].default, seed: int = BAKE["seed"].default, threads=None, progress=None,
               backend: str = "opencl", points=None, density=None, cache_points: int = CACHE_POINTS):
@@ -138,7 +149,6 @@ def bake_view(scene, output=None, levels=None, tolerance: float = BAKE["toleranc
                                                                    ("seed", seed)))
     points = BAKE["points"].check(VIEW_TEXEL_POINTS if points is None else points, where)
     cache_points = check_int(where, "cache_points", cache_points, 1, MAX_LATTICE)
-    require_untextured(scene, "a bake with vary='view'")
     if scene.environment.is_black:
         raise ArgumentError(f"{scene.path}: [environment]: the environment is black everywhere; nothing to relight")
     if output is not None:   # the map at least
@@ -196,7 +206,7 @@ def bake_view(scene, output=None, levels=None, tolerance: float = BAKE["toleranc
                          "entries": writer.entries, "entries_full": 4 ** n * n_blocks, "pilot": pilot},
         }
         arrays = {"environment": env.pixels.astype(np.float32),
-                  "albedo": scene.material_albedo[cache.material].astype(np.float32).reshape(-1, 3),
+                  "albedo": point_albedo(scene, cache),
                   "background_pixel": np.zeros(0, np.uint32), "background_mask": np.zeros(0, np.uint64),
                   "background_dir": np.zeros((0, 1, 3), np.float32),
                   "rms": np.sqrt(sum_sq / max(len(cache), 1)).astype(np.float32),

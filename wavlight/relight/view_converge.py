@@ -263,7 +263,7 @@ class ViewConverge:
     def program(self, slots: int, candidates: int, control: bool):
         """kernels/converge.cl's shade kernel for this bake's product levels, scene and background."""
         return kernels.program(self.levels, self.bits, self.shade.kinds, slots, candidates, control, LATTICE,
-                               background=self.background)
+                               textures=self.shade.textured, background=self.background)
 
     def use_camera(self, key):
         """Keep the trees of camera ``key`` (eye, target, fov, width, height): another camera's

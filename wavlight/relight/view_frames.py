@@ -23,6 +23,12 @@ has its three cache points and weights, and the product <T1, f_r> is the top-dow
   the baked cosine at the points' blended normal is turned into n's (the cosine's correction,
   :mod:`wavlight.relight.view_walk`).
 
+A ray's value is B times the albedo at its hit: the material's, in a textured scene times its
+base-colour texture there (:meth:`ViewFrames.hit_albedo`; on the device ``view_assemble`` with
+kernels/texture.h), not the blend of the cache points' albedos, which would blur a texture to
+the cache's spacing (docs/decisions/view-bake-textures.md). The unbiased frame shades each
+camera sample with the texture at its hit (``converge_shade`` built with the textures).
+
 Pixels whose ray misses see the environment (its nearest texel, :meth:`wavlight.envmap.Environment.eval`;
 with ``background="bilinear"`` its filter, :meth:`~wavlight.envmap.Environment.eval_background`).
 
@@ -195,6 +201,8 @@ class ViewFrames:
         self.kind_of = self.scene.material_kind
         self.param_of = self.scene.material_param
         self.albedo_of = self.scene.material_albedo.astype(np.float64)
+        #: base-colour textures: the frames take the albedo at the hit (:meth:`hit_albedo`)
+        self.textured = bool(self.scene.textured)
         fn = np.asarray(self.tracer.face_normals, np.float64)
         self.face_normal = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         self.face_normal32 = self.face_normal.astype(np.float32)
@@ -252,6 +260,14 @@ class ViewFrames:
         w = w * (compat & front[:, None])
         total = w.sum(1, keepdims=True)
         return ids, np.where(total > 0, w / np.where(total > 0, total, 1.0), 0.0), fn
+
+    def hit_albedo(self, prim, u, v) -> np.ndarray:
+        """(M, 3) float32: the albedo at hits on faces prim at embree's (u, v): the material's, times
+        its base-colour texture there in a textured scene (Scene.albedo_at: the numpy twin of
+        ``view_assemble``'s texture lookup, kernels/texture.h)."""
+        if not self.textured:
+            return self.albedo_of[self.scene.face_material[prim]].astype(np.float32)
+        return self.scene.albedo_at(prim, np.asarray(u, np.float32), np.asarray(v, np.float32))
 
     def shading_normals(self, eye, d, t, prim, u, v, fn):
         """The shading normals (M, 3) float32 of hits at barycentrics (u, v) (RayTracer.hit), turned
@@ -370,7 +386,7 @@ class ViewFrames:
                     else:
                         B_b, nodes = cl.scratch("view_walk_out", 12), np.zeros(0, np.uint32)
                     td = time.perf_counter()
-                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, points, B_b, queue, rays)
+                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, points, B_b, queue, rays, uv=(u, v))
                 else:
                     B, nodes = self.products(points, cam.eye, refine, backend, mass)
                     td = time.perf_counter()
@@ -379,7 +395,7 @@ class ViewFrames:
                     at[points] = np.arange(len(points))
                     rows = np.concatenate([np.asarray(B, np.float32).reshape(-1, 3), np.zeros((1, 3), np.float32)])
                     blend = np.einsum("ij,ijc->ic", w.astype(np.float32), rows[at[ids]])
-                    rays[pix[hit]] = blend * self.albedo_of[mat].astype(np.float32)
+                    rays[pix[hit]] = blend * self.hit_albedo(prim[hit], u[hit], v[hit])
                 shaded = len(points)
             else:
                 ok = np.flatnonzero(w.sum(1) > 0)
@@ -389,8 +405,9 @@ class ViewFrames:
                 td = time.perf_counter()
                 if on_device:   # the environment where rays miss (no point's row: 0 on hits)
                     fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, np.zeros(0, np.int64),
-                                cl.scratch("view_walk_out", 12), queue, rays)
-                rays[pix[hit][ok]] = np.asarray(B, np.float32) * self.albedo_of[mat[ok]].astype(np.float32)
+                                cl.scratch("view_walk_out", 12), queue, rays, uv=(u, v))
+                at = hit[ok]
+                rays[pix[at]] = np.asarray(B, np.float32) * self.hit_albedo(prim[at], u[at], v[at])
                 shaded = len(ok)
             if not on_device:
                 miss = np.flatnonzero(prim < 0)

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import bsdfs, cl
+from .. import bsdfs, cl, textures
 from ..warp import frame as tangent_frame
 from ..warp import to_local
 from .frame import DeviceEntries
@@ -391,6 +391,18 @@ class FrameDevice:
         self.face_normal = cl.to_device(np.ascontiguousarray(frames.face_normal32, np.float32))
         self.face_material = cl.to_device(np.ascontiguousarray(frames.scene.face_material, np.int32))
         self.albedo = cl.to_device(np.ascontiguousarray(frames.albedo_of, np.float32).reshape(-1))
+        # base-colour textures (kernels/texture.h): the faces' texture coordinates, each material's
+        # texture and the scene's texels; dummies without textures
+        self.textured = bool(getattr(frames, "textured", False))
+        sc = frames.scene
+        if self.textured:
+            texels, table = sc.texture_atlas()
+            self.textures = (cl.to_device(textures.face_uv(sc.faces, sc.vertex_uv)), cl.to_device(sc.material_texture),
+                             cl.to_device(texels), cl.to_device(table))
+        else:
+            dummy = cl.to_device(np.zeros(8, np.float32))
+            self.textures = (dummy, cl.to_device(np.full(max(len(sc.materials), 1), -1, np.int32)), dummy,
+                             cl.to_device(np.zeros(4, np.int32)))
         self.env = cl.to_device(np.ascontiguousarray(env.pixels, np.float32).reshape(-1))
         self.env_size = (np.uint32(env.width), np.uint32(env.height))
         self.map_from_world = cl.to_device(np.ascontiguousarray(env.map_from_world, self.wide).reshape(-1))
@@ -398,7 +410,7 @@ class FrameDevice:
         self._zeros = np.zeros(self.points, np.uint8)
         bilinear = {"BACKGROUND_BILINEAR": 1} if env.background == "bilinear" else {}
         self.program = cl.program("relight_view.cl", QBITS=device.entries.bits, POINTS=POINTS, K=1,
-                                  MASS_STEPS=MASS_STEPS, **bilinear)
+                                  MASS_STEPS=MASS_STEPS, TEXTURES=int(self.textured), **bilinear)
 
     def lookup(self, prim, u, v, d, queue):
         """Launch ``view_lookup`` on camera rays (prim (N,) int32, -1 a miss; embree's u, v; unit
@@ -418,16 +430,23 @@ class FrameDevice:
         points = np.flatnonzero(cl.read(used, (self.points,), np.uint8, queue))
         return ids, w, prim_b, dir_b, points
 
-    def assemble(self, count, prim_b, ids, w, dir_b, points, B, queue, image=None) -> np.ndarray:
+    def assemble(self, count, prim_b, ids, w, dir_b, points, B, queue, image=None, uv=None) -> np.ndarray:
         """Launch ``view_assemble``: (N, 3) float32 (into ``image`` if given), a hit's albedo x the
         blend of its points' B (rows of ``B`` in the order of ``points``), a miss's environment
-        texel."""
+        texel; in a textured scene the albedo times the texture at the hit, at embree's barycentrics
+        ``uv`` = (u (N,), v (N,)) of the rays."""
+        if self.textured and uv is None:
+            raise ValueError("FrameDevice.assemble: a textured scene needs the hits' barycentrics (uv)")
+        bary = (cl.upload("view_bary", np.ascontiguousarray(np.stack([np.asarray(uv[0], np.float32),
+                                                                      np.asarray(uv[1], np.float32)], 1)), queue)
+                if self.textured else self.textures[0])   # (not read without textures)
         row = np.full(self.points, -1, np.int32)
         row[points] = np.arange(len(points), dtype=np.int32)
         out = cl.scratch("view_image", 12 * count)
         cl.kernel(self.program, "view_assemble")(
             queue, (cl.items(count),), (cl.WORK_GROUP,), np.uint32(count), prim_b, ids, w,
-            cl.upload("view_row", row, queue), B, self.face_material, self.albedo, dir_b, self.env, *self.env_size,
+            cl.upload("view_row", row, queue), B, self.face_material, self.albedo, bary, *self.textures, dir_b,
+            self.env, *self.env_size,
             self.map_from_world, out)
         if image is None:
             return cl.read(out, (count, 3), np.float32, queue)
