@@ -443,9 +443,11 @@ def scratch(name: str, nbytes: int):
     return buf
 
 
-def upload(name: str, a: np.ndarray, queue):
-    """`a` copied into the calling thread's scratch buffer `name` (blocking), which is returned."""
+def upload(name: str, a: np.ndarray, queue, blocking: bool = True):
+    """`a` copied into the calling thread's scratch buffer `name`, which is returned; with
+    ``blocking=False`` the copy is only enqueued (pyopencl keeps `a` alive until it is done), so
+    that the uploads before a kernel cost the host no wait each: the queue is in order."""
     a = np.ascontiguousarray(a)
     buf = scratch(name, a.nbytes)
-    opencl().enqueue_copy(queue, buf, a)
+    opencl().enqueue_copy(queue, buf, a, is_blocking=bool(blocking))
     return buf

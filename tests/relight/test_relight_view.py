@@ -437,6 +437,35 @@ def test_unbiased_frame_equals_mis_from_another_camera(baked):
         assert np.linalg.norm(image - ref.image) / np.linalg.norm(ref.image) < 0.12, mode
 
 
+def test_frames_of_one_map_share_its_lighting_and_make_the_same_frame(baked):
+    """A new ViewFrames of the same map takes the lighting inside the texels made for the last one
+    (the same object and device tables; a copy of the map's pixels finds it too), a turned map
+    gets its own, and a frame with the kept lighting is the one made with a new one."""
+    from wavlight.relight import view_converge
+    from wavlight.relight.mixture import TexelLight
+
+    _, scene, tr = baked
+    first, second = view_frames.ViewFrames(tr, scene), view_frames.ViewFrames(tr, scene)
+    env = first.environment
+    m = min(first.n, view_frames.PRODUCT_LEVELS)
+    inside = first._texel_light()
+    assert second._texel_light() is inside
+    assert view_frames.texel_light(env.with_background("nearest"), m) == (inside, True)
+    assert view_converge.device_lighting(inside) is view_converge.device_lighting(second._texel_light())
+    turned, was_kept = view_frames.texel_light(wavlight.envmap.Environment(env.pixels.copy(), 1.0, env.rotate_y + 30.0), m)
+    assert turned is not inside and not was_kept
+    made = TexelLight(wavlight.envmap.Environment(env.pixels, 1.0, 0.0), m, env.rotate_y)
+    for name, table in made.tables().items():
+        np.testing.assert_array_equal(np.asarray(table), np.asarray(inside.tables()[name]), err_msg=name)
+    kept = second.converge(EYE, TARGET, width=12, height=12, spp=2, seed=5)
+    view_frames._LIGHTS.clear()
+    fresh = view_frames.ViewFrames(tr, scene)
+    assert fresh._texel_light() is not inside
+    again = fresh.converge(EYE, TARGET, width=12, height=12, spp=2, seed=5)
+    assert kept.stats["lighting_kept"] and not again.stats["lighting_kept"]
+    np.testing.assert_array_equal(kept.image, again.image)
+
+
 def test_a_camera_that_sees_only_uncached_sides_gets_a_frame(baked):
     """From below the floor every hit is a face's back, which has no cache: the frame is black
     there and the environment where rays miss, in both modes (never an error)."""

@@ -199,6 +199,8 @@ class ShadeKernel:
         at t (N,), k samples per pixel, pixel-major, the pass's first sample index ``first`` of
         the tile (``tile``: its Philox tile); ``bary`` (N, 2) embree's barycentric (u, v) of the
         hits, for the shading normals and needed in a textured scene (None: every face flat).
+        The inputs are uploaded without a wait each (the queue is in order; the read of the
+        planes waits for them).
         ``spread`` the tile pixels' footprint spreads on the device, ``shares`` (defensive, light,
         coherence). Returns float32 direct (N, 3),
         origin (N, 3), wi (S, 3, N) and value (S, 3, N) (planes: slot, component, sample)."""
@@ -211,13 +213,14 @@ class ShadeKernel:
         if count:
             defensive, light, coherence = shares
             smooth = self.smooth[2] if bary is not None else np.int32(0)
-            bary_buf = (cl.upload("converge_bary", np.asarray(bary, np.float32), queue)
+            bary_buf = (cl.upload("converge_bary", np.asarray(bary, np.float32), queue, blocking=False)
                         if bary is not None and (smooth or self.textured) else self.smooth[1])   # (not read)
             cl.kernel(prog, "converge_shade")(
                 queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(k),
-                np.uint32(first), cl.upload("converge_dirs", np.asarray(d, np.float32), queue),
-                cl.upload("converge_prim", np.asarray(prim, np.int32), queue),
-                cl.upload("converge_t", np.asarray(t, np.float32), queue), *self.eye, self.eye_offset, *self.tables[:2],
+                np.uint32(first), cl.upload("converge_dirs", np.asarray(d, np.float32), queue, blocking=False),
+                cl.upload("converge_prim", np.asarray(prim, np.int32), queue, blocking=False),
+                cl.upload("converge_t", np.asarray(t, np.float32), queue, blocking=False), *self.eye, self.eye_offset,
+                *self.tables[:2],
                 bary_buf, *self.smooth, *self.tables[2:], *self.texture_tables, trees.buffer,
                 np.uint32(tree_stride(trees.levels)), trees.relit, spread,
                 lighting.buffers["leaf_masses"], lighting.buffers["omega"], *lighting.light_args(),

@@ -77,6 +77,23 @@ BACKENDS = ("opencl", "numpy")
 POINTS = BLOCK * BLOCK
 
 
+_LIGHTINGS = weakref.WeakKeyDictionary()
+_LIGHTINGS_LOCK = threading.Lock()
+
+
+def device_lighting(inside) -> kernels.Lighting:
+    """The device tables of the lighting inside the texels ``inside`` (a TexelLight), made once
+    per TexelLight and kept while it lives (the ViewFrames of one map share it:
+    :func:`wavlight.relight.view_frames.texel_light`)."""
+    with _LIGHTINGS_LOCK:
+        found = _LIGHTINGS.get(inside)
+    if found is None:
+        found = kernels.Lighting(inside.tables())
+        with _LIGHTINGS_LOCK:
+            found = _LIGHTINGS.setdefault(inside, found)
+    return found
+
+
 class Tile(NamedTuple):
     """Rows y0 .. y0 + h - 1 of a frame w pixels wide."""
 
@@ -221,7 +238,7 @@ class ViewConverge:
                 raise ArgumentError("relight.ViewConverge: the opencl backend takes the bake's ViewDevice and "
                                     "FrameDevice (wavlight.relight.view_walk)")
             self.device, self.lookup = device, lookup
-            self.light = kernels.Lighting(inside.tables())
+            self.light = device_lighting(inside)
             self.shade = kernels.ShadeKernel(sc, frames.tracer, self.lobe_width)
             self.bits = int(self.device.entries.bits)
             self.no_spread = cl.to_device(np.zeros(1, np.float32))

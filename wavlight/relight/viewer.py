@@ -72,7 +72,8 @@ GROW_SECONDS, merged exactly into
 a running mean (:class:`.progressive.RunningMean`: the mean and standard error of all the samples
 at once), streamed after each pass with the spp reached and the estimated relative error (the
 header's ``converge``: ``spp``, ``passes``, ``pass_spp``, ``pass_seconds``, ``seconds``,
-``relative_error``, ``done``); a new exposure or curve shows the same mean again. Any change of
+``relative_error``, ``done``; the next pass starts before a pass's picture is encoded and sent, so
+that the passes follow each other without waiting for the page); a new exposure or curve shows the same mean again. Any change of
 the factor (a slider released, the camera dragged) ends the passes (a pass under way ends at its
 next progress report), shows the new state's frame and, the control still pressed, starts the
 passes again from there; while a control is held (a preview) no pass runs. The passes of every
@@ -962,14 +963,16 @@ class _Client:
         def same(s):
             return s["converge"] and self.viewer.converge_key(s) == lighting
 
+        def launch(state):
+            """The next pass (schedule.spp samples, seed run.passes): (its start, spp, job)."""
+            spp = schedule.spp
+            return time.perf_counter(), spp, asyncio.ensure_future(
+                self.viewer.run_converge(self.viewer.converge_call, state, spp, run.passes, stop))
+
         try:
             while True:
-                job = None
-                if not schedule.done():
-                    t0 = time.perf_counter()
-                    spp = schedule.spp
-                    job = asyncio.ensure_future(self.viewer.run_converge(self.viewer.converge_call, state, spp,
-                                                                         run.passes, stop))
+                if job is None and not schedule.done():
+                    t0, spp, job = launch(state)
                 while job is None or not job.done():   # (no job: converged; answer exposure changes)
                     waiter = asyncio.ensure_future(self.wake.wait())
                     await asyncio.wait({waiter} if job is None else {job, waiter},
@@ -1002,9 +1005,12 @@ class _Client:
                 report = {"spp": run.spp, "passes": run.passes, "pass_spp": spp, "pass_seconds": round(seconds, 3),
                           "seconds": round(time.perf_counter() - began, 3),
                           "relative_error": None if error is None else round(error, 6), "done": schedule.done()}
+                picture = run.mean.astype(np.float32)
+                job = None
+                if not schedule.done():   # the next pass runs while this one's picture is encoded and sent
+                    t0, spp, job = launch(state)
                 await self._window()
-                if not await self.send_frame(run.mean.astype(np.float32), state,
-                                             {"frame_seconds": seconds, "terms": None}, report):
+                if not await self.send_frame(picture, state, {"frame_seconds": seconds, "terms": None}, report):
                     return False
         finally:
             stop.set()            # a pass still running ends at its next progress report
