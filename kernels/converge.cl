@@ -40,8 +40,10 @@
  * f_leaf = (leaf mass / texel mass) k^2 x (piece mass / leaf mass) / (piece area / leaf area),
  * J = 1 / (2 pi^2 sin theta), all read from the tables the sampler reads (masses as
  * differences of the same running sums). Each slot's estimate is albedo f cos L / p / SLOTS,
- * traced by the host; with CONTROL the sample also carries, without a shadow ray,
- * albedo (G - sum over slots of g / p / SLOTS), g(w) = H+_t / Omega_t L(w) (H+_t = the pixel's
+ * traced by the host (plastic: (coat + albedo base) L / p / SLOTS, bsdf.h material_eval_pdf,
+ * its two lobes sampled by material_sample); with CONTROL the sample also carries, without a
+ * shadow ray, k (G - sum over slots of g / p / SLOTS), k the albedo (plastic: tinted towards
+ * its luminance by the coat's share of the pixel's transfer, relit's fourth value), g(w) = H+_t / Omega_t L(w) (H+_t = the pixel's
  * leaf / gl_t, read with the tree's pdf). A hit whose pixel's footprint spread exceeds
  * coherence times its lobe's width draws CANDIDATES mixture directions instead (no shadow
  * rays), stratified over the pixel's k x CANDIDATES, weights w = target / p with
@@ -126,25 +128,38 @@ INLINE uint compact_bits(uint v)
 
 /* Coefficient (row, col) of the 2^m x 2^m layout (m = N_LEVELS: the top-left block of the bake's)
  * for the lanes' pixels, whose entry rows start at pixel pix0: q scale, 0 where the block keeps
- * no entry of it; block_offsets: the block's row of the offset table, coefficient-major. */
+ * no entry of it; block_offsets: the block's row of the offset table, coefficient-major. With
+ * COAT, plus wp times plastic's coat's (the transform is linear: the coefficients of
+ * H + wp H_coat), from the coat's offsets (coat_offsets: the block's row, -1 where the block
+ * holds no coat) and entries; wp = 1 / lum(a_p) on a pixel that sees plastic, else 0. */
+#ifndef COAT
+#define COAT 0
+#endif
+#define COAT_ARGS __global const int *coat_offsets, __global const float *coat_scale, __global const QTYPE *coat_data, \
+                  const realv wp
+#define COAT_PASS coat_offsets, coat_scale, coat_data, wp
 INLINE realv coefficient(__global const int *block_offsets, __global const float *scale, __global const QTYPE *data,
-                         const uint pix0, const uint row, const uint col)
+                         COAT_ARGS, const uint pix0, const uint row, const uint col)
 {
     const int o = block_offsets[(row << N_LEVELS) + col];
-    if (o < 0)
-        return (realv)0.0f;
-    return load_entries(data + (size_t)o * BLOCK_PIXELS + pix0) * scale[o];
+    realv v = o < 0 ? (realv)0.0f : load_entries(data + (size_t)max(o, 0) * BLOCK_PIXELS + pix0) * scale[max(o, 0)];
+#if COAT
+    const int oc = coat_offsets[(row << N_LEVELS) + col];
+    if (oc >= 0)
+        v += load_entries(coat_data + (size_t)oc * BLOCK_PIXELS + pix0) * (coat_scale[oc] * wp);
+#endif
+    return v;
 }
 
 /* The four children (Morton order) of a node of scaling coefficient a at level l, node k: eq. 13
  * with its three wavelets. */
 INLINE void children(__global const int *block_offsets, __global const float *scale, __global const QTYPE *data,
-                     const uint pix0, const int l, const uint k, const realv a, realv v[4])
+                     COAT_ARGS, const uint pix0, const int l, const uint k, const realv a, realv v[4])
 {
     const uint s = 1u << l, x = compact_bits(k), y = compact_bits(k >> 1);
-    const realv d1 = coefficient(block_offsets, scale, data, pix0, y, s + x);
-    const realv d2 = coefficient(block_offsets, scale, data, pix0, s + y, x);
-    const realv d3 = coefficient(block_offsets, scale, data, pix0, s + y, s + x);
+    const realv d1 = coefficient(block_offsets, scale, data, COAT_PASS, pix0, y, s + x);
+    const realv d2 = coefficient(block_offsets, scale, data, COAT_PASS, pix0, s + y, x);
+    const realv d3 = coefficient(block_offsets, scale, data, COAT_PASS, pix0, s + y, s + x);
     v[0] = 0.5f * ((a + d1) + (d2 + d3));
     v[1] = 0.5f * ((a - d1) + (d2 - d3));
     v[2] = 0.5f * ((a + d1) - (d2 + d3));
@@ -166,7 +181,9 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
                              const uint blocks_w, const uint block_row, const uint bx0, const uint x0, const uint y0,
                              const uint w, const uint h, const uint image_w, __global const float *hit_scale,
                              const float hs, __global const float *gl, __global const float *radiance,
-                             const uint tree_stride, __global float *out, __global float *relit)
+                             const uint tree_stride, __global float *out, __global float *relit,
+                             __global const int *coat_block_offsets, __global const float *coat_scale,
+                             __global const QTYPE *coat_data, __global const float *coat_weight)
 {
 #if LANES != 8
 #error "converge_trees takes eight pixels of a block row per work-item (LANES 8)"
@@ -182,6 +199,13 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
     const uintv lane_x = min(LANE_IDS, (uintv)(live - 1u)) + xx0;   /* the last live lane repeats beyond w */
     const uintv tb = (yy * w + lane_x) * tree_stride;
     const realv c = GATHER(hit_scale, (y0 + yy) * image_w + x0 + lane_x) * hs;
+#if COAT
+    const realv wp = GATHER(coat_weight, (y0 + yy) * image_w + x0 + lane_x);
+    __global const int *coat_offsets = coat_block_offsets + (size_t)(block_row * blocks_w + bx0 + j) * (1u << (2 * N_LEVELS));
+#else
+    const realv wp = 0.0f;
+    __global const int *coat_offsets = coat_block_offsets;
+#endif
     if (all(c == 0.0f)) {   /* pixels the bake saw no surface in: a root of 0 (no product), G = 0 */
         for (uint q = 0; q < live; ++q) {
             tree[tb[q]] = 0.0f;
@@ -193,11 +217,17 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
 #define TOP_LEVELS (N_LEVELS >= 2 ? N_LEVELS - 1 : 1)   /* levels 0 .. TOP_LEVELS - 1 in private memory */
     realv node[LEVEL_OFFSET(TOP_LEVELS)];
     /* levels 0 .. m - 2: the scaling coefficients */
-    node[0] = coefficient(bo, scale, data, pix0, 0u, 0u);
+    node[0] = coefficient(bo, scale, data, COAT_PASS, pix0, 0u, 0u);
+    /* the coat's share of the pixel's mean transfer (its scaling coefficients'): the control
+     * variate's tint (converge_shade), 0 without a coat */
+    const realv coat_root = wp * coefficient(coat_offsets, coat_scale, coat_data, coat_offsets, coat_scale, coat_data,
+                                             (realv)0.0f, pix0, 0u, 0u);
+    const realv share = COAT ? clamp(select((realv)0.0f, coat_root / node[0], node[0] > 0.0f), 0.0f, 1.0f)
+                             : (realv)0.0f;
     for (int l = 0; l + 1 < TOP_LEVELS; ++l) {
         const uint at = (uint)LEVEL_OFFSET(l), below = (uint)LEVEL_OFFSET(l + 1);
         for (uint k = 0; k < (1u << (2 * l)); ++k)
-            children(bo, scale, data, pix0, l, k, node[at + k], node + below + 4 * k);
+            children(bo, scale, data, COAT_PASS, pix0, l, k, node[at + k], node + below + 4 * k);
     }
     /* level m - 1 (for m >= 2) and the leaves: gl_t H+_t written, G summed; the masses of
      * level m - 1 written, those of level m - 2 kept */
@@ -206,7 +236,7 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
     for (uint k = 0; k < (1u << (2 * l1)); ++k) {
         realv mid[4];
         if (N_LEVELS >= 2) {
-            children(bo, scale, data, pix0, l1, k, node[(uint)LEVEL_OFFSET(l1) + k], mid);
+            children(bo, scale, data, COAT_PASS, pix0, l1, k, node[(uint)LEVEL_OFFSET(l1) + k], mid);
         } else {
             mid[0] = node[0];
         }
@@ -214,7 +244,7 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
         for (int q1 = 0; q1 < (N_LEVELS >= 2 ? 4 : 1); ++q1) {
             const uint k1 = N_LEVELS >= 2 ? 4 * k + q1 : k;   /* the level m - 1 node */
             realv v[4];
-            children(bo, scale, data, pix0, N_LEVELS - 1, k1, mid[q1], v);
+            children(bo, scale, data, COAT_PASS, pix0, N_LEVELS - 1, k1, mid[q1], v);
             for (int q = 0; q < 4; ++q) {
                 const uint t = 4 * k1 + q;
                 const realv hv = fmax(v[q] * c, 0.0f);
@@ -255,7 +285,7 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
         g[0] = gr[q];
         g[1] = gg[q];
         g[2] = gb[q];
-        g[3] = 0.0f;
+        g[3] = share[q];
     }
 #undef TOP_LEVELS
 }
@@ -437,19 +467,27 @@ typedef struct {
     realv sx, sy, sz, tx, ty, tz, nx, ny, nz, ox, oy, oz, param;
     realv gx, gy, gz;   /* the geometric normal (towards the viewer): no light from below it */
     intv kind, has_product;
-    uintv tree_base;
+    uintv tree_base, table_row;   /* table_row: the material's row of the plastic table */
     realv alpha;
 } Point;
 
-/* One direction of the mixture: world direction, f cos (no albedo), the mixture's pdf per solid
- * angle, the transfer per solid angle T = H+_t / Omega_t, the radiance. */
+/* One direction of the mixture: world direction, f cos (no albedo), the part of it the albedo
+ * multiplies (all of it but plastic's coat: bsdf.h material_eval_pdf), the mixture's pdf per
+ * solid angle, the transfer per solid angle T = H+_t / Omega_t, the radiance. */
 typedef struct {
-    realv x, y, z, fcos, pdf, transfer, r, g, b;
+    realv x, y, z, fcos, fd, pdf, transfer, r, g, b;
 } Direction;
 
 #define SAMPLE_ARGS __global const float *tree, __global const float *gl, __global const float *omega, LIGHT_ARGS, \
-                    const float light
-#define SAMPLE tree, gl, omega, LIGHT, light
+                    const float light, __global const float *mat_table
+#define SAMPLE tree, gl, omega, LIGHT, light, mat_table
+
+/* The albedo's colour a (one channel) applied to f cos: (f cos - fd) + a fd (plastic's coat is
+ * not tinted; the other kinds' fd is f cos: a f cos). */
+INLINE realv tinted(const realv fcos, const realv fd, const realv a)
+{
+    return (fcos - fd) + a * fd;
+}
 
 INLINE Direction mixture_direction(SAMPLE_ARGS, const Point *pt, const realv u0, const realv u1, const realv u2,
                                    const realv u3)
@@ -479,9 +517,9 @@ INLINE Direction mixture_direction(SAMPLE_ARGS, const Point *pt, const realv u0,
     square_to_world(pu, pv, &qx, &qy, &qz);
     /* the BSDF's */
     realv bx, by, bz;
-    bsdf_sample(pt->kind, pt->param, pt->ox, pt->oy, pt->oz,
-                clamp(select((realv)0.0f, u2 / pt->alpha, use_b), 0.0f, ONE_MINUS_EPS), clamp(u3, 0.0f, ONE_MINUS_EPS),
-                &bx, &by, &bz);
+    material_sample(pt->kind, pt->param, mat_table, pt->table_row, pt->ox, pt->oy, pt->oz,
+                    clamp(select((realv)0.0f, u2 / pt->alpha, use_b), 0.0f, ONE_MINUS_EPS),
+                    clamp(u3, 0.0f, ONE_MINUS_EPS), &bx, &by, &bz);
     realv wx = select(qx, bx * pt->sx + by * pt->tx + bz * pt->nx, use_b);
     realv wy = select(qy, bx * pt->sy + by * pt->ty + bz * pt->ny, use_b);
     realv wz = select(qz, bx * pt->sz + by * pt->tz + bz * pt->nz, use_b);
@@ -510,8 +548,11 @@ INLINE Direction mixture_direction(SAMPLE_ARGS, const Point *pt, const realv u0,
     const realv lx = d.x * pt->sx + d.y * pt->sy + d.z * pt->sz, ly = d.x * pt->tx + d.y * pt->ty + d.z * pt->tz;
     const realv lz = d.x * pt->nx + d.y * pt->ny + d.z * pt->nz;
     realv p_bsdf;
-    bsdf_eval_pdf(pt->kind, pt->param, lx, ly, lz, pt->ox, pt->oy, pt->oz, &d.fcos, &p_bsdf);
-    d.fcos = select((realv)0.0f, d.fcos, d.x * pt->gx + d.y * pt->gy + d.z * pt->gz > 0.0f);
+    material_eval_pdf(pt->kind, pt->param, mat_table, pt->table_row, lx, ly, lz, pt->ox, pt->oy, pt->oz, &d.fcos,
+                      &d.fd, &p_bsdf);
+    const intv above = d.x * pt->gx + d.y * pt->gy + d.z * pt->gz > 0.0f;
+    d.fcos = select((realv)0.0f, d.fcos, above);
+    d.fd = select((realv)0.0f, d.fd, above);
     const realv pdf = (1.0f - pt->alpha - light) * p_prod + pt->alpha * p_bsdf + light * p_light;
     d.pdf = select((realv)0.0f, pdf, isfinite(pdf));
     const realv g = GATHER(gl, leaf_index - (uint)LEVEL_OFFSET(N_LEVELS));
@@ -561,7 +602,7 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
                              __global const float *bary, __global const int *corner, __global const float *normals,
                              const int smooth, __global const int *mat_kind, __global const float *mat_param,
                              __global const float *mat_albedo, __global const float *mat_width,
-                             __global const float *face_uv,
+                             __global const float *mat_table, __global const float *face_uv,
                              __global const int *mat_texture, __global const float *tex_atlas,
                              __global const int *tex_table,
                              __global const float *trees, const uint tree_stride, __global const float *relit,
@@ -622,6 +663,7 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
         const intv mat = GATHER_INT(face_material, f);
         pt.kind = GATHER_INT(mat_kind, mat);
         pt.param = GATHER(mat_param, mat);
+        pt.table_row = as_uintv(mat) * (uint)PLASTIC_STRIDE;
         pt.tree_base = pixel * tree_stride;
         pt.has_product = GATHER(tree, pt.tree_base) > 0.0f;
         pt.alpha = select((realv)(1.0f - light), (realv)defensive, pt.has_product);
@@ -654,12 +696,13 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
             for (int s = 0; s < SLOTS; ++s) {
                 const Direction d = lattice_direction(SAMPLE, &pt, u0, u1, u2, u3, (uintv)s);
                 const realv w = select((realv)0.0f, ratio(d.fcos, d.pdf) * share, mix);
+                const realv wd = select((realv)0.0f, w * (d.fd / d.fcos), w > 0.0f);   /* the albedo's part */
                 out_v[6 + 3 * s] = select((realv)0.0f, d.x, mix);
                 out_v[7 + 3 * s] = select((realv)0.0f, d.y, mix);
                 out_v[8 + 3 * s] = select((realv)0.0f, d.z, mix);
-                out_v[6 + 3 * SLOTS + 3 * s] = ar * w * d.r;
-                out_v[7 + 3 * SLOTS + 3 * s] = ag * w * d.g;
-                out_v[8 + 3 * SLOTS + 3 * s] = ab * w * d.b;
+                out_v[6 + 3 * SLOTS + 3 * s] = tinted(w, wd, ar) * d.r;
+                out_v[7 + 3 * SLOTS + 3 * s] = tinted(w, wd, ag) * d.g;
+                out_v[8 + 3 * SLOTS + 3 * s] = tinted(w, wd, ab) * d.b;
                 if (CONTROL) {   /* g / pdf, g = T L */
                     const realv gp = d.transfer / d.pdf;
                     const intv ok = (d.pdf > 0.0f) & isfinite(gp * d.r) & isfinite(gp * d.g) & isfinite(gp * d.b);
@@ -668,19 +711,20 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
                     cb += select((realv)0.0f, gp * d.b, ok);
                 }
             }
-            if (CONTROL) {
-                realv gr, gg, gb;
-                GATHER4(relit, 4 * pixel, &gr, &gg, &gb, &unused);
-                out_v[0] = select(out_v[0], ar * (gr - cr * share), mix);
-                out_v[1] = select(out_v[1], ag * (gg - cg * share), mix);
-                out_v[2] = select(out_v[2], ab * (gb - cb * share), mix);
+            if (CONTROL) {   /* the tint k = (1 - s) a + s lum(a), s the coat's share (0 without plastic) */
+                realv gr, gg, gb, cs;
+                GATHER4(relit, 4 * pixel, &gr, &gg, &gb, &cs);
+                const realv la = cs * (0.2126f * ar + 0.7152f * ag + 0.0722f * ab);
+                out_v[0] = select(out_v[0], ((1.0f - cs) * ar + la) * (gr - cr * share), mix);
+                out_v[1] = select(out_v[1], ((1.0f - cs) * ag + la) * (gg - cg * share), mix);
+                out_v[2] = select(out_v[2], ((1.0f - cs) * ab + la) * (gb - cb * share), mix);
             }
         }
 #if CANDIDATES
         if (any(resample)) {   /* CANDIDATES mixture directions, SLOTS of them picked and traced */
             realv u0, u1, u2, u3;
             rng_uniforms(first + i, tile, RNG_CONVERGE_RESAMPLE, k0, k1, &u0, &u1, &u2, &u3);
-            realv weight[CANDIDATES], cx[CANDIDATES], cy[CANDIDATES], cz[CANDIDATES], cv[CANDIDATES];
+            realv weight[CANDIDATES], cx[CANDIDATES], cy[CANDIDATES], cz[CANDIDATES], cv[CANDIDATES], cd[CANDIDATES];
             realv cr[CANDIDATES], cg[CANDIDATES], cb[CANDIDATES];
             realv total = 0.0f;
             for (uint c = 0; c < CANDIDATES; ++c) {
@@ -694,6 +738,7 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
                 cy[c] = d.y;
                 cz[c] = d.z;
                 cv[c] = select((realv)0.0f, d.fcos / target, target > 0.0f);
+                cd[c] = select((realv)0.0f, d.fd / target, target > 0.0f);
                 cr[c] = d.r;
                 cg[c] = d.g;
                 cb[c] = d.b;
@@ -703,7 +748,7 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
             for (int s = 0; s < SLOTS; ++s) {   /* the first candidate whose running sum passes (u + s) / SLOTS */
                 const realv at = (up + (float)s) * share * total;
                 realv cum = 0.0f, px_ = cx[CANDIDATES - 1], py_ = cy[CANDIDATES - 1], pz_ = cz[CANDIDATES - 1];
-                realv pv = cv[CANDIDATES - 1], pr = cr[CANDIDATES - 1], pg = cg[CANDIDATES - 1];
+                realv pv = cv[CANDIDATES - 1], pdd = cd[CANDIDATES - 1], pr = cr[CANDIDATES - 1], pg = cg[CANDIDATES - 1];
                 realv pb = cb[CANDIDATES - 1];
                 intv found = 0;
                 for (uint c = 0; c < CANDIDATES; ++c) {
@@ -713,6 +758,7 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
                     py_ = select(py_, cy[c], take);
                     pz_ = select(pz_, cz[c], take);
                     pv = select(pv, cv[c], take);
+                    pdd = select(pdd, cd[c], take);
                     pr = select(pr, cr[c], take);
                     pg = select(pg, cg[c], take);
                     pb = select(pb, cb[c], take);
@@ -720,13 +766,15 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
                 }
                 /* f cos L / target x (sum w) / CANDIDATES / SLOTS */
                 realv v = pv * (total / (float)CANDIDATES * share);
-                v = select((realv)0.0f, v, resample & isfinite(v));
+                const intv live = resample & isfinite(v);
+                v = select((realv)0.0f, v, live);
+                const realv vd = select((realv)0.0f, pdd * (total / (float)CANDIDATES * share), live);
                 out_v[6 + 3 * s] = select(out_v[6 + 3 * s], px_, resample);
                 out_v[7 + 3 * s] = select(out_v[7 + 3 * s], py_, resample);
                 out_v[8 + 3 * s] = select(out_v[8 + 3 * s], pz_, resample);
-                out_v[6 + 3 * SLOTS + 3 * s] = select(out_v[6 + 3 * SLOTS + 3 * s], ar * v * pr, resample);
-                out_v[7 + 3 * SLOTS + 3 * s] = select(out_v[7 + 3 * SLOTS + 3 * s], ag * v * pg, resample);
-                out_v[8 + 3 * SLOTS + 3 * s] = select(out_v[8 + 3 * SLOTS + 3 * s], ab * v * pb, resample);
+                out_v[6 + 3 * SLOTS + 3 * s] = select(out_v[6 + 3 * SLOTS + 3 * s], tinted(v, vd, ar) * pr, resample);
+                out_v[7 + 3 * SLOTS + 3 * s] = select(out_v[7 + 3 * SLOTS + 3 * s], tinted(v, vd, ag) * pg, resample);
+                out_v[8 + 3 * SLOTS + 3 * s] = select(out_v[8 + 3 * SLOTS + 3 * s], tinted(v, vd, ab) * pb, resample);
             }
         }
 #endif

@@ -20,13 +20,20 @@
  * shadow ray goes from a member of group j chosen by u3 towards point q, with
  * weight = Omega_t sum f / Q: weight x V is an unbiased estimate of the pixel's mean over
  * its samples of the texel's Q-point quadrature of f cos V, exact where V is the same over
- * the texel and the pixel. A texel the BRDF does not reach gets weight 0 (no ray). */
+ * the texel and the pixel. A texel the BRDF does not reach gets weight 0 (no ray).
+ * plastic (kernels/bsdf.h) is not albedo x shape: part 0 takes the part of f cos its albedo
+ * multiplies (the diffuse base; all of f for the other kinds), part 1 the coat's (f minus that,
+ * plastic groups only, weight c_j = size_j / S: no albedo), each with its own stream of
+ * uniforms (RNG_TEXEL, RNG_TEXEL_COAT) and its own shadow rays; material[gj] the group's
+ * material (its row of the plastic table). */
 #ifndef TEXEL_POINTS
 #define TEXEL_POINTS 4   /* 16: 4 x 4 strata; 4: 2 x 2; 1: one point over the whole texel */
 #endif
 #define TEXEL_GRID (TEXEL_POINTS == 16 ? 4 : (TEXEL_POINTS == 4 ? 2 : 1))
 __kernel void bake_texel_rays(const uint count, const uint first, const uint n_levels, const uint samples,
-                              const uint tile, const uint k0, const uint k1, __global const uint *group_count,
+                              const uint tile, const uint k0, const uint k1, const uint stream, const uint part,
+                              __global const int *material, __global const float *table,
+                              __global const uint *group_count,
                               __global const float *normal, __global const float *geometric,
                               __global const float *wo,
                               __global const int *kind, __global const float *param,
@@ -42,7 +49,7 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
     const uintv t = gidx & (side * side - 1u);
     const uintv row = t >> n_levels, col = t & (side - 1u);
     realv u0, u1, u2, u3;
-    rng_uniforms(first + gidx, tile, RNG_TEXEL, k0, k1, &u0, &u1, &u2, &u3);
+    rng_uniforms(first + gidx, tile, stream, k0, k1, &u0, &u1, &u2, &u3);
     const realv inv = 1.0f / (float)side;
     realv st0, z0, st1, z1;
     fast_sincos(PI_F * convert_realv(row) * inv, &st0, &z0);
@@ -75,6 +82,10 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
         const int kd = kind[gj];
         const realv pa = (realv)param[gj];
         const float c = weight[gj];
+        if (part && kd != BSDF_PLASTIC) {   /* the coat's pass: only plastic has a coat */
+            step += TEXEL_POINTS;
+            continue;
+        }
         realv ix[TEXEL_POINTS], iy[TEXEL_POINTS], iz[TEXEL_POINTS];
         intv above = (intv)0, outside[TEXEL_POINTS];
         for (int q = 0; q < TEXEL_POINTS; ++q) {
@@ -99,6 +110,14 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
 #endif
 #if HAS_KIND(BSDF_GGX)
             if (kd == BSDF_GGX) bsdf_eval_pdf((intv)BSDF_GGX, pa, ix[q], iy[q], iz[q], ox, oy, oz, &fv, &unused);
+#endif
+#if HAS_KIND(BSDF_PLASTIC)
+            if (kd == BSDF_PLASTIC) {   /* the albedo's part (the diffuse base), or the coat's (part 1) */
+                realv whole, diffuse;
+                material_eval_pdf((intv)BSDF_PLASTIC, pa, table, (uintv)((uint)material[gj] * PLASTIC_STRIDE), ix[q],
+                                  iy[q], iz[q], ox, oy, oz, &whole, &diffuse, &unused);
+                fv = part ? whole - diffuse : diffuse;
+            }
 #endif
             fv = select(fv * c, (realv)0.0f, !(fv > 0.0f) | !outside[q]);
             /* reservoir step: take (j, q) with probability fv / (total + fv) */
@@ -140,7 +159,13 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
  * private memory while it walks the K coefficients (one row of the offset table each), eight
  * pixels to a vector. It writes the frame itself: each pixel's sums times its albedo, RGB
  * interleaved, (height, width, 3), the pixels of edge blocks beyond the image left out.
- * numpy twin: frame.py image_reference. */
+ * With COAT (plastic's coat, a second store over the blocks that see plastic): block b is the
+ * image's block block_of[b], and its sums are added to the frame as they are (the albedo does
+ * not multiply the coat), after the transfer's product.
+ * numpy twin: frame.py image_reference (coat_reference). */
+#ifndef COAT
+#define COAT 0
+#endif
 #ifndef QBITS
 #define QBITS 8
 #endif
@@ -173,7 +198,7 @@ __kernel void bake_texel_rays(const uint count, const uint first, const uint n_l
 __kernel void frame_product(const uint n_terms, const uint n_blocks, const uint blocks_x, const uint width,
                             const uint height, __global const int *columns, __global const float4 *light,
                             __global const int *offsets, __global const float *scale, __global const QTYPE *data,
-                            __global const float *albedo, __global float *out)
+                            __global const float *albedo, __global const int *block_of, __global float *out)
 {
     const uint b0 = get_global_id(0) * TILE_BLOCKS;
     if (b0 >= n_blocks) return;
@@ -211,7 +236,12 @@ __kernel void frame_product(const uint n_terms, const uint n_blocks, const uint 
         }
     }
     for (uint j = 0; j < tiles; ++j) {
-        const uint b = b0 + j, x0 = (b % blocks_x) * BLOCK, y0 = (b / blocks_x) * BLOCK;
+#if COAT
+        const uint b = (uint)block_of[b0 + j];
+#else
+        const uint b = b0 + j;
+#endif
+        const uint x0 = (b % blocks_x) * BLOCK, y0 = (b / blocks_x) * BLOCK;
         const float8 *a = acc + j * 3 * VECTORS;
         for (uint v = 0; v < VECTORS; ++v) {
             const uint y = y0 + (8 * v) / BLOCK, x = x0 + (8 * v) % BLOCK;
@@ -226,14 +256,26 @@ __kernel void frame_product(const uint n_terms, const uint n_blocks, const uint 
                 const float8 o0 = __builtin_shufflevector(rg, bb, 0, 1, 16, 2, 3, 17, 4, 5);
                 const float8 o1 = __builtin_shufflevector(rg, bb, 18, 6, 7, 19, 8, 9, 20, 10);
                 const float8 o2 = __builtin_shufflevector(rg, bb, 11, 21, 12, 13, 22, 14, 15, 23);
+#if COAT
+                vstore8(o0 + vload8(0, out + i), 0, out + i);
+                vstore8(o1 + vload8(0, out + i + 8), 0, out + i + 8);
+                vstore8(o2 + vload8(0, out + i + 16), 0, out + i + 16);
+#else
                 vstore8(o0 * vload8(0, albedo + i), 0, out + i);
                 vstore8(o1 * vload8(0, albedo + i + 8), 0, out + i + 8);
                 vstore8(o2 * vload8(0, albedo + i + 16), 0, out + i + 16);
+#endif
             } else {
                 for (uint l = 0; x + l < width; ++l) {
+#if COAT
+                    out[i + 3 * l] += a[v][l];
+                    out[i + 3 * l + 1] += a[VECTORS + v][l];
+                    out[i + 3 * l + 2] += a[2 * VECTORS + v][l];
+#else
                     out[i + 3 * l] = a[v][l] * albedo[i + 3 * l];
                     out[i + 3 * l + 1] = a[VECTORS + v][l] * albedo[i + 3 * l + 1];
                     out[i + 3 * l + 2] = a[2 * VECTORS + v][l] * albedo[i + 3 * l + 2];
+#endif
                 }
             }
         }

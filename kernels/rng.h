@@ -15,6 +15,7 @@
 #define RNG_SHADING 1u
 #define RNG_STRATA 2u   /* per pixel and pass: the cell orders of its three pairs */
 #define RNG_TEXEL 8u    /* the bake's texel uniforms (relight.cl) */
+#define RNG_TEXEL_COAT 9u   /* and those of its plastic coat's pass */
 #define RNG_CONVERGE_RESAMPLE 74u   /* the unbiased relit frame's candidates (converge.cl) */
 #define RNG_CONVERGE_PICK 75u       /* and its picks among them */
 

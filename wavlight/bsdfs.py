@@ -394,22 +394,25 @@ def lobe_width(kind, param):
     return np.where(kind == PHONG, 1.0 / np.sqrt(np.maximum(param, 0.0) + 1.0), width)
 
 
-def sample_each(kind, param, u, wo):
+def sample_each(kind, param, u, wo, table=None):
     """:func:`sample` of samples of several materials at once (``kind`` and ``param`` per
-    sample): the directions wi (N, 3), one call per material kind present."""
+    sample; plastic's ``table`` rows per sample): the directions wi (N, 3), one call per
+    material kind present."""
     wi = np.zeros((len(kind), 3))
     for kd in np.unique(kind):   # material kinds, not samples
         sel = kind == kd
-        wi[sel] = sample(int(kd), param[sel], u[sel], wo[sel])[0]
+        wi[sel] = sample(int(kd), param[sel], u[sel], wo[sel], None if table is None else table[sel])[0]
     return wi
 
 
-def eval_pdf_each(kind, param, wi, wo):
+def eval_pdf_each(kind, param, wi, wo, table=None, with_diffuse: bool = False):
     """(f * cos_i, pdf) of samples of several materials at once (``kind`` and ``param`` per
-    sample), one call per material kind present."""
-    fcos, p = np.zeros(len(kind)), np.zeros(len(kind))
+    sample; plastic's ``table`` rows per sample), one call per material kind present; with
+    ``with_diffuse`` also the part of f cos the albedo multiplies (:func:`eval_split`)."""
+    fcos, p, fd = np.zeros(len(kind)), np.zeros(len(kind)), np.zeros(len(kind))
     for kd in np.unique(kind):   # material kinds, not samples
         sel = kind == kd
-        fcos[sel] = eval_cos(int(kd), param[sel], wi[sel], wo[sel])
-        p[sel] = pdf(int(kd), param[sel], wi[sel], wo[sel])
-    return fcos, p
+        rows = None if table is None else table[sel]
+        fcos[sel], fd[sel] = eval_split(int(kd), param[sel], wi[sel], wo[sel], rows)
+        p[sel] = pdf(int(kd), param[sel], wi[sel], wo[sel], rows)
+    return (fcos, p, fd) if with_diffuse else (fcos, p)

@@ -38,6 +38,8 @@ SHADING = 1
 STRATA = 2
 #: the bake's texel uniforms: point jitter, the reservoir's key, the sample (RNG_TEXEL, kernels/relight.cl)
 TEXEL = 8
+#: the bake's texel uniforms of the plastic coat's transfer (its second pass: RNG_TEXEL_COAT)
+TEXEL_COAT = 9
 #: the unbiased frame's mixture directions (wavlight.relight.converge): stream start + slot, one per slot
 CONVERGE_DIRECTIONS = range(10, 10 + 64)
 #: the unbiased frame's resampling: the candidates' uniforms and the picks among them
@@ -51,7 +53,7 @@ MOVING_MIS = 77
 
 #: every stream's ids by name: no two overlap
 STREAMS = {name: value if isinstance(value, range) else range(value, value + 1) for name, value in (
-    ("JITTER", JITTER), ("SHADING", SHADING), ("STRATA", STRATA), ("TEXEL", TEXEL),
+    ("JITTER", JITTER), ("SHADING", SHADING), ("STRATA", STRATA), ("TEXEL", TEXEL), ("TEXEL_COAT", TEXEL_COAT),
     ("CONVERGE_DIRECTIONS", CONVERGE_DIRECTIONS), ("CONVERGE_RESAMPLE", CONVERGE_RESAMPLE),
     ("CONVERGE_PICK", CONVERGE_PICK), ("MOVING_DIRECTIONS", MOVING_DIRECTIONS), ("MOVING_MIS", MOVING_MIS))}
 

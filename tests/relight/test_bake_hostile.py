@@ -53,6 +53,10 @@ def bakes(tmp_path_factory, device):
     (folder / "scene.toml").write_text(toml_text(SCENE))
     r = run("bake", folder / "scene.toml", "-o", folder / "light.wlt", *FAST, "-q")
     assert r.exit_code == 0, r.output
+    plastic = dict(SCENE, materials={**SCENE["materials"], "m": {"type": "plastic", "albedo": [0.7, 0.3, 0.1]}})
+    (folder / "plastic.toml").write_text(toml_text(plastic))
+    r = run("bake", folder / "plastic.toml", "-o", folder / "plastic.wlt", *FAST, "-q")   # with plastic's coat
+    assert r.exit_code == 0, r.output
     scene = wavlight.load_scene(folder / "scene.toml")
     wavlight.bake(scene, folder / "object.wlt", spp=2, levels=3, terms=32, priority="area", vary="object",
                   object="ball", static_spp=4).close()
@@ -245,7 +249,61 @@ OBJECT_CASES = {
     "the floor as the moving object": (setter("object", "index", value=1), {}, ("moving object",)),
     "an object beyond the scene's": (setter("object", "index", value=5), {}, ("moving object",)),
     "the map turned otherwise": (setter("environment_rotate_y", value=lambda v: v + 10.0), {}, ("turned",)),
+    "a coat on an object bake": (setter("coat", value=True), {}, ("coat",)),
 }
+
+#: case: (edit of the header, sections (name -> array -> array), words) on the lighting bake of
+#: the scene in plastic, which holds plastic's coat (store.COAT_SECTIONS)
+COAT_CASES = {
+    "coat dropped": (deleter("coat"), {}, ("coat_blocks",)),
+    "coat a string": (setter("coat", value="yes"), {}, ("coat",)),
+    "coat 1": (setter("coat", value=1), {}, ("coat",)),
+    "coat_blocks of floats": (setter("sections", "coat_blocks", "dtype", value="<f4"), {}, ("coat_blocks", "dtype")),
+    "coat entries of 16 bits": (setter("sections", "coat_entry_data", "dtype", value="<i2"), {},
+                                ("coat_entry_data", "dtype")),
+    "coat_offsets one block more": (setter("sections", "coat_offsets", "shape", value=lambda v: [v[0], v[1] + 1]), {},
+                                    ("coat_offsets",)),
+    "coat_offsets reshaped": (setter("sections", "coat_offsets", "shape", value=lambda v: [v[0] // 2, v[1] * 2]), {},
+                              ("coat_offsets",)),
+    "coat_entry_data of other rows": (setter("sections", "coat_entry_data", "shape",
+                                             value=lambda v: [v[0] * 2, v[1] // 2]), {}, ("coat_entry_data",)),
+    "coat_entry_scale moved": (setter("sections", "coat_entry_scale", "offset", value=lambda v: v + 64), {},
+                               ("coat_entry_scale",)),
+    "coat_blocks rank 2": (setter("sections", "coat_blocks", "shape", value=lambda v: [v[0], 1]), {},
+                           ("coat_blocks",)),
+    "a coat block beyond the image": (None, {"coat_blocks": lambda a: a + 1000}, ("coat_blocks",)),
+    "a negative coat block": (None, {"coat_blocks": lambda a: a - 1000}, ("coat_blocks",)),
+    "coat blocks out of order": (None, {"coat_blocks": lambda a: a[::-1].copy() if len(a) > 1 else a + 1000},
+                                 ("coat_blocks",)),
+    "a coat offset beyond the entries": (None, {"coat_offsets": lambda a: np.where(a >= 0, a + 5, a)},
+                                         ("coat_offsets",)),
+    "a coat offset below -1": (None, {"coat_offsets": lambda a: np.where(a < 0, -7, a)}, ("coat_offsets",)),
+    "NaN coat scales": (None, {"coat_entry_scale": lambda a: np.full_like(a, np.nan)}, ("coat_entry_scale",)),
+    "negative coat scales": (None, {"coat_entry_scale": lambda a: -a - 1.0}, ("coat_entry_scale",)),
+}
+
+
+@pytest.mark.parametrize("case", sorted(COAT_CASES))
+def test_coat_edits_are_one_line(bakes, tmp_path, case):
+    """Every field, offset, shape and dtype of plastic's coat is checked before a frame reads it."""
+    edit, changes, words = COAT_CASES[case]
+    src = bakes / "plastic.wlt"
+    path = forge(src, tmp_path / "edited.wlt", edit, {k: f(section(src, k)) for k, f in changes.items()})
+    for args in ([], ["--spp", "1"]):   # the approximate frame, the unbiased frame
+        one_error_line(run("frame", path, "-o", tmp_path / "f.exr", *args), "edited.wlt", *words)
+    with pytest.raises(WavlightError, match="edited.wlt"):
+        Transfer.load(path)
+    assert not (tmp_path / "f.exr").exists()
+
+
+def test_the_plastic_bake_frames(bakes, tmp_path):
+    """The unedited plastic bake: its coat is there and its frames are written."""
+    tr = Transfer.load(bakes / "plastic.wlt")
+    assert tr.header["coat"] and len(tr._s["coat_blocks"]) > 0 and tr._s["coat_entry_scale"].size > 0
+    tr.close()
+    for args in ([], ["--spp", "1"]):
+        r = run("frame", bakes / "plastic.wlt", "-o", tmp_path / "f.exr", *args)
+        assert r.exit_code == 0, r.output
 
 #: case: (sections (name -> array -> array), words) on the view bake
 VIEW_CASES = {

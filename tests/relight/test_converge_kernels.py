@@ -93,6 +93,8 @@ def textured_floor(scene):
     (None, cm.CANDIDATES, 0.0, True, False),                               # every hit resampled
     ({"type": "phong", "albedo": [0.5, 0.6, 0.7], "exponent": 40.0}, 0, 1.0, False, False),   # no resampling or control
     ({"type": "lambert", "albedo": [0.5, 0.6, 0.7]}, 4, cm.COHERENCE, True, False),
+    ({"type": "plastic", "albedo": [0.7, 0.3, 0.1], "alpha": 0.15}, cm.CANDIDATES, cm.COHERENCE, True, False),
+    ({"type": "plastic", "albedo": [0.7, 0.3, 0.1], "alpha": 0.15}, cm.CANDIDATES, 0.0, True, False),
     (None, cm.CANDIDATES, cm.COHERENCE, True, True)])                      # a textured floor
 def test_shade_kernel_equals_its_twin(bakes, ball, candidates, coherence, control, textured):
     """converge_shade against shade_reference on the same camera rays, trees and Philox numbers:
@@ -250,3 +252,87 @@ def test_a_warmed_lighting_gives_the_frame_of_its_trees_built_in_the_frame(bakes
     assert warm.stats["tiles_kept"] == len(frames.tiles) and cold.stats["tiles_kept"] == 0
     np.testing.assert_array_equal(warm.image, cold.image)
     np.testing.assert_array_equal(warm.stderr, cold.stderr)
+
+
+# ----------------------------------------------------------------------------- plastic's coat
+@pytest.fixture(scope="module")
+def plastic_bake(bakes):
+    """The scene with a plastic ball and a plastic floor, baked with the coat's transfer."""
+    _, _, folder = bakes
+    d = sphere_on_floor(36, 20, {"type": "plastic", "albedo": [0.7, 0.3, 0.1], "alpha": 0.15})
+    d["materials"]["floor"] = {"type": "plastic", "albedo": [0.3, 0.5, 0.6], "alpha": 0.4, "ior": 1.3}
+    scene = wavlight.load_dict(d, base_dir=folder)
+    tr = wavlight.bake(scene, spp=4, levels=4, terms=256, priority="area", tolerance=1e-3, bits=8)
+    assert tr.header["coat"]
+    return scene, tr
+
+
+@pytest.mark.parametrize("levels", [4, 2])
+def test_coat_trees_kernel_equals_its_twin(plastic_bake, levels):
+    """converge_trees with COAT against tile_trees_reference with the coat: the trees of
+    H + w_p H_coat, G, and the coat's share."""
+    scene, tr = plastic_bake
+    frames = cm.ConvergeFrames(tr, scene)
+    assert frames.coat
+    state = frames.lighting(None, 75.0, 1.0, levels)
+    prog = frames.program(levels, 2, 0, True)
+    weights = cm.coat_weights(tr)
+    assert (weights > 0).mean() > 0.3
+    for tile in frames.tiles:
+        made = frames._trees(prog, state.device, tile)
+        nodes, relit = made.read()
+        share = made.coat_share()
+        scale = frames.tree_scale[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
+        w = weights[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
+        want, want_relit = cm.tile_trees_reference(cm.tile_coefficients(tr, tile, levels), state.inside, scale,
+                                                   (cm.tile_coefficients(tr, tile, levels, coat=True), w))
+        assert want_relit.shape[1] == 4 and (want_relit[:, 3] > 0.05).mean() > 0.3
+        np.testing.assert_allclose(nodes, want, rtol=0, atol=2e-5 * np.abs(want).max())
+        np.testing.assert_allclose(relit, want_relit[:, :3], rtol=1e-4, atol=1e-5 * np.abs(want_relit).max())
+        np.testing.assert_allclose(share, want_relit[:, 3], rtol=1e-4, atol=1e-5)
+        # the coat adds to the tree: without it, the trees are the transfer's alone
+        plain, _ = cm.tile_trees_reference(cm.tile_coefficients(tr, tile, levels), state.inside, scale)
+        assert (want[:, 0] > plain[:, 0] * (1 + 1e-3))[w > 0].mean() > 0.5
+
+
+def test_coat_shade_kernel_equals_its_twin(plastic_bake):
+    """converge_shade on plastic with the coat's trees and share against shade_reference."""
+    scene, tr = plastic_bake
+    frames = cm.ConvergeFrames(tr, scene)
+    slots, k, seed = 2, 8, 5
+    state = frames.lighting(None, 75.0, 1.0, 4)
+    prog = frames.program(4, slots, cm.CANDIDATES, True)
+    tile = frames.tiles[0]
+    trees = frames._trees(prog, state.device, tile)
+    nodes, relit = trees.read()
+    relit = np.concatenate([relit, trees.coat_share()[:, None]], 1)
+    spread, spread_buf = frames.spread(tile)
+    tile_id = cm.CONVERGE_TILES + 3
+    d = camera.pass_rays(scene, tr.width, tr.height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k, 0,
+                         stratified=True)
+    prim, t, bu, bv = frames.tracer.intersect_uv(np.broadcast_to(scene.camera.eye.astype(np.float32), d.shape), d)
+    bary = np.stack([bu, bv], 1)
+    shares = (cm.DEFENSIVE, cm.LIGHT_SHARE, cm.COHERENCE)
+    got = frames._shade(prog, slots, d, prim, t, k, 0, trees, spread_buf, state.device, shares, seed, tile_id,
+                        bary=bary)
+    want = cm.shade_reference(scene, frames.tracer, d, prim, t, k, haar.HaarTree.from_pyramids(nodes), nodes, relit,
+                              spread, state.inside, (seed, tile_id), 0, slots, cm.DEFENSIVE, cm.LIGHT_SHARE, True,
+                              cm.CANDIDATES, cm.COHERENCE, bary=bary)
+    direct, origin, wi, value = (np.asarray(a, np.float64) for a in got)
+    hit = prim >= 0
+    same_dir = np.abs(wi - want[2]).max(1) < 1e-3
+    live = np.maximum(value.max(1), want[3].max(1)) > 0
+    close = np.abs(value - want[3]).max(1) <= 2e-3 * np.abs(want[3]).max(1) + 1e-6
+    assert live[:, hit].mean() > 0.5
+    assert (same_dir | ~live)[:, hit].mean() > 0.99 and close[:, hit].mean() > 0.99, (same_dir.mean(), close.mean())
+    d_close = np.abs(direct[hit] - want[0][hit]).max(1) <= 2e-3 * np.abs(want[0][hit]).max(1) + 1e-5
+    assert d_close.mean() > 0.99
+
+
+def test_the_coat_kernel_frame_matches_the_numpy_frame(plastic_bake):
+    scene, tr = plastic_bake
+    a = cm.ConvergeFrames(tr, scene).frame(rotate_y=75.0, spp=4, seed=9, levels=4)
+    b = cm.ConvergeFrames(tr, scene, backend="numpy").frame(rotate_y=75.0, spp=4, seed=9, levels=4)
+    diff = np.abs(a.image - b.image).max(2)
+    assert (diff > 1e-3 * (1 + np.abs(b.image).max(2))).mean() < 0.03, diff.max()
+    assert abs((a.image - b.image).sum()) < 0.5 * np.sqrt((b.stderr ** 2).sum())

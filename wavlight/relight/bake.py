@@ -15,6 +15,16 @@ radiance over texel t (:mod:`wavlight.relight.lighting`), plus (1 / S) sum over 
 that miss of the environment in their direction (a bit mask per pixel; the frame draws the
 same camera samples again).
 
+Plastic (Mitsuba 3's roughplastic, ``nonlinear`` false) is not albedo x shape: f cos = coat +
+albedo x base, linear in the albedo. T takes its base (the part the albedo multiplies), and a
+bake that varies the lighting estimates a second transfer, the coat's,
+
+    C_p,t = (1 / S) sum over the samples on plastic of  integral over t of  f_coat cos V dw,
+
+without the albedo (its pass of the texel kernel, ``part`` 1, with its own uniforms and shadow
+rays), stored for the blocks that see plastic (:data:`wavlight.relight.store.COAT_SECTIONS`):
+a frame is a_p sum_t T_p,t L_t + sum_t C_p,t L_t (docs/decisions/plastic-in-the-bake.md).
+
 Estimator (kernels/relight.cl, bake_texel_rays; numpy twin :func:`texel_rays_reference`):
 one shadow ray per (pixel, texel) pair. The pixel's samples are grouped by the triangle they
 hit (one normal and material per group: :class:`PixelSamples`; on a face shaded smooth, where
@@ -74,7 +84,10 @@ class PixelSamples:
 
     origin (P S, 3) float32: each sample's shadow-ray origin; albedo (P, 3) float32 a_p;
     miss (P,) uint64, bit s set where sample s misses; dirs (P S, 3) float32 the samples'
-    directions.
+    directions. Plastic (not albedo x shape): material, each group's material (its row of
+    ``table``, the scene's plastic table, :attr:`wavlight.scene.Scene.material_table`), and
+    coat_weight, a plastic group's share of the pixel's samples (size / S; 0 for the other
+    kinds), the weight of the coat's transfer, which the albedo does not multiply.
     """
 
     samples: int
@@ -92,9 +105,17 @@ class PixelSamples:
     albedo: np.ndarray
     miss: np.ndarray
     dirs: np.ndarray
+    material: np.ndarray | None = None
+    coat_weight: np.ndarray | None = None
+    table: np.ndarray | None = None
 
     def __len__(self):
         return len(self.albedo)
+
+    @property
+    def has_coat(self) -> bool:
+        """Whether some group is plastic (the tile has a coat's transfer)."""
+        return self.coat_weight is not None and bool(np.any(self.coat_weight > 0))
 
 
 def camera_jitter(seed: int, tile: int, pixels: int, samples: int, first: int = 0) -> np.ndarray:
@@ -172,10 +193,13 @@ def camera_samples(scene, tracer, width, height, x0, y0, w, h, samples: int, see
     g_param[slot] = scene.material_param[mat[order[starts]]]
     g_weight = np.zeros(count, np.float32)
     g_weight[slot] = (np.add.reduceat(ratio[order], starts) if len(order) else np.zeros(0)) / S
+    g_material = np.zeros(count, np.int32)
+    g_material[slot] = mat[order[starts]]
+    g_coat = np.where(g_kind == bsdfs.PLASTIC, size / np.float32(S), 0.0).astype(np.float32)
     missed = (~hit).reshape(P, S).astype(np.uint64)
     mask = (missed << np.arange(S, dtype=np.uint64)).sum(1, dtype=np.uint64)
     return PixelSamples(S, group_count, g_normal, g_geometric, g_wo, g_kind, g_param, g_weight, first, size,
-                        members, origin, albedo, mask, d)
+                        members, origin, albedo, mask, d, g_material, g_coat, getattr(scene, "material_table", None))
 
 
 #: points per texel where f cos is evaluated (kernels/relight.cl TEXEL_POINTS): g x g strata
@@ -189,7 +213,9 @@ def texel_points(scene, n_levels: int) -> int:
     point's jitter is the texel integral's noise; a coarser texel gets more points, so that
     the noise is about that of the finer texels it sums (the pilot measures those)."""
     texel = np.pi / (1 << n_levels)
-    lobe = min((float(bsdfs.lobe_width(m.kind, m.param)) for m in scene.materials), default=np.pi / 2)
+    # plastic's coat is a ggx lobe of its alpha (its own transfer: :data:`PARTS`)
+    lobe = min((float(bsdfs.lobe_width(bsdfs.GGX if m.kind == bsdfs.PLASTIC else m.kind, m.param))
+                for m in scene.materials), default=np.pi / 2)
     for grid in (1, 2, 4):   # three choices
         if texel / grid * LOBE_SPACINGS <= lobe:
             return grid * grid
@@ -197,17 +223,20 @@ def texel_points(scene, n_levels: int) -> int:
 
 
 def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, first: int = 0,
-                         count: int | None = None, points: int = 4):
+                         count: int | None = None, points: int = 4, part: int = 0):
     """numpy twin of ``bake_texel_rays``: directions (C, 3), weights (C,) and the picked samples
     (C,) of pairs first .. first + C - 1 (float64; the kernel's float32 agrees to rounding and
     picks the same point unless a reservoir step lies within rounding of its threshold; each
-    step draws its own uniform, :func:`wavlight.rng.step_uniforms`)."""
+    step draws its own uniform, :func:`wavlight.rng.step_uniforms`). ``part`` 0: the transfer
+    the albedo multiplies (plastic's diffuse base); 1: plastic's coat (:data:`PARTS`)."""
     side, S = 1 << n_levels, ps.samples
     count = len(ps) * side * side - first if count is None else count
     g = np.arange(first, first + count, dtype=np.int64)
     p, t = g >> (2 * n_levels), g & (side * side - 1)
     row, col = t >> n_levels, t & (side - 1)
-    u = rng.uniforms(seed, tile, rng.TEXEL, first, count).astype(np.float64)
+    u = rng.uniforms(seed, tile, PARTS[part], first, count).astype(np.float64)
+    weights = ps.coat_weight if part else ps.weight
+    material = ps.material if ps.material is not None else np.zeros(len(ps.kind), np.int32)
     z0, z1 = np.cos(np.pi * row / side), np.cos(np.pi * (row + 1) / side)
     directions = []
     grid = POINT_GRID[points]
@@ -230,13 +259,19 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
         sx, tx = tangent_frame(np.where(on[:, None], n, [0.0, 0.0, 1.0]))
         wo_w = ps.wo[gj].astype(np.float64)
         wo = np.stack([np.einsum("ij,ij->i", wo_w, a) for a in (sx, tx, n)], 1)
-        kind, param, c = ps.kind[gj], ps.param[gj].astype(np.float64), ps.weight[gj].astype(np.float64)
+        kind, param, c = ps.kind[gj], ps.param[gj].astype(np.float64), weights[gj].astype(np.float64)
+        if part:   # the coat's pass: plastic groups alone
+            on = on & (kind == bsdfs.PLASTIC)
         for d in directions:   # the texel's points, not pairs
             wi = np.stack([np.einsum("ij,ij->i", d, a) for a in (sx, tx, n)], 1)
             f = np.zeros(count)
             for kd in np.unique(kind[on]):   # material kinds, not pairs
                 sel = on & (kind == kd)
-                f[sel] = bsdfs.eval_cos(int(kd), param[sel], wi[sel], wo[sel])
+                if kd == bsdfs.PLASTIC:
+                    coat, base = bsdfs.plastic_parts(wi[sel], wo[sel], ps.table[material[gj][sel]])
+                    f[sel] = coat if part else base
+                else:
+                    f[sel] = bsdfs.eval_cos(int(kd), param[sel], wi[sel], wo[sel])
             f = np.where(on & np.isfinite(f) & (f > 0) & (np.einsum("ij,ij->i", d, geo) > 0), f * c, 0.0)
             grown = total + f
             take = rng.step_uniforms(key, step).astype(np.float64) * grown < f
@@ -252,11 +287,16 @@ def texel_rays_reference(ps: PixelSamples, n_levels: int, seed: int, tile: int, 
     return pick_dir, weight, sample.astype(np.int64)
 
 
-def texel_rays(ps: PixelSamples, n_levels: int, seed: int, tile: int, bsdf_kinds: int = 7, queue=None,
-               points: int = 4):
+#: the stream of each part's texel uniforms: 0 the transfer the albedo multiplies, 1 plastic's coat
+PARTS = (rng.TEXEL, rng.TEXEL_COAT)
+
+
+def texel_rays(ps: PixelSamples, n_levels: int, seed: int, tile: int, bsdf_kinds: int = 15, queue=None,
+               points: int = 4, part: int = 0):
     """The kernel ``bake_texel_rays`` over all of a tile's (pixel, texel) pairs: directions
     (P 4^n, 3), weights (P 4^n,) float32 and the picked samples (P 4^n,) uint32. ``bsdf_kinds``:
-    the bit mask of the material kinds the scene has (the kernel evaluates only those)."""
+    the bit mask of the material kinds the scene has (the kernel evaluates only those);
+    ``part`` 0 the transfer the albedo multiplies, 1 plastic's coat (:data:`PARTS`)."""
     count = len(ps) << (2 * n_levels)
     queue = queue or cl.thread_queue()
     prog = cl.program("relight.cl", BSDF_KINDS=int(bsdf_kinds), TEXEL_POINTS=int(points))
@@ -264,23 +304,28 @@ def texel_rays(ps: PixelSamples, n_levels: int, seed: int, tile: int, bsdf_kinds
     dirs, weights, picks = (cl.scratch(f"bake_{name}", size * count) for name, size in
                             (("dirs", 12), ("weights", 4), ("picks", 4)))
     k0, k1 = rng.key(seed)
+    material = ps.material if ps.material is not None else np.zeros(len(ps.kind), np.int32)
+    table = ps.table if ps.table is not None and ps.table.size else np.zeros(bsdfs.PLASTIC_STRIDE, np.float32)
     cl.kernel(prog, "bake_texel_rays")(
         queue, (cl.items(count, cl.LANES),), (cl.WORK_GROUP,), np.uint32(count), np.uint32(0),
         np.uint32(n_levels), np.uint32(ps.samples), np.uint32(tile), np.uint32(k0), np.uint32(k1),
-        *(cl.to_device(a) for a in (ps.count, ps.normal, ps.geometric, ps.wo, ps.kind, ps.param, ps.weight,
-                                    ps.first, ps.size, ps.members)), dirs, weights, picks)
+        np.uint32(PARTS[part]), np.uint32(part),
+        *(cl.to_device(a) for a in (np.asarray(material, np.int32), np.asarray(table, np.float32), ps.count,
+                                    ps.normal, ps.geometric, ps.wo, ps.kind, ps.param,
+                                    ps.coat_weight if part else ps.weight, ps.first, ps.size, ps.members)),
+        dirs, weights, picks)
     return (cl.read(dirs, (count, 3), np.float32, queue), cl.read(weights, (count,), np.float32, queue),
             cl.read(picks, (count,), np.uint32, queue))
 
 
 def tile_transfer(ps: PixelSamples, tracer, n_levels: int, seed: int, tile: int, backend: str = "opencl",
-                  bsdf_kinds: int = 7, points: int = 4):
-    """(P, N, N) float32 texel transfer of a tile's pixels (module docstring) and the number of
-    shadow rays it traced."""
+                  bsdf_kinds: int = 15, points: int = 4, part: int = 0):
+    """(P, N, N) float32 texel transfer of a tile's pixels (module docstring; ``part`` 1: plastic's
+    coat, :data:`PARTS`) and the number of shadow rays it traced."""
     if backend == "opencl":
-        dirs, weight, pick = texel_rays(ps, n_levels, seed, tile, bsdf_kinds, points=points)
+        dirs, weight, pick = texel_rays(ps, n_levels, seed, tile, bsdf_kinds, points=points, part=part)
     else:
-        dirs, weight, pick = texel_rays_reference(ps, n_levels, seed, tile, points=points)
+        dirs, weight, pick = texel_rays_reference(ps, n_levels, seed, tile, points=points, part=part)
     live = np.flatnonzero(weight > 0)
     blocked = tracer.occluded(np.take(ps.origin, pick[live].astype(np.int64), axis=0), np.take(dirs, live, axis=0))
     out = np.zeros(len(weight), np.float32)
@@ -327,6 +372,8 @@ class Settings:
     seed: int
     backend: str = "opencl"
     points: int = 4
+    #: bake plastic's coat as a second transfer (a bake that varies the lighting)
+    coat: bool = False
     #: a bake that varies one object: the levels of each pixel's product T1 x L (coarse texels)
     #: and the fixed lighting's mean luminance on them, (2^m, 2^m)
     product_levels: int | None = None
@@ -361,6 +408,13 @@ def bake_block(worker: _Worker, settings: Settings, tile) -> dict:
               "albedo": ps.albedo.reshape(h, w, 3), "rays": rays, "sum_sq": np.einsum("pc,pc->c", c64, c64),
               "background": ((y0 + some // w) * s.width + x0 + some % w, ps.miss[some],
                              ps.dirs.reshape(-1, s.spp, 3)[some])}
+    if s.coat and ps.has_coat:   # plastic's coat: a second transfer, compressed alike (store.CoatWriter)
+        coat, coat_rays = tile_transfer(ps, worker.tracer, s.n_levels, s.seed, block_id, s.backend, worker.kinds,
+                                        s.points, part=1)
+        coat = _padded(np.asarray(haar.forward(coat), np.float32).reshape(w * h, side2), w, h)
+        result["coat"] = store.compress_block(coat, s.held_out, s.tolerance, s.bits,
+                                              np.random.default_rng([s.seed, block_id, 1]))
+        result["rays"] += coat_rays
     if s.product_levels is not None:   # T1 x L on coarse texels (exact: texels add up)
         m, k = s.product_levels, 1 << (s.n_levels - s.product_levels)
         coarse = texels.reshape(w * h, 1 << m, k, 1 << m, k).sum(axis=(2, 4))
@@ -419,12 +473,17 @@ def _pilot_transfer(scene, worker, grid, width, height, spp, seed, top, backend,
     texel, default :func:`texel_points`)."""
     tiles, _ = _tiles(len(grid[0]), len(grid[1]))
     texels = []
+    points = texel_points(scene, top) if points is None else points
     for tile in tiles:   # a few blocks, not pixels
         _, x0, y0, w, h = tile
         ps = camera_samples(scene, worker.tracer, width, height, x0, y0, w, h, spp, seed, tile[0], at=grid)
-        texels.append(tile_transfer(ps, worker.tracer, top, seed, tile[0], backend, worker.kinds,
-                                    texel_points(scene, top) if points is None else points)[0])
-    return np.concatenate(texels).astype(np.float64)
+        t = tile_transfer(ps, worker.tracer, top, seed, tile[0], backend, worker.kinds, points)[0].astype(np.float64)
+        if ps.has_coat:   # plastic: its frame is lum(a_p) T + T_coat, here over lum(a_p) as T's is
+            lum = ps.albedo.astype(np.float64) @ LUMINANCE
+            coat = tile_transfer(ps, worker.tracer, top, seed, tile[0], backend, worker.kinds, points, part=1)[0]
+            t += coat / np.where(lum > 0, lum, 1.0)[:, None, None]
+        texels.append(t)
+    return np.concatenate(texels)
 
 
 def _relative(a: np.ndarray, b: np.ndarray, norm: float) -> float:
@@ -544,6 +603,13 @@ def choose_model(scene, tolerance: float, spp, seed: int, levels=None, terms=Non
                       "predicted_error": round(predicted, 5)}}
 
 
+def plastic_materials(scene) -> list:
+    """The names of the plastic materials the scene's faces use (plastic's albedo scales its
+    diffuse base alone: its coat is a second transfer, :data:`PARTS`)."""
+    used = np.unique(np.asarray(getattr(scene, "face_material", []), np.int64))
+    return [scene.materials[i].name for i in used if scene.materials[i].kind == bsdfs.PLASTIC]
+
+
 #: the factors a bake of per-pixel transfer varies (a bake that varies the view: relight/view_bake.py)
 PIXEL_VARY = ("lighting", "object")
 #: a bake that varies one object: each pixel's product T1 x L on 2^OBJECT_PRODUCT_LEVELS texels,
@@ -604,6 +670,9 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         if object is None:
             raise ArgumentError(f"{where}: vary='object' needs the object that moves (a name or an index)")
         require_untextured(scene, "a bake with vary='object'")
+        if plastic_materials(scene):
+            raise ArgumentError(f"{scene.path}: plastic materials ({', '.join(plastic_materials(scene))}) are not "
+                                "baked with vary='object' yet; bake the lighting, or render them with wavlight render")
         moving = scene.find_object(object)
         kinds = np.unique(scene.face_material[moving.faces_range[0]:moving.faces_range[1]])
         if len(kinds) > 1:   # its frames shade the moving object with one material (SceneObject.material)
@@ -632,11 +701,14 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         product = np.zeros((height * width, 4 ** settings.product_levels), np.float16)
     tiles, (bw, bh) = _tiles(width, height)
     side2 = 4 ** n
+    coat = settings.coat = vary == "lighting" and bool(plastic_materials(scene))
     writer = store.TransferWriter(n, BLOCK, bits, output=output)
+    if coat:
+        writer.coat = store.TransferWriter(n, BLOCK, bits, output=output)
     albedo = np.zeros((height, width, 3), np.float32)
     background = []
     sum_sq = np.zeros(side2)
-    totals = {"rays": 0, "error2": 0.0, "norm2": 0.0, "done": 0}
+    totals = {"rays": 0, "error2": 0.0, "norm2": 0.0, "done": 0, "coat_error2": 0.0, "coat_norm2": 0.0}
     lock = threading.Lock()
     t_pilot = time.perf_counter() - t0
 
@@ -644,6 +716,10 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         block_id, x0, y0, w, h = result["tile"]
         with lock:
             writer.add(block_id, result["columns"], result["scales"], result["data"])
+            if "coat" in result:
+                writer.coat.add(block_id, *result["coat"][:3])
+                totals["coat_error2"] += result["coat"][3]
+                totals["coat_norm2"] += result["coat"][4]
             albedo[y0:y0 + h, x0:x0 + w] = result["albedo"]
             pixel, mask, dirs = result["background"]
             if len(pixel):
@@ -688,6 +764,11 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
                          "term_error": (model["pilot"] or {}).get("term_error", {}).get(str(model["terms"])),
                          "entries": writer.entries, "entries_full": side2 * bw * bh, "pilot": model["pilot"]},
         }
+        if coat:   # plastic's coat: its own transfer (store.COAT_SECTIONS)
+            header["coat"] = True
+            header["measured"]["coat_entries"] = writer.coat.entries
+            header["measured"]["coat_compression_error"] = (float(np.sqrt(totals["coat_error2"] / totals["coat_norm2"]))
+                                                            if totals["coat_norm2"] > 0 else 0.0)
         order = np.argsort(np.concatenate([b[0] for b in background])) if background else np.zeros(0, np.int64)
         arrays = {"albedo": albedo, "environment": env.pixels.astype(np.float32),
                   "background_pixel": (np.concatenate([b[0] for b in background])[order] if background

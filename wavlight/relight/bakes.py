@@ -7,12 +7,9 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
-
-from .. import bsdfs
 from ..errors import ArgumentError, WavlightError, shown
 from ..scene import load_scene
-from .bake import bake as bake_pixels
+from .bake import bake as bake_pixels, plastic_materials
 from .settings import BAKE
 from .view_bake import bake_view
 
@@ -41,7 +38,7 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         raise ArgumentError(f"{where}: vary must be one of {' | '.join(VARY)}, got {shown(vary)}")
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
-    check_bakeable(scene)
+    check_bakeable(scene, vary)
     if vary != "view":
         if density is not None:
             raise ArgumentError(f"{where}: density sets the surface cache of a bake with vary='view'")
@@ -57,12 +54,15 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
                      progress=progress, backend=backend, points=points, density=density)
 
 
-def check_bakeable(scene) -> None:
-    """A one-line WavlightError for a scene that no bake can hold yet: faces of plastic, whose
-    albedo does not factor out of the BRDF, which every bake's frames multiply by afterwards."""
-    used = np.unique(np.asarray(getattr(scene, "face_material", []), np.int64))
-    names = [scene.materials[i].name for i in used if scene.materials[i].kind == bsdfs.PLASTIC]
+def check_bakeable(scene, vary: str = BAKE["vary"].default) -> None:
+    """A one-line WavlightError for a scene that a bake varying ``vary`` cannot hold yet: faces of
+    plastic, whose albedo does not factor out of the BRDF, in a bake that varies an object or the
+    view (a lighting bake stores plastic's coat as a second transfer:
+    docs/decisions/plastic-in-the-bake.md)."""
+    if vary == "lighting":
+        return
+    names = plastic_materials(scene)
     if names:
-        raise WavlightError(f"{getattr(scene, 'path', 'scene')}: plastic materials ({', '.join(names)}) are not baked "
-                            "yet (their albedo does not factor out of the transfer); render them with "
-                            "wavlight render")
+        raise WavlightError(f"{getattr(scene, 'path', 'scene')}: plastic materials ({', '.join(names)}) are not "
+                            f"baked with vary='{vary}' yet (only a bake that varies the lighting holds plastic's "
+                            "coat); bake the lighting, or render them with wavlight render")

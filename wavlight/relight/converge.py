@@ -47,6 +47,15 @@ among CANDIDATES mixture directions by a target of its own lobe and T1's visibil
 (:func:`resampling_target`, Talbot et al. 2005), without the control variate, whose g (T1's
 mean lobe) is far from the sample's f cos V there.
 
+Plastic (f cos = coat + albedo x base: docs/decisions/plastic-in-the-bake.md). Each direction is
+estimated with its true colour, (coat + albedo base) L / pdf (:func:`.mixture.tint_of`), and the
+BSDF's share samples either lobe (bsdfs.plastic_sample). The product is that of
+H = T + w_p C, the bake's transfer and its coat's, w_p = 1 / lum(a_p) on a pixel whose block holds
+a coat (:func:`coat_weights`; the frame's lum(a_p) T + C over lum(a_p)), summed in the
+coefficients (the transform is linear); the control variate's colour is the sample's albedo a
+tinted by the coat's share s of the pixel's mean transfer (its scaling coefficients'),
+(1 - s) a + s lum(a): a constant per camera sample, so the estimate stays unbiased.
+
 Passes. :class:`ConvergeFrames` holds what frames share: the scene's ray tracer, its tables and
 the bake's entries on the device, the pixels' footprint spreads (measured once, on first use),
 and for the current lighting (map, rotation, scale) its tables and the tiles' trees, kept up to
@@ -71,6 +80,7 @@ import numpy as np
 
 from .. import bsdfs, camera, cl, rng
 from ..camera import camera_rays
+from ..envmap import LUMINANCE
 from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_number
 from ..haar import inverse
 from ..haar.tree import HaarTree, build_reference, level_offset
@@ -81,8 +91,22 @@ from . import converge_kernels as kernels
 from . import tile_passes
 from .bake import BLOCK
 from .frame import DeviceEntries
-from .mixture import (DEFENSIVE, LATTICE, LIGHT_SHARE, MAX_SLOTS, Hits, TexelLight, check_shares, entries_at_most,
-                      lattice, mixture_directions, resampling_target, scene_of, world_to_square)
+from .mixture import (
+    DEFENSIVE,
+    LATTICE,
+    LIGHT_SHARE,
+    MAX_SLOTS,
+    Hits,
+    TexelLight,
+    check_shares,
+    entries_at_most,
+    lattice,
+    mixture_directions,
+    resampling_target,
+    scene_of,
+    tint_of,
+    world_to_square,
+)
 from .settings import FRAME, UNBIASED_SPP
 
 MAX_SPP = FRAME["spp"].hi
@@ -132,10 +156,12 @@ BACKENDS = ("opencl", "numpy")
 
 
 class _Block:
-    """A block's stored coefficients, from the bake file's offset table (the twins' input)."""
+    """A block's stored coefficients, from the bake file's offset table (the twins' input);
+    ``coat``: plastic's coat's (its offsets over the image's blocks, :func:`coat_offsets`)."""
 
-    def __init__(self, transfer):
-        self.offsets = transfer._s["offsets"]
+    def __init__(self, transfer, coat: bool = False):
+        self.prefix = "coat_" if coat else ""
+        self.offsets = coat_offsets(transfer) if coat else transfer._s["offsets"]
 
     def coefficients(self, transfer, block: int) -> np.ndarray:
         """(BLOCK^2, 4^n) float32: the block's pixels' dequantized transfer coefficients (every
@@ -144,17 +170,45 @@ class _Block:
         cols = np.flatnonzero(ids >= 0)
         out = np.zeros((BLOCK * BLOCK, len(ids)), np.float32)
         if len(cols):
-            q = np.asarray(transfer._s["entry_data"][ids[cols]], np.float32)
-            scale = np.asarray(transfer._s["entry_scale"][ids[cols]], np.float32)
+            q = np.asarray(transfer._s[self.prefix + "entry_data"][ids[cols]], np.float32)
+            scale = np.asarray(transfer._s[self.prefix + "entry_scale"][ids[cols]], np.float32)
             out[:, cols] = (q * scale[:, None]).T
         return out
 
 
-def tile_coefficients(transfer, tile, levels: int) -> np.ndarray:
+def coat_offsets(transfer) -> np.ndarray:
+    """(4^n, blocks) int32: the entry of plastic's coat's coefficient c in each of the image's
+    blocks (the store's coat_offsets spread over its coat_blocks), -1 where it holds none."""
+    s = transfer._s
+    out = np.full((1 << (2 * transfer.n_levels), transfer.blocks[0] * transfer.blocks[1]), -1, np.int32)
+    if "coat_blocks" in s:
+        out[:, np.asarray(s["coat_blocks"], np.int64)] = s["coat_offsets"]
+    return out
+
+
+def coat_weights(transfer) -> np.ndarray:
+    """(H, W) float32: the weight w_p of plastic's coat in the pixel's product tree, 1 / lum(a_p)
+    where the pixel's block holds a coat (its transfer H + w_p H_coat is then the frame's
+    lum(a_p) H + H_coat over lum(a_p), as H's scale is), 0 elsewhere."""
+    out = np.zeros((transfer.height, transfer.width), np.float32)
+    s = transfer._s
+    if "coat_blocks" not in s:
+        return out
+    lum = np.asarray(s["albedo"], np.float64) @ LUMINANCE
+    held = np.zeros(transfer.blocks[0] * transfer.blocks[1], bool)
+    held[np.asarray(s["coat_blocks"], np.int64)] = True
+    by, bx = np.arange(transfer.height) // BLOCK, np.arange(transfer.width) // BLOCK
+    inside = held.reshape(transfer.blocks[1], transfer.blocks[0])[by[:, None], bx[None, :]]
+    with np.errstate(divide="ignore"):
+        return np.where(inside & (lum > 0), 1.0 / np.where(lum > 0, lum, 1.0), 0.0).astype(np.float32)
+
+
+def tile_coefficients(transfer, tile, levels: int, coat: bool = False) -> np.ndarray:
     """(w h, 2^m, 2^m) float32: the transfer coefficients of the tile's pixels (row-major in the
     tile) on 2^m x 2^m texels, m = ``levels`` <= n: the top-left 2^m x 2^m block of each
-    pixel's 2^n x 2^n coefficients times 4^(n - m), the transform of its summed texels."""
-    n, blocks = transfer.n_levels, _Block(transfer)
+    pixel's 2^n x 2^n coefficients times 4^(n - m), the transform of its summed texels
+    (``coat``: plastic's coat's)."""
+    n, blocks = transfer.n_levels, _Block(transfer, coat)
     side = 1 << levels
     out = np.zeros((tile.h, tile.w, side, side), np.float32)
     for j in range(tile.blocks):   # blocks, not pixels
@@ -234,6 +288,8 @@ class ConvergeFrames:
         self.tree_scale = np.where(bake_hits(transfer) > 0, self.hit_scale, 0.0).astype(np.float32)
         self.tiles = tiles_of(transfer)
         self.lobe_width = bsdfs.lobe_width(sc.material_kind, sc.material_param).astype(np.float32)
+        #: plastic's coat in the trees (a bake of a scene with plastic: store.COAT_SECTIONS)
+        self.coat = "coat_blocks" in transfer._s
         self._spread, self._spread_rays = {}, 0
         self._lighting = None
         self._spare = {}   # tile -> TileTrees of a lighting no longer current, their buffers for reuse
@@ -244,8 +300,13 @@ class ConvergeFrames:
             device = cl.runtime().device
             self.tree_cache_bytes = min(TREE_CACHE_BYTES, int(device.global_mem_size) // 4)
             entries = DeviceEntries(transfer._s["offsets"], transfer._s["entry_scale"], transfer._s["entry_data"])
+            coat = None
+            if self.coat:   # plastic's coat: its entries, their offsets over the image's blocks, the weights
+                s = transfer._s
+                coat = (DeviceEntries(s["coat_offsets"], s["coat_entry_scale"], s["coat_entry_data"]),
+                        coat_offsets(transfer), coat_weights(transfer))
             self._trees = kernels.TreeKernel(entries, transfer._s["offsets"], self.tree_scale, transfer.n_levels,
-                                             transfer.blocks[0], transfer.width)
+                                             transfer.blocks[0], transfer.width, coat)
             self._shade = kernels.ShadeKernel(sc, self.tracer, self.lobe_width)
             camera.warm_up(sc)
         else:
@@ -261,7 +322,7 @@ class ConvergeFrames:
     def program(self, levels: int, slots: int, candidates: int, control: bool, background: str = "nearest"):
         """kernels/converge.cl for this bake and scene (:func:`.converge_kernels.program`)."""
         return kernels.program(levels, self.transfer.bits, self._shade.kinds, slots, candidates, control, LATTICE,
-                               self._shade.textured, background)
+                               self._shade.textured, background, self.coat)
 
     def spread(self, tile, prog=None):
         """The footprint spread of the tile's pixels (measured once): (w h,) float32 on the host
@@ -319,7 +380,11 @@ class ConvergeFrames:
         if self.backend == "numpy":
             coeffs = tile_coefficients(self.transfer, tile, m)
             scale = self.tree_scale[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
-            nodes, relit = tile_trees_reference(coeffs, state.inside, scale)
+            coat = None
+            if self.coat:   # plastic's coat: H + w_p H_coat, and G with the coat's share (kernels/converge.cl)
+                weight = coat_weights(self.transfer)[tile.y0:tile.y0 + tile.h, tile.x0:tile.x0 + tile.w].reshape(-1)
+                coat = (tile_coefficients(self.transfer, tile, m, coat=True), weight)
+            nodes, relit = tile_trees_reference(coeffs, state.inside, scale, coat)
             return (HaarTree.from_pyramids(nodes), nodes, relit), False
         nbytes = kernels.TileTrees(None, None, tile.w * tile.h, m).nbytes
         with state.lock:
@@ -605,19 +670,32 @@ def hit_scales(transfer) -> np.ndarray:
 
 
 
-def tile_trees_reference(coeffs: np.ndarray, inside, hit_scale: np.ndarray):
+def tile_trees_reference(coeffs: np.ndarray, inside, hit_scale: np.ndarray, coat=None):
     """numpy twin of ``converge_trees`` (kernels/converge.cl): for pixels' transfer coefficients
     (P, 2^m, 2^m) (:func:`tile_coefficients`), the lighting inside the texels ``inside`` (a
     :class:`TexelLight` of m levels) and the pixels' hit scales c (P,): the product pyramids
     (P, tree_size(m)) float32 (row-major levels, the host's layout) of the leaves
     gl_t H+_t, H+_t = max(c H_t, 0) (H_t the texel values of the inverse transform, eq. 13;
     gl_t :meth:`TexelLight.leaf_masses`), and the relit values G (P, 3) float64 = sum over t
-    with gl_t > 0 of H+_t L_t (L_t the texel's mean radiance)."""
+    with gl_t > 0 of H+_t L_t (L_t the texel's mean radiance). ``coat`` = (coefficients
+    (P, 2^m, 2^m), weights w_p (P,)): plastic's coat, H the transform of the coefficients
+    plus w_p times the coat's (:func:`coat_weights`), and G (P, 4) with the coat's share of the
+    pixel's mean transfer, clip(w_p C_0 / (T_0 + w_p C_0), 0, 1) from the scaling coefficients
+    (the control variate's tint, :func:`shade_reference`)."""
     side = 1 << inside.n
+    share = None
+    if coat is not None:
+        c, w = np.asarray(coat[0], np.float64), np.asarray(coat[1], np.float64)
+        coeffs = (np.asarray(coeffs, np.float64) + w[:, None, None] * c).astype(np.float32)
+        root, coat_root = coeffs[:, 0, 0].astype(np.float64), w * c[:, 0, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            share = np.clip(np.where(root > 0, coat_root / np.where(root > 0, root, 1.0), 0.0), 0.0, 1.0)
     h = np.maximum(inverse(np.asarray(coeffs, np.float64)) * np.asarray(hit_scale, np.float64)[:, None, None], 0.0)
     gl = inside.leaf_masses()
     leaves = (gl[None] * h.astype(np.float32)).astype(np.float32)
     relit = np.einsum("pij,ijc->pc", np.where(gl > 0, h, 0.0), inside.texel_radiance.reshape(side, side, 3))
+    if share is not None:
+        relit = np.concatenate([relit, share[:, None]], 1)
     return build_reference(leaves), relit
 
 
@@ -642,14 +720,17 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     at t (N,), k per pixel, pixel-major. The tile's pixels' product trees: ``trees`` (a
     :class:`wavlight.haar.HaarTree`, whose warp kernels walk them), ``nodes`` their pyramids
     (P, tree_size(m)) row-major, ``relit`` their G (P, 3), ``spread`` their footprint spreads (P,);
-    ``inside`` the lighting (:class:`TexelLight`), ``key`` = (seed, tile), ``first`` the pass's
+    ``inside`` the lighting (:class:`TexelLight`; ``relit`` (P, 4) with the coat's share last where
+    the bake has plastic's coat, :func:`tile_trees_reference`), ``key`` = (seed, tile), ``first`` the pass's
     first sample index in the tile. A miss sees the map (direct; :meth:`TexelLight.background`:
     its pixel, or with ``background="bilinear"`` its filter); a hit gets ``slots``
     directions of the mixture (:func:`mixture_directions`; the uniforms of slot j are
     :func:`lattice` point j of Philox stream rng.CONVERGE_DIRECTIONS[0] at index first + r),
-    each estimated as albedo f cos L / pdf / slots
+    each estimated as albedo f cos L / pdf / slots (plastic: (coat + albedo base) L / pdf / slots,
+    :func:`.mixture.tint_of`)
     (L the map's pixel, :meth:`TexelLight.radiance`), and with ``control`` direct =
-    albedo (G - sum of g / pdf / slots), g = :func:`transfer_from_trees` L; or, where its pixel's
+    k (G - sum of g / pdf / slots), g = :func:`transfer_from_trees` L, k = (1 - s) albedo + s lum(albedo)
+    (s the coat's share, 0 without plastic); or, where its pixel's
     spread exceeds ``coherence`` times its lobe's width, ``slots`` picks among ``candidates``
     mixture directions by resampled importance sampling (:func:`resample_reference`). Hits are
     shaded with their shading normals and, in a textured scene, the hit's albedo
@@ -666,6 +747,10 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
     if not len(hit):
         return direct, origin, wi, value
     hits = Hits.of(scene, tracer, d, t, prim, hit, k, bary)
+    table = scene.material_table[hits.mat] if len(scene.materials) else None
+    relit = np.asarray(relit, np.float64)
+    coat_share = relit[:, 3] if relit.shape[1] == 4 else np.zeros(len(relit))
+    relit = relit[:, :3]
     origin[hit] = hits.origin
     has_p = np.asarray(nodes)[hits.pixel, 0] > 0
     alpha = np.where(has_p, defensive, 1.0 - light)
@@ -686,33 +771,37 @@ def shade_reference(scene, tracer, d, prim, t, k: int, trees, nodes, relit, spre
         u_sample = rng.uniforms(seed, tile, rng.CONVERGE_DIRECTIONS[0], first, N)
         for slot in range(slots):   # directions per camera sample, not samples
             u_all = lattice(u_sample, slot)
-            direction, weight, pdf = mixture_directions(trees, inside, u_all, sub.index, k, has_p[mix], alpha[mix],
-                                                        sub.kind, sub.param, sub.wo, sub.axes, light, with_pdf=True,
-                                                        geometric=sub.geometric)
+            direction, weight, pdf, part = mixture_directions(
+                trees, inside, u_all, sub.index, k, has_p[mix], alpha[mix], sub.kind, sub.param, sub.wo, sub.axes,
+                light, with_pdf=True, geometric=sub.geometric, table=None if table is None else table[mix],
+                with_share=True)
             uv = world_to_square(direction)
             radiance = inside.radiance(uv)
             wi[slot][:, sub.index] = direction.T
-            value[slot][:, sub.index] = (albedo[mix] * (weight / slots)[:, None] * radiance).T
+            value[slot][:, sub.index] = (tint_of(part, albedo[mix]) * (weight / slots)[:, None] * radiance).T
             if control:
                 g = transfer_from_trees(nodes, inside, sub.pixel, uv)[:, None] * radiance
                 with np.errstate(divide="ignore", invalid="ignore"):
                     term = np.where((pdf > 0)[:, None], g / np.where(pdf > 0, pdf, 1.0)[:, None], 0.0)
                 cv += np.where(np.isfinite(term), term, 0.0) / slots
         if control:
-            direct[sub.index] = albedo[mix] * (np.asarray(relit, np.float64)[sub.pixel] - cv)
+            s = coat_share[sub.pixel][:, None]
+            tint = (1.0 - s) * albedo[mix] + s * (albedo[mix] @ LUMINANCE)[:, None]
+            direct[sub.index] = tint * (relit[sub.pixel] - cv)
     pick = np.flatnonzero(chosen)
     if len(pick):
         sub = hits.subset(pick)
-        directions, values = resample_reference(sub, trees, nodes, inside, has_p[pick], alpha[pick], N, k, key, slots,
-                                                light, candidates, first)
+        directions, values, part = resample_reference(sub, trees, nodes, inside, has_p[pick], alpha[pick], N, k, key,
+                                                      slots, light, candidates, first,
+                                                      None if table is None else table[pick])
         for slot in range(slots):
             wi[slot][:, sub.index] = directions[:, slot].T
-            value[slot][:, sub.index] = (albedo[pick] * values[:, slot]).T
+            value[slot][:, sub.index] = (tint_of(part[:, slot], albedo[pick]) * values[:, slot]).T
     return direct, origin, wi, value
 
 
 def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp: int, key, slots: int, light: float,
-                       candidates: int, first: int = 0):
+                       candidates: int, first: int = 0, table=None):
     """The resampled directions of camera samples ``hits`` (their estimate without the albedo),
     by resampled importance sampling (Talbot et al. 2005): ``candidates`` directions x_m of the
     defensive mixture q (:func:`mixture_directions`, no shadow ray), ``slots`` of them picked in
@@ -726,13 +815,16 @@ def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp
     ``first`` of the tile on (the uniforms' layout: candidate j of sample r is :func:`lattice`
     point j of Philox stream rng.CONVERGE_RESAMPLE of ``key`` at index first + r; the picks'
     uniform rng.CONVERGE_PICK's).
-    Returns directions (n, slots, 3) and estimates (n, slots, 3) before the shadow rays."""
+    ``table``: the hits' rows of the plastic table (None: no plastic).
+    Returns directions (n, slots, 3), estimates (n, slots, 3) before the shadow rays and the share
+    of each the albedo multiplies (n, slots) (:func:`.mixture.tint_of`)."""
     m = candidates
     u = lattice(np.repeat(rng.uniforms(*key, rng.CONVERGE_RESAMPLE, first, count), m, 0), np.tile(np.arange(m), count))
     cand = hits.candidates(m)
-    direction, weight, pdf = mixture_directions(trees, inside, u, cand.index, spp * m, np.repeat(has_p, m),
-                                                np.repeat(alpha, m), cand.kind, cand.param, cand.wo, cand.axes, light,
-                                                with_pdf=True, geometric=cand.geometric)
+    direction, weight, pdf, part = mixture_directions(
+        trees, inside, u, cand.index, spp * m, np.repeat(has_p, m), np.repeat(alpha, m), cand.kind, cand.param,
+        cand.wo, cand.axes, light, with_pdf=True, geometric=cand.geometric,
+        table=None if table is None else np.repeat(table, m, 0), with_share=True)
     fcos = weight * pdf
     uv = world_to_square(direction)
     radiance = inside.radiance(uv)
@@ -750,7 +842,7 @@ def resample_reference(hits, trees, nodes, inside, has_p, alpha, count: int, spp
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(target[flat] > 0, np.repeat(cdf[:, -1], slots) / m / target[flat], 0.0) / slots
     estimate = (np.where(np.isfinite(scale), scale, 0.0) * fcos[flat])[:, None] * radiance[flat]
-    return direction[flat].reshape(n, slots, 3), estimate.reshape(n, slots, 3)
+    return direction[flat].reshape(n, slots, 3), estimate.reshape(n, slots, 3), part[flat].reshape(n, slots)
 
 
 

@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import cl, raytrace, rng, textures
+from .. import bsdfs, cl, raytrace, rng, textures
 from ..haar.tree import TREE_ORIGIN, host_order, tree_size, tree_stride
 from ..raytrace import RayTracer
 
@@ -51,6 +51,11 @@ class TileTrees(NamedTuple):
         nodes = host_order(raw[:, TREE_ORIGIN:TREE_ORIGIN + tree_size(m)], m)
         return np.where(nodes[:, :1] > 0, nodes, np.float32(0)), relit[:, :3]
 
+    def coat_share(self, queue=None) -> np.ndarray:
+        """(P,) float32: each pixel's coat share s (relit's fourth value; 0 without plastic), the
+        tint of its control variate (kernels/converge.cl)."""
+        return cl.read(self.relit, (self.pixels, 4), np.float32, queue or cl.thread_queue())[:, 3]
+
 
 class Lighting:
     """One lighting's tables on the device (``tables``: :meth:`.mixture.TexelLight.tables`)."""
@@ -71,13 +76,16 @@ class Lighting:
 
 
 def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool, lattice,
-            textures: bool = False, background: str = "nearest"):
+            textures: bool = False, background: str = "nearest", coat: bool = False):
     """kernels/converge.cl built for product trees of ``levels`` levels, entries of ``bits`` bits,
     the material kinds ``kinds`` (bit mask), ``slots`` directions per camera sample,
     ``candidates`` resampled ones (0: none), the control variate or not, the uniforms'
-    ``lattice`` (four 24-bit constants), base-colour ``textures`` or not and what misses see
-    (``background``: nearest or bilinear; memoised per process, :func:`wavlight.cl.program`)."""
+    ``lattice`` (four 24-bit constants), base-colour ``textures`` or not, what misses see
+    (``background``: nearest or bilinear) and whether the trees add plastic's coat (``coat``;
+    memoised per process, :func:`wavlight.cl.program`)."""
     extra = {"BACKGROUND_BILINEAR": 1} if background == "bilinear" else {}
+    if coat:
+        extra["COAT"] = 1
     return cl.program("converge.cl", N_LEVELS=int(levels), QBITS=int(bits), BSDF_KINDS=int(kinds) or 1,
                       SLOTS=int(slots), CANDIDATES=int(candidates), CONTROL=int(bool(control)),
                       TEXTURES=int(bool(textures)), **extra,
@@ -88,25 +96,39 @@ def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, con
 class TreeKernel:
     """converge_trees for one bake: its entries on the device (``entries``, the quantized rows and
     their scales), its offset table per block over the coefficients of each product level m
-    (made once per m), the pixels' hit scales."""
+    (made once per m), the pixels' hit scales. ``coat``: plastic's coat, (its entries, its
+    offsets over the image's blocks (4^n, blocks), -1 where a block holds none, and the pixels'
+    weights 1 / lum(a_p), 0 where a pixel sees no plastic: :func:`wavlight.relight.converge.coat_weights`),
+    added to the trees' transfer (a program built with ``coat``); None: no coat."""
 
     def __init__(self, entries, offsets: np.ndarray, hit_scale: np.ndarray, bake_levels: int, blocks_w: int,
-                 image_w: int):
+                 image_w: int, coat=None):
         self.entries, self.offsets = entries, offsets
         self.bake_levels, self.blocks_w, self.image_w = int(bake_levels), int(blocks_w), int(image_w)
         self.hit_scale = cl.to_device(np.ascontiguousarray(hit_scale, np.float32))
         self._by_level = {}
+        self.coat = coat
+        if coat is not None:
+            self._coat_weight = cl.to_device(np.ascontiguousarray(coat[2], np.float32))
+        else:   # (not read: a program without COAT; -1: no entry)
+            self._coat_weight = cl.to_device(np.zeros(8, np.float32))
+            self._no_coat = cl.to_device(np.full(8, -1, np.int32))
+
+    @staticmethod
+    def _layout(offsets, levels: int, bake_levels: int):
+        side, n = 1 << levels, bake_levels
+        rows = (np.arange(side)[:, None] * (1 << n) + np.arange(side)[None, :]).reshape(-1)
+        return cl.to_device(np.ascontiguousarray(np.asarray(offsets[rows], np.int32).T))
 
     def block_offsets(self, levels: int):
         """The device's (blocks, 4^m) int32 table: block b's entry of coefficient (row, col) of the
-        2^m x 2^m layout (the top-left block of the bake's 2^n x 2^n) at b 4^m + row 2^m + col."""
-        buf = self._by_level.get(levels)
-        if buf is None:
-            side, n = 1 << levels, self.bake_levels
-            rows = (np.arange(side)[:, None] * (1 << n) + np.arange(side)[None, :]).reshape(-1)
-            table = np.ascontiguousarray(np.asarray(self.offsets[rows], np.int32).T)
-            buf = self._by_level[levels] = cl.to_device(table)
-        return buf
+        2^m x 2^m layout (the top-left block of the bake's 2^n x 2^n) at b 4^m + row 2^m + col;
+        and the coat's alike (or a table of -1 where there is no coat)."""
+        bufs = self._by_level.get(levels)
+        if bufs is None:
+            coat = (self._layout(self.coat[1], levels, self.bake_levels) if self.coat is not None else self._no_coat)
+            bufs = self._by_level[levels] = (self._layout(self.offsets, levels, self.bake_levels), coat)
+        return bufs
 
     def __call__(self, prog, lighting: Lighting, tile, queue=None, into=None) -> TileTrees:
         """The trees of ``tile`` (a :class:`wavlight.relight.converge.Tile`) under ``lighting``, in
@@ -123,13 +145,15 @@ class TreeKernel:
         else:
             out, relit = cl.empty(4 * P * stride), cl.empty(16 * P)
         e = self.entries
+        ce = self.coat[0] if self.coat is not None else e
         hs = np.float32(float(1 << m) * 4.0 ** (self.bake_levels - m))
+        offsets, coat_offsets = self.block_offsets(m)
         cl.kernel(prog, "converge_trees")(
             queue, (-(-2 * BLOCK_SIDE * tile.blocks // cl.WORK_GROUP) * cl.WORK_GROUP,), (cl.WORK_GROUP,),
-            self.block_offsets(m), e.scale[0], e.data[0], np.uint32(self.blocks_w), np.uint32(tile.block_row),
+            offsets, e.scale[0], e.data[0], np.uint32(self.blocks_w), np.uint32(tile.block_row),
             np.uint32(tile.bx0), np.uint32(tile.x0), np.uint32(tile.y0), np.uint32(tile.w), np.uint32(tile.h),
             np.uint32(self.image_w), self.hit_scale, hs, lighting.buffers["leaf_masses"], lighting.buffers["radiance"],
-            np.uint32(stride), out, relit)
+            np.uint32(stride), out, relit, coat_offsets, ce.scale[0], ce.data[0], self._coat_weight)
         return TileTrees(out, relit, P, m)
 
 
@@ -154,7 +178,9 @@ class ShadeKernel:
         self.tables = (cl.to_device(rows), cl.to_device(np.asarray(materials, np.int32)),
                        cl.to_device(scene.material_kind.astype(np.int32)),
                        cl.to_device(scene.material_param.astype(np.float32)), cl.to_device(albedo),
-                       cl.to_device(np.asarray(lobe_width, np.float32)))
+                       cl.to_device(np.asarray(lobe_width, np.float32)),
+                       cl.to_device(np.ascontiguousarray(scene.material_table, np.float32).reshape(-1)
+                                    if len(scene.materials) else np.zeros(bsdfs.PLASTIC_STRIDE, np.float32)))
         self.kinds = int(np.bitwise_or.reduce(1 << np.asarray(scene.material_kind, np.int64), initial=0)) or 1
         self.textured = bool(getattr(scene, "textured", False))
         if self.textured:

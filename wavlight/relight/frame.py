@@ -10,7 +10,9 @@ values q_o of the block's BLOCK^2 pixels with its scale. The kernel ``frame_prod
 (kernels/relight.cl; numpy twin :func:`image_reference`) walks the K rows of the table,
 four blocks to a work-item, and writes the frame's pixels times their albedo a_p: a frame reads
 only the entries of its K coefficients, and the host sends only their indices and lighting
-values and reads the frame back once.
+values and reads the frame back once. A bake with plastic's coat (C, stored for the blocks that
+see plastic: :data:`wavlight.relight.store.COAT_SECTIONS`) adds N^2 sum_i C^_p,i L^_i over the same
+coefficients, without the albedo (``frame_product`` built with COAT, twin :func:`coat_reference`).
 
 Where a pixel's camera samples missed, the frame adds the map itself, turned, at the samples'
 directions (nearest texel, as :meth:`wavlight.envmap.Environment.eval`): the kernel
@@ -69,16 +71,30 @@ def image_reference(offsets: np.ndarray, entry_scale: np.ndarray, entry_data: np
     return np.ascontiguousarray(img * albedo, np.float32)
 
 
+def coat_reference(coat_blocks: np.ndarray, offsets: np.ndarray, entry_scale: np.ndarray, entry_data: np.ndarray,
+                   columns: np.ndarray, values: np.ndarray, n_blocks: int, blocks_x: int, width: int,
+                   height: int) -> np.ndarray:
+    """numpy twin of ``frame_product`` with COAT: (H, W, 3) float32, plastic's coat in a frame,
+    each pixel's sum over the kept coefficients of its block's coat entries (the store's
+    coat_offsets over the blocks ``coat_blocks`` of the image's ``n_blocks``; no albedo)."""
+    some = product_reference(offsets, entry_scale, entry_data, columns, values)
+    full = np.zeros((n_blocks, some.shape[1], 3))
+    full[np.asarray(coat_blocks, np.int64)] = some
+    return np.ascontiguousarray(untile(full, blocks_x, width, height), np.float32)
+
+
 class DeviceEntries:
     """The bake file's index and quantized entries as read-only device buffers over its memory
-    (no copy on a CPU device where OpenCL can use the host memory), shared by every frame."""
+    (no copy on a CPU device where OpenCL can use the host memory), shared by every frame.
+    ``block_of``: the image's block of each of the entries' blocks (plastic's coat, whose
+    entries are stored for the blocks that see plastic alone); None: the image's own blocks."""
 
     TILE_BLOCKS = 4
     #: work-items per work-group of ``frame_product``: left to PoCL, a frame's 256 work-items (512^2)
     #: were one group, on one core
     GROUP = 4
 
-    def __init__(self, offsets: np.ndarray, entry_scale: np.ndarray, entry_data: np.ndarray):
+    def __init__(self, offsets: np.ndarray, entry_scale: np.ndarray, entry_data: np.ndarray, block_of=None):
         self.pixels = int(entry_data.shape[1])
         self.block = int(round(self.pixels ** 0.5))
         self.bits = 8 * entry_data.dtype.itemsize
@@ -86,6 +102,9 @@ class DeviceEntries:
         self.offsets = self._buffer(offsets, np.int32)
         self.scale = self._buffer(entry_scale, np.float32)
         self.data = self._buffer(entry_data, entry_data.dtype)
+        self.coat = block_of is not None
+        self.block_of = self._buffer(np.zeros(1, np.int32) if block_of is None else np.asarray(block_of, np.int32),
+                                     np.int32)
 
     @staticmethod
     def _buffer(a, dtype):
@@ -103,9 +122,13 @@ class DeviceEntries:
               out, queue=None):
         """Enqueue the kernel ``frame_product`` for the kept coefficients ``columns`` (K,) with
         lighting ``values`` (K, 3) (times N^2): the frame's (height, width, 3) float32 pixels
-        times their albedo (the device buffer ``albedo_buffer``), into the device buffer ``out``."""
+        times their albedo (the device buffer ``albedo_buffer``), into the device buffer ``out``;
+        a coat's (``block_of`` given) added to ``out`` as they are."""
+        if self.n_blocks == 0:
+            return
         queue = queue or cl.thread_queue()
-        prog = cl.program("relight.cl", QBITS=self.bits, BLOCK=self.block, TILE_BLOCKS=self.TILE_BLOCKS)
+        prog = cl.program("relight.cl", QBITS=self.bits, BLOCK=self.block, TILE_BLOCKS=self.TILE_BLOCKS,
+                          COAT=int(self.coat))
         light = np.zeros((max(len(columns), 1), 4), np.float32)
         light[:len(columns), :3] = values
         cols = np.zeros(max(len(columns), 1), np.int32)
@@ -114,7 +137,8 @@ class DeviceEntries:
         cl.kernel(prog, "frame_product")(
             queue, (items,), (self.GROUP,), np.uint32(len(columns)), np.uint32(self.n_blocks), np.uint32(blocks_x),
             np.uint32(width), np.uint32(height), cl.upload("frame_columns", cols, queue),
-            cl.upload("frame_light", light, queue), self.offsets[0], self.scale[0], self.data[0], albedo_buffer, out)
+            cl.upload("frame_light", light, queue), self.offsets[0], self.scale[0], self.data[0], albedo_buffer,
+            self.block_of[0], out)
 
 
 def background_lookup(dirs: np.ndarray, env_height: int):
@@ -262,6 +286,8 @@ class DeviceFrame:
     def __init__(self, sections: dict, width: int, height: int, blocks_x: int, samples: int):
         s = sections
         self.entries = DeviceEntries(s["offsets"], s["entry_scale"], s["entry_data"])
+        self.coat = (DeviceEntries(s["coat_offsets"], s["coat_entry_scale"], s["coat_entry_data"], s["coat_blocks"])
+                     if "coat_blocks" in s else None)
         self.width, self.height, self.blocks_x, self.samples = width, height, blocks_x, samples
         self.albedo = cl.to_device(np.ascontiguousarray(s["albedo"], np.float32))
         self._dirs, self._mask = s["background_dir"], s["background_mask"]
@@ -296,6 +322,8 @@ class DeviceFrame:
         queue = queue or cl.thread_queue()
         out = cl.scratch("frame_image", 12 * self.width * self.height)
         self.entries.image(columns, values, self.albedo, self.blocks_x, self.width, self.height, out, queue)
+        if self.coat is not None:   # plastic's coat, added (the queue runs in order)
+            self.coat.image(columns, values, self.albedo, self.blocks_x, self.width, self.height, out, queue)
         return out
 
     def background(self, out, environment, rotate_y: float, queue=None, background: str = "nearest") -> None:

@@ -498,7 +498,8 @@ def shade_by_mixture(scene, tracer, d, t, prim, hit, trees, inside, mass, spp: i
 
 
 def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, kind, param, wo, axes,
-                       light: float = 0.0, with_pdf: bool = False, geometric=None):
+                       light: float = 0.0, with_pdf: bool = False, geometric=None, table=None,
+                       with_share: bool = False):
     """Directions of the defensive mixture and their weights, for the samples ``hit`` of
     ``len(u_all)`` (spp per pixel, each pixel's product tree in ``trees``): with probability
     1 - alpha - light the product (its tree by the hierarchical warp, eq. 17-22, then inside
@@ -507,9 +508,12 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
     hides a bright light, the lighting still finds it); ``geometric`` the hits' geometric normals
     (f cos = 0 below them: docs/decisions/shading-normals.md); ``axes`` (s, t, n) the hits' tangent
     frames, ``wo`` the view in them. The pdf is the mixture's, every technique's at the chosen
-    direction, so that f cos / pdf is unbiased. Returns unit directions (N, 3) and f cos / pdf
-    (N,) (0 where either is 0 or not finite); with ``with_pdf`` also the mixture's pdf (N,) per solid
-    angle."""
+    direction, so that f cos / pdf is unbiased. ``table``: the samples' rows of the plastic
+    table (:attr:`wavlight.scene.Scene.material_table`; None: no plastic), whose BSDF sampling
+    takes either lobe (bsdfs.plastic_sample). Returns unit directions (N, 3) and f cos / pdf
+    (N,) (0 where either is 0 or not finite); with ``with_pdf`` also the mixture's pdf (N,) per
+    solid angle; with ``with_share`` last the share of f cos the albedo multiplies (N,) (1 but for
+    plastic's coat: the sample's colour is 1 - share + share albedo, :func:`tint_of`)."""
     s_ax, t_ax, nrm = axes
     u = u_all[hit].astype(np.float64)
     uv_tree, _ = trees.sample(np.ascontiguousarray(u_all[:, :2]), spp)   # every sample slot, in pixel order
@@ -517,7 +521,7 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
     d_p = square_to_world(uv_p)
     use_b = u[:, 2] < alpha          # the BSDF's uniforms: u.z rescaled below alpha, and u.w
     ub = np.clip(np.stack([np.where(use_b, u[:, 2] / alpha, 0.0), u[:, 3]], 1), 0.0, np.nextafter(1.0, 0.0))
-    wl_b = bsdfs.sample_each(kind, param, ub, wo)
+    wl_b = bsdfs.sample_each(kind, param, ub, wo, table)
     d_b = wl_b[:, :1] * s_ax + wl_b[:, 1:2] * t_ax + wl_b[:, 2:3] * nrm
     direction = np.where(use_b[:, None], d_b, d_p)
     if light > 0:                    # the lighting's: u.z in [alpha, alpha + light) chooses it, and its
@@ -529,16 +533,26 @@ def mixture_directions(trees, inside, u_all, hit, spp: int, has_product, alpha, 
     p_tree = trees.pdf(np.ascontiguousarray(spread_to(uv, hit, len(u_all)), np.float32), spp)[hit]
     p_prod = np.where(has_product, p_tree.astype(np.float64) * inside.factor(uv), 0.0) * solid_angle_jacobian(direction)
     wl = to_local(direction, s_ax, t_ax, nrm)
-    fcos, p_bsdf = bsdfs.eval_pdf_each(kind, param, wl, wo)
+    fcos, p_bsdf, fd = bsdfs.eval_pdf_each(kind, param, wl, wo, table, with_diffuse=True)
     if geometric is not None:
         fcos = np.where(np.einsum("ij,ij->i", direction, geometric) > 0, fcos, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = np.where(fcos > 0, fd / np.where(fcos > 0, fcos, 1.0), 1.0)
     pdf = (1 - alpha - light) * p_prod + alpha * p_bsdf
     if light > 0:
         pdf = pdf + light * inside.light_pdf(uv) * solid_angle_jacobian(direction)
     with np.errstate(divide="ignore", invalid="ignore"):
         weight = np.where((pdf > 0) & (fcos > 0), fcos / pdf, 0.0)
     weight = np.where(np.isfinite(weight), weight, 0.0)
-    return (direction, weight, np.where(np.isfinite(pdf), pdf, 0.0)) if with_pdf else (direction, weight)
+    out = (direction, weight, np.where(np.isfinite(pdf), pdf, 0.0)) if with_pdf else (direction, weight)
+    return out + (share,) if with_share else out
+
+
+def tint_of(share, albedo) -> np.ndarray:
+    """(N, 3): the colour of a sample whose f cos (without albedo) has ``share`` (N,) multiplied by
+    the albedo (N, 3): 1 - share + share albedo (the albedo itself but for plastic's coat)."""
+    share = np.asarray(share, np.float64)[:, None]
+    return (1.0 - share) + share * np.asarray(albedo, np.float64)
 
 
 def spread_to(values: np.ndarray, at: np.ndarray, count: int) -> np.ndarray:

@@ -31,6 +31,14 @@ Layout (little-endian)::
       view_face_k   int32 (F,)        the lattice subdivisions of each scene face
       view_face_base int64 (F,)       each face's first lattice entry
       view_lattice  int32 (E,)        the cache point at each lattice entry
+    and, for a lighting bake of a scene with plastic (``coat`` true in the header): plastic's
+    coat, whose transfer the albedo does not multiply (f cos = coat + albedo x base,
+    docs/decisions/plastic-in-the-bake.md), stored for the blocks that see plastic alone, as
+    the transfer is:
+      coat_blocks   int32 (C,)          the blocks that hold a coat (increasing; C <= blocks)
+      coat_offsets  int32 (4^n, C)      the entry of coefficient c in coat block j, or -1
+      coat_entry_scale float32 (D,)     each coat entry's scale
+      coat_entry_data  int8 | int16 (D, BLOCK^2)  the quantized coat coefficients
 
 The header records the format and its version, wavlight's version, the scene (file, content
 hash), camera, image size, camera samples, texel levels n, block size, bits, what was chosen
@@ -70,8 +78,8 @@ from ..version import __version__
 from .lighting import MAX_LEVELS, MAX_TERMS, PRIORITIES
 
 MAGIC = b"WAVLIGHT-XFER\x00\x01\n"   # 16 bytes
-#: 2: the header holds its own checksum (``header_crc32``)
-FORMAT_VERSION = 2
+#: 2: the header holds its own checksum (``header_crc32``); 3: plastic's coat (COAT_SECTIONS)
+FORMAT_VERSION = 3
 ALIGN = 64
 #: pixels per side of a block (an entry's row: BLOCK^2 pixels, or a view bake's 3 BLOCK^2 values)
 BLOCK = 16
@@ -89,13 +97,17 @@ OBJECT_SECTIONS = ("static", "static_stderr", "product_leaves")
 #: the sections of a bake that varies the view (``vary = "view"``): the surface cache and the
 #: lattice that finds a hit's cache points (:mod:`wavlight.relight.surface_cache`)
 VIEW_SECTIONS = ("view_position", "view_normal", "view_material", "view_face_k", "view_face_base", "view_lattice")
+#: the sections of plastic's coat (a lighting bake whose header says ``coat``: true): its blocks,
+#: their index and entries, as offsets, entry_scale and entry_data are the transfer's
+COAT_SECTIONS = ("coat_blocks", "coat_offsets", "coat_entry_scale", "coat_entry_data")
 #: each section's dtype as the file names it (little-endian): the only names a file may give,
 #: looked up (never parsed); entry_data's by the bits
 SECTION_DTYPES = {"environment": "<f4", "albedo": "<f4", "background_pixel": "<u4", "background_mask": "<u8",
                   "background_dir": "<f4", "rms": "<f4", "offsets": "<i4", "entry_scale": "<f4",
                   "static": "<f4", "static_stderr": "<f4", "product_leaves": "<f2",
                   "view_position": "<f4", "view_normal": "<f4", "view_material": "<i4", "view_face_k": "<i4",
-                  "view_face_base": "<i8", "view_lattice": "<i4"}
+                  "view_face_base": "<i8", "view_lattice": "<i4",
+                  "coat_blocks": "<i4", "coat_offsets": "<i4", "coat_entry_scale": "<f4"}
 ENTRY_DTYPES = {8: "|i1", 16: "<i2"}
 _DTYPES = {name: np.dtype(name) for name in {*SECTION_DTYPES.values(), *ENTRY_DTYPES.values()}}
 #: a surface cache's face has at most this many subdivisions k (its lattice: (k + 1)(k + 2) / 2 points)
@@ -199,6 +211,8 @@ class TransferWriter:
         self._fh = os.fdopen(fd, "wb")
         self._columns, self._blocks, self._scales = [], [], []
         self.entries = 0
+        #: a second writer of plastic's coat (COAT_SECTIONS), set by a bake of a scene with plastic
+        self.coat = None
 
     def add(self, block_id: int, columns, scales, data):
         data = np.ascontiguousarray(data, self.dtype)
@@ -214,6 +228,8 @@ class TransferWriter:
         self.entries += len(columns)
 
     def close(self):
+        if self.coat is not None:
+            self.coat.close()
         if not self._fh.closed:
             try:
                 self._fh.close()
@@ -222,32 +238,53 @@ class TransferWriter:
         if os.path.exists(self._tmp):
             os.unlink(self._tmp)
 
-    def finish(self, path: str, header: dict, arrays: dict):
-        """Write the file: ``header`` (JSON-able) completed with the sections, ``arrays`` the
-        PIXEL_SECTIONS."""
+    def _flushed(self, path: str) -> None:
         try:
             self._fh.flush()
             self._fh.close()
         except OSError as e:
             raise WavlightError(f"{self.output or path}: cannot write ({e.strerror or e})") from None
+
+    def _index(self, n_blocks: int, blocks_of=None):
+        """(order, offsets (4^n, B), scales): the entries by column then block, the offset table
+        and their scales; ``blocks_of``: the blocks the table's columns are (default 0 .. n_blocks - 1)."""
         side2 = 1 << (2 * self.n_levels)
         columns = np.concatenate(self._columns) if self._columns else np.zeros(0, np.int64)
         blocks = np.concatenate(self._blocks) if self._blocks else np.zeros(0, np.uint32)
         scales = np.concatenate(self._scales) if self._scales else np.zeros(0, np.float32)
+        if blocks_of is not None:
+            blocks = np.searchsorted(blocks_of, blocks)
         order = np.lexsort((blocks, columns))                 # by column, then block
-        n_blocks = int(header["blocks"][0]) * int(header["blocks"][1])
         offsets = np.full((side2, n_blocks), -1, np.int32)
         offsets[columns[order], blocks[order]] = np.arange(len(order), dtype=np.int32)
+        return order, offsets, scales[order]
+
+    def finish(self, path: str, header: dict, arrays: dict):
+        """Write the file: ``header`` (JSON-able) completed with the sections, ``arrays`` the
+        PIXEL_SECTIONS (and, with a coat writer, COAT_SECTIONS from it)."""
+        self._flushed(path)
+        n_blocks = int(header["blocks"][0]) * int(header["blocks"][1])
+        order, offsets, scales = self._index(n_blocks)
         row = self.row * self.dtype.itemsize
         extra = tuple(k for k in OBJECT_SECTIONS + VIEW_SECTIONS if k in arrays)
         sections = {**{k: arrays[k] for k in PIXEL_SECTIONS + extra}, "offsets": offsets,
-                    "entry_scale": scales[order]}
+                    "entry_scale": scales}
+        streams = {"entry_data": (self, order)}
+        if self.coat is not None:
+            coat = self.coat
+            coat._flushed(path)
+            coat_blocks = np.unique(np.concatenate(coat._blocks)) if coat._blocks else np.zeros(0, np.uint32)
+            c_order, c_offsets, c_scales = coat._index(len(coat_blocks), coat_blocks)
+            sections.update(coat_blocks=coat_blocks, coat_offsets=c_offsets, coat_entry_scale=c_scales)
+            streams["coat_entry_data"] = (coat, c_order)
+            extra = extra + COAT_SECTIONS
         sections = {k: np.ascontiguousarray(a, _DTYPES[SECTION_DTYPES[k]]) for k, a in sections.items()}
         meta, offset = {}, 0
         names = SECTIONS + extra
         for name in names:
-            if name == "entry_data":
-                nbytes, dtype, shape = len(order) * row, ENTRY_DTYPES[self.bits], [len(order), self.row]
+            if name in streams:
+                rows = len(streams[name][1])
+                nbytes, dtype, shape = rows * row, ENTRY_DTYPES[self.bits], [rows, self.row]
             else:
                 a = sections[name]
                 nbytes, dtype, shape = a.nbytes, SECTION_DTYPES[name], list(a.shape)
@@ -262,23 +299,24 @@ class TransferWriter:
         try:
             with atomic_write(path, check=size_is(head_room + offset)) as tmp, open(tmp, "wb") as out:
                 out.write(b"\0" * head_room)
-                source = np.memmap(self._tmp, self.dtype, "r", shape=(self.entries, self.row)) \
-                    if self.entries else np.zeros((0, self.row), self.dtype)
                 for name in names:
                     crc = 0
-                    if name == "entry_data":
+                    if name in streams:
+                        writer, rows = streams[name]
+                        source = np.memmap(writer._tmp, writer.dtype, "r", shape=(writer.entries, writer.row)) \
+                            if writer.entries else np.zeros((0, writer.row), writer.dtype)
                         step = max(1, REORDER_CHUNK_BYTES // row)
-                        for i in range(0, len(order), step):   # chunks, not entries
-                            chunk = np.ascontiguousarray(source[order[i:i + step]]).tobytes()
+                        for i in range(0, len(rows), step):   # chunks, not entries
+                            chunk = np.ascontiguousarray(source[rows[i:i + step]]).tobytes()
                             crc = zlib.crc32(chunk, crc)
                             out.write(chunk)
+                        del source
                     else:
                         chunk = sections[name].tobytes()
                         crc = zlib.crc32(chunk)
                         out.write(chunk)
                     meta[name]["crc32"] = crc
                     out.write(b"\0" * (-meta[name]["bytes"] % ALIGN))
-                del source
                 header["sections"] = meta
                 header["data_offset"] = head_room
                 header["file_bytes"] = head_room + offset
@@ -432,7 +470,9 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
       (4^n,); offsets (4^n, blocks); entry_scale (E,) beside entry_data (E, BLOCK^2), a view
       bake's (E, 3 BLOCK^2); static and static_stderr (height, width, 3); product_leaves
       (height width, 4^product_levels); view_position and view_normal (P, 3), view_material (P,),
-      view_face_k and view_face_base (F,);
+      view_face_k and view_face_base (F,); with ``coat`` (true only on a lighting bake):
+      coat_offsets (4^n, C) beside coat_blocks (C,), coat_entry_scale (D,) beside
+      coat_entry_data (D, BLOCK^2);
     - with ``verify``, each section's CRC-32;
     - the contents: the environment finite, >= 0, at most MAX_RADIANCE and not black everywhere
       (its frames would be black); albedo, rms and entry_scale finite and >= 0, the albedo at most
@@ -443,7 +483,9 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
       finite; view positions finite, normals of unit length (within NORMAL_TOLERANCE),
       materials >= 0 (the scene's count: :class:`wavlight.relight.view_frames.ViewFrames`), each face's
       subdivisions in 1..MAX_FACE_K, its first lattice entry the sum of the lattice sizes before
-      it, the lattice as long as their sum and its cache points below P.
+      it, the lattice as long as their sum and its cache points below P; coat_blocks increasing
+      and below the blocks, coat_entry_scale finite and >= 0, coat_offsets -1 or the coat
+      entries in order, each once.
     """
     def damaged(what):
         return WavlightError(f"{path}: the bake file's header is damaged: {what}")
@@ -503,6 +545,11 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
         names = SECTIONS + OBJECT_SECTIONS
     elif vary == "view":
         names = SECTIONS + VIEW_SECTIONS
+    coat = header.get("coat", False)
+    if not isinstance(coat, bool) or (coat and vary != "lighting"):
+        raise damaged(f"coat must be true or false, and true only where the bake varies the lighting, got {shown(coat)}")
+    if coat:
+        names = names + COAT_SECTIONS
     metas = header.get("sections")
     if not isinstance(metas, dict) or set(metas) != set(names):
         given = set(metas) if isinstance(metas, dict) else set()
@@ -514,16 +561,17 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
     # -- the sections: dtypes, shapes, sizes, the layout
     ranks = {"environment": 3, "albedo": 2 if vary == "view" else 3, "background_dir": 3, "offsets": 2,
              "entry_data": 2, "static": 3, "static_stderr": 3, "product_leaves": 2, "view_position": 2,
-             "view_normal": 2}
+             "view_normal": 2, "coat_offsets": 2, "coat_entry_data": 2}
     s, offset = {}, 0
     for name in names:   # sections, not elements
         meta = metas[name]
         if not isinstance(meta, dict):
             raise damaged(f"section {name} must be an object, got {shown(meta)}")
-        dtype = ENTRY_DTYPES[bits] if name == "entry_data" else SECTION_DTYPES[name]
+        entry = name in ("entry_data", "coat_entry_data")
+        dtype = ENTRY_DTYPES[bits] if entry else SECTION_DTYPES[name]
         if meta.get("dtype") != dtype:
             raise damaged(f"section {name}: dtype {shown(meta.get('dtype'))}; the format's is {dtype}"
-                          + (f" (bits {bits})" if name == "entry_data" else ""))
+                          + (f" (bits {bits})" if entry else ""))
         shape = meta.get("shape")
         rank = ranks.get(name, 1)
         if not isinstance(shape, list) or len(shape) != rank or not all(_integer(x) and x >= 0 for x in shape):
@@ -574,6 +622,12 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
         expect("static", (height, width, 3), f"width x height is {width} x {height}")
         expect("static_stderr", (height, width, 3), f"width x height is {width} x {height}")
         expect("product_leaves", (width * height, 1 << (2 * m)), f"product_levels is {m}")
+    if coat:
+        holders = s["coat_blocks"].shape[0]
+        expect("coat_offsets", (side2, holders), f"n_levels is {n} and coat_blocks holds {holders} blocks")
+        coat_entries = s["coat_entry_scale"].shape[0]
+        expect("coat_entry_data", (coat_entries, rows), f"coat_entry_scale holds {coat_entries} entries of {rows} "
+                                                        "values")
 
     # -- the checksums
     if verify:
@@ -612,6 +666,16 @@ def validate(path: str, header: dict, data: np.ndarray, verify: bool = True) -> 
     kept = flat[flat >= 0]
     if np.any(flat < -1) or len(kept) != entries or not np.array_equal(kept, np.arange(entries, dtype=kept.dtype)):
         raise contents("the index (offsets) must hold -1 or each entry once, in order")
+    if coat:
+        held = s["coat_blocks"].astype(np.int64)
+        if len(held) and (np.any(np.diff(held) <= 0) or held[0] < 0 or held[-1] >= blocks[0] * blocks[1]):
+            raise contents(f"coat_blocks must be increasing blocks below {blocks[0] * blocks[1]}")
+        finite("coat_entry_scale", 0.0)
+        flat = s["coat_offsets"].reshape(-1)
+        kept = flat[flat >= 0]
+        if (np.any(flat < -1) or len(kept) != s["coat_entry_scale"].shape[0]
+                or not np.array_equal(kept, np.arange(len(kept), dtype=kept.dtype))):
+            raise contents("the coat's index (coat_offsets) must hold -1 or each coat entry once, in order")
     if vary == "object":
         finite("static")
         finite("static_stderr", 0.0)

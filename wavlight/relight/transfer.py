@@ -24,7 +24,7 @@ from ..envmap import Environment, read_image
 from ..errors import ArgumentError, WavlightError, check_degrees, shown
 from . import lighting, store
 from .frame import (DeviceFrame, background_bilinear_reference, background_lookup, background_reference,
-                    background_uv, image_reference)
+                    background_uv, coat_reference, image_reference)
 from .settings import FRAME
 
 MAX_TERMS = FRAME["terms"].hi
@@ -227,6 +227,10 @@ class Transfer:
         if backend == "numpy":
             image = image_reference(self._s["offsets"], self._s["entry_scale"], self._s["entry_data"], columns, values,
                                     self._s["albedo"], self.blocks[0])
+            if "coat_blocks" in self._s:   # plastic's coat, without the albedo
+                image += coat_reference(self._s["coat_blocks"], self._s["coat_offsets"], self._s["coat_entry_scale"],
+                                        self._s["coat_entry_data"], columns, values,
+                                        self.blocks[0] * self.blocks[1], self.blocks[0], self.width, self.height)
             t3 = time.perf_counter()
             self._add_background(image, environment, rot, background)
             t_bg = time.perf_counter()
