@@ -56,13 +56,13 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
 
 def check_bakeable(scene, vary: str = BAKE["vary"].default) -> None:
     """A one-line WavlightError for a scene that a bake varying ``vary`` cannot hold yet: faces of
-    plastic, whose albedo does not factor out of the BRDF, in a bake that varies an object or the
-    view (a lighting bake stores plastic's coat as a second transfer:
-    docs/decisions/plastic-in-the-bake.md)."""
-    if vary == "lighting":
+    plastic, whose albedo does not factor out of the BRDF, in a bake that varies an object (a
+    lighting bake stores plastic's coat as a second transfer: docs/decisions/plastic-in-the-bake.md;
+    a view bake's frames apply the whole BRDF, its two lobes: docs/decisions/plastic-in-the-view-bake.md)."""
+    if vary != "object":
         return
     names = plastic_materials(scene)
     if names:
         raise WavlightError(f"{getattr(scene, 'path', 'scene')}: plastic materials ({', '.join(names)}) are not "
-                            f"baked with vary='{vary}' yet (only a bake that varies the lighting holds plastic's "
-                            "coat); bake the lighting, or render them with wavlight render")
+                            f"baked with vary='{vary}' yet (bakes that vary the lighting or the view hold "
+                            "plastic); bake those, or render them with wavlight render")
