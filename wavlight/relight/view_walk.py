@@ -68,16 +68,16 @@ def brdf_reference(kind: np.ndarray, param: np.ndarray, wi: np.ndarray, wo: np.n
     """f_r(wi, wo) without albedo and without cos theta_i, local frames (N, 3) (the kernel's
     ``view_brdf``; for cos_i > 0 it is :func:`wavlight.bsdfs.eval_cos` / cos_i; plastic's lobes
     VIEW_COAT and VIEW_BASE are :func:`wavlight.bsdfs.plastic_parts` / cos_i, ``table`` (N,
-    PLASTIC_STRIDE) their rows of the plastic table)."""
+    PLASTIC_STRIDE) their rows of the plastic table; below the horizon ggx and the coat stay
+    finite, the base is 0: T1 is 0 there, but a node's centre may be below it)."""
     kind = np.broadcast_to(kind, len(wi))
     param = np.broadcast_to(np.asarray(param, np.float64), len(wi))
     out = np.full(len(wi), 1.0 / np.pi)
-    pl = (kind == VIEW_COAT) | (kind == VIEW_BASE)
-    if pl.any():
-        spec, diff = bsdfs.plastic_parts(wi[pl], wo[pl], np.asarray(table, np.float64)[pl])
-        iz = wi[pl, 2]
-        part = np.where(kind[pl] == VIEW_COAT, spec, diff)
-        out[pl] = np.where(iz > 0, part / np.where(iz > 0, iz, 1.0), 0.0)
+    base = kind == VIEW_BASE
+    if base.any():
+        diff = bsdfs.plastic_parts(wi[base], wo[base], np.asarray(table, np.float64)[base])[1]
+        iz = wi[base, 2]
+        out[base] = np.where(iz > 0, diff / np.where(iz > 0, iz, 1.0), 0.0)
     ix, iy, iz = wi[:, 0], wi[:, 1], wi[:, 2]
     ox, oy, oz = wo[:, 0], wo[:, 1], wo[:, 2]
     ph = kind == bsdfs.PHONG
@@ -85,8 +85,8 @@ def brdf_reference(kind: np.ndarray, param: np.ndarray, wi: np.ndarray, wo: np.n
         ca = np.maximum(iz * oz - ix * ox - iy * oy, 0.0)[ph]
         with np.errstate(divide="ignore"):
             out[ph] = np.where(ca > 0, (param[ph] + 2) / (2 * np.pi) * ca ** param[ph], 0.0)
-    gg = kind == bsdfs.GGX
-    if gg.any():   # (plastic's coat in bsdfs.plastic_parts: Mitsuba's ggx, the same function)
+    gg = (kind == bsdfs.GGX) | (kind == VIEW_COAT)
+    if gg.any():   # plastic's coat: ggx's factor times F(wo . h) (below)
         a2 = param[gg] ** 2
         h = wi[gg] + wo[gg]
         hh = np.einsum("ij,ij->i", h, h)
@@ -101,6 +101,12 @@ def brdf_reference(kind: np.ndarray, param: np.ndarray, wi: np.ndarray, wo: np.n
         gi = 2 / (z + np.sqrt(a2 + (1 - a2) * z * z))
         good = ok & (nhz > 0) & (ih > 0) & (oz[gg] > 0)
         out[gg] = np.where(good, D * g1o / (4 * np.maximum(oz[gg], 1e-30)) * gi, 0.0)
+    coat = kind == VIEW_COAT
+    if coat.any():   # F(wo . h, eta) (Mitsuba's fresnel; as bsdfs.plastic_parts, but finite below the horizon as ggx)
+        h = wi[coat] + wo[coat]
+        hl = np.linalg.norm(h, axis=1)
+        oh = np.einsum("ij,ij->i", wo[coat], h) / np.where(hl > 0, hl, 1.0)
+        out[coat] *= bsdfs.fresnel_dielectric(np.maximum(oh, 0.0), np.asarray(table, np.float64)[coat, 0])[0]
     return out
 
 
