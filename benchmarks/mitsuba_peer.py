@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Render a wavlight scene TOML with Mitsuba 3's ``direct`` integrator and print timings as JSON.
 
-A peer reference for wavlight benchmarks: it reads the scene file itself (``tomllib``, no wavlight
-import), builds the equivalent Mitsuba scene with ``mi.load_dict`` on the ``llvm_ad_rgb`` variant
+A peer reference for wavlight benchmarks: it reads the scene file itself (``tomllib``; wavlight
+only resolves ``data:NAME`` files), builds the equivalent Mitsuba scene with ``mi.load_dict`` on the ``llvm_ad_rgb`` variant
 (CPU), renders it and prints one JSON object on stdout. The same object, with the run's
 provenance (benchmarks/provenance.py; the OpenCL platform is asked of a separate process, so
 that PoCL's LLVM is not loaded beside Dr.Jit's), goes to the result file
@@ -12,9 +12,25 @@ benchmarks/render_bench.py --mitsuba runs it).
 Usage:
     python benchmarks/mitsuba_peer.py SCENE.toml [--spp N] [--width W] [--height H]
                                       [--strategy mis|light|bsdf] [--out IMAGE.exr] [-o FILE]
+    python benchmarks/mitsuba_peer.py --designer-glb [--spp N] [--seeds S] [--width W] [--height H] [-o FILE]
 Command-line values override ``[render]``; ``seed`` comes from ``[render]`` (default 0).
 The figures in benchmarks/results/mitsuba_peer.json come from
     python benchmarks/mitsuba_peer.py benchmarks/scenes/bunny_ggx.toml --spp 16 --width 512 --height 512 --strategy mis
+
+--designer-glb: issue 38's acceptance, agreement rather than timing. The GLB a designer makes with
+trimesh (tests/support/assets_util.write_designer_glb: a plastic floor with an sRGB stripes
+texture, a gold metal sphere, a red plastic sphere, both low-poly with per-vertex normals), named
+in a scene with no material (assets_util.designer_scene), under an indoor map
+(st_fagans_interior_512) and a sun map (rooitou_park_1k); wavlight (``mis``, S x N spp) against
+Mitsuba 3 (wavlight.evaluation.peers: roughconductor with material none, roughplastic with
+nonlinear false, int_ior 1.5, ext_ior 1, the texture as a bilinear sRGB bitmap, vertex normals
+with face_normals false; S seeds of N spp). Per part (peers.part_agreement, the pixels whose four
+corners see that part): the relative bias with its standard error and z, and the relMSE (the
+reference's own noise removed) over the reference's own noise. The acceptance: |bias| < 1.5% and
+relMSE within 3x the reference's noise. A control ("control_mitsuba_face_normals") gives Mitsuba
+face normals instead (the scene's corner normals dropped): the comparison must see the difference. This mode imports wavlight; the result goes to
+benchmarks/results/mitsuba_peer_glb.json unless -o names another. Its figures come from
+    python benchmarks/mitsuba_peer.py --designer-glb --spp 256 --seeds 4 --width 128 --height 96
 
 Setup (Debian 12, Python 3.11):
     apt-get install -y libllvm19 && pip install mitsuba     # mitsuba 3.9.1, drjit 1.5.0
@@ -52,6 +68,7 @@ caches compiled kernels in ~/.drjit, so jit_seconds is ~0.2 s on a cold cache an
 the JSON line.
 """
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -96,12 +113,25 @@ def quad_mesh(center, normal, size):
     return trimesh.Trimesh(verts, [[0, 1, 2], [0, 2, 3]], process=False)
 
 
+def input_path(value, base, kind):
+    """The file a scene value names: ``data:NAME`` through wavlight.data (fetched on first use, or
+    read from WAVLIGHT_DATA), else a path relative to the scene's folder."""
+    if not str(value).startswith("data:"):
+        return os.path.normpath(os.path.join(base, value))
+    import wavlight.data
+
+    try:
+        return wavlight.data.resolve(str(value), kind=kind)
+    except wavlight.WavlightError as e:
+        sys.exit(f"mitsuba_peer: {e}")
+
+
 def shape_dict(obj, base, tmpdir, idx):
     """Mitsuba shape dict (without BSDF) for one [[objects]] entry."""
     import trimesh
     mesh = None
     if "mesh" in obj:
-        path = os.path.normpath(os.path.join(base, obj["mesh"]))
+        path = input_path(obj["mesh"], base, "mesh")
         ext = os.path.splitext(path)[1].lower()
         if ext in (".ply", ".obj"):
             d = {"type": ext[1:], "filename": path}
@@ -162,7 +192,7 @@ def build_scene(cfg, base, width, height, spp, strategy, tmpdir):
     env = cfg.get("environment")
     if env:
         scene["environment"] = {
-            "type": "envmap", "filename": os.path.normpath(os.path.join(base, env["file"])),
+            "type": "envmap", "filename": input_path(env["file"], base, "environment map"),
             "scale": float(env.get("scale", 1.0)),
             "to_world": mi.ScalarTransform4f().rotate([0.0, 1.0, 0.0], float(env.get("rotate_y", 0.0)))}
     approximated = []
@@ -197,19 +227,85 @@ def timed_render(scene, spp, seed):
     return img, time.perf_counter() - t0
 
 
+GLB_MAPS = {"indoor": "data:st_fagans_interior_512", "sun": "data:rooitou_park_1k"}
+
+
+def designer_glb(args, prov):
+    """--designer-glb: the designer's GLB per part against Mitsuba 3, under each map of GLB_MAPS."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    sys.path.insert(0, os.path.join(root, "tests", "support"))
+    import needs
+    from assets_util import designer_scene, write_designer_glb
+    from provenance import write_result
+
+    needs.fetch("mitsuba_peer", *(m.split(":", 1)[1] for m in GLB_MAPS.values()))
+    import wavlight
+    from wavlight.evaluation import peers
+
+    if not peers.available():
+        sys.exit("mitsuba_peer: Mitsuba 3 (llvm_ad_rgb) is not available: pip install 'wavlight[peers]'")
+    width, height, spp, seeds = args.width or 128, args.height or 96, args.spp or 256, args.seeds
+    result = {"renderer": "mitsuba3", "case": "designer_glb", "width": width, "height": height,
+              "wavlight_spp": spp * seeds, "mitsuba_spp": f"{seeds} x {spp}", "maps": {}}
+    with tempfile.TemporaryDirectory(prefix="mitsuba_peer_") as folder:
+        glb = write_designer_glb(os.path.join(folder, "designer.glb"))
+        for label, env in GLB_MAPS.items():
+            scene = wavlight.load_dict(designer_scene(glb, env, width, height))
+            t0 = time.perf_counter()
+            ours = wavlight.render_full(scene, spp=spp * seeds, strategy="mis", seed=3)
+            t1 = time.perf_counter()
+            runs = np.stack([peers.render_mitsuba(scene, "mis", spp=spp, seed=50 + s).image for s in range(seeds)])
+            t2 = time.perf_counter()
+            parts = {}
+            for name, r in peers.part_agreement(scene, ours, runs).items():
+                part = name.rsplit(":", 1)[-1]
+                r = {k: (np.round(v, 5).tolist() if isinstance(v, (list, float)) else v) for k, v in r.items()}
+                r["bias_z"] = np.round(r["bias_z"], 2).tolist()
+                r["accepted"] = bool(max(map(abs, r["bias"])) < 0.015 and r["relmse_ratio"] < 3.0)
+                parts[part] = r
+                print(f"{label} {part} ({r['type']}, {r['pixels']} pixels): bias {r['bias']} +- {r['bias_se']} "
+                      f"(z {r['bias_z']}), relMSE / reference noise {r['relmse_ratio']}", file=sys.stderr, flush=True)
+            # the control: Mitsuba given face normals (the scene's corner normals dropped), wavlight smooth
+            flat = dataclasses.replace(scene, normal_faces=None)
+            runs = np.stack([peers.render_mitsuba(flat, "mis", spp=spp, seed=50 + s).image for s in range(seeds)])
+            control = {name.rsplit(":", 1)[-1]: {"bias": np.round(r["bias"], 5).tolist(),
+                                                 "bias_z": np.round(r["bias_z"], 2).tolist(),
+                                                 "relmse_ratio": round(r["relmse_ratio"], 3)}
+                       for name, r in peers.part_agreement(scene, ours, runs).items()}
+            result["maps"][label] = {"environment": env, "wavlight_seconds": round(t1 - t0, 2),
+                                     "mitsuba_seconds": round(t2 - t1, 2), "parts": parts,
+                                     "control_mitsuba_face_normals": control}
+    result["accepted"] = all(p["accepted"] for m in result["maps"].values() for p in m["parts"].values())
+    result["mitsuba_version"] = mi.__version__
+    print(json.dumps(result))
+    write_result(args.output, result, prov)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("scene")
+    ap.add_argument("scene", nargs="?")
+    ap.add_argument("--designer-glb", action="store_true",
+                    help="issue 38's GLB per part against Mitsuba 3 (agreement, not timing)")
+    ap.add_argument("--seeds", type=int, default=4, help="--designer-glb: Mitsuba's seeds (wavlight: spp x seeds)")
     ap.add_argument("--spp", type=int)
     ap.add_argument("--width", type=int)
     ap.add_argument("--height", type=int)
     ap.add_argument("--strategy", choices=sorted(STRATEGIES))
     ap.add_argument("--out", help="write the image (e.g. .exr) with mi.util.write_bitmap")
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from provenance import add_output_argument, provenance, write_result
+    from provenance import add_output_argument, provenance, result_path, write_result
 
     add_output_argument(ap, "mitsuba_peer")
     args = ap.parse_args()
+    if args.designer_glb:
+        if args.scene or args.strategy or args.out:
+            ap.error("--designer-glb takes no SCENE, --strategy or --out")
+        if args.output == result_path("mitsuba_peer"):
+            args.output = result_path("mitsuba_peer_glb")
+        designer_glb(args, provenance() if args.output != "-" else None)
+        return
+    if not args.scene:
+        ap.error("a SCENE.toml is needed (or --designer-glb)")
     prov = provenance(opencl="subprocess") if args.output != "-" else None
 
     with open(args.scene, "rb") as f:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import wavlight
-from assets_util import MTL, STRIPE_A, STRIPE_B, stripes_image, write_glb, write_obj
+from assets_util import MTL, STRIPE_A, STRIPE_B, stripes_image, write_designer_glb, write_glb, write_obj
 from scenes_util import camera_of, check_estimates
 from wavlight import assets, bsdfs, textures
 
@@ -165,6 +165,28 @@ def test_obj_parts(tmp_path):
             wavlight.load_dict(d)
         assert str(path) in str(e.value) and "'shiny'" in str(e.value) and "plastic" in str(e.value)
         assert "\n" not in str(e.value)
+
+
+def test_designer_glb_parts(tmp_path):
+    """The GLB of issue 38 named with no material: a textured non-metal floor and a red non-metal
+    sphere map to plastic (ior 1.5), the gold sphere to ggx; every face is shaded smooth with the
+    file's vertex normals (the exact sphere's radial directions, which trimesh's own normals of
+    a low-poly icosphere are not)."""
+    path = write_designer_glb(tmp_path / "d.glb")
+    scene = wavlight.load_dict({"environment": {"procedural": "sky"}, "objects": [{"mesh": str(path)}]})
+    floor, gold, red = (scene.materials[_by_name(scene, w)] for w in ("floor", "gold", "red"))
+    assert floor.kind == red.kind == bsdfs.PLASTIC and gold.kind == bsdfs.GGX
+    assert floor.ior == red.ior == 1.5 and floor.texture == 0 and red.texture == gold.texture == -1
+    np.testing.assert_allclose(red.albedo, [0.8, 0.1, 0.1], atol=0.5 / 255)
+    assert red.param == pytest.approx(0.16) and floor.param == pytest.approx(0.49)
+    rows = np.asarray(scene.normal_faces)
+    assert np.all(rows >= 0)
+    for k, x in ((_by_name(scene, "gold"), -0.7), (_by_name(scene, "red"), 0.7)):
+        sel = scene.face_material == k
+        assert sel.sum() == 320
+        corners = scene.vertices[scene.faces[sel]].reshape(-1, 3) - [x, 0.5, 0.0]
+        radial = corners / np.linalg.norm(corners, axis=1, keepdims=True)
+        np.testing.assert_allclose(scene.normals[rows[sel]].reshape(-1, 3), radial, atol=1e-5)
 
 
 def test_object_material_overrides_every_part(tmp_path):

@@ -1,5 +1,6 @@
 """Test assets made with trimesh, written where a test asks (tmp_path): a GLB of a floor with an
-sRGB base-colour texture of stripes, a metal sphere and (optionally) a non-metal sphere; an
+sRGB base-colour texture of stripes, a metal sphere and (optionally) a non-metal sphere, with or
+without vertex normals (:func:`write_designer_glb`: the three parts, low-poly, with normals); an
 OBJ + MTL with Kd, Ks, Ns and map_Kd. Nothing binary is checked in.
 """
 from __future__ import annotations
@@ -30,11 +31,25 @@ def floor_mesh(size=4.0, repeat=2.0):
                            process=False), np.array([[0, 0], [repeat, 0], [repeat, repeat], [0, repeat]], float)
 
 
-def write_glb(path, plastic_sphere=False, camera=False, floor_metallic=1.0, texture=True) -> Path:
+def sphere_mesh(subdivisions=3, radius=0.5, normals=False):
+    """An icosphere; with ``normals`` its vertex normals set to the exact sphere's (the radial
+    directions, not trimesh's angle-weighted average of the faces around a vertex)."""
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions, radius)
+    if normals:
+        mesh.vertex_normals = mesh.vertices / np.linalg.norm(mesh.vertices, axis=1, keepdims=True)
+    return mesh
+
+
+def write_glb(path, plastic_sphere=False, camera=False, floor_metallic=1.0, texture=True, subdivisions=3,
+              normals=False) -> Path:
     """The GLB: a textured floor (metallicFactor ``floor_metallic``, roughness 0.7), a gold metal
     sphere (metallicFactor 1, roughness 0.3) at x = -0.7 and, with ``plastic_sphere``, a red
     non-metal sphere (metallicFactor 0, roughness 0.4) at x = +0.7; with ``camera`` a glTF
-    perspective camera (fov 40 degrees vertical) at (0, 1.5, 5) looking down -Z, tilted."""
+    perspective camera (fov 40 degrees vertical) at (0, 1.5, 5) looking down -Z, tilted. The
+    spheres are icospheres of ``subdivisions``; with ``normals`` the file holds their vertex
+    normals (glTF ``NORMAL``: the radial directions), else none."""
     import PIL.Image
     import trimesh
     from trimesh.visual.material import PBRMaterial
@@ -44,7 +59,7 @@ def write_glb(path, plastic_sphere=False, camera=False, floor_metallic=1.0, text
     floor.visual = TextureVisuals(uv=uv, material=PBRMaterial(
         name="floor", baseColorFactor=[1.0, 1.0, 1.0, 1.0], metallicFactor=floor_metallic, roughnessFactor=0.7,
         baseColorTexture=PIL.Image.fromarray(stripes_image()) if texture else None))
-    gold = trimesh.creation.icosphere(3, 0.5)
+    gold = sphere_mesh(subdivisions, 0.5, normals)
     gold.visual = TextureVisuals(material=PBRMaterial(name="gold", baseColorFactor=[1.0, 0.78, 0.34, 1.0],
                                                       metallicFactor=1.0, roughnessFactor=0.3))
     scene = trimesh.Scene()
@@ -52,7 +67,7 @@ def write_glb(path, plastic_sphere=False, camera=False, floor_metallic=1.0, text
     scene.add_geometry(gold, node_name="gold", geom_name="gold",
                        transform=trimesh.transformations.translation_matrix([-0.7, 0.5, 0.0]))
     if plastic_sphere:
-        red = trimesh.creation.icosphere(3, 0.5)
+        red = sphere_mesh(subdivisions, 0.5, normals)
         red.visual = TextureVisuals(material=PBRMaterial(name="red", baseColorFactor=[0.8, 0.1, 0.1, 1.0],
                                                          metallicFactor=0.0, roughnessFactor=0.4))
         scene.add_geometry(red, node_name="red", geom_name="red",
@@ -60,8 +75,26 @@ def write_glb(path, plastic_sphere=False, camera=False, floor_metallic=1.0, text
     if camera:
         scene.set_camera(angles=(-0.3, 0.0, 0.0), distance=5.0, center=(0.0, 0.0, 0.0), fov=(50.0, 40.0))
     path = Path(path)
-    path.write_bytes(scene.export(file_type="glb"))
+    path.write_bytes(scene.export(file_type="glb", include_normals=normals))
     return path
+
+
+def write_designer_glb(path) -> Path:
+    """The GLB of a lighting designer's first try: a floor with an sRGB base-colour texture of
+    stripes (a non-metal: plastic), a gold metal sphere and a red non-metal (plastic) sphere,
+    both low-poly (320 faces) with per-vertex normals in the file; no camera."""
+    return write_glb(path, plastic_sphere=True, floor_metallic=0.0, subdivisions=2, normals=True)
+
+
+#: a camera on the designer's GLB: both spheres large in the frame, the striped floor behind them
+DESIGNER_CAMERA = {"eye": [0.0, 1.1, 2.4], "target": [0.0, 0.4, 0.0], "fov_y": 40.0}
+
+
+def designer_scene(glb, environment, width, height) -> dict:
+    """A scene (for wavlight.load_dict) that names the GLB as ``mesh`` with no material, under
+    ``environment``, seen by :data:`DESIGNER_CAMERA`."""
+    return {"render": {"width": int(width), "height": int(height)}, "camera": DESIGNER_CAMERA,
+            "environment": {"file": str(environment)}, "objects": [{"mesh": str(glb)}]}
 
 
 MTL = """newmtl tex
