@@ -2,7 +2,9 @@
  * double product B = <T1, f_r(x, ., wo) rho> of baked transfer T1 = L V cos (Haar coefficients
  * on the world-frame lat-long square of N = 2^n texels, three channels, compressed and quantized
  * in blocks of POINTS points: wavlight/relight/view_bake.py) and the BRDF without its albedo,
- * evaluated top-down over T1's quadtree (eq. 13's nonstandard basis).
+ * evaluated top-down over T1's quadtree (eq. 13's nonstandard basis). plastic walks as two items,
+ * its coat (VIEW_COAT) and its base (VIEW_BASE, the albedo's part), from its row of the plastic
+ * table (``table`` at ``table_row[i]``; other kinds read neither).
  * numpy twin: wavlight/relight/view_walk.py product_reference.
  *
  * An item is K cache points with weights (K = 1: a cache point; K = 3: a pixel, its lattice

@@ -19,7 +19,11 @@
  * (gl_t the lighting's luminance mass of the texel, :meth:`_TexelLight.leaf_masses`, = Y(R_t) / 4^m,
  * R_t its mean radiance): leaf_t = H+_t gl_t with H+_t = max(f_r Y(T1_t) / Y(R_t), 0), about f_r G_t,
  * the integral of f_r cos V over the texel, as converge_shade reads it (T = leaf / gl / Omega_t),
- * and the pixel's relit value G = sum_t H+_t R_t (the control variate's integral). The levels
+ * and the pixel's relit value G = sum_t H+_t R_t (the control variate's integral). On plastic f_r
+ * is base + coat / lum(albedo) (view_product's VIEW_BASE and VIEW_COAT; the coat in the units of
+ * the albedo's luminance, as the lighting bake's trees hold it) and relit's fourth value is the
+ * coat's share of sum_t H+_t Y(R_t), the tint converge_shade gives the control variate (0 on
+ * other kinds). The levels
  * above are sums of their four children (c0 + c1) + (c2 + c3) in Morton order, as
  * wavlight.haar.tree.build_reference sums them; pixels without a cache point (a miss, a back
  * face) get a root of 0 and nothing below it.
@@ -75,7 +79,7 @@ inline float vc_coeff(const uint row, const uint col, const uint *b, const uint 
 }
 
 /* Global size >= count: pixel p's tree at out + p tree_stride (node 0 at TREE_ORIGIN, Morton
- * levels), its G at relit + 4 p (r, g, b, 0). ids, weights: (count, 3) from view_lookup; prim,
+ * levels), its G at relit + 4 p (r, g, b, the coat's share). ids, weights: (count, 3) from view_lookup; prim,
  * dirs: the centre rays' faces (-1: a miss) and unit directions; face_normal (faces, 3);
  * texel_dir (4^m, VC_SUB^2, 4) the directions of the centres of each texel's VC_SUB x VC_SUB parts
  * (row-major in the texel), gl (4^m) and radiance (4^m, 4): the lighting's

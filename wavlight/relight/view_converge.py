@@ -21,8 +21,10 @@ Per pass of at most PASS_SAMPLES camera samples of a tile (and ``pass_spp`` per 
 camera rays (kernels/camera.cl, stratified in the pixel), their hits (embree), one launch of
 ``converge_shade`` (kernels/converge.cl, numpy twin :func:`wavlight.relight.converge.shade_reference`):
 per hit ``slots`` directions of the defensive mixture (1 - alpha - beta) product + alpha BSDF +
-beta lighting, their pdfs (every technique's), estimates albedo f cos L / pdf / slots and, with
-``control``, the control variate albedo (G - sum of g / pdf / slots), g(w) = H+_t / Omega_t L(w);
+beta lighting, their pdfs (every technique's), estimates albedo f cos L / pdf / slots (plastic:
+(coat + albedo base) L / pdf / slots, either lobe sampled by the BSDF's share) and, with
+``control``, the control variate k (G - sum of g / pdf / slots), g(w) = H+_t / Omega_t L(w), k the
+albedo (plastic: tinted by the coat's share of G, whose trees hold base + coat / lum(albedo));
 then the shadow rays of the estimates that are not 0 (embree, :func:`wavlight.relight.converge.visible_sum`).
 Unbiased whatever the cache's approximations: the lighting's share makes the pdf positive
 wherever g is, the BSDF's wherever f cos L is (tests/relight/test_relight_view.py against ``mis``).

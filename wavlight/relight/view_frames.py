@@ -3,7 +3,8 @@ view as the varying factor): the lighting and the objects stay fixed, the camera
 
     B(x, wo) = integral of L(w) V(x, w) max(cos theta, 0) f_r(x, w, wo) dw = <T1(x), T2>,
     T1(x, w) = L(w) V(x, w) max(cos theta, 0)  (per surface point, baked),
-    T2 = f_r(x, ., wo)  (per frame; the albedo factored out: f_r = albedo x shape).
+    T2 = f_r(x, ., wo)  (per frame; the albedo factored out: f_r = albedo x shape;
+                         plastic's f_r = coat + albedo x base: two walks, :meth:`ViewFrames.lobes`).
 
 T1 is baked on the surface cache (:mod:`wavlight.relight.surface_cache`) by
 :mod:`wavlight.relight.view_bake`; :class:`ViewFrames` makes a view bake's frames.
@@ -16,12 +17,14 @@ has its three cache points and weights, and the product <T1, f_r> is the top-dow
 - ``point``: for every cache point k the hits use, B_k = <T1(x_k), f_r(x_k, ., wo_k)> with the
   point's own (area-averaged) normal and wo_k the direction to the eye; a pixel is its albedo
   times the barycentric blend of its three points' B_k. lambert points need only the scaling
-  coefficient: B = T^_0 N^2 / pi. One product per point: the fastest.
+  coefficient: B = T^_0 N^2 / pi. One product per point: the fastest. A plastic point walks twice,
+  its base B_k and its coat C_k (:mod:`wavlight.relight.view_walk`), and a pixel is a sum_k w_k B_k
+  + sum_k w_k C_k (the coat untinted).
 - ``pixel``: per ray, B = <sum_k w_k T1(x_k), f_r(., wo) rho> (the walk blends the three points'
   coefficients) with the hit's shading normal n (as ``mis`` shades: the face normal where the
   face is flat) and the pixel's own view direction, so that f_r is the pixel's; with ``tau`` > 0
   the baked cosine at the points' blended normal is turned into n's (the cosine's correction,
-  :mod:`wavlight.relight.view_walk`).
+  :mod:`wavlight.relight.view_walk`); plastic likewise, a B + C from its two walks.
 
 Pixels whose ray misses see the environment (its nearest texel, :meth:`wavlight.envmap.Environment.eval`;
 with ``background="bilinear"`` its filter, :meth:`~wavlight.envmap.Environment.eval_background`).

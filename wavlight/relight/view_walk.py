@@ -4,6 +4,12 @@ as the varying factor; the top-down reconstruction of eq. 13) and its device wra
     B(x, wo) = <T1(x), T2>,  T1(x, w) = L(w) V(x, w) max(cos theta, 0)  (per cache point, baked),
     T2 = f_r(x, ., wo)  (per frame; the albedo factored out: f_r = albedo x shape).
 
+plastic (f cos = coat + albedo x base, wavlight.bsdfs.plastic_parts; Mitsuba 3's roughplastic)
+walks as two items, kinds VIEW_COAT (F(wo . h, eta) times ggx of its alpha: refined as ggx's
+lobe) and VIEW_BASE (T(cos_o) T(cos_i) / (pi eta^2 (1 - R_int)), refined as lambert's lobe,
+walked: T(cos_i) is not constant), each reading its material's row of the plastic table; the
+frame adds albedo x the base's value and the coat's (:meth:`wavlight.relight.view_frames.ViewFrames.lobes`).
+
 The walk (kernel ``view_product`` in kernels/relight_view.cl, numpy twin :func:`product_reference`).
 An item is one cache point (:mod:`wavlight.relight.surface_cache`) or the blend of a hit's three
 with their barycentric weights (the product is linear in T1: the walk reads the points'
