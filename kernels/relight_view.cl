@@ -172,11 +172,24 @@ inline float4 view_brdf4(const int kd, const float pa, const float4 ix, const fl
                          const float ox, const float oy, const float oz, const float g1o,
                          __global const float *table, const uint tr, const float tco)
 {
-    if (kd == VIEW_BASE || kd == VIEW_COAT) {   /* plastic's lobes lane by lane */
-        return (float4)(view_brdf(kd, pa, ix.x, iy.x, iz.x, ox, oy, oz, g1o, table, tr, tco),
-                        view_brdf(kd, pa, ix.y, iy.y, iz.y, ox, oy, oz, g1o, table, tr, tco),
-                        view_brdf(kd, pa, ix.z, iy.z, iz.z, ox, oy, oz, g1o, table, tr, tco),
-                        view_brdf(kd, pa, ix.w, iy.w, iz.w, ox, oy, oz, g1o, table, tr, tco));
+    if (kd == VIEW_BASE) {   /* the transmittance's entries lane by lane */
+        const float4 t = (float4)(view_transmittance(table, tr, iz.x), view_transmittance(table, tr, iz.y),
+                                  view_transmittance(table, tr, iz.z), view_transmittance(table, tr, iz.w));
+        return iz > 0.0f ? tco * t : (float4)(0.0f);
+    }
+    if (kd == VIEW_COAT) {   /* ggx's four lanes times view_fresnel's */
+        const float4 hx = ix + ox, hy = iy + oy, hz = iz + oz;
+        const float4 hh = hx * hx + hy * hy + hz * hz;
+        const float4 q = hz * hz * (pa - 1.0f) + hh;
+        const float4 z = iz > 0.0f ? iz : (float4)(0.0f);
+        const float4 f = g1o * (hh * hh) / (q * q * (z + SQRT4(pa + (1.0f - pa) * z * z)));
+        const float4 oh = (ox * hx + oy * hy + oz * hz) / SQRT4(hh);
+        const float eta = table[tr], inv = 1.0f / eta;
+        const float4 ct2 = 1.0f - (1.0f - oh * oh) * (inv * inv);
+        const float4 ct = SQRT4(ct2 > 0.0f ? ct2 : (float4)(0.0f));
+        const float4 a_s = (oh - eta * ct) / (oh + eta * ct), a_p = (ct - eta * oh) / (ct + eta * oh);
+        const float4 fr = oh == 0.0f ? (float4)(1.0f) : 0.5f * (a_s * a_s + a_p * a_p);
+        return ((hz > 0.0f) & (ix * hx + iy * hy + iz * hz > 0.0f)) ? fr * f : (float4)(0.0f);
     }
     if (kd == BSDF_PHONG) {
         const float4 ca = iz * oz - ix * ox - iy * oy;
