@@ -5,7 +5,8 @@ materials: a sphere on a floor under rooitou_park_1k (the sun), view-baked once,
 with the sphere and the floor in plastic (alpha 0.15 and 0.4, ior 1.5) and in ggx of the same
 alphas and albedos, the two alternated within each repeat (a shared machine: the load average is
 recorded). Per material, from an eye turned 40 degrees from the bake's camera: the viewer's
-frame (``point`` mode, one ray per pixel), the written frame (``pixel`` mode, 4 x 4 rays) and the
+frame (``point`` mode, one ray per pixel; ``--point-repeats`` alternated frames after the others),
+the written frame (``pixel`` mode, 4 x 4 rays) and the
 unbiased frame (``--converge-spp``, the trees of the camera kept after the first repeat), their
 seconds (medians over ``--repeats``), the nodes per walk, and the frames' relative L2 error
 against ``mis`` (``--ref-spp``; the reference's noise taken out) over the pixels that see a surface,
@@ -13,7 +14,7 @@ and the unbiased frame's bias over its standard error (the whole image, per chan
 
 Usage:
     python benchmarks/plastic_view.py [--size 256] [--levels 5] [--density 2000] [--repeats 3]
-                                      [--converge-spp 16] [--ref-spp 256] [-o FILE]
+                                      [--converge-spp 16] [--ref-spp 256] [--point-repeats 20] [-o FILE]
 Writes benchmarks/results/plastic_view.json (with the run's provenance).
 """
 import argparse
@@ -61,6 +62,7 @@ def main():
     ap.add_argument("--levels", type=int, default=5)
     ap.add_argument("--density", type=float, default=2000.0)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--point-repeats", type=int, default=20)
     ap.add_argument("--converge-spp", type=int, default=16)
     ap.add_argument("--ref-spp", type=int, default=256)
     sys.path.insert(0, HERE)
@@ -109,7 +111,14 @@ def main():
                 r = f.converge(eye, target, spp=args.converge_spp, seed=3)
                 times[name]["converge"].append(r.stats["render_seconds"])
                 rows[name]["converge"] = r
+        # the viewer's frame (~50 ms): more repeats, alternated, for its median
+        point = {k: [] for k in MATERIALS}
+        for _ in range(args.point_repeats):
+            for name in MATERIALS:
+                point[name].append(frames[name].frame(eye, target, mode="point")[1]["frame_seconds"])
+        result["load_average_1min"].append(os.getloadavg()[0])
         for name in MATERIALS:
+            times[name]["point"] = point[name]
             ref = refs[name]
             hits = ref.stderr.max(-1) > 0
             r = rows[name]["converge"]
