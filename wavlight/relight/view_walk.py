@@ -394,11 +394,14 @@ class ViewDevice:
         return out, visited
 
     def plastic_table(self, table):
-        """The plastic table on the device (made once; a row of zeros where there is none)."""
-        if self._plastic is None:
-            t = np.zeros(bsdfs.PLASTIC_STRIDE, np.float32) if table is None or not np.size(table) else table
-            self._plastic = cl.to_device(np.ascontiguousarray(t, np.float32).reshape(-1))
-        return self._plastic
+        """The plastic table on the device (uploaded again only when another table is given; a
+        row of zeros where there is none)."""
+        t = np.ascontiguousarray(np.zeros(bsdfs.PLASTIC_STRIDE) if table is None or not np.size(table) else table,
+                                 np.float32).reshape(-1)
+        key = t.tobytes()
+        if self._plastic is None or self._plastic[0] != key:
+            self._plastic = (key, cl.to_device(t))
+        return self._plastic[1]
 
     def products(self, points, kind, param, normal, wo, refine: float = REFINE, weights=None, t1_normal=None,
                  tau: float = 0.0, queue=None, mass: float = MASS, table=None, rows=None):
