@@ -4,7 +4,8 @@ that see plastic) costs in file bytes, bake time and frame time, and how close i
 The bunny of benchmarks/plastic_speed.py on its lambert floor under rooitou_park_1k, in plastic
 (alpha 0.15, ior 1.5) and in ggx (alpha 0.15) with the same albedo, baked with the same fixed
 model (``--levels``, ``--spp``, ``--terms``, priority area, ``--tolerance``), one after the
-other (a shared machine: the load average is recorded; the bake seconds are noisy); each bake's frames under the map turned by 110 degrees against ``mis`` of that
+other (a shared machine: the load average is recorded; the bake seconds are noisy); each
+bake's frames under the map turned by 110 degrees against ``mis`` of that
 turned scene (``--ref-spp``): the relative L2 error over the pixels that see a surface, the
 reference's own noise taken out. Then the unbiased frame (``--converge-spp``) of each bake under
 that turn: its relative standard error over those pixels and its seconds; for plastic also with
@@ -16,7 +17,8 @@ Usage:
                                       [--tolerance 0.02] [--ref-spp 256] [--repeats 3] [-o FILE]
 Writes benchmarks/results/plastic_bake.json (with the run's provenance): per material the file's
 bytes, the entries of the transfer and of the coat, the coat's blocks, the bake seconds (as it
-reports them), the median frame seconds over ``--repeats`` frames, the frame's error and the unbiased frame's relative standard error.
+reports them), the median frame seconds over ``--repeats`` frames, the frame's error and the
+unbiased frame's relative standard error.
 """
 import argparse
 import os
@@ -91,9 +93,11 @@ def main():
 
             def unbiased(label):
                 r = converge.ConvergeFrames(tr, sc).frame(rotate_y=turn, spp=args.converge_spp, seed=3)
-                rel = np.sqrt((r.stderr[hits].astype(np.float64) ** 2).sum() / (r.image[hits].astype(np.float64) ** 2).sum())
+                se, image = r.stderr[hits].astype(np.float64), r.image[hits].astype(np.float64)
+                rel = np.sqrt((se ** 2).sum() / (image ** 2).sum())
                 row[label] = {"relative_stderr": round(float(rel), 5), "seconds": r.stats["render_seconds"]}
 
+            converge.ConvergeFrames(tr, sc).frame(rotate_y=turn, spp=1, seed=1)   # the programs built
             unbiased("converge")
             if name == "plastic":
                 kept = converge.coat_weights

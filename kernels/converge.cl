@@ -15,7 +15,10 @@
  * wavelets), summed bottom up into the pyramid the warp walks (eq. 17, parent = sum of its
  * children in float32: kernels/warp.h). The same pass gives the pixel's relit value
  * G = sum over t with gl_t > 0 of H+_t R_t (R_t the texel's mean radiance), the control
- * variate's integral. Level l's scaling coefficients, in Morton order, give level l + 1's
+ * variate's integral. With COAT (a bake with plastic's coat) the coefficients are the
+ * transfer's plus wp times the coat's (wp = 1 / lum(a_p) where the pixel's block holds a coat),
+ * and relit's fourth value is the coat's share of the pixel's scaling coefficient, clamped to
+ * [0, 1] (0 without COAT). Level l's scaling coefficients, in Morton order, give level l + 1's
  * (children 4k .. 4k + 3 of node k) in private memory; the leaves are written as they come, and
  * the levels above them as their sums, each node once. Eight pixels of one block row per
  * work-item (lanes): their entries are eight adjacent values of each entry row, and their
@@ -43,7 +46,8 @@
  * traced by the host (plastic: (coat + albedo base) L / p / SLOTS, bsdf.h material_eval_pdf,
  * its two lobes sampled by material_sample); with CONTROL the sample also carries, without a
  * shadow ray, k (G - sum over slots of g / p / SLOTS), k the albedo (plastic: tinted towards
- * its luminance by the coat's share of the pixel's transfer, relit's fourth value), g(w) = H+_t / Omega_t L(w) (H+_t = the pixel's
+ * its luminance by the coat's share of the pixel's transfer, relit's fourth value),
+ * g(w) = H+_t / Omega_t L(w) (H+_t = the pixel's
  * leaf / gl_t, read with the tree's pdf). A hit whose pixel's footprint spread exceeds
  * coherence times its lobe's width draws CANDIDATES mixture directions instead (no shadow
  * rays), stratified over the pixel's k x CANDIDATES, weights w = target / p with
@@ -201,7 +205,8 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
     const realv c = GATHER(hit_scale, (y0 + yy) * image_w + x0 + lane_x) * hs;
 #if COAT
     const realv wp = GATHER(coat_weight, (y0 + yy) * image_w + x0 + lane_x);
-    __global const int *coat_offsets = coat_block_offsets + (size_t)(block_row * blocks_w + bx0 + j) * (1u << (2 * N_LEVELS));
+    __global const int *coat_offsets = coat_block_offsets
+                                       + (size_t)(block_row * blocks_w + bx0 + j) * (1u << (2 * N_LEVELS));
 #else
     const realv wp = 0.0f;
     __global const int *coat_offsets = coat_block_offsets;
@@ -748,7 +753,8 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
             for (int s = 0; s < SLOTS; ++s) {   /* the first candidate whose running sum passes (u + s) / SLOTS */
                 const realv at = (up + (float)s) * share * total;
                 realv cum = 0.0f, px_ = cx[CANDIDATES - 1], py_ = cy[CANDIDATES - 1], pz_ = cz[CANDIDATES - 1];
-                realv pv = cv[CANDIDATES - 1], pdd = cd[CANDIDATES - 1], pr = cr[CANDIDATES - 1], pg = cg[CANDIDATES - 1];
+                realv pv = cv[CANDIDATES - 1], pdd = cd[CANDIDATES - 1], pr = cr[CANDIDATES - 1];
+                realv pg = cg[CANDIDATES - 1];
                 realv pb = cb[CANDIDATES - 1];
                 intv found = 0;
                 for (uint c = 0; c < CANDIDATES; ++c) {

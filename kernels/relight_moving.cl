@@ -123,10 +123,12 @@ INLINE void product_point(__global const float *light_cdf, const uint k, const u
  * mixture's, both techniques' (the product's: tree, leaf inside the texel, solid angle), at a
  * point with frame (s, t, n), view o in that frame, material (kind, param), the pixel's tree at
  * tree_base (has_product: its root > 0), BSDF weight alpha; 0 where p or f cos is 0 or the weight
- * is not finite. */
+ * is not finite. *share: the part of f cos the albedo multiplies, over f cos (1 but for plastic's
+ * coat: bsdf.h material_eval_pdf, its row of the plastic table at row). */
 INLINE realv mixture_weight(__global const float *tree, const uintv tree_base, const intv has_product,
                             __global const float *light_cdf, const uint k, const realv alpha,
-                            const intv kind, const realv param,
+                            const intv kind, const realv param, __global const float *mat_table, const uintv row,
+                            realv *share,
                             const realv sx, const realv sy, const realv sz, const realv tx, const realv ty,
                             const realv tz, const realv nx, const realv ny, const realv nz,
                             const realv ox, const realv oy, const realv oz,
@@ -153,8 +155,9 @@ INLINE realv mixture_weight(__global const float *tree, const uintv tree_base, c
     /* the BSDF's density and f cos */
     const realv lx = wx * sx + wy * sy + wz * sz, ly = wx * tx + wy * ty + wz * tz;
     const realv lz = wx * nx + wy * ny + wz * nz;
-    realv fcos, p_bsdf;
-    bsdf_eval_pdf(kind, param, lx, ly, lz, ox, oy, oz, &fcos, &p_bsdf);
+    realv fcos, fd, p_bsdf;
+    material_eval_pdf(kind, param, mat_table, row, lx, ly, lz, ox, oy, oz, &fcos, &fd, &p_bsdf);
+    *share = select((realv)1.0f, fd / fcos, fcos > 0.0f);
     const realv pdf = (1.0f - alpha) * p_prod + alpha * p_bsdf;
     const realv weight = select((realv)0.0f, fcos / pdf, (pdf > 0.0f) & (fcos > 0.0f));
     return select((realv)0.0f, weight, isfinite(weight));
@@ -187,7 +190,7 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
                                __global const float *bary, __global const int *corner,
                                __global const float *normals, const int smooth,
                                __global const int *mat_kind, __global const float *mat_param,
-                               __global const float *mat_albedo,
+                               __global const float *mat_albedo, __global const float *mat_table,
                                __global const float *tree, const uint tree_stride, const uint tree_offset,
                                const uint spp, __global const float *light_cdf, const uint k,
                                __global const float *texels, const int env_w, const int env_h,
@@ -223,6 +226,7 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
     const realv param = GATHER(mat_param, mat);
     realv ar, ag, ab, unused_a;
     GATHER4(mat_albedo, 4 * as_uintv(mat), &ar, &ag, &ab, &unused_a);
+    const uintv table_row = as_uintv(mat) * (uint)PLASTIC_STRIDE;   /* its row of the plastic table */
     /* the pixel's tree and strata */
     const uintv slot = as_uintv(GATHER_INT((__global const int *)slot_in, i));
     uintv sample;
@@ -268,7 +272,7 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
         const realv ub0 = clamp(select((realv)0.0f, u2 / alpha, use_b), 0.0f, ONE_MINUS_EPS);
         const realv ub1 = clamp(u3, 0.0f, ONE_MINUS_EPS);
         realv bx, by, bz;
-        bsdf_sample(kind, param, ox, oy, oz, ub0, ub1, &bx, &by, &bz);
+        material_sample(kind, param, mat_table, table_row, ox, oy, oz, ub0, ub1, &bx, &by, &bz);
         realv wx = bx * sx + by * tx + bz * nx, wy = bx * sy + by * ty + bz * ny, wz = bx * sz + by * tz + bz * nz;
         /* the product's direction inside its texel, where it may reach the object */
         const intv product_near = near & ~use_b;
@@ -290,16 +294,20 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
         if (!any(meets))
             continue;
         /* (no light from below the geometric surface: docs/decisions/shading-normals.md) */
+        realv share;
         const realv weight = select((realv)0.0f,
                                     mixture_weight(tree, tree_base, has_product, light_cdf, k, alpha, kind, param,
-                                                   sx, sy, sz, tx, ty, tz, nx, ny, nz, ox, oy, oz, wx, wy, wz),
+                                                   mat_table, table_row, &share, sx, sy, sz, tx, ty, tz, nx, ny, nz,
+                                                   ox, oy, oz, wx, wy, wz),
                                     wx * gx + wy * gy + wz * gz > 0.0f);
         /* the environment's radiance, the albedo */
         realv eu, ev;
         env_world_to_square(rot, wx, wy, wz, &eu, &ev);
         realv lr, lg, lb, unused_l;
         GATHER4(texels, 4 * env_texel(env_w, env_h, eu, ev), &lr, &lg, &lb, &unused_l);
-        const realv vr = ar * weight * lr, vg = ag * weight * lg, vb = ab * weight * lb;
+        /* the colour: the albedo, plastic's 1 - share + share albedo (its coat untinted) */
+        const realv vr = (1.0f - share + share * ar) * weight * lr, vg = (1.0f - share + share * ag) * weight * lg;
+        const realv vb = (1.0f - share + share * ab) * weight * lb;
         const intv live = meets & (weight > 0.0f) & ((vr > 0.0f) | (vg > 0.0f) | (vb > 0.0f));
         if (!any(live))
             continue;

@@ -25,8 +25,7 @@ _WARMED = set()  # shade programs already launched in this process
 
 def material_table(scene) -> np.ndarray:
     """The scene's plastic table (Scene.material_table), float32 (materials, bsdfs.PLASTIC_STRIDE);
-    zeros for a scene-like record without one (wavlight.relight.moving's, which has no plastic:
-    the bakes refuse it)."""
+    zeros for a scene-like record without one (a record of materials without plastic)."""
     table = getattr(scene, "material_table", None)
     if table is None:
         table = np.zeros((len(scene.material_kind), bsdfs.PLASTIC_STRIDE), np.float32)

@@ -146,7 +146,7 @@ def test_the_pixels_shaded_in_full_are_fewer_than_the_cone_gives(moving):
     assert on_ball.any() and np.all(marked[(py * 32 + px)[on_ball]])
 
 
-@pytest.mark.parametrize("material", ["floor", "m"])
+@pytest.mark.parametrize("material", ["floor", "m", "plastic"])
 def test_the_occlusion_kernel_matches_its_numpy_twin(moving, material):
     """kernels/relight_moving.cl moving_occlusion against occlusion_records_reference, on the same
     camera rays and Philox numbers: the floor as it is (lambert) and made ggx (the ball's
@@ -159,6 +159,13 @@ def test_the_occlusion_kernel_matches_its_numpy_twin(moving, material):
     _, scene, tr = moving
     mover = MovingObject(tr, scene)
     rest = mover.rest
+    if material == "plastic":   # the floor made plastic: its coat untinted, both lobes sampled
+        from wavlight import bsdfs
+
+        floor = [m.name for m in scene.materials].index("floor")
+        rest = dataclasses.replace(rest, materials=[dataclasses.replace(m, kind=bsdfs.PLASTIC, param=0.2)
+                                                    if k == floor else m for k, m in enumerate(rest.materials)])
+        material = "floor"
     index = [m.name for m in scene.materials].index(material)
     rest = dataclasses.replace(rest, face_material=np.full_like(rest.face_material, index))
     kernels = mv._MovingKernels(rest, mover.rest_tracer, mover.object_tracer, mover.inside, mover._shader, mover.m, 4)

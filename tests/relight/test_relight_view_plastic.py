@@ -10,7 +10,6 @@ from scenes_util import check_estimates, toml_text, write_raw_image
 
 import wavlight
 from wavlight import bsdfs
-from wavlight.errors import WavlightError
 from wavlight.relight import view_frames, view_walk
 
 EYE, TARGET = [2.0, 2.0, 3.0], [0.0, 0.5, 0.0]
@@ -147,9 +146,3 @@ def test_unbiased_frame_equals_mis(baked, eye, target):
 #: of test_relight_view.py: 0.068 and 0.060), which that test bounds at 0.12 too
 #: (docs/decisions/plastic-in-the-view-bake.md)
 APPROXIMATE_ERROR = 0.12
-
-
-def test_object_bakes_still_refuse_plastic(baked):
-    _, scene, _ = baked
-    with pytest.raises(WavlightError, match=r"plastic materials \(ball, floor\) are not baked with vary='object'"):
-        wavlight.bake(scene, vary="object", object=0)

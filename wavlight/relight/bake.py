@@ -417,6 +417,12 @@ def bake_block(worker: _Worker, settings: Settings, tile) -> dict:
         result["rays"] += coat_rays
     if s.product_levels is not None:   # T1 x L on coarse texels (exact: texels add up)
         m, k = s.product_levels, 1 << (s.n_levels - s.product_levels)
+        if ps.has_coat:   # plastic's coat, over lum(a_p) as T's scale is: the frame's lum(a_p) T + C
+            coat, coat_rays = tile_transfer(ps, worker.tracer, s.n_levels, s.seed, block_id, s.backend, worker.kinds,
+                                            s.points, part=1)
+            lum = ps.albedo.astype(np.float64) @ LUMINANCE
+            texels = texels + (coat / np.where(lum > 0, lum, 1.0)[:, None, None]).astype(np.float32)
+            result["rays"] += coat_rays
         coarse = texels.reshape(w * h, 1 << m, k, 1 << m, k).sum(axis=(2, 4))
         result["product"] = (coarse * s.product_luminance).reshape(w * h, -1).astype(np.float16)
     return result
@@ -670,9 +676,6 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         if object is None:
             raise ArgumentError(f"{where}: vary='object' needs the object that moves (a name or an index)")
         require_untextured(scene, "a bake with vary='object'")
-        if plastic_materials(scene):
-            raise ArgumentError(f"{scene.path}: plastic materials ({', '.join(plastic_materials(scene))}) are not "
-                                "baked with vary='object' yet; bake the lighting, or render them with wavlight render")
         moving = scene.find_object(object)
         kinds = np.unique(scene.face_material[moving.faces_range[0]:moving.faces_range[1]])
         if len(kinds) > 1:   # its frames shade the moving object with one material (SceneObject.material)

@@ -80,10 +80,10 @@ import numpy as np
 
 from .. import bsdfs, camera, cl, rng
 from ..camera import camera_rays
-from ..envmap import LUMINANCE
 from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_number
 from ..haar import inverse
 from ..haar.tree import HaarTree, build_reference, level_offset
+from ..envmap import LUMINANCE
 from ..integrator import RenderResult
 from ..raytrace import RayTracer
 from ..threads import default_threads
@@ -91,22 +91,8 @@ from . import converge_kernels as kernels
 from . import tile_passes
 from .bake import BLOCK
 from .frame import DeviceEntries
-from .mixture import (
-    DEFENSIVE,
-    LATTICE,
-    LIGHT_SHARE,
-    MAX_SLOTS,
-    Hits,
-    TexelLight,
-    check_shares,
-    entries_at_most,
-    lattice,
-    mixture_directions,
-    resampling_target,
-    scene_of,
-    tint_of,
-    world_to_square,
-)
+from .mixture import (DEFENSIVE, LATTICE, LIGHT_SHARE, MAX_SLOTS, Hits, TexelLight, check_shares, entries_at_most,
+                      lattice, mixture_directions, resampling_target, scene_of, tint_of, world_to_square)
 from .settings import FRAME, UNBIASED_SPP
 
 MAX_SPP = FRAME["spp"].hi

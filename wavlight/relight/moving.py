@@ -17,7 +17,9 @@ mixture of the pixel's product T1 x L (the coarse texel by the hierarchical warp
 then inside it the lighting's own resolution) and, with probability 0.1, the BSDF, at the
 mixture's density, their uniforms stratified over the pixel's spp x directions: where a
 direction meets the object (traced against the object alone, in its own frame, so nothing is
-rebuilt per frame) and not the rest, D gets f cos L / p, over the directions. The variance of D
+rebuilt per frame) and not the rest, D gets f cos L / p, over the directions (plastic: (coat +
+albedo base) L / p, its BSDF share sampling both lobes, and its pixels' product leaves that of
+T + C / lum(a_p), the coat's transfer added: docs/decisions/plastic-in-the-bake.md). The variance of D
 is the object's occlusion's: per direction a Bernoulli trial (blocked or not) times a nearly
 constant f cos L / p, largest in the object's hard shadow, where D is nearly all of S; the
 directions of one camera sample share its hit point, and stratified over the pixel the many
@@ -52,7 +54,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import camera, cl, occlusion, raytrace, rng, strategies
+from .. import bsdfs, camera, cl, occlusion, raytrace, rng, strategies
 from ..camera import camera_rays, project
 from ..envmap import Environment
 from ..errors import ArgumentError, WavlightError, check_degrees, check_int, check_real
@@ -67,7 +69,7 @@ from ..warp import frame as tangent_frame
 from ..warp import to_local
 from .bake import bounding_sphere, camera_jitter
 from .converge import PASS_SPP
-from .mixture import TexelLight, mean_and_error, mixture_directions, scene_of
+from .mixture import TexelLight, mean_and_error, mixture_directions, scene_of, tint_of
 from .settings import FRAME, OBJECT_FRAME_SPP
 
 #: a frame's chunk c draws its Philox numbers as tile FRAME_TILES + c (streams rng.JITTER,
@@ -214,10 +216,12 @@ def occlusion_records_reference(scene, tracer, environment, inside, trees, d, pr
     has = np.repeat(trees.integral[pixel] > 0, nd)
     alpha = np.where(has, defensive, 1.0)
     rep = lambda a: np.repeat(a, nd, axis=0)   # noqa: E731  (per sample -> per direction)
-    direction, weight = mixture_directions(trees, inside, u_all, rows, spp * nd, has, alpha,
-                                           rep(scene.material_kind[mat]), rep(scene.material_param[mat]), rep(wo),
-                                           (rep(s_ax), rep(t_ax), rep(nrm)), geometric=rep(geo.astype(np.float64)))
-    value = rep(scene.material_albedo[mat]) * (weight[:, None] * environment.eval(direction))
+    table = rep(scene.material_table[mat]) if len(scene.materials) else None   # plastic's rows
+    direction, weight, share = mixture_directions(trees, inside, u_all, rows, spp * nd, has, alpha,
+                                                  rep(scene.material_kind[mat]), rep(scene.material_param[mat]),
+                                                  rep(wo), (rep(s_ax), rep(t_ax), rep(nrm)),
+                                                  geometric=rep(geo.astype(np.float64)), table=table, with_share=True)
+    value = tint_of(share, rep(scene.material_albedo[mat])) * (weight[:, None] * environment.eval(direction))
     o = rep(origin.astype(np.float64))
     keep = meets_box(place, box, o, direction) & (weight > 0) & (value.max(1) > 0)
     i, j = np.repeat(np.arange(count), nd), np.tile(np.arange(nd), count)
@@ -312,6 +316,8 @@ class _MovingKernels:
         self.kind = cl.to_device(rest.material_kind.astype(np.int32))
         self.param = cl.to_device(rest.material_param.astype(np.float32))
         self.albedo = cl.to_device(albedo)
+        self.table = cl.to_device(np.ascontiguousarray(rest.material_table, np.float32).reshape(-1)
+                                  if len(rest.materials) else np.zeros(bsdfs.PLASTIC_STRIDE, np.float32))
         self.cdf = cl.to_device(np.ascontiguousarray(inside.cdf, np.float32))
         self.k = np.uint32(inside.k)
         self.directions = int(directions)
@@ -342,7 +348,7 @@ class _MovingKernels:
             cl.upload("moving_t", np.asarray(t, np.float32), q),
             *np.asarray(eye, np.float32), RayTracer.eye_offset_floor(eye), self.faces, self.face_material,
             *self._bary("moving_bary", uv, self.smooth, q),
-            self.kind, self.param, self.albedo, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
+            self.kind, self.param, self.albedo, self.table, trees.buffer, np.uint32(trees.stride), np.uint32(tree_offset),
             np.uint32(spp), self.cdf, self.k, sh.texels, *sh.env_size, sh.rot, np.float32(DEFENSIVE),
             cl.upload("moving_place", np.asarray(place, np.float32), q),
             cl.upload("moving_box", np.asarray(box, np.float32), q), cl.upload("moving_sphere", _sphere(place, box), q),
@@ -492,7 +498,8 @@ class MovingObject:
         self.wavelet.prepare(self.environment, sc.materials)
         lit = SimpleNamespace(environment=self.environment, material_kind=sc.material_kind,
                               material_param=sc.material_param, material_albedo=sc.material_albedo,
-                              materials=sc.materials, face_material=sc.face_material)
+                              materials=sc.materials, face_material=sc.face_material,
+                              material_table=sc.material_table)   # (plastic's rows)
         self.static = np.asarray(transfer._s["static"], np.float64)
         self.static_se = np.asarray(transfer._s["static_stderr"], np.float64)
         self._static_rows = self.static.reshape(-1, 3)
