@@ -191,7 +191,8 @@ __kernel void view_converge_trees(const uint count, __global const uint *ids, __
             gg += h * radiance[4 * t + 1];
             gb += h * radiance[4 * t + 2];
             if (plastic) {   /* the coat's share of the relit luminance */
-                const float y = h * (VC_LR * radiance[4 * t] + VC_LG * radiance[4 * t + 1] + VC_LB * radiance[4 * t + 2]);
+                const float y = h * (VC_LR * radiance[4 * t] + VC_LG * radiance[4 * t + 1]
+                                     + VC_LB * radiance[4 * t + 2]);
                 all_y += y;
                 coat_y += y * (fc / fr);
             }

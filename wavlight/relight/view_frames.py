@@ -249,18 +249,18 @@ class ViewFrames:
         params = np.concatenate([param, self.plastic_table[mat[coat], 3].astype(np.float64)])
         return kinds, params, coat, np.concatenate([mat, mat[coat]]) * bsdfs.PLASTIC_STRIDE
 
-    def walks(self, points, kind_mat, normal, wo, refine, backend, mass, weights=None, t1_normal=None,
+    def walks(self, points, mat, normal, wo, refine, backend, mass, weights=None, t1_normal=None,
               tau: float = 0.0, queue=None, on_device: bool = False):
         """The walks of items (cache points ``points`` (I,) or (I, 3) with ``weights``) of materials
-        ``kind_mat`` (:meth:`lobes`): (B, nodes visited, the items C of plastic, the rows I .. I + C
+        ``mat`` (:meth:`lobes`): (B, nodes visited, the items C of plastic, the rows I .. I + C
         of B that hold their coats), B (I + C, 3) on the host, or (with ``on_device``) the
         walk's device buffers."""
-        kind, param, coat, rows = self.lobes(kind_mat)
+        kind, param, coat, rows = self.lobes(mat)
         if len(coat):
             ext = (lambda a: None if a is None else np.concatenate([np.asarray(a), np.asarray(a)[coat]]))
             points, normal, wo, weights, t1_normal = (ext(points), ext(normal), ext(wo), ext(weights),
                                                       ext(t1_normal))
-        coat_rows = len(kind_mat) + np.arange(len(coat))
+        coat_rows = len(mat) + np.arange(len(coat))
         if backend == "numpy":
             s = self.transfer._s
             table = self.plastic_table[rows // bsdfs.PLASTIC_STRIDE] if len(coat) else None
@@ -283,18 +283,19 @@ class ViewFrames:
         return points, self.material[points], nrm, lifted_view(nrm, wo)
 
     def products(self, points, eye, refine=REFINE, backend="opencl", mass: float = MASS):
-        """B_k (K, 3) and nodes visited of cache points seen from ``eye``, for a pixel's albedo
-        a: a B_k (plastic: a B_k + C_k, :meth:`point_values`); and plastic's coat walks
-        (:meth:`walks`)."""
+        """The walks of cache points seen from ``eye`` (:meth:`walks`): B (K + C, 3), the first K
+        rows B_k without the albedo (plastic: its base), the last C plastic's coats C_k; a pixel
+        of albedo a blends a B_k + C_k."""
         points, mat, nrm, wo = self._point_items(points, eye)
         return self.walks(points, mat, nrm, wo, refine, backend, mass)
 
     def pixel_products(self, ids, w, face_normal, d, mat, refine=REFINE, tau: float = TAU, backend="opencl",
                        mass: float = MASS):
-        """B (M, 3), nodes visited and plastic's coat walks (:meth:`walks`) of pixels: the blend of their cache
-        points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the normal ``face_normal`` (the
-        hits' shading normals, :meth:`shading_normals`), the view direction -d, material ``mat`` and
-        the cosine's correction ``tau`` (:mod:`wavlight.relight.view_walk`)."""
+        """The walks of pixels (:meth:`walks`: B (M + C, 3), nodes visited, plastic's coats): the
+        blend of their cache points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the
+        normal ``face_normal`` (the hits' shading normals, :meth:`shading_normals`), the view
+        direction -d, material ``mat`` and the cosine's correction ``tau``
+        (:mod:`wavlight.relight.view_walk`)."""
         n = np.asarray(face_normal, np.float64)
         wo = lifted_view(n, -np.asarray(d, np.float64))
         m = np.einsum("ij,ijk->ik", np.asarray(w, np.float64), self.normal[ids])

@@ -477,7 +477,8 @@ class FrameDevice:
         out = cl.scratch("view_image", 12 * count)
         cl.kernel(self.program, "view_assemble")(
             queue, (cl.items(count),), (cl.WORK_GROUP,), np.uint32(count), prim_b, ids, w,
-            cl.upload("view_row", row, queue), cl.upload("view_coat_row", coat_row, queue), B, self.face_material, self.albedo, dir_b, self.env, *self.env_size,
+            cl.upload("view_row", row, queue), cl.upload("view_coat_row", coat_row, queue), B, self.face_material,
+            self.albedo, dir_b, self.env, *self.env_size,
             self.map_from_world, out)
         if image is None:
             return cl.read(out, (count, 3), np.float32, queue)
