@@ -11,7 +11,8 @@ unbiased frame (``--converge-spp``, the trees of the camera kept after the first
 seconds (medians over ``--repeats``), the nodes per walk, and the frames' relative L2 error
 against ``mis`` (``--ref-spp``; the reference's noise taken out) over the pixels that see a surface,
 and the unbiased frame's bias over its standard error (the whole image, per channel), beside
-that of a second ``mis`` of another seed (a sun's heavy tail makes the whole image's z wide).
+that of a second ``mis`` of another seed (a sun's heavy tail makes the whole image's z wide); and
+at ``--check-size`` four unbiased frames pooled against two ``mis`` of 1024 spp (``bias_check``).
 
 Usage:
     python benchmarks/plastic_view.py [--size 256] [--levels 5] [--density 2000] [--repeats 3]
@@ -57,6 +58,32 @@ def corrected_error(image, ref, mask) -> float:
     return float(np.sqrt(max((diff ** 2).sum() - noise, 0.0) / (ref.image[mask].astype(np.float64) ** 2).sum()))
 
 
+def whole_z(a, var_a, b, var_b):
+    """The whole image's difference a - b over its standard error, per channel."""
+    return [round(float(v), 2) for v in (a - b).sum((0, 1)) / np.sqrt((var_a + var_b).sum((0, 1)))]
+
+
+def bias_check(wavlight, view_frames, size: int, eye, target, folder) -> dict:
+    """Plastic's unbiased view frame at ``size``: four frames of 64 spp (seeds 6-9) pooled, against
+    two mis frames of 1024 spp (seeds 8, 9), beside the two mis frames against each other (the
+    whole image's z per channel; under a sun mis's standard error is itself too small for it)."""
+    base = wavlight.load_dict(scene(MATERIALS["plastic"], size))
+    tr = wavlight.bake(base, os.path.join(folder, "check.wlt"), vary="view", levels=5, density=2000, seed=1)
+    frames = view_frames.ViewFrames(tr, base)
+    refs = [wavlight.render_full(wavlight.load_dict(scene(MATERIALS["plastic"], size, eye)), spp=1024,
+                                 strategy="mis", seed=s) for s in (8, 9)]
+    runs = [frames.converge(eye, target, spp=64, seed=s) for s in (6, 7, 8, 9)]
+    pooled = np.mean([r.image.astype(np.float64) for r in runs], 0)
+    var = np.sum([r.stderr.astype(np.float64) ** 2 for r in runs], 0) / len(runs) ** 2
+    img = [r.image.astype(np.float64) for r in refs]
+    rv = [r.stderr.astype(np.float64) ** 2 for r in refs]
+    tr.close()
+    return {"size": size, "spp": "4 x 64", "mis_spp": 1024,
+            "z_pooled_vs_mis_seed_8": whole_z(pooled, var, img[0], rv[0]),
+            "z_pooled_vs_mis_seed_9": whole_z(pooled, var, img[1], rv[1]),
+            "z_mis_seed_8_vs_seed_9": whole_z(img[0], rv[0], img[1], rv[1])}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=256)
@@ -64,6 +91,8 @@ def main():
     ap.add_argument("--density", type=float, default=2000.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--point-repeats", type=int, default=20)
+    ap.add_argument("--check-size", type=int, default=96,
+                    help="the unbiased frames' check: four frames of 64 spp pooled against two mis of 1024 spp")
     ap.add_argument("--converge-spp", type=int, default=16)
     ap.add_argument("--ref-spp", type=int, default=256)
     sys.path.insert(0, HERE)
@@ -142,6 +171,7 @@ def main():
                 "mis_noise": round(float(np.sqrt((ref.stderr[hits].astype(np.float64) ** 2).sum()
                                                  / (ref.image[hits].astype(np.float64) ** 2).sum())), 5)}
             print(f"{name}: {result['materials'][name]}", file=sys.stderr, flush=True)
+        result["bias_check"] = bias_check(wavlight, view_frames, args.check_size, eye, target, folder)
         p, g = result["materials"]["plastic"]["median_seconds"], result["materials"]["ggx"]["median_seconds"]
         result["plastic_over_ggx"] = {k: round(p[k] / g[k], 3) for k in p}
         tr.close()
