@@ -2,7 +2,9 @@
  * double product B = <T1, f_r(x, ., wo) rho> of baked transfer T1 = L V cos (Haar coefficients
  * on the world-frame lat-long square of N = 2^n texels, three channels, compressed and quantized
  * in blocks of POINTS points: wavlight/relight/view_bake.py) and the BRDF without its albedo,
- * evaluated top-down over T1's quadtree (eq. 13's nonstandard basis).
+ * evaluated top-down over T1's quadtree (eq. 13's nonstandard basis). plastic walks as two items,
+ * its coat (VIEW_COAT) and its base (VIEW_BASE, the albedo's part), from its row of the plastic
+ * table (``table`` at ``table_row[i]``; other kinds read neither).
  * numpy twin: wavlight/relight/view_walk.py product_reference.
  *
  * An item is K cache points with weights (K = 1: a cache point; K = 3: a pixel, its lattice
@@ -77,6 +79,34 @@
 #define DOT3(a, b) ((a).x * (b).x + (a).y * (b).y + (a).z * (b).z)
 #define LEN3(a) SQRT1(DOT3(a, a))
 
+/* plastic (Mitsuba 3's roughplastic, kernels/bsdf.h) walks as two items, its lobes (f cos =
+ * coat + albedo base): VIEW_COAT, F(wo . h, eta) times ggx's f (pa = alpha^2), and VIEW_BASE,
+ * T(cos_o) T(cos_i) / (pi eta^2 (1 - R_int)) (the albedo's part, lambert-like; tco = the table's
+ * diffuse scale times T(cos_o), per item). Their table: the material's row of the plastic table
+ * (PLASTIC_STRIDE floats: eta, sampling weight, diffuse scale, alpha, T at PLASTIC_RES cosines);
+ * numpy twin: view_walk.py brdf_reference. */
+#define VIEW_COAT 4   /* view_walk.py VIEW_COAT */
+#define VIEW_BASE 5   /* view_walk.py VIEW_BASE */
+
+/* T(c) of the row at tr, linear between its entries (bsdf.h plastic_transmittance, one lane) */
+inline float view_transmittance(__global const float *table, const uint tr, const float c)
+{
+    const float x = clamp(c, 0.0f, 1.0f) * (float)(PLASTIC_RES - 1);
+    const uint i = min((uint)x, (uint)(PLASTIC_RES - 2));
+    const float v0 = table[tr + PLASTIC_HEAD + i], v1 = table[tr + PLASTIC_HEAD + 1 + i];
+    return v0 + (v1 - v0) * (x - (float)i);
+}
+
+/* the unpolarized Fresnel reflectance from outside at cosine c >= 0 (bsdf.h fresnel_dielectric) */
+inline float view_fresnel(const float c, const float eta)
+{
+    const float ci = fabs(c);
+    const float inv = 1.0f / eta;
+    const float ct = SQRT1(MAX1(1.0f - (1.0f - ci * ci) * inv * inv, 0.0f));
+    const float a_s = (ci - eta * ct) / (ci + eta * ct), a_p = (ct - eta * ci) / (ct + eta * ci);
+    return ci == 0.0f ? 1.0f : 0.5f * (a_s * a_s + a_p * a_p);
+}
+
 /* f_r(wi, wo) without albedo and without cos theta_i (T1 holds the cosine), in the local frame
  * (normal +z): lambert 1 / pi, normalized phong (e + 2) / (2 pi) cos^e(alpha) (pa = e), ggx
  * D G1(wo) G1(wi) / (4 cos_i cos_o) with G1(wi) / cos_i = 2 / (z + sqrt(a2 + (1 - a2) z^2)) at
@@ -85,8 +115,19 @@
  * nhz^2 = hz^2 / |h|^2 (h = wi + wo unnormalized) is a2 |h|^4 / (pi q^2), q = hz^2 (a2 - 1) + |h|^2:
  * f = g1o |h|^4 / (q^2 (z + sqrt(a2 + (1 - a2) z^2))), one square root and one division. */
 inline float view_brdf(const int kd, const float pa, const float ix, const float iy, const float iz,
-                       const float ox, const float oy, const float oz, const float g1o)
+                       const float ox, const float oy, const float oz, const float g1o,
+                       __global const float *table, const uint tr, const float tco)
 {
+    if (kd == VIEW_BASE) return iz > 0.0f ? tco * view_transmittance(table, tr, iz) : 0.0f;
+    if (kd == VIEW_COAT) {
+        const float hx = ix + ox, hy = iy + oy, hz = iz + oz;
+        if (!(hz > 0.0f) || !((ix * hx + iy * hy + iz * hz) > 0.0f)) return 0.0f;
+        const float hh = hx * hx + hy * hy + hz * hz;
+        const float q = hz * hz * (pa - 1.0f) + hh;
+        const float z = MAX1(iz, 0.0f);
+        const float oh = (ox * hx + oy * hy + oz * hz) / SQRT1(hh);
+        return view_fresnel(oh, table[tr]) * g1o * (hh * hh) / (q * q * (z + SQRT1(pa + (1.0f - pa) * z * z)));
+    }
     if (kd == BSDF_PHONG) {
         const float ca = MAX1(iz * oz - ix * ox - iy * oy, 0.0f);
         return ca > 0.0f ? (pa + 2.0f) * INV_2PI_F * exp2(pa * log2(ca)) : 0.0f;
@@ -132,8 +173,28 @@ inline int any4(const int4 m)
 
 /* view_brdf on four directions (the same item) */
 inline float4 view_brdf4(const int kd, const float pa, const float4 ix, const float4 iy, const float4 iz,
-                         const float ox, const float oy, const float oz, const float g1o)
+                         const float ox, const float oy, const float oz, const float g1o,
+                         __global const float *table, const uint tr, const float tco)
 {
+    if (kd == VIEW_BASE) {   /* the transmittance's entries lane by lane */
+        const float4 t = (float4)(view_transmittance(table, tr, iz.x), view_transmittance(table, tr, iz.y),
+                                  view_transmittance(table, tr, iz.z), view_transmittance(table, tr, iz.w));
+        return iz > 0.0f ? tco * t : (float4)(0.0f);
+    }
+    if (kd == VIEW_COAT) {   /* ggx's four lanes times view_fresnel's */
+        const float4 hx = ix + ox, hy = iy + oy, hz = iz + oz;
+        const float4 hh = hx * hx + hy * hy + hz * hz;
+        const float4 q = hz * hz * (pa - 1.0f) + hh;
+        const float4 z = iz > 0.0f ? iz : (float4)(0.0f);
+        const float4 f = g1o * (hh * hh) / (q * q * (z + SQRT4(pa + (1.0f - pa) * z * z)));
+        const float4 oh = (ox * hx + oy * hy + oz * hz) / SQRT4(hh);
+        const float eta = table[tr], inv = 1.0f / eta;
+        const float4 ct2 = 1.0f - (1.0f - oh * oh) * (inv * inv);
+        const float4 ct = SQRT4(ct2 > 0.0f ? ct2 : (float4)(0.0f));
+        const float4 a_s = (oh - eta * ct) / (oh + eta * ct), a_p = (ct - eta * oh) / (ct + eta * oh);
+        const float4 fr = oh == 0.0f ? (float4)(1.0f) : 0.5f * (a_s * a_s + a_p * a_p);
+        return ((hz > 0.0f) & (ix * hx + iy * hy + iz * hz > 0.0f)) ? fr * f : (float4)(0.0f);
+    }
     if (kd == BSDF_PHONG) {
         const float4 ca = iz * oz - ix * ox - iy * oy;
         const float4 cp = ca > 0.0f ? ca : (float4)(1.0f);
@@ -172,6 +233,7 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
                            __global const int *kind, __global const float *param, __global const float4 *centres,
                            __global const float4 *rows, __global const float2 *scaled, __global const int *offsets,
                            __global const float *scale, __global const VQTYPE *data, const float mass,
+                           __global const float *table, __global const uint *table_row,
                            __global float *out, __global uint *visited)
 {
     const uint i = get_global_id(0);
@@ -216,9 +278,12 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
     const float3 s = (float3)(1.0f + sign * n.x * n.x * fa, sign * fb, -sign * n.x);
     const float3 t = (float3)(fb, sign + n.y * n.y * fa, -n.y);
     const float ox = DOT3(wo, s), oy = DOT3(wo, t), oz = DOT3(wo, n);
-    const float pa = kd == BSDF_GGX ? param[i] * param[i] : param[i];   /* ggx: alpha^2 */
+    const int ggx_like = kd == BSDF_GGX || kd == VIEW_COAT;
+    const float pa = ggx_like ? param[i] * param[i] : param[i];   /* ggx, plastic's coat: alpha^2 */
+    const uint tr = kd >= VIEW_COAT ? table_row[i] : 0u;          /* plastic: the material's table row */
+    const float tco = kd == VIEW_BASE ? table[tr + 2] * view_transmittance(table, tr, oz) : 0.0f;
     float g1o = 0.0f;
-    if (kd == BSDF_GGX) {                                     /* a2 G1(wo) / (2 pi cos_o), 0 below */
+    if (ggx_like) {                                           /* a2 G1(wo) / (2 pi cos_o), 0 below */
         const float c2 = MAX1(oz * oz, 1e-30f);
         const float tan2 = MAX1(1.0f - c2, 0.0f) / c2;
         g1o = oz > 0.0f ? 2.0f / (1.0f + SQRT1(1.0f + pa * tan2)) * pa * INV_2PI_F / oz : 0.0f;
@@ -246,7 +311,7 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
                 }
             }
             if (leaf) {
-                float f = view_brdf(kd, pa, DOT3(c, s), DOT3(c, t), nc, ox, oy, oz, g1o);
+                float f = view_brdf(kd, pa, DOT3(c, s), DOT3(c, t), nc, ox, oy, oz, g1o, table, tr, tco);
                 if (tau > 0.0f) {
                     const float sr = rr.w > 1.0f ? 1.0f : rr.w;
                     const float den = view_ramp(DOT3(c, m), sr * ml);
@@ -328,7 +393,7 @@ __kernel void view_product(const uint count, const uint n_levels, const uint n_b
         const int4 add = live & leaf;
         if (any4(add)) {
             float4 f = view_brdf4(kd, pa, cx * s.x + cy * s.y + cz * s.z, cx * t.x + cy * t.y + cz * t.z, nc,
-                                  ox, oy, oz, g1o);
+                                  ox, oy, oz, g1o, table, tr, tco);
             if (tau > 0.0f) {
                 const float4 sr = rw > 1.0f ? (float4)(1.0f) : rw;
                 const float4 den = view_ramp4(cx * m.x + cy * m.y + cz * m.z, sr * ml);
@@ -518,14 +583,17 @@ INLINE void view_bilinear(const float dx, const float dy, const float dz, __glob
 }
 #endif
 
-/* Per camera ray: a hit's albedo x sum_k w_k B_k (B the walks' products, row[p] the row
- * of cache point p, -1: none; the albedo its material's, with TEXTURES 1 times the material's
- * texture at the hit: texture.h at embree's bary, rows u v; numpy twin ViewFrames.hit_albedo), a miss's the environment's nearest texel in the ray's direction
- * (with BACKGROUND_MODE 1: view_bilinear's filter; with 2: 0, the background hidden)
+/* Per camera ray: a hit's albedo x sum_k w_k B_k + sum_k w_k C_k (B the walks' products, row[p]
+ * the row of cache point p, -1: none; C_k plastic's coat, the row coat_row[p] of B, -1 where the
+ * point is not plastic; the albedo its material's, with TEXTURES 1 times the material's texture at
+ * the hit: texture.h at embree's bary, rows u v; numpy twin ViewFrames.hit_albedo), a miss's the
+ * environment's nearest texel in the ray's direction (with BACKGROUND_MODE 1: view_bilinear's
+ * filter; with 2: 0, the background hidden)
  * (phi = atan2(x, -z), theta = acos(y) in the map's frame, map_from_world the rotation:
  * wavlight/envmap.py Environment.world_to_square). */
 __kernel void view_assemble(const uint count, __global const int *prim, __global const uint *ids,
-                            __global const float *weights, __global const int *row, __global const float *B,
+                            __global const float *weights, __global const int *row, __global const int *coat_row,
+                            __global const float *B,
                             __global const int *face_material, __global const float *albedo,
                             __global const float *bary, __global const float *face_uv,
                             __global const int *mat_texture, __global const float *tex_atlas,
@@ -561,6 +629,15 @@ __kernel void view_assemble(const uint count, __global const int *prim, __global
             bl *= tb.s0;
         }
 #endif
+        for (int q = 0; q < 3; ++q) {   /* plastic's coat, not tinted: its row of B (-1: none) */
+            const float wq = weights[3 * p + q];
+            const int at = coat_row[ids[3 * p + q]];
+            if (wq > 0.0f && at >= 0) {
+                r += wq * B[3 * at];
+                g += wq * B[3 * at + 1];
+                bl += wq * B[3 * at + 2];
+            }
+        }
     } else {
 #if BACKGROUND_MODE == 1
         view_bilinear(dir[3 * p], dir[3 * p + 1], dir[3 * p + 2], map_from_world, env, env_width, env_height, &r, &g,

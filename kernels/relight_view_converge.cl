@@ -19,7 +19,11 @@
  * (gl_t the lighting's luminance mass of the texel, :meth:`_TexelLight.leaf_masses`, = Y(R_t) / 4^m,
  * R_t its mean radiance): leaf_t = H+_t gl_t with H+_t = max(f_r Y(T1_t) / Y(R_t), 0), about f_r G_t,
  * the integral of f_r cos V over the texel, as converge_shade reads it (T = leaf / gl / Omega_t),
- * and the pixel's relit value G = sum_t H+_t R_t (the control variate's integral). The levels
+ * and the pixel's relit value G = sum_t H+_t R_t (the control variate's integral). On plastic f_r
+ * is base + coat / lum(albedo) (view_product's VIEW_BASE and VIEW_COAT; the coat in the units of
+ * the albedo's luminance, as the lighting bake's trees hold it) and relit's fourth value is the
+ * coat's share of sum_t H+_t Y(R_t), the tint converge_shade gives the control variate (0 on
+ * other kinds). The levels
  * above are sums of their four children (c0 + c1) + (c2 + c3) in Morton order, as
  * wavlight.haar.tree.build_reference sums them; pixels without a cache point (a miss, a back
  * face) get a root of 0 and nothing below it.
@@ -39,6 +43,8 @@
 #define VC_LR 0.2126f
 #define VC_LG 0.7152f
 #define VC_LB 0.0722f
+/* plastic's coat in the trees is divided by the albedo's luminance, at least this (view_converge.py MIN_LUMINANCE) */
+#define VC_MIN_LUM 1e-3f
 
 /* Bits 0, 2, 4, .. of v packed into bits 0, 1, 2, .. */
 inline uint vc_compact(uint v)
@@ -73,7 +79,7 @@ inline float vc_coeff(const uint row, const uint col, const uint *b, const uint 
 }
 
 /* Global size >= count: pixel p's tree at out + p tree_stride (node 0 at TREE_ORIGIN, Morton
- * levels), its G at relit + 4 p (r, g, b, 0). ids, weights: (count, 3) from view_lookup; prim,
+ * levels), its G at relit + 4 p (r, g, b, the coat's share). ids, weights: (count, 3) from view_lookup; prim,
  * dirs: the centre rays' faces (-1: a miss) and unit directions; face_normal (faces, 3);
  * texel_dir (4^m, VC_SUB^2, 4) the directions of the centres of each texel's VC_SUB x VC_SUB parts
  * (row-major in the texel), gl (4^m) and radiance (4^m, 4): the lighting's
@@ -87,7 +93,8 @@ __kernel void view_converge_trees(const uint count, __global const uint *ids, __
                                   __global const float *scale, __global const VQTYPE *data,
                                   __global const float4 *texel_dir, __global const float *gl,
                                   __global const float *radiance, const float hs, const uint tree_stride,
-                                  __global float *out, __global float *relit)
+                                  __global float *out, __global float *relit, __global const float *mat_albedo,
+                                  __global const float *table)
 {
     const uint p = get_global_id(0);
     if (p >= count) return;
@@ -142,9 +149,17 @@ __kernel void view_converge_trees(const uint count, __global const uint *ids, __
     const float oz = -(dx * nx + dy * ny + dz * nz);
     const int mat = face_material[f];
     const int kd = mat_kind[mat];
-    const float pa = kd == BSDF_GGX ? mat_param[mat] * mat_param[mat] : mat_param[mat];
+    /* plastic: f_r = base + coat / lum(albedo) (its two lobes, view_product's VIEW_BASE and
+     * VIEW_COAT; the coat in units of the albedo's luminance, as the shade's tint takes it) */
+    const int plastic = kd == BSDF_PLASTIC;
+    const uint tr = plastic ? (uint)mat * PLASTIC_STRIDE : 0u;
+    const float alpha = plastic ? table[tr + 3] : mat_param[mat];
+    const float pa = kd == BSDF_GGX || plastic ? alpha * alpha : mat_param[mat];
+    const float tco = plastic ? table[tr + 2] * view_transmittance(table, tr, oz) : 0.0f;
+    const float inv_la = plastic ? 1.0f / MAX1(VC_LR * mat_albedo[3 * mat] + VC_LG * mat_albedo[3 * mat + 1]
+                                               + VC_LB * mat_albedo[3 * mat + 2], VC_MIN_LUM) : 0.0f;
     float g1o = 0.0f;
-    if (kd == BSDF_GGX) {   /* a2 G1(wo) / (2 pi cos_o), 0 below (view_product's) */
+    if (kd == BSDF_GGX || plastic) {   /* a2 G1(wo) / (2 pi cos_o), 0 below (view_product's) */
         const float c2 = MAX1(oz * oz, 1e-30f);
         const float tan2 = MAX1(1.0f - c2, 0.0f) / c2;
         g1o = oz > 0.0f ? 2.0f / (1.0f + SQRT1(1.0f + pa * tan2)) * pa * INV_2PI_F / oz : 0.0f;
@@ -152,16 +167,22 @@ __kernel void view_converge_trees(const uint count, __global const uint *ids, __
     /* the leaves and G */
     const uint leaf0 = (uint)LEVEL_OFFSET(N_LEVELS);
     const float per_texel = 1.0f / (float)VC_TEXELS;
-    float gr = 0.0f, gg = 0.0f, gb = 0.0f;
+    float gr = 0.0f, gg = 0.0f, gb = 0.0f, coat_y = 0.0f, all_y = 0.0f;
     for (uint t = 0; t < VC_TEXELS; ++t) {
-        float fr = 0.0f;
+        float fr = 0.0f, fc = 0.0f;
         for (uint q = 0; q < VC_SUB * VC_SUB; ++q) {
             const float4 c = texel_dir[t * VC_SUB * VC_SUB + q];
             const float ix = c.x * sx + c.y * sy + c.z * sz, iy = c.x * tx + c.y * ty + c.z * tz;
             const float iz = c.x * nx + c.y * ny + c.z * nz;
-            fr += iz > 0.0f ? view_brdf(kd, pa, ix, iy, iz, ox, oy, oz, g1o) : 0.0f;
+            if (plastic) {
+                fr += iz > 0.0f ? view_brdf(VIEW_BASE, pa, ix, iy, iz, ox, oy, oz, g1o, table, tr, tco) : 0.0f;
+                fc += iz > 0.0f ? view_brdf(VIEW_COAT, pa, ix, iy, iz, ox, oy, oz, g1o, table, tr, tco) : 0.0f;
+            } else {
+                fr += iz > 0.0f ? view_brdf(kd, pa, ix, iy, iz, ox, oy, oz, g1o, table, tr, tco) : 0.0f;
+            }
         }
-        fr *= 1.0f / (float)(VC_SUB * VC_SUB);
+        fc *= inv_la / (float)(VC_SUB * VC_SUB);
+        fr = fr * (1.0f / (float)(VC_SUB * VC_SUB)) + fc;
         const float g = gl[t];
         const float leaf = g > 0.0f ? MAX1(fr * (node[leaf0 + t] * hs), 0.0f) * per_texel : 0.0f;
         if (leaf > 0.0f) {
@@ -169,6 +190,12 @@ __kernel void view_converge_trees(const uint count, __global const uint *ids, __
             gr += h * radiance[4 * t];
             gg += h * radiance[4 * t + 1];
             gb += h * radiance[4 * t + 2];
+            if (plastic) {   /* the coat's share of the relit luminance */
+                const float y = h * (VC_LR * radiance[4 * t] + VC_LG * radiance[4 * t + 1]
+                                     + VC_LB * radiance[4 * t + 2]);
+                all_y += y;
+                coat_y += y * (fc / fr);
+            }
         }
         node[leaf0 + t] = leaf;
     }
@@ -183,5 +210,5 @@ __kernel void view_converge_trees(const uint count, __global const uint *ids, __
     g_out[0] = gr;
     g_out[1] = gg;
     g_out[2] = gb;
-    g_out[3] = 0.0f;
+    g_out[3] = all_y > 0.0f ? clamp(coat_y / all_y, 0.0f, 1.0f) : 0.0f;   /* the control variate's tint */
 }

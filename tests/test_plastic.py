@@ -249,15 +249,13 @@ def test_strategies_agree_with_mis_on_plastic(plastic_scenes, sky, strategy):
 
 
 def test_what_plastic_is_not_yet_in_says_so(tmp_path):
-    """The view bake (its frames multiply the albedo afterwards) and the numpy-only strategies
-    (sir, structured: the albedo one factor of their whole estimate) refuse plastic in one line."""
+    """The numpy-only strategies (sir, structured: the albedo one factor of their whole estimate)
+    refuse plastic in one line; every bake holds it (the lighting and object bakes:
+    tests/relight/test_relight_plastic.py; the view bake: tests/relight/test_relight_view_plastic.py)."""
     write_sun_sky(tmp_path)
     base = over_floor({"shape": "sphere", "radius": 0.5, "center": [0, 0.5, 0]}, width=8, height=8)
     base["materials"]["m"] = {"type": "plastic", "albedo": [0.5, 0.2, 0.1]}
     scene = wavlight.load_dict(base, base_dir=tmp_path)
-    # (the lighting and object bakes hold plastic's coat: tests/relight/test_relight_plastic.py)
-    with pytest.raises(wavlight.WavlightError, match=r"plastic materials \(m\) are not baked with vary='view'"):
-        wavlight.bake(scene, vary="view")
     for name in ("sir", "structured"):
         with pytest.raises(wavlight.WavlightError, match=f"strategy {name}: plastic"):
             wavlight.render_full(scene, strategy=name, spp=1)

@@ -68,8 +68,8 @@ def test_product_kernel_equals_its_twin(baked):
     assert (kinds == bsdfs.GGX).sum() > 100 and (kinds == bsdfs.LAMBERT).sum() > 100
     for eye, refine, mass in ((EYE, 0.25, view_walk.MASS), ([-1.0, 0.8, 2.0], 0.1, view_walk.MASS), (EYE, 0.25, 0.0),
                               (EYE, 0.4, 1e-3)):
-        a, na = frames.products(points, eye, refine, mass=mass)
-        b, nb = frames.products(points, eye, refine, backend="numpy", mass=mass)
+        a, na, *_ = frames.products(points, eye, refine, mass=mass)
+        b, nb, *_ = frames.products(points, eye, refine, backend="numpy", mass=mass)
         assert np.abs(b).max() > 0
         close = np.isclose(a, b, rtol=1e-4, atol=1e-6 * np.abs(b).max()).all(1)
         assert close.mean() > 0.995 and (na == nb).mean() > 0.99   # but a threshold within rounding
@@ -85,7 +85,7 @@ def test_product_kernel_equals_its_twin_for_every_kind(baked):
     product_reference, with the points' own normals and views."""
     _, scene, tr = baked
     frames = view_frames.ViewFrames(tr, scene)
-    points, _, _, nrm, wo = frames._point_items(np.arange(2, len(frames.position), 11), EYE)
+    points, _, nrm, wo = frames._point_items(np.arange(2, len(frames.position), 11), EYE)
     rng = np.random.default_rng(7)
     choice = rng.integers(0, 4, len(points))
     kind = np.array([bsdfs.PHONG, bsdfs.GGX, bsdfs.GGX, bsdfs.LAMBERT])[choice]
@@ -128,8 +128,8 @@ def test_pixel_kernel_equals_its_twin(baked, tau):
     ids, w, fn, d, mat = pixel_items(frames, EYE, TARGET)
     kinds = frames.kind_of[mat]
     assert (kinds == bsdfs.GGX).sum() > 50 and (kinds == bsdfs.LAMBERT).sum() > 50
-    a, na = frames.pixel_products(ids, w, fn, d, mat, tau=tau)
-    b, nb = frames.pixel_products(ids, w, fn, d, mat, tau=tau, backend="numpy")
+    a, na, *_ = frames.pixel_products(ids, w, fn, d, mat, tau=tau)
+    b, nb, *_ = frames.pixel_products(ids, w, fn, d, mat, tau=tau, backend="numpy")
     assert np.abs(b).max() > 0
     close = np.isclose(a, b, rtol=1e-4, atol=1e-6 * np.abs(b).max()).all(1)
     assert close.mean() > 0.99 and (na == nb).mean() > 0.98
@@ -179,9 +179,9 @@ def test_pixel_walk_of_one_point_is_the_point_walk(baked):
     wo = view_walk.lifted_view(frames.normal[points], wo / np.linalg.norm(wo, axis=1, keepdims=True))
     ids = np.stack([points, points[::-1], points], 1)
     w = np.tile([1.0, 0.0, 0.0], (len(points), 1))
-    want, nw = frames.products(points, EYE, backend="numpy")
+    want, nw, *_ = frames.products(points, EYE, backend="numpy")
     for tau in (0.0, view_frames.TAU):
-        got, ng = frames.pixel_products(ids, w, frames.normal[points], -wo, frames.material[points], tau=tau,
+        got, ng, *_ = frames.pixel_products(ids, w, frames.normal[points], -wo, frames.material[points], tau=tau,
                                         backend="numpy")
         np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-9 * np.abs(want).max())
         assert np.array_equal(ng, nw)
@@ -346,18 +346,18 @@ def test_walk_to_the_texels_is_the_dense_sum(baked):
                                  np.repeat(frames.param_of[mat], side * side), wl.reshape(-1, 3),
                                  np.repeat(wol, side * side, axis=0)).reshape(len(points), -1)
     dense = np.einsum("icn,in->ic", T.reshape(len(points), 3, -1), f)
-    got, nodes = frames.products(points, EYE, refine=1e-4)
+    got, nodes, *_ = frames.products(points, EYE, refine=1e-4)
     assert nodes.max() > side * side / 2                                                  # the texels were reached
     np.testing.assert_allclose(got, dense, rtol=2e-3, atol=1e-5 * np.abs(dense).max())
     # the default walk is close to it, with far fewer nodes
-    approx, few = frames.products(points, EYE)
+    approx, few, *_ = frames.products(points, EYE)
     glossy = frames.kind_of[mat] == bsdfs.GGX
     err = np.linalg.norm(approx[glossy] - dense[glossy]) / np.linalg.norm(dense[glossy])
     assert err < 0.03 and few[glossy].mean() < nodes[glossy].mean() * 0.8, (err, few[glossy].mean())
     # the bright light holds much of T1's mass in a few nodes: refining them (mass) is closer to
     # the dense sum than the walk by the lobe alone with as many nodes or more
     for refine in (view_walk.REFINE, view_walk.REFINE / 2, view_walk.REFINE / 4):
-        plain, plain_nodes = frames.products(points, EYE, refine=refine, mass=0.0)
+        plain, plain_nodes, *_ = frames.products(points, EYE, refine=refine, mass=0.0)
         if plain_nodes[glossy].mean() >= few[glossy].mean():
             break
     assert plain_nodes[glossy].mean() >= few[glossy].mean(), (plain_nodes[glossy].mean(), few[glossy].mean())

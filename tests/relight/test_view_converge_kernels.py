@@ -74,7 +74,8 @@ def centre_rays(frames, scene, tile, width, height):
 
 
 @pytest.mark.parametrize("ball", [None, {"type": "phong", "albedo": [0.5, 0.6, 0.7], "exponent": 40.0},
-                                  {"type": "lambert", "albedo": [0.5, 0.6, 0.7]}])
+                                  {"type": "lambert", "albedo": [0.5, 0.6, 0.7]},
+                                  {"type": "plastic", "albedo": [0.6, 0.3, 0.1], "alpha": 0.2}])
 @pytest.mark.parametrize("bits, levels", [(8, 4), (16, 4), (16, 2)])
 def test_trees_kernel_equals_its_twin(bakes, bits, levels, ball, monkeypatch):
     """view_converge_trees against trees_reference, tile by tile (three tiles, the last one
@@ -107,7 +108,9 @@ def test_trees_kernel_equals_its_twin(bakes, bits, levels, ball, monkeypatch):
         assert (nodes[none] == 0).all() and (want[none] == 0).all()
         empty += int(none.sum())
         np.testing.assert_allclose(nodes, want, rtol=0, atol=2e-5 * np.abs(want).max())
-        np.testing.assert_allclose(relit, want_relit, rtol=1e-4, atol=1e-5 * np.abs(want_relit).max())
+        np.testing.assert_allclose(relit, want_relit[:, :3], rtol=1e-4, atol=1e-5 * np.abs(want_relit).max())
+        # the coat's share of G, the control variate's tint (0 but on plastic)
+        np.testing.assert_allclose(trees.coat_share(), want_relit[:, 3], rtol=1e-3, atol=1e-4)
         side = 1 << levels
         leaves = nodes[:, haar.tree.level_offset(levels):].reshape(-1, side, side)
         np.testing.assert_allclose(nodes[:, 0], leaves.sum(axis=(1, 2)), rtol=1e-5, atol=1e-9 * leaves.max())

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import os
 
-from ..errors import ArgumentError, WavlightError, shown
+from ..errors import ArgumentError, shown
 from ..scene import load_scene
-from .bake import bake as bake_pixels, plastic_materials
+from .bake import bake as bake_pixels
 from .settings import BAKE
 from .view_bake import bake_view
 
@@ -38,7 +38,6 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         raise ArgumentError(f"{where}: vary must be one of {' | '.join(VARY)}, got {shown(vary)}")
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
-    check_bakeable(scene, vary)
     if vary != "view":
         if density is not None:
             raise ArgumentError(f"{where}: density sets the surface cache of a bake with vary='view'")
@@ -52,17 +51,3 @@ def bake(scene, output=None, width=None, height=None, spp=None, levels=None,
         raise ArgumentError(f"{where}: a view bake runs locally (no Dask cluster)")
     return bake_view(scene, output, levels=levels, tolerance=tolerance, bits=bits, seed=seed, threads=threads,
                      progress=progress, backend=backend, points=points, density=density)
-
-
-def check_bakeable(scene, vary: str = BAKE["vary"].default) -> None:
-    """A one-line WavlightError for a scene that a bake varying ``vary`` cannot hold yet: faces of
-    plastic, whose albedo does not factor out of the BRDF, in a bake that varies the view (a
-    lighting bake stores plastic's coat as a second transfer, an object bake adds it to its
-    product leaves: docs/decisions/plastic-in-the-bake.md)."""
-    if vary != "view":
-        return
-    names = plastic_materials(scene)
-    if names:
-        raise WavlightError(f"{getattr(scene, 'path', 'scene')}: plastic materials ({', '.join(names)}) are not "
-                            f"baked with vary='{vary}' yet (a bake that varies the lighting or an object holds "
-                            "plastic's coat); bake the lighting, or render them with wavlight render")

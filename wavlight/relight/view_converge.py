@@ -21,8 +21,10 @@ Per pass of at most PASS_SAMPLES camera samples of a tile (and ``pass_spp`` per 
 camera rays (kernels/camera.cl, stratified in the pixel), their hits (embree), one launch of
 ``converge_shade`` (kernels/converge.cl, numpy twin :func:`wavlight.relight.converge.shade_reference`):
 per hit ``slots`` directions of the defensive mixture (1 - alpha - beta) product + alpha BSDF +
-beta lighting, their pdfs (every technique's), estimates albedo f cos L / pdf / slots and, with
-``control``, the control variate albedo (G - sum of g / pdf / slots), g(w) = H+_t / Omega_t L(w);
+beta lighting, their pdfs (every technique's), estimates albedo f cos L / pdf / slots (plastic:
+(coat + albedo base) L / pdf / slots, either lobe sampled by the BSDF's share) and, with
+``control``, the control variate k (G - sum of g / pdf / slots), g(w) = H+_t / Omega_t L(w), k the
+albedo (plastic: tinted by the coat's share of G, whose trees hold base + coat / lum(albedo));
 then the shadow rays of the estimates that are not 0 (embree, :func:`wavlight.relight.converge.visible_sum`).
 Unbiased whatever the cache's approximations: the lighting's share makes the pdf positive
 wherever g is, the BSDF's wherever f cos L is (tests/relight/test_relight_view.py against ``mis``).
@@ -73,6 +75,9 @@ TILE_PIXELS = 1 << 12
 #: nor the lighting bake's frames' (wavlight.relight.converge.CONVERGE_TILES)
 VIEW_TILES = 14 << 16
 BACKENDS = ("opencl", "numpy")
+#: plastic's coat in the trees is divided by the albedo's luminance, at least this
+#: (kernels/relight_view_converge.cl VC_MIN_LUM)
+MIN_LUMINANCE = 1e-3
 #: cache points per block of the bake file (wavlight.relight.surface_cache.POINTS)
 POINTS = BLOCK * BLOCK
 
@@ -175,7 +180,7 @@ def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
     S = FR_POINTS if parts is None else int(parts)
     P = len(prim)
     leaves = np.zeros((P, side, side), np.float32)
-    relit = np.zeros((P, 3))
+    relit = np.zeros((P, 4))
     hit = np.flatnonzero(np.asarray(prim) >= 0)
     if len(hit):
         d = np.asarray(d, np.float32)
@@ -193,17 +198,34 @@ def trees_reference(frames, inside, d, prim, u, v, parts: int | None = None):
             wl = np.stack([a @ dirs.T for a in (s_ax, t_ax, nrm)], -1)                     # (M, side^2 S^2, 3)
             mat = frames.scene.face_material[prim[rows]]
             M, n_dirs = len(rows), len(dirs)
-            fcos, _ = bsdfs.eval_pdf_each(np.repeat(frames.kind_of[mat], n_dirs),
-                                          np.repeat(frames.param_of[mat], n_dirs), wl.reshape(-1, 3),
-                                          np.repeat(wo, n_dirs, axis=0))
+            kind = np.repeat(frames.kind_of[mat], n_dirs)
+            table = np.repeat(frames.plastic_table[mat], n_dirs, axis=0)
+            wl_all, wo_all = wl.reshape(-1, 3), np.repeat(wo, n_dirs, axis=0)
+            fcos, _ = bsdfs.eval_pdf_each(kind, np.repeat(frames.param_of[mat], n_dirs), wl_all, wo_all, table)
+            # plastic: base + coat / lum(albedo) (the kernel's; the coat in units of the albedo's luminance)
+            coat = np.zeros(len(fcos))
+            pl = np.flatnonzero(kind == bsdfs.PLASTIC)
+            if len(pl):
+                spec, diff = bsdfs.plastic_parts(wl_all[pl], wo_all[pl], table[pl])
+                la = np.maximum(np.repeat(frames.albedo_of[mat], n_dirs, axis=0)[pl] @ LUMINANCE, MIN_LUMINANCE)
+                coat[pl] = spec / la
+                fcos[pl] = diff + coat[pl]
             iz = wl[..., 2].reshape(-1)
-            f = np.where(iz > 0, fcos / np.where(iz > 0, iz, 1.0), 0.0)   # f_r: f cos / cos above the horizon
+            above = np.where(iz > 0, iz, 1.0)
+            f = np.where(iz > 0, fcos / above, 0.0)   # f_r: f cos / cos above the horizon
             f = f.reshape(M, side, side, S * S).mean(-1)
+            fc = np.where(iz > 0, coat / above, 0.0).reshape(M, side, side, S * S).mean(-1)
             gl = inside.leaf_masses().astype(np.float64)                                  # (side, side)
             leaf = np.where(gl > 0, np.maximum(f * T, 0.0) / (side * side), 0.0)
             leaves[rows] = leaf
             h = np.where(gl > 0, leaf / np.where(gl > 0, gl, 1.0), 0.0)
-            relit[rows] = np.einsum("pij,ijc->pc", h, inside.texel_radiance.reshape(side, side, 3))
+            radiance = inside.texel_radiance.reshape(side, side, 3)
+            relit[rows, :3] = np.einsum("pij,ijc->pc", h, radiance)
+            y = h * (radiance @ LUMINANCE)                                                    # (M, side, side)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                coat_y = np.where(h > 0, y * fc / np.where(f != 0, f, 1.0), 0.0).sum((1, 2))
+            all_y = y.sum((1, 2))
+            relit[rows, 3] = np.clip(np.where(all_y > 0, coat_y / np.where(all_y > 0, all_y, 1.0), 0.0), 0.0, 1.0)
     return build_reference(leaves), relit
 
 
@@ -255,6 +277,10 @@ class ViewConverge:
                 np.asarray(frames.transfer._s["offsets"][rows], np.int32).T))   # (blocks, 4^m)
             self.materials = (cl.to_device(sc.material_kind.astype(np.int32)),
                               cl.to_device(sc.material_param.astype(np.float32)))
+            # plastic: the albedo's luminance and the plastic table (kernels/relight_view_converge.cl)
+            self.plastic = (cl.to_device(np.ascontiguousarray(sc.material_albedo, np.float32).reshape(-1)),
+                            cl.to_device(np.ascontiguousarray(frames.plastic_table, np.float32).reshape(-1)
+                                         if len(sc.materials) else np.zeros(bsdfs.PLASTIC_STRIDE, np.float32)))
             camera.warm_up(sc)
         else:
             self.tree_cache_bytes = 0
@@ -312,7 +338,8 @@ class ViewConverge:
         cl.kernel(self.tree_program, "view_converge_trees")(
             queue, (cl.items(P),), (cl.WORK_GROUP,), np.uint32(P), ids_b, w_b, prim_b, dir_b, self.lookup.face_normal,
             self.lookup.face_material, *self.materials, self.block_offsets, e.scale[0], e.data[0], self.texel_dirs,
-            self.light.buffers["leaf_masses"], self.light.buffers["radiance"], hs, np.uint32(stride), out, relit)
+            self.light.buffers["leaf_masses"], self.light.buffers["radiance"], hs, np.uint32(stride), out, relit,
+            *self.plastic)
         made = kernels.TileTrees(out, relit, P, m)
         if keep:
             with self._lock:

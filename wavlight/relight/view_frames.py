@@ -3,7 +3,8 @@ view as the varying factor): the lighting and the objects stay fixed, the camera
 
     B(x, wo) = integral of L(w) V(x, w) max(cos theta, 0) f_r(x, w, wo) dw = <T1(x), T2>,
     T1(x, w) = L(w) V(x, w) max(cos theta, 0)  (per surface point, baked),
-    T2 = f_r(x, ., wo)  (per frame; the albedo factored out: f_r = albedo x shape).
+    T2 = f_r(x, ., wo)  (per frame; the albedo factored out: f_r = albedo x shape;
+                         plastic's f_r = coat + albedo x base: two walks, :meth:`ViewFrames.lobes`).
 
 T1 is baked on the surface cache (:mod:`wavlight.relight.surface_cache`) by
 :mod:`wavlight.relight.view_bake`; :class:`ViewFrames` makes a view bake's frames.
@@ -16,12 +17,14 @@ has its three cache points and weights, and the product <T1, f_r> is the top-dow
 - ``point``: for every cache point k the hits use, B_k = <T1(x_k), f_r(x_k, ., wo_k)> with the
   point's own (area-averaged) normal and wo_k the direction to the eye; a pixel is its albedo
   times the barycentric blend of its three points' B_k. lambert points need only the scaling
-  coefficient: B = T^_0 N^2 / pi. One product per point: the fastest.
+  coefficient: B = T^_0 N^2 / pi. One product per point: the fastest. A plastic point walks twice,
+  its base B_k and its coat C_k (:mod:`wavlight.relight.view_walk`), and a pixel is a sum_k w_k B_k
+  + sum_k w_k C_k (the coat untinted).
 - ``pixel``: per ray, B = <sum_k w_k T1(x_k), f_r(., wo) rho> (the walk blends the three points'
   coefficients) with the hit's shading normal n (as ``mis`` shades: the face normal where the
   face is flat) and the pixel's own view direction, so that f_r is the pixel's; with ``tau`` > 0
   the baked cosine at the points' blended normal is turned into n's (the cosine's correction,
-  :mod:`wavlight.relight.view_walk`).
+  :mod:`wavlight.relight.view_walk`); plastic likewise, a B + C from its two walks.
 
 A ray's value is B times the albedo at its hit: the material's, in a textured scene times its
 base-colour texture there (:meth:`ViewFrames.hit_albedo`; on the device ``view_assemble`` with
@@ -70,7 +73,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .. import cl
+from .. import bsdfs, cl
 from ..camera import camera_rays
 from ..envmap import Environment
 from ..errors import ArgumentError, WavlightError, check_number, check_real
@@ -81,7 +84,7 @@ from .converge import PASS_SPP
 from .mixture import TexelLight, check_shares, scene_of
 from .settings import FRAME, UNBIASED_SPP, WRITTEN_SUPERSAMPLE
 from .surface_cache import CREASE_DEGREES, barycentric, lattice_points
-from .view_walk import MASS, REFINE, FrameDevice, ViewDevice, lifted_view, product_reference
+from .view_walk import MASS, REFINE, VIEW_BASE, VIEW_COAT, FrameDevice, ViewDevice, lifted_view, product_reference
 
 #: the unbiased frame's product texel levels at most (:mod:`wavlight.relight.view_converge`)
 PRODUCT_LEVELS = 4
@@ -205,6 +208,8 @@ class ViewFrames:
         self.albedo_of = self.scene.material_albedo.astype(np.float64)
         #: base-colour textures: the frames take the albedo at the hit (:meth:`hit_albedo`)
         self.textured = bool(self.scene.textured)
+        #: plastic's rows (materials, PLASTIC_STRIDE) float32 (zeros for the other kinds)
+        self.plastic_table = self.scene.material_table
         fn = np.asarray(self.tracer.face_normals, np.float64)
         self.face_normal = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
         self.face_normal32 = self.face_normal.astype(np.float32)
@@ -299,43 +304,74 @@ class ViewFrames:
         n = self.tracer.hit(eye, np.asarray(d, np.float32), np.asarray(t, np.float32), prim, u, v)[0]
         return (n * np.where(np.einsum("ij,ij->i", n, fn) < 0, -1.0, 1.0)[:, None]).astype(np.float32)
 
+    def lobes(self, mat):
+        """The walks of items of materials ``mat`` (I,): plastic walks as two items, its lobes
+        (f cos = coat + albedo x base, :mod:`wavlight.relight.view_walk`): kinds and parameters
+        (I + C,) with each plastic item's base (VIEW_BASE) in its place and its coat (VIEW_COAT,
+        parameter alpha) appended, the items the C coat walks repeat (C,), and every walk's row of
+        the plastic table (material x PLASTIC_STRIDE)."""
+        mat = np.asarray(mat, np.int64)
+        kind = np.asarray(self.kind_of[mat], np.int64).copy()
+        param = np.asarray(self.param_of[mat], np.float64).copy()
+        coat = np.flatnonzero(kind == bsdfs.PLASTIC)
+        if not len(coat):
+            return kind, param, coat, np.zeros(len(mat), np.int64)
+        kind[coat] = VIEW_BASE
+        kinds = np.concatenate([kind, np.full(len(coat), VIEW_COAT, np.int64)])
+        params = np.concatenate([param, self.plastic_table[mat[coat], 3].astype(np.float64)])
+        return kinds, params, coat, np.concatenate([mat, mat[coat]]) * bsdfs.PLASTIC_STRIDE
+
+    def walks(self, points, mat, normal, wo, refine, backend, mass, weights=None, t1_normal=None,
+              tau: float = 0.0, queue=None, on_device: bool = False):
+        """The walks of items (cache points ``points`` (I,) or (I, 3) with ``weights``) of materials
+        ``mat`` (:meth:`lobes`): (B, nodes visited, the items C of plastic, the rows I .. I + C
+        of B that hold their coats), B (I + C, 3) on the host, or (with ``on_device``) the
+        walk's device buffers."""
+        kind, param, coat, rows = self.lobes(mat)
+        if len(coat):
+            ext = (lambda a: None if a is None else np.concatenate([np.asarray(a), np.asarray(a)[coat]]))
+            points, normal, wo, weights, t1_normal = (ext(points), ext(normal), ext(wo), ext(weights),
+                                                      ext(t1_normal))
+        coat_rows = len(mat) + np.arange(len(coat))
+        if backend == "numpy":
+            s = self.transfer._s
+            table = self.plastic_table[rows // bsdfs.PLASTIC_STRIDE] if len(coat) else None
+            B, nodes = product_reference(s["offsets"], s["entry_scale"], s["entry_data"], self.n, points, kind, param,
+                                         normal, wo, refine, weights, t1_normal, tau, mass, table)
+            return B, nodes, coat, coat_rows
+        if self._device is None:
+            self._device = ViewDevice(self.transfer)
+        call = self._device.walk if on_device else self._device.products
+        B, nodes = call(points, kind, param, normal, wo, refine, weights, t1_normal, tau, queue, mass,
+                        self.plastic_table, rows)
+        return B, nodes, coat, coat_rows
+
     def _point_items(self, points, eye):
-        """The point mode's items: cache points, material kind and parameter, normals and view
-        directions towards ``eye`` (lifted above the tangent plane)."""
+        """The point mode's items: cache points, their materials, normals and view directions
+        towards ``eye`` (lifted above the tangent plane)."""
         wo = np.asarray(eye, np.float64) - self.position[points]
         wo /= np.linalg.norm(wo, axis=1, keepdims=True)
         nrm = self.normal[points]
-        mat = self.material[points]
-        return points, self.kind_of[mat], self.param_of[mat], nrm, lifted_view(nrm, wo)
+        return points, self.material[points], nrm, lifted_view(nrm, wo)
 
     def products(self, points, eye, refine=REFINE, backend="opencl", mass: float = MASS):
-        """B_k (K, 3) (albedo factored out) and nodes visited of cache points seen from ``eye``."""
-        points, kind, param, nrm, wo = self._point_items(points, eye)
-        if backend == "numpy":
-            s = self.transfer._s
-            return product_reference(s["offsets"], s["entry_scale"], s["entry_data"], self.n, points, kind, param,
-                                     nrm, wo, refine, mass=mass)
-        if self._device is None:
-            self._device = ViewDevice(self.transfer)
-        return self._device.products(points, kind, param, nrm, wo, refine, mass=mass)
+        """The walks of cache points seen from ``eye`` (:meth:`walks`): B (K + C, 3), the first K
+        rows B_k without the albedo (plastic: its base), the last C plastic's coats C_k; a pixel
+        of albedo a blends a B_k + C_k."""
+        points, mat, nrm, wo = self._point_items(points, eye)
+        return self.walks(points, mat, nrm, wo, refine, backend, mass)
 
     def pixel_products(self, ids, w, face_normal, d, mat, refine=REFINE, tau: float = TAU, backend="opencl",
                        mass: float = MASS):
-        """B (M, 3) (albedo factored out) and nodes visited of pixels: the blend of their cache
-        points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the normal ``face_normal`` (the
-        hits' shading normals, :meth:`shading_normals`), the view direction -d, material ``mat`` and
-        the cosine's correction ``tau`` (:mod:`wavlight.relight.view_walk`)."""
+        """The walks of pixels (:meth:`walks`: B (M + C, 3), nodes visited, plastic's coats): the
+        blend of their cache points ``ids`` (M, 3) with weights ``w`` (M, 3), shaded with the
+        normal ``face_normal`` (the hits' shading normals, :meth:`shading_normals`), the view
+        direction -d, material ``mat`` and the cosine's correction ``tau``
+        (:mod:`wavlight.relight.view_walk`)."""
         n = np.asarray(face_normal, np.float64)
         wo = lifted_view(n, -np.asarray(d, np.float64))
         m = np.einsum("ij,ijk->ik", np.asarray(w, np.float64), self.normal[ids])
-        kind, param = self.kind_of[mat], self.param_of[mat]
-        if backend == "numpy":
-            s = self.transfer._s
-            return product_reference(s["offsets"], s["entry_scale"], s["entry_data"], self.n, ids, kind, param, n, wo,
-                                     refine, w, m, tau, mass)
-        if self._device is None:
-            self._device = ViewDevice(self.transfer)
-        return self._device.products(ids, kind, param, n, wo, refine, w, m, tau, mass=mass)
+        return self.walks(ids, mat, n, wo, refine, backend, mass, w, m, tau)
 
     def frame(self, eye=None, target=None, fov=None, width=None, height=None, refine: float = REFINE,
               backend: str = "opencl", mode: str = MODE, tau: float = TAU, mass: float = MASS,
@@ -405,34 +441,44 @@ class ViewFrames:
                 tc = time.perf_counter()
                 if on_device:
                     if len(points):
-                        B_b, visited_b = self._device.walk(*self._point_items(points, cam.eye), refine, queue=queue,
-                                                               mass=mass)
-                        nodes = cl.read(visited_b, (len(points),), np.uint32, queue)
+                        pts, pm, nrm, wo = self._point_items(points, cam.eye)
+                        B_b, visited_b, coat, coat_rows = self.walks(pts, pm, nrm, wo, refine, backend, mass,
+                                                                     queue=queue, on_device=True)
+                        nodes = cl.read(visited_b, (len(points) + len(coat),), np.uint32, queue)
+                        coat = (points[coat], coat_rows)
                     else:
-                        B_b, nodes = cl.scratch("view_walk_out", 12), np.zeros(0, np.uint32)
+                        B_b, nodes, coat = cl.scratch("view_walk_out", 12), np.zeros(0, np.uint32), None
                     td = time.perf_counter()
-                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, points, B_b, queue, rays, uv=(u, v))
+                    fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, points, B_b, queue, rays, coat, uv=(u, v))
                 else:
-                    B, nodes = self.products(points, cam.eye, refine, backend, mass)
+                    B, nodes, coat, coat_rows = self.products(points, cam.eye, refine, backend, mass)
                     td = time.perf_counter()
                     # a point of weight 0 (or none shaded at all: only back faces seen) reads the zero row
                     at = np.full(len(self.position), len(points), np.int64)
                     at[points] = np.arange(len(points))
-                    rows = np.concatenate([np.asarray(B, np.float32).reshape(-1, 3), np.zeros((1, 3), np.float32)])
+                    B = np.asarray(B, np.float32).reshape(-1, 3)
+                    rows = np.concatenate([B[:len(points)], np.zeros((1, 3), np.float32)])
                     blend = np.einsum("ij,ijc->ic", w.astype(np.float32), rows[at[ids]])
-                    rays[pix[hit]] = blend * self.hit_albedo(prim[hit], u[hit], v[hit])
+                    coats = np.zeros_like(rows)
+                    coats[coat] = B[coat_rows]
+                    rays[pix[hit]] = blend * self.hit_albedo(prim[hit], u[hit], v[hit]) + \
+                        np.einsum("ij,ijc->ic", w.astype(np.float32), coats[at[ids]])
                 shaded = len(points)
             else:
                 ok = np.flatnonzero(w.sum(1) > 0)
                 tc = time.perf_counter()
-                B, nodes = self.pixel_products(ids[ok], w[ok], fn[ok], d[hit][ok], mat[ok], refine, tau, backend,
-                                               mass)
+                B, nodes, coat, coat_rows = self.pixel_products(ids[ok], w[ok], fn[ok], d[hit][ok], mat[ok], refine,
+                                                                tau, backend, mass)
+                B = np.asarray(B, np.float32)
+                coats = np.zeros((len(ok), 3), np.float32)
+                coats[coat] = B[coat_rows]
+                B = B[:len(ok)]
                 td = time.perf_counter()
                 if on_device:   # the environment where rays miss (no point's row: 0 on hits)
                     fd.assemble(len(pix), prim_b, ids_b, w_b, dir_b, np.zeros(0, np.int64),
                                 cl.scratch("view_walk_out", 12), queue, rays, uv=(u, v))
                 at = hit[ok]
-                rays[pix[at]] = np.asarray(B, np.float32) * self.hit_albedo(prim[at], u[at], v[at])
+                rays[pix[at]] = B * self.hit_albedo(prim[at], u[at], v[at]) + coats
                 shaded = len(ok)
             if not on_device:
                 miss = np.flatnonzero(prim < 0)

@@ -4,6 +4,12 @@ as the varying factor; the top-down reconstruction of eq. 13) and its device wra
     B(x, wo) = <T1(x), T2>,  T1(x, w) = L(w) V(x, w) max(cos theta, 0)  (per cache point, baked),
     T2 = f_r(x, ., wo)  (per frame; the albedo factored out: f_r = albedo x shape).
 
+plastic (f cos = coat + albedo x base, wavlight.bsdfs.plastic_parts; Mitsuba 3's roughplastic)
+walks as two items, kinds VIEW_COAT (F(wo . h, eta) times ggx of its alpha: refined as ggx's
+lobe) and VIEW_BASE (T(cos_o) T(cos_i) / (pi eta^2 (1 - R_int)), refined as lambert's lobe,
+walked: T(cos_i) is not constant), each reading its material's row of the plastic table; the
+frame adds albedo x the base's value and the coat's (:meth:`wavlight.relight.view_frames.ViewFrames.lobes`).
+
 The walk (kernel ``view_product`` in kernels/relight_view.cl, numpy twin :func:`product_reference`).
 An item is one cache point (:mod:`wavlight.relight.surface_cache`) or the blend of a hit's three
 with their barycentric weights (the product is linear in T1: the walk reads the points'
@@ -58,14 +64,27 @@ MASS = FRAME["mass"].default
 MASS_STEPS = 8
 #: a view direction this close to the tangent plane is lifted to it (silhouette points)
 MIN_COS_VIEW = 1e-3
+#: plastic walks as two items, its lobes (f cos = coat + albedo x base, wavlight.bsdfs.plastic_parts):
+#: the coat F(wo . h) ggx (parameter alpha) and the base T(cos_o) T(cos_i) / (pi eta^2 (1 - R_int))
+#: (kernels/relight_view.cl VIEW_COAT, VIEW_BASE); their table rows: the scene's plastic table
+VIEW_COAT = 4
+VIEW_BASE = 5
 
 
-def brdf_reference(kind: np.ndarray, param: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+def brdf_reference(kind: np.ndarray, param: np.ndarray, wi: np.ndarray, wo: np.ndarray, table=None) -> np.ndarray:
     """f_r(wi, wo) without albedo and without cos theta_i, local frames (N, 3) (the kernel's
-    ``view_brdf``; for cos_i > 0 it is :func:`wavlight.bsdfs.eval_cos` / cos_i)."""
+    ``view_brdf``; for cos_i > 0 it is :func:`wavlight.bsdfs.eval_cos` / cos_i; plastic's lobes
+    VIEW_COAT and VIEW_BASE are :func:`wavlight.bsdfs.plastic_parts` / cos_i, ``table`` (N,
+    PLASTIC_STRIDE) their rows of the plastic table; below the horizon ggx and the coat stay
+    finite, the base is 0: T1 is 0 there, but a node's centre may be below it)."""
     kind = np.broadcast_to(kind, len(wi))
     param = np.broadcast_to(np.asarray(param, np.float64), len(wi))
     out = np.full(len(wi), 1.0 / np.pi)
+    base = kind == VIEW_BASE
+    if base.any():
+        diff = bsdfs.plastic_parts(wi[base], wo[base], np.asarray(table, np.float64)[base])[1]
+        iz = wi[base, 2]
+        out[base] = np.where(iz > 0, diff / np.where(iz > 0, iz, 1.0), 0.0)
     ix, iy, iz = wi[:, 0], wi[:, 1], wi[:, 2]
     ox, oy, oz = wo[:, 0], wo[:, 1], wo[:, 2]
     ph = kind == bsdfs.PHONG
@@ -73,8 +92,8 @@ def brdf_reference(kind: np.ndarray, param: np.ndarray, wi: np.ndarray, wo: np.n
         ca = np.maximum(iz * oz - ix * ox - iy * oy, 0.0)[ph]
         with np.errstate(divide="ignore"):
             out[ph] = np.where(ca > 0, (param[ph] + 2) / (2 * np.pi) * ca ** param[ph], 0.0)
-    gg = kind == bsdfs.GGX
-    if gg.any():
+    gg = (kind == bsdfs.GGX) | (kind == VIEW_COAT)
+    if gg.any():   # plastic's coat: ggx's factor times F(wo . h) (below)
         a2 = param[gg] ** 2
         h = wi[gg] + wo[gg]
         hh = np.einsum("ij,ij->i", h, h)
@@ -89,16 +108,26 @@ def brdf_reference(kind: np.ndarray, param: np.ndarray, wi: np.ndarray, wo: np.n
         gi = 2 / (z + np.sqrt(a2 + (1 - a2) * z * z))
         good = ok & (nhz > 0) & (ih > 0) & (oz[gg] > 0)
         out[gg] = np.where(good, D * g1o / (4 * np.maximum(oz[gg], 1e-30)) * gi, 0.0)
+    coat = kind == VIEW_COAT
+    if coat.any():   # F(wo . h, eta) (Mitsuba's fresnel; as bsdfs.plastic_parts, but finite below the horizon as ggx)
+        h = wi[coat] + wo[coat]
+        hl = np.linalg.norm(h, axis=1)
+        oh = np.einsum("ij,ij->i", wo[coat], h) / np.where(hl > 0, hl, 1.0)
+        out[coat] *= bsdfs.fresnel_dielectric(np.maximum(oh, 0.0), np.asarray(table, np.float64)[coat, 0])[0]
     return out
 
 
 def lobe(kind: np.ndarray, param: np.ndarray, normal: np.ndarray, wo: np.ndarray):
     """Each item's lobe axis (the mirror direction; the normal for lambert) and width (as
     :func:`wavlight.bsdfs.lobe_width`: ggx 2 alpha, phong 1 / sqrt(e + 1), lambert pi / 2),
-    world frame."""
+    world frame (plastic's coat as ggx, its base as lambert)."""
+    kind = np.asarray(kind)
     axis = 2.0 * np.einsum("ij,ij->i", wo, normal)[:, None] * normal - wo
-    axis = np.where((kind == bsdfs.LAMBERT)[:, None], normal, axis)
-    return axis, bsdfs.lobe_width(kind, param)
+    diffuse = (kind == bsdfs.LAMBERT) | (kind == VIEW_BASE)
+    axis = np.where(diffuse[:, None], normal, axis)
+    # plastic's coat is as wide as ggx of its alpha, its base as lambert
+    as_kind = np.where(kind == VIEW_COAT, bsdfs.GGX, np.where(kind == VIEW_BASE, bsdfs.LAMBERT, kind))
+    return axis, bsdfs.lobe_width(as_kind, param)
 
 
 def lifted_view(normal: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -226,13 +255,14 @@ def mass_steps(share: np.ndarray) -> np.ndarray:
 
 def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, kind, param, normal, wo,
                       refine: float = REFINE, weights=None, t1_normal=None, tau: float = 0.0,
-                      mass: float = MASS):
+                      mass: float = MASS, table=None):
     """numpy twin of ``view_product``: (B (I, 3) float64, nodes visited (I,)) for items (cache
     points ``points`` (I,) or (I, K) blended with ``weights`` (I, K), shaded with ``normal`` and
     view direction wo (world, unit), material kind and parameter; ``t1_normal`` the blend of the
     points' normals (default ``normal``), ``tau`` the cosine's correction tolerance, 0 for
     none, and ``mass`` the share of T1's mass above which a node refines further, 0 for none:
-    kernels/relight_view.cl), level by level over the frontier of all items' nodes
+    kernels/relight_view.cl; ``table`` (I, PLASTIC_STRIDE) the plastic table's row of each item
+    of plastic's lobes, VIEW_COAT and VIEW_BASE), level by level over the frontier of all items' nodes
     (float64; the kernel's float32 takes the same nodes but where a test lies within rounding
     of its threshold)."""
     points = np.asarray(points, np.int64)
@@ -291,7 +321,7 @@ def product_reference(offsets, scale, data, n_levels: int, points: np.ndarray, k
         if at.any():
             ii = item[at]
             wl = np.stack([np.einsum("ij,ij->i", c[at], a[ii]) for a in (s_ax, t_ax, normal)], 1)
-            f = brdf_reference(kind[ii], param[ii], wl, wo_l[ii])
+            f = brdf_reference(kind[ii], param[ii], wl, wo_l[ii], None if table is None else np.asarray(table)[ii])
             if tau > 0:
                 den = ramp(mc[at], sin_r[at] * ml[ii])
                 with np.errstate(divide="ignore", invalid="ignore"):
@@ -326,11 +356,14 @@ class ViewDevice:
         self.entries = DeviceEntries(s["offsets"], s["entry_scale"], s["entry_data"])
         self.n_levels, self.n_blocks = transfer.n_levels, int(s["offsets"].shape[1])
         self._tables = {}
+        self._plastic = None
 
     def walk(self, points, kind, param, normal, wo, refine: float = REFINE, weights=None, t1_normal=None,
-             tau: float = 0.0, queue=None, mass: float = MASS):
+             tau: float = 0.0, queue=None, mass: float = MASS, table=None, rows=None):
         """Launch ``view_product`` on the items (see :func:`product_reference`): its output
-        buffers, B (I, 3) float32 and nodes visited (I,) uint32, left on the device."""
+        buffers, B (I, 3) float32 and nodes visited (I,) uint32, left on the device. Items of
+        plastic's lobes (VIEW_COAT, VIEW_BASE) read ``table`` (the scene's plastic table,
+        (materials, PLASTIC_STRIDE), uploaded once) at ``rows`` (I,) (material x PLASTIC_STRIDE)."""
         queue = queue or cl.thread_queue()
         points = np.asarray(points)
         count = len(points)
@@ -347,6 +380,8 @@ class ViewDevice:
                       normal if t1_normal is None else np.asarray(t1_normal, np.float64), tau)
         out = cl.scratch("view_walk_out", 12 * count)
         visited = cl.scratch("view_walk_visited", 4 * count)
+        table_b = self.plastic_table(table)
+        rows = np.zeros(count, np.uint32) if rows is None else np.ascontiguousarray(rows, np.uint32)
         cl.kernel(prog, "view_product")(
             queue, (-(-count // cl.WORK_GROUP) * cl.WORK_GROUP,), (cl.WORK_GROUP,), np.uint32(count),
             np.uint32(self.n_levels), np.uint32(self.n_blocks),
@@ -356,17 +391,28 @@ class ViewDevice:
             cl.upload("view_walk_kind", np.asarray(kind, np.int32), queue),
             cl.upload("view_walk_param", np.asarray(param, np.float32), queue),
             tables[0], tables[1], tables[2], self.entries.offsets[0], self.entries.scale[0], self.entries.data[0],
-            np.float32(mass), out, visited)
+            np.float32(mass), table_b, cl.upload("view_walk_rows", rows, queue), out, visited)
         return out, visited
 
+    def plastic_table(self, table):
+        """The plastic table on the device (uploaded again only when another table is given; a
+        row of zeros where there is none)."""
+        t = np.ascontiguousarray(np.zeros(bsdfs.PLASTIC_STRIDE) if table is None or not np.size(table) else table,
+                                 np.float32).reshape(-1)
+        key = t.tobytes()
+        if self._plastic is None or self._plastic[0] != key:
+            self._plastic = (key, cl.to_device(t))
+        return self._plastic[1]
+
     def products(self, points, kind, param, normal, wo, refine: float = REFINE, weights=None, t1_normal=None,
-                 tau: float = 0.0, queue=None, mass: float = MASS):
+                 tau: float = 0.0, queue=None, mass: float = MASS, table=None, rows=None):
         """(B (I, 3) float32, nodes visited (I,) uint32) of the items (see :func:`product_reference`)."""
         queue = queue or cl.thread_queue()
         count = len(points)
         if not count:
             return np.zeros((0, 3), np.float32), np.zeros(0, np.uint32)
-        out, visited = self.walk(points, kind, param, normal, wo, refine, weights, t1_normal, tau, queue, mass)
+        out, visited = self.walk(points, kind, param, normal, wo, refine, weights, t1_normal, tau, queue, mass, table,
+                                 rows)
         return cl.read(out, (count, 3), np.float32, queue), cl.read(visited, (count,), np.uint32, queue)
 
 
@@ -431,11 +477,12 @@ class FrameDevice:
         points = np.flatnonzero(cl.read(used, (self.points,), np.uint8, queue))
         return ids, w, prim_b, dir_b, points
 
-    def assemble(self, count, prim_b, ids, w, dir_b, points, B, queue, image=None, uv=None) -> np.ndarray:
+    def assemble(self, count, prim_b, ids, w, dir_b, points, B, queue, image=None, coat=None, uv=None) -> np.ndarray:
         """Launch ``view_assemble``: (N, 3) float32 (into ``image`` if given), a hit's albedo x the
-        blend of its points' B (rows of ``B`` in the order of ``points``), a miss's environment
-        texel; in a textured scene the albedo times the texture at the hit, at embree's barycentrics
-        ``uv`` = (u (N,), v (N,)) of the rays."""
+        blend of its points' B (rows of ``B`` in the order of ``points``) plus the blend of the
+        coat rows of its plastic points (``coat``: (cache points, row of B) pairs, or None), a
+        miss's environment texel; in a textured scene the albedo times the texture at the hit, at
+        embree's barycentrics ``uv`` = (u (N,), v (N,)) of the rays."""
         if self.textured and uv is None:
             raise ValueError("FrameDevice.assemble: a textured scene needs the hits' barycentrics (uv)")
         bary = (cl.upload("view_bary", np.ascontiguousarray(np.stack([np.asarray(uv[0], np.float32),
@@ -443,11 +490,14 @@ class FrameDevice:
                 if self.textured else self.textures[0])   # (not read without textures)
         row = np.full(self.points, -1, np.int32)
         row[points] = np.arange(len(points), dtype=np.int32)
+        coat_row = np.full(self.points, -1, np.int32)
+        if coat is not None and len(coat[0]):
+            coat_row[coat[0]] = coat[1]
         out = cl.scratch("view_image", 12 * count)
         cl.kernel(self.program, "view_assemble")(
             queue, (cl.items(count),), (cl.WORK_GROUP,), np.uint32(count), prim_b, ids, w,
-            cl.upload("view_row", row, queue), B, self.face_material, self.albedo, bary, *self.textures, dir_b,
-            self.env, *self.env_size,
+            cl.upload("view_row", row, queue), cl.upload("view_coat_row", coat_row, queue), B, self.face_material,
+            self.albedo, bary, *self.textures, dir_b, self.env, *self.env_size,
             self.map_from_world, out)
         if image is None:
             return cl.read(out, (count, 3), np.float32, queue)
