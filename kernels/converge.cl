@@ -680,11 +680,9 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
         realv ar, ag, ab, unused;
         GATHER4(mat_albedo, 4 * as_uintv(mat), &ar, &ag, &ab, &unused);
 #if TEXTURES
-        {   /* the albedo times the material's texture at the hit (texture.h; bary: embree's (u, v)) */
-            realv bu, bv, tu, tv, tr, tg, tb;
-            GATHER2(bary, 2 * i, &bu, &bv);
-            texture_uv(face_uv, f, bu, bv, &tu, &tv);
-            texture_rgb(tex_atlas, tex_table, GATHER_INT(mat_texture, mat), tu, tv, &tr, &tg, &tb);
+        {   /* the albedo times the material's texture at the hit (texture.h) */
+            realv tr, tg, tb;
+            texture_at_hit(face_uv, tex_atlas, tex_table, mat_texture, bary, i, f, mat, &tr, &tg, &tb);
             ar *= tr;
             ag *= tg;
             ab *= tb;

@@ -724,12 +724,7 @@ __kernel void shade_rays(__global const float *dirs, __global const int *prim, _
         const intv mat = GATHER_INT(face_material, f);
         realv tr = 1.0f, tg = 1.0f, tb = 1.0f;
 #if TEXTURES
-        {
-            realv bu, bv, tu, tv;
-            GATHER2(bary, 2 * i, &bu, &bv);
-            texture_uv(face_uv, f, bu, bv, &tu, &tv);
-            texture_rgb(tex_atlas, tex_table, GATHER_INT(mat_texture, mat), tu, tv, &tr, &tg, &tb);
-        }
+        texture_at_hit(face_uv, tex_atlas, tex_table, mat_texture, bary, i, f, mat, &tr, &tg, &tb);
 #endif
         s = shade_lanes(SHADE_TABLES, nx, ny, nz, gx, gy, gz, -dx, -dy, -dz, mat, tr, tg, tb, u0, u1, u2, u3,
                         hit);

@@ -57,4 +57,16 @@ INLINE void texture_rgb(__global const float *atlas, __global const int *table, 
     *g = select((realv)1.0f, gy * (gx * g00 + fx * g01) + fy * (gx * g10 + fx * g11), has);
     *b = select((realv)1.0f, gy * (gx * b00 + fx * b01) + fy * (gx * b10 + fx * b11), has);
 }
+
+/* The base colour of material mat's texture at the hit of lanes' faces f, at embree's
+ * barycentrics (bary: rows of (u, v), row i): 1 where the material has no texture. */
+INLINE void texture_at_hit(__global const float *face_uv, __global const float *atlas, __global const int *table,
+                           __global const int *mat_texture, __global const float *bary, const uintv i,
+                           const uintv f, const intv mat, realv *r, realv *g, realv *b)
+{
+    realv bu, bv, tu, tv;
+    GATHER2(bary, 2 * i, &bu, &bv);
+    texture_uv(face_uv, f, bu, bv, &tu, &tv);
+    texture_rgb(atlas, table, GATHER_INT(mat_texture, mat), tu, tv, r, g, b);
+}
 #endif
