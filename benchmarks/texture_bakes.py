@@ -21,43 +21,24 @@ import argparse
 import dataclasses
 import json
 import os
+import sys
 import tempfile
 import time
 
 import numpy as np
 
-PYRAMID = """mtllib p.mtl
-v -1 0 -1
-v 1 0 -1
-v 1 0 1
-v -1 0 1
-v 0 1.5 0
-vt 0 0
-vt 2 0
-vt 2 2
-vt 0 2
-vt 1 3
-usemtl tex
-f 1/1 5/5 2/2
-f 2/2 5/5 3/3
-f 3/3 5/5 4/4
-f 4/4 5/5 1/1
-f 1/1 2/2 3/3
-f 1/1 3/3 4/4
-"""
-
+HERE = os.path.dirname(os.path.abspath(__file__))
 
 def write_pyramid(folder, texels):
+    """The tests' textured pyramid (tests/support/assets_util.write_textured_pyramid), its
+    stripes ``texels`` wide."""
     import PIL.Image
 
-    img = np.zeros((texels, texels, 3), np.uint8)
-    img[:, 0::2] = (200, 40, 40)
-    img[:, 1::2] = (230, 230, 230)
-    PIL.Image.fromarray(img).save(os.path.join(folder, "stripes.png"))
-    with open(os.path.join(folder, "p.mtl"), "w") as fh:
-        fh.write("newmtl tex\nKd 0.9 0.9 0.9\nmap_Kd stripes.png\n")
-    with open(os.path.join(folder, "p.obj"), "w") as fh:
-        fh.write(PYRAMID)
+    sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tests", "support"))
+    from assets_util import stripes_image, write_textured_pyramid
+
+    write_textured_pyramid(folder)
+    PIL.Image.fromarray(stripes_image(texels, texels)).save(os.path.join(folder, "stripes.png"))
 
 
 def main():
