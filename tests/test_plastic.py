@@ -2,9 +2,9 @@
 
 Its numpy twin (wavlight.bsdfs) against Mitsuba 3's own BSDF where Mitsuba is installed, the
 kernels (kernels/bsdf.h through kernels/bsdf.cl) against the twin, the properties its
-sampling relies on (reciprocity, energy, the pdf of the sampler), and every kernel strategy
-against ``mis`` on a plastic sphere (the shade kernels against their twins on plastic are in
-tests/test_shading.py).
+sampling relies on (reciprocity, energy, the pdf of the sampler), and every strategy (the
+numpy-only sir and structured too) against ``mis`` on a plastic sphere (the shade kernels
+against their twins on plastic are in tests/test_shading.py; the bakes in tests/relight/).
 """
 from __future__ import annotations
 
@@ -201,7 +201,7 @@ def test_scene_plastic_keys(tmp_path):
         wavlight.load_dict(base, base_dir=tmp_path)
 
 
-SUN_STRATEGIES = ["light", "mis_comp", "wavelet", "wavelet-pair"]
+SUN_STRATEGIES = ["light", "mis_comp", "wavelet", "wavelet-pair", "sir", "structured"]
 SMOOTH_STRATEGIES = ["uniform", "cosine", "bsdf"] + SUN_STRATEGIES
 
 
@@ -232,7 +232,7 @@ def plastic_scenes(tmp_path_factory):
 @pytest.mark.parametrize("sky, strategy", [("sun", s) for s in SUN_STRATEGIES]
                          + [("smooth", s) for s in SMOOTH_STRATEGIES])
 def test_strategies_agree_with_mis_on_plastic(plastic_scenes, sky, strategy):
-    """Every kernel strategy against mis on a plastic sphere over a plastic floor, per pixel and on
+    """Every strategy against mis on a plastic sphere over a plastic floor, per pixel and on
     the mean, within the two renders' standard errors (unbiased: wavelet's product walk samples
     the two-lobe mixture with its exact pdf). wavelet-pair: the MIS pair (no candidates). Under a
     sky with a one-texel sun of 3000 (hard shadows) the strategies that sample the light; under a
@@ -246,16 +246,3 @@ def test_strategies_agree_with_mis_on_plastic(plastic_scenes, sky, strategy):
     r = wavlight.render_full(scene, strategy=name, spp=spp, seed=2, **opts)
     mask = np.ones(r.image.shape[:2], bool)
     check_estimates(r.image - ref.image, np.hypot(r.stderr, ref.stderr), 0.0, mask, spp, label=f"{sky}/{strategy}")
-
-
-def test_what_plastic_is_not_yet_in_says_so(tmp_path):
-    """The numpy-only strategies (sir, structured: the albedo one factor of their whole estimate)
-    refuse plastic in one line; every bake holds it (the lighting and object bakes:
-    tests/relight/test_relight_plastic.py; the view bake: tests/relight/test_relight_view_plastic.py)."""
-    write_sun_sky(tmp_path)
-    base = over_floor({"shape": "sphere", "radius": 0.5, "center": [0, 0.5, 0]}, width=8, height=8)
-    base["materials"]["m"] = {"type": "plastic", "albedo": [0.5, 0.2, 0.1]}
-    scene = wavlight.load_dict(base, base_dir=tmp_path)
-    for name in ("sir", "structured"):
-        with pytest.raises(wavlight.WavlightError, match=f"strategy {name}: plastic"):
-            wavlight.render_full(scene, strategy=name, spp=1)

@@ -165,16 +165,3 @@ def unoccluded(sp, env, ds, mis_weight):
         scalar = np.where(ds.pdf > 0, fcos * mis_weight / ds.pdf, 0.0)
     scalar = np.where((scalar > 0) & np.isfinite(scalar), scalar, 0.0)
     return scalar[:, None] * tint * env.eval(ds.wi_world)
-
-
-
-
-def refuse_plastic(name: str, materials) -> None:
-    """The numpy-only strategies (sir, structured) carry the albedo as one factor of the whole
-    estimate: a one-line ArgumentError for a scene with plastic, whose albedo does not factor out."""
-    from ..errors import ArgumentError
-
-    plastic = [m.name for m in materials if m.kind == bsdfs.PLASTIC]
-    if plastic:
-        raise ArgumentError(f"strategy {name}: plastic materials ({', '.join(plastic)}) are not supported; "
-                            "use uniform, cosine, bsdf, light, mis, mis_comp or wavelet")

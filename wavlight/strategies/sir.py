@@ -30,6 +30,12 @@ albedo, the map's luminance; unshadowed; RGB is carried by the ratio L_rgb / lum
        L_hat = 1/N sum_k  albedo f(y_k) L(y_k) cos V(y_k) / p_hat(y_k) * W
              = W albedo / N sum_k  (L_rgb / lum)(y_k) V(y_k).
 
+   With ``plastic`` (f cos = coat + albedo x base) the albedo does not factor out: p_hat keeps
+   f without albedo (coat + base, positive wherever the integrand is), and "albedo" above is the
+   colour that turns f into f with albedo at y_k (ShadingPoints.bsdf_value's tint: the albedo for
+   the other materials), so the estimate is W / N sum_k (f_rgb / f)(y_k) (L_rgb / lum)(y_k) V(y_k),
+   unbiased as before.
+
    For a grey map this is exactly eq. 12, L_ns_hat / N sum_k V(y_k): the resampled
    directions distribute (as M grows) like eq. 10, and the noise left is the visibility's
    plus that of W. If sum_j w_j = 0 (no candidate sees any light through the lobe) the
@@ -72,7 +78,7 @@ import numpy as np
 from ..envmap import luminance
 from ..errors import ArgumentError, shown
 from ..options import Option
-from .base import DirectionSamples, ShadingPoints, Strategy, refuse_plastic
+from .base import DirectionSamples, ShadingPoints, Strategy
 from .light import LIGHT_LEVELS, LightStrategy
 
 #: about this many candidates (points x M) are processed at once (bounded memory)
@@ -130,14 +136,14 @@ class SirStrategy(Strategy):
         self.env = None
 
     def prepare(self, environment, materials=()):
-        refuse_plastic("sir", materials)
         self.env = environment
         if self.source == "light":
             self.light.prepare(environment)
 
     # -- the three steps, on one chunk of points
     def _candidates(self, sp: ShadingPoints, rng: np.random.Generator):
-        """M candidates per point: world directions (P, M, 3), f cos (P, M), radiance (P, M, 3),
+        """M candidates per point: world directions (P, M, 3), f cos without albedo (P, M), radiance
+        times the colour that puts the albedo into f (P, M, 3; ShadingPoints.bsdf_value),
         p_hat (P, M) and resampling weights w = p_hat / q (P, M)."""
         p, m = len(sp), self.candidates
         rep = repeat_points(sp, m)
@@ -148,14 +154,14 @@ class SirStrategy(Strategy):
         else:
             wl, q = rep.bsdf_sample(u)
             d = rep.to_world(wl)
-        fcos = rep.bsdf_eval_cos(wl)
+        fcos, tint = rep.bsdf_value(wl)   # f cos without albedo, and the colour that puts it in
         radiance = self.env.eval(d).astype(np.float64)
         p_hat = np.maximum(fcos, 0.0) * luminance(radiance)
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             w = np.where(q > 0, p_hat / q, 0.0)
         w = np.where(np.isfinite(w) & (w > 0), w, 0.0)
-        return (d.reshape(p, m, 3), fcos.reshape(p, m), radiance.reshape(p, m, 3), p_hat.reshape(p, m),
-                w.reshape(p, m))
+        return (d.reshape(p, m, 3), fcos.reshape(p, m), radiance.reshape(p, m, 3) * tint.reshape(p, m, 3),
+                p_hat.reshape(p, m), w.reshape(p, m))
 
     def _resample(self, w: np.ndarray, rng: np.random.Generator, n: int):
         """N candidate indices per point (P, N), drawn with probability w_j / sum w, with replacement;
@@ -198,7 +204,7 @@ class SirStrategy(Strategy):
         if self.env is None or env is not self.env:
             self.prepare(env)
         wi, scalar, radiance, _ = self._run(sp, self._rng(u), self.samples)
-        value = (scalar / self.samples)[..., None] * radiance * np.asarray(sp.albedo, np.float64)[:, None, :]
+        value = (scalar / self.samples)[..., None] * radiance
         return wi, value
 
     def ris_weight(self, sp: ShadingPoints, u: np.ndarray) -> np.ndarray:

@@ -79,7 +79,7 @@ from ..envmap import luminance
 from ..errors import ArgumentError, check_int
 from ..options import Option
 from .sir import repeat_points, slice_points, rng_from_uniforms
-from .base import DirectionSamples, ShadingPoints, Strategy, refuse_plastic
+from .base import DirectionSamples, ShadingPoints, Strategy
 
 MODES = ("stratified", "preintegrated")
 DEFAULT_STRATA = 16
@@ -267,7 +267,6 @@ class StructuredStrategy(Strategy):
         self.env = None
 
     def prepare(self, environment, materials=()):
-        refuse_plastic("structured", materials)
         self.env = environment
         # an all-black map has no strata: every estimate is 0 (as the integral is)
         self.strata = None if environment.is_black else Strata(environment, self.k, self.levels)
@@ -316,10 +315,10 @@ class StructuredStrategy(Strategy):
         pos = np.clip(pos, np.tile(st.start, p), np.tile(st.stop - 1, p))
         d, t = self._texel_directions(pos, a.ravel(), b.ravel())
         rep = repeat_points(sp, k)
-        fcos = np.maximum(rep.bsdf_eval_cos(rep.to_local(d)), 0.0)
+        fcos, tint = rep.bsdf_value(rep.to_local(d))
         rgb = self.env.pixels.reshape(-1, 3)[t].astype(np.float64)
-        scalar = fcos * np.tile(st.phi, p) / st.lum[t]
-        value = scalar[:, None] * rgb * rep.albedo
+        scalar = np.maximum(fcos, 0.0) * np.tile(st.phi, p) / st.lum[t]
+        value = scalar[:, None] * rgb * tint
         return d.reshape(p, k, 3), value.reshape(p, k, 3)
 
     def _stratified(self, sp: ShadingPoints, u):
@@ -334,10 +333,10 @@ class StructuredStrategy(Strategy):
             y, a, b = rng.random((3, p, n))
         d, t = self._texel_directions(self.strata.sample_texels(x.ravel(), y.ravel()), a.ravel(), b.ravel())
         rep = repeat_points(sp, n)
-        fcos = np.maximum(rep.bsdf_eval_cos(rep.to_local(d)), 0.0)
+        fcos, tint = rep.bsdf_value(rep.to_local(d))
         rgb = self.env.pixels.reshape(-1, 3)[t].astype(np.float64)
-        scalar = fcos * self.strata.total / self.strata.lum[t] / n
-        value = scalar[:, None] * rgb * rep.albedo
+        scalar = np.maximum(fcos, 0.0) * self.strata.total / self.strata.lum[t] / n
+        value = scalar[:, None] * rgb * tint
         return d.reshape(p, n, 3), value.reshape(p, n, 3)
 
     # -- preintegrated
@@ -346,17 +345,17 @@ class StructuredStrategy(Strategy):
         p, k = len(sp), st.k
         rep = repeat_points(sp, k)
         d = np.tile(st.centroid, (p, 1))
-        fcos = np.maximum(rep.bsdf_eval_cos(rep.to_local(d)), 0.0).reshape(p, k)
-        albedo = np.asarray(sp.albedo, np.float64)
+        fcos, tint = rep.bsdf_value(rep.to_local(d))
+        fcos, tint = np.maximum(fcos, 0.0).reshape(p, k), tint.reshape(p, k, 3)   # tint: albedo x f's colour
         if k <= ALL_LIGHTS:
-            value = fcos[:, :, None] * st.rgb[None, :, :] * albedo[:, None, :]
+            value = fcos[:, :, None] * st.rgb[None, :, :] * tint
             return np.broadcast_to(st.centroid, (p, k, 3)).copy(), value
         w = fcos * st.phi[None, :]
         cdf = np.cumsum(w, axis=1)
         total = cdf[:, -1]
         pick = np.minimum((cdf <= (u[:, 0] * total)[:, None]).sum(axis=1), k - 1)
         rows = np.arange(p)
-        value = np.where((total > 0)[:, None], st.rgb[pick] / st.phi[pick, None] * total[:, None], 0.0) * albedo
+        value = np.where((total > 0)[:, None], st.rgb[pick] / st.phi[pick, None] * total[:, None], 0.0) * tint[rows, pick]
         value = np.where((fcos[rows, pick] > 0)[:, None], value, 0.0)
         return st.centroid[pick][:, None, :], value[:, None, :]
 
