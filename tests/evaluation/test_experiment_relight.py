@@ -86,6 +86,22 @@ def test_a_time_budget_fits_relight_from_its_pilot(tmp_path):
     assert (tmp_path / "out" / "pilot" / "sc" / "relight.json").is_file()
 
 
+def test_a_budget_past_the_unbiased_frames_bound_is_capped_there(tmp_path):
+    """A pilot whose cost per spp is next to nothing (the unbiased frame's setup dominating its
+    short pilots) asks for more spp than the relit frame takes: the budget is capped at the
+    frame's bound (FRAME["spp"]), not at a scene's, with a warning."""
+    from wavlight.relight.settings import FRAME
+
+    spec = load_spec(write(tmp_path, spec_text(budgets="seconds = [0.5]\nrepetitions = 1\n")))
+    relight = next(st for st in spec.strategies if st.id == "relight")
+    other = next(st for st in spec.strategies if st.id != "relight")
+    most = experiment.most_spp(relight)
+    assert most == FRAME["spp"].hi < experiment.most_spp(other)
+    pilot = {"setup_seconds": 0.0, "render_a": 0.0, "render_b": 1e-9}
+    with pytest.warns(UserWarning, match=f"capped at the most a render takes, {most} spp"):
+        assert experiment._Runner.spp_for(pilot, 0.5, "here", most) == most
+
+
 @pytest.mark.parametrize("keys, named", [
     ("bake_spp = 0\n", "[[strategies]][1].bake_spp"),
     ("bake_spp = 65\n", "[[strategies]][1].bake_spp"),

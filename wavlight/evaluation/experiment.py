@@ -431,7 +431,7 @@ class _Runner:
         measure(p1)
         measure(p2)
         # A third pilot near the largest budget's spp: short pilots are dominated by noise.
-        p3 = self.spp_for(fit(), longest)
+        p3 = self.spp_for(fit(), longest, most=most_spp(st))
         if p3 > 2 * p2:
             measure(p3)
         model = fit()
@@ -453,17 +453,18 @@ class _Runner:
         return None
 
     @staticmethod
-    def spp_for(pilot, seconds, where=None):
-        """The spp that the pilot's fit gives for a budget of ``seconds`` (1 .. MAX_SPP). A budget
-        that would need more than MAX_SPP is capped there with a warning naming ``where``."""
+    def spp_for(pilot, seconds, where=None, most: int = MAX_SPP):
+        """The spp that the pilot's fit gives for a budget of ``seconds`` (1 .. ``most``, the most
+        the strategy's render takes: :func:`most_spp`). A budget that would need more is capped
+        there with a warning naming ``where``."""
         with np.errstate(all="ignore"):
             spp = (seconds - pilot["setup_seconds"] - pilot["render_a"]) / pilot["render_b"]
-        if not math.isfinite(spp) or spp > MAX_SPP:
+        if not math.isfinite(spp) or spp > most:
             if where is not None:
                 warnings.warn(f"{where}: a time budget of {seconds:g} s would need about "
-                              f"{spp:.3g} spp; capped at the most a render takes, {MAX_SPP} spp "
+                              f"{spp:.3g} spp; capped at the most a render takes, {most} spp "
                               "(the run will take less time than its budget)", stacklevel=4)
-            return MAX_SPP
+            return most
         return int(max(1, round(spp)))
 
     # -- one run
@@ -524,6 +525,15 @@ class _Runner:
     def run(self, s: SceneSpec, st: StrategySpec, budget: Budget, spp: int, seed: int):
         rec, job = self.prepare(s, st, budget, spp, seed)
         return rec if job is None else self.finish(job, self.render_local(job))
+
+
+def most_spp(st: StrategySpec) -> int:
+    """The most spp a render of ``st`` takes: a scene's MAX_SPP, or for ``relight`` the unbiased
+    frame's bound (wavlight.relight.settings FRAME["spp"])."""
+    if st.id == RELIGHT:
+        from ..relight.settings import FRAME
+        return int(FRAME["spp"].hi)
+    return MAX_SPP
 
 
 _TRANSFERS = {}   # per process: bake file -> Transfer (read once)
@@ -786,7 +796,7 @@ def _run(runner: _Runner, t_start, workers=1, dask_address=None):
             for budget in spec.budgets:
                 spp = (int(budget.value) if budget.kind == "spp" else
                        runner.spp_for(pilots[s.name, st.label], budget.value,
-                                      f"{spec.path}: [budgets].seconds: {s.name}/{st.label}"))
+                                      f"{spec.path}: [budgets].seconds: {s.name}/{st.label}", most_spp(st)))
                 for seed in range(spec.repetitions):
                     rec, job = runner.prepare(s, st, budget, spp, seed)
                     if job is not None:
