@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import functools
 import json
 import os
 import re
@@ -38,6 +39,7 @@ from repo import REPO
 
 import wavlight
 from wavlight.relight import viewer as viewer_module
+from wavlight.relight.progressive import PassSchedule
 from wavlight.relight.viewer import EXPOSURE_RANGE, Limits, ObjectLimits, Viewer, ViewLimits, sanitise
 
 #: the fixtures of tests/test_viewer.py: its small bake, loaded, a viewer of it (a fake estimator),
@@ -487,7 +489,10 @@ FACTOR = 8.0
 
 
 @pytest.mark.slow
-def test_a_page_converging_leaves_another_pages_previews_responsive(converge_bake, capfd):
+def test_a_page_converging_leaves_another_pages_previews_responsive(converge_bake, capfd, monkeypatch):
+    # passes of 16 spp from the first: each holds a thread much longer than a preview on any device
+    # (the default schedule's first passes of 2 spp may be as short as a few previews)
+    monkeypatch.setattr("wavlight.relight.viewer.PassSchedule", functools.partial(PassSchedule, first=16))
     v = Viewer(converge_bake)                 # the real estimator
     v.start_background(0)
 
