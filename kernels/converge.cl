@@ -677,17 +677,8 @@ __kernel void converge_shade(const uint count, const uint k, const uint first, _
         out_v[3] = px + pt.gx * eps;   /* shadow rays from the geometric surface */
         out_v[4] = py + pt.gy * eps;
         out_v[5] = pz + pt.gz * eps;
-        realv ar, ag, ab, unused;
-        GATHER4(mat_albedo, 4 * as_uintv(mat), &ar, &ag, &ab, &unused);
-#if TEXTURES
-        {   /* the albedo times the material's texture at the hit (texture.h) */
-            realv tr, tg, tb;
-            texture_at_hit(face_uv, tex_atlas, tex_table, mat_texture, bary, i, f, mat, &tr, &tg, &tb);
-            ar *= tr;
-            ag *= tg;
-            ab *= tb;
-        }
-#endif
+        realv ar, ag, ab;   /* the albedo, times the material's texture at the hit (texture.h) */
+        albedo_at_hit(mat_albedo, TEXTURES, face_uv, tex_atlas, tex_table, mat_texture, bary, i, f, mat, &ar, &ag, &ab);
 #if CANDIDATES
         const intv resample = hit & (GATHER(spread, pixel) > coherence * GATHER(mat_width, mat));
 #else

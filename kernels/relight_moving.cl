@@ -234,17 +234,8 @@ __kernel void moving_occlusion(const uint count, __global const uint *slot_in, _
     const intv mat = GATHER_INT(face_material, f);
     const intv kind = GATHER_INT(mat_kind, mat);
     const realv param = GATHER(mat_param, mat);
-    realv ar, ag, ab, unused_a;
-    GATHER4(mat_albedo, 4 * as_uintv(mat), &ar, &ag, &ab, &unused_a);
-#if TEXTURES
-    {   /* the albedo times the material's texture at the hit (texture.h) */
-        realv tr, tg, tb;
-        texture_at_hit(face_uv, tex_atlas, tex_table, mat_texture, bary, i, f, mat, &tr, &tg, &tb);
-        ar *= tr;
-        ag *= tg;
-        ab *= tb;
-    }
-#endif
+    realv ar, ag, ab;   /* the albedo, times the material's texture at the hit (texture.h) */
+    albedo_at_hit(mat_albedo, TEXTURES, face_uv, tex_atlas, tex_table, mat_texture, bary, i, f, mat, &ar, &ag, &ab);
     const uintv table_row = as_uintv(mat) * (uint)PLASTIC_STRIDE;   /* its row of the plastic table */
     /* the pixel's tree and strata */
     const uintv slot = as_uintv(GATHER_INT((__global const int *)slot_in, i));

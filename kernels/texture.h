@@ -69,4 +69,23 @@ INLINE void texture_at_hit(__global const float *face_uv, __global const float *
     texture_uv(face_uv, f, bu, bv, &tu, &tv);
     texture_rgb(atlas, table, GATHER_INT(mat_texture, mat), tu, tv, r, g, b);
 }
+
+/* A hit's albedo: material mat's row of mat_albedo (rows of r, g, b, 0), with ``textured`` (the
+ * program's TEXTURES, folded by the compiler) times its texture there (texture_at_hit; numpy twin
+ * Scene.albedo_at). */
+INLINE void albedo_at_hit(__global const float *mat_albedo, const int textured, __global const float *face_uv,
+                          __global const float *atlas, __global const int *table, __global const int *mat_texture,
+                          __global const float *bary, const uintv i, const uintv f, const intv mat, realv *r,
+                          realv *g, realv *b)
+{
+    realv unused;
+    GATHER4(mat_albedo, 4 * as_uintv(mat), r, g, b, &unused);
+    if (textured) {
+        realv tr, tg, tb;
+        texture_at_hit(face_uv, atlas, table, mat_texture, bary, i, f, mat, &tr, &tg, &tb);
+        *r *= tr;
+        *g *= tg;
+        *b *= tb;
+    }
+}
 #endif
