@@ -170,19 +170,26 @@ def test_the_kernel_frame_matches_the_numpy_frame(bakes):
 
 
 def test_trees_are_kept_while_the_lighting_stays(bakes, monkeypatch):
-    """A second frame under the same lighting reads the kept trees (and is the same image for the
-    same seed), a frame under another lighting builds them again; with no room for them none is
-    kept, and the image is the same. converge keeps its ConvergeFrames for the next call with the
-    same transfer and scene."""
+    """A lighting's first frame builds its trees in scratch buffers and keeps none; the second
+    builds them again and keeps them; the third reads them (the same image for the same seed
+    each time); a frame under another lighting builds them again, in the last one's buffers,
+    and keeps them at once; with no room for them none is kept, and the image is the same.
+    converge keeps its ConvergeFrames for the next call with the same transfer and scene."""
     scene, by_bits, folder = bakes
     tr = by_bits[16]
     frames = cm.ConvergeFrames(tr, scene)
-    first = frames.frame(rotate_y=40.0, spp=2, seed=3)
-    again = frames.frame(rotate_y=40.0, spp=2, seed=3)
+    first, second, again = (frames.frame(rotate_y=40.0, spp=2, seed=3) for _ in range(3))
     turned = frames.frame(rotate_y=41.0, spp=2, seed=3)
-    assert first.stats["tiles_kept"] == 0 and again.stats["tiles_kept"] == len(frames.tiles) == 2
+    turned_again = frames.frame(rotate_y=41.0, spp=2, seed=3)
+    assert first.stats["tiles_kept"] == first.stats["kept_tree_bytes"] == 0
+    assert second.stats["tiles_kept"] == 0 and second.stats["kept_tree_bytes"] > 0
+    assert again.stats["tiles_kept"] == len(frames.tiles) == 2
     assert turned.stats["tiles_kept"] == 0 and turned.stats["lighting_seconds"] > 0
+    assert turned.stats["kept_tree_bytes"] == again.stats["kept_tree_bytes"]
+    assert turned_again.stats["tiles_kept"] == len(frames.tiles)
+    np.testing.assert_array_equal(first.image, second.image)
     np.testing.assert_array_equal(first.image, again.image)
+    np.testing.assert_array_equal(turned.image, turned_again.image)
     assert not np.array_equal(first.image, turned.image)
     monkeypatch.setattr(cm, "TREE_CACHE_BYTES", 0)
     tight = cm.ConvergeFrames(tr, scene)

@@ -156,19 +156,22 @@ def test_the_kernel_frame_matches_the_numpy_frame(bakes, options):
 
 
 def test_trees_are_kept_while_the_camera_stays(bakes, monkeypatch):
-    """A second frame from the same camera reads the kept trees (and is the same image for the
-    same seed); another eye or size builds them again; with no room for them none is kept, and the
-    image is the same."""
+    """A camera's first frame builds its trees in scratch buffers and keeps none; the second
+    keeps them; the third reads them (the same image for the same seed each time); another eye
+    builds them again, in the last camera's buffers (kept at once), another size in new ones;
+    with no room for them none is kept, and the image is the same."""
     scene, by_bits, folder = bakes
     monkeypatch.setattr(vc, "TILE_PIXELS", 36 * 8)
     frames = view_frames.ViewFrames(by_bits[16], scene)
-    first = frames.converge(EYE, TARGET, spp=2, seed=3)
-    again = frames.converge(EYE, TARGET, spp=2, seed=3)
+    first, second, again = (frames.converge(EYE, TARGET, spp=2, seed=3) for _ in range(3))
     other = frames.converge([2.1, 2.0, 3.0], TARGET, spp=2, seed=3)
     smaller = frames.converge([2.1, 2.0, 3.0], TARGET, width=30, spp=2, seed=3)
-    assert first.stats["tiles"] == 3 and first.stats["tiles_kept"] == 0 and again.stats["tiles_kept"] == 3
+    assert first.stats["tiles"] == 3 and first.stats["tiles_kept"] == first.stats["kept_tree_bytes"] == 0
+    assert second.stats["tiles_kept"] == 0 and second.stats["kept_tree_bytes"] > 0 and again.stats["tiles_kept"] == 3
     assert first.stats["setup_seconds"] > 0 and again.stats["setup_seconds"] < first.stats["setup_seconds"]
-    assert other.stats["tiles_kept"] == 0 and smaller.stats["tiles_kept"] == 0
+    assert other.stats["tiles_kept"] == 0 and other.stats["kept_tree_bytes"] == again.stats["kept_tree_bytes"]
+    assert smaller.stats["tiles_kept"] == smaller.stats["kept_tree_bytes"] == 0
+    np.testing.assert_array_equal(first.image, second.image)
     np.testing.assert_array_equal(first.image, again.image)
     assert not np.array_equal(first.image, other.image)
     assert again.stats["rays"] < first.stats["rays"]   # no centre rays

@@ -106,7 +106,7 @@ SLOTS = 4
 #: resampled directions (docs/decisions/relight-resampling.md): a camera sample whose pixel's
 #: footprint reflects over more than COHERENCE times its lobe's width (:func:`footprint_spread`,
 #: :func:`wavlight.bsdfs.lobe_width`) picks its slots among CANDIDATES mixture directions
-CANDIDATES = 16
+CANDIDATES = 8
 COHERENCE = 0.25
 MAX_CANDIDATES = 256
 #: sub-pixel rays per side of the fixed grid that measures a pixel's footprint
@@ -239,6 +239,7 @@ class _LightingState:
     def __init__(self, key, inside, device):
         self.key, self.inside, self.device = key, inside, device
         self.trees, self.kept_bytes = {}, 0
+        self.frames = 0   # frames made under it (its first builds its trees in scratch buffers)
         self.lock = threading.Lock()
 
 
@@ -355,9 +356,13 @@ class ConvergeFrames:
         self._lighting = state
         return state
 
-    def tile_trees(self, state, tile, prog):
+    def tile_trees(self, state, tile, prog, new_buffers: bool = True):
         """The tile's product trees under the lighting ``state``: kept ones, or built (and kept
-        while they fit in tree_cache_bytes); with the numpy backend (HaarTree, host nodes, G)."""
+        while they fit in tree_cache_bytes); with the numpy backend (HaarTree, host nodes, G).
+        Trees are kept in an earlier lighting's buffers, or in new ones only with
+        ``new_buffers``: without, where no earlier buffers serve, they are built in the thread's
+        scratch buffers (a lighting's first frame: faulting in new pages costs it more than its
+        trees cost to build; docs/decisions/relight-converge-kernels.md)."""
         with state.lock:
             kept = state.trees.get(tile.index)
         if kept is not None:
@@ -374,12 +379,13 @@ class ConvergeFrames:
             return (HaarTree.from_pyramids(nodes), nodes, relit), False
         nbytes = kernels.TileTrees(None, None, tile.w * tile.h, m).nbytes
         with state.lock:
-            keep = state.kept_bytes + nbytes <= self.tree_cache_bytes
+            fits = state.kept_bytes + nbytes <= self.tree_cache_bytes
+            spare = self._spare.pop(tile.index, None) if fits else None
+            if spare is not None and spare.levels != m:
+                spare = None
+            keep = fits and (spare is not None or new_buffers)
             if keep:
                 state.kept_bytes += nbytes
-            spare = self._spare.pop(tile.index, None) if keep else None
-        if spare is not None and spare.levels != m:
-            spare = None
         made = self._trees(prog, state.device, tile, into=spare if keep else "scratch")
         if keep:
             with state.lock:
@@ -468,7 +474,7 @@ class ConvergeFrames:
         spread_rays = self._spread_rays
 
         def start(tile):
-            trees, was_kept = self.tile_trees(state, tile, prog)
+            trees, was_kept = self.tile_trees(state, tile, prog, new_buffers=state.frames > 0)
             spread = self.spread(tile, prog) if candidates else (np.zeros(tile.w * tile.h, np.float32), None)
             if self.backend == "opencl" and spread[1] is None:
                 spread = (spread[0], cl.to_device(spread[0]))
@@ -505,6 +511,8 @@ class ConvergeFrames:
         work = tile_passes.TileWork(start, samples, lambda pixels: pass_spp(spp, pixels))
         mean, err, totals = tile_passes.run_tiles(work, self.tiles, width, height, spp,
                                                   self.threads or default_threads(), progress, t0)
+        with state.lock:
+            state.frames += 1
         self._spare = {}
         seconds = time.perf_counter() - t0
         max_tile = max(t.w * t.h for t in self.tiles)

@@ -128,14 +128,24 @@ class TexelLight:
 
     def __init__(self, environment, n_levels: int, rotate_y: float, map_pixels: bool = True, projector=None):
         top = max(environment.square_levels(), n_levels)
-        if projector is None or projector.environment is not environment or projector.n_levels != top:
-            projector = lighting.Projector(environment, top)
-        self.projector = projector   # (for another rotation of the same map: :meth:`Projector.__call__` alone)
-        rgb = projector(rotate_y)
-        leaf_angles = lighting.texel_solid_angles(top)[:, None]
-        masses = luminance(rgb) * leaf_angles                                          # (M, M)
         self.n, self.top, self.k = n_levels, top, 1 << (top - n_levels)
         self.rotate_y = float(rotate_y)
+        self.map_pixels = bool(map_pixels)
+        # where every leaf lies inside 2 x 2 of the map's pixels, its mean radiance is theirs
+        # weighted by their shares of its solid angle (:meth:`_leaf_radiance`); else (a map wider
+        # or taller than 2^11) the projector integrates the map over each leaf
+        nested = (1 << top) >= max(environment.width, environment.height)
+        if self.map_pixels:
+            self._pieces(environment, rotate_y)
+        if self.map_pixels and nested:
+            rgb, projector = self._leaf_radiance(), None
+        else:
+            if projector is None or projector.environment is not environment or projector.n_levels != top:
+                projector = lighting.Projector(environment, top)
+            rgb = projector(rotate_y)
+        self.projector = projector   # (for another rotation of the same map: :meth:`Projector.__call__` alone)
+        leaf_angles = lighting.texel_solid_angles(top)[:, None]
+        masses = luminance(rgb) * leaf_angles                                          # (M, M)
         side, k = 1 << n_levels, self.k
         self.rgb = rgb
         self.texel_angles = lighting.texel_solid_angles(n_levels)
@@ -148,9 +158,16 @@ class TexelLight:
                                 / lighting.texel_solid_angles(n_levels)[:, None])
         self.cdf = np.cumsum(blocks, axis=1)
         self.blocks = blocks
-        self.map_pixels = bool(map_pixels)
-        if self.map_pixels:
-            self._pieces(environment, rotate_y)
+
+    def _leaf_radiance(self) -> np.ndarray:
+        """(M, M, 3) float64: each leaf's mean radiance, the exact integral of the turned map
+        (piecewise constant) over the leaf's solid angle over that angle, as lighting.Projector
+        gives it: the leaf's 2 x 2 pieces of map pixels weighted by their shares of its width
+        (phi) and of its solid angle (rows), when no leaf is wider or taller than a map pixel."""
+        share = self.row_angle_share[:, None, None]
+        by_rows = share * self.map_rgb[self.rows[0]] + (1.0 - share) * self.map_rgb[self.rows[1]]   # (M, W, 3)
+        share = self.col_share[None, :, None]
+        return share * by_rows[:, self.cols[0]] + (1.0 - share) * by_rows[:, self.cols[1]]
 
     def _pieces(self, environment, rotate_y: float):
         """Per leaf column: the map columns of its two pieces and the first's share of the leaf's

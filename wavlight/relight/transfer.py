@@ -146,12 +146,15 @@ class Transfer:
         environment = self._environment(env, scale)
         if len(self._maps) >= MAPS_KEPT:
             self._maps.pop(next(iter(self._maps)))
-        self._maps[key] = (environment, lighting.Projector(environment, self.n_levels), env)
+        self._maps[key] = (environment, None, env)   # its projector made when a relit frame needs it
         return environment
 
     def _projector(self, environment):
-        for kept, projector, _ in self._maps.values():
+        for key, (kept, projector, env) in self._maps.items():
             if kept is environment:
+                if projector is None:
+                    projector = lighting.Projector(environment, self.n_levels)
+                    self._maps[key] = (kept, projector, env)
                 return projector
         return lighting.Projector(environment, self.n_levels)
 
@@ -164,7 +167,7 @@ class Transfer:
             return lighting.coefficients(projector(rotate_y))
         device = self._lit.get(id(projector)) if self._lit is not None else None
         if device is None or device.projector is not projector:
-            kept = {id(p) for _, p, _ in self._maps.values()}
+            kept = {id(p) for _, p, _ in self._maps.values() if p is not None}
             self._lit = {k: v for k, v in (self._lit or {}).items() if k in kept}
             device = self._lit[id(projector)] = lighting.DeviceProjector(projector)
         return device.coefficients(rotate_y)

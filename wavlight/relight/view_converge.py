@@ -249,7 +249,7 @@ class ViewConverge:
         self.levels = inside.n
         sc = frames.scene
         self.lobe_width = bsdfs.lobe_width(sc.material_kind, sc.material_param).astype(np.float32)
-        self._camera = None
+        self._camera, self._camera_frames = None, 0
         self._trees, self._spare, self._spreads, self.kept_bytes = {}, {}, {}, 0
         self._lock = threading.Lock()
         if backend == "opencl":
@@ -297,12 +297,15 @@ class ViewConverge:
         if self._camera != key:
             self._spare = self._trees
             self._trees, self._spreads, self.kept_bytes = {}, {}, 0
-            self._camera = key
+            self._camera, self._camera_frames = key, 0
 
-    def tile_trees(self, scene, tile, width: int, height: int):
+    def tile_trees(self, scene, tile, width: int, height: int, new_buffers: bool = True):
         """The tile's product trees from ``scene``'s camera (kept, or built and kept while they
         fit in tree_cache_bytes): a :class:`.converge_kernels.TileTrees`, or with the numpy
-        backend (HaarTree, host pyramids, G); and whether they were kept."""
+        backend (HaarTree, host pyramids, G); and whether they were kept. Trees are kept in an
+        earlier camera's buffers, or in new ones only with ``new_buffers`` (a camera's first
+        frame builds them in scratch buffers instead, as
+        :meth:`wavlight.relight.converge.ConvergeFrames.tile_trees`)."""
         with self._lock:
             kept = self._trees.get(tile.index)
         if kept is not None:
@@ -320,12 +323,13 @@ class ViewConverge:
         queue = cl.thread_queue()
         nbytes = kernels.TileTrees(None, None, P, m).nbytes
         with self._lock:
-            keep = self.kept_bytes + nbytes <= self.tree_cache_bytes
+            fits = self.kept_bytes + nbytes <= self.tree_cache_bytes
+            spare = self._spare.pop(tile.index, None) if fits else None
+            if spare is not None and (spare.pixels != P or spare.levels != m):
+                spare = None
+            keep = fits and (spare is not None or new_buffers)
             if keep:
                 self.kept_bytes += nbytes
-            spare = self._spare.pop(tile.index, None) if keep else None
-        if spare is not None and (spare.pixels != P or spare.levels != m):
-            spare = None
         if spare is not None:
             out, relit = spare.buffer, spare.relit
         elif keep:
@@ -397,7 +401,7 @@ class ViewConverge:
 
         def start(tile):
             ta = time.perf_counter()
-            trees, was_kept = self.tile_trees(scene, tile, width, height)
+            trees, was_kept = self.tile_trees(scene, tile, width, height, new_buffers=self._camera_frames > 0)
             P = tile.w * tile.h
             rays = 0 if was_kept else P
             if candidates:
@@ -438,6 +442,7 @@ class ViewConverge:
         work = tile_passes.TileWork(start, samples, lambda pixels: per_pass(spp, pixels, pass_limit))
         mean, err, totals = tile_passes.run_tiles(work, tiles, width, height, spp, self.threads or default_threads(),
                                                   progress, t0)
+        self._camera_frames += 1
         self._spare = {}
         seconds = time.perf_counter() - t0
         k_pass = per_pass(spp, max_tile, pass_limit)
