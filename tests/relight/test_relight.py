@@ -436,6 +436,25 @@ def test_points_inside_a_texel_follow_the_map_pixels(rotate_y):
         assert 0.05 < hits.mean() < 0.95
 
 
+@pytest.mark.parametrize("shape, levels, rotate_y", [((32, 64), 3, 0.0), ((32, 64), 3, 37.3), ((37, 100), 2, -200.7),
+                                                     ((8, 16), 6, 123.4)])
+def test_leaf_radiance_from_the_map_pieces_is_the_projectors_integral(shape, levels, rotate_y):
+    """TexelLight's leaf radiance, made from each leaf's 2 x 2 pieces of map pixels, is the
+    projector's exact integral of the turned map over the leaf (maps of any size, leaves as wide
+    as a map pixel or narrower), to float64 rounding; a map wider than 2^11 pixels, whose
+    leaves span more than two of its columns, takes the projector's."""
+    pixels = np.random.default_rng(7).gamma(0.5, 2.0, shape + (3,)).astype(np.float32)
+    env = Environment(pixels, 1.0, 0.0, "noise")
+    inside = mixture.TexelLight(env, levels, rotate_y)
+    assert inside.projector is None
+    want = lighting.Projector(env, inside.top)(rotate_y)
+    np.testing.assert_allclose(inside.rgb, want, rtol=1e-10, atol=1e-12 * want.max())
+    wide = Environment(np.random.default_rng(8).gamma(0.5, 2.0, (2, 4096, 3)).astype(np.float32), 1.0, 0.0, "wide")
+    far = mixture.TexelLight(wide, 3, rotate_y)
+    assert far.projector is not None
+    np.testing.assert_array_equal(far.rgb, lighting.Projector(wide, far.top)(rotate_y))
+
+
 # ----------------------------------------------------------------------------- the bake file
 def test_save_load_and_checks(shadowed, tmp_path):
     _, tr = shadowed

@@ -270,9 +270,10 @@ class ConvergeFrames:
         t0 = time.perf_counter()
         sc = self.scene
         self.tracer = RayTracer(sc.vertices, sc.faces, threads=1, normals=sc.normals, normal_faces=sc.normal_faces)
-        self.hit_scale = hit_scales(transfer).astype(np.float32)
+        hits = bake_hits(transfer)
+        self.hit_scale = hit_scales(transfer, hits).astype(np.float32)
         #: the trees' scale: c, and 0 where every camera sample of the bake missed (no transfer: no tree)
-        self.tree_scale = np.where(bake_hits(transfer) > 0, self.hit_scale, 0.0).astype(np.float32)
+        self.tree_scale = np.where(hits > 0, self.hit_scale, 0.0).astype(np.float32)
         self.tiles = tiles_of(transfer)
         self.lobe_width = bsdfs.lobe_width(sc.material_kind, sc.material_param).astype(np.float32)
         #: plastic's coat in the trees (a bake of a scene with plastic: store.COAT_SECTIONS)
@@ -647,12 +648,13 @@ def bake_hits(transfer) -> np.ndarray:
     return hits.reshape(transfer.height, transfer.width)
 
 
-def hit_scales(transfer) -> np.ndarray:
+def hit_scales(transfer, hits=None) -> np.ndarray:
     """(H, W) S / hits: the bake's camera samples over those of them that hit, per pixel (1 where
     all miss). The transfer is a mean over all S samples, misses counted as 0; a camera sample of
     the frame that hits is closer to the transfer of the hits alone, on a silhouette's pixels
-    too. A constant per pixel: the control variate (g and G alike) stays unbiased."""
-    hits = bake_hits(transfer)
+    too. A constant per pixel: the control variate (g and G alike) stays unbiased. ``hits``:
+    :func:`bake_hits` of the transfer, where the caller has it."""
+    hits = bake_hits(transfer) if hits is None else hits
     return np.where(hits > 0, transfer.spp / np.maximum(hits, 1.0), 1.0)
 
 
