@@ -307,19 +307,25 @@ __kernel void converge_trees(__global const int *offsets, __global const float *
  * solid angle, first and second map row) per leaf row, map (r, g, b, luminance) per map pixel;
  * 2^top leaves a side, k = 2^kbits per texel side. */
 #define LIGHT_ARGS __global const float *leaf_cdf, __global const float *texel_total, __global const uint *leaf_guide, \
-                   __global const float *texel_cdf, __global const float *columns, __global const float *rows,        \
-                   __global const float *map, __global const float *map_lum, const uint map_w, const uint top,        \
-                   const uint kbits
-#define LIGHT leaf_cdf, texel_total, leaf_guide, texel_cdf, columns, rows, map, map_lum, map_w, top, kbits
+                   __global const float *texel_cdf, __global const uint *texel_guide, __global const float *columns,  \
+                   __global const float *rows, __global const float *map, __global const float *map_lum,             \
+                   const uint map_w, const uint top, const uint kbits
+#define LIGHT leaf_cdf, texel_total, leaf_guide, texel_cdf, texel_guide, columns, rows, map, map_lum, map_w, top, kbits
 
-/* How many of the n non-decreasing entries cdf[row0 ..] are <= target, per lane. */
-INLINE uintv entries_at_most(__global const float *cdf, const uintv row0, const uint n, const realv target)
+/* How many of the n texels' running sums (texel_cdf) are <= u x total, total their last, per lane:
+ * between the guide's counts of u's cell and the next (texel_guide: per cell g of n, how many
+ * running sums are <= (g / n) total, in float32 as here), then by bisection: the plain bisection's
+ * answer in a step or two instead of log2 n. */
+INLINE uintv texels_at_most(__global const float *texel_cdf, __global const uint *texel_guide, const uint n,
+                            const realv u)
 {
-    uintv lo = 0, hi = n;
+    const realv target = u * texel_cdf[n - 1u];
+    const uintv g = as_uintv(clamp(convert_intv(u * (float)n), 0, (int)n - 1));
+    uintv lo = GATHER_T(uintv, texel_guide, g), hi = GATHER_T(uintv, texel_guide, g + 1u);
     intv active = lo < hi;
     while (any(active)) {
         const uintv mid = (lo + hi) >> 1;
-        const intv below = GATHER(cdf, row0 + min(mid, n - 1u)) <= target;
+        const intv below = GATHER(texel_cdf, min(mid, n - 1u)) <= target;
         lo = select(lo, mid + 1u, active & below);
         hi = select(hi, mid, active & ~below);
         active = lo < hi;
@@ -510,8 +516,7 @@ INLINE Direction mixture_direction(SAMPLE_ARGS, const Point *pt, const realv u0,
     const intv use_l = ~use_b & (u2 < pt->alpha + light);
     if (light > 0.0f && any(use_l)) {   /* the lighting's texel: u0 in the texels' running sum; (u1, u3) inside */
         const uint texels = side * side;
-        const realv total = texel_cdf[texels - 1u];
-        const uintv t = min(entries_at_most(texel_cdf, (uintv)0u, texels, u0 * total), texels - 1u);
+        const uintv t = min(texels_at_most(texel_cdf, texel_guide, texels, u0), texels - 1u);
         col = select(col, t & (side - 1u), use_l);
         row = select(row, t >> N_LEVELS, use_l);
         fu = select(fu, u1, use_l);

@@ -66,14 +66,15 @@ class Lighting:
         self.map_w = int(tables["map_width"])
         self.map_h, self.map_shift = int(tables["map_height"]), float(tables["map_shift"])   # (the background)
         self.buffers = {name: cl.to_device(np.ascontiguousarray(tables[name])) for name in
-                        ("leaf_cdf", "texel_total", "leaf_guide", "texel_cdf", "columns", "rows", "map", "map_lum",
+                        ("leaf_cdf", "texel_total", "leaf_guide", "texel_cdf", "texel_guide", "columns", "rows",
+                         "map", "map_lum",
                          "leaf_masses", "radiance", "omega")}
 
     def light_args(self) -> tuple:
         """The kernels' LIGHT_ARGS."""
         b = self.buffers
-        return (b["leaf_cdf"], b["texel_total"], b["leaf_guide"], b["texel_cdf"], b["columns"], b["rows"], b["map"],
-                b["map_lum"], np.uint32(self.map_w), np.uint32(self.top), np.uint32(self.kbits))
+        return (b["leaf_cdf"], b["texel_total"], b["leaf_guide"], b["texel_cdf"], b["texel_guide"], b["columns"],
+                b["rows"], b["map"], b["map_lum"], np.uint32(self.map_w), np.uint32(self.top), np.uint32(self.kbits))
 
 
 def program(levels: int, bits: int, kinds: int, slots: int, candidates: int, control: bool, lattice,

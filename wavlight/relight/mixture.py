@@ -254,7 +254,8 @@ class TexelLight:
         bits: the running sums of each texel's leaf masses (leaf_cdf, texel-major), each texel's
         last one (texel_total), the guide to them (leaf_guide: per texel and cell g of k^2 cells,
         how many running sums are <= (g / k^2) total, in float32 as the kernel multiplies), the
-        running sum of the texels' masses (texel_cdf), per leaf column its first map column's share of the leaf's
+        running sum of the texels' masses (texel_cdf) and its guide alike (texel_guide: per cell g
+        of the texels' count n, how many running sums are <= (g / n) of the last), per leaf column its first map column's share of the leaf's
         width and its two map columns (columns), per leaf row the first map row's share of the
         leaf's height and of its solid angle and its two map rows (rows), the map's pixels
         (r, g, b, luminance), and per texel in Morton order (the trees' leaf order) the leaf
@@ -287,11 +288,14 @@ class TexelLight:
         keys = (offset | cdf.view(np.uint32).astype(np.int64)).reshape(-1)
         guide = np.searchsorted(keys, (offset | cells.view(np.uint32).astype(np.int64)).reshape(-1), side="right")
         guide = (guide.reshape(texels, kk + 1) - np.arange(texels)[:, None] * kk).astype(np.uint32)
+        texel_cdf = np.cumsum(self.texel_mass).astype(np.float32)                 # non-decreasing (rounding is monotone)
+        texel_cells = (np.arange(texels + 1, dtype=np.float32) / np.float32(texels)) * texel_cdf[-1]   # float32 products
+        texel_guide = np.searchsorted(texel_cdf, texel_cells, side="right").astype(np.uint32)
         return {"levels": self.n, "top": self.top, "kbits": self.top - self.n, "map_width": w, "map_height": h,
                 "map_shift": np.float32(self.rotate_y / 360.0),
                 "leaf_cdf": cdf.reshape(-1), "texel_total": np.ascontiguousarray(total),
                 "leaf_guide": guide.reshape(-1),
-                "texel_cdf": np.cumsum(self.texel_mass).astype(np.float32), "columns": columns, "rows": rows,
+                "texel_cdf": texel_cdf, "texel_guide": texel_guide, "columns": columns, "rows": rows,
                 "map": pixels, "map_lum": np.ascontiguousarray(pixels[:, 3]), "leaf_masses": np.ascontiguousarray(self.leaf_masses().reshape(-1)[morton]),
                 "radiance": radiance, "omega": self.texel_angles.astype(np.float32)}
 
