@@ -336,7 +336,7 @@ class ViewConverge:
             out, relit = cl.empty(4 * P * stride), cl.empty(16 * P)
         else:
             out, relit = cl.scratch("view_converge_trees", 4 * P * stride), cl.scratch("view_converge_relit", 16 * P)
-        ids_b, w_b, prim_b, dir_b, _ = self.lookup.lookup(prim, u, v, d, queue)
+        ids_b, w_b, prim_b, dir_b, _ = self.lookup.lookup(prim, u, v, d, queue, points=False)
         e = self.device.entries
         hs = np.float32(float(1 << m) * 4.0 ** (self.frames.n - m))
         cl.kernel(self.tree_program, "view_converge_trees")(

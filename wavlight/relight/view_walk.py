@@ -459,23 +459,26 @@ class FrameDevice:
                                   MASS_STEPS=MASS_STEPS, TEXTURES=int(self.textured),
                                   BACKGROUND_MODE=BACKGROUND_MODE[env.background])
 
-    def lookup(self, prim, u, v, d, queue):
+    def lookup(self, prim, u, v, d, queue, points: bool = True):
         """Launch ``view_lookup`` on camera rays (prim (N,) int32, -1 a miss; embree's u, v; unit
         directions d (N, 3) float32): the buffers of their cache points (N, 3) uint32 and weights
         (N, 3) float32 (the device twin of :meth:`wavlight.relight.view_frames.ViewFrames.hit_points`,
-        all rays), the ray buffers, and the cache points of weight > 0 (sorted)."""
+        all rays), the ray buffers, and with ``points`` the cache points of weight > 0 (sorted;
+        the one wait for the device), without them None (the inputs are uploaded without a wait
+        each: the queue is in order)."""
         count = len(prim)
-        prim_b = cl.upload("view_prim", np.ascontiguousarray(prim, np.int32), queue)
-        dir_b = cl.upload("view_dir", np.ascontiguousarray(d, np.float32), queue)
-        used = cl.upload("view_used", self._zeros, queue)
+        prim_b = cl.upload("view_prim", np.ascontiguousarray(prim, np.int32), queue, blocking=False)
+        dir_b = cl.upload("view_dir", np.ascontiguousarray(d, np.float32), queue, blocking=False)
+        used = cl.upload("view_used", self._zeros, queue, blocking=False)
         ids, w = cl.scratch("view_ids", 12 * count), cl.scratch("view_weights", 12 * count)
         cl.kernel(self.program, "view_lookup")(
             queue, (cl.items(count),), (cl.WORK_GROUP,), np.uint32(count), prim_b,
-            cl.upload("view_u", np.ascontiguousarray(u, np.float32), queue),
-            cl.upload("view_v", np.ascontiguousarray(v, np.float32), queue), dir_b, self.face_k, self.face_base,
-            self.lattice, self.normal, self.face_normal, self.cos_crease, ids, w, used)
-        points = np.flatnonzero(cl.read(used, (self.points,), np.uint8, queue))
-        return ids, w, prim_b, dir_b, points
+            cl.upload("view_u", np.ascontiguousarray(u, np.float32), queue, blocking=False),
+            cl.upload("view_v", np.ascontiguousarray(v, np.float32), queue, blocking=False), dir_b, self.face_k,
+            self.face_base, self.lattice, self.normal, self.face_normal, self.cos_crease, ids, w, used)
+        if not points:
+            return ids, w, prim_b, dir_b, None
+        return ids, w, prim_b, dir_b, np.flatnonzero(cl.read(used, (self.points,), np.uint8, queue))
 
     def assemble(self, count, prim_b, ids, w, dir_b, points, B, queue, image=None, coat=None, uv=None) -> np.ndarray:
         """Launch ``view_assemble``: (N, 3) float32 (into ``image`` if given), a hit's albedo x the
