@@ -74,6 +74,7 @@ import os
 import threading
 import time
 import weakref
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
@@ -404,8 +405,12 @@ class ConvergeFrames:
             prog = self.program(min(self.transfer.n_levels, levels), slots, candidates, bool(control),
                                 FRAME["background"].check(background, "relight.converge"))
         if candidates:
-            for tile in self.tiles:
-                self.spread(tile, prog)
+            self.footprints(prog)
+
+    def footprints(self, prog=None) -> None:
+        """Measure every tile's footprint spread not measured yet (:meth:`spread`)."""
+        for tile in self.tiles:
+            self.spread(tile, prog)
 
     def warm(self, env=None, rotate_y=None, scale: float = FRAME["scale"].default, levels: int = PRODUCT_LEVELS,
              stop=None, background: str = FRAME["background"].default) -> int:
@@ -464,15 +469,21 @@ class ConvergeFrames:
         rot = tr.scene_rotate_y if rotate_y is None else float(rotate_y)
         m = min(tr.n_levels, levels)
         t0 = time.perf_counter()
-        state = self.lighting(env, rot, scale, m)
-        lighting_seconds = time.perf_counter() - t0
+        spread_rays = self._spread_rays
         prog = None
         if self.backend == "opencl":
             prog = self.program(m, slots, candidates, use_control, background)
+        with ThreadPoolExecutor(1) as aside:
+            # the footprints do not depend on the lighting: measured while its tables are made (numpy, one core)
+            footprints = (aside.submit(self.footprints, prog)
+                          if candidates and prog is not None and len(self._spread) < len(self.tiles) else None)
+            state = self.lighting(env, rot, scale, m)
+            lighting_seconds = time.perf_counter() - t0
+            if footprints is not None:
+                footprints.result()
         width, height = tr.width, tr.height
         shares = (defensive, light, coherence)
         eye = np.broadcast_to(self.scene.camera.eye.astype(np.float32), (1, 3))
-        spread_rays = self._spread_rays
 
         def start(tile):
             trees, was_kept = self.tile_trees(state, tile, prog, new_buffers=state.frames > 0)
