@@ -441,18 +441,22 @@ def test_points_inside_a_texel_follow_the_map_pixels(rotate_y):
 def test_leaf_radiance_from_the_map_pieces_is_the_projectors_integral(shape, levels, rotate_y):
     """TexelLight's leaf radiance, made from each leaf's 2 x 2 pieces of map pixels, is the
     projector's exact integral of the turned map over the leaf (maps of any size, leaves as wide
-    as a map pixel or narrower), to float64 rounding; a map wider than 2^11 pixels, whose
-    leaves span more than two of its columns, takes the projector's."""
+    as a map pixel or narrower), to float64 rounding."""
     pixels = np.random.default_rng(7).gamma(0.5, 2.0, shape + (3,)).astype(np.float32)
     env = Environment(pixels, 1.0, 0.0, "noise")
     inside = mixture.TexelLight(env, levels, rotate_y)
     assert inside.projector is None
     want = lighting.Projector(env, inside.top)(rotate_y)
     np.testing.assert_allclose(inside.rgb, want, rtol=1e-10, atol=1e-12 * want.max())
-    wide = Environment(np.random.default_rng(8).gamma(0.5, 2.0, (2, 4096, 3)).astype(np.float32), 1.0, 0.0, "wide")
-    far = mixture.TexelLight(wide, 3, rotate_y)
-    assert far.projector is not None
-    np.testing.assert_array_equal(far.rgb, lighting.Projector(wide, far.top)(rotate_y))
+
+
+def test_a_map_wider_than_the_leaves_takes_the_projectors_leaf_radiance():
+    """A map wider than 2^11 pixels, whose leaves span more than two of its columns, takes its
+    leaf radiance from the projector."""
+    wide = Environment(np.random.default_rng(8).gamma(0.5, 2.0, (1, 2100, 3)).astype(np.float32), 1.0, 0.0, "wide")
+    far = mixture.TexelLight(wide, 3, 37.3)
+    assert far.top == 11 and far.projector is not None and far.projector.n_levels == 11
+    np.testing.assert_array_equal(far.rgb, far.projector(37.3))
 
 
 # ----------------------------------------------------------------------------- the bake file
