@@ -494,31 +494,16 @@ class ConvergeFrames:
                 self._shade.warm_up(prog, slots, trees, spread[1], state.device, shares)
             return (trees, spread), {"kept": int(was_kept)}
 
+        shading = PassShading(self.scene, self.tracer, self._shade if prog is not None else None, prog,
+                              state.device, state.inside, eye, seed, slots, shares, use_control, candidates,
+                              background, self.lobe_width)
+
         def samples(shared, tile, first, k):
-            trees, spread = shared
             P = tile.w * tile.h
             tile_id = CONVERGE_TILES + tile.index
             d = camera.pass_rays(self.scene, width, height, seed, tile_id, tile.x0, tile.y0, tile.w, tile.h, k,
                                  first * P, kernel=self.backend == "opencl", stratified=True)
-            prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
-            bary = np.stack([bu, bv], axis=1)   # the shading normals and textures at the hits
-            rays = len(d)
-            if self.backend == "opencl":
-                direct, origin, wi, value = self._shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
-                                                        state.device, shares, seed, tile_id, bary=bary)
-            else:
-                direct, origin, wi, value = shade_reference(
-                    self.scene, self.tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], state.inside,
-                    (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
-                    bary=bary, background=background)
-            v, traced = visible_sum(self.tracer, direct, origin, wi, value)
-            rays += traced
-            hit = prim >= 0
-            chosen = 0
-            if candidates:
-                mat = self.scene.face_material[prim[hit]]
-                chosen = int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
-            return v, {"rays": rays, "hits": int(hit.sum()), "resampled": chosen}
+            return shading.samples(d, k, first * P, tile_id, *shared)
 
         work = tile_passes.TileWork(start, samples, lambda pixels: pass_spp(spp, pixels))
         mean, err, totals = tile_passes.run_tiles(work, self.tiles, width, height, spp,
@@ -554,6 +539,53 @@ class ConvergeFrames:
         self._lighting = self._map = None
         self._spare = {}
         self._spread = {}
+
+
+class PassShading(NamedTuple):
+    """What the passes of one unbiased frame shade with (a lighting bake's, :class:`ConvergeFrames`,
+    or a view bake's, :class:`.view_converge.ViewConverge`): the scene and its ray tracer, the
+    ``kernel`` (a :class:`.converge_kernels.ShadeKernel`; None: its numpy twin
+    :func:`shade_reference`) and its program, the lighting (on the device, and inside the
+    texels), the eye, and the frame's seed, slots, shares (defensive, light, coherence), control
+    variate, candidates, background and the materials' lobe widths."""
+    scene: object
+    tracer: RayTracer
+    kernel: object
+    prog: object
+    lighting: object
+    inside: TexelLight
+    eye: np.ndarray
+    seed: int
+    slots: int
+    shares: tuple
+    control: bool
+    candidates: int
+    background: str
+    lobe_width: np.ndarray
+
+    def samples(self, d, k: int, first: int, tile_id: int, trees, spread):
+        """One pass of a tile: the camera rays d (k per pixel, pixel-major, the pass's first sample
+        ``first`` of the tile, Philox tile ``tile_id``) traced, shaded with the tile's ``trees``
+        and footprint ``spread`` (host, device), their shadow rays traced: the samples' values
+        (N, 3) and the pass's counts (rays, hits, resampled)."""
+        prim, t, bu, bv = self.tracer.intersect_uv(np.broadcast_to(self.eye, d.shape), d)
+        bary = np.stack([bu, bv], axis=1)   # the shading normals and textures at the hits
+        defensive, light, coherence = self.shares
+        if self.kernel is not None:
+            direct, origin, wi, value = self.kernel(self.prog, self.slots, d, prim, t, k, first, trees, spread[1],
+                                                    self.lighting, self.shares, self.seed, tile_id, bary=bary)
+        else:
+            direct, origin, wi, value = shade_reference(
+                self.scene, self.tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], self.inside,
+                (self.seed, tile_id), first, self.slots, defensive, light, self.control, self.candidates, coherence,
+                bary=bary, background=self.background)
+        v, traced = visible_sum(self.tracer, direct, origin, wi, value)
+        hit = prim >= 0
+        chosen = 0
+        if self.candidates:
+            mat = self.scene.face_material[prim[hit]]
+            chosen = int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
+        return v, {"rays": len(d) + traced, "hits": int(hit.sum()), "resampled": chosen}
 
 
 def pass_spp(spp: int, pixels: int) -> int:

@@ -56,7 +56,7 @@ from . import converge_kernels as kernels
 from . import tile_passes
 from .bake import BLOCK
 from .converge import COHERENCE, FOOTPRINT_GRID, LATTICE, MAX_CANDIDATES, MAX_SLOTS, PASS_SAMPLES, \
-    TREE_CACHE_BYTES, footprint_rays, footprint_spread, shade_reference, visible_sum
+    TREE_CACHE_BYTES, PassShading, footprint_rays, footprint_spread
 
 #: directions (shadow rays) per camera sample, and the mixture's shares of the BSDF and the
 #: lighting alone (docs/decisions/relight-view-converge-kernels.md)
@@ -414,30 +414,15 @@ class ViewConverge:
                 self.shade.warm_up(prog, slots, trees, spread[1], self.light, shares)
             return (trees, spread), {"rays": rays, "kept": int(was_kept), "trees_seconds": tb - ta}
 
+        shading = PassShading(scene, tracer, self.shade if prog is not None else None, prog,
+                              self.light if prog is not None else None, self.inside, eye, seed, slots, shares,
+                              use_control, candidates, self.background, self.lobe_width)
+
         def samples(shared, tile, first, k):
-            trees, spread = shared
             P = tile.w * tile.h
             tile_id = VIEW_TILES + tile.index
             d = pass_rays(scene, width, height, seed, tile_id, tile, k, first * P, self.backend == "opencl")
-            prim, t, bu, bv = tracer.intersect_uv(np.broadcast_to(eye, d.shape), d)
-            bary = np.stack([bu, bv], axis=1)   # the hits' shading normals (the trees take face normals)
-            rays = len(d)
-            if self.backend == "opencl":
-                direct, origin, wi, value = self.shade(prog, slots, d, prim, t, k, first * P, trees, spread[1],
-                                                       self.light, shares, seed, tile_id, bary=bary)
-            else:
-                direct, origin, wi, value = shade_reference(
-                    scene, tracer, d, prim, t, k, trees[0], trees[1], trees[2], spread[0], self.inside,
-                    (seed, tile_id), first * P, slots, defensive, light, use_control, candidates, coherence,
-                    bary=bary, background=self.background)
-            v, traced = visible_sum(tracer, direct, origin, wi, value)
-            rays += traced
-            hit = prim >= 0
-            chosen = 0
-            if candidates:
-                mat = scene.face_material[prim[hit]]
-                chosen = int((spread[0][np.flatnonzero(hit) // k] > coherence * self.lobe_width[mat]).sum())
-            return v, {"rays": rays, "hits": int(hit.sum()), "resampled": chosen}
+            return shading.samples(d, k, first * P, tile_id, *shared)
 
         work = tile_passes.TileWork(start, samples, lambda pixels: per_pass(spp, pixels, pass_limit))
         mean, err, totals = tile_passes.run_tiles(work, tiles, width, height, spp, self.threads or default_threads(),
