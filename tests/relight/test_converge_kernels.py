@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import wavlight
-from scenes_util import write_raw_image
+from scenes_util import write_lamp_sky
 from wavlight import camera, haar
 from wavlight.relight import converge as cm
 
@@ -34,11 +34,7 @@ def bakes(tmp_path_factory, device):
     """The scene at 36 x 20 pixels (3 x 2 blocks, the last column 4 pixels wide, the last row 4
     tall), baked at 8 and at 16 bits (2^4 x 2^4 texels)."""
     folder = tmp_path_factory.mktemp("maps")
-    rng = np.random.default_rng(3)
-    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * np.ones((32, 64, 3))
-           * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
-    sky[6, 40] = 400.0
-    write_raw_image(folder / "sky.exr", sky)
+    write_lamp_sky(folder)   # a small bright light
     scene = wavlight.load_dict(sphere_on_floor(36, 20), base_dir=folder)
     out = {bits: wavlight.bake(scene, spp=4, levels=4, terms=256, priority="area", tolerance=1e-3, bits=bits)
            for bits in (8, 16)}

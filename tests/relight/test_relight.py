@@ -11,7 +11,7 @@ import pytest
 
 import wavlight
 from wavlight import bsdfs, cl, warp
-from scenes_util import write_raw_image
+from scenes_util import write_lamp_sky, write_raw_image
 from wavlight import haar
 from wavlight.envmap import Environment
 from wavlight.errors import WavlightError
@@ -39,11 +39,7 @@ def sphere_on_floor(env, material=None, width=16, height=16, floor=True):
 @pytest.fixture(scope="module")
 def maps(tmp_path_factory):
     folder = tmp_path_factory.mktemp("maps")
-    rng = np.random.default_rng(3)
-    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * np.ones((32, 64, 3))
-           * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
-    sky[6, 40] = 400.0                                    # a small bright light
-    write_raw_image(folder / "sky.exr", sky)
+    write_lamp_sky(folder)   # a small bright light
     write_raw_image(folder / "white.exr", np.ones((16, 32, 3), np.float32))
     write_raw_image(folder / "black.exr", np.zeros((16, 32, 3), np.float32))
     return folder

@@ -139,13 +139,11 @@ def small_bake(tmp_path_factory, device):
     """A glossy sphere on a floor under a map with a small bright light, baked (24 x 20 pixels: edge
     blocks), and a second map of another height."""
     import wavlight
-    from scenes_util import write_raw_image
+    from scenes_util import write_lamp_sky, write_raw_image
 
     folder = tmp_path_factory.mktemp("maps")
     rng = np.random.default_rng(3)
-    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
-    sky[6, 40] = 400.0
-    write_raw_image(folder / "sky.exr", sky)
+    write_lamp_sky(folder, rng=rng)   # a small bright light
     write_raw_image(folder / "other.exr", rng.uniform(0.1, 3.0, (24, 48, 3)).astype(np.float32))
     scene = wavlight.load_dict({
         "render": {"width": 24, "height": 20},

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import wavlight
-from scenes_util import check_estimates, toml_text, write_raw_image
+from scenes_util import check_estimates, toml_text, write_lamp_sky
 from test_relight_cli import one_error_line, run
 from wavlight import animation, bsdfs, haar
 from wavlight.relight import lighting, surface_cache, view_bake, view_frames, view_walk
@@ -36,11 +36,7 @@ def baked(tmp_path_factory, device):
     """A glossy sphere on a floor under a sky with a small bright light, its view bake (16 x 16
     texels, 16 bits, nearly lossless) and scene file."""
     folder = tmp_path_factory.mktemp("relight_view")
-    rng = np.random.default_rng(3)
-    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * np.ones((32, 64, 3))
-           * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
-    sky[6, 40] = 400.0
-    write_raw_image(folder / "sky.exr", sky)
+    write_lamp_sky(folder)   # a small bright light
     (folder / "scene.toml").write_text(toml_text(scene_dict()))
     scene = wavlight.load_scene(folder / "scene.toml")
     tr = wavlight.bake(scene, folder / "ball.wlt", vary="view", levels=4, density=400, tolerance=1e-3, bits=16)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scenes_util import check_estimates, toml_text, write_raw_image
+from scenes_util import check_estimates, toml_text, write_lamp_sky
 
 import wavlight
 from wavlight import bsdfs, haar
@@ -33,11 +33,7 @@ def baked(tmp_path_factory, device):
     """The scene's view bake (16 x 16 texels, 16 bits, nearly lossless) under a sky with a
     small bright light."""
     folder = tmp_path_factory.mktemp("relight_view_plastic")
-    rng = np.random.default_rng(3)
-    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * np.ones((32, 64, 3))
-           * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
-    sky[6, 40] = 400.0
-    write_raw_image(folder / "sky.exr", sky)
+    write_lamp_sky(folder)   # a small bright light
     (folder / "scene.toml").write_text(toml_text(scene_dict()))
     scene = wavlight.load_scene(folder / "scene.toml")
     tr = wavlight.bake(scene, folder / "plastic.wlt", vary="view", levels=4, density=400, tolerance=1e-3, bits=16)

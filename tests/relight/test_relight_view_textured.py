@@ -12,7 +12,7 @@ import pytest
 
 import wavlight
 from assets_util import write_glb, write_textured_pyramid
-from scenes_util import check_estimates, toml_text, write_raw_image
+from scenes_util import check_estimates, toml_text, write_lamp_sky
 from wavlight import textures
 from wavlight.relight import view_frames, view_walk
 
@@ -31,11 +31,7 @@ def baked(tmp_path_factory, device):
     """The striped floor, the gold sphere and the textured pyramid under a sky with a small bright
     light; its view bake (16 x 16 texels, 16 bits, nearly lossless)."""
     folder = tmp_path_factory.mktemp("relight_view_textured")
-    rng = np.random.default_rng(3)
-    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * np.ones((32, 64, 3))
-           * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
-    sky[6, 40] = 400.0
-    write_raw_image(folder / "sky.exr", sky)
+    write_lamp_sky(folder)   # a small bright light
     write_glb(folder / "a.glb")
     write_textured_pyramid(folder)
     (folder / "scene.toml").write_text(toml_text(scene_dict()))

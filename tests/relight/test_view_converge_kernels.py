@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import wavlight
-from scenes_util import write_raw_image
+from scenes_util import write_lamp_sky
 from wavlight import haar
 from wavlight.envmap import Environment
 from wavlight.relight import converge as cm
@@ -39,11 +39,7 @@ def sphere_on_floor(ball=None):
 def bakes(tmp_path_factory, device):
     """The scene's view bakes (2^4 x 2^4 texels) at 8 and 16 bits."""
     folder = tmp_path_factory.mktemp("view_converge")
-    rng = np.random.default_rng(3)
-    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * np.ones((32, 64, 3))
-           * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
-    sky[6, 40] = 400.0
-    write_raw_image(folder / "sky.exr", sky)
+    write_lamp_sky(folder)   # a small bright light
     scene = wavlight.load_dict(sphere_on_floor(), base_dir=folder)
     out = {bits: wavlight.bake(scene, vary="view", levels=4, density=300, tolerance=1e-3, bits=bits)
            for bits in (8, 16)}

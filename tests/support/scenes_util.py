@@ -96,6 +96,17 @@ def write_sun_sky(folder: Path, name: str = "sky.exr") -> Path:
     return folder / name
 
 
+def write_lamp_sky(folder: Path, name: str = "sky.exr", rng=None) -> Path:
+    """A 64 x 32 sky, 2 at the zenith to 0.2 at the nadir, each texel times a uniform 0.7-1.3 of
+    ``rng`` (default: seeded 3), with a one-texel light of 400 at row 6, column 40, written to
+    folder/name."""
+    rng = np.random.default_rng(3) if rng is None else rng
+    sky = (np.linspace(2.0, 0.2, 32)[:, None, None] * rng.uniform(0.7, 1.3, (32, 64, 3))).astype(np.float32)
+    sky[6, 40] = 400.0
+    write_raw_image(Path(folder) / name, sky)
+    return Path(folder) / name
+
+
 def over_floor(obj: dict, *, width: int, height: int, target=(0.0, 0.4, 0.0), rotate_y: float = 15.0,
                material: str = "m") -> dict:
     """A scene dict: ``obj`` (an [[objects]] table; its material ``material``, ggx 0.3) over a lambert
