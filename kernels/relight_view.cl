@@ -583,6 +583,22 @@ INLINE void view_bilinear(const float dx, const float dy, const float dz, __glob
 }
 #endif
 
+/* Adds ray p's blend sum_k w_k B[rows[ids_k]] over its three cache points (those of weight > 0
+ * whose row is not -1) to (r, g, b). */
+inline void add_blend(__global const float *B, __global const int *rows, __global const uint *ids,
+                      __global const float *weights, const uint p, float *r, float *g, float *b)
+{
+    for (int q = 0; q < 3; ++q) {
+        const float wq = weights[3 * p + q];
+        const int at = rows[ids[3 * p + q]];
+        if (wq > 0.0f && at >= 0) {
+            *r += wq * B[3 * at];
+            *g += wq * B[3 * at + 1];
+            *b += wq * B[3 * at + 2];
+        }
+    }
+}
+
 /* Per camera ray: a hit's albedo x sum_k w_k B_k + sum_k w_k C_k (B the walks' products, row[p]
  * the row of cache point p, -1: none; C_k plastic's coat, the row coat_row[p] of B, -1 where the
  * point is not plastic; the albedo its material's, with TEXTURES 1 times the material's texture at
@@ -606,15 +622,7 @@ __kernel void view_assemble(const uint count, __global const int *prim, __global
     const int f = prim[p];
     float r = 0.0f, g = 0.0f, bl = 0.0f;
     if (f >= 0) {
-        for (int q = 0; q < 3; ++q) {
-            const float wq = weights[3 * p + q];
-            const int at = row[ids[3 * p + q]];
-            if (wq > 0.0f && at >= 0) {
-                r += wq * B[3 * at];
-                g += wq * B[3 * at + 1];
-                bl += wq * B[3 * at + 2];
-            }
-        }
+        add_blend(B, row, ids, weights, p, &r, &g, &bl);
         const int mt = face_material[f];
         r *= albedo[3 * mt];
         g *= albedo[3 * mt + 1];
@@ -629,15 +637,7 @@ __kernel void view_assemble(const uint count, __global const int *prim, __global
             bl *= tb.s0;
         }
 #endif
-        for (int q = 0; q < 3; ++q) {   /* plastic's coat, not tinted: its row of B (-1: none) */
-            const float wq = weights[3 * p + q];
-            const int at = coat_row[ids[3 * p + q]];
-            if (wq > 0.0f && at >= 0) {
-                r += wq * B[3 * at];
-                g += wq * B[3 * at + 1];
-                bl += wq * B[3 * at + 2];
-            }
-        }
+        add_blend(B, coat_row, ids, weights, p, &r, &g, &bl);   /* plastic's coat, not tinted (-1: none) */
     } else {
 #if BACKGROUND_MODE == 1
         view_bilinear(dir[3 * p], dir[3 * p + 1], dir[3 * p + 2], map_from_world, env, env_width, env_height, &r, &g,
